@@ -1,0 +1,37 @@
+# gyrocal — the two commands a newcomer needs: `make run` and `make test`.
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+PIP := $(PY) -m pip
+
+.PHONY: run test install install-test system-deps bench lint clean
+
+$(VENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PIP) install -q --upgrade pip
+	$(PIP) install -q -e '.[server,ble]'
+	touch $@
+
+$(VENV)/.installed-test: $(VENV)/.installed
+	$(PIP) install -q -e '.[server,ble,test]'
+	touch $@
+
+install: $(VENV)/.installed
+
+## run: start gyrocal with simulated wearables and an embedded store
+run: $(VENV)/.installed
+	$(VENV)/bin/gyrocal demo
+
+## system-deps: Debian packages the tests drive for real (D-Bus daemon, Chromium, PostgreSQL)
+system-deps:
+	bash scripts/install-system-deps.sh
+
+## test: install everything the tests need, then run them all
+test: $(VENV)/.installed-test system-deps
+	$(PY) -m pytest -q
+
+bench: $(VENV)/.installed
+	$(VENV)/bin/gyrocal bench paper-sim
+
+clean:
+	rm -rf $(VENV) .pytest_cache artifacts

@@ -1,0 +1,23 @@
+"""gyrocal's numerics: recordings, stage detection, estimators, the protocol simulator, diagnosis.
+
+This package imports nothing else of gyrocal's.
+"""
+
+from .errors import CalibrationError, GyrocalError, ProtocolError, RecordingError
+from .recording import Recording, RecordingMeta
+from .result import CalibrationResult
+from .stage import Stage
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "CalibrationError",
+    "CalibrationResult",
+    "GyrocalError",
+    "ProtocolError",
+    "Recording",
+    "RecordingMeta",
+    "RecordingError",
+    "Stage",
+    "__version__",
+]

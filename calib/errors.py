@@ -1,0 +1,19 @@
+"""Errors raised by gyrocal's numerics. Each message says what is wrong and how to fix it."""
+
+from __future__ import annotations
+
+
+class GyrocalError(Exception):
+    """Base class for every error a user may see; the message is meant for people."""
+
+
+class RecordingError(GyrocalError):
+    """The recording cannot be read or fails validation (bad file, bad values, bad layout)."""
+
+
+class ProtocolError(GyrocalError):
+    """The recording is valid but does not contain the calibration protocol (a stage is missing)."""
+
+
+class CalibrationError(GyrocalError):
+    """The estimator could not produce a trustworthy result from this recording."""

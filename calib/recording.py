@@ -1,0 +1,81 @@
+"""The Recording type: what one wearable recorded, in gyrocal's units.
+
+Units and conventions (see docs/method.md):
+- ``t``: sample times in seconds, strictly increasing.
+- ``gyro``: the raw gyroscope readings m in deg/s, shape (n, 3), body axes x, y, z.
+- ``accel``: accelerometer in g (1 g = 9.80665 m/s^2), shape (n, 3), or None.
+- ``seq``: the device's sample counter (unwrapped, one step per sample), or None.
+- ``temp``: sensor temperature in degrees Celsius, or None.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+STANDARD_GRAVITY = 9.80665  # m/s^2 per g
+
+
+@dataclass(frozen=True)
+class RecordingMeta:
+    """What is known about the device and the recording, beyond the samples."""
+
+    sample_rate_hz: float | None = None  # nominal rate if the device states one
+    device_id: str | None = None
+    sensor_model: str | None = None
+    gyro_full_scale_dps: float | None = None  # readings at +-this value are clipped
+    source: str | None = None  # file name or stream name, for messages
+
+
+@dataclass(frozen=True, eq=False)
+class Recording:
+    """One recording: times (s), gyro readings (deg/s) and optional channels."""
+
+    t: np.ndarray
+    gyro: np.ndarray
+    accel: np.ndarray | None = None
+    seq: np.ndarray | None = None
+    temp: np.ndarray | None = None
+    meta: RecordingMeta = field(default_factory=RecordingMeta)
+
+    def __post_init__(self) -> None:
+        t = np.asarray(self.t, dtype=float)
+        gyro = np.asarray(self.gyro, dtype=float)
+        if t.ndim != 1 or gyro.shape != (t.size, 3):
+            raise ValueError(f"Recording needs t of shape (n,) and gyro of shape (n, 3); got {t.shape} and {gyro.shape}")
+        object.__setattr__(self, "t", t)
+        object.__setattr__(self, "gyro", gyro)
+        for name, width in (("accel", 3), ("seq", None), ("temp", None)):
+            value = getattr(self, name)
+            if value is None:
+                continue
+            arr = np.asarray(value, dtype=np.int64 if name == "seq" else float)
+            expected = (t.size, width) if width else (t.size,)
+            if arr.shape != expected:
+                raise ValueError(f"Recording.{name} must have shape {expected}, got {arr.shape}")
+            object.__setattr__(self, name, arr)
+
+    def __len__(self) -> int:
+        return int(self.t.size)
+
+    @property
+    def duration_s(self) -> float:
+        """Time from the first to the last sample (s)."""
+        return float(self.t[-1] - self.t[0]) if len(self) > 1 else 0.0
+
+    @property
+    def fs(self) -> float:
+        """Sample rate (Hz): the stated one, else the median of the sample intervals."""
+        if self.meta.sample_rate_hz:
+            return float(self.meta.sample_rate_hz)
+        return float(1.0 / np.median(np.diff(self.t)))
+
+    def slice(self, start: int, end: int) -> "Recording":
+        """Samples start..end-1 as a new Recording with the same metadata."""
+        pick = lambda a: None if a is None else a[start:end]  # noqa: E731
+        return Recording(self.t[start:end], self.gyro[start:end], pick(self.accel), pick(self.seq), pick(self.temp), self.meta)
+
+    def with_meta(self, **changes: object) -> "Recording":
+        """A copy with some metadata fields replaced."""
+        return replace(self, meta=replace(self.meta, **changes))

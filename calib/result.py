@@ -1,0 +1,71 @@
+"""The CalibrationResult type: everything a user needs to judge and use one calibration."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .stage import Stage
+
+
+def _list(a: np.ndarray | None, digits: int = 9) -> list[float] | None:
+    return None if a is None else [round(float(v), digits) for v in np.ravel(a)]
+
+
+@dataclass
+class CalibrationResult:
+    """Parameters of g = K m + b (K diagonal, or upper-triangular in the extended model).
+
+    ``k`` are the scale factors (diagonal of K), ``b`` the biases in deg/s of true rate.
+    ``k_std``/``b_std`` are 1-sigma standard errors; ``k_bound``/``b_bound`` the Cramer-Rao
+    bound for the recorded protocol, when the method provides them.
+    """
+
+    k: np.ndarray
+    b: np.ndarray
+    method: str
+    stages: list[Stage]
+    quality: dict[str, Any] = field(default_factory=dict)
+    k_std: np.ndarray | None = None
+    b_std: np.ndarray | None = None
+    k_bound: np.ndarray | None = None
+    b_bound: np.ndarray | None = None
+    K: np.ndarray | None = None  # full 3x3 calibration matrix (extended model); None means diag(k)
+    K_std: np.ndarray | None = None
+    noise_dps: np.ndarray | None = None  # per-axis white-noise std estimated from the stills (deg/s)
+    residuals: dict[str, Any] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    iterations: int | None = None
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """The 3x3 calibration matrix K of g = K m + b."""
+        return np.diag(self.k) if self.K is None else self.K
+
+    def apply(self, gyro: np.ndarray) -> np.ndarray:
+        """Calibrated rates g = K m + b (deg/s) for raw readings m of shape (..., 3)."""
+        return np.asarray(gyro) @ self.matrix.T + self.b
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready form with keys k, b, method, stages, quality, uncertainty, bound, ..."""
+        out: dict[str, Any] = {
+            "k": _list(self.k),
+            "b": _list(self.b),
+            "method": self.method,
+            "stages": [s.to_dict() for s in self.stages],
+            "quality": self.quality,
+            "uncertainty": None
+            if self.k_std is None
+            else {"k": _list(self.k_std, 12), "b": _list(self.b_std, 12)},
+            "bound": None if self.k_bound is None else {"k": _list(self.k_bound, 12), "b": _list(self.b_bound, 12)},
+            "noise_dps": _list(self.noise_dps),
+            "residuals": self.residuals,
+            "warnings": list(self.warnings),
+            "iterations": self.iterations,
+        }
+        if self.K is not None:
+            out["K"] = [_list(row) for row in self.K]
+            out["K_std"] = None if self.K_std is None else [_list(row, 12) for row in self.K_std]
+        return out

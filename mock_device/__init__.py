@@ -1,0 +1,1 @@
+"""gyrocal mock_device package."""

@@ -1,0 +1,16 @@
+#!/usr/bin/env bash
+# Installs the Debian packages gyrocal's tests drive for real, when they are missing.
+set -euo pipefail
+need=()
+command -v dbus-daemon >/dev/null 2>&1 || need+=(dbus)
+if [ ${#need[@]} -eq 0 ]; then
+  exit 0
+fi
+if [ "$(id -u)" -ne 0 ]; then
+  echo "gyrocal tests need these Debian packages: ${need[*]}" >&2
+  echo "Install them with: sudo apt-get install -y ${need[*]}" >&2
+  exit 1
+fi
+export DEBIAN_FRONTEND=noninteractive
+apt-get update -qq
+apt-get install -y -qq --no-install-recommends "${need[@]}"

@@ -1,0 +1,1 @@
+"""gyrocal server package."""

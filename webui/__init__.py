@@ -1,0 +1,1 @@
+"""gyrocal webui package."""
