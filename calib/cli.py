@@ -1,0 +1,248 @@
+"""The ``gyrocal`` command line.
+
+Subcommands of calib itself (calibrate, simulate, bench, demo) live here; the service and the
+simulated wearable add theirs through the ``gyrocal.commands`` entry-point group, so that this
+package imports nothing else of gyrocal's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from importlib.metadata import entry_points
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from . import __version__
+from .errors import GyrocalError
+
+EXIT_OK = 0
+EXIT_USAGE = 2  # bad arguments or bad input file
+EXIT_PROTOCOL = 3  # the recording is fine but the protocol was not found in it
+EXIT_INTERNAL = 70
+
+
+def _fmt_vec(v: Sequence[float] | None, digits: int = 5) -> str:
+    if v is None:
+        return "-"
+    return "[" + ", ".join(f"{x:+.{digits}f}" for x in v) + "]"
+
+
+def _summary(result: Any, source: str) -> str:
+    """A readable summary of a CalibrationResult."""
+    d = result.to_dict()
+    lines = [f"gyrocal {__version__} — calibration of {source} (method: {d['method']})", ""]
+    lines.append("Stages found:")
+    for s in d["stages"]:
+        extra = ""
+        if s["kind"] == "turn":
+            extra = f"  about {s['axis']}, {s['angle_deg']:+.1f} deg"
+        flags = f"  [{', '.join(s['flags'])}]" if s["flags"] else ""
+        lines.append(f"  {s['kind']:<7} {s['start_s']:8.2f} – {s['end_s']:8.2f} s{extra}{flags}")
+    lines.append("")
+    unc = d.get("uncertainty") or {}
+    bound = d.get("bound") or {}
+    lines.append("Model g = K m + b  (g true rate, m reading, deg/s)")
+    lines.append(f"{'':4}{'value':>12}{'std':>12}{'bound':>12}")
+    for name, key, digits in (("k", "k", 6), ("b", "b", 4)):
+        for i, axis in enumerate("xyz"):
+            std = unc.get(key)
+            bnd = bound.get(key)
+            unit = "" if key == "k" else " deg/s"
+            lines.append(
+                f"{name}_{axis:<2}{d[key][i]:>12.{digits}f}"
+                f"{(f'{std[i]:.2g}' if std else '-'):>12}"
+                f"{(f'{bnd[i]:.2g}' if bnd else '-'):>12}{unit}"
+            )
+    if d.get("K") is not None:
+        lines.append("Full calibration matrix K:")
+        lines.extend("  " + _fmt_vec(row, 6) for row in d["K"])
+    if d.get("noise_dps"):
+        lines.append(f"Noise (from the stills): {_fmt_vec(d['noise_dps'], 4)} deg/s")
+    q = d.get("quality") or {}
+    if q:
+        lines.append("Quality: " + ", ".join(f"{k}={v}" for k, v in q.items() if not isinstance(v, (dict, list))))
+    for w in d.get("warnings") or []:
+        lines.append(f"warning: {w}")
+    return "\n".join(lines)
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    from .api import calibrate
+    from .io import read_recording
+
+    rec = read_recording(args.file, fs=args.fs, layout=args.layout)
+    result = calibrate(rec, method=args.method)
+    if args.plot:
+        from .plots import plot_calibration
+
+        plot_calibration(rec, result, args.plot)
+    if args.json:
+        print(json.dumps(result.to_dict()))
+    else:
+        print(_summary(result, str(args.file)))
+        if args.plot:
+            print(f"plot saved to {args.plot}")
+    return EXIT_OK
+
+
+def _parse_effect(spec: str) -> tuple[str, str]:
+    if "=" not in spec:
+        return spec, ""
+    name, value = spec.split("=", 1)
+    return name.strip(), value.strip()
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from .io import write_native_csv
+    from .simulator import simulate
+
+    kwargs: dict[str, Any] = {"seed": args.seed, "noise": args.noise, "fs": args.fs}
+    if args.full_scale is not None:
+        kwargs["full_scale_dps"] = args.full_scale
+    if args.effect:
+        from .effects import parse_effect
+
+        kwargs["effects"] = [parse_effect(*_parse_effect(s)) for s in args.effect]
+    rec, truth = simulate(**kwargs)
+    write_native_csv(rec, args.output)
+    if args.truth:
+        print(json.dumps(truth.to_dict()))
+    else:
+        print(f"wrote {len(rec)} samples ({rec.duration_s:.1f} s at {args.fs:g} Hz) to {args.output}", file=sys.stderr)
+    return EXIT_OK
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from .bench import paper_sim
+
+    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
+    report = paper_sim(
+        sets=args.sets,
+        runs_per_set=args.runs_per_set,
+        noise_levels=tuple(args.noise),
+        methods=methods,
+        seed=args.seed,
+        progress=not args.no_progress,
+        plot_path=args.plot,
+        workers=args.workers,
+    )
+    if args.json:
+        print(json.dumps(report.to_dict()))
+    else:
+        print(report.table())
+        if args.plot:
+            print(f"box plot saved to {args.plot}")
+    return EXIT_OK
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    """Simulate one recording of the protocol, calibrate it and compare with the truth."""
+    from .api import calibrate
+    from .simulator import simulate
+
+    rec, truth = simulate(seed=args.seed, noise=args.noise)
+    result = calibrate(rec)
+    print(_summary(result, f"a simulated recording (seed {args.seed}, noise {args.noise} deg/s)"))
+    print("")
+    print(f"simulated truth  k = {_fmt_vec(truth.k, 6)}")
+    print(f"                 b = {_fmt_vec(truth.b, 4)} deg/s")
+    print(f"error            k = {_fmt_vec(np.asarray(result.k) - truth.k, 6)}")
+    print(f"                 b = {_fmt_vec(np.asarray(result.b) - truth.b, 4)} deg/s")
+    return EXIT_OK
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The full argument parser, with the subcommands other gyrocal packages register."""
+    parser = argparse.ArgumentParser(
+        prog="gyrocal",
+        description="In-field gyroscope calibration: rest, then one full hand turn about each axis.",
+    )
+    parser.add_argument("--version", action="version", version=f"gyrocal {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    from .api import DEFAULT_METHOD, available_methods
+
+    p = sub.add_parser("calibrate", help="calibrate a recording (CSV) of the protocol")
+    p.add_argument("file", type=Path, help="native CSV (t,gx,gy,gz,...) or imucal layout (gyr_x,...)")
+    p.add_argument("--fs", type=float, default=None, help="sample rate in Hz (required when the file has no time column)")
+    p.add_argument("--method", choices=available_methods(), default=DEFAULT_METHOD, help=f"estimator (default {DEFAULT_METHOD})")
+    p.add_argument("--layout", choices=["auto", "native", "imucal"], default="auto", help="CSV layout (default: detect from header)")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of the summary")
+    p.add_argument("--plot", type=Path, default=None, help="save a PNG of the rate magnitude and angles before/after calibration")
+    p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser("simulate", help="simulate a recording of the protocol")
+    p.add_argument("--seed", type=int, required=True)
+    p.add_argument("--noise", type=float, default=0.03, help="white noise std on the readings, deg/s (default 0.03)")
+    p.add_argument("--fs", type=float, default=104.0, help="sample rate, Hz (default 104)")
+    p.add_argument("--full-scale", type=float, default=None, help="gyro full scale, deg/s: readings clip there")
+    p.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE", help="add a physical effect (repeatable)")
+    p.add_argument("-o", "--output", type=Path, required=True, help="native CSV to write")
+    p.add_argument("--truth", action="store_true", help="print the simulated truth as JSON")
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("bench", help="benchmarks")
+    bsub = p.add_subparsers(dest="bench", metavar="BENCH", required=True)
+    b = bsub.add_parser("paper-sim", help="the paper's simulation study (Section 3, Fig. 7)")
+    b.add_argument("--sets", type=int, default=30, help="parameter sets (default 30)")
+    b.add_argument("--runs-per-set", type=int, default=500, help="runs per set (default 500)")
+    b.add_argument("--noise", type=float, nargs="+", default=[0.03, 0.15], help="noise levels, deg/s")
+    b.add_argument("--methods", default="paper,closure", help="comma-separated estimators (default paper,closure)")
+    b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1), help="processes (default: up to 2)")
+    b.add_argument("--plot", type=Path, default=Path("paper-sim.png"), help="box plot PNG (default paper-sim.png)")
+    b.add_argument("--json", action="store_true", help="print the report as JSON")
+    b.add_argument("--no-progress", action="store_true", help="no progress bar")
+    b.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser("demo", help="simulate a recording, calibrate it and compare with the truth")
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--noise", type=float, default=0.03)
+    p.set_defaults(func=cmd_demo)
+
+    for ep in entry_points(group="gyrocal.commands"):
+        try:
+            register: Callable[[Any], None] = ep.load()
+        except ImportError:
+            continue  # that part of gyrocal is not installed
+        register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the CLI; returns the exit code. Errors are printed as plain messages, never tracebacks."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return EXIT_USAGE
+    try:
+        return int(args.func(args) or 0)
+    except GyrocalError as exc:
+        from .errors import ProtocolError
+
+        print(f"gyrocal: error: {exc}", file=sys.stderr)
+        return EXIT_PROTOCOL if isinstance(exc, ProtocolError) else EXIT_USAGE
+    except KeyboardInterrupt:
+        print("gyrocal: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        return EXIT_OK
+    except Exception as exc:  # the last line of defence: a message, not a traceback
+        if os.environ.get("GYROCAL_DEBUG"):
+            raise
+        print(
+            f"gyrocal: internal error ({type(exc).__name__}: {exc}). "
+            "Run again with GYROCAL_DEBUG=1 for details and report it.",
+            file=sys.stderr,
+        )
+        return EXIT_INTERNAL
+
+
+if __name__ == "__main__":
+    sys.exit(main())
