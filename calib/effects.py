@@ -17,6 +17,10 @@ Within a stage, effects run in the order given. Each effect draws from its own r
 so switching one effect on does not change the motion, the noise or another effect's draws.
 ``to_dict()`` (all dataclass fields plus ``name``) is what ``Truth.to_dict()["effects"]`` lists.
 
+Adding an effect: subclass ``Effect`` as a frozen dataclass with a ``name``, override the hooks it
+needs, decorate it with ``@register_effect`` so that ``parse_effect`` (the CLI's ``--effect
+NAME=VALUE``) knows it, and give it ``from_text`` if its CLI value is not just its numeric fields.
+
 Units: rates deg/s, times s, specific force g, angles deg.
 """
 
@@ -139,6 +143,41 @@ class Effect:
         """JSON-ready ``{"name": ..., <parameters>}``."""
         return {"name": self.name, **{f.name: _jsonable(getattr(self, f.name)) for f in fields(self)}}
 
+    usage: ClassVar[str] = ""  # the CLI value format, for messages
+
+    @classmethod
+    def from_text(cls, value: str) -> "Effect":
+        """The effect from a CLI value: comma-separated numbers, passed to the constructor in order."""
+        return cls(*_numbers(value, cls))
+
+
+EFFECTS: dict[str, type[Effect]] = {}
+
+
+def register_effect(cls: type[Effect]) -> type[Effect]:
+    """Class decorator: make an effect available to ``parse_effect`` under its ``name``."""
+    EFFECTS[cls.name] = cls
+    return cls
+
+
+def _numbers(value: str, cls: type[Effect]) -> list[float]:
+    try:
+        return [float(v) for v in value.split(",")] if value.strip() else []
+    except ValueError:
+        raise SimulationConfigError(f"effect {cls.name!r} needs {cls.usage or 'numbers'}; got {value!r}") from None
+
+
+def parse_effect(name: str, value: str = "") -> Effect:
+    """An effect from its name and CLI value, e.g. ``("bias_drift", "0.01,0,-0.02")`` or ``("saturation", "500")``."""
+    cls = EFFECTS.get(name.strip().lower().replace("-", "_"))
+    if cls is None:
+        known = ", ".join(f"{n}={c.usage}" for n, c in sorted(EFFECTS.items()))
+        raise SimulationConfigError(f"unknown effect {name!r}; known effects: {known}")
+    try:
+        return cls.from_text(value)
+    except TypeError:
+        raise SimulationConfigError(f"effect {cls.name!r} needs {cls.usage}; got {value!r}") from None
+
 
 def _vec3(value: Any, what: str) -> np.ndarray:
     arr = np.asarray(value, dtype=float)
@@ -149,12 +188,21 @@ def _vec3(value: Any, what: str) -> np.ndarray:
     return arr
 
 
+@register_effect
 @dataclass(frozen=True)
 class BiasDrift(Effect):
     """Linear bias drift: b(t) = b + rate_dps_per_s * t (deg/s of true rate, t in s from the first sample)."""
 
     name: ClassVar[str] = "bias_drift"
+    usage: ClassVar[str] = "RATE or RX,RY,RZ (deg/s per s)"
     rate_dps_per_s: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    @classmethod
+    def from_text(cls, value: str) -> "BiasDrift":
+        v = _numbers(value, cls)
+        if len(v) not in (1, 3):
+            raise SimulationConfigError(f"effect 'bias_drift' needs {cls.usage}; got {value!r}")
+        return cls(v[0] if len(v) == 1 else v)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "rate_dps_per_s", _vec3(self.rate_dps_per_s, "BiasDrift.rate_dps_per_s"))
@@ -164,12 +212,14 @@ class BiasDrift(Effect):
         return m - np.outer(ctx.t - ctx.t[0], self.rate_dps_per_s) / ctx.k
 
 
+@register_effect
 @dataclass(frozen=True)
 class SampleLoss(Effect):
     """Lost samples: each sample starts a lost burst of ``burst`` samples with probability ``prob``,
     and the samples in ``ranges`` ([start, end) generated-sample indices) are lost too."""
 
     name: ClassVar[str] = "sample_loss"
+    usage: ClassVar[str] = "PROB[,BURST] (probability per sample, samples per loss)"
     prob: float = 0.0
     ranges: tuple[tuple[int, int], ...] = ()
     burst: int = 1
@@ -192,6 +242,13 @@ class SampleLoss(Effect):
         object.__setattr__(self, "burst", int(self.burst))
         object.__setattr__(self, "ranges", ranges)
 
+    @classmethod
+    def from_text(cls, value: str) -> "SampleLoss":
+        v = _numbers(value, cls)
+        if len(v) not in (1, 2) or (len(v) == 2 and v[1] != int(v[1])):
+            raise SimulationConfigError(f"effect 'sample_loss' needs {cls.usage}; got {value!r}")
+        return cls(prob=v[0], burst=int(v[1]) if len(v) == 2 else 1)
+
     def lost_mask(self, index: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """True for each generated sample index in ``index`` that is lost."""
         n = int(index.max()) + 1 if index.size else 0
@@ -208,11 +265,13 @@ class SampleLoss(Effect):
         return out.keep(~self.lost_mask(out.index, rng))
 
 
+@register_effect
 @dataclass(frozen=True)
 class Saturation(Effect):
     """Gyro range: readings are quantised to ``resolution_dps`` (if given) and clipped at +-``full_scale_dps``."""
 
     name: ClassVar[str] = "saturation"
+    usage: ClassVar[str] = "FULL_SCALE[,RESOLUTION] (deg/s)"
     full_scale_dps: float = 2000.0
     resolution_dps: float | None = None
 

@@ -72,13 +72,13 @@ def _nd_rotations_supported() -> bool:
     return True
 
 
-# Stacks with a leading singleton axis take scipy's vectorised backend, several times faster than
-# the 1-D path for the ~1e6 rotations of a Monte Carlo batch.
+# Stacks of shape (P, 1) take scipy's vectorised backend, several times faster than the 1-D path
+# for the ~1e6 rotations of a Monte Carlo batch; they slice along P like a 1-D stack.
 _ND_ROTATIONS = _nd_rotations_supported()
 
 
 def _exp(rotvec: np.ndarray) -> Rotation:
-    return Rotation.from_rotvec(rotvec[None] if _ND_ROTATIONS else rotvec)
+    return Rotation.from_rotvec(rotvec[:, None, :] if _ND_ROTATIONS else rotvec)
 
 
 def _log(rot: Rotation) -> np.ndarray:
@@ -202,7 +202,8 @@ class Turn:
             w = np.asarray(self.wobble_deg, dtype=float)
             if not (w.shape in ((), (2, 2)) and np.all(np.isfinite(w)) and (w.shape != () or w >= 0)):
                 raise SimulationConfigError(
-                    f"Turn.wobble_deg must be None, an amplitude >= 0 in deg or a (2, 2) array of coefficients; got {self.wobble_deg!r}"
+                    "Turn.wobble_deg must be None, an amplitude >= 0 in deg or a (2, 2) array of coefficients; "
+                    f"got {self.wobble_deg!r}"
                 )
             object.__setattr__(self, "wobble_deg", float(w) if w.shape == () else w)
         object.__setattr__(self, "profile", _profile(self.profile, "Turn"))
@@ -393,11 +394,12 @@ def _segment_motion(
     ds[last[:-1]] = 0.0
     if np.any(np.abs(ds) * np.abs(angles_rad)[seg[:-1]] >= 0.9 * np.pi):
         raise SimulationConfigError("a turn or motion is too fast for the sample rate (over 160 deg per sample); make it longer")
-    rel = _exp(-w[:-1]) * _exp(ds[:, None] * table[:-1, 0:3]) * _exp(w[1:])
+    wob = _exp(w)
+    rel = wob[:-1].inv() * _exp(ds[:, None] * table[:-1, 0:3]) * wob[1:]
     rates = np.degrees(_log(rel)[~last[:-1]]) / dt
     quats = None
     if poses:
-        quats = (_exp(s[:, None] * table[:, 0:3]) * _exp(w)).as_quat().reshape(-1, 4)
+        quats = (_exp(s[:, None] * table[:, 0:3]) * wob).as_quat().reshape(-1, 4)
     return rates, quats
 
 
@@ -670,7 +672,8 @@ def _true_stages(traj: Trajectory, out: SensorOutput) -> tuple[tuple[Stage, ...]
             flags.append("saturated")
         if lost_before[st.end] - lost_before[st.start] > 0:
             flags.append("counter_gap")
-        stages.append(replace(st, start=r0, end=r1, start_s=float(t_dev[st.start]), end_s=float(t_dev[st.end]), flags=tuple(flags)))
+        times = {"start_s": float(t_dev[st.start]), "end_s": float(t_dev[st.end])}
+        stages.append(replace(st, start=r0, end=r1, flags=tuple(flags), **times))
         if st.kind == "turn" and st.axis is not None and np.isnan(turn_axes[AXES.index(st.axis), 0]):
             turn_axes[AXES.index(st.axis)] = ax
     return tuple(stages), turn_axes
@@ -720,7 +723,14 @@ class SimBatch:
         for i, axis in enumerate(AXES):
             a, b = self.turns[run, i]
             segs.append(
-                Turn(axis, float(self.angle_deg[i]), (b - a) / self.fs, self.wobble_deg[run, i], self.tilt[run, i], self.profile[run, i])
+                Turn(
+                    axis,
+                    float(self.angle_deg[i]),
+                    duration_s=(b - a) / self.fs,
+                    wobble_deg=self.wobble_deg[run, i],
+                    tilt=self.tilt[run, i],
+                    profile=self.profile[run, i],
+                )
             )
             s0, s1 = self.stills[run, i + 1]
             segs.append(Still((s1 - s0) / self.fs))
@@ -736,7 +746,9 @@ def _batch_params(params: Any, n_runs: int, rng: np.random.Generator) -> tuple[n
         try:
             k, b = params
         except (TypeError, ValueError):
-            raise SimulationConfigError("params must be None, a SensorParams or a pair (k, b) of (3,) or (n_runs, 3) arrays") from None
+            raise SimulationConfigError(
+                "params must be None, a SensorParams or a pair (k, b) of (3,) or (n_runs, 3) arrays"
+            ) from None
     try:
         k = np.broadcast_to(np.asarray(k, dtype=float), (n_runs, 3)).copy()
         b = np.broadcast_to(np.asarray(b, dtype=float), (n_runs, 3)).copy()
@@ -813,10 +825,9 @@ def simulate_batch(
     gyro.reshape(-1, 3)[flat] += rates_flat / np.repeat(k, n_turn.sum(axis=1), axis=0)
 
     still0 = np.column_stack([np.zeros(R, np.int64), np.full(R, n0)])
-    stills = np.stack(
-        [still0, np.stack([ends[:, 0], starts[:, 1]], 1), np.stack([ends[:, 1], starts[:, 2]], 1), np.stack([ends[:, 2], np.full(R, n)], 1)],
-        axis=1,
-    )
+    pauses = [np.stack([ends[:, i], starts[:, i + 1]], axis=1) for i in range(2)]
+    final = np.stack([ends[:, 2], np.full(R, n)], axis=1)
+    stills = np.stack([still0, *pauses, final], axis=1)
     return SimBatch(
         t=np.arange(n) * dt,
         gyro=gyro,

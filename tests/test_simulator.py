@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from calib.effects import BiasDrift, Effect, SampleLoss, Saturation, SimulationConfigError
+from calib.effects import BiasDrift, Effect, SampleLoss, Saturation, SimulationConfigError, parse_effect
 from calib.errors import GyrocalError
 from calib.recording import Recording
 from calib.simulator import (
@@ -66,6 +66,15 @@ def test_turns_close_exactly_and_sweep_360(paper_run):
         assert pose.magnitude() < 1e-12
         swept = np.sum(truth.rate[st.start : st.end] @ axis) / truth.fs
         assert swept == pytest.approx(360.0, abs=1.0)  # wobble shares a little of the motion
+
+
+@pytest.mark.parametrize("fs", [52.0, 416.0])
+def test_turns_close_at_other_rates(fs):
+    rec, truth = simulate(4, fs=fs)
+    assert rec.fs == fs and truth.stages[0].n == round(3.0 * fs)
+    for st in truth.stages:
+        if st.kind == "turn":
+            assert integrate(truth.rate[st.start : st.end], fs).magnitude() < 1e-12
 
 
 def test_turn_without_wobble_sweeps_exactly_its_angle():
@@ -220,6 +229,30 @@ def test_custom_effect_hooks_run_in_order():
     rec_b, truth = simulate(1, noise=0.0, effects=(Shift(),))
     np.testing.assert_allclose(rec_b.gyro - rec_a.gyro, 1.0)
     assert truth.to_dict()["effects"] == [{"name": "shift"}]
+
+
+def test_parse_effect_from_cli_values():
+    drift = parse_effect("bias_drift", "0.01,0,-0.02")
+    np.testing.assert_array_equal(drift.rate_dps_per_s, [0.01, 0.0, -0.02])
+    np.testing.assert_array_equal(parse_effect("bias-drift", "0.5").rate_dps_per_s, [0.5, 0.5, 0.5])
+    loss = parse_effect("sample_loss", "0.02,4")
+    assert (loss.prob, loss.burst) == (0.02, 4)
+    sat = parse_effect("saturation", "500,0.07")
+    assert (sat.full_scale_dps, sat.resolution_dps) == (500.0, 0.07)
+    with pytest.raises(GyrocalError, match="known effects: bias_drift"):
+        parse_effect("wind", "3")
+    with pytest.raises(GyrocalError, match="FULL_SCALE"):
+        parse_effect("saturation", "fast")
+    with pytest.raises(GyrocalError, match="RX,RY,RZ"):
+        parse_effect("bias_drift", "1,2")
+
+
+def test_sample_loss_bursts():
+    loss = SampleLoss(prob=0.01, burst=5)
+    lost = loss.lost_mask(np.arange(20000), np.random.default_rng(0))
+    assert lost.mean() == pytest.approx(1 - 0.99**5, rel=0.15)
+    runs = np.diff(np.flatnonzero(np.diff(np.concatenate([[0], lost.astype(int), [0]]))))[::2]
+    assert runs.min() >= 5
 
 
 def test_bad_inputs_raise_clear_errors():
