@@ -1,0 +1,360 @@
+"""Stage detection: real imucal session, simulated protocol runs, streaming = batch, flags, errors."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from calib.effects import BiasDrift, SampleLoss
+from calib.errors import ProtocolError, RecordingError
+from calib.recording import STANDARD_GRAVITY, Recording, RecordingMeta
+from calib.simulator import Motion, ProtocolScript, Still, Turn, simulate
+from calib.stage import AXES, Stage
+from calib.stages import (
+    StageConfig,
+    StageConfigError,
+    StageTracker,
+    detect_stages,
+    find_protocol,
+)
+
+FS_IMUCAL = 102.4
+# README: integrating (reading - static mean) over the labelled turns.
+IMUCAL_TURN_DEG = {"x": -370.0, "y": -353.7, "z": -359.4}
+PLAUSIBLE = (360 / 1.33, 360 / 0.75)
+
+
+@pytest.fixture(scope="module")
+def imucal(ferraris_csv):
+    # columns n_samples, gyr_x, gyr_y, gyr_z, acc_x, acc_y, acc_z (m/s^2); no time column
+    data = np.loadtxt(ferraris_csv, delimiter=",", skiprows=1)
+    rec = Recording(np.arange(len(data)) / FS_IMUCAL, data[:, 1:4], data[:, 4:7] / STANDARD_GRAVITY,
+                    meta=RecordingMeta(sample_rate_hz=FS_IMUCAL, source=ferraris_csv.name))
+    labels = json.loads((ferraris_csv.parent / "example_ferraris_session_list.json").read_text())
+    return rec, labels
+
+
+@pytest.fixture(scope="module")
+def imucal_stages(imucal):
+    return detect_stages(imucal[0])
+
+
+def assert_covering(stages: list[Stage], rec: Recording) -> None:
+    """Stages are contiguous, in time order, cover the recording, and alternate still / non-still."""
+    assert stages[0].start == 0 and stages[-1].end == len(rec)
+    for a, b in zip(stages[:-1], stages[1:]):
+        assert a.end == b.start and a.start < a.end
+        assert (a.kind == "still") != (b.kind == "still")
+    for s in stages:
+        assert s.start_s == rec.t[s.start]
+        assert (s.axis is None) == (s.kind != "turn") and (s.angle_deg is None) == (s.kind != "turn")
+
+
+def feed_in_batches(rec: Recording, sizes, config=None) -> tuple[StageTracker, list]:
+    tracker = StageTracker(rec.fs, config, full_scale_dps=rec.meta.gyro_full_scale_dps)
+    events, i = [], 0
+    for size in sizes:
+        if i >= len(rec):
+            break
+        j = min(i + int(size), len(rec))
+        seq = None if rec.seq is None else rec.seq[i:j]
+        events += tracker.feed(rec.t[i:j], rec.gyro[i:j], seq)
+        i = j
+    assert i == len(rec)
+    events += tracker.finish()
+    return tracker, events
+
+
+def assert_same_stages(a: list[Stage], b: list[Stage]) -> None:
+    assert [(s.kind, s.start, s.end, s.axis, s.flags) for s in a] == [(s.kind, s.start, s.end, s.axis, s.flags) for s in b]
+    for x, y in zip(a, b):
+        assert x.start_s == y.start_s and x.end_s == y.end_s
+        if x.kind == "turn":
+            assert x.angle_deg == pytest.approx(y.angle_deg, abs=1e-6)
+
+
+# ---- real recording ------------------------------------------------------------------------------
+
+
+def test_real_session_finds_exactly_the_three_turns(imucal, imucal_stages):
+    rec, labels = imucal
+    assert_covering(imucal_stages, rec)
+    turns = [s for s in imucal_stages if s.kind == "turn"]
+    assert [s.axis for s in turns] == ["x", "y", "z"]
+    for s in turns:
+        assert PLAUSIBLE[0] <= -s.angle_deg <= PLAUSIBLE[1]  # clockwise turns
+        assert s.angle_deg == pytest.approx(IMUCAL_TURN_DEG[s.axis], abs=1.5)
+        lab = labels[f"{s.axis}_rot"]
+        assert abs(s.start - lab["start"]) / FS_IMUCAL < 0.6
+        assert abs(s.end - lab["end"]) / FS_IMUCAL < 0.6
+        assert s.start <= lab["start"] and s.end >= lab["end"]  # the whole labelled turn is inside
+        assert s.flags == ()
+    # the re-orientations between the six poses are motions, not turns
+    assert sum(s.kind == "motion" for s in imucal_stages) >= 6
+
+
+def test_real_session_static_poses_are_stills(imucal, imucal_stages):
+    _, labels = imucal
+    stills = [s for s in imucal_stages if s.kind == "still"]
+    used = set()
+    for pose in ("x_p", "x_a", "y_p", "y_a", "z_p", "z_a"):
+        lab = labels[pose]
+        inside = [i for i, s in enumerate(stills) if s.start <= lab["start"] and lab["end"] <= s.end]
+        assert len(inside) == 1, pose
+        used.add(inside[0])
+    assert len(used) == 6  # six different stills
+
+
+def test_real_session_protocol(imucal_stages):
+    proto = find_protocol(imucal_stages)
+    assert list(proto.turns) == list(AXES)
+    i = imucal_stages.index(proto.turns["x"])
+    assert proto.still0 is imucal_stages[i - 1] and proto.still0.duration_s >= 1.5
+    assert proto.notes == []
+    assert len(proto.stills) == sum(s.kind == "still" for s in imucal_stages)
+    assert json.dumps(proto.to_dict())
+
+
+# ---- simulated recordings ----------------------------------------------------------------------------
+
+
+def expected_angle(rec: Recording, truth, stage: Stage, axis: int) -> float:
+    """The bias-free reading integrated over the stage: sum of true rate / k times dt."""
+    dt = np.diff(rec.t, prepend=rec.t[0] - 1 / rec.fs)
+    sl = slice(stage.start, stage.end)
+    return float(np.sum(truth.rate[sl, axis] * dt[sl]) / truth.k[axis])
+
+
+@pytest.mark.parametrize("noise", [0.03, 0.15])
+@pytest.mark.parametrize("seed", [0, 7, 11, 23])
+def test_simulated_protocol(seed, noise):
+    rec, truth = simulate(seed, noise=noise)
+    stages = detect_stages(rec)
+    assert_covering(stages, rec)
+    turns = [s for s in stages if s.kind == "turn"]
+    true_turns = [s for s in truth.stages if s.kind == "turn"]
+    assert [s.axis for s in turns] == ["x", "y", "z"]
+    for s, ts in zip(turns, true_turns):
+        assert abs(s.start_s - ts.start_s) < 0.4 and abs(s.end_s - ts.end_s) < 0.4
+        assert s.start_s <= ts.start_s and s.end_s >= ts.end_s  # no turn sample left in a still
+        k = AXES.index(s.axis)
+        assert s.angle_deg == pytest.approx(expected_angle(rec, truth, s, k), abs=1.0)
+    for s in stages:  # stills hold no motion at all, not even the slow start or end of a turn
+        if s.kind == "still":
+            assert np.abs(truth.rate[s.start:s.end]).max() < 1e-9
+    proto = find_protocol(stages)
+    true_still0 = truth.stages[0]
+    assert proto.still0.start == 0 and proto.still0.end <= true_still0.end
+    assert proto.still0.end_s > true_still0.end_s - 0.4
+    assert [s.axis for s in proto.turns.values()] == list(AXES)
+
+
+def test_bias_drift_is_interpolated_across_a_turn():
+    # 0.3 deg/s per s: a bias taken from the still before the turn alone would be off by degrees
+    rec, truth = simulate(2, noise=0.03, effects=[BiasDrift(rate_dps_per_s=[0.3, -0.3, 0.3])])
+    turns = [s for s in detect_stages(rec) if s.kind == "turn"]
+    assert [s.axis for s in turns] == ["x", "y", "z"]
+    for s in turns:
+        assert s.angle_deg == pytest.approx(expected_angle(rec, truth, s, AXES.index(s.axis)), abs=0.2)
+
+
+def test_reorientation_and_short_turn_are_motions():
+    script = ProtocolScript((
+        Still(3), Turn("x"), Still(3), Motion((0, 90, 0), 1.5), Still(3), Turn("y"), Still(3),
+        Turn("z", 200), Still(3), Motion((60, 0, 45)), Still(2.5), Turn("z", -360), Still(3),
+    ))
+    rec, truth = simulate(3, noise=0.15, script=script)
+    stages = detect_stages(rec)
+    assert_covering(stages, rec)
+    assert [s.kind for s in truth.stages] == ["still", "turn", "still", "motion"] + ["still", "turn"] * 2 + ["still", "motion", "still", "turn", "still"]
+    # detected: the same segments, except that the 200-degree turn is a motion
+    assert [s.kind for s in stages] == ["still", "turn", "still", "motion", "still", "turn", "still", "motion",
+                                        "still", "motion", "still", "turn", "still"]
+    assert [(s.axis, np.sign(s.angle_deg)) for s in stages if s.kind == "turn"] == [("x", 1), ("y", 1), ("z", -1)]
+    for s, ts in zip(stages, truth.stages):
+        assert abs(s.start_s - ts.start_s) < 0.4 and abs(s.end_s - ts.end_s) < 0.4
+    proto = find_protocol(stages)
+    assert proto.turns["z"].angle_deg < 0
+    assert proto.notes == []
+
+
+def test_turn_stopped_short_is_not_a_turn():
+    script = ProtocolScript((Still(3), Turn("x"), Still(3), Turn("y", 200), Still(3), Turn("z"), Still(3)))
+    rec, _ = simulate(4, noise=0.03, script=script)
+    stages = detect_stages(rec)
+    assert [s.kind for s in stages] == ["still", "turn", "still", "motion", "still", "turn", "still"]
+    with pytest.raises(ProtocolError, match="no turn about y was found") as err:
+        find_protocol(stages)
+    assert "1 other motion" in str(err.value)
+
+
+def test_axis_turned_twice_uses_first_and_notes_it():
+    script = ProtocolScript((Still(3), Turn("x"), Still(3), Turn("x"), Still(3), Turn("y"), Still(3), Turn("z"), Still(3)))
+    rec, _ = simulate(5, noise=0.03, script=script)
+    stages = detect_stages(rec)
+    turns = [s for s in stages if s.kind == "turn"]
+    assert [s.axis for s in turns] == ["x", "x", "y", "z"]
+    proto = find_protocol(stages)
+    assert proto.turns["x"] is turns[0]
+    assert any("more than once" in n for n in proto.notes)
+
+
+# ---- streaming = batch ---------------------------------------------------------------------------------
+
+
+def test_streaming_equals_batch_on_real_data(imucal, imucal_stages):
+    rec, _ = imucal
+    one, events = feed_in_batches(rec, np.ones(len(rec), dtype=int))
+    assert_same_stages(one.stages, imucal_stages)
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        tracker, _ = feed_in_batches(rec, rng.integers(1, 3000, size=len(rec)))
+        assert_same_stages(tracker.stages, imucal_stages)
+    closed = [e.stage for e in events if e.kind == "stage_closed"]
+    assert closed == one.stages
+
+
+@pytest.mark.parametrize("noise", [0.03, 0.15])
+def test_streaming_equals_batch_on_simulated_data(noise):
+    rec, _ = simulate(8, noise=noise, fs=104.0, effects=[SampleLoss(prob=0.002)])
+    batch = detect_stages(rec)
+    assert any("counter_gap" in s.flags for s in batch)
+    rng = np.random.default_rng(1)
+    for sizes in (np.ones(len(rec), dtype=int), rng.integers(1, 50, size=len(rec)), rng.integers(100, 5000, size=len(rec))):
+        tracker, _ = feed_in_batches(rec, sizes)
+        assert_same_stages(tracker.stages, batch)
+
+
+def test_streaming_equals_batch_at_high_rate():
+    rec, _ = simulate(9, noise=0.15, fs=562.5)
+    batch = detect_stages(rec)
+    assert [s.axis for s in batch if s.kind == "turn"] == ["x", "y", "z"]
+    tracker, _ = feed_in_batches(rec, np.random.default_rng(2).integers(1, 120, size=len(rec)))
+    assert_same_stages(tracker.stages, batch)
+
+
+def test_live_state_and_events():
+    rec, truth = simulate(2, noise=0.03)
+    tracker = StageTracker(rec.fs)
+    assert tracker.live.noise_floor is None and tracker.live.t is None
+    turn_x = next(s for s in truth.stages if s.kind == "turn")
+    seen_still, peak_angle, kinds = 0.0, np.zeros(3), []
+    for i in range(len(rec)):
+        kinds += [e.kind for e in tracker.feed(rec.t[i], rec.gyro[i])]
+        live = tracker.live
+        if live.t is not None and live.t < turn_x.start_s - 0.5:
+            assert not live.moving
+            seen_still = max(seen_still, live.still_for_s)
+        if live.t is not None and turn_x.start_s < live.t < turn_x.end_s + 0.5:
+            if np.abs(live.live_angle_deg[0]) > np.abs(peak_angle[0]):
+                peak_angle = live.live_angle_deg.copy()
+    kinds += [e.kind for e in tracker.finish()]
+    assert seen_still > 2.0
+    assert tracker.live.noise_floor == pytest.approx(0.03, rel=0.3)
+    x_stage = next(s for s in tracker.stages if s.kind == "turn")
+    assert peak_angle[0] == pytest.approx(x_stage.angle_deg, abs=3.0)
+    # each opened stage is closed once: still_started / motion_started then stage_closed, alternating
+    assert kinds[:3] == ["still_started", "stage_closed", "motion_started"]
+    assert kinds.count("stage_closed") == len(tracker.stages)
+    assert kinds.count("still_started") + kinds.count("motion_started") == len(tracker.stages)
+
+
+# ---- flags ---------------------------------------------------------------------------------------------
+
+
+def test_saturation_flag_from_full_scale_and_from_clipping():
+    rec, truth = simulate(5, noise=0.15)
+    peak = np.abs(rec.gyro).max(axis=0)
+    full_scale = 0.9 * peak[0]  # clips only the x turn
+    assert full_scale > peak[1] and full_scale > peak[2]
+    rec, truth = simulate(5, noise=0.15, full_scale_dps=full_scale)
+    stages = detect_stages(rec)
+    flagged = [s.axis or s.kind for s in stages if "saturated" in s.flags]
+    assert flagged == ["x"]
+    # without a stated full scale, the clipped plateau itself gives it away
+    unknown = detect_stages(rec.with_meta(gyro_full_scale_dps=None))
+    assert [s.axis or s.kind for s in unknown if "saturated" in s.flags] == ["x"]
+    assert [s.kind for s in unknown] == [s.kind for s in stages]
+
+
+def test_no_saturation_flag_on_quantised_real_data(imucal_stages):
+    assert all(s.flags == () for s in imucal_stages)
+
+
+def test_counter_gap_flag():
+    rec, truth = simulate(5, noise=0.03, effects=[SampleLoss(ranges=((1100, 1105),))])
+    assert np.any(np.diff(rec.seq) > 1)
+    stages = detect_stages(rec)
+    gap_at = int(np.flatnonzero(np.diff(rec.seq) > 1)[0]) + 1
+    flagged = [s for s in stages if "counter_gap" in s.flags]
+    assert len(flagged) == 1 and flagged[0].start < gap_at < flagged[0].end
+    assert flagged[0].kind == "turn"
+    # the lost time is still integrated: the angle matches the run without loss within noise
+    ref = detect_stages(simulate(5, noise=0.03)[0])
+    ref_turn = next(s for s in ref if s.kind == "turn" and s.axis == flagged[0].axis)
+    assert flagged[0].angle_deg == pytest.approx(ref_turn.angle_deg, abs=1.0)
+
+
+# ---- protocol errors and bad input ----------------------------------------------------------------------
+
+
+def test_error_when_turn_is_missing():
+    rec, _ = simulate(6, script=ProtocolScript((Still(3), Turn("x"), Still(3), Turn("z"), Still(3))))
+    with pytest.raises(ProtocolError, match=r"no turn about y was found: turn the device a full 360 degrees about its y axis"):
+        find_protocol(detect_stages(rec))
+
+
+def test_error_when_no_still_before_first_turn():
+    rec, _ = simulate(6, script=ProtocolScript((Still(1.4), Turn("x"), Still(3), Turn("y"), Still(3), Turn("z"), Still(3))))
+    stages = detect_stages(rec)
+    assert stages[0].kind == "still" and stages[0].duration_s < 1.5
+    with pytest.raises(ProtocolError, match="no still segment of at least 1.5 s before the first turn"):
+        find_protocol(stages)
+
+
+def test_error_when_recording_starts_moving():
+    rec, _ = simulate(6, script=ProtocolScript((Turn("x"), Still(3), Turn("y"), Still(3), Turn("z"), Still(3))))
+    with pytest.raises(ProtocolError, match="no turn about x was found.*begins in motion"):
+        find_protocol(detect_stages(rec))
+
+
+def test_error_with_no_turns_at_all():
+    rec, _ = simulate(6, script=ProtocolScript((Still(4),)))
+    stages = detect_stages(rec)
+    assert [s.kind for s in stages] == ["still"]
+    with pytest.raises(ProtocolError, match="no turn about x or y or z was found"):
+        find_protocol(stages)
+
+
+def test_short_recordings():
+    rng = np.random.default_rng(0)
+    for n in (1, 2, 30, 150):
+        rec = Recording(np.arange(n) / 100.0, rng.normal(0, 0.05, (n, 3)), meta=RecordingMeta(sample_rate_hz=100.0))
+        stages = detect_stages(rec)
+        assert_covering(stages, rec)
+        assert [s.kind for s in stages] == (["motion"] if n < 100 else ["still"])
+    assert detect_stages(Recording(np.zeros(0), np.zeros((0, 3)), meta=RecordingMeta(sample_rate_hz=100.0))) == []
+
+
+def test_bad_input_is_rejected():
+    tracker = StageTracker(100.0)
+    with pytest.raises(RecordingError, match="shape"):
+        tracker.feed(np.arange(3.0), np.zeros((3, 2)))
+    g = np.zeros((40, 3))
+    g[5, 1] = np.nan
+    with pytest.raises(RecordingError, match="not a finite number"):
+        StageTracker(100.0).feed(np.arange(40) / 100, g)
+    with pytest.raises(RecordingError, match="must increase"):
+        StageTracker(100.0).feed(np.r_[np.arange(20), np.arange(20)] / 100, np.zeros((40, 3)))
+    mixed = StageTracker(100.0)
+    mixed.feed(np.arange(5) / 100, np.zeros((5, 3)), np.arange(5))
+    with pytest.raises(RecordingError, match="with every batch or never"):
+        mixed.feed(np.arange(5, 10) / 100, np.zeros((5, 3)))
+    with pytest.raises(RecordingError, match="sample rate"):
+        StageTracker(0.0)
+    with pytest.raises(StageConfigError, match="exit_ratio"):
+        StageConfig(enter_ratio=3.0, exit_ratio=2.0)
+    with pytest.raises(StageConfigError, match="min_still_s"):
+        StageConfig(min_still_s=-1)
