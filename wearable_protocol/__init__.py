@@ -49,6 +49,7 @@ from .sensor import (
 from .uuids import (
     BATTERY_LEVEL_CHAR,
     BATTERY_SERVICE,
+    CCCD_DESCRIPTOR,
     DEVICE_INFORMATION_SERVICE,
     FIRMWARE_REVISION_CHAR,
     IMU_CONFIG_CHAR,
@@ -58,6 +59,8 @@ from .uuids import (
     MANUFACTURER_NAME_CHAR,
     MODEL_NUMBER_CHAR,
     SERIAL_NUMBER_CHAR,
+    USER_DESCRIPTION_DESCRIPTOR,
+    sig_uuid,
 )
 
 __all__ = [name for name in dir() if not name.startswith("_")]

@@ -114,6 +114,11 @@ class DeviceState(IntFlag):
 
 
 _CONFIG = struct.Struct("<BBfHBBffBB")
+
+
+def _f32(x: float) -> float:
+    """A float32 field as the decimal it was written from (float32 holds 7 significant digits)."""
+    return float(f"{x:.7g}")
 CONFIG_SIZE = _CONFIG.size  # 20
 
 
@@ -146,7 +151,7 @@ class DeviceConfig:
             raise DecodeError("version", f"device speaks protocol version {version}, this client {PROTOCOL_VERSION}")
         if not (rate > 0 and n >= 1 and gsens > 0 and asens > 0 and gfs > 0):
             raise DecodeError("value", f"config has impossible values (rate {rate}, N {n}, sensitivity {gsens})")
-        return cls(cid, float(rate), gfs, arange, n, float(gsens), float(asens), DeviceState(state), version)
+        return cls(cid, _f32(rate), gfs, arange, n, _f32(gsens), _f32(asens), DeviceState(state), version)
 
     def to_dict(self) -> dict[str, object]:
         return {
@@ -209,14 +214,6 @@ class Command:
         if len(data) != 1 + size:
             raise DecodeError("length", f"{op.name} takes {size} payload bytes, got {len(data) - 1}")
         return cls(op, struct.unpack(fmt, bytes(data[1:]))[0] if fmt else None)
-
-
-def start() -> bytes:
-    return Command(Opcode.START).encode()
-
-
-def stop() -> bytes:
-    return Command(Opcode.STOP).encode()
 
 
 _STATUS = struct.Struct("<BBB")

@@ -1,0 +1,113 @@
+"""``gyrocal mock-device``: a simulated wearable on a simulated BlueZ, for any bleak program.
+
+    gyrocal mock-device --ble [--seed S] [--speed X] [--scenario NAME] [--replay FILE]
+
+starts a private dbus-daemon, serves the wearable on it as ``org.bluez`` and prints one JSON line:
+{"dbus_address": ..., "address": ..., "name": ..., "simulated_truth": {"k": [...], "b": [...]}}.
+It runs until SIGTERM or SIGINT, then stops its daemon. Run a bleak program with
+DBUS_SYSTEM_BUS_ADDRESS set to ``dbus_address`` and it sees the wearable.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import signal
+import sys
+from typing import Any
+
+from calib.errors import GyrocalError
+
+from .scenarios import SCENARIOS
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``mock-device`` subcommand to gyrocal's CLI."""
+    p = subparsers.add_parser(
+        "mock-device",
+        help="run a simulated wearable on a simulated BlueZ (private D-Bus) for bleak clients",
+        description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--ble", action="store_true", help="serve the wearable over the simulated BlueZ (required)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the simulated sensor and clinician (default 0)")
+    p.add_argument("--speed", type=float, default=1.0, help="device clock speed: 1 = real time, 20 = 20x (default 1)")
+    p.add_argument("--scenario", choices=list(SCENARIOS), default="normal",
+                   help="what the simulated clinician does (default normal)")
+    p.add_argument("--replay", metavar="FILE", default=None, help="replay a recorded CSV instead of simulating")
+    p.add_argument("--rate", type=float, default=None, help="initial sample rate in Hz (default 104)")
+    p.add_argument("--count", type=int, default=1, help="number of wearables (seeds S, S+1, ...; default 1)")
+    p.add_argument("--hide-optional-services", action="store_true",
+                   help="hide Device Information and Battery, as some BlueZ versions do")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    if not args.ble:
+        raise GyrocalError("gyrocal mock-device serves the wearable over Bluetooth LE only: add --ble "
+                           "(for an in-process wearable use `gyrocal serve --mock`)")
+    if not (args.speed > 0):
+        raise GyrocalError(f"--speed must be a positive number (1 = real time), got {args.speed}")
+    if not 1 <= args.count <= 64:
+        raise GyrocalError(f"--count must be between 1 and 64, got {args.count}")
+    if args.replay and args.scenario not in ("normal", "packet_loss"):
+        raise GyrocalError(f"--scenario {args.scenario} scripts the simulated clinician; with --replay only "
+                           "'normal' or 'packet_loss' (link faults) apply")
+    return asyncio.run(_serve(args))
+
+
+def _wearables(args: argparse.Namespace) -> list[Any]:
+    import wearable_protocol as wp
+
+    from .sources import ReplaySource, ScriptedSource
+    from .wearable import Wearable
+
+    out = []
+    for i in range(args.count):
+        seed = args.seed + i
+        if args.replay:
+            source: Any = ReplaySource(args.replay)
+            faults = SCENARIOS[args.scenario].faults
+        else:
+            source = ScriptedSource(seed=seed, scenario=args.scenario)
+            faults = None
+        rate = args.rate
+        if rate is not None and not args.replay and not wp.rate_supported(rate):
+            raise GyrocalError(f"--rate {rate:g} is not offered by the wearable: choose one of "
+                               + ", ".join(f"{r:g}" for r in wp.SUPPORTED_RATES_HZ))
+        out.append(Wearable(source, seed=seed, speed=args.speed, faults=faults, rate_hz=rate))
+    return out
+
+
+async def _serve(args: argparse.Namespace) -> int:
+    import wearable_protocol as wp
+
+    from .bluez import PrivateBus, SimulatedBlueZ
+
+    wearables = _wearables(args)
+    bus = PrivateBus()
+    address = bus.start()
+    bluez = SimulatedBlueZ(
+        wearables, hide_services=(wp.DEVICE_INFORMATION_SERVICE, wp.BATTERY_SERVICE) if args.hide_optional_services else (),
+        seed=args.seed,
+    )
+    try:
+        await bluez.start(address)
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            loop.add_signal_handler(sig, stop.set)
+        devices = [{"address": w.address, "name": w.name, "simulated_truth": w.truth} for w in wearables]
+        line = {"dbus_address": address, **devices[0]}
+        if len(devices) > 1:
+            line["devices"] = devices
+        print(json.dumps(line), flush=True)
+        await stop.wait()
+    finally:
+        for w in wearables:
+            await w.aclose()
+        await bluez.stop()
+        bus.stop()
+    print("gyrocal: mock device stopped", file=sys.stderr)
+    return 0

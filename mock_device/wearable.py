@@ -1,0 +1,441 @@
+"""The simulated wearable: a GATT peripheral that streams protocol packets from a sample source.
+
+Device behaviour (docs/protocol.md, "Device behaviour"):
+
+- START opens a streaming session (seq 0, SESSION_START flag) or resumes the current one after a link
+  loss (RESUMED flag). The session clock keeps running while the link is down: the clinician goes on
+  turning and the packets of that time are lost, so the central sees the gap in seq and device time.
+- STOP ends the session. Configuration changes are refused (BUSY) while streaming.
+- The device clock is in microseconds (32-bit on the wire). It starts 2-20 s before its 32-bit wrap, so
+  every simulated session exercises the central's unwrapping.
+- The true output data rate differs from the nominal one by up to +-0.8 % (a real sensor's oscillator),
+  so a central must estimate the rate from device time.
+- ``speed`` runs the device clock faster than wall time (20 = twenty times real time).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+import wearable_protocol as wp
+from wearable_protocol import (
+    Central,
+    Command,
+    ConnectionDropped,
+    DecodeError,
+    DeviceConfig,
+    DeviceState,
+    GattError,
+    Opcode,
+    PacketFlags,
+    PeripheralUnavailable,
+    Status,
+    StatusReply,
+)
+
+from .scenarios import LinkFaults
+from .sources import SampleSource
+
+MIN_SLEEP_S = 0.001
+
+
+@dataclass
+class DeviceStats:
+    """What the device did, for tests and the CLI: packets per fate and link events."""
+
+    sessions: int = 0
+    packets_sent: int = 0
+    packets_lost_radio: int = 0  # dropped by the packet-loss fault
+    packets_lost_link: int = 0  # produced while no central was receiving
+    packets_corrupted: int = 0
+    packets_injected: int = 0
+    link_drops: int = 0
+    connects: int = 0
+    lost_radio_seqs: list[int] = field(default_factory=list)  # session packet indices of the current session
+
+
+@dataclass
+class _Session:
+    number: int
+    fs: float  # true output data rate
+    n: int
+    wall0: float
+    clock0_us: int  # device clock (unwrapped) at sample 0
+    config_id: int
+    streaming: bool = True
+    next_packet: int = 0
+    sent_any: bool = False
+    resumed: bool = False
+    drop_done: bool = False
+    disconnected_wall: float | None = None
+
+
+def _address(rng: np.random.Generator) -> str:
+    b = rng.integers(0, 256, 6)
+    b[0] |= 0xC0  # random static address
+    return ":".join(f"{int(x):02X}" for x in b)
+
+
+class Wearable:
+    """A simulated IMU wearable implementing :class:`wearable_protocol.GattPeripheral`."""
+
+    def __init__(
+        self,
+        source: SampleSource,
+        *,
+        seed: int = 0,
+        speed: float = 1.0,
+        faults: LinkFaults | None = None,
+        name: str | None = None,
+        address: str | None = None,
+        rate_hz: float | None = None,
+        gyro_full_scale_dps: int = wp.DEFAULT_GYRO_FULL_SCALE_DPS,
+        accel_range_g: int = wp.DEFAULT_ACCEL_RANGE_G,
+        mtu: int = wp.DEFAULT_MTU,
+        odr_error: float | None = None,
+        clock_start_us: int | None = None,
+        session_timeout_s: float = 60.0,
+        battery_pct: int | None = None,
+    ) -> None:
+        if not (speed > 0 and math.isfinite(speed)):
+            raise ValueError(f"speed must be a positive number (1 = real time), got {speed!r}")
+        rng = np.random.default_rng([int(seed), 0xDE71CE])
+        self.source = source
+        self.seed = int(seed)
+        self.speed = float(speed)
+        self.faults = faults if faults is not None else getattr(source, "faults", LinkFaults())
+        self.address = address or _address(rng)
+        self.name = name or f"gyrocal-{self.address[-5:].replace(':', '')}"
+        self.mtu = mtu
+        fixed = source.fixed_rate_hz
+        self.rate_hz = float(fixed if fixed is not None else (rate_hz or wp.DEFAULT_RATE_HZ))
+        if fixed is None and not wp.rate_supported(self.rate_hz):
+            raise ValueError(f"rate {self.rate_hz} Hz is not supported: choose one of {wp.SUPPORTED_RATES_HZ}")
+        self.gyro_full_scale_dps = int(gyro_full_scale_dps)
+        self.accel_range_g = int(accel_range_g)
+        self.odr_error = float(rng.uniform(-0.008, 0.008) if odr_error is None else odr_error)
+        if fixed is not None:
+            self.odr_error = 0.0
+        self._clock_start_us = int(clock_start_us if clock_start_us is not None
+                                   else wp.CLOCK_MODULUS - int(rng.uniform(2e6, 20e6)))
+        self._boot_wall = time.monotonic()
+        self.session_timeout_s = session_timeout_s
+        self.battery_pct = int(battery_pct if battery_pct is not None else rng.integers(60, 100))
+        self.serial = f"GC{self.seed:08d}"
+        self.config_id = 1
+        self.stats = DeviceStats()
+        self._central: Central | None = None
+        self._notifying: set[str] = set()
+        self._session: _Session | None = None
+        self._task: asyncio.Task[None] | None = None
+        self._out_of_range_until = -math.inf
+        self._fail_connects = int(self.faults.fail_connects)
+        self._corrupt_pending = 0
+        self._loss_cache: dict[int, np.ndarray] = {}
+        self.events: list[tuple[float, str]] = []  # (device time s, what) for logs and tests
+
+    # ------------------------------------------------------------------ clock and configuration
+
+    def device_time_us(self, wall: float | None = None) -> int:
+        """The device clock (unwrapped, microseconds since boot)."""
+        wall = time.monotonic() if wall is None else wall
+        return self._clock_start_us + int((wall - self._boot_wall) * self.speed * 1e6)
+
+    @property
+    def samples_per_packet(self) -> int:
+        return wp.samples_per_packet(self.rate_hz, self.mtu)
+
+    @property
+    def true_rate_hz(self) -> float:
+        return self.rate_hz * (1.0 + self.odr_error)
+
+    @property
+    def config(self) -> DeviceConfig:
+        state = DeviceState(0)
+        if self._session is not None:
+            state |= DeviceState.SESSION_ACTIVE
+            if self._session.streaming:
+                state |= DeviceState.STREAMING
+        if self.source.fixed_rate_hz is not None:
+            state |= DeviceState.REPLAY
+        return DeviceConfig(
+            self.config_id, self.rate_hz, self.gyro_full_scale_dps, self.accel_range_g, self.samples_per_packet,
+            wp.GYRO_SENSITIVITY_LSB_PER_DPS[self.gyro_full_scale_dps], wp.ACCEL_SENSITIVITY_LSB_PER_G[self.accel_range_g],
+            state,
+        )
+
+    @property
+    def truth(self) -> dict[str, object] | None:
+        """The simulated sensor parameters {"k": [...], "b": [...]}, None for a replay."""
+        return getattr(self.source, "truth", None)
+
+    # ------------------------------------------------------------------ GattPeripheral
+
+    @property
+    def advertising(self) -> bool:
+        return self._central is None and time.monotonic() >= self._out_of_range_until
+
+    @property
+    def services(self) -> tuple[wp.ServiceSpec, ...]:
+        return wp.WEARABLE_SERVICES
+
+    @property
+    def advertised_services(self) -> tuple[str, ...]:
+        return (wp.IMU_SERVICE,)
+
+    def connect(self, central: Central) -> None:
+        if self._central is not None:
+            raise PeripheralUnavailable(f"{self.name} is already connected to another central")
+        if time.monotonic() < self._out_of_range_until:
+            raise PeripheralUnavailable(f"{self.name} is out of range")
+        if self._fail_connects > 0:
+            self._fail_connects -= 1
+            self._log("connection dropped during setup")
+            raise ConnectionDropped(f"{self.name} dropped the link during connection setup")
+        self._central = central
+        self._notifying.clear()
+        self.stats.connects += 1
+        self._log("connected")
+
+    def disconnect(self) -> None:
+        if self._central is None:
+            return
+        self._lose_central()
+        self._log("disconnected by the central")
+
+    def read(self, char_uuid: str) -> bytes:
+        values = {
+            wp.IMU_CONFIG_CHAR: lambda: self.config.encode(),
+            wp.MANUFACTURER_NAME_CHAR: lambda: b"gyrocal",
+            wp.MODEL_NUMBER_CHAR: lambda: b"GC-1 simulated IMU wearable",
+            wp.SERIAL_NUMBER_CHAR: lambda: self.serial.encode(),
+            wp.FIRMWARE_REVISION_CHAR: lambda: b"1.0.0",
+            wp.BATTERY_LEVEL_CHAR: lambda: bytes([self.battery_pct]),
+        }
+        if char_uuid not in values:
+            raise GattError("not_permitted", "Read not permitted")
+        return values[char_uuid]()
+
+    def write(self, char_uuid: str, data: bytes) -> None:
+        if char_uuid != wp.IMU_CONTROL_CHAR:
+            raise GattError("not_permitted", "Write not permitted")
+        try:
+            cmd = Command.decode(data)
+        except DecodeError as e:
+            status = Status.UNKNOWN_OPCODE if e.reason == "opcode" else Status.BAD_LENGTH
+            self._reply(data[0] if data else 0, status)
+            return
+        self._reply(cmd.opcode, self._execute(cmd))
+
+    def set_notify(self, char_uuid: str, enabled: bool) -> None:
+        if enabled:
+            self._notifying.add(char_uuid)
+        else:
+            self._notifying.discard(char_uuid)
+
+    # ------------------------------------------------------------------ faults for tests
+
+    def drop_link(self, for_s: float | None = None) -> None:
+        """The radio link drops now; the device is out of range for ``for_s`` device seconds."""
+        for_s = self.faults.drop_for_s if for_s is None else for_s
+        self._out_of_range_until = time.monotonic() + for_s / self.speed
+        self.stats.link_drops += 1
+        self._log(f"link dropped, out of range for {for_s:g} s")
+        if self._central is not None:
+            central = self._lose_central()
+            central.link_lost()
+
+    def corrupt_next_packets(self, count: int) -> None:
+        """The next ``count`` data packets go out with a bad version byte (malformed)."""
+        self._corrupt_pending += int(count)
+
+    def inject(self, data: bytes) -> bool:
+        """Send arbitrary bytes as a data notification now (True if a central received them)."""
+        if self._central is None or wp.IMU_DATA_CHAR not in self._notifying:
+            return False
+        self.stats.packets_injected += 1
+        self._central.notify(wp.IMU_DATA_CHAR, bytes(data))
+        return True
+
+    def fail_next_connects(self, count: int) -> None:
+        """The next ``count`` connection attempts drop before services are resolved."""
+        self._fail_connects += int(count)
+
+    # ------------------------------------------------------------------ commands
+
+    def _execute(self, cmd: Command) -> Status:
+        op = cmd.opcode
+        if op == Opcode.START:
+            self._start()
+            return Status.OK
+        if op == Opcode.STOP:
+            self._end_session("stopped by the central")
+            return Status.OK
+        if self._session is not None and self._session.streaming:
+            return Status.BUSY
+        if op == Opcode.SET_RATE:
+            if self.source.fixed_rate_hz is not None:
+                return Status.NOT_SUPPORTED
+            if not wp.rate_supported(float(cmd.value)):
+                return Status.INVALID_VALUE
+            self.rate_hz = next(r for r in wp.SUPPORTED_RATES_HZ if abs(r - float(cmd.value)) < 1e-3)
+        elif op == Opcode.SET_GYRO_RANGE:
+            if int(cmd.value) not in wp.GYRO_SENSITIVITY_LSB_PER_DPS:
+                return Status.INVALID_VALUE
+            self.gyro_full_scale_dps = int(cmd.value)
+        elif op == Opcode.SET_ACCEL_RANGE:
+            if int(cmd.value) not in wp.ACCEL_SENSITIVITY_LSB_PER_G:
+                return Status.INVALID_VALUE
+            self.accel_range_g = int(cmd.value)
+        else:
+            return Status.UNKNOWN_OPCODE
+        # a new configuration ends a paused session: its samples would not match the new settings
+        self._end_session("configuration changed")
+        self.config_id = (self.config_id % 255) + 1
+        return Status.OK
+
+    def _reply(self, opcode: int, status: Status) -> None:
+        if self._central is not None and wp.IMU_CONTROL_CHAR in self._notifying:
+            self._central.notify(wp.IMU_CONTROL_CHAR, StatusReply(opcode, status, self.config_id).encode())
+
+    def _start(self) -> None:
+        now = time.monotonic()
+        s = self._session
+        if s is not None and s.disconnected_wall is not None and (now - s.disconnected_wall) * self.speed > self.session_timeout_s:
+            self._end_session("session timed out while the link was down")
+            s = None
+        if s is not None:
+            if not s.streaming:
+                s.streaming = True
+                s.resumed = True
+                s.disconnected_wall = None
+                self._log("session resumed")
+            return
+        self.source.prepare(self.true_rate_hz)
+        self.stats.sessions += 1
+        self.stats.lost_radio_seqs = []
+        self._loss_cache.clear()
+        s = _Session(self.stats.sessions, self.true_rate_hz, self.samples_per_packet, now, self.device_time_us(now),
+                     self.config_id)
+        self._session = s
+        self._log(f"session {s.number} started at {self.rate_hz:g} Hz, N={s.n}")
+        self._task = asyncio.get_running_loop().create_task(self._run(s))
+
+    def _end_session(self, why: str) -> None:
+        if self._session is None:
+            return
+        self._session = None
+        self._log(f"session ended: {why}")
+        if self._task is not None and self._task is not asyncio.current_task():
+            self._task.cancel()
+        self._task = None
+
+    def _lose_central(self) -> Central:
+        central, self._central = self._central, None
+        self._notifying.clear()
+        if self._session is not None and self._session.streaming:
+            self._session.streaming = False
+            self._session.disconnected_wall = time.monotonic()
+        assert central is not None
+        return central
+
+    def _log(self, what: str) -> None:
+        self.events.append(((self.device_time_us() - self._clock_start_us) / 1e6, what))
+
+    # ------------------------------------------------------------------ streaming
+
+    def _packet_end_s(self, s: _Session, j: int) -> float:
+        """Session time (s) at which packet j is complete."""
+        last = (j + 1) * s.n - 1
+        t = self.source.times_s(last, last + 1)
+        return float(t[0]) if t is not None else last / s.fs
+
+    def _sample_times_us(self, s: _Session, start: int, end: int) -> int:
+        t = self.source.times_s(start, start + 1)
+        offset = float(t[0]) if t is not None else start / s.fs
+        return s.clock0_us + int(round(offset * 1e6))
+
+    def _lost_by_radio(self, j: int) -> bool:
+        p = self.faults.packet_loss
+        if p <= 0:
+            return False
+        block, off = divmod(j, 4096)
+        if block not in self._loss_cache:
+            self._loss_cache[block] = np.random.default_rng([self.seed, 0x1055, block]).random(4096) < p
+        return bool(self._loss_cache[block][off])
+
+    async def _run(self, s: _Session) -> None:
+        total = None if self.source.length is None else self.source.length // s.n
+        try:
+            while self._session is s:
+                elapsed = (time.monotonic() - s.wall0) * self.speed
+                self._advance(s, elapsed, total)
+                if total is not None and s.next_packet >= total:
+                    self._stream_end(s)
+                    return
+                wait = (s.wall0 + self._packet_end_s(s, s.next_packet) / self.speed) - time.monotonic()
+                await asyncio.sleep(max(MIN_SLEEP_S, wait))
+        except asyncio.CancelledError:
+            pass
+
+    def _advance(self, s: _Session, elapsed: float, total: int | None) -> None:
+        while self._session is s and (total is None or s.next_packet < total):
+            j = s.next_packet
+            if self._packet_end_s(s, j) > elapsed:
+                return
+            start_s = j * s.n / s.fs
+            if self.faults.drop_at_s is not None and not s.drop_done and start_s >= self.faults.drop_at_s:
+                s.drop_done = True
+                self.drop_link()
+            if self._central is None or not s.streaming or wp.IMU_DATA_CHAR not in self._notifying:
+                self.stats.packets_lost_link += 1
+            elif self._lost_by_radio(j):
+                self.stats.packets_lost_radio += 1
+                self.stats.lost_radio_seqs.append(j)
+            else:
+                self._send(s, j)
+            s.next_packet = j + 1
+
+    def _send(self, s: _Session, j: int) -> None:
+        i0, i1 = j * s.n, (j + 1) * s.n
+        blk = self.source.block(i0, i1)
+        cfg = self.config
+        counts, clipped = wp.quantize(blk.gyro, blk.accel, cfg.gyro_lsb_per_dps, cfg.accel_lsb_per_g)
+        flags = PacketFlags(0)
+        if not s.sent_any:
+            flags |= PacketFlags.SESSION_START
+        elif s.resumed:
+            flags |= PacketFlags.RESUMED
+        if clipped.any():
+            flags |= PacketFlags.GYRO_CLIPPED
+        data = wp.encode_packet(j, self._sample_times_us(s, i0, i1), counts, flags, s.config_id)
+        if self._corrupt_pending > 0:
+            self._corrupt_pending -= 1
+            self.stats.packets_corrupted += 1
+            data = bytes([0xEE]) + data[1:]
+        s.sent_any = True
+        s.resumed = False
+        self.stats.packets_sent += 1
+        assert self._central is not None
+        self._central.notify(wp.IMU_DATA_CHAR, data)
+
+    def _stream_end(self, s: _Session) -> None:
+        self._log("replay finished")
+        if self._central is not None and wp.IMU_CONTROL_CHAR in self._notifying:
+            self._central.notify(wp.IMU_CONTROL_CHAR, StatusReply(Opcode.STREAM_END, Status.OK, self.config_id).encode())
+        self._end_session("replay finished")
+
+    async def aclose(self) -> None:
+        """Stop streaming and drop any central (for shutdown)."""
+        task = self._task
+        self._end_session("device shut down")
+        if task is not None:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task

@@ -1,0 +1,115 @@
+"""The bleak transport: the wearable over Bluetooth LE (BlueZ on Linux, or the simulated BlueZ).
+
+bleak reaches BlueZ on the D-Bus system bus; point ``DBUS_SYSTEM_BUS_ADDRESS`` at the simulated
+BlueZ's private bus (``gyrocal mock-device --ble`` prints it) to use a simulated wearable.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections.abc import Callable
+from typing import Any
+
+import wearable_protocol as wp
+
+from .base import ConnectError, DeviceNotFoundError, DiscoveredDevice, LinkError, ReconnectPolicy
+from .core import LinkCore
+
+log = logging.getLogger(__name__)
+
+
+def _bleak() -> Any:
+    try:
+        import bleak
+    except ImportError as e:  # the "ble" extra is not installed
+        raise LinkError("Bluetooth support is not installed: pip install 'gyrocal[ble]'") from e
+    return bleak
+
+
+class BleLink(LinkCore):
+    """A wearable over BLE via bleak. ``address`` None: connect() takes the first wearable that answers."""
+
+    def __init__(self, address: str | None = None, *, adapter: str | None = None, scan_timeout_s: float = 5.0,
+                 connect_timeout_s: float = 10.0, reconnect: ReconnectPolicy | None = None,
+                 command_timeout_s: float = 5.0) -> None:
+        super().__init__(address.upper() if address else None, reconnect=reconnect, command_timeout_s=command_timeout_s)
+        self.adapter = adapter
+        self.scan_timeout_s = scan_timeout_s
+        self.connect_timeout_s = connect_timeout_s
+        self._client: Any = None
+
+    def _bluez_args(self) -> dict[str, Any]:
+        return {"adapter": self.adapter} if self.adapter else {}
+
+    async def scan(self, timeout: float = 5.0) -> list[DiscoveredDevice]:
+        """Wearables advertising the IMU service, strongest signal first."""
+        bleak = _bleak()
+        try:
+            found = await bleak.BleakScanner.discover(timeout=timeout, service_uuids=[wp.IMU_SERVICE], return_adv=True,
+                                                      bluez=self._bluez_args())
+        except bleak.exc.BleakError as e:
+            raise LinkError(f"Bluetooth scan failed: {e}") from e
+        devices = [DiscoveredDevice(d.address, a.local_name or d.name, a.rssi) for d, a in found.values()]
+        return sorted(devices, key=lambda d: -(d.rssi if d.rssi is not None else -999))
+
+    async def _t_connect(self) -> None:
+        bleak = _bleak()
+        try:
+            if self.address is None:
+                device = await bleak.BleakScanner.find_device_by_filter(
+                    lambda d, adv: wp.IMU_SERVICE in [u.lower() for u in adv.service_uuids],
+                    timeout=self.scan_timeout_s, service_uuids=[wp.IMU_SERVICE], bluez=self._bluez_args())
+            else:
+                device = await bleak.BleakScanner.find_device_by_address(self.address, timeout=self.scan_timeout_s,
+                                                                         bluez=self._bluez_args())
+        except bleak.exc.BleakError as e:
+            raise ConnectError(f"Bluetooth scan failed: {e}") from e
+        if device is None:
+            which = f"wearable {self.address} was not found" if self.address else "no gyrocal wearable was found"
+            raise DeviceNotFoundError(
+                f"{which} within {self.scan_timeout_s:g} s: "
+                "check that it is switched on, in range and not connected elsewhere")
+        self.address = device.address.upper()
+        client = bleak.BleakClient(device, disconnected_callback=self._disconnected, timeout=self.connect_timeout_s,
+                                   bluez=self._bluez_args())
+        self._client = client
+        try:
+            await client.connect()
+        except (bleak.exc.BleakError, asyncio.TimeoutError, OSError) as e:
+            self._client = None
+            raise ConnectError(f"connecting to {self.address} failed: {e or type(e).__name__}") from e
+        self.name = device.name
+
+    def _disconnected(self, client: Any) -> None:
+        if client is self._client:
+            self._on_link_lost()
+
+    async def _t_disconnect(self) -> None:
+        client, self._client = self._client, None
+        if client is not None:
+            with contextlib.suppress(Exception):
+                await client.disconnect()
+
+    def _t_has(self, char_uuid: str) -> bool:
+        services = self._client.services if self._client is not None else None
+        return services is not None and services.get_characteristic(char_uuid) is not None
+
+    def _live(self) -> Any:
+        if self._client is None or not self._client.is_connected:
+            raise LinkError("the wearable is not connected")
+        return self._client
+
+    async def _t_read(self, char_uuid: str) -> bytes:
+        return bytes(await self._live().read_gatt_char(char_uuid))
+
+    async def _t_write(self, char_uuid: str, data: bytes) -> None:
+        await self._live().write_gatt_char(char_uuid, data, response=True)
+
+    async def _t_subscribe(self, char_uuid: str, callback: Callable[[bytes], None]) -> None:
+        await self._live().start_notify(char_uuid, lambda _char, value: callback(value))
+
+    async def _t_unsubscribe(self, char_uuid: str) -> None:
+        with contextlib.suppress(Exception):
+            await self._live().stop_notify(char_uuid)

@@ -1,0 +1,367 @@
+"""What both transports share: the command exchange, the decoded stream with its events, and
+reconnection with backoff after a link loss. A transport supplies the GATT primitives (``_t_*``)."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from abc import ABC, abstractmethod
+from collections import deque
+from collections.abc import AsyncIterator, Callable
+
+import wearable_protocol as wp
+from wearable_protocol import Command, DecodeError, DeviceConfig, DeviceState, Opcode, Status, StatusReply
+
+from .base import (
+    CommandError,
+    ConnectError,
+    DeviceInfo,
+    DeviceNotFoundError,
+    DiscoveredDevice,
+    LinkError,
+    LinkEvent,
+    LinkStats,
+    ReconnectPolicy,
+    SampleBatch,
+)
+from .decoder import StreamDecoder
+
+log = logging.getLogger(__name__)
+
+_END = object()  # ends one samples() iteration
+MAX_MERGE = 64  # at most this many queued batches are merged into one when the consumer lags
+
+
+class LinkCore(ABC):
+    """Shared behaviour of :class:`~server.link.base.WearableLink` transports."""
+
+    def __init__(self, address: str | None, *, reconnect: ReconnectPolicy | None = None,
+                 command_timeout_s: float = 5.0) -> None:
+        self.address = address
+        self.name: str | None = None
+        self.policy = reconnect or ReconnectPolicy()
+        self.command_timeout_s = command_timeout_s
+        self.stats = LinkStats()
+        self.config: DeviceConfig | None = None
+        self._decoder: StreamDecoder | None = None
+        self._feed: deque[object] = deque()
+        self._feed_ready = asyncio.Event()
+        self._waiters: dict[int, asyncio.Future[StatusReply]] = {}
+        self._connected = False
+        self._streaming = False  # the central wants the stream (survives link loss)
+        self._closing = False
+        self._reconnect_task: asyncio.Task[None] | None = None
+        self._restore: tuple[int, float] | None = None  # (attempts, time of loss) until the first packet after
+
+    # ------------------------------------------------------------------ transport primitives
+
+    @abstractmethod
+    async def scan(self, timeout: float = 5.0) -> list[DiscoveredDevice]: ...
+
+    @abstractmethod
+    async def _t_connect(self) -> None:
+        """Open the connection; raise DeviceNotFoundError or ConnectError."""
+
+    @abstractmethod
+    async def _t_disconnect(self) -> None: ...
+
+    @abstractmethod
+    def _t_has(self, char_uuid: str) -> bool:
+        """Whether the connected device exposes this characteristic."""
+
+    @abstractmethod
+    async def _t_read(self, char_uuid: str) -> bytes: ...
+
+    @abstractmethod
+    async def _t_write(self, char_uuid: str, data: bytes) -> None: ...
+
+    @abstractmethod
+    async def _t_subscribe(self, char_uuid: str, callback: Callable[[bytes], None]) -> None: ...
+
+    @abstractmethod
+    async def _t_unsubscribe(self, char_uuid: str) -> None: ...
+
+    # ------------------------------------------------------------------ public API
+
+    @property
+    def connected(self) -> bool:
+        return self._connected
+
+    async def connect(self) -> None:
+        """Connect, subscribe to control replies and read the configuration.
+
+        Retries transient failures (the link dropping during setup) ``policy.connect_attempts`` times
+        with backoff; raises DeviceNotFoundError at once when no device answers the scan.
+        """
+        self._closing = False
+        delays = iter(self.policy.delays())
+        for attempt in range(1, self.policy.connect_attempts + 1):
+            try:
+                await self._open()
+                return
+            except DeviceNotFoundError:
+                raise
+            except LinkError as e:
+                if attempt == self.policy.connect_attempts:
+                    raise ConnectError(
+                        f"could not connect to wearable {self.address} after {attempt} attempts ({e}); "
+                        "move it closer, check it is charged and not connected to another phone or computer"
+                    ) from e
+                log.info("connect attempt %d failed (%s), retrying", attempt, e)
+                await asyncio.sleep(next(delays))
+
+    async def _open(self) -> None:
+        await self._t_connect()
+        try:
+            await self._t_subscribe(wp.IMU_CONTROL_CHAR, self._on_control)
+            self.config = await self._read_config()
+        except LinkError:
+            with contextlib.suppress(Exception):
+                await self._t_disconnect()
+            raise
+        except Exception as e:  # a transport error during setup: the link is not usable
+            with contextlib.suppress(Exception):
+                await self._t_disconnect()
+            raise ConnectError(f"connection to {self.address} failed during setup: {e}") from e
+        if self._decoder is None:
+            self._decoder = StreamDecoder(self.config, self.stats)
+        else:
+            self._decoder.set_config(self.config)
+        self._connected = True
+
+    async def _read_config(self) -> DeviceConfig:
+        if not self._t_has(wp.IMU_CONFIG_CHAR) or not self._t_has(wp.IMU_DATA_CHAR):
+            raise ConnectError(f"{self.address} does not offer the gyrocal IMU service; is it a gyrocal wearable?")
+        try:
+            return DeviceConfig.decode(await self._t_read(wp.IMU_CONFIG_CHAR))
+        except DecodeError as e:
+            raise ConnectError(f"{self.address} sent an unreadable configuration ({e}); update its firmware") from e
+
+    def _require(self) -> DeviceConfig:
+        if not self._connected or self.config is None:
+            raise LinkError("the wearable is not connected: call connect() first")
+        return self.config
+
+    async def read_info(self) -> DeviceInfo:
+        """Read config, Device Information (optional) and battery level (optional)."""
+        self._require()
+        self.config = await self._read_config()
+        assert self._decoder is not None
+        self._decoder.set_config(self.config)
+
+        async def text(uuid: str) -> str | None:
+            raw = await self._optional(uuid)
+            return raw.decode("utf-8", "replace").rstrip("\x00") if raw is not None else None
+
+        battery = await self._optional(wp.BATTERY_LEVEL_CHAR)
+        return DeviceInfo(
+            self.address or "", self.name, self.config,
+            await text(wp.MANUFACTURER_NAME_CHAR), await text(wp.MODEL_NUMBER_CHAR),
+            await text(wp.SERIAL_NUMBER_CHAR), await text(wp.FIRMWARE_REVISION_CHAR),
+            battery[0] if battery else None,
+        )
+
+    async def _optional(self, uuid: str) -> bytes | None:
+        if not self._t_has(uuid):
+            return None
+        try:
+            return await self._t_read(uuid)
+        except Exception as e:  # locked or hidden by the host stack: the field is simply unknown
+            log.info("optional characteristic %s not readable: %s", uuid, e)
+            return None
+
+    async def _command(self, cmd: Command) -> StatusReply:
+        self._require()
+        loop = asyncio.get_running_loop()
+        fut: asyncio.Future[StatusReply] = loop.create_future()
+        self._waiters[int(cmd.opcode)] = fut
+        try:
+            await self._t_write(wp.IMU_CONTROL_CHAR, cmd.encode())
+            reply = await asyncio.wait_for(fut, self.command_timeout_s)
+        except asyncio.TimeoutError:
+            raise CommandError(f"the wearable did not answer {cmd.opcode.name} within {self.command_timeout_s:g} s") from None
+        except LinkError:
+            raise
+        except Exception as e:
+            raise CommandError(f"{cmd.opcode.name} could not be sent: {e}") from e
+        finally:
+            self._waiters.pop(int(cmd.opcode), None)
+        if reply.status != Status.OK:
+            hint = {Status.BUSY: "stop streaming first", Status.INVALID_VALUE: "use a supported value",
+                    Status.NOT_SUPPORTED: "this device has fixed settings"}.get(reply.status, "")
+            raise CommandError(f"the wearable refused {cmd.opcode.name}: {reply.status.name.lower()}"
+                               + (f" ({hint})" if hint else ""))
+        return reply
+
+    async def configure(self, *, sample_rate_hz: float | None = None, gyro_full_scale_dps: int | None = None,
+                        accel_range_g: int | None = None) -> DeviceConfig:
+        """Change rate and ranges (refused while streaming); returns the configuration read back."""
+        if self._streaming:
+            raise CommandError("cannot change the configuration while streaming: stop() first")
+        if sample_rate_hz is not None:
+            await self._command(Command(Opcode.SET_RATE, float(sample_rate_hz)))
+        if gyro_full_scale_dps is not None:
+            await self._command(Command(Opcode.SET_GYRO_RANGE, int(gyro_full_scale_dps)))
+        if accel_range_g is not None:
+            await self._command(Command(Opcode.SET_ACCEL_RANGE, int(accel_range_g)))
+        self.config = await self._read_config()
+        self._decoder = StreamDecoder(self.config, self.stats)
+        return self.config
+
+    async def start(self) -> None:
+        """Subscribe to data and start (or resume) the device's session."""
+        cfg = self._require()
+        assert self._decoder is not None
+        await self._t_subscribe(wp.IMU_DATA_CHAR, self._on_data)
+        self._decoder.begin(new_session=not cfg.state & DeviceState.SESSION_ACTIVE)
+        await self._command(Command(Opcode.START))
+        self._streaming = True
+
+    async def stop(self) -> None:
+        """Stop streaming (the device ends its session) and end samples()."""
+        was = self._streaming
+        self._streaming = False
+        if self._reconnect_task is not None:
+            self._reconnect_task.cancel()
+            self._reconnect_task = None
+        if self._connected:
+            try:
+                await self._command(Command(Opcode.STOP))
+                await self._t_unsubscribe(wp.IMU_DATA_CHAR)
+            except LinkError:
+                if self._connected:
+                    raise
+        if was:
+            self._push(_END)
+
+    async def disconnect(self) -> None:
+        """Disconnect on purpose; no reconnection. samples() ends."""
+        self._closing = True
+        self._streaming = False
+        if self._reconnect_task is not None:
+            self._reconnect_task.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await self._reconnect_task
+            self._reconnect_task = None
+        if self._connected:
+            self._connected = False
+            with contextlib.suppress(Exception):
+                await self._t_disconnect()
+        self._push(_END)
+
+    async def samples(self) -> AsyncIterator[SampleBatch | LinkEvent]:
+        """Batches and events in stream order; consecutive batches without a gap are merged when the
+        consumer falls behind. Ends after stop(), disconnect(), link_failed or stream_ended."""
+        while True:
+            while not self._feed:
+                self._feed_ready.clear()
+                await self._feed_ready.wait()
+            item = self._feed.popleft()
+            if item is _END:
+                return
+            if isinstance(item, SampleBatch):
+                merged = [item]
+                while self._feed and len(merged) < MAX_MERGE:
+                    nxt = self._feed[0]
+                    if not isinstance(nxt, SampleBatch) or nxt.lost_before:
+                        break
+                    merged.append(self._feed.popleft())
+                yield SampleBatch.concat(merged)
+            else:
+                assert isinstance(item, LinkEvent)
+                yield item
+
+    # ------------------------------------------------------------------ callbacks
+
+    def _push(self, item: object) -> None:
+        self._feed.append(item)
+        self._feed_ready.set()
+
+    def _on_data(self, data: bytes) -> None:
+        if self._decoder is None:
+            return
+        batch = self._decoder.feed(data)
+        if batch is None:
+            return
+        if self._restore is not None:
+            attempts, lost_at = self._restore
+            self._restore = None
+            gap_s = batch.lost_before / batch.fs_hz if batch.fs_hz else None
+            self._push(LinkEvent("link_restored", float(batch.t_device_s[0]), batch.lost_before, gap_s,
+                                 attempts, time.monotonic() - lost_at))
+        self._push(batch)
+
+    def _on_control(self, data: bytes) -> None:
+        try:
+            reply = StatusReply.decode(data)
+        except DecodeError as e:
+            log.warning("unreadable control reply %r: %s", bytes(data), e)
+            return
+        if reply.opcode == Opcode.STREAM_END:
+            self._streaming = False
+            self._push(LinkEvent("stream_ended", self._decoder.last_t_s if self._decoder else None,
+                                 message="the wearable ended the stream"))
+            self._push(_END)
+            return
+        fut = self._waiters.get(reply.opcode)
+        if fut is not None and not fut.done():
+            fut.set_result(reply)
+
+    def _on_link_lost(self) -> None:
+        """Called by the transport when the connection dropped without our asking."""
+        if self._closing or not self._connected:
+            return
+        self._connected = False
+        for fut in self._waiters.values():
+            if not fut.done():
+                fut.set_exception(LinkError("the link dropped while waiting for the wearable's answer"))
+        if self._reconnect_task is not None and not self._reconnect_task.done():
+            return  # dropped again while reconnecting: the running attempt loop carries on
+        self.stats.link_losses += 1
+        last = self._decoder.last_t_s if self._decoder else None
+        self._push(LinkEvent("link_lost", last, message="the radio link to the wearable dropped"))
+        self._reconnect_task = asyncio.get_running_loop().create_task(self._reconnect(time.monotonic()))
+
+    async def _reconnect(self, lost_at: float) -> None:
+        attempts = 0
+        last_error: Exception | None = None
+        for delay in self.policy.delays():
+            if self._closing:
+                return
+            remaining = self.policy.timeout_s - (time.monotonic() - lost_at)
+            if remaining <= 0:
+                break
+            await asyncio.sleep(min(delay, remaining))
+            attempts += 1
+            try:
+                await self._t_disconnect()  # release what is left of the old connection
+            except Exception:
+                pass
+            try:
+                await self._open()
+                if self._streaming:
+                    assert self._decoder is not None and self.config is not None
+                    await self._t_subscribe(wp.IMU_DATA_CHAR, self._on_data)
+                    self._restore = (attempts, lost_at)
+                    self._decoder.begin(new_session=not self.config.state & DeviceState.SESSION_ACTIVE)
+                    await self._command(Command(Opcode.START))
+                self.stats.reconnects += 1
+                log.info("reconnected to %s after %d attempts", self.address, attempts)
+                return
+            except asyncio.CancelledError:
+                raise
+            except Exception as e:
+                last_error = e
+                self._connected = False
+                log.info("reconnection attempt %d failed: %s", attempts, e)
+        if not self._closing:
+            self._push(LinkEvent(
+                "link_failed", self._decoder.last_t_s if self._decoder else None, attempts=attempts,
+                downtime_s=time.monotonic() - lost_at,
+                message=f"the wearable did not come back within {self.policy.timeout_s:g} s ({attempts} attempts; "
+                        f"last error: {last_error})",
+            ))
+            self._push(_END)
+            self._streaming = False
