@@ -1,0 +1,731 @@
+"""The calibration service's HTTP API (FastAPI).
+
+Reads are open to whoever can reach the service (it binds to 127.0.0.1 by default) unless the
+service runs with --auth-reads; every write needs an operator's bearer token.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import re
+import time
+import uuid
+from contextlib import asynccontextmanager
+from pathlib import Path
+from typing import Annotated, Any, AsyncIterator
+
+from fastapi import Depends, FastAPI, HTTPException, Query, Request, Response
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import HTMLResponse, JSONResponse, StreamingResponse
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+from pydantic import ValidationError
+from sqlalchemy.exc import SQLAlchemyError
+
+from calib import __version__
+
+from . import models as M
+from .auth import AuthError, Authenticator
+from .config import Settings
+from .devices import DEVICE_ID_RE, Device, DeviceManager
+from .events import Broadcaster, Event, dumps, finite
+from .runner import LiveSession, recording_csv
+from .session import END_STATES, GuidedSession, evaluate_result
+from .store import Store, StoreError
+
+log = logging.getLogger(__name__)
+
+CSV_TYPES = ("text/csv", "application/csv", "text/plain")
+SESSION_ID_RE = re.compile(r"^[0-9a-f]{32}$")
+KEEP_FINISHED = 200  # finished live sessions kept in memory for their event streams
+
+
+class Service:
+    """Everything the API works with: settings, store, operators, devices, live sessions."""
+
+    def __init__(self, settings: Settings, store: Store | None = None, devices: DeviceManager | None = None) -> None:
+        self.settings = settings
+        self.store = store or Store(settings.db_url)
+        self.auth = Authenticator(self.store, settings.api_token, settings.token_ttl_s)
+        self.devices = devices or DeviceManager()
+        self.sessions: dict[str, LiveSession] = {}
+        self.active: dict[str, str] = {}  # device id -> running session id
+        self.started = time.time()
+
+    async def startup(self) -> None:
+        n = await asyncio.to_thread(
+            self.store.fail_unfinished_sessions,
+            "The service was restarted while this calibration ran. Start a new calibration.",
+        )
+        if n:
+            log.warning("%d sessions left open by a previous run were marked failed", n)
+        for dev in self.devices.devices.values():
+            await asyncio.to_thread(self.store.upsert_device, dev.id, name=dev.name, address=dev.address, transport=dev.transport)
+
+    async def shutdown(self) -> None:
+        for live in list(self.sessions.values()):
+            if not live.machine.finished:
+                with contextlib.suppress(Exception):
+                    await asyncio.wait_for(live.shutdown(), timeout=10.0)
+            live.broadcaster.close()
+        await self.devices.close()
+        self.store.close()
+
+    def _session_ended(self, live: LiveSession) -> None:
+        if self.active.get(live.device.id) == live.id:
+            del self.active[live.device.id]
+        finished = [s for s in self.sessions.values() if s.machine.finished]
+        for old in finished[: max(0, len(finished) - KEEP_FINISHED)]:
+            old.broadcaster.close()
+            self.sessions.pop(old.id, None)
+
+
+# -- helpers -------------------------------------------------------------------------------------
+def _problem(status: int, detail: str, headers: dict[str, str] | None = None) -> HTTPException:
+    return HTTPException(status_code=status, detail=detail, headers=headers)
+
+
+def _service(request: Request) -> Service:
+    return request.app.state.service
+
+
+bearer = HTTPBearer(auto_error=False, description="an operator's token from POST /auth/login, or GYROCAL_API_TOKEN")
+
+
+async def _token_operator(svc: Service, token: str | None) -> str | None:
+    if not token:
+        return None
+    return await asyncio.to_thread(svc.auth.operator_for, token)
+
+
+async def require_operator(
+    request: Request, creds: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)]
+) -> str:
+    """The signed-in operator of a write request (401 otherwise)."""
+    svc = _service(request)
+    op = await _token_operator(svc, creds.credentials if creds else None)
+    if op is None:
+        raise _problem(
+            401,
+            "this needs a signed-in operator: send 'Authorization: Bearer <token>' with a token from POST /auth/login"
+            if creds is None
+            else "the token is unknown or expired: sign in again (POST /auth/login)",
+            {"WWW-Authenticate": "Bearer"},
+        )
+    request.state.operator = op
+    return op
+
+
+async def read_access(
+    request: Request,
+    creds: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)],
+    access_token: Annotated[str | None, Query(description="token for readers that cannot send headers (EventSource), when reads need one")] = None,
+) -> str | None:
+    """Reads are open unless the service runs with --auth-reads."""
+    svc = _service(request)
+    if not svc.settings.auth_reads:
+        return None
+    op = await _token_operator(svc, creds.credentials if creds else access_token)
+    if op is None:
+        raise _problem(401, "this service needs a token for reads too: sign in (POST /auth/login)", {"WWW-Authenticate": "Bearer"})
+    return op
+
+
+Reader = Annotated[str | None, Depends(read_access)]
+Operator = Annotated[str, Depends(require_operator)]
+
+
+def _check_device_id(device_id: str) -> None:
+    if not DEVICE_ID_RE.match(device_id):
+        raise _problem(404, f"no device {device_id!r}: device ids are letters, digits and . _ : - (see GET /devices)")
+
+
+def _check_session_id(sid: str) -> None:
+    if not SESSION_ID_RE.match(sid):
+        raise _problem(404, f"no session {sid!r}: session ids are 32 hex digits, as returned when a session starts")
+
+
+async def _current(svc: Service, device_id: str) -> dict[str, Any] | None:
+    rec = await asyncio.to_thread(svc.store.current_calibration, device_id)
+    return None if rec is None else rec.to_dict()
+
+
+async def _device_out(svc: Service, dev: Device | None, row: dict[str, Any] | None, detail: bool = False) -> dict[str, Any]:
+    device_id = dev.id if dev else row["id"]  # type: ignore[index]
+    row = row or {}
+    info = dev.info if dev else {}
+    out: dict[str, Any] = {
+        "id": device_id,
+        "name": (dev.name if dev else None) or row.get("name"),
+        "transport": dev.transport if dev else row.get("transport"),
+        "address": (dev.address if dev else None) or row.get("address"),
+        "connected": bool(dev and dev.connected),
+        "available": dev is not None,
+        "simulated": bool(dev and dev.simulated),
+        "scenario": dev.scenario if dev else None,
+        "sensor_model": info.get("sensor_model") or row.get("sensor_model"),
+        "firmware": info.get("firmware") or row.get("firmware"),
+        "serial": info.get("serial") or row.get("serial"),
+        "active_session": svc.active.get(device_id),
+        "current_calibration": await _current(svc, device_id),
+        "last_seen": row.get("last_seen"),
+    }
+    if detail:
+        out["simulated_truth"] = dev.simulated_truth if dev else None
+        out["info"] = finite(dict(info))
+        out["recent_sessions"] = [
+            {k: s[k] for k in ("id", "kind", "state", "reason_code", "passed", "decision", "started_at", "ended_at")}
+            for s in await asyncio.to_thread(svc.store.sessions, device_id, 10)
+        ]
+    return out
+
+
+def _stored_snapshot(row: dict[str, Any]) -> dict[str, Any]:
+    info = row.get("info") or {}
+    return {
+        "session_id": row["id"],
+        "device_id": row["device_id"],
+        "kind": row["kind"],
+        "event": "state",
+        "state": row["state"],
+        "phase": None,
+        "prompt": row.get("reason"),
+        "reason_code": row["reason_code"],
+        "reason": row["reason"],
+        "result": row["result"],
+        "passed": row["passed"],
+        "checks": info.get("checks") or [],
+        "warnings": info.get("warnings") or [],
+        "turns": info.get("turns") or {},
+        "decision": row["decision"],
+        "calibration_id": None,
+        "method": row["method"],
+        "operator": row["operator"],
+        "started_at": row["started_at"],
+        "ended_at": row["ended_at"],
+    }
+
+
+async def _session_snapshot(svc: Service, sid: str) -> dict[str, Any]:
+    live = svc.sessions.get(sid)
+    if live is not None:
+        snap = live.machine.snapshot("state")
+        snap["kind"] = "live"
+        snap["operator"] = live.operator
+        return snap
+    row = await asyncio.to_thread(svc.store.session, sid)
+    if row is None:
+        raise _problem(404, f"no session {sid}")
+    return _stored_snapshot(row)
+
+
+# -- the app -------------------------------------------------------------------------------------
+class BodyLimit:
+    """Refuses request bodies above a size with 413 (by Content-Length or while streaming)."""
+
+    def __init__(self, app: Any, max_bytes: int) -> None:
+        self.app = app
+        self.max_bytes = max_bytes
+
+    async def __call__(self, scope: Any, receive: Any, send: Any) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        headers = dict(scope.get("headers") or [])
+        length = headers.get(b"content-length")
+        too_big = f"the request body is larger than {self.max_bytes // (1024 * 1024)} MiB; send a shorter recording"
+        if length is not None:
+            try:
+                n = int(length)
+            except ValueError:
+                n = -1
+            if n < 0 or n > self.max_bytes:
+                msg = too_big if n > self.max_bytes else "the Content-Length header is not a number"
+                await JSONResponse({"detail": msg}, status_code=413 if n > 0 else 400)(scope, receive, send)
+                return
+        seen = 0
+        started = False
+
+        async def limited_receive() -> Any:
+            nonlocal seen
+            message = await receive()
+            if message["type"] == "http.request":
+                seen += len(message.get("body", b""))
+                if seen > self.max_bytes:
+                    raise _BodyTooLarge()
+            return message
+
+        async def tracking_send(message: Any) -> None:
+            nonlocal started
+            if message["type"] == "http.response.start":
+                started = True
+            await send(message)
+
+        try:
+            await self.app(scope, limited_receive, tracking_send)
+        except _BodyTooLarge:
+            if not started:
+                await JSONResponse({"detail": too_big}, status_code=413)(scope, receive, send)
+
+
+class _BodyTooLarge(Exception):
+    pass
+
+
+def create_app(settings: Settings | None = None, service: Service | None = None) -> FastAPI:
+    """The FastAPI application; the Service (store, devices) is created from settings if not given."""
+    settings = settings or (service.settings if service else Settings())
+    svc = service or Service(settings)
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        await svc.startup()
+        try:
+            yield
+        finally:
+            await svc.shutdown()
+
+    app = FastAPI(
+        title="gyrocal calibration service",
+        version=__version__,
+        description=(
+            "Calibrates the gyroscopes of wearable IMUs: guided live sessions over BLE, uploads of recordings, "
+            "and a per-device, append-only history of accepted calibrations. Model g = K m + b "
+            "(g true rate, m reading, deg/s). Writes need `Authorization: Bearer <token>` (POST /auth/login)."
+        ),
+        lifespan=lifespan,
+        responses={422: {"model": M.Problem, "description": "invalid request"}},
+    )
+    app.state.service = svc
+    app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
+
+    @app.exception_handler(StoreError)
+    async def _store_error(request: Request, exc: StoreError) -> JSONResponse:
+        return JSONResponse({"detail": f"the store is unavailable: {exc}. Try again; nothing was changed."}, status_code=503)
+
+    @app.exception_handler(SQLAlchemyError)
+    async def _db_error(request: Request, exc: SQLAlchemyError) -> JSONResponse:
+        log.exception("store error")
+        return JSONResponse({"detail": f"the store is unavailable ({type(exc).__name__}). Try again; nothing was changed."}, status_code=503)
+
+    @app.exception_handler(RequestValidationError)
+    async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:
+        errors = []
+        for e in exc.errors():
+            loc = ".".join(str(p) for p in e.get("loc", ()) if p != "body")
+            errors.append(f"{loc}: {e.get('msg')}" if loc else str(e.get("msg")))
+        return JSONResponse({"detail": "; ".join(errors) or "invalid request"}, status_code=422)
+
+    R404 = {404: {"model": M.Problem, "description": "unknown device or session"}}
+    R401 = {401: {"model": M.Problem, "description": "no or bad operator token"}}
+    R409 = {409: {"model": M.Problem, "description": "not possible in the current state"}}
+    R503 = {503: {"model": M.Problem, "description": "the store could not be written; nothing changed, try again"}}
+
+    # -- service --------------------------------------------------------------------------------
+    @app.get("/health", response_model=M.Health, tags=["service"])
+    async def health() -> dict[str, Any]:
+        """Liveness and what the service runs on (never needs a token)."""
+        return {
+            "status": "ok",
+            "version": __version__,
+            "store": svc.store.dialect,
+            "schema_version": await asyncio.to_thread(svc.store.schema_version),
+            "devices": len(svc.devices.devices),
+            "active_sessions": len(svc.active),
+            "auth_reads": settings.auth_reads,
+        }
+
+    @app.post("/auth/login", response_model=M.LoginOut, responses={401: {"model": M.Problem}}, tags=["auth"])
+    async def login(body: M.LoginIn) -> dict[str, Any]:
+        """Sign an operator in: name and secret in, bearer token out."""
+        try:
+            token, expires = await asyncio.to_thread(svc.auth.sign_in, body.operator, body.secret)
+        except AuthError as exc:
+            raise _problem(401, str(exc)) from None
+        return {"token": token, "token_type": "bearer", "operator": body.operator, "expires_at": expires.isoformat()}
+
+    @app.post("/auth/logout", status_code=204, responses=R401, tags=["auth"])
+    async def logout(request: Request, operator: Operator, creds: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)]) -> Response:
+        """Revoke the token of this request."""
+        if creds is not None:
+            await asyncio.to_thread(svc.auth.sign_out, creds.credentials, operator)
+        return Response(status_code=204)
+
+    @app.get("/auth/me", response_model=M.Me, responses=R401, tags=["auth"])
+    async def me(operator: Operator) -> dict[str, str]:
+        """The operator a token belongs to."""
+        return {"operator": operator}
+
+    # -- devices --------------------------------------------------------------------------------
+    @app.get("/devices", response_model=list[M.DeviceOut], tags=["devices"])
+    async def list_devices(_: Reader) -> list[dict[str, Any]]:
+        """Known devices: the connectable ones (simulated, scanned) and those in the store's history."""
+        rows = {r["id"]: r for r in await asyncio.to_thread(svc.store.devices)}
+        ids = list(svc.devices.devices) + [i for i in rows if i not in svc.devices.devices]
+        return [await _device_out(svc, svc.devices.get(i), rows.get(i)) for i in ids]
+
+    @app.post("/devices/scan", response_model=M.ScanOut, responses=R401, tags=["devices"])
+    async def scan(operator: Operator, timeout: Annotated[float, Query(gt=0, le=30, description="scan time, s")] = 5.0) -> dict[str, Any]:
+        """Scan for wearables (BLE when the service runs with --ble); returns those found, each with its id."""
+        try:
+            found = await svc.devices.scan(timeout)
+        except Exception as exc:
+            raise _problem(503, f"the Bluetooth scan failed ({exc}); check that Bluetooth is on") from None
+        for dev in found:
+            await asyncio.to_thread(svc.store.upsert_device, dev.id, name=dev.name, address=dev.address, transport=dev.transport)
+        await asyncio.to_thread(svc.store.audit, operator, "devices.scan", None, None, {"found": [d.id for d in found]})
+        rows = {r["id"]: r for r in await asyncio.to_thread(svc.store.devices)}
+        return {"devices": [await _device_out(svc, d, rows.get(d.id)) for d in found]}
+
+    @app.get("/devices/{device_id}", response_model=M.DeviceDetail, responses=R404, tags=["devices"])
+    async def get_device(device_id: str, _: Reader) -> dict[str, Any]:
+        """One device: connection, current calibration, recent sessions; simulated ones show their truth."""
+        _check_device_id(device_id)
+        dev = svc.devices.get(device_id)
+        row = await asyncio.to_thread(svc.store.device, device_id)
+        if dev is None and row is None:
+            raise _problem(404, f"no device {device_id!r}; see GET /devices or POST /devices/scan")
+        return await _device_out(svc, dev, row, detail=True)
+
+    @app.get("/devices/{device_id}/calibration", response_model=M.CalibrationOut, responses=R404, tags=["calibrations"])
+    async def current_calibration(device_id: str, _: Reader) -> dict[str, Any]:
+        """The device's current calibration: its latest accepted one."""
+        _check_device_id(device_id)
+        cur = await _current(svc, device_id)
+        if cur is None:
+            raise _problem(404, f"device {device_id!r} has no accepted calibration yet")
+        return cur
+
+    @app.get("/devices/{device_id}/calibrations", response_model=list[M.CalibrationOut], responses=R404, tags=["calibrations"])
+    async def calibrations(device_id: str, _: Reader) -> list[dict[str, Any]]:
+        """Every accepted calibration of the device, newest first (nothing is ever overwritten)."""
+        _check_device_id(device_id)
+        if svc.devices.get(device_id) is None and await asyncio.to_thread(svc.store.device, device_id) is None:
+            raise _problem(404, f"no device {device_id!r}")
+        return [r.to_dict() for r in await asyncio.to_thread(svc.store.calibrations, device_id)]
+
+    @app.post(
+        "/devices/{device_id}/calibrate",
+        status_code=202,
+        response_model=M.SessionStarted,
+        responses={
+            200: {"model": M.OfflineResult, "description": "a text/csv recording was calibrated"},
+            400: {"model": M.Problem, "description": "the recording cannot be read"},
+            413: {"model": M.Problem, "description": "the recording is too large"},
+            415: {"model": M.Problem, "description": "unsupported body type"},
+            **R401, **R404, **R409, **R503,
+        },
+        openapi_extra={
+            "requestBody": {
+                "required": False,
+                "content": {
+                    "application/json": {"schema": M.SessionStart.model_json_schema()},
+                    "text/csv": {"schema": {"type": "string", "description": "a recording: native (t,gx,gy,gz,...) or imucal layout"}},
+                },
+            }
+        },
+        tags=["sessions"],
+    )
+    async def calibrate(
+        device_id: str,
+        request: Request,
+        response: Response,
+        operator: Operator,
+        fs: Annotated[float | None, Query(gt=0, le=100000, description="sample rate, Hz (CSV without a time column)")] = None,
+        method: Annotated[str | None, Query(max_length=32, description="estimator: closure (default) or paper")] = None,
+        layout: Annotated[str, Query(max_length=16, description="CSV layout: auto, native, imucal")] = "auto",
+    ) -> Any:
+        """Start a guided live session (JSON body or none) → 202; or calibrate an uploaded CSV → 200."""
+        _check_device_id(device_id)
+        ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
+        body = await request.body()
+        if ctype in CSV_TYPES:
+            return await _offline(svc, device_id, operator, body, fs, method, layout)
+        if ctype and ctype != "application/json" and body:
+            raise _problem(415, f"send a JSON body (application/json) to start a live session or a CSV (text/csv) to calibrate a recording; got {ctype}")
+        opts = M.SessionStart()
+        if body.strip():
+            try:
+                opts = M.SessionStart.model_validate_json(body)
+            except ValidationError as exc:
+                raise _problem(422, "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" if e["loc"] else e["msg"] for e in exc.errors())) from None
+        live = await _start_live(svc, device_id, operator, opts.method or method, opts.max_attempts)
+        url = f"/sessions/{live.id}"
+        response.headers["Location"] = url
+        return {"session_id": live.id, "device_id": device_id, "state": live.machine.state, "url": url, "events": f"{url}/events"}
+
+    # -- sessions -------------------------------------------------------------------------------
+    @app.get("/sessions/{session_id}", response_model=M.SessionOut, responses=R404, tags=["sessions"])
+    async def get_session(session_id: str, _: Reader) -> dict[str, Any]:
+        """A session's full state; `result` once computed."""
+        _check_session_id(session_id)
+        return finite(await _session_snapshot(svc, session_id))
+
+    @app.get(
+        "/sessions/{session_id}/events",
+        responses={200: {"content": {"text/event-stream": {}}, "description": "Server-Sent Events: each a full session snapshot"}, **R404},
+        response_class=StreamingResponse,
+        tags=["sessions"],
+    )
+    async def session_events(
+        session_id: str,
+        request: Request,
+        _: Reader,
+        last_event_id: Annotated[int | None, Query(ge=0, description="resume after this event id (instead of the Last-Event-ID header)")] = None,
+    ) -> StreamingResponse:
+        """Server-Sent Events of a session: state changes, prompts, live angle, stillness progress,
+        warnings and the result, each a full snapshot with an id (reconnect with Last-Event-ID)."""
+        _check_session_id(session_id)
+        header = request.headers.get("last-event-id")
+        if header is not None:
+            try:
+                last_event_id = int(header)
+            except ValueError:
+                last_event_id = None
+        live = svc.sessions.get(session_id)
+        headers = {"Cache-Control": "no-cache", "X-Accel-Buffering": "no"}
+        if live is not None:
+            return StreamingResponse(live.broadcaster.stream(last_event_id), media_type="text/event-stream", headers=headers)
+        row = await asyncio.to_thread(svc.store.session, session_id)
+        if row is None:
+            raise _problem(404, f"no session {session_id}")
+        snap = finite(_stored_snapshot(row))
+
+        async def once() -> AsyncIterator[bytes]:
+            yield Event(0, "state", dumps(snap)).encode()
+
+        return StreamingResponse(once(), media_type="text/event-stream", headers=headers)
+
+    @app.get(
+        "/sessions/{session_id}/recording",
+        responses={200: {"content": {"text/csv": {}}, "description": "the archived raw recording (native CSV)"}, **R404},
+        response_class=Response,
+        tags=["sessions"],
+    )
+    async def session_recording(session_id: str, _: Reader) -> Response:
+        """The session's archived raw recording; header X-Recording-SHA256 is its checksum."""
+        _check_session_id(session_id)
+        got = await asyncio.to_thread(svc.store.recording, session_id)
+        if got is None:
+            raise _problem(404, f"no archived recording for session {session_id}")
+        data, digest = got
+        return Response(data, media_type="text/csv", headers={"X-Recording-SHA256": digest,
+                                                              "Content-Disposition": f'attachment; filename="{session_id}.csv"'})
+
+    @app.post("/sessions/{session_id}/cancel", response_model=M.SessionOut, responses={**R401, **R404, **R409}, tags=["sessions"])
+    async def cancel(session_id: str, operator: Operator) -> dict[str, Any]:
+        """Stop a running session; it ends `cancelled` and nothing is stored as a calibration."""
+        _check_session_id(session_id)
+        live = svc.sessions.get(session_id)
+        if live is None:
+            await _session_snapshot(svc, session_id)  # 404 if unknown
+            raise _problem(409, "the session has ended already; nothing to cancel")
+        if not live.cancel(f"Cancelled by {operator}."):
+            raise _problem(409, f"the session has ended already ({live.machine.state}); nothing to cancel")
+        await asyncio.to_thread(svc.store.audit, operator, "session.cancel", live.device.id, session_id)
+        await live.wait()
+        return finite(await _session_snapshot(svc, session_id))
+
+    @app.post("/sessions/{session_id}/accept", response_model=M.AcceptOut, responses={**R401, **R404, **R409, **R503}, tags=["sessions"])
+    async def accept(session_id: str, operator: Operator, body: M.DecisionIn | None = None) -> dict[str, Any]:
+        """Store the session's result as the device's current calibration (a new row in its history)."""
+        _check_session_id(session_id)
+        live = svc.sessions.get(session_id)
+        snap = await _session_snapshot(svc, session_id)
+        if snap["state"] != "done":
+            why = snap.get("reason") or f"it is {snap['state']}"
+            raise _problem(409, f"only a finished session within tolerances can be accepted; this one is {snap['state']}: {why}")
+        if snap.get("decision"):
+            raise _problem(409, f"this session was {snap['decision']} already")
+        if not snap.get("passed"):
+            raise _problem(409, "the result is outside the tolerances and cannot become the device's calibration")
+        if live is not None:
+            await live.wait()
+        try:
+            rec = await asyncio.to_thread(
+                svc.store.accept,
+                session_id,
+                operator,
+                snap["result"],
+                sensor_model=(live.device.info.get("sensor_model") if live else None),
+                firmware=(live.device.info.get("firmware") if live else None),
+                recording_csv=(live.csv_bytes if live else None),
+                n_samples=(live.machine.buf.n if live else 0),
+            )
+        except (StoreError, SQLAlchemyError) as exc:
+            log.warning("accept of %s failed: %s", session_id, exc)
+            if isinstance(exc, StoreError) and "already" in str(exc):
+                raise _problem(409, str(exc)) from None
+            raise _problem(
+                503,
+                f"the calibration could not be stored ({type(exc).__name__}); the previous calibration stays current. "
+                "Try accepting again.",
+            ) from None
+        if body is not None and body.note:
+            await asyncio.to_thread(svc.store.audit, operator, "session.note", rec.device_id, session_id, {"note": body.note})
+        if live is not None:
+            live.machine.decide("accepted", rec.id)
+        return {"session_id": session_id, "calibration": rec.to_dict()}
+
+    @app.post("/sessions/{session_id}/discard", response_model=M.SessionOut, responses={**R401, **R404, **R409, **R503}, tags=["sessions"])
+    async def discard(session_id: str, operator: Operator, body: M.DecisionIn | None = None) -> dict[str, Any]:
+        """Discard a finished session's result; it stays in the store for audit and never becomes current."""
+        _check_session_id(session_id)
+        live = svc.sessions.get(session_id)
+        snap = await _session_snapshot(svc, session_id)
+        if snap["state"] not in END_STATES:
+            raise _problem(409, "the session is still running: cancel it first")
+        if snap.get("decision"):
+            raise _problem(409, f"this session was {snap['decision']} already")
+        if live is not None:
+            await live.wait()
+        try:
+            await asyncio.to_thread(svc.store.discard_session, session_id, operator)
+        except (StoreError, SQLAlchemyError) as exc:
+            raise _problem(503, f"the decision could not be stored ({type(exc).__name__}); try again") from None
+        if body is not None and body.note:
+            await asyncio.to_thread(svc.store.audit, operator, "session.note", snap["device_id"], session_id, {"note": body.note})
+        if live is not None:
+            live.machine.decide("discarded", None)
+        return finite(await _session_snapshot(svc, session_id))
+
+    @app.get("/devices/{device_id}/sessions", response_model=list[M.SessionOut], responses=R404, tags=["sessions"])
+    async def device_sessions(device_id: str, _: Reader, limit: Annotated[int, Query(ge=1, le=500)] = 50) -> list[dict[str, Any]]:
+        """A device's sessions, newest first, whatever their outcome (kept for audit)."""
+        _check_device_id(device_id)
+        rows = await asyncio.to_thread(svc.store.sessions, device_id, limit)
+        return [finite(_stored_snapshot(r)) for r in rows]
+
+    @app.get("/audit", response_model=list[M.AuditEntry], responses=R401, tags=["service"])
+    async def audit(
+        operator: Operator,
+        device_id: Annotated[str | None, Query(max_length=128)] = None,
+        limit: Annotated[int, Query(ge=1, le=1000)] = 200,
+    ) -> list[dict[str, Any]]:
+        """The audit log, newest first: who did what, when, on which device (needs a token)."""
+        return await asyncio.to_thread(svc.store.audit_log, device_id, limit)
+
+    _mount_static(app, settings)
+    return app
+
+
+async def _start_live(svc: Service, device_id: str, operator: str, method: str | None, max_attempts: int | None) -> LiveSession:
+    from calib.api import available_methods
+
+    if method is not None and method not in available_methods():
+        raise _problem(422, f"unknown method {method!r}: choose one of {', '.join(available_methods())}")
+    dev = svc.devices.get(device_id)
+    if dev is None:
+        known = await asyncio.to_thread(svc.store.device, device_id)
+        if known is None:
+            raise _problem(404, f"no device {device_id!r}; see GET /devices or scan with POST /devices/scan")
+        if known.get("transport") == "ble" and svc.devices.ble:
+            dev = svc.devices.add_ble_address(device_id)
+        else:
+            raise _problem(409, f"device {device_id!r} is not reachable by this service (known from uploads only); scan for it first")
+    if device_id in svc.active:
+        raise _problem(409, f"device {device_id!r} is already in a calibration session ({svc.active[device_id]}); one at a time")
+    sid = uuid.uuid4().hex
+    machine = GuidedSession(sid, device_id, svc.settings, max_attempts=max_attempts, method=method)
+    svc.active[device_id] = sid  # claimed before the first await: a second request gets 409
+    try:
+        await asyncio.to_thread(
+            svc.store.create_session, sid, device_id, "live", "connecting", machine.method, operator, __version__,
+            {"transport": dev.transport, "scenario": dev.scenario},
+        )
+    except Exception:
+        svc.active.pop(device_id, None)
+        raise
+    live = LiveSession(machine, dev, svc.store, svc.settings, __version__, operator, on_end=svc._session_ended)
+    svc.sessions[sid] = live
+    live.start()
+    return live
+
+
+async def _offline(svc: Service, device_id: str, operator: str, body: bytes, fs: float | None, method: str | None, layout: str) -> JSONResponse:
+    from calib.api import DEFAULT_METHOD, available_methods, calibrate
+    from calib.errors import GyrocalError, ProtocolError, RecordingError
+    from calib.io import parse_recording_text
+
+    method = method or DEFAULT_METHOD
+    if method not in available_methods():
+        raise _problem(422, f"unknown method {method!r}: choose one of {', '.join(available_methods())}")
+    if layout not in ("auto", "native", "imucal"):
+        raise _problem(422, f"unknown layout {layout!r}: choose auto, native or imucal")
+    if not body.strip():
+        raise _problem(400, "the CSV body is empty: send a recording (header t,gx,gy,gz,... or gyr_x,gyr_y,gyr_z,...)")
+    source = f"upload for {device_id}"
+    try:
+        rec = await asyncio.to_thread(parse_recording_text, body, fs, layout, source)
+    except GyrocalError as exc:
+        raise _problem(400, str(exc)) from None
+    except Exception as exc:  # whatever the parser trips on, the upload is at fault
+        log.warning("unreadable upload: %r", exc)
+        raise _problem(400, f"the recording cannot be read ({type(exc).__name__}: {exc}); send a native or imucal CSV") from None
+    if len(rec) > svc.settings.max_upload_samples:
+        raise _problem(413, f"the recording has {len(rec)} samples; at most {svc.settings.max_upload_samples} are accepted")
+    try:
+        result = await asyncio.to_thread(calibrate, rec, method)
+    except ProtocolError as exc:
+        raise _problem(422, str(exc)) from None
+    except RecordingError as exc:
+        raise _problem(400, str(exc)) from None
+    except GyrocalError as exc:
+        raise _problem(422, str(exc)) from None
+    except Exception as exc:
+        log.exception("estimator failed on an upload")
+        raise _problem(422, f"the calibration could not be computed from this recording ({type(exc).__name__}: {exc})") from None
+    res = finite(result.to_dict())
+    res["sample_rate_hz"] = rec.fs
+    res["n_samples"] = len(rec)
+    checks = evaluate_result(res, svc.settings.tolerances)
+    failures = [c["text"] for c in checks if not c["ok"]]
+    passed = not failures
+    sid = uuid.uuid4().hex
+    csv = await asyncio.to_thread(recording_csv, rec)
+    from . import guidance as say
+
+    reason = None if passed else say.out_of_tolerance(failures)
+    await asyncio.to_thread(svc.store.upsert_device, device_id)
+    await asyncio.to_thread(svc.store.create_session, sid, device_id, "upload", "computing", method, operator, __version__,
+                            {"source": "upload", "layout": layout, "fs": fs})
+    digest = await asyncio.to_thread(svc.store.archive_recording, sid, csv, len(rec))
+    await asyncio.to_thread(
+        svc.store.finish_session, sid, "done" if passed else "failed",
+        reason_code=None if passed else "out_of_tolerance", reason=reason, result=res, passed=passed,
+        info={"checks": checks, "samples": len(rec)},
+    )
+    out = {
+        **res,
+        "session_id": sid,
+        "device_id": device_id,
+        "state": "done" if passed else "failed",
+        "passed": passed,
+        "checks": checks,
+        "reason": reason,
+        "recording_sha256": digest,
+    }
+    return JSONResponse(finite(out), status_code=200, headers={"Location": f"/sessions/{sid}"})
+
+
+_PLACEHOLDER = """<!doctype html><html lang="en"><head><meta charset="utf-8"><title>gyrocal</title></head>
+<body style="font-family: sans-serif; max-width: 40em; margin: 3em auto">
+<h1>gyrocal calibration service</h1>
+<p>The service runs. The API is described at <a href="/docs">/docs</a> (OpenAPI: <a href="/openapi.json">/openapi.json</a>);
+devices are listed at <a href="/devices">/devices</a>.</p></body></html>"""
+
+
+def _mount_static(app: FastAPI, settings: Settings) -> None:
+    static = settings.static_dir
+    if static is None:
+        static = Path(__file__).resolve().parents[1] / "webui" / "static"
+    if Path(static).is_dir() and (Path(static) / "index.html").is_file():
+        from fastapi.staticfiles import StaticFiles
+
+        app.mount("/", StaticFiles(directory=str(static), html=True), name="webui")
+        return
+
+    @app.get("/", response_class=HTMLResponse, include_in_schema=False)
+    async def index() -> str:
+        return _PLACEHOLDER

@@ -1,0 +1,239 @@
+"""`gyrocal serve` and `gyrocal operator`: the service's commands (plugged into calib's CLI)."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from typing import Any
+
+from calib.errors import GyrocalError
+
+EXIT_OK = 0
+EXIT_USAGE = 2
+
+
+class ServiceError(GyrocalError):
+    """The service cannot start as asked; the message says why."""
+
+
+def register(sub: Any) -> None:
+    """Add `gyrocal serve`."""
+    p = sub.add_parser(
+        "serve",
+        help="run the calibration service (REST API, live guided sessions, per-device store)",
+        description="Run the calibration service. Reads are open to whoever can reach it (it binds to "
+        "127.0.0.1 by default); writes need an operator's token (gyrocal operator add NAME, or GYROCAL_API_TOKEN).",
+    )
+    p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1: this computer only)")
+    p.add_argument("--port", type=int, default=8000, help="TCP port (default 8000; 0 picks a free one)")
+    p.add_argument("--db", default=None, metavar="URL",
+                   help="SQLAlchemy URL of the store: sqlite:///path or postgresql://user@host/db "
+                   "(default: GYROCAL_DB, else gyrocal.sqlite3 in the user's data directory)")
+    p.add_argument("--mock", type=int, default=0, metavar="N", help="add N simulated wearables mock-1 ... mock-N")
+    p.add_argument("--mock-speed", type=float, default=1.0, metavar="X", help="simulated time runs X times faster than real time (default 1)")
+    p.add_argument("--mock-seed", type=int, default=0, metavar="S", help="seed of the simulated sensors and clinicians (default 0)")
+    p.add_argument("--mock-scenario", default="normal", metavar="NAMES",
+                   help="what the simulated clinician does, comma-separated, assigned to mock-1, mock-2, ... in turn: "
+                   "normal, moved_during_still, wrong_axis, too_fast, stops_short, link_drop, packet_loss (default normal)")
+    p.add_argument("--mock-rate", type=float, default=104.0, metavar="HZ", help="sample rate of the simulated wearables (default 104; up to 562.5)")
+    p.add_argument("--ble", action="store_true", help="use Bluetooth LE wearables through bleak (BlueZ, or the simulated one via DBUS_SYSTEM_BUS_ADDRESS)")
+    p.add_argument("--ble-adapter", default=None, metavar="HCI", help="Bluetooth adapter (default: the system's)")
+    p.add_argument("--auth-reads", action="store_true", help="require a token for reads too (default: only writes need one)")
+    p.add_argument("--method", default="closure", help="estimator of live sessions (default closure)")
+    p.add_argument("--max-attempts", type=int, default=1, metavar="N",
+                   help="tries per turn before a session fails (default 1: any fault ends the session with its reason)")
+    p.add_argument("--demo-operator", default=None, metavar="NAME",
+                   help="create operator NAME (or give it a new secret) and print the secret: for trying the service")
+    p.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
+    p.set_defaults(func=cmd_serve)
+
+
+def register_operator(sub: Any) -> None:
+    """Add `gyrocal operator add|list|remove|reset`."""
+    p = sub.add_parser("operator", help="manage the operators who may write to the service (hashed secrets)")
+    p.add_argument("--db", default=None, metavar="URL", help="the store's URL (default as for `gyrocal serve`)")
+    osub = p.add_subparsers(dest="operator_command", metavar="ACTION", required=True)
+    a = osub.add_parser("add", help="add an operator; prints the secret once")
+    a.add_argument("name")
+    a.add_argument("--secret-stdin", action="store_true", help="read the secret from standard input instead of generating one")
+    a.set_defaults(func=cmd_operator_add)
+    r = osub.add_parser("reset", help="give an operator a new secret (signs them out everywhere)")
+    r.add_argument("name")
+    r.add_argument("--secret-stdin", action="store_true", help="read the secret from standard input instead of generating one")
+    r.set_defaults(func=cmd_operator_reset)
+    d = osub.add_parser("remove", help="disable an operator (kept in the audit trail)")
+    d.add_argument("name")
+    d.set_defaults(func=cmd_operator_remove)
+    ls = osub.add_parser("list", help="list operators")
+    ls.set_defaults(func=cmd_operator_list)
+
+
+# -- operator ------------------------------------------------------------------------------------
+def _store(url: str | None) -> Any:
+    from .config import default_db_url
+    from .store import Store, StoreError
+
+    try:
+        return Store(url or default_db_url())
+    except StoreError as exc:
+        raise ServiceError(str(exc)) from None
+
+
+def _read_secret() -> str:
+    secret = sys.stdin.readline().rstrip("\r\n")
+    if not secret:
+        raise ServiceError("no secret on standard input")
+    return secret
+
+
+def _auth(args: argparse.Namespace) -> Any:
+    from .auth import Authenticator
+
+    return Authenticator(_store(args.db))
+
+
+def cmd_operator_add(args: argparse.Namespace) -> int:
+    from .auth import AuthError
+    from .store import StoreError
+
+    auth = _auth(args)
+    try:
+        secret = auth.add_operator(args.name, _read_secret() if args.secret_stdin else None)
+    except (AuthError, StoreError) as exc:
+        raise ServiceError(str(exc)) from None
+    if args.secret_stdin:
+        print(f"operator {args.name} added")
+    else:
+        print(f"operator {args.name} added; their secret (shown once, store it safely):")
+        print(secret)
+    return EXIT_OK
+
+
+def cmd_operator_reset(args: argparse.Namespace) -> int:
+    from .auth import AuthError
+    from .store import StoreError
+
+    auth = _auth(args)
+    try:
+        secret = auth.reset_operator(args.name, _read_secret() if args.secret_stdin else None)
+    except (AuthError, StoreError) as exc:
+        raise ServiceError(str(exc)) from None
+    print(f"operator {args.name} has a new secret" + ("" if args.secret_stdin else " (shown once):"))
+    if not args.secret_stdin:
+        print(secret)
+    return EXIT_OK
+
+
+def cmd_operator_remove(args: argparse.Namespace) -> int:
+    from .store import StoreError
+
+    try:
+        _store(args.db).disable_operator(args.name)
+    except StoreError as exc:
+        raise ServiceError(str(exc)) from None
+    print(f"operator {args.name} removed")
+    return EXIT_OK
+
+
+def cmd_operator_list(args: argparse.Namespace) -> int:
+    ops = _store(args.db).operators()
+    if not ops:
+        print("no operators yet: add one with `gyrocal operator add NAME`")
+    for op in ops:
+        print(f"{op['name']:<24} {'active' if op['active'] else 'removed':<8} since {op['created_at'][:19]}")
+    return EXIT_OK
+
+
+# -- serve ---------------------------------------------------------------------------------------
+def build_service(args: argparse.Namespace) -> Any:
+    """Settings, store and devices from the command line (no event loop needed)."""
+    from calib.api import available_methods
+
+    from .app import Service
+    from .config import Settings, default_db_url
+    from .devices import MOCK_RATES_HZ, DeviceManager
+
+    if args.mock < 0 or args.mock > 1000:
+        raise ServiceError("--mock takes a number of simulated wearables between 0 and 1000")
+    if not (args.mock_speed > 0):
+        raise ServiceError("--mock-speed must be a positive number (1 = real time)")
+    if not any(abs(args.mock_rate - r) < 1e-6 for r in MOCK_RATES_HZ):
+        raise ServiceError(f"--mock-rate must be one of {', '.join(f'{r:g}' for r in MOCK_RATES_HZ)} Hz")
+    if args.method not in available_methods():
+        raise ServiceError(f"--method must be one of {', '.join(available_methods())}")
+    if not 1 <= args.max_attempts <= 5:
+        raise ServiceError("--max-attempts must be between 1 and 5")
+    scenarios = [s.strip() for s in args.mock_scenario.split(",") if s.strip()]
+    from mock_device.scenarios import SCENARIOS
+
+    unknown = [s for s in scenarios if s not in SCENARIOS]
+    if unknown:
+        raise ServiceError(f"unknown --mock-scenario {', '.join(unknown)}: choose from {', '.join(SCENARIOS)}")
+    settings = Settings(
+        db_url=args.db or default_db_url(),
+        host=args.host,
+        port=args.port,
+        auth_reads=args.auth_reads,
+        method=args.method,
+        max_turn_attempts=args.max_attempts,
+    )
+    from .store import Store, StoreError
+
+    try:
+        store = Store(settings.db_url)
+    except StoreError as exc:
+        raise ServiceError(str(exc)) from None
+    devices = DeviceManager(ble=args.ble, ble_adapter=args.ble_adapter)
+    if args.mock:
+        devices.add_mocks(args.mock, speed=args.mock_speed, seed=args.mock_seed, scenarios=scenarios, rate_hz=args.mock_rate)
+    return Service(settings, store=store, devices=devices)
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    import socket
+
+    import uvicorn
+
+    from .app import create_app
+
+    logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    svc = build_service(args)
+    app = create_app(service=svc)
+    try:
+        sock = socket.socket(socket.AF_INET6 if ":" in args.host else socket.AF_INET, socket.SOCK_STREAM)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind((args.host, args.port))
+    except OSError as exc:
+        raise ServiceError(f"cannot listen on {args.host}:{args.port} ({exc.strerror or exc}); choose another --port") from None
+    port = sock.getsockname()[1]
+    host = f"[{args.host}]" if ":" in args.host else args.host
+    shown = "127.0.0.1" if args.host in ("0.0.0.0", "") else host
+    mocks = ", ".join(d for d in svc.devices.devices if d.startswith("mock-"))
+    print(f"gyrocal service on http://{shown}:{port}/  (store: {svc.store.display_url})", flush=True)
+    if mocks:
+        print(f"simulated wearables: {mocks} (speed {args.mock_speed:g}x)", flush=True)
+    if args.demo_operator:
+        from .auth import AuthError, Authenticator
+
+        auth = Authenticator(svc.store)
+        try:
+            if any(o["name"] == args.demo_operator and o["active"] for o in svc.store.operators()):
+                secret = auth.reset_operator(args.demo_operator)
+            else:
+                secret = auth.add_operator(args.demo_operator)
+        except AuthError as exc:
+            raise ServiceError(str(exc)) from None
+        print(f"sign in as operator {args.demo_operator!r} with the secret {secret}", flush=True)
+    elif not svc.settings.api_token and not svc.store.operators():
+        print("no operators yet: add one with `gyrocal operator add NAME` (or set GYROCAL_API_TOKEN) to start calibrations",
+              flush=True)
+    if args.host not in ("127.0.0.1", "::1", "localhost"):
+        print(f"warning: listening on {args.host}: other computers can reach the service", file=sys.stderr, flush=True)
+    config = uvicorn.Config(app, log_level=args.log_level, access_log=args.log_level == "debug", timeout_graceful_shutdown=5)
+    server = uvicorn.Server(config)
+    try:
+        server.run(sockets=[sock])
+    except KeyboardInterrupt:
+        pass
+    return EXIT_OK

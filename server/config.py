@@ -1,0 +1,80 @@
+"""The service's settings: where the store lives, limits, the guided protocol's timings and tolerances.
+
+Every number a clinician or an administrator may ask about is here, with its unit, and documented in
+docs/service.md.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+
+def default_db_path() -> Path:
+    """The SQLite file used when no --db is given: gyrocal.sqlite3 in the user's data directory."""
+    from platformdirs import user_data_dir
+
+    return Path(user_data_dir("gyrocal", appauthor=False)) / "gyrocal.sqlite3"
+
+
+def default_db_url() -> str:
+    """GYROCAL_DB if set, else the SQLite file in the user's data directory."""
+    env = os.environ.get("GYROCAL_DB")
+    if env:
+        return env
+    return f"sqlite:///{default_db_path()}"
+
+
+@dataclass(frozen=True)
+class ProtocolTimings:
+    """Durations of the guided protocol, in seconds of device time (they scale with --mock-speed)."""
+
+    initial_still_s: float = 3.0  # rest before the first turn (paper Section 2.3)
+    pause_s: float = 2.0  # rest after each turn (counted from when the rest began) before the next prompt
+    min_rest_before_turn_s: float = 1.5  # a turn started early is still accepted after this much rest
+    rest_seen_s: float = 0.5  # rest after a full turn that counts as "put down" (moving again = moved in the pause)
+    settle_s: float = 1.0  # rest needed after a reconnection before the turn is asked again
+    hint_after_s: float = 20.0  # no expected motion for this long -> a hint
+    fail_after_s: float = 60.0  # ... and for this long -> the session fails
+    max_turn_s: float = 30.0  # a turn longer than this is not a hand turn of the protocol
+
+
+@dataclass(frozen=True)
+class Tolerances:
+    """What a turn and a result must satisfy to pass (see docs/service.md, "Tolerances")."""
+
+    # raw integrated angle of a turn about the expected axis: a full turn reads 360/k, so these are a
+    # full turn for scale factors k_max..k_min
+    turn_angle_min_deg: float = 300.0
+    turn_angle_max_deg: float = 450.0
+    off_axis_max_fraction: float = 0.35  # rotation about the other two axes, as a fraction of the turn
+    gravity_closure_max_deg: float = 15.0  # gravity before vs after a turn: the device is put back in place
+    k_min: float = 0.8  # scale factors outside 0.8..1.2 mean a faulty sensor or a protocol error
+    k_max: float = 1.2
+    b_max_dps: float = 10.0  # |bias| above this is outside every low-cost MEMS gyroscope's spec
+    k_std_max: float = 0.01  # 1-sigma uncertainty of each scale factor
+    b_std_max_dps: float = 0.1  # 1-sigma uncertainty of each bias (deg/s)
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Everything the service needs to start."""
+
+    db_url: str = field(default_factory=default_db_url)
+    host: str = "127.0.0.1"
+    port: int = 8000
+    api_token: str | None = field(default_factory=lambda: os.environ.get("GYROCAL_API_TOKEN") or None)
+    auth_reads: bool = False  # when True, reads need a token too (SSE may pass it as ?access_token=)
+    max_body_bytes: int = 32 * 1024 * 1024  # uploads above this get 413
+    max_upload_samples: int = 2_000_000
+    token_ttl_s: float = 12 * 3600.0
+    method: str = "closure"  # estimator of live sessions
+    timings: ProtocolTimings = field(default_factory=ProtocolTimings)
+    tolerances: Tolerances = field(default_factory=Tolerances)
+    max_turn_attempts: int = 1  # a failed turn check ends the session (1) or asks for the turn again (>1)
+    link_silence_s: float = 2.0  # wall-clock seconds without samples before the link counts as lost
+    reconnect_timeout_s: float = 60.0  # wall-clock seconds to get the link back before failing
+    session_timeout_s: float = 900.0  # wall-clock watchdog: no live session runs longer than this
+    sse_rate_hz: float = 20.0  # live angle / progress snapshots per second (state changes are never held back)
+    static_dir: Path | None = None  # the wizard page; default: webui/static if it exists

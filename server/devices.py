@@ -1,0 +1,163 @@
+"""The wearables the service knows: simulated ones in this process (--mock) and BLE ones (--ble).
+
+A device's id is "mock-N" for a simulated wearable and its Bluetooth address for a BLE one. Each
+device owns one link (server.link) that the guided sessions use one at a time.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import re
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+log = logging.getLogger(__name__)
+
+DEVICE_ID_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._:-]{0,127}$")
+MOCK_RATES_HZ = (52.0, 104.0, 208.0, 416.0, 562.5)
+
+
+@dataclass
+class Device:
+    """A wearable the service can stream from."""
+
+    id: str
+    transport: str  # "inprocess" | "ble"
+    name: str | None
+    address: str | None
+    make_link: Callable[[], Any]
+    simulated: bool = False
+    scenario: str | None = None
+    peripheral: Any = None  # the simulated wearable object (in-process only)
+    link: Any = None
+    info: dict[str, Any] = field(default_factory=dict)
+    lock: asyncio.Lock = field(default_factory=asyncio.Lock)
+
+    @property
+    def connected(self) -> bool:
+        return bool(self.link is not None and getattr(self.link, "connected", False))
+
+    @property
+    def simulated_truth(self) -> dict[str, Any] | None:
+        """The simulated sensor's true {k, b} (None for real hardware)."""
+        if self.peripheral is None:
+            return None
+        truth = getattr(self.peripheral, "truth", None)
+        if not truth:
+            return None
+        return {"k": [float(v) for v in truth["k"]], "b": [float(v) for v in truth["b"]]}
+
+    def get_link(self) -> Any:
+        if self.link is None:
+            self.link = self.make_link()
+        return self.link
+
+    async def close(self) -> None:
+        link = self.link
+        if link is not None:
+            with contextlib.suppress(Exception):
+                await link.disconnect()
+        if self.peripheral is not None and hasattr(self.peripheral, "aclose"):
+            with contextlib.suppress(Exception):
+                await self.peripheral.aclose()
+
+
+class DeviceManager:
+    """Known devices, by id; scanning adds BLE ones."""
+
+    def __init__(self, ble: bool = False, ble_adapter: str | None = None) -> None:
+        self.devices: dict[str, Device] = {}
+        self.ble = ble
+        self.ble_adapter = ble_adapter
+
+    def get(self, device_id: str) -> Device | None:
+        return self.devices.get(device_id)
+
+    def add(self, device: Device) -> Device:
+        self.devices[device.id] = device
+        return device
+
+    def add_mocks(
+        self,
+        n: int,
+        speed: float = 1.0,
+        seed: int = 0,
+        scenarios: list[str] | None = None,
+        rate_hz: float = 104.0,
+        noise_dps: float = 0.03,
+    ) -> list[Device]:
+        """N simulated wearables mock-1 … mock-N, each performing its scenario when streaming starts."""
+        from mock_device.sources import ScriptedSource
+        from mock_device.wearable import Wearable
+
+        from .link import InProcessLink, ReconnectPolicy
+
+        scenarios = scenarios or ["normal"]
+        out = []
+        for i in range(1, n + 1):
+            scenario = scenarios[(i - 1) % len(scenarios)]
+            dev_seed = seed * 1000 + i
+            source = ScriptedSource(seed=dev_seed, scenario=scenario, noise_dps=noise_dps)
+            wearable = Wearable(source, seed=dev_seed, speed=speed, name=f"mock-{i}", rate_hz=rate_hz)
+            # the reconnection backoff runs on wall time: scale it with the simulated clock
+            policy = ReconnectPolicy(initial_delay_s=0.25 / speed, max_delay_s=max(0.05, 5.0 / speed), timeout_s=60.0)
+            dev = Device(
+                id=f"mock-{i}",
+                transport="inprocess",
+                name=wearable.name,
+                address=wearable.address,
+                make_link=lambda w=wearable, p=policy: InProcessLink(w, reconnect=p, scan_timeout_s=5.0),
+                simulated=True,
+                scenario=scenario,
+                peripheral=wearable,
+            )
+            out.append(self.add(dev))
+        return out
+
+    async def scan(self, timeout_s: float = 5.0) -> list[Device]:
+        """Scan for wearables: BLE ones when --ble, and the simulated ones (always "found")."""
+        found: list[Device] = [d for d in self.devices.values() if d.transport == "inprocess"]
+        if self.ble:
+            from .link import BleLink
+
+            scanner = BleLink(adapter=self.ble_adapter)
+            for disc in await scanner.scan(timeout_s):
+                dev = self.devices.get(disc.address)
+                if dev is None:
+                    dev = self.add(
+                        Device(
+                            id=disc.address,
+                            transport="ble",
+                            name=disc.name,
+                            address=disc.address,
+                            make_link=lambda a=disc.address: BleLink(a, adapter=self.ble_adapter),
+                        )
+                    )
+                dev.info["rssi"] = disc.rssi
+                if disc.name:
+                    dev.name = disc.name
+                found.append(dev)
+        return found
+
+    def add_ble_address(self, address: str) -> Device:
+        """A BLE wearable known by address (from the store) that has not been scanned yet."""
+        from .link import BleLink
+
+        dev = self.devices.get(address)
+        if dev is None:
+            dev = self.add(
+                Device(
+                    id=address,
+                    transport="ble",
+                    name=None,
+                    address=address,
+                    make_link=lambda a=address: BleLink(a, adapter=self.ble_adapter),
+                )
+            )
+        return dev
+
+    async def close(self) -> None:
+        for dev in self.devices.values():
+            await dev.close()

@@ -1,0 +1,180 @@
+"""What the guided session says to the clinician: prompts, warnings and failure reasons.
+
+Every failure names what happened and how to fix it, in words a clinician understands.
+"""
+
+from __future__ import annotations
+
+AXIS_NAMES = {"x": "X", "y": "Y", "z": "Z"}
+
+# reason codes of a failed session, with a one-line description for the docs and the API schema
+REASONS: dict[str, str] = {
+    "connect_failed": "the device could not be connected or did not start streaming",
+    "not_still": "the device never stayed still long enough before the first turn",
+    "no_motion": "the requested turn did not start within the time limit",
+    "moved_during_pause": "the device moved during a pause between turns",
+    "wrong_axis": "the turn was about another axis than the one asked for",
+    "too_fast": "the turn was so fast that the gyroscope saturated",
+    "turn_incomplete": "the turn was less than a full turn",
+    "turn_too_far": "the turn was more than a full turn",
+    "turn_too_long": "the turn did not end within the time limit",
+    "sample_loss": "samples were lost on the radio link during a turn",
+    "link_lost": "the radio link was lost and did not come back in time",
+    "out_of_tolerance": "the computed calibration is outside the documented tolerances",
+    "calibration_failed": "the estimator could not compute a calibration from the recording",
+    "timeout": "the session did not reach its end within the overall time limit",
+    "service_restarted": "the service was restarted while the session ran",
+    "internal_error": "an unexpected error stopped the session",
+}
+
+
+def ax(axis: str) -> str:
+    return AXIS_NAMES.get(axis, axis.upper())
+
+
+def again(retry: bool, axis: str | None = None) -> str:
+    if retry and axis:
+        return f"Put the device back against the block, wait for the prompt and turn again about {ax(axis)}."
+    return "Start a new calibration."
+
+
+PROMPTS = {
+    "connecting": "Connecting to the device…",
+    "still": "Put the device on the table against the block and take your hands off it.",
+    "settle": "Put the device back against the block and keep it still.",
+    "computing": "Computing the calibration…",
+    "reconnecting": "The connection to the device was lost. Keep the device still and close to the receiver; the session resumes when it reconnects.",
+}
+
+
+def turn_prompt(axis: str) -> str:
+    return f"Turn the device one full turn (360°) about its {ax(axis)} axis, then put it back against the block."
+
+
+def turning_prompt(axis: str) -> str:
+    return f"Keep turning about {ax(axis)} until the device is back against the block."
+
+
+def pause_prompt(axis: str, next_axis: str | None) -> str:
+    then = f" before the turn about {ax(next_axis)}" if next_axis else ""
+    return f"Turn about {ax(axis)} recorded. Keep the device still against the block{then}."
+
+
+def done_prompt(passed: bool) -> str:
+    if passed:
+        return "Calibration computed and within tolerances. Accept it to make it the device's calibration, or discard it."
+    return "The calibration is outside the tolerances."
+
+
+# -- failure and warning texts: (what happened) + (how to fix it) -----------------------------------------------
+def not_still(target_s: float, limit_s: float) -> str:
+    return (
+        f"The device did not stay still for {target_s:g} s within {limit_s:g} s. "
+        "Put it on the table against the block, take your hands off it, and start a new calibration."
+    )
+
+
+def not_still_hint(target_s: float) -> str:
+    return f"Still waiting for {target_s:g} s of rest: put the device down against the block and don't touch it."
+
+
+def no_motion(axis: str, limit_s: float) -> str:
+    return f"No turn about {ax(axis)} started within {limit_s:g} s. Start a new calibration and turn the device when asked."
+
+
+def no_motion_hint(axis: str) -> str:
+    return f"Waiting for the turn: pick the device up and turn it one full turn about its {ax(axis)} axis now."
+
+
+def moved_during_pause(axis: str, pause_s: float, retry: bool) -> str:
+    fix = (
+        "Keep the device still against the block until the countdown ends; the pause starts again."
+        if retry
+        else f"Start a new calibration and, after each turn, keep the device still against the block for {pause_s:g} s, until the countdown ends."
+    )
+    return f"The device moved during the pause after the turn about {ax(axis)}. {fix}"
+
+
+def wrong_axis(expected: str, got: str, retry: bool) -> str:
+    return f"That turn was about {ax(got)}, not {ax(expected)}. {again(retry, expected)} Turn about the {ax(expected)} axis marked on the case."
+
+
+def too_fast(axis: str, full_scale: float | None, retry: bool) -> str:
+    fs = f" (±{full_scale:g} °/s)" if full_scale else ""
+    return f"The turn about {ax(axis)} was too fast: the sensor reached its limit{fs}. {again(retry, axis)} Turn more slowly, taking 2–4 s for the full turn."
+
+
+def turn_incomplete(axis: str, angle: float, retry: bool) -> str:
+    return (
+        f"The turn about {ax(axis)} measured {abs(angle):.0f}°, not a full turn. {again(retry, axis)} "
+        "Turn a full 360° until the device is back in its starting position against the block."
+    )
+
+
+def turn_too_far(axis: str, angle: float, retry: bool) -> str:
+    return (
+        f"The turn about {ax(axis)} measured {abs(angle):.0f}°, more than one full turn. {again(retry, axis)} "
+        "Turn exactly once, stopping when the device is back against the block."
+    )
+
+
+def not_one_axis(axis: str, off_deg: float, retry: bool) -> str:
+    return (
+        f"The turn about {ax(axis)} also turned the device {off_deg:.0f}° about the other axes. {again(retry, axis)} "
+        f"Turn about the {ax(axis)} axis only, keeping the device level."
+    )
+
+
+def not_back(axis: str, tilt_deg: float, retry: bool) -> str:
+    return (
+        f"After the turn about {ax(axis)} the device rests {tilt_deg:.0f}° away from its starting position, so the turn "
+        f"was not a full one. {again(retry, axis)} Turn until the device is back in the same place against the block."
+    )
+
+
+def turn_too_long(axis: str, limit_s: float, retry: bool) -> str:
+    return f"The turn about {ax(axis)} did not end within {limit_s:g} s. {again(retry, axis)} Put the device down against the block after one turn."
+
+
+def sample_loss(axis: str, lost: int, retry: bool) -> str:
+    return (
+        f"{lost} samples were lost on the radio link during the turn about {ax(axis)}. {again(retry, axis)} "
+        "Keep the device within a few metres of the receiver, with nothing in between."
+    )
+
+
+def link_lost(limit_s: float) -> str:
+    return (
+        f"The connection to the device was lost and did not come back within {limit_s:g} s. "
+        "Check that the device is switched on, charged and close to the receiver, then start a new calibration."
+    )
+
+
+def stream_stopped() -> str:
+    return "The device stopped sending data. Check that it is switched on and charged, then start a new calibration."
+
+
+def link_restored(axis: str | None) -> str:
+    if axis:
+        return f"Reconnected. The turn about {ax(axis)} will be done again: put the device back against the block and keep it still."
+    return "Reconnected. Put the device back against the block and keep it still."
+
+
+def out_of_tolerance(failures: list[str]) -> str:
+    return (
+        "The calibration is outside the tolerances: " + "; ".join(failures) + ". "
+        "Check that the device rested against the block and that each turn was one full turn about the asked axis, "
+        "then start a new calibration. If it fails again the sensor may be faulty."
+    )
+
+
+def connect_failed(detail: str) -> str:
+    return f"Could not connect to the device ({detail}). Check that it is switched on, charged and in range, then start a new calibration."
+
+
+def timeout(limit_s: float) -> str:
+    return f"The calibration did not finish within {limit_s / 60:g} minutes and was stopped. Start a new calibration."
+
+
+def internal_error(detail: str) -> str:
+    return f"An internal error stopped the calibration ({detail}). Start a new calibration; if it happens again, report it."

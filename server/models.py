@@ -1,0 +1,172 @@
+"""The API's request and response bodies (pydantic), as published in the OpenAPI schema."""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+Vec3 = list[float]
+
+
+class Problem(BaseModel):
+    """An error: what is wrong and how to fix it."""
+
+    detail: str | list[Any]
+
+
+class Health(BaseModel):
+    status: Literal["ok"]
+    version: str
+    store: str = Field(description="database dialect of the store (sqlite, postgresql)")
+    schema_version: int
+    devices: int
+    active_sessions: int
+    auth_reads: bool = Field(description="whether reads need a token too")
+
+
+class LoginIn(BaseModel):
+    operator: str = Field(min_length=1, max_length=64)
+    secret: str = Field(min_length=1, max_length=512)
+
+
+class LoginOut(BaseModel):
+    token: str
+    token_type: Literal["bearer"] = "bearer"
+    operator: str
+    expires_at: str
+
+
+class Me(BaseModel):
+    operator: str
+
+
+class Truth(BaseModel):
+    k: Vec3
+    b: Vec3
+
+
+class CalibrationOut(BaseModel):
+    """One accepted calibration (a row of the append-only history)."""
+
+    id: int
+    device_id: str
+    session_id: str
+    k: Vec3
+    b: Vec3
+    uncertainty: dict[str, Any] | None
+    quality: dict[str, Any] | None
+    method: str
+    software_version: str
+    sensor_model: str | None
+    firmware: str | None
+    operator: str
+    recording_sha256: str | None
+    computed_at: str
+    accepted_at: str
+
+
+class DeviceOut(BaseModel):
+    id: str
+    name: str | None = None
+    transport: str | None = Field(None, description="inprocess (simulated), ble, or null for a device known only from uploads")
+    address: str | None = None
+    connected: bool = False
+    available: bool = Field(False, description="a live session can be started on it")
+    simulated: bool = False
+    scenario: str | None = None
+    sensor_model: str | None = None
+    firmware: str | None = None
+    serial: str | None = None
+    active_session: str | None = None
+    current_calibration: CalibrationOut | None = None
+    last_seen: str | None = None
+
+
+class DeviceDetail(DeviceOut):
+    simulated_truth: Truth | None = Field(None, description="the simulated sensor's true parameters (simulated devices only)")
+    info: dict[str, Any] = Field(default_factory=dict)
+    recent_sessions: list[dict[str, Any]] = Field(default_factory=list)
+
+
+class ScanOut(BaseModel):
+    devices: list[DeviceOut]
+
+
+class SessionStart(BaseModel):
+    """Options of a guided live session (all optional)."""
+
+    model_config = ConfigDict(extra="forbid")
+    method: str | None = Field(None, description="estimator: closure (default) or paper")
+    max_attempts: int | None = Field(None, ge=1, le=5, description="tries per turn before the session fails (default 1)")
+
+
+class SessionStarted(BaseModel):
+    session_id: str
+    device_id: str
+    state: str
+    url: str
+    events: str
+
+
+class SessionOut(BaseModel):
+    """A full snapshot of a session: what every SSE event carries too."""
+
+    model_config = ConfigDict(extra="allow")
+    session_id: str
+    device_id: str
+    kind: Literal["live", "upload"] = "live"
+    state: str = Field(description="connecting, still, turn_x, turn_y, turn_z, reconnecting, computing, done, failed, cancelled")
+    phase: str | None = None
+    prompt: str | None = None
+    reason_code: str | None = None
+    reason: str | None = None
+    result: dict[str, Any] | None = None
+    passed: bool | None = None
+    checks: list[dict[str, Any]] = Field(default_factory=list)
+    decision: Literal["accepted", "discarded"] | None = None
+    calibration_id: int | None = None
+    started_at: str | None = None
+    ended_at: str | None = None
+
+
+class DecisionIn(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    note: str | None = Field(None, max_length=1000)
+
+
+class AcceptOut(BaseModel):
+    session_id: str
+    calibration: CalibrationOut
+
+
+class OfflineResult(BaseModel):
+    """An uploaded recording's calibration: the estimator's result, judged against the tolerances."""
+
+    model_config = ConfigDict(extra="allow")
+    session_id: str
+    device_id: str
+    state: Literal["done", "failed"]
+    passed: bool
+    checks: list[dict[str, Any]]
+    reason: str | None = None
+    k: Vec3
+    b: Vec3
+    method: str
+    uncertainty: dict[str, Any] | None = None
+    stages: list[dict[str, Any]]
+    quality: dict[str, Any]
+    warnings: list[str] = Field(default_factory=list)
+    recording_sha256: str
+    n_samples: int
+    sample_rate_hz: float
+
+
+class AuditEntry(BaseModel):
+    id: int
+    at: str
+    operator: str | None
+    action: str
+    device_id: str | None
+    session_id: str | None
+    detail: dict[str, Any] | None

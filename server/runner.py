@@ -1,0 +1,261 @@
+"""Runs one guided session: the device's link in, the state machine, the estimator, the store out.
+
+The runner owns three tasks: the sample pump (link -> state machine), the watchdog (reconnection
+limit, silence, overall time limit) and the final step (estimator in a worker thread, then the
+recording and the outcome written to the store). Whatever happens, the session reaches an end state.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import io
+import logging
+import time
+from typing import Any, Callable
+
+from . import guidance as say
+from .config import Settings
+from .devices import Device
+from .events import Broadcaster, finite
+from .session import GuidedSession
+from .store import Store
+
+log = logging.getLogger(__name__)
+
+WATCHDOG_PERIOD_S = 0.25
+
+
+def recording_csv(rec: Any) -> bytes:
+    """A Recording as gyrocal's native CSV (exact round trip), UTF-8."""
+    from calib.io import write_native_csv
+
+    buf = io.StringIO()
+    write_native_csv(rec, buf)
+    return buf.getvalue().encode()
+
+
+def compute_result(session: GuidedSession) -> dict[str, Any]:
+    """Run the estimator on the session's recording and stages (in a worker thread)."""
+    from calib.api import calibrate
+
+    rec = session.recording()
+    stages = session.protocol_stages()
+    result = calibrate(rec, method=session.method, stages=stages)
+    out = result.to_dict()
+    out["sample_rate_hz"] = rec.fs
+    out["n_samples"] = len(rec)
+    return out
+
+
+class LiveSession:
+    """A guided session on a connected device, with its event stream."""
+
+    def __init__(
+        self,
+        machine: GuidedSession,
+        device: Device,
+        store: Store,
+        settings: Settings,
+        software_version: str,
+        operator: str,
+        on_end: Callable[["LiveSession"], None] | None = None,
+    ) -> None:
+        self.machine = machine
+        self.device = device
+        self.store = store
+        self.settings = settings
+        self.software_version = software_version
+        self.operator = operator
+        self.broadcaster = Broadcaster()
+        machine.listener = self._on_snapshot
+        self.on_end = on_end
+        self.recording_sha256: str | None = None
+        self._csv: bytes | None = None
+        self._task: asyncio.Task[None] | None = None
+        self._pump: asyncio.Task[None] | None = None
+        self._last_sample_mono = time.monotonic()
+        self._link_down = False
+        self.persisted = False
+        self.persist_error: str | None = None
+
+    @property
+    def id(self) -> str:
+        return self.machine.id
+
+    def _on_snapshot(self, event: str, snapshot: dict[str, Any]) -> None:
+        self.broadcaster.publish(event, snapshot)
+
+    def start(self) -> None:
+        # publish the first snapshot (connecting) before anyone can subscribe to the stream
+        self.machine.publish()
+        self._task = asyncio.get_running_loop().create_task(self._run(), name=f"session-{self.id}")
+
+    async def wait(self) -> None:
+        if self._task is not None:
+            with contextlib.suppress(asyncio.CancelledError):
+                await asyncio.shield(self._task)
+
+    def cancel(self, reason: str = "Cancelled by the operator.") -> bool:
+        ok = self.machine.cancel(reason)
+        if ok and self._pump is not None:
+            self._pump.cancel()
+        return ok
+
+    async def shutdown(self) -> None:
+        """Service shutdown: end the session (cancelled) and wait for it to be written."""
+        self.cancel("The service was stopped during the calibration.")
+        await self.wait()
+        self.broadcaster.close()
+
+    # -- the session's life -------------------------------------------------------------------
+    async def _run(self) -> None:
+        m = self.machine
+        watchdog = asyncio.get_running_loop().create_task(self._watchdog())
+        try:
+            self._pump = asyncio.get_running_loop().create_task(self._stream())
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._pump
+            await self._stop_link()
+            if m.state == "computing":
+                await self._compute()
+            if not m.finished:
+                # the stream ended without an end state (device stopped streaming)
+                m.fail("link_lost", say.stream_stopped())
+        except Exception as exc:  # the last line of defence: an end state, never a hanging session
+            log.exception("session %s failed", self.id)
+            m.fail("internal_error", say.internal_error(f"{type(exc).__name__}: {exc}"))
+        finally:
+            watchdog.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await watchdog
+            await self._stop_link()
+            await self._persist()
+            if self.on_end is not None:
+                self.on_end(self)
+
+    async def _stream(self) -> None:
+        m = self.machine
+        dev = self.device
+        link = dev.get_link()
+        try:
+            if not getattr(link, "connected", False):
+                await link.connect()
+            info = await link.read_info()
+        except Exception as exc:
+            m.fail("connect_failed", say.connect_failed(str(exc) or type(exc).__name__))
+            return
+        cfg = info.config
+        dev.info.update(
+            {
+                "sensor_model": info.model,
+                "firmware": info.firmware,
+                "serial": info.serial,
+                "manufacturer": info.manufacturer,
+                "battery_pct": info.battery_pct,
+                "sample_rate_hz": cfg.sample_rate_hz,
+                "gyro_full_scale_dps": cfg.gyro_full_scale_dps,
+            }
+        )
+        if info.name:
+            dev.name = info.name
+        with contextlib.suppress(Exception):
+            await asyncio.to_thread(
+                self.store.upsert_device, dev.id, name=dev.name, address=dev.address, transport=dev.transport,
+                sensor_model=info.model, firmware=info.firmware, serial=info.serial,
+            )
+        m.connected(cfg.sample_rate_hz, dict(dev.info), float(cfg.gyro_full_scale_dps))
+        try:
+            await link.start()
+        except Exception as exc:
+            m.fail("connect_failed", say.connect_failed(f"the stream did not start: {exc}"))
+            return
+        self._last_sample_mono = time.monotonic()
+        async for item in link.samples():
+            kind = getattr(item, "kind", None)
+            if kind is not None:
+                self._on_link_event(item)
+            else:
+                self._last_sample_mono = time.monotonic()
+                if self._link_down:
+                    self._link_down = False
+                    m.link_restored()
+                m.fs_estimate = float(item.fs_hz) if item.fs_hz else m.fs_estimate
+                m.feed(item.t_device_s, item.gyro_dps, item.accel_g, item.seq, int(item.lost_before), time.time())
+            if m.finished or m.state == "computing":
+                return
+
+    def _on_link_event(self, ev: Any) -> None:
+        m = self.machine
+        if ev.kind == "link_lost":
+            self._link_down = True
+            m.link_lost()
+        elif ev.kind == "link_restored":
+            self._link_down = False
+            m.link_restored()
+        elif ev.kind == "link_failed":
+            m.fail("link_lost", say.link_lost(self.settings.reconnect_timeout_s))
+        elif ev.kind == "stream_ended":
+            m.fail("link_lost", say.stream_stopped())
+
+    async def _watchdog(self) -> None:
+        m = self.machine
+        while not m.finished:
+            await asyncio.sleep(WATCHDOG_PERIOD_S)
+            m.tick()
+            silent = time.monotonic() - self._last_sample_mono
+            if m.state not in ("connecting", "computing", "reconnecting") and not m.finished and silent > self.settings.link_silence_s:
+                # no samples and no word from the link: treat it as lost until samples come back
+                self._link_down = True
+                m.link_lost()
+        if self._pump is not None and not self._pump.done():
+            self._pump.cancel()
+
+    async def _compute(self) -> None:
+        m = self.machine
+        from calib.errors import GyrocalError
+
+        try:
+            result = await asyncio.to_thread(compute_result, m)
+        except GyrocalError as exc:
+            m.fail("calibration_failed", f"{exc} Start a new calibration.")
+            return
+        m.set_result(finite(result))
+
+    async def _stop_link(self) -> None:
+        link = self.device.link
+        if link is None:
+            return
+        with contextlib.suppress(Exception):
+            await asyncio.wait_for(link.stop(), timeout=5.0)
+
+    async def _persist(self) -> None:
+        """Archive the recording and write the outcome; a failure is kept and retried on accept."""
+        m = self.machine
+        try:
+            if m.buf.n > 0 and self._csv is None:
+                self._csv = await asyncio.to_thread(recording_csv, m.recording())
+            if self._csv is not None and self.recording_sha256 is None:
+                self.recording_sha256 = await asyncio.to_thread(self.store.archive_recording, self.id, self._csv, m.buf.n)
+            await asyncio.to_thread(
+                self.store.finish_session,
+                self.id,
+                m.state,
+                reason_code=m.reason_code,
+                reason=m.reason,
+                result=m.result,
+                passed=m.passed,
+                operator=self.operator if m.state == "cancelled" else None,
+                info={"lost_samples": m.lost_samples, "warnings": m.warnings, "turns": {a: t.to_dict() for a, t in m.turns.items()},
+                      "checks": m.checks, "samples": m.buf.n},
+            )
+            self.persisted = True
+            self.persist_error = None
+        except Exception as exc:
+            log.exception("could not write session %s to the store", self.id)
+            self.persist_error = f"{type(exc).__name__}: {exc}"
+
+    @property
+    def csv_bytes(self) -> bytes | None:
+        return self._csv
+

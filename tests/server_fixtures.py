@@ -1,0 +1,184 @@
+"""Fixtures of the service tests: a throwaway PostgreSQL server, store URLs, a running `gyrocal serve`.
+
+Import them into a test module with ``from server_fixtures import *``.
+"""
+
+from __future__ import annotations
+
+import glob
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+import uuid
+from pathlib import Path
+from typing import Any, Iterator
+
+import httpx
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+GYROCAL = [sys.executable, "-m", "calib.cli"]
+API_TOKEN = "test-token-" + uuid.uuid4().hex
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+# -- PostgreSQL -----------------------------------------------------------------------------------
+def _pg_bindir() -> Path:
+    found = sorted(glob.glob("/usr/lib/postgresql/*/bin/initdb"), key=lambda p: int(Path(p).parts[-3]))
+    if not found:
+        pytest.fail("PostgreSQL is not installed: run `make test` (it installs Debian's postgresql) "
+                    "or `sudo apt-get install postgresql`")
+    return Path(found[-1]).parent
+
+
+class PostgresServer:
+    """A throwaway PostgreSQL cluster on a free port of 127.0.0.1 (trust auth, no fsync)."""
+
+    def __init__(self) -> None:
+        self.bindir = _pg_bindir()
+        self.dir = Path(tempfile.mkdtemp(prefix="gyrocal-pg-"))
+        self.data = self.dir / "data"
+        self.port = free_port()
+        self.as_root = os.geteuid() == 0
+
+    def _run(self, *cmd: str) -> subprocess.CompletedProcess[str]:
+        full = list(cmd)
+        if self.as_root:  # PostgreSQL refuses to run as root
+            full = ["runuser", "-u", "postgres", "--", *full]
+        return subprocess.run(full, capture_output=True, text=True, timeout=120)
+
+    def start(self) -> None:
+        if self.as_root:
+            shutil.chown(self.dir, "postgres", "postgres")
+        r = self._run(str(self.bindir / "initdb"), "-D", str(self.data), "-A", "trust", "-U", "postgres", "--no-sync", "-E", "UTF8")
+        if r.returncode:
+            raise RuntimeError(f"initdb failed: {r.stderr}")
+        opts = f"-p {self.port} -k {self.dir} -c listen_addresses=127.0.0.1 -c fsync=off -c full_page_writes=off"
+        r = self._run(str(self.bindir / "pg_ctl"), "-D", str(self.data), "-o", opts, "-l", str(self.dir / "log"), "-w", "start")
+        if r.returncode:
+            log = (self.dir / "log").read_text() if (self.dir / "log").exists() else ""
+            raise RuntimeError(f"pg_ctl start failed: {r.stderr}\n{log}")
+
+    def url(self, db: str = "postgres") -> str:
+        return f"postgresql://postgres@127.0.0.1:{self.port}/{db}"
+
+    def create_database(self) -> str:
+        import psycopg
+
+        name = "gyrocal_" + uuid.uuid4().hex[:12]
+        with psycopg.connect(f"host=127.0.0.1 port={self.port} user=postgres dbname=postgres", autocommit=True) as conn:
+            conn.execute(f'CREATE DATABASE "{name}"')
+        return self.url(name)
+
+    def stop(self) -> None:
+        self._run(str(self.bindir / "pg_ctl"), "-D", str(self.data), "-m", "immediate", "stop")
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+
+@pytest.fixture(scope="session")
+def postgres() -> Iterator[PostgresServer]:
+    """A real PostgreSQL server for the whole test session."""
+    server = PostgresServer()
+    server.start()
+    try:
+        yield server
+    finally:
+        server.stop()
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def store_url(request: pytest.FixtureRequest, tmp_path: Path) -> str:
+    """An empty store: a SQLite file, and a fresh database on the PostgreSQL server."""
+    if request.param == "sqlite":
+        return f"sqlite:///{tmp_path / 'store.sqlite3'}"
+    return request.getfixturevalue("postgres").create_database()
+
+
+# -- a running service ----------------------------------------------------------------------------
+class RunningService:
+    """`gyrocal serve` in a subprocess, reached over real HTTP."""
+
+    def __init__(self, args: list[str], db_url: str, env: dict[str, str] | None = None) -> None:
+        self.port = free_port()
+        self.db_url = db_url
+        self.base = f"http://127.0.0.1:{self.port}"
+        self.args = args
+        self.env = {**os.environ, "GYROCAL_API_TOKEN": API_TOKEN, **(env or {})}
+        self.proc: subprocess.Popen[str] | None = None
+        self.log = tempfile.NamedTemporaryFile("w+", prefix="gyrocal-serve-", suffix=".log", delete=False)
+
+    def start(self, timeout_s: float = 30.0) -> "RunningService":
+        cmd = [*GYROCAL, "serve", "--port", str(self.port), "--db", self.db_url, "--log-level", "warning", *self.args]
+        self.proc = subprocess.Popen(cmd, cwd=ROOT, env=self.env, stdout=self.log, stderr=subprocess.STDOUT, text=True)
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"gyrocal serve exited with {self.proc.returncode}:\n{self.output()}")
+            try:
+                if httpx.get(self.base + "/health", timeout=1.0).status_code == 200:
+                    return self
+            except httpx.HTTPError:
+                pass
+            time.sleep(0.1)
+        raise RuntimeError(f"gyrocal serve did not answer within {timeout_s} s:\n{self.output()}")
+
+    def output(self) -> str:
+        self.log.flush()
+        return Path(self.log.name).read_text()
+
+    def stop(self) -> int | None:
+        if self.proc is None:
+            return None
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        return self.proc.returncode
+
+    def client(self, token: str | None = API_TOKEN) -> httpx.Client:
+        headers = {"Authorization": f"Bearer {token}"} if token else {}
+        return httpx.Client(base_url=self.base, headers=headers, timeout=30.0)
+
+
+def follow_events(base: str, sid: str, until: set[str], timeout_s: float = 60.0, last_event_id: int | None = None,
+                  stop_after: int | None = None) -> list[dict[str, Any]]:
+    """Read a session's SSE stream until its state is in ``until`` (or ``stop_after`` events)."""
+    events: list[dict[str, Any]] = []
+    headers = {"Last-Event-ID": str(last_event_id)} if last_event_id is not None else {}
+    deadline = time.monotonic() + timeout_s
+    with httpx.stream("GET", f"{base}/sessions/{sid}/events", headers=headers, timeout=httpx.Timeout(timeout_s)) as r:
+        assert r.status_code == 200, r.read()
+        assert r.headers["content-type"].startswith("text/event-stream")
+        current: dict[str, str] = {}
+        for line in r.iter_lines():
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"session {sid} did not reach {until} within {timeout_s} s; last: {events[-1:]}")
+            if line == "":
+                if "data" in current:
+                    snap = json.loads(current["data"])
+                    snap["_sse_id"] = int(current["id"])
+                    snap["_sse_event"] = current.get("event")
+                    events.append(snap)
+                    if snap["state"] in until or (stop_after is not None and len(events) >= stop_after):
+                        return events
+                current = {}
+                continue
+            if line.startswith(":"):
+                continue
+            key, _, value = line.partition(":")
+            current[key] = value[1:] if value.startswith(" ") else value
+    raise AssertionError(f"the event stream of {sid} ended before {until}; last: {events[-1:]}")

@@ -1,0 +1,181 @@
+"""The store, against SQLite and a real PostgreSQL server: schema, append-only history, archive, audit."""
+
+from __future__ import annotations
+
+import gzip
+from datetime import datetime, timedelta, timezone
+
+import pytest
+from sqlalchemy import text
+from sqlalchemy.exc import SQLAlchemyError
+
+from server.auth import Authenticator, AuthError
+from server.store import SCHEMA_VERSION, Store, StoreError, sha256_hex
+from server_fixtures import postgres, store_url  # noqa: F401
+
+RESULT = {
+    "k": [1.01, 0.99, 1.02],
+    "b": [0.5, -0.25, 0.125],
+    "method": "closure",
+    "uncertainty": {"k": [1e-4, 1e-4, 1e-4], "b": [1e-3, 1e-3, 1e-3]},
+    "quality": {"score": 0.9},
+    "stages": [],
+}
+
+
+def _done_session(store: Store, sid: str, device: str = "dev-1", result: dict | None = None, state: str = "done") -> None:
+    store.create_session(sid, device, "live", "connecting", "closure", "alice", "0.1.0", {"sensor_model": "ICM-20948"})
+    store.finish_session(sid, state, result=result or RESULT, passed=state == "done")
+
+
+def test_schema_is_created_and_reopening_keeps_it(store_url: str) -> None:
+    s = Store(store_url)
+    assert s.schema_version() == SCHEMA_VERSION
+    s.upsert_device("dev-1", name="wrist", transport="ble")
+    s.close()
+    again = Store(store_url)  # migrate() on an up-to-date store changes nothing
+    assert again.schema_version() == SCHEMA_VERSION
+    assert again.device("dev-1")["name"] == "wrist"
+    again.close()
+
+
+def test_newer_schema_is_refused(store_url: str) -> None:
+    s = Store(store_url)
+    with s.engine.begin() as conn:
+        conn.execute(text("UPDATE schema_info SET version = :v"), {"v": SCHEMA_VERSION + 1})
+    s.close()
+    with pytest.raises(StoreError, match="newer than this gyrocal"):
+        Store(store_url)
+
+
+def test_foreign_tables_are_refused(tmp_path) -> None:
+    url = f"sqlite:///{tmp_path / 'other.sqlite3'}"
+    from sqlalchemy import create_engine
+
+    eng = create_engine(url)
+    with eng.begin() as conn:
+        conn.execute(text("CREATE TABLE devices (x int)"))
+    eng.dispose()
+    with pytest.raises(StoreError, match="not gyrocal's store"):
+        Store(url)
+
+
+def test_bad_url_is_a_clear_error() -> None:
+    with pytest.raises(StoreError, match="not a database URL"):
+        Store("not a url")
+
+
+def test_history_is_append_only_and_current_is_latest(store_url: str) -> None:
+    s = Store(store_url)
+    _done_session(s, "a" * 32)
+    first = s.accept("a" * 32, "alice", RESULT)
+    second_result = {**RESULT, "k": [1.03, 0.98, 1.0]}
+    _done_session(s, "b" * 32, result=second_result)
+    second = s.accept("b" * 32, "bob", second_result)
+    assert second.id != first.id
+    assert s.current_calibration("dev-1").k == second_result["k"]
+    history = s.calibrations("dev-1")
+    assert [c.session_id for c in history] == ["b" * 32, "a" * 32]
+    assert history[1].k == RESULT["k"] and history[1].operator == "alice"
+    assert history[0].sensor_model == "ICM-20948"
+    # the database itself refuses to change or delete history rows
+    for stmt in ("UPDATE calibrations SET k_x = 2.0", "DELETE FROM calibrations", "DELETE FROM audit_log",
+                 "UPDATE audit_log SET operator = 'mallory'"):
+        with pytest.raises(SQLAlchemyError, match="append-only"):
+            with s.engine.begin() as conn:
+                conn.execute(text(stmt))
+    assert s.current_calibration("dev-1").k == second_result["k"]
+    assert len(s.calibrations("dev-1")) == 2
+
+
+def test_a_session_is_accepted_once_and_discarded_ones_never_become_current(store_url: str) -> None:
+    s = Store(store_url)
+    _done_session(s, "c" * 32)
+    s.accept("c" * 32, "alice", RESULT)
+    with pytest.raises(StoreError, match="accepted already"):
+        s.accept("c" * 32, "alice", RESULT)
+    _done_session(s, "d" * 32, result={**RESULT, "k": [0.9, 0.9, 0.9]})
+    s.discard_session("d" * 32, "alice")
+    with pytest.raises(StoreError, match="discarded already"):
+        s.accept("d" * 32, "alice", RESULT)
+    assert s.current_calibration("dev-1").session_id == "c" * 32
+    row = s.session("d" * 32)
+    assert row["decision"] == "discarded" and row["decided_by"] == "alice"
+
+
+def test_recordings_are_archived_compressed_with_their_hash(store_url: str) -> None:
+    s = Store(store_url)
+    _done_session(s, "e" * 32)
+    csv = b"t,gx,gy,gz\n" + b"".join(f"{i / 100!r},0.1,0.2,0.3\n".encode() for i in range(5000))
+    digest = s.archive_recording("e" * 32, csv, 5000)
+    assert digest == sha256_hex(csv)
+    data, got = s.recording("e" * 32)
+    assert data == csv and got == digest
+    with s.engine.connect() as conn:
+        stored = conn.execute(text("SELECT data, size_bytes FROM recordings")).one()
+    assert len(stored.data) < len(csv) / 3 and gzip.decompress(stored.data) == csv
+    assert stored.size_bytes == len(csv)
+    cal = s.accept("e" * 32, "alice", RESULT)
+    assert cal.recording_sha256 == digest
+    with pytest.raises(SQLAlchemyError, match="append-only"):
+        with s.engine.begin() as conn:
+            conn.execute(text("UPDATE recordings SET data = :d"), {"d": b"x"})
+
+
+def test_accept_archives_a_recording_an_earlier_write_missed(store_url: str) -> None:
+    s = Store(store_url)
+    s.create_session("f" * 32, "dev-2", "live", "connecting", "closure", "alice", "0.1.0")
+    # the end-of-session write failed: no result in the row, no recording archived
+    cal = s.accept("f" * 32, "alice", RESULT, recording_csv=b"t,gx,gy,gz\n0,0,0,0\n", n_samples=1)
+    assert cal.recording_sha256 == sha256_hex(b"t,gx,gy,gz\n0,0,0,0\n")
+    assert s.session("f" * 32)["state"] == "done"
+    assert s.recording("f" * 32)[1] == cal.recording_sha256
+
+
+def test_unfinished_sessions_fail_after_a_restart_and_the_audit_log_says_who(store_url: str) -> None:
+    s = Store(store_url)
+    s.create_session("1" * 32, "dev-3", "live", "turn_y", "closure", "carol", "0.1.0")
+    assert s.fail_unfinished_sessions("restarted") == 1
+    row = s.session("1" * 32)
+    assert row["state"] == "failed" and row["reason_code"] == "service_restarted"
+    assert s.fail_unfinished_sessions("restarted") == 0
+    actions = [(e["operator"], e["action"]) for e in s.audit_log("dev-3")]
+    assert ("carol", "session.start") in actions and (None, "session.failed") in actions
+
+
+def test_operators_tokens_and_revocation(store_url: str) -> None:
+    s = Store(store_url)
+    auth = Authenticator(s, api_token="env-token", token_ttl_s=3600)
+    secret = auth.add_operator("alice")
+    with pytest.raises(StoreError, match="exists already"):
+        auth.add_operator("alice")
+    with pytest.raises(AuthError, match="reserved"):
+        auth.add_operator("api")
+    with pytest.raises(AuthError, match="wrong secret"):
+        auth.sign_in("alice", secret + "x")
+    with pytest.raises(AuthError, match="wrong secret"):
+        auth.sign_in("nobody", secret)
+    token, expires = auth.sign_in("alice", secret)
+    assert expires > datetime.now(timezone.utc) + timedelta(minutes=59)
+    assert auth.operator_for(token) == "alice"
+    assert auth.operator_for("env-token") == "api"
+    assert auth.operator_for("other") is None
+    # the secret itself is stored hashed, never in clear
+    with s.engine.connect() as conn:
+        stored = conn.execute(text("SELECT secret_hash FROM operators")).scalar_one()
+    assert secret not in stored and stored.startswith("scrypt$")
+    auth.sign_out(token, "alice")
+    assert auth.operator_for(token) is None
+    token2, _ = auth.sign_in("alice", secret)
+    s.disable_operator("alice")
+    assert auth.operator_for(token2) is None
+    with pytest.raises(AuthError):
+        auth.sign_in("alice", secret)
+
+
+def test_expired_tokens_are_refused(store_url: str) -> None:
+    s = Store(store_url)
+    auth = Authenticator(s, token_ttl_s=-1)
+    secret = auth.add_operator("dave")
+    token, _ = auth.sign_in("dave", secret)
+    assert auth.operator_for(token) is None
