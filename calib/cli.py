@@ -65,7 +65,8 @@ def _summary(result: Any, source: str) -> str:
         lines.append(f"Noise (from the stills): {_fmt_vec(d['noise_dps'], 4)} deg/s")
     q = d.get("quality") or {}
     if q:
-        lines.append("Quality: " + ", ".join(f"{k}={v}" for k, v in q.items() if not isinstance(v, (dict, list))))
+        shown = (f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in q.items() if not isinstance(v, (dict, list)))
+        lines.append("Quality: " + ", ".join(shown))
     for w in d.get("warnings") or []:
         lines.append(f"warning: {w}")
     return "\n".join(lines)
@@ -73,9 +74,13 @@ def _summary(result: Any, source: str) -> str:
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from .api import calibrate
+    from .errors import SampleRateUnknownError
     from .io import read_recording
 
-    rec = read_recording(args.file, fs=args.fs, layout=args.layout)
+    try:
+        rec = read_recording(args.file, fs=args.fs, layout=args.layout)
+    except SampleRateUnknownError as exc:
+        raise SampleRateUnknownError(f"{exc}; on the command line: --fs HZ") from None
     result = calibrate(rec, method=args.method)
     if args.plot:
         from .plots import plot_calibration

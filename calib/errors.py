@@ -17,3 +17,7 @@ class ProtocolError(GyrocalError):
 
 class CalibrationError(GyrocalError):
     """The estimator could not produce a trustworthy result from this recording."""
+
+
+class SampleRateUnknownError(RecordingError):
+    """The file has no time column and no sample rate was given."""

@@ -23,7 +23,7 @@ from typing import IO
 
 import numpy as np
 
-from .errors import RecordingError
+from .errors import RecordingError, SampleRateUnknownError
 from .recording import STANDARD_GRAVITY, Recording, RecordingMeta
 from .validation import Locator, check_finite, check_increasing, check_recording, check_sample_rate, validate_recording
 
@@ -372,7 +372,7 @@ def _read_imucal(
     if index_name is None and table.names[0] == "" and len(table.names) > 1:
         index_name = ""
     if fs is None:
-        raise RecordingError(
+        raise SampleRateUnknownError(
             f"{where_text}this imucal-style file has no time column, so the sample rate cannot be determined; "
             "pass it as fs in Hz (e.g. fs=102.4)"
         )

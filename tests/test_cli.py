@@ -1,0 +1,124 @@
+"""The gyrocal command line, end to end, run as a user runs it (a subprocess of the installed script)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+# imucal's own Ferraris calibration of example_ferraris_session.csv, in the g = k m + b convention
+# (../shared/data/real/README.md).
+IMUCAL_K = np.array([0.97284, 1.01788, 1.00169])
+
+
+def gyrocal(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
+    exe = Path(sys.executable).with_name("gyrocal")
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "calib.cli"]
+    env = {k: v for k, v in os.environ.items() if k != "GYROCAL_DEBUG"}
+    return subprocess.run([*cmd, *args], capture_output=True, text=True, cwd=cwd, env=env, timeout=300)
+
+
+def assert_user_error(proc: subprocess.CompletedProcess[str], code: int, *fragments: str) -> None:
+    assert proc.returncode == code, proc.stderr
+    assert "Traceback" not in proc.stderr + proc.stdout
+    assert proc.stderr.startswith("gyrocal: error:"), proc.stderr
+    for fragment in fragments:
+        assert fragment in proc.stderr, proc.stderr
+
+
+@pytest.fixture(scope="module")
+def simulated(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
+    path = tmp_path_factory.mktemp("sim") / "sim.csv"
+    proc = gyrocal("simulate", "--seed", "11", "--noise", "0.03", "-o", str(path), "--truth")
+    assert proc.returncode == 0, proc.stderr
+    return path, json.loads(proc.stdout)
+
+
+@pytest.mark.parametrize("method", ["paper", "closure"])
+def test_calibrate_simulated_json(simulated: tuple[Path, dict], method: str) -> None:
+    path, truth = simulated
+    proc = gyrocal("calibrate", str(path), "--method", method, "--json")
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout)
+    assert out["method"] == method
+    for key in ("k", "b", "method", "stages", "quality"):
+        assert key in out
+    turns = [s for s in out["stages"] if s["kind"] == "turn"]
+    assert [t["axis"] for t in turns] == ["x", "y", "z"]
+    for stage in out["stages"]:
+        assert set(stage) >= {"kind", "start_s", "end_s", "axis", "angle_deg"}
+    assert np.allclose(out["k"], truth["k"], atol=2e-3)
+    assert np.allclose(out["b"], truth["b"], atol=2e-2)
+
+
+def test_calibrate_summary_and_plot(simulated: tuple[Path, dict], tmp_path: Path) -> None:
+    path, _ = simulated
+    png = tmp_path / "cal.png"
+    proc = gyrocal("calibrate", str(path), "--plot", str(png))
+    assert proc.returncode == 0, proc.stderr
+    assert "k_x" in proc.stdout and "b_z" in proc.stdout and "turn" in proc.stdout
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_calibrate_real_imucal_session(ferraris_csv: Path) -> None:
+    """The real third-party session: three turns found without the labels, k as imucal's."""
+    proc = gyrocal("calibrate", str(ferraris_csv), "--fs", "102.4", "--json")
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout)
+    turns = [s for s in out["stages"] if s["kind"] == "turn"]
+    assert [t["axis"] for t in turns] == ["x", "y", "z"]
+    assert all(t["angle_deg"] < 0 for t in turns)  # clockwise turns
+    assert np.max(np.abs(np.array(out["k"]) - IMUCAL_K)) <= 5e-4
+
+
+def test_simulate_is_deterministic(tmp_path: Path) -> None:
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    assert gyrocal("simulate", "--seed", "5", "-o", str(a)).returncode == 0
+    assert gyrocal("simulate", "--seed", "5", "-o", str(b)).returncode == 0
+    assert a.read_text() == b.read_text()
+    assert a.read_text().splitlines()[0].startswith("t,gx,gy,gz")
+
+
+def test_missing_file(tmp_path: Path) -> None:
+    assert_user_error(gyrocal("calibrate", str(tmp_path / "nope.csv")), 2, "nope.csv")
+
+
+def test_garbage_file(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t,gx,gy,gz\n0,1,2,3\n0.01,1,banana,3\n")
+    assert_user_error(gyrocal("calibrate", str(bad)), 2, "banana")
+
+
+def test_imucal_layout_needs_fs(ferraris_csv: Path) -> None:
+    assert_user_error(gyrocal("calibrate", str(ferraris_csv)), 2, "--fs")
+
+
+def test_protocol_not_found_names_the_missing_stage(tmp_path: Path) -> None:
+    """A recording that only rests: valid input, but no turn; exit 3 and say what is missing."""
+    rest = tmp_path / "rest.csv"
+    t = np.arange(0, 20, 1 / 104)
+    rng = np.random.default_rng(0)
+    g = rng.normal(0, 0.03, (t.size, 3)) + [0.5, -0.2, 0.1]
+    np.savetxt(rest, np.column_stack([t, g]), delimiter=",", header="t,gx,gy,gz", comments="")
+    proc = gyrocal("calibrate", str(rest))
+    assert_user_error(proc, 3, "turn")
+
+
+def test_bad_arguments_are_usage_errors() -> None:
+    proc = gyrocal("calibrate")
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stderr
+
+
+def test_bench_paper_sim_small(tmp_path: Path) -> None:
+    png = tmp_path / "fig7.png"
+    proc = gyrocal("bench", "paper-sim", "--sets", "2", "--runs-per-set", "20", "--plot", str(png),
+                   "--no-progress", "--workers", "1")
+    assert proc.returncode == 0, proc.stderr
+    assert "paper" in proc.stdout and "closure" in proc.stdout
+    assert png.read_bytes()[:4] == b"\x89PNG"
