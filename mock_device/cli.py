@@ -36,6 +36,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--scenario", choices=list(SCENARIOS), default="normal",
                    help="what the simulated clinician does (default normal)")
     p.add_argument("--replay", metavar="FILE", default=None, help="replay a recorded CSV instead of simulating")
+    p.add_argument("--fs", type=float, default=None, help="sample rate of the --replay file if it has no time column")
     p.add_argument("--rate", type=float, default=None, help="initial sample rate in Hz (default 104)")
     p.add_argument("--count", type=int, default=1, help="number of wearables (seeds S, S+1, ...; default 1)")
     p.add_argument("--hide-optional-services", action="store_true",
@@ -67,7 +68,7 @@ def _wearables(args: argparse.Namespace) -> list[Any]:
     for i in range(args.count):
         seed = args.seed + i
         if args.replay:
-            source: Any = ReplaySource(args.replay)
+            source: Any = ReplaySource(args.replay, fs=args.fs)
             faults = SCENARIOS[args.scenario].faults
         else:
             source = ScriptedSource(seed=seed, scenario=args.scenario)

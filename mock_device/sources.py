@@ -109,10 +109,10 @@ class ScriptedSource:
 class ReplaySource:
     """A recorded CSV replayed at its own rate; the stream ends with the file."""
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, fs: float | None = None) -> None:
         from calib.io import read_recording  # calib's reader: native CSV or the imucal layout
 
-        rec = read_recording(path)
+        rec = read_recording(path, fs=fs)
         self.path = Path(path)
         self.fixed_rate_hz = float(rec.fs)
         self.length = len(rec)
