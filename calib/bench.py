@@ -72,6 +72,27 @@ def paper_batch(batch: Any) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarra
 register_batch_method("paper", paper_batch)
 
 
+def closure_batch(batch: Any) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """The closure estimator on a SimBatch: (k, b, {iterations, std, bound}) with the simulator's stage bounds."""
+    from .closure_batch import closure_batch as fit
+
+    return fit(batch)
+
+
+register_batch_method("closure", closure_batch)
+
+
+def _abs_quantile(scales: np.ndarray, q: float = 0.95) -> float:
+    """The q-quantile of |e| when each run's error e is N(0, scale^2): the bound's counterpart of |err| p95."""
+    from scipy.optimize import brentq
+    from scipy.special import erf
+
+    s = scales[np.isfinite(scales) & (scales > 0)]
+    if s.size == 0:
+        return float("nan")
+    return float(brentq(lambda x: np.mean(erf(x / (np.sqrt(2.0) * s))) - q, 0.0, 10.0 * s.max()))
+
+
 # ---------------------------------------------------------------------------------------------
 
 
@@ -93,6 +114,8 @@ class BenchReport:
     method_cpu_s: dict[str, float] = field(default_factory=dict)  # estimator CPU time summed over workers
     iterations: dict[tuple[str, float], np.ndarray] = field(default_factory=dict, repr=False)
     plot_path: str | None = None
+    std: dict[tuple[str, float], np.ndarray] = field(default_factory=dict, repr=False)  # reported standard errors
+    bound: dict[tuple[str, float], np.ndarray] = field(default_factory=dict, repr=False)  # Cramer-Rao bound per run
 
     def stats(self, method: str, noise: float) -> dict[str, Any]:
         """Percentiles of the error of each parameter, for one estimator and noise level."""
@@ -115,6 +138,12 @@ class BenchReport:
             }
             if bound is not None:
                 row["within_paper_bound"] = float(np.mean(np.abs(col) <= bound)) if col.size else float("nan")
+            if (method, noise) in self.std and col.size:
+                z = col / self.std[(method, noise)][ok][:, i]
+                row["z_sd"] = float(np.std(z))  # error / reported std: 1 when the uncertainty is honest
+                row["z_mean"] = float(np.mean(z))
+            if (method, noise) in self.bound:
+                row["bound_abs_p95"] = _abs_quantile(self.bound[(method, noise)][:, i])
             out["params"][name] = row
         its = self.iterations.get((method, noise))
         if its is not None and its.size:
@@ -154,8 +183,32 @@ class BenchReport:
                     if bound is not None:
                         line += f"  {100 * r['within_paper_bound']:>11.1f}%"
                     lines.append(line)
+        lines += self._comparison()
         lines += ["", "errors are estimate - truth; k dimensionless, b in deg/s"]
         return "\n".join(lines)
+
+    def _comparison(self) -> list[str]:
+        """|err| p95 of every estimator beside the Cramer-Rao bound's, and the honesty of reported errors."""
+        with_bound = [m for m in self.methods if any((m, n) in self.bound for n in self.noise_levels)]
+        if not with_bound:
+            return []
+        lines = ["", "|err| p95 by estimator; bound = |err| p95 of an efficient unbiased estimator (Cramer-Rao, per run);",
+                 "err/std sd = spread of error / reported std (1 when the reported uncertainty is honest)"]
+        hdr = f"  {'noise':<7}{'param':<7}" + "".join(f"{m:>11}" for m in self.methods) + f"{'bound':>11}"
+        hdr += "".join(f"{m + ' err/std sd':>22}" for m in self.methods if any((m, n) in self.std for n in self.noise_levels))
+        lines.append(hdr)
+        for noise in self.noise_levels:
+            st = {m: self.stats(m, noise)["params"] for m in self.methods}
+            src = next((m for m in with_bound if (m, noise) in self.bound), None)
+            for name in PARAMS:
+                line = f"  {noise:<7g}{name:<7}" + "".join(f"{st[m][name]['abs_p95']:>11.2e}" for m in self.methods)
+                line += f"{st[src][name]['bound_abs_p95']:>11.2e}" if src else f"{'-':>11}"
+                line += "".join(
+                    f"{st[m][name].get('z_sd', float('nan')):>22.3f}"
+                    for m in self.methods if any((m, n) in self.std for n in self.noise_levels)
+                )
+                lines.append(line)
+        return lines
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary (no per-run arrays)."""
@@ -247,6 +300,8 @@ def _run_set(task: dict[str, Any]) -> dict[str, Any]:
         out["methods"][name] = {
             "err": np.concatenate((k, b), axis=1) - truth,
             "iterations": None if "iterations" not in info else np.asarray(info["iterations"]),
+            "std": None if "std" not in info else np.asarray(info["std"], dtype=float),
+            "bound": None if "bound" not in info else np.asarray(info["bound"], dtype=float),
             "s": elapsed,
             "cpu_s": cpu,
         }
@@ -324,6 +379,7 @@ def paper_sim(
     results.sort(key=lambda r: r["key"])
     errors: dict[tuple[str, float], np.ndarray] = {}
     iterations: dict[tuple[str, float], np.ndarray] = {}
+    extra: dict[str, dict[tuple[str, float], np.ndarray]] = {"std": {}, "bound": {}}
     for ni, noise in enumerate(noise_levels):
         mine = [r for r in results if r["key"][0] == ni]
         for name in methods:
@@ -331,6 +387,10 @@ def paper_sim(
             its = [r["methods"][name]["iterations"] for r in mine]
             if all(i is not None for i in its):
                 iterations[(name, noise)] = np.concatenate(its)
+            for key, store in extra.items():
+                parts = [r["methods"][name].get(key) for r in mine]
+                if all(p is not None for p in parts):
+                    store[(name, noise)] = np.concatenate(parts)
     report = BenchReport(
         sets=sets,
         runs_per_set=runs_per_set,
@@ -345,6 +405,8 @@ def paper_sim(
         method_cpu_s={m: float(sum(r["methods"][m]["cpu_s"] for r in results)) for m in methods},
         errors=errors,
         iterations=iterations,
+        std=extra["std"],
+        bound=extra["bound"],
     )
     if plot_path is not None:
         report.plot(plot_path)
