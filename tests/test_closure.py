@@ -351,3 +351,20 @@ def test_imucal_session_matches_imucal_with_stages_found_automatically(ferraris_
     assert np.all(res.k_std > res.k_bound)
     with pytest.raises(CalibrationError, match="non-orthogonality"):
         calibrate_closure(rec, res.stages, extended=True)
+
+
+# ------------------------------------------------------------------------------------------ the benchmark
+
+
+def test_paper_sim_shows_closure_beside_the_paper_and_the_bound():
+    from calib.bench import paper_sim
+
+    report = paper_sim(sets=1, runs_per_set=60, noise_levels=(0.15,), methods=("paper", "closure"), workers=1, progress=False)
+    closure = report.stats("closure", 0.15)["params"]
+    for name in ("kx", "by"):
+        assert 0.7 < closure[name]["z_sd"] < 1.35
+        # an efficient estimator: |err| p95 near the Cramer-Rao bound's, which the paper's method does not reach
+        assert closure[name]["abs_p95"] < 1.6 * closure[name]["bound_abs_p95"]
+    assert report.stats("paper", 0.15)["params"]["bx"]["abs_p95"] > 1.6 * closure["bx"]["bound_abs_p95"]
+    table = report.table()
+    assert "bound" in table and "closure err/std sd" in table
