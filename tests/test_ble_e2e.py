@@ -189,3 +189,14 @@ async def test_device_information_and_battery_are_optional(simulated_bluez):
     await link.stop()
     await link.disconnect()
     assert th.call(lambda: (w.config.state, w.advertising)) == (wp.DeviceState(0), True)  # session over, free
+
+
+def test_mock_device_cli_refuses_bad_arguments_with_a_message(capsys):
+    from calib.cli import main
+
+    assert main(["mock-device"]) == 2
+    assert "add --ble" in capsys.readouterr().err
+    assert main(["mock-device", "--ble", "--speed", "0"]) == 2
+    assert "--speed must be a positive number" in capsys.readouterr().err
+    assert main(["mock-device", "--ble", "--rate", "100"]) == 2
+    assert "--rate 100 is not offered" in capsys.readouterr().err

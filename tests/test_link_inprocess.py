@@ -268,3 +268,40 @@ async def test_disconnect_ends_the_stream_without_reconnecting():
     assert all(isinstance(x, SampleBatch) for x in rest)
     await asyncio.sleep(0.1)
     assert link.stats.link_losses == 0 and link.stats.reconnects == 0 and w.stats.connects == 1
+
+
+# ---------------------------------------------------------------------------- scenarios
+
+
+def test_every_scenario_builds_and_unknown_names_are_refused():
+    from calib.errors import GyrocalError
+    from calib.simulator import Motion, Turn
+    from mock_device.scenarios import SCENARIOS, get_scenario
+
+    assert set(SCENARIOS) == {"normal", "moved_during_still", "wrong_axis", "too_fast", "stops_short", "link_drop",
+                              "packet_loss"}
+    turns = {name: [s for s in ScriptedSource(seed=1, scenario=name).script.segments if isinstance(s, Turn)]
+             for name in SCENARIOS}
+    assert [t.axis for t in turns["normal"]] == ["x", "y", "z"]
+    assert [t.axis for t in turns["wrong_axis"]] == ["x", "z", "z"]
+    assert [t.angle_deg for t in turns["stops_short"]] == [360.0, 360.0, 320.0]
+    assert all(t.duration_s == 0.6 for t in turns["too_fast"])
+    assert any(isinstance(s, Motion) for s in ScriptedSource(seed=1, scenario="moved_during_still").script.segments)
+    link_drop = ScriptedSource(seed=1, scenario="link_drop")
+    t_y = sum(s.duration_s for s in link_drop.script.segments[:3])
+    assert t_y < link_drop.faults.drop_at_s < t_y + link_drop.script.segments[3].duration_s
+    with pytest.raises(GyrocalError, match="choose one of normal"):
+        get_scenario("sideways")
+
+
+async def test_too_fast_turns_arrive_saturated_and_flagged():
+    w = _wearable(seed=5, scenario="too_fast", speed=200)
+    link = InProcessLink(w, reconnect=FAST)
+    await link.connect()
+    await link.start()
+    batches, _ = await _collect(link, until_s=w.source.script_samples / w.true_rate_hz)
+    await link.stop()
+    got = SampleBatch.concat(batches)
+    assert got.saturated.sum() > 20
+    assert np.abs(got.gyro_dps[got.saturated]).max() == pytest.approx(32767 / 65.5, abs=0.02)
+    assert np.abs(got.gyro_dps[~got.saturated]).max() < 500.26

@@ -211,9 +211,11 @@ class LinkCore(ABC):
         return self.config
 
     async def start(self) -> None:
-        """Subscribe to data and start (or resume) the device's session."""
+        """Subscribe to data and start (or resume) the device's session. Items of an earlier stream that
+        were never consumed are discarded."""
         cfg = self._require()
         assert self._decoder is not None
+        self._feed.clear()
         await self._t_subscribe(wp.IMU_DATA_CHAR, self._on_data)
         self._decoder.begin(new_session=not cfg.state & DeviceState.SESSION_ACTIVE)
         await self._command(Command(Opcode.START))
