@@ -368,3 +368,22 @@ def test_paper_sim_shows_closure_beside_the_paper_and_the_bound():
     assert report.stats("paper", 0.15)["params"]["bx"]["abs_p95"] > 1.6 * closure["bx"]["bound_abs_p95"]
     table = report.table()
     assert "bound" in table and "closure err/std sd" in table
+
+
+def test_still_statistics_pool_each_still_about_its_own_mean():
+    from calib.closure_fit import still_statistics
+
+    rng = np.random.default_rng(12)
+    gyro = rng.normal(0.0, 0.1, (3, 200, 3)) + np.array([2.0, -1.0, 0.5])
+    gyro[:, 100:] += 0.3  # the offset moves between stills: it must not count as noise
+    ordered = np.array([[[0, 20], [30, 50], [50, 50], [120, 200]]] * 3)
+    unordered = ordered.copy()
+    unordered[1] = [[120, 200], [0, 20], [30, 50], [60, 61]]
+    for bounds in (ordered, unordered):  # one-pass sums, and running sums for unordered windows
+        mean, count, sigma = still_statistics(gyro, bounds)
+        for r in range(3):
+            segs = [gyro[r, s:e] for s, e in bounds[r] if e > s]
+            assert np.allclose(mean[r][count[r] > 0], [seg.mean(axis=0) for seg in segs])
+            ss = sum(((seg - seg.mean(axis=0)) ** 2).sum(axis=0) for seg in segs)
+            assert np.allclose(sigma[r], np.sqrt(ss / sum(len(seg) - 1 for seg in segs)))
+        assert np.array_equal(count[0], [20, 20, 0, 80])
