@@ -606,6 +606,9 @@ def create_app(settings: Settings | None = None, service: Service | None = None)
         """The audit log, newest first: who did what, when, on which device (needs a token)."""
         return await asyncio.to_thread(svc.store.audit_log, device_id, limit)
 
+    from .plot_routes import register as register_plot_routes
+
+    register_plot_routes(app)  # before the page is mounted at /, which would shadow later routes
     _mount_static(app, settings)
     return app
 

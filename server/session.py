@@ -269,7 +269,8 @@ class GuidedSession:
         state, phase = self._resume
         self._resume = None
         self._link_lost_mono = None
-        self._new_tracker()
+        # the tracker carries on across the gap (its noise floor stays valid); the interrupted motion
+        # closes with a counter_gap flag while the session waits for rest and is not used
         if state == "still":
             self._set_state("still", "waiting", say.PROMPTS["still"])
             return
@@ -557,10 +558,21 @@ class GuidedSession:
                 self._check_turn(st)
             return
         if kind == "motion_started":
-            self._on_motion()
+            self._on_motion(float(getattr(ev, "t", self._t_now)))
 
-    def _on_motion(self) -> None:
-        still_s = float(self._live["still_s"])
+    def _rest_before(self, t_motion: float) -> float:
+        """How long the device rested before a motion that began at t_motion (s of device time).
+
+        Taken from the still the tracker closed at that instant, so it does not depend on how the
+        samples were batched; 0 when the rest was too short to be a still segment.
+        """
+        still = self._last_still
+        if still is None or abs(still.end_s - t_motion) > 1e-6:
+            return 0.0
+        return float(still.end_s - still.start_s)
+
+    def _on_motion(self, t_motion: float) -> None:
+        still_s = self._rest_before(t_motion)
         if self.state == "still":
             if still_s >= self.timings.min_rest_before_turn_s:
                 # Started before the countdown ended but after enough rest: take it as the x turn if
@@ -623,6 +635,27 @@ class GuidedSession:
         dt = np.diff(t)
         return ((m[1:] - bias) * dt[:, None]).sum(axis=0)
 
+    def _rest_after_full_turn(self, st: Stage, k: int) -> bool:
+        """Whether the motion holds a rest of rest_seen_s after a full turn about axis k, then moves on."""
+        if self.fs is None or st.end - st.start < 3:
+            return False
+        still = self._last_still
+        bias = self.buf.gyro[still.start : still.end].mean(axis=0) if still is not None and still.end > still.start else 0.0
+        m = self.buf.gyro[st.start : st.end] - bias
+        t = self.buf.t[st.start : st.end]
+        floor = getattr(self.tracker.live, "noise_floor", None) if self.tracker is not None else None
+        quiet = np.linalg.norm(m, axis=1) < max(1.0, 8.0 * (floor or 0.0))
+        angle = np.concatenate([[0.0], np.cumsum(m[1:, k] * np.diff(t))])
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], quiet.astype(np.int8), [0]])))
+        starts, ends = edges[::2], edges[1::2]  # quiet runs [start, end)
+        n = m.shape[0]
+        for a, b in zip(starts, ends):
+            long_enough = t[b - 1] - t[a] >= self.timings.rest_seen_s
+            moves_after = b < n and np.any(~quiet[b:])
+            if long_enough and moves_after and abs(angle[a]) >= self.tol.turn_angle_min_deg:
+                return True
+        return False
+
     def _gravity_change_deg(self, st: Stage) -> float | None:
         """Angle (deg) between gravity in the rest before the turn and in the rest after it."""
         acc = self.buf.accel if self.buf.has_accel else None
@@ -662,6 +695,11 @@ class GuidedSession:
                 self._moved_during_pause(AXES[self._axis_i])
             return
         self._provisional = None
+        if self._rest_after_full_turn(st, k_exp):
+            # back at rest after a full turn, then moved again before the rest was long enough to close
+            # the turn (the stage detector merged the two): the turn cannot be used
+            self._moved_during_pause(axis)
+            return
         retry = self.retry_allowed
         m = self.buf.gyro[st.start : st.end]
         saturated = "saturated" in st.flags or (
@@ -778,6 +816,13 @@ def evaluate_result(result: dict[str, Any], tol: Any) -> list[dict[str, Any]]:
             ok = v <= tol.b_std_max_dps
             checks.append({"name": "b_std", "axis": a, "value": v, "limit": tol.b_std_max_dps, "ok": ok,
                            "text": f"uncertainty of b_{a} = {v:.2g} °/s (allowed {tol.b_std_max_dps:g} °/s)"})
+    # after calibration each full turn must bring the device back to its starting pose
+    for turn in (result.get("residuals") or {}).get("turns") or []:
+        if isinstance(turn, dict) and turn.get("closure_norm_deg") is not None:
+            v = float(turn["closure_norm_deg"])
+            a = turn.get("axis")
+            checks.append({"name": "closure", "axis": a, "value": v, "limit": tol.closure_max_deg, "ok": v <= tol.closure_max_deg,
+                           "text": f"the calibrated turn about {a} ends {v:.2f}° from where it began (allowed {tol.closure_max_deg:g}°)"})
     for c in checks:
         if not np.isfinite(c["value"]):
             c["ok"] = False

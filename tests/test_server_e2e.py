@@ -1,0 +1,298 @@
+"""The service end to end over real HTTP: `gyrocal serve --mock` with simulated wearables and clinicians."""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import subprocess
+from pathlib import Path
+from typing import Any, Iterator
+
+import httpx
+import numpy as np
+import pytest
+
+from calib.api import calibrate
+from calib.io import parse_recording_text, read_recording, write_native_csv
+from calib.simulator import simulate
+from calib.stage import Stage
+from server_fixtures import GYROCAL, ROOT, RunningService, follow_events, postgres, store_url  # noqa: F401
+
+END = {"done", "failed", "cancelled"}
+# mock-N performs SCENARIOS[N-1] when a session starts (seeded, so every run is the same)
+SCENARIOS = ["normal", "normal", "moved_during_still", "wrong_axis", "too_fast", "stops_short", "link_drop", "packet_loss", "normal"]
+MOCK_ARGS = ["--mock", str(len(SCENARIOS)), "--mock-speed", "40", "--mock-seed", "3", "--mock-scenario", ",".join(SCENARIOS)]
+
+
+@pytest.fixture(scope="module")
+def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RunningService]:
+    db = tmp_path_factory.mktemp("e2e") / "store.sqlite3"
+    svc = RunningService(MOCK_ARGS, f"sqlite:///{db}").start()
+    yield svc
+    svc.stop()
+
+
+def start_session(client: httpx.Client, device: str, **body: Any) -> str:
+    r = client.post(f"/devices/{device}/calibrate", json=body)
+    assert r.status_code == 202, r.text
+    sid = r.json()["session_id"]
+    assert r.headers["location"] == f"/sessions/{sid}"
+    return sid
+
+
+def run_to_end(svc: RunningService, device: str, **body: Any) -> tuple[str, list[dict[str, Any]]]:
+    with svc.client() as c:
+        sid = start_session(c, device, **body)
+    events = follow_events(svc.base, sid, END, timeout_s=90, last_event_id=0)  # 0: from the first event
+    return sid, events
+
+
+def states(events: list[dict[str, Any]]) -> list[str]:
+    out: list[str] = []
+    for e in events:
+        if not out or out[-1] != e["state"]:
+            out.append(e["state"])
+    return out
+
+
+def test_live_session_to_done_accept_and_read_back(service: RunningService) -> None:
+    sid, events = run_to_end(service, "mock-1")
+    assert states(events) == ["connecting", "still", "turn_x", "turn_y", "turn_z", "computing", "done"], states(events)
+    ids = [e["_sse_id"] for e in events]
+    assert ids == sorted(set(ids)) and ids[0] == 1
+    kinds = {e["_sse_event"] for e in events}
+    assert {"state", "prompt", "progress", "angle"} <= kinds
+    assert any(e["_sse_event"] == "angle" and abs(e["live"]["turn_angle_deg"] or 0) > 200 for e in events)
+    final = events[-1]
+    assert final["passed"] is True and final["result"]["k"] and all(c["ok"] for c in final["checks"])
+    with service.client() as c:
+        assert c.get("/devices/mock-1/calibration").status_code == 404  # nothing before accepting
+        r = c.post(f"/sessions/{sid}/accept", json={"note": "first calibration"})
+        assert r.status_code == 200, r.text
+        assert c.post(f"/sessions/{sid}/accept").status_code == 409
+        cal = c.get("/devices/mock-1/calibration").json()
+        truth = c.get("/devices/mock-1").json()["simulated_truth"]
+        history = c.get("/devices/mock-1/calibrations").json()
+        csv = c.get(f"/sessions/{sid}/recording")
+    assert cal["session_id"] == sid and cal["operator"] == "api" and cal["method"] == "closure"
+    k, b = np.array(cal["k"]), np.array(cal["b"])
+    k_std, b_std = np.array(cal["uncertainty"]["k"]), np.array(cal["uncertainty"]["b"])
+    np.testing.assert_allclose(k, truth["k"], atol=2e-3)
+    np.testing.assert_allclose(b, truth["b"], atol=0.02)
+    # the stated uncertainty is honest: the error is within a few standard errors
+    assert np.all(np.abs(k - truth["k"]) < 6 * k_std + 1e-5) and np.all(np.abs(b - truth["b"]) < 6 * b_std + 1e-4)
+    assert [h["id"] for h in history] == [cal["id"]]
+    # the archived recording reproduces the result exactly
+    assert csv.status_code == 200 and csv.headers["x-recording-sha256"] == cal["recording_sha256"]
+    assert hashlib.sha256(csv.content).hexdigest() == cal["recording_sha256"]
+    rec = parse_recording_text(csv.content)
+    stages = [Stage(s["kind"], s["start"], s["end"], s["start_s"], s["end_s"], s["axis"], s["angle_deg"], tuple(s["flags"]))
+              for s in final["result"]["stages"]]
+    again = calibrate(rec, method=cal["method"], stages=stages)
+    np.testing.assert_allclose(again.k, k, rtol=0, atol=1e-8)
+
+
+@pytest.mark.parametrize(
+    "device, reason",
+    [
+        ("mock-3", "moved_during_pause"),  # a bump in the pause after the x turn
+        ("mock-4", "wrong_axis"),  # z turned where y was asked for
+        ("mock-5", "too_fast"),  # 0.6 s turns saturate the gyro
+        ("mock-6", "out_of_tolerance"),  # z stopped at 320 deg: the turns no longer close after calibration
+        ("mock-7", "wrong_axis"),  # link lost mid y turn: y is asked again, the scripted hand goes on with z
+        ("mock-8", "sample_loss"),  # 2 % of packets lost
+    ],
+)
+def test_fault_scenarios_end_failed_with_nothing_stored(service: RunningService, device: str, reason: str) -> None:
+    sid, events = run_to_end(service, device)
+    final = events[-1]
+    assert (final["state"], final["reason_code"]) == ("failed", reason), final["reason"]
+    assert "start a new calibration" in final["reason"].lower()
+    if device == "mock-7":
+        seq = states(events)
+        assert seq[:4] == ["connecting", "still", "turn_x", "turn_y"] and "reconnecting" in seq
+        after = seq[seq.index("reconnecting") + 1:]
+        assert after[0] == "turn_y"  # the interrupted turn is asked for again
+        assert {"link_lost", "link_restored"} <= {w["code"] for w in final["warnings"]}
+    with service.client() as c:
+        assert c.get(f"/devices/{device}/calibration").status_code == 404
+        r = c.post(f"/sessions/{sid}/accept")
+        assert r.status_code == 409 and "failed" in r.json()["detail"]
+        assert c.post(f"/sessions/{sid}/discard").status_code == 200
+        kept = c.get(f"/devices/{device}/sessions").json()
+        assert c.get(f"/devices/{device}/calibrations").json() == []
+    assert [(s["session_id"], s["state"], s["decision"]) for s in kept] == [(sid, "failed", "discarded")]
+
+
+def test_one_session_per_device_cancel_and_sse_resume(service: RunningService) -> None:
+    with service.client() as c:
+        sid = start_session(c, "mock-2")
+        r = c.post("/devices/mock-2/calibrate", json={})
+        assert r.status_code == 409 and sid in r.json()["detail"]
+        r = c.post(f"/sessions/{sid}/cancel")
+        assert r.status_code == 200 and r.json()["state"] == "cancelled"
+        assert c.post(f"/sessions/{sid}/cancel").status_code == 409
+        assert c.post(f"/sessions/{sid}/accept").status_code == 409
+        assert c.get("/devices/mock-2/calibration").status_code == 404
+        sid2 = start_session(c, "mock-2")
+    # a page that loses its connection resumes from the last event it saw
+    first = follow_events(service.base, sid2, END, stop_after=6, last_event_id=0)
+    rest = follow_events(service.base, sid2, END, last_event_id=first[-1]["_sse_id"], timeout_s=90)
+    assert rest[0]["_sse_id"] == first[-1]["_sse_id"] + 1
+    assert rest[-1]["state"] == "done"
+    with service.client() as c:
+        assert c.post(f"/sessions/{sid2}/discard").status_code == 200
+        assert c.get("/devices/mock-2/calibration").status_code == 404
+        audit = c.get("/audit", params={"device_id": "mock-2"}).json()
+    actions = [a["action"] for a in audit]
+    assert {"session.start", "session.cancel", "session.cancelled", "session.done", "session.discard"} <= set(actions)
+
+
+def test_writes_need_a_signed_in_operator(service: RunningService) -> None:
+    with service.client(token=None) as anon:
+        r = anon.post("/devices/mock-9/calibrate", json={})
+        assert r.status_code == 401 and "Bearer" in r.json()["detail"] and r.headers["www-authenticate"] == "Bearer"
+        assert anon.get("/devices").status_code == 200  # reads are open by default
+        assert anon.get("/audit").status_code == 401
+    with service.client(token="not-a-token") as bad:
+        assert bad.post("/devices/scan").status_code == 401
+    out = subprocess.run([*GYROCAL, "operator", "--db", service.db_url, "add", "alice"], capture_output=True, text=True, cwd=ROOT)
+    assert out.returncode == 0, out.stderr
+    secret = out.stdout.strip().splitlines()[-1]
+    with service.client(token=None) as c:
+        assert c.post("/auth/login", json={"operator": "alice", "secret": secret + "x"}).status_code == 401
+        r = c.post("/auth/login", json={"operator": "alice", "secret": secret})
+        assert r.status_code == 200
+        token = r.json()["token"]
+    with service.client(token=token) as alice:
+        assert alice.get("/auth/me").json() == {"operator": "alice"}
+        found = alice.post("/devices/scan", params={"timeout": 0.5}).json()["devices"]
+        assert {d["id"] for d in found} >= {"mock-1", "mock-9"}
+        assert alice.post("/auth/logout").status_code == 204
+        assert alice.get("/auth/me").status_code == 401
+
+
+def test_uploaded_recordings_calibrate(service: RunningService, ferraris_csv: Path) -> None:
+    rec, truth = simulate(11, noise=0.03)
+    buf = io.StringIO()
+    write_native_csv(rec, buf)
+    with service.client() as c:
+        r = c.post("/devices/upload-1/calibrate", content=buf.getvalue(), headers={"Content-Type": "text/csv"})
+        assert r.status_code == 200, r.text
+        res = r.json()
+        np.testing.assert_allclose(res["k"], truth.k, atol=2e-3)
+        np.testing.assert_allclose(res["b"], truth.b, atol=0.02)
+        assert res["passed"] and res["state"] == "done" and len(res["stages"]) >= 7
+        assert res["recording_sha256"] == hashlib.sha256(buf.getvalue().encode()).hexdigest()
+        assert c.get("/devices/upload-1/calibration").status_code == 404
+        assert c.post(f"/sessions/{res['session_id']}/accept").status_code == 200
+        assert c.get("/devices/upload-1/calibration").json()["k"] == res["k"]
+        # a real recording in imucal's layout (102.4 Hz, no time column), against imucal's own result
+        r = c.post("/devices/imu-7/calibrate", params={"fs": 102.4, "method": "closure"},
+                   content=ferraris_csv.read_bytes(), headers={"Content-Type": "text/csv"})
+        assert r.status_code == 200, r.text
+        res = r.json()
+        np.testing.assert_allclose(res["k"], [0.97284, 1.01788, 1.00169], atol=2e-3)
+        np.testing.assert_allclose(res["b"], [0.5834, 0.3765, -0.0589], atol=0.02)
+        r = c.post("/devices/imu-7/calibrate", params={"fs": 102.4, "method": "paper"},
+                   content=ferraris_csv.read_bytes(), headers={"Content-Type": "text/csv"})
+        assert r.status_code == 200 and r.json()["method"] == "paper"
+        assert c.get("/devices/imu-7").json()["transport"] is None
+
+
+def test_garbage_uploads_get_a_4xx_with_a_reason(service: RunningService) -> None:
+    still_only = io.StringIO()
+    rec, _ = simulate(2, noise=0.03)
+    write_native_csv(rec.slice(0, 250), still_only)
+    bodies = {
+        "empty": b"",
+        "binary": bytes(range(256)) * 50,
+        "prose": b"this is not a recording\n",
+        "header only": b"t,gx,gy,gz\n",
+        "short rows": b"t,gx,gy,gz\n0,1\n0.01,2\n",
+        "nan": b"t,gx,gy,gz\n0,nan,0,0\n0.01,0,0,0\n0.02,0,0,0\n",
+        "time backwards": b"t,gx,gy,gz\n0.02,0,0,0\n0.01,0,0,0\n0,0,0,0\n",
+        "imucal without fs": b"gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z\n" + b"0,0,0,0,0,9.81\n" * 50,
+        "no protocol": still_only.getvalue().encode(),
+        "latin-1": "t,gx,gy,gz\n0,1,2,3\n\xe9\n".encode("latin-1"),
+    }
+    with service.client() as c:
+        for name, body in bodies.items():
+            r = c.post("/devices/garbage-1/calibrate", content=body, headers={"Content-Type": "text/csv"})
+            assert 400 <= r.status_code < 500, (name, r.status_code, r.text)
+            detail = r.json()["detail"]
+            assert isinstance(detail, str) and len(detail) > 15, (name, detail)
+        r = c.post("/devices/garbage-1/calibrate", content=b"<a/>", headers={"Content-Type": "application/xml"})
+        assert r.status_code == 415
+        r = c.post("/devices/mock-9/calibrate", content=b"{not json", headers={"Content-Type": "application/json"})
+        assert r.status_code == 422
+        r = c.post("/devices/mock-9/calibrate", json={"method": "astrology"})
+        assert r.status_code == 422 and "closure" in r.json()["detail"]
+        r = c.post("/devices/mock-9/calibrate", json={"surprise": 1})
+        assert r.status_code == 422
+        r = c.post("/devices/garbage-1/calibrate", params={"method": "nope"}, content=b"t,gx,gy,gz\n", headers={"Content-Type": "text/csv"})
+        assert r.status_code == 422
+        huge = b"t,gx,gy,gz\n" + b"0.000000001,0.0000001,0.00000001,0.000000001\n" * 800_000
+        r = c.post("/devices/garbage-1/calibrate", content=huge, headers={"Content-Type": "text/csv"})
+        assert r.status_code == 413 and "MiB" in r.json()["detail"]
+        assert c.get("/devices/no-such-device").status_code == 404
+        assert c.get("/sessions/0123456789abcdef0123456789abcdef").status_code == 404
+        assert c.get("/sessions/not-an-id/events").status_code == 404
+        assert c.get("/health").json()["status"] == "ok"
+        assert c.get("/devices/garbage-1").status_code == 404  # refused uploads leave no trace but the log
+
+
+def _inject_store_failure(url: str, on: bool) -> None:
+    from sqlalchemy import create_engine, text
+
+    eng = create_engine(url.replace("postgresql://", "postgresql+psycopg://"))
+    with eng.begin() as conn:
+        if eng.dialect.name == "sqlite":
+            conn.execute(text("DROP TRIGGER IF EXISTS test_disk_full"))
+            if on:
+                conn.execute(text("CREATE TRIGGER test_disk_full BEFORE INSERT ON calibrations "
+                                  "BEGIN SELECT RAISE(ABORT, 'disk full'); END"))
+        else:
+            conn.execute(text("DROP TRIGGER IF EXISTS test_disk_full ON calibrations"))
+            if on:
+                conn.execute(text("CREATE OR REPLACE FUNCTION test_disk_full() RETURNS trigger AS $$ "
+                                  "BEGIN RAISE EXCEPTION 'disk full'; END; $$ LANGUAGE plpgsql"))
+                conn.execute(text("CREATE TRIGGER test_disk_full BEFORE INSERT ON calibrations "
+                                  "FOR EACH ROW EXECUTE FUNCTION test_disk_full()"))
+    eng.dispose()
+
+
+def test_restart_keeps_history_and_a_failed_store_write_changes_nothing(store_url: str) -> None:
+    """Against SQLite and PostgreSQL: accept, restart the service, fail a write, retry it."""
+    svc = RunningService(["--mock", "1", "--mock-speed", "40", "--mock-seed", "5"], store_url).start()
+    try:
+        sid1, events = run_to_end(svc, "mock-1")
+        assert events[-1]["state"] == "done"
+        with svc.client() as c:
+            first = c.post(f"/sessions/{sid1}/accept").json()["calibration"]
+            running = start_session(c, "mock-1")
+    finally:
+        svc.stop()  # with a session running
+    svc = RunningService(["--mock", "1", "--mock-speed", "40", "--mock-seed", "5"], store_url).start()
+    try:
+        with svc.client() as c:
+            assert c.get("/devices/mock-1/calibration").json() == first
+            assert [h["id"] for h in c.get("/devices/mock-1/calibrations").json()] == [first["id"]]
+            interrupted = c.get(f"/sessions/{running}").json()
+            assert interrupted["state"] in ("cancelled", "failed") and interrupted["reason"]
+            assert c.get(f"/sessions/{sid1}").json()["decision"] == "accepted"
+        sid2, events = run_to_end(svc, "mock-1")
+        assert events[-1]["state"] == "done"
+        _inject_store_failure(store_url, True)
+        with svc.client() as c:
+            r = c.post(f"/sessions/{sid2}/accept")
+            assert r.status_code == 503 and "previous calibration stays current" in r.json()["detail"]
+            assert c.get("/devices/mock-1/calibration").json()["id"] == first["id"]
+            _inject_store_failure(store_url, False)
+            r = c.post(f"/sessions/{sid2}/accept")
+            assert r.status_code == 200, r.text
+            second = r.json()["calibration"]
+            assert c.get("/devices/mock-1/calibration").json()["id"] == second["id"] != first["id"]
+            assert [h["id"] for h in c.get("/devices/mock-1/calibrations").json()] == [second["id"], first["id"]]
+    finally:
+        svc.stop()

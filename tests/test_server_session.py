@@ -1,0 +1,269 @@
+"""The guided session's state machine, fed simulated recordings through the real stage tracker."""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+import numpy as np
+import pytest
+
+from calib.simulator import Motion, ProtocolScript, SensorParams, Still, Turn, paper_protocol_script, simulate
+from mock_device.scenarios import get_scenario
+from server.config import ProtocolTimings, Settings
+from server.runner import compute_result
+from server.session import GuidedSession, evaluate_result
+
+FS = 104.0
+PARAMS = SensorParams(k=np.array([1.03, 0.97, 1.05]), b=np.array([1.5, -2.0, 0.7]))
+
+
+def turn(axis: str, angle: float = 360.0, duration: float = 3.0) -> Turn:
+    return Turn(axis, angle, duration_s=duration, wobble_deg=1.0, tilt=(0.02, -0.01))
+
+
+def script(*segments: Any) -> ProtocolScript:
+    return ProtocolScript(tuple(segments))
+
+
+STANDARD = script(Still(3.5), turn("x"), Still(3.0), turn("y"), Still(3.0), turn("z"), Still(3.0))
+
+
+class Run:
+    """Feeds a recording to a GuidedSession in small batches, as a link would."""
+
+    def __init__(self, settings: Settings | None = None, max_attempts: int | None = None, clock: Any = None) -> None:
+        self.events: list[tuple[str, dict[str, Any]]] = []
+        # live snapshots are rate-limited on the session's clock: by default let it follow device time
+        kw = {"clock": clock or (lambda: self.s._t_now if hasattr(self, "s") else 0.0)}
+        self.s = GuidedSession("sid", "dev", settings or Settings(db_url="sqlite://"), listener=self._listen,
+                               max_attempts=max_attempts, **kw)
+        self.s.connected(FS, {"sensor_model": "simulated"}, 500.0)
+
+    def _listen(self, kind: str, snap: dict[str, Any]) -> None:
+        self.events.append((kind, snap))
+
+    def feed(self, rec: Any, start: int = 0, end: int | None = None, batch: int = 3, lost_at: dict[int, int] | None = None) -> None:
+        end = len(rec) if end is None else end
+        for i in range(start, end, batch):
+            j = min(end, i + batch)
+            lost = (lost_at or {}).get(i, 0)
+            self.s.feed(rec.t[i:j], rec.gyro[i:j], rec.accel[i:j], rec.seq[i:j], lost_before=lost)
+            if self.s.finished or self.s.state == "computing":
+                return
+
+    def states(self) -> list[str]:
+        out: list[str] = []
+        for _, snap in self.events:
+            if not out or out[-1] != snap["state"]:
+                out.append(snap["state"])
+        return out
+
+    def warnings(self) -> list[str]:
+        return [w["code"] for w in self.s.warnings]
+
+
+def sim(sc: ProtocolScript, seed: int = 1, tail_s: float = 0.0, **kw: Any) -> Any:
+    if tail_s:
+        sc = script(*sc.segments, Still(tail_s))
+    rec, truth = simulate(seed, noise=0.03, fs=FS, params=PARAMS, script=sc, full_scale_dps=500.0, **kw)
+    return rec, truth
+
+
+def test_the_protocol_walks_every_step_and_computes_the_truth() -> None:
+    rec, truth = sim(STANDARD)
+    run = Run()
+    run.feed(rec)
+    assert run.s.state == "computing"
+    assert run.states() == ["still", "turn_x", "turn_y", "turn_z", "computing"]
+    phases = [(snap["state"], snap["phase"]) for kind, snap in run.events if kind in ("state", "prompt")]
+    for axis in "xyz":
+        i = phases.index((f"turn_{axis}", "ready"))
+        assert phases[i + 1] == (f"turn_{axis}", "turning") and phases[i + 2] == (f"turn_{axis}", "pause")
+    # live feedback: stillness progress grows to the 3 s target, the live angle grows during turns
+    progress = [snap["progress"]["fraction"] for kind, snap in run.events if kind == "progress" and snap["state"] == "still"]
+    assert progress and progress[-1] > 0.8 and progress == sorted(progress)
+    angles = [snap["live"]["turn_angle_deg"] for kind, snap in run.events if kind == "angle" and snap["state"] == "turn_y"]
+    assert len(angles) > 5 and max(abs(a) for a in angles) > 300
+    assert run.warnings() == []
+    result = compute_result(run.s)
+    np.testing.assert_allclose(result["k"], truth.k, atol=2e-3)
+    np.testing.assert_allclose(result["b"], truth.b, atol=2e-2)
+    run.s.set_result(result)
+    assert run.s.state == "done" and run.s.passed
+    assert all(c["ok"] for c in run.s.checks)
+
+
+def test_a_turn_started_before_the_countdown_is_accepted_and_a_fidget_restarts_the_count() -> None:
+    early = script(Still(2.2), turn("x"), Still(1.8), turn("y"), Still(3.0), turn("z"), Still(3.0))
+    rec, _ = sim(early)
+    run = Run()
+    run.feed(rec)
+    assert run.s.state == "computing", run.s.reason
+    assert run.s.turns["x"].rest_before_s < 3.0
+    fidget = script(Still(2.0), Motion((0, 0, 20), 0.5), Motion((0, 0, -20), 0.5), Still(3.5), turn("x"), Still(3.0),
+                    turn("y"), Still(3.0), turn("z"), Still(3.0))
+    rec, _ = sim(fidget)
+    run = Run()
+    run.feed(rec)
+    assert run.s.state == "computing", run.s.reason
+    assert "moved" in run.warnings()
+
+
+@pytest.mark.parametrize(
+    "scenario, reason",
+    [
+        ("moved_during_still", "moved_during_pause"),
+        ("wrong_axis", "wrong_axis"),
+        ("too_fast", "too_fast"),
+    ],
+)
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("batch", [3, 400])  # a link that lags merges packets: the outcome must not change
+def test_fault_scenarios_end_failed_with_their_reason(scenario: str, reason: str, seed: int, batch: int) -> None:
+    sc = get_scenario(scenario).script(np.random.default_rng(seed))
+    rec, _ = simulate(seed, fs=FS, script=sc, full_scale_dps=500.0)
+    run = Run()
+    run.feed(rec, batch=batch)
+    assert run.s.state == "failed"
+    assert run.s.reason_code == reason
+    assert run.s.reason and "Start a new calibration" in run.s.reason
+
+
+@pytest.mark.parametrize("angle, reason", [(250.0, "turn_incomplete"), (540.0, "turn_too_far"), (720.0, "turn_too_far")])
+def test_turn_angle_out_of_range(angle: float, reason: str) -> None:
+    rec, _ = sim(script(Still(3.5), turn("x", angle, 4.0), Still(3.0)), tail_s=2.0)
+    run = Run()
+    run.feed(rec)
+    assert (run.s.state, run.s.reason_code) == ("failed", reason)
+    measured = float(re.search(r"measured (\d+)°", run.s.reason).group(1))
+    assert measured == pytest.approx(angle / PARAMS.k[0], rel=0.03)  # the raw angle is the true one / k
+
+
+def test_a_turn_that_does_not_come_back_is_incomplete() -> None:
+    # x turned 320 deg: the device ends tilted 40 deg (gravity shows it), though 320/k is a plausible angle
+    params = SensorParams(k=np.array([0.9, 1.0, 1.0]), b=np.zeros(3))
+    rec, _ = simulate(3, fs=FS, params=params, script=script(Still(3.5), turn("x", 320.0), Still(3.0)), full_scale_dps=500.0)
+    run = Run()
+    run.feed(rec)
+    assert (run.s.state, run.s.reason_code) == ("failed", "turn_incomplete")
+    assert "starting position" in run.s.reason
+
+
+def test_no_motion_gives_a_hint_then_fails_and_a_restless_device_fails_too() -> None:
+    t = ProtocolTimings()
+    rec, _ = sim(script(Still(3.5 + t.fail_after_s + 2.0)))
+    run = Run()
+    run.feed(rec)
+    assert (run.s.state, run.s.reason_code) == ("failed", "no_motion")
+    assert run.warnings() == ["hint"]
+    restless = [Motion((0, 0, 30 * (-1) ** i), 1.0) for i in range(int(t.fail_after_s) + 5)]
+    rec, _ = sim(script(*restless))
+    run = Run()
+    run.feed(rec)
+    assert (run.s.state, run.s.reason_code) == ("failed", "not_still")
+    assert "hint" in run.warnings()
+
+
+def test_sample_loss_during_a_turn_fails_it() -> None:
+    rec, _ = sim(STANDARD)
+    x_mid = int((3.5 + 1.5) * FS)
+    run = Run()
+    run.feed(rec, lost_at={x_mid - x_mid % 3: 7})
+    assert (run.s.state, run.s.reason_code) == ("failed", "sample_loss")
+    assert "7 samples" in run.s.reason
+
+
+def test_link_loss_pauses_and_the_current_turn_is_redone() -> None:
+    # the y turn is interrupted by a link loss; after reconnecting the clinician redoes it
+    sc = script(Still(3.5), turn("x"), Still(3.0), turn("y"), Still(2.0), turn("y"), Still(3.0), turn("z"), Still(3.0))
+    rec, truth = sim(sc)
+    y_mid = int((3.5 + 3 + 3 + 1.5) * FS)
+    y_mid -= y_mid % 3
+    resume = int((3.5 + 3 + 3 + 3 + 0.5) * FS)
+    resume -= resume % 3
+    run = Run()
+    run.feed(rec, 0, y_mid)
+    assert run.s.state == "turn_y" and run.s.phase == "turning"
+    run.s.link_lost()
+    assert run.s.state == "reconnecting"
+    run.s.link_restored()
+    assert (run.s.state, run.s.phase) == ("turn_y", "settle")
+    run.feed(rec, resume)
+    assert run.s.state == "computing", run.s.reason
+    assert run.states() == ["still", "turn_x", "turn_y", "reconnecting", "turn_y", "turn_z", "computing"]
+    assert {"link_lost", "link_restored"} <= set(run.warnings())
+    assert "x" in run.s.turns and run.s.turns["y"].start_s >= rec.t[resume]
+    result = compute_result(run.s)
+    np.testing.assert_allclose(result["k"], truth.k, atol=3e-3)
+
+
+def test_retries_ask_for_the_turn_again() -> None:
+    sc = script(Still(3.5), turn("y"), Still(3.0), turn("x"), Still(3.0), turn("y"), Still(3.0), turn("z"), Still(3.0))
+    rec, _ = sim(sc)
+    run = Run(max_attempts=2)
+    run.feed(rec)
+    assert run.s.state == "computing", run.s.reason
+    assert run.warnings() == ["wrong_axis"]
+    assert "Put the device back against the block" in run.s.warnings[0]["message"]
+    run = Run(max_attempts=1)
+    run.feed(rec)
+    assert (run.s.state, run.s.reason_code) == ("failed", "wrong_axis")
+
+
+def test_watchdog_reconnection_limit_and_overall_timeout() -> None:
+    now = [0.0]
+    settings = Settings(db_url="sqlite://", reconnect_timeout_s=10.0, session_timeout_s=100.0)
+    run = Run(settings, clock=lambda: now[0])
+    rec, _ = sim(STANDARD)
+    run.feed(rec, 0, 300)
+    run.s.link_lost()
+    now[0] = 9.0
+    run.s.tick()
+    assert run.s.state == "reconnecting"
+    now[0] = 10.5
+    run.s.tick()
+    assert (run.s.state, run.s.reason_code) == ("failed", "link_lost")
+    run = Run(settings, clock=lambda: now[0])
+    now[0] += 101.0
+    run.s.tick()
+    assert (run.s.state, run.s.reason_code) == ("failed", "timeout")
+
+
+def test_cancel_and_results_out_of_tolerance() -> None:
+    run = Run()
+    assert run.s.cancel("stop") and run.s.state == "cancelled"
+    assert not run.s.cancel("again")
+    tol = Settings(db_url="sqlite://").tolerances
+    good = {"k": [1.0, 1.0, 1.0], "b": [0.0, 0.0, 0.0], "uncertainty": {"k": [1e-4] * 3, "b": [1e-3] * 3}}
+    assert all(c["ok"] for c in evaluate_result(good, tol))
+    bad = {**good, "k": [1.0, 1.3, 1.0], "uncertainty": {"k": [1e-4, 1e-4, 0.05], "b": [1e-3] * 3}}
+    failed = [(c["name"], c["axis"]) for c in evaluate_result(bad, tol) if not c["ok"]]
+    assert failed == [("k", "y"), ("k_std", "z")]
+    nan = {**good, "b": [float("nan"), 0.0, 0.0]}
+    assert [c["axis"] for c in evaluate_result(nan, tol) if not c["ok"]] == ["x"]
+    run = Run()
+    run.s.state = "computing"
+    run.s.set_result(bad)
+    assert (run.s.state, run.s.reason_code, run.s.passed) == ("failed", "out_of_tolerance", False)
+    assert "k_y = 1.3000" in run.s.reason
+
+
+def test_snapshots_are_complete_and_numbered_in_order() -> None:
+    rec, _ = sim(STANDARD)
+    run = Run()
+    run.feed(rec, 0, int(8 * FS))
+    kinds = {k for k, _ in run.events}
+    assert {"state", "prompt", "progress", "angle"} <= kinds
+    for _, snap in run.events:
+        assert snap["session_id"] == "sid" and snap["prompt"]
+        assert snap["caused_by"] is None or snap["caused_by"]["t_device_s"] <= snap["live"]["t_device_s"] + 1e-4
+
+
+@pytest.mark.parametrize("batch", [3, 400])
+def test_paper_protocol_defaults_pass_for_many_seeds(batch: int) -> None:
+    for seed in range(6):
+        rec, _ = simulate(seed, fs=FS, script=paper_protocol_script(np.random.default_rng(seed)), full_scale_dps=500.0)
+        run = Run()
+        run.feed(rec, batch=batch)
+        assert run.s.state == "computing", (seed, run.s.reason)
