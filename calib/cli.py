@@ -186,7 +186,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--noise", type=float, default=0.03, help="white noise std on the readings, deg/s (default 0.03)")
     p.add_argument("--fs", type=float, default=104.0, help="sample rate, Hz (default 104)")
     p.add_argument("--full-scale", type=float, default=None, help="gyro full scale, deg/s: readings clip there")
-    p.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE", help="add a physical effect (repeatable)")
+    p.add_argument(
+        "--effect",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help=(
+            "add a physical effect (repeatable); one number applies to all axes. "
+            "bias_drift=D|DX,DY,DZ[:C|CX,CY,CZ:RISE[:TAU]] (deg/s per s; with temperature: deg/s per degC, warm-up degC, s); "
+            "axis_misalignment=KXY,KXZ,KYZ (upper off-diagonal entries of K); "
+            "g_sensitivity=G|GX,GY,GZ|9 numbers row-major ((deg/s)/g); "
+            "scale_asymmetry=S|SX,SY,SZ (fraction: k(1+s) for positive, k(1-s) for negative rates); "
+            "scale_nonlinearity=N|NX,NY,NZ[:R0] (fractional scale change at R0 deg/s, default 1000); "
+            "saturation=FULL_SCALE[,RESOLUTION] (deg/s); "
+            "sample_loss=PROB[,BURST] (loss probability per sample, samples per loss); "
+            "placement_error=STD[,HEADING_STD] (deg per turn); "
+            "clock_error=E (fraction: 0.01 = device clock 1%% fast); "
+            "bias_instability=SIGMA[,TAU] (deg/s, s; Gauss-Markov bias); "
+            "temperature=RISE[,TAU[,T0]] (temperature channel only)"
+        ),
+    )
     p.add_argument("-o", "--output", type=Path, required=True, help="native CSV to write")
     p.add_argument("--truth", action="store_true", help="print the simulated truth as JSON")
     p.set_defaults(func=cmd_simulate)

@@ -44,7 +44,9 @@ __all__ = [
     "Truth",
     "Turn",
     "build_trajectory",
+    "extended_protocol_script",
     "paper_protocol_script",
+    "script_duration_s",
     "simulate",
     "simulate_batch",
 ]
@@ -307,6 +309,63 @@ def paper_protocol_script(
     return ProtocolScript(tuple(segs))
 
 
+EXTENDED_SLOW_S = (6.0, 8.0)  # slow turn duration, s: mean rate 45-60 deg/s
+EXTENDED_FAST_S = (1.2, 1.8)  # fast turn duration, s: mean rate 200-300 deg/s, peaks near 500 deg/s
+
+
+def extended_protocol_script(
+    rng: np.random.Generator | None = None,
+    still_s: float = STILL_S,
+    slow_s: tuple[float, float] = EXTENDED_SLOW_S,
+    fast_s: tuple[float, float] = EXTENDED_FAST_S,
+) -> ProtocolScript:
+    """The paper protocol extended for the effects that need more than one turn per axis.
+
+    Rest, then for each axis x, y, z in turn: +360 deg slow, -360 deg slow, +360 deg fast, -360 deg
+    fast, each followed by a rest of ``still_s``. Direction and speed vary independently (2 x 2 per
+    axis), so scale asymmetry (direction) and scale nonlinearity (speed) show separately. With
+    ``rng`` the durations (uniform in ``slow_s`` / ``fast_s``, s), tilts, wobbles and speed profiles
+    are drawn now; without, the durations are the middles of the ranges and ``simulate`` draws the rest.
+    """
+    for what, (lo, hi) in (("slow_s", slow_s), ("fast_s", fast_s)):
+        if not (0 < lo <= hi and np.isfinite(hi)):
+            raise SimulationConfigError(f"{what} must be a range (low, high) of positive durations in s; got {(lo, hi)!r}")
+    kinds = [(sign, rng_range) for rng_range in (slow_s, fast_s) for sign in (1.0, -1.0)]
+    n = 3 * len(kinds)
+    drawn = _draw_turn_params(rng, n) if rng is not None else None
+    segs: list[Segment] = [Still(still_s)]
+    j = 0
+    for axis in AXES:
+        for sign, (lo, hi) in kinds:
+            if drawn is None:
+                segs.append(Turn(axis, sign * 360.0, duration_s=0.5 * (lo + hi)))
+            else:
+                segs.append(
+                    Turn(
+                        axis,
+                        sign * 360.0,
+                        duration_s=float(rng.uniform(lo, hi)),
+                        wobble_deg=drawn["wobble_deg"][j],
+                        tilt=drawn["tilt"][j],
+                        profile=drawn["profile"][j],
+                    )
+                )
+            segs.append(Still(still_s))
+            j += 1
+    return ProtocolScript(tuple(segs))
+
+
+def script_duration_s(script: ProtocolScript) -> float:
+    """Total duration of a script (s) whose durations are all fixed (turns with ``duration_s`` set)."""
+    total = 0.0
+    for s in script.segments:
+        d = s.duration_s
+        if d is None:
+            raise SimulationConfigError("the script leaves a turn duration open; fix it (duration_s) to know the total")
+        total += d
+    return total
+
+
 # --------------------------------------------------------------------------- motion construction
 
 
@@ -517,6 +576,7 @@ class Truth:
     axes of the first turn about x, y and z (NaN if there is none). ``stages``: the true segments,
     sample indices into the returned recording (after any lost samples), times on the device clock.
     ``rate``: true rate (deg/s) at each row of the recording. ``trajectory``: the full generated motion.
+    ``t_true``: the true time of each row (s; differs from the recording's device times under a clock error).
     """
 
     k: np.ndarray
@@ -532,6 +592,7 @@ class Truth:
     segment_axes: tuple[np.ndarray | None, ...]
     rate: np.ndarray
     trajectory: Trajectory
+    t_true: np.ndarray | None = None  # (n,) true time of each row of the recording, s
 
     @property
     def params(self) -> SensorParams:
@@ -617,7 +678,7 @@ def simulate(
     accel = traj.accel + accel_noise_g * noise_rng.standard_normal(traj.accel.shape)
 
     idx = np.arange(traj.n, dtype=np.int64)
-    out = SensorOutput(traj.t_device.copy(), gyro, accel, idx.copy(), idx)
+    out = SensorOutput(traj.t_device.copy(), gyro, accel, idx.copy(), idx, t_true=traj.t.copy())
     for e, r in zip(effects, fx_rngs):
         out = e.on_output(out, r)
     if out.t.size < 2:
@@ -652,6 +713,7 @@ def simulate(
         segment_axes=traj.segment_axes,
         rate=traj.rate[out.index],
         trajectory=traj,
+        t_true=traj.t[out.index],
     )
     return rec, truth
 
