@@ -143,19 +143,23 @@ def _so3_series(v: np.ndarray, c1, c2) -> np.ndarray:
     return out
 
 
+def _left_jacobian_coefficients(a2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """c1 = (1 - cos a)/a^2 and c2 = (a - sin a)/a^3 for a^2 = a2; series below a = 0.1 rad (error < 1e-14)."""
+    if np.all(a2 < 1e-2):
+        c1 = 0.5 - a2 * (1.0 / 24.0 - a2 * (1.0 / 720.0 - a2 / 40320.0))
+        c2 = 1.0 / 6.0 - a2 * (1.0 / 120.0 - a2 * (1.0 / 5040.0 - a2 / 362880.0))
+        return c1, c2
+    small = a2 < 1e-4
+    a = np.sqrt(np.where(small, 1.0, a2))
+    c1 = np.where(small, 0.5 - a2 * (1.0 / 24.0 - a2 / 720.0), (1.0 - np.cos(a)) / (a * a))
+    c2 = np.where(small, 1.0 / 6.0 - a2 * (1.0 / 120.0 - a2 / 5040.0), (a - np.sin(a)) / (a * a * a))
+    return c1, c2
+
+
 def left_jacobian(v: np.ndarray) -> np.ndarray:
     """Left Jacobian of SO(3), J_l(v) = I + (1 - cos a)/a^2 [v]x + (a - sin a)/a^3 [v]x^2, a = |v|, for v (..., 3) rad."""
-    a2 = np.einsum("...i,...i->...", v, v)
-    small = a2 < 1e-4
-    if small.all():  # |v| < 1e-2 rad: series to a^4, truncation error < 1e-13
-        c1 = 0.5 - a2 * (1.0 / 24.0 - a2 / 720.0)
-        c2 = 1.0 / 6.0 - a2 * (1.0 / 120.0 - a2 / 5040.0)
-    else:
-        a = np.sqrt(np.where(small, 1.0, a2))
-        c1 = np.where(small, 0.5 - a2 * (1.0 / 24.0 - a2 / 720.0), (1.0 - np.cos(a)) / (a * a))
-        c2 = np.where(small, 1.0 / 6.0 - a2 * (1.0 / 120.0 - a2 / 5040.0), (a - np.sin(a)) / (a * a * a))
-    # [v]x^2 = v v^T - a^2 I
-    return _so3_series(v, c1, c2)
+    c1, c2 = _left_jacobian_coefficients(np.einsum("...i,...i->...", v, v))
+    return _so3_series(v, c1, c2)  # [v]x^2 = v v^T - a^2 I
 
 
 def left_jacobian_inv(v: np.ndarray) -> np.ndarray:
@@ -231,12 +235,10 @@ def _closure_chunk(m, dt, K, b, sigma, jacobian) -> ClosureTerms:
     prev = np.empty_like(att)  # C_{t-1}: identity for t = 0
     prev[:, 0] = _IDENTITY_Q[:, None]
     prev[:, 1:] = att[:, :-1]
-    C = Rotation.from_quat(prev.reshape(4, -1).T).as_matrix().reshape(n, B, 3, 3)
-    Hw = np.matmul(C, left_jacobian(u))
-    Hw *= wdt[..., None, None]  # dr/du_t before J_l(r)^-1, times du_t/dw_t
+    Hw = _sensitivities(prev, u, wdt)  # (9, n, B): wdt * C_{t-1} J_l(u_t), row-major 3x3
     jinv = left_jacobian_inv(r)  # (B, 3, 3)
-    db = np.matmul(jinv, Hw.sum(axis=0))
-    H9 = Hw.reshape(n, B, 9).transpose(1, 2, 0)  # (B, 9, n)
+    db = np.matmul(jinv, Hw.sum(axis=1).T.reshape(B, 3, 3))
+    H9 = Hw.transpose(2, 0, 1)  # (B, 9, n)
     T = np.matmul(H9, m.transpose(1, 0, 2)).reshape(B, 3, 3, 3)  # T[b, a, i, j] = sum_t Hw[a, i] m_j
     dK = np.einsum("bac,bcij->baij", jinv, T)
     noise = None
@@ -246,3 +248,39 @@ def _closure_chunk(m, dt, K, b, sigma, jacobian) -> ClosureTerms:
         inner = np.einsum("baicj,bij->bac", G, S)
         noise = np.matmul(np.matmul(jinv, inner), jinv.transpose(0, 2, 1))
     return ClosureTerms(r=r, swept=swept, dK=dK, db=db, noise=noise)
+
+
+def _matrix_components(q: np.ndarray) -> list[list[np.ndarray]]:
+    """Rotation-matrix entries R[a][c] (arrays shaped like q[0]) of unit quaternions q (4, ...), (x, y, z, w)."""
+    x, y, z, w = q
+    xx, yy, zz = x * x, y * y, z * z
+    xy, xz, yz = x * y, x * z, y * z
+    wx, wy, wz = w * x, w * y, w * z
+    return [
+        [1.0 - 2.0 * (yy + zz), 2.0 * (xy - wz), 2.0 * (xz + wy)],
+        [2.0 * (xy + wz), 1.0 - 2.0 * (xx + zz), 2.0 * (yz - wx)],
+        [2.0 * (xz - wy), 2.0 * (yz + wx), 1.0 - 2.0 * (xx + yy)],
+    ]
+
+
+def _sensitivities(prev: np.ndarray, u: np.ndarray, wdt: np.ndarray) -> np.ndarray:
+    """wdt_t * C_{t-1} J_l(u_t) for attitudes prev (4, n, B) and increments u (n, B, 3), as (9, n, B).
+
+    Entry by entry on whole arrays: C J_l = c0 C + c1 C [u]x + c2 (C u) u^T with c0 = 1 - c2 |u|^2,
+    which avoids millions of 3x3 matrix products.
+    """
+    ux, uy, uz = np.moveaxis(u, -1, 0)
+    a2 = ux * ux + uy * uy + uz * uz
+    c1, c2 = _left_jacobian_coefficients(a2)
+    c0 = (1.0 - c2 * a2) * wdt
+    c1 = c1 * wdt
+    c2 = c2 * wdt
+    C = _matrix_components(prev)
+    out = np.empty((9,) + wdt.shape)
+    for a in range(3):
+        Ca0, Ca1, Ca2 = C[a]
+        cu = c2 * (Ca0 * ux + Ca1 * uy + Ca2 * uz)
+        out[3 * a] = c0 * Ca0 + c1 * (Ca1 * uz - Ca2 * uy) + cu * ux
+        out[3 * a + 1] = c0 * Ca1 + c1 * (Ca2 * ux - Ca0 * uz) + cu * uy
+        out[3 * a + 2] = c0 * Ca2 + c1 * (Ca0 * uy - Ca1 * ux) + cu * uz
+    return out
