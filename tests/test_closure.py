@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
-
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -14,9 +12,8 @@ from calib.api import calibrate
 from calib.bounds import protocol_bound
 from calib.closure import calibrate_closure
 from calib.closure_batch import closure_batch, closure_fit_batch
-from calib.closure_fit import OFF_DIAGONAL
 from calib.closure_model import closure_terms, left_jacobian, left_jacobian_inv, prefix_products, total_products
-from calib.effects import Effect
+from calib.effects import AxisMisalignment
 from calib.io import read_recording
 from calib.recording import Recording
 from calib.simulator import ProtocolScript, SensorParams, Still, Turn, simulate, simulate_batch
@@ -237,26 +234,9 @@ def test_a_turn_of_two_revolutions_closes_on_its_own_branch():
     assert np.all(np.abs(errors(res, truth)[0]) < 5.0)
 
 
-@dataclass(frozen=True, eq=False)
-class _NonOrthogonal(Effect):
-    """Readings of an upper-triangular K: m = K^-1 (g - b), with off-diagonal entries K_xy, K_xz, K_yz."""
-
-    off: tuple[float, float, float] = (0.01, -0.008, 0.006)
-    name = "non_orthogonal_test"
-
-    def matrix(self, k: np.ndarray) -> np.ndarray:
-        K = np.diag(k).astype(float)
-        for v, (i, j) in zip(self.off, OFF_DIAGONAL):
-            K[i, j] = v
-        return K
-
-    def on_sensor(self, m, ctx, rng):
-        return np.linalg.solve(self.matrix(ctx.k), (ctx.rate - ctx.b).T).T
-
-
 def test_extended_model_recovers_non_orthogonality_from_turns_about_diagonal_axes():
     params = SensorParams(np.array([1.05, 0.95, 1.1]), np.array([1.0, -2.0, 0.5]))
-    effect = _NonOrthogonal()
+    effect = AxisMisalignment(np.array([0.01, -0.008, 0.006]))  # K_xy, K_xz, K_yz
     diag_axes = [np.array(v, dtype=float) for v in ((1, 1, 0), (0, 1, 1), (1, 0, 1))]
     proto = script(*(Turn(a, 360.0, 3.5) for a in ("x", "y", "z", *diag_axes)))
     K_true = effect.matrix(params.k)
