@@ -234,43 +234,45 @@ class BenchReport:
         }
 
     def plot(self, path: str | Path) -> Path:
-        """Box plot like the paper's Fig. 7: boxes p25-p75, whiskers p5-p95, one panel per noise level."""
+        """Box plot like the paper's Fig. 7: boxes p25-p75, whiskers p5-p95; k and b panels per noise level."""
         import matplotlib
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
         path = Path(path)
-        n_panels = len(self.noise_levels)
-        fig, axes = plt.subplots(1, n_panels, figsize=(6.5 * n_panels, 4.5), squeeze=False)
+        n_rows = len(self.noise_levels)
+        fig, axes = plt.subplots(n_rows, 2, figsize=(12, 3.6 * n_rows), squeeze=False)
         colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
         width = 0.8 / max(1, len(self.methods))
-        for p, (ax, noise) in enumerate(zip(axes[0], self.noise_levels)):
-            for mi, method in enumerate(self.methods):
-                st = self.stats(method, noise)["params"]
-                boxes = [
-                    {"med": r["median"], "q1": r["p25"], "q3": r["p75"], "whislo": r["p5"], "whishi": r["p95"], "fliers": []}
-                    for r in (st[name] for name in PARAMS)
-                ]
-                pos = np.arange(len(PARAMS)) + (mi - (len(self.methods) - 1) / 2) * width
-                art = ax.bxp(boxes, positions=pos, widths=width * 0.85, showfliers=False, patch_artist=True)
-                for box in art["boxes"]:
-                    box.set_facecolor(colors[mi % len(colors)])
-                    box.set_alpha(0.6)
-                ax.plot([], [], "s", color=colors[mi % len(colors)], alpha=0.6, label=method)
-            bound = PAPER_BOUNDS.get(noise)
-            if bound is not None:
-                for s in (-1, 1):
-                    ax.axhline(s * bound, color="0.4", ls=":", lw=1)
-                ax.plot([], [], ":", color="0.4", label=f"range stated in the paper: +-{bound:g}")
-            ax.axhline(0.0, color="0.7", lw=0.8)
-            ax.set_xticks(np.arange(len(PARAMS)))
-            ax.set_xticklabels(PARAMS)
-            ax.set_title(f"({chr(ord('a') + p)}) noise {noise:g} deg/s")
-            ax.set_ylabel("estimate - truth (k: 1, b: deg/s)")
-            ax.legend(fontsize=8, loc="upper right")
+        groups = (("scale factors k", PARAMS[:3], "estimate - truth"), ("biases b", PARAMS[3:], "estimate - truth (deg/s)"))
+        for row, noise in enumerate(self.noise_levels):
+            for col, (title, names, ylabel) in enumerate(groups):
+                ax = axes[row][col]
+                for mi, method in enumerate(self.methods):
+                    st = self.stats(method, noise)["params"]
+                    boxes = [
+                        {"med": r["median"], "q1": r["p25"], "q3": r["p75"], "whislo": r["p5"], "whishi": r["p95"], "fliers": []}
+                        for r in (st[name] for name in names)
+                    ]
+                    pos = np.arange(len(names)) + (mi - (len(self.methods) - 1) / 2) * width
+                    art = ax.bxp(boxes, positions=pos, widths=width * 0.85, showfliers=False, patch_artist=True)
+                    for box in art["boxes"]:
+                        box.set_facecolor(colors[mi % len(colors)])
+                        box.set_alpha(0.6)
+                    ax.plot([], [], "s", color=colors[mi % len(colors)], alpha=0.6, label=method)
+                ax.axhline(0.0, color="0.7", lw=0.8)
+                ax.set_xticks(np.arange(len(names)))
+                ax.set_xticklabels(names)
+                ax.set_title(f"({chr(ord('a') + 2 * row + col)}) {title}, noise {noise:g} deg/s")
+                ax.set_ylabel(ylabel)
+                ax.ticklabel_format(axis="y", style="sci", scilimits=(-2, 2))
+                ax.legend(fontsize=8, loc="upper right")
+        bounds = ", ".join(f"+-{PAPER_BOUNDS[n]:g} at {n:g} deg/s" for n in self.noise_levels if n in PAPER_BOUNDS)
+        if bounds:
+            fig.text(0.5, 0.005, f"The paper's Fig. 7 states errors within {bounds}.", ha="center", fontsize=9)
         fig.suptitle(f"{self.sets} sets x {self.runs_per_set} runs; boxes p25-p75, whiskers p5-p95")
-        fig.tight_layout()
+        fig.tight_layout(rect=(0, 0.03, 1, 1))
         path.parent.mkdir(parents=True, exist_ok=True)
         fig.savefig(path, dpi=110)
         plt.close(fig)
