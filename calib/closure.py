@@ -45,6 +45,7 @@ METHOD = "closure"
 MIN_STILL_SAMPLES = 2
 MIN_STILL_S = 1.0  # less rest than this in all gives a noisy bias
 P_VALUE_WARN = 1e-3  # chi-square this improbable: the model does not explain the data
+MAX_CLOSURE_DEG = 45.0  # a turn that still misses its start by this much after the fit was not a full turn
 CLOSURE_WARN_SIGMA = 5.0  # a turn whose closure is this many standard errors off did not come back
 OFFDIAG_WARN = 5e-3  # extended model: off-diagonal terms known worse than this are weakly identified
 OFFDIAG_FAIL = 0.05  # ... and worse than this, not identified at all
@@ -83,15 +84,18 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool = False
     theta0, n_rev, rank = start_values(data, extended=False)
     if rank[0] < 3 or not np.all(np.isfinite(theta0)):
         turned = ", ".join(sorted({s.axis or "?" for s in turns}))
+        dropped = [w for w in warnings if "full scale" in w]
         raise ProtocolError(
-            f"the turns (about {turned}) do not rotate the device about all three of its axes: "
+            f"the usable turns (about {turned}) do not rotate the device about all three of its axes: "
             "turn it a full 360 degrees about each of x, y and z, pausing about 3 s between turns"
+            + (f" ({'; '.join(dropped)})" if dropped else "")
         )
     fit = _solve(data, theta0[0], extended=False)
     if extended:
         start = np.concatenate((fit.theta, np.zeros(3)))
         _check_identified(data, start)
         fit = _solve(data, start, extended=True)
+    _check_closed(turns, fit)
     return _result(rec, stage_list, turns, stills, data, fit, n_rev[0], extended, warnings, dt_all)
 
 
@@ -149,6 +153,19 @@ def _solve(data: ClosureData, theta0: np.ndarray, extended: bool) -> _Fit:
         nfev=nfev,
         converged=converged,
     )
+
+
+def _check_closed(turns: list[Stage], fit: _Fit) -> None:
+    """Raise CalibrationError when a turn is so far from closing that its residual means nothing."""
+    angle = np.degrees(np.linalg.norm(fit.terms_r, axis=1))
+    worst = int(np.argmax(angle))
+    if angle[worst] > MAX_CLOSURE_DEG:
+        st = turns[worst]
+        raise CalibrationError(
+            f"the turn about {st.axis} at {st.start_s:.1f}-{st.end_s:.1f} s ends {angle[worst]:.0f} deg from where it "
+            "began even after calibration: it is not a full turn back to the starting pose. Repeat it, turning "
+            "exactly 360 degrees and putting the device back in its starting position"
+        )
 
 
 def _check_identified(data: ClosureData, theta: np.ndarray) -> None:
@@ -359,7 +376,11 @@ def _select_stages(rec: Recording, stages: Any) -> tuple[list[Stage], list[Stage
         turns.append(s)
     stills = [s for s in stage_list if s.kind == "still" and s.n >= MIN_STILL_SAMPLES]
     if not turns:
-        raise ProtocolError("no usable full turn was found: turn the device 360 degrees about each of its axes")
+        dropped = [w for w in warnings if "full scale" in w]
+        raise ProtocolError(
+            "no usable full turn was found: turn the device 360 degrees about each of its axes"
+            + (f" ({'; '.join(dropped)})" if dropped else "")
+        )
     if not stills:
         raise ProtocolError("no still segment was found: let the device rest about 3 s before, between and after the turns")
     return stage_list, turns, stills, warnings

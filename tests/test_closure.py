@@ -368,3 +368,25 @@ def test_still_statistics_pool_each_still_about_its_own_mean():
             ss = sum(((seg - seg.mean(axis=0)) ** 2).sum(axis=0) for seg in segs)
             assert np.allclose(sigma[r], np.sqrt(ss / sum(len(seg) - 1 for seg in segs)))
         assert np.array_equal(count[0], [20, 20, 0, 80])
+
+
+def test_saturated_turns_are_left_out_and_said_so():
+    rec, truth = simulate(130, noise=0.03, full_scale_dps=150.0)
+    saturated = [s for s in truth.stages if "saturated" in s.flags]
+    assert saturated, "the simulated turns should exceed 150 deg/s"
+    with pytest.raises(ProtocolError, match="full scale"):
+        calibrate_closure(rec, list(truth.stages))
+
+
+def test_a_turn_that_ends_in_another_pose_is_refused():
+    from calib.simulator import Motion
+    from calib.stage import Stage
+
+    proto = ProtocolScript((Still(3.0), Turn("x", 360.0), Still(3.0), Turn("y", 360.0), Motion((60.0, 0.0, 0.0), 1.5),
+                            Still(3.0), Turn("z", 360.0), Still(3.0)))
+    rec, truth = simulate(140, noise=0.03, script=proto)
+    st = list(truth.stages)
+    y, motion = st[3], st[4]
+    merged = Stage("turn", y.start, motion.end, y.start_s, motion.end_s, "y", 360.0)  # the hand never came back
+    with pytest.raises(CalibrationError, match="about y"):
+        calibrate_closure(rec, st[:3] + [merged] + st[5:])
