@@ -53,7 +53,6 @@ from dataclasses import dataclass, field, fields, replace
 from typing import Any, ClassVar
 
 import numpy as np
-from scipy.signal import lfilter
 from scipy.spatial.transform import Rotation
 
 from .errors import GyrocalError
@@ -781,6 +780,8 @@ class BiasInstability(Effect):
         drive[0] *= self.sigma_dps
         drive[1:] *= self.sigma_dps * np.sqrt(1.0 - phi * phi)[:, None]
         if phi.size and np.allclose(phi, phi[0], rtol=0, atol=1e-12):
+            from scipy.signal import lfilter  # imported here: scipy.signal adds most of a second to start-up
+
             return lfilter([1.0], [1.0, -phi[0]], drive, axis=0)
         x = drive.copy()
         for i in range(1, t.size):
