@@ -533,8 +533,14 @@ class ScaleNonlinearity(Effect):
 @register_effect
 @dataclass(frozen=True)
 class SampleLoss(Effect):
-    """Lost samples: each sample starts a lost burst of ``burst`` samples with probability ``prob``,
-    and the samples in ``ranges`` ([start, end) generated-sample indices) are lost too."""
+    """Lost samples (radio link or buffer overrun): rows missing from the recording.
+
+    Each generated sample starts a lost burst of ``burst`` samples with probability ``prob``, and the
+    samples in ``ranges`` ([start, end) generated-sample indices) are lost too; the expected lost
+    fraction is 1 - (1 - prob)^burst. The kept rows keep their time stamps and sample counter, so a
+    gap shows as a step > 1 in ``seq`` and a step > 1 / fs in ``t``; the readings of the kept rows
+    are unchanged (the rotation during a gap is simply not measured). CLI value: ``PROB[,BURST]``.
+    """
 
     name: ClassVar[str] = "sample_loss"
     usage: ClassVar[str] = "PROB[,BURST] (probability per sample, samples per loss)"
@@ -586,7 +592,12 @@ class SampleLoss(Effect):
 @register_effect
 @dataclass(frozen=True)
 class Saturation(Effect):
-    """Gyro range: readings are quantised to ``resolution_dps`` (if given) and clipped at +-``full_scale_dps``."""
+    """Gyro range: m_out = clip(q(m), -FS, FS), q rounding to ``resolution_dps`` (if given).
+
+    FS = ``full_scale_dps`` (deg/s of reading); the recording's metadata states it
+    (``RecordingMeta.gyro_full_scale_dps``) and the true stages that clip are flagged "saturated".
+    A clipped sample only bounds the reading: |m| >= FS. CLI value: ``FULL_SCALE[,RESOLUTION]`` (deg/s).
+    """
 
     name: ClassVar[str] = "saturation"
     usage: ClassVar[str] = "FULL_SCALE[,RESOLUTION] (deg/s)"
