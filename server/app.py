@@ -30,7 +30,8 @@ from .auth import AuthError, Authenticator
 from .config import Settings
 from .devices import DEVICE_ID_RE, Device, DeviceManager
 from .events import Broadcaster, Event, dumps, finite
-from .runner import LiveSession, recording_csv
+from .compute import ComputePool, TooManySamples, calibrate_upload
+from .runner import LiveSession
 from .session import END_STATES, GuidedSession, evaluate_result
 from .store import Store, StoreError
 
@@ -49,11 +50,13 @@ class Service:
         self.store = store or Store(settings.db_url)
         self.auth = Authenticator(self.store, settings.api_token, settings.token_ttl_s)
         self.devices = devices or DeviceManager()
+        self.pool = ComputePool()
         self.sessions: dict[str, LiveSession] = {}
         self.active: dict[str, str] = {}  # device id -> running session id
         self.started = time.time()
 
     async def startup(self) -> None:
+        await self.pool.start()
         n = await asyncio.to_thread(
             self.store.fail_unfinished_sessions,
             "The service was restarted while this calibration ran. Start a new calibration.",
@@ -70,6 +73,7 @@ class Service:
                     await asyncio.wait_for(live.shutdown(), timeout=10.0)
             live.broadcaster.close()
         await self.devices.close()
+        self.pool.shutdown()
         self.store.close()
 
     def _session_ended(self, live: LiveSession) -> None:
@@ -295,7 +299,11 @@ def create_app(settings: Settings | None = None, service: Service | None = None)
             "(g true rate, m reading, deg/s). Writes need `Authorization: Bearer <token>` (POST /auth/login)."
         ),
         lifespan=lifespan,
-        responses={422: {"model": M.Problem, "description": "invalid request"}},
+        responses={
+            400: {"model": M.Problem, "description": "malformed request (unreadable body or headers)"},
+            413: {"model": M.Problem, "description": "request body too large"},
+            422: {"model": M.Problem, "description": "invalid request"},
+        },
     )
     app.state.service = svc
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
@@ -566,6 +574,7 @@ def create_app(settings: Settings | None = None, service: Service | None = None)
             await asyncio.to_thread(svc.store.audit, operator, "session.note", rec.device_id, session_id, {"note": body.note})
         if live is not None:
             live.machine.decide("accepted", rec.id)
+            live.broadcaster.close()
         return {"session_id": session_id, "calibration": rec.to_dict()}
 
     @app.post("/sessions/{session_id}/discard", response_model=M.SessionOut, responses={**R401, **R404, **R409, **R503}, tags=["sessions"])
@@ -588,6 +597,7 @@ def create_app(settings: Settings | None = None, service: Service | None = None)
             await asyncio.to_thread(svc.store.audit, operator, "session.note", snap["device_id"], session_id, {"note": body.note})
         if live is not None:
             live.machine.decide("discarded", None)
+            live.broadcaster.close()
         return finite(await _session_snapshot(svc, session_id))
 
     @app.get("/devices/{device_id}/sessions", response_model=list[M.SessionOut], responses=R404, tags=["sessions"])
@@ -640,16 +650,15 @@ async def _start_live(svc: Service, device_id: str, operator: str, method: str |
     except Exception:
         svc.active.pop(device_id, None)
         raise
-    live = LiveSession(machine, dev, svc.store, svc.settings, __version__, operator, on_end=svc._session_ended)
+    live = LiveSession(machine, dev, svc.store, svc.settings, __version__, operator, on_end=svc._session_ended, pool=svc.pool)
     svc.sessions[sid] = live
     live.start()
     return live
 
 
 async def _offline(svc: Service, device_id: str, operator: str, body: bytes, fs: float | None, method: str | None, layout: str) -> JSONResponse:
-    from calib.api import DEFAULT_METHOD, available_methods, calibrate
+    from calib.api import DEFAULT_METHOD, available_methods
     from calib.errors import GyrocalError, ProtocolError, RecordingError
-    from calib.io import parse_recording_text
 
     method = method or DEFAULT_METHOD
     if method not in available_methods():
@@ -660,44 +669,34 @@ async def _offline(svc: Service, device_id: str, operator: str, body: bytes, fs:
         raise _problem(400, "the CSV body is empty: send a recording (header t,gx,gy,gz,... or gyr_x,gyr_y,gyr_z,...)")
     source = f"upload for {device_id}"
     try:
-        rec = await asyncio.to_thread(parse_recording_text, body, fs, layout, source)
-    except GyrocalError as exc:
-        raise _problem(400, str(exc)) from None
-    except Exception as exc:  # whatever the parser trips on, the upload is at fault
-        log.warning("unreadable upload: %r", exc)
-        raise _problem(400, f"the recording cannot be read ({type(exc).__name__}: {exc}); send a native or imucal CSV") from None
-    if len(rec) > svc.settings.max_upload_samples:
-        raise _problem(413, f"the recording has {len(rec)} samples; at most {svc.settings.max_upload_samples} are accepted")
-    try:
-        result = await asyncio.to_thread(calibrate, rec, method)
+        res, csv, n_samples = await svc.pool.run(calibrate_upload, body, fs, layout, method, source, svc.settings.max_upload_samples)
+    except TooManySamples as exc:
+        raise _problem(413, str(exc)) from None
     except ProtocolError as exc:
         raise _problem(422, str(exc)) from None
     except RecordingError as exc:
         raise _problem(400, str(exc)) from None
     except GyrocalError as exc:
         raise _problem(422, str(exc)) from None
-    except Exception as exc:
-        log.exception("estimator failed on an upload")
-        raise _problem(422, f"the calibration could not be computed from this recording ({type(exc).__name__}: {exc})") from None
-    res = finite(result.to_dict())
-    res["sample_rate_hz"] = rec.fs
-    res["n_samples"] = len(rec)
+    except Exception as exc:  # whatever the parser or estimator trips on, the upload is at fault
+        log.warning("upload could not be calibrated: %r", exc)
+        raise _problem(400, f"the recording cannot be calibrated ({type(exc).__name__}: {exc}); send a native or imucal CSV") from None
+    res = finite(res)
     checks = evaluate_result(res, svc.settings.tolerances)
     failures = [c["text"] for c in checks if not c["ok"]]
     passed = not failures
     sid = uuid.uuid4().hex
-    csv = await asyncio.to_thread(recording_csv, rec)
     from . import guidance as say
 
     reason = None if passed else say.out_of_tolerance(failures)
     await asyncio.to_thread(svc.store.upsert_device, device_id)
     await asyncio.to_thread(svc.store.create_session, sid, device_id, "upload", "computing", method, operator, __version__,
                             {"source": "upload", "layout": layout, "fs": fs})
-    digest = await asyncio.to_thread(svc.store.archive_recording, sid, csv, len(rec))
+    digest = await asyncio.to_thread(svc.store.archive_recording, sid, csv, n_samples)
     await asyncio.to_thread(
         svc.store.finish_session, sid, "done" if passed else "failed",
         reason_code=None if passed else "out_of_tolerance", reason=reason, result=res, passed=passed,
-        info={"checks": checks, "samples": len(rec)},
+        info={"checks": checks, "samples": n_samples},
     )
     out = {
         **res,

@@ -79,5 +79,6 @@ class Settings:
     link_silence_s: float = 2.0  # wall-clock seconds without samples before the link counts as lost
     reconnect_timeout_s: float = 60.0  # wall-clock seconds to get the link back before failing
     session_timeout_s: float = 900.0  # wall-clock watchdog: no live session runs longer than this
+    sse_linger_s: float = 600.0  # an ended session's event stream closes after this, or at its decision
     sse_rate_hz: float = 20.0  # live angle / progress snapshots per second (state changes are never held back)
     static_dir: Path | None = None  # the wizard page; default: webui/static if it exists

@@ -17,6 +17,7 @@ import numpy as np
 
 KEEPALIVE_S = 15.0
 RETRY_MS = 1000
+CLOSED_RETRY_MS = 3_600_000
 
 
 def _json_default(o: Any) -> Any:
@@ -99,7 +100,8 @@ class Broadcaster:
         if not self.closed:
             self._queues.add(q)
         try:
-            yield f"retry: {RETRY_MS}\n\n".encode()
+            # a finished stream tells EventSource to wait long before trying again
+            yield f"retry: {CLOSED_RETRY_MS if self.closed else RETRY_MS}\n\n".encode()
             sent = last_id or 0
             for ev in self.replay(last_id):
                 sent = ev.id

@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import io
 import logging
 import time
 from typing import Any, Callable
 
 from . import guidance as say
+from .compute import ComputePool, calibrate_recording, recording_csv
 from .config import Settings
 from .devices import Device
 from .events import Broadcaster, finite
@@ -26,26 +26,15 @@ log = logging.getLogger(__name__)
 WATCHDOG_PERIOD_S = 0.25
 
 
-def recording_csv(rec: Any) -> bytes:
-    """A Recording as gyrocal's native CSV (exact round trip), UTF-8."""
-    from calib.io import write_native_csv
-
-    buf = io.StringIO()
-    write_native_csv(rec, buf)
-    return buf.getvalue().encode()
-
-
 def compute_result(session: GuidedSession) -> dict[str, Any]:
-    """Run the estimator on the session's recording and stages (in a worker thread)."""
-    from calib.api import calibrate
+    """Run the estimator on a session's recording and stages, in this process (tests, tools)."""
+    result, error, _ = calibrate_recording(session.recording(), session.method, session.protocol_stages())
+    if error is not None:
+        from calib.errors import CalibrationError
 
-    rec = session.recording()
-    stages = session.protocol_stages()
-    result = calibrate(rec, method=session.method, stages=stages)
-    out = result.to_dict()
-    out["sample_rate_hz"] = rec.fs
-    out["n_samples"] = len(rec)
-    return out
+        raise CalibrationError(error)
+    assert result is not None
+    return result
 
 
 class LiveSession:
@@ -60,7 +49,9 @@ class LiveSession:
         software_version: str,
         operator: str,
         on_end: Callable[["LiveSession"], None] | None = None,
+        pool: ComputePool | None = None,
     ) -> None:
+        self.pool = pool
         self.machine = machine
         self.device = device
         self.store = store
@@ -131,6 +122,8 @@ class LiveSession:
                 await watchdog
             await self._stop_link()
             await self._persist()
+            # the stream stays open for the accept/discard event, then ends (clients see an end state)
+            asyncio.get_running_loop().call_later(self.settings.sse_linger_s, self.broadcaster.close)
             if self.on_end is not None:
                 self.on_end(self)
 
@@ -213,12 +206,14 @@ class LiveSession:
 
     async def _compute(self) -> None:
         m = self.machine
-        from calib.errors import GyrocalError
-
-        try:
-            result = await asyncio.to_thread(compute_result, m)
-        except GyrocalError as exc:
-            m.fail("calibration_failed", f"{exc} Start a new calibration.")
+        rec, stages = m.recording(), m.protocol_stages()
+        if self.pool is not None:
+            result, error, csv = await self.pool.run(calibrate_recording, rec, m.method, stages)
+        else:
+            result, error, csv = await asyncio.to_thread(calibrate_recording, rec, m.method, stages)
+        self._csv = csv
+        if error is not None:
+            m.fail("calibration_failed", f"{error} Start a new calibration.")
             return
         m.set_result(finite(result))
 
@@ -234,7 +229,8 @@ class LiveSession:
         m = self.machine
         try:
             if m.buf.n > 0 and self._csv is None:
-                self._csv = await asyncio.to_thread(recording_csv, m.recording())
+                rec = m.recording()
+                self._csv = await (self.pool.run(recording_csv, rec) if self.pool else asyncio.to_thread(recording_csv, rec))
             if self._csv is not None and self.recording_sha256 is None:
                 self.recording_sha256 = await asyncio.to_thread(self.store.archive_recording, self.id, self._csv, m.buf.n)
             await asyncio.to_thread(

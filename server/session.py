@@ -243,13 +243,17 @@ class GuidedSession:
                 self._turn_lost += int(lost_before)
         self.buf.append(t, gyro, accel, seq)
         self._t_now = float(t[-1])
-        events = self.tracker.feed(t, gyro, seq)
-        for ev in events:
-            self._on_event(ev)
-            if self.finished or self.state == "computing":
-                return
-        self._update_live()
-        self._check_time_limits()
+        try:
+            events = self.tracker.feed(t, gyro, seq)
+            for ev in events:
+                self._on_event(ev)
+                if self.finished or self.state == "computing":
+                    return
+            self._update_live()
+            self._check_time_limits()
+        finally:
+            # only what this batch causes carries it; later snapshots (result, decision) do not
+            self._caused_by = None
 
     def link_lost(self) -> None:
         """The radio link dropped: pause; the current turn is redone after reconnection."""

@@ -1,0 +1,109 @@
+"""CPU-heavy work of the service in worker processes: estimators, CSV archives, parsing uploads.
+
+Keeping it out of the service's process keeps the event loop (and so the live event streams of
+every other session) responsive while a session's result is computed.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import io
+import logging
+import multiprocessing
+import os
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from typing import Any, Callable
+
+log = logging.getLogger(__name__)
+
+
+class TooManySamples(Exception):
+    """An upload with more samples than the service accepts."""
+
+
+# -- what the workers run (module level, so that they can be pickled) ------------------------------
+def _warm_up() -> int:
+    import calib.api  # noqa: F401
+    import calib.closure  # noqa: F401
+    import calib.io  # noqa: F401
+    import calib.paper  # noqa: F401
+
+    return os.getpid()
+
+
+def recording_csv(rec: Any) -> bytes:
+    """A Recording as gyrocal's native CSV (exact round trip), UTF-8."""
+    from calib.io import write_native_csv
+
+    buf = io.StringIO()
+    write_native_csv(rec, buf)
+    return buf.getvalue().encode()
+
+
+def calibrate_recording(rec: Any, method: str, stages: Any) -> tuple[dict[str, Any] | None, str | None, bytes]:
+    """(result dict, None, csv) or (None, error message, csv) for a session's recording."""
+    from calib.api import calibrate
+    from calib.errors import GyrocalError
+
+    csv = recording_csv(rec)
+    try:
+        result = calibrate(rec, method=method, stages=stages)
+    except GyrocalError as exc:
+        return None, str(exc), csv
+    out = result.to_dict()
+    out["sample_rate_hz"] = rec.fs
+    out["n_samples"] = len(rec)
+    return out, None, csv
+
+
+def calibrate_upload(body: bytes, fs: float | None, layout: str, method: str, source: str, max_samples: int) -> tuple[dict[str, Any], bytes, int]:
+    """Parse and calibrate an uploaded CSV; raises calib's errors (RecordingError, ProtocolError, ...)."""
+    from calib.api import calibrate
+    from calib.io import parse_recording_text
+
+    rec = parse_recording_text(body, fs, layout, source)
+    if len(rec) > max_samples:
+        raise TooManySamples(f"the recording has {len(rec)} samples; at most {max_samples} are accepted, send a shorter one")
+    result = calibrate(rec, method=method)
+    out = result.to_dict()
+    out["sample_rate_hz"] = rec.fs
+    out["n_samples"] = len(rec)
+    return out, recording_csv(rec), len(rec)
+
+
+# -- the pool --------------------------------------------------------------------------------------
+class ComputePool:
+    """A small pool of worker processes (spawned, so safe next to the event loop's threads)."""
+
+    def __init__(self, workers: int | None = None) -> None:
+        cores = os.cpu_count() or 1
+        self.workers = workers or max(1, min(4, cores - 1))
+        self._pool: ProcessPoolExecutor | None = None
+
+    def _executor(self) -> ProcessPoolExecutor:
+        if self._pool is None:
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
+        return self._pool
+
+    async def start(self) -> None:
+        """Start the workers and import the numerics in them, so that the first result is quick."""
+        loop = asyncio.get_running_loop()
+        pool = self._executor()
+        for _ in range(self.workers):
+            loop.run_in_executor(pool, _warm_up)
+
+    async def run(self, fn: Callable[..., Any], *args: Any) -> Any:
+        loop = asyncio.get_running_loop()
+        try:
+            return await loop.run_in_executor(self._executor(), fn, *args)
+        except BrokenProcessPool:
+            # a worker died (out of memory, killed): start a fresh pool and try once more
+            log.warning("the compute pool broke; restarting it")
+            self._pool = None
+            return await loop.run_in_executor(self._executor(), fn, *args)
+
+    def shutdown(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool = None

@@ -1,0 +1,90 @@
+"""schemathesis against the service's OpenAPI schema over real HTTP: no input makes it answer 5xx,
+and every answer matches the published schema (status codes, content types, bodies)."""
+
+from __future__ import annotations
+
+import io
+from typing import Iterator
+
+import pytest
+import schemathesis
+from hypothesis import HealthCheck, given, settings
+from hypothesis.errors import Unsatisfiable
+from hypothesis import strategies as st
+from schemathesis import GenerationMode
+from schemathesis.specs.openapi.checks import (
+    content_type_conformance,
+    response_schema_conformance,
+    status_code_conformance,
+)
+
+from calib.io import write_native_csv
+from calib.simulator import simulate
+from server_fixtures import API_TOKEN, RunningService, follow_events
+
+HEADERS = {"Authorization": f"Bearer {API_TOKEN}"}
+
+
+@pytest.fixture(scope="module")
+def api(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RunningService]:
+    db = tmp_path_factory.mktemp("schema") / "store.sqlite3"
+    svc = RunningService(["--mock", "2", "--mock-speed", "50"], f"sqlite:///{db}").start()
+    yield svc
+    svc.stop()
+
+
+@pytest.fixture(scope="module")
+def known_ids(api: RunningService) -> dict[str, str]:
+    """Real ids for the fuzzer to hit besides random ones: an uploaded and a live session."""
+    rec, _ = simulate(4)
+    buf = io.StringIO()
+    write_native_csv(rec, buf)
+    with api.client() as c:
+        upload = c.post("/devices/upload-1/calibrate", content=buf.getvalue(), headers={"Content-Type": "text/csv"}).json()
+        live = c.post("/devices/mock-2/calibrate", json={}).json()
+    follow_events(api.base, live["session_id"], {"done", "failed", "cancelled"}, timeout_s=60, last_event_id=0)
+    return {"upload": upload["session_id"], "live": live["session_id"]}
+
+
+def not_a_server_error(ctx: schemathesis.CheckContext, response: schemathesis.Response, case: schemathesis.Case) -> None:
+    if response.status_code >= 500:
+        raise AssertionError(f"{case.method} {case.formatted_path} answered {response.status_code}: {response.text[:500]}")
+
+
+CHECKS = (not_a_server_error, status_code_conformance, content_type_conformance, response_schema_conformance)
+
+
+def test_no_input_makes_the_service_fail(api: RunningService, known_ids: dict[str, str]) -> None:
+    """Every operation, with generated valid and invalid inputs, random and real ids, an operator's token."""
+    schema = schemathesis.openapi.from_url(f"{api.base}/openapi.json")
+    failures: list[str] = []
+    labels = []
+    for result in schema.get_all_operations():
+        op = result.ok()
+        labels.append(op.label)
+        # the event stream of a session held in memory stays open for its accept/discard events:
+        # only the stored (uploaded) one is a finite stream
+        sessions = [known_ids["upload"]] if op.label.endswith("/events") else list(known_ids.values())
+        for mode in (GenerationMode.POSITIVE, GenerationMode.NEGATIVE):
+
+            @settings(max_examples=25, deadline=None, suppress_health_check=list(HealthCheck), database=None)
+            @given(case=op.as_strategy(generation_mode=mode), device=st.sampled_from([None, "mock-1", "upload-1"]),
+                   session=st.sampled_from([None, *sessions]))
+            def run(case: schemathesis.Case, device: str | None, session: str | None) -> None:
+                params = case.path_parameters or {}
+                if device and "device_id" in params:
+                    params["device_id"] = device
+                if session and "session_id" in params:
+                    params["session_id"] = session
+                case.call_and_validate(headers=HEADERS, checks=CHECKS, timeout=15)
+
+            try:
+                run()
+            except Unsatisfiable:
+                assert mode is GenerationMode.NEGATIVE  # an operation without inputs has no invalid ones
+            except Exception as exc:  # collect every operation's failure, then report them all
+                failures.append(f"{op.label} ({mode.value}): {type(exc).__name__}: {str(exc)[:1500]}")
+    assert "POST /devices/{device_id}/calibrate" in labels and "GET /sessions/{session_id}/events" in labels
+    assert not failures, "\n\n".join(failures)
+    with api.client() as c:
+        assert c.get("/health").json()["status"] == "ok"
