@@ -303,7 +303,8 @@ def draw_concealed(
 
     hrng = np.random.default_rng(ss_host)
     host_t = truth.t_true + hrng.uniform(*HOST_LATENCY_S) + np.abs(hrng.normal(0.0, HOST_JITTER_S, truth.t_true.size))
-    rec = strip_channels(rec, accel=with_accel, seq=with_seq)
+    host_t = np.maximum.accumulate(host_t)  # the link delivers in order: a late sample holds up the next
+    rec = replace(strip_channels(rec, accel=with_accel, seq=with_seq), host_t=host_t)
     return ConcealedCase(
         recording=rec,
         truth=truth,

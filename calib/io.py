@@ -1,7 +1,8 @@
 """Reading and writing recordings as CSV.
 
 Layouts (chosen from the header when ``layout="auto"``):
-- ``native``: ``t,gx,gy,gz[,ax,ay,az][,seq][,temp]`` with t in s, gyro in deg/s, accel in g, temp in C.
+- ``native``: ``t,gx,gy,gz[,ax,ay,az][,seq][,temp][,host_t]`` with t in s, gyro in deg/s, accel in g,
+  temp in C, host_t the host's receive time in s.
   Column order is free and other columns are ignored.
 - ``imucal``: ``gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z`` (accelerometer in m/s^2) with an optional sample
   index column (``n_samples``, ``samples``, ``index`` or an unnamed first column). There is no time
@@ -32,7 +33,7 @@ __all__ = ["LAYOUTS", "parse_recording_text", "read_recording", "validate_record
 LAYOUTS = ("auto", "native", "imucal", "imucal_counts")
 NATIVE_REQUIRED = ("t", "gx", "gy", "gz")
 NATIVE_ACCEL = ("ax", "ay", "az")
-NATIVE_HEADER = "t,gx,gy,gz[,ax,ay,az][,seq][,temp]"
+NATIVE_HEADER = "t,gx,gy,gz[,ax,ay,az][,seq][,temp][,host_t]"
 IMUCAL_GYRO = ("gyr_x", "gyr_y", "gyr_z")
 IMUCAL_ACCEL = ("acc_x", "acc_y", "acc_z")
 IMUCAL_HEADER = "[n_samples,]gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z"
@@ -121,6 +122,9 @@ def write_native_csv(rec: Recording, path_or_file: str | os.PathLike[str] | IO[s
     if rec.temp is not None:
         names.append("temp")
         cells.append(list(map(repr, rec.temp.tolist())))
+    if rec.host_t is not None:
+        names.append("host_t")
+        cells.append(list(map(repr, rec.host_t.tolist())))
     text = ",".join(names) + "\n" + "".join(",".join(row) + "\n" for row in zip(*cells))
     if hasattr(path_or_file, "write"):
         path_or_file.write(text)  # type: ignore[union-attr]
@@ -312,7 +316,8 @@ def _read_native(table: _Table, fs: float | None, source: str | None) -> Recordi
         names += NATIVE_ACCEL
     has_seq = "seq" in table.names
     has_temp = "temp" in table.names
-    names += ["seq"] * has_seq + ["temp"] * has_temp
+    has_host_t = "host_t" in table.names
+    names += ["seq"] * has_seq + ["temp"] * has_temp + ["host_t"] * has_host_t
     cols = _columns(table, names)
     values = _parse_numbers(table, cols)
     header = {name: table.raw_names[c] for name, c in zip(names, cols)}
@@ -325,6 +330,7 @@ def _read_native(table: _Table, fs: float | None, source: str | None) -> Recordi
             "accel": tuple(header.get(c, c) for c in NATIVE_ACCEL),
             "seq": (header.get("seq", "seq"),),
             "temp": (header.get("temp", "temp"),),
+            "host_t": (header.get("host_t", "host_t"),),
         },
     )
     col = {name: values[:, j] for j, name in enumerate(names)}
@@ -336,6 +342,7 @@ def _read_native(table: _Table, fs: float | None, source: str | None) -> Recordi
         seq=seq,
         temp=col["temp"] if has_temp else None,
         meta=RecordingMeta(sample_rate_hz=fs, source=source),
+        host_t=col["host_t"] if has_host_t else None,
     )
     check_recording(rec, where=where)
     return rec

@@ -6,6 +6,8 @@ Units and conventions (see docs/method.md):
 - ``accel``: accelerometer in g (1 g = 9.80665 m/s^2), shape (n, 3), or None.
 - ``seq``: the device's sample counter (unwrapped, one step per sample), or None.
 - ``temp``: sensor temperature in degrees Celsius, or None.
+- ``host_t``: when each sample reached the host, in s of the host's clock, or None. ``t`` is the
+  device's own clock; comparing the two reveals a device clock that runs fast or slow.
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ class Recording:
     seq: np.ndarray | None = None
     temp: np.ndarray | None = None
     meta: RecordingMeta = field(default_factory=RecordingMeta)
+    host_t: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         t = np.asarray(self.t, dtype=float)
@@ -46,7 +49,7 @@ class Recording:
             raise ValueError(f"Recording needs t of shape (n,) and gyro of shape (n, 3); got {t.shape} and {gyro.shape}")
         object.__setattr__(self, "t", t)
         object.__setattr__(self, "gyro", gyro)
-        for name, width in (("accel", 3), ("seq", None), ("temp", None)):
+        for name, width in (("accel", 3), ("seq", None), ("temp", None), ("host_t", None)):
             value = getattr(self, name)
             if value is None:
                 continue
@@ -74,7 +77,10 @@ class Recording:
     def slice(self, start: int, end: int) -> "Recording":
         """Samples start..end-1 as a new Recording with the same metadata."""
         pick = lambda a: None if a is None else a[start:end]  # noqa: E731
-        return Recording(self.t[start:end], self.gyro[start:end], pick(self.accel), pick(self.seq), pick(self.temp), self.meta)
+        return Recording(
+            self.t[start:end], self.gyro[start:end], pick(self.accel), pick(self.seq), pick(self.temp), self.meta,
+            pick(self.host_t),
+        )
 
     def with_meta(self, **changes: object) -> "Recording":
         """A copy with some metadata fields replaced."""

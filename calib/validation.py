@@ -22,6 +22,7 @@ DEFAULT_COLUMNS: Mapping[str, Sequence[str]] = {
     "accel": ("accel x", "accel y", "accel z"),
     "seq": ("seq",),
     "temp": ("temp",),
+    "host_t": ("host_t",),
 }
 
 
@@ -69,12 +70,19 @@ def _check(rec: Recording, min_duration_s: float | None, where: Locator) -> None
             "a recording needs at least 2 samples (the calibration protocol takes about 30 s)"
         )
     channels = [("t", rec.t.reshape(-1, 1)), ("gyro", rec.gyro)]
-    channels += [(name, a.reshape(n, -1)) for name, a in (("accel", rec.accel), ("temp", rec.temp)) if a is not None]
+    optional = (("accel", rec.accel), ("temp", rec.temp), ("host_t", rec.host_t))
+    channels += [(name, a.reshape(n, -1)) for name, a in optional if a is not None]
     for name, values in channels:
         check_finite(values, name, where)
     check_increasing(rec.t, "t", where, what="time")
     if rec.seq is not None:
         check_increasing(rec.seq, "seq", where, what="sample counter")
+    if rec.host_t is not None and np.any(np.diff(rec.host_t) < 0):
+        i = int(np.flatnonzero(np.diff(rec.host_t) < 0)[0]) + 1
+        raise RecordingError(
+            f"{where.at(i, 'host_t')}: the host receive time goes backwards ({rec.host_t[i - 1]:g} then "
+            f"{rec.host_t[i]:g} s); host_t must be the host clock at arrival, in s, in row order"
+        )
     check_magnitude(rec.gyro, "gyro", MAX_GYRO_DPS, "deg/s", where, "is the column in deg/s (not mdps, rad/s or raw counts)?")
     if rec.accel is not None:
         check_magnitude(rec.accel, "accel", MAX_ACCEL_G, "g", where, "is the column in g (not m/s^2, mg or raw counts)?")

@@ -520,3 +520,25 @@ def test_arbitrary_file_bytes_only_raise_recording_error(data: bytes) -> None:
             assert str(exc)
     finally:
         os.unlink(name)
+
+
+def test_host_time_channel_round_trips_and_is_checked(tmp_path) -> None:
+    """host_t (the host's receive clock) is optional, round-trips, and may not go backwards."""
+    import numpy as np
+    import pytest
+
+    from calib.errors import RecordingError
+    from calib.io import parse_recording_text, write_native_csv
+    from calib.recording import Recording
+
+    t = np.arange(50) / 100.0
+    rec = Recording(t, np.zeros((50, 3)), host_t=t * 1.01 + 0.03)
+    path = tmp_path / "h.csv"
+    write_native_csv(rec, path)
+    back = parse_recording_text(path.read_text())
+    assert path.read_text().splitlines()[0] == "t,gx,gy,gz,host_t"
+    assert np.array_equal(back.host_t, rec.host_t)
+    lines = path.read_text().splitlines()
+    lines[10] = lines[10].rsplit(",", 1)[0] + ",0.0"
+    with pytest.raises(RecordingError, match="line 11, column host_t: the host receive time goes backwards"):
+        parse_recording_text("\n".join(lines))
