@@ -210,7 +210,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
     host = f"[{args.host}]" if ":" in args.host else args.host
     shown = "127.0.0.1" if args.host in ("0.0.0.0", "") else host
     mocks = ", ".join(d for d in svc.devices.devices if d.startswith("mock-"))
-    print(f"gyrocal service on http://{shown}:{port}/  (store: {svc.store.display_url})", flush=True)
+    print(f"gyrocal calibration service: open the wizard at http://{shown}:{port}/ "
+          f"(API: http://{shown}:{port}/docs; store: {svc.store.display_url})", flush=True)
     if mocks:
         print(f"simulated wearables: {mocks} (speed {args.mock_speed:g}x)", flush=True)
     if args.demo_operator:
