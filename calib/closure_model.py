@@ -16,10 +16,11 @@ the covariance of r caused by white reading noise (cov m = diag(sigma^2)):
 
 Everything is batched over B independent turns (of one recording, or of many simulated runs): readings
 are stored time-first, (n, B, 3), with dt_t = 0 past the end of shorter turns (a zero increment is the
-identity, so padding changes nothing). Exponentials, logarithms and matrices come from
-scipy.spatial.transform.Rotation; the running products use a vectorised Hamilton product on plain
-quaternion arrays (x, y, z, w), because the scan needs thousands of compositions per pass and
-Rotation's composition carries a per-call cost of ~0.1 ms that would dominate it.
+identity, so padding changes nothing). Exponentials and logarithms come from
+scipy.spatial.transform.Rotation. The running products use a vectorised Hamilton product on plain
+quaternion arrays (x, y, z, w), and the sensitivities H_t are formed entry by entry from the
+attitudes' matrix entries, because a pass needs thousands of compositions and millions of 3x3
+products, and Rotation's composition carries a per-call cost of ~0.1 ms that would dominate it.
 """
 
 from __future__ import annotations
