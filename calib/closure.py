@@ -27,7 +27,6 @@ from scipy.optimize import least_squares
 from scipy.stats import chi2 as chi2_dist
 
 from .closure_fit import (
-    TURN_DEG,
     ClosureData,
     calibration_matrix,
     param_names,

@@ -17,7 +17,6 @@ from calib.effects import AxisMisalignment
 from calib.io import read_recording
 from calib.recording import Recording
 from calib.simulator import ProtocolScript, SensorParams, Still, Turn, simulate, simulate_batch
-from calib.stages import detect_stages
 
 FS = 104.0
 IMUCAL_K = np.array([0.97284, 1.01788, 1.00169])  # imucal's Ferraris result, data README
