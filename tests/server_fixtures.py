@@ -155,12 +155,13 @@ class RunningService:
 
 
 def follow_events(base: str, sid: str, until: set[str], timeout_s: float = 60.0, last_event_id: int | None = None,
-                  stop_after: int | None = None) -> list[dict[str, Any]]:
+                  stop_after: int | None = None, params: dict[str, str] | None = None) -> list[dict[str, Any]]:
     """Read a session's SSE stream until its state is in ``until`` (or ``stop_after`` events)."""
     events: list[dict[str, Any]] = []
     headers = {"Last-Event-ID": str(last_event_id)} if last_event_id is not None else {}
     deadline = time.monotonic() + timeout_s
-    with httpx.stream("GET", f"{base}/sessions/{sid}/events", headers=headers, timeout=httpx.Timeout(timeout_s)) as r:
+    with httpx.stream("GET", f"{base}/sessions/{sid}/events", headers=headers, params=params,
+                      timeout=httpx.Timeout(timeout_s)) as r:
         assert r.status_code == 200, r.read()
         assert r.headers["content-type"].startswith("text/event-stream")
         current: dict[str, str] = {}

@@ -1,0 +1,81 @@
+"""`gyrocal operator` and `gyrocal serve` on the command line, and a service that needs tokens for reads."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import pytest
+
+from calib.cli import main
+from server.auth import Authenticator
+from server.store import Store
+from server_fixtures import API_TOKEN, RunningService, follow_events
+
+
+def test_operator_commands(tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    db = f"sqlite:///{tmp_path / 'ops.sqlite3'}"
+    assert main(["operator", "--db", db, "list"]) == 0
+    assert "no operators yet" in capsys.readouterr().out
+    assert main(["operator", "--db", db, "add", "alice"]) == 0
+    secret = capsys.readouterr().out.strip().splitlines()[-1]
+    assert len(secret) >= 32
+    auth = Authenticator(Store(db))
+    assert auth.sign_in("alice", secret)[0]
+    assert main(["operator", "--db", db, "add", "alice"]) == 2
+    assert "exists already" in capsys.readouterr().err
+    monkeypatch.setattr("sys.stdin", io.StringIO("chosen secret 123\n"))
+    assert main(["operator", "--db", db, "add", "bob", "--secret-stdin"]) == 0
+    assert "chosen secret" not in capsys.readouterr().out  # a secret given on stdin is never echoed
+    assert auth.sign_in("bob", "chosen secret 123")[0]
+    assert main(["operator", "--db", db, "reset", "alice"]) == 0
+    new = capsys.readouterr().out.strip().splitlines()[-1]
+    assert new != secret and auth.sign_in("alice", new)[0]
+    assert main(["operator", "--db", db, "remove", "bob"]) == 0
+    assert main(["operator", "--db", db, "list"]) == 0
+    listing = capsys.readouterr().out
+    assert "alice" in listing and "active" in listing and "removed" in listing
+    assert main(["operator", "--db", db, "add", "api"]) == 2
+    assert "reserved" in capsys.readouterr().err
+    assert main(["operator", "--db", db, "add", "bad name!"]) == 2
+    assert main(["operator", "--db", db, "remove", "nobody"]) == 2
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--mock", "2", "--mock-rate", "100"], "--mock-rate must be one of"),
+        (["--mock", "1", "--mock-scenario", "juggling"], "unknown --mock-scenario juggling"),
+        (["--mock-speed", "0"], "--mock-speed must be a positive number"),
+        (["--method", "guess"], "--method must be one of"),
+        (["--max-attempts", "9"], "--max-attempts must be between 1 and 5"),
+        (["--db", "nonsense"], "not a database URL"),
+    ],
+)
+def test_serve_refuses_bad_options_with_a_message(args: list[str], message: str, capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    if "--db" not in args:
+        args = [*args, "--db", f"sqlite:///{tmp_path / 's.sqlite3'}"]
+    assert main(["serve", *args]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+
+
+def test_reads_need_a_token_with_auth_reads(tmp_path: Path) -> None:
+    svc = RunningService(["--auth-reads", "--mock", "1", "--mock-speed", "50"], f"sqlite:///{tmp_path / 's.sqlite3'}").start()
+    try:
+        with svc.client(token=None) as anon:
+            assert anon.get("/health").json()["auth_reads"] is True
+            assert anon.get("/devices").status_code == 401
+            assert anon.get("/devices/mock-1/calibrations").status_code == 401
+        with svc.client() as c:
+            assert [d["id"] for d in c.get("/devices").json()] == ["mock-1"]
+            sid = c.post("/devices/mock-1/calibrate").json()["session_id"]  # no body at all
+            assert c.get(f"/sessions/{sid}").status_code == 200
+        with svc.client(token=None) as anon:
+            assert anon.get(f"/sessions/{sid}/events").status_code == 401
+        # an EventSource cannot send headers: the token goes in the query
+        events = follow_events(f"{svc.base}", sid, {"done", "failed", "cancelled"}, timeout_s=60, last_event_id=0,
+                               params={"access_token": API_TOKEN})
+        assert events[-1]["state"] == "done"
+    finally:
+        svc.stop()
