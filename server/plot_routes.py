@@ -17,6 +17,7 @@ from calib.recording import Recording
 from calib.result import CalibrationResult
 from calib.stage import Stage
 
+from .app import Reader, _check_session_id, _problem, _service
 from .events import finite
 
 
@@ -47,8 +48,6 @@ def session_traces(rec: Recording, res: dict[str, Any], max_points: int) -> dict
 
 def register(app: FastAPI) -> None:
     """Add GET /sessions/{session_id}/plot to the service's app (before the page is mounted at /)."""
-    from .app import Reader, _check_session_id, _problem, _service
-
     responses = {
         404: {"description": "unknown session, or no archived recording"},
         409: {"description": "the session has no result (yet)"},

@@ -1,0 +1,254 @@
+"""The clinician's wizard page in a real browser (Debian's Chromium), against the real service with
+simulated wearables. Screenshots of each step go to artifacts/webui/."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from webui_fixtures import *  # noqa: F401,F403
+from webui_fixtures import OPERATOR, Watch, Wizard, api, assert_clean, device_for, sign_in_token, upload_accepted
+
+pytestmark = pytest.mark.timeout(120)
+
+
+@pytest.fixture
+def wizard(page: Any, webui_service: Any, artifacts: Path, request: pytest.FixtureRequest) -> Wizard:
+    return Wizard(page, webui_service, artifacts / "webui" / request.node.name)
+
+
+def session(service: Any, sid: str) -> dict[str, Any]:
+    with api(service) as c:
+        r = c.get(f"/sessions/{sid}")
+        assert r.status_code == 200, r.text
+        return r.json()
+
+
+def test_happy_path_to_a_saved_calibration(wizard: Wizard, page: Any, webui_service: Any, page_watch: Watch) -> None:
+    dev = device_for("normal", 1)
+    wizard.sign_in(shot="00-sign-in")
+    card = page.locator(f".device-card[data-device='{dev}']")
+    assert "Ready" in card.inner_text() and "never calibrated" in card.inner_text()
+    wizard.shot("01-devices")
+    wizard.choose(dev)
+    assert wizard.text(".instruction") == "Place the device flat against the block"
+    assert "Step 1 of 7" in wizard.text(".stepno")
+    wizard.shot("02-place")
+    sid = wizard.start()
+    # the largest angle the live gauge showed while each turn was made
+    page.evaluate("""() => {
+      window.gaugeMax = {};
+      setInterval(() => {
+        const w = document.querySelector('.wizard'), g = document.querySelector('.gauge-text');
+        if (!w || !g || w.dataset.phase !== 'turning') return;
+        const axis = w.dataset.state.slice(5);
+        window.gaugeMax[axis] = Math.max(window.gaugeMax[axis] || 0, parseInt(g.textContent, 10));
+      }, 20);
+    }""")
+
+    wizard.wait_state("still")
+    assert wizard.text(".instruction") == "Hold still"
+    assert "Step 2 of 7" in wizard.text(".stepno")
+    wizard.shot("03-hold-still")
+    for n, axis in enumerate("xyz", start=3):
+        wizard.wait_state(f"turn_{axis}")
+        assert f"Step {n} of 7" in wizard.text(".stepno")
+        page.wait_for_selector(f".wizard[data-state='turn_{axis}'] .tile[data-state='active']:has-text('Turn {axis.upper()}')")
+        assert re.search(rf"\b{axis.upper()}\b", wizard.text(".instruction")), wizard.text(".instruction")
+        wizard.shot(f"{n + 1:02d}-turn-{axis}")
+        done = [t.upper() for t in "xyz"[: n - 3]]
+        for d in done:
+            assert page.locator(f".tile[data-state='done']:has-text('Turn {d}')").count() == 1
+
+    wizard.wait_state("done")
+    # the gauge followed each turn to about a full turn (the raw reading is 360°/k)
+    gauge = page.evaluate("() => window.gaugeMax")
+    assert set(gauge) == {"x", "y", "z"} and all(250 < a < 460 for a in gauge.values()), gauge
+    assert wizard.text(".verdict h1") == "PASS"
+    assert dev in wizard.text(".sentence") and "within the tolerances" in wizard.text(".sentence")
+    wizard.shot("07-pass")
+    page.click("details.details summary")
+    page.wait_for_selector(".plot svg path.series.after")
+    assert page.locator("figure.plot").count() == 2
+    assert "k" in wizard.text("table.params") and page.locator(".checks li.bad").count() == 0
+    page.locator("details.details").screenshot(path=str(wizard.shots / "08-details.png"))
+
+    page.click("button.accept")
+    page.wait_for_selector(".verdict.saved")
+    page.wait_for_selector(".saved-meta")
+    meta = wizard.text(".saved-meta")
+    assert f"Accepted by {OPERATOR}" in meta and dev in meta and re.search(r"\d{2}:\d{2}", meta), meta
+    assert "Step 7 of 7" in wizard.text(".stepno")
+    wizard.shot("09-saved")
+    with api(webui_service) as c:
+        cur = c.get(f"/devices/{dev}/calibration").json()
+    assert cur["session_id"] == sid and cur["operator"] == OPERATOR
+    snap = session(webui_service, sid)
+    assert cur["k"] == pytest.approx(snap["result"]["k"])
+
+    page.click(f"a[href='#/history/{dev}']")
+    page.wait_for_selector("table.history")
+    assert OPERATOR in wizard.text("table.history tbody tr.current")
+    wizard.shot("10-history")
+    assert_clean(page_watch)
+
+
+def test_moved_during_the_pause_ends_with_its_reason_and_fix(wizard: Wizard, page: Any, webui_service: Any, page_watch: Watch) -> None:
+    wizard.sign_in()
+    wizard.choose(device_for("moved_during_still"))
+    sid = wizard.start()
+    wizard.wait_state("failed")
+    snap = session(webui_service, sid)
+    assert snap["reason_code"] == "moved_during_pause"
+    assert page.locator(".wizard[data-reason='moved_during_pause']").count() == 1
+    assert wizard.text(".verdict h1") == "The device moved during a pause"
+    assert "FAIL" in wizard.text(".verdict .kicker")
+    assert wizard.text(".sentence") == snap["reason"]
+    assert "What to do" in wizard.text(".next")
+    # it stopped in the pause after the X turn: step 3
+    assert "Stopped at step 3 of 7" in wizard.text(".stepno")
+    wizard.shot("moved-during-pause")
+    page.click("a.button.primary:has-text('Start again')")
+    page.wait_for_selector(".wizard[data-state='place']")
+    assert_clean(page_watch)
+
+
+def test_wrong_axis_names_the_axis_to_turn(wizard: Wizard, page: Any, webui_service: Any, page_watch: Watch) -> None:
+    wizard.sign_in()
+    wizard.choose(device_for("wrong_axis"))
+    sid = wizard.start()
+    wizard.wait_state("turn_y")
+    wizard.shot("asked-for-y")
+    wizard.wait_state("failed")
+    snap = session(webui_service, sid)
+    assert snap["reason_code"] == "wrong_axis"
+    assert wizard.text(".verdict h1") == "The turn was about the wrong axis"
+    assert "not Y" in wizard.text(".sentence")
+    assert page.locator(".stepbar li.stopped").inner_text().strip().endswith("Turn Y")
+    wizard.shot("wrong-axis")
+    assert_clean(page_watch)
+
+
+def test_link_drop_shows_the_lost_connection_and_resumes(wizard: Wizard, page: Any, webui_service: Any, page_watch: Watch) -> None:
+    wizard.sign_in()
+    wizard.choose(device_for("link_drop"))
+    sid = wizard.start()
+    wizard.wait_state("reconnecting")
+    assert wizard.text(".instruction") == "Connection lost"
+    assert "reconnects" in wizard.text(".sub")
+    wizard.shot("reconnecting")
+    # back on the interrupted turn: the device must rest again before the turn is asked again
+    wizard.wait_state("turn_y", phase="settle")
+    page.wait_for_selector(".notice.info:has-text('Reconnected')")
+    assert "asked again" in wizard.text(".recorded")
+    wizard.shot("reconnected")
+    state = wizard.wait_state("done", "failed")
+    snap = session(webui_service, sid)
+    assert snap["state"] == state
+    codes = [w["code"] for w in snap["warnings"]]
+    assert "link_lost" in codes and "link_restored" in codes
+    if state == "failed":
+        # whatever ended it, the page says the service's reason and a fix of its own
+        assert wizard.text(".sentence") == snap["reason"]
+        assert wizard.text(".verdict h1") != "The calibration stopped"
+    wizard.shot("after-link-drop")
+    assert_clean(page_watch)
+
+
+def test_cancel_keeps_the_previous_calibration(wizard: Wizard, page: Any, webui_service: Any, page_watch: Watch) -> None:
+    dev = device_for("normal", 2)
+    wizard.sign_in()
+    wizard.choose(dev)
+    sid = wizard.start()
+    wizard.wait_state("still", "turn_x")
+    page.click(".wiz-head button.cancel")
+    wizard.wait_state("cancelled")
+    assert wizard.text(".verdict h1") == "Calibration cancelled"
+    assert "keeps its previous calibration" in wizard.text(".next")
+    wizard.shot("cancelled")
+    assert session(webui_service, sid)["state"] == "cancelled"
+    with api(webui_service) as c:
+        assert c.get(f"/devices/{dev}/calibration").status_code == 404
+    assert_clean(page_watch)
+
+
+def test_cancel_on_the_place_step_goes_back_to_the_list(wizard: Wizard, page: Any, webui_service: Any, page_watch: Watch) -> None:
+    wizard.sign_in()
+    wizard.choose(device_for("normal", 2))
+    page.click(".wiz-head button.cancel")
+    page.wait_for_selector(".device-card")
+    assert_clean(page_watch)
+
+
+def test_reload_mid_session_resumes_from_the_service(wizard: Wizard, page: Any, webui_service: Any, page_watch: Watch) -> None:
+    wizard.sign_in()
+    wizard.choose(device_for("normal", 3))
+    sid = wizard.start()
+    wizard.wait_state("turn_y")
+    page.reload()
+    state = wizard.wait_state("turn_y", "turn_z", "computing", "done")
+    assert page.url.endswith(f"#/session/{sid}")
+    assert page.locator(".tile[data-state='done']:has-text('Turn X')").count() == 1 or state == "done"
+    wizard.shot("after-reload")
+    wizard.wait_state("done")
+    assert wizard.text(".verdict h1") == "PASS"
+    assert_clean(page_watch)
+
+
+def test_discard_leaves_the_previous_calibration_current(wizard: Wizard, page: Any, webui_service: Any, page_watch: Watch) -> None:
+    dev = device_for("normal", 4)
+    before = upload_accepted(webui_service, dev, seed=11)
+    wizard.sign_in()
+    card = page.locator(f".device-card[data-device='{dev}']")
+    assert "by api" in card.inner_text()
+    wizard.choose(dev)
+    wizard.start()
+    wizard.wait_state("done")
+    page.click("button:has-text('Discard')")
+    page.wait_for_selector(".wizard[data-decision='discarded']")
+    page.wait_for_selector(".sentence:has-text('accepted by api')")
+    wizard.shot("discarded")
+    with api(webui_service) as c:
+        assert c.get(f"/devices/{dev}/calibration").json()["id"] == before["id"]
+    assert_clean(page_watch)
+
+
+def test_history_lists_calibrations_and_plots_the_parameters(wizard: Wizard, page: Any, webui_service: Any, page_watch: Watch) -> None:
+    dev = "bench-unit-7"
+    token = sign_in_token(webui_service)
+    cals = [upload_accepted(webui_service, dev, seed=21), upload_accepted(webui_service, dev, seed=22, operator_token=token),
+            upload_accepted(webui_service, dev, seed=23)]
+    wizard.sign_in()
+    page.goto(f"/#/history/{dev}")
+    page.wait_for_selector("table.history")
+    rows = page.locator("table.history:not(.sessions) tbody tr")
+    assert rows.count() == 3
+    newest = rows.nth(0).inner_text()
+    assert "current" in newest and "api" in newest
+    assert OPERATOR in rows.nth(1).inner_text()
+    assert f"{cals[-1]['k'][0]:.4f}" in newest
+    # one marker per calibration and axis in each of the two parameter plots
+    charts = page.locator("figure.plot")
+    assert charts.count() == 2
+    for i in range(2):
+        assert charts.nth(i).locator(".marker").count() == 3 * 3 + 3  # plus the three legend keys
+    assert page.locator("table.sessions tbody tr").count() == 3
+    page.screenshot(path=str(wizard.shots / "history.png"), full_page=True)
+    assert_clean(page_watch)
+
+
+def test_wrong_secret_is_explained(wizard: Wizard, page: Any, page_watch: Watch) -> None:
+    page.goto("/")
+    page.wait_for_selector("#operator")
+    page.fill("#operator", OPERATOR)
+    page.fill("#secret", "not the secret")
+    page.click("form.signin button[type=submit]")
+    err = page.wait_for_selector(".form-error:not([hidden])")
+    assert "do not match" in err.inner_text()
+    wizard.shot("wrong-secret")
+    # the refused sign-in is the only error the browser reports
+    assert_clean(page_watch, allowed_errors=("status of 401",))
+    assert any("401" in e for e in page_watch.console_errors)

@@ -1,0 +1,195 @@
+"""Fixtures of the wizard page tests: the real service with simulated wearables, Debian's Chromium
+driven by Playwright, and a page that refuses every request leaving this computer.
+
+Import them into a test module with ``from webui_fixtures import *``.
+"""
+
+from __future__ import annotations
+
+import io
+import re
+import shutil
+import subprocess
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterator
+from urllib.parse import urlsplit
+
+import httpx
+import pytest
+
+from server_fixtures import GYROCAL, ROOT, RunningService
+
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMIUM_ARGS = ["--no-sandbox", "--disable-background-networking", "--disable-component-update", "--disable-sync", "--no-first-run"]
+OPERATOR = "alice"
+SECRET = "correct horse battery staple"
+MOCK_SPEED = 3.0
+# the simulated clinician of mock-N performs the N-th scenario, once, when its first session starts
+SCENARIOS = ["normal", "moved_during_still", "wrong_axis", "link_drop", "normal", "normal", "normal"]
+TABLET = {"width": 1024, "height": 768}
+LOCAL_HOSTS = {"127.0.0.1", "localhost", "[::1]", "::1"}
+
+
+def device_for(scenario: str, nth: int = 1) -> str:
+    """The id of the nth simulated wearable that performs a scenario."""
+    ids = [f"mock-{i + 1}" for i, s in enumerate(SCENARIOS) if s == scenario]
+    return ids[nth - 1]
+
+
+@pytest.fixture(scope="module")
+def webui_service() -> Iterator[RunningService]:
+    """`gyrocal serve` with simulated wearables and an operator, on a fresh SQLite store."""
+    tmp = Path(tempfile.mkdtemp(prefix="gyrocal-webui-"))
+    db = f"sqlite:///{tmp / 'store.sqlite3'}"
+    add = subprocess.run([*GYROCAL, "operator", "--db", db, "add", OPERATOR, "--secret-stdin"], input=SECRET + "\n",
+                         cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert add.returncode == 0, add.stderr
+    svc = RunningService(["--mock", str(len(SCENARIOS)), "--mock-speed", str(MOCK_SPEED), "--mock-scenario", ",".join(SCENARIOS)], db)
+    svc.start()
+    try:
+        yield svc
+    finally:
+        svc.stop()
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Any]:
+    """Debian's Chromium, headless (Playwright drives it; no browser is downloaded)."""
+    if not CHROMIUM.is_file():
+        pytest.fail("Chromium is not installed: run `make test` (it runs scripts/install-system-deps.sh) "
+                    "or `sudo apt-get install chromium`")
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as pw:
+        b = pw.chromium.launch(executable_path=str(CHROMIUM), headless=True, args=CHROMIUM_ARGS)
+        try:
+            yield b
+        finally:
+            b.close()
+
+
+@dataclass
+class Watch:
+    """What a page did that a test must check: requests, blocked requests, console errors."""
+
+    requests: list[str] = field(default_factory=list)
+    blocked: list[str] = field(default_factory=list)
+    console_errors: list[str] = field(default_factory=list)
+
+
+def _is_local(url: str) -> bool:
+    parts = urlsplit(url)
+    if parts.scheme in ("data", "blob", "about"):
+        return True
+    return (parts.hostname or "") in LOCAL_HOSTS
+
+
+@pytest.fixture
+def page_watch() -> Watch:
+    return Watch()
+
+
+@pytest.fixture
+def page(browser: Any, webui_service: RunningService, page_watch: Watch) -> Iterator[Any]:
+    """A fresh tablet-sized page on the service; requests to anywhere but this computer are refused."""
+    context = browser.new_context(viewport=TABLET, has_touch=True, base_url=webui_service.base, locale="en-GB",
+                                  timezone_id="Europe/Vienna")
+
+    def refuse(route: Any) -> None:
+        page_watch.blocked.append(route.request.url)
+        route.abort()
+
+    context.route(lambda url: not _is_local(url), refuse)
+    context.on("request", lambda req: page_watch.requests.append(req.url))
+    pg = context.new_page()
+    pg.set_default_timeout(30_000)
+    pg.on("console", lambda msg: page_watch.console_errors.append(msg.text) if msg.type == "error" else None)
+    pg.on("pageerror", lambda exc: page_watch.console_errors.append(f"uncaught: {exc}"))
+    try:
+        yield pg
+    finally:
+        context.close()
+
+
+class Wizard:
+    """Drives the wizard page like a clinician, and saves a screenshot of each step."""
+
+    def __init__(self, page: Any, service: RunningService, shots: Path) -> None:
+        self.page = page
+        self.service = service
+        self.shots = shots
+        shots.mkdir(parents=True, exist_ok=True)
+
+    def shot(self, name: str) -> Path:
+        path = self.shots / f"{name}.png"
+        self.page.screenshot(path=str(path))
+        return path
+
+    def sign_in(self, shot: str | None = None) -> None:
+        self.page.goto("/")
+        self.page.wait_for_selector("#operator")
+        self.page.fill("#operator", OPERATOR)
+        self.page.fill("#secret", SECRET)
+        if shot:
+            self.shot(shot)
+        self.page.click("form.signin button[type=submit]")
+        self.page.wait_for_selector(".device-card")
+
+    def choose(self, device: str) -> None:
+        self.page.click(f".device-card[data-device='{device}'] a.button.primary")
+        self.page.wait_for_selector(".wizard[data-state='place'] button.primary:not([disabled])")
+
+    def start(self) -> str:
+        """Press Start; returns the new session's id (from the page's address)."""
+        self.page.click(".wizard[data-state='place'] button.primary")
+        self.page.wait_for_url(re.compile(r"#/session/[0-9a-f]{32}$"))
+        return self.page.url.rsplit("/", 1)[1]
+
+    def wait_state(self, *states: str, phase: str | None = None, timeout_ms: float = 30_000) -> str:
+        """Wait until the page shows one of the session states (and phase); returns the state."""
+        sel = ", ".join(f".wizard[data-state='{s}']" + (f"[data-phase='{phase}']" if phase else "") for s in states)
+        el = self.page.wait_for_selector(sel, timeout=timeout_ms)
+        return el.get_attribute("data-state")
+
+    def text(self, selector: str) -> str:
+        return self.page.inner_text(selector).strip()
+
+
+def assert_clean(watch: Watch, allowed_errors: tuple[str, ...] = ()) -> None:
+    """No request left this computer, none had to be refused, and the console shows no error."""
+    assert watch.requests, "the page made no requests at all"
+    outside = [u for u in watch.requests if not _is_local(u)]
+    assert not outside and not watch.blocked, f"requests to other hosts: {outside or watch.blocked}"
+    errors = [e for e in watch.console_errors if not any(a in e for a in allowed_errors)]
+    assert not errors, f"console errors: {errors}"
+
+
+def api(service: RunningService, token: str | None = None) -> httpx.Client:
+    """An HTTP client of the service (the API token's operator is 'api')."""
+    return service.client(token) if token else service.client()
+
+
+def upload_accepted(service: RunningService, device: str, seed: int, operator_token: str | None = None) -> dict[str, Any]:
+    """Calibrate a simulated recording uploaded for a device and accept it; returns the stored calibration."""
+    from calib.io import write_native_csv
+    from calib.simulator import simulate
+
+    rec, _ = simulate(seed, noise=0.03)
+    buf = io.StringIO()
+    write_native_csv(rec, buf)
+    with api(service, operator_token) as c:
+        r = c.post(f"/devices/{device}/calibrate", content=buf.getvalue(), headers={"Content-Type": "text/csv"})
+        assert r.status_code == 200, r.text
+        assert r.json()["passed"], r.json()
+        r = c.post(f"/sessions/{r.json()['session_id']}/accept")
+        assert r.status_code == 200, r.text
+        return r.json()["calibration"]
+
+
+def sign_in_token(service: RunningService) -> str:
+    r = httpx.post(service.base + "/auth/login", json={"operator": OPERATOR, "secret": SECRET}, timeout=30)
+    assert r.status_code == 200, r.text
+    return r.json()["token"]

@@ -1,0 +1,133 @@
+// The service's HTTP API as the page uses it: operator sign-in, JSON requests, a session's event stream.
+
+const TOKEN_KEY = "gyrocal.token";
+const OPERATOR_KEY = "gyrocal.operator";
+// every snapshot the service streams carries its kind as the SSE event name
+const EVENT_NAMES = ["state", "prompt", "progress", "angle", "warning", "decision", "message"];
+
+/** A failed request: HTTP status (0 when the service could not be reached) and the service's detail. */
+export class ApiError extends Error {
+  constructor(status, detail, path) {
+    super(detail);
+    this.status = status;
+    this.detail = detail;
+    this.path = path;
+  }
+  get network() {
+    return this.status === 0;
+  }
+}
+
+export class Api {
+  constructor() {
+    this.token = sessionStorage.getItem(TOKEN_KEY);
+    this.operator = sessionStorage.getItem(OPERATOR_KEY);
+    this.authReads = false;
+    this.onUnauthorized = null; // set by the app: an expired token sends the operator to sign in
+  }
+
+  get signedIn() {
+    return Boolean(this.token);
+  }
+
+  async request(method, path, { json, query, signingIn = false } = {}) {
+    const url = new URL(path, location.origin);
+    for (const [k, v] of Object.entries(query || {})) if (v !== undefined && v !== null) url.searchParams.set(k, v);
+    const headers = { Accept: "application/json" };
+    if (this.token) headers.Authorization = `Bearer ${this.token}`;
+    const init = { method, headers, cache: "no-store" };
+    if (json !== undefined) {
+      headers["Content-Type"] = "application/json";
+      init.body = JSON.stringify(json);
+    }
+    let res;
+    try {
+      res = await fetch(url, init);
+    } catch {
+      throw new ApiError(0, "The gyrocal service cannot be reached.", path);
+    }
+    if (res.status === 204) return null;
+    let body = null;
+    try {
+      body = await res.json();
+    } catch {
+      body = null;
+    }
+    if (!res.ok) {
+      const detail = body && body.detail ? (Array.isArray(body.detail) ? body.detail.join("; ") : body.detail) : res.statusText;
+      const err = new ApiError(res.status, String(detail), path);
+      if (res.status === 401 && !signingIn && this.onUnauthorized) this.onUnauthorized(err);
+      throw err;
+    }
+    return body;
+  }
+
+  get(path, query) {
+    return this.request("GET", path, { query });
+  }
+
+  post(path, json) {
+    return this.request("POST", path, { json });
+  }
+
+  async health() {
+    const h = await this.get("/health");
+    this.authReads = Boolean(h.auth_reads);
+    return h;
+  }
+
+  async signIn(operator, secret) {
+    const out = await this.request("POST", "/auth/login", { json: { operator, secret }, signingIn: true });
+    this.token = out.token;
+    this.operator = out.operator;
+    sessionStorage.setItem(TOKEN_KEY, out.token);
+    sessionStorage.setItem(OPERATOR_KEY, out.operator);
+    return out;
+  }
+
+  forget() {
+    this.token = null;
+    this.operator = null;
+    sessionStorage.removeItem(TOKEN_KEY);
+    sessionStorage.removeItem(OPERATOR_KEY);
+  }
+
+  async signOut() {
+    try {
+      if (this.token) await this.request("POST", "/auth/logout");
+    } catch {
+      // signing out locally is what matters; an expired token is signed out anyway
+    } finally {
+      this.forget();
+    }
+  }
+
+  /**
+   * Follow a session's Server-Sent Events. onSnapshot(snapshot, eventName) for each; onLink(state) with
+   * "open" | "retrying" when the stream connects or drops (the browser reconnects with Last-Event-ID).
+   * Returns a function that closes the stream.
+   */
+  follow(sessionId, onSnapshot, onLink) {
+    const url = new URL(`/sessions/${encodeURIComponent(sessionId)}/events`, location.origin);
+    if (this.authReads && this.token) url.searchParams.set("access_token", this.token);
+    const es = new EventSource(url);
+    let closed = false;
+    const handler = (ev) => {
+      if (closed) return;
+      let snap;
+      try {
+        snap = JSON.parse(ev.data);
+      } catch {
+        return;
+      }
+      onSnapshot(snap, ev.type);
+    };
+    for (const name of EVENT_NAMES) es.addEventListener(name, handler);
+    es.onopen = () => !closed && onLink && onLink("open");
+    es.onerror = () => !closed && onLink && onLink(es.readyState === EventSource.CLOSED ? "closed" : "retrying");
+    return () => {
+      closed = true;
+      es.close();
+    };
+  }
+}

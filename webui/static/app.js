@@ -1,0 +1,151 @@
+// The clinician's wizard page: routing between sign-in, device list, the guided session and history.
+// The URL hash names what is shown (#/session/<id> etc.), so a reload resumes from the service's state.
+
+import { Api } from "./api.js";
+import { fill, h } from "./dom.js";
+import { icon } from "./figures.js";
+import { requestProblem } from "./messages.js";
+import { devicesView } from "./devices.js";
+import { historyView } from "./history.js";
+import { signInView } from "./signin.js";
+import { placeView, sessionView } from "./wizard.js";
+
+const api = new Api();
+const main = document.getElementById("view");
+const who = document.getElementById("who");
+const banner = document.getElementById("banner");
+let cleanup = null;
+let afterSignIn = null;
+
+const ROUTES = [
+  [/^#\/devices$/, () => devicesView(ctx)],
+  [/^#\/place\/([^/]+)$/, (m) => placeView(ctx, decodeURIComponent(m[1]))],
+  [/^#\/session\/([0-9a-f]{32})$/, (m) => sessionView(ctx, m[1])],
+  [/^#\/history\/([^/]+)$/, (m) => historyView(ctx, decodeURIComponent(m[1]))],
+];
+
+const ctx = {
+  api,
+  main,
+  /** Go to a hash route; replace=true keeps the browser's back button from returning to it. */
+  go(hash, replace = false) {
+    if (location.hash === hash) route();
+    else if (replace) {
+      history.replaceState(null, "", hash);
+      route();
+    } else location.hash = hash;
+  },
+  title(text) {
+    document.title = text ? `${text} · gyrocal` : "gyrocal";
+  },
+  /** A banner above the page (the link to the service); null hides it. */
+  banner(kind, text) {
+    if (!text) {
+      banner.hidden = true;
+      banner.replaceChildren();
+      return;
+    }
+    banner.hidden = false;
+    banner.className = `banner ${kind}`;
+    banner.replaceChildren(icon(kind === "warn" ? "warn" : "info"), h("span", null, text));
+  },
+  /** A failed request as a full-page message with what to do. */
+  problem(err, what, actions = []) {
+    const p = requestProblem(err, what);
+    if (p.signIn) return signOutAndAsk(err.detail);
+    ctx.title(p.title);
+    fill(main, h("section", { class: "panel problem", "aria-labelledby": "problem-title" },
+      h("div", { class: "verdict warn" }, icon("warn"), h("h1", { id: "problem-title" }, p.title)),
+      h("p", { class: "lead" }, p.text),
+      h("p", null, p.fix),
+      h("div", { class: "actions" },
+        ...actions,
+        h("button", { class: "button", type: "button", onclick: () => route() }, icon("redo"), "Try again"),
+        h("a", { class: "button", href: "#/devices" }, icon("back"), "Device list"))));
+    focusMain();
+  },
+};
+
+function focusMain() {
+  main.focus({ preventScroll: true });
+  window.scrollTo(0, 0);
+}
+ctx.focusMain = focusMain;
+
+function renderWho() {
+  if (!api.signedIn) {
+    who.replaceChildren();
+    return;
+  }
+  who.replaceChildren(
+    h("span", { class: "who-name" }, icon("user"), h("span", null, api.operator)),
+    h("button", { class: "button small", type: "button", onclick: async () => {
+      await api.signOut();
+      renderWho();
+      ctx.go("#/devices");
+    } }, "Sign out"));
+}
+
+function signOutAndAsk(message) {
+  api.forget();
+  renderWho();
+  afterSignIn = location.hash && location.hash !== "#/signin" ? location.hash : "#/devices";
+  showSignIn(message);
+}
+
+function showSignIn(message) {
+  if (cleanup) cleanup();
+  cleanup = null;
+  ctx.title("Sign in");
+  signInView(ctx, message, () => {
+    renderWho();
+    const next = afterSignIn || "#/devices";
+    afterSignIn = null;
+    ctx.go(next, true);
+  });
+}
+
+function route() {
+  if (cleanup) {
+    cleanup();
+    cleanup = null;
+  }
+  ctx.banner(null);
+  if (!api.signedIn) {
+    afterSignIn = location.hash && location.hash !== "#/signin" ? location.hash : "#/devices";
+    showSignIn();
+    return;
+  }
+  const hash = location.hash || "#/devices";
+  for (const [re, make] of ROUTES) {
+    const m = hash.match(re);
+    if (m) {
+      cleanup = make(m) || null;
+      return;
+    }
+  }
+  history.replaceState(null, "", "#/devices");
+  cleanup = devicesView(ctx) || null;
+}
+
+async function start() {
+  api.onUnauthorized = (err) => signOutAndAsk(err.detail);
+  window.addEventListener("hashchange", route);
+  try {
+    await api.health();
+  } catch (err) {
+    ctx.problem(err, "load the page");
+    return;
+  }
+  if (api.signedIn) {
+    try {
+      await api.get("/auth/me");
+    } catch (err) {
+      if (err.status === 401) return; // the operator is asked to sign in again
+    }
+  }
+  renderWho();
+  route();
+}
+
+start();

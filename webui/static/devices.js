@@ -1,0 +1,109 @@
+// Step 0: pick the device to calibrate (list or scan), with its status, battery and last calibration.
+
+import { fill, fmtDate, h } from "./dom.js";
+import { icon } from "./figures.js";
+
+function status(dev) {
+  if (dev.active_session) return { key: "busy", text: "In a calibration", icon: "busy" };
+  if (!dev.available) return { key: "offline", text: "Not reachable", icon: "offline" };
+  return { key: "ready", text: "Ready", icon: "ready" };
+}
+
+function batteryText(pct) {
+  if (typeof pct !== "number") return { text: "not read yet", low: false };
+  return { text: `${Math.round(pct)} %`, low: pct < 20 };
+}
+
+function deviceCard(ctx, dev) {
+  const st = status(dev);
+  const cur = dev.current_calibration;
+  const battery = h("dd", { class: "battery" }, icon("battery"), h("span", null, "not read yet"));
+  const kind = [dev.sensor_model, dev.simulated ? `simulated wearable${dev.scenario && dev.scenario !== "normal" ? ` (${dev.scenario.replaceAll("_", " ")})` : ""}` : dev.transport === "ble" ? "Bluetooth" : null]
+    .filter(Boolean).join(" · ");
+  const actions = [];
+  if (dev.active_session) {
+    actions.push(h("a", { class: "button primary", href: `#/session/${dev.active_session}` }, icon("play"), "Resume"));
+  } else if (dev.available) {
+    actions.push(h("a", { class: "button primary", href: `#/place/${encodeURIComponent(dev.id)}`, "aria-label": `Calibrate ${dev.name || dev.id}` }, icon("play"), "Calibrate"));
+  }
+  actions.push(h("a", { class: "button", href: `#/history/${encodeURIComponent(dev.id)}`, "aria-label": `History of ${dev.name || dev.id}` }, icon("history"), "History"));
+  const card = h("li", { class: "device-card", dataset: { device: dev.id, status: st.key } },
+    h("div", { class: "dev-main" },
+      h("h2", null, dev.name || dev.id),
+      h("p", { class: "dev-sub" }, dev.name && dev.name !== dev.id ? `${dev.id} · ` : "", kind || "")),
+    h("dl", { class: "dev-facts" },
+      h("div", null, h("dt", null, "Status"), h("dd", { class: `status ${st.key}` }, icon(st.icon), h("span", null, st.text))),
+      h("div", null, h("dt", null, "Battery"), battery),
+      h("div", null, h("dt", null, "Last calibration"),
+        h("dd", { class: cur ? "calibrated" : "never" }, icon(cur ? "check" : "info"),
+          h("span", null, cur ? `${fmtDate(cur.accepted_at)} by ${cur.operator}` : "never calibrated")))),
+    h("div", { class: "dev-actions" }, actions));
+  card.setBattery = (pct) => {
+    const b = batteryText(pct);
+    battery.classList.toggle("low", b.low);
+    battery.replaceChildren(icon(b.low ? "warn" : "battery"), h("span", null, b.low ? `${b.text} — charge it first` : b.text));
+  };
+  return card;
+}
+
+export function devicesView(ctx) {
+  ctx.title("Choose a device");
+  let alive = true;
+  const list = h("ul", { class: "device-list", "aria-live": "polite", "aria-busy": "true" }, h("li", { class: "loading" }, "Looking for devices…"));
+  const scanBtn = h("button", { class: "button", type: "button" }, icon("search"), "Scan for devices");
+  const note = h("p", { class: "scan-note", role: "status" });
+
+  const render = async (devices) => {
+    if (!alive) return;
+    list.setAttribute("aria-busy", "false");
+    if (!devices.length) {
+      fill(list, h("li", { class: "empty" }, icon("info"), h("span", null, "No devices yet. Switch the wearable on, keep it near this tablet and press “Scan for devices”.")));
+      return;
+    }
+    const cards = devices.map((d) => deviceCard(ctx, d));
+    fill(list, cards);
+    // the battery level is known once the service has talked to the device
+    await Promise.all(devices.map(async (d, i) => {
+      try {
+        const detail = await ctx.api.get(`/devices/${encodeURIComponent(d.id)}`);
+        if (alive) cards[i].setBattery(detail.info && detail.info.battery_pct);
+      } catch {
+        // the list stays usable without the battery level
+      }
+    }));
+  };
+
+  const load = async () => {
+    try {
+      await render(await ctx.api.get("/devices"));
+    } catch (err) {
+      if (alive && err.status !== 401) ctx.problem(err, "list the devices");
+    }
+  };
+
+  scanBtn.addEventListener("click", async () => {
+    scanBtn.disabled = true;
+    note.textContent = "Scanning for wearables nearby…";
+    try {
+      const out = await ctx.api.request("POST", "/devices/scan", { query: { timeout: 4 } });
+      note.textContent = `Found ${out.devices.length} device${out.devices.length === 1 ? "" : "s"}.`;
+      await load();
+    } catch (err) {
+      if (err.status !== 401) note.textContent = err.network ? "The service cannot be reached; try again." : err.detail;
+    } finally {
+      scanBtn.disabled = false;
+    }
+  });
+
+  fill(ctx.main, h("section", { class: "panel", "aria-labelledby": "devices-title" },
+    h("div", { class: "panel-head" },
+      h("div", null, h("h1", { id: "devices-title" }, "Choose a device"),
+        h("p", { class: "lead" }, "Pick the wearable to calibrate.")),
+      scanBtn),
+    note, list));
+  ctx.focusMain();
+  load();
+  return () => {
+    alive = false;
+  };
+}

@@ -1,0 +1,550 @@
+// Steps 1-7: place the device, hold still, the three turns, the result and the decision. The page
+// shows the service's session as it streams it (SSE); everything it shows comes from the service.
+
+import { AXES, AXIS_LABEL, fill, fmtDateTime, h, num, sig } from "./dom.js";
+import { angleGauge, icon, placePicture, stillRing, turnAnimation, turnTiles } from "./figures.js";
+import { STEP_LABELS, headline, reasonFor, requestProblem, stepOf, subline } from "./messages.js";
+import { calibrationPlots } from "./plots.js";
+
+const END_STATES = new Set(["done", "failed", "cancelled"]);
+const WARNING_SHOW_MS = 10000;
+const TURN_FAULTS = new Set(["wrong_axis", "too_fast", "turn_incomplete", "turn_too_far", "turn_too_long", "no_motion"]);
+const WARNING_ICON = { moved: "hand", hint: "info", link_lost: "link", link_restored: "link", moved_during_pause: "hand" };
+
+// -- shared pieces -------------------------------------------------------------------------------
+/** "Step n of 7" and the bar of steps; stopped=true marks step n as the one where the calibration stopped. */
+function stepHeader(step, button, stopped = false) {
+  const no = h("p", { class: "stepno" });
+  const bar = h("ol", { class: "stepbar", "aria-hidden": "true" });
+  const head = h("header", { class: "wiz-head" }, h("div", { class: "wiz-steps" }, no, bar), button || null);
+  head.update = (n) => {
+    if (head.dataset.step === String(n)) return;
+    head.dataset.step = String(n);
+    no.replaceChildren(stopped ? `Stopped at step ${n} of ${STEP_LABELS.length}` : `Step ${n} of ${STEP_LABELS.length}`,
+      h("span", { class: "step-name" }, ` · ${STEP_LABELS[n - 1]}`));
+    bar.replaceChildren(...STEP_LABELS.map((label, i) => {
+      const st = i + 1 < n ? "done" : i + 1 === n ? (stopped ? "stopped" : "current") : "todo";
+      const mark = st === "done" ? icon("check") : st === "stopped" ? icon("cross") : String(i + 1);
+      return h("li", { class: st }, h("span", { class: "dot" }, mark), h("span", { class: "label" }, label));
+    }));
+  };
+  head.update(step);
+  return head;
+}
+
+/** The step a stopped session had reached, from what it recorded (when the page did not see it run). */
+function stoppedStep(s) {
+  const n = Object.keys(s.turns || {}).length;
+  const code = s.reason_code;
+  if (code === "connect_failed") return 1;
+  if (code === "moved_during_pause") return Math.min(5, Math.max(3, 2 + n));
+  if (n >= 3) return 6;
+  if (n === 0 && (code === "not_still" || code === "cancelled")) return 2;
+  return 3 + n;
+}
+
+function cancelButton(onclick, label = "Cancel") {
+  return h("button", { class: "button cancel", type: "button", onclick }, icon("cross"), label);
+}
+
+function notice(kind, iconName, text) {
+  return h("div", { class: `notice ${kind}`, role: kind === "error" ? "alert" : "status" }, icon(iconName), h("span", null, text));
+}
+
+function deviceLabel(dev, id) {
+  return (dev && dev.name) || id;
+}
+
+// -- step 1: place the device ------------------------------------------------------------------
+export function placeView(ctx, deviceId) {
+  let alive = true;
+  ctx.title("Place the device");
+  const message = h("div", { class: "inline-problem", "aria-live": "assertive" });
+  const start = h("button", { class: "button primary big", type: "button", disabled: true }, icon("play"), "Start");
+  const cancel = cancelButton(() => ctx.go("#/devices"));
+  const sub = h("p", { class: "sub" }, "Face up, one edge pushed against the block, as in the picture. Then press Start and take your hands off it.");
+  const title = h("h1", { class: "instruction" }, "Place the device flat against the block");
+  fill(ctx.main, h("section", { class: "wizard", "aria-labelledby": "place-title", dataset: { state: "place" } },
+    stepHeader(1, cancel),
+    h("div", { class: "prompt", "aria-live": "polite" }, Object.assign(title, { id: "place-title" }), sub),
+    h("div", { class: "stage two" }, placePicture(),
+      h("div", { class: "place-side" }, h("p", { class: "device-name" }, icon("info"), h("span", { class: "dev-label" }, deviceId)), start, message))));
+  ctx.focusMain();
+
+  let device = null;
+  ctx.api.get(`/devices/${encodeURIComponent(deviceId)}`).then((dev) => {
+    if (!alive) return;
+    device = dev;
+    if (dev.active_session) {
+      ctx.go(`#/session/${dev.active_session}`, true);
+      return;
+    }
+    ctx.main.querySelector(".dev-label").textContent = `${deviceLabel(dev, deviceId)}${dev.sensor_model ? ` · ${dev.sensor_model}` : ""}`;
+    if (!dev.available) {
+      fill(message, notice("error", "offline", `${deviceLabel(dev, deviceId)} cannot be reached by the service. Switch it on, bring it near and scan for it from the device list.`));
+      return;
+    }
+    start.disabled = false;
+    start.focus();
+  }).catch((err) => alive && err.status !== 401 && ctx.problem(err, `find the device ${deviceId}`));
+
+  start.addEventListener("click", async () => {
+    start.disabled = true;
+    start.replaceChildren(icon("clock"), "Starting…");
+    try {
+      const out = await ctx.api.post(`/devices/${encodeURIComponent(deviceId)}/calibrate`, {});
+      if (alive) ctx.go(`#/session/${out.session_id}`, true);
+    } catch (err) {
+      if (!alive || err.status === 401) return;
+      start.disabled = false;
+      start.replaceChildren(icon("play"), "Start");
+      const p = requestProblem(err, "start the calibration");
+      const parts = [notice("error", "warn", `${p.title}: ${p.text}`), h("p", null, p.fix)];
+      if (err.status === 409) {
+        try {
+          const dev = await ctx.api.get(`/devices/${encodeURIComponent(deviceId)}`);
+          if (dev.active_session) parts.push(h("a", { class: "button", href: `#/session/${dev.active_session}` }, icon("play"), "Go to that calibration"));
+        } catch {
+          // the message above already says what happened
+        }
+      }
+      fill(message, parts);
+    }
+  });
+  return () => {
+    alive = false;
+    void device;
+  };
+}
+
+// -- steps 2-7: the running session and its end ------------------------------------------------
+export function sessionView(ctx, sid) {
+  const api = ctx.api;
+  let alive = true;
+  let snap = null;
+  let device = null;
+  let stop = null;
+  let ui = null;
+  let endedKey = null;
+  let seenWarnings = null;
+  let warningTimer = null;
+  let shownWarning = null;
+  let lastStep = null; // the step this page saw the session at, before it ended
+  let lastAxis = null; // the turn a lost connection interrupted
+
+  const closeStream = () => {
+    if (stop) stop();
+    stop = null;
+  };
+
+  const apply = (s) => {
+    if (!alive || !s || s.session_id !== sid) return;
+    if (snap && s.event_id && snap.event_id && s.event_id <= snap.event_id) return;
+    snap = s;
+    if (END_STATES.has(s.state)) {
+      closeStream();
+      ctx.banner(null);
+      const key = `${s.state}:${s.decision || ""}`;
+      if (key !== endedKey) {
+        endedKey = key;
+        ui = null;
+        renderEnded(s);
+      }
+      return;
+    }
+    renderRunning(s);
+  };
+
+  const follow = () => {
+    stop = api.follow(sid, apply, (link) => {
+      if (!alive) return;
+      if (link === "retrying") ctx.banner("warn", "The connection to the service was interrupted. Reconnecting…");
+      else if (link === "open") ctx.banner(null);
+    });
+  };
+
+  const refresh = async () => {
+    try {
+      apply({ ...(await api.get(`/sessions/${sid}`)), event_id: null });
+    } catch (err) {
+      if (alive && err.status !== 401) ctx.problem(err, "load the calibration");
+    }
+  };
+
+  // -- running ----------------------------------------------------------------------------------
+  const doCancel = async (btn) => {
+    btn.disabled = true;
+    try {
+      apply({ ...(await api.post(`/sessions/${sid}/cancel`)), event_id: null });
+    } catch (err) {
+      if (!alive || err.status === 401) return;
+      btn.disabled = false;
+      if (err.status === 409) await refresh();
+      else setNotice(notice("error", "warn", `${requestProblem(err, "cancel").title}: ${err.detail}`), true);
+    }
+  };
+
+  const buildRunning = (s) => {
+    const cancel = cancelButton(() => doCancel(cancel));
+    const head = stepHeader(stepOf(s) || 1, cancel);
+    const title = h("h1", { class: "instruction", id: "instruction" });
+    const sub = h("p", { class: "sub" });
+    const noticeBox = h("div", { class: "notice-box" });
+    const stage = h("div", { class: "stage" });
+    const tiles = turnTiles();
+    const root = h("section", { class: "wizard", "aria-labelledby": "instruction" },
+      head, h("div", { class: "prompt", "aria-live": "polite", "aria-atomic": "true" }, title, sub), noticeBox, stage, tiles);
+    fill(ctx.main, root);
+    ctx.focusMain();
+    ui = { root, head, title, sub, noticeBox, stage, tiles, key: null, ring: null, gauge: null };
+  };
+
+  const stageKey = (s) => {
+    if (s.state.startsWith("turn_")) return s.phase === "pause" || s.phase === "settle" ? `rest:${s.axis}:${s.phase}` : `turn:${s.axis}`;
+    return s.state;
+  };
+
+  const buildStage = (s) => {
+    ui.ring = null;
+    ui.gauge = null;
+    const dev = deviceLabel(device, s.device_id);
+    let content;
+    switch (ui.key.split(":")[0]) {
+      case "connecting":
+        content = [placePicture(), h("div", { class: "side-note" }, h("span", { class: "spinner", "aria-hidden": "true" }), h("p", null, `Connecting to ${dev}…`))];
+        break;
+      case "still":
+        ui.ring = stillRing();
+        content = [ui.ring, placePicture()];
+        break;
+      case "turn":
+        ui.gauge = angleGauge(s.axis);
+        content = [turnAnimation(s.axis), ui.gauge];
+        break;
+      case "rest": {
+        ui.ring = stillRing();
+        const recorded = s.phase === "pause"
+          ? h("p", { class: "recorded" }, icon("check"), `Turn ${AXIS_LABEL[s.axis]} recorded`)
+          : h("p", { class: "recorded redo" }, icon("redo"), `Turn ${AXIS_LABEL[s.axis]} will be asked again`);
+        content = [ui.ring, h("div", { class: "side-note" }, recorded, placePicture())];
+        break;
+      }
+      case "reconnecting":
+        content = [h("div", { class: "big-icon link-lost" }, icon("link")), h("div", { class: "side-note" }, h("span", { class: "spinner", "aria-hidden": "true" }), h("p", null, `Waiting for ${dev} to reconnect…`))];
+        break;
+      case "computing":
+      default:
+        content = [h("div", { class: "side-note center" }, h("span", { class: "spinner large", "aria-hidden": "true" }), h("p", null, "Computing the calibration from the recording…"))];
+    }
+    ui.stage.className = `stage two stage-${ui.key.split(":")[0]}`;
+    fill(ui.stage, content);
+  };
+
+  const setNotice = (el, sticky = false) => {
+    if (!ui) return;
+    ui.noticeBox.dataset.key = "message";
+    fill(ui.noticeBox, el);
+    if (sticky) shownWarning = { until: Date.now() + WARNING_SHOW_MS, message: null };
+  };
+
+  const updateNotice = (s) => {
+    const warnings = s.warnings || [];
+    if (seenWarnings === null) seenWarnings = warnings.length; // on (re)load, old warnings are history
+    if (warnings.length > seenWarnings) {
+      const w = warnings[warnings.length - 1];
+      seenWarnings = warnings.length;
+      const kind = w.code === "link_restored" || w.code === "hint" ? "info" : "warn";
+      shownWarning = { until: Date.now() + WARNING_SHOW_MS, message: w.message };
+      ui.noticeBox.dataset.key = `warning-${seenWarnings}`;
+      fill(ui.noticeBox, notice(kind, WARNING_ICON[w.code] || "warn", w.message));
+      clearTimeout(warningTimer);
+      warningTimer = setTimeout(() => alive && snap && ui && updateNotice(snap), WARNING_SHOW_MS + 50);
+    }
+    if (shownWarning) {
+      // a warning stays a while, unless the instruction itself now says the same
+      if (shownWarning.message !== s.prompt && Date.now() < shownWarning.until) return;
+      shownWarning = null;
+    }
+    const resting = s.state === "still" || s.phase === "pause" || s.phase === "settle";
+    const key = resting && s.live && s.live.moving ? "moving" : "";
+    if (ui.noticeBox.dataset.key === key) return;
+    ui.noticeBox.dataset.key = key;
+    fill(ui.noticeBox, key ? notice("warn", "hand", "The device is moving. Hold it still against the block: the ring fills again once it is still.") : null);
+  };
+
+  const renderRunning = (s) => {
+    if (!ui) buildRunning(s);
+    ui.root.dataset.state = s.state;
+    ui.root.dataset.phase = s.phase || "";
+    ui.head.update(stepOf(s) || ui.head.dataset.step || 1);
+    lastStep = Number(ui.head.dataset.step);
+    const key = stageKey(s);
+    if (key !== ui.key) {
+      ui.key = key;
+      buildStage(s);
+    }
+    const dev = deviceLabel(device, s.device_id);
+    const t = headline(s, dev);
+    const sub = subline(s);
+    if (ui.title.textContent !== t) {
+      ui.title.textContent = t;
+      ctx.title(t);
+    }
+    if (ui.sub.textContent !== sub) ui.sub.textContent = sub;
+    if (ui.ring) {
+      const p = s.progress || { fraction: 0, still_s: 0, target_s: 0 };
+      ui.ring.update(s.live && s.live.moving ? 0 : p.fraction, s.live && s.live.moving, (p.target_s || 0) - (p.still_s || 0));
+    }
+    if (ui.gauge) ui.gauge.update(s.phase === "turning" && s.live ? s.live.turn_angle_deg : 0);
+    if (s.state.startsWith("turn_")) lastAxis = s.axis;
+    ui.tiles.update(Object.keys(s.turns || {}), s.state.startsWith("turn_") ? s.axis : s.state === "reconnecting" ? lastAxis : null);
+    ui.tiles.hidden = !(s.state.startsWith("turn_") || s.state === "still" || s.state === "reconnecting");
+    updateNotice(s);
+  };
+
+  // -- ended ------------------------------------------------------------------------------------
+  const renderEnded = (s) => {
+    clearTimeout(warningTimer);
+    if (s.decision === "accepted") return savedView(s);
+    if (s.decision === "discarded") return discardedView(s);
+    if (s.state === "done") return resultView(s, true);
+    if (s.state === "failed" && s.reason_code === "out_of_tolerance" && s.result) return resultView(s, false);
+    if (s.state === "cancelled") return stoppedView(s, "cancelled");
+    return stoppedView(s, s.reason_code);
+  };
+
+  const endLayout = (s, step, verdict, body, headerButton, stopped = false) => {
+    const root = h("section", { class: "wizard ended", "aria-labelledby": "verdict-title", dataset: { state: s.state, decision: s.decision || "", reason: s.reason_code || "" } },
+      stepHeader(step, headerButton || cancelButton(() => ctx.go("#/devices"), "Close"), stopped), verdict, ...body);
+    fill(ctx.main, root);
+    ctx.focusMain();
+    return root;
+  };
+
+  const verdictEl = (kind, iconName, text, kicker) => h("div", { class: `verdict ${kind}`, role: "status" },
+    icon(iconName, { cls: "verdict-icon" }),
+    h("div", null, kicker ? h("p", { class: "kicker" }, kicker) : null, h("h1", { id: "verdict-title" }, text)));
+
+  const discard = async () => {
+    if (snap && snap.decision) return snap;
+    const out = await api.post(`/sessions/${sid}/discard`, {});
+    return out;
+  };
+
+  const resultView = (s, pass) => {
+    const dev = deviceLabel(device, s.device_id);
+    const message = h("div", { class: "inline-problem", "aria-live": "assertive" });
+    const buttons = [];
+    const busy = (on) => buttons.forEach((b) => (b.disabled = on));
+    const act = async (what, fn) => {
+      busy(true);
+      try {
+        await fn();
+      } catch (err) {
+        if (!alive || err.status === 401) return;
+        busy(false);
+        const p = requestProblem(err, what);
+        fill(message, notice("error", "warn", `${p.title}: ${p.text}`), h("p", null, p.fix));
+        if (err.status === 409) setTimeout(refresh, 1500);
+      }
+    };
+    const redo = h("button", { class: `button ${pass ? "" : "primary big"}`, type: "button" }, icon("redo"), "Redo");
+    redo.addEventListener("click", () => act("redo the calibration", async () => {
+      await discard();
+      ctx.go(`#/place/${encodeURIComponent(s.device_id)}`);
+    }));
+    const drop = h("button", { class: "button", type: "button" }, icon("trash"), "Discard");
+    drop.addEventListener("click", () => act("discard the result", async () => apply({ ...(await discard()), event_id: null })));
+    buttons.push(redo, drop);
+    let accept = null;
+    if (pass) {
+      accept = h("button", { class: "button primary big accept", type: "button" }, icon("save"), "Accept & save");
+      accept.addEventListener("click", () => act("save the calibration", async () => {
+        accept.replaceChildren(icon("clock"), "Saving…");
+        try {
+          const out = await api.post(`/sessions/${sid}/accept`, {});
+          endedKey = `${s.state}:accepted`;
+          snap = { ...s, decision: "accepted", calibration_id: out.calibration.id };
+          savedView(snap, out.calibration);
+        } catch (err) {
+          accept.replaceChildren(icon("save"), "Accept & save");
+          throw err;
+        }
+      }));
+      buttons.push(accept);
+    }
+    const failures = (s.checks || []).filter((c) => !c.ok).map((c) => c.text);
+    const sentence = pass
+      ? `The gyroscope of ${dev} is calibrated within the tolerances.`
+      : `The result is outside the tolerances: ${failures.join("; ") || s.reason}.`;
+    const next = pass
+      ? "Press “Accept & save” to make it the device's calibration, or Redo if anything went wrong during the turns."
+      : reasonFor("out_of_tolerance").fix;
+    ctx.title(pass ? "PASS" : "FAIL");
+    endLayout(s, 6, verdictEl(pass ? "pass" : "fail", pass ? "pass" : "fail", pass ? "PASS" : "FAIL"), [
+      h("p", { class: "sentence" }, sentence),
+      h("p", { class: "next" }, next),
+      h("div", { class: "actions split" }, h("div", { class: "actions" }, redo, drop), accept),
+      message,
+      detailsBlock(ctx, s),
+    ], cancelButton(() => ctx.go("#/devices"), "Close"));
+    if (accept) accept.focus({ preventScroll: true });
+  };
+
+  const savedView = async (s, cal) => {
+    ctx.title("Saved");
+    const dev = deviceLabel(device, s.device_id);
+    const meta = h("p", { class: "next" }, "Loading the saved record…");
+    const values = h("div", { class: "saved-values" });
+    endLayout(s, 7, verdictEl("saved", "pass", "Saved"), [
+      h("p", { class: "sentence" }, `${dev} now uses this calibration.`),
+      meta, values,
+      h("div", { class: "actions" },
+        h("a", { class: "button primary big", href: "#/devices" }, icon("play"), "Calibrate another device"),
+        h("a", { class: "button", href: `#/history/${encodeURIComponent(s.device_id)}` }, icon("history"), `History of ${dev}`)),
+    ]);
+    if (!cal) {
+      try {
+        const all = await api.get(`/devices/${encodeURIComponent(s.device_id)}/calibrations`);
+        cal = all.find((c) => c.session_id === sid) || null;
+      } catch (err) {
+        if (err.status === 401) return;
+      }
+    }
+    if (!alive) return;
+    if (!cal) {
+      meta.textContent = "The calibration was accepted.";
+      return;
+    }
+    meta.classList.add("saved-meta");
+    meta.replaceChildren(icon("user"), h("span", null, h("strong", { class: "saved-by" }, `Accepted by ${cal.operator}`), " on ",
+      h("time", { datetime: cal.accepted_at }, fmtDateTime(cal.accepted_at)), `, for ${cal.device_id}.`));
+    fill(values, paramTable(cal.k, cal.b, cal.uncertainty));
+  };
+
+  const discardedView = async (s) => {
+    ctx.title("Result discarded");
+    const dev = deviceLabel(device, s.device_id);
+    const keeps = h("p", { class: "sentence" }, `${dev} keeps its previous calibration.`);
+    endLayout(s, 6, verdictEl("neutral", "trash", "Result discarded"), [
+      keeps,
+      h("div", { class: "actions" },
+        h("a", { class: "button primary big", href: `#/place/${encodeURIComponent(s.device_id)}` }, icon("redo"), "Calibrate again"),
+        h("a", { class: "button", href: "#/devices" }, icon("back"), "Device list")),
+    ]);
+    try {
+      const cur = await api.get(`/devices/${encodeURIComponent(s.device_id)}/calibration`);
+      if (alive) keeps.textContent = `${dev} keeps its current calibration, accepted by ${cur.operator} on ${fmtDateTime(cur.accepted_at)}.`;
+    } catch (err) {
+      if (alive && err.status === 404) keeps.textContent = `${dev} has no calibration yet: nothing was saved.`;
+    }
+  };
+
+  const stoppedView = (s, code) => {
+    const r = reasonFor(code);
+    const dev = deviceLabel(device, s.device_id);
+    const cancelled = code === "cancelled";
+    const step = lastStep || stoppedStep(s);
+    // a turn done wrong: show again how that turn is made
+    const axis = TURN_FAULTS.has(code) && step >= 3 && step <= 5 ? AXES[step - 3] : null;
+    ctx.title(r.title);
+    const lost = s.warnings && s.warnings.length ? h("details", { class: "details" }, h("summary", null, "What happened during the calibration"),
+      h("ul", { class: "warning-list" }, s.warnings.map((w) => h("li", null, w.message)))) : null;
+    const text = h("div", null,
+      h("p", { class: "sentence plain" }, cancelled ? `The calibration of ${dev} was cancelled.` : s.reason || r.title),
+      h("p", { class: "next" }, h("strong", null, "What to do: "), r.fix),
+      h("div", { class: "actions" },
+        h("a", { class: "button primary big", href: `#/place/${encodeURIComponent(s.device_id)}` }, icon("redo"), "Start again"),
+        h("a", { class: "button", href: "#/devices" }, icon("back"), "Device list")));
+    endLayout(s, step, verdictEl(cancelled ? "neutral" : "fail", r.icon, r.title, cancelled ? null : "FAIL · calibration stopped"), [
+      axis ? h("div", { class: "stop-body" }, text, h("div", { class: "stop-figure" }, turnAnimation(axis))) : text,
+      lost,
+      h("p", { class: "fineprint" }, `Session ${sid} · ${s.state}${s.reason_code ? ` (${s.reason_code})` : ""} · ${fmtDateTime(s.ended_at || s.started_at)}`),
+    ], null, true);
+  };
+
+  // -- start --------------------------------------------------------------------------------------
+  (async () => {
+    let first;
+    try {
+      first = await api.get(`/sessions/${sid}`);
+    } catch (err) {
+      if (alive && err.status !== 401) ctx.problem(err, "load the calibration");
+      return;
+    }
+    try {
+      device = await api.get(`/devices/${encodeURIComponent(first.device_id)}`);
+    } catch {
+      device = null; // the id is enough to go on
+    }
+    if (!alive) return;
+    apply({ ...first, event_id: null });
+    if (!END_STATES.has(first.state)) follow();
+  })();
+
+  return () => {
+    alive = false;
+    clearTimeout(warningTimer);
+    closeStream();
+  };
+}
+
+// -- details ---------------------------------------------------------------------------------------
+function paramTable(k, b, unc) {
+  const ku = (unc && unc.k) || [];
+  const bu = (unc && unc.b) || [];
+  return h("table", { class: "params" },
+    h("caption", null, "Calibration g = K·m + b"),
+    h("thead", null, h("tr", null, h("th", { scope: "col" }, "Axis"), h("th", { scope: "col" }, "Scale factor k"), h("th", { scope: "col" }, "Bias b (°/s)"))),
+    h("tbody", null, AXES.map((a, i) => h("tr", null,
+      h("th", { scope: "row" }, AXIS_LABEL[a]),
+      h("td", null, num(k[i], 5), ku[i] != null ? h("span", { class: "pm" }, ` ± ${sig(ku[i])}`) : null),
+      h("td", null, num(b[i], 3), bu[i] != null ? h("span", { class: "pm" }, ` ± ${sig(bu[i])}`) : null)))));
+}
+
+function detailsBlock(ctx, s) {
+  const res = s.result || {};
+  const plots = h("div", { class: "plots", "aria-live": "polite" }, h("p", { class: "muted" }, "Open to load the plots…"));
+  const checks = h("ul", { class: "checks" }, (s.checks || []).map((c) => h("li", { class: c.ok ? "ok" : "bad" },
+    icon(c.ok ? "check" : "cross"), h("span", { class: "check-state" }, c.ok ? "within" : "outside"), h("span", null, c.text))));
+  const turns = Object.values(s.turns || {});
+  const q = res.quality || {};
+  const facts = [
+    ["Method", res.method || s.method],
+    ["Samples", s.samples != null ? `${s.samples} at ${num(s.sample_rate_hz || res.sample_rate_hz, 1)} Hz` : res.n_samples],
+    ["Lost on the radio link", s.lost_samples != null ? `${s.lost_samples} samples` : null],
+    ["Noise at rest", res.noise_dps ? `${res.noise_dps.map((v) => num(v, 3)).join(" / ")} °/s (X / Y / Z)` : null],
+    ["Fit", q.chi2 != null && q.dof ? `χ²/dof = ${num(q.chi2 / q.dof, 2)} (${q.dof} dof)` : null],
+  ].filter(([, v]) => v !== null && v !== undefined);
+  const det = h("details", { class: "details" },
+    h("summary", null, "Details: values, checks and plots"),
+    h("div", { class: "details-body" },
+      h("div", { class: "details-grid" },
+        h("div", null, h("h2", null, "Values"), paramTable(res.k || [], res.b || [], res.uncertainty),
+          h("p", { class: "muted" }, "± is one standard deviation: the uncertainty of each value.")),
+        h("div", null, h("h2", null, "Checks"), checks)),
+      turns.length ? h("div", null, h("h2", null, "Turns"), h("table", { class: "turns" },
+        h("thead", null, h("tr", null, ["Turn", "Measured before calibration", "Duration", "Rest before"].map((t) => h("th", { scope: "col" }, t)))),
+        h("tbody", null, turns.map((t) => h("tr", null,
+          h("th", { scope: "row" }, AXIS_LABEL[t.axis]),
+          h("td", null, `${num(Math.abs(t.angle_deg["xyz".indexOf(t.axis)]), 0)}°`),
+          h("td", null, `${num(t.duration_s, 1)} s`),
+          h("td", null, `${num(t.rest_before_s, 1)} s`)))))) : null,
+      h("dl", { class: "facts" }, facts.map(([k, v]) => h("div", null, h("dt", null, k), h("dd", null, String(v))))),
+      h("h2", null, "Before and after calibration"),
+      plots,
+      h("p", null, h("a", { href: `/sessions/${s.session_id}/recording`, download: `${s.session_id}.csv` }, "Download the raw recording (CSV)"))));
+  let loaded = false;
+  det.addEventListener("toggle", async () => {
+    if (!det.open || loaded) return;
+    loaded = true;
+    try {
+      const tr = await ctx.api.get(`/sessions/${s.session_id}/plot`, { max_points: 700 });
+      fill(plots, calibrationPlots(tr));
+    } catch (err) {
+      loaded = false;
+      fill(plots, notice("warn", "warn", `The plots could not be loaded: ${err.network ? "the service cannot be reached" : err.detail}`));
+    }
+  });
+  return det;
+}
