@@ -35,8 +35,9 @@ from .closure_fit import (
     system,
     windows,
 )
-from .errors import CalibrationError, ProtocolError, RecordingError
+from .errors import CalibrationError, ProtocolError
 from .recording import Recording
+from .validation import check_calibration_input
 from .result import CalibrationResult
 from .stage import AXES, FLAG_COUNTER_GAP, FLAG_SATURATED, Stage
 
@@ -71,7 +72,7 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool = False
     Raises RecordingError for bad input, ProtocolError when a stage is missing, CalibrationError when
     the recording does not determine the parameters.
     """
-    _check_recording(rec)
+    check_calibration_input(rec)
     stage_list, turns, stills, warnings = _select_stages(rec, stages)
     dt_all = _sample_intervals(rec.t)
 
@@ -202,7 +203,6 @@ def _result(
     dt_all: np.ndarray,
 ) -> CalibrationResult:
     theta = fit.theta
-    P = theta.size
     names = param_names(extended)
     try:
         cov = np.linalg.inv(fit.fisher)
@@ -323,17 +323,6 @@ def _correlation(cov: np.ndarray) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- input
-
-
-def _check_recording(rec: Recording) -> None:
-    if not isinstance(rec, Recording):
-        raise RecordingError(f"expected a Recording, got {type(rec).__name__}: read files with calib.io.read_recording")
-    if len(rec) < 3:
-        raise RecordingError(f"the recording has {len(rec)} samples: record the full protocol (about 30 s)")
-    if not np.all(np.isfinite(rec.gyro)) or not np.all(np.isfinite(rec.t)):
-        raise RecordingError("the recording contains NaN or infinite values: remove or repair those samples")
-    if np.any(np.diff(rec.t) <= 0):
-        raise RecordingError("sample times must increase strictly: sort the samples and remove duplicates")
 
 
 def _sample_intervals(t: np.ndarray) -> np.ndarray:

@@ -34,7 +34,9 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from .errors import CalibrationError, ProtocolError, RecordingError
+from .quaternion import prefix_products
 from .recording import Recording
+from .validation import check_calibration_input
 from .result import CalibrationResult
 from .stage import AXES, FLAG_COUNTER_GAP, FLAG_SATURATED, Stage
 
@@ -86,20 +88,6 @@ def solve_scale_factors(A: np.ndarray, rate2: np.ndarray, k0: np.ndarray, steps:
 # Batch path: numpy quaternions, vectorised across runs
 
 
-def _qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Hamilton product p*q of quaternions stored component-first (x, y, z, w): R(p) @ R(q)."""
-    px, py, pz, pw = p
-    qx, qy, qz, qw = q
-    return np.stack(
-        (
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
-            pw * qw - px * qx - py * qy - pz * qz,
-        )
-    )
-
-
 def _rotvec_to_quat(phi: np.ndarray) -> np.ndarray:
     """Rodrigues' rotation (eq. 4) of the rotation vectors phi (3, ...) rad, as quaternions (4, ...).
 
@@ -111,31 +99,6 @@ def _rotvec_to_quat(phi: np.ndarray) -> np.ndarray:
     safe = np.where(small, 1.0, theta)
     half_sinc = np.where(small, 0.5 - theta * theta / 48.0, np.sin(0.5 * safe) / safe)  # sin(theta/2)/theta
     return np.concatenate((phi * half_sinc, np.cos(0.5 * theta)[None]), axis=0)
-
-
-def _prefix_product(q: np.ndarray) -> np.ndarray:
-    """Inclusive prefix products P_t = q_0 q_1 ... q_t along axis 1 of q (4, L, N) (eq. 5).
-
-    A blocked scan: products inside blocks of ~sqrt(L) samples, then across block totals, then
-    one broadcast product, so the Python loop runs ~2 sqrt(L) steps over large arrays.
-    """
-    _, L, N = q.shape
-    B = max(1, int(np.ceil(np.sqrt(L))))
-    nb = -(-L // B)
-    if nb * B != L:
-        pad = np.zeros((4, nb * B - L, N))
-        pad[3] = 1.0
-        q = np.concatenate((q, pad), axis=1)
-    x = np.ascontiguousarray(q.reshape(4, nb, B, N).transpose(0, 2, 1, 3))  # x[:, i, j] = q[:, j*B + i]
-    for i in range(1, B):
-        x[:, i] = _qmul(x[:, i - 1], x[:, i])
-    pre = np.empty((4, nb, N))
-    pre[:, 0] = 0.0
-    pre[3, 0] = 1.0
-    for j in range(1, nb):
-        pre[:, j] = _qmul(pre[:, j - 1], x[:, B - 1, j - 1])
-    x = _qmul(pre[:, None], x)
-    return x.transpose(0, 2, 1, 3).reshape(4, nb * B, N)[:, :L]
 
 
 def _quat_to_matrix(q: np.ndarray) -> np.ndarray:
@@ -160,7 +123,7 @@ def _turn_means_batch(m_win: np.ndarray, dt: float, n: np.ndarray, k: np.ndarray
     are identity rotations, so padding changes nothing); n: (N,) samples in each turn; k: (N, 3).
     """
     q = _rotvec_to_quat(m_win * (k.T[:, None, :] * dt * _DEG))
-    C = _quat_to_matrix(_prefix_product(q))  # (3, 3, L, N)
+    C = _quat_to_matrix(prefix_products(q))  # (3, 3, L, N)
     return np.einsum("icln,cln->nic", C, m_win) / n[:, None, None]
 
 
@@ -378,17 +341,6 @@ def _protocol(rec: Recording, stages: Any) -> tuple[Stage, list[Stage], list[Sta
     return proto.still0, turns, stage_list, list(getattr(proto, "notes", []))
 
 
-def _check_recording(rec: Recording) -> None:
-    if not isinstance(rec, Recording):
-        raise RecordingError(f"expected a Recording, got {type(rec).__name__}: read files with calib.io.read_recording")
-    if len(rec) < 3:
-        raise RecordingError(f"the recording has {len(rec)} samples: record the full protocol (about 30 s)")
-    if not np.all(np.isfinite(rec.gyro)) or not np.all(np.isfinite(rec.t)):
-        raise RecordingError("the recording contains NaN or infinite values: remove or repair those samples")
-    if np.any(np.diff(rec.t) <= 0):
-        raise RecordingError("sample times must increase strictly: sort the samples and remove duplicates")
-
-
 def calibrate_paper(rec: Recording, stages: Any = None) -> CalibrationResult:
     """Calibrate one recording with the paper's Algorithm 1 (method "paper").
 
@@ -396,7 +348,7 @@ def calibrate_paper(rec: Recording, stages: Any = None) -> CalibrationResult:
     Raises RecordingError for bad input, ProtocolError when a stage is missing, CalibrationError
     when the equations cannot be solved.
     """
-    _check_recording(rec)
+    check_calibration_input(rec)
     still0, turns, stage_list, notes = _protocol(rec, stages)
     fit = algorithm1(rec.t, rec.gyro, (still0.start, still0.end), [(s.start, s.end) for s in turns])
     k, b = fit.k, fit.b

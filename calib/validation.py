@@ -174,3 +174,10 @@ def check_sample_rate(fs: object, prefix: str = "") -> float:
             f"{prefix}sample rate {value:g} Hz is outside the plausible {lo:g}..{hi:g} Hz; give fs in Hz, e.g. 104"
         )
     return value
+
+
+def check_calibration_input(rec: object) -> None:
+    """What every estimator asks of its input: a valid Recording (see validate_recording)."""
+    if not isinstance(rec, Recording):
+        raise RecordingError(f"expected a Recording, got {type(rec).__name__}: read files with calib.io.read_recording")
+    validate_recording(rec)

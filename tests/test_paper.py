@@ -10,7 +10,8 @@ from scipy.spatial.transform import Rotation
 from calib import GyrocalError, ProtocolError, RecordingError, Stage
 from calib import bench
 from calib.bench import paper_sim, register_batch_method
-from calib.paper import _prefix_product, _rotvec_to_quat, algorithm1, algorithm1_batch, calibrate_paper
+from calib.quaternion import prefix_products
+from calib.paper import _rotvec_to_quat, algorithm1, algorithm1_batch, calibrate_paper
 from calib.recording import Recording, RecordingMeta
 from calib.stages import ProtocolStages, detect_stages
 from calib.simulator import Motion, ProtocolScript, SensorParams, Still, Turn, simulate, simulate_batch
@@ -50,7 +51,7 @@ def with_turns(stages, bounds):
 def test_rodrigues_prefix_product_matches_scipy_composition():
     rng = np.random.default_rng(3)
     phi = rng.normal(0.0, 0.05, (57, 4, 3))  # (samples, sequences, 3) rad
-    P = _prefix_product(_rotvec_to_quat(phi.transpose(2, 0, 1)))  # (4, samples, sequences)
+    P = prefix_products(_rotvec_to_quat(phi.transpose(2, 0, 1)))  # (4, samples, sequences)
     for s in range(4):
         expected = Rotation.identity()
         for i in range(phi.shape[0]):
