@@ -29,7 +29,7 @@ from . import models as M
 from .auth import AuthError, Authenticator
 from .config import Settings
 from .devices import DEVICE_ID_RE, Device, DeviceManager
-from .events import Broadcaster, Event, dumps, finite
+from .events import Event, dumps, finite
 from .compute import ComputePool, TooManySamples, calibrate_upload
 from .runner import LiveSession
 from .session import END_STATES, GuidedSession, evaluate_result

@@ -6,7 +6,6 @@ device owns one link (server.link) that the guided sessions use one at a time.
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import logging
 import re
@@ -33,7 +32,6 @@ class Device:
     peripheral: Any = None  # the simulated wearable object (in-process only)
     link: Any = None
     info: dict[str, Any] = field(default_factory=dict)
-    lock: asyncio.Lock = field(default_factory=asyncio.Lock)
 
     @property
     def connected(self) -> bool:

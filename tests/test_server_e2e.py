@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from calib.api import calibrate
-from calib.io import parse_recording_text, read_recording, write_native_csv
+from calib.io import parse_recording_text, write_native_csv
 from calib.simulator import simulate
 from calib.stage import Stage
 from server_fixtures import GYROCAL, ROOT, RunningService, follow_events, postgres, store_url  # noqa: F401
