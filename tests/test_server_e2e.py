@@ -99,14 +99,16 @@ def test_live_session_to_done_accept_and_read_back(service: RunningService) -> N
         ("mock-4", "wrong_axis"),  # z turned where y was asked for
         ("mock-5", "too_fast"),  # 0.6 s turns saturate the gyro
         ("mock-6", "out_of_tolerance"),  # z stopped at 320 deg: the turns no longer close after calibration
-        ("mock-7", "wrong_axis"),  # link lost mid y turn: y is asked again, the scripted hand goes on with z
+        # link lost mid y turn: y is asked again, but the scripted hand goes on with z (wrong axis), or,
+        # when the reconnection took long enough to miss the z turn too, never turns again (no motion)
+        ("mock-7", "wrong_axis|no_motion"),
         ("mock-8", "sample_loss"),  # 2 % of packets lost
     ],
 )
 def test_fault_scenarios_end_failed_with_nothing_stored(service: RunningService, device: str, reason: str) -> None:
     sid, events = run_to_end(service, device)
     final = events[-1]
-    assert (final["state"], final["reason_code"]) == ("failed", reason), final["reason"]
+    assert final["state"] == "failed" and final["reason_code"] in reason.split("|"), final["reason"]
     assert "start a new calibration" in final["reason"].lower()
     if device == "mock-7":
         seq = states(events)
