@@ -669,7 +669,12 @@ async def _offline(svc: Service, device_id: str, operator: str, body: bytes, fs:
         raise _problem(400, "the CSV body is empty: send a recording (header t,gx,gy,gz,... or gyr_x,gyr_y,gyr_z,...)")
     source = f"upload for {device_id}"
     try:
-        res, csv, n_samples = await svc.pool.run(calibrate_upload, body, fs, layout, method, source, svc.settings.max_upload_samples)
+        res, csv, n_samples = await asyncio.wait_for(
+            svc.pool.run(calibrate_upload, body, fs, layout, method, source, svc.settings.max_upload_samples),
+            timeout=svc.settings.compute_timeout_s,
+        )
+    except asyncio.TimeoutError:
+        raise _problem(503, f"calibrating this recording took longer than {svc.settings.compute_timeout_s:g} s; try again later") from None
     except TooManySamples as exc:
         raise _problem(413, str(exc)) from None
     except ProtocolError as exc:

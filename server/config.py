@@ -78,6 +78,7 @@ class Settings:
     max_turn_attempts: int = 1  # a failed turn check ends the session (1) or asks for the turn again (>1)
     link_silence_s: float = 2.0  # wall-clock seconds without samples before the link counts as lost
     reconnect_timeout_s: float = 60.0  # wall-clock seconds to get the link back before failing
+    compute_timeout_s: float = 120.0  # the estimator gets this long (wall clock) for one session
     session_timeout_s: float = 900.0  # wall-clock watchdog: no live session runs longer than this
     sse_linger_s: float = 600.0  # an ended session's event stream closes after this, or at its decision
     sse_rate_hz: float = 20.0  # live angle / progress snapshots per second (state changes are never held back)

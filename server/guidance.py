@@ -172,6 +172,10 @@ def connect_failed(detail: str) -> str:
     return f"Could not connect to the device ({detail}). Check that it is switched on, charged and in range, then start a new calibration."
 
 
+def compute_timeout(limit_s: float) -> str:
+    return f"Computing the calibration took longer than {limit_s:g} s and was stopped. Start a new calibration; if it happens again, report it."
+
+
 def timeout(limit_s: float) -> str:
     return f"The calibration did not finish within {limit_s / 60:g} minutes and was stopped. Start a new calibration."
 

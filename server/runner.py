@@ -207,10 +207,13 @@ class LiveSession:
     async def _compute(self) -> None:
         m = self.machine
         rec, stages = m.recording(), m.protocol_stages()
-        if self.pool is not None:
-            result, error, csv = await self.pool.run(calibrate_recording, rec, m.method, stages)
-        else:
-            result, error, csv = await asyncio.to_thread(calibrate_recording, rec, m.method, stages)
+        job = (self.pool.run(calibrate_recording, rec, m.method, stages) if self.pool is not None
+               else asyncio.to_thread(calibrate_recording, rec, m.method, stages))
+        try:
+            result, error, csv = await asyncio.wait_for(job, timeout=self.settings.compute_timeout_s)
+        except asyncio.TimeoutError:
+            m.fail("calibration_failed", say.compute_timeout(self.settings.compute_timeout_s))
+            return
         self._csv = csv
         if error is not None:
             m.fail("calibration_failed", f"{error} Start a new calibration.")
