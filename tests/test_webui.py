@@ -8,9 +8,19 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from webui_fixtures import *  # noqa: F403
+from webui_fixtures import (
+    OPERATOR,
+    Watch,
+    Wizard,
+    api,
+    assert_clean,
+    device_for,
+    sign_in_token,
+    upload_accepted,
+)
 
-from webui_fixtures import *  # noqa: F401,F403
-from webui_fixtures import OPERATOR, Watch, Wizard, api, assert_clean, device_for, sign_in_token, upload_accepted
+PORTRAIT_TABLET = {"width": 768, "height": 1024}
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -33,26 +43,20 @@ def test_happy_path_to_a_saved_calibration(wizard: Wizard, page: Any, webui_serv
     card = page.locator(f".device-card[data-device='{dev}']")
     assert "Ready" in card.inner_text() and "never calibrated" in card.inner_text()
     wizard.shot("01-devices")
+    assert wizard.small_targets() == []
     wizard.choose(dev)
     assert wizard.text(".instruction") == "Place the device flat against the block"
     assert "Step 1 of 7" in wizard.text(".stepno")
     wizard.shot("02-place")
+    assert wizard.small_targets() == []
     sid = wizard.start()
-    # the largest angle the live gauge showed while each turn was made
-    page.evaluate("""() => {
-      window.gaugeMax = {};
-      setInterval(() => {
-        const w = document.querySelector('.wizard'), g = document.querySelector('.gauge-text');
-        if (!w || !g || w.dataset.phase !== 'turning') return;
-        const axis = w.dataset.state.slice(5);
-        window.gaugeMax[axis] = Math.max(window.gaugeMax[axis] || 0, parseInt(g.textContent, 10));
-      }, 20);
-    }""")
+    wizard.record()
 
     wizard.wait_state("still")
     assert wizard.text(".instruction") == "Hold still"
     assert "Step 2 of 7" in wizard.text(".stepno")
     wizard.shot("03-hold-still")
+    assert wizard.small_targets() == []
     for n, axis in enumerate("xyz", start=3):
         wizard.wait_state(f"turn_{axis}")
         assert f"Step {n} of 7" in wizard.text(".stepno")
@@ -65,7 +69,7 @@ def test_happy_path_to_a_saved_calibration(wizard: Wizard, page: Any, webui_serv
 
     wizard.wait_state("done")
     # the gauge followed each turn to about a full turn (the raw reading is 360°/k)
-    gauge = page.evaluate("() => window.gaugeMax")
+    gauge = wizard.seen()["gauge"]
     assert set(gauge) == {"x", "y", "z"} and all(250 < a < 460 for a in gauge.values()), gauge
     assert wizard.text(".verdict h1") == "PASS"
     assert dev in wizard.text(".sentence") and "within the tolerances" in wizard.text(".sentence")
@@ -75,6 +79,7 @@ def test_happy_path_to_a_saved_calibration(wizard: Wizard, page: Any, webui_serv
     assert page.locator("figure.plot").count() == 2
     assert "k" in wizard.text("table.params") and page.locator(".checks li.bad").count() == 0
     page.locator("details.details").screenshot(path=str(wizard.shots / "08-details.png"))
+    assert wizard.small_targets() == []
 
     page.click("button.accept")
     page.wait_for_selector(".verdict.saved")
@@ -83,6 +88,7 @@ def test_happy_path_to_a_saved_calibration(wizard: Wizard, page: Any, webui_serv
     assert f"Accepted by {OPERATOR}" in meta and dev in meta and re.search(r"\d{2}:\d{2}", meta), meta
     assert "Step 7 of 7" in wizard.text(".stepno")
     wizard.shot("09-saved")
+    assert wizard.small_targets() == []
     with api(webui_service) as c:
         cur = c.get(f"/devices/{dev}/calibration").json()
     assert cur["session_id"] == sid and cur["operator"] == OPERATOR
@@ -93,6 +99,7 @@ def test_happy_path_to_a_saved_calibration(wizard: Wizard, page: Any, webui_serv
     page.wait_for_selector("table.history")
     assert OPERATOR in wizard.text("table.history tbody tr.current")
     wizard.shot("10-history")
+    assert wizard.small_targets() == []
     assert_clean(page_watch)
 
 
@@ -113,6 +120,29 @@ def test_moved_during_the_pause_ends_with_its_reason_and_fix(wizard: Wizard, pag
     wizard.shot("moved-during-pause")
     page.click("a.button.primary:has-text('Start again')")
     page.wait_for_selector(".wizard[data-state='place']")
+    assert_clean(page_watch)
+
+
+def test_moving_in_a_pause_resets_the_ring_with_a_gentle_warning(page: Any, retry_service: Any, artifacts: Path,
+                                                                 page_watch: Watch) -> None:
+    wizard = Wizard(page, retry_service, artifacts / "webui" / "test_moving_in_a_pause")
+    wizard.sign_in()
+    wizard.choose("mock-1")
+    sid = wizard.start()
+    wizard.record()
+    # bumped after the X turn: a warning, then the device must rest again and the turn is asked again
+    wizard.wait_state("turn_x", phase="settle")
+    page.wait_for_selector(".notice.warn:has-text('moved during the pause')")
+    wizard.shot("moved-settle")
+    assert "Put it back and hold still" == wizard.text(".instruction")
+    wizard.wait_state("turn_x", phase="turning")
+    wizard.wait_state("done", "failed")
+    seen = wizard.seen()
+    assert seen["ringMoving"], "the stillness ring never showed the device moving"
+    assert any("moved during the pause" in n for n in seen["notices"]), seen["notices"]
+    snap = session(retry_service, sid)
+    assert "moved_during_pause" in [w["code"] for w in snap["warnings"]]
+    wizard.shot("after-retry")
     assert_clean(page_watch)
 
 
@@ -188,13 +218,19 @@ def test_reload_mid_session_resumes_from_the_service(wizard: Wizard, page: Any, 
     wizard.choose(device_for("normal", 3))
     sid = wizard.start()
     wizard.wait_state("turn_y")
+    # the tablet is turned upright and the page reloaded in the middle of the Y turn
+    page.set_viewport_size(PORTRAIT_TABLET)
     page.reload()
     state = wizard.wait_state("turn_y", "turn_z", "computing", "done")
     assert page.url.endswith(f"#/session/{sid}")
     assert page.locator(".tile[data-state='done']:has-text('Turn X')").count() == 1 or state == "done"
-    wizard.shot("after-reload")
+    wizard.shot("after-reload-portrait")
+    assert page.evaluate("() => document.documentElement.scrollWidth <= window.innerWidth")
+    assert page.locator(".wiz-head button.cancel").is_visible()
     wizard.wait_state("done")
     assert wizard.text(".verdict h1") == "PASS"
+    wizard.shot("pass-portrait")
+    assert page.evaluate("() => document.documentElement.scrollWidth <= window.innerWidth")
     assert_clean(page_watch)
 
 
@@ -252,3 +288,61 @@ def test_wrong_secret_is_explained(wizard: Wizard, page: Any, page_watch: Watch)
     # the refused sign-in is the only error the browser reports
     assert_clean(page_watch, allowed_errors=("status of 401",))
     assert any("401" in e for e in page_watch.console_errors)
+
+
+def test_a_busy_device_is_explained_and_its_calibration_can_be_joined(wizard: Wizard, page: Any, webui_service: Any,
+                                                                      page_watch: Watch) -> None:
+    dev = device_for("normal", 5)
+    wizard.sign_in()
+    wizard.choose(dev)
+    # another tablet starts a calibration of the same device first
+    with api(webui_service) as c:
+        r = c.post(f"/devices/{dev}/calibrate", json={})
+        assert r.status_code == 202, r.text
+        other = r.json()["session_id"]
+        refused = c.post(f"/devices/{dev}/calibrate", json={})
+        assert refused.status_code == 409
+    page.click(".wizard[data-state='place'] button.primary")
+    page.wait_for_selector(".inline-problem .notice.error")
+    assert f"{dev} is already being calibrated on another screen" in wizard.text(".inline-problem")
+    assert refused.json()["detail"] in wizard.text(".inline-problem")
+    wizard.shot("busy")
+    page.click("a:has-text('Go to that calibration')")
+    page.wait_for_url(f"**/#/session/{other}")
+    wizard.wait_state("still", "turn_x", "turn_y")
+    page.click(".wiz-head button.cancel")
+    wizard.wait_state("cancelled")
+    assert session(webui_service, other)["state"] == "cancelled"
+    assert_clean(page_watch, allowed_errors=("status of 409",))
+
+
+def test_every_failure_reason_of_the_service_has_a_title_and_a_fix(page: Any, webui_service: Any, page_watch: Watch) -> None:
+    from server.guidance import REASONS
+
+    page.goto(webui_service.base + "/")
+    page.wait_for_selector("#operator")
+    texts = page.evaluate("""async (codes) => {
+      const m = await import('/messages.js');
+      return codes.map((c) => [c, m.REASONS[c] ? m.REASONS[c].title : null, m.REASONS[c] ? m.REASONS[c].fix : null]);
+    }""", sorted(REASONS))
+    missing = [c for c, title, fix in texts if not title or not fix]
+    assert not missing, f"reason codes without a message and fix on the page: {missing}"
+    titles = [t for _, t, _ in texts]
+    assert len(set(titles)) == len(titles), "two reasons share a title"
+    assert_clean(page_watch)
+
+
+def test_plot_data_of_a_stored_session(webui_service: Any) -> None:
+    cal = upload_accepted(webui_service, "bench-unit-9", seed=31)
+    with api(webui_service) as c:
+        r = c.get(f"/sessions/{cal['session_id']}/plot", params={"max_points": 300})
+        assert r.status_code == 200, r.text
+        tr = r.json()
+        assert c.get("/sessions/" + "0" * 32 + "/plot").status_code == 404
+    n = len(tr["t"])
+    assert 100 < n <= 300
+    assert all(len(tr[k]) == n for k in ("rate_before", "rate_after", "pose_error_before", "pose_error_after"))
+    assert [t["axis"] for t in tr["turns"]] == ["x", "y", "z"]
+    assert tr["k"] == pytest.approx(cal["k"])
+    # after calibration the device comes back to its start pose; the raw readings drift away from it
+    assert abs(tr["pose_error_after"][-1]) < 1.0 < abs(tr["pose_error_before"][-1])

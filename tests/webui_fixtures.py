@@ -6,19 +6,20 @@ Import them into a test module with ``from webui_fixtures import *``.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import re
 import shutil
 import subprocess
 import tempfile
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 from urllib.parse import urlsplit
 
 import httpx
 import pytest
-
 from server_fixtures import GYROCAL, ROOT, RunningService
 
 CHROMIUM = Path("/usr/bin/chromium")
@@ -27,7 +28,7 @@ OPERATOR = "alice"
 SECRET = "correct horse battery staple"
 MOCK_SPEED = 3.0
 # the simulated clinician of mock-N performs the N-th scenario, once, when its first session starts
-SCENARIOS = ["normal", "moved_during_still", "wrong_axis", "link_drop", "normal", "normal", "normal"]
+SCENARIOS = ["normal", "moved_during_still", "wrong_axis", "link_drop", "normal", "normal", "normal", "normal"]
 TABLET = {"width": 1024, "height": 768}
 LOCAL_HOSTS = {"127.0.0.1", "localhost", "[::1]", "::1"}
 
@@ -38,21 +39,35 @@ def device_for(scenario: str, nth: int = 1) -> str:
     return ids[nth - 1]
 
 
-@pytest.fixture(scope="module")
-def webui_service() -> Iterator[RunningService]:
-    """`gyrocal serve` with simulated wearables and an operator, on a fresh SQLite store."""
+@contextlib.contextmanager
+def running_service(scenarios: list[str], *extra: str) -> Iterator[RunningService]:
+    """`gyrocal serve` with one simulated wearable per scenario and an operator, on a fresh SQLite store."""
     tmp = Path(tempfile.mkdtemp(prefix="gyrocal-webui-"))
     db = f"sqlite:///{tmp / 'store.sqlite3'}"
-    add = subprocess.run([*GYROCAL, "operator", "--db", db, "add", OPERATOR, "--secret-stdin"], input=SECRET + "\n",
+    add = subprocess.run([*GYROCAL, "operator", "--db", db, "add", OPERATOR, "--secret-stdin"], input=SECRET + "\n", check=False,
                          cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert add.returncode == 0, add.stderr
-    svc = RunningService(["--mock", str(len(SCENARIOS)), "--mock-speed", str(MOCK_SPEED), "--mock-scenario", ",".join(SCENARIOS)], db)
+    svc = RunningService(["--mock", str(len(scenarios)), "--mock-speed", str(MOCK_SPEED), "--mock-scenario", ",".join(scenarios), *extra], db)
     svc.start()
     try:
         yield svc
     finally:
         svc.stop()
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+@pytest.fixture(scope="module")
+def webui_service() -> Iterator[RunningService]:
+    """The service the page tests run against: mock-N performs SCENARIOS[N-1], one try per turn."""
+    with running_service(SCENARIOS) as svc:
+        yield svc
+
+
+@pytest.fixture(scope="module")
+def retry_service() -> Iterator[RunningService]:
+    """A service that asks for a turn again after a fault (two tries per turn); mock-1 is bumped in a pause."""
+    with running_service(["moved_during_still"], "--max-attempts", "2") as svc:
+        yield svc
 
 
 @pytest.fixture(scope="module")
@@ -129,7 +144,7 @@ class Wizard:
         return path
 
     def sign_in(self, shot: str | None = None) -> None:
-        self.page.goto("/")
+        self.page.goto(self.service.base + "/")
         self.page.wait_for_selector("#operator")
         self.page.fill("#operator", OPERATOR)
         self.page.fill("#secret", SECRET)
@@ -156,6 +171,36 @@ class Wizard:
 
     def text(self, selector: str) -> str:
         return self.page.inner_text(selector).strip()
+
+    def record(self) -> None:
+        """Start recording, in the page, what passes too quickly to wait for: the largest angle the
+        gauge showed in each turn, whether the stillness ring showed the device moving, every notice."""
+        self.page.evaluate("""() => {
+          window.seen = { gauge: {}, ringMoving: false, notices: [] };
+          setInterval(() => {
+            const w = document.querySelector('.wizard'), g = document.querySelector('.gauge-text');
+            if (w && g && w.dataset.phase === 'turning') {
+              const axis = w.dataset.state.slice(5);
+              window.seen.gauge[axis] = Math.max(window.seen.gauge[axis] || 0, parseInt(g.textContent, 10));
+            }
+            if (document.querySelector('.ring-wrap.moving')) window.seen.ringMoving = true;
+            for (const n of document.querySelectorAll('.notice')) {
+              const t = n.textContent.trim();
+              if (!window.seen.notices.includes(t)) window.seen.notices.push(t);
+            }
+          }, 20);
+        }""")
+
+    def seen(self) -> dict[str, Any]:
+        return self.page.evaluate("() => window.seen")
+
+    def small_targets(self) -> list[str]:
+        """Visible links, buttons, inputs and summaries smaller than 44 x 44 CSS px."""
+        return self.page.evaluate("""() => [...document.querySelectorAll('a, button, input, summary')]
+          .filter((el) => el.offsetParent !== null)
+          .map((el) => [el, el.getBoundingClientRect()])
+          .filter(([el, r]) => r.width > 0 && (r.width < 44 || r.height < 44))
+          .map(([el, r]) => `${el.tagName.toLowerCase()} "${el.textContent.trim().slice(0, 30)}" ${Math.round(r.width)}x${Math.round(r.height)}`)""")
 
 
 def assert_clean(watch: Watch, allowed_errors: tuple[str, ...] = ()) -> None:

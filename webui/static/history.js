@@ -51,7 +51,7 @@ function sessionTable(sessions) {
       const o = outcome(sess);
       return h("tr", null,
         h("td", null, h("a", { href: `#/session/${sess.session_id}` }, fmtDateTime(sess.started_at))),
-        h("td", { class: `outcome ${o.cls}` }, icon(o.icon), h("span", null, o.text)),
+        h("td", null, h("span", { class: `outcome ${o.cls}` }, icon(o.icon), h("span", null, o.text))),
         h("td", null, sess.operator || "—"),
         h("td", null, sess.kind === "upload" ? "uploaded recording" : "guided"));
     })));

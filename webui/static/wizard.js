@@ -99,11 +99,17 @@ export function placeView(ctx, deviceId) {
       start.disabled = false;
       start.replaceChildren(icon("play"), "Start");
       const p = requestProblem(err, "start the calibration");
-      const parts = [notice("error", "warn", `${p.title}: ${p.text}`), h("p", null, p.fix)];
+      let parts = [notice("error", "warn", `${p.title}: ${p.text}`), h("p", null, p.fix)];
       if (err.status === 409) {
         try {
           const dev = await ctx.api.get(`/devices/${encodeURIComponent(deviceId)}`);
-          if (dev.active_session) parts.push(h("a", { class: "button", href: `#/session/${dev.active_session}` }, icon("play"), "Go to that calibration"));
+          if (dev.active_session) {
+            const name = deviceLabel(dev, deviceId);
+            parts = [notice("error", "busy", `${name} is already being calibrated on another screen.`),
+              h("p", null, "Join that calibration to follow it here, or wait until it ends."),
+              h("a", { class: "button", href: `#/session/${dev.active_session}` }, icon("play"), "Go to that calibration"),
+              h("p", { class: "fineprint" }, err.detail)];
+          }
         } catch {
           // the message above already says what happened
         }
@@ -223,7 +229,8 @@ export function sessionView(ctx, sid) {
         break;
       case "rest": {
         ui.ring = stillRing();
-        const recorded = s.phase === "pause"
+        // settling after a lost connection or a moved device: the turn is kept if it was recorded already
+        const recorded = s.turns && s.turns[s.axis]
           ? h("p", { class: "recorded" }, icon("check"), `Turn ${AXIS_LABEL[s.axis]} recorded`)
           : h("p", { class: "recorded redo" }, icon("redo"), `Turn ${AXIS_LABEL[s.axis]} will be asked again`);
         content = [ui.ring, h("div", { class: "side-note" }, recorded, placePicture())];
@@ -388,7 +395,6 @@ export function sessionView(ctx, sid) {
       message,
       detailsBlock(ctx, s),
     ], cancelButton(() => ctx.go("#/devices"), "Close"));
-    if (accept) accept.focus({ preventScroll: true });
   };
 
   const savedView = async (s, cal) => {
@@ -533,7 +539,7 @@ function detailsBlock(ctx, s) {
       h("dl", { class: "facts" }, facts.map(([k, v]) => h("div", null, h("dt", null, k), h("dd", null, String(v))))),
       h("h2", null, "Before and after calibration"),
       plots,
-      h("p", null, h("a", { href: `/sessions/${s.session_id}/recording`, download: `${s.session_id}.csv` }, "Download the raw recording (CSV)"))));
+      h("p", null, h("a", { class: "download", href: `/sessions/${s.session_id}/recording`, download: `${s.session_id}.csv` }, "Download the raw recording (CSV)"))));
   let loaded = false;
   det.addEventListener("toggle", async () => {
     if (!det.open || loaded) return;
