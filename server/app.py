@@ -605,7 +605,12 @@ def create_app(settings: Settings | None = None, service: Service | None = None)
         """A device's sessions, newest first, whatever their outcome (kept for audit)."""
         _check_device_id(device_id)
         rows = await asyncio.to_thread(svc.store.sessions, device_id, limit)
-        return [finite(_stored_snapshot(r)) for r in rows]
+        out = []
+        for r in rows:
+            live = svc.sessions.get(r["id"])
+            # a running session's row is written at its start and end: show its live state instead
+            out.append(finite(await _session_snapshot(svc, r["id"]) if live is not None else _stored_snapshot(r)))
+        return out
 
     @app.get("/audit", response_model=list[M.AuditEntry], responses=R401, tags=["service"])
     async def audit(
