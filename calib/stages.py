@@ -9,7 +9,15 @@ One causal algorithm serves both uses: ``StageTracker`` runs it on a live stream
    [min_noise_dps, max_noise_dps]. It settles during the first still; decisions wait for it.
 2. Stillness. z = RMS over axes of the standard deviation in a centred window of ``window_s``,
    divided by the floor (about 1 at rest). Hysteresis: still once z < ``enter_ratio``, moving once
-   z > ``exit_ratio``.
+   z > ``exit_ratio``. A rotation at a steady rate is as quiet as rest, so the window mean must also
+   be at the rest reading: on every axis within tol = max(``rest_tol_dps``, ``rest_tol_floors`` *
+   floor) plus ``rest_drift_dps_per_s`` per second between the two (the bias may drift, not jump;
+   re-orientation moves it by far less than tol). Entering a still, the reference is the mean reading
+   of the last ``min_still_s`` of the previous still segment, dated at the middle of that span; before
+   the first still segment there is none, and the window mean must be a plausible zero-rate offset,
+   within ``max_zero_rate_dps`` on every axis. During a still, the window mean must stay within that
+   tolerance of the window mean at every earlier sample of the same still, so a spin-up too gradual
+   for z ends the still once it outpaces the allowed drift.
 3. Still segments. A still run loses ``margin_s`` on each side that touches motion (the slow start and
    end of a hand turn) and counts only if at least ``min_still_s`` remain. Everything between two
    still segments is one motion stage; shorter still runs inside it (a regrip half-way through a hand
@@ -30,6 +38,7 @@ or above ``clip_min_dps``; ``counter_gap`` when the sample counter does not adva
 from __future__ import annotations
 
 import bisect
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from typing import Literal
 
@@ -51,6 +60,10 @@ class StageConfig:
     window_s: float = 0.25  # centred window of the stillness statistic
     enter_ratio: float = 2.0  # still once the window noise is below this many noise floors
     exit_ratio: float = 3.0  # moving once it is above this many
+    rest_tol_dps: float = 0.5  # a still's window mean stays this close to the rest reading, at least
+    rest_tol_floors: float = 3.0  # ... or this many noise floors, when that is more
+    rest_drift_dps_per_s: float = 0.25  # ... plus this much per second since the reference was taken
+    max_zero_rate_dps: float = 50.0  # before the first still: largest |window mean| taken as a zero-rate offset
     margin_s: float = 0.1  # trimmed from each side of a still that touches motion
     min_still_s: float = 1.0  # shortest still segment; also the span averaged for a turn's bias
     floor_block_s: float = 0.5
@@ -69,7 +82,7 @@ class StageConfig:
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
-            zero_ok = f.name == "margin_s"
+            zero_ok = f.name in ("margin_s", "rest_drift_dps_per_s")
             if not (isinstance(value, (int, float)) and np.isfinite(value) and (value >= 0 if zero_ok else value > 0)):
                 kind = "a number >= 0" if zero_ok else "a positive number"
                 raise StageConfigError(f"StageConfig.{f.name} must be {kind}; got {value!r}")
@@ -252,6 +265,11 @@ class StageTracker:
         self._still_row: np.ndarray | None = None
         self._still_t = 0.0
         self._bias_before: np.ndarray | None = None  # mean reading - x0 of the still before the open motion
+        self._bias_before_t = 0.0  # time of the middle of the span it averages
+        # Over the current still run, min of (window mean - x0 - D t) and max of (window mean - x0 + D t),
+        # t since the first sample, D = rest_drift_dps_per_s: the levels a rest reading may still take.
+        self._env_lo = np.zeros(3)
+        self._env_hi = np.zeros(3)
         self._stages: list[Stage] = []
         self._events: list[StageEvent] = []
         self._finished = False
@@ -482,44 +500,76 @@ class StageTracker:
         hi = np.minimum(lo + w, n)
         length = (hi - lo)[:, None]
         s = st.p[hi - st.base] - st.p[lo - st.base]
-        var = np.maximum(s[:, _S2] / length - (s[:, _S1] / length) ** 2, 0.0)
+        level = s[:, _S1] / length  # window mean - x0
+        var = np.maximum(s[:, _S2] / length - level**2, 0.0)
         noise = np.sqrt(var.mean(axis=1))
         if self._blocks >= self._rank:
             floor = self._floor_after[np.maximum(hi // self._nb, self._rank)]
         else:
             floor = np.full(i.size, self._final_floor())
         z = noise / floor
-        # Hysteresis, vectorised: the state is set by the latest sample below enter or above exit.
-        event = np.zeros(i.size, dtype=np.int8)
-        event[z < self.config.enter_ratio] = 1
-        event[z > self.config.exit_ratio] = -1
-        marked = np.maximum.accumulate(np.where(event != 0, np.arange(i.size), -1))
-        prev = bool(self._state)
-        still = np.where(marked >= 0, event[np.maximum(marked, 0)] == 1, prev)
-        self._runs(i0, still)
+        cfg = self.config
+        quiet = z < cfg.enter_ratio
+        loud = z > cfg.exit_ratio
+        tol = np.maximum(cfg.rest_tol_dps, cfg.rest_tol_floors * floor)[:, None]
+        drift = cfg.rest_drift_dps_per_s
+        t = st.t[i - st.base]
+        low = level - drift * (t - self._t0)[:, None]
+        high = level + drift * (t - self._t0)[:, None]
+
+        def enters(a: int, b: int) -> np.ndarray:
+            if self._bias_before is None:  # no still yet: only a plausible zero-rate offset
+                return quiet[a:b] & (np.abs(level[a:b] + self._x0).max(axis=1) <= cfg.max_zero_rate_dps)
+            allowed = tol[a:b] + drift * (t[a:b] - self._bias_before_t)[:, None]
+            return quiet[a:b] & np.all(np.abs(level[a:b] - self._bias_before) <= allowed, axis=1)
+
+        def leaves(a: int, b: int) -> np.ndarray:
+            # |level_i - level_j| <= tol + drift (t_i - t_j) for every earlier sample j of the run.
+            # Carries the envelope on to b; past a leaving sample it is not used again.
+            lo_env = np.minimum.accumulate(np.vstack([self._env_lo, low[a:b]]), axis=0)[1:]
+            hi_env = np.maximum.accumulate(np.vstack([self._env_hi, high[a:b]]), axis=0)[1:]
+            self._env_lo, self._env_hi = lo_env[-1], hi_env[-1]
+            off = np.any((low[a:b] - tol[a:b] > lo_env) | (high[a:b] + tol[a:b] < hi_env), axis=1)
+            return loud[a:b] | off
+
+        # Walk the runs of equal state (few per second), each found by a vectorised search. A run's
+        # search depends on the one before: entering compares with the still closed last.
+        state, a, search = bool(self._state), 0, 0
+        while True:
+            k = _first_true(leaves if state else enters, search, i.size)
+            b = i.size if k is None else k
+            if b > a:
+                self._set_state(i0 + a, state)
+                self._check_qualified(i0 + b)
+            if k is None:
+                break
+            state = not state
+            if state:
+                self._env_lo, self._env_hi = low[k].copy(), high[k].copy()
+            self._set_state(i0 + k, state)
+            a, search = k, k + 1
         self._next = i1
 
-    def _runs(self, i0: int, still: np.ndarray) -> None:
-        """Walk the runs of equal state (few per second) and open/close stages."""
-        change = np.flatnonzero(still[1:] != still[:-1]) + 1
-        bounds = [0, *change.tolist(), still.size]
-        for a, b in zip(bounds[:-1], bounds[1:]):
-            state = bool(still[a])
-            g = i0 + a
-            if self._state is None or state != self._state:
-                if state:
-                    self._run_start = g
-                elif self._still_start is not None:
-                    self._close_still(g - self._m)
-                    self._open_gap(g - self._m)
-                elif self._gap_start is None:
-                    self._open_gap(0)  # the recording starts with motion or a too short still
-                self._state = state
-            if state and self._still_start is None:
-                lead = self._m if self._run_start > 0 else 0
-                qualified_at = self._run_start + lead + self._min_still + self._m - 1
-                if qualified_at < i0 + b:
-                    self._qualify(self._run_start + lead)
+    def _set_state(self, g: int, state: bool) -> None:
+        """Sample g has ``state`` (True = still): open or close stages where the state changes."""
+        if self._state is not None and state == self._state:
+            return
+        if state:
+            self._run_start = g
+        elif self._still_start is not None:
+            self._close_still(g - self._m)
+            self._open_gap(g - self._m)
+        elif self._gap_start is None:
+            self._open_gap(0)  # the recording starts with motion or a too short still
+        self._state = state
+
+    def _check_qualified(self, end: int) -> None:
+        """The still run has lasted up to sample ``end`` (exclusive): open a still once it is long enough."""
+        if self._state and self._still_start is None:
+            lead = self._m if self._run_start > 0 else 0
+            qualified_at = self._run_start + lead + self._min_still + self._m - 1
+            if qualified_at < end:
+                self._qualify(self._run_start + lead)
 
     def _open_gap(self, g: int) -> None:
         self._gap_start = g
@@ -540,6 +590,7 @@ class StageTracker:
         start = self._still_start
         span = min(self._min_still, end - start)
         self._bias_before = self._store.sums(end - span, end)[_S1] / span
+        self._bias_before_t = 0.5 * (self._store.time(end - span) + self._store.time(end - 1))
         self._emit(Stage("still", start, end, self._still_t, self._end_time(end),
                          flags=self._flags(self._still_row, end)))
         self._still_start = None
@@ -583,6 +634,21 @@ class StageTracker:
     def _emit(self, stage: Stage) -> None:
         self._stages.append(stage)
         self._events.append(StageEvent("stage_closed", stage.end_s, stage))
+
+
+def _first_true(cond: Callable[[int, int], np.ndarray], start: int, stop: int) -> int | None:
+    """First index in [start, stop) where cond(a, b) (a bool array for a..b-1) holds, else None.
+
+    Looks ahead in doubling chunks, so finding a change costs about its distance, not stop - start.
+    """
+    a, step = start, 64
+    while a < stop:
+        b = min(stop, a + step)
+        hit = np.flatnonzero(cond(a, b))
+        if hit.size:
+            return a + int(hit[0])
+        a, step = b, 2 * step
+    return None
 
 
 def detect_stages(rec: Recording, config: StageConfig | None = None) -> list[Stage]:
