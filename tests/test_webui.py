@@ -159,6 +159,7 @@ def test_wrong_axis_names_the_axis_to_turn(wizard: Wizard, page: Any, webui_serv
     assert "not Y" in wizard.text(".sentence")
     assert page.locator(".stepbar li.stopped").inner_text().strip().endswith("Turn Y")
     wizard.shot("wrong-axis")
+    assert wizard.small_targets() == []
     assert_clean(page_watch)
 
 
@@ -285,6 +286,7 @@ def test_wrong_secret_is_explained(wizard: Wizard, page: Any, page_watch: Watch)
     err = page.wait_for_selector(".form-error:not([hidden])")
     assert "do not match" in err.inner_text()
     wizard.shot("wrong-secret")
+    assert wizard.small_targets() == []
     # the refused sign-in is the only error the browser reports
     assert_clean(page_watch, allowed_errors=("status of 401",))
     assert any("401" in e for e in page_watch.console_errors)
