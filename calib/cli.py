@@ -161,6 +161,59 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    """Compare a recording with its simulation, name the physics the nominal model leaves out."""
+    from tqdm import tqdm
+
+    from .diagnosis import diagnose
+    from .errors import SampleRateUnknownError
+    from .io import read_recording
+
+    try:
+        rec = read_recording(args.file, fs=args.fs)
+    except SampleRateUnknownError as exc:
+        raise SampleRateUnknownError(f"{exc}; on the command line: --fs HZ") from None
+    with tqdm(total=100, desc="diagnose", unit="%", file=sys.stderr, disable=args.json and not sys.stderr.isatty()) as bar:
+
+        def progress(fraction: float, stage: str) -> None:
+            bar.set_postfix_str(stage, refresh=False)
+            bar.update(round(100 * fraction) - bar.n)
+
+        diag = diagnose(rec, progress=progress)
+    if args.report:
+        from .diagnosis.report import write_report
+
+        path = write_report(diag, args.report, title=str(args.file))
+        print(f"report written to {path}", file=sys.stderr)
+    if args.json:
+        print(json.dumps(diag.to_dict()))
+    else:
+        print(_diagnosis_summary(diag.to_dict(), str(args.file)))
+    return EXIT_OK
+
+
+def _diagnosis_summary(d: dict[str, Any], source: str) -> str:
+    lines = [f"gyrocal {__version__} — diagnosis of {source}", ""]
+    if d["effects"]:
+        lines.append("Effects (most important first; fit: lower is better):")
+        for e in d["effects"]:
+            lines.append(f"  {e['name']:<20} fit {e['fit']['before']:.4g} -> {e['fit']['after']:.4g}")
+            lines.append(f"      {e['evidence'].get('summary', '')}")
+    else:
+        lines.append("The nominal model explains the recording: no catalogued effect is needed.")
+    for u in d["unexplained"]:
+        lines.append(f"unexplained: {u.get('description', '')}")
+    if d["mismatches"]:
+        lines.append("")
+        lines.append("Mismatches against the nominal simulation:")
+        for m in d["mismatches"][:10]:
+            lines.append(f"  {m['where']}: {m['statistic']} = {m['observed']:.4g} (simulated {m['simulated_range'][0]:.3g} "
+                         f"to {m['simulated_range'][1]:.3g}, p = {m['p_value']:.2g})")
+    for n in d["not_identifiable"]:
+        lines.append(f"{n['name']}: {n['reason']}")
+    return "\n".join(lines)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The full argument parser, with the subcommands other gyrocal packages register."""
     parser = argparse.ArgumentParser(
@@ -223,6 +276,13 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--json", action="store_true", help="print the report as JSON")
     b.add_argument("--no-progress", action="store_true", help="no progress bar")
     b.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser("diagnose", help="compare a recording with its simulation and name the physics the model leaves out")
+    p.add_argument("file", type=Path, help="native CSV (t,gx,gy,gz,...) or imucal layout (gyr_x,...)")
+    p.add_argument("--fs", type=float, default=None, help="sample rate in Hz (required when the file has no time column)")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of the summary")
+    p.add_argument("--report", type=Path, default=None, metavar="DIR", help="write an HTML report with plots into DIR")
+    p.set_defaults(func=cmd_diagnose)
 
     p = sub.add_parser("demo", help="simulate a recording, calibrate it and compare with the truth")
     p.add_argument("--seed", type=int, default=1)

@@ -1,0 +1,397 @@
+"""Whitened residuals, Jacobians and fits of the nominal and extended models, for R recordings at once.
+
+The residual vector of a recording stacks, each whitened to unit variance under the nominal model:
+
+- ``closure`` (3 per turn): the closing rotation r_j = Log(prod_t Exp(w_t dt_t)) of each turn (deg),
+  minus the placement rotation rho_j when that effect is modelled, weighted by the covariance white
+  reading noise gives it (as in calib.closure_fit);
+- ``still`` (3 per still block): the calibrated mean rate of each still block (deg/s), 0 at rest,
+  weighted by k_i sigma_i / sqrt(N_block); the blocks carry the still means over time and whether the
+  noise inside each still is white;
+- ``tilt`` (2 per turn, with an accelerometer): the tilt across the turn measured from gravity minus
+  the modelled one (deg), weighted by the accelerometer noise;
+- ``prior`` rows of an effect (the heading of a placement error, the height of a clipped plateau).
+
+The calibrated rate w_t and its Jacobian come from ``Model.rate``; the closing rotations and their
+Jacobians from one vectorised pass per turn (same algebra as calib.closure_model, with an arbitrary
+design). Minimising the sum of squares (plus the log-determinant of a variance model) is maximum
+likelihood; its value is the fit statistic ("deviance"; lower is better).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..closure_model import left_jacobian, left_jacobian_inv, prefix_products
+from .data import DEG, Problem
+from .models import Model
+
+_IDENTITY_Q = np.array([0.0, 0.0, 0.0, 1.0])
+_CHUNK = 2_500_000  # elements of the (L, B, 3, P) Jacobian processed at once
+
+
+@dataclass
+class Closure:
+    r: np.ndarray  # (B, 3) closing rotation vectors, deg
+    jac: np.ndarray  # (B, 3, Pr) deg per parameter
+    noise: np.ndarray  # (B, 3, 3) covariance from white reading noise, deg^2
+    swept: np.ndarray  # (B, 3) integrated calibrated rate, deg
+
+
+def closure_pass(model: Model, psi_cols: np.ndarray, prob: Problem, sigma_cols: np.ndarray, jacobian: bool = True) -> Closure:
+    """Closing rotations of the R*J turns at parameters psi_cols (R*J, P), with Jacobian and noise covariance."""
+    L, B = prob.dt.shape
+    Pr = model.rate_params.size
+    step = max(1, _CHUNK // max(1, L * 3 * max(Pr, 9)))
+    parts = []
+    for s in range(0, B, step):
+        cols = slice(s, min(B, s + step))
+        parts.append(_pass_chunk(model, psi_cols[cols], prob.turn.take(cols), prob.dt[:, cols], sigma_cols[cols], jacobian))
+    return Closure(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("r", "jac", "noise", "swept")))
+
+
+def _pass_chunk(model, psi, inp, dt, sigma, jacobian) -> Closure:
+    L, B = dt.shape
+    w, dw = model.rate(psi[None], inp, jacobian=True)  # (L, B, 3), (L, B, 3, Pr)
+    wdt = dt * DEG
+    u = w * wdt[..., None]
+    swept = u.sum(axis=0) / DEG
+    q = Rotation.from_rotvec(u.reshape(-1, 3)).as_quat()
+    q = np.ascontiguousarray(q.T).reshape(4, L, B)
+    att = prefix_products(q)
+    r = Rotation.from_quat(att[:, L - 1].T).as_rotvec()
+    prev = np.empty_like(att)
+    prev[:, 0] = _IDENTITY_Q[:, None]
+    prev[:, 1:] = att[:, :-1]
+    C = Rotation.from_quat(prev.reshape(4, -1).T).as_matrix().reshape(L, B, 3, 3)
+    Hw = np.matmul(C, left_jacobian(u))
+    Hw *= wdt[..., None, None]  # rad per (deg/s) of rate at sample t, before J_l(r)^-1
+    jinv = left_jacobian_inv(r)
+    # sums over samples as batched matrix products: (B, 3, 3L) @ (B, 3L, P)
+    Hb = np.ascontiguousarray(Hw.transpose(1, 2, 0, 3)).reshape(B, 3, 3 * L)
+    Db = np.ascontiguousarray(dw.transpose(1, 0, 2, 3)).reshape(B, 3 * L, -1)
+    jac = np.matmul(jinv, np.matmul(Hb, Db)) / DEG
+    # reading noise enters the rate through dw/dm ~ K: cov of the rate noise is K diag(sigma^2) K^T
+    k = psi[:, 0:3]
+    Hs = Hw * np.abs(k * sigma)[None, :, None, :]
+    Hs = np.ascontiguousarray(Hs.transpose(1, 2, 0, 3)).reshape(B, 3, 3 * L)
+    G = np.matmul(Hs, Hs.transpose(0, 2, 1))
+    noise = np.matmul(np.matmul(jinv, G), jinv.transpose(0, 2, 1)) / DEG**2
+    return Closure(r / DEG, jac, noise, swept)
+
+
+@dataclass
+class Priors:
+    """Pseudo-observations: rows (target - psi[idx]) / sd, per recording."""
+
+    idx: np.ndarray  # (Q,) parameter indices
+    target: np.ndarray  # (R, Q)
+    sd: np.ndarray  # (R, Q)
+    coef: np.ndarray | None = None  # (R, Q, P): rows coef . psi instead of psi[idx] when given
+
+
+@dataclass
+class System:
+    res: np.ndarray  # (R, M) whitened residuals
+    jac: np.ndarray | None  # (R, M, P)
+    blocks: dict[str, slice]
+    closure: Closure
+    chol: np.ndarray  # (R, J, 3, 3) closure covariance factors, deg
+    logdet: np.ndarray  # (R,) extra log-determinant of a variance model (0 for the nominal covariance)
+
+    def deviance(self) -> np.ndarray:
+        return np.einsum("rm,rm->r", self.res, self.res) + self.logdet
+
+
+@dataclass
+class Variance:
+    """Extra covariance: per axis, still blocks (R, 3, NB, NB) and closures (R, J, 3, 3), true-rate units."""
+
+    still: np.ndarray | None = None
+    closure: np.ndarray | None = None
+    turn_bias: np.ndarray | None = None  # (R, J) variance (deg/s)^2 of a bias offset common to each turn
+    turn_path: np.ndarray | None = None  # (R, 3, L, J, NB): the expected bias wander at each turn sample from the still block rates
+
+
+def _solve_lower(Lc: np.ndarray, x: np.ndarray) -> np.ndarray:
+    y = np.empty_like(x)
+    y[..., 0, :] = x[..., 0, :] / Lc[..., 0, 0, None]
+    y[..., 1, :] = (x[..., 1, :] - Lc[..., 1, 0, None] * y[..., 0, :]) / Lc[..., 1, 1, None]
+    y[..., 2, :] = (x[..., 2, :] - Lc[..., 2, 0, None] * y[..., 0, :] - Lc[..., 2, 1, None] * y[..., 1, :]) / Lc[..., 2, 2, None]
+    return y
+
+
+def system(
+    prob: Problem,
+    model: Model,
+    psi: np.ndarray,
+    priors: Priors | None = None,
+    variance: Variance | None = None,
+    chol: np.ndarray | None = None,
+) -> System:
+    """Whitened residuals and Jacobian of R recordings at psi (R, P)."""
+    R, J, NB = prob.R, prob.J, prob.NB
+    P = model.P
+    ridx = model.rate_params
+    psi_cols = np.repeat(psi, J, axis=0)
+    sig_cols = np.repeat(prob.sigma, J, axis=0)
+    blocks: dict[str, slice] = {}
+    res_parts, jac_parts = [], []
+    logdet = np.zeros(R)
+    pos = 0
+
+    # still block rates (needed by the closures when a wandering bias links the two)
+    e, de = model.rate(psi[:, None, :], prob.block)
+    djs = np.zeros((R, NB, 3, P))
+    djs[..., ridx] = de
+
+    # closures
+    if J:
+        turn_prob = prob
+        if variance is not None and variance.turn_path is not None:
+            # the bias wander the still blocks imply, carried through each turn as an added rate
+            from dataclasses import replace as _replace
+
+            L = prob.dt.shape[0]
+            o = np.einsum("riljb,rbi->lrji", variance.turn_path, e).reshape(L, R * J, 3)
+            do = np.einsum("riljb,rbip->lrjip", variance.turn_path, djs[..., ridx]).reshape(L, R * J, 3, ridx.size)
+            turn_prob = _replace(prob, turn=_replace(prob.turn, offset=o, doffset=do))
+        cl = closure_pass(model, psi_cols, turn_prob, sig_cols)
+        r = cl.r.reshape(R, J, 3)
+        jt = np.zeros((R, J, 3, P))
+        jt[..., ridx] = cl.jac.reshape(R, J, 3, -1)
+        offsets = model.closure_offsets()
+        if offsets:
+            r = r.copy()
+            for j, s, B in offsets:
+                q = B.shape[1]
+                r[:, j] -= psi[:, s : s + q] @ B.T
+                jt[:, j, :, s : s + q] -= B
+        cov = cl.noise.reshape(R, J, 3, 3)
+        extra_cov = variance is not None and (variance.closure is not None or variance.turn_bias is not None)
+        if variance is not None and variance.closure is not None:
+            cov = cov + variance.closure
+        if variance is not None and variance.turn_bias is not None:
+            Jb = jt[..., 3:6]  # closure per deg/s of bias, (R, J, 3, 3)
+            cov = cov + variance.turn_bias[..., None, None] * np.matmul(Jb, Jb.transpose(0, 1, 3, 2))
+        if chol is None:
+            chol = np.linalg.cholesky(cov)
+            if extra_cov:
+                base = np.linalg.cholesky(cl.noise.reshape(R, J, 3, 3))
+                logdet += 2.0 * (np.log(np.einsum("rjii->rji", chol)) - np.log(np.einsum("rjii->rji", base))).sum(axis=(1, 2))
+        res_parts.append(_solve_lower(chol, r[..., None])[..., 0].reshape(R, 3 * J))
+        jac_parts.append(_solve_lower(chol, jt).reshape(R, 3 * J, P))
+        blocks["closure"] = slice(0, 3 * J)
+        pos = 3 * J
+    else:
+        cl = Closure(np.zeros((0, 3)), np.zeros((0, 3, ridx.size)), np.zeros((0, 3, 3)), np.zeros((0, 3)))
+        chol = np.zeros((R, 0, 3, 3))
+
+    # still blocks
+    k = psi[:, 0:3]
+    sd = np.abs(k)[:, None, :] * prob.sigma[:, None, :] / np.sqrt(prob.block_n)[None, :, None]  # (R, NB, 3)
+    if variance is not None and variance.still is not None:
+        # full covariance per axis: diag(sd^2) + extra
+        C = variance.still + np.einsum("rbi,bc->ribc", sd**2, np.eye(NB))
+        Lc = np.linalg.cholesky(C)  # (R, 3, NB, NB)
+        Li = np.linalg.inv(Lc)
+        ei = np.moveaxis(e, 2, 1)[..., None]  # (R, 3, NB, 1)
+        ji = np.moveaxis(djs, 2, 1)  # (R, 3, NB, P)
+        we = np.matmul(Li, ei)
+        wj = np.matmul(Li, ji)
+        res_parts.append(np.moveaxis(we[..., 0], 1, 2).reshape(R, 3 * NB))
+        jac_parts.append(np.moveaxis(wj, 1, 2).reshape(R, 3 * NB, P))
+        logdet += 2.0 * (np.log(np.einsum("ribb->rib", Lc)) - np.log(np.moveaxis(sd, 2, 1))).sum(axis=(1, 2))
+        # restricted likelihood: each axis' constant (the bias) integrated out, so that a variance it absorbs costs nothing
+        w1 = np.matmul(Li, np.ones((NB, 1)))[..., 0]  # (R, 3, NB)
+        logdet += (np.log(np.einsum("rib,rib->ri", w1, w1)) - np.log(np.sum(1.0 / sd**2, axis=1))).sum(axis=1)
+    else:
+        res_parts.append((e / sd).reshape(R, 3 * NB))
+        jac_parts.append((djs / sd[..., None]).reshape(R, 3 * NB, P))
+    blocks["still"] = slice(pos, pos + 3 * NB)
+    pos += 3 * NB
+
+    # tilt across turns (accelerometer)
+    if prob.tilt is not None and J:
+        sdt = np.where(np.isfinite(prob.tilt_sd), prob.tilt_sd, np.inf)[..., None]  # (R, J, 1)
+        y = prob.tilt.copy()
+        jtilt = np.zeros((R, J, 2, P))
+        if "placement_error" in model.slices:
+            s = model.slices["placement_error"].start
+            rho = psi[:, s : s + 3 * J].reshape(R, J, 3)
+            y = y - np.einsum("rjci,rji->rjc", prob.tilt_basis, rho)
+            for j in range(J):
+                jtilt[:, j, :, s + 3 * j : s + 3 * j + 3] = -prob.tilt_basis[:, j]
+        res_parts.append((y / sdt).reshape(R, 2 * J))
+        jac_parts.append((jtilt / sdt[..., None]).reshape(R, 2 * J, P))
+        blocks["tilt"] = slice(pos, pos + 2 * J)
+        pos += 2 * J
+
+    if priors is not None and priors.idx.size:
+        Q = priors.idx.size
+        if priors.coef is not None:
+            val = np.einsum("rqp,rp->rq", priors.coef, psi)
+            jp = -priors.coef / priors.sd[..., None]
+        else:
+            val = psi[:, priors.idx]
+            jp = np.zeros((R, Q, P))
+            jp[:, np.arange(Q), priors.idx] = -1.0 / priors.sd
+        res_parts.append((priors.target - val) / priors.sd)
+        jac_parts.append(jp)
+        blocks["prior"] = slice(pos, pos + Q)
+        pos += Q
+
+    res = np.concatenate(res_parts, axis=1)
+    jac = np.concatenate(jac_parts, axis=1)
+    return System(res, jac, blocks, cl, chol, logdet)
+
+
+# --------------------------------------------------------------------------- fitting
+
+
+@dataclass
+class Fit:
+    psi: np.ndarray  # (R, P)
+    deviance: np.ndarray  # (R,)
+    fisher: np.ndarray  # (R, P, P)
+    dof: np.ndarray  # (R,) residuals minus identified parameters
+    system: System
+    iterations: int
+    converged: np.ndarray
+    rank: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+
+def _pinv_solve(A: np.ndarray, g: np.ndarray, rcond: float = 1e-10) -> tuple[np.ndarray, np.ndarray]:
+    """Minimum-norm solutions of A x = g for stacked symmetric A (R, P, P), in scaled coordinates, and ranks."""
+    d = np.sqrt(np.maximum(np.einsum("rpp->rp", A), 1e-300))
+    An = A / (d[:, :, None] * d[:, None, :])
+    w, V = np.linalg.eigh(An)
+    keep = w > rcond * w[:, -1:]
+    inv_w = np.where(keep, 1.0 / np.where(keep, w, 1.0), 0.0)
+    x = np.einsum("rpk,rk,rqk,rq->rp", V, inv_w, V, g / d) / d
+    return x, keep.sum(axis=1)
+
+
+def covariance(fisher: np.ndarray, rcond: float = 1e-10) -> np.ndarray:
+    """Pseudo-inverse of stacked Fisher matrices (R, P, P) in scaled coordinates; inf variance where not identified."""
+    d = np.sqrt(np.maximum(np.einsum("rpp->rp", fisher), 1e-300))
+    An = fisher / (d[:, :, None] * d[:, None, :])
+    w, V = np.linalg.eigh(An)
+    keep = w > rcond * w[:, -1:]
+    inv_w = np.where(keep, 1.0 / np.where(keep, w, 1.0), 0.0)
+    cov = np.einsum("rpk,rk,rqk->rpq", V, inv_w, V) / (d[:, :, None] * d[:, None, :])
+    # a parameter with a component in the null space is not identified
+    null = np.einsum("rpk,rk->rp", V**2, (~keep).astype(float))
+    var = np.einsum("rpp->rp", cov)
+    var = np.where(null > 1e-6, np.inf, var)
+    idx = np.arange(fisher.shape[1])
+    cov[:, idx, idx] = var
+    return cov
+
+
+def gauss_newton(
+    prob: Problem,
+    model: Model,
+    psi0: np.ndarray,
+    priors: Priors | None = None,
+    variance: Variance | None = None,
+    max_iter: int = 8,
+    tol: float = 1e-3,
+) -> Fit:
+    """Gauss-Newton (weights recomputed each step) for R recordings at once, with step halving."""
+    psi = np.array(psi0, dtype=float)
+    R = psi.shape[0]
+    sys_ = system(prob, model, psi, priors, variance)
+    dev = sys_.deviance()
+    conv = np.zeros(R, dtype=bool)
+    it = 0
+    rank = np.zeros(R, dtype=np.int64)
+    for it in range(1, max_iter + 1):
+        A = np.einsum("rmp,rmq->rpq", sys_.jac, sys_.jac)
+        g = np.einsum("rmp,rm->rp", sys_.jac, sys_.res)
+        step, rank = _pinv_solve(A, -g)
+        std = np.sqrt(np.maximum(np.einsum("rpp->rp", covariance(A)), 0.0))
+        small = np.all((np.abs(step) <= tol * np.where(np.isfinite(std), std, np.inf)) | (step == 0), axis=1)
+        lam = np.ones(R)
+        new_psi = psi + step
+        new = system(prob, model, new_psi, priors, variance)
+        new_dev = new.deviance()
+        for _ in range(4):  # halve steps that made things worse
+            worse = ~(new_dev <= dev + 1e-9 * np.abs(dev)) & ~conv
+            if not worse.any():
+                break
+            lam[worse] *= 0.5
+            new_psi = psi + lam[:, None] * step
+            new = system(prob, model, new_psi, priors, variance)
+            new_dev = new.deviance()
+        psi, sys_, dev = new_psi, new, new_dev
+        conv = conv | small
+        if conv.all():
+            break
+    A = np.einsum("rmp,rmq->rpq", sys_.jac, sys_.jac)
+    _, rank = _pinv_solve(A, np.zeros((R, model.P)))
+    M = sys_.res.shape[1]
+    dof = M - rank
+    return Fit(psi, dev, A, dof.astype(float), sys_, it, conv, rank)
+
+
+# --------------------------------------------------------------------------- score statistics
+
+
+def score_statistic(
+    sys_: System, base_idx: np.ndarray, test_idx: np.ndarray, V: np.ndarray | None = None, rcond: float = 1e-8
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rao's score statistic for parameters ``test_idx`` at a fit of ``base_idx`` (the others at 0).
+
+    ``V`` (T, k) restricts the test to the directions psi[test_idx] = V c. Equals the drop of the sum
+    of squares in one Gauss-Newton step of the extended model. Returns the statistic (R,) and the
+    number of directions tested (R,).
+    """
+    Jb = sys_.jac[..., base_idx]
+    Jt = sys_.jac[..., test_idx]
+    if V is not None:
+        Jt = Jt @ V
+    e = sys_.res
+    # project the test columns and the residual off the base columns
+    A = np.einsum("rmp,rmq->rpq", Jb, Jb)
+    d = np.sqrt(np.maximum(np.einsum("rpp->rp", A), 1e-300))
+    An = A / (d[:, :, None] * d[:, None, :])
+    w, V = np.linalg.eigh(An)
+    keep = w > 1e-12 * w[:, -1:]
+    inv_w = np.where(keep, 1.0 / np.where(keep, w, 1.0), 0.0)
+    Ainv = np.einsum("rpk,rk,rqk->rpq", V, inv_w, V) / (d[:, :, None] * d[:, None, :])
+    Jt_perp = Jt - np.einsum("rmp,rpq,rnq,rnt->rmt", Jb, Ainv, Jb, Jt, optimize=True)
+    e_perp = e - np.einsum("rmp,rpq,rnq,rn->rm", Jb, Ainv, Jb, e, optimize=True)
+    g = np.einsum("rmt,rm->rt", Jt_perp, e_perp)
+    I = np.einsum("rmt,rmu->rtu", Jt_perp, Jt_perp)
+    # a test direction counts only if it is informed well beyond the rounding of the base projection
+    scale = np.sqrt(np.maximum(np.einsum("rmt,rmt->rt", Jt, Jt), 1e-300))
+    In = I / (scale[:, :, None] * scale[:, None, :])
+    w2, V2 = np.linalg.eigh(In)
+    keep2 = w2 > rcond
+    gn = g / scale
+    proj = np.einsum("rtk,rt->rk", V2, gn)
+    stat = np.einsum("rk,rk->r", np.where(keep2, proj**2 / np.where(keep2, w2, 1.0), 0.0), np.ones_like(w2))
+    return stat, keep2.sum(axis=1)
+
+
+def profile_information(fisher: np.ndarray, base_idx: np.ndarray, test_idx: np.ndarray) -> np.ndarray:
+    """Fisher information (R, T, T) of the test parameters with the base parameters profiled out."""
+    Ibb = fisher[:, base_idx][:, :, base_idx]
+    Ibt = fisher[:, base_idx][:, :, test_idx]
+    Itt = fisher[:, test_idx][:, :, test_idx]
+    sol, _ = _pinv_solve_multi(Ibb, Ibt)
+    return Itt - np.einsum("rpt,rpu->rtu", Ibt, sol)
+
+
+def _pinv_solve_multi(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, None]:
+    d = np.sqrt(np.maximum(np.einsum("rpp->rp", A), 1e-300))
+    An = A / (d[:, :, None] * d[:, None, :])
+    w, V = np.linalg.eigh(An)
+    keep = w > 1e-12 * w[:, -1:]
+    inv_w = np.where(keep, 1.0 / np.where(keep, w, 1.0), 0.0)
+    Ainv = np.einsum("rpk,rk,rqk->rpq", V, inv_w, V) / (d[:, :, None] * d[:, None, :])
+    return np.einsum("rpq,rqt->rpt", Ainv, B), None

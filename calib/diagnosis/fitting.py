@@ -1,0 +1,70 @@
+"""Nominal fits of one recording or of many replicates, and the score statistics of every effect at once."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..closure_fit import ClosureData, start_values
+from ..errors import CalibrationError, ProtocolError
+from .data import Problem
+from .engine import Fit, gauss_newton, score_statistic, system
+from .models import Model
+
+
+def still_means(prob: Problem) -> tuple[np.ndarray, np.ndarray]:
+    """Mean reading (R, S, 3) and sample count (S,) of each still, from its blocks."""
+    lay = prob.layout
+    n = lay.block_n()
+    out = np.zeros((prob.R, lay.S, 3))
+    cnt = np.zeros(lay.S)
+    for s in range(lay.S):
+        sel = lay.block_still == s
+        cnt[s] = n[sel].sum()
+        out[:, s] = (prob.block.m[:, sel] * n[sel][None, :, None]).sum(axis=1) / cnt[s]
+    return out, cnt
+
+
+def nominal_start(prob: Problem) -> np.ndarray:
+    """Starting values (R, 6) from the stills and the integrated turns (calib.closure_fit.start_values)."""
+    mean, cnt = still_means(prob)
+    data = ClosureData(prob.turn.m, prob.dt, mean, np.broadcast_to(cnt, (prob.R, cnt.size)).copy(), prob.sigma)
+    theta, _, rank = start_values(data)
+    if np.any(rank < 3) or not np.all(np.isfinite(theta)):
+        turned = ", ".join(sorted({s.axis or "?" for s in prob.layout.turns})) or "none"
+        raise ProtocolError(
+            f"the turns (about {turned}) do not rotate the device about all three of its axes: turn it a full "
+            "360 degrees about each of x, y and z, pausing about 3 s between turns"
+        )
+    return theta
+
+
+def fit_nominal(prob: Problem, psi0: np.ndarray | None = None, max_iter: int = 8) -> Fit:
+    """The nominal model g = K m + b fitted to R recordings."""
+    if prob.J == 0:
+        raise ProtocolError("no full turn was found: turn the device 360 degrees about each of its axes")
+    if prob.layout.S == 0:
+        raise ProtocolError("no still segment was found: let the device rest about 3 s before, between and after the turns")
+    psi0 = nominal_start(prob) if psi0 is None else psi0
+    fit = gauss_newton(prob, Model((), prob.J), psi0, max_iter=max_iter)
+    if not np.all(np.isfinite(fit.psi)):
+        raise CalibrationError("the nominal fit diverged: check that each turn is one full turn that ends where it began")
+    return fit
+
+
+def scores(prob: Problem, psi_nom: np.ndarray, effects: dict[str, Model]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Score statistic and identified dimension of each effect at the nominal solution psi_nom (R, 6).
+
+    ``effects`` maps a name to the nominal model extended by that effect alone.
+    """
+    out = {}
+    if not effects:
+        return out
+    union = Model(tuple(sorted({e for m in effects.values() for e in m.effects})), prob.J,
+                  next(iter(effects.values())).cap_axis)
+    psi = union.zeros(psi_nom)
+    sys_ = system(prob, union, psi)
+    base = np.arange(6)
+    for name, m in effects.items():
+        idx = np.concatenate([np.arange(union.P)[union.slices[e]] for e in m.effects])
+        out[name] = score_statistic(sys_, base, idx)
+    return out

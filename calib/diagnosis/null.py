@@ -1,0 +1,203 @@
+"""The null distribution: the same protocol simulated many times from the fitted model (parametric bootstrap).
+
+The recording's own motion is replayed: the nominal fit's calibrated rates g = K m + b define the
+true motion, set to exactly 0 in the stills and corrected in each turn by a constant rate so that
+the turn closes exactly (the nominal model's assumption). Readings are regenerated as
+m = K^-1 (g - b) plus white noise of the measured level, and the accelerometer as the stills' gravity
+(the same across each turn, since the model says the device came back) plus its measured noise.
+Each replicate is fitted with the nominal model exactly as the recording was, batched.
+
+``Replay.with_effects`` regenerates the readings with fitted effects switched on (the estimator's
+models inverted), so that the recording can be compared with a simulation that includes them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .data import DEG, Inputs, Layout, Problem, build_problem
+from .engine import closure_pass
+from .models import R0_DPS, Model
+
+
+@dataclass
+class Replay:
+    """A noise-free version of the recording under a fitted model, and the noise to add."""
+
+    layout: Layout
+    g: np.ndarray  # (n, 3) true rate, deg/s
+    m: np.ndarray  # (n, 3) noise-free readings, deg/s
+    a: np.ndarray | None  # (n, 3) noise-free specific force, g
+    temp: np.ndarray | None
+    sigma: np.ndarray  # (3,) reading noise, deg/s
+    accel_sigma: float
+    k: np.ndarray
+    b: np.ndarray
+    gm: tuple[np.ndarray, float] | None = None  # Gauss-Markov bias (sigma (3,), tau) to add per replicate
+    extra: dict = field(default_factory=dict)
+
+    def replicates(self, rng: np.random.Generator, R: int) -> tuple[np.ndarray, np.ndarray | None]:
+        """R replicates: gyro (R, n, 3), accel (R, n, 3) or None."""
+        n = self.m.shape[0]
+        gyro = self.m[None] + self.sigma * rng.standard_normal((R, n, 3))
+        if self.gm is not None:
+            sig, tau = self.gm
+            gyro -= gauss_markov(rng, R, self.layout.t, sig, tau) / self.k
+        clip = self.extra.get("full_scale")
+        if clip is not None:
+            np.clip(gyro, -clip, clip, out=gyro)
+        accel = None
+        if self.a is not None:
+            accel = self.a[None] + self.accel_sigma * rng.standard_normal((R, n, 3))
+        return gyro, accel
+
+
+def gauss_markov(rng: np.random.Generator, R: int, t: np.ndarray, sigma: np.ndarray, tau: float) -> np.ndarray:
+    """R stationary first-order Gauss-Markov paths (R, n, 3) with std sigma (3,) and time constant tau (s)."""
+    n = t.size
+    dt = np.diff(t, prepend=t[0])
+    phi = np.exp(-dt / tau)
+    drive = np.sqrt(np.maximum(1.0 - phi**2, 0.0))
+    x = np.empty((R, n, 3))
+    eps = rng.standard_normal((R, n, 3))
+    x[:, 0] = eps[:, 0]
+    for i in range(1, n):  # a first-order recursion; n is a few thousand samples
+        x[:, i] = phi[i] * x[:, i - 1] + drive[i] * eps[:, i]
+    return x * sigma
+
+
+def _close_turns(layout: Layout, g: np.ndarray, target: np.ndarray | None = None) -> np.ndarray:
+    """Subtract from each turn's rate the constant that makes it close exactly (or end at ``target`` (J, 3), deg)."""
+    J = layout.J
+    if J == 0:
+        return g
+    g = g.copy()
+    model = Model((), J)
+    one = np.array([[1.0, 1.0, 1.0, 0.0, 0.0, 0.0]])
+    prob = build_problem(layout, g[None])
+    c = np.zeros((J, 3))
+    goal = np.zeros((J, 3)) if target is None else target
+    for _ in range(4):
+        psi = np.repeat(one, J, axis=0)
+        psi[:, 3:6] = -c
+        cl = closure_pass(model, psi, prob, np.full((J, 3), 1e-3))
+        err = cl.r - goal
+        if np.max(np.abs(err)) < 1e-9:
+            break
+        dr_db = cl.jac[:, :, 3:6]  # deg per (deg/s) of constant rate
+        c += np.linalg.solve(dr_db, err[..., None])[..., 0]
+    for j, (a, b) in enumerate(layout.turn_bounds):
+        g[a:b] -= c[j]
+    return g
+
+
+def closure_targets(model: Model, psi: np.ndarray, J: int) -> np.ndarray | None:
+    """Where each turn ends under the model (deg rotation vectors, (J, 3)): its free closure offsets."""
+    offsets = model.closure_offsets()
+    if not offsets:
+        return None
+    target = np.zeros((J, 3))
+    for j, s, B in offsets:
+        target[j] += B @ psi[s : s + B.shape[1]]
+    return target
+
+
+def make_replay(
+    layout: Layout,
+    gyro: np.ndarray,
+    accel: np.ndarray | None,
+    temp: np.ndarray | None,
+    model: Model,
+    psi: np.ndarray,
+    sigma: np.ndarray,
+    accel_sigma: float | None,
+    caps: np.ndarray | None = None,
+    full_scale: float | None = None,
+) -> Replay:
+    """The noise-free replay of a recording under a fit of ``model`` at psi (P,).
+
+    The model's calibrated rate is the true motion (with clipped plateaus rebuilt when the model has
+    them); the replicates are clipped again at ``full_scale``.
+    """
+    k, b = psi[0:3], psi[3:6]
+    g, _ = model.rate(psi, Inputs(gyro, layout.t, accel, temp, caps), jacobian=False)
+    for s in layout.stills:
+        g[s.start : s.end] = 0.0
+    g = _close_turns(layout, g, closure_targets(model, psi, layout.J))
+    m = (g - b) / k
+    a = None
+    if accel is not None:
+        a = accel.copy()
+        means = [accel[s.start : s.end].mean(axis=0) for s in layout.stills]
+        # the device comes back after each turn: the still after it has the pose of the still before
+        for j in range(layout.J):
+            i0, i1 = layout.neighbours[j]
+            if i0 >= 0 and i1 >= 0:
+                means[i1] = means[i0]
+        for s, mu in zip(layout.stills, means):
+            a[s.start : s.end] = mu
+    extra = {"full_scale": full_scale} if full_scale is not None else {}
+    return Replay(layout, g, m, a, temp, np.asarray(sigma, float), float(accel_sigma or 0.0), k.copy(), b.copy(),
+                  extra=extra)
+
+
+def with_effects(replay: Replay, model: Model, psi: np.ndarray, gm: tuple[np.ndarray, float] | None = None,
+                 a_design: np.ndarray | None = None) -> Replay:
+    """The replay with the effects of ``model`` at parameters psi (P,) switched on.
+
+    Clipped plateaus are already rebuilt in the replay's motion and clipped again in its replicates.
+    """
+    sl = model.slices
+    lay = replay.layout
+    k, b = psi[0:3], psi[3:6]
+    g = replay.g
+    a = replay.a
+    if "placement_error" in sl and lay.J:
+        rho = psi[sl["placement_error"]].reshape(lay.J, 3)
+        g = _close_turns(lay, g, target=closure_targets(model, psi, lay.J))
+        if a is not None:
+            from scipy.spatial.transform import Rotation
+
+            a = a.copy()
+            for j in range(lay.J):
+                i0, i1 = lay.neighbours[j]
+                if i0 < 0 or i1 < 0:
+                    continue
+                s0, s1 = lay.stills[i0], lay.stills[i1]
+                # gravity after = R(rho)^T gravity before, for every still that follows until the pose changes
+                a[s1.start : s1.end] = Rotation.from_rotvec(rho[j] * DEG).inv().apply(a[s0.start])
+    # invert the rate model: g = f(g0), g0 = (K + U)(m - G a) + b + d t
+    g0 = g
+    if "scale_nonlinearity" in sl:
+        n = psi[sl["scale_nonlinearity"]]
+        x = np.abs(g0)
+        # |g0| (1 + n |g0| / r0) = |g|
+        with np.errstate(divide="ignore", invalid="ignore"):
+            root = np.where(np.abs(n) > 1e-12, (-1.0 + np.sqrt(np.maximum(1.0 + 4.0 * n * x / R0_DPS, 0.0))) / (2.0 * n / R0_DPS), x)
+        g0 = np.sign(g0) * root
+    if "scale_asymmetry" in sl:
+        s = psi[sl["scale_asymmetry"]]
+        g0 = g0 / (1.0 + s * np.sign(g0))
+    rest = g0 - b
+    if "bias_drift" in sl:
+        rest = rest - psi[sl["bias_drift"]] * lay.t[:, None]
+    if "bias_drift_temp" in sl and replay.temp is not None:
+        rest = rest - psi[sl["bias_drift_temp"]] * replay.temp[:, None]
+    Kmat = np.diag(k)
+    if "axis_misalignment" in sl:
+        U = psi[sl["axis_misalignment"]]
+        Kmat[0, 1], Kmat[0, 2], Kmat[1, 2] = U
+    m = np.linalg.solve(Kmat, rest.T).T
+    a_g = a if a is not None else a_design
+    if "g_sensitivity" in sl and a_g is not None:
+        m = m + a_g @ psi[sl["g_sensitivity"]].reshape(3, 3).T
+    return replace(replay, g=g, m=m, a=a, gm=gm)
+
+
+def replicate_problems(replay: Replay, rng: np.random.Generator, R: int, caps: np.ndarray | None = None,
+                       a_design: np.ndarray | None = None) -> Problem:
+    """R simulated recordings from the replay, as a Problem with the recording's layout."""
+    gyro, accel = replay.replicates(rng, R)
+    return build_problem(replay.layout, gyro, accel, replay.temp, caps, a_design)

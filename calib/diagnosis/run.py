@@ -1,0 +1,516 @@
+"""``diagnose``: compare a recording with what the simulator predicts for it, and explain the difference."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+from scipy.stats import chi2 as chi2_dist
+from scipy.stats import norm
+
+from ..errors import RecordingError
+from ..recording import Recording
+from ..stage import AXES, Stage
+from ..stages import detect_stages
+from .data import Problem, build_problem, gravity_proxy, make_layout, sample_intervals, set_design_accel
+from .engine import Fit, Priors, covariance, gauss_newton, system
+from .features import SIGNED, Features, compute_features
+from .fitting import fit_nominal
+from .models import Model
+from .null import Replay, make_replay, replicate_problems, with_effects
+from .saturation import Plateau, find_plateaus, plateau_caps
+from .select import (
+    ADVICE,
+    ALPHA,
+    Candidate,
+    ModelState,
+    Step,
+    _extend_priors_any,
+    effective_params,
+    fit_state,
+    informative_count,
+    null_fit,
+    p_value,
+    plan_tests,
+    press,
+    statistics,
+)
+from .timebase import TimeBase, analyse_timebase
+
+EFFECT_NAMES: tuple[str, ...] = (
+    "bias_drift",
+    "axis_misalignment",
+    "g_sensitivity",
+    "scale_asymmetry",
+    "scale_nonlinearity",
+    "saturation",
+    "sample_loss",
+    "placement_error",
+    "clock_error",
+    "bias_instability",
+)
+DEFAULT_BOOT = 200
+CHUNK = 50  # replicates simulated and fitted at once
+CLOCK_MIN = 5e-4  # a clock rate error below this (500 ppm) is within what the host's own clock may show
+CLOCK_Z = 6.0
+AMBIGUOUS_IC = 4.0  # an effect is named only if it beats every other by this much in the information criterion
+
+Progress = Callable[[float, str], None]
+
+
+@dataclass
+class Diagnosis:
+    """What the recording shows beyond the nominal model, and how much modelling it helps.
+
+    ``to_dict()`` gives the JSON of ``gyrocal diagnose --json``: mismatches (where the recording
+    departs from its simulation), effects (named, fitted, ranked), unexplained (clear departures no
+    catalogued effect explains), plus not_identifiable, recalibration, nominal and simulation_check.
+    """
+
+    mismatches: list[dict]
+    effects: list[dict]
+    unexplained: list[dict]
+    not_identifiable: list[dict]
+    recalibration: dict | None
+    nominal: dict
+    simulation_check: dict
+    info: dict
+    details: dict = field(default_factory=dict, repr=False)  # arrays for the report; not in to_dict()
+
+    @property
+    def names(self) -> list[str]:
+        """The named effects, most important first."""
+        return [e["name"] for e in self.effects]
+
+    def to_dict(self) -> dict[str, Any]:
+        return _jsonable({
+            "mismatches": self.mismatches,
+            "effects": self.effects,
+            "unexplained": self.unexplained,
+            "not_identifiable": self.not_identifiable,
+            "recalibration": self.recalibration,
+            "nominal": self.nominal,
+            "simulation_check": self.simulation_check,
+            "info": self.info,
+        })
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _jsonable(x.tolist())
+    if isinstance(x, (np.floating, float)):
+        v = float(x)
+        return v if np.isfinite(v) else None
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    if isinstance(x, np.bool_):
+        return bool(x)
+    return x
+
+
+# --------------------------------------------------------------------------- entry point
+
+
+def diagnose(
+    rec: Recording,
+    progress: Progress | None = None,
+    n_boot: int = DEFAULT_BOOT,
+    seed: int = 0,
+    host_t: np.ndarray | None = None,
+    stages: list[Stage] | None = None,
+) -> Diagnosis:
+    """Diagnose a recording of the protocol against the nominal model g = K m + b.
+
+    ``n_boot`` simulated replicates give the null distribution (deterministic by ``seed``).
+    ``host_t`` (n,): the time each sample reached the host, if recorded (reveals a sample-clock error).
+    ``progress(fraction, stage)`` is called as the work advances.
+    """
+    t_start = time.perf_counter()
+    say = progress or (lambda f, s: None)
+    _check(rec, host_t, n_boot)
+    say(0.0, "stages")
+    plateaus = find_plateaus(rec)
+    if stages is None:
+        stages = detect_stages(rec)
+    stages = _clipped_turns(rec, list(stages), plateaus)
+    tb = analyse_timebase(rec, host_t)
+    dt = _intervals(rec, tb)
+    layout = make_layout(rec, stages, dt)
+    caps = plateau_caps(len(rec), rec.t, plateaus) if plateaus else None
+    temp = rec.temp - rec.temp[0] if rec.temp is not None else None
+    accel = rec.accel
+    prob = build_problem(layout, rec.gyro[None], None if accel is None else accel[None], temp, caps)
+    say(0.05, "nominal fit")
+
+    fit0 = fit_nominal(prob)
+    a_design = None
+    if accel is None:
+        # no accelerometer: gravity as the protocol leaves it, the device resting flat, followed through the turns
+        a_design = gravity_proxy(layout, rec.gyro * fit0.psi[0, :3] + fit0.psi[0, 3:6])
+        set_design_accel(prob, a_design)
+    clipped = tuple(j for j, s in enumerate(layout.turns) if any(s.start <= p.start < s.end for p in plateaus))
+    base = Model(("saturation",) if clipped else (), layout.J, tuple(p.axis for p in plateaus), clipped)
+    priors = None
+    cap_fit = None
+    base_fit = fit0
+    if clipped:
+        # the clipped turns' closures are left free; a scale factor no unclipped turn fixes comes from the
+        # plateaus rebuilt from their edges, as a prior with that reconstruction's uncertainty
+        cap_model = Model(("plateau",), layout.J, tuple(p.axis for p in plateaus))
+        cap_fit = (cap_model, gauss_newton(prob, cap_model, cap_model.zeros(fit0.psi),
+                                           priors=_plateau_priors(plateaus, cap_model), max_iter=10))
+        priors = _clipped_axis_priors(layout, clipped, cap_fit[1])
+        base_fit = gauss_newton(prob, base, base.zeros(cap_fit[1].psi[:, :6]), priors=priors, max_iter=10)
+    duration = float(rec.t[-1] - rec.t[0])
+    temp_range = float(np.ptp(temp)) if temp is not None else 0.0
+    specs, union, not_ident = plan_tests(prob, base, base_fit, priors, accel is not None, temp is not None, duration,
+                                         temp_range)
+    obs_stats, sys_obs = statistics(prob, union, base, base_fit.psi, specs, priors)
+    feats = compute_features(prob, sys_obs, base_fit.psi)
+
+    # ---- the null: the recording simulated from its base fit, many times
+    say(0.1, "simulating the recording")
+    full_scale = float(np.mean([p.level for p in plateaus])) if plateaus else None
+    replay = make_replay(layout, rec.gyro, accel, temp, base, base_fit.psi[0], prob.sigma[0],
+                         None if prob.accel_sigma is None else prob.accel_sigma[0], caps, full_scale)
+    rng = np.random.default_rng(seed)
+    boot_stats, boot_feats = _bootstrap(replay, base, base_fit.psi, priors, union, specs, n_boot, rng, caps, a_design,
+                                        lambda f: say(0.1 + 0.55 * f, "simulating the recording"))
+
+    # ---- tests
+    say(0.7, "testing effects")
+    m = max(1, len(specs))
+    alpha = ALPHA / m
+    cands: list[Candidate] = []
+    tests: dict[str, dict] = {}
+    for s in specs:
+        null = null_fit(boot_stats[s.key])
+        p = p_value(float(obs_stats[s.key][0]), null)
+        tests[s.key] = {"name": s.name, "statistic": float(obs_stats[s.key][0]), "p_value": p, "null": null,
+                        "noncentrality": s.noncentrality}
+        if p < alpha:
+            cands.append(Candidate(s.name, s.key, float(obs_stats[s.key][0]), p, s.dof, null, s.noncentrality))
+
+    # ---- selection
+    say(0.75, "fitting extended models")
+    n_info = informative_count(prob, accel is not None)
+    pen = float(np.log(n_info))
+    state = ModelState(base, base_fit, priors, {}, ())
+    steps, ambiguities = _select(prob, state, cands, specs, priors, alpha, pen)
+    final = steps[-1][1] if steps else state
+
+    # ---- what the recording looks like next to a simulation with the effects
+    say(0.85, "checking the fitted model against simulation")
+    p_before = _feature_p(feats.values[0], boot_feats, feats.kinds)
+    p_after = None
+    if steps:
+        replay_fx = with_effects(replay, final.model, final.fit.psi[0], _gm(final), a_design)
+        _, feats_after = _bootstrap(replay_fx, base, base_fit.psi, priors, union, [], max(50, n_boot // 2),
+                                    np.random.default_rng(seed + 1), caps, a_design, lambda f: None)
+        p_after = _feature_p(feats.values[0], feats_after, feats.kinds)
+        boot_feats_after = feats_after
+    else:
+        boot_feats_after = None
+
+    say(0.95, "report")
+    diag = _assemble(rec, prob, layout, tb, plateaus, fit0, base, base_fit, cap_fit, steps, ambiguities, final, feats,
+                     boot_feats, boot_feats_after, p_before, p_after, tests, not_ident, specs, alpha, n_boot, duration)
+    diag.info["seconds"] = round(time.perf_counter() - t_start, 3)
+    say(1.0, "done")
+    return diag
+
+
+def _check(rec: Recording, host_t: np.ndarray | None, n_boot: int) -> None:
+    if not isinstance(rec, Recording):
+        raise RecordingError(f"expected a Recording, got {type(rec).__name__}: read files with calib.io.read_recording")
+    if len(rec) < 10:
+        raise RecordingError(f"the recording has {len(rec)} samples: record the full protocol (about 30 s)")
+    if not np.all(np.isfinite(rec.gyro)) or not np.all(np.isfinite(rec.t)):
+        raise RecordingError("the recording contains NaN or infinite values: remove or repair those samples")
+    if np.any(np.diff(rec.t) <= 0):
+        raise RecordingError("sample times must increase strictly: sort the samples and remove duplicates")
+    if host_t is not None and np.shape(host_t) != rec.t.shape:
+        raise RecordingError(f"host_t must give one host time per sample ({rec.t.size}); got shape {np.shape(host_t)}")
+    if not isinstance(n_boot, (int, np.integer)) or n_boot < 20:
+        raise RecordingError(f"n_boot must be a whole number of at least 20 simulated replicates; got {n_boot!r}")
+
+
+def _intervals(rec: Recording, tb: TimeBase) -> np.ndarray:
+    """Sample intervals: from the device's counter when the timestamps are host arrival times, else from t."""
+    if tb.index_source == "counter" and not tb.device_stamps:
+        period = tb.period / (1.0 + tb.clock_e) if tb.clock_e is not None else tb.period
+        d = np.diff(tb.index).astype(float) * period
+        return np.append(d, period)
+    return sample_intervals(rec.t)
+
+
+def _clipped_turns(rec: Recording, stages: list[Stage], plateaus: list[Plateau]) -> list[Stage]:
+    """A motion between two stills that holds clipped readings is a turn that read short: label it one."""
+    if not plateaus:
+        return stages
+    out = list(stages)
+    for i, s in enumerate(out):
+        if s.kind != "motion" or i == 0 or i == len(out) - 1:
+            continue
+        if out[i - 1].kind != "still" or out[i + 1].kind != "still":
+            continue
+        inside = [p for p in plateaus if s.start <= p.start < s.end]
+        if not inside:
+            continue
+        axis = AXES[max(inside, key=lambda p: p.n).axis]
+        sign = float(np.sign(np.median([p.sign for p in inside if AXES[p.axis] == axis])))
+        out[i] = Stage("turn", s.start, s.end, s.start_s, s.end_s, axis, 360.0 * sign, tuple(sorted(set(s.flags) | {"saturated"})))
+    return out
+
+
+def _clipped_axis_priors(layout, clipped: tuple[int, ...], cap_fit: Fit) -> Priors | None:
+    """Prior on each scale factor whose every turn was clipped: the value the rebuilt plateaus give."""
+    from .describe import _std
+
+    axes = []
+    for ax, name in enumerate(AXES):
+        turns = [j for j, s in enumerate(layout.turns) if s.axis == name]
+        if turns and set(turns) <= set(clipped):
+            axes.append(ax)
+    if not axes:
+        return None
+    std = _std(cap_fit)
+    k = cap_fit.psi[0, axes]
+    sd = np.maximum(std[axes], 2e-3 * np.abs(k))
+    return Priors(np.array(axes), k[None, :], sd[None, :])
+
+
+def _plateau_priors(plateaus: list[Plateau], model: Model) -> Priors:
+    s = model.slices["plateau"].start
+    C = len(plateaus)
+    return Priors(np.arange(s, s + C), np.array([[p.height for p in plateaus]]), np.array([[p.height_sd for p in plateaus]]))
+
+
+def _gm(state: ModelState):
+    if "bias_instability" in state.variance:
+        sigma, tau = state.variance["bias_instability"]
+        return np.full(3, sigma), tau
+    return None
+
+
+# --------------------------------------------------------------------------- bootstrap
+
+
+def _one_step(prob: Problem, model: Model, psi: np.ndarray, priors: Priors | None) -> np.ndarray:
+    """One Gauss-Newton step from psi (the replicates start at their true parameters)."""
+    from .engine import _pinv_solve
+
+    sys_ = system(prob, model, psi, priors)
+    A = np.einsum("rmp,rmq->rpq", sys_.jac, sys_.jac)
+    g = np.einsum("rmp,rm->rp", sys_.jac, sys_.res)
+    step, _ = _pinv_solve(A, -g)
+    return psi + step
+
+
+def _bootstrap(replay: Replay, base: Model, psi_base: np.ndarray, priors: Priors | None, union: Model, specs, n: int,
+               rng: np.random.Generator, caps, a_design, tick) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    stats: dict[str, list[np.ndarray]] = {s.key: [] for s in specs}
+    feats: list[np.ndarray] = []
+    done = 0
+    while done < n:
+        R = min(CHUNK, n - done)
+        prob = replicate_problems(replay, rng, R, caps, a_design)
+        pri = None
+        if priors is not None:
+            pri = Priors(priors.idx, np.repeat(priors.target, R, axis=0), np.repeat(priors.sd, R, axis=0))
+        psi = _one_step(prob, base, np.repeat(psi_base, R, axis=0), pri)
+        st, sys_ = statistics(prob, union, base, psi, specs, priors)
+        for k, v in st.items():
+            stats[k].append(v)
+        feats.append(compute_features(prob, sys_, psi).values)
+        done += R
+        tick(done / n)
+    return {k: np.concatenate(v) for k, v in stats.items()}, np.concatenate(feats)
+
+
+def _feature_p(obs: np.ndarray, boot: np.ndarray, kinds: list[str]) -> np.ndarray:
+    """p-values of observed features against bootstrap samples: Gaussian tails for signed features,
+    scaled chi-square tails for non-negative ones."""
+    p = np.ones(obs.size)
+    for i in range(obs.size):
+        b = boot[:, i]
+        b = b[np.isfinite(b)]
+        if b.size < 5:
+            continue
+        if kinds[i] == SIGNED:
+            sd = float(b.std(ddof=1))
+            z = (obs[i] - float(b.mean())) / max(sd, 1e-300)
+            p[i] = float(2.0 * norm.sf(abs(z)))
+        else:
+            p[i] = p_value(float(obs[i]), null_fit(b))
+    return p
+
+
+# --------------------------------------------------------------------------- selection
+
+
+def _select(prob: Problem, state: ModelState, cands: list[Candidate], specs, base_priors, alpha: float, pen: float):
+    """Forward selection. Returns ([(Step, ModelState)] in the order accepted, ambiguities).
+
+    A step is taken only when the best significant effect beats every other catalogued effect the
+    recording can test (significant or not) by at least ``AMBIGUOUS_IC`` in the information criterion;
+    otherwise the recording cannot tell them apart and the candidates are reported as an ambiguity.
+    """
+    steps: list[tuple[Step, ModelState]] = []
+    ambiguities: list[dict] = []
+    remaining = list(cands)
+    others = [s for s in specs if s.key not in {c.key for c in cands}]
+    cur = state
+    cur_ic = _ic(cur, pen)
+    cur_cv = press(cur.fit, prob)
+    while remaining:
+        trials = []
+        for c in remaining:
+            st = _try_fit(prob, cur, c.key, base_priors)
+            if st is None:
+                continue
+            lr = float(cur.fit.deviance[0] - st.fit.deviance[0])
+            # on top of an accepted effect, the drop is judged against the misfit that is left (quasi-likelihood
+            # F-test): a model that still leaves residuals beyond noise does not get to add effects to soak them up
+            dispersion = max(1.0, float(st.fit.deviance[0]) / max(float(st.fit.dof[0]), 1.0))
+            p = c.p_value if not steps else _conditional_p(lr / dispersion, c)
+            if p < alpha:
+                trials.append((c, st, lr, p))
+        if not trials:
+            break
+        scored = sorted(((_ic(st, pen), c, st, lr, p) for c, st, lr, p in trials), key=lambda x: x[0])
+        ic, c, st, lr, p = scored[0]
+        cv = press(st.fit, prob)
+        if not (ic < cur_ic and cv < cur_cv):
+            break
+        rivals = [(x[0], x[1].name) for x in scored[1:] if x[1].name != c.name]
+        for o in others:
+            if o.name == c.name or any(o.name == name for _, (name) in rivals) or any(s.name == o.name for s, _ in steps):
+                continue
+            ost = _try_fit(prob, cur, o.key, base_priors)
+            if ost is not None:
+                rivals.append((_ic(ost, pen), o.name))
+        close = sorted({name for r_ic, name in rivals if r_ic < ic + AMBIGUOUS_IC and name not in [x.name for x, _ in steps]})
+        if close:
+            ambiguities.append({"candidates": [c.name] + close, "ic": {c.name: ic, **{n: v for v, n in rivals if n in close}},
+                                "base": [x.name for x, _ in steps]})
+            break
+        steps.append((Step(c.name, c.key, cur.fit, st.fit, st.model, dict(st.variance), (cur_ic, ic), (cur_cv, cv), p,
+                           c.statistic), st))
+        cur, cur_ic, cur_cv = st, ic, cv
+        remaining = [r for r in remaining if r.name != c.name]
+        others = [o for o in others if o.name != c.name]
+    return steps, ambiguities
+
+
+def _try_fit(prob: Problem, cur: ModelState, key: str, base_priors) -> ModelState | None:
+    try:
+        st = fit_state(prob, cur, key, base_priors)
+    except (np.linalg.LinAlgError, ValueError, FloatingPointError):
+        return None
+    return st if np.all(np.isfinite(st.fit.psi)) and np.isfinite(st.fit.deviance[0]) else None
+
+
+def _conditional_p(lr: float, c: Candidate) -> float:
+    """p-value of a likelihood-ratio drop on top of an accepted effect.
+
+    Score effects: chi-square with the tested dimension, scaled by the bootstrap's ratio of mean to
+    dimension (the small-sample correction of the first test). Variance effects: chi-square with
+    their number of variance parameters (conservative for a parameter on its boundary).
+    """
+    lr = max(lr, 0.0)
+    if c.key == "bias_instability":
+        return float(chi2_dist.sf(lr, 2))
+    if c.key == "placement_var":
+        return float(chi2_dist.sf(lr, 1))
+    scale = max(1.0, c.null[0] * c.null[1] / max(c.dof, 1))
+    return float(chi2_dist.sf(lr / scale, max(c.dof, 1)))
+
+
+def _ic(state: ModelState, pen: float) -> float:
+    extra = 2.0 * ("bias_instability" in state.variance) + 1.0 * ("placement_var" in state.variance)
+    return float(state.fit.deviance[0]) + pen * (effective_params(state.fit) + extra)
+
+
+# --------------------------------------------------------------------------- output
+
+
+def _assemble(rec, prob, layout, tb, plateaus, fit0, base, base_fit, cap_fit, steps, ambiguities, final, feats, boot_feats,
+              boot_feats_after, p_before, p_after, tests, not_ident, specs, alpha, n_boot, duration) -> Diagnosis:
+    from .describe import describe_ambiguity, describe_effect, describe_unexplained, mismatch_rows, recalibration
+
+    effects: list[dict] = []
+    # deterministic evidence first: the time base and the gyro range
+    if base.clipped:
+        effects.append(describe_effect("saturation", prob, layout, fit0=fit0, base=base, base_fit=base_fit,
+                                       cap_fit=cap_fit, plateaus=plateaus))
+    if tb.lost > 0 and tb.index_source is not None:
+        effects.append(describe_effect("sample_loss", prob, layout, tb=tb, duration=duration))
+    clock = tb.clock_e is not None and abs(tb.clock_e) > CLOCK_MIN and abs(tb.clock_e) > CLOCK_Z * (tb.clock_std or 0.0)
+    if clock:
+        effects.append(describe_effect("clock_error", prob, layout, tb=tb))
+    for step, st in steps:
+        effects.append(describe_effect(step.name, prob, layout, step=step, state=st, tests=tests, duration=duration))
+    effects.sort(key=lambda e: -_importance(e))
+
+    not_identifiable = [{"name": n, "reason": f"not identifiable with this recording: {adv}"} for n, adv in not_ident.items()
+                        if n not in [e["name"] for e in effects]]
+    if tb.index_source is None and rec.seq is None:
+        not_identifiable.append({"name": "sample_loss", "reason": "not identifiable with this recording: the timestamps "
+                                 "are not the device's own and there is no sample counter; " + ADVICE["sample_loss"]})
+    if tb.clock_e is None:
+        not_identifiable.append({"name": "clock_error", "reason": "not identifiable with this recording: the device "
+                                 "clock only scales every turn like the scale factors do; " + ADVICE["clock_error"]})
+
+    mismatches = mismatch_rows(feats, boot_feats, p_before, alpha_features(feats), tb, plateaus, rec)
+    unexplained = describe_unexplained(prob, layout, final, feats, boot_feats_after if steps else boot_feats,
+                                       p_after if steps else p_before, alpha_features(feats), bool(effects))
+    for a in ambiguities:
+        unexplained.insert(0, describe_ambiguity(a))
+    recal = recalibration(prob, fit0, final, effects, tb, plateaus, base, cap_fit)
+    d0 = float(fit0.deviance[0])
+    nominal = {"k": fit0.psi[0, :3], "b": fit0.psi[0, 3:6], "deviance": d0, "dof": float(fit0.dof[0]),
+               "p_value": float(chi2_dist.sf(d0, max(fit0.dof[0], 1.0))), "turns": layout.J, "stills": layout.S}
+    worst_before = float(np.min(p_before)) if p_before.size else 1.0
+    sim = {
+        "features": int(p_before.size),
+        "threshold": alpha_features(feats),
+        "outside_before": int(np.sum(p_before < alpha_features(feats))),
+        "worst_p_before": worst_before,
+        "outside_after": None if p_after is None else int(np.sum(p_after < alpha_features(feats))),
+        "worst_p_after": None if p_after is None else float(np.min(p_after)),
+    }
+    info = {
+        "n_boot": n_boot,
+        "samples": len(rec),
+        "duration_s": duration,
+        "sample_rate_hz": rec.fs,
+        "channels": {"accelerometer": rec.accel is not None, "sample_counter": rec.seq is not None,
+                     "temperature": rec.temp is not None},
+        "tests": {v["name"] if k != "bias_drift_temp" else "bias_drift (temperature)": {
+            "statistic": v["statistic"], "p_value": v["p_value"], "threshold": alpha,
+            "typical_noncentrality": v["noncentrality"]} for k, v in tests.items()},
+        "timebase": tb.summary(),
+    }
+    details = {"features": feats, "boot": boot_feats, "boot_after": boot_feats_after, "p_before": p_before,
+               "p_after": p_after, "prob": prob, "fit0": fit0, "final": final, "plateaus": plateaus, "tb": tb,
+               "layout": layout, "rec": rec, "steps": steps}
+    return Diagnosis(mismatches, effects, unexplained, not_identifiable, recal, nominal, sim, info, details)
+
+
+def alpha_features(feats: Features) -> float:
+    return ALPHA / max(1, len(feats.names))
+
+
+def _importance(e: dict) -> float:
+    f = e.get("fit") or {}
+    b, a = f.get("before"), f.get("after")
+    if b is None or a is None:
+        return 0.0
+    return float(b - a)

@@ -1,0 +1,400 @@
+"""Which effects the recording shows: tests calibrated on the null bootstrap, then model selection.
+
+1. Plan. For each catalogued effect the protocol could reveal, the Fisher information of its
+   parameters with the nominal ones profiled out, in units of a typical consumer-MEMS magnitude
+   (``TYPICAL``), says how visible a typical effect would be (its noncentrality). Directions a typical
+   effect moves by less than one standard error are left out of the test; an effect whose largest
+   noncentrality is under ``IDENTIFY_MIN`` is reported as not identifiable with this protocol, with
+   the motion that would reveal it.
+2. Test. Each effect's statistic (Rao's score, or a standardised variance score) is computed on the
+   recording and on every bootstrap replicate (null.py); a scaled chi-square matched to the replicates'
+   mean and variance gives the p-value. An effect is a candidate when p < 0.05 / (number of effects
+   tested): at most a 5 % chance that a recording the nominal model explains shows any effect.
+3. Select. Candidates are fitted one at a time on top of the current model; the one with the lowest
+   information criterion (deviance + ln(n) per effective parameter, n the number of informative numbers
+   the recording holds: 3 per turn, 3 per still, 2 per measured tilt) is accepted if the criterion and
+   the leave-one-stage-out prediction error (linearised PRESS) both improve, and the others are
+   re-tested against it (likelihood ratio against the same scaled chi-square). Repeat until none is left.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.stats import chi2 as chi2_dist
+
+from .data import Problem
+from .engine import Fit, Priors, covariance, gauss_newton, profile_information, score_statistic, system
+from .models import Model
+from .variance import fit_instability, fit_placement_variance, instability_score, placement_score
+
+ALPHA = 0.05  # family-wise false-positive rate on recordings the nominal model explains
+IDENTIFY_MIN = 9.0  # noncentrality a typical effect must reach for the protocol to reveal it
+DIRECTION_MIN = 1.0  # test only directions a typical effect moves by at least one standard error
+
+# Typical magnitudes of consumer MEMS gyroscopes (datasheets of MPU-6050/9250, ICM-20948, LSM6DS3, BMI160).
+TYPICAL = {
+    "axis_misalignment": 0.008,  # cross-axis sensitivity ~1 %
+    "bias_drift_change_dps": 0.06,  # zero-rate change over a recording (0.01-0.05 (deg/s)/degC, a few degC)
+    "g_sensitivity": 0.05,  # (deg/s)/g, datasheet 0.1 typical
+    "scale_asymmetry": 0.005,
+    "scale_nonlinearity": 0.005,  # relative scale change at 1000 deg/s (0.1-0.5 % FS nonlinearity)
+    "placement_error": 0.8,  # deg per turn, a device put back by hand
+}
+
+ADVICE = {
+    "axis_misalignment": "add turns about axes between the sensor axes (e.g. with the device resting on an edge)",
+    "bias_drift": "rest the device longer, or several times spread over a longer recording",
+    "g_sensitivity": "record the accelerometer, and turn about horizontal axes and rest in several poses",
+    "scale_asymmetry": "turn about each axis both ways (clockwise and counter-clockwise)",
+    "scale_nonlinearity": "turn about each axis at two clearly different speeds (one slow, one fast turn)",
+    "placement_error": "record the accelerometer: it measures the tilt the device is put back with",
+    "sample_loss": "record the device's sample counter (or its own timestamps)",
+    "clock_error": "record the host's receive time of each sample beside the device's sample counter",
+    "bias_instability": "rest the device longer (the wander shows over tens of seconds of rest)",
+    "saturation": "the readings never reached the gyro's full scale",
+}
+
+
+@dataclass
+class TestSpec:
+    """One effect's test: its model on top of the base, the tested directions and its visibility."""
+
+    name: str  # public catalogue name
+    key: str  # model effect name (bias_drift_temp for the temperature variant), or a variance kind
+    kind: str  # "score", "instability" or "placement_var"
+    model: Model | None = None
+    idx: np.ndarray | None = None  # parameter indices in the union model
+    V: np.ndarray | None = None  # tested directions (T, k) in parameter units
+    noncentrality: float = 0.0
+    dof: int = 0
+
+
+@dataclass
+class Candidate:
+    name: str
+    key: str
+    statistic: float
+    p_value: float
+    dof: float
+    null: tuple[float, float]  # scaled chi-square (scale c, dof nu) of the bootstrap
+    noncentrality: float
+
+
+@dataclass
+class Step:
+    """One accepted effect: the fits before and after it, its criterion and validation."""
+
+    name: str
+    key: str
+    before: Fit
+    after: Fit
+    model: Model
+    extra: dict = field(default_factory=dict)  # variance parameters (sigma, tau) or (tau_p,)
+    ic: tuple[float, float] = (0.0, 0.0)
+    cv: tuple[float, float] = (0.0, 0.0)
+    p_value: float = 1.0
+    statistic: float = 0.0
+
+
+def typical_scale(key: str, P: int, prob: Problem, duration: float, temp_range: float) -> np.ndarray:
+    """Typical magnitude of each of an effect's P parameters."""
+    if key == "bias_drift":
+        return np.full(P, TYPICAL["bias_drift_change_dps"] / max(duration, 1.0))
+    if key == "bias_drift_temp":
+        return np.full(P, TYPICAL["bias_drift_change_dps"] / max(temp_range, 1e-3))
+    return np.full(P, TYPICAL[key])
+
+
+def plan_tests(
+    prob: Problem,
+    base: Model,
+    base_fit: Fit,
+    priors: Priors | None,
+    has_accel: bool,
+    has_temp: bool,
+    duration: float,
+    temp_range: float,
+) -> tuple[list[TestSpec], Model, dict[str, str]]:
+    """The tests the recording supports, the union model for the score statistics, and the effects it cannot reveal."""
+    keys = ["axis_misalignment", "bias_drift", "scale_asymmetry", "scale_nonlinearity"]
+    if has_temp and temp_range > 0.05:
+        keys.append("bias_drift_temp")
+    keys.append("g_sensitivity")  # without an accelerometer, against the gravity of a device resting flat
+    if has_accel:
+        keys.append("placement_error")
+    union = base.with_effects(*keys)
+    psi = union.zeros(base_fit.psi, base)
+    sys_ = system(prob, union, psi, _extend_priors(priors, base, union))
+    F = np.einsum("rmp,rmq->rpq", sys_.jac, sys_.jac)
+    base_idx = np.concatenate([np.arange(union.P)[union.slices[e]] for e in ("k", "b", *base.slices) if e not in ("k", "b")]
+                              + [np.arange(6)])
+    base_idx = np.unique(base_idx)
+    specs: list[TestSpec] = []
+    not_ident: dict[str, str] = {}
+    best_nc: dict[str, float] = {}
+    for key in keys:
+        idx = np.arange(union.P)[union.slices[key]]
+        if key == "placement_error":
+            # test the tilt the accelerometer measures: two directions per turn
+            V = np.zeros((idx.size, 2 * prob.J))
+            for j in range(prob.J):
+                V[3 * j : 3 * j + 3, 2 * j : 2 * j + 2] = prob.tilt_basis[0, j].T
+            finite = np.isfinite(prob.tilt_sd[0])
+            V = V[:, np.repeat(finite, 2)]
+            mu = np.full(V.shape[1], TYPICAL["placement_error"])
+            I = profile_information(F, base_idx, idx)[0]
+            Iv = V.T @ I @ V * np.outer(mu, mu)
+            w, E = np.linalg.eigh(Iv) if V.shape[1] else (np.zeros(0), np.zeros((0, 0)))
+            nc = float(w.max()) if w.size else 0.0
+            keep = w >= DIRECTION_MIN
+            Vk = (V * mu) @ E[:, keep] if keep.any() else None
+        else:
+            mu = typical_scale(key, idx.size, prob, duration, temp_range)
+            I = profile_information(F, base_idx, idx)[0] * np.outer(mu, mu)
+            w, E = np.linalg.eigh(I)
+            nc = float(w.max())
+            keep = w >= DIRECTION_MIN
+            Vk = mu[:, None] * E[:, keep] if keep.any() else None
+        name = "bias_drift" if key == "bias_drift_temp" else key
+        best_nc[name] = max(best_nc.get(name, 0.0), nc)
+        if nc < IDENTIFY_MIN or Vk is None:
+            continue
+        specs.append(TestSpec(name, key, "score", base.with_effects(key), idx, Vk, nc, int(Vk.shape[1])))
+    for name, nc in best_nc.items():
+        if not any(s.name == name for s in specs):
+            not_ident[name] = ADVICE[name]
+    if prob.layout.NB >= 4:
+        specs.append(TestSpec("bias_instability", "bias_instability", "instability", base, dof=1, noncentrality=np.inf))
+    else:
+        not_ident["bias_instability"] = ADVICE["bias_instability"]
+    if not has_accel and prob.J:
+        specs.append(TestSpec("placement_error", "placement_var", "placement_var", base, dof=1, noncentrality=np.inf))
+    return specs, union, not_ident
+
+
+def _extend_priors(priors: Priors | None, src: Model, dst: Model) -> Priors | None:
+    """The same pseudo-observations with parameter indices mapped from model ``src`` to ``dst``."""
+    if priors is None:
+        return None
+    mapping = np.zeros(src.P, dtype=np.int64)
+    for name, s in src.slices.items():
+        mapping[np.arange(s.start, s.stop)] = np.arange(dst.slices[name].start, dst.slices[name].stop)
+    return Priors(mapping[priors.idx], priors.target, priors.sd)
+
+
+def statistics(prob: Problem, union: Model, base: Model, psi_base: np.ndarray, specs: list[TestSpec],
+               priors: Priors | None) -> tuple[dict[str, np.ndarray], object]:
+    """Each test's statistic for the R recordings of ``prob`` at their base fits psi_base (R, base.P)."""
+    psi = union.zeros(psi_base, base)
+    pri = _extend_priors(priors, base, union)
+    if pri is not None and prob.R != pri.target.shape[0]:
+        pri = Priors(pri.idx, np.broadcast_to(pri.target[:1], (prob.R, pri.idx.size)).copy(),
+                     np.broadcast_to(pri.sd[:1], (prob.R, pri.idx.size)).copy())
+    sys_ = system(prob, union, psi, pri)
+    base_idx = np.unique(np.concatenate([np.arange(union.P)[union.slices[e]] for e in base.slices]))
+    out: dict[str, np.ndarray] = {}
+    for s in specs:
+        if s.kind == "score":
+            out[s.key] = score_statistic(sys_, base_idx, s.idx, s.V)[0]
+        elif s.kind == "instability":
+            out[s.key] = instability_score(prob, sys_, psi)
+        elif s.kind == "placement_var":
+            out[s.key] = placement_score(prob, sys_)
+    return out, sys_
+
+
+def null_fit(values: np.ndarray) -> tuple[float, float]:
+    """Scaled chi-square c * chi2(nu) with the mean and variance of bootstrap statistics."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    mean = float(v.mean()) if v.size else 0.0
+    var = float(v.var(ddof=1)) if v.size > 1 else 0.0
+    if mean <= 1e-12 or var <= 1e-24:
+        return max(mean, 1e-12), 1.0
+    c = var / (2.0 * mean)
+    nu = 2.0 * mean * mean / var
+    return c, max(nu, 0.05)
+
+
+def p_value(stat: float, null: tuple[float, float]) -> float:
+    c, nu = null
+    return float(chi2_dist.sf(stat / c, nu))
+
+
+# --------------------------------------------------------------------------- fits of extended models
+
+
+def informative_count(prob: Problem, has_tilt: bool) -> int:
+    n = 3 * prob.J + 3 * prob.layout.S
+    if has_tilt and prob.tilt_sd is not None:
+        n += 2 * int(np.isfinite(prob.tilt_sd[0]).sum())
+    return max(n, 2)
+
+
+def placement_priors(prob: Problem, model: Model, psi: np.ndarray) -> Priors:
+    """Heading prior of the placement rotations: rho . up ~ N(0, tau_h^2), tau_h from the measured tilts."""
+    J = prob.J
+    s = model.slices["placement_error"].start
+    tilt = prob.tilt[0]
+    finite = np.isfinite(prob.tilt_sd[0])
+    rms = float(np.sqrt(np.mean(tilt[finite] ** 2))) if finite.any() else TYPICAL["placement_error"]
+    floor = 3.0 * float(np.median(prob.tilt_sd[0][finite])) if finite.any() else 0.01
+    tau_h = max(rms, floor)
+    coef = np.zeros((1, J, model.P))
+    for j in range(J):
+        coef[0, j, s + 3 * j : s + 3 * j + 3] = prob.up[0, j]
+    return Priors(np.zeros(J, dtype=np.int64), np.zeros((1, J)), np.full((1, J), tau_h), coef)
+
+
+RIDGE = 3.0  # effect parameters carry a weak prior N(0, (RIDGE x typical)^2)
+
+
+def ridge_priors(prob: Problem, model: Model, key: str) -> Priors:
+    """Weak prior on an effect's parameters: directions the recording does not inform stay plausible."""
+    idx = np.arange(model.P)[model.slices[key]]
+    duration = float(prob.layout.t[-1]) if prob.layout.n else 1.0
+    temp_range = float(np.ptp(prob.block.temp[0])) if prob.block.temp is not None else 1.0
+    mu = typical_scale(key, idx.size, prob, duration, temp_range)
+    return Priors(idx, np.zeros((1, idx.size)), (RIDGE * mu)[None, :])
+
+
+def merge_priors(a: Priors | None, b: Priors | None, P: int) -> Priors | None:
+    """Two sets of pseudo-observations as one (rows with coefficients)."""
+    parts = [p for p in (a, b) if p is not None]
+    if not parts:
+        return None
+    coefs, targets, sds = [], [], []
+    for p in parts:
+        if p.coef is not None:
+            c = np.zeros(p.coef.shape[:2] + (P,))
+            c[..., : p.coef.shape[2]] = p.coef
+        else:
+            c = np.zeros((p.target.shape[0], p.idx.size, P))
+            c[:, np.arange(p.idx.size), p.idx] = 1.0
+        coefs.append(c)
+        targets.append(p.target)
+        sds.append(p.sd)
+    return Priors(np.zeros(sum(t.shape[1] for t in targets), dtype=np.int64), np.concatenate(targets, axis=1),
+                  np.concatenate(sds, axis=1), np.concatenate(coefs, axis=1))
+
+
+@dataclass
+class ModelState:
+    """A fitted model of the recording: effects with parameters, variance parts and priors."""
+
+    model: Model
+    fit: Fit
+    priors: Priors | None
+    variance: dict = field(default_factory=dict)  # "bias_instability": (sigma, tau), "placement_var": tau_p
+    keys: tuple[str, ...] = ()
+
+
+def fit_state(prob: Problem, state: ModelState, key: str, base_priors: Priors | None) -> ModelState:
+    """``state`` extended by the effect ``key`` and refitted."""
+    keys = state.keys + (key,)
+    model = state.model
+    variance = dict(state.variance)
+    if key == "bias_instability":
+        pri = state.priors
+        sigma, tau, fit = fit_instability(prob, model, state.fit, pri)
+        variance["bias_instability"] = (sigma, tau)
+        fit = _refit(prob, model, fit.psi, pri, variance)
+        return ModelState(model, fit, pri, variance, keys)
+    if key == "placement_var":
+        pri = state.priors
+        tp, fit = fit_placement_variance(prob, model, state.fit, pri)
+        variance["placement_var"] = tp
+        fit = _refit(prob, model, fit.psi, pri, variance)
+        return ModelState(model, fit, pri, variance, keys)
+    model = model.with_effects(key)
+    psi0 = model.zeros(state.fit.psi, state.model)
+    pri = _extend_priors_any(state.priors, state.model, model)
+    if key != "placement_error":
+        pri = merge_priors(pri, ridge_priors(prob, model, key), model.P)
+    if key == "placement_error":
+        # start the placement rotations at the measured tilts
+        s = model.slices["placement_error"].start
+        for j in range(prob.J):
+            if np.isfinite(prob.tilt_sd[0, j]):
+                psi0[0, s + 3 * j : s + 3 * j + 3] = prob.tilt_basis[0, j].T @ prob.tilt[0, j]
+        pri = merge_priors(pri, placement_priors(prob, model, psi0), model.P)
+    fit = _refit(prob, model, psi0, pri, variance)
+    return ModelState(model, fit, pri, variance, keys)
+
+
+def _extend_priors_any(priors: Priors | None, src: Model, dst: Model) -> Priors | None:
+    if priors is None:
+        return None
+    if priors.coef is None:
+        return _extend_priors(priors, src, dst)
+    mapping = np.zeros(src.P, dtype=np.int64)
+    for name, s in src.slices.items():
+        mapping[np.arange(s.start, s.stop)] = np.arange(dst.slices[name].start, dst.slices[name].stop)
+    coef = np.zeros(priors.coef.shape[:2] + (dst.P,))
+    coef[..., mapping] = priors.coef
+    return Priors(priors.idx, priors.target, priors.sd, coef)
+
+
+def variance_of(prob: Problem, psi: np.ndarray, variance: dict):
+    from .engine import Variance
+    from .variance import instability_variance
+
+    if not variance:
+        return None
+    v = Variance()
+    if "bias_instability" in variance:
+        sigma, tau = variance["bias_instability"]
+        v = instability_variance(prob, psi, sigma, tau)
+    if "placement_var" in variance:
+        tp = variance["placement_var"]
+        v.closure = np.broadcast_to(np.eye(3) * tp**2, (prob.R, prob.J, 3, 3)).copy()
+    return v
+
+
+def _refit(prob: Problem, model: Model, psi0: np.ndarray, priors: Priors | None, variance: dict, max_iter: int = 10) -> Fit:
+    return gauss_newton(prob, model, psi0, priors=priors, variance=variance_of(prob, psi0, variance), max_iter=max_iter)
+
+
+def effective_params(fit: Fit) -> float:
+    """Trace of the hat matrix: the number of parameters the data (not the priors) determine."""
+    J = fit.system.jac[0]
+    rows = fit.system.blocks.get("prior")
+    cov = covariance(fit.fisher)[0]
+    cov = np.where(np.isfinite(cov), cov, 0.0)
+    H = np.einsum("mp,pq,mq->m", J, cov, J)
+    if rows is not None:
+        H[rows] = 0.0
+    return float(H.sum())
+
+
+def press(fit: Fit, prob: Problem) -> float:
+    """Leave-one-stage-out prediction error (linearised): each turn, each still, each tilt pair held out in turn."""
+    sys_ = fit.system
+    J = sys_.jac[0]
+    e = sys_.res[0]
+    cov = covariance(fit.fisher)[0]
+    cov = np.where(np.isfinite(cov), cov, 0.0)
+    groups: list[np.ndarray] = []
+    if "closure" in sys_.blocks:
+        s = sys_.blocks["closure"].start
+        groups += [np.arange(s + 3 * j, s + 3 * j + 3) for j in range(prob.J)]
+    s0 = sys_.blocks["still"].start
+    owner = prob.layout.block_still
+    for st in range(prob.layout.S):
+        blocks = np.flatnonzero(owner == st)
+        groups.append((s0 + 3 * blocks[:, None] + np.arange(3)).ravel())
+    if "tilt" in sys_.blocks:
+        s = sys_.blocks["tilt"].start
+        groups += [np.arange(s + 2 * j, s + 2 * j + 2) for j in range(prob.J)]
+    total = 0.0
+    for g in groups:
+        Jg = J[g]
+        Hgg = Jg @ cov @ Jg.T
+        w, V = np.linalg.eigh(np.eye(g.size) - Hgg)
+        keep = w > 1e-3  # components another stage cannot predict are left out
+        proj = V[:, keep].T @ e[g]
+        # held-out predictive deviance: the prediction error has covariance (I - H_gg)^-1 (whitened)
+        total += float(np.sum(proj**2 / w[keep] - np.log(w[keep])))
+    return total + float(sys_.logdet[0])

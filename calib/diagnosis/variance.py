@@ -1,0 +1,174 @@
+"""Effects that add variance rather than a deterministic term: bias instability, and an imperfect return
+to the starting pose when no accelerometer measures it.
+
+bias_instability: g = K m + b + x(t), x a first-order Gauss-Markov process per axis with stationary
+std sigma and time constant tau (calib.effects.BiasInstability). The still blocks' mean rates then
+covary as sigma^2 exp(-|t_a - t_b| / tau) on top of the white-noise variance; b absorbs the common
+level. Statistic: the score for sigma^2 at 0, standardised, maximised over a grid of tau (REML-style:
+the constant is projected out under the white-noise weights).
+
+placement_error without an accelerometer: each turn's closure gets an extra isotropic covariance
+tau_p^2 I (the rotation the hand left the device in, unknown per turn). Statistic: the standardised
+score for tau_p^2 at 0.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from .data import Problem
+from .engine import Fit, System, Variance, gauss_newton, system
+from .models import Model
+
+TAU_GRID_S = (3.0, 10.0, 30.0, 100.0)
+
+
+def gm_correlation(tb: np.ndarray, tau: float) -> np.ndarray:
+    """exp(-|t_a - t_b| / tau) for block times tb (NB,)."""
+    return np.exp(-np.abs(tb[:, None] - tb[None, :]) / tau)
+
+
+def _still_residuals(prob: Problem, sys_: System, psi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Block mean rates e (R, 3, NB) in deg/s and their white-noise std sd (R, 3, NB)."""
+    R, NB = prob.R, prob.NB
+    z = sys_.res[:, sys_.blocks["still"]].reshape(R, NB, 3)
+    sd = np.abs(psi[:, 0:3])[:, None, :] * prob.sigma[:, None, :] / np.sqrt(prob.block_n)[None, :, None]
+    return np.moveaxis(z * sd, 2, 1), np.moveaxis(sd, 2, 1)
+
+
+def instability_score(prob: Problem, sys_: System, psi: np.ndarray, taus=TAU_GRID_S) -> np.ndarray:
+    """Standardised score for the Gauss-Markov variance, maximised over tau: (R,)."""
+    e, sd = _still_residuals(prob, sys_, psi)
+    w = 1.0 / sd**2  # (R, 3, NB)
+    # the constant is projected out (b is fitted with the turns too, so the residual's weighted mean is not 0)
+    e = e - (w * e).sum(axis=2, keepdims=True) / w.sum(axis=2, keepdims=True)
+    tb = prob.block.t[0]
+    best = np.full(prob.R, -np.inf)
+    for tau in taus:
+        M = gm_correlation(tb, tau)
+        we = w * e
+        quad = np.einsum("rib,bc,ric->ri", we, M, we)
+        trWM = np.einsum("rib,bb->ri", w, M)
+        Mw = np.einsum("bc,ric->rib", M, w)  # M W 1
+        wMw = np.einsum("rib,rib->ri", w, Mw)
+        sw = w.sum(axis=2)
+        trPM = trWM - wMw / sw
+        # I = tr(P M P M) / 2 with P = W - W 1 1' W / (1' W 1)
+        WM = w[..., :, None] * M[None, None]  # (R, 3, NB, NB)
+        tr1 = np.einsum("ribc,ricb->ri", WM, WM)
+        v = np.einsum("ribc,ric->rib", WM, w)  # W M W 1
+        tr2 = np.einsum("rib,rib->ri", v, Mw) / sw  # 1'W M W M W 1 / 1'W1
+        tr3 = (wMw / sw) ** 2
+        info = 0.5 * (tr1 - 2.0 * tr2 + tr3).sum(axis=1)
+        score = 0.5 * (quad - trPM).sum(axis=1)
+        best = np.maximum(best, score / np.sqrt(np.maximum(info, 1e-300)))
+    return np.maximum(best, 0.0) ** 2
+
+
+def instability_variance(prob: Problem, psi: np.ndarray, sigma: float, tau: float) -> Variance:
+    """Covariance a Gauss-Markov bias adds (true-rate units): across the still blocks (R, 3, NB, NB), and
+    during each turn the part of the bias the stills around it do not pin down (a common offset per
+    turn whose variance is the process's variance at the turn's middle given the still blocks)."""
+    tb = prob.block.t[0]
+    M = gm_correlation(tb, tau) * sigma**2
+    lay = prob.layout
+    turn_var = None
+    if lay.J:
+        tm = np.array([0.5 * (lay.t[s.start] + lay.t[s.end - 1]) for s in lay.turns])
+        c = sigma**2 * np.exp(-np.abs(tm[:, None] - tb[None, :]) / tau)  # (J, NB)
+        sd = np.abs(psi[:, 0:3])[:, :, None] * prob.sigma[:, :, None] / np.sqrt(prob.block_n)[None, None, :]
+        C = M[None, None] + np.einsum("rib,bc->ribc", sd**2, np.eye(tb.size))  # (R, 3, NB, NB)
+        sol = np.linalg.solve(C, np.broadcast_to(c.T, C.shape[:2] + c.T.shape))  # (R, 3, NB, J)
+        v = sigma**2 - np.einsum("jb,ribj->rij", c, sol)  # (R, 3, J)
+        turn_var = np.maximum(v.mean(axis=1), 0.0)  # one variance per turn, averaged over the axes
+        # the expected wander at every turn sample given the still block rates (kriging weights)
+        ts = prob.turn.t[:, : lay.J]  # (L, J) sample times of the first recording's turns
+        cs = sigma**2 * np.exp(-np.abs(ts[..., None] - tb[None, None, :]) / tau)  # (L, J, NB)
+        Cinv = np.linalg.inv(C)  # (R, 3, NB, NB)
+        path = np.einsum("ljb,ribc->riljc", cs, Cinv)  # (R, 3, L, J, NB)
+    else:
+        path = None
+    return Variance(still=np.broadcast_to(M, (prob.R, 3) + M.shape).copy(), turn_bias=turn_var, turn_path=path)
+
+
+def _still_deviance(e: np.ndarray, sd: np.ndarray, M: np.ndarray, sigma: float) -> float:
+    """Restricted deviance of the still block rates of one recording, e and sd (3, NB), under white noise
+    plus sigma^2 M, with each axis' constant integrated out, relative to white noise alone."""
+    total = 0.0
+    NB = e.shape[1]
+    one = np.ones(NB)
+    for i in range(3):
+        C = np.diag(sd[i] ** 2) + sigma**2 * M
+        Lc = np.linalg.cholesky(C)
+        we = np.linalg.solve(Lc, e[i])
+        w1 = np.linalg.solve(Lc, one)
+        beta = float(we @ w1) / float(w1 @ w1)
+        r = we - beta * w1
+        # restricted likelihood: the constant is integrated out, so a variance it absorbs costs nothing
+        reml = np.log(float(w1 @ w1)) - np.log(float(np.sum(1.0 / sd[i] ** 2)))
+        total += float(r @ r) + 2.0 * float(np.sum(np.log(np.diag(Lc)) - np.log(sd[i]))) + reml
+    return total
+
+
+def fit_instability(prob: Problem, model: Model, base: Fit, priors=None) -> tuple[float, float, Fit]:
+    """Maximum-likelihood (sigma, tau) of the Gauss-Markov bias for one recording, with the model refitted.
+
+    The profile over (sigma, tau) holds the rate parameters at the base fit (they barely move with the
+    still weights) and re-estimates each axis' constant; the model is refitted at the optimum.
+    """
+    psi = base.psi
+    e, sd = _still_residuals(prob, base.system, psi)
+    e, sd = e[0], sd[0]
+    tb = prob.block.t[0]
+    scale = float(np.median(sd))
+
+    def dev(log_s: float, tau: float) -> float:
+        return _still_deviance(e, sd, gm_correlation(tb, tau), float(np.exp(log_s)))
+
+    best = (np.inf, scale, TAU_GRID_S[0])
+    for tau in TAU_GRID_S + (300.0,):
+        r = minimize_scalar(lambda x: dev(x, tau), bounds=(np.log(scale * 0.05), np.log(scale * 200.0)),
+                            method="bounded", options={"xatol": 0.05})
+        if r.fun < best[0]:
+            best = (float(r.fun), float(np.exp(r.x)), tau)
+    _, sigma, tau = best
+    r = minimize_scalar(lambda lt: dev(np.log(sigma), float(np.exp(lt))), bounds=(np.log(tau / 3), np.log(tau * 3)),
+                        method="bounded", options={"xatol": 0.05})
+    tau = float(np.exp(r.x))
+    r = minimize_scalar(lambda x: dev(x, tau), bounds=(np.log(sigma / 3), np.log(sigma * 3)), method="bounded",
+                        options={"xatol": 0.02})
+    sigma = float(np.exp(r.x))
+    fit = gauss_newton(prob, model, psi, priors=priors, variance=instability_variance(prob, psi, sigma, tau), max_iter=4)
+    return sigma, tau, fit
+
+
+def placement_score(prob: Problem, sys_: System) -> np.ndarray:
+    """Standardised score for an extra isotropic closure covariance tau_p^2 I: (R,)."""
+    R, J = prob.R, prob.J
+    if J == 0:
+        return np.zeros(R)
+    r = sys_.closure.r.reshape(R, J, 3)
+    Lc = sys_.chol  # (R, J, 3, 3), C = L L^T
+    C = np.einsum("rjab,rjcb->rjac", Lc, Lc)
+    Ci = np.linalg.inv(C)
+    Cir = np.einsum("rjab,rjb->rja", Ci, r)
+    score = 0.5 * (np.einsum("rja,rja->r", Cir, Cir) - np.einsum("rjaa->r", Ci))
+    info = 0.5 * np.einsum("rjab,rjba->r", Ci, Ci)
+    return np.maximum(score / np.sqrt(info), 0.0) ** 2
+
+
+def fit_placement_variance(prob: Problem, model: Model, base: Fit, priors=None) -> tuple[float, Fit]:
+    """Maximum-likelihood tau_p (deg) of the per-turn placement rotation, with the model refitted."""
+    psi = base.psi
+    J = prob.J
+
+    def var(tp: float) -> Variance:
+        return Variance(closure=np.broadcast_to(np.eye(3) * tp**2, (prob.R, J, 3, 3)).copy())
+
+    def dev(log_t: float) -> float:
+        return float(gauss_newton(prob, model, psi, priors=priors, variance=var(float(np.exp(log_t))), max_iter=1).deviance[0])
+
+    r = minimize_scalar(dev, bounds=(np.log(1e-4), np.log(20.0)), method="bounded", options={"xatol": 0.02})
+    tp = float(np.exp(r.x))
+    return tp, gauss_newton(prob, model, psi, priors=priors, variance=var(tp), max_iter=4)

@@ -1,0 +1,206 @@
+"""Simulation against reality: the diagnosis names concealed effects, leaves null recordings alone,
+improves the fit, keeps its JSON contract, and its models agree with the simulator's."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from calib.cli import main
+from calib.concealed import EFFECT_NAMES, draw_concealed
+from calib.diagnosis import EFFECT_NAMES as DIAG_NAMES
+from calib.diagnosis import Diagnosis, diagnose
+from calib.diagnosis.data import Inputs
+from calib.diagnosis.models import Model
+from calib.diagnosis.report import write_report
+from calib.effects import (
+    AxisMisalignment,
+    BiasDrift,
+    GSensitivity,
+    ScaleAsymmetry,
+    ScaleNonlinearity,
+)
+from calib.errors import RecordingError
+from calib.io import read_recording, write_native_csv
+from calib.recording import Recording
+from calib.simulator import simulate
+
+N_BOOT = 100  # replicates per diagnosis in the tests (the default is 200)
+
+# The protocol and channels that can reveal each effect: more than one turn per axis for the effects
+# that only change how far a turn appears to go, the accelerometer for the pose, the host clock for
+# the sample clock (draw_concealed always gives host receive times).
+REVEALING = {
+    "bias_drift": ("paper", True, True),
+    "axis_misalignment": ("extended", True, True),
+    "g_sensitivity": ("paper", True, False),
+    "scale_asymmetry": ("extended", False, True),
+    "scale_nonlinearity": ("extended", True, False),
+    "saturation": ("paper", False, False),
+    "sample_loss": ("paper", True, False),
+    "placement_error": ("paper", True, True),
+    "clock_error": ("paper", False, True),
+    "bias_instability": ("extended", True, True),
+}
+
+
+SAME_EVIDENCE = {"bias_instability": {"bias_instability", "bias_drift"}, "bias_drift": {"bias_drift", "bias_instability"}}
+
+
+def _diagnose_case(effect, seed, protocol="paper", accel=True, seq=True, host=True):
+    case = draw_concealed(seed, effect, protocol=protocol, with_accel=accel, with_seq=seq)
+    return case, diagnose(case.recording, host_t=case.host_t if host else None, n_boot=N_BOOT, seed=seed)
+
+
+def test_catalogue_matches_the_simulator():
+    assert set(DIAG_NAMES) == set(EFFECT_NAMES)
+
+
+@pytest.mark.parametrize("effect", sorted(REVEALING))
+@pytest.mark.parametrize("seed", [0, 1])
+def test_concealed_effect_is_named_and_the_fit_improves(effect, seed):
+    protocol, accel, seq = REVEALING[effect]
+    case, d = _diagnose_case(effect, seed, protocol, accel, seq)
+    assert d.names, f"nothing named for {effect} (magnitude {case.magnitude:.3g})"
+    # a slow random wander and a steady drift both move the zero-rate output over time: a recording may
+    # show both, in either order; every other effect must be ranked first
+    assert d.names[0] == effect or (effect in d.names and set(d.names) <= SAME_EVIDENCE.get(effect, {effect})), (
+        f"{effect} (magnitude {case.magnitude:.3g}) named as {d.names}")
+    for e in d.effects:
+        assert e["fit"]["after"] < e["fit"]["before"], e
+    # re-simulated with the fitted effects, the recording looks like its simulations
+    check = d.simulation_check
+    if check["outside_after"] is not None:
+        assert check["outside_after"] < max(1, check["outside_before"])
+
+
+@pytest.mark.parametrize(
+    "seed,accel,seq,protocol",
+    [(0, True, True, "paper"), (1, False, False, "paper"), (2, True, False, "paper"), (3, False, True, "paper"),
+     (4, True, True, "extended")],
+)
+def test_null_recordings_name_nothing(seed, accel, seq, protocol):
+    _, d = _diagnose_case(None, seed, protocol, accel, seq)
+    assert d.effects == []
+    assert d.to_dict()["effects"] == []
+
+
+def test_json_contract_and_recalibration():
+    case, d = _diagnose_case("bias_drift", 2)
+    out = json.loads(json.dumps(d.to_dict()))
+    assert {"mismatches", "effects", "unexplained"} <= set(out)
+    for m in out["mismatches"]:
+        assert {"where", "statistic", "observed", "simulated_range", "p_value"} <= set(m)
+        assert len(m["simulated_range"]) == 2
+    assert out["mismatches"], "a drift of this size must show as mismatching still means"
+    e = out["effects"][0]
+    assert set(e) >= {"name", "parameters", "uncertainty", "fit", "evidence"}
+    assert set(e["fit"]) == {"before", "after"}
+    assert e["name"] in DIAG_NAMES
+    # the drift the diagnosis reports matches the one hidden (within 4 standard errors)
+    d_true = case.effect.rate_dps_per_s
+    d_fit = np.array(e["parameters"]["rate_dps_per_s"])
+    sd = np.array(e["uncertainty"]["rate_dps_per_s"])
+    assert np.all(np.abs(d_fit - d_true) < 4 * sd + 1e-5)
+    # the drift-aware calibration is closer to the truth than the nominal one
+    r = out["recalibration"]
+    err_new = np.abs(np.array(r["b"]) - case.truth.b).max()
+    err_old = np.abs(np.array(r["nominal"]["b"]) - case.truth.b).max()
+    assert err_new < err_old
+
+
+def test_unidentifiable_effects_are_said_so():
+    # one turn per axis cannot show a scale factor that depends on speed; without host times the clock
+    # only scales every turn like k does
+    case, d = _diagnose_case(None, 5, host=False)
+    reasons = {n["name"]: n["reason"] for n in d.not_identifiable}
+    assert "scale_nonlinearity" in reasons and "different speeds" in reasons["scale_nonlinearity"]
+    assert "clock_error" in reasons and "host" in reasons["clock_error"]
+    # a clock error in such a recording is not named
+    case, d = _diagnose_case("clock_error", 5, host=False)
+    assert "clock_error" not in d.names
+    assert "clock_error" in {n["name"] for n in d.not_identifiable}
+
+
+def test_progress_and_report(tmp_path):
+    seen = []
+    case = draw_concealed(3, "placement_error")
+    d = diagnose(case.recording, progress=lambda f, s: seen.append((f, s)), n_boot=N_BOOT)
+    fractions = [f for f, _ in seen]
+    assert fractions[0] == 0.0 and fractions[-1] == 1.0 and fractions == sorted(fractions)
+    path = write_report(d, tmp_path / "rep", title="placement")
+    text = path.read_text()
+    assert text.count("data:image/png;base64,") >= 3
+    assert "placement_error" in text
+
+
+@pytest.mark.parametrize(
+    "effect,psi_extra",
+    [
+        (BiasDrift([0.002, -0.001, 0.0015]), ("bias_drift", [0.002, -0.001, 0.0015])),
+        (AxisMisalignment([0.01, -0.006, 0.008]), ("axis_misalignment", [0.01, -0.006, 0.008])),
+        (GSensitivity(np.arange(9).reshape(3, 3) * 0.01 - 0.04), ("g_sensitivity", list(np.arange(9) * 0.01 - 0.04))),
+        (ScaleAsymmetry([0.008, -0.005, 0.003]), ("scale_asymmetry", [0.008, -0.005, 0.003])),
+        (ScaleNonlinearity([0.006, -0.004, 0.009]), ("scale_nonlinearity", [0.006, -0.004, 0.009])),
+    ],
+)
+def test_estimator_models_invert_the_simulator(effect, psi_extra):
+    """The estimator's rate model, at the simulated parameters, gives back the simulator's true rate."""
+    rec, truth = simulate(11, noise=0.0, effects=[effect], accel_noise_g=0.0)
+    name, values = psi_extra
+    model = Model((name,), 3)
+    psi = np.zeros(model.P)
+    psi[:3], psi[3:6] = truth.k, truth.b
+    psi[model.slices[name]] = values
+    w, _ = model.rate(psi, Inputs(rec.gyro, rec.t - rec.t[0], rec.accel), jacobian=False)
+    assert np.max(np.abs(w - truth.rate)) < 1e-8 * max(1.0, np.max(np.abs(truth.rate)))
+
+
+def test_cli_diagnose_json_and_report(tmp_path, capsys):
+    rec, _ = simulate(4, effects=[BiasDrift(0.004)])
+    csv = tmp_path / "drift.csv"
+    write_native_csv(rec, csv)
+    code = main(["diagnose", str(csv), "--json", "--report", str(tmp_path / "report")])
+    assert code == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["effects"] and out["effects"][0]["name"] == "bias_drift"
+    assert (tmp_path / "report" / "index.html").is_file()
+    code = main(["diagnose", str(csv)])
+    text = capsys.readouterr().out
+    assert code == 0 and "bias_drift" in text
+
+
+def test_cli_diagnose_bad_file(tmp_path, capsys):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t,gx,gy,gz\n0,1,2\n")
+    assert main(["diagnose", str(bad)]) == 2
+    assert "gyrocal: error" in capsys.readouterr().err
+
+
+def test_bad_input_is_a_clear_error():
+    with pytest.raises(RecordingError, match="expected a Recording"):
+        diagnose("not a recording")
+    rec, _ = simulate(1)
+    with pytest.raises(RecordingError, match="n_boot"):
+        diagnose(rec, n_boot=3)
+    with pytest.raises(RecordingError, match="host time"):
+        diagnose(rec, host_t=np.arange(5.0))
+    short = Recording(rec.t[:5], rec.gyro[:5])
+    with pytest.raises(RecordingError, match="samples"):
+        diagnose(short)
+
+
+def test_real_imucal_session(ferraris_csv):
+    """The real recording departs from the nominal model; the diagnosis names what explains it and
+    the fit improves."""
+    rec = read_recording(ferraris_csv, fs=102.4)
+    d = diagnose(rec, n_boot=N_BOOT)
+    assert isinstance(d, Diagnosis)
+    assert d.nominal["p_value"] < 1e-6  # white noise alone does not explain the session
+    assert d.effects
+    for e in d.effects:
+        assert e["fit"]["after"] < e["fit"]["before"]
+    assert d.simulation_check["outside_before"] > 0
+    assert d.simulation_check["outside_after"] < d.simulation_check["outside_before"]
