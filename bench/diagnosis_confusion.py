@@ -2,7 +2,7 @@
 
 For every catalogued effect (and null cases with no effect), with and without the accelerometer and
 the sample counter, ``calib.concealed.draw_concealed`` hides the effect at a random magnitude in a
-simulated recording of the protocol; ``calib.diagnosis.diagnose`` gets the recording (and the host's
+simulated recording of the protocol; ``calib.diagnosis.diagnose`` gets the recording (with the host's
 receive times, as a recording app logs them) and names what it finds. The table counts the
 top-ranked effect named per true effect; the summary gives the share named correctly, the share of
 null recordings with any effect named (false positives), and the diagnosis time.
@@ -39,7 +39,7 @@ def _case(args: tuple) -> dict:
     case = draw_concealed(seed, effect, protocol=protocol, with_accel=accel, with_seq=seq, with_temp=temp)
     t0 = time.perf_counter()
     try:
-        d = diagnose(case.recording, host_t=case.host_t, n_boot=n_boot, seed=seed)
+        d = diagnose(case.recording, n_boot=n_boot, seed=seed)
         names = d.names
         not_id = [n["name"] for n in d.not_identifiable]
         unexplained = len(d.unexplained)

@@ -10,7 +10,7 @@ from .engine import Fit, covariance
 from .features import SIGNED, UPPER, Features
 from .models import R0_DPS, Model
 from .saturation import Plateau
-from .select import ADVICE, ModelState, Step
+from .select import ADVICE, DISTINGUISH, ModelState, Step
 from .timebase import TimeBase
 
 
@@ -27,6 +27,12 @@ def _vec(v) -> list[float]:
 
 def _fmt(v, digits=3) -> str:
     return ",".join(f"{x:.{digits}g}" for x in np.ravel(v))
+
+
+def _strongest(v: np.ndarray, sd: np.ndarray) -> int:
+    """Index of the parameter furthest from 0 in standard errors."""
+    z = np.abs(v) / np.where(np.isfinite(sd) & (sd > 0), sd, np.inf)
+    return int(np.argmax(z)) if np.any(z > 0) else int(np.argmax(np.abs(v)))
 
 
 def describe_effect(name: str, prob: Problem, layout: Layout, **kw) -> dict:
@@ -53,7 +59,7 @@ def describe_effect(name: str, prob: Problem, layout: Layout, **kw) -> dict:
         s = sl["bias_drift"]
         params = {"rate_dps_per_s": _vec(psi[s]), "change_dps": _vec(psi[s] * duration)}
         unc = {"rate_dps_per_s": _vec(std[s]), "change_dps": _vec(std[s] * duration)}
-        i = int(np.argmax(np.abs(psi[s])))
+        i = _strongest(psi[s], std[s])
         summary = (f"the zero-rate output moves steadily over the recording, by {psi[s][i] * duration:+.3f} deg/s on "
                    f"{AXES[i]} in {duration:.0f} s (the still means line up in time)")
         simulate = f"bias_drift={_fmt(psi[s])}"
@@ -61,13 +67,15 @@ def describe_effect(name: str, prob: Problem, layout: Layout, **kw) -> dict:
         s = sl["bias_drift_temp"]
         params = {"temp_coeff_dps_per_c": _vec(psi[s])}
         unc = {"temp_coeff_dps_per_c": _vec(std[s])}
-        i = int(np.argmax(np.abs(psi[s])))
+        i = _strongest(psi[s], std[s])
         summary = (f"the zero-rate output follows the sensor temperature: {psi[s][i]:+.4f} (deg/s)/degC on {AXES[i]}")
+        rise = float(np.ptp(prob.block.temp[0])) if prob.block.temp is not None else 0.0
+        simulate = f"bias_drift=0:{_fmt(psi[s])}:{rise:.3g}"
     elif step.key == "axis_misalignment":
         s = sl["axis_misalignment"]
         params = {"off_diagonal": _vec(psi[s])}
         unc = {"off_diagonal": _vec(std[s])}
-        i = int(np.argmax(np.abs(psi[s])))
+        i = _strongest(psi[s], std[s])
         summary = (f"the sensor axes are not orthogonal: K_{['xy', 'xz', 'yz'][i]} = {psi[s][i]:+.4f} (a turn about one "
                    "axis leaks into another's reading)")
         simulate = f"axis_misalignment={_fmt(psi[s])}"
@@ -76,15 +84,19 @@ def describe_effect(name: str, prob: Problem, layout: Layout, **kw) -> dict:
         G = psi[s].reshape(3, 3)
         params = {"matrix_dps_per_g": G.tolist()}
         unc = {"matrix_dps_per_g": std[s].reshape(3, 3).tolist()}
-        i, j = np.unravel_index(int(np.argmax(np.abs(G))), (3, 3))
-        summary = (f"the gyro reads acceleration: {G[i, j]:+.3f} (deg/s)/g on {AXES[i]} per g along {AXES[j]}; "
-                   "the closures depend on how gravity turned during each turn")
+        i, j = np.unravel_index(_strongest(psi[s], std[s]), (3, 3))
+        poses = prob.block.a[0] if prob.block.a is not None else np.zeros((1, 3))
+        spread = float(np.ptp(poses / np.linalg.norm(poses, axis=1, keepdims=True), axis=0).max()) if poses.size else 0.0
+        where = ("the zero-rate output follows the direction of gravity from one rest pose to the next"
+                 if spread > 0.5 else "the turns close according to how gravity turned during each of them")
+        assumed = "" if prob.tilt is not None else " (no accelerometer: gravity taken along z at the start, the device resting flat)"
+        summary = f"the gyro reads acceleration: {G[i, j]:+.4f} (deg/s)/g on {AXES[i]} per g along {AXES[j]}; {where}{assumed}"
         simulate = f"g_sensitivity={_fmt(G)}"
     elif step.key == "scale_asymmetry":
         s = sl["scale_asymmetry"]
         params = {"asymmetry": _vec(psi[s])}
         unc = {"asymmetry": _vec(std[s])}
-        i = int(np.argmax(np.abs(psi[s])))
+        i = _strongest(psi[s], std[s])
         summary = (f"the scale factor differs between directions: {2 * psi[s][i] * 100:+.2f} % between positive and "
                    f"negative turns about {AXES[i]}")
         simulate = f"scale_asymmetry={_fmt(psi[s])}"
@@ -92,7 +104,7 @@ def describe_effect(name: str, prob: Problem, layout: Layout, **kw) -> dict:
         s = sl["scale_nonlinearity"]
         params = {"coeff": _vec(psi[s]), "ref_rate_dps": R0_DPS}
         unc = {"coeff": _vec(std[s])}
-        i = int(np.argmax(np.abs(psi[s])))
+        i = _strongest(psi[s], std[s])
         summary = (f"the scale factor changes with speed: {psi[s][i] * 100:+.2f} % at {R0_DPS:.0f} deg/s about "
                    f"{AXES[i]} (fast and slow turns disagree)")
         simulate = f"scale_nonlinearity={_fmt(psi[s])}"
@@ -189,6 +201,7 @@ def _loss(tb: TimeBase, layout: Layout, duration: float) -> dict:
     total = int(tb.index[-1] - tb.index[0] + 1)
     frac = tb.lost / max(total, 1)
     where = [f"{g[1]} sample(s) missing at {g[2]:.2f} s" for g in tb.gaps[:20]]
+    burst = max(1, int(round(tb.lost / max(len(tb.gaps), 1))))
     src = "the sample counter" if tb.index_source == "counter" else "the device timestamps"
     bridged = ("the calibration integrates each reading over the time to the next one, so the gaps are bridged"
                if tb.device_stamps else "the calibration spaces the samples by the counter, so the gaps are bridged")
@@ -198,7 +211,7 @@ def _loss(tb: TimeBase, layout: Layout, duration: float) -> dict:
         "uncertainty": {"lost_samples": 0, "fraction": 0.0},
         "fit": {"before": before, "after": after},
         "evidence": {"summary": f"{tb.lost} samples ({100 * frac:.2f} %) are missing in {len(tb.gaps)} gaps, seen in {src}; {bridged}",
-                     "where": where, "simulate": f"sample_loss={frac:.3g}"},
+                     "where": where, "simulate": f"sample_loss={len(tb.gaps) / max(total, 1):.3g},{burst}"},
     }
 
 
@@ -275,7 +288,7 @@ def describe_unexplained(prob: Problem, layout: Layout, final: ModelState, feats
 def describe_ambiguity(a: dict) -> dict:
     """A mismatch that two or more catalogued effects explain about equally well."""
     names = a["candidates"]
-    advice = "; ".join(f"{ADVICE[n]} ({n})" for n in names if n in ADVICE)
+    advice = "; ".join(f"{DISTINGUISH[n]} ({n})" for n in names if n in DISTINGUISH)
     base = f" on top of {', '.join(a['base'])}" if a["base"] else ""
     return {
         "where": "the recording as a whole",

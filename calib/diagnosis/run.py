@@ -128,12 +128,15 @@ def diagnose(
     """Diagnose a recording of the protocol against the nominal model g = K m + b.
 
     ``n_boot`` simulated replicates give the null distribution (deterministic by ``seed``).
-    ``host_t`` (n,): the time each sample reached the host, if recorded (reveals a sample-clock error).
+    ``host_t`` (n,): the time each sample reached the host (default: the recording's ``host_t`` channel);
+    against the device's counter it reveals a sample-clock error.
     ``progress(fraction, stage)`` is called as the work advances.
     """
     t_start = time.perf_counter()
     say = progress or (lambda f, s: None)
     _check(rec, host_t, n_boot)
+    if host_t is None:
+        host_t = getattr(rec, "host_t", None)
     say(0.0, "stages")
     plateaus = find_plateaus(rec)
     if stages is None:
@@ -397,6 +400,10 @@ def _select(prob: Problem, state: ModelState, cands: list[Candidate], specs, bas
             if ost is not None:
                 rivals.append((_ic(ost, pen), o.name))
         close = sorted({name for r_ic, name in rivals if r_ic < ic + AMBIGUOUS_IC and name not in [x.name for x, _ in steps]})
+        # a rival that explains different residuals is a second effect, not an alternative: with both
+        # modelled the criterion improves again
+        keys = {s_.name: s_.key for s_ in specs}
+        close = [n for n in close if not _complementary(prob, st, keys.get(n), base_priors, ic, pen)]
         if close:
             ambiguities.append({"candidates": [c.name] + close, "ic": {c.name: ic, **{n: v for v, n in rivals if n in close}},
                                 "base": [x.name for x, _ in steps]})
@@ -407,6 +414,13 @@ def _select(prob: Problem, state: ModelState, cands: list[Candidate], specs, bas
         remaining = [r for r in remaining if r.name != c.name]
         others = [o for o in others if o.name != c.name]
     return steps, ambiguities
+
+
+def _complementary(prob: Problem, st: ModelState, key: str | None, base_priors, ic: float, pen: float) -> bool:
+    if key is None:
+        return False
+    both = _try_fit(prob, st, key, base_priors)
+    return both is not None and _ic(both, pen) < ic - AMBIGUOUS_IC
 
 
 def _try_fit(prob: Problem, cur: ModelState, key: str, base_priors) -> ModelState | None:

@@ -51,9 +51,21 @@ ADVICE = {
     "scale_nonlinearity": "turn about each axis at two clearly different speeds (one slow, one fast turn)",
     "placement_error": "record the accelerometer: it measures the tilt the device is put back with",
     "sample_loss": "record the device's sample counter (or its own timestamps)",
-    "clock_error": "record the host's receive time of each sample beside the device's sample counter",
+    "clock_error": "record the host's receive time of each sample (the host_t column) beside the device's sample counter",
     "bias_instability": "rest the device longer (the wander shows over tens of seconds of rest)",
     "saturation": "the readings never reached the gyro's full scale",
+}
+
+
+# What tells an effect apart from the others that explain the same misfit.
+DISTINGUISH = {
+    "axis_misalignment": "turns about axes between the sensor axes",
+    "bias_drift": "a longer recording with several rests (a drift keeps its direction, a wander does not)",
+    "g_sensitivity": "rests in several poses with different axes up, recorded with the accelerometer",
+    "scale_asymmetry": "turns about each axis both ways",
+    "scale_nonlinearity": "turns about each axis at two clearly different speeds",
+    "placement_error": "the accelerometer, and putting the device back against a fixed stop after each turn",
+    "bias_instability": "a longer recording with several rests (a wander changes direction, a drift does not)",
 }
 
 
@@ -292,22 +304,15 @@ class ModelState:
 
 
 def fit_state(prob: Problem, state: ModelState, key: str, base_priors: Priors | None) -> ModelState:
-    """``state`` extended by the effect ``key`` and refitted."""
+    """``state`` extended by the effect ``key`` and refitted; variance parameters already in the model are
+    re-estimated with it (an effect that explains part of the misfit leaves less for them)."""
     keys = state.keys + (key,)
     model = state.model
     variance = dict(state.variance)
-    if key == "bias_instability":
-        pri = state.priors
-        sigma, tau, fit = fit_instability(prob, model, state.fit, pri)
-        variance["bias_instability"] = (sigma, tau)
-        fit = _refit(prob, model, fit.psi, pri, variance)
-        return ModelState(model, fit, pri, variance, keys)
-    if key == "placement_var":
-        pri = state.priors
-        tp, fit = fit_placement_variance(prob, model, state.fit, pri)
-        variance["placement_var"] = tp
-        fit = _refit(prob, model, fit.psi, pri, variance)
-        return ModelState(model, fit, pri, variance, keys)
+    pri = state.priors
+    if key in ("bias_instability", "placement_var"):
+        variance[key] = (0.0, 1.0) if key == "bias_instability" else 0.0
+        return _state(prob, model, state.fit, pri, variance, keys)
     model = model.with_effects(key)
     psi0 = model.zeros(state.fit.psi, state.model)
     pri = _extend_priors_any(state.priors, state.model, model)
@@ -321,6 +326,25 @@ def fit_state(prob: Problem, state: ModelState, key: str, base_priors: Priors | 
                 psi0[0, s + 3 * j : s + 3 * j + 3] = prob.tilt_basis[0, j].T @ prob.tilt[0, j]
         pri = merge_priors(pri, placement_priors(prob, model, psi0), model.P)
     fit = _refit(prob, model, psi0, pri, variance)
+    if variance:
+        return _state(prob, model, fit, pri, variance, keys)
+    return ModelState(model, fit, pri, variance, keys)
+
+
+def _state(prob: Problem, model: Model, fit: Fit, pri: Priors | None, variance: dict, keys) -> ModelState:
+    """Re-estimate the variance parameters at ``fit``, then refit the model with them."""
+    variance = dict(variance)
+    if "bias_instability" in variance:
+        variance["bias_instability"] = fit_instability(prob, fit, model)
+    if "placement_var" in variance:
+        others = {k: v for k, v in variance.items() if k != "placement_var"}
+
+        def deviance(tp: float) -> float:
+            var = dict(others, placement_var=tp)
+            return float(_refit(prob, model, fit.psi, pri, var, max_iter=1).deviance[0])
+
+        variance["placement_var"] = fit_placement_variance(prob, deviance)
+    fit = _refit(prob, model, fit.psi, pri, variance)
     return ModelState(model, fit, pri, variance, keys)
 
 

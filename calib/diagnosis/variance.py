@@ -111,15 +111,16 @@ def _still_deviance(e: np.ndarray, sd: np.ndarray, M: np.ndarray, sigma: float) 
     return total
 
 
-def fit_instability(prob: Problem, model: Model, base: Fit, priors=None) -> tuple[float, float, Fit]:
-    """Maximum-likelihood (sigma, tau) of the Gauss-Markov bias for one recording, with the model refitted.
+TAU_MIN_S = 2.0  # shorter correlation times are white noise at the scale of the still blocks
 
-    The profile over (sigma, tau) holds the rate parameters at the base fit (they barely move with the
-    still weights) and re-estimates each axis' constant; the model is refitted at the optimum.
-    """
+
+def fit_instability(prob: Problem, base: Fit, model: Model) -> tuple[float, float]:
+    """Maximum-likelihood (sigma, tau) of the Gauss-Markov bias of one recording (restricted likelihood of the
+    still block rates at the fit ``base`` of ``model``; the rate parameters barely move with the still weights)."""
     psi = base.psi
-    e, sd = _still_residuals(prob, base.system, psi)
-    e, sd = e[0], sd[0]
+    rate, _ = model.rate(psi[:, None, :], prob.block, jacobian=False)  # (R, NB, 3) calibrated rate at rest
+    e = np.moveaxis(rate, 2, 1)[0]
+    sd = (np.abs(psi[0, 0:3])[:, None] * prob.sigma[0][:, None] / np.sqrt(prob.block_n)[None, :])
     tb = prob.block.t[0]
     scale = float(np.median(sd))
 
@@ -133,14 +134,12 @@ def fit_instability(prob: Problem, model: Model, base: Fit, priors=None) -> tupl
         if r.fun < best[0]:
             best = (float(r.fun), float(np.exp(r.x)), tau)
     _, sigma, tau = best
-    r = minimize_scalar(lambda lt: dev(np.log(sigma), float(np.exp(lt))), bounds=(np.log(tau / 3), np.log(tau * 3)),
-                        method="bounded", options={"xatol": 0.05})
+    r = minimize_scalar(lambda lt: dev(np.log(sigma), float(np.exp(lt))),
+                        bounds=(np.log(max(TAU_MIN_S, tau / 3)), np.log(tau * 3)), method="bounded", options={"xatol": 0.05})
     tau = float(np.exp(r.x))
     r = minimize_scalar(lambda x: dev(x, tau), bounds=(np.log(sigma / 3), np.log(sigma * 3)), method="bounded",
                         options={"xatol": 0.02})
-    sigma = float(np.exp(r.x))
-    fit = gauss_newton(prob, model, psi, priors=priors, variance=instability_variance(prob, psi, sigma, tau), max_iter=4)
-    return sigma, tau, fit
+    return float(np.exp(r.x)), tau
 
 
 def placement_score(prob: Problem, sys_: System) -> np.ndarray:
@@ -158,17 +157,8 @@ def placement_score(prob: Problem, sys_: System) -> np.ndarray:
     return np.maximum(score / np.sqrt(info), 0.0) ** 2
 
 
-def fit_placement_variance(prob: Problem, model: Model, base: Fit, priors=None) -> tuple[float, Fit]:
-    """Maximum-likelihood tau_p (deg) of the per-turn placement rotation, with the model refitted."""
-    psi = base.psi
-    J = prob.J
-
-    def var(tp: float) -> Variance:
-        return Variance(closure=np.broadcast_to(np.eye(3) * tp**2, (prob.R, J, 3, 3)).copy())
-
-    def dev(log_t: float) -> float:
-        return float(gauss_newton(prob, model, psi, priors=priors, variance=var(float(np.exp(log_t))), max_iter=1).deviance[0])
-
-    r = minimize_scalar(dev, bounds=(np.log(1e-4), np.log(20.0)), method="bounded", options={"xatol": 0.02})
-    tp = float(np.exp(r.x))
-    return tp, gauss_newton(prob, model, psi, priors=priors, variance=var(tp), max_iter=4)
+def fit_placement_variance(prob: Problem, deviance) -> float:
+    """Maximum-likelihood tau_p (deg) of the per-turn placement rotation; ``deviance(tau_p)`` refits the model."""
+    r = minimize_scalar(lambda lt: deviance(float(np.exp(lt))), bounds=(np.log(1e-4), np.log(20.0)), method="bounded",
+                        options={"xatol": 0.02})
+    return float(np.exp(r.x))
