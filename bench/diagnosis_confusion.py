@@ -25,10 +25,10 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("MKL_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from calib.concealed import EFFECT_NAMES, draw_concealed  # noqa: E402
-from calib.diagnosis import diagnose  # noqa: E402
+from calib.concealed import EFFECT_NAMES, draw_concealed
+from calib.diagnosis import diagnose
 
 NONE = "none"
 SEED_BASE = 10_000  # concealed seeds used here start at this, apart from the seeds the tests use
@@ -45,7 +45,7 @@ def _case(args: tuple) -> dict:
         unexplained = len(d.unexplained)
         err = None
         fit = {e["name"]: (e["fit"]["before"], e["fit"]["after"]) for e in d.effects}
-    except Exception as exc:  # a failure is a result of the benchmark, not a reason to stop it
+    except Exception as exc:  # noqa: BLE001 - a failure is a result of the benchmark, not a reason to stop it
         names, not_id, unexplained, fit, err = [], [], 0, {}, f"{type(exc).__name__}: {exc}"
     secs = time.perf_counter() - t0
     # a loss drawn so rare that no sample was lost leaves nothing to find: such a case is reported apart
@@ -129,8 +129,8 @@ def markdown(results: list[dict], protocol: str, seeds: int, n_boot: int) -> str
     short = {"bias_drift": "drift", "axis_misalignment": "misal", "g_sensitivity": "g-sens", "scale_asymmetry": "asym",
              "scale_nonlinearity": "nonlin", "saturation": "sat", "sample_loss": "loss", "placement_error": "place",
              "clock_error": "clock", "bias_instability": "instab", NONE: "none"}
-    lines = [f"### Protocol `{protocol}`: {s['cases']} recordings ({seeds} seeds x accelerometer on/off x counter on/off "
-             f"per effect, half with a temperature channel), {n_boot} bootstrap replicates each", ""]
+    lines = [(f"### Protocol `{protocol}`: {s['cases']} recordings ({seeds} seeds x accelerometer on/off x counter on/off "
+             f"per effect, half with a temperature channel), {n_boot} bootstrap replicates each"), ""]
     lines.append("Rows: the concealed effect; columns: the effect the diagnosis ranks first (`none`: nothing named).")
     lines.append("")
     lines.append("| true \\ named | " + " | ".join(short[c] for c in cols) + " | correct |")

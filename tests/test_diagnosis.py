@@ -116,12 +116,12 @@ def test_json_contract_and_recalibration():
 def test_unidentifiable_effects_are_said_so():
     # one turn per axis cannot show a scale factor that depends on speed; without host times the clock
     # only scales every turn like k does
-    case, d = _diagnose_case(None, 5, host=False)
+    _, d = _diagnose_case(None, 5, host=False)
     reasons = {n["name"]: n["reason"] for n in d.not_identifiable}
     assert "scale_nonlinearity" in reasons and "different speeds" in reasons["scale_nonlinearity"]
     assert "clock_error" in reasons and "host" in reasons["clock_error"]
     # a clock error in such a recording is not named
-    case, d = _diagnose_case("clock_error", 5, host=False)
+    _, d = _diagnose_case("clock_error", 5, host=False)
     assert "clock_error" not in d.names
     assert "clock_error" in {n["name"] for n in d.not_identifiable}
 

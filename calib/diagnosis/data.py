@@ -14,6 +14,7 @@ of R recordings with that layout, time-first for the turns like ``calib.closure_
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -81,10 +82,10 @@ def make_layout(rec: Recording, stages: list[Stage], dt: np.ndarray | None = Non
     blocks, owner = [], []
     for i, s in enumerate(stills):
         dur = float(t[s.end - 1] - t[s.start]) + float(dt[s.end - 1])
-        nb = max(1, int(round(dur / BLOCK_S)))
+        nb = max(1, round(dur / BLOCK_S))
         nb = min(nb, s.n // 2) if s.n >= 4 else 1
         edges = np.linspace(s.start, s.end, nb + 1).round().astype(np.int64)
-        for a, b in zip(edges[:-1], edges[1:]):
+        for a, b in itertools.pairwise(edges):
             blocks.append((a, b))
             owner.append(i)
     neighbours = np.full((len(turns), 2), -1, dtype=np.int64)
@@ -127,9 +128,9 @@ class Inputs:
     offset: np.ndarray | None = None  # (..., 3) a rate added to the model (deg/s): the expected bias wander
     doffset: np.ndarray | None = None  # (..., 3, Pr) its derivative with respect to the rate parameters
 
-    def take(self, cols: slice) -> "Inputs":
+    def take(self, cols: slice) -> Inputs:
         """The turn columns ``cols`` (axis 1) of time-first inputs."""
-        pick = lambda x: None if x is None else x[:, cols]  # noqa: E731
+        pick = lambda x: None if x is None else x[:, cols]
         return Inputs(self.m[:, cols], self.t[:, cols], pick(self.a), pick(self.temp), pick(self.cap),
                       pick(self.offset), pick(self.doffset))
 
@@ -160,13 +161,13 @@ class Problem:
     def NB(self) -> int:
         return self.layout.NB
 
-    def runs(self, idx: np.ndarray) -> "Problem":
+    def runs(self, idx: np.ndarray) -> Problem:
         """The data of a subset of the recordings."""
         idx = np.asarray(idx, dtype=np.int64)
         J = self.J
         cols = (idx[:, None] * J + np.arange(J)).ravel()
-        pick_t = lambda x: None if x is None else x[:, cols]  # noqa: E731
-        pick_r = lambda x: None if x is None else x[idx]  # noqa: E731
+        pick_t = lambda x: None if x is None else x[:, cols]
+        pick_r = lambda x: None if x is None else x[idx]
         turn = Inputs(self.turn.m[:, cols], self.turn.t[:, cols], pick_t(self.turn.a), pick_t(self.turn.temp),
                       pick_t(self.turn.cap))
         block = Inputs(self.block.m[idx], self.block.t[idx], pick_r(self.block.a), pick_r(self.block.temp),
@@ -215,7 +216,7 @@ def build_problem(
     J, bb = layout.J, layout.block_bounds
     L = int((layout.turn_bounds[:, 1] - layout.turn_bounds[:, 0]).max()) if J else 1
     tb = layout.turn_bounds if J else np.zeros((0, 2), np.int64)
-    m, inside = _windows(gyro, tb, L)
+    m, _ = _windows(gyro, tb, L)
     dt, _ = _windows(np.broadcast_to(layout.dt, (R, layout.n)), tb, L)
     tt, _ = _windows(np.broadcast_to(layout.t, (R, layout.n)), tb, L)
     a = _windows(accel, tb, L)[0] if accel is not None else None
@@ -257,11 +258,12 @@ def set_design_accel(prob: Problem, a: np.ndarray) -> None:
     prob.block.a = np.broadcast_to(_block_means(a[None], lay.block_bounds), (prob.R, lay.NB, 3)).copy()
 
 
-def gravity_proxy(layout: Layout, rate_dps: np.ndarray, up: np.ndarray = np.array([0.0, 0.0, 1.0])) -> np.ndarray:
+def gravity_proxy(layout: Layout, rate_dps: np.ndarray, up: np.ndarray | None = None) -> np.ndarray:
     """Specific force (n, 3) in g for a recording without accelerometer, assuming gravity along ``up`` in
     the body frame at the start (the device resting flat) and following the calibrated rates after that."""
     from ..attitude import cumulative_attitude
 
+    up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, dtype=float)
     att = cumulative_attitude(rate_dps, layout.dt)
     # the attitude before each sample: identity, then the running product
     before = np.vstack([up[None, :], att[:-1].inv().apply(up)])

@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 
 from ..stage import AXES
-from .data import DEG, Layout, Problem
+from .data import Layout, Problem
 from .engine import Fit, covariance
-from .features import SIGNED, UPPER, Features
+from .features import Features
 from .models import R0_DPS, Model
 from .saturation import Plateau
-from .select import ADVICE, DISTINGUISH, ModelState, Step
+from .select import DISTINGUISH, ModelState, Step
 from .timebase import TimeBase
 
 
@@ -201,7 +201,7 @@ def _loss(tb: TimeBase, layout: Layout, duration: float) -> dict:
     total = int(tb.index[-1] - tb.index[0] + 1)
     frac = tb.lost / max(total, 1)
     where = [f"{g[1]} sample(s) missing at {g[2]:.2f} s" for g in tb.gaps[:20]]
-    burst = max(1, int(round(tb.lost / max(len(tb.gaps), 1))))
+    burst = max(1, round(tb.lost / max(len(tb.gaps), 1)))
     src = "the sample counter" if tb.index_source == "counter" else "the device timestamps"
     bridged = ("the calibration integrates each reading over the time to the next one, so the gaps are bridged"
                if tb.device_stamps else "the calibration spaces the samples by the counter, so the gaps are bridged")
@@ -266,7 +266,7 @@ def mismatch_rows(feats: Features, boot: np.ndarray, p: np.ndarray, alpha: float
 
 
 def describe_unexplained(prob: Problem, layout: Layout, final: ModelState, feats: Features, boot: np.ndarray,
-                         p: np.ndarray, alpha: float, have_effects: bool) -> list[dict]:
+                         p: np.ndarray, alpha: float, have_effects: bool, ambiguous: bool = False) -> list[dict]:
     """Features still outside what the (extended) simulation produces, grouped and described by shape."""
     out: list[dict] = []
     off = np.flatnonzero(p < alpha)
@@ -280,7 +280,7 @@ def describe_unexplained(prob: Problem, layout: Layout, final: ModelState, feats
         worst = min(idx, key=lambda i: p[i])
         entry = {"where": [feats.where[i] for i in idx], "statistic": group, "observed": [float(values[i]) for i in idx],
                  "simulated_range": [_range(boot[:, i]) for i in idx], "p_value": float(p[worst])}
-        entry["description"] = _shape(group, idx, feats, layout, values, have_effects)
+        entry["description"] = _shape(group, idx, feats, layout, values, have_effects, ambiguous)
         out.append(entry)
     return out
 
@@ -300,8 +300,12 @@ def describe_ambiguity(a: dict) -> dict:
     }
 
 
-def _shape(group: str, idx: list[int], feats: Features, layout: Layout, values: np.ndarray, have_effects: bool) -> str:
-    prefix = "after the named effects are modelled, " if have_effects else "no catalogued effect explains it: "
+def _shape(group: str, idx: list[int], feats: Features, layout: Layout, values: np.ndarray, have_effects: bool,
+           ambiguous: bool = False) -> str:
+    if ambiguous:
+        prefix = "not resolved (see the ambiguity above): "
+    else:
+        prefix = "after the named effects are modelled, " if have_effects else "no catalogued effect explains it: "
     if group == "still_rate":
         # per axis, the still means against time: steady trend or wander?
         names = [feats.names[i] for i in idx]

@@ -78,10 +78,10 @@ class Model:
             return 3 * self.J
         return 0  # variance and time-base effects have no rate parameters
 
-    def with_effects(self, *names: str) -> "Model":
+    def with_effects(self, *names: str) -> Model:
         return replace(self, effects=tuple(sorted(set(self.effects) | set(names), key=_order)))
 
-    def without(self, *names: str) -> "Model":
+    def without(self, *names: str) -> Model:
         return replace(self, effects=tuple(e for e in self.effects if e not in names))
 
     def _clip_basis(self, c: int) -> np.ndarray:
@@ -131,7 +131,7 @@ class Model:
                 out += list(_PARAM_NAMES[name])
         return out
 
-    def zeros(self, base: np.ndarray, base_model: "Model | None" = None) -> np.ndarray:
+    def zeros(self, base: np.ndarray, base_model: Model | None = None) -> np.ndarray:
         """Parameters (R, P) of this model from those of ``base_model`` (nominal if None), new ones 0."""
         base = np.atleast_2d(base)
         out = np.zeros((base.shape[0], self.P))

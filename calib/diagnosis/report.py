@@ -58,8 +58,8 @@ def write_report(diag: Diagnosis, directory: str | Path, title: str = "recording
     out = Path(directory)
     out.mkdir(parents=True, exist_ok=True)
     d = diag.to_dict()
-    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>gyrocal diagnosis: {_e(title)}</title>"
-             f"<style>{_CSS}</style></head><body>"]
+    parts = [(f"<!doctype html><html><head><meta charset='utf-8'><title>gyrocal diagnosis: {_e(title)}</title>"
+             f"<style>{_CSS}</style></head><body>")]
     parts.append(f"<h1>Simulation against reality: {_e(title)}</h1>")
     info = d["info"]
     ch = ", ".join(k for k, v in info["channels"].items() if v) or "gyro only"
@@ -106,8 +106,8 @@ def _verdict(d: dict) -> str:
 def _effects_table(d: dict) -> str:
     if not d["effects"]:
         return ""
-    rows = ["<h2>Effects</h2><table><tr><th>effect</th><th>what the data show</th><th>parameters</th>"
-            "<th>fit before &rarr; after (lower is better)</th><th>reproduce</th></tr>"]
+    rows = [("<h2>Effects</h2><table><tr><th>effect</th><th>what the data show</th><th>parameters</th>"
+            "<th>fit before &rarr; after (lower is better)</th><th>reproduce</th></tr>")]
     for e in d["effects"]:
         params = "<br>".join(f"{_e(k)} = {_num(v)} &plusmn; {_num(e['uncertainty'].get(k))}" if k in e["uncertainty"]
                              else f"{_e(k)} = {_num(v)}" for k, v in e["parameters"].items())
@@ -122,8 +122,8 @@ def _effects_table(d: dict) -> str:
 def _mismatch_table(d: dict) -> str:
     if not d["mismatches"]:
         return "<h2>Mismatches</h2><p class='ok'>No residual feature lies outside what the nominal simulation produces.</p>"
-    rows = ["<h2>Mismatches (recording against the nominal simulation)</h2><table><tr><th>where</th><th>statistic</th>"
-            "<th>observed</th><th>simulated 95 % range</th><th>p-value</th></tr>"]
+    rows = [("<h2>Mismatches (recording against the nominal simulation)</h2><table><tr><th>where</th><th>statistic</th>"
+            "<th>observed</th><th>simulated 95 % range</th><th>p-value</th></tr>")]
     for m in d["mismatches"][:40]:
         rows.append(f"<tr><td>{_e(m['where'])}</td><td>{_e(m['statistic'])}</td><td class='num'>{_num(m['observed'])}</td>"
                     f"<td class='num'>{_num(m['simulated_range'])}</td><td class='num'>{_num(m['p_value'], 2)}</td></tr>")
@@ -142,8 +142,8 @@ def _recalibration(d: dict) -> str:
     r = d.get("recalibration")
     if not r:
         return ""
-    rows = ["<h2>Calibration with the effects modelled</h2><table><tr><th></th><th>nominal</th><th>with effects</th>"
-            "<th>shift (standard errors)</th></tr>"]
+    rows = [("<h2>Calibration with the effects modelled</h2><table><tr><th></th><th>nominal</th><th>with effects</th>"
+            "<th>shift (standard errors)</th></tr>")]
     for key, label in (("k", "k"), ("b", "b (deg/s)")):
         for i, a in enumerate(AXES):
             rows.append(f"<tr><td>{label}<sub>{a}</sub></td><td class='num'>{r['nominal'][key][i]:.6g} &plusmn; "
@@ -158,8 +158,8 @@ def _tests_table(d: dict) -> str:
     t = d["info"]["tests"]
     if not t:
         return ""
-    rows = ["<h2>Tests</h2><table><tr><th>effect</th><th>statistic</th><th>p-value (null bootstrap)</th><th>threshold</th>"
-            "</tr>"]
+    rows = [("<h2>Tests</h2><table><tr><th>effect</th><th>statistic</th><th>p-value (null bootstrap)</th><th>threshold</th>"
+            "</tr>")]
     for name, v in t.items():
         cls = "bad" if v["p_value"] < v["threshold"] else ""
         rows.append(f"<tr><td>{_e(name)}</td><td class='num'>{_num(v['statistic'])}</td><td class='num {cls}'>"

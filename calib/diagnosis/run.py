@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 from scipy.stats import chi2 as chi2_dist
@@ -14,8 +15,15 @@ from ..errors import RecordingError
 from ..recording import Recording
 from ..stage import AXES, Stage
 from ..stages import detect_stages
-from .data import Problem, build_problem, gravity_proxy, make_layout, sample_intervals, set_design_accel
-from .engine import Fit, Priors, covariance, gauss_newton, system
+from .data import (
+    Problem,
+    build_problem,
+    gravity_proxy,
+    make_layout,
+    sample_intervals,
+    set_design_accel,
+)
+from .engine import Fit, Priors, gauss_newton, system
 from .features import SIGNED, Features, compute_features
 from .fitting import fit_nominal
 from .models import Model
@@ -27,7 +35,6 @@ from .select import (
     Candidate,
     ModelState,
     Step,
-    _extend_priors_any,
     effective_params,
     fit_state,
     informative_count,
@@ -457,7 +464,13 @@ def _ic(state: ModelState, pen: float) -> float:
 
 def _assemble(rec, prob, layout, tb, plateaus, fit0, base, base_fit, cap_fit, steps, ambiguities, final, feats, boot_feats,
               boot_feats_after, p_before, p_after, tests, not_ident, specs, alpha, n_boot, duration) -> Diagnosis:
-    from .describe import describe_ambiguity, describe_effect, describe_unexplained, mismatch_rows, recalibration
+    from .describe import (
+        describe_ambiguity,
+        describe_effect,
+        describe_unexplained,
+        mismatch_rows,
+        recalibration,
+    )
 
     effects: list[dict] = []
     # deterministic evidence first: the time base and the gyro range
@@ -484,7 +497,8 @@ def _assemble(rec, prob, layout, tb, plateaus, fit0, base, base_fit, cap_fit, st
 
     mismatches = mismatch_rows(feats, boot_feats, p_before, alpha_features(feats), tb, plateaus, rec)
     unexplained = describe_unexplained(prob, layout, final, feats, boot_feats_after if steps else boot_feats,
-                                       p_after if steps else p_before, alpha_features(feats), bool(effects))
+                                       p_after if steps else p_before, alpha_features(feats), bool(effects),
+                                       bool(ambiguities))
     for a in ambiguities:
         unexplained.insert(0, describe_ambiguity(a))
     recal = recalibration(prob, fit0, final, effects, tb, plateaus, base, cap_fit)

@@ -84,7 +84,7 @@ def _cap_height(t: np.ndarray, x: np.ndarray, s: int, e: int, level: float) -> t
             continue
         tt, xx = t[lo:hi], x[lo:hi]
         A = np.column_stack((np.ones_like(tt), tt - tt.mean()))
-        coef, res, *_ = np.linalg.lstsq(A, xx, rcond=None)
+        coef, *_ = np.linalg.lstsq(A, xx, rcond=None)
         resid = xx - A @ coef
         dof = max(1, tt.size - 2)
         s2 = float(resid @ resid) / dof

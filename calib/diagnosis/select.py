@@ -25,9 +25,22 @@ import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
 from .data import Problem
-from .engine import Fit, Priors, covariance, gauss_newton, profile_information, score_statistic, system
+from .engine import (
+    Fit,
+    Priors,
+    covariance,
+    gauss_newton,
+    profile_information,
+    score_statistic,
+    system,
+)
 from .models import Model
-from .variance import fit_instability, fit_placement_variance, instability_score, placement_score
+from .variance import (
+    fit_instability,
+    fit_placement_variance,
+    instability_score,
+    placement_score,
+)
 
 ALPHA = 0.05  # family-wise false-positive rate on recordings the nominal model explains
 IDENTIFY_MIN = 9.0  # noncentrality a typical effect must reach for the protocol to reveal it

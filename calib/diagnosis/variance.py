@@ -18,7 +18,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from .data import Problem
-from .engine import Fit, System, Variance, gauss_newton, system
+from .engine import Fit, System, Variance
 from .models import Model
 
 TAU_GRID_S = (3.0, 10.0, 30.0, 100.0)
@@ -129,7 +129,7 @@ def fit_instability(prob: Problem, base: Fit, model: Model) -> tuple[float, floa
 
     best = (np.inf, scale, TAU_GRID_S[0])
     for tau in TAU_GRID_S + (300.0,):
-        r = minimize_scalar(lambda x: dev(x, tau), bounds=(np.log(scale * 0.05), np.log(scale * 200.0)),
+        r = minimize_scalar(lambda x, tau=tau: dev(x, tau), bounds=(np.log(scale * 0.05), np.log(scale * 200.0)),
                             method="bounded", options={"xatol": 0.05})
         if r.fun < best[0]:
             best = (float(r.fun), float(np.exp(r.x)), tau)
