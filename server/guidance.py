@@ -86,13 +86,18 @@ def no_motion_hint(axis: str) -> str:
     return f"Waiting for the turn: pick the device up and turn it one full turn about its {ax(axis)} axis now."
 
 
-def moved_during_pause(axis: str, pause_s: float, retry: bool) -> str:
-    fix = (
-        "Keep the device still against the block until the countdown ends; the pause starts again."
-        if retry
-        else f"Start a new calibration and, after each turn, keep the device still against the block for {pause_s:g} s, until the countdown ends."
-    )
-    return f"The device moved during the pause after the turn about {ax(axis)}. {fix}"
+def moved_during_pause(axis: str, pause_s: float, retry: bool, turn_recorded: bool) -> str:
+    """The device moved in the rest after a turn. ``turn_recorded``: the turn had passed its checks
+    (a retry repeats only the pause); if not (it moved before the rest could close the turn), a retry
+    asks for the turn again."""
+    if not retry:
+        fix = f"Start a new calibration and, after each turn, keep the device still against the block for {pause_s:g} s, until the countdown ends."
+    elif turn_recorded:
+        fix = "Keep the device still against the block until the countdown ends; the pause starts again."
+    else:
+        fix = f"{again(True, axis)} After the turn, keep the device still against the block until the countdown ends."
+    what = "" if turn_recorded else ", before that turn could be recorded"
+    return f"The device moved during the pause after the turn about {ax(axis)}{what}. {fix}"
 
 
 def wrong_axis(expected: str, got: str, retry: bool) -> str:

@@ -169,6 +169,8 @@ class GuidedSession:
         self.buf = SampleBuffer()
         self.tracker: Any = None
         self._offset = 0  # global index of the current tracker's sample 0
+        self._t_first: float | None = None  # device time of the session's first sample
+        self._clock_from_next = True  # the current phase's time limit counts from the next sample received
         self._last_t: float | None = None
         self._t_shift = 0.0
         self.lost_samples = 0
@@ -237,6 +239,17 @@ class GuidedSession:
         seq = None if seq is None else np.asarray(seq, dtype=np.int64).reshape(-1)
         t = self._monotonic_time(t)
         self._caused_by = {"t_device_s": float(t[-1]), "received_at": received_at if received_at is not None else time.time()}
+        if self._t_first is None:
+            # samples missing before the first are not part of this session's recording (e.g. the time
+            # between two sessions on one link)
+            self._t_first = float(t[0])
+            lost_before = 0
+        if self._clock_from_next:
+            # A device's clock does not start at 0 (it keeps running between sessions) and runs on while
+            # the link is down: the time limits count from the session's first sample, and after a
+            # reconnection from the first sample that came back.
+            self._clock_from_next = False
+            self._phase_since_t = float(t[0])
         if lost_before:
             self.lost_samples += int(lost_before)
             if self.phase == "turning":
@@ -273,6 +286,7 @@ class GuidedSession:
         state, phase = self._resume
         self._resume = None
         self._link_lost_mono = None
+        self._clock_from_next = True  # the device's clock ran on while the link was down
         # the tracker carries on across the gap (its noise floor stays valid); the interrupted motion
         # closes with a counter_gap flag while the session waits for rest and is not used
         if state == "still":
@@ -617,12 +631,14 @@ class GuidedSession:
 
     def _moved_during_pause(self, axis: str) -> None:
         retry = self.retry_allowed
-        msg = say.moved_during_pause(axis, self.timings.pause_s, retry)
+        recorded = axis in self.turns
+        msg = say.moved_during_pause(axis, self.timings.pause_s, retry, recorded)
         if retry:
             self.attempt += 1
             self._warn("moved_during_pause", msg)
             self._set_phase("settle", say.PROMPTS["settle"])
-            self._resume_phase = "pause" if axis in self.turns else "ready"
+            # a recorded turn keeps its place and only the pause is done again; otherwise the turn is asked again
+            self._resume_phase = "pause" if recorded else "ready"
         else:
             self.fail("moved_during_pause", msg)
 
@@ -772,7 +788,7 @@ class GuidedSession:
         elif self.phase == "pause":
             # a pause that never completes because the device keeps drifting ends like a missed turn
             if waited > tm.fail_after_s:
-                self.fail("moved_during_pause", say.moved_during_pause(AXES[self._axis_i], tm.pause_s, False))
+                self.fail("moved_during_pause", say.moved_during_pause(AXES[self._axis_i], tm.pause_s, False, True))
 
 
 def _dedupe(stages: list[Stage]) -> list[Stage]:

@@ -267,3 +267,100 @@ def test_paper_protocol_defaults_pass_for_many_seeds(batch: int) -> None:
         run = Run()
         run.feed(rec, batch=batch)
         assert run.s.state == "computing", (seed, run.s.reason)
+
+
+@pytest.mark.parametrize("t0", [86.5, 4294.0])  # a later session; just before the 32-bit microsecond clock wraps
+def test_time_limits_count_from_the_sessions_first_sample(t0: float) -> None:
+    """A device's clock keeps running between sessions: a session that starts at a large device time
+    walks the protocol as one at 0 does, with the same stages, and counts its limits from its start."""
+    rec, truth = sim(STANDARD)
+    base = Run()
+    base.feed(rec)
+    assert base.s.state == "computing", base.s.reason
+    later = rec.__class__(rec.t + t0, rec.gyro, rec.accel, rec.seq + 10**6, meta=rec.meta)
+    run = Run()
+    # the link counts the samples between two sessions as lost before the new session's first one
+    run.feed(later, lost_at={0: int(t0 * FS)})
+    assert run.s.state == "computing", run.s.reason
+    assert run.states() == base.states() and run.warnings() == [] and run.s.lost_samples == 0
+    for axis in "xyz":
+        got, ref = run.s.turns[axis], base.s.turns[axis]
+        assert (got.start, got.end) == (ref.start, ref.end)
+        assert got.start_s == pytest.approx(ref.start_s + t0, abs=1e-9)
+    assert [(s.kind, s.start, s.end) for s in run.s.protocol_stages()] == [(s.kind, s.start, s.end) for s in base.s.protocol_stages()]
+    result = compute_result(run.s)
+    np.testing.assert_allclose(result["k"], truth.k, atol=2e-3)
+    # the limits still apply, from the session's start: no turn within 60 s fails it, after one hint
+    t = ProtocolTimings()
+    idle, _ = sim(script(Still(3.5 + t.fail_after_s + 2.0)))
+    run = Run()
+    run.feed(idle.__class__(idle.t + t0, idle.gyro, idle.accel, idle.seq, meta=idle.meta))
+    assert (run.s.state, run.s.reason_code) == ("failed", "no_motion")
+    assert run.warnings() == ["hint"]
+    assert run.s.warnings[0]["t_device_s"] == pytest.approx(t0 + 3.0 + t.hint_after_s, abs=1.0)
+
+
+def test_a_second_session_after_the_first_on_one_device_clock() -> None:
+    """Two sessions in a row, as one link delivers them: device time and the sample counter go on."""
+    first, _ = sim(STANDARD, seed=1)
+    second, _ = sim(STANDARD, seed=2)
+    gap_s = 250.0  # the first result was read, accepted, the device put back on the block
+    t2 = first.t[-1] + gap_s + second.t
+    seq2 = first.seq[-1] + 1 + int(gap_s * FS) + second.seq
+    runs = [Run(), Run()]
+    runs[0].feed(first)
+    runs[1].feed(second.__class__(t2, second.gyro, second.accel, seq2, meta=second.meta), lost_at={0: int(gap_s * FS)})
+    for run in runs:
+        assert run.s.state == "computing", run.s.reason
+        assert run.states() == ["still", "turn_x", "turn_y", "turn_z", "computing"]
+        assert run.warnings() == [] and run.s.lost_samples == 0
+    assert runs[1].s.turns["x"].start_s > first.t[-1] + gap_s
+
+
+@pytest.mark.parametrize("rest_s, recorded", [(1.0, False), (1.8, True)])
+def test_moving_in_the_pause_says_what_happens_next(rest_s: float, recorded: bool) -> None:
+    """A bump after the x turn: before the turn was recorded it is asked for again; after, only the pause
+    is done again. The warning says which, and the session does what it says."""
+    bump = (Motion((4, -3, 12), 0.4), Motion((-4, 3, -12), 0.4))
+    redo = (turn("x"), Still(3.0)) if not recorded else ()
+    sc = script(Still(3.5), turn("x"), Still(rest_s), *bump, Still(3.0), *redo, turn("y"), Still(3.0), turn("z"), Still(3.0))
+    rec, _ = sim(sc)
+    run = Run(max_attempts=2)
+    run.feed(rec)
+    assert run.s.state == "computing", run.s.reason
+    assert run.warnings() == ["moved_during_pause"]
+    message = run.s.warnings[0]["message"]
+    assert "moved during the pause after the turn about X" in message
+    i = next(i for i, (_, snap) in enumerate(run.events) if snap["warnings"])  # the warning's snapshot
+    after = [(snap["state"], snap["phase"]) for kind, snap in run.events[i + 1:] if kind in ("state", "prompt")]
+    if recorded:
+        assert "the pause starts again" in message and "turn again" not in message
+        assert after[:3] == [("turn_x", "settle"), ("turn_x", "pause"), ("turn_y", "ready")]
+    else:
+        assert "turn again about X" in message and "pause starts again" not in message
+        assert after[:3] == [("turn_x", "settle"), ("turn_x", "ready"), ("turn_x", "turning")]
+        assert run.s.turns["x"].start_s > rec.t[int((3.5 + 3.0 + rest_s + 0.8) * FS)]  # the turn made again
+
+
+def test_a_long_reconnection_does_not_count_against_the_time_limits() -> None:
+    """The device clock runs on while the link is down: after a reconnection that took longer than the
+    60 s limit, the settle phase counts from the first sample that came back."""
+    t = ProtocolTimings()
+    sc = script(Still(3.5), turn("x"), Still(3.0), turn("y"), Still(2.0), turn("y"), Still(3.0), turn("z"), Still(3.0))
+    rec, _ = sim(sc)
+    y_mid = int((3.5 + 3 + 3 + 1.5) * FS)
+    y_mid -= y_mid % 3
+    resume = int((3.5 + 3 + 3 + 3 + 0.5) * FS)
+    resume -= resume % 3
+    away_s = t.fail_after_s + 15.0
+    shifted = rec.__class__(np.where(np.arange(len(rec)) >= resume, rec.t + away_s, rec.t), rec.gyro, rec.accel,
+                            np.where(np.arange(len(rec)) >= resume, rec.seq + int(away_s * FS), rec.seq), meta=rec.meta)
+    run = Run()
+    run.feed(shifted, 0, y_mid)
+    run.s.link_lost()
+    run.s.link_restored()
+    gap = int(shifted.seq[resume] - shifted.seq[y_mid - 1] - 1)
+    run.feed(shifted, resume, lost_at={resume: gap})
+    assert run.s.state == "computing", run.s.reason
+    assert run.warnings() == ["link_lost", "link_restored"]
+    assert run.s.lost_samples == gap and run.s.turns["y"].start_s > shifted.t[resume]
