@@ -5,9 +5,12 @@ Device behaviour (docs/protocol.md, "Device behaviour"):
 - START opens a streaming session (seq 0, SESSION_START flag) or resumes the current one after a link
   loss (RESUMED flag). The session clock keeps running while the link is down: the clinician goes on
   turning and the packets of that time are lost, so the central sees the gap in seq and device time.
+  On resuming, the sample source is told (``resumed``): a scripted clinician then redoes the step the
+  loss interrupted, as the service asks.
+- Every START after STOP is a new session, and the source performs anew (``prepare``).
 - STOP ends the session. Configuration changes are refused (BUSY) while streaming.
 - The device clock is in microseconds (32-bit on the wire). It starts 2-20 s before its 32-bit wrap, so
-  every simulated session exercises the central's unwrapping.
+  the first session exercises the central's unwrapping; it keeps running between sessions.
 - The true output data rate differs from the nominal one by up to +-0.8 % (a real sensor's oscillator),
   so a central must estimate the rate from device time.
 - ``speed`` runs the device clock faster than wall time (20 = twenty times real time).
@@ -74,6 +77,7 @@ class _Session:
     resumed: bool = False
     drop_done: bool = False
     disconnected_wall: float | None = None
+    lost_at: int = 0  # first sample not delivered when the link was lost
 
 
 def _address(rng: np.random.Generator) -> str:
@@ -109,6 +113,8 @@ class Wearable:
         self.source = source
         self.seed = int(seed)
         self.speed = float(speed)
+        # faults given here hold for every session; otherwise each session has its source's
+        self._faults_fixed = faults is not None
         self.faults = faults if faults is not None else getattr(source, "faults", LinkFaults())
         self.address = address or _address(rng)
         self.name = name or f"gyrocal-{self.address[-5:].replace(':', '')}"
@@ -316,8 +322,12 @@ class Wearable:
                 s.resumed = True
                 s.disconnected_wall = None
                 self._log("session resumed")
+                # the clinician sees the session resume and follows the guidance from here
+                self.source.resumed(s.lost_at, s.next_packet * s.n)
             return
         self.source.prepare(self.true_rate_hz)
+        if not self._faults_fixed:
+            self.faults = getattr(self.source, "faults", self.faults)
         self.stats.sessions += 1
         self.stats.lost_radio_seqs = []
         self._loss_cache.clear()
@@ -342,6 +352,7 @@ class Wearable:
         if self._session is not None and self._session.streaming:
             self._session.streaming = False
             self._session.disconnected_wall = time.monotonic()
+            self._session.lost_at = self._session.next_packet * self._session.n
         assert central is not None
         return central
 

@@ -306,3 +306,86 @@ async def test_too_fast_turns_arrive_saturated_and_flagged():
     assert got.saturated.sum() > 20
     assert np.abs(got.gyro_dps[got.saturated]).max() == pytest.approx(32767 / 65.5, abs=0.02)
     assert np.abs(got.gyro_dps[~got.saturated]).max() < 500.26
+
+
+def _stage_axes(gyro: np.ndarray, fs: float) -> list:
+    from calib.recording import Recording, RecordingMeta
+    from calib.stages import detect_stages
+
+    n = gyro.shape[0]
+    rec = Recording(np.arange(n) / fs, gyro, seq=np.arange(n), meta=RecordingMeta(sample_rate_hz=fs))
+    return [(s.kind, s.axis, s.start, s.end) for s in detect_stages(rec) if s.kind != "still"]
+
+
+def test_the_scripted_clinician_redoes_the_interrupted_turn_after_a_link_loss():
+    from mock_device.sources import REDO_REST_S
+
+    fs = 104.3
+    src = ScriptedSource(seed=4, scenario="link_drop")
+    src.prepare(fs)
+    before = src.block(0, src.script_samples).gyro.copy()
+    assert [a for _, a, _, _ in _stage_axes(before, fs)] == ["x", "y", "z"]
+    for back_after_s in (0.5, 3.0):  # back while the hand is still turning, or after the turn ended
+        src.prepare(fs)  # a new session: a fresh draw of the scenario, which drops mid y too
+        lost_at = int(src.faults.drop_at_s * fs)  # halfway through the y turn
+        y_end = int(src.segment_bounds[4])
+        at = lost_at + int(back_after_s * fs)
+        old = src.block(0, src.script_samples).gyro.copy()
+        src.resumed(lost_at, at)
+        new = src.block(0, src.script_samples).gyro
+        np.testing.assert_array_equal(new[:at], old[:at])  # what was already produced is unchanged
+        motions = _stage_axes(new, fs)
+        assert [a for _, a, _, _ in motions] == ["x", "y", "y", "z"]
+        (_, _, _, y1_end), (_, _, y2_start, _) = motions[1], motions[2]
+        assert y1_end == pytest.approx(y_end, abs=0.3 * fs)  # the interrupted turn was finished
+        # the redo starts only after a rest long enough for the service to ask for it again
+        assert (y2_start - max(at, y1_end)) / fs > REDO_REST_S - 0.5
+    assert before.shape[0] < new.shape[0] and src.replans == 1
+
+
+def test_a_link_loss_during_a_rest_only_lengthens_the_rest():
+    fs = 104.0
+    src = ScriptedSource(seed=6)
+    src.prepare(fs)
+    x_end = int(src.segment_bounds[2])
+    src.resumed(x_end + int(0.5 * fs), x_end + int(1.5 * fs))  # lost and back in the pause after x
+    motions = _stage_axes(src.block(0, src.script_samples).gyro, fs)
+    assert [a for _, a, _, _ in motions] == ["x", "y", "z"]
+    assert (motions[1][2] - x_end) / fs > 1.5 + 3.0
+
+
+async def test_every_session_on_a_wearable_performs_the_protocol_again():
+    """START after STOP: a new session, a fresh performance by the same hand on the same sensor; the
+    device clock and the link's sample times go on from the first session."""
+    from server.config import Settings
+    from server.session import GuidedSession
+
+    w = _wearable(seed=12, speed=200)
+    link = InProcessLink(w, reconnect=FAST)
+    await link.connect()
+    info = await link.read_info()
+    truth = dict(w.truth)
+    got = []
+    for _ in range(2):
+        await link.start()
+        session = GuidedSession("s", "dev", Settings(db_url="sqlite://"))
+        session.connected(info.config.sample_rate_hz, {}, float(info.config.gyro_full_scale_dps))
+        batches = []
+        async for item in link.samples():
+            assert isinstance(item, SampleBatch)
+            batches.append(item)
+            session.feed(item.t_device_s, item.gyro_dps, item.accel_g, item.seq, item.lost_before)
+            if session.state == "computing" or session.finished:
+                break
+        await link.stop()
+        assert session.state == "computing", session.reason
+        assert session.warnings == [] and session.lost_samples == 0
+        got.append(SampleBatch.concat(batches))
+    await link.disconnect()
+    first, second = got
+    assert second.t_device_s[0] > first.t_device_s[-1]  # the device clock went on
+    assert w.stats.sessions == 2 and w.source.session == 2 and w.truth == truth
+    for b in got:
+        assert [a for _, a, _, _ in _stage_axes(b.gyro_dps, w.true_rate_hz)] == ["x", "y", "z"]
+    n = min(len(first), len(second))
+    assert not np.allclose(first.gyro_dps[:n], second.gyro_dps[:n])  # a new recording, not a replay
