@@ -171,6 +171,7 @@ async def _device_out(svc: Service, dev: Device | None, row: dict[str, Any] | No
         "sensor_model": info.get("sensor_model") or row.get("sensor_model"),
         "firmware": info.get("firmware") or row.get("firmware"),
         "serial": info.get("serial") or row.get("serial"),
+        "battery_pct": info.get("battery_pct"),
         "active_session": svc.active.get(device_id),
         "current_calibration": await _current(svc, device_id),
         "last_seen": row.get("last_seen"),

@@ -47,6 +47,21 @@ class Device:
             return None
         return {"k": [float(v) for v in truth["k"]], "b": [float(v) for v in truth["b"]]}
 
+    def read_local_battery(self) -> None:
+        """Note the battery level of a wearable simulated in this process: it answers the read at once,
+        without a connection, so the device list shows it before the first session (a BLE device's
+        level is read when a session connects)."""
+        if self.peripheral is None:
+            return
+        import wearable_protocol as wp
+
+        try:
+            raw = bytes(self.peripheral.read(wp.BATTERY_LEVEL_CHAR))
+        except wp.GattError:  # a peripheral without a battery service: the level stays unknown
+            return
+        if raw:
+            self.info["battery_pct"] = int(raw[0])
+
     def get_link(self) -> Any:
         if self.link is None:
             self.link = self.make_link()
@@ -111,12 +126,15 @@ class DeviceManager:
                 scenario=scenario,
                 peripheral=wearable,
             )
+            dev.read_local_battery()
             out.append(self.add(dev))
         return out
 
     async def scan(self, timeout_s: float = 5.0) -> list[Device]:
         """Scan for wearables: BLE ones when --ble, and the simulated ones (always "found")."""
         found: list[Device] = [d for d in self.devices.values() if d.transport == "inprocess"]
+        for dev in found:
+            dev.read_local_battery()
         if self.ble:
             from .link import BleLink
 

@@ -78,6 +78,7 @@ class DeviceOut(BaseModel):
     sensor_model: str | None = None
     firmware: str | None = None
     serial: str | None = None
+    battery_pct: int | None = Field(None, description="battery level, %, when the service has read it (null: not read yet)")
     active_session: str | None = None
     current_calibration: CalibrationOut | None = None
     last_seen: str | None = None

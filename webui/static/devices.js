@@ -53,29 +53,24 @@ export function devicesView(ctx) {
   const scanBtn = h("button", { class: "button", type: "button" }, icon("search"), "Scan for devices");
   const note = h("p", { class: "scan-note", role: "status" });
 
-  const render = async (devices) => {
+  const render = (devices) => {
     if (!alive) return;
     list.setAttribute("aria-busy", "false");
     if (!devices.length) {
       fill(list, h("li", { class: "empty" }, icon("info"), h("span", null, "No devices yet. Switch the wearable on, keep it near this tablet and press “Scan for devices”.")));
       return;
     }
-    const cards = devices.map((d) => deviceCard(ctx, d));
-    fill(list, cards);
-    // the battery level is known once the service has talked to the device
-    await Promise.all(devices.map(async (d, i) => {
-      try {
-        const detail = await ctx.api.get(`/devices/${encodeURIComponent(d.id)}`);
-        if (alive) cards[i].setBattery(detail.info && detail.info.battery_pct);
-      } catch {
-        // the list stays usable without the battery level
-      }
+    // the battery level is in the list once the service has read it (null: not read yet)
+    fill(list, devices.map((d) => {
+      const card = deviceCard(ctx, d);
+      card.setBattery(d.battery_pct);
+      return card;
     }));
   };
 
   const load = async () => {
     try {
-      await render(await ctx.api.get("/devices"));
+      render(await ctx.api.get("/devices"));
     } catch (err) {
       if (alive && err.status !== 401) ctx.problem(err, "list the devices");
     }
