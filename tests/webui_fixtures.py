@@ -27,8 +27,8 @@ CHROMIUM_ARGS = ["--no-sandbox", "--disable-background-networking", "--disable-c
 OPERATOR = "alice"
 SECRET = "correct horse battery staple"
 MOCK_SPEED = 3.0
-# the simulated clinician of mock-N performs the N-th scenario, once, when its first session starts
-SCENARIOS = ["normal", "moved_during_still", "wrong_axis", "link_drop", "normal", "normal", "normal", "normal"]
+# the simulated clinician of mock-N performs the N-th scenario in every session
+SCENARIOS = ["normal", "moved_during_still", "wrong_axis", "link_drop", "normal", "normal", "normal", "normal", "normal"]
 TABLET = {"width": 1024, "height": 768}
 LOCAL_HOSTS = {"127.0.0.1", "localhost", "[::1]", "::1"}
 
