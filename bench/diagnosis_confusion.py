@@ -34,27 +34,64 @@ NONE = "none"
 SEED_BASE = 10_000  # concealed seeds used here start at this, apart from the seeds the tests use
 
 
+def visibility(case, d) -> float:
+    """Noncentrality of the drawn effect in this recording: the deviance drop its true parameters would give
+    the nominal fit (Fisher information with k and b profiled out). inf for the effects read directly from
+    the data (clipping, counter, host clock, measured tilt); nan where no such number exists."""
+    from calib.diagnosis.engine import profile_information, system
+    from calib.diagnosis.models import Model
+
+    name, e = case.effect_name, case.effect
+    if name in ("saturation", "sample_loss", "clock_error") or (name == "placement_error" and case.with_accel):
+        return float("inf")
+    key, phi = {
+        "axis_misalignment": lambda: ("axis_misalignment", e.off_diagonal),
+        "g_sensitivity": lambda: ("g_sensitivity", np.ravel(e.matrix_dps_per_g)),
+        "scale_asymmetry": lambda: ("scale_asymmetry", e.asymmetry),
+        "scale_nonlinearity": lambda: ("scale_nonlinearity", e.coeff * 1000.0 / e.ref_rate_dps),
+        "bias_drift": lambda: (("bias_drift_temp", e.temp_coeff_dps_per_c) if e.has_temperature
+                               else ("bias_drift", e.rate_dps_per_s)),
+    }.get(name, lambda: (None, None))()
+    if key is None or d is None:
+        return float("nan")
+    prob, fit0 = d.details["prob"], d.details["fit0"]
+    if key == "bias_drift_temp" and prob.block.temp is None:
+        return float("nan")
+    model = Model((key,), prob.J)
+    sys_ = system(prob, model, model.zeros(fit0.psi))
+    F = np.einsum("rmp,rmq->rpq", sys_.jac, sys_.jac)
+    idx = np.arange(model.P)[model.slices[key]]
+    info = profile_information(F, np.arange(6), idx)[0]
+    phi = np.asarray(phi, dtype=float)
+    return float(phi @ info @ phi)
+
+
 def _case(args: tuple) -> dict:
     effect, seed, protocol, accel, seq, temp, n_boot = args
     case = draw_concealed(seed, effect, protocol=protocol, with_accel=accel, with_seq=seq, with_temp=temp)
     t0 = time.perf_counter()
+    d = None
     try:
         d = diagnose(case.recording, n_boot=n_boot, seed=seed)
         names = d.names
         not_id = [n["name"] for n in d.not_identifiable]
         unexplained = len(d.unexplained)
+        mismatches = len(d.mismatches)
         err = None
         fit = {e["name"]: (e["fit"]["before"], e["fit"]["after"]) for e in d.effects}
     except Exception as exc:  # noqa: BLE001 - a failure is a result of the benchmark, not a reason to stop it
-        names, not_id, unexplained, fit, err = [], [], 0, {}, f"{type(exc).__name__}: {exc}"
+        names, not_id, unexplained, mismatches, fit, err = [], [], 0, 0, {}, f"{type(exc).__name__}: {exc}"
     secs = time.perf_counter() - t0
+    vis = visibility(case, d) if effect else float("nan")
     # a loss drawn so rare that no sample was lost leaves nothing to find: such a case is reported apart
     trace = not (effect == "sample_loss" and case.truth.trajectory.n == len(case.recording))
     return {
         "trace": trace,
+        "visibility": vis,
         "effect": effect or NONE, "seed": seed, "protocol": protocol, "accel": accel, "seq": seq, "temp": temp,
         "magnitude": case.magnitude, "noise": case.noise_dps, "duration_s": case.recording.duration_s,
         "named": names, "top": names[0] if names else NONE, "not_identifiable": not_id, "unexplained": unexplained,
+        "mismatches": mismatches,
         "fit": fit, "seconds": secs, "error": err,
     }
 
@@ -102,12 +139,30 @@ def summary(results: list[dict]) -> dict:
         "named_correctly_identifiable": float(np.mean([r["top"] == r["effect"] for r in ident])) if ident else None,
         "null_cases": len(null),
         "false_positive_rate": float(np.mean([bool(r["named"]) for r in null])) if null else None,
+        "null_with_mismatch": float(np.mean([r.get("mismatches", 0) > 0 for r in null])) if null else None,
+        "wrong_also_named": float(np.mean([any(n != r["effect"] for n in r["named"]) for r in eff])) if eff else None,
         "errors": sum(r["error"] is not None for r in results),
         "seconds_median": float(np.median([r["seconds"] for r in results])),
         "seconds_max": float(np.max([r["seconds"] for r in results])),
         "seconds_median_30s": float(np.median([r["seconds"] for r in paper_like])) if paper_like else None,
         "seconds_max_30s": float(np.max([r["seconds"] for r in paper_like])) if paper_like else None,
     }
+
+
+VIS_BINS = ((0.0, 10.0, "under 10"), (10.0, 25.0, "10-25"), (25.0, 100.0, "25-100"), (100.0, np.inf, "over 100"))
+
+
+def visibility_table(results: list[dict]) -> list[tuple[str, int, float]]:
+    eff = [r for r in results if r["effect"] != NONE and r["trace"]]
+    rows = []
+    for lo, hi, label in VIS_BINS:
+        sub = [r for r in eff if lo <= r.get("visibility", float("nan")) < hi]
+        if sub:
+            rows.append((label, len(sub), float(np.mean([r["top"] == r["effect"] for r in sub]))))
+    direct = [r for r in eff if r.get("visibility") == float("inf")]
+    if direct:
+        rows.append(("read directly", len(direct), float(np.mean([r["top"] == r["effect"] for r in direct]))))
+    return rows
 
 
 def per_channel(results: list[dict]) -> list[tuple[str, int, float, float]]:
@@ -147,7 +202,14 @@ def markdown(results: list[dict], protocol: str, seeds: int, n_boot: int) -> str
         lines.append(f"- among the {s['identifiable_cases']} recordings whose protocol and channels can reveal the effect: "
                      f"**{100 * s['named_correctly_identifiable']:.1f} %** named correctly")
     lines.append(f"- null recordings with any effect named (false positives): **{100 * s['false_positive_rate']:.1f} %** "
-                 f"of {s['null_cases']}")
+                 f"of {s['null_cases']}; with any mismatch listed: {100 * s['null_with_mismatch']:.1f} %")
+    lines.append(f"- effect recordings where some other effect is named too (first or later): "
+                 f"{100 * s['wrong_also_named']:.1f} %")
+    vis_rows = visibility_table(results)
+    if vis_rows:
+        lines.append("- named correctly by how visible the drawn effect is in its recording (noncentrality: the deviance "
+                     "drop its true parameters give the nominal fit; read directly = clipping, counter, host clock, "
+                     "measured tilt): " + "; ".join(f"{label}: {100 * ok:.0f} % of {n}" for label, n, ok in vis_rows))
     lines.append(f"- diagnosis time per recording (one core per recording): median {s['seconds_median']:.1f} s, "
                  f"max {s['seconds_max']:.1f} s")
     no_trace = sum(not r["trace"] for r in results)
@@ -185,20 +247,31 @@ def main() -> int:
     ap.add_argument("--effects", default=",".join((*EFFECT_NAMES, NONE)), help="comma-separated effects (and 'none')")
     ap.add_argument("--json", type=Path, default=None, help="write every case's result here")
     ap.add_argument("--write", type=Path, default=None, help="write the tables into this markdown file's Diagnosis section")
+    ap.add_argument("--from-json", type=Path, action="append", default=[],
+                    help="tabulate results written earlier with --json instead of running (repeatable)")
     args = ap.parse_args()
     protocols = args.protocol or ["paper"]
     effects = [e.strip() for e in args.effects.split(",") if e.strip()]
     sections = []
     all_results = {}
+    loaded = {}
+    for path in args.from_json:
+        loaded.update(json.loads(path.read_text()))
+    if loaded:
+        protocols = list(loaded)
     for protocol in protocols:
-        print(f"protocol {protocol}", file=sys.stderr)
-        results = run(args.seeds, protocol, args.workers, args.n_boot, effects)
+        if loaded:
+            results = loaded[protocol]
+            args.seeds = len({r["seed"] for r in results if r["effect"] == NONE})
+        else:
+            print(f"protocol {protocol}", file=sys.stderr)
+            results = run(args.seeds, protocol, args.workers, args.n_boot, effects)
         all_results[protocol] = results
         md = markdown(results, protocol, args.seeds, args.n_boot)
         print(md)
         print()
         sections.append(md)
-    if args.json:
+    if args.json and not loaded:
         args.json.write_text(json.dumps(all_results, default=float))
     if args.write:
         intro = (

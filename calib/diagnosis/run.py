@@ -14,7 +14,7 @@ from scipy.stats import norm
 from ..errors import RecordingError
 from ..recording import Recording
 from ..stage import AXES, Stage
-from ..stages import detect_stages
+from ..stages import detect_stages, find_protocol
 from .data import (
     Problem,
     build_problem,
@@ -149,6 +149,7 @@ def diagnose(
     if stages is None:
         stages = detect_stages(rec)
     stages = _clipped_turns(rec, list(stages), plateaus)
+    find_protocol(stages)  # a ProtocolError naming the missing stage, as calibrate gives
     tb = analyse_timebase(rec, host_t)
     dt = _intervals(rec, tb)
     layout = make_layout(rec, stages, dt)
@@ -486,7 +487,7 @@ def _assemble(rec, prob, layout, tb, plateaus, fit0, base, base_fit, cap_fit, st
         effects.append(describe_effect(step.name, prob, layout, step=step, state=st, tests=tests, duration=duration))
     effects.sort(key=lambda e: -_importance(e))
 
-    not_identifiable = [{"name": n, "reason": f"not identifiable with this recording: {adv}"} for n, adv in not_ident.items()
+    not_identifiable = [{"name": n, "reason": reason} for n, reason in not_ident.items()
                         if n not in [e["name"] for e in effects]]
     if tb.index_source is None and rec.seq is None:
         not_identifiable.append({"name": "sample_loss", "reason": "not identifiable with this recording: the timestamps "

@@ -56,6 +56,16 @@ TYPICAL = {
     "placement_error": 0.8,  # deg per turn, a device put back by hand
 }
 
+WEAK_MIN = 25.0  # below this noncentrality a typical effect is more often missed than found (at a 3-dof test's threshold)
+TYPICAL_TEXT = {
+    "axis_misalignment": "0.8 % cross-axis coupling",
+    "bias_drift": "0.06 deg/s over the recording",
+    "g_sensitivity": "0.05 (deg/s)/g",
+    "scale_asymmetry": "0.5 % between directions",
+    "scale_nonlinearity": "0.5 % at 1000 deg/s",
+    "placement_error": "0.8 deg per turn",
+}
+
 ADVICE = {
     "axis_misalignment": "add turns about axes between the sensor axes (e.g. with the device resting on an edge)",
     "bias_drift": "rest the device longer, or several times spread over a longer recording",
@@ -189,11 +199,15 @@ def plan_tests(
         specs.append(TestSpec(name, key, "score", base.with_effects(key), idx, Vk, nc, int(Vk.shape[1])))
     for name, nc in best_nc.items():
         if not any(s.name == name for s in specs):
-            not_ident[name] = ADVICE[name]
+            not_ident[name] = f"not identifiable with this recording: {ADVICE[name]}"
+        elif nc < WEAK_MIN:
+            factor = float(np.sqrt(WEAK_MIN / max(nc, 1e-12)))
+            not_ident[name] = (f"only weakly identifiable with this recording: an effect of typical size ({TYPICAL_TEXT[name]}) "
+                               f"would be missed; only about {factor:.1f} times that or more shows. {ADVICE[name].capitalize()}")
     if prob.layout.NB >= 4:
         specs.append(TestSpec("bias_instability", "bias_instability", "instability", base, dof=1, noncentrality=np.inf))
     else:
-        not_ident["bias_instability"] = ADVICE["bias_instability"]
+        not_ident["bias_instability"] = f"not identifiable with this recording: {ADVICE['bias_instability']}"
     if not has_accel and prob.J:
         specs.append(TestSpec("placement_error", "placement_var", "placement_var", base, dof=1, noncentrality=np.inf))
     return specs, union, not_ident
