@@ -39,7 +39,7 @@ def describe_effect(name: str, prob: Problem, layout: Layout, **kw) -> dict:
     if name == "saturation":
         return _saturation(prob, layout, kw["fit0"], kw["base"], kw["base_fit"], kw["cap_fit"], kw["plateaus"])
     if name == "sample_loss":
-        return _loss(kw["tb"], layout, kw["duration"])
+        return _loss(kw["tb"], layout, kw["duration"], kw.get("closure_fit"))
     if name == "clock_error":
         return _clock(kw["tb"])
     step: Step = kw["step"]
@@ -196,15 +196,17 @@ def _saturation(prob, layout, fit0, base, base_fit, cap_fit, plateaus: list[Plat
     }
 
 
-def _loss(tb: TimeBase, layout: Layout, duration: float) -> dict:
+def _loss(tb: TimeBase, layout: Layout, duration: float, closure_fit: tuple[float, float] | None) -> dict:
     before, after = tb.loss_fit or (0.0, 0.0)
+    if closure_fit is not None and all(np.isfinite(closure_fit)):
+        # the time base, plus the turns and rests with each reading held over a gap against the gaps bridged
+        before, after = before + closure_fit[0], after + closure_fit[1]
     total = int(tb.index[-1] - tb.index[0] + 1)
     frac = tb.lost / max(total, 1)
     where = [f"{g[1]} sample(s) missing at {g[2]:.2f} s" for g in tb.gaps[:20]]
     burst = max(1, round(tb.lost / max(len(tb.gaps), 1)))
     src = "the sample counter" if tb.index_source == "counter" else "the device timestamps"
-    bridged = ("the calibration integrates each reading over the time to the next one, so the gaps are bridged"
-               if tb.device_stamps else "the calibration spaces the samples by the counter, so the gaps are bridged")
+    bridged = "the lost readings are put back by cubic interpolation at their sample numbers"
     return {
         "name": "sample_loss",
         "parameters": {"lost_samples": tb.lost, "gaps": len(tb.gaps), "fraction": frac},
@@ -364,7 +366,7 @@ def recalibration(prob: Problem, fit0: Fit, final: ModelState, effects: list[dic
         k, b = k * (1 + e), b * (1 + e)
         notes.append(f"the device's time stamps run {e * 100:+.2f} % off true time: k and b are corrected by (1 + e)")
     if "sample_loss" in names:
-        notes.append("lost samples are bridged: each reading is held until the next one arrives")
+        notes.append("lost samples are put back by cubic interpolation at their sample numbers (counter or timestamps)")
     if base.clipped:
         for ax in range(3):
             turns_ax = [j for j, s in enumerate(prob.layout.turns) if s.axis == AXES[ax]]

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 from scipy.stats import chi2 as chi2_dist
 from scipy.stats import norm
 
-from ..errors import RecordingError
+from ..errors import GyrocalError, RecordingError
 from ..recording import Recording
 from ..stage import AXES, Stage
 from ..stages import detect_stages, find_protocol
@@ -44,7 +44,7 @@ from .select import (
     press,
     statistics,
 )
-from .timebase import TimeBase, analyse_timebase
+from .timebase import TimeBase, analyse_timebase, bridge
 
 EFFECT_NAMES: tuple[str, ...] = (
     "bias_drift",
@@ -145,13 +145,29 @@ def diagnose(
     if host_t is None:
         host_t = getattr(rec, "host_t", None)
     say(0.0, "stages")
+    tb = analyse_timebase(rec, host_t)
+    raw = None
+    if tb.lost > 0 and tb.index_source is not None:
+        # lost samples are put back at their sample numbers; the analysis runs on the bridged recording
+        if host_t is not None:
+            rec = replace(rec, host_t=np.asarray(host_t, dtype=float))
+        raw = rec
+        rec = bridge(rec, tb)
+        host_t = rec.host_t
+        if stages is not None:
+            stages = None  # stage indices refer to the delivered rows: detect them again
     plateaus = find_plateaus(rec)
     if stages is None:
         stages = detect_stages(rec)
     stages = _clipped_turns(rec, list(stages), plateaus)
     find_protocol(stages)  # a ProtocolError naming the missing stage, as calibrate gives
-    tb = analyse_timebase(rec, host_t)
-    dt = _intervals(rec, tb)
+    if raw is None:
+        dt = _intervals(rec, tb)
+    else:
+        lost_tb = tb
+        tb = analyse_timebase(rec, host_t)
+        dt = _intervals(rec, tb)
+        tb = _merge_timebase(lost_tb, tb)
     layout = make_layout(rec, stages, dt)
     caps = plateau_caps(len(rec), rec.t, plateaus) if plateaus else None
     temp = rec.temp - rec.temp[0] if rec.temp is not None else None
@@ -159,13 +175,15 @@ def diagnose(
     prob = build_problem(layout, rec.gyro[None], None if accel is None else accel[None], temp, caps)
     say(0.05, "nominal fit")
 
-    fit0 = fit_nominal(prob)
+    clipped = tuple(j for j, s in enumerate(layout.turns) if any(s.start <= p.start < s.end for p in plateaus))
+    start = _unclipped_start(rec, layout, clipped, accel, temp) if clipped else None
+    fit0 = fit_nominal(prob, start)
+    start = fit0.psi if start is None else start
     a_design = None
     if accel is None:
         # no accelerometer: gravity as the protocol leaves it, the device resting flat, followed through the turns
-        a_design = gravity_proxy(layout, rec.gyro * fit0.psi[0, :3] + fit0.psi[0, 3:6])
+        a_design = gravity_proxy(layout, rec.gyro * start[0, :3] + start[0, 3:6])
         set_design_accel(prob, a_design)
-    clipped = tuple(j for j, s in enumerate(layout.turns) if any(s.start <= p.start < s.end for p in plateaus))
     base = Model(("saturation",) if clipped else (), layout.J, tuple(p.axis for p in plateaus), clipped)
     priors = None
     cap_fit = None
@@ -174,7 +192,7 @@ def diagnose(
         # the clipped turns' closures are left free; a scale factor no unclipped turn fixes comes from the
         # plateaus rebuilt from their edges, as a prior with that reconstruction's uncertainty
         cap_model = Model(("plateau",), layout.J, tuple(p.axis for p in plateaus))
-        cap_fit = (cap_model, gauss_newton(prob, cap_model, cap_model.zeros(fit0.psi),
+        cap_fit = (cap_model, gauss_newton(prob, cap_model, cap_model.zeros(start),
                                            priors=_plateau_priors(plateaus, cap_model), max_iter=10))
         priors = _clipped_axis_priors(layout, clipped, cap_fit[1])
         base_fit = gauss_newton(prob, base, base.zeros(cap_fit[1].psi[:, :6]), priors=priors, max_iter=10)
@@ -230,7 +248,7 @@ def diagnose(
         boot_feats_after = None
 
     say(0.95, "report")
-    diag = _assemble(rec, prob, layout, tb, plateaus, fit0, base, base_fit, cap_fit, steps, ambiguities, final, feats,
+    diag = _assemble(rec, raw, prob, layout, tb, plateaus, fit0, base, base_fit, cap_fit, steps, ambiguities, final, feats,
                      boot_feats, boot_feats_after, p_before, p_after, tests, not_ident, specs, alpha, n_boot, duration)
     diag.info["seconds"] = round(time.perf_counter() - t_start, 3)
     say(1.0, "done")
@@ -250,6 +268,40 @@ def _check(rec: Recording, host_t: np.ndarray | None, n_boot: int) -> None:
         raise RecordingError(f"host_t must give one host time per sample ({rec.t.size}); got shape {np.shape(host_t)}")
     if not isinstance(n_boot, (int, np.integer)) or n_boot < 20:
         raise RecordingError(f"n_boot must be a whole number of at least 20 simulated replicates; got {n_boot!r}")
+
+
+def _unclipped_start(rec: Recording, layout, clipped: tuple[int, ...], accel, temp) -> np.ndarray | None:
+    """Nominal parameters from the unclipped turns alone (None when some axis has no unclipped turn): a
+    clipped turn reads short and would pull the scale factors far off."""
+    drop = {id(layout.turns[j]) for j in clipped}
+    stages = [s for s in layout.stages if id(s) not in drop]
+    sub = make_layout(rec, stages, layout.dt)
+    if {s.axis for s in sub.turns} != set(AXES):
+        return None
+    p = build_problem(sub, rec.gyro[None], None if accel is None else accel[None], temp)
+    try:
+        return fit_nominal(p).psi
+    except GyrocalError:
+        return None
+
+
+def _raw_deviance(raw: Recording | None) -> float:
+    """Nominal deviance of the recording as delivered, each reading held until the next one arrives."""
+    if raw is None:
+        return float("nan")
+    try:
+        st = detect_stages(raw)
+        lay = make_layout(raw, st)
+        p = build_problem(lay, raw.gyro[None], None if raw.accel is None else raw.accel[None])
+        return float(fit_nominal(p).deviance[0])
+    except GyrocalError:
+        return float("nan")
+
+
+def _merge_timebase(lost: TimeBase, bridged: TimeBase) -> TimeBase:
+    """The time base of the recording as delivered (its gaps), with the clock found on the bridged one."""
+    lost.clock_e, lost.clock_std, lost.clock_fit, lost.host = bridged.clock_e, bridged.clock_std, bridged.clock_fit, bridged.host
+    return lost
 
 
 def _intervals(rec: Recording, tb: TimeBase) -> np.ndarray:
@@ -463,7 +515,7 @@ def _ic(state: ModelState, pen: float) -> float:
 # --------------------------------------------------------------------------- output
 
 
-def _assemble(rec, prob, layout, tb, plateaus, fit0, base, base_fit, cap_fit, steps, ambiguities, final, feats, boot_feats,
+def _assemble(rec, raw, prob, layout, tb, plateaus, fit0, base, base_fit, cap_fit, steps, ambiguities, final, feats, boot_feats,
               boot_feats_after, p_before, p_after, tests, not_ident, specs, alpha, n_boot, duration) -> Diagnosis:
     from .describe import (
         describe_ambiguity,
@@ -479,7 +531,8 @@ def _assemble(rec, prob, layout, tb, plateaus, fit0, base, base_fit, cap_fit, st
         effects.append(describe_effect("saturation", prob, layout, fit0=fit0, base=base, base_fit=base_fit,
                                        cap_fit=cap_fit, plateaus=plateaus))
     if tb.lost > 0 and tb.index_source is not None:
-        effects.append(describe_effect("sample_loss", prob, layout, tb=tb, duration=duration))
+        effects.append(describe_effect("sample_loss", prob, layout, tb=tb, duration=duration,
+                                       closure_fit=(_raw_deviance(raw), float(fit0.deviance[0]))))
     clock = tb.clock_e is not None and abs(tb.clock_e) > CLOCK_MIN and abs(tb.clock_e) > CLOCK_Z * (tb.clock_std or 0.0)
     if clock:
         effects.append(describe_effect("clock_error", prob, layout, tb=tb))

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..recording import Recording
 
-JITTER_FLOOR = 1e-3  # of a period: timestamps are never trusted beyond this
+JITTER_FLOOR = 0.01  # of a period: timestamps are never trusted beyond this
 DEVICE_LIKE = 0.02  # timestamps whose intervals scatter less than this (of a period) are the device's own
 
 
@@ -147,3 +147,25 @@ def _clock(tb: TimeBase, host: np.ndarray, index: np.ndarray) -> None:
     r_nom -= np.median(r_nom)
     r_fit = r - np.median(r)
     tb.clock_fit = (float(np.sum((r_nom / sj) ** 2)), float(np.sum((r_fit / sj) ** 2)))
+
+
+def bridge(rec: Recording, tb: TimeBase) -> Recording:
+    """The recording with every lost sample put back, interpolated at its sample number.
+
+    Gyro readings follow a cubic spline through the delivered samples (hand motion is smooth over a
+    few samples, so holding the last reading over a gap would add a turn-dependent error); the other
+    channels are interpolated linearly; times and counter follow the sample numbers.
+    """
+    from dataclasses import replace
+
+    from scipy.interpolate import CubicSpline
+
+    idx = tb.index.astype(float)
+    full = np.arange(int(tb.index[0]), int(tb.index[-1]) + 1, dtype=float)
+    lin = lambda a: None if a is None else np.interp(full, idx, a)
+    gyro = CubicSpline(idx, rec.gyro, axis=0)(full)
+    accel = None if rec.accel is None else np.column_stack([np.interp(full, idx, rec.accel[:, i]) for i in range(3)])
+    seq = None if rec.seq is None else (rec.seq[0] + (full - full[0])).astype(np.int64)
+    return replace(rec, t=lin(rec.t), gyro=gyro, accel=accel, seq=seq, temp=lin(rec.temp),
+                   host_t=lin(getattr(rec, "host_t", None)))
+
