@@ -262,16 +262,33 @@ def _time_figure(diag: Diagnosis):
 
     det = diag.details
     tb = det["tb"]
-    rec = det["rec"]
-    fig, ax = plt.subplots(figsize=(8, 3.4))
+    rec = det["raw"]  # the recording as delivered, with its gaps
+    host = getattr(rec, "host_t", None)
+    if host is None and det.get("host_t") is not None and len(det["host_t"]) == len(rec):
+        host = det["host_t"]
+    panels = 2 if (host is not None and tb.clock_e is not None) else 1
+    fig, axes = plt.subplots(1, panels, figsize=(6.5 * panels, 3.4), squeeze=False)
+    ax = axes[0, 0]
     t = rec.t - rec.t[0]
     rows = np.arange(t.size)
     ax.plot(t, (t - rows * tb.period) * 1e3, label="timestamps against consecutive rows")
     ax.plot(t, (t - (tb.index - tb.index[0]) * tb.period) * 1e3, label="timestamps against the sample numbers")
     ax.set_xlabel("time (s)")
     ax.set_ylabel("ms")
-    ax.set_title(f"Time base: {tb.lost} samples lost" + (f", clock error {tb.clock_e * 100:+.2f} %" if tb.clock_e is not None else ""))
+    ax.set_title(f"Samples: {tb.lost} lost in {len(tb.gaps)} gaps")
     ax.legend(fontsize=8)
+    if panels == 2:
+        ax = axes[0, 1]
+        h = np.asarray(host, dtype=float)
+        n = (tb.index - tb.index[0]) * tb.period
+        resid = (h - h[0]) - n
+        ax.plot(n, resid * 1e3, ".", ms=2, label="host receive time - device time")
+        ax.plot(n, (n / (1.0 + tb.clock_e) - n) * 1e3 + np.median(resid - (n / (1.0 + tb.clock_e) - n)) * 1e3,
+                label=f"fitted clock error {tb.clock_e * 100:+.3f} %")
+        ax.set_xlabel("device time (s)")
+        ax.set_ylabel("ms")
+        ax.set_title("Device clock against the host")
+        ax.legend(fontsize=8)
     fig.tight_layout()
     return fig
 

@@ -248,7 +248,7 @@ def diagnose(
         boot_feats_after = None
 
     say(0.95, "report")
-    diag = _assemble(rec, raw, prob, layout, tb, plateaus, fit0, base, base_fit, cap_fit, steps, ambiguities, final, feats,
+    diag = _assemble(rec, raw, host_t, prob, layout, tb, plateaus, fit0, base, base_fit, cap_fit, steps, ambiguities, final, feats,
                      boot_feats, boot_feats_after, p_before, p_after, tests, not_ident, specs, alpha, n_boot, duration)
     diag.info["seconds"] = round(time.perf_counter() - t_start, 3)
     say(1.0, "done")
@@ -515,7 +515,8 @@ def _ic(state: ModelState, pen: float) -> float:
 # --------------------------------------------------------------------------- output
 
 
-def _assemble(rec, raw, prob, layout, tb, plateaus, fit0, base, base_fit, cap_fit, steps, ambiguities, final, feats, boot_feats,
+def _assemble(rec, raw, host_t, prob, layout, tb, plateaus, fit0, base, base_fit, cap_fit, steps, ambiguities, final, feats,
+              boot_feats,
               boot_feats_after, p_before, p_after, tests, not_ident, specs, alpha, n_boot, duration) -> Diagnosis:
     from .describe import (
         describe_ambiguity,
@@ -582,7 +583,8 @@ def _assemble(rec, raw, prob, layout, tb, plateaus, fit0, base, base_fit, cap_fi
     }
     details = {"features": feats, "boot": boot_feats, "boot_after": boot_feats_after, "p_before": p_before,
                "p_after": p_after, "prob": prob, "fit0": fit0, "final": final, "plateaus": plateaus, "tb": tb,
-               "layout": layout, "rec": rec, "steps": steps}
+               "layout": layout, "rec": rec, "raw": raw if raw is not None else rec, "steps": steps,
+               "host_t": host_t}
     return Diagnosis(mismatches, effects, unexplained, not_identifiable, recal, nominal, sim, info, details)
 
 
