@@ -78,6 +78,15 @@ def test_concealed_effect_is_named_and_the_fit_improves(effect, seed):
         assert check["outside_after"] < max(1, check["outside_before"])
 
 
+@pytest.mark.parametrize("effect", ["g_sensitivity", "placement_error", "sample_loss", "clock_error"])
+def test_effects_named_without_accelerometer_and_counter(effect):
+    """Without the accelerometer, g-sensitivity is modelled against the gravity of a device resting flat and
+    a placement error as extra closure variance; without the counter, lost samples show in the timestamps."""
+    case, d = _diagnose_case(effect, 2, "paper", accel=False, seq=False)
+    assert d.names and d.names[0] == effect, f"{effect} (magnitude {case.magnitude:.3g}) named as {d.names}"
+    assert d.effects[0]["fit"]["after"] < d.effects[0]["fit"]["before"]
+
+
 @pytest.mark.parametrize(
     "seed,accel,seq,protocol",
     [(0, True, True, "paper"), (1, False, False, "paper"), (2, True, False, "paper"), (3, False, True, "paper"),
