@@ -622,9 +622,11 @@ def create_app(settings: Settings | None = None, service: Service | None = None)
         """The audit log, newest first: who did what, when, on which device (needs a token)."""
         return await asyncio.to_thread(svc.store.audit_log, device_id, limit)
 
+    from .diagnosis_routes import register as register_diagnosis_routes
     from .plot_routes import register as register_plot_routes
 
     register_plot_routes(app)  # before the page is mounted at /, which would shadow later routes
+    register_diagnosis_routes(app)
     _mount_static(app, settings)
     return app
 

@@ -4,6 +4,7 @@
 import { AXES, AXIS_LABEL, fill, fmtDateTime, h, num, sig } from "./dom.js";
 import { angleGauge, icon, placePicture, stillRing, turnAnimation, turnTiles } from "./figures.js";
 import { STEP_LABELS, headline, reasonFor, requestProblem, stepOf, subline } from "./messages.js";
+import { modelCheckPanel } from "./modelcheck.js";
 import { calibrationPlots } from "./plots.js";
 
 const END_STATES = new Set(["done", "failed", "cancelled"]);
@@ -523,7 +524,7 @@ function detailsBlock(ctx, s) {
     ["Fit", q.chi2 != null && q.dof ? `χ²/dof = ${num(q.chi2 / q.dof, 2)} (${q.dof} dof)` : null],
   ].filter(([, v]) => v !== null && v !== undefined);
   const det = h("details", { class: "details" },
-    h("summary", null, "Details: values, checks and plots"),
+    h("summary", null, "Details: values, checks, plots and model check"),
     h("div", { class: "details-body" },
       h("div", { class: "details-grid" },
         h("div", null, h("h2", null, "Values"), paramTable(res.k || [], res.b || [], res.uncertainty),
@@ -539,7 +540,8 @@ function detailsBlock(ctx, s) {
       h("dl", { class: "facts" }, facts.map(([k, v]) => h("div", null, h("dt", null, k), h("dd", null, String(v))))),
       h("h2", null, "Before and after calibration"),
       plots,
-      h("p", null, h("a", { class: "download", href: `/sessions/${s.session_id}/recording`, download: `${s.session_id}.csv` }, "Download the raw recording (CSV)"))));
+      h("p", null, h("a", { class: "download", href: `/sessions/${s.session_id}/recording`, download: `${s.session_id}.csv` }, "Download the raw recording (CSV)")),
+      modelCheckPanel(ctx, s.session_id)));
   let loaded = false;
   det.addEventListener("toggle", async () => {
     if (!det.open || loaded) return;

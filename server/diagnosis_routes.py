@@ -1,0 +1,325 @@
+"""The model check over HTTP: ``gyrocal diagnose`` (calib.diagnosis) for an uploaded recording or a
+stored session.
+
+POST /diagnose and POST /diagnose/report take a CSV body; GET /sessions/{id}/diagnosis,
+.../diagnosis/report and .../diagnosis/progress work on a session's archived recording, with the stages
+the session used. A diagnosis writes nothing to the store: these are reads (open, or with a token
+under --auth-reads). Results are kept in memory by the recording's SHA-256 (see diagnosis_jobs).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections.abc import AsyncIterator
+from typing import Annotated, Any, Literal
+
+from fastapi import FastAPI, Query, Request, Response
+from fastapi.responses import HTMLResponse, JSONResponse
+from pydantic import BaseModel, ConfigDict, Field
+
+from .app import CSV_TYPES, Reader, Service, _check_session_id, _problem
+from .compute import TooManySamples
+from .diagnosis_jobs import (
+    REPORTS_KEPT,
+    Busy,
+    DiagnosisQueue,
+    Lru,
+    WorkerDied,
+    diagnose_csv,
+    digest,
+)
+from .events import finite
+from .models import Problem
+from .store import sha256_hex
+
+log = logging.getLogger(__name__)
+
+REPORT_CSP = "default-src 'none'; img-src data:; style-src 'unsafe-inline'; frame-ancestors 'none'"
+RETRY_AFTER_S = 5
+
+Fs = Annotated[float | None, Query(gt=0, le=100000, description="sample rate, Hz (CSV without a time column)")]
+Layout = Annotated[str, Query(max_length=16, description="CSV layout: auto, native, imucal")]
+
+
+# -- the published shapes --------------------------------------------------------------------------
+class Mismatch(BaseModel):
+    """A residual feature of the recording outside what its simulations produce."""
+
+    model_config = ConfigDict(extra="allow")
+    where: str = Field(description="stage, axis and time, e.g. 'still 2 (6.8-9.3 s), axis x'")
+    statistic: str
+    observed: float | None
+    simulated_range: list[float | None] = Field(description="the simulations' 95 % range [low, high]")
+    p_value: float | None
+
+
+class EffectFit(BaseModel):
+    before: float | None = Field(description="deviance without the effect (lower is better)")
+    after: float | None = Field(description="deviance with the effect modelled")
+
+
+class Effect(BaseModel):
+    """A physical effect the recording shows, fitted."""
+
+    model_config = ConfigDict(extra="allow")
+    name: str = Field(description="bias_drift, axis_misalignment, g_sensitivity, scale_asymmetry, scale_nonlinearity, "
+                                  "saturation, sample_loss, placement_error, clock_error or bias_instability")
+    parameters: dict[str, Any]
+    uncertainty: dict[str, Any] | None = None
+    fit: EffectFit
+    evidence: dict[str, Any] = Field(description="summary (one line), statistic, p_value, information_criterion, held_out, "
+                                                 "simulate (the gyrocal simulate --effect value that reproduces it), ...")
+
+
+class Unexplained(BaseModel):
+    """A clear departure no catalogued effect explains (or that several explain equally well)."""
+
+    model_config = ConfigDict(extra="allow")
+    where: str | list[str] | None = None
+    statistic: str | None = None
+    description: str
+
+
+class NotIdentifiable(BaseModel):
+    name: str
+    reason: str = Field(description="why this recording cannot show the effect, and which motion or channel would")
+
+
+class DiagnosisOut(BaseModel):
+    """`gyrocal diagnose --json`: the recording against its simulation (docs/diagnosis.md)."""
+
+    model_config = ConfigDict(extra="allow")
+    mismatches: list[Mismatch]
+    effects: list[Effect] = Field(description="named effects, the largest fit improvement first; empty when the nominal "
+                                              "model g = K m + b explains the recording")
+    unexplained: list[Unexplained]
+    not_identifiable: list[NotIdentifiable]
+    recalibration: dict[str, Any] | None
+    nominal: dict[str, Any]
+    simulation_check: dict[str, Any]
+    info: dict[str, Any]
+
+
+class DiagnosisProgress(BaseModel):
+    """Where a session's model check is: not started, waiting for a worker, running, or done (kept)."""
+
+    state: Literal["idle", "queued", "running", "done"]
+    fraction: float | None = Field(None, description="0-1 while running")
+    stage: str | None = None
+    elapsed_s: float | None = None
+
+
+# -- the work --------------------------------------------------------------------------------------
+class Diagnoser:
+    """The service's model checks: the queue of worker processes, the kept results and reports."""
+
+    def __init__(self, svc: Service) -> None:
+        self.queue = DiagnosisQueue(timeout_s=svc.settings.compute_timeout_s)
+        self.reports = Lru(REPORTS_KEPT)
+
+    async def run(self, key: str, args: tuple[Any, ...], report: bool, upload: bool) -> tuple[dict[str, Any], str | None, bool]:
+        """(diagnosis, report HTML or None, whether it was kept from before), or an HTTP problem."""
+        q = self.queue
+        json_key, html_key = f"json:{key}", f"html:{key}"
+        try:
+            if report:
+                (d, html), kept = await q.get(html_key, diagnose_csv, *args, into=self.reports)
+                if q.results.get(json_key) is None:
+                    q.results.put(json_key, (d, None))
+            else:
+                (d, html), kept = await q.get(json_key, diagnose_csv, *args[:-1], None)
+        except Busy as exc:
+            raise _problem(503, str(exc), {"Retry-After": str(RETRY_AFTER_S)}) from None
+        except TimeoutError:
+            raise _problem(503, f"the model check ran over {q.timeout_s:g} s and was stopped: a recording of the protocol "
+                           "(about 30 s) takes seconds, this one takes longer than the service allows") from None
+        except WorkerDied as exc:
+            raise _problem(503, f"{exc}; try again") from None
+        except TooManySamples as exc:
+            raise _problem(413, str(exc)) from None
+        except Exception as exc:  # calib's errors and whatever else the recording trips the diagnosis on
+            raise _error(exc, upload) from None
+        return finite(d), html, kept
+
+    def shutdown(self) -> None:
+        self.queue.shutdown()
+
+
+def _error(exc: Exception, upload: bool) -> Exception:
+    """calib's errors as 4xx: the recording is at fault, never the service."""
+    from calib.errors import GyrocalError, ProtocolError, RecordingError
+
+    if isinstance(exc, ProtocolError):
+        return _problem(422, str(exc))
+    if isinstance(exc, RecordingError):
+        return _problem(400, str(exc)) if upload else _problem(409, f"the archived recording cannot be read: {exc}")
+    if isinstance(exc, GyrocalError):
+        return _problem(422, str(exc))
+    log.warning("a recording could not be diagnosed: %r", exc, exc_info=not upload)
+    if upload:
+        return _problem(400, f"the recording cannot be diagnosed ({type(exc).__name__}: {exc}); send a native or imucal CSV "
+                        "of the protocol")
+    return _problem(422, f"this session's recording cannot be diagnosed ({type(exc).__name__}: {exc})")
+
+
+def _upload_args(body: bytes, fs: float | None, layout: str, max_samples: int) -> tuple[str, tuple[Any, ...]]:
+    if layout not in ("auto", "native", "imucal"):
+        raise _problem(422, f"unknown layout {layout!r}: choose auto, native or imucal")
+    if not body.strip():
+        raise _problem(400, "the CSV body is empty: send a recording (header t,gx,gy,gz,... or gyr_x,gyr_y,gyr_z,...)")
+    key = digest("upload", sha256_hex(body), fs, layout)
+    return key, (body, fs, layout, "uploaded recording", max_samples, None, "uploaded recording")
+
+
+async def _body(request: Request) -> bytes:
+    ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    body = await request.body()
+    if ctype not in CSV_TYPES:
+        raise _problem(415, f"send the recording as CSV (Content-Type: text/csv), native (t,gx,gy,gz,...) or imucal layout; "
+                       f"got {ctype or 'no content type'}")
+    return body
+
+
+async def _session_source(svc: Service, sid: str) -> tuple[str, dict[str, Any] | None, str | None]:
+    """(cache key, stored session row, recording SHA-256) of an ended session with a recording; 404/409 otherwise."""
+    _check_session_id(sid)
+    live = svc.sessions.get(sid)
+    if live is not None and not live.machine.finished:
+        raise _problem(409, f"session {sid} is still running ({live.machine.state}): the model check runs on its recording "
+                       "once it has ended")
+    row = await asyncio.to_thread(svc.store.session, sid)
+    if row is None and live is None:
+        raise _problem(404, f"no session {sid}")
+    digest_ = await asyncio.to_thread(svc.store.recording_sha256, sid)
+    if digest_ is None and live is not None and live.csv_bytes:
+        digest_ = sha256_hex(live.csv_bytes)  # the store could not be written: the session still holds it
+    if digest_ is None:
+        state = live.machine.state if live is not None else row["state"]  # type: ignore[index]
+        raise _problem(409, f"session {sid} has no recording to check (it is {state}, with no samples archived)")
+    result = (row or {}).get("result") or (live.machine.result if live is not None else None) or {}
+    stages = result.get("stages") or None
+    return digest("session", digest_, stages), row, digest_
+
+
+async def _session_args(svc: Service, sid: str, row: dict[str, Any] | None, report: bool) -> tuple[Any, ...]:
+    got = await asyncio.to_thread(svc.store.recording, sid)
+    live = svc.sessions.get(sid)
+    csv = got[0] if got is not None else (live.csv_bytes if live is not None else None)
+    if csv is None:
+        raise _problem(409, f"session {sid} has no recording to check")
+    result = (row or {}).get("result") or (live.machine.result if live is not None else None) or {}
+    device = (row or {}).get("device_id") or (live.device.id if live is not None else "")
+    return (csv, None, "native", f"session {sid}", svc.settings.max_upload_samples, result.get("stages") or None,
+            f"session {sid} ({device})" if report else None)
+
+
+def _json(d: dict[str, Any], kept: bool, sha: str | None = None) -> JSONResponse:
+    headers = {"X-Diagnosis-Cache": "hit" if kept else "miss"}
+    if sha:
+        headers["X-Recording-SHA256"] = sha
+    return JSONResponse(d, headers=headers)
+
+
+def _html(html: str | None, kept: bool) -> HTMLResponse:
+    return HTMLResponse(html or "", headers={"Content-Security-Policy": REPORT_CSP, "X-Diagnosis-Cache": "hit" if kept else "miss"})
+
+
+# -- the routes ------------------------------------------------------------------------------------
+def register(app: FastAPI) -> None:
+    """Add the model check routes (before the page is mounted at /) and stop its workers with the app."""
+    svc: Service = app.state.service
+    diag = Diagnoser(svc)
+    app.state.diagnoser = diag
+    _stop_with_app(app, diag.shutdown)
+
+    P = {"model": Problem}
+    busy = {503: {**P, "description": "as many model checks as the service runs are under way (Retry-After), or one ran "
+                                      "over the time limit"}}
+    csv_body = {"requestBody": {"required": True, "content": {
+        "text/csv": {"schema": {"type": "string", "description": "a recording: native (t,gx,gy,gz,...) or imucal layout"}}}}}
+    upload_responses = {
+        400: {**P, "description": "the recording cannot be read"},
+        401: {**P, "description": "reads need a token (--auth-reads)"},
+        413: {**P, "description": "the recording is too large"},
+        415: {**P, "description": "the body is not CSV"},
+        422: {**P, "description": "invalid parameters, or the protocol is not in the recording (the missing stage is named)"},
+        **busy,
+    }
+    session_responses = {
+        401: {**P, "description": "reads need a token (--auth-reads)"},
+        404: {**P, "description": "unknown session"},
+        409: {**P, "description": "the session is running, or has no recording"},
+        422: {**P, "description": "the protocol is not in the session's recording"},
+        **busy,
+    }
+    html_ok = {200: {"content": {"text/html": {}}, "description": "the HTML report, figures embedded"}}
+
+    @app.post("/diagnose", response_model=DiagnosisOut, responses=upload_responses, openapi_extra=csv_body, tags=["diagnosis"])
+    async def diagnose_upload(request: Request, _: Reader, fs: Fs = None, layout: Layout = "auto") -> JSONResponse:
+        """Compare an uploaded recording with its simulation: where it departs, which physical effect
+        explains it, how much the fit improves (as `gyrocal diagnose --json`). Nothing is stored."""
+        key, args = _upload_args(await _body(request), fs, layout, svc.settings.max_upload_samples)
+        d, _, kept = await diag.run(key, args, report=False, upload=True)
+        return _json(d, kept)
+
+    @app.post("/diagnose/report", response_class=Response, responses={**html_ok, **upload_responses},
+              openapi_extra=csv_body, tags=["diagnosis"])
+    async def diagnose_upload_report(request: Request, _: Reader, fs: Fs = None, layout: Layout = "auto") -> HTMLResponse:
+        """The HTML report of an uploaded recording's model check (as `gyrocal diagnose --report`)."""
+        key, args = _upload_args(await _body(request), fs, layout, svc.settings.max_upload_samples)
+        _d, html, kept = await diag.run(key, args, report=True, upload=True)
+        return _html(html, kept)
+
+    @app.get("/sessions/{session_id}/diagnosis", response_model=DiagnosisOut, responses=session_responses, tags=["diagnosis"])
+    async def diagnose_session(session_id: str, _: Reader) -> JSONResponse:
+        """The model check of an ended session's archived recording, with the stages the session used.
+        Computed at the first request (seconds), then kept: X-Diagnosis-Cache says which."""
+        key, row, sha = await _session_source(svc, session_id)
+        kept = diag.queue.results.get(f"json:{key}")
+        if kept is not None:
+            return _json(finite(kept[0]), True, sha)
+        args = await _session_args(svc, session_id, row, report=False)
+        d, _, was_kept = await diag.run(key, args, report=False, upload=False)
+        return _json(d, was_kept, sha)
+
+    @app.get("/sessions/{session_id}/diagnosis/report", response_class=Response, responses={**html_ok, **session_responses},
+             tags=["diagnosis"])
+    async def diagnose_session_report(session_id: str, _: Reader) -> HTMLResponse:
+        """The HTML report of a session's model check: the recording's features against its simulations
+        before and after the effects are modelled, still means, closures, time base, every test."""
+        key, row, _sha = await _session_source(svc, session_id)
+        kept = diag.reports.get(f"html:{key}")
+        if kept is not None:
+            return _html(kept[1], True)
+        args = await _session_args(svc, session_id, row, report=True)
+        _d, html, was_kept = await diag.run(key, args, report=True, upload=False)
+        return _html(html, was_kept)
+
+    @app.get("/sessions/{session_id}/diagnosis/progress", response_model=DiagnosisProgress,
+             responses={k: v for k, v in session_responses.items() if k != 422 and k != 503}, tags=["diagnosis"])
+    async def diagnosis_progress(session_id: str, _: Reader) -> dict[str, Any]:
+        """Where the session's model check is, for a page to show while GET .../diagnosis runs."""
+        key, _row, _sha = await _session_source(svc, session_id)
+        if f"json:{key}" in diag.queue.results:
+            return {"state": "done", "fraction": 1.0, "stage": "done"}
+        job = diag.queue.jobs.get(f"json:{key}") or diag.queue.jobs.get(f"html:{key}")
+        if job is None:
+            return {"state": "idle"}
+        return job.progress()
+
+
+def _stop_with_app(app: FastAPI, stop: Any) -> None:
+    """Run ``stop()`` when the app's lifespan ends (after the service's own shutdown)."""
+    inner = app.router.lifespan_context
+
+    @contextlib.asynccontextmanager
+    async def lifespan(a: Any) -> AsyncIterator[Any]:
+        try:
+            async with inner(a) as state:
+                yield state
+        finally:
+            stop()
+
+    app.router.lifespan_context = lifespan
