@@ -247,6 +247,8 @@ def main() -> int:
     ap.add_argument("--effects", default=",".join((*EFFECT_NAMES, NONE)), help="comma-separated effects (and 'none')")
     ap.add_argument("--json", type=Path, default=None, help="write every case's result here")
     ap.add_argument("--write", type=Path, default=None, help="write the tables into this markdown file's Diagnosis section")
+    ap.add_argument("--speed", type=int, default=0, metavar="N",
+                    help="also time N paper-protocol diagnoses one after another (all cores) for the written section")
     ap.add_argument("--from-json", type=Path, action="append", default=[],
                     help="tabulate results written earlier with --json instead of running (repeatable)")
     args = ap.parse_args()
@@ -273,6 +275,16 @@ def main() -> int:
         sections.append(md)
     if args.json and not loaded:
         args.json.write_text(json.dumps(all_results, default=float))
+    speed = []
+    if args.speed:
+        # in a fresh process, so that numpy may use every core (the workers above use one each)
+        import subprocess
+
+        env = {k: v for k, v in os.environ.items() if k not in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+        out = subprocess.run([sys.executable, str(Path(__file__).resolve().parent / "diagnosis_speed.py"), "--recordings",
+                              str(args.speed), "--n-boot", str(args.n_boot)], env=env, capture_output=True, text=True, check=True)
+        speed = out.stdout.strip().splitlines()
+        print("\n".join(speed))
     if args.write:
         intro = (
             "## Diagnosis\n\n"
@@ -282,7 +294,10 @@ def main() -> int:
             "from each recording's own null bootstrap, never from these seeds. Reproduce with "
             "`bench/diagnosis_confusion.py` (command lines below).\n"
         )
-        write_section(args.write, intro + "\n" + "\n\n".join(sections) + "\n")
+        body = intro + "\n" + "\n\n".join(sections) + "\n"
+        if speed:
+            body += "\n### Speed\n\n" + "\n".join(f"- {line}" for line in speed) + "\n"
+        write_section(args.write, body)
     return 0
 
 

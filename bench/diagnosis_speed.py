@@ -23,33 +23,40 @@ from calib.diagnosis import diagnose
 REAL = Path(os.environ.get("GYROCAL_REAL_DATA", Path(__file__).resolve().parents[2] / "shared" / "data" / "real"))
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--recordings", type=int, default=20)
-    ap.add_argument("--protocol", default="paper", choices=["paper", "extended"])
-    ap.add_argument("--n-boot", type=int, default=200)
-    args = ap.parse_args()
+def measure(recordings: int, protocol: str = "paper", n_boot: int = 200) -> list[str]:
+    """Diagnose ``recordings`` concealed-effect recordings one after another; lines of results."""
     rng = np.random.default_rng(0)
     times, durations = [], []
-    for i in range(args.recordings):
+    for i in range(recordings):
         effect = None if i % 3 == 0 else str(rng.choice(EFFECT_NAMES))
-        case = draw_concealed(20_000 + i, effect, protocol=args.protocol, with_accel=bool(i % 2), with_seq=bool(i % 4 < 2))
+        case = draw_concealed(20_000 + i, effect, protocol=protocol, with_accel=bool(i % 2), with_seq=bool(i % 4 < 2))
         t0 = time.perf_counter()
-        diagnose(case.recording, n_boot=args.n_boot)
+        diagnose(case.recording, n_boot=n_boot)
         times.append(time.perf_counter() - t0)
         durations.append(case.recording.duration_s)
     times = np.array(times)
-    print(f"{args.protocol} protocol, {args.recordings} recordings of {min(durations):.0f}-{max(durations):.0f} s, "
-          f"{args.n_boot} replicates, {os.cpu_count()} cores: median {np.median(times):.2f} s, "
-          f"90 % {np.quantile(times, 0.9):.2f} s, max {times.max():.2f} s")
+    lines = [(f"{protocol} protocol, {recordings} recordings of {min(durations):.0f}-{max(durations):.0f} s, {n_boot} "
+             f"replicates, {os.cpu_count()} cores: median {np.median(times):.2f} s, 90 % {np.quantile(times, 0.9):.2f} s, "
+             f"max {times.max():.2f} s per diagnosis")]
     real = REAL / "imucal" / "example_ferraris_session.csv"
     if real.is_file():
         from calib.io import read_recording
 
         rec = read_recording(real, fs=102.4)
         t0 = time.perf_counter()
-        diagnose(rec, n_boot=args.n_boot)
-        print(f"real imucal session ({rec.duration_s:.0f} s): {time.perf_counter() - t0:.2f} s")
+        diagnose(rec, n_boot=n_boot)
+        lines.append(f"real imucal session ({rec.duration_s:.0f} s, 13 rests): {time.perf_counter() - t0:.2f} s")
+    return lines
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--recordings", type=int, default=20)
+    ap.add_argument("--protocol", default="paper", choices=["paper", "extended"])
+    ap.add_argument("--n-boot", type=int, default=200)
+    args = ap.parse_args()
+    for line in measure(args.recordings, args.protocol, args.n_boot):
+        print(line)
     return 0
 
 
