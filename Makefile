@@ -26,8 +26,12 @@ run: $(VENV)/.installed
 system-deps:
 	bash scripts/install-system-deps.sh
 
+## lint: errors that tests may not reach (undefined or unused names)
+lint: $(VENV)/.installed-test
+	$(VENV)/bin/ruff check calib server mock_device wearable_protocol webui tests bench
+
 ## test: install everything the tests need, then run them all
-test: $(VENV)/.installed-test system-deps
+test: $(VENV)/.installed-test system-deps lint
 	$(PY) -m pytest -q
 
 bench: $(VENV)/.installed
