@@ -362,7 +362,7 @@ def _state(prob: Problem, model: Model, fit: Fit, pri: Priors | None, variance: 
     """Re-estimate the variance parameters at ``fit``, then refit the model with them."""
     variance = dict(variance)
     if "bias_instability" in variance:
-        variance["bias_instability"] = fit_instability(prob, fit, model)
+        variance["bias_instability"] = fit_instability(prob, fit, model, variance["bias_instability"])
     if "placement_var" in variance:
         others = {k: v for k, v in variance.items() if k != "placement_var"}
 

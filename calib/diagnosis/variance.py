@@ -95,28 +95,27 @@ def instability_variance(prob: Problem, psi: np.ndarray, sigma: float, tau: floa
 def _still_deviance(e: np.ndarray, sd: np.ndarray, M: np.ndarray, sigma: float) -> float:
     """Restricted deviance of the still block rates of one recording, e and sd (3, NB), under white noise
     plus sigma^2 M, with each axis' constant integrated out, relative to white noise alone."""
-    total = 0.0
     NB = e.shape[1]
-    one = np.ones(NB)
-    for i in range(3):
-        C = np.diag(sd[i] ** 2) + sigma**2 * M
-        Lc = np.linalg.cholesky(C)
-        we = np.linalg.solve(Lc, e[i])
-        w1 = np.linalg.solve(Lc, one)
-        beta = float(we @ w1) / float(w1 @ w1)
-        r = we - beta * w1
-        # restricted likelihood: the constant is integrated out, so a variance it absorbs costs nothing
-        reml = np.log(float(w1 @ w1)) - np.log(float(np.sum(1.0 / sd[i] ** 2)))
-        total += float(r @ r) + 2.0 * float(np.sum(np.log(np.diag(Lc)) - np.log(sd[i]))) + reml
-    return total
+    C = sigma**2 * M[None] + np.einsum("ib,bc->ibc", sd**2, np.eye(NB))  # (3, NB, NB)
+    Lc = np.linalg.cholesky(C)
+    rhs = np.stack((e, np.ones_like(e)), axis=2)  # (3, NB, 2)
+    w = np.linalg.solve(Lc, rhs)  # whitened rates and whitened constant, per axis
+    we, w1 = w[..., 0], w[..., 1]
+    beta = np.einsum("ib,ib->i", we, w1) / np.einsum("ib,ib->i", w1, w1)
+    r = we - beta[:, None] * w1
+    # restricted likelihood: the constant is integrated out, so a variance it absorbs costs nothing
+    reml = np.log(np.einsum("ib,ib->i", w1, w1)) - np.log(np.sum(1.0 / sd**2, axis=1))
+    logdet = 2.0 * (np.log(np.einsum("ibb->ib", Lc)) - np.log(sd)).sum(axis=1)
+    return float(np.sum(r * r) + np.sum(logdet) + np.sum(reml))
 
 
 TAU_MIN_S = 2.0  # shorter correlation times are white noise at the scale of the still blocks
 
 
-def fit_instability(prob: Problem, base: Fit, model: Model) -> tuple[float, float]:
+def fit_instability(prob: Problem, base: Fit, model: Model, start: tuple[float, float] | None = None) -> tuple[float, float]:
     """Maximum-likelihood (sigma, tau) of the Gauss-Markov bias of one recording (restricted likelihood of the
-    still block rates at the fit ``base`` of ``model``; the rate parameters barely move with the still weights)."""
+    still block rates at the fit ``base`` of ``model``; the rate parameters barely move with the still weights).
+    ``start``: an earlier estimate, searched around instead of over the whole grid of tau."""
     psi = base.psi
     rate, _ = model.rate(psi[:, None, :], prob.block, jacobian=False)  # (R, NB, 3) calibrated rate at rest
     e = np.moveaxis(rate, 2, 1)[0]
@@ -128,7 +127,8 @@ def fit_instability(prob: Problem, base: Fit, model: Model) -> tuple[float, floa
         return _still_deviance(e, sd, gm_correlation(tb, tau), float(np.exp(log_s)))
 
     best = (np.inf, scale, TAU_GRID_S[0])
-    for tau in TAU_GRID_S + (300.0,):
+    grid = TAU_GRID_S + (300.0,) if start is None or start[0] <= 0 else (float(start[1]),)
+    for tau in grid:
         r = minimize_scalar(lambda x, tau=tau: dev(x, tau), bounds=(np.log(scale * 0.05), np.log(scale * 200.0)),
                             method="bounded", options={"xatol": 0.05})
         if r.fun < best[0]:
