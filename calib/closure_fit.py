@@ -204,7 +204,7 @@ class System:
     terms: ClosureTerms
 
 
-def _solve_lower(Lc: np.ndarray, x: np.ndarray) -> np.ndarray:
+def solve_lower(Lc: np.ndarray, x: np.ndarray) -> np.ndarray:
     """L^-1 x for batched lower-triangular L (..., 3, 3) and x (..., 3, k), by forward substitution."""
     y = np.empty_like(x)
     y[..., 0, :] = x[..., 0, :] / Lc[..., 0, 0, None]
@@ -237,7 +237,7 @@ def system(
     if need_cov:
         chol = np.linalg.cholesky(terms.noise).reshape(R, J, 3, 3)
     r = terms.r.reshape(R, J, 3)
-    res_turn = _solve_lower(chol, r[..., None])[..., 0]
+    res_turn = solve_lower(chol, r[..., None])[..., 0]
 
     Kinv = np.linalg.inv(K)
     beta = np.einsum("rij,rj->ri", Kinv, b)  # the reading at rest is -beta
@@ -260,7 +260,7 @@ def system(
         for p, (i, j) in enumerate(OFF_DIAGONAL):
             jt[..., 6 + p] = dK[..., i, j]
             dbeta[:, :, 6 + p] = -Kinv[:, :, i] * beta[:, j, None]
-    jac_turn = _solve_lower(chol, jt)
+    jac_turn = solve_lower(chol, jt)
     jac_still = wstill[..., None] * dbeta[:, None, :, :]  # (R, S, 3, P)
     jac = np.concatenate((jac_turn.reshape(R, 3 * J, P), jac_still.reshape(R, 3 * S, P)), axis=1)
     return System(res, jac, chol, terms)

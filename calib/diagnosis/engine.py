@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ..closure_fit import solve_lower
 from ..closure_model import left_jacobian, left_jacobian_inv, prefix_products
 from .data import DEG, Problem
 from .models import Model
@@ -116,14 +117,6 @@ class Variance:
     turn_path: np.ndarray | None = None  # (R, 3, L, J, NB): the expected bias wander at each turn sample from the still block rates
 
 
-def _solve_lower(Lc: np.ndarray, x: np.ndarray) -> np.ndarray:
-    y = np.empty_like(x)
-    y[..., 0, :] = x[..., 0, :] / Lc[..., 0, 0, None]
-    y[..., 1, :] = (x[..., 1, :] - Lc[..., 1, 0, None] * y[..., 0, :]) / Lc[..., 1, 1, None]
-    y[..., 2, :] = (x[..., 2, :] - Lc[..., 2, 0, None] * y[..., 0, :] - Lc[..., 2, 1, None] * y[..., 1, :]) / Lc[..., 2, 2, None]
-    return y
-
-
 def system(
     prob: Problem,
     model: Model,
@@ -182,8 +175,8 @@ def system(
             if extra_cov:
                 base = np.linalg.cholesky(cl.noise.reshape(R, J, 3, 3))
                 logdet += 2.0 * (np.log(np.einsum("rjii->rji", chol)) - np.log(np.einsum("rjii->rji", base))).sum(axis=(1, 2))
-        res_parts.append(_solve_lower(chol, r[..., None])[..., 0].reshape(R, 3 * J))
-        jac_parts.append(_solve_lower(chol, jt).reshape(R, 3 * J, P))
+        res_parts.append(solve_lower(chol, r[..., None])[..., 0].reshape(R, 3 * J))
+        jac_parts.append(solve_lower(chol, jt).reshape(R, 3 * J, P))
         blocks["closure"] = slice(0, 3 * J)
         pos = 3 * J
     else:

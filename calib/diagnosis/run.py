@@ -11,6 +11,7 @@ import numpy as np
 from scipy.stats import chi2 as chi2_dist
 from scipy.stats import norm
 
+from ..effects import CATALOGUE
 from ..errors import GyrocalError, RecordingError
 from ..recording import Recording
 from ..stage import AXES, Stage
@@ -46,18 +47,7 @@ from .select import (
 )
 from .timebase import TimeBase, analyse_timebase, bridge
 
-EFFECT_NAMES: tuple[str, ...] = (
-    "bias_drift",
-    "axis_misalignment",
-    "g_sensitivity",
-    "scale_asymmetry",
-    "scale_nonlinearity",
-    "saturation",
-    "sample_loss",
-    "placement_error",
-    "clock_error",
-    "bias_instability",
-)
+EFFECT_NAMES: tuple[str, ...] = CATALOGUE  # the catalogue, in the order the documentation lists it
 DEFAULT_BOOT = 200
 CHUNK = 50  # replicates simulated and fitted at once
 CLOCK_MIN = 5e-4  # a clock rate error below this (500 ppm) is within what the host's own clock may show
