@@ -72,15 +72,21 @@ def _summary(result: Any, source: str) -> str:
     return "\n".join(lines)
 
 
-def cmd_calibrate(args: argparse.Namespace) -> int:
-    from .api import calibrate
+def _read(args: argparse.Namespace) -> Any:
+    """The recording named on the command line (``file``, ``--fs``, ``--layout`` if the command has it)."""
     from .errors import SampleRateUnknownError
     from .io import read_recording
 
     try:
-        rec = read_recording(args.file, fs=args.fs, layout=args.layout)
+        return read_recording(args.file, fs=args.fs, layout=getattr(args, "layout", "auto"))
     except SampleRateUnknownError as exc:
         raise SampleRateUnknownError(f"{exc}; on the command line: --fs HZ") from None
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    from .api import calibrate
+
+    rec = _read(args)
     result = calibrate(rec, method=args.method)
     if args.plot:
         from .plots import plot_calibration
@@ -166,13 +172,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from .diagnosis import diagnose
-    from .errors import SampleRateUnknownError
-    from .io import read_recording
 
-    try:
-        rec = read_recording(args.file, fs=args.fs)
-    except SampleRateUnknownError as exc:
-        raise SampleRateUnknownError(f"{exc}; on the command line: --fs HZ") from None
+    rec = _read(args)
     with tqdm(total=100, desc="diagnose", unit="%", file=sys.stderr, disable=args.json and not sys.stderr.isatty()) as bar:
 
         def progress(fraction: float, stage: str) -> None:
