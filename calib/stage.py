@@ -35,6 +35,14 @@ class Stage:
     def duration_s(self) -> float:
         return self.end_s - self.start_s
 
+    @classmethod
+    def from_dict(cls, d: dict) -> "Stage":
+        """The Stage back from its ``to_dict()`` form."""
+        return cls(
+            d["kind"], int(d["start"]), int(d["end"]), float(d["start_s"]), float(d["end_s"]),
+            d.get("axis"), d.get("angle_deg"), tuple(d.get("flags") or ()),
+        )
+
     def to_dict(self) -> dict:
         """JSON-ready form: {kind, start_s, end_s, axis, angle_deg, start, end, flags}."""
         return {

@@ -90,6 +90,14 @@ def _problem(status: int, detail: str, headers: dict[str, str] | None = None) ->
     return HTTPException(status_code=status, detail=detail, headers=headers)
 
 
+def _check_upload(body: bytes, layout: str) -> None:
+    """Refuse an uploaded CSV that names an unknown layout (422) or is empty (400)."""
+    if layout not in ("auto", "native", "imucal"):
+        raise _problem(422, f"unknown layout {layout!r}: choose auto, native or imucal")
+    if not body.strip():
+        raise _problem(400, "the CSV body is empty: send a recording (header t,gx,gy,gz,... or gyr_x,gyr_y,gyr_z,...)")
+
+
 def _service(request: Request) -> Service:
     return request.app.state.service
 
@@ -671,10 +679,7 @@ async def _offline(svc: Service, device_id: str, operator: str, body: bytes, fs:
     method = method or DEFAULT_METHOD
     if method not in available_methods():
         raise _problem(422, f"unknown method {method!r}: choose one of {', '.join(available_methods())}")
-    if layout not in ("auto", "native", "imucal"):
-        raise _problem(422, f"unknown layout {layout!r}: choose auto, native or imucal")
-    if not body.strip():
-        raise _problem(400, "the CSV body is empty: send a recording (header t,gx,gy,gz,... or gyr_x,gyr_y,gyr_z,...)")
+    _check_upload(body, layout)
     source = f"upload for {device_id}"
     try:
         res, csv, n_samples = await asyncio.wait_for(

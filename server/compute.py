@@ -13,7 +13,10 @@ import multiprocessing
 import os
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
+
+if TYPE_CHECKING:
+    from calib.recording import Recording
 
 log = logging.getLogger(__name__)
 
@@ -57,14 +60,21 @@ def calibrate_recording(rec: Any, method: str, stages: Any) -> tuple[dict[str, A
     return out, None, csv
 
 
-def calibrate_upload(body: bytes, fs: float | None, layout: str, method: str, source: str, max_samples: int) -> tuple[dict[str, Any], bytes, int]:
-    """Parse and calibrate an uploaded CSV; raises calib's errors (RecordingError, ProtocolError, ...)."""
-    from calib.api import calibrate
+def parse_upload(body: bytes, fs: float | None, layout: str, source: str, max_samples: int) -> Recording:
+    """An uploaded CSV as a Recording; raises RecordingError, or TooManySamples above ``max_samples``."""
     from calib.io import parse_recording_text
 
     rec = parse_recording_text(body, fs, layout, source)
     if len(rec) > max_samples:
         raise TooManySamples(f"the recording has {len(rec)} samples; at most {max_samples} are accepted, send a shorter one")
+    return rec
+
+
+def calibrate_upload(body: bytes, fs: float | None, layout: str, method: str, source: str, max_samples: int) -> tuple[dict[str, Any], bytes, int]:
+    """Parse and calibrate an uploaded CSV; raises calib's errors (RecordingError, ProtocolError, ...)."""
+    from calib.api import calibrate
+
+    rec = parse_upload(body, fs, layout, source, max_samples)
     result = calibrate(rec, method=method)
     out = result.to_dict()
     out["sample_rate_hz"] = rec.fs

@@ -57,18 +57,12 @@ def diagnose_csv(csv: bytes, fs: float | None, layout: str, source: str, max_sam
     Raises calib's errors (RecordingError, ProtocolError, ...) and server.compute.TooManySamples.
     """
     from calib.diagnosis import diagnose
-    from calib.io import parse_recording_text
     from calib.stage import Stage
 
-    from .compute import TooManySamples
+    from .compute import parse_upload
 
-    rec = parse_recording_text(csv, fs, layout, source)
-    if len(rec) > max_samples:
-        raise TooManySamples(f"the recording has {len(rec)} samples; at most {max_samples} are diagnosed, send a shorter one")
-    found = None
-    if stages:
-        found = [Stage(s["kind"], int(s["start"]), int(s["end"]), float(s["start_s"]), float(s["end_s"]), s.get("axis"),
-                       s.get("angle_deg"), tuple(s.get("flags") or ())) for s in stages]
+    rec = parse_upload(csv, fs, layout, source, max_samples)
+    found = [Stage.from_dict(s) for s in stages] if stages else None
     diag = diagnose(rec, progress=progress, stages=found)
     html = None
     if report_title is not None:

@@ -19,7 +19,7 @@ from fastapi import FastAPI, Query, Request, Response
 from fastapi.responses import HTMLResponse, JSONResponse
 from pydantic import BaseModel, ConfigDict, Field
 
-from .app import CSV_TYPES, Reader, Service, _check_session_id, _problem
+from .app import CSV_TYPES, Reader, Service, _check_session_id, _check_upload, _problem
 from .compute import TooManySamples
 from .diagnosis_jobs import (
     REPORTS_KEPT,
@@ -165,10 +165,7 @@ def _error(exc: Exception, upload: bool) -> Exception:
 
 
 def _upload_args(body: bytes, fs: float | None, layout: str, max_samples: int) -> tuple[str, tuple[Any, ...]]:
-    if layout not in ("auto", "native", "imucal"):
-        raise _problem(422, f"unknown layout {layout!r}: choose auto, native or imucal")
-    if not body.strip():
-        raise _problem(400, "the CSV body is empty: send a recording (header t,gx,gy,gz,... or gyr_x,gyr_y,gyr_z,...)")
+    _check_upload(body, layout)
     key = digest("upload", sha256_hex(body), fs, layout)
     return key, (body, fs, layout, "uploaded recording", max_samples, None, "uploaded recording")
 

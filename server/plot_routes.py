@@ -23,11 +23,7 @@ from .events import finite
 
 def result_from_dict(res: dict[str, Any]) -> CalibrationResult:
     """A CalibrationResult rebuilt from its to_dict() form (enough to apply it and plot it)."""
-    stages = [
-        Stage(s["kind"], int(s["start"]), int(s["end"]), float(s["start_s"]), float(s["end_s"]),
-              s.get("axis"), s.get("angle_deg"), tuple(s.get("flags") or ()))
-        for s in res.get("stages") or []
-    ]
+    stages = [Stage.from_dict(s) for s in res.get("stages") or []]
     K = res.get("K")
     return CalibrationResult(
         k=np.asarray(res["k"], dtype=float),
