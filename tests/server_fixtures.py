@@ -183,3 +183,27 @@ def follow_events(base: str, sid: str, until: set[str], timeout_s: float = 60.0,
             key, _, value = line.partition(":")
             current[key] = value[1:] if value.startswith(" ") else value
     raise AssertionError(f"the event stream of {sid} ended before {until}; last: {events[-1:]}")
+
+
+def bad_csv_uploads() -> dict[str, bytes]:
+    """CSV bodies every upload endpoint must refuse with a 4xx and a reason, by what is wrong with them."""
+    import io
+
+    from calib.io import write_native_csv
+    from calib.simulator import simulate
+
+    still_only = io.StringIO()
+    rec, _ = simulate(2, noise=0.03)
+    write_native_csv(rec.slice(0, 250), still_only)
+    return {
+        "empty": b"",
+        "binary": bytes(range(256)) * 50,
+        "prose": b"this is not a recording\n",
+        "header only": b"t,gx,gy,gz\n",
+        "short rows": b"t,gx,gy,gz\n0,1\n0.01,2\n",
+        "nan": b"t,gx,gy,gz\n0,nan,0,0\n0.01,0,0,0\n0.02,0,0,0\n",
+        "time backwards": b"t,gx,gy,gz\n0.02,0,0,0\n0.01,0,0,0\n0,0,0,0\n",
+        "imucal without fs": b"gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z\n" + b"0,0,0,0,0,9.81\n" * 50,
+        "no protocol": still_only.getvalue().encode(),
+        "latin-1": "t,gx,gy,gz\n0,1,2,3\n\xe9\n".encode("latin-1"),
+    }

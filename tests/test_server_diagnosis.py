@@ -16,7 +16,7 @@ from typing import Any
 import httpx
 import numpy as np
 import pytest
-from server_fixtures import API_TOKEN, RunningService, follow_events
+from server_fixtures import API_TOKEN, RunningService, bad_csv_uploads, follow_events
 
 from calib.cli import main as gyrocal_main
 from calib.concealed import draw_concealed
@@ -137,19 +137,8 @@ def test_the_report_of_an_upload_is_html(service: RunningService) -> None:
 
 
 def test_bad_uploads_get_a_4xx_with_a_reason(service: RunningService) -> None:
-    rec, _ = simulate(2, noise=0.03)
-    still_only = native_csv(rec.slice(0, 250)).encode()
-    bodies = {
-        "empty": b"",
-        "binary": bytes(range(256)) * 50,
-        "prose": b"this is not a recording\n",
-        "header only": b"t,gx,gy,gz\n",
-        "short rows": b"t,gx,gy,gz\n0,1\n0.01,2\n",
-        "nan": b"t,gx,gy,gz\n0,nan,0,0\n0.01,0,0,0\n0.02,0,0,0\n",
-        "time backwards": b"t,gx,gy,gz\n0.02,0,0,0\n0.01,0,0,0\n0,0,0,0\n",
-        "latin-1": "t,gx,gy,gz\n0,1,2,3\n\xe9\n".encode("latin-1"),
-        "no protocol": still_only,
-    }
+    bodies = bad_csv_uploads()
+    still_only = bodies["no protocol"]
     with service.client() as c:
         for name, body in bodies.items():
             r = c.post("/diagnose", content=body, headers=CSV)

@@ -17,7 +17,7 @@ from calib.api import calibrate
 from calib.io import parse_recording_text, write_native_csv
 from calib.simulator import simulate
 from calib.stage import Stage
-from server_fixtures import GYROCAL, ROOT, RunningService, follow_events, postgres, store_url  # noqa: F401
+from server_fixtures import GYROCAL, ROOT, RunningService, bad_csv_uploads, follow_events, postgres, store_url  # noqa: F401
 
 END = {"done", "failed", "cancelled"}
 # mock-N performs SCENARIOS[N-1] in every session (seeded, so every run is the same)
@@ -256,21 +256,7 @@ def test_uploaded_recordings_calibrate(service: RunningService, ferraris_csv: Pa
 
 
 def test_garbage_uploads_get_a_4xx_with_a_reason(service: RunningService) -> None:
-    still_only = io.StringIO()
-    rec, _ = simulate(2, noise=0.03)
-    write_native_csv(rec.slice(0, 250), still_only)
-    bodies = {
-        "empty": b"",
-        "binary": bytes(range(256)) * 50,
-        "prose": b"this is not a recording\n",
-        "header only": b"t,gx,gy,gz\n",
-        "short rows": b"t,gx,gy,gz\n0,1\n0.01,2\n",
-        "nan": b"t,gx,gy,gz\n0,nan,0,0\n0.01,0,0,0\n0.02,0,0,0\n",
-        "time backwards": b"t,gx,gy,gz\n0.02,0,0,0\n0.01,0,0,0\n0,0,0,0\n",
-        "imucal without fs": b"gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z\n" + b"0,0,0,0,0,9.81\n" * 50,
-        "no protocol": still_only.getvalue().encode(),
-        "latin-1": "t,gx,gy,gz\n0,1,2,3\n\xe9\n".encode("latin-1"),
-    }
+    bodies = bad_csv_uploads()
     with service.client() as c:
         for name, body in bodies.items():
             r = c.post("/devices/garbage-1/calibrate", content=body, headers={"Content-Type": "text/csv"})
