@@ -31,8 +31,11 @@ One causal algorithm serves both uses: ``StageTracker`` runs it on a live stream
    ``max_turn_s``. Any other motion (re-orientation, fidgeting, a turn stopped short) is ``motion``.
 
 Flags: ``saturated`` when a sample reaches ``full_scale_fraction`` of the gyro's full scale (when it is
-known), else when ``clip_run`` identical readings sit at the largest |value| seen so far on an axis at
-or above ``clip_min_dps``; ``counter_gap`` when the sample counter does not advance by exactly one.
+known), else when a run of identical readings sits at the largest |value| seen so far on an axis at
+or above ``clip_min_dps`` and is longer than noise would make it: a sensor's integer counts repeat
+by chance, so with p the share of consecutive readings on that axis so far that are equal, the run
+must reach n with p^(n-1) < ``clip_chance`` (at least ``clip_run``; unquantised readings, p = 0,
+need ``clip_run``); ``counter_gap`` when the sample counter does not advance by exactly one.
 """
 
 from __future__ import annotations
@@ -51,6 +54,16 @@ from .stage import AXES, FLAG_COUNTER_GAP, FLAG_SATURATED, Stage
 
 class StageConfigError(GyrocalError, ValueError):
     """A stage-detection setting is invalid; the message names it and what is accepted."""
+
+
+def clip_run_needed(p_equal: np.ndarray | float, min_run: int, chance: float) -> np.ndarray:
+    """Shortest run of identical readings that counts as clipping when consecutive readings are equal
+    by chance with probability ``p_equal``: p^(n-1) < ``chance``, and at least ``min_run``."""
+    p = np.clip(np.asarray(p_equal, dtype=float), 0.0, 1.0)
+    with np.errstate(divide="ignore"):
+        n = 1.0 + np.ceil(np.log(chance) / np.log(np.where((p > 0) & (p < 1), p, 0.5)))
+    n = np.where(p <= 0, min_run, np.where(p >= 1, np.iinfo(np.int64).max, np.maximum(n, min_run)))
+    return n.astype(np.int64)
 
 
 @dataclass(frozen=True)
@@ -76,6 +89,7 @@ class StageConfig:
     max_turn_s: float = 30.0
     full_scale_fraction: float = 0.995
     clip_run: int = 3
+    clip_chance: float = 1e-6  # chance that noise alone repeats a count along a run taken as clipped
     clip_min_dps: float = 100.0
     update_interval_s: float = 0.1  # the tracker processes input at least this much at a time
 
@@ -98,6 +112,8 @@ class StageConfig:
             raise StageConfigError("StageConfig.floor_rank and clip_run must be whole numbers")
         if self.full_scale_fraction > 1:
             raise StageConfigError("StageConfig.full_scale_fraction must be in (0, 1]")
+        if self.clip_chance >= 1:
+            raise StageConfigError("StageConfig.clip_chance must be in (0, 1)")
 
 
 @dataclass(frozen=True)
@@ -250,6 +266,7 @@ class StageTracker:
         self._has_seq: bool | None = None
         self._clip_max = np.zeros(3)
         self._clip_len = np.zeros(3, dtype=np.int64)
+        self._equal_pairs = np.zeros(3, dtype=np.int64)  # consecutive readings so far that are equal, per axis
         # Noise floor.
         self._blocks = 0
         self._quietest: list[float] = []
@@ -442,9 +459,13 @@ class StageTracker:
         idx = np.arange(k)[:, None]
         last_change = np.maximum.accumulate(np.where(same, -1, idx), axis=0)
         run_len = np.where(last_change >= 0, idx - last_change + 1, self._clip_len + idx + 1)
+        equal = self._equal_pairs + np.cumsum(same, axis=0)
+        pairs = self._store.n + idx[:, 0]  # consecutive pairs up to each sample
+        needed = clip_run_needed(equal / np.maximum(pairs, 1)[:, None], cfg.clip_run, cfg.clip_chance)
         self._clip_max = run_max[-1].copy()
         self._clip_len = run_len[-1].copy()
-        return np.any((run_len >= cfg.clip_run) & (a >= cfg.clip_min_dps) & (a >= run_max), axis=1)
+        self._equal_pairs = equal[-1].copy()
+        return np.any((run_len >= needed) & (a >= cfg.clip_min_dps) & (a >= run_max), axis=1)
 
     def _update_floor(self) -> None:
         done = self._store.n // self._nb

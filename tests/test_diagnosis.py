@@ -27,6 +27,7 @@ from calib.errors import RecordingError
 from calib.io import read_recording, write_native_csv
 from calib.recording import Recording
 from calib.simulator import simulate
+from calib.stages import detect_stages
 
 N_BOOT = 100  # replicates per diagnosis in the tests (the default is 200)
 
@@ -215,3 +216,37 @@ def test_real_imucal_session(ferraris_csv):
         assert e["fit"]["after"] < e["fit"]["before"]
     assert d.simulation_check["outside_before"] > 0
     assert d.simulation_check["outside_after"] < d.simulation_check["outside_before"]
+
+
+def _counts(rec: Recording, lsb_per_dps: float) -> Recording:
+    """The recording as a wearable sends it: gyro readings rounded to integer counts."""
+    return replace(rec, gyro=np.rint(rec.gyro * lsb_per_dps) / lsb_per_dps).with_meta(gyro_full_scale_dps=None)
+
+
+def test_repeated_counts_at_a_rate_peak_are_not_clipping():
+    from calib.diagnosis.saturation import find_plateaus
+
+    # 65.5 counts per deg/s (a +-500 deg/s range) with 0.03 deg/s of noise: 2 counts, so the top count of a
+    # slow peak repeats now and then; without a stated range that alone must not be taken for clipping
+    repeats = 0
+    for seed in range(40):
+        rec = _counts(simulate(seed, noise=0.03)[0], 65.5)
+        for ax in range(3):
+            a = np.abs(rec.gyro[:, ax])
+            top = np.flatnonzero(a == a.max())
+            repeats += int(np.any(np.diff(top) == 1))
+        assert find_plateaus(rec) == [], f"seed {seed}"
+        assert not any("saturated" in s.flags for s in detect_stages(rec)), f"seed {seed}"
+    assert repeats > 0  # the case arises in these recordings
+
+
+def test_clipped_counts_without_a_stated_range_are_found():
+    from calib.diagnosis.saturation import find_plateaus
+
+    rec = simulate(5, noise=0.03)[0]
+    full_scale = 0.9 * float(np.abs(rec.gyro[:, 0]).max())
+    clipped = _counts(simulate(5, noise=0.03, full_scale_dps=full_scale)[0], 65.5)
+    plateaus = find_plateaus(clipped)
+    assert plateaus and {p.axis for p in plateaus} == {0}
+    assert all(p.level == pytest.approx(full_scale, abs=0.02) for p in plateaus)
+    assert [s.axis for s in detect_stages(clipped) if "saturated" in s.flags] == ["x"]

@@ -564,6 +564,7 @@ def _assemble(rec, raw, host_t, prob, layout, tb, plateaus, fit0, base, base_fit
         "samples": len(rec),
         "duration_s": duration,
         "sample_rate_hz": rec.fs,
+        "gyro_full_scale_dps": rec.meta.gyro_full_scale_dps,  # the stated range clipping is judged against (None: unknown)
         "channels": {"accelerometer": rec.accel is not None, "sample_counter": rec.seq is not None,
                      "temperature": rec.temp is not None},
         "tests": {v["name"] if k != "bias_drift_temp" else "bias_drift (temperature)": {

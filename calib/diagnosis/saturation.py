@@ -1,9 +1,12 @@
 """Readings clipped at the gyro's full scale: where, and how much rotation the clipping hid.
 
-A plateau is a run of consecutive samples at the full scale on one axis (at 99.5 % of the stated
-range, or, with no range stated, at least ``MIN_RUN`` identical readings at the largest magnitude the
-axis reached, above 100 deg/s). White noise on a smooth rate never repeats a reading that way, so a
-plateau is certain evidence. The hidden rate above the plateau is modelled as a parabolic cap,
+A plateau is a run of consecutive samples at the full scale on one axis: at 99.5 % of the stated
+range, or, with no range stated, a run of identical readings at the largest magnitude the axis
+reached (above 100 deg/s) that noise could not produce. Unquantised readings never repeat, so
+``MIN_RUN`` of them suffice; a sensor's integer counts do repeat when the noise spans few of them,
+so with p the share of the axis's consecutive readings that are equal (highest at rest, so a
+cautious estimate of the chance near a rate peak), the run must reach n with p^(n-1) < ``RUN_CHANCE``
+(as the stage detector does, ``calib.stages.clip_run_needed``). The hidden rate above the plateau is modelled as a parabolic cap,
 m = FS + h (1 - u^2), u in [-1, 1] across the plateau, whose height follows from the slopes the
 readings have where they enter and leave it: h = |slope| w / 2 for a half-width w. That height is a
 prior for the fit (25 % model uncertainty plus the slopes' noise), the closure decides the rest when
@@ -17,9 +20,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..recording import Recording
+from ..stages import clip_run_needed
 
 FULL_SCALE_FRACTION = 0.995
 MIN_RUN = 3
+RUN_CHANCE = 1e-6  # chance that noise alone repeats a count along a whole run taken as clipped
 MIN_CLIP_DPS = 100.0
 CAP_MODEL_UNCERTAINTY = 0.25
 EDGE_SAMPLES = 4
@@ -62,7 +67,7 @@ def find_plateaus(rec: Recording) -> list[Plateau]:
             if top < MIN_CLIP_DPS:
                 continue
             mask = a >= top
-            min_run = MIN_RUN
+            min_run = _min_run(g[:, ax])
         for s, e in _runs(mask):
             if e - s < min_run:
                 continue
@@ -71,6 +76,12 @@ def find_plateaus(rec: Recording) -> list[Plateau]:
             h, sd = _cap_height(t, g[:, ax] * sign, s, e, level)
             out.append(Plateau(ax, sign, s, e, level, h, sd, float(t[s])))
     return out
+
+
+def _min_run(x: np.ndarray) -> int:
+    """Shortest run of identical readings at the top that noise would not produce (the stage detector's rule)."""
+    p_equal = float(np.mean(x[1:] == x[:-1])) if x.size > 1 else 0.0
+    return int(clip_run_needed(p_equal, MIN_RUN, RUN_CHANCE))
 
 
 def _cap_height(t: np.ndarray, x: np.ndarray, s: int, e: int, level: float) -> tuple[float, float]:
