@@ -49,11 +49,12 @@ class WorkerDied(Exception):
 
 # -- what the workers run (module level, so that spawned processes can import it) ------------------
 def diagnose_csv(csv: bytes, fs: float | None, layout: str, source: str, max_samples: int,
-                 stages: list[dict[str, Any]] | None, report_title: str | None,
+                 stages: list[dict[str, Any]] | None, full_scale_dps: float | None, report_title: str | None,
                  progress: Progress | None = None) -> tuple[dict[str, Any], str | None]:
     """Parse a CSV recording and diagnose it: (Diagnosis.to_dict(), the HTML report or None).
 
-    ``stages`` (Stage.to_dict() form) are used instead of detecting them, as a session accepted them.
+    ``stages`` (Stage.to_dict() form) are used instead of detecting them, as a session accepted them;
+    ``full_scale_dps`` is the gyro range the wearable stated (a CSV does not carry it).
     Raises calib's errors (RecordingError, ProtocolError, ...) and server.compute.TooManySamples.
     """
     from calib.diagnosis import diagnose
@@ -62,6 +63,8 @@ def diagnose_csv(csv: bytes, fs: float | None, layout: str, source: str, max_sam
     from .compute import parse_upload
 
     rec = parse_upload(csv, fs, layout, source, max_samples)
+    if full_scale_dps:
+        rec = rec.with_meta(gyro_full_scale_dps=float(full_scale_dps))
     found = [Stage.from_dict(s) for s in stages] if stages else None
     diag = diagnose(rec, progress=progress, stages=found)
     html = None

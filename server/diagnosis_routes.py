@@ -167,7 +167,7 @@ def _error(exc: Exception, upload: bool) -> Exception:
 def _upload_args(body: bytes, fs: float | None, layout: str, max_samples: int) -> tuple[str, tuple[Any, ...]]:
     _check_upload(body, layout)
     key = digest("upload", sha256_hex(body), fs, layout)
-    return key, (body, fs, layout, "uploaded recording", max_samples, None, "uploaded recording")
+    return key, (body, fs, layout, "uploaded recording", max_samples, None, None, "uploaded recording")
 
 
 async def _body(request: Request) -> bytes:
@@ -208,8 +208,10 @@ async def _session_args(svc: Service, sid: str, row: dict[str, Any] | None, repo
         raise _problem(409, f"session {sid} has no recording to check")
     result = (row or {}).get("result") or (live.machine.result if live is not None else None) or {}
     device = (row or {}).get("device_id") or (live.device.id if live is not None else "")
+    info = (row or {}).get("info") or {}
+    full_scale = info.get("gyro_full_scale_dps") or (live.machine.full_scale if live is not None else None)
     return (csv, None, "native", f"session {sid}", svc.settings.max_upload_samples, result.get("stages") or None,
-            f"session {sid} ({device})" if report else None)
+            full_scale, f"session {sid} ({device})" if report else None)
 
 
 def _json(d: dict[str, Any], kept: bool, sha: str | None = None) -> JSONResponse:

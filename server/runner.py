@@ -246,7 +246,7 @@ class LiveSession:
                 passed=m.passed,
                 operator=self.operator if m.state == "cancelled" else None,
                 info={"lost_samples": m.lost_samples, "warnings": m.warnings, "turns": {a: t.to_dict() for a, t in m.turns.items()},
-                      "checks": m.checks, "samples": m.buf.n},
+                      "checks": m.checks, "samples": m.buf.n, "sample_rate_hz": m.fs, "gyro_full_scale_dps": m.full_scale},
             )
             self.persisted = True
             self.persist_error = None

@@ -180,6 +180,10 @@ def test_a_live_session_is_diagnosed_once_and_then_kept(service: RunningService)
     # the simulated clinician did the protocol on a sensor that follows the model: nothing to find
     assert d["effects"] == [] and d["unexplained"] == [], (d["effects"], d["unexplained"])
     assert d["nominal"]["turns"] == 3 and d["info"]["samples"] == len(csv.text.splitlines()) - 1
+    # the CSV archive has no header for it: clipping is judged against the range the wearable stated
+    with service.client() as c:
+        stated = c.get("/devices/mock-1").json()
+    assert d["info"]["gyro_full_scale_dps"] == stated["info"]["gyro_full_scale_dps"] > 0
     assert progress["state"] == "done"
     assert report.status_code == 200 and "Simulation against reality" in report.text
     assert report_again.headers["x-diagnosis-cache"] == "hit" and report_again.text == report.text
