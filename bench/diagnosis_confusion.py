@@ -36,7 +36,8 @@ SEED_BASE = 10_000  # concealed seeds used here start at this, apart from the se
 
 def visibility(case, d) -> float:
     """Noncentrality of the drawn effect in this recording: the deviance drop its true parameters would give
-    the nominal fit (Fisher information with k and b profiled out). inf for the effects read directly from
+    the nominal fit (Fisher information with k and b profiled out; for a bias instability the expected
+    likelihood-ratio gain of its covariance). inf for the effects read directly from
     the data (clipping, counter, host clock, measured tilt); nan where no such number exists."""
     from calib.diagnosis.engine import profile_information, system
     from calib.diagnosis.models import Model
@@ -44,6 +45,10 @@ def visibility(case, d) -> float:
     name, e = case.effect_name, case.effect
     if name in ("saturation", "sample_loss", "clock_error") or (name == "placement_error" and case.with_accel):
         return float("inf")
+    if name == "bias_instability" and d is not None:
+        from calib.diagnosis.variance import instability_noncentrality
+
+        return instability_noncentrality(d.details["prob"], d.details["fit0"].psi, e.sigma_dps, e.tau_s)
     key, phi = {
         "axis_misalignment": lambda: ("axis_misalignment", e.off_diagonal),
         "g_sensitivity": lambda: ("g_sensitivity", np.ravel(e.matrix_dps_per_g)),

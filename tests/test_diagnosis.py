@@ -250,3 +250,22 @@ def test_clipped_counts_without_a_stated_range_are_found():
     assert plateaus and {p.axis for p in plateaus} == {0}
     assert all(p.level == pytest.approx(full_scale, abs=0.02) for p in plateaus)
     assert [s.axis for s in detect_stages(clipped) if "saturated" in s.flags] == ["x"]
+
+
+def test_how_visible_a_bias_instability_is_follows_noise_and_rest():
+    from calib.diagnosis.select import TYPICAL
+    from calib.diagnosis.variance import instability_noncentrality
+
+    sigma, tau = TYPICAL["bias_instability_sigma"], TYPICAL["bias_instability_tau"]
+    seen = {}
+    for noise in (0.02, 0.12):
+        rec, _ = simulate(3, noise=noise)
+        d = diagnose(rec, n_boot=40, seed=0)
+        prob, fit0 = d.details["prob"], d.details["fit0"]
+        nc = instability_noncentrality(prob, fit0.psi, sigma, tau)
+        assert instability_noncentrality(prob, fit0.psi, 2 * sigma, tau) > 2 * nc > 0  # grows with the wander
+        seen[noise] = (nc, {n["name"]: n["reason"] for n in d.not_identifiable}, d.info["tests"])
+    (quiet, _, tests), (noisy, reasons, _) = seen[0.02], seen[0.12]
+    assert quiet > 10 * noisy  # the still means of a noisy gyro hide the wander
+    assert "bias_instability" in tests and tests["bias_instability"]["typical_noncentrality"] == pytest.approx(quiet)
+    assert "bias_instability" in reasons and "rest the device longer" in reasons["bias_instability"]

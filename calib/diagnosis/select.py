@@ -38,6 +38,7 @@ from .models import Model
 from .variance import (
     fit_instability,
     fit_placement_variance,
+    instability_noncentrality,
     instability_score,
     placement_score,
 )
@@ -54,6 +55,8 @@ TYPICAL = {
     "scale_asymmetry": 0.005,
     "scale_nonlinearity": 0.005,  # relative scale change at 1000 deg/s (0.1-0.5 % FS nonlinearity)
     "placement_error": 0.8,  # deg per turn, a device put back by hand
+    "bias_instability_sigma": 0.009,  # deg/s: 20 deg/h bias instability (Allan deviation floor 0.62 sigma)
+    "bias_instability_tau": 20.0,  # s
 }
 
 WEAK_MIN = 25.0  # below this noncentrality a typical effect is more often missed than found (at a 3-dof test's threshold)
@@ -64,6 +67,7 @@ TYPICAL_TEXT = {
     "scale_asymmetry": "0.5 % between directions",
     "scale_nonlinearity": "0.5 % at 1000 deg/s",
     "placement_error": "0.8 deg per turn",
+    "bias_instability": "a 0.009 deg/s wander with a 20 s time constant (20 deg/h bias instability)",
 }
 
 ADVICE = {
@@ -201,16 +205,24 @@ def plan_tests(
         if not any(s.name == name for s in specs):
             not_ident[name] = f"not identifiable with this recording: {ADVICE[name]}"
         elif nc < WEAK_MIN:
-            factor = float(np.sqrt(WEAK_MIN / max(nc, 1e-12)))
-            not_ident[name] = (f"only weakly identifiable with this recording: an effect of typical size ({TYPICAL_TEXT[name]}) "
-                               f"would be missed; only about {factor:.1f} times that or more shows. {ADVICE[name].capitalize()}")
-    if prob.layout.NB >= 4:
-        specs.append(TestSpec("bias_instability", "bias_instability", "instability", base, dof=1, noncentrality=np.inf))
-    else:
+            not_ident[name] = _weak_text(name, nc)
+    nc = instability_noncentrality(prob, base_fit.psi, TYPICAL["bias_instability_sigma"], TYPICAL["bias_instability_tau"]) \
+        if prob.layout.NB >= 4 else 0.0
+    if nc >= IDENTIFY_MIN:
+        specs.append(TestSpec("bias_instability", "bias_instability", "instability", base, dof=1, noncentrality=nc))
+    if nc < IDENTIFY_MIN:
         not_ident["bias_instability"] = f"not identifiable with this recording: {ADVICE['bias_instability']}"
+    elif nc < WEAK_MIN:
+        not_ident["bias_instability"] = _weak_text("bias_instability", nc)
     if not has_accel and prob.J:
         specs.append(TestSpec("placement_error", "placement_var", "placement_var", base, dof=1, noncentrality=np.inf))
     return specs, union, not_ident
+
+
+def _weak_text(name: str, nc: float) -> str:
+    factor = float(np.sqrt(WEAK_MIN / max(nc, 1e-12)))
+    return (f"only weakly identifiable with this recording: an effect of typical size ({TYPICAL_TEXT[name]}) "
+            f"would be missed; only about {factor:.1f} times that or more shows. {ADVICE[name].capitalize()}")
 
 
 def _extend_priors(priors: Priors | None, src: Model, dst: Model) -> Priors | None:

@@ -37,6 +37,28 @@ def _still_residuals(prob: Problem, sys_: System, psi: np.ndarray) -> tuple[np.n
     return np.moveaxis(z * sd, 2, 1), np.moveaxis(sd, 2, 1)
 
 
+def _still_weights(prob: Problem, psi: np.ndarray) -> np.ndarray:
+    """White-noise weights 1 / sd^2 of the still block rates (R, 3, NB)."""
+    sd = np.abs(psi[:, 0:3])[:, None, :] * prob.sigma[:, None, :] / np.sqrt(prob.block_n)[None, :, None]
+    return np.moveaxis(1.0 / sd**2, 2, 1)
+
+
+def _gm_terms(w: np.ndarray, M: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """For weights w (R, 3, NB) and correlation M (NB, NB): tr(P M) and the information tr(P M P M) / 2
+    per axis, with P = W - W 1 1' W / (1' W 1) (the constant projected out), and M W 1, 1' W 1."""
+    trWM = np.einsum("rib,bb->ri", w, M)
+    Mw = np.einsum("bc,ric->rib", M, w)  # M W 1
+    wMw = np.einsum("rib,rib->ri", w, Mw)
+    sw = w.sum(axis=2)
+    trPM = trWM - wMw / sw
+    WM = w[..., :, None] * M[None, None]  # (R, 3, NB, NB)
+    tr1 = np.einsum("ribc,ricb->ri", WM, WM)
+    v = np.einsum("ribc,ric->rib", WM, w)  # W M W 1
+    tr2 = np.einsum("rib,rib->ri", v, Mw) / sw  # 1'W M W M W 1 / 1'W1
+    tr3 = (wMw / sw) ** 2
+    return trPM, 0.5 * (tr1 - 2.0 * tr2 + tr3), Mw, sw
+
+
 def instability_score(prob: Problem, sys_: System, psi: np.ndarray, taus=TAU_GRID_S) -> np.ndarray:
     """Standardised score for the Gauss-Markov variance, maximised over tau: (R,)."""
     e, sd = _still_residuals(prob, sys_, psi)
@@ -49,21 +71,27 @@ def instability_score(prob: Problem, sys_: System, psi: np.ndarray, taus=TAU_GRI
         M = gm_correlation(tb, tau)
         we = w * e
         quad = np.einsum("rib,bc,ric->ri", we, M, we)
-        trWM = np.einsum("rib,bb->ri", w, M)
-        Mw = np.einsum("bc,ric->rib", M, w)  # M W 1
-        wMw = np.einsum("rib,rib->ri", w, Mw)
-        sw = w.sum(axis=2)
-        trPM = trWM - wMw / sw
-        # I = tr(P M P M) / 2 with P = W - W 1 1' W / (1' W 1)
-        WM = w[..., :, None] * M[None, None]  # (R, 3, NB, NB)
-        tr1 = np.einsum("ribc,ricb->ri", WM, WM)
-        v = np.einsum("ribc,ric->rib", WM, w)  # W M W 1
-        tr2 = np.einsum("rib,rib->ri", v, Mw) / sw  # 1'W M W M W 1 / 1'W1
-        tr3 = (wMw / sw) ** 2
-        info = 0.5 * (tr1 - 2.0 * tr2 + tr3).sum(axis=1)
+        trPM, info, _, _ = _gm_terms(w, M)
         score = 0.5 * (quad - trPM).sum(axis=1)
-        best = np.maximum(best, score / np.sqrt(np.maximum(info, 1e-300)))
+        best = np.maximum(best, score / np.sqrt(np.maximum(info.sum(axis=1), 1e-300)))
     return np.maximum(best, 0.0) ** 2
+
+
+def instability_noncentrality(prob: Problem, psi: np.ndarray, sigma: float, tau: float) -> float:
+    """How visible a Gauss-Markov bias (sigma deg/s, tau s) is in the still blocks of the first recording:
+    the expected likelihood-ratio gain of modelling it, sum(mu - ln(1 + mu)) over the eigenvalues mu of
+    its covariance in units of the white noise (the constant each axis' b absorbs projected out)."""
+    w = _still_weights(prob, psi)[0]  # (3, NB)
+    M = gm_correlation(prob.block.t[0], tau) * sigma**2
+    total = 0.0
+    for wi in w:
+        r = np.sqrt(wi)
+        u = r / np.linalg.norm(r)
+        Q = np.eye(r.size) - np.outer(u, u)
+        mu = np.linalg.eigvalsh(Q @ (r[:, None] * M * r[None, :]) @ Q)
+        mu = np.maximum(mu, 0.0)
+        total += float(np.sum(mu - np.log1p(mu)))
+    return total
 
 
 def instability_variance(prob: Problem, psi: np.ndarray, sigma: float, tau: float) -> Variance:
