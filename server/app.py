@@ -90,6 +90,25 @@ def _problem(status: int, detail: str, headers: dict[str, str] | None = None) ->
     return HTTPException(status_code=status, detail=detail, headers=headers)
 
 
+def _recording_problem(exc: Exception, doing: str, upload: bool) -> HTTPException:
+    """calib's errors (and anything else a recording trips the work on) as 4xx: the recording is at fault,
+    never the service. ``doing``: "calibrated" or "diagnosed". A stored session's recording that cannot be
+    read is a conflict (409), an uploaded one a bad request (400)."""
+    from calib.errors import GyrocalError, ProtocolError, RecordingError
+
+    if isinstance(exc, ProtocolError):
+        return _problem(422, str(exc))
+    if isinstance(exc, RecordingError):
+        return _problem(400, str(exc)) if upload else _problem(409, f"the archived recording cannot be read: {exc}")
+    if isinstance(exc, GyrocalError):
+        return _problem(422, str(exc))
+    log.warning("a recording could not be %s: %r", doing, exc, exc_info=not upload)
+    if upload:
+        return _problem(400, f"the recording cannot be {doing} ({type(exc).__name__}: {exc}); send a native or imucal CSV "
+                        "of the protocol")
+    return _problem(422, f"this session's recording cannot be {doing} ({type(exc).__name__}: {exc})")
+
+
 def _check_upload(body: bytes, layout: str) -> None:
     """Refuse an uploaded CSV that names an unknown layout (422) or is empty (400)."""
     if layout not in ("auto", "native", "imucal"):
@@ -674,7 +693,6 @@ async def _start_live(svc: Service, device_id: str, operator: str, method: str |
 
 async def _offline(svc: Service, device_id: str, operator: str, body: bytes, fs: float | None, method: str | None, layout: str) -> JSONResponse:
     from calib.api import DEFAULT_METHOD, available_methods
-    from calib.errors import GyrocalError, ProtocolError, RecordingError
 
     method = method or DEFAULT_METHOD
     if method not in available_methods():
@@ -690,15 +708,8 @@ async def _offline(svc: Service, device_id: str, operator: str, body: bytes, fs:
         raise _problem(503, f"calibrating this recording took longer than {svc.settings.compute_timeout_s:g} s; try again later") from None
     except TooManySamples as exc:
         raise _problem(413, str(exc)) from None
-    except ProtocolError as exc:
-        raise _problem(422, str(exc)) from None
-    except RecordingError as exc:
-        raise _problem(400, str(exc)) from None
-    except GyrocalError as exc:
-        raise _problem(422, str(exc)) from None
-    except Exception as exc:  # whatever the parser or estimator trips on, the upload is at fault
-        log.warning("upload could not be calibrated: %r", exc)
-        raise _problem(400, f"the recording cannot be calibrated ({type(exc).__name__}: {exc}); send a native or imucal CSV") from None
+    except Exception as exc:  # calib's errors and whatever else the parser or estimator trips on
+        raise _recording_problem(exc, "calibrated", upload=True) from None
     res = finite(res)
     checks = evaluate_result(res, svc.settings.tolerances)
     failures = [c["text"] for c in checks if not c["ok"]]

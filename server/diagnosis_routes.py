@@ -19,7 +19,7 @@ from fastapi import FastAPI, Query, Request, Response
 from fastapi.responses import HTMLResponse, JSONResponse
 from pydantic import BaseModel, ConfigDict, Field
 
-from .app import CSV_TYPES, Reader, Service, _check_session_id, _check_upload, _problem
+from .app import CSV_TYPES, Reader, Service, _check_session_id, _check_upload, _problem, _recording_problem
 from .compute import TooManySamples
 from .diagnosis_jobs import (
     REPORTS_KEPT,
@@ -140,28 +140,11 @@ class Diagnoser:
         except TooManySamples as exc:
             raise _problem(413, str(exc)) from None
         except Exception as exc:  # calib's errors and whatever else the recording trips the diagnosis on
-            raise _error(exc, upload) from None
+            raise _recording_problem(exc, "diagnosed", upload) from None
         return finite(d), html, kept
 
     def shutdown(self) -> None:
         self.queue.shutdown()
-
-
-def _error(exc: Exception, upload: bool) -> Exception:
-    """calib's errors as 4xx: the recording is at fault, never the service."""
-    from calib.errors import GyrocalError, ProtocolError, RecordingError
-
-    if isinstance(exc, ProtocolError):
-        return _problem(422, str(exc))
-    if isinstance(exc, RecordingError):
-        return _problem(400, str(exc)) if upload else _problem(409, f"the archived recording cannot be read: {exc}")
-    if isinstance(exc, GyrocalError):
-        return _problem(422, str(exc))
-    log.warning("a recording could not be diagnosed: %r", exc, exc_info=not upload)
-    if upload:
-        return _problem(400, f"the recording cannot be diagnosed ({type(exc).__name__}: {exc}); send a native or imucal CSV "
-                        "of the protocol")
-    return _problem(422, f"this session's recording cannot be diagnosed ({type(exc).__name__}: {exc})")
 
 
 def _upload_args(body: bytes, fs: float | None, layout: str, max_samples: int) -> tuple[str, tuple[Any, ...]]:
