@@ -62,7 +62,8 @@ def clip_run_needed(p_equal: np.ndarray | float, min_run: int, chance: float) ->
     p = np.clip(np.asarray(p_equal, dtype=float), 0.0, 1.0)
     with np.errstate(divide="ignore"):
         n = 1.0 + np.ceil(np.log(chance) / np.log(np.where((p > 0) & (p < 1), p, 0.5)))
-    n = np.where(p <= 0, min_run, np.where(p >= 1, np.iinfo(np.int64).max, np.maximum(n, min_run)))
+    never = 2.0**40  # readings that always repeat: no run is evidence of clipping
+    n = np.where(p <= 0, min_run, np.where(p >= 1, never, np.minimum(np.maximum(n, min_run), never)))
     return n.astype(np.int64)
 
 
