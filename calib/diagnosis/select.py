@@ -201,28 +201,21 @@ def plan_tests(
         if nc < IDENTIFY_MIN or Vk is None:
             continue
         specs.append(TestSpec(name, key, "score", base.with_effects(key), idx, Vk, nc, int(Vk.shape[1])))
+    nc = instability_noncentrality(prob, base_fit.psi, TYPICAL["bias_instability_sigma"], TYPICAL["bias_instability_tau"]) \
+        if prob.layout.NB >= 4 else 0.0
+    best_nc["bias_instability"] = nc
+    if nc >= IDENTIFY_MIN:
+        specs.append(TestSpec("bias_instability", "bias_instability", "instability", base, dof=1, noncentrality=nc))
     for name, nc in best_nc.items():
         if not any(s.name == name for s in specs):
             not_ident[name] = f"not identifiable with this recording: {ADVICE[name]}"
         elif nc < WEAK_MIN:
-            not_ident[name] = _weak_text(name, nc)
-    nc = instability_noncentrality(prob, base_fit.psi, TYPICAL["bias_instability_sigma"], TYPICAL["bias_instability_tau"]) \
-        if prob.layout.NB >= 4 else 0.0
-    if nc >= IDENTIFY_MIN:
-        specs.append(TestSpec("bias_instability", "bias_instability", "instability", base, dof=1, noncentrality=nc))
-    if nc < IDENTIFY_MIN:
-        not_ident["bias_instability"] = f"not identifiable with this recording: {ADVICE['bias_instability']}"
-    elif nc < WEAK_MIN:
-        not_ident["bias_instability"] = _weak_text("bias_instability", nc)
+            factor = float(np.sqrt(WEAK_MIN / max(nc, 1e-12)))
+            not_ident[name] = (f"only weakly identifiable with this recording: an effect of typical size ({TYPICAL_TEXT[name]}) "
+                               f"would be missed; only about {factor:.1f} times that or more shows. {ADVICE[name].capitalize()}")
     if not has_accel and prob.J:
         specs.append(TestSpec("placement_error", "placement_var", "placement_var", base, dof=1, noncentrality=np.inf))
     return specs, union, not_ident
-
-
-def _weak_text(name: str, nc: float) -> str:
-    factor = float(np.sqrt(WEAK_MIN / max(nc, 1e-12)))
-    return (f"only weakly identifiable with this recording: an effect of typical size ({TYPICAL_TEXT[name]}) "
-            f"would be missed; only about {factor:.1f} times that or more shows. {ADVICE[name].capitalize()}")
 
 
 def _extend_priors(priors: Priors | None, src: Model, dst: Model) -> Priors | None:

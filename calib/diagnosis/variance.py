@@ -29,34 +29,17 @@ def gm_correlation(tb: np.ndarray, tau: float) -> np.ndarray:
     return np.exp(-np.abs(tb[:, None] - tb[None, :]) / tau)
 
 
+def _still_sd(prob: Problem, psi: np.ndarray) -> np.ndarray:
+    """White-noise std of the still block mean rates in true-rate units, (R, 3, NB): k sigma / sqrt(n)."""
+    return np.abs(psi[:, 0:3])[:, :, None] * prob.sigma[:, :, None] / np.sqrt(prob.block_n)[None, None, :]
+
+
 def _still_residuals(prob: Problem, sys_: System, psi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Block mean rates e (R, 3, NB) in deg/s and their white-noise std sd (R, 3, NB)."""
     R, NB = prob.R, prob.NB
     z = sys_.res[:, sys_.blocks["still"]].reshape(R, NB, 3)
-    sd = np.abs(psi[:, 0:3])[:, None, :] * prob.sigma[:, None, :] / np.sqrt(prob.block_n)[None, :, None]
-    return np.moveaxis(z * sd, 2, 1), np.moveaxis(sd, 2, 1)
-
-
-def _still_weights(prob: Problem, psi: np.ndarray) -> np.ndarray:
-    """White-noise weights 1 / sd^2 of the still block rates (R, 3, NB)."""
-    sd = np.abs(psi[:, 0:3])[:, None, :] * prob.sigma[:, None, :] / np.sqrt(prob.block_n)[None, :, None]
-    return np.moveaxis(1.0 / sd**2, 2, 1)
-
-
-def _gm_terms(w: np.ndarray, M: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """For weights w (R, 3, NB) and correlation M (NB, NB): tr(P M) and the information tr(P M P M) / 2
-    per axis, with P = W - W 1 1' W / (1' W 1) (the constant projected out), and M W 1, 1' W 1."""
-    trWM = np.einsum("rib,bb->ri", w, M)
-    Mw = np.einsum("bc,ric->rib", M, w)  # M W 1
-    wMw = np.einsum("rib,rib->ri", w, Mw)
-    sw = w.sum(axis=2)
-    trPM = trWM - wMw / sw
-    WM = w[..., :, None] * M[None, None]  # (R, 3, NB, NB)
-    tr1 = np.einsum("ribc,ricb->ri", WM, WM)
-    v = np.einsum("ribc,ric->rib", WM, w)  # W M W 1
-    tr2 = np.einsum("rib,rib->ri", v, Mw) / sw  # 1'W M W M W 1 / 1'W1
-    tr3 = (wMw / sw) ** 2
-    return trPM, 0.5 * (tr1 - 2.0 * tr2 + tr3), Mw, sw
+    sd = _still_sd(prob, psi)
+    return np.moveaxis(z, 2, 1) * sd, sd
 
 
 def instability_score(prob: Problem, sys_: System, psi: np.ndarray, taus=TAU_GRID_S) -> np.ndarray:
@@ -71,9 +54,20 @@ def instability_score(prob: Problem, sys_: System, psi: np.ndarray, taus=TAU_GRI
         M = gm_correlation(tb, tau)
         we = w * e
         quad = np.einsum("rib,bc,ric->ri", we, M, we)
-        trPM, info, _, _ = _gm_terms(w, M)
+        trWM = np.einsum("rib,bb->ri", w, M)
+        Mw = np.einsum("bc,ric->rib", M, w)  # M W 1
+        wMw = np.einsum("rib,rib->ri", w, Mw)
+        sw = w.sum(axis=2)
+        trPM = trWM - wMw / sw
+        # I = tr(P M P M) / 2 with P = W - W 1 1' W / (1' W 1)
+        WM = w[..., :, None] * M[None, None]  # (R, 3, NB, NB)
+        tr1 = np.einsum("ribc,ricb->ri", WM, WM)
+        v = np.einsum("ribc,ric->rib", WM, w)  # W M W 1
+        tr2 = np.einsum("rib,rib->ri", v, Mw) / sw  # 1'W M W M W 1 / 1'W1
+        tr3 = (wMw / sw) ** 2
+        info = 0.5 * (tr1 - 2.0 * tr2 + tr3).sum(axis=1)
         score = 0.5 * (quad - trPM).sum(axis=1)
-        best = np.maximum(best, score / np.sqrt(np.maximum(info.sum(axis=1), 1e-300)))
+        best = np.maximum(best, score / np.sqrt(np.maximum(info, 1e-300)))
     return np.maximum(best, 0.0) ** 2
 
 
@@ -81,11 +75,9 @@ def instability_noncentrality(prob: Problem, psi: np.ndarray, sigma: float, tau:
     """How visible a Gauss-Markov bias (sigma deg/s, tau s) is in the still blocks of the first recording:
     the expected likelihood-ratio gain of modelling it, sum(mu - ln(1 + mu)) over the eigenvalues mu of
     its covariance in units of the white noise (the constant each axis' b absorbs projected out)."""
-    w = _still_weights(prob, psi)[0]  # (3, NB)
     M = gm_correlation(prob.block.t[0], tau) * sigma**2
     total = 0.0
-    for wi in w:
-        r = np.sqrt(wi)
+    for r in 1.0 / _still_sd(prob, psi)[0]:  # per axis, (NB,): whitening weights
         u = r / np.linalg.norm(r)
         Q = np.eye(r.size) - np.outer(u, u)
         mu = np.linalg.eigvalsh(Q @ (r[:, None] * M * r[None, :]) @ Q)
@@ -105,7 +97,7 @@ def instability_variance(prob: Problem, psi: np.ndarray, sigma: float, tau: floa
     if lay.J:
         tm = np.array([0.5 * (lay.t[s.start] + lay.t[s.end - 1]) for s in lay.turns])
         c = sigma**2 * np.exp(-np.abs(tm[:, None] - tb[None, :]) / tau)  # (J, NB)
-        sd = np.abs(psi[:, 0:3])[:, :, None] * prob.sigma[:, :, None] / np.sqrt(prob.block_n)[None, None, :]
+        sd = _still_sd(prob, psi)
         C = M[None, None] + np.einsum("rib,bc->ribc", sd**2, np.eye(tb.size))  # (R, 3, NB, NB)
         sol = np.linalg.solve(C, np.broadcast_to(c.T, C.shape[:2] + c.T.shape))  # (R, 3, NB, J)
         v = sigma**2 - np.einsum("jb,ribj->rij", c, sol)  # (R, 3, J)
@@ -147,7 +139,7 @@ def fit_instability(prob: Problem, base: Fit, model: Model, start: tuple[float, 
     psi = base.psi
     rate, _ = model.rate(psi[:, None, :], prob.block, jacobian=False)  # (R, NB, 3) calibrated rate at rest
     e = np.moveaxis(rate, 2, 1)[0]
-    sd = (np.abs(psi[0, 0:3])[:, None] * prob.sigma[0][:, None] / np.sqrt(prob.block_n)[None, :])
+    sd = _still_sd(prob, psi)[0]
     tb = prob.block.t[0]
     scale = float(np.median(sd))
 
