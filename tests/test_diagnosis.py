@@ -269,3 +269,29 @@ def test_how_visible_a_bias_instability_is_follows_noise_and_rest():
     assert quiet > 10 * noisy  # the still means of a noisy gyro hide the wander
     assert "bias_instability" in tests and tests["bias_instability"]["typical_noncentrality"] == pytest.approx(quiet)
     assert "bias_instability" in reasons and "rest the device longer" in reasons["bias_instability"]
+
+
+@pytest.mark.parametrize("seed,temp,lead", [(28, False, "within 4"), (25, True, "drift ahead by 4.1")])
+def test_a_wandering_bias_is_told_from_a_drift_by_simulating_both(seed, temp, lead):
+    """Still means that go up and down again: a steady drift fits them about as well as a wander, or even better
+    by the criterion, yet simulations of that drift never leave it so small a lead; simulations of the wander do."""
+    case = draw_concealed(seed, "bias_instability", protocol="paper", with_accel=True, with_seq=True, with_temp=temp)
+    d = diagnose(case.recording, n_boot=N_BOOT, seed=seed)
+    assert d.names == ["bias_instability"], f"{lead}: named {d.names}"
+    (test,) = d.effects[0]["evidence"]["rivals"]
+    assert test["rival"] == "bias_drift"
+    assert test["p_value_rival"] < 0.05 <= test["p_value_named"]
+    assert test["simulations_rival"] == 40 and test["as_far_rival"] <= 1
+    assert "simulations of bias_drift" in test["summary"]
+
+
+def test_rival_test_verdicts():
+    from calib.diagnosis.rivals import RivalTest
+
+    assert RivalTest("a", "b", -3.0, 0.5, 0.02).winner() == "a"
+    assert RivalTest("a", "b", 6.0, 0.02, 0.4).winner() == "b"
+    assert RivalTest("a", "b", -3.0, 0.5, 0.3).winner() is None  # both worlds give such a difference
+    assert RivalTest("a", "b", -3.0, 0.01, 0.02).winner() is None  # neither does: something else is going on
+    assert RivalTest("a", "b", -3.0, None, 0.02).winner() is None  # the leader's own world was not simulated
+    flipped = RivalTest("a", "b", -3.0, 0.5, 0.02, 3, 40, 2, 0).flipped()
+    assert (flipped.a, flipped.d_obs, flipped.p_a, flipped.n_a, flipped.hits_b) == ("b", 3.0, 0.02, 40, 2)

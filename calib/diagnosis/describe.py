@@ -142,8 +142,24 @@ def describe_effect(name: str, prob: Problem, layout: Layout, **kw) -> dict:
         "held_out": {"before": step.cv[0], "after": step.cv[1]},
         "simulate": simulate,
     }
+    if step.rivals:
+        evidence["rivals"] = [_rival_evidence(name_out, t) for t in step.rivals]
     return {"name": name_out, "parameters": params, "uncertainty": unc,
             "fit": {"before": float(step.before.deviance[0]), "after": float(step.after.deviance[0])}, "evidence": evidence}
+
+
+def _rival_evidence(name: str, t: dict) -> dict:
+    """Cox's test against a rival explanation, with a sentence saying what the simulations showed."""
+    d = t["criterion_difference"]
+    rival = t["rival"]
+    said = [f"{name} fits {'better' if d < 0 else 'worse'} than {rival} by {abs(d):.1f} in the information criterion"]
+    if t["p_value_rival"] is not None:
+        said.append(f"{t['as_far_rival']} of {t['simulations_rival']} simulations of {rival} give a difference at least "
+                    f"this favourable to {name}")
+    if t["p_value_named"] is not None:
+        said.append(f"{t['as_far_named']} of {t['simulations_named']} simulations of {name} give one at least this "
+                    f"favourable to {rival}")
+    return dict(t, summary=", ".join(said))
 
 
 def _profile_sd(prob: Problem, state: ModelState, which: str) -> float:
@@ -292,14 +308,21 @@ def describe_ambiguity(a: dict) -> dict:
     names = a["candidates"]
     advice = "; ".join(f"{DISTINGUISH[n]} ({n})" for n in names if n in DISTINGUISH)
     base = f" on top of {', '.join(a['base'])}" if a["base"] else ""
-    return {
+    tests = [_rival_evidence(names[0], t) for t in a.get("rival_tests", []) if t["rival"] in names]
+    simulated = (" Simulations of each could not set either aside: " + "; ".join(t["summary"] for t in tests) + "."
+                 if tests else "")
+    out = {
         "where": "the recording as a whole",
         "statistic": "ambiguous",
         "candidates": names,
         "information_criterion": a["ic"],
         "description": (f"a mismatch{base} that {' and '.join(names)} explain about equally well (information criteria "
-                        f"within {4:g} of each other): this recording cannot tell which; to tell them apart: {advice}"),
+                        f"within {4:g} of each other): this recording cannot tell which; to tell them apart: {advice}."
+                        f"{simulated}"),
     }
+    if tests:
+        out["rival_tests"] = tests
+    return out
 
 
 def _shape(group: str, idx: list[int], feats: Features, layout: Layout, values: np.ndarray, have_effects: bool,

@@ -36,15 +36,17 @@ from .select import (
     Candidate,
     ModelState,
     Step,
-    effective_params,
-    fit_state,
+    criterion,
+    gm_of,
     informative_count,
     null_fit,
     p_value,
     plan_tests,
     press,
     statistics,
+    try_fit,
 )
+from .rivals import Worlds, rival_test
 from .timebase import TimeBase, analyse_timebase, bridge
 
 EFFECT_NAMES: tuple[str, ...] = CATALOGUE  # the catalogue, in the order the documentation lists it
@@ -52,7 +54,8 @@ DEFAULT_BOOT = 200
 CHUNK = 50  # replicates simulated and fitted at once
 CLOCK_MIN = 5e-4  # a clock rate error below this (500 ppm) is within what the host's own clock may show
 CLOCK_Z = 6.0
-AMBIGUOUS_IC = 4.0  # an effect is named only if it beats every other by this much in the information criterion
+AMBIGUOUS_IC = 4.0  # a rival this close in the information criterion needs Cox's test to be set aside
+RIVAL_WINDOW_IC = 20.0  # a significant rival this close may still win Cox's test against the leader
 
 Progress = Callable[[float, str], None]
 
@@ -221,7 +224,8 @@ def diagnose(
     n_info = informative_count(prob, accel is not None)
     pen = float(np.log(n_info))
     state = ModelState(base, base_fit, priors, {}, ())
-    steps, ambiguities = _select(prob, state, cands, specs, priors, alpha, pen)
+    worlds = Worlds(replay, state, priors, pen, caps, a_design, seed)
+    steps, ambiguities = _select(prob, state, cands, specs, priors, alpha, pen, worlds)
     final = steps[-1][1] if steps else state
 
     # ---- what the recording looks like next to a simulation with the effects
@@ -229,7 +233,7 @@ def diagnose(
     p_before = _feature_p(feats.values[0], boot_feats, feats.kinds)
     p_after = None
     if steps:
-        replay_fx = with_effects(replay, final.model, final.fit.psi[0], _gm(final), a_design)
+        replay_fx = with_effects(replay, final.model, final.fit.psi[0], gm_of(final), a_design)
         _, feats_after = _bootstrap(replay_fx, base, base_fit.psi, priors, union, [], max(50, n_boot // 2),
                                     np.random.default_rng(seed + 1), caps, a_design, lambda f: None)
         p_after = _feature_p(feats.values[0], feats_after, feats.kinds)
@@ -345,13 +349,6 @@ def _plateau_priors(plateaus: list[Plateau], model: Model) -> Priors:
     return Priors(np.arange(s, s + C), np.array([[p.height for p in plateaus]]), np.array([[p.height_sd for p in plateaus]]))
 
 
-def _gm(state: ModelState):
-    if "bias_instability" in state.variance:
-        sigma, tau = state.variance["bias_instability"]
-        return np.full(3, sigma), tau
-    return None
-
-
 # --------------------------------------------------------------------------- bootstrap
 
 
@@ -408,24 +405,28 @@ def _feature_p(obs: np.ndarray, boot: np.ndarray, kinds: list[str]) -> np.ndarra
 # --------------------------------------------------------------------------- selection
 
 
-def _select(prob: Problem, state: ModelState, cands: list[Candidate], specs, base_priors, alpha: float, pen: float):
+def _select(prob: Problem, state: ModelState, cands: list[Candidate], specs, base_priors, alpha: float, pen: float,
+            worlds: Worlds | None = None):
     """Forward selection. Returns ([(Step, ModelState)] in the order accepted, ambiguities).
 
-    A step is taken only when the best significant effect beats every other catalogued effect the
-    recording can test (significant or not) by at least ``AMBIGUOUS_IC`` in the information criterion;
-    otherwise the recording cannot tell them apart and the candidates are reported as an ambiguity.
+    The best significant effect (lowest information criterion) is taken only when no other catalogued
+    effect the recording can test explains the mismatch about as well (within ``AMBIGUOUS_IC``), unless
+    Cox's test (rivals.py) rejects that rival's world while keeping the effect's own. A significant rival
+    further behind (within ``RIVAL_WINDOW_IC``) is taken instead when the test rejects the leader's world
+    and keeps the rival's. What stays unresolved is reported as an ambiguity.
     """
     steps: list[tuple[Step, ModelState]] = []
     ambiguities: list[dict] = []
     remaining = list(cands)
     others = [s for s in specs if s.key not in {c.key for c in cands}]
+    keys = {s_.name: s_.key for s_ in specs}
     cur = state
-    cur_ic = _ic(cur, pen)
+    cur_ic = criterion(cur, pen)
     cur_cv = press(cur.fit, prob)
     while remaining:
         trials = []
         for c in remaining:
-            st = _try_fit(prob, cur, c.key, base_priors)
+            st = try_fit(prob, cur, c.key, base_priors)
             if st is None:
                 continue
             lr = float(cur.fit.deviance[0] - st.fit.deviance[0])
@@ -437,29 +438,60 @@ def _select(prob: Problem, state: ModelState, cands: list[Candidate], specs, bas
                 trials.append((c, st, lr, p))
         if not trials:
             break
-        scored = sorted(((_ic(st, pen), c, st, lr, p) for c, st, lr, p in trials), key=lambda x: x[0])
+        scored = sorted(((criterion(st, pen), c, st, lr, p) for c, st, lr, p in trials), key=lambda x: x[0])
         ic, c, st, lr, p = scored[0]
         cv = press(st.fit, prob)
         if not (ic < cur_ic and cv < cur_cv):
             break
-        rivals = [(x[0], x[1].name) for x in scored[1:] if x[1].name != c.name]
+        accepted = {x.name for x, _ in steps}
+        # every rival explanation: name -> (criterion, key, fitted state, significant candidate or None, p)
+        rivals: dict[str, tuple] = {}
+        for r_ic, rc, rst, _, rp in scored[1:]:
+            if rc.name != c.name and rc.name not in rivals:
+                rivals[rc.name] = (r_ic, rc.key, rst, rc, rp)
         for o in others:
-            if o.name == c.name or any(o.name == name for _, (name) in rivals) or any(s.name == o.name for s, _ in steps):
+            if o.name == c.name or o.name in rivals or o.name in accepted:
                 continue
-            ost = _try_fit(prob, cur, o.key, base_priors)
+            ost = try_fit(prob, cur, o.key, base_priors)
             if ost is not None:
-                rivals.append((_ic(ost, pen), o.name))
-        close = sorted({name for r_ic, name in rivals if r_ic < ic + AMBIGUOUS_IC and name not in [x.name for x, _ in steps]})
+                rivals[o.name] = (criterion(ost, pen), o.key, ost, None, 1.0)
         # a rival that explains different residuals is a second effect, not an alternative: with both
         # modelled the criterion improves again
-        keys = {s_.name: s_.key for s_ in specs}
-        close = [n for n in close if not _complementary(prob, st, keys.get(n), base_priors, ic, pen)]
-        if close:
-            ambiguities.append({"candidates": [c.name] + close, "ic": {c.name: ic, **{n: v for v, n in rivals if n in close}},
-                                "base": [x.name for x, _ in steps]})
+        close = sorted((v[0], n) for n, v in rivals.items() if v[0] < ic + AMBIGUOUS_IC and n not in accepted
+                       and not _complementary(prob, st, keys.get(n), base_priors, ic, pen))
+        far = sorted((v[0], n) for n, v in rivals.items() if ic + AMBIGUOUS_IC <= v[0] < ic + RIVAL_WINDOW_IC
+                     and v[3] is not None and n not in accepted)
+        win = (c, st, p)
+        tests: list[dict] = []
+        unresolved: list[str] = []
+        for r_ic, n in close + far:
+            if worlds is None:
+                if r_ic < ic + AMBIGUOUS_IC:
+                    unresolved.append(n)
+                    break
+                continue
+            _, rkey, rst, rcand, rp = rivals[n]
+            t = rival_test(worlds, cur, win[1], rst, win[0].key, rkey, win[0].name, n,
+                           first="b" if r_ic < ic + AMBIGUOUS_IC else "a")
+            w = t.winner()
+            switch = w == n and rcand is not None and criterion(rst, pen) < cur_ic and press(rst.fit, prob) < cur_cv
+            if switch:
+                win = (rcand, rst, rp)
+                t = t.flipped()
+            tests.append(t.to_dict())
+            if not switch and w != win[0].name and r_ic < ic + AMBIGUOUS_IC:
+                unresolved.append(n)
+                break
+        c, st, p = win
+        ic, cv = criterion(st, pen), press(st.fit, prob)
+        unresolved = [n for n in unresolved if n != c.name]
+        if unresolved:
+            ambiguities.append({"candidates": [c.name] + unresolved,
+                                "ic": {c.name: ic, **{n: rivals[n][0] for n in unresolved if n in rivals}},
+                                "base": sorted(accepted), "rival_tests": tests})
             break
         steps.append((Step(c.name, c.key, cur.fit, st.fit, st.model, dict(st.variance), (cur_ic, ic), (cur_cv, cv), p,
-                           c.statistic), st))
+                           c.statistic, tests), st))
         cur, cur_ic, cur_cv = st, ic, cv
         remaining = [r for r in remaining if r.name != c.name]
         others = [o for o in others if o.name != c.name]
@@ -469,16 +501,8 @@ def _select(prob: Problem, state: ModelState, cands: list[Candidate], specs, bas
 def _complementary(prob: Problem, st: ModelState, key: str | None, base_priors, ic: float, pen: float) -> bool:
     if key is None:
         return False
-    both = _try_fit(prob, st, key, base_priors)
-    return both is not None and _ic(both, pen) < ic - AMBIGUOUS_IC
-
-
-def _try_fit(prob: Problem, cur: ModelState, key: str, base_priors) -> ModelState | None:
-    try:
-        st = fit_state(prob, cur, key, base_priors)
-    except (np.linalg.LinAlgError, ValueError, FloatingPointError):
-        return None
-    return st if np.all(np.isfinite(st.fit.psi)) and np.isfinite(st.fit.deviance[0]) else None
+    both = try_fit(prob, st, key, base_priors)
+    return both is not None and criterion(both, pen) < ic - AMBIGUOUS_IC
 
 
 def _conditional_p(lr: float, c: Candidate) -> float:
@@ -495,11 +519,6 @@ def _conditional_p(lr: float, c: Candidate) -> float:
         return float(chi2_dist.sf(lr, 1))
     scale = max(1.0, c.null[0] * c.null[1] / max(c.dof, 1))
     return float(chi2_dist.sf(lr / scale, max(c.dof, 1)))
-
-
-def _ic(state: ModelState, pen: float) -> float:
-    extra = 2.0 * ("bias_instability" in state.variance) + 1.0 * ("placement_var" in state.variance)
-    return float(state.fit.deviance[0]) + pen * (effective_params(state.fit) + extra)
 
 
 # --------------------------------------------------------------------------- output

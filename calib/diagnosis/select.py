@@ -135,6 +135,7 @@ class Step:
     cv: tuple[float, float] = (0.0, 0.0)
     p_value: float = 1.0
     statistic: float = 0.0
+    rivals: list = field(default_factory=list)  # Cox's tests against rival explanations (rivals.RivalTest.to_dict())
 
 
 def typical_scale(key: str, P: int, prob: Problem, duration: float, temp_range: float) -> np.ndarray:
@@ -407,6 +408,29 @@ def variance_of(prob: Problem, psi: np.ndarray, variance: dict):
         tp = variance["placement_var"]
         v.closure = np.broadcast_to(np.eye(3) * tp**2, (prob.R, prob.J, 3, 3)).copy()
     return v
+
+
+def gm_of(state: ModelState) -> tuple[np.ndarray, float] | None:
+    """The state's Gauss-Markov bias as the simulator takes it: (sigma per axis (3,), tau), or None."""
+    if "bias_instability" in state.variance:
+        sigma, tau = state.variance["bias_instability"]
+        return np.full(3, sigma), tau
+    return None
+
+
+def try_fit(prob: Problem, cur: ModelState, key: str, base_priors: Priors | None) -> ModelState | None:
+    """``cur`` extended by ``key`` and refitted, or None when that fit fails or diverges."""
+    try:
+        st = fit_state(prob, cur, key, base_priors)
+    except (np.linalg.LinAlgError, ValueError, FloatingPointError):
+        return None
+    return st if np.all(np.isfinite(st.fit.psi)) and np.isfinite(st.fit.deviance[0]) else None
+
+
+def criterion(state: ModelState, pen: float) -> float:
+    """Information criterion of a fitted state: deviance + pen per effective parameter (variance parts included)."""
+    extra = 2.0 * ("bias_instability" in state.variance) + 1.0 * ("placement_var" in state.variance)
+    return float(state.fit.deviance[0]) + pen * (effective_params(state.fit) + extra)
 
 
 def _refit(prob: Problem, model: Model, psi0: np.ndarray, priors: Priors | None, variance: dict, max_iter: int = 10) -> Fit:

@@ -1,0 +1,129 @@
+"""Telling two rival explanations apart: Cox's test of non-nested models by parametric bootstrap.
+
+When two effects both explain a mismatch, the information criterion says which fits better, but not
+whether a lead of that size is unusual. Each rival's fitted model is simulated (the recording's
+motion replayed with that effect switched on, as ``null.with_effects`` does), every simulation is
+fitted with both rivals exactly as the recording was, and the difference of their criteria
+d = IC_a - IC_b is compared with the one the recording shows. A world whose simulations rarely give
+a difference as far towards the other rival as observed is rejected: p_a = P(d* >= d_obs | a),
+p_b = P(d* <= d_obs | b). An effect is named over its rival when its own world is plausible and
+the rival's is not; otherwise the recording cannot tell them apart.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .engine import Priors, gauss_newton
+from .null import Replay, replicate_problems, with_effects
+from .select import ModelState, criterion, fit_state, gm_of, try_fit
+
+RIVAL_BOOT = 40  # simulations of each rival's world
+RIVAL_ALPHA = 0.05  # a world giving the observed difference less often than this is rejected
+
+
+@dataclass
+class Worlds:
+    """What the simulations of a recording need: its replay under the base fit and how to refit a replicate."""
+
+    replay: Replay
+    base: ModelState  # the base model fitted to the recording (no effects)
+    base_priors: Priors | None
+    pen: float
+    caps: np.ndarray | None
+    a_design: np.ndarray | None
+    seed: int
+
+
+@dataclass
+class RivalTest:
+    """The outcome for rivals a and b: d = IC_a - IC_b, and how plausible each one's world finds it."""
+
+    a: str
+    b: str
+    d_obs: float
+    p_a: float | None  # None: that world was not simulated (the decision did not need it)
+    p_b: float | None
+    n_a: int = 0  # simulations of each world that were fitted (fewer when the outcome was clear early)
+    n_b: int = 0
+    hits_a: int = 0  # of those, how many gave a difference at least as far towards the other rival as observed
+    hits_b: int = 0
+
+    def winner(self) -> str | None:
+        """The rival whose world is plausible while the other's is rejected, else None."""
+        if self.p_a is None or self.p_b is None:
+            return None
+        if self.p_b < RIVAL_ALPHA <= self.p_a:
+            return self.a
+        if self.p_a < RIVAL_ALPHA <= self.p_b:
+            return self.b
+        return None
+
+    def flipped(self) -> RivalTest:
+        """The same test seen from b's side."""
+        return RivalTest(self.b, self.a, -self.d_obs, self.p_b, self.p_a, self.n_b, self.n_a, self.hits_b, self.hits_a)
+
+    def to_dict(self) -> dict:
+        return {"rival": self.b, "criterion_difference": self.d_obs,
+                "p_value_named": self.p_a, "simulations_named": self.n_a, "as_far_named": self.hits_a,
+                "p_value_rival": self.p_b, "simulations_rival": self.n_b, "as_far_rival": self.hits_b}
+
+
+def _replicate_difference(worlds: Worlds, prob, cur_keys: tuple[str, ...], key_a: str, key_b: str) -> float:
+    """IC_a - IC_b of one simulated recording, fitted exactly as the recording was (base, accepted effects, rival)."""
+    base = worlds.base
+    fit = gauss_newton(prob, base.model, base.fit.psi, priors=worlds.base_priors, max_iter=10)
+    st = ModelState(base.model, fit, worlds.base_priors, {}, ())
+    try:
+        for k in cur_keys:
+            st = fit_state(prob, st, k, worlds.base_priors)
+    except (np.linalg.LinAlgError, ValueError, FloatingPointError):
+        return np.nan
+    sa = try_fit(prob, st, key_a, worlds.base_priors)
+    sb = try_fit(prob, st, key_b, worlds.base_priors)
+    if sa is None or sb is None:
+        return np.nan
+    return criterion(sa, worlds.pen) - criterion(sb, worlds.pen)
+
+
+def world_p(worlds: Worlds, world: ModelState, cur_keys: tuple[str, ...], key_a: str, key_b: str, d_obs: float,
+            upper: bool, n: int, salt: int) -> tuple[float, int, int]:
+    """How often n simulations of ``world`` (a fitted state of the recording) give IC_a - IC_b at least as far as
+    d_obs (above it when ``upper``): (p with the observation counted, simulations fitted, how many went as far).
+
+    Simulation stops once the p-value can no longer fall under ``RIVAL_ALPHA``: the world is plausible."""
+    replay = with_effects(worlds.replay, world.model, world.fit.psi[0], gm_of(world), worlds.a_design)
+    rng = np.random.default_rng([worlds.seed, salt])
+    hits = used = 0
+    for _ in range(n):
+        prob = replicate_problems(replay, rng, 1, worlds.caps, worlds.a_design)
+        d = _replicate_difference(worlds, prob, cur_keys, key_a, key_b)
+        if not np.isfinite(d):
+            continue
+        used += 1
+        hits += int(d >= d_obs) if upper else int(d <= d_obs)
+        if (hits + 1) / (n + 1) >= RIVAL_ALPHA:
+            break
+    return (hits + 1) / (used + 1), used, hits
+
+
+def rival_test(worlds: Worlds, cur: ModelState, st_a: ModelState, st_b: ModelState, key_a: str, key_b: str,
+               name_a: str, name_b: str, first: str, n: int = RIVAL_BOOT) -> RivalTest:
+    """Cox's test of effect a against effect b, both fitted on top of ``cur``.
+
+    ``first``: the world to simulate first ("a" or "b"); the other is simulated only if the first is
+    rejected, since otherwise no winner can follow.
+    """
+    d_obs = criterion(st_a, worlds.pen) - criterion(st_b, worlds.pen)
+    p: dict[str, float | None] = {"a": None, "b": None}
+    used = {"a": 0, "b": 0}
+    hits = {"a": 0, "b": 0}
+    for side in (first, "b" if first == "a" else "a"):
+        world, salt = (st_a, 1) if side == "a" else (st_b, 2)
+        # in a's world a's lead is larger (d more negative): a is rejected when d_obs is unusually high
+        p[side], used[side], hits[side] = world_p(worlds, world, cur.keys, key_a, key_b, d_obs, side == "a", n, salt)
+        if p[side] >= RIVAL_ALPHA:
+            break
+    return RivalTest(name_a, name_b, d_obs, p["a"], p["b"], used["a"], used["b"], hits["a"], hits["b"])
