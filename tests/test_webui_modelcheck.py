@@ -108,3 +108,28 @@ def test_model_check_names_a_drift_hidden_in_an_uploaded_recording(
     assert "Simulation against reality" in report.inner_text("h1")
     report.close()
     assert_clean(page_watch)
+
+
+def test_model_check_says_how_a_wander_was_told_from_a_drift(
+        wizard: Wizard, page: Any, webui_service: Any, page_watch: Watch) -> None:
+    case = draw_concealed(28, "bias_instability")
+    buf = io.StringIO()
+    write_native_csv(case.recording, buf)
+    with api(webui_service) as c:
+        r = c.post("/devices/upload-wander/calibrate", content=buf.getvalue(), headers={"Content-Type": "text/csv"})
+        assert r.status_code == 200, r.text
+        sid = r.json()["session_id"]
+    wizard.sign_in()
+    page.goto(f"{webui_service.base}/#/session/{sid}")
+    page.wait_for_selector(".verdict h1")
+    run_model_check(wizard, page)
+    panel = page.locator(".modelcheck")
+    with api(webui_service) as c:
+        d = c.get(f"/sessions/{sid}/diagnosis").json()
+    assert [e["name"] for e in d["effects"]] == ["bias_instability"]
+    (test,) = d["effects"][0]["evidence"]["rivals"]
+    rival = panel.locator(".mc-effect[data-effect='bias_instability'] .mc-rival")
+    assert rival.count() == 1
+    assert "Told apart from drifting zero reading" in rival.inner_text() and test["summary"] in rival.inner_text()
+    panel.screenshot(path=str(wizard.shots / "model-check-wander.png"))
+    assert_clean(page_watch)

@@ -112,7 +112,9 @@ def _effects_table(d: dict) -> str:
         params = "<br>".join(f"{_e(k)} = {_num(v)} &plusmn; {_num(e['uncertainty'].get(k))}" if k in e["uncertainty"]
                              else f"{_e(k)} = {_num(v)}" for k, v in e["parameters"].items())
         ev = e["evidence"]
-        rows.append(f"<tr><td>{_e(e['name'])}</td><td>{_e(ev.get('summary', ''))}</td><td>{params}</td>"
+        told = "".join(f"<br><span class='note'>Told apart from {_e(t['rival'])}: {_e(t['summary'])}.</span>"
+                       for t in ev.get("rivals", []))
+        rows.append(f"<tr><td>{_e(e['name'])}</td><td>{_e(ev.get('summary', ''))}{told}</td><td>{params}</td>"
                     f"<td class='num'>{_num(e['fit']['before'], 6)} &rarr; {_num(e['fit']['after'], 6)}</td>"
                     f"<td><code>gyrocal simulate --effect {_e(ev.get('simulate', ''))}</code></td></tr>")
     rows.append("</table>")

@@ -18,10 +18,10 @@ import numpy as np
 
 from .engine import Priors, gauss_newton
 from .null import Replay, replicate_problems, with_effects
-from .select import ModelState, criterion, fit_state, gm_of, try_fit
+from .select import ModelState, criterion, effective_params, fit_state, gm_of, try_fit
 
 RIVAL_BOOT = 40  # simulations of each rival's world
-RIVAL_ALPHA = 0.05  # a world giving the observed difference less often than this is rejected
+RIVAL_ALPHA = 0.025  # a world giving the observed difference less often than this is rejected (none of 40)
 
 
 @dataclass
@@ -88,13 +88,30 @@ def _replicate_difference(worlds: Worlds, prob, cur_keys: tuple[str, ...], key_a
     return criterion(sa, worlds.pen) - criterion(sb, worlds.pen)
 
 
-def world_p(worlds: Worlds, world: ModelState, cur_keys: tuple[str, ...], key_a: str, key_b: str, d_obs: float,
-            upper: bool, n: int, salt: int) -> tuple[float, int, int]:
-    """How often n simulations of ``world`` (a fitted state of the recording) give IC_a - IC_b at least as far as
+def debiased(world: ModelState, cur: ModelState, key: str) -> np.ndarray:
+    """The world's parameters (P,) with the effect ``key`` shrunk to an unbiased size.
+
+    A fitted effect is larger than the true one: its deviance drop is about the true effect's
+    noncentrality plus its number of parameters p. Simulated at the fit, a world with many parameters
+    would give its effect leads the recording cannot match; scaled by sqrt(1 - p / drop), the
+    simulated effect has the size the recording supports."""
+    psi = world.fit.psi[0].copy()
+    sl = world.model.slices.get(key)
+    if sl is None:
+        return psi  # a variance effect: simulated at its fitted size
+    drop = float(cur.fit.deviance[0] - world.fit.deviance[0])
+    p = max(effective_params(world.fit) - effective_params(cur.fit), 0.0)
+    psi[sl] *= np.sqrt(max(0.0, 1.0 - p / drop)) if drop > 0 else 0.0
+    return psi
+
+
+def world_p(worlds: Worlds, world: ModelState, psi: np.ndarray, cur_keys: tuple[str, ...], key_a: str, key_b: str,
+            d_obs: float, upper: bool, n: int, salt: int) -> tuple[float, int, int]:
+    """How often n simulations of ``world`` (a fitted state of the recording, at parameters psi) give IC_a - IC_b at least as far as
     d_obs (above it when ``upper``): (p with the observation counted, simulations fitted, how many went as far).
 
     Simulation stops once the p-value can no longer fall under ``RIVAL_ALPHA``: the world is plausible."""
-    replay = with_effects(worlds.replay, world.model, world.fit.psi[0], gm_of(world), worlds.a_design)
+    replay = with_effects(worlds.replay, world.model, psi, gm_of(world), worlds.a_design)
     rng = np.random.default_rng([worlds.seed, salt])
     hits = used = 0
     for _ in range(n):
@@ -121,9 +138,9 @@ def rival_test(worlds: Worlds, cur: ModelState, st_a: ModelState, st_b: ModelSta
     used = {"a": 0, "b": 0}
     hits = {"a": 0, "b": 0}
     for side in (first, "b" if first == "a" else "a"):
-        world, salt = (st_a, 1) if side == "a" else (st_b, 2)
+        world, key, salt = (st_a, key_a, 1) if side == "a" else (st_b, key_b, 2)
         # in a's world a's lead is larger (d more negative): a is rejected when d_obs is unusually high
-        p[side], used[side], hits[side] = world_p(worlds, world, cur.keys, key_a, key_b, d_obs, side == "a", n, salt)
+        p[side], used[side], hits[side] = world_p(worlds, world, debiased(world, cur, key), cur.keys, key_a, key_b, d_obs, side == "a", n, salt)
         if p[side] >= RIVAL_ALPHA:
             break
     return RivalTest(name_a, name_b, d_obs, p["a"], p["b"], used["a"], used["b"], hits["a"], hits["b"])

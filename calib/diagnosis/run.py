@@ -55,6 +55,9 @@ CHUNK = 50  # replicates simulated and fitted at once
 CLOCK_MIN = 5e-4  # a clock rate error below this (500 ppm) is within what the host's own clock may show
 CLOCK_Z = 6.0
 AMBIGUOUS_IC = 4.0  # a rival this close in the information criterion needs Cox's test to be set aside
+# effects Cox's test leaves alone: the replay puts the device back exactly, so the tilts the accelerometer measured
+# (which scale the placement model's heading prior) are not reproduced and its world would not be like the recording
+UNSIMULATED = {"placement_error"}
 RIVAL_WINDOW_IC = 20.0  # a significant rival this close may still win Cox's test against the leader
 
 Progress = Callable[[float, str], None]
@@ -465,7 +468,7 @@ def _select(prob: Problem, state: ModelState, cands: list[Candidate], specs, bas
         tests: list[dict] = []
         unresolved: list[str] = []
         for r_ic, n in close + far:
-            if worlds is None:
+            if worlds is None or UNSIMULATED & {win[0].key, rivals[n][1]}:
                 if r_ic < ic + AMBIGUOUS_IC:
                     unresolved.append(n)
                     break

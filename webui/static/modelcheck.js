@@ -83,6 +83,8 @@ function effectsList(d) {
         h("p", { class: "mc-effect-title" }, icon("warn"), h("strong", null, effectTitle(e.name)), h("code", null, e.name)),
         EFFECTS[e.name] ? h("p", null, EFFECTS[e.name].text) : null,
         ev.summary ? h("p", { class: "mc-evidence" }, h("span", { class: "mc-label" }, "Evidence: "), ev.summary) : null,
+        (ev.rivals || []).map((t) => h("p", { class: "mc-rival" },
+          h("span", { class: "mc-label" }, `Told apart from ${effectTitle(t.rival).toLowerCase()}: `), `${t.summary}.`)),
         h("p", { class: "mc-fit" }, h("span", { class: "mc-label" }, "Fit (lower is better): "),
           `${sig(fit.before, 3)} without it → ${sig(fit.after, 3)} with it`));
     })));
