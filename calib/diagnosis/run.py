@@ -59,6 +59,7 @@ AMBIGUOUS_IC = 4.0  # a rival this close in the information criterion needs Cox'
 # (which scale the placement model's heading prior) are not reproduced and its world would not be like the recording
 UNSIMULATED = {"placement_error"}
 RIVAL_WINDOW_IC = 20.0  # a significant rival this close may still win Cox's test against the leader
+RIVALS_MAX = 3  # rivals put to Cox's test per step, closest first (each test simulates up to 80 recordings)
 
 Progress = Callable[[float, str], None]
 
@@ -468,7 +469,7 @@ def _select(prob: Problem, state: ModelState, cands: list[Candidate], specs, bas
         tests: list[dict] = []
         unresolved: list[str] = []
         for r_ic, n in close + far:
-            if worlds is None or UNSIMULATED & {win[0].key, rivals[n][1]}:
+            if worlds is None or len(tests) >= RIVALS_MAX or UNSIMULATED & {win[0].key, rivals[n][1]}:
                 if r_ic < ic + AMBIGUOUS_IC:
                     unresolved.append(n)
                     break
