@@ -55,9 +55,10 @@ CHUNK = 50  # replicates simulated and fitted at once
 CLOCK_MIN = 5e-4  # a clock rate error below this (500 ppm) is within what the host's own clock may show
 CLOCK_Z = 6.0
 AMBIGUOUS_IC = 4.0  # a rival this close in the information criterion needs Cox's test to be set aside
-# effects Cox's test leaves alone: the replay puts the device back exactly, so the tilts the accelerometer measured
-# (which scale the placement model's heading prior) are not reproduced and its world would not be like the recording
-UNSIMULATED = {"placement_error"}
+# effects Cox's test leaves alone. With the accelerometer, the replay puts the device back exactly, so the tilts it
+# measured (which scale the placement model's heading prior) are not reproduced and the world would not be like the
+# recording; without it, the per-turn closure variance is a one-dimensional search of refits, too slow to repeat 80 times
+UNSIMULATED = {"placement_error", "placement_var"}
 RIVAL_WINDOW_IC = 20.0  # a significant rival this close may still win Cox's test against the leader
 RIVALS_MAX = 3  # rivals put to Cox's test per step, closest first (each test simulates up to 80 recordings)
 
