@@ -48,6 +48,21 @@ def run_model_check(wizard: Wizard, page: Any) -> None:
     assert page.get_attribute(".modelcheck .mc-status", "aria-live") == "polite"
 
 
+def check_uploaded(wizard: Wizard, page: Any, webui_service: Any, recording: Any, device: str) -> str:
+    """Calibrate ``recording`` as an upload for ``device``, open its session page and run the model check: its id."""
+    buf = io.StringIO()
+    write_native_csv(recording, buf)
+    with api(webui_service) as c:
+        r = c.post(f"/devices/{device}/calibrate", content=buf.getvalue(), headers={"Content-Type": "text/csv"})
+        assert r.status_code == 200, r.text
+        sid = r.json()["session_id"]
+    wizard.sign_in()
+    page.goto(f"{webui_service.base}/#/session/{sid}")
+    page.wait_for_selector(".verdict h1")
+    run_model_check(wizard, page)
+    return sid
+
+
 def test_model_check_after_a_session_says_the_recording_looks_like_the_simulation(
         wizard: Wizard, page: Any, webui_service: Any, page_watch: Watch) -> None:
     wizard.sign_in()
@@ -75,17 +90,7 @@ def test_model_check_after_a_session_says_the_recording_looks_like_the_simulatio
 
 def test_model_check_names_a_drift_hidden_in_an_uploaded_recording(
         wizard: Wizard, page: Any, webui_service: Any, page_watch: Watch) -> None:
-    case = draw_concealed(2, "bias_drift")
-    buf = io.StringIO()
-    write_native_csv(case.recording, buf)
-    with api(webui_service) as c:
-        r = c.post("/devices/upload-drift/calibrate", content=buf.getvalue(), headers={"Content-Type": "text/csv"})
-        assert r.status_code == 200, r.text
-        sid = r.json()["session_id"]
-    wizard.sign_in()
-    page.goto(f"{webui_service.base}/#/session/{sid}")
-    page.wait_for_selector(".verdict h1")
-    run_model_check(wizard, page)
+    sid = check_uploaded(wizard, page, webui_service, draw_concealed(2, "bias_drift").recording, "upload-drift")
     panel = page.locator(".modelcheck")
     assert panel.get_attribute("data-verdict") == "effects"
     verdict = panel.locator(".mc-verdict.warn").inner_text()
@@ -112,17 +117,7 @@ def test_model_check_names_a_drift_hidden_in_an_uploaded_recording(
 
 def test_model_check_says_how_a_wander_was_told_from_a_drift(
         wizard: Wizard, page: Any, webui_service: Any, page_watch: Watch) -> None:
-    case = draw_concealed(28, "bias_instability")
-    buf = io.StringIO()
-    write_native_csv(case.recording, buf)
-    with api(webui_service) as c:
-        r = c.post("/devices/upload-wander/calibrate", content=buf.getvalue(), headers={"Content-Type": "text/csv"})
-        assert r.status_code == 200, r.text
-        sid = r.json()["session_id"]
-    wizard.sign_in()
-    page.goto(f"{webui_service.base}/#/session/{sid}")
-    page.wait_for_selector(".verdict h1")
-    run_model_check(wizard, page)
+    sid = check_uploaded(wizard, page, webui_service, draw_concealed(28, "bias_instability").recording, "upload-wander")
     panel = page.locator(".modelcheck")
     with api(webui_service) as c:
         d = c.get(f"/sessions/{sid}/diagnosis").json()

@@ -466,7 +466,7 @@ def _select(prob: Problem, state: ModelState, cands: list[Candidate], specs, bas
                        and not _complementary(prob, st, keys.get(n), base_priors, ic, pen))
         far = sorted((v[0], n) for n, v in rivals.items() if ic + AMBIGUOUS_IC <= v[0] < ic + RIVAL_WINDOW_IC
                      and v[3] is not None and n not in accepted)
-        win = (c, st, p)
+        win, win_ic, win_cv = (c, st, p), ic, cv
         tests: list[dict] = []
         unresolved: list[str] = []
         for r_ic, n in close + far:
@@ -479,16 +479,18 @@ def _select(prob: Problem, state: ModelState, cands: list[Candidate], specs, bas
             t = rival_test(worlds, cur, win[1], rst, win[0].key, rkey, win[0].name, n,
                            first="b" if r_ic < ic + AMBIGUOUS_IC else "a")
             w = t.winner()
-            switch = w == n and rcand is not None and criterion(rst, pen) < cur_ic and press(rst.fit, prob) < cur_cv
+            switch = False
+            if w == n and rcand is not None:
+                r_cv = press(rst.fit, prob)
+                switch = r_ic < cur_ic and r_cv < cur_cv
             if switch:
-                win = (rcand, rst, rp)
+                win, win_ic, win_cv = (rcand, rst, rp), r_ic, r_cv
                 t = t.flipped()
             tests.append(t.to_dict())
             if not switch and w != win[0].name and r_ic < ic + AMBIGUOUS_IC:
                 unresolved.append(n)
                 break
-        c, st, p = win
-        ic, cv = criterion(st, pen), press(st.fit, prob)
+        (c, st, p), ic, cv = win, win_ic, win_cv
         unresolved = [n for n in unresolved if n != c.name]
         if unresolved:
             ambiguities.append({"candidates": [c.name] + unresolved,
