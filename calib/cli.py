@@ -200,6 +200,7 @@ def _diagnosis_summary(d: dict[str, Any], source: str) -> str:
         for e in d["effects"]:
             lines.append(f"  {e['name']:<20} fit {e['fit']['before']:.4g} -> {e['fit']['after']:.4g}")
             lines.append(f"      {e['evidence'].get('summary', '')}")
+            lines += [f"      told apart from {t['rival']}: {t['summary']}" for t in e["evidence"].get("rivals", [])]
     else:
         lines.append("The nominal model explains the recording: no catalogued effect is needed.")
     for u in d["unexplained"]:

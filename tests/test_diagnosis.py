@@ -295,3 +295,11 @@ def test_rival_test_verdicts():
     assert RivalTest("a", "b", -3.0, None, 0.02).winner() is None  # the leader's own world was not simulated
     flipped = RivalTest("a", "b", -3.0, 0.5, 0.02, 3, 40, 2, 0).flipped()
     assert (flipped.a, flipped.d_obs, flipped.p_a, flipped.n_a, flipped.hits_b) == ("b", 3.0, 0.02, 40, 2)
+
+
+def test_cli_says_how_a_wander_was_told_from_a_drift(tmp_path, capsys):
+    csv = tmp_path / "wander.csv"
+    write_native_csv(draw_concealed(28, "bias_instability").recording, csv)
+    assert main(["diagnose", str(csv)]) == 0
+    text = capsys.readouterr().out
+    assert "bias_instability" in text and "told apart from bias_drift:" in text and "simulations of bias_drift" in text
