@@ -271,10 +271,12 @@ def test_how_visible_a_bias_instability_is_follows_noise_and_rest():
     assert "bias_instability" in reasons and "rest the device longer" in reasons["bias_instability"]
 
 
-@pytest.mark.parametrize("seed,temp,lead", [(28, False, "within 4"), (25, True, "drift ahead by 4.1")])
+@pytest.mark.parametrize("seed,temp,lead", [(28, False, "wander ahead within 4"), (68, False, "drift ahead by 1.8"),
+                                             (25, True, "drift ahead by 4.1")])
 def test_a_wandering_bias_is_told_from_a_drift_by_simulating_both(seed, temp, lead):
     """Still means that go up and down again: a steady drift fits them about as well as a wander, or even better
-    by the criterion, yet simulations of that drift never leave it so small a lead; simulations of the wander do."""
+    by the criterion, yet simulations of that drift never leave it so small a lead; simulations of the wander do.
+    Within 4 the criterion's order does not decide: a drift ahead by 1.8 whose world is rejected gives way."""
     case = draw_concealed(seed, "bias_instability", protocol="paper", with_accel=True, with_seq=True, with_temp=temp)
     d = diagnose(case.recording, n_boot=N_BOOT, seed=seed)
     assert d.names == ["bias_instability"], f"{lead}: named {d.names}"

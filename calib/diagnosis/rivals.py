@@ -127,11 +127,12 @@ def world_p(worlds: Worlds, world: ModelState, psi: np.ndarray, cur_keys: tuple[
 
 
 def rival_test(worlds: Worlds, cur: ModelState, st_a: ModelState, st_b: ModelState, key_a: str, key_b: str,
-               name_a: str, name_b: str, first: str, n: int = RIVAL_BOOT) -> RivalTest:
+               name_a: str, name_b: str, first: str, n: int = RIVAL_BOOT, both: bool = False) -> RivalTest:
     """Cox's test of effect a against effect b, both fitted on top of ``cur``.
 
     ``first``: the world to simulate first ("a" or "b"); the other is simulated only if the first is
-    rejected, since otherwise no winner can follow.
+    rejected, since otherwise no winner can follow, or when ``both``: the first world being plausible
+    then leaves the other's rejection to decide whether the first effect wins.
     """
     d_obs = criterion(st_a, worlds.pen) - criterion(st_b, worlds.pen)
     p: dict[str, float | None] = {"a": None, "b": None}
@@ -142,6 +143,6 @@ def rival_test(worlds: Worlds, cur: ModelState, st_a: ModelState, st_b: ModelSta
         # in a's world a's lead is larger (d more negative): a is rejected when d_obs is unusually high
         p[side], used[side], hits[side] = world_p(worlds, world, debiased(world, cur, key), cur.keys, key_a, key_b,
                                                   d_obs, side == "a", n, salt)
-        if p[side] >= RIVAL_ALPHA:
+        if p[side] >= RIVAL_ALPHA and not both:
             break
     return RivalTest(name_a, name_b, d_obs, p["a"], p["b"], used["a"], used["b"], hits["a"], hits["b"])

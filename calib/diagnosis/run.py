@@ -476,8 +476,11 @@ def _select(prob: Problem, state: ModelState, cands: list[Candidate], specs, bas
                     break
                 continue
             _, rkey, rst, rcand, rp = rivals[n]
+            near = r_ic < ic + AMBIGUOUS_IC
+            # a close rival that is itself significant may turn out the better explanation: its world being
+            # plausible, the leader's is simulated too
             t = rival_test(worlds, cur, win[1], rst, win[0].key, rkey, win[0].name, n,
-                           first="b" if r_ic < ic + AMBIGUOUS_IC else "a")
+                           first="b" if near else "a", both=near and rcand is not None)
             w = t.winner()
             switch = False
             if w == n and rcand is not None:
