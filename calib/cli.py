@@ -113,6 +113,11 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from .simulator import simulate
 
     kwargs: dict[str, Any] = {"seed": args.seed, "noise": args.noise, "fs": args.fs}
+    if args.protocol == "extended":
+        from .simulator import extended_protocol_script
+
+        # the script's own draws (durations, tilts, profiles) from a stream of their own, as simulate's are
+        kwargs["script"] = extended_protocol_script(np.random.default_rng([args.seed, 1]))
     if args.full_scale is not None:
         kwargs["full_scale_dps"] = args.full_scale
     if args.effect:
@@ -241,6 +246,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--noise", type=float, default=0.03, help="white noise std on the readings, deg/s (default 0.03)")
     p.add_argument("--fs", type=float, default=104.0, help="sample rate, Hz (default 104)")
     p.add_argument("--full-scale", type=float, default=None, help="gyro full scale, deg/s: readings clip there")
+    p.add_argument("--protocol", choices=("paper", "extended"), default="paper",
+                   help="paper: one turn about each axis (default); extended: each axis turned both ways, slowly and "
+                        "fast (12 turns, about 90 s), which reveals scale asymmetry and nonlinearity")
     p.add_argument(
         "--effect",
         action="append",

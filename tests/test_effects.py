@@ -317,6 +317,37 @@ def test_cli_simulates_every_effect(tmp_path):
     assert bad.returncode != 0 and "clock_error" in stderr and "Traceback" not in stderr
 
 
+def test_cli_simulates_the_extended_protocol_that_reveals_a_nonlinearity(tmp_path):
+    """The same scale nonlinearity, simulated with one turn per axis and with the extended protocol: the diagnosis
+    says the first cannot show it and names it in the second, with the --effect value that reproduces it."""
+    from calib.io import read_recording
+    from calib.stages import detect_stages
+
+    effect = "scale_nonlinearity=0.01"
+    sims = {p: _gyrocal("simulate", "--seed", "5", "--protocol", p, "--effect", effect, "-o", f"{p}.csv", cwd=tmp_path)
+            for p in ("paper", "extended")}
+    for proc in sims.values():
+        _, stderr = proc.communicate(timeout=120)
+        assert proc.returncode == 0, stderr
+    turns = [s for s in detect_stages(read_recording(tmp_path / "extended.csv")) if s.kind == "turn"]
+    assert [s.axis for s in turns] == [a for a in "xyz" for _ in range(4)]
+    diags = {p: _gyrocal("diagnose", f"{p}.csv", "--json", cwd=tmp_path) for p in sims}
+    out = {}
+    for p, proc in diags.items():
+        stdout, stderr = proc.communicate(timeout=300)
+        assert proc.returncode == 0, stderr
+        out[p] = json.loads(stdout)
+    assert out["paper"]["effects"] == []
+    assert "scale_nonlinearity" in [n["name"] for n in out["paper"]["not_identifiable"]]
+    (named,) = out["extended"]["effects"]
+    assert named["name"] == "scale_nonlinearity"
+    assert named["evidence"]["simulate"].startswith("scale_nonlinearity=")
+    assert named["fit"]["after"] < 0.05 * named["fit"]["before"]
+    bad = _gyrocal("simulate", "--seed", "4", "--protocol", "figure-eight", "-o", "x.csv", cwd=tmp_path)
+    _, stderr = bad.communicate(timeout=60)
+    assert bad.returncode != 0 and "extended" in stderr and "Traceback" not in stderr
+
+
 # --------------------------------------------------------------------------- concealed generator
 
 
