@@ -110,12 +110,10 @@ def _parse_effect(spec: str) -> tuple[str, str]:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     from .io import write_native_csv
-    from .simulator import simulate
+    from .simulator import extended_protocol_script, simulate
 
     kwargs: dict[str, Any] = {"seed": args.seed, "noise": args.noise, "fs": args.fs}
     if args.protocol == "extended":
-        from .simulator import extended_protocol_script
-
         # the script's own draws (durations, tilts, profiles) from a stream of their own, as simulate's are
         kwargs["script"] = extended_protocol_script(np.random.default_rng([args.seed, 1]))
     if args.full_scale is not None:

@@ -470,13 +470,13 @@ def _select(prob: Problem, state: ModelState, cands: list[Candidate], specs, bas
         tests: list[dict] = []
         unresolved: list[str] = []
         for r_ic, n in close + far:
+            near = r_ic < ic + AMBIGUOUS_IC
             if worlds is None or len(tests) >= RIVALS_MAX or UNSIMULATED & {win[0].key, rivals[n][1]}:
-                if r_ic < ic + AMBIGUOUS_IC:
+                if near:
                     unresolved.append(n)
                     break
                 continue
             _, rkey, rst, rcand, rp = rivals[n]
-            near = r_ic < ic + AMBIGUOUS_IC
             # a close rival that is itself significant may turn out the better explanation: its world being
             # plausible, the leader's is simulated too
             t = rival_test(worlds, cur, win[1], rst, win[0].key, rkey, win[0].name, n,
@@ -490,7 +490,7 @@ def _select(prob: Problem, state: ModelState, cands: list[Candidate], specs, bas
                 win, win_ic, win_cv = (rcand, rst, rp), r_ic, r_cv
                 t = t.flipped()
             tests.append(t.to_dict())
-            if not switch and w != win[0].name and r_ic < ic + AMBIGUOUS_IC:
+            if not switch and w != win[0].name and near:
                 unresolved.append(n)
                 break
         (c, st, p), ic, cv = win, win_ic, win_cv

@@ -20,12 +20,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..recording import Recording
-from ..stages import clip_run_needed
+from ..stages import StageConfig, clip_run_needed
 
-FULL_SCALE_FRACTION = 0.995
-MIN_RUN = 3
-RUN_CHANCE = 1e-6  # chance that noise alone repeats a count along a whole run taken as clipped
-MIN_CLIP_DPS = 100.0
+# the stage detector's clipping rule, so that the live flag and the diagnosis agree on what is clipped
+FULL_SCALE_FRACTION = StageConfig.full_scale_fraction
+MIN_RUN = StageConfig.clip_run
+RUN_CHANCE = StageConfig.clip_chance  # chance that noise alone repeats a count along a whole run taken as clipped
+MIN_CLIP_DPS = StageConfig.clip_min_dps
 CAP_MODEL_UNCERTAINTY = 0.25
 EDGE_SAMPLES = 4
 
