@@ -183,7 +183,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             bar.set_postfix_str(stage, refresh=False)
             bar.update(round(100 * fraction) - bar.n)
 
-        diag = diagnose(rec, progress=progress)
+        diag = diagnose(rec, progress=progress, max_samples=args.max_samples)
     if args.report:
         from .diagnosis.report import write_report
 
@@ -290,6 +290,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fs", type=float, default=None, help="sample rate in Hz (required when the file has no time column)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the summary")
     p.add_argument("--report", type=Path, default=None, metavar="DIR", help="write an HTML report with plots into DIR")
+    p.add_argument("--max-samples", type=int, default=500_000, metavar="N",
+                   help="refuse recordings of more samples (counting lost ones put back): a diagnosis needs about 15 kB "
+                   "of memory a sample (default 500000)")
     p.set_defaults(func=cmd_diagnose)
 
     p = sub.add_parser("demo", help="simulate a recording, calibrate it and compare with the truth")

@@ -19,5 +19,9 @@ class CalibrationError(GyrocalError):
     """The estimator could not produce a trustworthy result from this recording."""
 
 
+class RecordingTooLong(RecordingError):
+    """The work a recording asks for (its samples, once lost ones are put back) is beyond the limit set."""
+
+
 class SampleRateUnknownError(RecordingError):
     """The file has no time column and no sample rate was given."""

@@ -13,6 +13,7 @@ import re
 import time
 import uuid
 from contextlib import asynccontextmanager
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import Annotated, Any, AsyncIterator
 
@@ -26,18 +27,20 @@ from sqlalchemy.exc import SQLAlchemyError
 from calib import __version__
 
 from . import models as M
-from .auth import AuthError, Authenticator
+from .auth import AuthError, Authenticator, SignIns, Throttled
 from .config import Settings
 from .devices import DEVICE_ID_RE, Device, DeviceManager
 from .events import Event, dumps, finite
 from .compute import ComputePool, TooManySamples, calibrate_upload
 from .runner import LiveSession
 from .session import END_STATES, GuidedSession, evaluate_result
-from .store import Store, StoreError
+from .throttle import TokenBucket, retry_after_header
+from .store import DecisionConflict, NotAcceptable, NotFound, SessionEnd, Store, StoreError
 
 log = logging.getLogger(__name__)
 
-CSV_TYPES = ("text/csv", "application/csv", "text/plain")
+# not text/plain: a web page may POST that anywhere without a CORS preflight, text/csv it may not
+CSV_TYPES = ("text/csv", "application/csv")
 SESSION_ID_RE = re.compile(r"^[0-9a-f]{32}$")
 KEEP_FINISHED = 200  # finished live sessions kept in memory for their event streams
 
@@ -49,13 +52,32 @@ class Service:
         self.settings = settings
         self.store = store or Store(settings.db_url)
         self.auth = Authenticator(self.store, settings.api_token, settings.token_ttl_s)
+        self.sign_ins = SignIns(self.auth)
+        self.anonymous_analyses = TokenBucket(settings.anonymous_analyses_per_min, burst=3)
         self.devices = devices or DeviceManager()
-        self.pool = ComputePool()
+        self.pool = ComputePool(memory_mb=settings.worker_memory_mb)
         self.sessions: dict[str, LiveSession] = {}
         self.active: dict[str, str] = {}  # device id -> running session id
         self.started = time.time()
+        self.integrity: dict[str, Any] | None = None  # the last verification of the store's hash chains
+        self._integrity_task: asyncio.Task[None] | None = None
+
+    async def verify_store(self) -> dict[str, Any]:
+        """Verify the store's hash chains now (in a thread); the result is what /health reports."""
+        report = await asyncio.to_thread(self.store.verify)
+        self.integrity = {**report.to_dict(), "checked_at": datetime.now(timezone.utc).isoformat()}
+        if not report.ok:
+            log.error("the store's history was tampered with: %s", report.broken)
+        return self.integrity
+
+    async def _verify_periodically(self) -> None:
+        while True:
+            with contextlib.suppress(Exception):
+                await self.verify_store()
+            await asyncio.sleep(self.settings.integrity_check_s)
 
     async def startup(self) -> None:
+        self._integrity_task = asyncio.get_running_loop().create_task(self._verify_periodically())
         await self.pool.start()
         n = await asyncio.to_thread(
             self.store.fail_unfinished_sessions,
@@ -67,12 +89,15 @@ class Service:
             await asyncio.to_thread(self.store.upsert_device, dev.id, name=dev.name, address=dev.address, transport=dev.transport)
 
     async def shutdown(self) -> None:
+        if self._integrity_task is not None:
+            self._integrity_task.cancel()
         for live in list(self.sessions.values()):
             if not live.machine.finished:
                 with contextlib.suppress(Exception):
                     await asyncio.wait_for(live.shutdown(), timeout=10.0)
             live.broadcaster.close()
         await self.devices.close()
+        self.sign_ins.close()
         self.pool.shutdown()
         self.store.close()
 
@@ -163,7 +188,23 @@ async def read_access(
     return op
 
 
+async def analysis_quota(request: Request, reader: Annotated[str | None, Depends(read_access)]) -> str | None:
+    """Uploaded recordings analysed without an operator's token are rate-limited per client address (429)."""
+    svc = _service(request)
+    if reader is not None:
+        return reader
+    auth = request.headers.get("authorization", "")
+    if auth[:7].lower() == "bearer " and await _token_operator(svc, auth[7:].strip()):
+        return None
+    wait = svc.anonymous_analyses.take(request.client.host if request.client else "unknown")
+    if wait > 0:
+        raise _problem(429, f"anonymous model checks are limited to {svc.settings.anonymous_analyses_per_min:g} a minute from one "
+                       "address: try again shortly, or sign in (POST /auth/login) and send the token", retry_after_header(wait))
+    return None
+
+
 Reader = Annotated[str | None, Depends(read_access)]
+AnalysisReader = Annotated[str | None, Depends(analysis_quota)]
 Operator = Annotated[str, Depends(require_operator)]
 
 
@@ -254,55 +295,58 @@ async def _session_snapshot(svc: Service, sid: str) -> dict[str, Any]:
 
 # -- the app -------------------------------------------------------------------------------------
 class BodyLimit:
-    """Refuses request bodies above a size with 413 (by Content-Length or while streaming)."""
+    """Refuses request bodies above a size with 413: by Content-Length at once, and a body sent without one
+    (chunked) is read up to the limit before the route sees it, so every route answers 413 alike."""
 
     def __init__(self, app: Any, max_bytes: int) -> None:
         self.app = app
         self.max_bytes = max_bytes
+
+    async def _refuse(self, scope: Any, receive: Any, send: Any, status: int, msg: str) -> None:
+        await JSONResponse({"detail": msg}, status_code=status)(scope, receive, send)
 
     async def __call__(self, scope: Any, receive: Any, send: Any) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
         headers = dict(scope.get("headers") or [])
-        length = headers.get(b"content-length")
         too_big = f"the request body is larger than {self.max_bytes // (1024 * 1024)} MiB; send a shorter recording"
+        length = headers.get(b"content-length")
         if length is not None:
             try:
                 n = int(length)
             except ValueError:
                 n = -1
-            if n < 0 or n > self.max_bytes:
-                msg = too_big if n > self.max_bytes else "the Content-Length header is not a number"
-                await JSONResponse({"detail": msg}, status_code=413 if n > 0 else 400)(scope, receive, send)
-                return
-        seen = 0
-        started = False
-
-        async def limited_receive() -> Any:
-            nonlocal seen
+            if n < 0:
+                await self._refuse(scope, receive, send, 400, "the Content-Length header is not a number")
+            elif n > self.max_bytes:
+                await self._refuse(scope, receive, send, 413, too_big)
+            else:
+                await self.app(scope, receive, send)
+            return
+        if b"chunked" not in headers.get(b"transfer-encoding", b"").lower():
+            await self.app(scope, receive, send)
+            return
+        body, more = bytearray(), True
+        while more:
             message = await receive()
-            if message["type"] == "http.request":
-                seen += len(message.get("body", b""))
-                if seen > self.max_bytes:
-                    raise _BodyTooLarge()
-            return message
+            if message["type"] != "http.request":
+                return  # the client went away
+            body += message.get("body", b"")
+            more = message.get("more_body", False)
+            if len(body) > self.max_bytes:
+                await self._refuse(scope, receive, send, 413, too_big)
+                return
+        replayed = False
 
-        async def tracking_send(message: Any) -> None:
-            nonlocal started
-            if message["type"] == "http.response.start":
-                started = True
-            await send(message)
+        async def replay() -> Any:
+            nonlocal replayed
+            if not replayed:
+                replayed = True
+                return {"type": "http.request", "body": bytes(body), "more_body": False}
+            return await receive()
 
-        try:
-            await self.app(scope, limited_receive, tracking_send)
-        except _BodyTooLarge:
-            if not started:
-                await JSONResponse({"detail": too_big}, status_code=413)(scope, receive, send)
-
-
-class _BodyTooLarge(Exception):
-    pass
+        await self.app(scope, replay, send)
 
 
 def create_app(settings: Settings | None = None, service: Service | None = None) -> FastAPI:
@@ -360,10 +404,17 @@ def create_app(settings: Settings | None = None, service: Service | None = None)
 
     # -- service --------------------------------------------------------------------------------
     @app.get("/health", response_model=M.Health, tags=["service"])
-    async def health() -> dict[str, Any]:
-        """Liveness and what the service runs on (never needs a token)."""
+    async def health(
+        verify: Annotated[bool, Query(description="verify the store's hash chains now (at most every few seconds) "
+                                                  "instead of reporting the last periodic check")] = False,
+    ) -> dict[str, Any]:
+        """Liveness, what the service runs on and whether the store's history is intact (never needs a token)."""
+        integrity = svc.integrity
+        if integrity is None or (verify and time.time() - datetime.fromisoformat(integrity["checked_at"]).timestamp() > 2.0):
+            integrity = await svc.verify_store()
         return {
-            "status": "ok",
+            "status": "ok" if integrity["ok"] else "tampered",
+            "integrity": integrity,
             "version": __version__,
             "store": svc.store.dialect,
             "schema_version": await asyncio.to_thread(svc.store.schema_version),
@@ -372,11 +423,18 @@ def create_app(settings: Settings | None = None, service: Service | None = None)
             "auth_reads": settings.auth_reads,
         }
 
-    @app.post("/auth/login", response_model=M.LoginOut, responses={401: {"model": M.Problem}}, tags=["auth"])
-    async def login(body: M.LoginIn) -> dict[str, Any]:
-        """Sign an operator in: name and secret in, bearer token out."""
+    @app.post("/auth/login", response_model=M.LoginOut, tags=["auth"], responses={
+        401: {"model": M.Problem, "description": "unknown operator or wrong secret (audited)"},
+        429: {"model": M.Problem, "description": "too many failed sign-ins for this operator or from this address (Retry-After)"},
+    })
+    async def login(body: M.LoginIn, request: Request) -> dict[str, Any]:
+        """Sign an operator in: name and secret in, bearer token out. After 5 failures for a name (20 from one
+        address) each attempt waits 1, 2, 4, ... s (at most 5 min) after the last failure."""
+        client = request.client.host if request.client else "unknown"
         try:
-            token, expires = await asyncio.to_thread(svc.auth.sign_in, body.operator, body.secret)
+            token, expires = await svc.sign_ins.sign_in(body.operator, body.secret, client)
+        except Throttled as exc:
+            raise _problem(429, str(exc), retry_after_header(exc.retry_after_s)) from None
         except AuthError as exc:
             raise _problem(401, str(exc)) from None
         return {"token": token, "token_type": "bearer", "operator": body.operator, "expires_at": expires.isoformat()}
@@ -471,13 +529,18 @@ def create_app(settings: Settings | None = None, service: Service | None = None)
         fs: Annotated[float | None, Query(gt=0, le=100000, description="sample rate, Hz (CSV without a time column)")] = None,
         method: Annotated[str | None, Query(max_length=32, description="estimator: closure (default) or paper")] = None,
         layout: Annotated[str, Query(max_length=16, description="CSV layout: auto, native, imucal")] = "auto",
+        sensor_model: Annotated[str | None, Query(min_length=1, max_length=128, pattern=M.SENSOR_TEXT,
+                                                  description="the sensor an uploaded recording came from (e.g. ICM-20948); "
+                                                  "needed before its result can be accepted")] = None,
+        firmware: Annotated[str | None, Query(min_length=1, max_length=128, pattern=M.SENSOR_TEXT,
+                                              description="the device's firmware version, for an uploaded recording")] = None,
     ) -> Any:
         """Start a guided live session (JSON body or none) → 202; or calibrate an uploaded CSV → 200."""
         _check_device_id(device_id)
         ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
         body = await request.body()
         if ctype in CSV_TYPES:
-            return await _offline(svc, device_id, operator, body, fs, method, layout)
+            return await _offline(svc, device_id, operator, body, fs, method, layout, {"sensor_model": sensor_model, "firmware": firmware})
         if ctype and ctype != "application/json" and body:
             raise _problem(415, f"send a JSON body (application/json) to start a live session or a CSV (text/csv) to calibrate a recording; got {ctype}")
         opts = M.SessionStart()
@@ -584,15 +647,18 @@ def create_app(settings: Settings | None = None, service: Service | None = None)
                 session_id,
                 operator,
                 snap["result"],
-                sensor_model=(live.device.info.get("sensor_model") if live else None),
-                firmware=(live.device.info.get("firmware") if live else None),
+                end=live.session_end() if live is not None else None,
+                sensor_model=(live.device.info.get("sensor_model") if live else None) or (body.sensor_model if body else None),
+                firmware=(live.device.info.get("firmware") if live else None) or (body.firmware if body else None),
                 recording_csv=(live.csv_bytes if live else None),
                 n_samples=(live.machine.buf.n if live else 0),
             )
+        except (DecisionConflict, NotAcceptable) as exc:
+            raise _problem(409, str(exc)) from None
+        except NotFound as exc:
+            raise _problem(404, str(exc)) from None
         except (StoreError, SQLAlchemyError) as exc:
             log.warning("accept of %s failed: %s", session_id, exc)
-            if isinstance(exc, StoreError) and "already" in str(exc):
-                raise _problem(409, str(exc)) from None
             raise _problem(
                 503,
                 f"the calibration could not be stored ({type(exc).__name__}); the previous calibration stays current. "
@@ -618,8 +684,14 @@ def create_app(settings: Settings | None = None, service: Service | None = None)
         if live is not None:
             await live.wait()
         try:
-            await asyncio.to_thread(svc.store.discard_session, session_id, operator)
+            await asyncio.to_thread(svc.store.discard_session, session_id, operator,
+                                    live.session_end() if live is not None else None)
+        except DecisionConflict as exc:
+            raise _problem(409, str(exc)) from None
+        except NotFound as exc:
+            raise _problem(404, str(exc)) from None
         except (StoreError, SQLAlchemyError) as exc:
+            log.warning("discard of %s failed: %s", session_id, exc)
             raise _problem(503, f"the decision could not be stored ({type(exc).__name__}); try again") from None
         if body is not None and body.note:
             await asyncio.to_thread(svc.store.audit, operator, "session.note", snap["device_id"], session_id, {"note": body.note})
@@ -691,7 +763,8 @@ async def _start_live(svc: Service, device_id: str, operator: str, method: str |
     return live
 
 
-async def _offline(svc: Service, device_id: str, operator: str, body: bytes, fs: float | None, method: str | None, layout: str) -> JSONResponse:
+async def _offline(svc: Service, device_id: str, operator: str, body: bytes, fs: float | None, method: str | None, layout: str,
+                   sensor: dict[str, str | None]) -> JSONResponse:
     from calib.api import DEFAULT_METHOD, available_methods
 
     method = method or DEFAULT_METHOD
@@ -708,6 +781,9 @@ async def _offline(svc: Service, device_id: str, operator: str, body: bytes, fs:
         raise _problem(503, f"calibrating this recording took longer than {svc.settings.compute_timeout_s:g} s; try again later") from None
     except TooManySamples as exc:
         raise _problem(413, str(exc)) from None
+    except MemoryError:
+        raise _problem(413, f"calibrating this recording needs more memory than this service gives a worker "
+                       f"({svc.settings.worker_memory_mb} MB); send the protocol's part of the recording") from None
     except Exception as exc:  # calib's errors and whatever else the parser or estimator trips on
         raise _recording_problem(exc, "calibrated", upload=True) from None
     res = finite(res)
@@ -720,13 +796,11 @@ async def _offline(svc: Service, device_id: str, operator: str, body: bytes, fs:
     reason = None if passed else say.out_of_tolerance(failures)
     await asyncio.to_thread(svc.store.upsert_device, device_id)
     await asyncio.to_thread(svc.store.create_session, sid, device_id, "upload", "computing", method, operator, __version__,
-                            {"source": "upload", "layout": layout, "fs": fs})
+                            {"source": "upload", "layout": layout, "fs": fs, **{k: v for k, v in sensor.items() if v}})
     digest = await asyncio.to_thread(svc.store.archive_recording, sid, csv, n_samples)
-    await asyncio.to_thread(
-        svc.store.finish_session, sid, "done" if passed else "failed",
-        reason_code=None if passed else "out_of_tolerance", reason=reason, result=res, passed=passed,
-        info={"checks": checks, "samples": n_samples},
-    )
+    end = SessionEnd("done" if passed else "failed", None if passed else "out_of_tolerance", reason, res, passed,
+                     {"checks": checks, "samples": n_samples})
+    await asyncio.to_thread(svc.store.finish_session, sid, end)
     out = {
         **res,
         "session_id": sid,

@@ -1,28 +1,56 @@
 """Operators and their tokens.
 
-An operator has a name and a secret (stored as a salted scrypt hash). Signing in with both gives a
-random bearer token (stored as its SHA-256, valid for Settings.token_ttl_s). When GYROCAL_API_TOKEN
-is set, that value is also accepted as the bearer token of an operator named "api".
+An operator has a name and a secret of at least 12 characters (stored as a salted scrypt hash). Signing
+in with both gives a random bearer token (stored as its SHA-256, valid for Settings.token_ttl_s). When
+GYROCAL_API_TOKEN is set, that value is also accepted as the bearer token of an operator named "api".
+
+Sign-ins over HTTP go through ``SignIns``: failed ones are audited and throttled per operator name and
+per client address (growing delays, answered 429 with Retry-After), and scrypt runs in a small pool of
+its own so a flood of sign-ins cannot hold up the threads every database call uses.
 """
 
 from __future__ import annotations
 
+import asyncio
 import base64
 import hashlib
 import hmac
 import re
 import secrets
+from concurrent.futures import ThreadPoolExecutor
 from datetime import datetime, timedelta, timezone
 
 from .store import Store, StoreError
+from .throttle import SignInThrottle
 
 API_OPERATOR = "api"
 _SCRYPT = {"n": 2**14, "r": 8, "p": 1, "dklen": 32}
-NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._@-]{0,63}$")
+NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._@-]{0,63}$"
+NAME_RE = re.compile(NAME_PATTERN)
+MIN_SECRET = 12
+OPERATOR_FREE_FAILURES = 5  # then 1, 2, 4, ... s between attempts, up to MAX_DELAY_S
+ADDRESS_FREE_FAILURES = 20  # one tablet may be shared by several operators
+MAX_DELAY_S = 300.0
+HASH_THREADS = 2
+HASH_QUEUE = 8  # sign-ins verifying or waiting to, at most; more get 429
 
 
 class AuthError(Exception):
     """Missing or wrong credentials; the message says what to do."""
+
+
+class Throttled(AuthError):
+    """Too many failed sign-ins (or too many at once): try again after ``retry_after_s``."""
+
+    def __init__(self, message: str, retry_after_s: float) -> None:
+        super().__init__(message)
+        self.retry_after_s = retry_after_s
+
+
+def _check_secret(secret: str) -> str:
+    if len(secret) < MIN_SECRET:
+        raise AuthError(f"an operator secret needs at least {MIN_SECRET} characters")
+    return secret
 
 
 def hash_secret(secret: str) -> str:
@@ -75,30 +103,28 @@ class Authenticator:
     def add_operator(self, name: str, secret: str | None = None) -> str:
         """Create an operator; returns the secret (generated when not given)."""
         check_name(name)
-        secret = secret or new_secret()
-        if len(secret) < 8:
-            raise AuthError("an operator secret needs at least 8 characters")
+        secret = _check_secret(secret or new_secret())
         self.store.add_operator(name, hash_secret(secret))
         return secret
 
     def reset_operator(self, name: str, secret: str | None = None) -> str:
-        secret = secret or new_secret()
-        if len(secret) < 8:
-            raise AuthError("an operator secret needs at least 8 characters")
+        secret = _check_secret(secret or new_secret())
         self.store.reset_operator(name, hash_secret(secret))
         return secret
 
-    def sign_in(self, name: str, secret: str) -> tuple[str, datetime]:
-        """A new bearer token for an operator and its expiry; AuthError on a wrong name or secret."""
-        stored = self.store.operator_secret_hash(name)
-        # Verify against a dummy hash for unknown names too, so timing does not reveal which names exist.
-        ok = verify_secret(secret, stored or _DUMMY_HASH) and stored is not None
-        if not ok:
+    def sign_in(self, name: str, secret: str, client: str | None = None) -> tuple[str, datetime]:
+        """A new bearer token for an operator and its expiry; AuthError on a wrong name or secret (no throttle:
+        the CLI and tests; the service signs in through SignIns)."""
+        if not secret_matches(secret, self.store.operator_secret_hash(name)):
             raise AuthError("unknown operator or wrong secret")
+        return self.issue(name, client)
+
+    def issue(self, name: str, client: str | None = None) -> tuple[str, datetime]:
+        """A new bearer token for an operator whose secret was checked."""
         token = secrets.token_urlsafe(32)
         expires = datetime.now(timezone.utc) + timedelta(seconds=self.token_ttl_s)
         try:
-            self.store.add_token(name, token_hash(token), expires)
+            self.store.add_token(name, token_hash(token), expires, client)
         except StoreError as exc:
             raise AuthError(str(exc)) from exc
         return token, expires
@@ -113,6 +139,51 @@ class Authenticator:
         if self.api_token and hmac.compare_digest(token.encode(), self.api_token.encode()):
             return API_OPERATOR
         return self.store.operator_for_token(token_hash(token))
+
+
+def secret_matches(secret: str, stored: str | None) -> bool:
+    """Whether a secret matches an operator's stored hash; an unknown operator (None) is checked against a dummy
+    hash too, so timing does not reveal which names exist."""
+    return verify_secret(secret, stored or _DUMMY_HASH) and stored is not None
+
+
+class SignIns:
+    """The service's sign-ins: throttled per operator and per client address, failures audited, scrypt in its
+    own bounded pool."""
+
+    def __init__(self, auth: Authenticator) -> None:
+        self.auth = auth
+        self.by_operator = SignInThrottle(OPERATOR_FREE_FAILURES, MAX_DELAY_S)
+        self.by_address = SignInThrottle(ADDRESS_FREE_FAILURES, MAX_DELAY_S)
+        self._pool = ThreadPoolExecutor(HASH_THREADS, thread_name_prefix="gyrocal-scrypt")
+        self._busy = 0
+
+    async def sign_in(self, name: str, secret: str, client: str) -> tuple[str, datetime]:
+        """A token for a correct name and secret; Throttled or AuthError otherwise."""
+        op_key, addr_key = name.lower(), client
+        wait = max(self.by_operator.retry_after(op_key), self.by_address.retry_after(addr_key))
+        if wait > 0:
+            raise Throttled(f"too many failed sign-ins for this operator or from this computer: try again in {wait:.0f} s", wait)
+        if self._busy >= HASH_QUEUE:
+            raise Throttled("too many sign-ins at once: try again in a moment", 1.0)
+        self._busy += 1
+        try:
+            stored = await asyncio.to_thread(self.auth.store.operator_secret_hash, name)
+            ok = await asyncio.get_running_loop().run_in_executor(self._pool, secret_matches, secret, stored)
+        finally:
+            self._busy -= 1
+        if not ok:
+            self.by_operator.failed(op_key)
+            self.by_address.failed(addr_key)
+            failures = self.by_operator.failures(op_key)
+            await asyncio.to_thread(self.auth.store.audit, None, "auth.sign_in_failed", None, None,
+                                    {"operator": name, "client": client, "failures": failures})
+            raise AuthError("unknown operator or wrong secret")
+        self.by_operator.succeeded(op_key)
+        return await asyncio.to_thread(self.auth.issue, name, client)
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=False, cancel_futures=True)
 
 
 _DUMMY_HASH = hash_secret(secrets.token_urlsafe(16))

@@ -40,6 +40,12 @@ def register(sub: Any) -> None:
     p.add_argument("--ble", action="store_true", help="use Bluetooth LE wearables through bleak (BlueZ, or the simulated one via DBUS_SYSTEM_BUS_ADDRESS)")
     p.add_argument("--ble-adapter", default=None, metavar="HCI", help="Bluetooth adapter (default: the system's)")
     p.add_argument("--auth-reads", action="store_true", help="require a token for reads too (default: only writes need one)")
+    p.add_argument("--worker-memory-mb", type=int, default=3072, metavar="MB",
+                   help="memory each worker process (estimator, model check) may take; beyond it the request gets 413 "
+                   "(default 3072)")
+    p.add_argument("--allow-db-owner", action="store_true",
+                   help="PostgreSQL: run even when connected as the tables' owner or a superuser, who could drop the "
+                   "append-only guards (default: refuse; create a service role with `gyrocal store setup --service-role`)")
     p.add_argument("--method", default="closure", help="estimator of live sessions (default closure)")
     p.add_argument("--max-attempts", type=int, default=1, metavar="N",
                    help="tries per turn before a session fails (default 1: any fault ends the session with its reason)")
@@ -162,6 +168,8 @@ def build_service(args: argparse.Namespace) -> Any:
         raise ServiceError(f"--mock-rate must be one of {', '.join(f'{r:g}' for r in MOCK_RATES_HZ)} Hz")
     if args.method not in available_methods():
         raise ServiceError(f"--method must be one of {', '.join(available_methods())}")
+    if not 256 <= args.worker_memory_mb <= 1_048_576:
+        raise ServiceError("--worker-memory-mb must be between 256 and 1048576")
     if not 1 <= args.max_attempts <= 5:
         raise ServiceError("--max-attempts must be between 1 and 5")
     scenarios = [s.strip() for s in args.mock_scenario.split(",") if s.strip()]
@@ -177,6 +185,7 @@ def build_service(args: argparse.Namespace) -> Any:
         auth_reads=args.auth_reads,
         method=args.method,
         max_turn_attempts=args.max_attempts,
+        worker_memory_mb=args.worker_memory_mb,
     )
     from .store import Store, StoreError
 
@@ -184,6 +193,14 @@ def build_service(args: argparse.Namespace) -> Any:
         store = Store(settings.db_url)
     except StoreError as exc:
         raise ServiceError(str(exc)) from None
+    if not args.allow_db_owner and store.role_may_rewrite_history():
+        store.close()
+        raise ServiceError(
+            f"the service connects to {store.display_url} as the tables' owner (or a superuser), who could drop the guards "
+            "that keep the history append-only. Create a service role once with `gyrocal store setup --db <this URL> "
+            "--service-role gyrocal_service` and start the service with the URL it prints (or pass --allow-db-owner to "
+            "run like this anyway)"
+        )
     devices = DeviceManager(ble=args.ble, ble_adapter=args.ble_adapter)
     if args.mock:
         devices.add_mocks(args.mock, speed=args.mock_speed, seed=args.mock_seed, scenarios=scenarios, rate_hz=args.mock_rate)

@@ -25,6 +25,28 @@ class TooManySamples(Exception):
     """An upload with more samples than the service accepts."""
 
 
+def confine_worker(memory_mb: int | None) -> None:
+    """Run at a worker process's start: cap its address space at ``memory_mb`` (an allocation beyond it raises
+    MemoryError instead of taking the machine's memory), and end it when the service's process is gone (even
+    after kill -9), so no worker outlives the service."""
+    import resource
+    import threading
+    import time
+
+    if memory_mb:
+        limit = int(memory_mb) * 1024 * 1024
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+    parent = os.getppid()
+
+    def watch() -> None:
+        while True:
+            time.sleep(0.5)
+            if os.getppid() != parent:
+                os._exit(0)
+
+    threading.Thread(target=watch, name="gyrocal-parent-watch", daemon=True).start()
+
+
 # -- what the workers run (module level, so that they can be pickled) ------------------------------
 def _warm_up() -> int:
     import calib.api  # noqa: F401
@@ -86,14 +108,16 @@ def calibrate_upload(body: bytes, fs: float | None, layout: str, method: str, so
 class ComputePool:
     """A small pool of worker processes (spawned, so safe next to the event loop's threads)."""
 
-    def __init__(self, workers: int | None = None) -> None:
+    def __init__(self, workers: int | None = None, memory_mb: int | None = None) -> None:
         cores = os.cpu_count() or 1
         self.workers = workers or max(1, min(4, cores - 1))
+        self.memory_mb = memory_mb
         self._pool: ProcessPoolExecutor | None = None
 
     def _executor(self) -> ProcessPoolExecutor:
         if self._pool is None:
-            self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
+                                             initializer=confine_worker, initargs=(self.memory_mb,))
         return self._pool
 
     async def start(self) -> None:
@@ -115,5 +139,7 @@ class ComputePool:
 
     def shutdown(self) -> None:
         if self._pool is not None:
-            self._pool.shutdown(wait=False, cancel_futures=True)
+            # waiting lets the pool release its queues' semaphores (no "leaked semaphore" warning at exit);
+            # the workers are idle or finishing one short job
+            self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None

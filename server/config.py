@@ -71,6 +71,9 @@ class Settings:
     auth_reads: bool = False  # when True, reads need a token too (SSE may pass it as ?access_token=)
     max_body_bytes: int = 32 * 1024 * 1024  # uploads above this get 413
     max_upload_samples: int = 2_000_000
+    max_diagnose_samples: int = 100_000  # a model check needs about 15 kB a sample (1.4 GB at 90 000); more get 413
+    worker_memory_mb: int = 3072  # address space of each worker process (estimators, model checks); beyond: MemoryError
+    anonymous_analyses_per_min: float = 6.0  # POST /diagnose without a token, per client address (burst 3)
     token_ttl_s: float = 12 * 3600.0
     method: str = "closure"  # estimator of live sessions
     timings: ProtocolTimings = field(default_factory=ProtocolTimings)
@@ -82,4 +85,5 @@ class Settings:
     session_timeout_s: float = 900.0  # wall-clock watchdog: no live session runs longer than this
     sse_linger_s: float = 600.0  # an ended session's event stream closes after this, or at its decision
     sse_rate_hz: float = 20.0  # live angle / progress snapshots per second (state changes are never held back)
+    integrity_check_s: float = 300.0  # the store's hash chains are verified this often (and at start, and on /health?verify=true)
     static_dir: Path | None = None  # the wizard page; default: webui/static if it exists

@@ -66,7 +66,7 @@ def diagnose_csv(csv: bytes, fs: float | None, layout: str, source: str, max_sam
     if full_scale_dps:
         rec = rec.with_meta(gyro_full_scale_dps=float(full_scale_dps))
     found = [Stage.from_dict(s) for s in stages] if stages else None
-    diag = diagnose(rec, progress=progress, stages=found)
+    diag = diagnose(rec, progress=progress, stages=found, max_samples=max_samples)
     html = None
     if report_title is not None:
         from calib.diagnosis.report import write_report
@@ -89,9 +89,12 @@ class _Reporter:
             self.conn.send(("progress", float(fraction), str(stage)))
 
 
-def _serve(conn: Connection) -> None:
+def _serve(conn: Connection, memory_mb: int | None = None) -> None:
     """A worker's loop: (function, args) in; progress messages, then ("ok", value) or ("error", exc) out."""
+    from .compute import confine_worker
+
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the service stops its workers itself
+    confine_worker(memory_mb)
     while True:
         try:
             fn, args = conn.recv()
@@ -112,7 +115,8 @@ def _serve(conn: Connection) -> None:
 class Worker:
     """A spawned process that runs one call at a time; killed when a call runs over its time limit."""
 
-    def __init__(self) -> None:
+    def __init__(self, memory_mb: int | None = None) -> None:
+        self.memory_mb = memory_mb
         self._proc: multiprocessing.process.BaseProcess | None = None
         self._conn: Connection | None = None
 
@@ -121,7 +125,7 @@ class Worker:
             self.stop()
             ctx = multiprocessing.get_context("spawn")
             parent, child = ctx.Pipe()
-            proc = ctx.Process(target=_serve, args=(child,), name="gyrocal-diagnosis", daemon=True)
+            proc = ctx.Process(target=_serve, args=(child, self.memory_mb), name="gyrocal-diagnosis", daemon=True)
             proc.start()
             child.close()
             self._proc, self._conn = proc, parent
@@ -235,12 +239,12 @@ class DiagnosisQueue:
     """
 
     def __init__(self, workers: int = DEFAULT_WORKERS, max_waiting: int = DEFAULT_WAITING, timeout_s: float = 120.0,
-                 kept: int = RESULTS_KEPT, runner: Runner | None = None) -> None:
+                 kept: int = RESULTS_KEPT, runner: Runner | None = None, memory_mb: int | None = None) -> None:
         self.workers = workers
         self.max_waiting = max_waiting
         self.timeout_s = timeout_s
         self.results = Lru(kept)
-        self._idle: list[Worker] = [Worker() for _ in range(workers)] if runner is None else []
+        self._idle: list[Worker] = [Worker(memory_mb) for _ in range(workers)] if runner is None else []
         self._all = list(self._idle)
         self._free: asyncio.Condition | None = None
         self._runner = runner or self._in_worker

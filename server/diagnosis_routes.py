@@ -19,7 +19,9 @@ from fastapi import FastAPI, Query, Request, Response
 from fastapi.responses import HTMLResponse, JSONResponse
 from pydantic import BaseModel, ConfigDict, Field
 
-from .app import CSV_TYPES, Reader, Service, _check_session_id, _check_upload, _problem, _recording_problem
+from .app import CSV_TYPES, AnalysisReader, Reader, Service, _check_session_id, _check_upload, _problem, _recording_problem
+from calib.errors import RecordingTooLong
+
 from .compute import TooManySamples
 from .diagnosis_jobs import (
     REPORTS_KEPT,
@@ -116,7 +118,8 @@ class Diagnoser:
     """The service's model checks: the queue of worker processes, the kept results and reports."""
 
     def __init__(self, svc: Service) -> None:
-        self.queue = DiagnosisQueue(timeout_s=svc.settings.compute_timeout_s)
+        self.memory_mb = svc.settings.worker_memory_mb
+        self.queue = DiagnosisQueue(timeout_s=svc.settings.compute_timeout_s, memory_mb=svc.settings.worker_memory_mb)
         self.reports = Lru(REPORTS_KEPT)
 
     async def run(self, key: str, args: tuple[Any, ...], report: bool, upload: bool) -> tuple[dict[str, Any], str | None, bool]:
@@ -137,8 +140,11 @@ class Diagnoser:
                            "(about 30 s) takes seconds, this one takes longer than the service allows") from None
         except WorkerDied as exc:
             raise _problem(503, f"{exc}; try again") from None
-        except TooManySamples as exc:
+        except (TooManySamples, RecordingTooLong) as exc:
             raise _problem(413, str(exc)) from None
+        except MemoryError:
+            raise _problem(413, f"the model check of this recording needs more memory than this service gives a worker "
+                           f"({self.memory_mb} MB); send the protocol's part of the recording (about 30-90 s)") from None
         except Exception as exc:  # calib's errors and whatever else the recording trips the diagnosis on
             raise _recording_problem(exc, "diagnosed", upload) from None
         return finite(d), html, kept
@@ -148,6 +154,7 @@ class Diagnoser:
 
 
 def _upload_args(body: bytes, fs: float | None, layout: str, max_samples: int) -> tuple[str, tuple[Any, ...]]:
+    """The cache key and the worker's arguments of an uploaded recording's model check."""
     _check_upload(body, layout)
     key = digest("upload", sha256_hex(body), fs, layout)
     return key, (body, fs, layout, "uploaded recording", max_samples, None, None, "uploaded recording")
@@ -193,7 +200,7 @@ async def _session_args(svc: Service, sid: str, row: dict[str, Any] | None, repo
     device = (row or {}).get("device_id") or (live.device.id if live is not None else "")
     info = (row or {}).get("info") or {}
     full_scale = info.get("gyro_full_scale_dps") or (live.machine.full_scale if live is not None else None)
-    return (csv, None, "native", f"session {sid}", svc.settings.max_upload_samples, result.get("stages") or None,
+    return (csv, None, "native", f"session {sid}", svc.settings.max_diagnose_samples, result.get("stages") or None,
             full_scale, f"session {sid} ({device})" if report else None)
 
 
@@ -224,8 +231,9 @@ def register(app: FastAPI) -> None:
     upload_responses = {
         400: {**P, "description": "the recording cannot be read"},
         401: {**P, "description": "reads need a token (--auth-reads)"},
-        413: {**P, "description": "the recording is too large"},
-        415: {**P, "description": "the body is not CSV"},
+        413: {**P, "description": "the recording is too large, spans too long, or needs more memory than a worker has"},
+        415: {**P, "description": "the body is not CSV (text/csv)"},
+        429: {**P, "description": "too many model checks without a token from this address (Retry-After)"},
         422: {**P, "description": "invalid parameters, or the protocol is not in the recording (the missing stage is named)"},
         **busy,
     }
@@ -239,18 +247,18 @@ def register(app: FastAPI) -> None:
     html_ok = {200: {"content": {"text/html": {}}, "description": "the HTML report, figures embedded"}}
 
     @app.post("/diagnose", response_model=DiagnosisOut, responses=upload_responses, openapi_extra=csv_body, tags=["diagnosis"])
-    async def diagnose_upload(request: Request, _: Reader, fs: Fs = None, layout: Layout = "auto") -> JSONResponse:
+    async def diagnose_upload(request: Request, _: AnalysisReader, fs: Fs = None, layout: Layout = "auto") -> JSONResponse:
         """Compare an uploaded recording with its simulation: where it departs, which physical effect
         explains it, how much the fit improves (as `gyrocal diagnose --json`). Nothing is stored."""
-        key, args = _upload_args(await _body(request), fs, layout, svc.settings.max_upload_samples)
+        key, args = _upload_args(await _body(request), fs, layout, svc.settings.max_diagnose_samples)
         d, _, kept = await diag.run(key, args, report=False, upload=True)
         return _json(d, kept)
 
     @app.post("/diagnose/report", response_class=Response, responses={**html_ok, **upload_responses},
               openapi_extra=csv_body, tags=["diagnosis"])
-    async def diagnose_upload_report(request: Request, _: Reader, fs: Fs = None, layout: Layout = "auto") -> HTMLResponse:
+    async def diagnose_upload_report(request: Request, _: AnalysisReader, fs: Fs = None, layout: Layout = "auto") -> HTMLResponse:
         """The HTML report of an uploaded recording's model check (as `gyrocal diagnose --report`)."""
-        key, args = _upload_args(await _body(request), fs, layout, svc.settings.max_upload_samples)
+        key, args = _upload_args(await _body(request), fs, layout, svc.settings.max_diagnose_samples)
         _d, html, kept = await diag.run(key, args, report=True, upload=True)
         return _html(html, kept)
 

@@ -15,8 +15,25 @@ class Problem(BaseModel):
     detail: str | list[Any]
 
 
+class BrokenLink(BaseModel):
+    chain: str = Field(description="calibrations, recordings or audit_log")
+    seq: int | None = Field(description="the row's place in its chain (1 = first)")
+    row_id: int | None
+    problem: str
+
+
+class Integrity(BaseModel):
+    """The last verification of the hash chains over the store's history."""
+
+    ok: bool
+    rows: dict[str, int] = Field(description="rows verified per chain")
+    first_broken_link: BrokenLink | None
+    checked_at: str
+
+
 class Health(BaseModel):
-    status: Literal["ok"]
+    status: Literal["ok", "tampered"] = Field(description="tampered: a hash chain of the store's history is broken")
+    integrity: Integrity
     version: str
     store: str = Field(description="database dialect of the store (sqlite, postgresql)")
     schema_version: int
@@ -26,7 +43,8 @@ class Health(BaseModel):
 
 
 class LoginIn(BaseModel):
-    operator: str = Field(min_length=1, max_length=64)
+    operator: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9][A-Za-z0-9._@-]{0,63}$",
+                          description="letters, digits and . _ @ -")
     secret: str = Field(min_length=1, max_length=512)
 
 
@@ -60,6 +78,7 @@ class CalibrationOut(BaseModel):
     software_version: str
     sensor_model: str | None
     firmware: str | None
+    source: Literal["live", "upload"] = Field(description="live: a guided session on the device; upload: an uploaded recording")
     operator: str
     recording_sha256: str | None
     computed_at: str
@@ -131,9 +150,15 @@ class SessionOut(BaseModel):
     ended_at: str | None = None
 
 
+SENSOR_TEXT = r"^[^\x00-\x1f\x7f]*$"  # printable text: no NUL or other control characters
+
+
 class DecisionIn(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    note: str | None = Field(None, max_length=1000)
+    note: str | None = Field(None, max_length=1000, pattern=r"^[^\x00]*$")
+    sensor_model: str | None = Field(None, min_length=1, max_length=128, pattern=SENSOR_TEXT,
+                                     description="the sensor an uploaded recording came from (accept only; kept with the calibration)")
+    firmware: str | None = Field(None, min_length=1, max_length=128, pattern=SENSOR_TEXT)
 
 
 class AcceptOut(BaseModel):

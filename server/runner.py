@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import io
 import logging
 import time
+from datetime import datetime
 from typing import Any, Callable
 
 from . import guidance as say
@@ -18,12 +20,14 @@ from .compute import ComputePool, calibrate_recording, recording_csv
 from .config import Settings
 from .devices import Device
 from .events import Broadcaster, finite
-from .session import GuidedSession
-from .store import Store
+from .session import GuidedSession, SampleBuffer
+from .store import SessionEnd, Store, utcnow
 
 log = logging.getLogger(__name__)
 
 WATCHDOG_PERIOD_S = 0.25
+SPOOL_PERIOD_S = 1.0  # a running session's new samples are made durable this often
+SPOOL_MAX_SAMPLES = 600_000  # beyond this (15 min at 562.5 Hz, the longest session) nothing more is spooled
 
 
 def compute_result(session: GuidedSession) -> dict[str, Any]:
@@ -35,6 +39,20 @@ def compute_result(session: GuidedSession) -> dict[str, Any]:
         raise CalibrationError(error)
     assert result is not None
     return result
+
+
+def spool_rows(buf: SampleBuffer, start: int, end: int) -> tuple[str, bytes]:
+    """Samples [start, end) of a session's buffer as native CSV rows (no header) and that header."""
+    from calib.io import write_native_csv
+    from calib.recording import Recording, RecordingMeta
+
+    accel = buf.accel[start:end] if buf.accel is not None and buf.has_accel else None
+    rec = Recording(t=buf.t[start:end], gyro=buf.gyro[start:end], accel=accel,
+                    seq=buf.seq[start:end] if buf.has_seq else None, meta=RecordingMeta())
+    out = io.StringIO()
+    write_native_csv(rec, out)
+    header, _, rows = out.getvalue().partition("\n")
+    return header, rows.encode()
 
 
 class LiveSession:
@@ -69,6 +87,8 @@ class LiveSession:
         self._link_down = False
         self.persisted = False
         self.persist_error: str | None = None
+        self._spooled = 0  # samples of the buffer made durable in the store's spool
+        self._spool_chunk = 0
 
     @property
     def id(self) -> str:
@@ -103,6 +123,7 @@ class LiveSession:
     async def _run(self) -> None:
         m = self.machine
         watchdog = asyncio.get_running_loop().create_task(self._watchdog())
+        spool = asyncio.get_running_loop().create_task(self._spool_loop())
         try:
             self._pump = asyncio.get_running_loop().create_task(self._stream())
             with contextlib.suppress(asyncio.CancelledError):
@@ -117,9 +138,10 @@ class LiveSession:
             log.exception("session %s failed", self.id)
             m.fail("internal_error", say.internal_error(f"{type(exc).__name__}: {exc}"))
         finally:
-            watchdog.cancel()
-            with contextlib.suppress(asyncio.CancelledError, Exception):
-                await watchdog
+            for task in (watchdog, spool):
+                task.cancel()
+                with contextlib.suppress(asyncio.CancelledError, Exception):
+                    await task
             await self._stop_link()
             await self._persist()
             # the stream stays open for the accept/discard event, then ends (clients see an end state)
@@ -227,6 +249,36 @@ class LiveSession:
         with contextlib.suppress(Exception):
             await asyncio.wait_for(link.stop(), timeout=5.0)
 
+    def session_end(self) -> SessionEnd:
+        """The session as it ended (an accept writes this if the end-of-session write was lost)."""
+        m = self.machine
+        ended = datetime.fromisoformat(m.ended_at) if m.ended_at else utcnow()
+        return SessionEnd(
+            state=m.state, reason_code=m.reason_code, reason=m.reason, result=m.result, passed=m.passed, ended_at=ended,
+            info={"lost_samples": m.lost_samples, "warnings": m.warnings, "turns": {a: t.to_dict() for a, t in m.turns.items()},
+                  "checks": m.checks, "samples": m.buf.n, "sample_rate_hz": m.fs, "gyro_full_scale_dps": m.full_scale},
+        )
+
+    async def _spool_loop(self) -> None:
+        """Append the samples received since the last round to the store's spool, once a second."""
+        while True:
+            await asyncio.sleep(SPOOL_PERIOD_S)
+            await self._spool()
+
+    async def _spool(self) -> None:
+        buf = self.machine.buf
+        end = min(buf.n, SPOOL_MAX_SAMPLES)
+        if end <= self._spooled:
+            return
+        columns, rows = spool_rows(buf, self._spooled, end)
+        try:
+            await asyncio.to_thread(self.store.spool_samples, self.id, self._spool_chunk, columns, rows, end - self._spooled)
+        except Exception as exc:  # the store is down: these samples are spooled with the next round
+            log.warning("could not spool the samples of session %s: %s", self.id, exc)
+            return
+        self._spool_chunk += 1
+        self._spooled = end
+
     async def _persist(self) -> None:
         """Archive the recording and write the outcome; a failure is kept and retried on accept."""
         m = self.machine
@@ -236,18 +288,8 @@ class LiveSession:
                 self._csv = await (self.pool.run(recording_csv, rec) if self.pool else asyncio.to_thread(recording_csv, rec))
             if self._csv is not None and self.recording_sha256 is None:
                 self.recording_sha256 = await asyncio.to_thread(self.store.archive_recording, self.id, self._csv, m.buf.n)
-            await asyncio.to_thread(
-                self.store.finish_session,
-                self.id,
-                m.state,
-                reason_code=m.reason_code,
-                reason=m.reason,
-                result=m.result,
-                passed=m.passed,
-                operator=self.operator if m.state == "cancelled" else None,
-                info={"lost_samples": m.lost_samples, "warnings": m.warnings, "turns": {a: t.to_dict() for a, t in m.turns.items()},
-                      "checks": m.checks, "samples": m.buf.n, "sample_rate_hz": m.fs, "gyro_full_scale_dps": m.full_scale},
-            )
+            await asyncio.to_thread(self.store.finish_session, self.id, self.session_end(),
+                                    self.operator if m.state == "cancelled" else None)
             self.persisted = True
             self.persist_error = None
         except Exception as exc:

@@ -81,6 +81,15 @@ class PostgresServer:
             conn.execute(f'CREATE DATABASE "{name}"')
         return self.url(name)
 
+    def service_url(self, owner_url: str) -> str:
+        """Set up the store at ``owner_url`` (as its owner) with a service role, the way an administrator would
+        (`gyrocal store setup --service-role`), and return the URL the service connects with."""
+        role = "svc_" + uuid.uuid4().hex[:10]
+        r = subprocess.run([*GYROCAL, "store", "setup", "--db", owner_url, "--service-role", role],
+                           cwd=ROOT, capture_output=True, text=True, timeout=120)
+        assert r.returncode == 0, r.stderr
+        return r.stdout.split("gyrocal serve --db '")[1].split("'")[0]
+
     def stop(self) -> None:
         self._run(str(self.bindir / "pg_ctl"), "-D", str(self.data), "-m", "immediate", "stop")
         shutil.rmtree(self.dir, ignore_errors=True)
@@ -103,6 +112,18 @@ def store_url(request: pytest.FixtureRequest, tmp_path: Path) -> str:
     if request.param == "sqlite":
         return f"sqlite:///{tmp_path / 'store.sqlite3'}"
     return request.getfixturevalue("postgres").create_database()
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def service_store(request: pytest.FixtureRequest, tmp_path: Path) -> tuple[str, str]:
+    """(the owner's URL, the service's URL) of an empty store: one SQLite file, or a PostgreSQL database whose
+    service role owns nothing (as `gyrocal store setup --service-role` makes it)."""
+    if request.param == "sqlite":
+        url = f"sqlite:///{tmp_path / 'store.sqlite3'}"
+        return url, url
+    pg = request.getfixturevalue("postgres")
+    owner = pg.create_database()
+    return owner, pg.service_url(owner)
 
 
 # -- a running service ----------------------------------------------------------------------------

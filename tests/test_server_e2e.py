@@ -17,7 +17,15 @@ from calib.api import calibrate
 from calib.io import parse_recording_text, write_native_csv
 from calib.simulator import simulate
 from calib.stage import Stage
-from server_fixtures import GYROCAL, ROOT, RunningService, bad_csv_uploads, follow_events, postgres, store_url  # noqa: F401
+from server_fixtures import (  # noqa: F401
+    GYROCAL,
+    ROOT,
+    RunningService,
+    bad_csv_uploads,
+    follow_events,
+    postgres,
+    service_store,
+)
 
 END = {"done", "failed", "cancelled"}
 # mock-N performs SCENARIOS[N-1] in every session (seeded, so every run is the same)
@@ -303,9 +311,10 @@ def _inject_store_failure(url: str, on: bool) -> None:
     eng.dispose()
 
 
-def test_restart_keeps_history_and_a_failed_store_write_changes_nothing(store_url: str) -> None:
+def test_restart_keeps_history_and_a_failed_store_write_changes_nothing(service_store: tuple[str, str]) -> None:
     """Against SQLite and PostgreSQL: accept, restart the service, fail a write, retry it."""
-    svc = RunningService(["--mock", "1", "--mock-speed", "40", "--mock-seed", "5"], store_url).start()
+    store_url, service_url = service_store
+    svc = RunningService(["--mock", "1", "--mock-speed", "40", "--mock-seed", "5"], service_url).start()
     try:
         sid1, events = run_to_end(svc, "mock-1")
         assert events[-1]["state"] == "done"
@@ -314,7 +323,7 @@ def test_restart_keeps_history_and_a_failed_store_write_changes_nothing(store_ur
             running = start_session(c, "mock-1")
     finally:
         svc.stop()  # with a session running
-    svc = RunningService(["--mock", "1", "--mock-speed", "40", "--mock-seed", "5"], store_url).start()
+    svc = RunningService(["--mock", "1", "--mock-speed", "40", "--mock-seed", "5"], service_url).start()
     try:
         with svc.client() as c:
             assert c.get("/devices/mock-1/calibration").json() == first

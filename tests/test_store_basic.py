@@ -10,7 +10,7 @@ from sqlalchemy import text
 from sqlalchemy.exc import SQLAlchemyError
 
 from server.auth import Authenticator, AuthError
-from server.store import SCHEMA_VERSION, Store, StoreError, sha256_hex
+from server.store import SCHEMA_VERSION, SessionEnd, Store, StoreError, sha256_hex
 from server_fixtures import postgres, store_url  # noqa: F401
 
 RESULT = {
@@ -25,7 +25,7 @@ RESULT = {
 
 def _done_session(store: Store, sid: str, device: str = "dev-1", result: dict | None = None, state: str = "done") -> None:
     store.create_session(sid, device, "live", "connecting", "closure", "alice", "0.1.0", {"sensor_model": "ICM-20948"})
-    store.finish_session(sid, state, result=result or RESULT, passed=state == "done")
+    store.finish_session(sid, SessionEnd(state, result=result or RESULT, passed=state == "done"))
 
 
 def test_schema_is_created_and_reopening_keeps_it(store_url: str) -> None:

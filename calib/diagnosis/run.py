@@ -12,7 +12,7 @@ from scipy.stats import chi2 as chi2_dist
 from scipy.stats import norm
 
 from ..effects import CATALOGUE
-from ..errors import GyrocalError, RecordingError
+from ..errors import GyrocalError, RecordingError, RecordingTooLong
 from ..recording import Recording
 from ..stage import AXES, Stage
 from ..stages import detect_stages, find_protocol
@@ -48,6 +48,9 @@ from .select import (
 )
 from .rivals import Worlds, rival_test
 from .timebase import TimeBase, analyse_timebase, bridge
+
+DEFAULT_MAX_SAMPLES = 500_000
+MEMORY_PER_SAMPLE_KB = 15.0  # peak memory of a diagnosis grows by about this per sample (measured, bench/diagnosis_memory.py)
 
 EFFECT_NAMES: tuple[str, ...] = CATALOGUE  # the catalogue, in the order the documentation lists it
 DEFAULT_BOOT = 200
@@ -129,8 +132,12 @@ def diagnose(
     seed: int = 0,
     host_t: np.ndarray | None = None,
     stages: list[Stage] | None = None,
+    max_samples: int | None = DEFAULT_MAX_SAMPLES,
 ) -> Diagnosis:
     """Diagnose a recording of the protocol against the nominal model g = K m + b.
+
+    ``max_samples``: refuse (RecordingTooLong) a recording that has, or would have once its lost samples are
+    put back, more samples than this; the work and memory grow with them (about 15 kB a sample).
 
     ``n_boot`` simulated replicates give the null distribution (deterministic by ``seed``).
     ``host_t`` (n,): the time each sample reached the host (default: the recording's ``host_t`` channel);
@@ -144,6 +151,7 @@ def diagnose(
         host_t = getattr(rec, "host_t", None)
     say(0.0, "stages")
     tb = analyse_timebase(rec, host_t)
+    _check_size(rec, tb, max_samples)
     raw = None
     if tb.lost > 0 and tb.index_source is not None:
         # lost samples are put back at their sample numbers; the analysis runs on the bridged recording
@@ -252,6 +260,22 @@ def diagnose(
     diag.info["seconds"] = round(time.perf_counter() - t_start, 3)
     say(1.0, "done")
     return diag
+
+
+def _check_size(rec: Recording, tb: TimeBase, max_samples: int | None) -> None:
+    n = len(rec)
+    if tb.lost > 0 and tb.index_source is not None:
+        n = int(tb.index[-1] - tb.index[0]) + 1
+    if max_samples is None or n <= max_samples:
+        return
+    span = float(rec.t[-1] - rec.t[0])
+    bridged = (f" once the {n - len(rec)} samples its {tb.index_source} says are missing are put back (it spans {span:.0f} s)"
+               if n > len(rec) else "")
+    raise RecordingTooLong(
+        f"the recording would be diagnosed as {n} samples{bridged}, about {MEMORY_PER_SAMPLE_KB * n / 1e6:.1f} GB of work; "
+        f"at most {max_samples} are diagnosed. Send the protocol's part of the recording (about 30-90 s), and check its "
+        "time stamps or counter if it should be shorter"
+    )
 
 
 def _check(rec: Recording, host_t: np.ndarray | None, n_boot: int) -> None:

@@ -1,0 +1,27 @@
+"""The per-device store (SQLAlchemy 2): SQLite by default, PostgreSQL by URL.
+
+tables (the schema) · engine (connections, SQLite write locking) · guards (append-only triggers, the
+PostgreSQL service role) · chain (hash chains over the history) · schema (creation and migrations) ·
+repository (the Store: every read and write of the service).
+"""
+
+from .chain import BrokenLink, ChainReport
+from .errors import DecisionConflict, NotAcceptable, NotFound, StoreError
+from .repository import CalibrationRecord, SessionEnd, Store, sha256_hex
+from .schema import SCHEMA_VERSION
+from .tables import utcnow
+
+__all__ = [
+    "SCHEMA_VERSION",
+    "BrokenLink",
+    "CalibrationRecord",
+    "ChainReport",
+    "DecisionConflict",
+    "NotAcceptable",
+    "NotFound",
+    "SessionEnd",
+    "Store",
+    "StoreError",
+    "sha256_hex",
+    "utcnow",
+]
