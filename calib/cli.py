@@ -83,11 +83,50 @@ def _read(args: argparse.Namespace) -> Any:
         raise SampleRateUnknownError(f"{exc}; on the command line: --fs HZ") from None
 
 
+def _writable(path: Path, what: str) -> Path:
+    """``path`` if a file can be written there, else OutputError saying why (checked before any work is done)."""
+    from .errors import OutputError
+
+    folder = path.expanduser().resolve().parent
+    if not folder.is_dir():
+        raise OutputError(f"cannot write the {what} to {path}: the folder {folder} does not exist; create it or choose another path")
+    if not os.access(folder, os.W_OK):
+        raise OutputError(f"cannot write the {what} to {path}: the folder {folder} is not writable")
+    if path.is_dir():
+        raise OutputError(f"cannot write the {what} to {path}: that is a folder; give a file name such as {path / 'plot.png'}")
+    return path
+
+
+def _error_json(exc: Exception, code: str, stages: list[Any]) -> str:
+    return json.dumps({"error": {"code": code, "message": str(exc), "stages": [s.to_dict() for s in stages]}})
+
+
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from .api import calibrate
+    from .errors import GyrocalError, ProtocolError
 
-    rec = _read(args)
-    result = calibrate(rec, method=args.method)
+    if args.plot:
+        _writable(args.plot, "plot")
+    try:
+        rec = _read(args)
+    except GyrocalError as exc:
+        if args.json:
+            print(_error_json(exc, "bad_recording", []))
+        raise
+    try:
+        result = calibrate(rec, method=args.method)
+    except ProtocolError as exc:
+        stages = exc.stages
+        if args.plot:
+            from .plots import plot_stages
+            from .stages import detect_stages
+
+            stages = stages or detect_stages(rec)
+            plot_stages(rec, stages, args.plot, f"{args.file}: not calibrated. {exc}")
+            print(f"the stages found are drawn in {args.plot}", file=sys.stderr)
+        if args.json:
+            print(_error_json(exc, exc.code, stages))
+        raise
     if args.plot:
         from .plots import plot_calibration
 

@@ -339,10 +339,11 @@ def _select_stages(rec: Recording, stages: Any) -> tuple[list[Stage], list[Stage
             seen.setdefault((s.kind, s.start, s.end), s)
         stage_list = sorted(seen.values(), key=lambda s: s.start)
     else:
-        from .stages import detect_stages, find_protocol
+        from .protocol_hints import find_protocol_in
+        from .stages import detect_stages
 
         stage_list = detect_stages(rec) if stages is None else sorted(_as_stages(stages), key=lambda s: s.start)
-        find_protocol(stage_list)  # ProtocolError naming the missing stage
+        find_protocol_in(rec, stage_list)  # ProtocolError naming the missing stage
     n = len(rec)
     for s in stage_list:
         if not 0 <= s.start < s.end <= n:

@@ -12,7 +12,20 @@ class RecordingError(GyrocalError):
 
 
 class ProtocolError(GyrocalError):
-    """The recording is valid but does not contain the calibration protocol (a stage is missing)."""
+    """The recording is valid but does not contain the calibration protocol (a stage is missing).
+
+    ``code`` says why in a word (turn_missing, still_missing, no_rest, sample_rate_suspect, protocol_not_found);
+    ``stages`` are the stages that were found, so a caller can show them.
+    """
+
+    def __init__(self, message: str, *, code: str = "protocol_not_found", stages: list | None = None) -> None:
+        super().__init__(message)
+        self.code = code
+        self.stages = list(stages or [])
+
+
+class OutputError(GyrocalError):
+    """A result cannot be written where asked (a missing folder, no permission)."""
 
 
 class CalibrationError(GyrocalError):

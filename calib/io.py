@@ -185,6 +185,9 @@ def _split_table(text: str, where: str) -> _Table:
         )
     numbered = [(i, line) for i, line in enumerate(raw[header_at + 1 :], header_at + 2) if line.strip()]
     if not numbered:
+        if not any(n in names for n in ("t", "gx", "gyr_x", "gyro_x")):
+            raise RecordingError(f"{where}this is not a recording: one line of text ({header[:40]!r}) and no samples. A "
+                                 f"recording is a CSV with a header such as {NATIVE_HEADER} and one row per sample")
         raise RecordingError(f"{where}the file has a header but no data rows; it holds no samples")
     line_no = np.fromiter((i for i, _ in numbered), dtype=np.int64, count=len(numbered))
     lines = [line for _, line in numbered]

@@ -326,10 +326,11 @@ def _protocol(rec: Recording, stages: Any) -> tuple[Stage, list[Stage], list[Sta
         given = [proto.still0, *proto.turns.values(), *getattr(proto, "stills", [])]
         stage_list = sorted({(s.kind, s.start, s.end): s for s in given}.values(), key=lambda s: s.start)
     else:
-        from .stages import detect_stages, find_protocol  # only needed when stages come as a list or not at all
+        from .protocol_hints import find_protocol_in  # only needed when stages come as a list or not at all
+        from .stages import detect_stages
 
         stage_list = detect_stages(rec) if stages is None else list(stages)
-        proto = find_protocol(stage_list)
+        proto = find_protocol_in(rec, stage_list)
     missing = [a for a in AXES if a not in proto.turns]
     if missing:
         raise ProtocolError(f"no full turn about {', '.join(missing)} found: turn the device 360 degrees about each axis")

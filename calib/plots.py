@@ -10,6 +10,7 @@ import numpy as np
 from .attitude import cumulative_attitude
 from .recording import Recording
 from .result import CalibrationResult
+from .stage import Stage
 
 
 def calibration_traces(rec: Recording, result: CalibrationResult, max_points: int = 1500) -> dict[str, Any]:
@@ -97,6 +98,40 @@ def plot_calibration(rec: Recording, result: CalibrationResult, path: str | Path
     axes[-1].set_xlabel("time (s)")
     fig.suptitle(f"gyrocal calibration ({result.method}): k = {np.round(result.k, 5).tolist()}, "
                  f"b = {np.round(result.b, 4).tolist()} deg/s", fontsize=10)
+    out = Path(path)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
+STAGE_COLOURS = {"still": "C2", "turn": "C1", "motion": "C3"}
+
+
+def plot_stages(rec: Recording, stages: list[Stage], path: str | Path, title: str) -> Path:
+    """Save a PNG of what the stage detector found in a recording it could not calibrate: the readings per axis,
+    with the stills, turns and other motions shaded and labelled, so a user sees which part is missing."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    step = max(1, int(np.ceil(len(rec) / 6000)))
+    t = rec.t[::step] - rec.t[0]
+    fig, ax = plt.subplots(figsize=(11, 4.5), constrained_layout=True)
+    for i, axis in enumerate("xyz"):
+        ax.plot(t, rec.gyro[::step, i], lw=0.8, label=f"g{axis} reading")
+    top = float(np.max(np.abs(rec.gyro))) or 1.0
+    for s in stages:
+        a, b = s.start_s - rec.t[0], s.end_s - rec.t[0]
+        ax.axvspan(a, b, color=STAGE_COLOURS.get(s.kind, "0.5"), alpha=0.15, lw=0)
+        label = s.kind if s.kind != "turn" else f"turn {s.axis} ({s.angle_deg:.0f} deg)" if s.angle_deg is not None else "turn"
+        if b - a > 0.02 * (t[-1] - t[0] + 1e-9):
+            ax.text((a + b) / 2, top * 1.02, label, ha="center", va="bottom", fontsize=7, rotation=90 if b - a < 3 else 0)
+    ax.set_ylim(-top * 1.1, top * 1.35)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("gyro reading (deg/s)")
+    ax.legend(loc="lower right", fontsize=8)
+    ax.set_title(title, fontsize=9, wrap=True)
     out = Path(path)
     fig.savefig(out, dpi=110)
     plt.close(fig)

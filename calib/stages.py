@@ -724,13 +724,14 @@ def find_protocol(stages: list[Stage], min_still0_s: float = 1.5) -> ProtocolSta
             names = " or ".join(missing)
             msg = (f"no turn about {names} was found: turn the device a full 360 degrees about each of its "
                    f"{', '.join(missing)} axes, {_TURN_HOWTO} each turn.")
-        raise ProtocolError(msg + detail)
+        raise ProtocolError(msg + detail, code="turn_missing", stages=stages)
     first = min(chosen.values(), key=lambda s: s.start)
     before = [s for s in stills if s.end <= first.start and s.duration_s >= min_still0_s]
     if not before:
         raise ProtocolError(
             f"no still segment of at least {min_still0_s:g} s before the first turn (about {first.axis} at "
-            f"{first.start_s:.1f} s) was found: put the device down and keep it still for about 3 s before turning it."
+            f"{first.start_s:.1f} s) was found: put the device down and keep it still for about 3 s before turning it.",
+            code="still_missing", stages=stages,
         )
     still0 = before[-1]
     order = sorted(chosen, key=lambda a: chosen[a].start)

@@ -20,6 +20,8 @@ from typing import Annotated, Any, AsyncIterator
 from fastapi import Depends, FastAPI, HTTPException, Query, Request, Response
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import HTMLResponse, JSONResponse, StreamingResponse
+from fastapi.routing import APIRoute
+from fastapi.staticfiles import StaticFiles
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from pydantic import ValidationError
 from sqlalchemy.exc import SQLAlchemyError
@@ -34,6 +36,7 @@ from .events import Event, dumps, finite
 from .compute import ComputePool, TooManySamples, calibrate_upload
 from .runner import LiveSession
 from .session import END_STATES, GuidedSession, evaluate_result
+from .security import HostCheck, SecurityHeaders, add_docs
 from .throttle import TokenBucket, retry_after_header
 from .store import DecisionConflict, NotAcceptable, NotFound, SessionEnd, Store, StoreError
 
@@ -175,14 +178,15 @@ async def require_operator(
 
 async def read_access(
     request: Request,
-    creds: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)],
     access_token: Annotated[str | None, Query(description="token for readers that cannot send headers (EventSource), when reads need one")] = None,
 ) -> str | None:
-    """Reads are open unless the service runs with --auth-reads."""
+    """Reads are open unless the service runs with --auth-reads (then the schema says so too: see _openapi)."""
     svc = _service(request)
     if not svc.settings.auth_reads:
         return None
-    op = await _token_operator(svc, creds.credentials if creds else access_token)
+    auth = request.headers.get("authorization", "")
+    token = auth[7:].strip() if auth[:7].lower() == "bearer " else access_token
+    op = await _token_operator(svc, token)
     if op is None:
         raise _problem(401, "this service needs a token for reads too: sign in (POST /auth/login)", {"WWW-Authenticate": "Bearer"})
     return op
@@ -371,6 +375,8 @@ def create_app(settings: Settings | None = None, service: Service | None = None)
             "(g true rate, m reading, deg/s). Writes need `Authorization: Bearer <token>` (POST /auth/login)."
         ),
         lifespan=lifespan,
+        docs_url=None,  # served from this computer's files by security.add_docs, never from a CDN
+        redoc_url=None,
         responses={
             400: {"model": M.Problem, "description": "malformed request (unreadable body or headers)"},
             413: {"model": M.Problem, "description": "request body too large"},
@@ -379,6 +385,8 @@ def create_app(settings: Settings | None = None, service: Service | None = None)
     )
     app.state.service = svc
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
+    app.add_middleware(HostCheck, allowed=settings.allowed_hosts)
+    app.add_middleware(SecurityHeaders)  # outermost: every answer carries the headers, refusals too
 
     @app.exception_handler(StoreError)
     async def _store_error(request: Request, exc: StoreError) -> JSONResponse:
@@ -527,7 +535,7 @@ def create_app(settings: Settings | None = None, service: Service | None = None)
         response: Response,
         operator: Operator,
         fs: Annotated[float | None, Query(gt=0, le=100000, description="sample rate, Hz (CSV without a time column)")] = None,
-        method: Annotated[str | None, Query(max_length=32, description="estimator: closure (default) or paper")] = None,
+        method: Annotated[M.Method | None, Query(description="estimator: closure (default) or paper")] = None,
         layout: Annotated[str, Query(max_length=16, description="CSV layout: auto, native, imucal")] = "auto",
         sensor_model: Annotated[str | None, Query(min_length=1, max_length=128, pattern=M.SENSOR_TEXT,
                                                   description="the sensor an uploaded recording came from (e.g. ICM-20948); "
@@ -540,7 +548,7 @@ def create_app(settings: Settings | None = None, service: Service | None = None)
         ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
         body = await request.body()
         if ctype in CSV_TYPES:
-            return await _offline(svc, device_id, operator, body, fs, method, layout, {"sensor_model": sensor_model, "firmware": firmware})
+            return await _offline(svc, device_id, operator, body, fs, method.value if method else None, layout, {"sensor_model": sensor_model, "firmware": firmware})
         if ctype and ctype != "application/json" and body:
             raise _problem(415, f"send a JSON body (application/json) to start a live session or a CSV (text/csv) to calibrate a recording; got {ctype}")
         opts = M.SessionStart()
@@ -549,7 +557,8 @@ def create_app(settings: Settings | None = None, service: Service | None = None)
                 opts = M.SessionStart.model_validate_json(body)
             except ValidationError as exc:
                 raise _problem(422, "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" if e["loc"] else e["msg"] for e in exc.errors())) from None
-        live = await _start_live(svc, device_id, operator, opts.method or method, opts.max_attempts)
+        chosen = opts.method or method
+        live = await _start_live(svc, device_id, operator, chosen.value if chosen else None, opts.max_attempts)
         url = f"/sessions/{live.id}"
         response.headers["Location"] = url
         return {"session_id": live.id, "device_id": device_id, "state": live.machine.state, "url": url, "events": f"{url}/events"}
@@ -635,8 +644,6 @@ def create_app(settings: Settings | None = None, service: Service | None = None)
         if snap["state"] != "done":
             why = snap.get("reason") or f"it is {snap['state']}"
             raise _problem(409, f"only a finished session within tolerances can be accepted; this one is {snap['state']}: {why}")
-        if snap.get("decision"):
-            raise _problem(409, f"this session was {snap['decision']} already")
         if not snap.get("passed"):
             raise _problem(409, "the result is outside the tolerances and cannot become the device's calibration")
         if live is not None:
@@ -679,8 +686,6 @@ def create_app(settings: Settings | None = None, service: Service | None = None)
         snap = await _session_snapshot(svc, session_id)
         if snap["state"] not in END_STATES:
             raise _problem(409, "the session is still running: cancel it first")
-        if snap.get("decision"):
-            raise _problem(409, f"this session was {snap['decision']} already")
         if live is not None:
             await live.wait()
         try:
@@ -715,7 +720,7 @@ def create_app(settings: Settings | None = None, service: Service | None = None)
     @app.get("/audit", response_model=list[M.AuditEntry], responses=R401, tags=["service"])
     async def audit(
         operator: Operator,
-        device_id: Annotated[str | None, Query(max_length=128)] = None,
+        device_id: Annotated[str | None, Query(max_length=128, pattern=DEVICE_ID_RE.pattern)] = None,
         limit: Annotated[int, Query(ge=1, le=1000)] = 200,
     ) -> list[dict[str, Any]]:
         """The audit log, newest first: who did what, when, on which device (needs a token)."""
@@ -726,8 +731,32 @@ def create_app(settings: Settings | None = None, service: Service | None = None)
 
     register_plot_routes(app)  # before the page is mounted at /, which would shadow later routes
     register_diagnosis_routes(app)
+    add_docs(app)
     _mount_static(app, settings)
+    _openapi(app, settings)
     return app
+
+
+OPEN_ALWAYS = {"/health", "/auth/login"}
+
+
+def _openapi(app: FastAPI, settings: Settings) -> None:
+    """The published schema: reads declare the bearer token only when the service requires it (--auth-reads)."""
+    default = app.openapi
+
+    def schema() -> dict[str, Any]:
+        if app.openapi_schema is None:
+            doc = default()
+            if settings.auth_reads:
+                for path, ops in doc.get("paths", {}).items():
+                    for op in ops.values():
+                        if isinstance(op, dict) and "security" not in op and path not in OPEN_ALWAYS:
+                            op["security"] = [{"HTTPBearer": []}]
+                            op.setdefault("responses", {}).setdefault("401", {"description": "reads need a token (--auth-reads)"})
+            app.openapi_schema = doc
+        return app.openapi_schema
+
+    app.openapi = schema  # type: ignore[method-assign]
 
 
 async def _start_live(svc: Service, device_id: str, operator: str, method: str | None, max_attempts: int | None) -> LiveSession:
@@ -821,14 +850,33 @@ _PLACEHOLDER = """<!doctype html><html lang="en"><head><meta charset="utf-8"><ti
 devices are listed at <a href="/devices">/devices</a>.</p></body></html>"""
 
 
+class PageFiles(StaticFiles):
+    """The wizard's files at /. A method the page does not take is answered 405 with the Allow header of the API
+    route at that path, if any (otherwise the catch-all mount would answer every path's OPTIONS, PUT, ...)."""
+
+    def __init__(self, app: FastAPI, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        self.api = app
+
+    async def __call__(self, scope: Any, receive: Any, send: Any) -> None:
+        if scope["type"] == "http" and scope["method"] not in ("GET", "HEAD"):
+            allowed: set[str] = set()
+            for route in self.api.routes:
+                if isinstance(route, APIRoute) and route.path_regex.match(scope["path"]):
+                    allowed |= route.methods
+            allow = ", ".join(sorted(allowed or {"GET", "HEAD"}))
+            await JSONResponse({"detail": f"{scope['method']} is not allowed on {scope['path']}; allowed: {allow}"},
+                               status_code=405, headers={"Allow": allow})(scope, receive, send)
+            return
+        await super().__call__(scope, receive, send)
+
+
 def _mount_static(app: FastAPI, settings: Settings) -> None:
     static = settings.static_dir
     if static is None:
         static = Path(__file__).resolve().parents[1] / "webui" / "static"
     if Path(static).is_dir() and (Path(static) / "index.html").is_file():
-        from fastapi.staticfiles import StaticFiles
-
-        app.mount("/", StaticFiles(directory=str(static), html=True), name="webui")
+        app.mount("/", PageFiles(app, directory=str(static), html=True), name="webui")
         return
 
     @app.get("/", response_class=HTMLResponse, include_in_schema=False)

@@ -40,6 +40,12 @@ def register(sub: Any) -> None:
     p.add_argument("--ble", action="store_true", help="use Bluetooth LE wearables through bleak (BlueZ, or the simulated one via DBUS_SYSTEM_BUS_ADDRESS)")
     p.add_argument("--ble-adapter", default=None, metavar="HCI", help="Bluetooth adapter (default: the system's)")
     p.add_argument("--auth-reads", action="store_true", help="require a token for reads too (default: only writes need one)")
+    p.add_argument("--allowed-host", action="append", default=[], metavar="NAME",
+                   help="a name the service answers to besides localhost and the --host address (repeatable; '*' for any): "
+                   "requests for other Host names get 400, so a web page elsewhere cannot rebind its name to this service")
+    p.add_argument("--open-reads", action="store_true",
+                   help="with a --host other computers reach: let them read devices, sessions and calibrations without a "
+                   "token over plain HTTP (default: refuse to start so, unless --auth-reads)")
     p.add_argument("--worker-memory-mb", type=int, default=3072, metavar="MB",
                    help="memory each worker process (estimator, model check) may take; beyond it the request gets 413 "
                    "(default 3072)")
@@ -168,6 +174,13 @@ def build_service(args: argparse.Namespace) -> Any:
         raise ServiceError(f"--mock-rate must be one of {', '.join(f'{r:g}' for r in MOCK_RATES_HZ)} Hz")
     if args.method not in available_methods():
         raise ServiceError(f"--method must be one of {', '.join(available_methods())}")
+    loopback = args.host in ("127.0.0.1", "::1", "localhost")
+    if not loopback and not args.auth_reads and not args.open_reads:
+        raise ServiceError(
+            f"--host {args.host} lets other computers reach the service, and reads (devices, sessions, calibrations) are "
+            "open over plain HTTP: add --auth-reads so reads need a token too, or --open-reads to allow it knowingly"
+        )
+    hosts = ("localhost", "127.0.0.1", "::1", *([] if args.host in ("0.0.0.0", "::", "") else [args.host]), *args.allowed_host)
     if not 256 <= args.worker_memory_mb <= 1_048_576:
         raise ServiceError("--worker-memory-mb must be between 256 and 1048576")
     if not 1 <= args.max_attempts <= 5:
@@ -186,6 +199,7 @@ def build_service(args: argparse.Namespace) -> Any:
         method=args.method,
         max_turn_attempts=args.max_attempts,
         worker_memory_mb=args.worker_memory_mb,
+        allowed_hosts=tuple(dict.fromkeys(h.lower() for h in hosts)),
     )
     from .store import Store, StoreError
 

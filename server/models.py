@@ -2,9 +2,15 @@
 
 from __future__ import annotations
 
+from enum import Enum
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
+
+from calib.api import available_methods
+
+Method = Enum("Method", {m: m for m in available_methods()}, type=str)  # type: ignore[misc]
+Method.__doc__ = "An estimator: closure (the default, at the noise floor) or paper (the paper's Algorithm 1)."
 
 Vec3 = list[float]
 
@@ -117,8 +123,8 @@ class SessionStart(BaseModel):
     """Options of a guided live session (all optional)."""
 
     model_config = ConfigDict(extra="forbid")
-    method: str | None = Field(None, description="estimator: closure (default) or paper")
-    max_attempts: int | None = Field(None, ge=1, le=5, description="tries per turn before the session fails (default 1)")
+    method: Method | None = Field(None, description="estimator: closure (default) or paper")
+    max_attempts: int | None = Field(None, ge=1, le=5, strict=True, description="tries per turn before the session fails (default 1)")
 
 
 class SessionStarted(BaseModel):

@@ -122,3 +122,50 @@ def test_bench_paper_sim_small(tmp_path: Path) -> None:
     assert proc.returncode == 0, proc.stderr
     assert "paper" in proc.stdout and "closure" in proc.stdout
     assert png.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_a_refused_recording_says_why_in_json_and_in_a_plot(tmp_path: Path) -> None:
+    still = tmp_path / "still.csv"
+    rows = "".join(f"{i / 100:.2f},0.01,-0.02,0.0\n" for i in range(600))
+    still.write_text("t,gx,gy,gz\n" + rows)
+    plot = tmp_path / "stages.png"
+    proc = gyrocal("calibrate", str(still), "--json", "--plot", str(plot))
+    assert proc.returncode == 3, proc.stderr
+    error = json.loads(proc.stdout)["error"]
+    assert error["code"] == "turn_missing" and "no turn about x" in error["message"]
+    assert [s["kind"] for s in error["stages"]] == ["still"] and error["stages"][0]["end_s"] > 5.0
+    assert plot.stat().st_size > 10_000 and plot.read_bytes()[:4] == b"\x89PNG"
+    assert "stages found are drawn" in proc.stderr
+
+
+def test_an_unreadable_recording_is_a_json_error_too(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.csv"
+    bad.write_text("hello world\n")
+    proc = gyrocal("calibrate", str(bad), "--json")
+    assert proc.returncode == 2
+    error = json.loads(proc.stdout)["error"]
+    assert error["code"] == "bad_recording" and "this is not a recording" in error["message"]
+    assert_user_error(proc, 2, "this is not a recording", "one row per sample")
+
+
+def test_a_plot_into_a_missing_folder_is_refused_before_any_work(simulated: tuple[Path, dict], tmp_path: Path) -> None:
+    path, _ = simulated
+    proc = gyrocal("calibrate", str(path), "--plot", str(tmp_path / "nowhere" / "p.png"))
+    assert_user_error(proc, 2, "does not exist; create it or choose another path")
+
+
+@pytest.mark.parametrize("fs", ["10", "1000"])
+def test_a_wrong_sample_rate_is_named(ferraris_csv: Path, fs: str) -> None:
+    proc = gyrocal("calibrate", str(ferraris_csv), "--fs", fs, "--json")
+    assert proc.returncode == 3
+    error = json.loads(proc.stdout)["error"]
+    assert error["code"] == "sample_rate_suspect"
+    assert f"read at 102.4 Hz instead of {fs} Hz" in error["message"] and "--fs 102.4" in error["message"]
+
+
+def test_a_hand_held_recording_is_told_it_has_no_rest(real_data: Path) -> None:
+    proc = gyrocal("calibrate", str(real_data / "sunsided" / "sunsided_xyz_uniform.csv"), "--json")
+    assert proc.returncode == 3
+    error = json.loads(proc.stdout)["error"]
+    assert error["code"] == "no_rest"
+    assert "no rest anywhere" in error["message"] and "deg/s, where a gyroscope lying on a table" in error["message"]

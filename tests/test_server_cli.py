@@ -50,6 +50,8 @@ def test_operator_commands(tmp_path: Path, capsys: pytest.CaptureFixture[str], m
         (["--method", "guess"], "--method must be one of"),
         (["--max-attempts", "9"], "--max-attempts must be between 1 and 5"),
         (["--db", "nonsense"], "not a database URL"),
+        (["--host", "0.0.0.0"], "add --auth-reads so reads need a token too, or --open-reads"),
+        (["--worker-memory-mb", "10"], "--worker-memory-mb must be between"),
     ],
 )
 def test_serve_refuses_bad_options_with_a_message(args: list[str], message: str, capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:

@@ -248,8 +248,11 @@ def test_uploaded_recordings_calibrate(service: RunningService, ferraris_csv: Pa
         assert res["passed"] and res["state"] == "done" and len(res["stages"]) >= 7
         assert res["recording_sha256"] == hashlib.sha256(buf.getvalue().encode()).hexdigest()
         assert c.get("/devices/upload-1/calibration").status_code == 404
-        assert c.post(f"/sessions/{res['session_id']}/accept").status_code == 200
-        assert c.get("/devices/upload-1/calibration").json()["k"] == res["k"]
+        r = c.post(f"/sessions/{res['session_id']}/accept")
+        assert r.status_code == 409 and "names no sensor" in r.json()["detail"]  # an upload names its sensor first
+        assert c.post(f"/sessions/{res['session_id']}/accept", json={"sensor_model": "LSM9DS1"}).status_code == 200
+        current = c.get("/devices/upload-1/calibration").json()
+        assert current["k"] == res["k"] and current["source"] == "upload" and current["sensor_model"] == "LSM9DS1"
         # a real recording in imucal's layout (102.4 Hz, no time column), against imucal's own result
         r = c.post("/devices/imu-7/calibrate", params={"fs": 102.4, "method": "closure"},
                    content=ferraris_csv.read_bytes(), headers={"Content-Type": "text/csv"})

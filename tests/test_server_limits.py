@@ -15,7 +15,7 @@ import pytest
 
 from calib.io import write_native_csv
 from calib.simulator import simulate
-from server_fixtures import API_TOKEN, RunningService
+from server_fixtures import API_TOKEN, RunningService, postgres, service_store  # noqa: F401
 
 CSV = {"Content-Type": "text/csv"}
 
@@ -143,3 +143,23 @@ def test_chunked_json_bodies_over_the_limit_get_413(service: RunningService) -> 
     with httpx.Client(base_url=service.base, timeout=60, headers={"Authorization": f"Bearer {API_TOKEN}"}) as c:
         r = c.post("/sessions/" + "0" * 32 + "/discard", content=chunks(), headers={"Content-Type": "application/json"})
     assert r.status_code == 413, r.text
+
+
+def test_nul_bytes_and_wrong_types_are_4xx_on_both_databases(service_store: tuple[str, str]) -> None:
+    _owner, url = service_store
+    svc = RunningService([], url).start()
+    try:
+        with svc.client() as c:
+            assert c.post("/auth/login", json={"operator": "a\u0000b", "secret": "x" * 12}).status_code == 422
+            assert c.get("/audit", params={"device_id": "dev\u00001"}).status_code == 422
+            r = c.post("/devices/dev-1/calibrate", json={"max_attempts": True})
+            assert r.status_code == 422 and "max_attempts" in r.text
+            r = c.post("/devices/dev-1/calibrate", params={"method": "guess"}, content=_csv(), headers=CSV)
+            assert r.status_code == 422
+            r = c.options("/devices/dev-1/calibrate")
+            assert r.status_code == 405 and r.headers["Allow"] == "POST"
+            r = c.put("/devices")
+            assert r.status_code == 405 and r.headers["Allow"] == "GET"
+        assert "Traceback" not in svc.output()
+    finally:
+        svc.stop()

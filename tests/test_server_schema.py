@@ -14,8 +14,11 @@ from hypothesis import strategies as st
 from schemathesis import GenerationMode
 from schemathesis.specs.openapi.checks import (
     content_type_conformance,
+    ignored_auth,
+    negative_data_rejection,
     response_schema_conformance,
     status_code_conformance,
+    unsupported_method,
 )
 
 from calib.io import write_native_csv
@@ -51,7 +54,8 @@ def not_a_server_error(ctx: schemathesis.CheckContext, response: schemathesis.Re
         raise AssertionError(f"{case.method} {case.formatted_path} answered {response.status_code}: {response.text[:500]}")
 
 
-CHECKS = (not_a_server_error, status_code_conformance, content_type_conformance, response_schema_conformance)
+CHECKS = (not_a_server_error, status_code_conformance, content_type_conformance, response_schema_conformance, ignored_auth,
+          unsupported_method, negative_data_rejection)
 
 
 def test_no_input_makes_the_service_fail(api: RunningService, known_ids: dict[str, str]) -> None:

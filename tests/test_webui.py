@@ -25,9 +25,6 @@ PORTRAIT_TABLET = {"width": 768, "height": 1024}
 pytestmark = pytest.mark.timeout(120)
 
 
-@pytest.fixture
-def wizard(page: Any, webui_service: Any, artifacts: Path, request: pytest.FixtureRequest) -> Wizard:
-    return Wizard(page, webui_service, artifacts / "webui" / request.node.name)
 
 
 def session(service: Any, sid: str) -> dict[str, Any]:
@@ -302,6 +299,7 @@ def test_history_lists_calibrations_and_plots_the_parameters(wizard: Wizard, pag
     assert rows.count() == 3
     newest = rows.nth(0).inner_text()
     assert "current" in newest and "api" in newest
+    assert "uploaded recording · ICM-20948 (firmware 1.2.0)" in newest  # where each calibration came from
     assert OPERATOR in rows.nth(1).inner_text()
     assert f"{cals[-1]['k'][0]:.4f}" in newest
     # one marker per calibration and axis in each of the two parameter plots

@@ -27,9 +27,6 @@ def webui_service() -> Iterator[Any]:
         yield svc
 
 
-@pytest.fixture
-def wizard(page: Any, webui_service: Any, artifacts: Path, request: pytest.FixtureRequest) -> Wizard:
-    return Wizard(page, webui_service, artifacts / "webui" / request.node.name)
 
 
 def run_model_check(wizard: Wizard, page: Any) -> None:

@@ -129,6 +129,12 @@ def page(browser: Any, webui_service: RunningService, page_watch: Watch) -> Iter
         context.close()
 
 
+@pytest.fixture
+def wizard(page: Any, webui_service: RunningService, artifacts: Path, request: pytest.FixtureRequest) -> "Wizard":
+    """The wizard page driven like a clinician; screenshots go to artifacts/webui/<test>."""
+    return Wizard(page, webui_service, artifacts / "webui" / request.node.name)
+
+
 class Wizard:
     """Drives the wizard page like a clinician, and saves a screenshot of each step."""
 
@@ -226,7 +232,8 @@ def upload_accepted(service: RunningService, device: str, seed: int, operator_to
     buf = io.StringIO()
     write_native_csv(rec, buf)
     with api(service, operator_token) as c:
-        r = c.post(f"/devices/{device}/calibrate", content=buf.getvalue(), headers={"Content-Type": "text/csv"})
+        r = c.post(f"/devices/{device}/calibrate", content=buf.getvalue(), headers={"Content-Type": "text/csv"},
+                   params={"sensor_model": "ICM-20948", "firmware": "1.2.0"})
         assert r.status_code == 200, r.text
         assert r.json()["passed"], r.json()
         r = c.post(f"/sessions/{r.json()['session_id']}/accept")

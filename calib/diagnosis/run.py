@@ -15,7 +15,8 @@ from ..effects import CATALOGUE
 from ..errors import GyrocalError, RecordingError, RecordingTooLong
 from ..recording import Recording
 from ..stage import AXES, Stage
-from ..stages import detect_stages, find_protocol
+from ..protocol_hints import find_protocol_in
+from ..stages import detect_stages
 from .data import (
     Problem,
     build_problem,
@@ -166,7 +167,7 @@ def diagnose(
     if stages is None:
         stages = detect_stages(rec)
     stages = _clipped_turns(rec, list(stages), plateaus)
-    find_protocol(stages)  # a ProtocolError naming the missing stage, as calibrate gives
+    find_protocol_in(rec, stages)  # a ProtocolError naming the missing stage, as calibrate gives
     if raw is None:
         dt = _intervals(rec, tb)
     else:

@@ -32,7 +32,7 @@ function parameterCharts(cals) {
 function calibrationTable(cals) {
   return h("table", { class: "history" },
     h("caption", null, "Accepted calibrations, newest first"),
-    h("thead", null, h("tr", null, ["Accepted", "By", "Scale factors k (X, Y, Z)", "Biases b, °/s (X, Y, Z)", "Method", "Recording"].map((c) => h("th", { scope: "col" }, c)))),
+    h("thead", null, h("tr", null, ["Accepted", "By", "Scale factors k (X, Y, Z)", "Biases b, °/s (X, Y, Z)", "Method", "Measured on", "Recording"].map((c) => h("th", { scope: "col" }, c)))),
     h("tbody", null, cals.map((c, i) => h("tr", { class: i === 0 ? "current" : "" },
       h("td", null, h("time", { datetime: c.accepted_at }, fmtDateTime(c.accepted_at)),
         i === 0 ? h("span", { class: "badge" }, icon("check"), "current") : null),
@@ -40,6 +40,8 @@ function calibrationTable(cals) {
       h("td", { class: "num" }, c.k.map((v, j) => h("span", { class: "val" }, num(v, 4), c.uncertainty && c.uncertainty.k ? h("span", { class: "pm" }, ` ±${sig(c.uncertainty.k[j], 1)}`) : null))),
       h("td", { class: "num" }, c.b.map((v, j) => h("span", { class: "val" }, num(v, 3), c.uncertainty && c.uncertainty.b ? h("span", { class: "pm" }, ` ±${sig(c.uncertainty.b[j], 1)}`) : null))),
       h("td", null, c.method),
+      h("td", { class: "source" }, c.source === "upload" ? "uploaded recording" : "guided session",
+        c.sensor_model ? h("span", { class: "muted" }, ` · ${c.sensor_model}${c.firmware ? ` (firmware ${c.firmware})` : ""}`) : null),
       h("td", null, c.recording_sha256 ? h("a", { href: `/sessions/${c.session_id}/recording`, download: `${c.session_id}.csv` }, "CSV") : "—")))));
 }
 
