@@ -162,9 +162,9 @@ def build_service(args: argparse.Namespace) -> Any:
     """Settings, store and devices from the command line (no event loop needed)."""
     from calib.api import available_methods
 
-    from .app import Service
     from .config import Settings, default_db_url
     from .devices import MOCK_RATES_HZ, DeviceManager
+    from .service import Service
 
     if args.mock < 0 or args.mock > 1000:
         raise ServiceError("--mock takes a number of simulated wearables between 0 and 1000")
@@ -226,7 +226,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
     import uvicorn
 
-    from .app import create_app
+    from .main import create_app
 
     logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     svc = build_service(args)
@@ -246,7 +246,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     if mocks:
         print(f"simulated wearables: {mocks} (speed {args.mock_speed:g}x)", flush=True)
     if args.demo_operator:
-        from .auth import AuthError, Authenticator
+        from .auth import Authenticator, AuthError
 
         auth = Authenticator(svc.store)
         try:

@@ -358,7 +358,7 @@ async def test_every_session_on_a_wearable_performs_the_protocol_again():
     """START after STOP: a new session, a fresh performance by the same hand on the same sensor; the
     device clock and the link's sample times go on from the first session."""
     from server.config import Settings
-    from server.session import GuidedSession
+    from server.live.session import GuidedSession
 
     w = _wearable(seed=12, speed=200)
     link = InProcessLink(w, reconnect=FAST)

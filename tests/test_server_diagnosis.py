@@ -251,7 +251,7 @@ def _slow(seconds: float, progress: Any = None) -> str:
 
 
 async def test_the_queue_keeps_results_joins_equal_requests_and_refuses_beyond_its_size() -> None:
-    from server.diagnosis_jobs import Busy, DiagnosisQueue
+    from server.workers.diagnosis import Busy, DiagnosisQueue
 
     gate = asyncio.Event()
     calls: list[str] = []
@@ -288,7 +288,7 @@ async def test_the_queue_keeps_results_joins_equal_requests_and_refuses_beyond_i
 
 
 async def test_a_worker_over_its_time_limit_is_killed_and_replaced() -> None:
-    from server.diagnosis_jobs import Worker
+    from server.workers.diagnosis import Worker
 
     w = Worker()
     seen: list[tuple[float, str]] = []
@@ -305,9 +305,9 @@ async def test_a_worker_over_its_time_limit_is_killed_and_replaced() -> None:
 
 
 async def test_a_busy_service_answers_503_with_retry_after(tmp_path: Path) -> None:
-    from server.app import create_app
+    from server.main import create_app
     from server.config import Settings
-    from server.diagnosis_jobs import DiagnosisQueue
+    from server.workers.diagnosis import DiagnosisQueue
 
     gate = asyncio.Event()
 
@@ -320,7 +320,7 @@ async def test_a_busy_service_answers_503_with_retry_after(tmp_path: Path) -> No
     app.state.diagnoser.queue = DiagnosisQueue(workers=1, max_waiting=0, runner=runner)
     rec, _ = simulate(3)
     one, two = native_csv(rec).encode(), native_csv(rec.slice(0, len(rec) - 1)).encode()
-    async with httpx.AsyncClient(transport=httpx.ASGITransport(app=app), base_url="http://test") as c:
+    async with httpx.AsyncClient(transport=httpx.ASGITransport(app=app), base_url="http://localhost") as c:
         first = asyncio.create_task(c.post("/diagnose", content=one, headers=CSV))
         while not app.state.diagnoser.queue.jobs:
             await asyncio.sleep(0.01)
@@ -332,13 +332,13 @@ async def test_a_busy_service_answers_503_with_retry_after(tmp_path: Path) -> No
 
 
 async def test_the_workers_stop_with_the_service(tmp_path: Path) -> None:
-    from server.app import create_app
+    from server.main import create_app
     from server.config import Settings
 
     app = create_app(Settings(db_url=f"sqlite:///{tmp_path / 'store.sqlite3'}"))
     rec, _ = simulate(6)
     async with app.router.lifespan_context(app):
-        async with httpx.AsyncClient(transport=httpx.ASGITransport(app=app), base_url="http://test") as c:
+        async with httpx.AsyncClient(transport=httpx.ASGITransport(app=app), base_url="http://localhost") as c:
             r = await c.post("/diagnose", content=native_csv(rec), headers=CSV)
             assert r.status_code == 200, r.text
         workers = [w.pid for w in app.state.diagnoser.queue._all if w.pid is not None]

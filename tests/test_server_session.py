@@ -11,8 +11,8 @@ import pytest
 from calib.simulator import Motion, ProtocolScript, SensorParams, Still, Turn, paper_protocol_script, simulate
 from mock_device.scenarios import get_scenario
 from server.config import ProtocolTimings, Settings
-from server.runner import compute_result
-from server.session import GuidedSession, evaluate_result
+from server.live.runner import compute_result
+from server.live.session import GuidedSession, evaluate_result
 
 FS = 104.0
 PARAMS = SensorParams(k=np.array([1.03, 0.97, 1.05]), b=np.array([1.5, -2.0, 0.7]))

@@ -354,7 +354,7 @@ def test_a_busy_device_is_explained_and_its_calibration_can_be_joined(wizard: Wi
 
 
 def test_every_failure_reason_of_the_service_has_a_title_and_a_fix(page: Any, webui_service: Any, page_watch: Watch) -> None:
-    from server.guidance import REASONS
+    from server.live.guidance import REASONS
 
     page.goto(webui_service.base + "/")
     page.wait_for_selector("#operator")

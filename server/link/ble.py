@@ -14,7 +14,13 @@ from typing import Any
 
 import wearable_protocol as wp
 
-from .base import ConnectError, DeviceNotFoundError, DiscoveredDevice, LinkError, ReconnectPolicy
+from .base import (
+    ConnectError,
+    DeviceNotFoundError,
+    DiscoveredDevice,
+    LinkError,
+    ReconnectPolicy,
+)
 from .core import LinkCore
 
 log = logging.getLogger(__name__)

@@ -12,7 +12,15 @@ from collections import deque
 from collections.abc import AsyncIterator, Callable
 
 import wearable_protocol as wp
-from wearable_protocol import Command, DecodeError, DeviceConfig, DeviceState, Opcode, Status, StatusReply
+from wearable_protocol import (
+    Command,
+    DecodeError,
+    DeviceConfig,
+    DeviceState,
+    Opcode,
+    Status,
+    StatusReply,
+)
 
 from .base import (
     CommandError,

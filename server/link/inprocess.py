@@ -7,9 +7,20 @@ import asyncio
 import time
 from collections.abc import Callable
 
-from wearable_protocol import ConnectionDropped, GattError, GattPeripheral, PeripheralUnavailable
+from wearable_protocol import (
+    ConnectionDropped,
+    GattError,
+    GattPeripheral,
+    PeripheralUnavailable,
+)
 
-from .base import ConnectError, DeviceNotFoundError, DiscoveredDevice, LinkError, ReconnectPolicy
+from .base import (
+    ConnectError,
+    DeviceNotFoundError,
+    DiscoveredDevice,
+    LinkError,
+    ReconnectPolicy,
+)
 from .core import LinkCore
 
 ADVERTISING_POLL_S = 0.05

@@ -19,7 +19,7 @@ from typing import Any
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from .tables import CHAINED, ChainHead, Chained, aware
+from .tables import CHAINED, Chained, ChainHead, aware
 
 GENESIS = "0" * 64
 _NOT_HASHED = {"prev_hash", "row_hash"}

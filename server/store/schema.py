@@ -15,7 +15,15 @@ from sqlalchemy.orm import Session
 
 from . import chain, guards
 from .errors import StoreError
-from .tables import CHAINED, Base, ChainHead, SchemaInfo, SessionRow, SpooledSamples, utcnow
+from .tables import (
+    CHAINED,
+    Base,
+    ChainHead,
+    SchemaInfo,
+    SessionRow,
+    SpooledSamples,
+    utcnow,
+)
 
 SCHEMA_VERSION = 2
 

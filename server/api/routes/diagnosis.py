@@ -10,20 +10,31 @@ under --auth-reads). Results are kept in memory by the recording's SHA-256 (see 
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
-from collections.abc import AsyncIterator
 from typing import Annotated, Any, Literal
 
-from fastapi import FastAPI, Query, Request, Response
+from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.responses import HTMLResponse, JSONResponse
 from pydantic import BaseModel, ConfigDict, Field
 
-from .app import CSV_TYPES, AnalysisReader, Reader, Service, _check_session_id, _check_upload, _problem, _recording_problem
 from calib.errors import RecordingTooLong
 
-from .compute import TooManySamples
-from .diagnosis_jobs import (
+from ...deps import (
+    CSV_TYPES,
+    AnalysisReader,
+    Reader,
+    Svc,
+    check_session_id,
+    check_upload,
+    problem,
+    recording_problem,
+)
+from ...live.events import finite
+from ...schemas import Problem
+from ...service import Service
+from ...store import sha256_hex
+from ...workers.compute import TooManySamples
+from ...workers.diagnosis import (
     REPORTS_KEPT,
     Busy,
     DiagnosisQueue,
@@ -32,9 +43,6 @@ from .diagnosis_jobs import (
     diagnose_csv,
     digest,
 )
-from .events import finite
-from .models import Problem
-from .store import sha256_hex
 
 log = logging.getLogger(__name__)
 
@@ -134,19 +142,19 @@ class Diagnoser:
             else:
                 (d, html), kept = await q.get(json_key, diagnose_csv, *args[:-1], None)
         except Busy as exc:
-            raise _problem(503, str(exc), {"Retry-After": str(RETRY_AFTER_S)}) from None
+            raise problem(503, str(exc), {"Retry-After": str(RETRY_AFTER_S)}) from None
         except TimeoutError:
-            raise _problem(503, f"the model check ran over {q.timeout_s:g} s and was stopped: a recording of the protocol "
+            raise problem(503, f"the model check ran over {q.timeout_s:g} s and was stopped: a recording of the protocol "
                            "(about 30 s) takes seconds, this one takes longer than the service allows") from None
         except WorkerDied as exc:
-            raise _problem(503, f"{exc}; try again") from None
+            raise problem(503, f"{exc}; try again") from None
         except (TooManySamples, RecordingTooLong) as exc:
-            raise _problem(413, str(exc)) from None
+            raise problem(413, str(exc)) from None
         except MemoryError:
-            raise _problem(413, f"the model check of this recording needs more memory than this service gives a worker "
+            raise problem(413, f"the model check of this recording needs more memory than this service gives a worker "
                            f"({self.memory_mb} MB); send the protocol's part of the recording (about 30-90 s)") from None
         except Exception as exc:  # calib's errors and whatever else the recording trips the diagnosis on
-            raise _recording_problem(exc, "diagnosed", upload) from None
+            raise recording_problem(exc, "diagnosed", upload) from None
         return finite(d), html, kept
 
     def shutdown(self) -> None:
@@ -155,7 +163,7 @@ class Diagnoser:
 
 def _upload_args(body: bytes, fs: float | None, layout: str, max_samples: int) -> tuple[str, tuple[Any, ...]]:
     """The cache key and the worker's arguments of an uploaded recording's model check."""
-    _check_upload(body, layout)
+    check_upload(body, layout)
     key = digest("upload", sha256_hex(body), fs, layout)
     return key, (body, fs, layout, "uploaded recording", max_samples, None, None, "uploaded recording")
 
@@ -164,27 +172,27 @@ async def _body(request: Request) -> bytes:
     ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
     body = await request.body()
     if ctype not in CSV_TYPES:
-        raise _problem(415, f"send the recording as CSV (Content-Type: text/csv), native (t,gx,gy,gz,...) or imucal layout; "
+        raise problem(415, f"send the recording as CSV (Content-Type: text/csv), native (t,gx,gy,gz,...) or imucal layout; "
                        f"got {ctype or 'no content type'}")
     return body
 
 
 async def _session_source(svc: Service, sid: str) -> tuple[str, dict[str, Any] | None, str | None]:
     """(cache key, stored session row, recording SHA-256) of an ended session with a recording; 404/409 otherwise."""
-    _check_session_id(sid)
+    check_session_id(sid)
     live = svc.sessions.get(sid)
     if live is not None and not live.machine.finished:
-        raise _problem(409, f"session {sid} is still running ({live.machine.state}): the model check runs on its recording "
+        raise problem(409, f"session {sid} is still running ({live.machine.state}): the model check runs on its recording "
                        "once it has ended")
     row = await asyncio.to_thread(svc.store.session, sid)
     if row is None and live is None:
-        raise _problem(404, f"no session {sid}")
+        raise problem(404, f"no session {sid}")
     digest_ = await asyncio.to_thread(svc.store.recording_sha256, sid)
     if digest_ is None and live is not None and live.csv_bytes:
         digest_ = sha256_hex(live.csv_bytes)  # the store could not be written: the session still holds it
     if digest_ is None:
         state = live.machine.state if live is not None else row["state"]  # type: ignore[index]
-        raise _problem(409, f"session {sid} has no recording to check (it is {state}, with no samples archived)")
+        raise problem(409, f"session {sid} has no recording to check (it is {state}, with no samples archived)")
     result = (row or {}).get("result") or (live.machine.result if live is not None else None) or {}
     stages = result.get("stages") or None
     return digest("session", digest_, stages), row, digest_
@@ -195,7 +203,7 @@ async def _session_args(svc: Service, sid: str, row: dict[str, Any] | None, repo
     live = svc.sessions.get(sid)
     csv = got[0] if got is not None else (live.csv_bytes if live is not None else None)
     if csv is None:
-        raise _problem(409, f"session {sid} has no recording to check")
+        raise problem(409, f"session {sid} has no recording to check")
     result = (row or {}).get("result") or (live.machine.result if live is not None else None) or {}
     device = (row or {}).get("device_id") or (live.device.id if live is not None else "")
     info = (row or {}).get("info") or {}
@@ -216,100 +224,87 @@ def _html(html: str | None, kept: bool) -> HTMLResponse:
 
 
 # -- the routes ------------------------------------------------------------------------------------
-def register(app: FastAPI) -> None:
-    """Add the model check routes (before the page is mounted at /) and stop its workers with the app."""
-    svc: Service = app.state.service
-    diag = Diagnoser(svc)
-    app.state.diagnoser = diag
-    _stop_with_app(app, diag.shutdown)
-
-    P = {"model": Problem}
-    busy = {503: {**P, "description": "as many model checks as the service runs are under way (Retry-After), or one ran "
-                                      "over the time limit"}}
-    csv_body = {"requestBody": {"required": True, "content": {
-        "text/csv": {"schema": {"type": "string", "description": "a recording: native (t,gx,gy,gz,...) or imucal layout"}}}}}
-    upload_responses = {
-        400: {**P, "description": "the recording cannot be read"},
-        401: {**P, "description": "reads need a token (--auth-reads)"},
-        413: {**P, "description": "the recording is too large, spans too long, or needs more memory than a worker has"},
-        415: {**P, "description": "the body is not CSV (text/csv)"},
-        429: {**P, "description": "too many model checks without a token from this address (Retry-After)"},
-        422: {**P, "description": "invalid parameters, or the protocol is not in the recording (the missing stage is named)"},
-        **busy,
-    }
-    session_responses = {
-        401: {**P, "description": "reads need a token (--auth-reads)"},
-        404: {**P, "description": "unknown session"},
-        409: {**P, "description": "the session is running, or has no recording"},
-        422: {**P, "description": "the protocol is not in the session's recording"},
-        **busy,
-    }
-    html_ok = {200: {"content": {"text/html": {}}, "description": "the HTML report, figures embedded"}}
-
-    @app.post("/diagnose", response_model=DiagnosisOut, responses=upload_responses, openapi_extra=csv_body, tags=["diagnosis"])
-    async def diagnose_upload(request: Request, _: AnalysisReader, fs: Fs = None, layout: Layout = "auto") -> JSONResponse:
-        """Compare an uploaded recording with its simulation: where it departs, which physical effect
-        explains it, how much the fit improves (as `gyrocal diagnose --json`). Nothing is stored."""
-        key, args = _upload_args(await _body(request), fs, layout, svc.settings.max_diagnose_samples)
-        d, _, kept = await diag.run(key, args, report=False, upload=True)
-        return _json(d, kept)
-
-    @app.post("/diagnose/report", response_class=Response, responses={**html_ok, **upload_responses},
-              openapi_extra=csv_body, tags=["diagnosis"])
-    async def diagnose_upload_report(request: Request, _: AnalysisReader, fs: Fs = None, layout: Layout = "auto") -> HTMLResponse:
-        """The HTML report of an uploaded recording's model check (as `gyrocal diagnose --report`)."""
-        key, args = _upload_args(await _body(request), fs, layout, svc.settings.max_diagnose_samples)
-        _d, html, kept = await diag.run(key, args, report=True, upload=True)
-        return _html(html, kept)
-
-    @app.get("/sessions/{session_id}/diagnosis", response_model=DiagnosisOut, responses=session_responses, tags=["diagnosis"])
-    async def diagnose_session(session_id: str, _: Reader) -> JSONResponse:
-        """The model check of an ended session's archived recording, with the stages the session used.
-        Computed at the first request (seconds), then kept: X-Diagnosis-Cache says which."""
-        key, row, sha = await _session_source(svc, session_id)
-        kept = diag.queue.results.get(f"json:{key}")
-        if kept is not None:
-            return _json(finite(kept[0]), True, sha)
-        args = await _session_args(svc, session_id, row, report=False)
-        d, _, was_kept = await diag.run(key, args, report=False, upload=False)
-        return _json(d, was_kept, sha)
-
-    @app.get("/sessions/{session_id}/diagnosis/report", response_class=Response, responses={**html_ok, **session_responses},
-             tags=["diagnosis"])
-    async def diagnose_session_report(session_id: str, _: Reader) -> HTMLResponse:
-        """The HTML report of a session's model check: the recording's features against its simulations
-        before and after the effects are modelled, still means, closures, time base, every test."""
-        key, row, _sha = await _session_source(svc, session_id)
-        kept = diag.reports.get(f"html:{key}")
-        if kept is not None:
-            return _html(kept[1], True)
-        args = await _session_args(svc, session_id, row, report=True)
-        _d, html, was_kept = await diag.run(key, args, report=True, upload=False)
-        return _html(html, was_kept)
-
-    @app.get("/sessions/{session_id}/diagnosis/progress", response_model=DiagnosisProgress,
-             responses={k: v for k, v in session_responses.items() if k != 422 and k != 503}, tags=["diagnosis"])
-    async def diagnosis_progress(session_id: str, _: Reader) -> dict[str, Any]:
-        """Where the session's model check is, for a page to show while GET .../diagnosis runs."""
-        key, _row, _sha = await _session_source(svc, session_id)
-        if f"json:{key}" in diag.queue.results:
-            return {"state": "done", "fraction": 1.0, "stage": "done"}
-        job = diag.queue.jobs.get(f"json:{key}") or diag.queue.jobs.get(f"html:{key}")
-        if job is None:
-            return {"state": "idle"}
-        return job.progress()
+router = APIRouter()
 
 
-def _stop_with_app(app: FastAPI, stop: Any) -> None:
-    """Run ``stop()`` when the app's lifespan ends (after the service's own shutdown)."""
-    inner = app.router.lifespan_context
+def _diagnoser(request: Request) -> Diagnoser:
+    return request.app.state.diagnoser  # type: ignore[no-any-return]
 
-    @contextlib.asynccontextmanager
-    async def lifespan(a: Any) -> AsyncIterator[Any]:
-        try:
-            async with inner(a) as state:
-                yield state
-        finally:
-            stop()
 
-    app.router.lifespan_context = lifespan
+Diag = Annotated[Diagnoser, Depends(_diagnoser)]
+
+P = {"model": Problem}
+busy = {503: {**P, "description": "as many model checks as the service runs are under way (Retry-After), or one ran "
+                                  "over the time limit"}}
+csv_body = {"requestBody": {"required": True, "content": {
+    "text/csv": {"schema": {"type": "string", "description": "a recording: native (t,gx,gy,gz,...) or imucal layout"}}}}}
+upload_responses = {
+    400: {**P, "description": "the recording cannot be read"},
+    401: {**P, "description": "reads need a token (--auth-reads)"},
+    413: {**P, "description": "the recording is too large, spans too long, or needs more memory than a worker has"},
+    415: {**P, "description": "the body is not CSV (text/csv)"},
+    429: {**P, "description": "too many model checks without a token from this address (Retry-After)"},
+    422: {**P, "description": "invalid parameters, or the protocol is not in the recording (the missing stage is named)"},
+    **busy,
+}
+session_responses = {
+    401: {**P, "description": "reads need a token (--auth-reads)"},
+    404: {**P, "description": "unknown session"},
+    409: {**P, "description": "the session is running, or has no recording"},
+    422: {**P, "description": "the protocol is not in the session's recording"},
+    **busy,
+}
+html_ok = {200: {"content": {"text/html": {}}, "description": "the HTML report, figures embedded"}}
+
+@router.post("/diagnose", response_model=DiagnosisOut, responses=upload_responses, openapi_extra=csv_body, tags=["diagnosis"])
+async def diagnose_upload(svc: Svc, diag: Diag, request: Request, _: AnalysisReader, fs: Fs = None, layout: Layout = "auto") -> JSONResponse:
+    """Compare an uploaded recording with its simulation: where it departs, which physical effect
+    explains it, how much the fit improves (as `gyrocal diagnose --json`). Nothing is stored."""
+    key, args = _upload_args(await _body(request), fs, layout, svc.settings.max_diagnose_samples)
+    d, _, kept = await diag.run(key, args, report=False, upload=True)
+    return _json(d, kept)
+
+@router.post("/diagnose/report", response_class=Response, responses={**html_ok, **upload_responses},
+          openapi_extra=csv_body, tags=["diagnosis"])
+async def diagnose_upload_report(svc: Svc, diag: Diag, request: Request, _: AnalysisReader, fs: Fs = None, layout: Layout = "auto") -> HTMLResponse:
+    """The HTML report of an uploaded recording's model check (as `gyrocal diagnose --report`)."""
+    key, args = _upload_args(await _body(request), fs, layout, svc.settings.max_diagnose_samples)
+    _d, html, kept = await diag.run(key, args, report=True, upload=True)
+    return _html(html, kept)
+
+@router.get("/sessions/{session_id}/diagnosis", response_model=DiagnosisOut, responses=session_responses, tags=["diagnosis"])
+async def diagnose_session(svc: Svc, diag: Diag, session_id: str, _: Reader) -> JSONResponse:
+    """The model check of an ended session's archived recording, with the stages the session used.
+    Computed at the first request (seconds), then kept: X-Diagnosis-Cache says which."""
+    key, row, sha = await _session_source(svc, session_id)
+    kept = diag.queue.results.get(f"json:{key}")
+    if kept is not None:
+        return _json(finite(kept[0]), True, sha)
+    args = await _session_args(svc, session_id, row, report=False)
+    d, _, was_kept = await diag.run(key, args, report=False, upload=False)
+    return _json(d, was_kept, sha)
+
+@router.get("/sessions/{session_id}/diagnosis/report", response_class=Response, responses={**html_ok, **session_responses},
+         tags=["diagnosis"])
+async def diagnose_session_report(svc: Svc, diag: Diag, session_id: str, _: Reader) -> HTMLResponse:
+    """The HTML report of a session's model check: the recording's features against its simulations
+    before and after the effects are modelled, still means, closures, time base, every test."""
+    key, row, _sha = await _session_source(svc, session_id)
+    kept = diag.reports.get(f"html:{key}")
+    if kept is not None:
+        return _html(kept[1], True)
+    args = await _session_args(svc, session_id, row, report=True)
+    _d, html, was_kept = await diag.run(key, args, report=True, upload=False)
+    return _html(html, was_kept)
+
+@router.get("/sessions/{session_id}/diagnosis/progress", response_model=DiagnosisProgress,
+         responses={k: v for k, v in session_responses.items() if k != 422 and k != 503}, tags=["diagnosis"])
+async def diagnosis_progress(svc: Svc, diag: Diag, session_id: str, _: Reader) -> dict[str, Any]:
+    """Where the session's model check is, for a page to show while GET .../diagnosis runs."""
+    key, _row, _sha = await _session_source(svc, session_id)
+    if f"json:{key}" in diag.queue.results:
+        return {"state": "done", "fraction": 1.0, "stage": "done"}
+    job = diag.queue.jobs.get(f"json:{key}") or diag.queue.jobs.get(f"html:{key}")
+    if job is None:
+        return {"state": "idle"}
+    return job.progress()

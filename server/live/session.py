@@ -22,8 +22,8 @@ import numpy as np
 from calib.recording import Recording, RecordingMeta
 from calib.stage import Stage
 
+from ..config import Settings
 from . import guidance as say
-from .config import Settings
 
 AXES = ("x", "y", "z")
 TURN_STATES = {"x": "turn_x", "y": "turn_y", "z": "turn_z"}

@@ -15,13 +15,13 @@ import time
 from datetime import datetime
 from typing import Any, Callable
 
+from ..config import Settings
+from ..devices import Device
+from ..store import SessionEnd, Store, utcnow
+from ..workers.compute import ComputePool, calibrate_recording, recording_csv
 from . import guidance as say
-from .compute import ComputePool, calibrate_recording, recording_csv
-from .config import Settings
-from .devices import Device
 from .events import Broadcaster, finite
 from .session import GuidedSession, SampleBuffer
-from .store import SessionEnd, Store, utcnow
 
 log = logging.getLogger(__name__)
 

@@ -1,0 +1,95 @@
+"""The wearables: list, scan, one device, its calibrations and its sessions."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Query
+
+from ... import schemas as M
+from ...deps import (
+    R401,
+    R404,
+    Operator,
+    Reader,
+    Svc,
+    check_device_id,
+    problem,
+)
+from ...live.events import finite
+from ..views import (
+    current_calibration_of,
+    device_out,
+    session_snapshot,
+    stored_snapshot,
+)
+
+log = logging.getLogger(__name__)
+router = APIRouter()
+
+
+@router.get("/devices", response_model=list[M.DeviceOut], tags=["devices"])
+async def list_devices(svc: Svc, _: Reader) -> list[dict[str, Any]]:
+    """Known devices: the connectable ones (simulated, scanned) and those in the store's history."""
+    rows = {r["id"]: r for r in await asyncio.to_thread(svc.store.devices)}
+    ids = list(svc.devices.devices) + [i for i in rows if i not in svc.devices.devices]
+    return [await device_out(svc, svc.devices.get(i), rows.get(i)) for i in ids]
+
+
+@router.post("/devices/scan", response_model=M.ScanOut, responses=R401, tags=["devices"])
+async def scan(svc: Svc, operator: Operator, timeout: Annotated[float, Query(gt=0, le=30, description="scan time, s")] = 5.0) -> dict[str, Any]:
+    """Scan for wearables (BLE when the service runs with --ble); returns those found, each with its id."""
+    try:
+        found = await svc.devices.scan(timeout)
+    except Exception as exc:
+        raise problem(503, f"the Bluetooth scan failed ({exc}); check that Bluetooth is on") from None
+    for dev in found:
+        await asyncio.to_thread(svc.store.upsert_device, dev.id, name=dev.name, address=dev.address, transport=dev.transport)
+    await asyncio.to_thread(svc.store.audit, operator, "devices.scan", None, None, {"found": [d.id for d in found]})
+    rows = {r["id"]: r for r in await asyncio.to_thread(svc.store.devices)}
+    return {"devices": [await device_out(svc, d, rows.get(d.id)) for d in found]}
+
+
+@router.get("/devices/{device_id}", response_model=M.DeviceDetail, responses=R404, tags=["devices"])
+async def get_device(svc: Svc, device_id: str, _: Reader) -> dict[str, Any]:
+    """One device: connection, current calibration, recent sessions; simulated ones show their truth."""
+    check_device_id(device_id)
+    dev = svc.devices.get(device_id)
+    row = await asyncio.to_thread(svc.store.device, device_id)
+    if dev is None and row is None:
+        raise problem(404, f"no device {device_id!r}; see GET /devices or POST /devices/scan")
+    return await device_out(svc, dev, row, detail=True)
+
+
+@router.get("/devices/{device_id}/calibration", response_model=M.CalibrationOut, responses=R404, tags=["calibrations"])
+async def current_calibration(svc: Svc, device_id: str, _: Reader) -> dict[str, Any]:
+    """The device's current calibration: its latest accepted one."""
+    check_device_id(device_id)
+    cur = await current_calibration_of(svc, device_id)
+    if cur is None:
+        raise problem(404, f"device {device_id!r} has no accepted calibration yet")
+    return cur
+
+
+@router.get("/devices/{device_id}/calibrations", response_model=list[M.CalibrationOut], responses=R404, tags=["calibrations"])
+async def calibrations(svc: Svc, device_id: str, _: Reader) -> list[dict[str, Any]]:
+    """Every accepted calibration of the device, newest first (nothing is ever overwritten)."""
+    check_device_id(device_id)
+    if svc.devices.get(device_id) is None and await asyncio.to_thread(svc.store.device, device_id) is None:
+        raise problem(404, f"no device {device_id!r}")
+    return [r.to_dict() for r in await asyncio.to_thread(svc.store.calibrations, device_id)]
+
+
+@router.get("/devices/{device_id}/sessions", response_model=list[M.SessionOut], responses=R404, tags=["sessions"])
+async def device_sessions(svc: Svc, device_id: str, _: Reader, limit: Annotated[int, Query(ge=1, le=500)] = 50) -> list[dict[str, Any]]:
+    """A device's sessions, newest first, whatever their outcome (kept for audit)."""
+    check_device_id(device_id)
+    rows = await asyncio.to_thread(svc.store.sessions, device_id, limit)
+    out = []
+    for r in rows:
+        live = svc.sessions.get(r["id"])
+        # a running session's row is written at its start and end: show its live state instead
+        out.append(finite(await session_snapshot(svc, r["id"]) if live is not None else stored_snapshot(r)))
+    return out

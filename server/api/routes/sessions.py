@@ -1,0 +1,331 @@
+"""Calibration sessions: start one live (or calibrate an uploaded recording), follow it, cancel it,
+accept or discard its result."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import uuid
+from typing import Annotated, Any, AsyncIterator
+
+from fastapi import APIRouter, Query, Request, Response
+from fastapi.responses import JSONResponse, StreamingResponse
+from pydantic import ValidationError
+from sqlalchemy.exc import SQLAlchemyError
+
+from calib import __version__
+
+from ... import schemas as M
+from ...deps import (
+    CSV_TYPES,
+    R401,
+    R404,
+    R409,
+    R503,
+    Operator,
+    Reader,
+    Svc,
+    check_device_id,
+    check_session_id,
+    check_upload,
+    problem,
+    recording_problem,
+)
+from ...live.events import Event, dumps, finite
+from ...live.runner import LiveSession
+from ...live.session import END_STATES, GuidedSession, evaluate_result
+from ...service import Service
+from ...store import DecisionConflict, NotAcceptable, NotFound, SessionEnd, StoreError
+from ...workers.compute import TooManySamples, calibrate_upload
+from ..views import session_snapshot, stored_snapshot
+
+log = logging.getLogger(__name__)
+router = APIRouter()
+
+
+@router.post(
+    "/devices/{device_id}/calibrate",
+    status_code=202,
+    response_model=M.SessionStarted,
+    responses={
+        200: {"model": M.OfflineResult, "description": "a text/csv recording was calibrated"},
+        400: {"model": M.Problem, "description": "the recording cannot be read"},
+        413: {"model": M.Problem, "description": "the recording is too large"},
+        415: {"model": M.Problem, "description": "unsupported body type"},
+        **R401, **R404, **R409, **R503,
+    },
+    openapi_extra={
+        "requestBody": {
+            "required": False,
+            "content": {
+                "application/json": {"schema": M.SessionStart.model_json_schema()},
+                "text/csv": {"schema": {"type": "string", "description": "a recording: native (t,gx,gy,gz,...) or imucal layout"}},
+            },
+        }
+    },
+    tags=["sessions"],
+)
+async def calibrate(svc: Svc, 
+    device_id: str,
+    request: Request,
+    response: Response,
+    operator: Operator,
+    fs: Annotated[float | None, Query(gt=0, le=100000, description="sample rate, Hz (CSV without a time column)")] = None,
+    method: Annotated[M.Method | None, Query(description="estimator: closure (default) or paper")] = None,
+    layout: Annotated[str, Query(max_length=16, description="CSV layout: auto, native, imucal")] = "auto",
+    sensor_model: Annotated[str | None, Query(min_length=1, max_length=128, pattern=M.SENSOR_TEXT,
+                                              description="the sensor an uploaded recording came from (e.g. ICM-20948); "
+                                              "needed before its result can be accepted")] = None,
+    firmware: Annotated[str | None, Query(min_length=1, max_length=128, pattern=M.SENSOR_TEXT,
+                                          description="the device's firmware version, for an uploaded recording")] = None,
+) -> Any:
+    """Start a guided live session (JSON body or none) → 202; or calibrate an uploaded CSV → 200."""
+    check_device_id(device_id)
+    ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    body = await request.body()
+    if ctype in CSV_TYPES:
+        return await calibrate_uploaded(svc, device_id, operator, body, fs, method.value if method else None, layout, {"sensor_model": sensor_model, "firmware": firmware})
+    if ctype and ctype != "application/json" and body:
+        raise problem(415, f"send a JSON body (application/json) to start a live session or a CSV (text/csv) to calibrate a recording; got {ctype}")
+    opts = M.SessionStart()
+    if body.strip():
+        try:
+            opts = M.SessionStart.model_validate_json(body)
+        except ValidationError as exc:
+            raise problem(422, "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" if e["loc"] else e["msg"] for e in exc.errors())) from None
+    chosen = opts.method or method
+    live = await start_live(svc, device_id, operator, chosen.value if chosen else None, opts.max_attempts)
+    url = f"/sessions/{live.id}"
+    response.headers["Location"] = url
+    return {"session_id": live.id, "device_id": device_id, "state": live.machine.state, "url": url, "events": f"{url}/events"}
+
+
+@router.get("/sessions/{session_id}", response_model=M.SessionOut, responses=R404, tags=["sessions"])
+async def get_session(svc: Svc, session_id: str, _: Reader) -> dict[str, Any]:
+    """A session's full state; `result` once computed."""
+    check_session_id(session_id)
+    return finite(await session_snapshot(svc, session_id))
+
+
+@router.get(
+    "/sessions/{session_id}/events",
+    responses={200: {"content": {"text/event-stream": {}}, "description": "Server-Sent Events: each a full session snapshot"}, **R404},
+    response_class=StreamingResponse,
+    tags=["sessions"],
+)
+async def session_events(svc: Svc, 
+    session_id: str,
+    request: Request,
+    _: Reader,
+    last_event_id: Annotated[int | None, Query(ge=0, description="resume after this event id (instead of the Last-Event-ID header)")] = None,
+) -> StreamingResponse:
+    """Server-Sent Events of a session: state changes, prompts, live angle, stillness progress,
+    warnings and the result, each a full snapshot with an id (reconnect with Last-Event-ID)."""
+    check_session_id(session_id)
+    header = request.headers.get("last-event-id")
+    if header is not None:
+        try:
+            last_event_id = int(header)
+        except ValueError:
+            last_event_id = None
+    live = svc.sessions.get(session_id)
+    headers = {"Cache-Control": "no-cache", "X-Accel-Buffering": "no"}
+    if live is not None:
+        return StreamingResponse(live.broadcaster.stream(last_event_id), media_type="text/event-stream", headers=headers)
+    row = await asyncio.to_thread(svc.store.session, session_id)
+    if row is None:
+        raise problem(404, f"no session {session_id}")
+    snap = finite(stored_snapshot(row))
+
+    async def once() -> AsyncIterator[bytes]:
+        yield Event(0, "state", dumps(snap)).encode()
+
+    return StreamingResponse(once(), media_type="text/event-stream", headers=headers)
+
+
+@router.get(
+    "/sessions/{session_id}/recording",
+    responses={200: {"content": {"text/csv": {}}, "description": "the archived raw recording (native CSV)"}, **R404},
+    response_class=Response,
+    tags=["sessions"],
+)
+async def session_recording(svc: Svc, session_id: str, _: Reader) -> Response:
+    """The session's archived raw recording; header X-Recording-SHA256 is its checksum."""
+    check_session_id(session_id)
+    got = await asyncio.to_thread(svc.store.recording, session_id)
+    if got is None:
+        raise problem(404, f"no archived recording for session {session_id}")
+    data, digest = got
+    return Response(data, media_type="text/csv", headers={"X-Recording-SHA256": digest,
+                                                          "Content-Disposition": f'attachment; filename="{session_id}.csv"'})
+
+
+@router.post("/sessions/{session_id}/cancel", response_model=M.SessionOut, responses={**R401, **R404, **R409}, tags=["sessions"])
+async def cancel(svc: Svc, session_id: str, operator: Operator) -> dict[str, Any]:
+    """Stop a running session; it ends `cancelled` and nothing is stored as a calibration."""
+    check_session_id(session_id)
+    live = svc.sessions.get(session_id)
+    if live is None:
+        await session_snapshot(svc, session_id)  # 404 if unknown
+        raise problem(409, "the session has ended already; nothing to cancel")
+    if not live.cancel(f"Cancelled by {operator}."):
+        raise problem(409, f"the session has ended already ({live.machine.state}); nothing to cancel")
+    await asyncio.to_thread(svc.store.audit, operator, "session.cancel", live.device.id, session_id)
+    await live.wait()
+    return finite(await session_snapshot(svc, session_id))
+
+
+@router.post("/sessions/{session_id}/accept", response_model=M.AcceptOut, responses={**R401, **R404, **R409, **R503}, tags=["sessions"])
+async def accept(svc: Svc, session_id: str, operator: Operator, body: M.DecisionIn | None = None) -> dict[str, Any]:
+    """Store the session's result as the device's current calibration (a new row in its history)."""
+    check_session_id(session_id)
+    live = svc.sessions.get(session_id)
+    snap = await session_snapshot(svc, session_id)
+    if snap["state"] != "done":
+        why = snap.get("reason") or f"it is {snap['state']}"
+        raise problem(409, f"only a finished session within tolerances can be accepted; this one is {snap['state']}: {why}")
+    if not snap.get("passed"):
+        raise problem(409, "the result is outside the tolerances and cannot become the device's calibration")
+    if live is not None:
+        await live.wait()
+    try:
+        rec = await asyncio.to_thread(
+            svc.store.accept,
+            session_id,
+            operator,
+            snap["result"],
+            end=live.session_end() if live is not None else None,
+            sensor_model=(live.device.info.get("sensor_model") if live else None) or (body.sensor_model if body else None),
+            firmware=(live.device.info.get("firmware") if live else None) or (body.firmware if body else None),
+            recording_csv=(live.csv_bytes if live else None),
+            n_samples=(live.machine.buf.n if live else 0),
+        )
+    except (DecisionConflict, NotAcceptable) as exc:
+        raise problem(409, str(exc)) from None
+    except NotFound as exc:
+        raise problem(404, str(exc)) from None
+    except (StoreError, SQLAlchemyError) as exc:
+        log.warning("accept of %s failed: %s", session_id, exc)
+        raise problem(
+            503,
+            f"the calibration could not be stored ({type(exc).__name__}); the previous calibration stays current. "
+            "Try accepting again.",
+        ) from None
+    if body is not None and body.note:
+        await asyncio.to_thread(svc.store.audit, operator, "session.note", rec.device_id, session_id, {"note": body.note})
+    if live is not None:
+        live.machine.decide("accepted", rec.id)
+        live.broadcaster.close()
+    return {"session_id": session_id, "calibration": rec.to_dict()}
+
+
+@router.post("/sessions/{session_id}/discard", response_model=M.SessionOut, responses={**R401, **R404, **R409, **R503}, tags=["sessions"])
+async def discard(svc: Svc, session_id: str, operator: Operator, body: M.DecisionIn | None = None) -> dict[str, Any]:
+    """Discard a finished session's result; it stays in the store for audit and never becomes current."""
+    check_session_id(session_id)
+    live = svc.sessions.get(session_id)
+    snap = await session_snapshot(svc, session_id)
+    if snap["state"] not in END_STATES:
+        raise problem(409, "the session is still running: cancel it first")
+    if live is not None:
+        await live.wait()
+    try:
+        await asyncio.to_thread(svc.store.discard_session, session_id, operator,
+                                live.session_end() if live is not None else None)
+    except DecisionConflict as exc:
+        raise problem(409, str(exc)) from None
+    except NotFound as exc:
+        raise problem(404, str(exc)) from None
+    except (StoreError, SQLAlchemyError) as exc:
+        log.warning("discard of %s failed: %s", session_id, exc)
+        raise problem(503, f"the decision could not be stored ({type(exc).__name__}); try again") from None
+    if body is not None and body.note:
+        await asyncio.to_thread(svc.store.audit, operator, "session.note", snap["device_id"], session_id, {"note": body.note})
+    if live is not None:
+        live.machine.decide("discarded", None)
+        live.broadcaster.close()
+    return finite(await session_snapshot(svc, session_id))
+
+
+async def start_live(svc: Service, device_id: str, operator: str, method: str | None, max_attempts: int | None) -> LiveSession:
+    from calib.api import available_methods
+
+    if method is not None and method not in available_methods():
+        raise problem(422, f"unknown method {method!r}: choose one of {', '.join(available_methods())}")
+    dev = svc.devices.get(device_id)
+    if dev is None:
+        known = await asyncio.to_thread(svc.store.device, device_id)
+        if known is None:
+            raise problem(404, f"no device {device_id!r}; see GET /devices or scan with POST /devices/scan")
+        if known.get("transport") == "ble" and svc.devices.ble:
+            dev = svc.devices.add_ble_address(device_id)
+        else:
+            raise problem(409, f"device {device_id!r} is not reachable by this service (known from uploads only); scan for it first")
+    if device_id in svc.active:
+        raise problem(409, f"device {device_id!r} is already in a calibration session ({svc.active[device_id]}); one at a time")
+    sid = uuid.uuid4().hex
+    machine = GuidedSession(sid, device_id, svc.settings, max_attempts=max_attempts, method=method)
+    svc.active[device_id] = sid  # claimed before the first await: a second request gets 409
+    try:
+        await asyncio.to_thread(
+            svc.store.create_session, sid, device_id, "live", "connecting", machine.method, operator, __version__,
+            {"transport": dev.transport, "scenario": dev.scenario},
+        )
+    except Exception:
+        svc.active.pop(device_id, None)
+        raise
+    live = LiveSession(machine, dev, svc.store, svc.settings, __version__, operator, on_end=svc._session_ended, pool=svc.pool)
+    svc.sessions[sid] = live
+    live.start()
+    return live
+
+
+async def calibrate_uploaded(svc: Service, device_id: str, operator: str, body: bytes, fs: float | None, method: str | None, layout: str,
+                   sensor: dict[str, str | None]) -> JSONResponse:
+    from calib.api import DEFAULT_METHOD, available_methods
+
+    method = method or DEFAULT_METHOD
+    if method not in available_methods():
+        raise problem(422, f"unknown method {method!r}: choose one of {', '.join(available_methods())}")
+    check_upload(body, layout)
+    source = f"upload for {device_id}"
+    try:
+        res, csv, n_samples = await asyncio.wait_for(
+            svc.pool.run(calibrate_upload, body, fs, layout, method, source, svc.settings.max_upload_samples),
+            timeout=svc.settings.compute_timeout_s,
+        )
+    except asyncio.TimeoutError:
+        raise problem(503, f"calibrating this recording took longer than {svc.settings.compute_timeout_s:g} s; try again later") from None
+    except TooManySamples as exc:
+        raise problem(413, str(exc)) from None
+    except MemoryError:
+        raise problem(413, f"calibrating this recording needs more memory than this service gives a worker "
+                       f"({svc.settings.worker_memory_mb} MB); send the protocol's part of the recording") from None
+    except Exception as exc:  # calib's errors and whatever else the parser or estimator trips on
+        raise recording_problem(exc, "calibrated", upload=True) from None
+    res = finite(res)
+    checks = evaluate_result(res, svc.settings.tolerances)
+    failures = [c["text"] for c in checks if not c["ok"]]
+    passed = not failures
+    sid = uuid.uuid4().hex
+    from ...live import guidance as say
+
+    reason = None if passed else say.out_of_tolerance(failures)
+    await asyncio.to_thread(svc.store.upsert_device, device_id)
+    await asyncio.to_thread(svc.store.create_session, sid, device_id, "upload", "computing", method, operator, __version__,
+                            {"source": "upload", "layout": layout, "fs": fs, **{k: v for k, v in sensor.items() if v}})
+    digest = await asyncio.to_thread(svc.store.archive_recording, sid, csv, n_samples)
+    end = SessionEnd("done" if passed else "failed", None if passed else "out_of_tolerance", reason, res, passed,
+                     {"checks": checks, "samples": n_samples})
+    await asyncio.to_thread(svc.store.finish_session, sid, end)
+    out = {
+        **res,
+        "session_id": sid,
+        "device_id": device_id,
+        "state": "done" if passed else "failed",
+        "passed": passed,
+        "checks": checks,
+        "reason": reason,
+        "recording_sha256": digest,
+    }
+    return JSONResponse(finite(out), status_code=200, headers={"Location": f"/sessions/{sid}"})

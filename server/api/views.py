@@ -1,0 +1,87 @@
+"""What the API shows of devices and sessions: a device with its current calibration, a session's snapshot
+(live from memory, or rebuilt from the store)."""
+
+from __future__ import annotations
+
+import asyncio
+from typing import Any
+
+from ..deps import problem
+from ..devices import Device
+from ..live.events import finite
+from ..service import Service
+
+
+async def current_calibration_of(svc: Service, device_id: str) -> dict[str, Any] | None:
+    rec = await asyncio.to_thread(svc.store.current_calibration, device_id)
+    return None if rec is None else rec.to_dict()
+
+
+async def device_out(svc: Service, dev: Device | None, row: dict[str, Any] | None, detail: bool = False) -> dict[str, Any]:
+    device_id = dev.id if dev else row["id"]  # type: ignore[index]
+    row = row or {}
+    info = dev.info if dev else {}
+    out: dict[str, Any] = {
+        "id": device_id,
+        "name": (dev.name if dev else None) or row.get("name"),
+        "transport": dev.transport if dev else row.get("transport"),
+        "address": (dev.address if dev else None) or row.get("address"),
+        "connected": bool(dev and dev.connected),
+        "available": dev is not None,
+        "simulated": bool(dev and dev.simulated),
+        "scenario": dev.scenario if dev else None,
+        "sensor_model": info.get("sensor_model") or row.get("sensor_model"),
+        "firmware": info.get("firmware") or row.get("firmware"),
+        "serial": info.get("serial") or row.get("serial"),
+        "battery_pct": info.get("battery_pct"),
+        "active_session": svc.active.get(device_id),
+        "current_calibration": await current_calibration_of(svc, device_id),
+        "last_seen": row.get("last_seen"),
+    }
+    if detail:
+        out["simulated_truth"] = dev.simulated_truth if dev else None
+        out["info"] = finite(dict(info))
+        out["recent_sessions"] = [
+            {k: s[k] for k in ("id", "kind", "state", "reason_code", "passed", "decision", "started_at", "ended_at")}
+            for s in await asyncio.to_thread(svc.store.sessions, device_id, 10)
+        ]
+    return out
+
+
+def stored_snapshot(row: dict[str, Any]) -> dict[str, Any]:
+    info = row.get("info") or {}
+    return {
+        "session_id": row["id"],
+        "device_id": row["device_id"],
+        "kind": row["kind"],
+        "event": "state",
+        "state": row["state"],
+        "phase": None,
+        "prompt": row.get("reason"),
+        "reason_code": row["reason_code"],
+        "reason": row["reason"],
+        "result": row["result"],
+        "passed": row["passed"],
+        "checks": info.get("checks") or [],
+        "warnings": info.get("warnings") or [],
+        "turns": info.get("turns") or {},
+        "decision": row["decision"],
+        "calibration_id": None,
+        "method": row["method"],
+        "operator": row["operator"],
+        "started_at": row["started_at"],
+        "ended_at": row["ended_at"],
+    }
+
+
+async def session_snapshot(svc: Service, sid: str) -> dict[str, Any]:
+    live = svc.sessions.get(sid)
+    if live is not None:
+        snap = live.machine.snapshot("state")
+        snap["kind"] = "live"
+        snap["operator"] = live.operator
+        return snap
+    row = await asyncio.to_thread(svc.store.session, sid)
+    if row is None:
+        raise problem(404, f"no session {sid}")
+    return stored_snapshot(row)

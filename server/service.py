@@ -1,0 +1,88 @@
+"""The service: everything the API works with (settings, store, operators and their sign-ins, devices, the
+worker pools, live sessions) and what it does at start and stop."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from datetime import datetime, timezone
+from typing import Any
+
+from .auth import Authenticator, SignIns
+from .config import Settings
+from .devices import DeviceManager
+from .live.runner import LiveSession
+from .store import Store
+from .throttle import TokenBucket
+from .workers.compute import ComputePool
+
+log = logging.getLogger(__name__)
+
+KEEP_FINISHED = 200  # finished live sessions kept in memory for their event streams
+
+
+class Service:
+    """Everything the API works with: settings, store, operators, devices, live sessions."""
+
+    def __init__(self, settings: Settings, store: Store | None = None, devices: DeviceManager | None = None) -> None:
+        self.settings = settings
+        self.store = store or Store(settings.db_url)
+        self.auth = Authenticator(self.store, settings.api_token, settings.token_ttl_s)
+        self.sign_ins = SignIns(self.auth)
+        self.anonymous_analyses = TokenBucket(settings.anonymous_analyses_per_min, burst=3)
+        self.devices = devices or DeviceManager()
+        self.pool = ComputePool(memory_mb=settings.worker_memory_mb)
+        self.sessions: dict[str, LiveSession] = {}
+        self.active: dict[str, str] = {}  # device id -> running session id
+        self.started = time.time()
+        self.integrity: dict[str, Any] | None = None  # the last verification of the store's hash chains
+        self._integrity_task: asyncio.Task[None] | None = None
+
+    async def verify_store(self) -> dict[str, Any]:
+        """Verify the store's hash chains now (in a thread); the result is what /health reports."""
+        report = await asyncio.to_thread(self.store.verify)
+        self.integrity = {**report.to_dict(), "checked_at": datetime.now(timezone.utc).isoformat()}
+        if not report.ok:
+            log.error("the store's history was tampered with: %s", report.broken)
+        return self.integrity
+
+    async def _verify_periodically(self) -> None:
+        while True:
+            with contextlib.suppress(Exception):
+                await self.verify_store()
+            await asyncio.sleep(self.settings.integrity_check_s)
+
+    async def startup(self) -> None:
+        self._integrity_task = asyncio.get_running_loop().create_task(self._verify_periodically())
+        await self.pool.start()
+        n = await asyncio.to_thread(
+            self.store.fail_unfinished_sessions,
+            "The service was restarted while this calibration ran. Start a new calibration.",
+        )
+        if n:
+            log.warning("%d sessions left open by a previous run were marked failed", n)
+        for dev in self.devices.devices.values():
+            await asyncio.to_thread(self.store.upsert_device, dev.id, name=dev.name, address=dev.address, transport=dev.transport)
+
+    async def shutdown(self) -> None:
+        if self._integrity_task is not None:
+            self._integrity_task.cancel()
+        for live in list(self.sessions.values()):
+            if not live.machine.finished:
+                with contextlib.suppress(Exception):
+                    await asyncio.wait_for(live.shutdown(), timeout=10.0)
+            live.broadcaster.close()
+        await self.devices.close()
+        self.sign_ins.close()
+        self.pool.shutdown()
+        self.store.close()
+
+    def _session_ended(self, live: LiveSession) -> None:
+        if self.active.get(live.device.id) == live.id:
+            del self.active[live.device.id]
+        finished = [s for s in self.sessions.values() if s.machine.finished]
+        for old in finished[: max(0, len(finished) - KEEP_FINISHED)]:
+            old.broadcaster.close()
+            self.sessions.pop(old.id, None)
