@@ -46,12 +46,14 @@ def main() -> None:
         durations.append(rec.duration_s)
         stages = detect_stages(rec)
         calibrate_closure(rec, stages)  # warm-up
-        rows["stages given"].append(_best(lambda: calibrate_closure(rec, stages), args.repeat))
-        rows["stages detected"].append(_best(lambda: calibrate_closure(rec), args.repeat))
-        rows["detection alone"].append(_best(lambda: detect_stages(rec), args.repeat))
+        rows["stages given"].append(_best(lambda rec=rec, stages=stages: calibrate_closure(rec, stages), args.repeat))
+        rows["stages detected"].append(_best(lambda rec=rec: calibrate_closure(rec), args.repeat))
+        rows["detection alone"].append(_best(lambda rec=rec: detect_stages(rec), args.repeat))
         # the paper protocol's hand wobble identifies the off-diagonal terms only weakly; time it anyway
         try:
-            rows["extended, stages given"].append(_best(lambda: calibrate_closure(rec, stages, extended=True), args.repeat))
+            rows["extended, stages given"].append(
+                _best(lambda rec=rec, stages=stages: calibrate_closure(rec, stages, extended=True), args.repeat)
+            )
         except Exception:  # noqa: BLE001 - a recording that does not identify them is skipped
             pass
     print(

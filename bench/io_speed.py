@@ -54,7 +54,7 @@ def main() -> None:
     print(f"read native ({len(native) / 1e6:.1f} MB): {_best(lambda: parse_recording_text(native), args.repeat):.3f} s")
     imucal = "n_samples,gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z\n" + "".join(
         f"{i},{g[0]:.4f},{g[1]:.4f},{g[2]:.4f},{a[0]:.5f},{a[1]:.5f},{a[2]:.5f}\n"
-        for i, g, a in zip(range(n), rec.gyro, rec.accel * 9.80665)
+        for i, g, a in zip(range(n), rec.gyro, rec.accel * 9.80665, strict=False)
     )
     print(f"read imucal ({len(imucal) / 1e6:.1f} MB): {_best(lambda: parse_recording_text(imucal, fs=104.0), args.repeat):.3f} s")
     lines = native.split("\n")

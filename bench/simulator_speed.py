@@ -31,7 +31,7 @@ def main() -> None:
     simulate_batch(0, 10, 0.03)  # warm-up (imports, first-call costs)
 
     for noise in (0.03, 0.15):
-        wall, cpu = _measure(lambda i: simulate_batch(i, args.runs, noise), args.repeat)
+        wall, cpu = _measure(lambda i, noise=noise: simulate_batch(i, args.runs, noise), args.repeat)
         print(
             f"simulate_batch({args.runs} runs, noise {noise}): wall best {min(wall) * 1e3:.0f} ms, "
             f"median {statistics.median(wall) * 1e3:.0f} ms; cpu best {min(cpu) * 1e3:.0f} ms"

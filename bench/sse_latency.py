@@ -131,7 +131,7 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
             proc.kill()
     stage_e2e, stage_srv, all_e2e = [], [], []
     outcomes: dict[str, int] = {}
-    for sid, evs in events.items():
+    for _sid, evs in events.items():
         caused = [e for e in evs if e["caused_by"]]
         if not caused:
             continue

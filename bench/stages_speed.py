@@ -42,7 +42,7 @@ def main() -> None:
     trackers = [StageTracker(r.fs) for r in recs]
     c0 = time.process_time()
     for i in range(0, n, 28):
-        for tr, r in zip(trackers, recs):
+        for tr, r in zip(trackers, recs, strict=False):
             tr.feed(r.t[i : i + 28], r.gyro[i : i + 28], r.seq[i : i + 28])
     cpu = time.process_time() - c0
     real_time = n / 562.5

@@ -19,8 +19,9 @@ or when some turns are about axes between the sensor axes.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -37,9 +38,9 @@ from .closure_fit import (
 )
 from .errors import CalibrationError, ProtocolError
 from .recording import Recording
-from .validation import check_calibration_input
 from .result import CalibrationResult
 from .stage import AXES, FLAG_COUNTER_GAP, FLAG_SATURATED, Stage
+from .validation import check_calibration_input
 
 METHOD = "closure"
 MIN_STILL_SAMPLES = 2

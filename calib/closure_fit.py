@@ -80,7 +80,7 @@ class ClosureData:
     def S(self) -> int:
         return int(self.still_mean.shape[1])
 
-    def runs(self, idx: np.ndarray) -> "ClosureData":
+    def runs(self, idx: np.ndarray) -> ClosureData:
         """The data of a subset of the recordings."""
         seq = (np.asarray(idx)[:, None] * self.J + np.arange(self.J)).ravel()
         return ClosureData(self.m[:, seq], self.dt[:, seq], self.still_mean[idx], self.still_n[idx], self.sigma[idx])

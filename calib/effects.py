@@ -120,7 +120,7 @@ class SensorOutput:
     full_scale_dps: float | None = None  # gyro range, set by a saturating effect
     t_true: np.ndarray | None = None  # (n,) true sample times, s
 
-    def keep(self, mask: np.ndarray) -> "SensorOutput":
+    def keep(self, mask: np.ndarray) -> SensorOutput:
         """The rows where ``mask`` is True (the others are lost); ``seq`` keeps the original counter."""
         mask = np.asarray(mask, dtype=bool)
         pick = lambda a: None if a is None else a[mask]  # noqa: E731
@@ -171,7 +171,7 @@ class Effect:
     usage: ClassVar[str] = ""  # the CLI value format, for messages
 
     @classmethod
-    def from_text(cls, value: str) -> "Effect":
+    def from_text(cls, value: str) -> Effect:
         """The effect from a CLI value: comma-separated numbers, passed to the constructor in order."""
         return cls(*_numbers(value, cls))
 
@@ -300,7 +300,7 @@ class BiasDrift(Effect):
         object.__setattr__(self, "temp0_c", float(self.temp0_c))
 
     @classmethod
-    def from_text(cls, value: str) -> "BiasDrift":
+    def from_text(cls, value: str) -> BiasDrift:
         groups = value.split(":")
         if len(groups) not in (1, 3, 4):
             raise _usage_error(cls, value)
@@ -396,7 +396,7 @@ class AxisMisalignment(Effect):
         object.__setattr__(self, "off_diagonal", u)
 
     @classmethod
-    def from_text(cls, value: str) -> "AxisMisalignment":
+    def from_text(cls, value: str) -> AxisMisalignment:
         v = _numbers(value, cls)
         if len(v) != 3:
             raise _usage_error(cls, value)
@@ -444,7 +444,7 @@ class GSensitivity(Effect):
         object.__setattr__(self, "matrix_dps_per_g", G)
 
     @classmethod
-    def from_text(cls, value: str) -> "GSensitivity":
+    def from_text(cls, value: str) -> GSensitivity:
         v = _numbers(value, cls)
         if len(v) not in (1, 3, 9):
             raise _usage_error(cls, value)
@@ -476,7 +476,7 @@ class ScaleAsymmetry(Effect):
         object.__setattr__(self, "asymmetry", s)
 
     @classmethod
-    def from_text(cls, value: str) -> "ScaleAsymmetry":
+    def from_text(cls, value: str) -> ScaleAsymmetry:
         return cls(_one_or_three(_numbers(value, cls), cls, value))
 
     def on_sensor(self, m: np.ndarray, ctx: SensorContext, rng: np.random.Generator) -> np.ndarray:
@@ -507,7 +507,7 @@ class ScaleNonlinearity(Effect):
         object.__setattr__(self, "ref_rate_dps", _positive(self.ref_rate_dps, "ScaleNonlinearity.ref_rate_dps"))
 
     @classmethod
-    def from_text(cls, value: str) -> "ScaleNonlinearity":
+    def from_text(cls, value: str) -> ScaleNonlinearity:
         groups = value.split(":")
         if len(groups) not in (1, 2):
             raise _usage_error(cls, value)
@@ -567,7 +567,7 @@ class SampleLoss(Effect):
         object.__setattr__(self, "ranges", ranges)
 
     @classmethod
-    def from_text(cls, value: str) -> "SampleLoss":
+    def from_text(cls, value: str) -> SampleLoss:
         v = _numbers(value, cls)
         if len(v) not in (1, 2) or (len(v) == 2 and v[1] != int(v[1])):
             raise SimulationConfigError(f"effect 'sample_loss' needs {cls.usage}; got {value!r}")
@@ -666,7 +666,8 @@ class PlacementError(Effect):
             e = np.asarray(self.errors_deg, dtype=float)
             if e.ndim != 2 or e.shape[1] != 3 or not np.all(np.isfinite(e)) or np.any(np.abs(e) > 45):
                 raise SimulationConfigError(
-                    f"PlacementError.errors_deg must be one row (tilt x, tilt y, heading) in deg per turn, each under 45; got {self.errors_deg!r}"
+                    "PlacementError.errors_deg must be one row (tilt x, tilt y, heading) in deg per turn, each under 45; "
+                    f"got {self.errors_deg!r}"
                 )
             object.__setattr__(self, "errors_deg", e)
         f = float(self.ramp_fraction)
@@ -675,7 +676,7 @@ class PlacementError(Effect):
         object.__setattr__(self, "ramp_fraction", f)
 
     @classmethod
-    def from_text(cls, value: str) -> "PlacementError":
+    def from_text(cls, value: str) -> PlacementError:
         v = _numbers(value, cls)
         if len(v) not in (1, 2):
             raise _usage_error(cls, value)
@@ -697,14 +698,12 @@ class PlacementError(Effect):
             return traj
         errs = self.errors_deg if self.errors_deg is not None else self.draw_errors(len(turns), rng)
         if errs.shape[0] != len(turns):
-            raise SimulationConfigError(
-                f"PlacementError.errors_deg has {errs.shape[0]} rows but the protocol has {len(turns)} turns"
-            )
+            raise SimulationConfigError(f"PlacementError.errors_deg has {errs.shape[0]} rows but the protocol has {len(turns)} turns")
         n = traj.n
         left = np.tile(Rotation.identity().as_quat(), (n + 1, 1))
         cum = Rotation.identity()
         ramps: list[tuple[int, int]] = []
-        for st, e in zip(turns, np.radians(errs)):
+        for st, e in zip(turns, np.radians(errs), strict=False):
             L = max(1, int(round(self.ramp_fraction * (st.end - st.start))))
             a = st.end - L
             s = _smoothstep(np.arange(L + 1) / L)
@@ -777,7 +776,7 @@ class BiasInstability(Effect):
         object.__setattr__(self, "tau_s", _positive(self.tau_s, "BiasInstability.tau_s"))
 
     @classmethod
-    def from_text(cls, value: str) -> "BiasInstability":
+    def from_text(cls, value: str) -> BiasInstability:
         v = _numbers(value, cls)
         if len(v) not in (1, 2):
             raise _usage_error(cls, value)
@@ -823,7 +822,5 @@ def check_effects(effects: Sequence[Effect]) -> tuple[Effect, ...]:
     out = tuple(effects)
     for e in out:
         if not isinstance(e, Effect):
-            raise SimulationConfigError(
-                f"effects must be calib.effects.Effect instances (e.g. BiasDrift(...)); got {type(e).__name__}"
-            )
+            raise SimulationConfigError(f"effects must be calib.effects.Effect instances (e.g. BiasDrift(...)); got {type(e).__name__}")
     return out

@@ -125,7 +125,7 @@ def write_native_csv(rec: Recording, path_or_file: str | os.PathLike[str] | IO[s
     if rec.host_t is not None:
         names.append("host_t")
         cells.append(list(map(repr, rec.host_t.tolist())))
-    text = ",".join(names) + "\n" + "".join(",".join(row) + "\n" for row in zip(*cells))
+    text = ",".join(names) + "\n" + "".join(",".join(row) + "\n" for row in zip(*cells, strict=False))
     if hasattr(path_or_file, "write"):
         path_or_file.write(text)  # type: ignore[union-attr]
         return
@@ -323,7 +323,7 @@ def _read_native(table: _Table, fs: float | None, source: str | None) -> Recordi
     names += ["seq"] * has_seq + ["temp"] * has_temp + ["host_t"] * has_host_t
     cols = _columns(table, names)
     values = _parse_numbers(table, cols)
-    header = {name: table.raw_names[c] for name, c in zip(names, cols)}
+    header = {name: table.raw_names[c] for name, c in zip(names, cols, strict=False)}
     where = Locator(
         source=source,
         lines=table.line_no,

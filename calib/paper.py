@@ -26,8 +26,9 @@ norm in eq. 11 unchanged.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -36,9 +37,9 @@ from scipy.spatial.transform import Rotation
 from .errors import CalibrationError, ProtocolError, RecordingError
 from .quaternion import prefix_products
 from .recording import Recording
-from .validation import check_calibration_input
 from .result import CalibrationResult
 from .stage import AXES, FLAG_COUNTER_GAP, FLAG_SATURATED, Stage
+from .validation import check_calibration_input
 
 METHOD = "paper"
 THETA_TOTAL_DEG = 360.0  # the known angle of one turn (Section 2.3)
@@ -281,7 +282,7 @@ def algorithm1(
     history = [k]
     converged = False
     it = 0
-    for it in range(1, max_iter + 1):
+    for _it in range(1, max_iter + 1):
         A = np.stack([_turn_mean(m, d, k) for m, d in windows])
         fit = least_squares(
             lambda kk, A=A: (np.einsum("jai,i->ja", A, kk) ** 2).sum(axis=1) / rate2 - 1.0,
@@ -363,7 +364,7 @@ def calibrate_paper(rec: Recording, stages: Any = None) -> CalibrationResult:
     m_hat = rec.gyro - fit.mean0
     residuals: dict[str, Any] = {}
     warnings: list[str] = []
-    for axis, st in zip(AXES, turns):
+    for axis, st in zip(AXES, turns, strict=False):
         m, d = m_hat[st.start : st.end], dt_all[st.start : st.end]
         rates = m * k
         att = _turn_attitudes(m, d, k)
@@ -390,7 +391,7 @@ def calibrate_paper(rec: Recording, stages: Any = None) -> CalibrationResult:
     still_s = float(dt_all[still0.start : still0.end].sum())
     if still_s < MIN_STILL_S:
         warnings.append(f"the first still lasts only {still_s:.1f} s: let the device rest about 3 s before turning")
-    far = [f"k{a} = {v:.3g}" for a, v in zip(AXES, k) if not 0.5 <= v <= 2.0]
+    far = [f"k{a} = {v:.3g}" for a, v in zip(AXES, k, strict=False) if not 0.5 <= v <= 2.0]
     if far:
         warnings.append(f"{', '.join(far)} far from 1: check that the readings are in deg/s and the full-scale setting")
     if not fit.converged:
@@ -399,7 +400,7 @@ def calibrate_paper(rec: Recording, stages: Any = None) -> CalibrationResult:
     quality = {
         "still0_samples": still0.end - still0.start,
         "still0_s": still_s,
-        "turn_samples": {a: st.end - st.start for a, st in zip(AXES, turns)},
+        "turn_samples": {a: st.end - st.start for a, st in zip(AXES, turns, strict=False)},
         "turn_s": {a: residuals[a]["duration_s"] for a in AXES},
         "iterations": fit.iterations,
         "converged": fit.converged,

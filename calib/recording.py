@@ -74,7 +74,7 @@ class Recording:
             return float(self.meta.sample_rate_hz)
         return float(1.0 / np.median(np.diff(self.t)))
 
-    def slice(self, start: int, end: int) -> "Recording":
+    def slice(self, start: int, end: int) -> Recording:
         """Samples start..end-1 as a new Recording with the same metadata."""
         pick = lambda a: None if a is None else a[start:end]  # noqa: E731
         return Recording(
@@ -82,6 +82,6 @@ class Recording:
             pick(self.host_t),
         )
 
-    def with_meta(self, **changes: object) -> "Recording":
+    def with_meta(self, **changes: object) -> Recording:
         """A copy with some metadata fields replaced."""
         return replace(self, meta=replace(self.meta, **changes))

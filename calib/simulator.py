@@ -108,7 +108,7 @@ class SensorParams:
         object.__setattr__(self, "b", b)
 
     @classmethod
-    def paper_random(cls, rng: np.random.Generator) -> "SensorParams":
+    def paper_random(cls, rng: np.random.Generator) -> SensorParams:
         """k ~ U(0.8, 1.2), b ~ U(-5, 5) deg/s per axis (paper Section 3)."""
         return cls(rng.uniform(*K_RANGE, 3), rng.uniform(*B_RANGE_DPS, 3))
 
@@ -601,7 +601,7 @@ class Truth:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: k, b, noise_dps, fs, turn_axes, stages, effects, seed, accel_noise_g, full_scale_dps."""
         stages = []
-        for st, ax in zip(self.stages, self.segment_axes):
+        for st, ax in zip(self.stages, self.segment_axes, strict=False):
             d = st.to_dict()
             d["axis_vector"] = None if ax is None else [round(float(v), 12) for v in ax]
             stages.append(d)
@@ -666,12 +666,12 @@ def simulate(
     fx_rngs = [np.random.default_rng(s) for s in ss_fx.spawn(len(effects))]
 
     traj = build_trajectory(script, fs, np.random.default_rng(ss_traj))
-    for e, r in zip(effects, fx_rngs):
+    for e, r in zip(effects, fx_rngs, strict=False):
         traj = e.on_trajectory(traj, r)
 
     ctx = SensorContext(traj.t, traj.rate, traj.accel, params.k, params.b, traj.fs, noise)
     m = params.reading(traj.rate)
-    for e, r in zip(effects, fx_rngs):
+    for e, r in zip(effects, fx_rngs, strict=False):
         m = e.on_sensor(m, ctx, r)
     noise_rng = np.random.default_rng(ss_noise)
     gyro = m + noise * noise_rng.standard_normal(m.shape)
@@ -679,7 +679,7 @@ def simulate(
 
     idx = np.arange(traj.n, dtype=np.int64)
     out = SensorOutput(traj.t_device.copy(), gyro, accel, idx.copy(), idx, t_true=traj.t.copy())
-    for e, r in zip(effects, fx_rngs):
+    for e, r in zip(effects, fx_rngs, strict=False):
         out = e.on_output(out, r)
     if out.t.size < 2:
         raise SimulationConfigError("the effects left fewer than 2 samples; lose fewer samples")
@@ -726,7 +726,7 @@ def _true_stages(traj: Trajectory, out: SensorOutput) -> tuple[tuple[Stage, ...]
     lost_before = np.concatenate([[0], np.cumsum(lost)])
     stages: list[Stage] = []
     turn_axes = np.full((3, 3), np.nan)
-    for st, ax in zip(traj.stages, traj.segment_axes):
+    for st, ax in zip(traj.stages, traj.segment_axes, strict=False):
         r0 = int(np.searchsorted(out.index, st.start))
         r1 = int(np.searchsorted(out.index, st.end))
         flags: list[str] = []
@@ -854,7 +854,7 @@ def simulate_batch(
     n_turn = np.maximum(2, np.round(drawn["duration_s"] * fs).astype(np.int64)).reshape(R, 3)
     tilt = drawn["tilt"].reshape(R, 3, 2)
     axes = np.empty((R, 3, 3))
-    for i, label in enumerate(AXES):
+    for i in range(len(AXES)):
         other = [j for j in range(3) if j != i]
         axes[:, i, i] = 1.0
         axes[:, i, other] = tilt[:, i]

@@ -36,7 +36,7 @@ class Stage:
         return self.end_s - self.start_s
 
     @classmethod
-    def from_dict(cls, d: dict) -> "Stage":
+    def from_dict(cls, d: dict) -> Stage:
         """The Stage back from its ``to_dict()`` form."""
         return cls(
             d["kind"], int(d["start"]), int(d["end"]), float(d["start_s"]), float(d["end_s"]),

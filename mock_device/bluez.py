@@ -169,7 +169,7 @@ class PrivateBus:
     def pid(self) -> int | None:
         return None if self._proc is None else self._proc.pid
 
-    def __enter__(self) -> "PrivateBus":
+    def __enter__(self) -> PrivateBus:
         self.start()
         return self
 
@@ -217,7 +217,7 @@ class _Device:
 class _DeviceCentral:
     """The Central callbacks a peripheral gets while connected through the simulated BlueZ."""
 
-    def __init__(self, bluez: "SimulatedBlueZ", dev: _Device) -> None:
+    def __init__(self, bluez: SimulatedBlueZ, dev: _Device) -> None:
         self._bluez = bluez
         self._dev = dev
 
@@ -713,7 +713,7 @@ class BlueZThread:
         self._error: BaseException | None = None
         self._stopped: asyncio.Event | None = None
 
-    def start(self) -> "BlueZThread":
+    def start(self) -> BlueZThread:
         self._thread = threading.Thread(target=self._main, name="simulated-bluez", daemon=True)
         self._thread.start()
         self._ready.wait(15)
@@ -760,7 +760,7 @@ class BlueZThread:
             self._loop.call_soon_threadsafe(self._stopped.set)
             self._thread.join(10)
 
-    def __enter__(self) -> "BlueZThread":
+    def __enter__(self) -> BlueZThread:
         return self.start()
 
     def __exit__(self, *exc: object) -> None:

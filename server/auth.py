@@ -18,7 +18,7 @@ import hmac
 import re
 import secrets
 from concurrent.futures import ThreadPoolExecutor
-from datetime import datetime, timedelta, timezone
+from datetime import UTC, datetime, timedelta
 
 from .store import Store, StoreError
 from .throttle import SignInThrottle
@@ -122,7 +122,7 @@ class Authenticator:
     def issue(self, name: str, client: str | None = None) -> tuple[str, datetime]:
         """A new bearer token for an operator whose secret was checked."""
         token = secrets.token_urlsafe(32)
-        expires = datetime.now(timezone.utc) + timedelta(seconds=self.token_ttl_s)
+        expires = datetime.now(UTC) + timedelta(seconds=self.token_ttl_s)
         try:
             self.store.add_token(name, token_hash(token), expires, client)
         except StoreError as exc:

@@ -31,32 +31,68 @@ def register(sub: Any) -> None:
                    help="SQLAlchemy URL of the store: sqlite:///path or postgresql://user@host/db "
                    "(default: GYROCAL_DB, else gyrocal.sqlite3 in the user's data directory)")
     p.add_argument("--mock", type=int, default=0, metavar="N", help="add N simulated wearables mock-1 ... mock-N")
-    p.add_argument("--mock-speed", type=float, default=1.0, metavar="X", help="simulated time runs X times faster than real time (default 1)")
+    p.add_argument(
+        "--mock-speed", type=float, default=1.0, metavar="X", help="simulated time runs X times faster than real time (default 1)"
+    )
     p.add_argument("--mock-seed", type=int, default=0, metavar="S", help="seed of the simulated sensors and clinicians (default 0)")
-    p.add_argument("--mock-scenario", default="normal", metavar="NAMES",
-                   help="what the simulated clinician does, comma-separated, assigned to mock-1, mock-2, ... in turn: "
-                   "normal, moved_during_still, wrong_axis, too_fast, stops_short, link_drop, packet_loss (default normal)")
-    p.add_argument("--mock-rate", type=float, default=104.0, metavar="HZ", help="sample rate of the simulated wearables (default 104; up to 562.5)")
-    p.add_argument("--ble", action="store_true", help="use Bluetooth LE wearables through bleak (BlueZ, or the simulated one via DBUS_SYSTEM_BUS_ADDRESS)")
+    p.add_argument(
+        "--mock-scenario",
+        default="normal",
+        metavar="NAMES",
+        help="what the simulated clinician does, comma-separated, assigned to mock-1, mock-2, ... in turn: "
+        "normal, moved_during_still, wrong_axis, too_fast, stops_short, link_drop, packet_loss (default normal)",
+    )
+    p.add_argument(
+        "--mock-rate", type=float, default=104.0, metavar="HZ", help="sample rate of the simulated wearables (default 104; up to 562.5)"
+    )
+    p.add_argument(
+        "--ble",
+        action="store_true",
+        help="use Bluetooth LE wearables through bleak (BlueZ, or the simulated one via DBUS_SYSTEM_BUS_ADDRESS)",
+    )
     p.add_argument("--ble-adapter", default=None, metavar="HCI", help="Bluetooth adapter (default: the system's)")
     p.add_argument("--auth-reads", action="store_true", help="require a token for reads too (default: only writes need one)")
-    p.add_argument("--allowed-host", action="append", default=[], metavar="NAME",
-                   help="a name the service answers to besides localhost and the --host address (repeatable; '*' for any): "
-                   "requests for other Host names get 400, so a web page elsewhere cannot rebind its name to this service")
-    p.add_argument("--open-reads", action="store_true",
-                   help="with a --host other computers reach: let them read devices, sessions and calibrations without a "
-                   "token over plain HTTP (default: refuse to start so, unless --auth-reads)")
-    p.add_argument("--worker-memory-mb", type=int, default=3072, metavar="MB",
-                   help="memory each worker process (estimator, model check) may take; beyond it the request gets 413 "
-                   "(default 3072)")
-    p.add_argument("--allow-db-owner", action="store_true",
-                   help="PostgreSQL: run even when connected as the tables' owner or a superuser, who could drop the "
-                   "append-only guards (default: refuse; create a service role with `gyrocal store setup --service-role`)")
+    p.add_argument(
+        "--allowed-host",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="a name the service answers to besides localhost and the --host address (repeatable; '*' for any): "
+        "requests for other Host names get 400, so a web page elsewhere cannot rebind its name to this service",
+    )
+    p.add_argument(
+        "--open-reads",
+        action="store_true",
+        help="with a --host other computers reach: let them read devices, sessions and calibrations without a "
+        "token over plain HTTP (default: refuse to start so, unless --auth-reads)",
+    )
+    p.add_argument(
+        "--worker-memory-mb",
+        type=int,
+        default=3072,
+        metavar="MB",
+        help="memory each worker process (estimator, model check) may take; beyond it the request gets 413 (default 3072)",
+    )
+    p.add_argument(
+        "--allow-db-owner",
+        action="store_true",
+        help="PostgreSQL: run even when connected as the tables' owner or a superuser, who could drop the "
+        "append-only guards (default: refuse; create a service role with `gyrocal store setup --service-role`)",
+    )
     p.add_argument("--method", default="closure", help="estimator of live sessions (default closure)")
-    p.add_argument("--max-attempts", type=int, default=1, metavar="N",
-                   help="tries per turn before a session fails (default 1: any fault ends the session with its reason)")
-    p.add_argument("--demo-operator", default=None, metavar="NAME",
-                   help="create operator NAME (or give it a new secret) and print the secret: for trying the service")
+    p.add_argument(
+        "--max-attempts",
+        type=int,
+        default=1,
+        metavar="N",
+        help="tries per turn before a session fails (default 1: any fault ends the session with its reason)",
+    )
+    p.add_argument(
+        "--demo-operator",
+        default=None,
+        metavar="NAME",
+        help="create operator NAME (or give it a new secret) and print the secret: for trying the service",
+    )
     p.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
     p.set_defaults(func=cmd_serve)
 
@@ -163,15 +199,18 @@ def build_service(args: argparse.Namespace) -> Any:
     from calib.api import available_methods
 
     from .config import Settings, default_db_url
-    from .devices import MOCK_RATES_HZ, DeviceManager
+    from .devices import DeviceManager, load_simulators
     from .service import Service
 
     if args.mock < 0 or args.mock > 1000:
         raise ServiceError("--mock takes a number of simulated wearables between 0 and 1000")
     if not (args.mock_speed > 0):
         raise ServiceError("--mock-speed must be a positive number (1 = real time)")
-    if not any(abs(args.mock_rate - r) < 1e-6 for r in MOCK_RATES_HZ):
-        raise ServiceError(f"--mock-rate must be one of {', '.join(f'{r:g}' for r in MOCK_RATES_HZ)} Hz")
+    simulators = load_simulators() if args.mock else None
+    if args.mock and simulators is None:
+        raise ServiceError("--mock needs the simulated wearables (the mock_device package), which are not installed")
+    if simulators is not None and not any(abs(args.mock_rate - r) < 1e-6 for r in simulators.rates_hz):
+        raise ServiceError(f"--mock-rate must be one of {', '.join(f'{r:g}' for r in simulators.rates_hz)} Hz")
     if args.method not in available_methods():
         raise ServiceError(f"--method must be one of {', '.join(available_methods())}")
     loopback = args.host in ("127.0.0.1", "::1", "localhost")
@@ -186,11 +225,9 @@ def build_service(args: argparse.Namespace) -> Any:
     if not 1 <= args.max_attempts <= 5:
         raise ServiceError("--max-attempts must be between 1 and 5")
     scenarios = [s.strip() for s in args.mock_scenario.split(",") if s.strip()]
-    from mock_device.scenarios import SCENARIOS
-
-    unknown = [s for s in scenarios if s not in SCENARIOS]
-    if unknown:
-        raise ServiceError(f"unknown --mock-scenario {', '.join(unknown)}: choose from {', '.join(SCENARIOS)}")
+    unknown = [s for s in scenarios if simulators is not None and s not in simulators.scenarios]
+    if simulators is not None and unknown:
+        raise ServiceError(f"unknown --mock-scenario {', '.join(unknown)}: choose from {', '.join(simulators.scenarios)}")
     settings = Settings(
         db_url=args.db or default_db_url(),
         host=args.host,
@@ -216,8 +253,8 @@ def build_service(args: argparse.Namespace) -> Any:
             "run like this anyway)"
         )
     devices = DeviceManager(ble=args.ble, ble_adapter=args.ble_adapter)
-    if args.mock:
-        devices.add_mocks(args.mock, speed=args.mock_speed, seed=args.mock_seed, scenarios=scenarios, rate_hz=args.mock_rate)
+    if simulators is not None:
+        devices.add_mocks(simulators, args.mock, speed=args.mock_speed, seed=args.mock_seed, scenarios=scenarios, rate_hz=args.mock_rate)
     return Service(settings, store=store, devices=devices)
 
 
@@ -241,8 +278,11 @@ def cmd_serve(args: argparse.Namespace) -> int:
     host = f"[{args.host}]" if ":" in args.host else args.host
     shown = "127.0.0.1" if args.host in ("0.0.0.0", "") else host
     mocks = ", ".join(d for d in svc.devices.devices if d.startswith("mock-"))
-    print(f"gyrocal calibration service: open the wizard at http://{shown}:{port}/ "
-          f"(API: http://{shown}:{port}/docs; store: {svc.store.display_url})", flush=True)
+    print(
+        f"gyrocal calibration service: open the wizard at http://{shown}:{port}/ "
+        f"(API: http://{shown}:{port}/docs; store: {svc.store.display_url})",
+        flush=True,
+    )
     if mocks:
         print(f"simulated wearables: {mocks} (speed {args.mock_speed:g}x)", flush=True)
     if args.demo_operator:
@@ -258,8 +298,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
             raise ServiceError(str(exc)) from None
         print(f"sign in as operator {args.demo_operator!r} with the secret {secret}", flush=True)
     elif not svc.settings.api_token and not svc.store.operators():
-        print("no operators yet: add one with `gyrocal operator add NAME` (or set GYROCAL_API_TOKEN) to start calibrations",
-              flush=True)
+        print("no operators yet: add one with `gyrocal operator add NAME` (or set GYROCAL_API_TOKEN) to start calibrations", flush=True)
     if args.host not in ("127.0.0.1", "::1", "localhost"):
         print(f"warning: listening on {args.host}: other computers can reach the service", file=sys.stderr, flush=True)
     config = uvicorn.Config(app, log_level=args.log_level, access_log=args.log_level == "debug", timeout_graceful_shutdown=5)

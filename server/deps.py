@@ -24,7 +24,10 @@ SESSION_ID_RE = re.compile(r"^[0-9a-f]{32}$")
 R404: dict[int | str, dict[str, Any]] = {404: {"model": M.Problem, "description": "unknown device or session"}}
 R401: dict[int | str, dict[str, Any]] = {401: {"model": M.Problem, "description": "no or bad operator token"}}
 R409: dict[int | str, dict[str, Any]] = {409: {"model": M.Problem, "description": "not possible in the current state"}}
-R503: dict[int | str, dict[str, Any]] = {503: {"model": M.Problem, "description": "the store could not be written; nothing changed, try again"}}
+R503: dict[int | str, dict[str, Any]] = {
+    503: {"model": M.Problem, "description": "the store could not be written; nothing changed, try again"}
+}
+
 
 def problem(status: int, detail: str, headers: dict[str, str] | None = None) -> HTTPException:
     return HTTPException(status_code=status, detail=detail, headers=headers)
@@ -44,8 +47,7 @@ def recording_problem(exc: Exception, doing: str, upload: bool) -> HTTPException
         return problem(422, str(exc))
     log.warning("a recording could not be %s: %r", doing, exc, exc_info=not upload)
     if upload:
-        return problem(400, f"the recording cannot be {doing} ({type(exc).__name__}: {exc}); send a native or imucal CSV "
-                        "of the protocol")
+        return problem(400, f"the recording cannot be {doing} ({type(exc).__name__}: {exc}); send a native or imucal CSV of the protocol")
     return problem(422, f"this session's recording cannot be {doing} ({type(exc).__name__}: {exc})")
 
 
@@ -70,9 +72,7 @@ async def token_operator(svc: Service, token: str | None) -> str | None:
     return await asyncio.to_thread(svc.auth.operator_for, token)
 
 
-async def require_operator(
-    request: Request, creds: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)]
-) -> str:
+async def require_operator(request: Request, creds: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)]) -> str:
     """The signed-in operator of a write request (401 otherwise)."""
     svc = service_of(request)
     op = await token_operator(svc, creds.credentials if creds else None)
@@ -90,7 +90,9 @@ async def require_operator(
 
 async def read_access(
     request: Request,
-    access_token: Annotated[str | None, Query(description="token for readers that cannot send headers (EventSource), when reads need one")] = None,
+    access_token: Annotated[
+        str | None, Query(description="token for readers that cannot send headers (EventSource), when reads need one")
+    ] = None,
 ) -> str | None:
     """Reads are open unless the service runs with --auth-reads (then the schema says so too: see publish_openapi)."""
     svc = service_of(request)
@@ -114,8 +116,12 @@ async def analysis_quota(request: Request, reader: Annotated[str | None, Depends
         return None
     wait = svc.anonymous_analyses.take(request.client.host if request.client else "unknown")
     if wait > 0:
-        raise problem(429, f"anonymous model checks are limited to {svc.settings.anonymous_analyses_per_min:g} a minute from one "
-                       "address: try again shortly, or sign in (POST /auth/login) and send the token", retry_after_header(wait))
+        raise problem(
+            429,
+            f"anonymous model checks are limited to {svc.settings.anonymous_analyses_per_min:g} a minute from one "
+            "address: try again shortly, or sign in (POST /auth/login) and send the token",
+            retry_after_header(wait),
+        )
     return None
 
 

@@ -9,13 +9,35 @@ from __future__ import annotations
 import contextlib
 import logging
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from importlib.metadata import entry_points
+from typing import Any, Protocol
 
 log = logging.getLogger(__name__)
 
 DEVICE_ID_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._:-]{0,127}$")
-MOCK_RATES_HZ = (52.0, 104.0, 208.0, 416.0, 562.5)
+SIMULATORS_GROUP = "gyrocal.simulators"
+
+
+class Simulators(Protocol):
+    """What a package of simulated wearables offers the service (mock_device.simulators, through the
+    ``gyrocal.simulators`` entry point): its scenarios, its rates, and a wearable (a GATT peripheral)."""
+
+    scenarios: tuple[str, ...]
+    rates_hz: tuple[float, ...]
+
+    def wearable(self, *, seed: int, scenario: str, speed: float, name: str, rate_hz: float, noise_dps: float) -> Any: ...
+
+
+def load_simulators() -> Simulators | None:
+    """The installed simulated wearables, or None when no package offers them."""
+    for ep in entry_points(group=SIMULATORS_GROUP):
+        try:
+            return ep.load()  # type: ignore[no-any-return]
+        except ImportError:
+            log.warning("the simulated wearables of %s cannot be loaded", ep.value)
+    return None
 
 
 @dataclass
@@ -94,6 +116,7 @@ class DeviceManager:
 
     def add_mocks(
         self,
+        simulators: Simulators,
         n: int,
         speed: float = 1.0,
         seed: int = 0,
@@ -102,9 +125,6 @@ class DeviceManager:
         noise_dps: float = 0.03,
     ) -> list[Device]:
         """N simulated wearables mock-1 … mock-N, each performing its scenario when streaming starts."""
-        from mock_device.sources import ScriptedSource
-        from mock_device.wearable import Wearable
-
         from .link import InProcessLink, ReconnectPolicy
 
         scenarios = scenarios or ["normal"]
@@ -112,8 +132,8 @@ class DeviceManager:
         for i in range(1, n + 1):
             scenario = scenarios[(i - 1) % len(scenarios)]
             dev_seed = seed * 1000 + i
-            source = ScriptedSource(seed=dev_seed, scenario=scenario, noise_dps=noise_dps)
-            wearable = Wearable(source, seed=dev_seed, speed=speed, name=f"mock-{i}", rate_hz=rate_hz)
+            wearable = simulators.wearable(seed=dev_seed, scenario=scenario, speed=speed, name=f"mock-{i}", rate_hz=rate_hz,
+                                           noise_dps=noise_dps)
             # the reconnection backoff runs on wall time: scale it with the simulated clock
             policy = ReconnectPolicy(initial_delay_s=0.25 / speed, max_delay_s=max(0.05, 5.0 / speed), timeout_s=60.0)
             dev = Device(

@@ -84,8 +84,9 @@ def _error_answers(app: FastAPI) -> None:
     @app.exception_handler(SQLAlchemyError)
     async def _db_error(request: Request, exc: SQLAlchemyError) -> JSONResponse:
         log.exception("store error")
-        return JSONResponse({"detail": f"the store is unavailable ({type(exc).__name__}). Try again; nothing was changed."}, status_code=503)
-
+        return JSONResponse(
+            {"detail": f"the store is unavailable ({type(exc).__name__}). Try again; nothing was changed."}, status_code=503
+        )
 
     @app.exception_handler(RequestValidationError)
     async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:

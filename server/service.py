@@ -7,7 +7,7 @@ import asyncio
 import contextlib
 import logging
 import time
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from typing import Any
 
 from .auth import Authenticator, SignIns
@@ -43,7 +43,7 @@ class Service:
     async def verify_store(self) -> dict[str, Any]:
         """Verify the store's hash chains now (in a thread); the result is what /health reports."""
         report = await asyncio.to_thread(self.store.verify)
-        self.integrity = {**report.to_dict(), "checked_at": datetime.now(timezone.utc).isoformat()}
+        self.integrity = {**report.to_dict(), "checked_at": datetime.now(UTC).isoformat()}
         if not report.ok:
             log.error("the store's history was tampered with: %s", report.broken)
         return self.integrity

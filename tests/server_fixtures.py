@@ -16,8 +16,9 @@ import sys
 import tempfile
 import time
 import uuid
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import httpx
 import pytest
@@ -139,7 +140,7 @@ class RunningService:
         self.proc: subprocess.Popen[str] | None = None
         self.log = tempfile.NamedTemporaryFile("w+", prefix="gyrocal-serve-", suffix=".log", delete=False)
 
-    def start(self, timeout_s: float = 30.0) -> "RunningService":
+    def start(self, timeout_s: float = 30.0) -> RunningService:
         cmd = [*GYROCAL, "serve", "--port", str(self.port), "--db", self.db_url, "--log-level", "warning", *self.args]
         self.proc = subprocess.Popen(cmd, cwd=ROOT, env=self.env, stdout=self.log, stderr=subprocess.STDOUT, text=True)
         deadline = time.monotonic() + timeout_s

@@ -176,7 +176,7 @@ def test_placement_error_breaks_closure_and_tilts_the_accelerometer():
     base, base_truth = sim()
     traj = truth.trajectory
     turns = [st for st in truth.stages if st.kind == "turn"]
-    for st, e in zip(turns, errors):
+    for st, e in zip(turns, errors, strict=False):
         r_start = traj.attitude[st.start]
         closure = closing_rotation(truth.rate[st.start : st.end], 1.0 / FS)
         np.testing.assert_allclose(closure.as_rotvec(), r_start.inv().apply(np.radians(e)), atol=1e-10)

@@ -3,18 +3,18 @@
 from __future__ import annotations
 
 import json
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from calib import GyrocalError, ProtocolError, RecordingError, Stage
-from calib import bench
+from calib import GyrocalError, ProtocolError, RecordingError, Stage, bench
 from calib.bench import paper_sim, register_batch_method
-from calib.quaternion import prefix_products
 from calib.paper import _rotvec_to_quat, algorithm1, algorithm1_batch, calibrate_paper
+from calib.quaternion import prefix_products
 from calib.recording import Recording, RecordingMeta
-from calib.stages import ProtocolStages, detect_stages
 from calib.simulator import Motion, ProtocolScript, SensorParams, Still, Turn, simulate, simulate_batch
+from calib.stages import ProtocolStages, detect_stages
 
 FS = 104.0
 
@@ -41,7 +41,7 @@ def protocol_stages(stages, y_end_stage=None):
 
 def with_turns(stages, bounds):
     """The same protocol stages with other sample bounds for the x, y, z turns."""
-    turns = {a: type(st)("turn", s, e, 0.0, 0.0, a) for (a, st), (s, e) in zip(stages.turns.items(), bounds)}
+    turns = {a: type(st)("turn", s, e, 0.0, 0.0, a) for (a, st), (s, e) in zip(stages.turns.items(), bounds, strict=False)}
     return ProtocolStages(still0=stages.still0, turns=turns, stills=stages.stills)
 
 
@@ -92,7 +92,7 @@ def test_batch_equals_the_single_recording_path():
     for r in range(5):
         rec = Recording(batch.t, batch.gyro[r], meta=RecordingMeta(sample_rate_hz=FS))
         still0 = Stage("still", int(batch.still0[r, 0]), int(batch.still0[r, 1]), 0.0, 0.0)
-        turns = {a: Stage("turn", int(s), int(e), 0.0, 0.0, a) for a, (s, e) in zip("xyz", batch.turns[r])}
+        turns = {a: Stage("turn", int(s), int(e), 0.0, 0.0, a) for a, (s, e) in zip("xyz", batch.turns[r], strict=False)}
         stages = ProtocolStages(still0=still0, turns=turns, stills=[])
         res = calibrate_paper(rec, stages=stages)
         np.testing.assert_allclose(res.k, k[r], atol=1e-10)

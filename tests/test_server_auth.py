@@ -8,9 +8,9 @@ from pathlib import Path
 
 import httpx
 import pytest
+from server_fixtures import GYROCAL, ROOT, RunningService
 
 from server.throttle import SignInThrottle, TokenBucket
-from server_fixtures import GYROCAL, ROOT, RunningService
 
 SECRET = "a long enough secret"
 

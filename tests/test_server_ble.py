@@ -9,7 +9,6 @@ import subprocess
 
 import numpy as np
 import pytest
-
 from server_fixtures import GYROCAL, ROOT, RunningService, follow_events
 
 

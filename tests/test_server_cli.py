@@ -6,11 +6,11 @@ import io
 from pathlib import Path
 
 import pytest
+from server_fixtures import API_TOKEN, RunningService, follow_events
 
 from calib.cli import main
 from server.auth import Authenticator
 from server.store import Store
-from server_fixtures import API_TOKEN, RunningService, follow_events
 
 
 def test_operator_commands(tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
@@ -54,7 +54,9 @@ def test_operator_commands(tmp_path: Path, capsys: pytest.CaptureFixture[str], m
         (["--worker-memory-mb", "10"], "--worker-memory-mb must be between"),
     ],
 )
-def test_serve_refuses_bad_options_with_a_message(args: list[str], message: str, capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+def test_serve_refuses_bad_options_with_a_message(
+    args: list[str], message: str, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
     if "--db" not in args:
         args = [*args, "--db", f"sqlite:///{tmp_path / 's.sqlite3'}"]
     assert main(["serve", *args]) == 2
@@ -76,8 +78,9 @@ def test_reads_need_a_token_with_auth_reads(tmp_path: Path) -> None:
         with svc.client(token=None) as anon:
             assert anon.get(f"/sessions/{sid}/events").status_code == 401
         # an EventSource cannot send headers: the token goes in the query
-        events = follow_events(f"{svc.base}", sid, {"done", "failed", "cancelled"}, timeout_s=60, last_event_id=0,
-                               params={"access_token": API_TOKEN})
+        events = follow_events(
+            f"{svc.base}", sid, {"done", "failed", "cancelled"}, timeout_s=60, last_event_id=0, params={"access_token": API_TOKEN}
+        )
         assert events[-1]["state"] == "done"
     finally:
         svc.stop()

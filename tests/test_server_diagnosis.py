@@ -62,7 +62,7 @@ def assert_same_json(a: Any, b: Any, path: str = "") -> None:
             assert_same_json(a[k], b[k], f"{path}.{k}")
     elif isinstance(a, list):
         assert isinstance(b, list) and len(a) == len(b), (path, a, b)
-        for i, (x, y) in enumerate(zip(a, b)):
+        for i, (x, y) in enumerate(zip(a, b, strict=False)):
             assert_same_json(x, y, f"{path}[{i}]")
     elif isinstance(a, float) or isinstance(b, float):
         assert a == pytest.approx(b, rel=1e-9, abs=1e-12), (path, a, b)
@@ -305,8 +305,8 @@ async def test_a_worker_over_its_time_limit_is_killed_and_replaced() -> None:
 
 
 async def test_a_busy_service_answers_503_with_retry_after(tmp_path: Path) -> None:
-    from server.main import create_app
     from server.config import Settings
+    from server.main import create_app
     from server.workers.diagnosis import DiagnosisQueue
 
     gate = asyncio.Event()
@@ -332,8 +332,8 @@ async def test_a_busy_service_answers_503_with_retry_after(tmp_path: Path) -> No
 
 
 async def test_the_workers_stop_with_the_service(tmp_path: Path) -> None:
-    from server.main import create_app
     from server.config import Settings
+    from server.main import create_app
 
     app = create_app(Settings(db_url=f"sqlite:///{tmp_path / 'store.sqlite3'}"))
     rec, _ = simulate(6)

@@ -6,17 +6,13 @@ import hashlib
 import io
 import subprocess
 import time
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import httpx
 import numpy as np
 import pytest
-
-from calib.api import calibrate
-from calib.io import parse_recording_text, write_native_csv
-from calib.simulator import simulate
-from calib.stage import Stage
 from server_fixtures import (  # noqa: F401
     GYROCAL,
     ROOT,
@@ -26,6 +22,11 @@ from server_fixtures import (  # noqa: F401
     postgres,
     service_store,
 )
+
+from calib.api import calibrate
+from calib.io import parse_recording_text, write_native_csv
+from calib.simulator import simulate
+from calib.stage import Stage
 
 END = {"done", "failed", "cancelled"}
 # mock-N performs SCENARIOS[N-1] in every session (seeded, so every run is the same)

@@ -13,12 +13,12 @@ from typing import Any
 
 import httpx
 import pytest
+from server_fixtures import API_TOKEN, RunningService, follow_events, postgres, service_store  # noqa: F401
 from sqlalchemy import create_engine, text
 
 from calib.io import write_native_csv
 from calib.simulator import simulate
 from server.store import Store
-from server_fixtures import API_TOKEN, RunningService, follow_events, postgres, service_store  # noqa: F401
 
 END = {"done", "failed", "cancelled"}
 MOCK = ["--mock", "1", "--mock-speed", "40", "--mock-seed", "5"]

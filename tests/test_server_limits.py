@@ -12,10 +12,10 @@ from pathlib import Path
 
 import httpx
 import pytest
+from server_fixtures import API_TOKEN, RunningService, postgres, service_store  # noqa: F401
 
 from calib.io import write_native_csv
 from calib.simulator import simulate
-from server_fixtures import API_TOKEN, RunningService, postgres, service_store  # noqa: F401
 
 CSV = {"Content-Type": "text/csv"}
 

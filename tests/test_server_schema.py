@@ -4,13 +4,13 @@ and every answer matches the published schema (status codes, content types, bodi
 from __future__ import annotations
 
 import io
-from typing import Iterator
+from collections.abc import Iterator
 
 import pytest
 import schemathesis
 from hypothesis import HealthCheck, given, settings
-from hypothesis.errors import Unsatisfiable
 from hypothesis import strategies as st
+from hypothesis.errors import Unsatisfiable
 from schemathesis import GenerationMode
 from schemathesis.specs.openapi.checks import (
     content_type_conformance,
@@ -20,10 +20,10 @@ from schemathesis.specs.openapi.checks import (
     status_code_conformance,
     unsupported_method,
 )
+from server_fixtures import API_TOKEN, RunningService, follow_events
 
 from calib.io import write_native_csv
 from calib.simulator import simulate
-from server_fixtures import API_TOKEN, RunningService, follow_events
 
 HEADERS = {"Authorization": f"Bearer {API_TOKEN}"}
 

@@ -53,13 +53,13 @@ def test_paper_run_shape_and_stages(paper_run):
             assert 2.5 * 104 - 1 <= s.n <= 5.0 * 104 + 1
     assert truth.stages[-1].end == len(rec)
     # contiguous segments
-    for a, b in zip(truth.stages, truth.stages[1:]):
+    for a, b in zip(truth.stages, truth.stages[1:], strict=False):
         assert a.end == b.start and a.end_s == pytest.approx(b.start_s)
 
 
 def test_turns_close_exactly_and_sweep_360(paper_run):
     rec, truth = paper_run
-    for st, axis in zip(truth.stages, truth.segment_axes):
+    for st, axis in zip(truth.stages, truth.segment_axes, strict=False):
         if st.kind != "turn":
             continue
         pose = integrate(truth.rate[st.start : st.end], truth.fs)

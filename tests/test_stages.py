@@ -44,7 +44,7 @@ def imucal_stages(imucal):
 def assert_covering(stages: list[Stage], rec: Recording) -> None:
     """Stages are contiguous, in time order, cover the recording, and alternate still / non-still."""
     assert stages[0].start == 0 and stages[-1].end == len(rec)
-    for a, b in zip(stages[:-1], stages[1:]):
+    for a, b in zip(stages[:-1], stages[1:], strict=False):
         assert a.end == b.start and a.start < a.end
         assert (a.kind == "still") != (b.kind == "still")
     for s in stages:
@@ -69,7 +69,7 @@ def feed_in_batches(rec: Recording, sizes, config=None) -> tuple[StageTracker, l
 
 def assert_same_stages(a: list[Stage], b: list[Stage]) -> None:
     assert [(s.kind, s.start, s.end, s.axis, s.flags) for s in a] == [(s.kind, s.start, s.end, s.axis, s.flags) for s in b]
-    for x, y in zip(a, b):
+    for x, y in zip(a, b, strict=False):
         assert x.start_s == y.start_s and x.end_s == y.end_s
         if x.kind == "turn":
             assert x.angle_deg == pytest.approx(y.angle_deg, abs=1e-6)
@@ -136,7 +136,7 @@ def test_simulated_protocol(seed, noise):
     turns = [s for s in stages if s.kind == "turn"]
     true_turns = [s for s in truth.stages if s.kind == "turn"]
     assert [s.axis for s in turns] == ["x", "y", "z"]
-    for s, ts in zip(turns, true_turns):
+    for s, ts in zip(turns, true_turns, strict=False):
         assert abs(s.start_s - ts.start_s) < 0.4 and abs(s.end_s - ts.end_s) < 0.4
         assert s.start_s <= ts.start_s and s.end_s >= ts.end_s  # no turn sample left in a still
         k = AXES.index(s.axis)
@@ -169,12 +169,27 @@ def test_reorientation_and_short_turn_are_motions():
     rec, truth = simulate(3, noise=0.15, script=script)
     stages = detect_stages(rec)
     assert_covering(stages, rec)
-    assert [s.kind for s in truth.stages] == ["still", "turn", "still", "motion"] + ["still", "turn"] * 2 + ["still", "motion", "still", "turn", "still"]
+    assert [s.kind for s in truth.stages] == (
+        ["still", "turn", "still", "motion"] + ["still", "turn"] * 2 + ["still", "motion", "still", "turn", "still"]
+    )
     # detected: the same segments, except that the 200-degree turn is a motion
-    assert [s.kind for s in stages] == ["still", "turn", "still", "motion", "still", "turn", "still", "motion",
-                                        "still", "motion", "still", "turn", "still"]
+    assert [s.kind for s in stages] == [
+        "still",
+        "turn",
+        "still",
+        "motion",
+        "still",
+        "turn",
+        "still",
+        "motion",
+        "still",
+        "motion",
+        "still",
+        "turn",
+        "still",
+    ]
     assert [(s.axis, np.sign(s.angle_deg)) for s in stages if s.kind == "turn"] == [("x", 1), ("y", 1), ("z", -1)]
-    for s, ts in zip(stages, truth.stages):
+    for s, ts in zip(stages, truth.stages, strict=False):
         assert abs(s.start_s - ts.start_s) < 0.4 and abs(s.end_s - ts.end_s) < 0.4
     proto = find_protocol(stages)
     assert proto.turns["z"].angle_deg < 0
@@ -250,7 +265,7 @@ def test_turn_at_constant_rate_is_one_turn(noise):
     assert [s.kind for s in stages] == ["still", "turn"] * 3 + ["still"]
     turns = [s for s in stages if s.kind == "turn"]
     assert [s.axis for s in turns] == list(rates)
-    for s, r, ((a, b), (ha, hb)) in zip(turns, rates.values(), moving):
+    for s, r, ((a, b), (ha, hb)) in zip(turns, rates.values(), moving, strict=False):
         assert (hb - ha) / rec.fs > 1.9  # long steady stretch
         assert s.start <= a and s.end >= b  # the whole rotation is in the turn
         assert s.angle_deg == pytest.approx(np.sign(r) * 360.0, abs=1.0)
@@ -264,13 +279,12 @@ def test_turn_at_constant_rate_is_one_turn(noise):
 def test_simulated_turns_with_even_speed_profile(noise):
     # Bezier controls 0, 0, .25, .5, .75, 1, 1: the speed is within 2 % of its peak for over 1 s of the 8 s
     even = {"duration_s": 8.0, "profile": (0.25, 0.5, 0.75), "wobble_deg": 0.0, "tilt": 0.0}
-    script = ProtocolScript((Still(3), Turn("x", **even), Still(3), Turn("y", **even), Still(3),
-                             Turn("z", **even), Still(3)))
+    script = ProtocolScript((Still(3), Turn("x", **even), Still(3), Turn("y", **even), Still(3), Turn("z", **even), Still(3)))
     rec, truth = simulate(0, noise=noise, script=script)
     stages = detect_stages(rec)
     assert [s.kind for s in stages] == ["still", "turn"] * 3 + ["still"]
     assert [s.axis for s in stages if s.kind == "turn"] == list(AXES)
-    for s, ts in zip(stages, truth.stages):
+    for s, ts in zip(stages, truth.stages, strict=False):
         assert abs(s.start_s - ts.start_s) < 0.4 and abs(s.end_s - ts.end_s) < 0.4
 
 
@@ -287,8 +301,7 @@ def test_protocol_found_over_many_seeds():
 @pytest.mark.parametrize("noise", [0.03, 0.15])
 def test_steady_slow_rotation_is_not_a_still(noise):
     # 10 deg/s for 20 s: as quiet as rest sample to sample, but not at the rest reading
-    rec, moving = steady_rate_recording([(3.0, np.zeros(3)), (20.0, [0.0, 0.0, 10.0]), (3.0, np.zeros(3))],
-                                        noise, seed=2)
+    rec, moving = steady_rate_recording([(3.0, np.zeros(3)), (20.0, [0.0, 0.0, 10.0]), (3.0, np.zeros(3))], noise, seed=2)
     stages = detect_stages(rec)
     assert [s.kind for s in stages] == ["still", "motion", "still"]
     (a, b), _ = moving[0]

@@ -3,15 +3,15 @@
 from __future__ import annotations
 
 import gzip
-from datetime import datetime, timedelta, timezone
+from datetime import UTC, datetime, timedelta
 
 import pytest
+from server_fixtures import postgres, store_url  # noqa: F401
 from sqlalchemy import text
 from sqlalchemy.exc import SQLAlchemyError
 
 from server.auth import Authenticator, AuthError
 from server.store import SCHEMA_VERSION, SessionEnd, Store, StoreError, sha256_hex
-from server_fixtures import postgres, store_url  # noqa: F401
 
 RESULT = {
     "k": [1.01, 0.99, 1.02],
@@ -156,7 +156,7 @@ def test_operators_tokens_and_revocation(store_url: str) -> None:
     with pytest.raises(AuthError, match="wrong secret"):
         auth.sign_in("nobody", secret)
     token, expires = auth.sign_in("alice", secret)
-    assert expires > datetime.now(timezone.utc) + timedelta(minutes=59)
+    assert expires > datetime.now(UTC) + timedelta(minutes=59)
     assert auth.operator_for(token) == "alice"
     assert auth.operator_for("env-token") == "api"
     assert auth.operator_for("other") is None

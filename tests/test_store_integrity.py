@@ -7,14 +7,15 @@ import multiprocessing
 import sqlite3
 import threading
 from collections import Counter
+from datetime import UTC
 from pathlib import Path
 
 import pytest
+from server_fixtures import postgres, store_url  # noqa: F401
 from sqlalchemy import text
 from sqlalchemy.exc import SQLAlchemyError
 
 from server.store import DecisionConflict, NotAcceptable, SessionEnd, Store, StoreError
-from server_fixtures import postgres, store_url  # noqa: F401
 
 RESULT = {"k": [1.01, 0.99, 1.02], "b": [0.5, -0.25, 0.125], "method": "closure",
           "uncertainty": {"k": [1e-4] * 3, "b": [1e-3] * 3}, "quality": {"score": 0.9}, "stages": []}
@@ -212,9 +213,9 @@ def test_an_accept_after_a_lost_end_write_stores_the_session_as_it_ended(store_u
     store = Store(store_url)
     store.create_session("g" * 32, "dev-2", "live", "connecting", "closure", "alice", "0.1.0")
     # the end-of-session write failed (store outage); the accept carries the session as it ended
-    from datetime import datetime, timezone
+    from datetime import datetime
 
-    ended = datetime(2026, 11, 24, 10, 0, 0, 123456, tzinfo=timezone.utc)
+    ended = datetime(2026, 11, 24, 10, 0, 0, 123456, tzinfo=UTC)
     info = {"checks": [{"ok": True, "text": "k within 0.8-1.2"}], "turns": {"x": {"axis": "x"}}, "warnings": [{"code": "w"}],
             "lost_samples": 7}
     end = SessionEnd("done", result=RESULT, passed=True, info=info, ended_at=ended)

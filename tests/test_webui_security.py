@@ -6,10 +6,9 @@ from __future__ import annotations
 from typing import Any
 
 import httpx
+from server_fixtures import RunningService
 from webui_fixtures import *  # noqa: F403
 from webui_fixtures import Watch, Wizard
-
-from server_fixtures import RunningService
 
 
 def test_the_page_carries_its_defences_and_works_under_its_policy(wizard: Wizard, page: Any, webui_service: RunningService,

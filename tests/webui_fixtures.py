@@ -47,7 +47,9 @@ def running_service(scenarios: list[str], *extra: str) -> Iterator[RunningServic
     add = subprocess.run([*GYROCAL, "operator", "--db", db, "add", OPERATOR, "--secret-stdin"], input=SECRET + "\n", check=False,
                          cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert add.returncode == 0, add.stderr
-    svc = RunningService(["--mock", str(len(scenarios)), "--mock-speed", str(MOCK_SPEED), "--mock-scenario", ",".join(scenarios), *extra], db)
+    svc = RunningService(
+        ["--mock", str(len(scenarios)), "--mock-speed", str(MOCK_SPEED), "--mock-scenario", ",".join(scenarios), *extra], db
+    )
     svc.start()
     try:
         yield svc
@@ -74,8 +76,9 @@ def retry_service() -> Iterator[RunningService]:
 def browser() -> Iterator[Any]:
     """Debian's Chromium, headless (Playwright drives it; no browser is downloaded)."""
     if not CHROMIUM.is_file():
-        pytest.fail("Chromium is not installed: run `make test` (it runs scripts/install-system-deps.sh) "
-                    "or `sudo apt-get install chromium`")
+        pytest.fail(
+            "Chromium is not installed: run `make test` (it runs scripts/install-system-deps.sh) or `sudo apt-get install chromium`"
+        )
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as pw:
@@ -110,8 +113,7 @@ def page_watch() -> Watch:
 @pytest.fixture
 def page(browser: Any, webui_service: RunningService, page_watch: Watch) -> Iterator[Any]:
     """A fresh tablet-sized page on the service; requests to anywhere but this computer are refused."""
-    context = browser.new_context(viewport=TABLET, has_touch=True, base_url=webui_service.base, locale="en-GB",
-                                  timezone_id="Europe/Vienna")
+    context = browser.new_context(viewport=TABLET, has_touch=True, base_url=webui_service.base, locale="en-GB", timezone_id="Europe/Vienna")
 
     def refuse(route: Any) -> None:
         page_watch.blocked.append(route.request.url)
@@ -130,7 +132,7 @@ def page(browser: Any, webui_service: RunningService, page_watch: Watch) -> Iter
 
 
 @pytest.fixture
-def wizard(page: Any, webui_service: RunningService, artifacts: Path, request: pytest.FixtureRequest) -> "Wizard":
+def wizard(page: Any, webui_service: RunningService, artifacts: Path, request: pytest.FixtureRequest) -> Wizard:
     """The wizard page driven like a clinician; screenshots go to artifacts/webui/<test>."""
     return Wizard(page, webui_service, artifacts / "webui" / request.node.name)
 
@@ -206,7 +208,8 @@ class Wizard:
           .filter((el) => el.offsetParent !== null)
           .map((el) => [el, el.getBoundingClientRect()])
           .filter(([el, r]) => r.width > 0 && (r.width < 44 || r.height < 44))
-          .map(([el, r]) => `${el.tagName.toLowerCase()} "${el.textContent.trim().slice(0, 30)}" ${Math.round(r.width)}x${Math.round(r.height)}`)""")
+          .map(([el, r]) =>
+            `${el.tagName.toLowerCase()} "${el.textContent.trim().slice(0, 30)}" ${Math.round(r.width)}x${Math.round(r.height)}`)""")
 
 
 def assert_clean(watch: Watch, allowed_errors: tuple[str, ...] = ()) -> None:
@@ -232,8 +235,12 @@ def upload_accepted(service: RunningService, device: str, seed: int, operator_to
     buf = io.StringIO()
     write_native_csv(rec, buf)
     with api(service, operator_token) as c:
-        r = c.post(f"/devices/{device}/calibrate", content=buf.getvalue(), headers={"Content-Type": "text/csv"},
-                   params={"sensor_model": "ICM-20948", "firmware": "1.2.0"})
+        r = c.post(
+            f"/devices/{device}/calibrate",
+            content=buf.getvalue(),
+            headers={"Content-Type": "text/csv"},
+            params={"sensor_model": "ICM-20948", "firmware": "1.2.0"},
+        )
         assert r.status_code == 200, r.text
         assert r.json()["passed"], r.json()
         r = c.post(f"/sessions/{r.json()['session_id']}/accept")

@@ -22,7 +22,9 @@ from .codec import (
     StatusReply,
     decode_packet,
     encode_packet,
+    max_samples_per_packet,
     quantize,
+    samples_per_packet,
 )
 from .gatt import (
     Central,
@@ -42,9 +44,7 @@ from .sensor import (
     DEFAULT_RATE_HZ,
     GYRO_SENSITIVITY_LSB_PER_DPS,
     SUPPORTED_RATES_HZ,
-    max_samples_per_packet,
     rate_supported,
-    samples_per_packet,
 )
 from .uuids import (
     BATTERY_LEVEL_CHAR,

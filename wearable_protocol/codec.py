@@ -15,13 +15,14 @@ a status notification ``u8 opcode | u8 status | u8 config_id`` on the same chara
 
 from __future__ import annotations
 
+import math
 import struct
 from dataclasses import dataclass
 from enum import IntEnum, IntFlag
 
 import numpy as np
 
-from .sensor import INT16_MAX, INT16_MIN
+from .sensor import DEFAULT_MTU, INT16_MAX, INT16_MIN, MAX_NOTIFICATIONS_PER_S
 
 PROTOCOL_VERSION = 1
 
@@ -142,7 +143,7 @@ class DeviceConfig:
                             self.accel_lsb_per_g, int(self.state), 0)
 
     @classmethod
-    def decode(cls, data: bytes | bytearray) -> "DeviceConfig":
+    def decode(cls, data: bytes | bytearray) -> DeviceConfig:
         """Decode the config characteristic's value; raises DecodeError when malformed."""
         if len(data) != CONFIG_SIZE:
             raise DecodeError("length", f"config is {len(data)} bytes, expected {CONFIG_SIZE}")
@@ -201,7 +202,7 @@ class Command:
         return bytes([self.opcode]) + (struct.pack(fmt, self.value) if fmt else b"")
 
     @classmethod
-    def decode(cls, data: bytes | bytearray) -> "Command":
+    def decode(cls, data: bytes | bytearray) -> Command:
         """Raises DecodeError with reason 'opcode' or 'length'."""
         if not data:
             raise DecodeError("length", "empty control write")
@@ -231,7 +232,7 @@ class StatusReply:
         return _STATUS.pack(self.opcode, self.status, self.config_id & 0xFF)
 
     @classmethod
-    def decode(cls, data: bytes | bytearray) -> "StatusReply":
+    def decode(cls, data: bytes | bytearray) -> StatusReply:
         if len(data) != _STATUS.size:
             raise DecodeError("length", f"status reply is {len(data)} bytes, expected {_STATUS.size}")
         op, status, cid = _STATUS.unpack(bytes(data))
@@ -239,3 +240,17 @@ class StatusReply:
             return cls(op, Status(status), cid)
         except ValueError:
             raise DecodeError("status", f"unknown status code {status}") from None
+
+
+def max_samples_per_packet(mtu: int = DEFAULT_MTU) -> int:
+    """The most samples one notification can carry at this ATT MTU (payload = MTU - 3 bytes)."""
+    return max(0, (mtu - 3 - HEADER_SIZE) // SAMPLE_SIZE)
+
+
+def samples_per_packet(rate_hz: float, mtu: int = DEFAULT_MTU) -> int:
+    """N for a rate: the fewest samples per packet that keep notifications at <= 40 per second,
+    capped by what fits the MTU (104 Hz -> 3, 34.7/s; 562.5 Hz -> 15, 37.5/s at MTU 247)."""
+    cap = max_samples_per_packet(mtu)
+    if cap < 1:
+        raise ValueError(f"ATT MTU {mtu} is too small for one sample; the protocol needs an MTU of at least 25")
+    return int(min(cap, max(1, math.ceil(rate_hz / MAX_NOTIFICATIONS_PER_S - 1e-9))))

@@ -8,8 +8,6 @@ and the ICM-20948's 562.5 Hz.
 
 from __future__ import annotations
 
-import math
-
 SUPPORTED_RATES_HZ: tuple[float, ...] = (52.0, 104.0, 208.0, 416.0, 562.5)
 GYRO_SENSITIVITY_LSB_PER_DPS: dict[int, float] = {250: 131.0, 500: 65.5, 1000: 32.8, 2000: 16.4}
 ACCEL_SENSITIVITY_LSB_PER_G: dict[int, float] = {2: 16384.0, 4: 8192.0, 8: 4096.0, 16: 2048.0}
@@ -27,19 +25,3 @@ INT16_MIN, INT16_MAX = -32768, 32767
 def rate_supported(rate_hz: float) -> bool:
     """Whether the device offers this output data rate."""
     return any(abs(rate_hz - r) < 1e-6 for r in SUPPORTED_RATES_HZ)
-
-
-def max_samples_per_packet(mtu: int = DEFAULT_MTU) -> int:
-    """The most samples one notification can carry at this ATT MTU (payload = MTU - 3 bytes)."""
-    from .codec import HEADER_SIZE, SAMPLE_SIZE
-
-    return max(0, (mtu - 3 - HEADER_SIZE) // SAMPLE_SIZE)
-
-
-def samples_per_packet(rate_hz: float, mtu: int = DEFAULT_MTU) -> int:
-    """N for a rate: the fewest samples per packet that keep notifications at <= 40 per second,
-    capped by what fits the MTU (104 Hz -> 3, 34.7/s; 562.5 Hz -> 15, 37.5/s at MTU 247)."""
-    cap = max_samples_per_packet(mtu)
-    if cap < 1:
-        raise ValueError(f"ATT MTU {mtu} is too small for one sample; the protocol needs an MTU of at least 25")
-    return int(min(cap, max(1, math.ceil(rate_hz / MAX_NOTIFICATIONS_PER_S - 1e-9))))

@@ -136,7 +136,7 @@ def make_replay(
             i0, i1 = layout.neighbours[j]
             if i0 >= 0 and i1 >= 0:
                 means[i1] = means[i0]
-        for s, mu in zip(layout.stills, means):
+        for s, mu in zip(layout.stills, means, strict=False):
             a[s.start : s.end] = mu
     extra = {"full_scale": full_scale} if full_scale is not None else {}
     return Replay(layout, g, m, a, temp, np.asarray(sigma, float), float(accel_sigma or 0.0), k.copy(), b.copy(),

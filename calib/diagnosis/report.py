@@ -193,7 +193,7 @@ def _feature_figure(diag: Diagnosis):
     fig, axes = plt.subplots(1, len(panels), figsize=(6.5 * len(panels), 4.2), squeeze=False, sharey=True)
     colours = {"still_rate": "tab:blue", "whiteness": "tab:purple", "closure": "tab:orange", "tilt": "tab:green"}
     x = np.arange(obs.size)
-    for ax, (label, boot) in zip(axes[0], panels):
+    for ax, (label, boot) in zip(axes[0], panels, strict=False):
         z = _z(obs, boot)
         ax.axhspan(-1.96, 1.96, color="0.9")
         for g, c in colours.items():

@@ -13,9 +13,9 @@ from scipy.stats import norm
 
 from ..effects import CATALOGUE
 from ..errors import GyrocalError, RecordingError, RecordingTooLong
+from ..protocol_hints import find_protocol_in
 from ..recording import Recording
 from ..stage import AXES, Stage
-from ..protocol_hints import find_protocol_in
 from ..stages import detect_stages
 from .data import (
     Problem,
@@ -30,6 +30,7 @@ from .features import SIGNED, Features, compute_features
 from .fitting import fit_nominal
 from .models import Model
 from .null import Replay, make_replay, replicate_problems, with_effects
+from .rivals import Worlds, rival_test
 from .saturation import Plateau, find_plateaus, plateau_caps
 from .select import (
     ADVICE,
@@ -47,7 +48,6 @@ from .select import (
     statistics,
     try_fit,
 )
-from .rivals import Worlds, rival_test
 from .timebase import TimeBase, analyse_timebase, bridge
 
 DEFAULT_MAX_SAMPLES = 500_000

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -43,7 +44,7 @@ class PageFiles(StaticFiles):
 def mount_page(app: FastAPI, settings: Settings) -> None:
     static = settings.static_dir
     if static is None:
-        static = Path(__file__).resolve().parents[1] / "webui" / "static"
+        static = Path(str(resources.files("webui") / "static"))  # the wizard's files, wherever gyrocal is installed
     if Path(static).is_dir() and (Path(static) / "index.html").is_file():
         app.mount("/", PageFiles(app, directory=str(static), html=True), name="webui")
         return

@@ -98,7 +98,7 @@ class SampleBatch:
         return int(self.t_device_s.size)
 
     @staticmethod
-    def concat(batches: list["SampleBatch"]) -> "SampleBatch":
+    def concat(batches: list[SampleBatch]) -> SampleBatch:
         """One batch from consecutive ones (lost_before of the first, latest rate estimate)."""
         if len(batches) == 1:
             return batches[0]

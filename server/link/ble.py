@@ -6,7 +6,6 @@ BlueZ's private bus (``gyrocal mock-device --ble`` prints it) to use a simulated
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import logging
 from collections.abc import Callable
@@ -83,7 +82,7 @@ class BleLink(LinkCore):
         self._client = client
         try:
             await client.connect()
-        except (bleak.exc.BleakError, asyncio.TimeoutError, OSError) as e:
+        except (TimeoutError, bleak.exc.BleakError, OSError) as e:
             self._client = None
             raise ConnectError(f"connecting to {self.address} failed: {e or type(e).__name__}") from e
         self.name = device.name

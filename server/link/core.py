@@ -188,7 +188,7 @@ class LinkCore(ABC):
         try:
             await self._t_write(wp.IMU_CONTROL_CHAR, cmd.encode())
             reply = await asyncio.wait_for(fut, self.command_timeout_s)
-        except asyncio.TimeoutError:
+        except TimeoutError:
             raise CommandError(f"the wearable did not answer {cmd.opcode.name} within {self.command_timeout_s:g} s") from None
         except LinkError:
             raise

@@ -27,7 +27,7 @@ ADVERTISING_POLL_S = 0.05
 
 
 class _Central:
-    def __init__(self, link: "InProcessLink") -> None:
+    def __init__(self, link: InProcessLink) -> None:
         self.link = link
         self.active = True
 

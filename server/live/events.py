@@ -10,8 +10,9 @@ from __future__ import annotations
 import asyncio
 import json
 from collections import deque
+from collections.abc import AsyncIterator
 from dataclasses import dataclass
-from typing import Any, AsyncIterator
+from typing import Any
 
 import numpy as np
 
@@ -111,7 +112,7 @@ class Broadcaster:
             while True:
                 try:
                     item = await asyncio.wait_for(q.get(), timeout=keepalive_s)
-                except asyncio.TimeoutError:
+                except TimeoutError:
                     yield b": keepalive\n\n"
                     continue
                 if item is _CLOSE:

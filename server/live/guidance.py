@@ -43,7 +43,8 @@ PROMPTS = {
     "still": "Put the device on the table against the block and take your hands off it.",
     "settle": "Put the device back against the block and keep it still.",
     "computing": "Computing the calibration…",
-    "reconnecting": "The connection to the device was lost. Keep the device still and close to the receiver; the session resumes when it reconnects.",
+    "reconnecting": "The connection to the device was lost. Keep the device still and close to the receiver; "
+    "the session resumes when it reconnects.",
 }
 
 
@@ -91,7 +92,8 @@ def moved_during_pause(axis: str, pause_s: float, retry: bool, turn_recorded: bo
     (a retry repeats only the pause); if not (it moved before the rest could close the turn), a retry
     asks for the turn again."""
     if not retry:
-        fix = f"Start a new calibration and, after each turn, keep the device still against the block for {pause_s:g} s, until the countdown ends."
+        fix = (f"Start a new calibration and, after each turn, keep the device still against the block for {pause_s:g} s, "
+               "until the countdown ends.")
     elif turn_recorded:
         fix = "Keep the device still against the block until the countdown ends; the pause starts again."
     else:
@@ -101,12 +103,14 @@ def moved_during_pause(axis: str, pause_s: float, retry: bool, turn_recorded: bo
 
 
 def wrong_axis(expected: str, got: str, retry: bool) -> str:
-    return f"That turn was about {ax(got)}, not {ax(expected)}. {again(retry, expected)} Turn about the {ax(expected)} axis marked on the case."
+    return (f"That turn was about {ax(got)}, not {ax(expected)}. {again(retry, expected)} "
+            f"Turn about the {ax(expected)} axis marked on the case.")
 
 
 def too_fast(axis: str, full_scale: float | None, retry: bool) -> str:
     fs = f" (±{full_scale:g} °/s)" if full_scale else ""
-    return f"The turn about {ax(axis)} was too fast: the sensor reached its limit{fs}. {again(retry, axis)} Turn more slowly, taking 2–4 s for the full turn."
+    return (f"The turn about {ax(axis)} was too fast: the sensor reached its limit{fs}. {again(retry, axis)} "
+            "Turn more slowly, taking 2–4 s for the full turn.")
 
 
 def turn_incomplete(axis: str, angle: float, retry: bool) -> str:
@@ -138,7 +142,8 @@ def not_back(axis: str, tilt_deg: float, retry: bool) -> str:
 
 
 def turn_too_long(axis: str, limit_s: float, retry: bool) -> str:
-    return f"The turn about {ax(axis)} did not end within {limit_s:g} s. {again(retry, axis)} Put the device down against the block after one turn."
+    return (f"The turn about {ax(axis)} did not end within {limit_s:g} s. {again(retry, axis)} "
+            "Put the device down against the block after one turn.")
 
 
 def sample_loss(axis: str, lost: int, retry: bool) -> str:
@@ -178,7 +183,8 @@ def connect_failed(detail: str) -> str:
 
 
 def compute_timeout(limit_s: float) -> str:
-    return f"Computing the calibration took longer than {limit_s:g} s and was stopped. Start a new calibration; if it happens again, report it."
+    return (f"Computing the calibration took longer than {limit_s:g} s and was stopped. "
+            "Start a new calibration; if it happens again, report it.")
 
 
 def timeout(limit_s: float) -> str:

@@ -12,8 +12,9 @@ import contextlib
 import io
 import logging
 import time
+from collections.abc import Callable
 from datetime import datetime
-from typing import Any, Callable
+from typing import Any
 
 from ..config import Settings
 from ..devices import Device
@@ -66,7 +67,7 @@ class LiveSession:
         settings: Settings,
         software_version: str,
         operator: str,
-        on_end: Callable[["LiveSession"], None] | None = None,
+        on_end: Callable[[LiveSession], None] | None = None,
         pool: ComputePool | None = None,
     ) -> None:
         self.pool = pool
@@ -233,7 +234,7 @@ class LiveSession:
                else asyncio.to_thread(calibrate_recording, rec, m.method, stages))
         try:
             result, error, csv = await asyncio.wait_for(job, timeout=self.settings.compute_timeout_s)
-        except asyncio.TimeoutError:
+        except TimeoutError:
             m.fail("calibration_failed", say.compute_timeout(self.settings.compute_timeout_s))
             return
         self._csv = csv

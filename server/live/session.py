@@ -13,9 +13,10 @@ link events and clock ticks, and runs the estimator when the state reaches compu
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from datetime import datetime, timezone
-from typing import Any, Callable
+from datetime import UTC, datetime
+from typing import Any
 
 import numpy as np
 
@@ -118,7 +119,7 @@ class TurnRecord:
 
 
 def _utc() -> str:
-    return datetime.now(timezone.utc).isoformat()
+    return datetime.now(UTC).isoformat()
 
 
 class GuidedSession:
@@ -669,7 +670,7 @@ class GuidedSession:
         edges = np.flatnonzero(np.diff(np.concatenate([[0], quiet.astype(np.int8), [0]])))
         starts, ends = edges[::2], edges[1::2]  # quiet runs [start, end)
         n = m.shape[0]
-        for a, b in zip(starts, ends):
+        for a, b in zip(starts, ends, strict=False):
             long_enough = t[b - 1] - t[a] >= self.timings.rest_seen_s
             moves_after = b < n and np.any(~quiet[b:])
             if long_enough and moves_after and abs(angle[a]) >= self.tol.turn_angle_min_deg:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from typing import Any
 
 from sqlalchemy import select
@@ -27,7 +27,7 @@ _NOT_HASHED = {"prev_hash", "row_hash"}
 
 def _canonical(value: Any) -> Any:
     if isinstance(value, datetime):
-        return aware(value).astimezone(timezone.utc).isoformat(timespec="microseconds")
+        return aware(value).astimezone(UTC).isoformat(timespec="microseconds")
     if isinstance(value, (bytes, bytearray, memoryview)):
         return "sha256:" + hashlib.sha256(bytes(value)).hexdigest()
     return value

@@ -407,7 +407,7 @@ class Store:
         common = [col for col in headers[0] if all(col in h for h in headers)]
         out = io.StringIO()
         out.write(",".join(common) + "\n")
-        for c, h in zip(chunks, headers):
+        for c, h in zip(chunks, headers, strict=False):
             text = gzip.decompress(c.data).decode()
             if h == common:
                 out.write(text)

@@ -7,7 +7,8 @@ guards against REPLACE and TRUNCATE, and the spool of running sessions' samples 
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from sqlalchemy import Engine, inspect, select, text
 from sqlalchemy.exc import ProgrammingError

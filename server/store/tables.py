@@ -7,7 +7,7 @@ each of their rows carries its place in its chain (``chain_seq``), the hash of t
 
 from __future__ import annotations
 
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from typing import Any
 
 from sqlalchemy import (
@@ -28,12 +28,12 @@ APPEND_ONLY_TABLES = ("calibrations", "recordings", "audit_log")
 
 
 def utcnow() -> datetime:
-    return datetime.now(timezone.utc)
+    return datetime.now(UTC)
 
 
 def aware(dt: datetime) -> datetime:
     """A datetime read back from the store, in UTC (SQLite returns naive ones; gyrocal writes only UTC)."""
-    return dt if dt.tzinfo is not None else dt.replace(tzinfo=timezone.utc)
+    return dt if dt.tzinfo is not None else dt.replace(tzinfo=UTC)
 
 
 class Base(DeclarativeBase):

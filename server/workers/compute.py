@@ -11,9 +11,10 @@ import io
 import logging
 import multiprocessing
 import os
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from calib.recording import Recording
@@ -92,7 +93,9 @@ def parse_upload(body: bytes, fs: float | None, layout: str, source: str, max_sa
     return rec
 
 
-def calibrate_upload(body: bytes, fs: float | None, layout: str, method: str, source: str, max_samples: int) -> tuple[dict[str, Any], bytes, int]:
+def calibrate_upload(
+    body: bytes, fs: float | None, layout: str, method: str, source: str, max_samples: int
+) -> tuple[dict[str, Any], bytes, int]:
     """Parse and calibrate an uploaded CSV; raises calib's errors (RecordingError, ProtocolError, ...)."""
     from calib.api import calibrate
 
@@ -116,8 +119,9 @@ class ComputePool:
 
     def _executor(self) -> ProcessPoolExecutor:
         if self._pool is None:
-            self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                             initializer=confine_worker, initargs=(self.memory_mb,))
+            self._pool = ProcessPoolExecutor(
+                self.workers, mp_context=multiprocessing.get_context("spawn"), initializer=confine_worker, initargs=(self.memory_mb,)
+            )
         return self._pool
 
     async def start(self) -> None:

@@ -42,7 +42,9 @@ async def login(svc: Svc, body: M.LoginIn, request: Request) -> dict[str, Any]:
 
 
 @router.post("/auth/logout", status_code=204, responses=R401, tags=["auth"])
-async def logout(svc: Svc, request: Request, operator: Operator, creds: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)]) -> Response:
+async def logout(
+    svc: Svc, request: Request, operator: Operator, creds: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)]
+) -> Response:
     """Revoke the token of this request."""
     if creds is not None:
         await asyncio.to_thread(svc.auth.sign_out, creds.credentials, operator)

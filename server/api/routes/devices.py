@@ -39,7 +39,9 @@ async def list_devices(svc: Svc, _: Reader) -> list[dict[str, Any]]:
 
 
 @router.post("/devices/scan", response_model=M.ScanOut, responses=R401, tags=["devices"])
-async def scan(svc: Svc, operator: Operator, timeout: Annotated[float, Query(gt=0, le=30, description="scan time, s")] = 5.0) -> dict[str, Any]:
+async def scan(
+    svc: Svc, operator: Operator, timeout: Annotated[float, Query(gt=0, le=30, description="scan time, s")] = 5.0
+) -> dict[str, Any]:
     """Scan for wearables (BLE when the service runs with --ble); returns those found, each with its id."""
     try:
         found = await svc.devices.scan(timeout)

@@ -257,20 +257,27 @@ session_responses = {
 html_ok = {200: {"content": {"text/html": {}}, "description": "the HTML report, figures embedded"}}
 
 @router.post("/diagnose", response_model=DiagnosisOut, responses=upload_responses, openapi_extra=csv_body, tags=["diagnosis"])
-async def diagnose_upload(svc: Svc, diag: Diag, request: Request, _: AnalysisReader, fs: Fs = None, layout: Layout = "auto") -> JSONResponse:
+async def diagnose_upload(
+    svc: Svc, diag: Diag, request: Request, _: AnalysisReader, fs: Fs = None, layout: Layout = "auto"
+) -> JSONResponse:
     """Compare an uploaded recording with its simulation: where it departs, which physical effect
     explains it, how much the fit improves (as `gyrocal diagnose --json`). Nothing is stored."""
     key, args = _upload_args(await _body(request), fs, layout, svc.settings.max_diagnose_samples)
     d, _, kept = await diag.run(key, args, report=False, upload=True)
     return _json(d, kept)
 
-@router.post("/diagnose/report", response_class=Response, responses={**html_ok, **upload_responses},
-          openapi_extra=csv_body, tags=["diagnosis"])
-async def diagnose_upload_report(svc: Svc, diag: Diag, request: Request, _: AnalysisReader, fs: Fs = None, layout: Layout = "auto") -> HTMLResponse:
+
+@router.post(
+    "/diagnose/report", response_class=Response, responses={**html_ok, **upload_responses}, openapi_extra=csv_body, tags=["diagnosis"]
+)
+async def diagnose_upload_report(
+    svc: Svc, diag: Diag, request: Request, _: AnalysisReader, fs: Fs = None, layout: Layout = "auto"
+) -> HTMLResponse:
     """The HTML report of an uploaded recording's model check (as `gyrocal diagnose --report`)."""
     key, args = _upload_args(await _body(request), fs, layout, svc.settings.max_diagnose_samples)
     _d, html, kept = await diag.run(key, args, report=True, upload=True)
     return _html(html, kept)
+
 
 @router.get("/sessions/{session_id}/diagnosis", response_model=DiagnosisOut, responses=session_responses, tags=["diagnosis"])
 async def diagnose_session(svc: Svc, diag: Diag, session_id: str, _: Reader) -> JSONResponse:
@@ -284,8 +291,10 @@ async def diagnose_session(svc: Svc, diag: Diag, session_id: str, _: Reader) -> 
     d, _, was_kept = await diag.run(key, args, report=False, upload=False)
     return _json(d, was_kept, sha)
 
-@router.get("/sessions/{session_id}/diagnosis/report", response_class=Response, responses={**html_ok, **session_responses},
-         tags=["diagnosis"])
+
+@router.get(
+    "/sessions/{session_id}/diagnosis/report", response_class=Response, responses={**html_ok, **session_responses}, tags=["diagnosis"]
+)
 async def diagnose_session_report(svc: Svc, diag: Diag, session_id: str, _: Reader) -> HTMLResponse:
     """The HTML report of a session's model check: the recording's features against its simulations
     before and after the effects are modelled, still means, closures, time base, every test."""
@@ -297,8 +306,13 @@ async def diagnose_session_report(svc: Svc, diag: Diag, session_id: str, _: Read
     _d, html, was_kept = await diag.run(key, args, report=True, upload=False)
     return _html(html, was_kept)
 
-@router.get("/sessions/{session_id}/diagnosis/progress", response_model=DiagnosisProgress,
-         responses={k: v for k, v in session_responses.items() if k != 422 and k != 503}, tags=["diagnosis"])
+
+@router.get(
+    "/sessions/{session_id}/diagnosis/progress",
+    response_model=DiagnosisProgress,
+    responses={k: v for k, v in session_responses.items() if k != 422 and k != 503},
+    tags=["diagnosis"],
+)
 async def diagnosis_progress(svc: Svc, diag: Diag, session_id: str, _: Reader) -> dict[str, Any]:
     """Where the session's model check is, for a page to show while GET .../diagnosis runs."""
     key, _row, _sha = await _session_source(svc, session_id)

@@ -6,7 +6,8 @@ from __future__ import annotations
 import asyncio
 import logging
 import uuid
-from typing import Annotated, Any, AsyncIterator
+from collections.abc import AsyncIterator
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request, Response
 from fastapi.responses import JSONResponse, StreamingResponse
@@ -84,15 +85,28 @@ async def calibrate(svc: Svc,
     ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
     body = await request.body()
     if ctype in CSV_TYPES:
-        return await calibrate_uploaded(svc, device_id, operator, body, fs, method.value if method else None, layout, {"sensor_model": sensor_model, "firmware": firmware})
+        return await calibrate_uploaded(
+            svc,
+            device_id,
+            operator,
+            body,
+            fs,
+            method.value if method else None,
+            layout,
+            {"sensor_model": sensor_model, "firmware": firmware},
+        )
     if ctype and ctype != "application/json" and body:
-        raise problem(415, f"send a JSON body (application/json) to start a live session or a CSV (text/csv) to calibrate a recording; got {ctype}")
+        raise problem(
+            415, f"send a JSON body (application/json) to start a live session or a CSV (text/csv) to calibrate a recording; got {ctype}"
+        )
     opts = M.SessionStart()
     if body.strip():
         try:
             opts = M.SessionStart.model_validate_json(body)
         except ValidationError as exc:
-            raise problem(422, "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" if e["loc"] else e["msg"] for e in exc.errors())) from None
+            raise problem(
+                422, "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" if e["loc"] else e["msg"] for e in exc.errors())
+            ) from None
     chosen = opts.method or method
     live = await start_live(svc, device_id, operator, chosen.value if chosen else None, opts.max_attempts)
     url = f"/sessions/{live.id}"
@@ -113,11 +127,14 @@ async def get_session(svc: Svc, session_id: str, _: Reader) -> dict[str, Any]:
     response_class=StreamingResponse,
     tags=["sessions"],
 )
-async def session_events(svc: Svc, 
+async def session_events(
+    svc: Svc,
     session_id: str,
     request: Request,
     _: Reader,
-    last_event_id: Annotated[int | None, Query(ge=0, description="resume after this event id (instead of the Last-Event-ID header)")] = None,
+    last_event_id: Annotated[
+        int | None, Query(ge=0, description="resume after this event id (instead of the Last-Event-ID header)")
+    ] = None,
 ) -> StreamingResponse:
     """Server-Sent Events of a session: state changes, prompts, live angle, stillness progress,
     warnings and the result, each a full snapshot with an id (reconnect with Last-Event-ID)."""
@@ -156,8 +173,11 @@ async def session_recording(svc: Svc, session_id: str, _: Reader) -> Response:
     if got is None:
         raise problem(404, f"no archived recording for session {session_id}")
     data, digest = got
-    return Response(data, media_type="text/csv", headers={"X-Recording-SHA256": digest,
-                                                          "Content-Disposition": f'attachment; filename="{session_id}.csv"'})
+    return Response(
+        data,
+        media_type="text/csv",
+        headers={"X-Recording-SHA256": digest, "Content-Disposition": f'attachment; filename="{session_id}.csv"'},
+    )
 
 
 @router.post("/sessions/{session_id}/cancel", response_model=M.SessionOut, responses={**R401, **R404, **R409}, tags=["sessions"])
@@ -208,8 +228,7 @@ async def accept(svc: Svc, session_id: str, operator: Operator, body: M.Decision
         log.warning("accept of %s failed: %s", session_id, exc)
         raise problem(
             503,
-            f"the calibration could not be stored ({type(exc).__name__}); the previous calibration stays current. "
-            "Try accepting again.",
+            f"the calibration could not be stored ({type(exc).__name__}); the previous calibration stays current. Try accepting again.",
         ) from None
     if body is not None and body.note:
         await asyncio.to_thread(svc.store.audit, operator, "session.note", rec.device_id, session_id, {"note": body.note})
@@ -230,8 +249,7 @@ async def discard(svc: Svc, session_id: str, operator: Operator, body: M.Decisio
     if live is not None:
         await live.wait()
     try:
-        await asyncio.to_thread(svc.store.discard_session, session_id, operator,
-                                live.session_end() if live is not None else None)
+        await asyncio.to_thread(svc.store.discard_session, session_id, operator, live.session_end() if live is not None else None)
     except DecisionConflict as exc:
         raise problem(409, str(exc)) from None
     except NotFound as exc:
@@ -268,7 +286,14 @@ async def start_live(svc: Service, device_id: str, operator: str, method: str | 
     svc.active[device_id] = sid  # claimed before the first await: a second request gets 409
     try:
         await asyncio.to_thread(
-            svc.store.create_session, sid, device_id, "live", "connecting", machine.method, operator, __version__,
+            svc.store.create_session,
+            sid,
+            device_id,
+            "live",
+            "connecting",
+            machine.method,
+            operator,
+            __version__,
             {"transport": dev.transport, "scenario": dev.scenario},
         )
     except Exception:
@@ -280,8 +305,16 @@ async def start_live(svc: Service, device_id: str, operator: str, method: str | 
     return live
 
 
-async def calibrate_uploaded(svc: Service, device_id: str, operator: str, body: bytes, fs: float | None, method: str | None, layout: str,
-                   sensor: dict[str, str | None]) -> JSONResponse:
+async def calibrate_uploaded(
+    svc: Service,
+    device_id: str,
+    operator: str,
+    body: bytes,
+    fs: float | None,
+    method: str | None,
+    layout: str,
+    sensor: dict[str, str | None],
+) -> JSONResponse:
     from calib.api import DEFAULT_METHOD, available_methods
 
     method = method or DEFAULT_METHOD
@@ -294,13 +327,16 @@ async def calibrate_uploaded(svc: Service, device_id: str, operator: str, body: 
             svc.pool.run(calibrate_upload, body, fs, layout, method, source, svc.settings.max_upload_samples),
             timeout=svc.settings.compute_timeout_s,
         )
-    except asyncio.TimeoutError:
+    except TimeoutError:
         raise problem(503, f"calibrating this recording took longer than {svc.settings.compute_timeout_s:g} s; try again later") from None
     except TooManySamples as exc:
         raise problem(413, str(exc)) from None
     except MemoryError:
-        raise problem(413, f"calibrating this recording needs more memory than this service gives a worker "
-                       f"({svc.settings.worker_memory_mb} MB); send the protocol's part of the recording") from None
+        raise problem(
+            413,
+            f"calibrating this recording needs more memory than this service gives a worker "
+            f"({svc.settings.worker_memory_mb} MB); send the protocol's part of the recording",
+        ) from None
     except Exception as exc:  # calib's errors and whatever else the parser or estimator trips on
         raise recording_problem(exc, "calibrated", upload=True) from None
     res = finite(res)
@@ -312,11 +348,26 @@ async def calibrate_uploaded(svc: Service, device_id: str, operator: str, body: 
 
     reason = None if passed else say.out_of_tolerance(failures)
     await asyncio.to_thread(svc.store.upsert_device, device_id)
-    await asyncio.to_thread(svc.store.create_session, sid, device_id, "upload", "computing", method, operator, __version__,
-                            {"source": "upload", "layout": layout, "fs": fs, **{k: v for k, v in sensor.items() if v}})
+    await asyncio.to_thread(
+        svc.store.create_session,
+        sid,
+        device_id,
+        "upload",
+        "computing",
+        method,
+        operator,
+        __version__,
+        {"source": "upload", "layout": layout, "fs": fs, **{k: v for k, v in sensor.items() if v}},
+    )
     digest = await asyncio.to_thread(svc.store.archive_recording, sid, csv, n_samples)
-    end = SessionEnd("done" if passed else "failed", None if passed else "out_of_tolerance", reason, res, passed,
-                     {"checks": checks, "samples": n_samples})
+    end = SessionEnd(
+        "done" if passed else "failed",
+        None if passed else "out_of_tolerance",
+        reason,
+        res,
+        passed,
+        {"checks": checks, "samples": n_samples},
+    )
     await asyncio.to_thread(svc.store.finish_session, sid, end)
     out = {
         **res,
