@@ -302,7 +302,7 @@ def gauss_newton(
     conv = np.zeros(R, dtype=bool)
     it = 0
     rank = np.zeros(R, dtype=np.int64)
-    for _it in range(1, max_iter + 1):
+    for it in range(1, max_iter + 1):
         A = np.einsum("rmp,rmq->rpq", sys_.jac, sys_.jac)
         g = np.einsum("rmp,rm->rp", sys_.jac, sys_.res)
         step, rank = _pinv_solve(A, -g)

@@ -2,14 +2,15 @@
 
 from __future__ import annotations
 
+import re
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
 from fastapi import FastAPI
 from fastapi.responses import HTMLResponse, JSONResponse
-from fastapi.routing import APIRoute
 from fastapi.staticfiles import StaticFiles
+from starlette.routing import compile_path
 
 from ..config import Settings
 
@@ -20,6 +21,9 @@ _PLACEHOLDER = """<!doctype html><html lang="en"><head><meta charset="utf-8"><ti
 devices are listed at <a href="/devices">/devices</a>.</p></body></html>"""
 
 
+METHODS = {"GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS"}
+
+
 class PageFiles(StaticFiles):
     """The wizard's files at /. A method the page does not take is answered 405 with the Allow header of the API
     route at that path, if any (otherwise the catch-all mount would answer every path's OPTIONS, PUT, ...)."""
@@ -27,14 +31,22 @@ class PageFiles(StaticFiles):
     def __init__(self, app: FastAPI, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.api = app
+        self._paths: list[tuple[re.Pattern[str], set[str]]] | None = None
+
+    def _allowed(self, path: str) -> set[str]:
+        """The methods of the API operations whose path template matches ``path`` (from the published schema)."""
+        if self._paths is None:
+            self._paths = [(compile_path(template)[0], {m.upper() for m in ops if m.upper() in METHODS})
+                           for template, ops in self.api.openapi().get("paths", {}).items()]
+        allowed: set[str] = set()
+        for regex, methods in self._paths:
+            if regex.match(path):
+                allowed |= methods
+        return allowed
 
     async def __call__(self, scope: Any, receive: Any, send: Any) -> None:
         if scope["type"] == "http" and scope["method"] not in ("GET", "HEAD"):
-            allowed: set[str] = set()
-            for route in self.api.routes:
-                if isinstance(route, APIRoute) and route.path_regex.match(scope["path"]):
-                    allowed |= route.methods
-            allow = ", ".join(sorted(allowed or {"GET", "HEAD"}))
+            allow = ", ".join(sorted(self._allowed(scope["path"]) or {"GET", "HEAD"}))
             await JSONResponse({"detail": f"{scope['method']} is not allowed on {scope['path']}; allowed: {allow}"},
                                status_code=405, headers={"Allow": allow})(scope, receive, send)
             return
