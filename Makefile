@@ -26,9 +26,12 @@ run: $(VENV)/.installed
 system-deps:
 	bash scripts/install-system-deps.sh
 
-## lint: errors that tests may not reach (undefined or unused names)
+## lint: what review misses: ruff (errors, import order, bugbear, pyupgrade, line length), mypy on the numerics
+## and the service, and the structure (no import cycles, the layering rules, module sizes)
 lint: $(VENV)/.installed-test
-	$(VENV)/bin/ruff check calib server mock_device wearable_protocol webui tests bench
+	$(VENV)/bin/ruff check calib server mock_device wearable_protocol webui tests bench scripts
+	$(VENV)/bin/mypy calib server
+	$(PY) scripts/check_structure.py
 
 ## test: install everything the tests need, then run them all
 test: $(VENV)/.installed-test system-deps lint

@@ -27,7 +27,7 @@ EXIT_PROTOCOL = 3  # the recording is fine but the protocol was not found in it
 EXIT_INTERNAL = 70
 
 
-def _fmt_vec(v: Sequence[float] | None, digits: int = 5) -> str:
+def _fmt_vec(v: Sequence[float] | np.ndarray | None, digits: int = 5) -> str:
     if v is None:
         return "-"
     return "[" + ", ".join(f"{x:+.{digits}f}" for x in v) + "]"

@@ -115,7 +115,7 @@ def _solve(data: ClosureData, theta0: np.ndarray, extended: bool) -> _Fit:
     current = system(data, theta[None], extended, jacobian=True)  # weights at theta
     for _ in range(4):
         chol = current.chol
-        jac_cache = {theta.tobytes(): current.jac[0]}
+        jac_cache = {theta.tobytes(): current.J[0]}
         res_cache = {theta.tobytes(): current.res[0]}
 
         def fun(th: np.ndarray, chol=chol, res_cache=res_cache) -> np.ndarray:
@@ -129,7 +129,7 @@ def _solve(data: ClosureData, theta0: np.ndarray, extended: bool) -> _Fit:
             key = th.tobytes()
             if key not in jac_cache:
                 jac_cache.clear()
-                jac_cache[key] = system(data, th[None], extended, chol=chol, jacobian=True).jac[0]
+                jac_cache[key] = system(data, th[None], extended, chol=chol, jacobian=True).J[0]
             return jac_cache[key]
 
         sol = least_squares(fun, theta, jac=jac, **_LSQ)
@@ -143,7 +143,7 @@ def _solve(data: ClosureData, theta0: np.ndarray, extended: bool) -> _Fit:
         change = np.max(np.abs(current.chol - chol) / np.abs(chol).max(axis=(-2, -1), keepdims=True))
         if change < 1e-2:
             break
-    jacobian = current.jac[0]
+    jacobian = current.J[0]
     return _Fit(
         theta=theta,
         res=current.res[0],
@@ -172,7 +172,7 @@ def _check_closed(turns: list[Stage], fit: _Fit) -> None:
 def _check_identified(data: ClosureData, theta: np.ndarray) -> None:
     """Raise CalibrationError when the recording cannot tell the non-orthogonality terms apart."""
     s = system(data, theta[None], True, jacobian=True)
-    F = s.jac[0].T @ s.jac[0]
+    F = s.J[0].T @ s.J[0]
     scale = np.sqrt(np.diag(F))
     if np.any(scale <= 0):
         bound = np.full(3, np.inf)

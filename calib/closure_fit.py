@@ -203,6 +203,13 @@ class System:
     chol: np.ndarray  # (R, J, 3, 3) lower Cholesky factors of the closure covariances (rad^2)
     terms: ClosureTerms
 
+    @property
+    def J(self) -> np.ndarray:
+        """The Jacobian (the system must have been built with jacobian=True)."""
+        if self.jac is None:
+            raise ValueError("this system was built without its Jacobian (jacobian=False)")
+        return self.jac
+
 
 def solve_lower(Lc: np.ndarray, x: np.ndarray) -> np.ndarray:
     """L^-1 x for batched lower-triangular L (..., 3, 3) and x (..., 3, k), by forward substitution."""
@@ -309,8 +316,8 @@ def gauss_newton(
             break
         sub = data.runs(active)
         sys_ = system(sub, theta[active], extended)
-        A = np.einsum("rmp,rmq->rpq", sys_.jac, sys_.jac)
-        g = np.einsum("rmp,rm->rp", sys_.jac, sys_.res)
+        A = np.einsum("rmp,rmq->rpq", sys_.J, sys_.J)
+        g = np.einsum("rmp,rm->rp", sys_.J, sys_.res)
         try:
             step = -np.linalg.solve(A, g[..., None])[..., 0]
             cov = np.linalg.inv(A)
@@ -331,7 +338,7 @@ def gauss_newton(
             done[:] = True
         fin = active[done]
         if fin.size:
-            lin = sys_.res[done] + np.einsum("rmp,rp->rm", sys_.jac[done], step[done])
+            lin = sys_.res[done] + np.einsum("rmp,rp->rm", sys_.J[done], step[done])
             fisher[fin] = A[done]
             chi2[fin] = np.einsum("rm,rm->r", lin, lin)
             converged[fin] = np.all(np.abs(step[done]) <= tol * std[done], axis=1)
@@ -346,5 +353,5 @@ def gauss_newton(
 
 def _unwhiten_turn_jac(sys_: System, rows: np.ndarray, J: int) -> np.ndarray:
     """dr/dtheta (R', J, 3, P) of the selected recordings, from the whitened Jacobian."""
-    jac = sys_.jac[rows][:, : 3 * J].reshape(-1, J, 3, sys_.jac.shape[2])
+    jac = sys_.J[rows][:, : 3 * J].reshape(-1, J, 3, sys_.J.shape[2])
     return np.einsum("rjab,rjbp->rjap", sys_.chol[rows], jac)

@@ -129,8 +129,11 @@ def closure_terms(
                        None if sigma is None else sigma[s : s + step], jacobian)
         for s in range(0, B, step)
     ]
-    cat = lambda name: None if getattr(parts[0], name) is None else np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
-    return ClosureTerms(r=cat("r"), swept=cat("swept"), dK=cat("dK"), db=cat("db"), noise=cat("noise"))
+    def cat(name: str) -> np.ndarray | None:
+        return None if getattr(parts[0], name) is None else np.concatenate([getattr(p, name) for p in parts])
+
+    return ClosureTerms(r=np.concatenate([p.r for p in parts]), swept=np.concatenate([p.swept for p in parts]),
+                        dK=cat("dK"), db=cat("db"), noise=cat("noise"))
 
 
 def _closure_chunk(m, dt, K, b, sigma, jacobian) -> ClosureTerms:

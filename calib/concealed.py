@@ -302,7 +302,8 @@ def draw_concealed(
         rec = rec.with_meta(gyro_full_scale_dps=DEFAULT_FULL_SCALE_DPS)
 
     hrng = np.random.default_rng(ss_host)
-    host_t = truth.t_true + hrng.uniform(*HOST_LATENCY_S) + np.abs(hrng.normal(0.0, HOST_JITTER_S, truth.t_true.size))
+    t_true = truth.t_true if truth.t_true is not None else rec.t
+    host_t = t_true + hrng.uniform(*HOST_LATENCY_S) + np.abs(hrng.normal(0.0, HOST_JITTER_S, t_true.size))
     host_t = np.maximum.accumulate(host_t)  # the link delivers in order: a late sample holds up the next
     rec = replace(strip_channels(rec, accel=with_accel, seq=with_seq), host_t=host_t)
     return ConcealedCase(

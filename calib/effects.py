@@ -251,7 +251,7 @@ def _positive(value: Any, what: str, allow_zero: bool = False) -> float:
 TEMP_RESOLUTION_C = 1.0 / 256.0  # temperature channel step (256 LSB/degC, a common IMU temperature sensor)
 
 
-def warmup_temperature(t: np.ndarray, temp0_c: float, rise_c: float, tau_s: float) -> np.ndarray:
+def warmup_temperature(t: np.ndarray | float, temp0_c: float, rise_c: float, tau_s: float) -> np.ndarray:
     """Sensor temperature T(t) = T0 + rise * (1 - exp(-t / tau)) (degC) of a device warming up, t in s."""
     return temp0_c + rise_c * -np.expm1(-np.asarray(t, dtype=float) / tau_s)
 

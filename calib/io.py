@@ -127,10 +127,10 @@ def write_native_csv(rec: Recording, path_or_file: str | os.PathLike[str] | IO[s
         cells.append(list(map(repr, rec.host_t.tolist())))
     text = ",".join(names) + "\n" + "".join(",".join(row) + "\n" for row in zip(*cells, strict=False))
     if hasattr(path_or_file, "write"):
-        path_or_file.write(text)  # type: ignore[union-attr]
+        path_or_file.write(text)
         return
     try:
-        with open(path_or_file, "w", encoding="utf-8", newline="\n") as f:  # type: ignore[arg-type]
+        with open(path_or_file, "w", encoding="utf-8", newline="\n") as f:
             f.write(text)
     except OSError as exc:
         raise RecordingError(f"cannot write {path_or_file} ({exc.strerror or exc}); check the folder exists and is writable") from None
@@ -215,6 +215,7 @@ def _resolve_layout(table: _Table, layout: str, counts: bool, where: str) -> str
             layout = "imucal"
         else:
             layout = "native"
+    required: tuple[str, ...]
     if layout == "native":
         required, expected = NATIVE_REQUIRED, NATIVE_HEADER
     else:
@@ -359,7 +360,7 @@ def _sensitivities(table: _Table, gyro: object, accel: object, where: str) -> tu
             "gyro_counts_per_dps and accel_counts_per_g from the sensor's datasheet "
             "(e.g. 16.4 and 2048 for a +-2000 deg/s, +-16 g setting)"
         )
-    out = []
+    out: list[np.ndarray | None] = []
     for name, value in (("gyro_counts_per_dps", gyro), ("accel_counts_per_g", accel)):
         if value is None:
             out.append(None)
@@ -371,7 +372,10 @@ def _sensitivities(table: _Table, gyro: object, accel: object, where: str) -> tu
         if arr.shape != (3,) or not np.all(np.isfinite(arr) & (arr > 0)):
             raise RecordingError(f"{name} must be a positive number or three positive numbers (x, y, z); got {value!r}")
         out.append(arr)
-    return out[0], out[1]
+    gyro_sens = out[0]
+    if gyro_sens is None:  # refused above: a counts file always states its gyro sensitivity
+        raise RecordingError(f"{where}give gyro_counts_per_dps")
+    return gyro_sens, out[1]
 
 
 def _read_imucal(

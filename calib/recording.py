@@ -12,6 +12,7 @@ Units and conventions (see docs/method.md):
 
 from __future__ import annotations
 
+from typing import Any
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -82,6 +83,6 @@ class Recording:
             pick(self.host_t),
         )
 
-    def with_meta(self, **changes: object) -> Recording:
+    def with_meta(self, **changes: Any) -> Recording:
         """A copy with some metadata fields replaced."""
         return replace(self, meta=replace(self.meta, **changes))

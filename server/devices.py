@@ -7,6 +7,7 @@ device owns one link (server.link) that the guided sessions use one at a time.
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import re
 from collections.abc import Callable
@@ -34,7 +35,8 @@ def load_simulators() -> Simulators | None:
     """The installed simulated wearables, or None when no package offers them."""
     for ep in entry_points(group=SIMULATORS_GROUP):
         try:
-            return ep.load()  # type: ignore[no-any-return]
+            simulators: Simulators = ep.load()
+            return simulators
         except ImportError:
             log.warning("the simulated wearables of %s cannot be loaded", ep.value)
     return None
@@ -141,7 +143,7 @@ class DeviceManager:
                 transport="inprocess",
                 name=wearable.name,
                 address=wearable.address,
-                make_link=lambda w=wearable, p=policy: InProcessLink(w, reconnect=p, scan_timeout_s=5.0),
+                make_link=functools.partial(InProcessLink, wearable, reconnect=policy, scan_timeout_s=5.0),
                 simulated=True,
                 scenario=scenario,
                 peripheral=wearable,
@@ -156,30 +158,30 @@ class DeviceManager:
         for dev in found:
             dev.read_local_battery()
         if self.ble:
-            from .link import BleLink
+            from .link.ble import BleLink
 
             scanner = BleLink(adapter=self.ble_adapter)
             for disc in await scanner.scan(timeout_s):
-                dev = self.devices.get(disc.address)
-                if dev is None:
-                    dev = self.add(
+                known = self.devices.get(disc.address)
+                if known is None:
+                    known = self.add(
                         Device(
                             id=disc.address,
                             transport="ble",
                             name=disc.name,
                             address=disc.address,
-                            make_link=lambda a=disc.address: BleLink(a, adapter=self.ble_adapter),
+                            make_link=functools.partial(BleLink, disc.address, adapter=self.ble_adapter),
                         )
                     )
-                dev.info["rssi"] = disc.rssi
+                known.info["rssi"] = disc.rssi
                 if disc.name:
-                    dev.name = disc.name
-                found.append(dev)
+                    known.name = disc.name
+                found.append(known)
         return found
 
     def add_ble_address(self, address: str) -> Device:
         """A BLE wearable known by address (from the store) that has not been scanned yet."""
-        from .link import BleLink
+        from .link.ble import BleLink
 
         dev = self.devices.get(address)
         if dev is None:
@@ -189,7 +191,7 @@ class DeviceManager:
                     transport="ble",
                     name=None,
                     address=address,
-                    make_link=lambda a=address: BleLink(a, adapter=self.ble_adapter),
+                    make_link=functools.partial(BleLink, address, adapter=self.ble_adapter),
                 )
             )
         return dev

@@ -84,7 +84,7 @@ def describe_effect(name: str, prob: Problem, layout: Layout, **kw) -> dict:
         G = psi[s].reshape(3, 3)
         params = {"matrix_dps_per_g": G.tolist()}
         unc = {"matrix_dps_per_g": std[s].reshape(3, 3).tolist()}
-        i, j = np.unravel_index(_strongest(psi[s], std[s]), (3, 3))
+        i, j = (int(x) for x in np.unravel_index(_strongest(psi[s], std[s]), (3, 3)))
         poses = prob.block.a[0] if prob.block.a is not None else np.zeros((1, 3))
         spread = float(np.ptp(poses / np.linalg.norm(poses, axis=1, keepdims=True), axis=0).max()) if poses.size else 0.0
         where = ("the zero-rate output follows the direction of gravity from one rest pose to the next"
@@ -235,7 +235,7 @@ def _loss(tb: TimeBase, layout: Layout, duration: float, closure_fit: tuple[floa
 
 def _clock(tb: TimeBase) -> dict:
     before, after = tb.clock_fit or (0.0, 0.0)
-    e = float(tb.clock_e)
+    e = float(tb.clock_e or 0.0)
     return {
         "name": "clock_error",
         "parameters": {"error": e},
@@ -385,7 +385,7 @@ def recalibration(prob: Problem, fit0: Fit, final: ModelState, effects: list[dic
     notes = []
     names = [e["name"] for e in effects]
     if "clock_error" in names and tb.device_stamps:
-        e = float(tb.clock_e)
+        e = float(tb.clock_e or 0.0)
         k, b = k * (1 + e), b * (1 + e)
         notes.append(f"the device's time stamps run {e * 100:+.2f} % off true time: k and b are corrected by (1 + e)")
     if "sample_loss" in names:

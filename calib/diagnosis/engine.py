@@ -103,6 +103,13 @@ class System:
     chol: np.ndarray  # (R, J, 3, 3) closure covariance factors, deg
     logdet: np.ndarray  # (R,) extra log-determinant of a variance model (0 for the nominal covariance)
 
+    @property
+    def J(self) -> np.ndarray:
+        """The Jacobian (the system must have been built with jacobian=True)."""
+        if self.jac is None:
+            raise ValueError("this system was built without its Jacobian (jacobian=False)")
+        return self.jac
+
     def deviance(self) -> np.ndarray:
         return np.einsum("rm,rm->r", self.res, self.res) + self.logdet
 
@@ -303,8 +310,8 @@ def gauss_newton(
     it = 0
     rank = np.zeros(R, dtype=np.int64)
     for it in range(1, max_iter + 1):
-        A = np.einsum("rmp,rmq->rpq", sys_.jac, sys_.jac)
-        g = np.einsum("rmp,rm->rp", sys_.jac, sys_.res)
+        A = np.einsum("rmp,rmq->rpq", sys_.J, sys_.J)
+        g = np.einsum("rmp,rm->rp", sys_.J, sys_.res)
         step, rank = _pinv_solve(A, -g)
         std = np.sqrt(np.maximum(np.einsum("rpp->rp", covariance(A)), 0.0))
         small = np.all((np.abs(step) <= tol * np.where(np.isfinite(std), std, np.inf)) | (step == 0), axis=1)
@@ -324,7 +331,7 @@ def gauss_newton(
         conv = conv | small
         if conv.all():
             break
-    A = np.einsum("rmp,rmq->rpq", sys_.jac, sys_.jac)
+    A = np.einsum("rmp,rmq->rpq", sys_.J, sys_.J)
     _, rank = _pinv_solve(A, np.zeros((R, model.P)))
     M = sys_.res.shape[1]
     dof = M - rank
@@ -343,8 +350,8 @@ def score_statistic(
     of squares in one Gauss-Newton step of the extended model. Returns the statistic (R,) and the
     number of directions tested (R,).
     """
-    Jb = sys_.jac[..., base_idx]
-    Jt = sys_.jac[..., test_idx]
+    Jb = sys_.J[..., base_idx]
+    Jt = sys_.J[..., test_idx]
     if V is not None:
         Jt = Jt @ V
     e = sys_.res

@@ -90,7 +90,7 @@ def compute_features(prob: Problem, sys_: System, psi: np.ndarray) -> Features:
                 where.append(f"{_turn_label(lay, j)}, {a} component")
                 kinds.append(SIGNED)
                 groups.append("closure")
-    if prob.tilt is not None and J:
+    if prob.tilt is not None and prob.tilt_sd is not None and J:
         for j in range(J):
             if not np.all(np.isfinite(prob.tilt_sd[:, j])):
                 continue

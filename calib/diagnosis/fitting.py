@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from ..closure_fit import ClosureData, start_values
@@ -56,7 +58,7 @@ def scores(prob: Problem, psi_nom: np.ndarray, effects: dict[str, Model]) -> dic
 
     ``effects`` maps a name to the nominal model extended by that effect alone.
     """
-    out = {}
+    out: dict[str, Any] = {}
     if not effects:
         return out
     union = Model(tuple(sorted({e for m in effects.values() for e in m.effects})), prob.J,

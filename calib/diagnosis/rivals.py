@@ -141,8 +141,9 @@ def rival_test(worlds: Worlds, cur: ModelState, st_a: ModelState, st_b: ModelSta
     for side in (first, "b" if first == "a" else "a"):
         world, key, salt = (st_a, key_a, 1) if side == "a" else (st_b, key_b, 2)
         # in a's world a's lead is larger (d more negative): a is rejected when d_obs is unusually high
-        p[side], used[side], hits[side] = world_p(worlds, world, debiased(world, cur, key), cur.keys, key_a, key_b,
-                                                  d_obs, side == "a", n, salt)
-        if p[side] >= RIVAL_ALPHA and not both:
+        p_side, used[side], hits[side] = world_p(worlds, world, debiased(world, cur, key), cur.keys, key_a, key_b,
+                                                 d_obs, side == "a", n, salt)
+        p[side] = p_side
+        if p_side >= RIVAL_ALPHA and not both:
             break
     return RivalTest(name_a, name_b, d_obs, p["a"], p["b"], used["a"], used["b"], hits["a"], hits["b"])

@@ -387,8 +387,8 @@ def _one_step(prob: Problem, model: Model, psi: np.ndarray, priors: Priors | Non
     from .engine import _pinv_solve
 
     sys_ = system(prob, model, psi, priors)
-    A = np.einsum("rmp,rmq->rpq", sys_.jac, sys_.jac)
-    g = np.einsum("rmp,rm->rp", sys_.jac, sys_.res)
+    A = np.einsum("rmp,rmq->rpq", sys_.J, sys_.J)
+    g = np.einsum("rmp,rm->rp", sys_.J, sys_.res)
     step, _ = _pinv_solve(A, -g)
     return psi + step
 

@@ -28,6 +28,7 @@ from .data import Problem
 from .engine import (
     Fit,
     Priors,
+    System,
     covariance,
     gauss_newton,
     profile_information,
@@ -167,7 +168,7 @@ def plan_tests(
     union = base.with_effects(*keys)
     psi = union.zeros(base_fit.psi, base)
     sys_ = system(prob, union, psi, _extend_priors(priors, base, union))
-    F = np.einsum("rmp,rmq->rpq", sys_.jac, sys_.jac)
+    F = np.einsum("rmp,rmq->rpq", sys_.J, sys_.J)
     base_idx = np.concatenate([np.arange(union.P)[union.slices[e]] for e in ("k", "b", *base.slices) if e not in ("k", "b")]
                               + [np.arange(6)])
     base_idx = np.unique(base_idx)
@@ -230,7 +231,7 @@ def _extend_priors(priors: Priors | None, src: Model, dst: Model) -> Priors | No
 
 
 def statistics(prob: Problem, union: Model, base: Model, psi_base: np.ndarray, specs: list[TestSpec],
-               priors: Priors | None) -> tuple[dict[str, np.ndarray], object]:
+               priors: Priors | None) -> tuple[dict[str, np.ndarray], System]:
     """Each test's statistic for the R recordings of ``prob`` at their base fits psi_base (R, base.P)."""
     psi = union.zeros(psi_base, base)
     pri = _extend_priors(priors, base, union)
@@ -439,7 +440,7 @@ def _refit(prob: Problem, model: Model, psi0: np.ndarray, priors: Priors | None,
 
 def effective_params(fit: Fit) -> float:
     """Trace of the hat matrix: the number of parameters the data (not the priors) determine."""
-    J = fit.system.jac[0]
+    J = fit.system.J[0]
     rows = fit.system.blocks.get("prior")
     cov = covariance(fit.fisher)[0]
     cov = np.where(np.isfinite(cov), cov, 0.0)
@@ -452,7 +453,7 @@ def effective_params(fit: Fit) -> float:
 def press(fit: Fit, prob: Problem) -> float:
     """Leave-one-stage-out prediction error (linearised): each turn, each still, each tilt pair held out in turn."""
     sys_ = fit.system
-    J = sys_.jac[0]
+    J = sys_.J[0]
     e = sys_.res[0]
     cov = covariance(fit.fisher)[0]
     cov = np.where(np.isfinite(cov), cov, 0.0)

@@ -76,7 +76,7 @@ def analyse_timebase(rec: Recording, host_t: np.ndarray | None = None) -> TimeBa
     else:
         steps = None
         base = np.median(d) if d.size else 1.0
-    period = 1.0 / float(rec.meta.sample_rate_hz) if stated else float(base)
+    period = 1.0 / float(rec.meta.sample_rate_hz) if stated and rec.meta.sample_rate_hz else float(base)
     rel = d / period if d.size else np.zeros(0)
     # regular timestamps: the intervals are whole numbers of periods up to a small scatter
     frac = np.abs(rel - np.round(rel)) if rel.size else np.zeros(0)
@@ -91,7 +91,7 @@ def analyse_timebase(rec: Recording, host_t: np.ndarray | None = None) -> TimeBa
     else:
         index = np.arange(t.size)
         source = None
-    tb = TimeBase(period, stated, device_stamps, index, source)
+    tb = TimeBase(period, stated, bool(device_stamps), index, source)
     jumps = np.flatnonzero(np.diff(index) > 1)
     tb.gaps = [(int(i + 1), int(index[i + 1] - index[i] - 1), float(t[i + 1] - t[0])) for i in jumps]
     tb.lost = int(sum(g[1] for g in tb.gaps))
@@ -162,10 +162,12 @@ def bridge(rec: Recording, tb: TimeBase) -> Recording:
 
     idx = tb.index.astype(float)
     full = np.arange(int(tb.index[0]), int(tb.index[-1]) + 1, dtype=float)
-    lin = lambda a: None if a is None else np.interp(full, idx, a)
+    def lin(a: np.ndarray | None) -> np.ndarray | None:
+        return None if a is None else np.interp(full, idx, a)
+
     gyro = CubicSpline(idx, rec.gyro, axis=0)(full)
     accel = None if rec.accel is None else np.column_stack([np.interp(full, idx, rec.accel[:, i]) for i in range(3)])
     seq = None if rec.seq is None else (rec.seq[0] + (full - full[0])).astype(np.int64)
-    return replace(rec, t=lin(rec.t), gyro=gyro, accel=accel, seq=seq, temp=lin(rec.temp),
+    return replace(rec, t=np.interp(full, idx, rec.t), gyro=gyro, accel=accel, seq=seq, temp=lin(rec.temp),
                    host_t=lin(getattr(rec, "host_t", None)))
 

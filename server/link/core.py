@@ -277,7 +277,8 @@ class LinkCore(ABC):
                     nxt = self._feed[0]
                     if not isinstance(nxt, SampleBatch) or nxt.lost_before:
                         break
-                    merged.append(self._feed.popleft())
+                    merged.append(nxt)
+                    self._feed.popleft()
                 yield SampleBatch.concat(merged)
             else:
                 assert isinstance(item, LinkEvent)

@@ -16,12 +16,12 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
 from calib.recording import Recording, RecordingMeta
-from calib.stage import Stage
+from calib.stage import Axis, Stage
 
 from ..config import Settings
 from . import guidance as say
@@ -189,7 +189,7 @@ class GuidedSession:
         self._rest_before_s = 0.0
         self._rested_after_turn = False
         self._link_lost_mono: float | None = None
-        self._live = {"still_s": 0.0, "moving": False, "angle_deg": [0.0, 0.0, 0.0]}
+        self._live: dict[str, Any] = {"still_s": 0.0, "moving": False, "angle_deg": [0.0, 0.0, 0.0]}
         self._t_now = 0.0
         self._caused_by: dict[str, Any] | None = None
         self._last_live_emit = -1e9
@@ -352,7 +352,7 @@ class GuidedSession:
                 if isinstance(st, Stage) and st.kind == "still":
                     stages.append(self._globalise(st))
         turns = [
-            Stage("turn", tr.start, tr.end, tr.start_s, tr.end_s, tr.axis, float(tr.angle_deg[AXES.index(tr.axis)]), tr.flags)
+            Stage("turn", tr.start, tr.end, tr.start_s, tr.end_s, cast(Axis, tr.axis), float(tr.angle_deg[AXES.index(tr.axis)]), tr.flags)
             for tr in self.turns.values()
         ]
         stills = _dedupe([s for s in stages if s.kind == "still"])
@@ -841,9 +841,9 @@ def evaluate_result(result: dict[str, Any], tol: Any) -> list[dict[str, Any]]:
     for turn in (result.get("residuals") or {}).get("turns") or []:
         if isinstance(turn, dict) and turn.get("closure_norm_deg") is not None:
             v = float(turn["closure_norm_deg"])
-            a = turn.get("axis")
-            checks.append({"name": "closure", "axis": a, "value": v, "limit": tol.closure_max_deg, "ok": v <= tol.closure_max_deg,
-                           "text": f"the calibrated turn about {a} ends {v:.2f}° from where it began (allowed {tol.closure_max_deg:g}°)"})
+            turn_axis = turn.get("axis")
+            checks.append({"name": "closure", "axis": turn_axis, "value": v, "limit": tol.closure_max_deg, "ok": v <= tol.closure_max_deg,
+                           "text": f"the calibrated turn about {turn_axis} ends {v:.2f}° from where it began (allowed {tol.closure_max_deg:g}°)"})
     for c in checks:
         if not np.isfinite(c["value"]):
             c["ok"] = False

@@ -17,9 +17,9 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from datetime import datetime
-from typing import Any
+from typing import Any, cast
 
-from sqlalchemy import delete, func, select, update
+from sqlalchemy import CursorResult, delete, func, select, update
 from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -364,12 +364,13 @@ class Store:
 
     def _decide(self, s: Session, session_id: str, decision: str, operator: str, now: datetime) -> SessionRow:
         """Compare-and-set: mark an undecided session decided; DecisionConflict if someone else was first."""
-        won = s.execute(
+        result = s.execute(
             update(SessionRow)
             .where(SessionRow.id == session_id, SessionRow.decision.is_(None))
             .values(decision=decision, decided_at=now, decided_by=operator)
             .execution_options(synchronize_session=False)
-        ).rowcount
+        )
+        won = cast(CursorResult[Any], result).rowcount  # an UPDATE answers with a cursor's row count
         row = s.get(SessionRow, session_id, populate_existing=True)
         if row is None:
             raise NotFound(f"no session {session_id} in the store")

@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from sqlalchemy import Engine, inspect, select, text
+from sqlalchemy import Engine, insert, inspect, select, text, update
 from sqlalchemy.exc import ProgrammingError
 from sqlalchemy.orm import Session
 
@@ -76,8 +76,8 @@ def migrate(engine: Engine, display_url: str) -> int:
                 Base.metadata.create_all(conn)
                 guards.install(conn)
                 for name in CHAINED:
-                    conn.execute(ChainHead.__table__.insert().values(chain=name, seq=0, last_id=0, hash=chain.GENESIS))
-                conn.execute(SchemaInfo.__table__.insert().values(id=1, version=SCHEMA_VERSION, migrated_at=utcnow()))
+                    conn.execute(insert(ChainHead).values(chain=name, seq=0, last_id=0, hash=chain.GENESIS))
+                conn.execute(insert(SchemaInfo).values(id=1, version=SCHEMA_VERSION, migrated_at=utcnow()))
                 return SCHEMA_VERSION
             version = int(conn.execute(select(SchemaInfo.version).where(SchemaInfo.id == 1)).scalar_one())
             if version > SCHEMA_VERSION:
@@ -85,7 +85,7 @@ def migrate(engine: Engine, display_url: str) -> int:
                                  f"({SCHEMA_VERSION}); upgrade gyrocal")
             for v in range(version + 1, SCHEMA_VERSION + 1):
                 MIGRATIONS[v](conn)
-                conn.execute(SchemaInfo.__table__.update().values(version=v, migrated_at=utcnow()))
+                conn.execute(update(SchemaInfo).values(version=v, migrated_at=utcnow()))
             return SCHEMA_VERSION
     except ProgrammingError as exc:
         if "permission denied" in str(exc.orig).lower() or "must be owner" in str(exc.orig).lower():

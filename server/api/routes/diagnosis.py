@@ -228,17 +228,19 @@ router = APIRouter()
 
 
 def _diagnoser(request: Request) -> Diagnoser:
-    return request.app.state.diagnoser  # type: ignore[no-any-return]
+    diagnoser: Diagnoser = request.app.state.diagnoser
+    return diagnoser
 
 
 Diag = Annotated[Diagnoser, Depends(_diagnoser)]
 
-P = {"model": Problem}
-busy = {503: {**P, "description": "as many model checks as the service runs are under way (Retry-After), or one ran "
+Responses = dict[int | str, dict[str, Any]]
+P: dict[str, Any] = {"model": Problem}
+busy: Responses = {503: {**P, "description": "as many model checks as the service runs are under way (Retry-After), or one ran "
                                   "over the time limit"}}
 csv_body = {"requestBody": {"required": True, "content": {
     "text/csv": {"schema": {"type": "string", "description": "a recording: native (t,gx,gy,gz,...) or imucal layout"}}}}}
-upload_responses = {
+upload_responses: Responses = {
     400: {**P, "description": "the recording cannot be read"},
     401: {**P, "description": "reads need a token (--auth-reads)"},
     413: {**P, "description": "the recording is too large, spans too long, or needs more memory than a worker has"},
@@ -247,14 +249,14 @@ upload_responses = {
     422: {**P, "description": "invalid parameters, or the protocol is not in the recording (the missing stage is named)"},
     **busy,
 }
-session_responses = {
+session_responses: Responses = {
     401: {**P, "description": "reads need a token (--auth-reads)"},
     404: {**P, "description": "unknown session"},
     409: {**P, "description": "the session is running, or has no recording"},
     422: {**P, "description": "the protocol is not in the session's recording"},
     **busy,
 }
-html_ok = {200: {"content": {"text/html": {}}, "description": "the HTML report, figures embedded"}}
+html_ok: Responses = {200: {"content": {"text/html": {}}, "description": "the HTML report, figures embedded"}}
 
 @router.post("/diagnose", response_model=DiagnosisOut, responses=upload_responses, openapi_extra=csv_body, tags=["diagnosis"])
 async def diagnose_upload(

@@ -1,0 +1,93 @@
+"""The house's structure, measured: import cycles between gyrocal's modules, the layering rules
+(calib imports no other package of ours; the server never imports mock_device; the mock device only the
+protocol and calib), and every module's size, largest first. Exit 1 on a cycle or a layering breach;
+sizes are listed (modules over MAX_LINES flagged) for review, not failed on.
+
+Run: python scripts/check_structure.py [--sizes N]   (make test runs it)
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import sys
+from pathlib import Path
+
+import networkx as nx
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("calib", "server", "mock_device", "wearable_protocol", "webui")
+MAX_LINES = 500
+# package -> the packages of ours it may import
+ALLOWED = {
+    "calib": set(),
+    "wearable_protocol": set(),
+    "webui": set(),
+    "server": {"calib", "wearable_protocol", "webui"},
+    "mock_device": {"calib", "wearable_protocol"},
+}
+
+
+def modules() -> dict[str, Path]:
+    out = {}
+    for pkg in PACKAGES:
+        for path in (ROOT / pkg).rglob("*.py"):
+            name = ".".join(path.relative_to(ROOT).with_suffix("").parts)
+            out[name.removesuffix(".__init__")] = path
+    return out
+
+
+def imports(name: str, path: Path, known: dict[str, Path]) -> set[str]:
+    """The gyrocal modules ``name`` imports (relative imports resolved; a package import counts as its __init__)."""
+    is_pkg = path.name == "__init__.py"
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        targets: list[str] = []
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = name.split(".")
+            if node.level:
+                base = base[: len(base) - node.level + (1 if is_pkg else 0)]
+                stem = ".".join(base + ([node.module] if node.module else []))
+            else:
+                stem = node.module or ""
+            targets = [stem] + [f"{stem}.{a.name}" for a in node.names]
+        for t in targets:
+            while t and t not in known:
+                t = t.rpartition(".")[0]
+            if t and t != name and not name.startswith(t + "."):
+                found.add(t)
+    return found
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", type=int, default=15, help="list this many of the largest modules")
+    args = ap.parse_args()
+    known = modules()
+    graph = nx.DiGraph()
+    for name, path in known.items():
+        graph.add_node(name)
+        for target in imports(name, path, known):
+            graph.add_edge(name, target)
+    failures = []
+    cycles = [sorted(c) for c in nx.strongly_connected_components(graph) if len(c) > 1]
+    for c in cycles:
+        failures.append("import cycle: " + " <-> ".join(c))
+    for a, b in graph.edges:
+        pa, pb = a.split(".")[0], b.split(".")[0]
+        if pa != pb and pb not in ALLOWED[pa]:
+            failures.append(f"layering: {a} imports {b} ({pa} may import only {', '.join(sorted(ALLOWED[pa])) or 'none of ours'})")
+    sizes = sorted(((sum(1 for _ in p.open()), n) for n, p in known.items()), reverse=True)
+    print(f"{len(known)} modules, {graph.number_of_edges()} imports between them, {len(cycles)} cycles")
+    print(f"largest modules (over {MAX_LINES} lines marked *):")
+    for lines, name in sizes[: args.sizes]:
+        print(f"  {'*' if lines > MAX_LINES else ' '} {lines:5d}  {name}")
+    for f in failures:
+        print(f"FAIL {f}", file=sys.stderr)
+    return 1 if failures else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
