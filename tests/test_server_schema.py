@@ -15,7 +15,6 @@ from schemathesis import GenerationMode
 from schemathesis.specs.openapi.checks import (
     content_type_conformance,
     ignored_auth,
-    negative_data_rejection,
     response_schema_conformance,
     status_code_conformance,
     unsupported_method,
@@ -54,8 +53,10 @@ def not_a_server_error(ctx: schemathesis.CheckContext, response: schemathesis.Re
         raise AssertionError(f"{case.method} {case.formatted_path} answered {response.status_code}: {response.text[:500]}")
 
 
+# not negative_data_rejection: every case carries the operator's real token over whatever Authorization it drew,
+# so a "negative" header is never what the service sees (wrong types in the body are tested in test_server_limits)
 CHECKS = (not_a_server_error, status_code_conformance, content_type_conformance, response_schema_conformance, ignored_auth,
-          unsupported_method, negative_data_rejection)
+          unsupported_method)
 
 
 def test_no_input_makes_the_service_fail(api: RunningService, known_ids: dict[str, str]) -> None:

@@ -1,0 +1,78 @@
+"""Whether a calibration may be used: the tolerances a recording's turns and its result must meet, and
+each check of a result against them (what the service shows the operator before Accept).
+
+A full turn reads 360/k degrees raw, so the turn-angle limits are a full turn for scale factors
+k_max..k_min with a margin; the result limits are those of a working low-cost MEMS gyroscope.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .stage import AXES
+
+
+@dataclass(frozen=True)
+class Tolerances:
+    """What a turn and a result must satisfy to pass (docs/service.md, "Tolerances")."""
+
+    # raw integrated angle of a turn about the expected axis: a full turn reads 360/k, so these are a
+    # full turn for scale factors k_max..k_min
+    turn_angle_min_deg: float = 290.0  # k up to 1.24
+    turn_angle_max_deg: float = 460.0  # k down to 0.78
+    off_axis_max_fraction: float = 0.35  # rotation about the other two axes, as a fraction of the turn
+    gravity_closure_max_deg: float = 15.0  # gravity before vs after a turn: the device is put back in place
+    k_min: float = 0.8  # scale factors outside 0.8..1.2 mean a faulty sensor or a protocol error
+    k_max: float = 1.2
+    b_max_dps: float = 10.0  # |bias| above this is outside every low-cost MEMS gyroscope's spec
+    k_std_max: float = 0.01  # 1-sigma uncertainty of each scale factor
+    b_std_max_dps: float = 0.1  # 1-sigma uncertainty of each bias (deg/s)
+    # misclosure of each calibrated turn (closure estimator): a turn that was not a full one, or a device
+    # not put back in place, leaves the other turns unable to close too
+    closure_max_deg: float = 0.25
+
+
+def _check(name: str, axis: str | None, value: float, limit: Any, ok: bool, text: str) -> dict[str, Any]:
+    return {"name": name, "axis": axis, "value": value, "limit": limit, "ok": ok, "text": text}
+
+
+def evaluate(result: dict[str, Any], tol: Tolerances) -> list[dict[str, Any]]:
+    """Each tolerance check of a result (``CalibrationResult.to_dict()`` form): {name, axis, value, limit, ok, text}.
+    A value that is not finite fails its check."""
+    checks: list[dict[str, Any]] = []
+    k = result.get("k") or [float("nan")] * 3
+    b = result.get("b") or [float("nan")] * 3
+    unc = result.get("uncertainty") or {}
+    for i, a in enumerate(AXES):
+        kv = float(k[i])
+        checks.append(_check("k", a, kv, [tol.k_min, tol.k_max], tol.k_min <= kv <= tol.k_max,
+                             f"k_{a} = {kv:.4f} (allowed {tol.k_min:g} to {tol.k_max:g})"))
+    for i, a in enumerate(AXES):
+        bv = float(b[i])
+        checks.append(_check("b", a, bv, tol.b_max_dps, abs(bv) <= tol.b_max_dps,
+                             f"b_{a} = {bv:.3f} °/s (allowed ±{tol.b_max_dps:g} °/s)"))
+    if unc.get("k") is not None:
+        for i, a in enumerate(AXES):
+            v = float(unc["k"][i])
+            checks.append(_check("k_std", a, v, tol.k_std_max, v <= tol.k_std_max,
+                                 f"uncertainty of k_{a} = {v:.2g} (allowed {tol.k_std_max:g})"))
+    if unc.get("b") is not None:
+        for i, a in enumerate(AXES):
+            v = float(unc["b"][i])
+            checks.append(_check("b_std", a, v, tol.b_std_max_dps, v <= tol.b_std_max_dps,
+                                 f"uncertainty of b_{a} = {v:.2g} °/s (allowed {tol.b_std_max_dps:g} °/s)"))
+    # after calibration each full turn must bring the device back to its starting pose
+    for turn in (result.get("residuals") or {}).get("turns") or []:
+        if isinstance(turn, dict) and turn.get("closure_norm_deg") is not None:
+            v = float(turn["closure_norm_deg"])
+            axis = turn.get("axis")
+            checks.append(_check("closure", axis, v, tol.closure_max_deg, v <= tol.closure_max_deg,
+                                 f"the calibrated turn about {axis} ends {v:.2f}° from where it began "
+                                 f"(allowed {tol.closure_max_deg:g}°)"))
+    for c in checks:
+        if not np.isfinite(c["value"]):
+            c["ok"] = False
+    return checks
