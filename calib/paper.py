@@ -282,7 +282,7 @@ def algorithm1(
     history = [k]
     converged = False
     it = 0
-    for it in range(1, max_iter + 1):
+    for it in range(1, max_iter + 1):  # noqa: B007 - the count is returned after the loop
         A = np.stack([_turn_mean(m, d, k) for m, d in windows])
         fit = least_squares(
             lambda kk, A=A: (np.einsum("jai,i->ja", A, kk) ** 2).sum(axis=1) / rate2 - 1.0,

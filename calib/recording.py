@@ -12,8 +12,8 @@ Units and conventions (see docs/method.md):
 
 from __future__ import annotations
 
-from typing import Any
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 

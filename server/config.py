@@ -10,6 +10,8 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from calib.acceptance import Tolerances
+
 
 def default_db_path() -> Path:
     """The SQLite file used when no --db is given: gyrocal.sqlite3 in the user's data directory."""
@@ -38,26 +40,6 @@ class ProtocolTimings:
     hint_after_s: float = 20.0  # no expected motion for this long -> a hint
     fail_after_s: float = 60.0  # ... and for this long -> the session fails
     max_turn_s: float = 30.0  # a turn longer than this is not a hand turn of the protocol
-
-
-@dataclass(frozen=True)
-class Tolerances:
-    """What a turn and a result must satisfy to pass (see docs/service.md, "Tolerances")."""
-
-    # raw integrated angle of a turn about the expected axis: a full turn reads 360/k, so these are a
-    # full turn for scale factors k_max..k_min
-    turn_angle_min_deg: float = 290.0  # k up to 1.24
-    turn_angle_max_deg: float = 460.0  # k down to 0.78
-    off_axis_max_fraction: float = 0.35  # rotation about the other two axes, as a fraction of the turn
-    gravity_closure_max_deg: float = 15.0  # gravity before vs after a turn: the device is put back in place
-    k_min: float = 0.8  # scale factors outside 0.8..1.2 mean a faulty sensor or a protocol error
-    k_max: float = 1.2
-    b_max_dps: float = 10.0  # |bias| above this is outside every low-cost MEMS gyroscope's spec
-    k_std_max: float = 0.01  # 1-sigma uncertainty of each scale factor
-    b_std_max_dps: float = 0.1  # 1-sigma uncertainty of each bias (deg/s)
-    # misclosure of each calibrated turn (closure estimator): a turn that was not a full one, or a device
-    # not put back in place, leaves the other turns unable to close too
-    closure_max_deg: float = 0.25
 
 
 @dataclass(frozen=True)

@@ -9,6 +9,8 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from calib.api import available_methods
 
+from .live.codes import EndReason, Phase, State
+
 Method = Enum("Method", {m: m for m in available_methods()}, type=str)  # type: ignore[misc]
 Method.__doc__ = "An estimator: closure (the default, at the noise floor) or paper (the paper's Algorithm 1)."
 
@@ -130,7 +132,7 @@ class SessionStart(BaseModel):
 class SessionStarted(BaseModel):
     session_id: str
     device_id: str
-    state: str
+    state: State
     url: str
     events: str
 
@@ -142,10 +144,10 @@ class SessionOut(BaseModel):
     session_id: str
     device_id: str
     kind: Literal["live", "upload"] = "live"
-    state: str = Field(description="connecting, still, turn_x, turn_y, turn_z, reconnecting, computing, done, failed, cancelled")
-    phase: str | None = None
+    state: State = Field(description="where the session is (protocol order, then reconnecting, computing and the end states)")
+    phase: Phase | None = None
     prompt: str | None = None
-    reason_code: str | None = None
+    reason_code: EndReason | None = Field(None, description="why the session ended, if not done")
     reason: str | None = None
     result: dict[str, Any] | None = None
     passed: bool | None = None

@@ -11,7 +11,6 @@ import pytest
 
 from calib.cli import main
 from calib.concealed import EFFECT_NAMES, draw_concealed
-from calib.diagnosis import EFFECT_NAMES as DIAG_NAMES
 from calib.diagnosis import Diagnosis, diagnose
 from calib.diagnosis.data import Inputs
 from calib.diagnosis.models import Model
@@ -57,8 +56,16 @@ def _diagnose_case(effect, seed, protocol="paper", accel=True, seq=True, host=Tr
     return case, diagnose(rec, n_boot=N_BOOT, seed=seed)
 
 
-def test_catalogue_matches_the_simulator():
-    assert set(DIAG_NAMES) == set(EFFECT_NAMES)
+def test_the_diagnosis_can_tell_how_to_reveal_every_catalogued_effect():
+    from calib.diagnosis.models import RATE_EFFECTS
+    from calib.diagnosis.select import ADVICE
+
+    # each effect the simulator can put in a recording is either a term of the rate model or one of the
+    # effects the diagnosis finds by its own test (clipping, lost samples, the clock, placement, a wander)
+    own_tests = {"saturation", "sample_loss", "clock_error", "placement_error", "bias_instability"}
+    for name in EFFECT_NAMES:
+        assert name in RATE_EFFECTS or name in own_tests, f"{name}: the diagnosis has no model of it"
+        assert ADVICE.get(name), f"{name}: no advice on the motion or channel that reveals it"
 
 
 @pytest.mark.parametrize("effect", sorted(REVEALING))
@@ -110,7 +117,7 @@ def test_json_contract_and_recalibration():
     e = out["effects"][0]
     assert set(e) >= {"name", "parameters", "uncertainty", "fit", "evidence"}
     assert set(e["fit"]) == {"before", "after"}
-    assert e["name"] in DIAG_NAMES
+    assert e["name"] in EFFECT_NAMES
     # the drift the diagnosis reports matches the one hidden (within 4 standard errors)
     d_true = case.effect.rate_dps_per_s
     d_fit = np.array(e["parameters"]["rate_dps_per_s"])

@@ -8,11 +8,12 @@ from typing import Any
 import numpy as np
 import pytest
 
+from calib.acceptance import evaluate as evaluate_result
 from calib.simulator import Motion, ProtocolScript, SensorParams, Still, Turn, paper_protocol_script, simulate
 from mock_device.scenarios import get_scenario
 from server.config import ProtocolTimings, Settings
 from server.live.runner import compute_result
-from server.live.session import GuidedSession, evaluate_result
+from server.live.session import GuidedSession
 
 FS = 104.0
 PARAMS = SensorParams(k=np.array([1.03, 0.97, 1.05]), b=np.array([1.5, -2.0, 0.7]))

@@ -354,14 +354,22 @@ def test_a_busy_device_is_explained_and_its_calibration_can_be_joined(wizard: Wi
 
 
 def test_every_failure_reason_of_the_service_has_a_title_and_a_fix(page: Any, webui_service: Any, page_watch: Watch) -> None:
+    from server.live.codes import EndReason
     from server.live.guidance import REASONS
 
+    assert set(REASONS) == set(EndReason), "every end reason has the service's own sentence"
+    codes = sorted(r.value for r in EndReason)
+    published = webui_service.client().get("/openapi.json").json()["components"]["schemas"]["EndReason"]["enum"]
+    assert sorted(published) == codes  # the API schema names exactly these
     page.goto(webui_service.base + "/")
     page.wait_for_selector("#operator")
     texts = page.evaluate("""async (codes) => {
       const m = await import('/messages.js');
-      return codes.map((c) => [c, m.REASONS[c] ? m.REASONS[c].title : null, m.REASONS[c] ? m.REASONS[c].fix : null]);
-    }""", sorted(REASONS))
+      return [codes.map((c) => [c, m.REASONS[c] ? m.REASONS[c].title : null, m.REASONS[c] ? m.REASONS[c].fix : null]),
+              Object.keys(m.REASONS)];
+    }""", codes)
+    texts, on_page = texts
+    assert sorted(on_page) == codes, f"the page maps codes the service does not send: {sorted(set(on_page) - set(codes))}"
     missing = [c for c, title, fix in texts if not title or not fix]
     assert not missing, f"reason codes without a message and fix on the page: {missing}"
     titles = [t for _, t, _ in texts]

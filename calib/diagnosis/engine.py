@@ -309,7 +309,7 @@ def gauss_newton(
     conv = np.zeros(R, dtype=bool)
     it = 0
     rank = np.zeros(R, dtype=np.int64)
-    for it in range(1, max_iter + 1):
+    for it in range(1, max_iter + 1):  # noqa: B007 - the count is returned after the loop
         A = np.einsum("rmp,rmq->rpq", sys_.J, sys_.J)
         g = np.einsum("rmp,rm->rp", sys_.J, sys_.res)
         step, rank = _pinv_solve(A, -g)

@@ -5,26 +5,29 @@ Every failure names what happened and how to fix it, in words a clinician unders
 
 from __future__ import annotations
 
+from .codes import EndReason
+
 AXIS_NAMES = {"x": "X", "y": "Y", "z": "Z"}
 
 # reason codes of a failed session, with a one-line description for the docs and the API schema
-REASONS: dict[str, str] = {
-    "connect_failed": "the device could not be connected or did not start streaming",
-    "not_still": "the device never stayed still long enough before the first turn",
-    "no_motion": "the requested turn did not start within the time limit",
-    "moved_during_pause": "the device moved during a pause between turns",
-    "wrong_axis": "the turn was about another axis than the one asked for",
-    "too_fast": "the turn was so fast that the gyroscope saturated",
-    "turn_incomplete": "the turn was less than a full turn",
-    "turn_too_far": "the turn was more than a full turn",
-    "turn_too_long": "the turn did not end within the time limit",
-    "sample_loss": "samples were lost on the radio link during a turn",
-    "link_lost": "the radio link was lost and did not come back in time",
-    "out_of_tolerance": "the computed calibration is outside the documented tolerances",
-    "calibration_failed": "the estimator could not compute a calibration from the recording",
-    "timeout": "the session did not reach its end within the overall time limit",
-    "service_restarted": "the service was restarted while the session ran",
-    "internal_error": "an unexpected error stopped the session",
+REASONS: dict[EndReason, str] = {
+    EndReason.CONNECT_FAILED: "the device could not be connected or did not start streaming",
+    EndReason.NOT_STILL: "the device never stayed still long enough before the first turn",
+    EndReason.NO_MOTION: "the requested turn did not start within the time limit",
+    EndReason.MOVED_DURING_PAUSE: "the device moved during a pause between turns",
+    EndReason.WRONG_AXIS: "the turn was about another axis than the one asked for",
+    EndReason.TOO_FAST: "the turn was so fast that the gyroscope saturated",
+    EndReason.TURN_INCOMPLETE: "the turn was less than a full turn",
+    EndReason.TURN_TOO_FAR: "the turn was more than a full turn",
+    EndReason.TURN_TOO_LONG: "the turn did not end within the time limit",
+    EndReason.SAMPLE_LOSS: "samples were lost on the radio link during a turn",
+    EndReason.LINK_LOST: "the radio link was lost and did not come back in time",
+    EndReason.OUT_OF_TOLERANCE: "the computed calibration is outside the documented tolerances",
+    EndReason.CALIBRATION_FAILED: "the estimator could not compute a calibration from the recording",
+    EndReason.TIMEOUT: "the session did not reach its end within the overall time limit",
+    EndReason.SERVICE_RESTARTED: "the service was restarted while the session ran",
+    EndReason.INTERNAL_ERROR: "an unexpected error stopped the session",
+    EndReason.CANCELLED: "an operator cancelled the session",
 }
 
 

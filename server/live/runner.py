@@ -21,8 +21,9 @@ from ..devices import Device
 from ..store import SessionEnd, Store, utcnow
 from ..workers.compute import ComputePool, calibrate_recording, recording_csv
 from . import guidance as say
+from .buffer import SampleBuffer
 from .events import Broadcaster, finite
-from .session import GuidedSession, SampleBuffer
+from .session import GuidedSession
 
 log = logging.getLogger(__name__)
 

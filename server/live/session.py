@@ -14,108 +14,26 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from datetime import UTC, datetime
 from typing import Any, cast
 
 import numpy as np
 
+from calib.acceptance import evaluate
 from calib.recording import Recording, RecordingMeta
 from calib.stage import Axis, Stage
+from calib.turn_checks import gravity_change_deg, rest_after_full_turn, swept_angles
 
 from ..config import Settings
 from . import guidance as say
+from .buffer import SampleBuffer
+from .codes import END_STATES, STEPS, TURN_STATES
+from .turns import TurnRecord
 
 AXES = ("x", "y", "z")
-TURN_STATES = {"x": "turn_x", "y": "turn_y", "z": "turn_z"}
-STEPS = ("connecting", "still", "turn_x", "turn_y", "turn_z", "computing", "done")
-END_STATES = frozenset({"done", "failed", "cancelled"})
-STATES = ("connecting", "still", "turn_x", "turn_y", "turn_z", "reconnecting", "computing", "done", "failed", "cancelled")
-PHASES = ("waiting", "settle", "ready", "turning", "pause")
 
 Listener = Callable[[str, dict[str, Any]], None]
-
-
-class SampleBuffer:
-    """Growing arrays of every sample a session received (amortised O(1) appends)."""
-
-    def __init__(self, with_accel: bool = True) -> None:
-        self.n = 0
-        cap = 4096
-        self.t = np.empty(cap)
-        self.gyro = np.empty((cap, 3))
-        self.accel = np.empty((cap, 3)) if with_accel else None
-        self.seq = np.empty(cap, dtype=np.int64)
-        self.has_seq = True
-        self.has_accel = with_accel
-
-    def _grow(self, need: int) -> None:
-        cap = self.t.size
-        if need <= cap:
-            return
-        while cap < need:
-            cap *= 2
-        self.t = np.resize(self.t, cap)
-        self.gyro = np.resize(self.gyro, (cap, 3))
-        if self.accel is not None:
-            self.accel = np.resize(self.accel, (cap, 3))
-        self.seq = np.resize(self.seq, cap)
-
-    def append(self, t: np.ndarray, gyro: np.ndarray, accel: np.ndarray | None, seq: np.ndarray | None) -> tuple[int, int]:
-        """Append one batch; returns its global index range [start, end)."""
-        k = t.size
-        start = self.n
-        self._grow(start + k)
-        self.t[start : start + k] = t
-        self.gyro[start : start + k] = gyro
-        if self.accel is not None:
-            if accel is None:
-                self.accel = None
-                self.has_accel = False
-            else:
-                self.accel[start : start + k] = accel
-        if seq is None:
-            self.has_seq = False
-        else:
-            self.seq[start : start + k] = seq
-        self.n += k
-        return start, self.n
-
-    def recording(self, meta: RecordingMeta) -> Recording:
-        n = self.n
-        return Recording(
-            t=self.t[:n].copy(),
-            gyro=self.gyro[:n].copy(),
-            accel=None if self.accel is None or not self.has_accel else self.accel[:n].copy(),
-            seq=self.seq[:n].copy() if self.has_seq else None,
-            meta=meta,
-        )
-
-
-@dataclass(frozen=True)
-class TurnRecord:
-    """A turn that passed its checks, with its bounds in the session's recording."""
-
-    axis: str
-    start: int
-    end: int
-    start_s: float
-    end_s: float
-    angle_deg: np.ndarray  # integrated bias-compensated raw angle about x, y, z
-    flags: tuple[str, ...]
-    rest_before_s: float = 0.0  # how long the device rested before the turn
-    gravity_change_deg: float | None = None  # gravity before vs after: 0 when put back in place
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "axis": self.axis,
-            "angle_deg": [round(float(a), 2) for a in self.angle_deg],
-            "duration_s": round(self.end_s - self.start_s, 3),
-            "start_s": round(self.start_s, 4),
-            "end_s": round(self.end_s, 4),
-            "rest_before_s": round(self.rest_before_s, 2),
-            "gravity_change_deg": None if self.gravity_change_deg is None else round(self.gravity_change_deg, 1),
-        }
 
 
 def _utc() -> str:
@@ -365,7 +283,7 @@ class GuidedSession:
         if self.finished:
             return
         self.result = result
-        self.checks = evaluate_result(result, self.tol)
+        self.checks = evaluate(result, self.tol)
         failures = [c["text"] for c in self.checks if not c["ok"]]
         self.passed = not failures
         if failures:
@@ -645,37 +563,19 @@ class GuidedSession:
 
     def _turn_angles(self, start: int, end: int) -> np.ndarray:
         """Integrated raw angle (deg) about x, y, z over [start, end), bias from the last still."""
-        t = self.buf.t[start:end]
-        m = self.buf.gyro[start:end]
-        bias = np.zeros(3)
         still = self._last_still
-        if still is not None and still.end > still.start:
-            bias = self.buf.gyro[still.start : still.end].mean(axis=0)
-        if t.size < 2:
-            return np.zeros(3)
-        dt = np.diff(t)
-        return ((m[1:] - bias) * dt[:, None]).sum(axis=0)
+        bias = self.buf.gyro[still.start : still.end].mean(axis=0) if still is not None and still.end > still.start else 0.0
+        return swept_angles(self.buf.t[start:end], self.buf.gyro[start:end], bias)
 
     def _rest_after_full_turn(self, st: Stage, k: int) -> bool:
         """Whether the motion holds a rest of rest_seen_s after a full turn about axis k, then moves on."""
-        if self.fs is None or st.end - st.start < 3:
+        if self.fs is None:
             return False
         still = self._last_still
         bias = self.buf.gyro[still.start : still.end].mean(axis=0) if still is not None and still.end > still.start else 0.0
-        m = self.buf.gyro[st.start : st.end] - bias
-        t = self.buf.t[st.start : st.end]
         floor = getattr(self.tracker.live, "noise_floor", None) if self.tracker is not None else None
-        quiet = np.linalg.norm(m, axis=1) < max(1.0, 8.0 * (floor or 0.0))
-        angle = np.concatenate([[0.0], np.cumsum(m[1:, k] * np.diff(t))])
-        edges = np.flatnonzero(np.diff(np.concatenate([[0], quiet.astype(np.int8), [0]])))
-        starts, ends = edges[::2], edges[1::2]  # quiet runs [start, end)
-        n = m.shape[0]
-        for a, b in zip(starts, ends, strict=False):
-            long_enough = t[b - 1] - t[a] >= self.timings.rest_seen_s
-            moves_after = b < n and np.any(~quiet[b:])
-            if long_enough and moves_after and abs(angle[a]) >= self.tol.turn_angle_min_deg:
-                return True
-        return False
+        return rest_after_full_turn(self.buf.t[st.start : st.end], self.buf.gyro[st.start : st.end], bias, k, floor,
+                                    self.timings.rest_seen_s, self.tol.turn_angle_min_deg)
 
     def _gravity_change_deg(self, st: Stage) -> float | None:
         """Angle (deg) between gravity in the rest before the turn and in the rest after it."""
@@ -684,15 +584,7 @@ class GuidedSession:
         if acc is None or still is None or self.fs is None:
             return None
         span = max(2, int(0.5 * self.fs))
-        before = acc[max(still.start, still.end - span) : still.end]
-        after = acc[st.end : min(self.buf.n, st.end + span)]
-        if before.shape[0] < 2 or after.shape[0] < 2:
-            return None
-        a, b = before.mean(axis=0), after.mean(axis=0)
-        na, nb = np.linalg.norm(a), np.linalg.norm(b)
-        if not (0.5 < na < 1.5 and 0.5 < nb < 1.5):
-            return None  # not resting on a table (or no accelerometer data)
-        return float(np.degrees(np.arccos(np.clip(a @ b / (na * nb), -1.0, 1.0))))
+        return gravity_change_deg(acc[max(still.start, still.end - span) : still.end], acc[st.end : min(self.buf.n, st.end + span)])
 
     def _check_turn(self, st: Stage) -> None:
         axis = AXES[self._axis_i]
@@ -809,42 +701,3 @@ def _default_tracker(fs: float, full_scale_dps: float | None) -> Any:
     return StageTracker(fs, full_scale_dps=full_scale_dps)
 
 
-def evaluate_result(result: dict[str, Any], tol: Any) -> list[dict[str, Any]]:
-    """Each tolerance check of a result: {name, axis, value, limit, ok, text}."""
-    checks: list[dict[str, Any]] = []
-    k = result.get("k") or [float("nan")] * 3
-    b = result.get("b") or [float("nan")] * 3
-    unc = result.get("uncertainty") or {}
-    for i, a in enumerate(AXES):
-        kv = float(k[i])
-        ok = tol.k_min <= kv <= tol.k_max
-        checks.append({"name": "k", "axis": a, "value": kv, "limit": [tol.k_min, tol.k_max], "ok": ok,
-                       "text": f"k_{a} = {kv:.4f} (allowed {tol.k_min:g} to {tol.k_max:g})"})
-    for i, a in enumerate(AXES):
-        bv = float(b[i])
-        ok = abs(bv) <= tol.b_max_dps
-        checks.append({"name": "b", "axis": a, "value": bv, "limit": tol.b_max_dps, "ok": ok,
-                       "text": f"b_{a} = {bv:.3f} °/s (allowed ±{tol.b_max_dps:g} °/s)"})
-    if unc.get("k") is not None:
-        for i, a in enumerate(AXES):
-            v = float(unc["k"][i])
-            ok = v <= tol.k_std_max
-            checks.append({"name": "k_std", "axis": a, "value": v, "limit": tol.k_std_max, "ok": ok,
-                           "text": f"uncertainty of k_{a} = {v:.2g} (allowed {tol.k_std_max:g})"})
-    if unc.get("b") is not None:
-        for i, a in enumerate(AXES):
-            v = float(unc["b"][i])
-            ok = v <= tol.b_std_max_dps
-            checks.append({"name": "b_std", "axis": a, "value": v, "limit": tol.b_std_max_dps, "ok": ok,
-                           "text": f"uncertainty of b_{a} = {v:.2g} °/s (allowed {tol.b_std_max_dps:g} °/s)"})
-    # after calibration each full turn must bring the device back to its starting pose
-    for turn in (result.get("residuals") or {}).get("turns") or []:
-        if isinstance(turn, dict) and turn.get("closure_norm_deg") is not None:
-            v = float(turn["closure_norm_deg"])
-            turn_axis = turn.get("axis")
-            checks.append({"name": "closure", "axis": turn_axis, "value": v, "limit": tol.closure_max_deg, "ok": v <= tol.closure_max_deg,
-                           "text": f"the calibrated turn about {turn_axis} ends {v:.2f}° from where it began (allowed {tol.closure_max_deg:g}°)"})
-    for c in checks:
-        if not np.isfinite(c["value"]):
-            c["ok"] = False
-    return checks

@@ -15,6 +15,7 @@ from pydantic import ValidationError
 from sqlalchemy.exc import SQLAlchemyError
 
 from calib import __version__
+from calib.acceptance import evaluate
 
 from ... import schemas as M
 from ...deps import (
@@ -32,9 +33,10 @@ from ...deps import (
     problem,
     recording_problem,
 )
+from ...live.codes import END_STATES
 from ...live.events import Event, dumps, finite
 from ...live.runner import LiveSession
-from ...live.session import END_STATES, GuidedSession, evaluate_result
+from ...live.session import GuidedSession
 from ...service import Service
 from ...store import DecisionConflict, NotAcceptable, NotFound, SessionEnd, StoreError
 from ...workers.compute import TooManySamples, calibrate_upload
@@ -340,7 +342,7 @@ async def calibrate_uploaded(
     except Exception as exc:  # calib's errors and whatever else the parser or estimator trips on
         raise recording_problem(exc, "calibrated", upload=True) from None
     res = finite(res)
-    checks = evaluate_result(res, svc.settings.tolerances)
+    checks = evaluate(res, svc.settings.tolerances)
     failures = [c["text"] for c in checks if not c["ok"]]
     passed = not failures
     sid = uuid.uuid4().hex

@@ -1,0 +1,60 @@
+"""The words a guided session is told in, one enum each, published in the API schema: its states, the
+phases of a turn, and why it ended (the page maps every EndReason to a title and a fix, and a test holds
+the two in step)."""
+
+from __future__ import annotations
+
+from enum import StrEnum
+
+
+class State(StrEnum):
+    """Where a session is, in protocol order, then the end states."""
+
+    CONNECTING = "connecting"
+    STILL = "still"
+    TURN_X = "turn_x"
+    TURN_Y = "turn_y"
+    TURN_Z = "turn_z"
+    RECONNECTING = "reconnecting"
+    COMPUTING = "computing"
+    DONE = "done"
+    FAILED = "failed"
+    CANCELLED = "cancelled"
+
+
+class Phase(StrEnum):
+    """Within the still and turn states: waiting for rest, settling after a reconnection or retry, asking for
+    the turn, turning, and the pause after a checked turn."""
+
+    WAITING = "waiting"
+    SETTLE = "settle"
+    READY = "ready"
+    TURNING = "turning"
+    PAUSE = "pause"
+
+
+class EndReason(StrEnum):
+    """Why a session ended other than done (its ``reason_code``)."""
+
+    CONNECT_FAILED = "connect_failed"
+    NOT_STILL = "not_still"
+    NO_MOTION = "no_motion"
+    MOVED_DURING_PAUSE = "moved_during_pause"
+    WRONG_AXIS = "wrong_axis"
+    TOO_FAST = "too_fast"
+    TURN_INCOMPLETE = "turn_incomplete"
+    TURN_TOO_FAR = "turn_too_far"
+    TURN_TOO_LONG = "turn_too_long"
+    SAMPLE_LOSS = "sample_loss"
+    LINK_LOST = "link_lost"
+    OUT_OF_TOLERANCE = "out_of_tolerance"
+    CALIBRATION_FAILED = "calibration_failed"
+    TIMEOUT = "timeout"
+    SERVICE_RESTARTED = "service_restarted"
+    INTERNAL_ERROR = "internal_error"
+    CANCELLED = "cancelled"
+
+
+TURN_STATES = {"x": State.TURN_X, "y": State.TURN_Y, "z": State.TURN_Z}
+STEPS = (State.CONNECTING, State.STILL, State.TURN_X, State.TURN_Y, State.TURN_Z, State.COMPUTING, State.DONE)
+END_STATES = frozenset({State.DONE, State.FAILED, State.CANCELLED})
