@@ -1,0 +1,65 @@
+"""The detector's sample store: recent samples and their running (prefix) sums, addressed by global sample index."""
+
+from __future__ import annotations
+
+import numpy as np
+
+# Columns of the running (prefix) sums kept per sample, relative to the first reading x0.
+_S1 = slice(0, 3)  # x - x0
+_S2 = slice(3, 6)  # (x - x0)^2
+_D1 = slice(6, 9)  # d = x_i - x_{i-1}
+_D2 = slice(9, 12)  # d^2
+_DT = 12  # dt_i = t_i - t_{i-1}
+_MDT = slice(13, 16)  # (x - x0) dt
+_TDT = 16  # (t - t0) dt
+_SAT = 17  # saturated samples
+_GAP = 18  # counter jumps
+_NCOL = 19
+
+
+class _Store:
+    """Recent samples and their running sums, addressed by global sample index."""
+
+    def __init__(self, cap: int) -> None:
+        self.base = 0  # global index of row 0
+        self.n = 0  # samples received
+        self.x = np.empty((cap, 3))
+        self.t = np.empty(cap)
+        self.p = np.zeros((cap + 1, _NCOL))  # p[r] = sums over samples before global index base + r
+
+    def append(self, x: np.ndarray, t: np.ndarray, values: np.ndarray, keep_from: int) -> None:
+        k = t.size
+        used = self.n - self.base
+        if used + k > self.t.size:
+            keep_from = min(max(keep_from, self.base), self.n)
+            drop = keep_from - self.base
+            if drop > 0:
+                kept = used - drop
+                self.x[:kept] = self.x[drop:used]
+                self.t[:kept] = self.t[drop:used]
+                self.p[: kept + 1] = self.p[drop : used + 1]
+                self.base, used = keep_from, kept
+            if used + k > self.t.size:
+                cap = max(2 * self.t.size, used + k)
+                self.x = np.concatenate([self.x[:used], np.empty((cap - used, 3))])
+                self.t = np.concatenate([self.t[:used], np.empty(cap - used)])
+                self.p = np.concatenate([self.p[: used + 1], np.zeros((cap - used, _NCOL))])
+        self.x[used : used + k] = x
+        self.t[used : used + k] = t
+        # Running sums carry over exactly (cumsum adds in sample order), so any batching gives the same bits.
+        self.p[used : used + k + 1] = np.cumsum(np.concatenate([self.p[used : used + 1], values]), axis=0)
+        self.n += k
+
+    def _local(self, i: int) -> int:
+        if i < self.base:
+            raise AssertionError(f"sample {i} is no longer kept (oldest kept: {self.base})")
+        return i - self.base
+
+    def row(self, i: int) -> np.ndarray:
+        return self.p[self._local(i)]
+
+    def sums(self, a: int, b: int) -> np.ndarray:
+        return self.p[self._local(b)] - self.p[self._local(a)]
+
+    def time(self, i: int) -> float:
+        return float(self.t[self._local(i)])
