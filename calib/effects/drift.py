@@ -1,0 +1,193 @@
+"""Slow changes of the zero-rate output: a drift (in time or with temperature), a temperature ramp, and a
+wandering bias (a Gauss-Markov bias instability)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any, ClassVar
+
+import numpy as np
+
+from .base import (
+    Effect,
+    SensorContext,
+    SensorOutput,
+    SimulationConfigError,
+    _numbers,
+    _one_or_three,
+    _positive,
+    _usage_error,
+    _vec3,
+    register_effect,
+)
+
+TEMP_RESOLUTION_C = 1.0 / 256.0  # temperature channel step (256 LSB/degC, a common IMU temperature sensor)
+
+
+def warmup_temperature(t: np.ndarray | float, temp0_c: float, rise_c: float, tau_s: float) -> np.ndarray:
+    """Sensor temperature T(t) = T0 + rise * (1 - exp(-t / tau)) (degC) of a device warming up, t in s."""
+    return temp0_c + rise_c * -np.expm1(-np.asarray(t, dtype=float) / tau_s)
+
+
+def _temperature_channel(out: SensorOutput, temp0_c: float, rise_c: float, tau_s: float) -> SensorOutput:
+    t = out.t_true if out.t_true is not None else out.t
+    temp = warmup_temperature(t, temp0_c, rise_c, tau_s)
+    return replace(out, temp=np.round(temp / TEMP_RESOLUTION_C) * TEMP_RESOLUTION_C)
+
+
+@register_effect
+@dataclass(frozen=True)
+class BiasDrift(Effect):
+    """Bias drift over time, and against temperature when a temperature model is given.
+
+    Model (per axis, deg/s of true rate; t true time in s since the first sample):
+
+        g = K m + b + d t                                   (time drift; d = ``rate_dps_per_s``)
+        g = K m + b + d t + c (T(t) - T0)                   (with ``temp_coeff_dps_per_c`` = c)
+        T(t) = T0 + rise (1 - exp(-t / tau))                (warm-up; T0 = ``temp0_c``)
+
+    With a temperature model the recording carries the temperature channel T (degC, quantised to
+    1/256 degC); the bias then follows b(T) = b + c (T - T0) with T0 = the first sample's
+    temperature. CLI value: ``D`` or ``DX,DY,DZ`` (deg/s per s), optionally followed by
+    ``:C`` or ``:CX,CY,CZ`` (deg/s per degC) ``:RISE`` (degC) ``[:TAU]`` (s, default 120), e.g.
+    ``bias_drift=0.002`` or ``bias_drift=0:0.03:6:90``.
+    """
+
+    name: ClassVar[str] = "bias_drift"
+    usage: ClassVar[str] = "RATE or RX,RY,RZ (deg/s per s)[:C or CX,CY,CZ (deg/s per degC):RISE (degC)[:TAU (s)]]"
+    rate_dps_per_s: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    temp_coeff_dps_per_c: np.ndarray | None = None
+    temp_rise_c: float = 0.0
+    temp_tau_s: float = 120.0
+    temp0_c: float = 25.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "rate_dps_per_s", _vec3(self.rate_dps_per_s, "BiasDrift.rate_dps_per_s"))
+        if self.temp_coeff_dps_per_c is not None:
+            object.__setattr__(self, "temp_coeff_dps_per_c", _vec3(self.temp_coeff_dps_per_c, "BiasDrift.temp_coeff_dps_per_c"))
+        rise = float(self.temp_rise_c)
+        if not np.isfinite(rise):
+            raise SimulationConfigError(f"BiasDrift.temp_rise_c must be a finite number of degC; got {self.temp_rise_c!r}")
+        object.__setattr__(self, "temp_rise_c", rise)
+        object.__setattr__(self, "temp_tau_s", _positive(self.temp_tau_s, "BiasDrift.temp_tau_s"))
+        object.__setattr__(self, "temp0_c", float(self.temp0_c))
+
+    @classmethod
+    def from_text(cls, value: str) -> BiasDrift:
+        groups = value.split(":")
+        if len(groups) not in (1, 3, 4):
+            raise _usage_error(cls, value)
+        d = _one_or_three(_numbers(groups[0], cls), cls, value)
+        if len(groups) == 1:
+            return cls(d)
+        c = _one_or_three(_numbers(groups[1], cls), cls, value)
+        rest = [_numbers(g, cls) for g in groups[2:]]
+        if any(len(r) != 1 for r in rest):
+            raise _usage_error(cls, value)
+        return cls(d, c, rest[0][0], *(r[0] for r in rest[1:]))
+
+    @property
+    def has_temperature(self) -> bool:
+        return self.temp_coeff_dps_per_c is not None
+
+    def temperature(self, t: np.ndarray) -> np.ndarray:
+        """T(t) in degC for true times t (s) since the first sample."""
+        return warmup_temperature(t, self.temp0_c, self.temp_rise_c, self.temp_tau_s)
+
+    def bias_change(self, t: np.ndarray) -> np.ndarray:
+        """The bias added at true times t (n,), (n, 3) deg/s of true rate."""
+        t = np.asarray(t, dtype=float)
+        db = np.outer(t, self.rate_dps_per_s)
+        if self.temp_coeff_dps_per_c is not None:
+            db += np.outer(self.temperature(t) - self.temp0_c, self.temp_coeff_dps_per_c)
+        return db
+
+    def on_sensor(self, m: np.ndarray, ctx: SensorContext, rng: np.random.Generator) -> np.ndarray:
+        # m = (g - b(t)) / k: the extra bias enters in true-rate units, like b.
+        return m - self.bias_change(ctx.t - ctx.t[0]) / ctx.k
+
+    def on_output(self, out: SensorOutput, rng: np.random.Generator) -> SensorOutput:
+        if not self.has_temperature:
+            return out
+        return _temperature_channel(out, self.temp0_c, self.temp_rise_c, self.temp_tau_s)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = super().to_dict()
+        if not self.has_temperature:
+            for key in ("temp_coeff_dps_per_c", "temp_rise_c", "temp_tau_s", "temp0_c"):
+                d.pop(key)
+        return d
+
+
+@register_effect
+@dataclass(frozen=True)
+class TemperatureRamp(Effect):
+    """A temperature channel only (no effect on the gyro): T(t) = T0 + rise (1 - exp(-t / tau)), degC.
+
+    For recordings that carry a temperature whatever the sensor does. CLI value: ``RISE[,TAU[,T0]]``.
+    """
+
+    name: ClassVar[str] = "temperature"
+    usage: ClassVar[str] = "RISE[,TAU[,T0]] (degC, s, degC)"
+    rise_c: float = 0.0
+    tau_s: float = 120.0
+    temp0_c: float = 25.0
+
+    def __post_init__(self) -> None:
+        if not np.isfinite(float(self.rise_c)):
+            raise SimulationConfigError(f"TemperatureRamp.rise_c must be a finite number; got {self.rise_c!r}")
+        object.__setattr__(self, "rise_c", float(self.rise_c))
+        object.__setattr__(self, "tau_s", _positive(self.tau_s, "TemperatureRamp.tau_s"))
+        object.__setattr__(self, "temp0_c", float(self.temp0_c))
+
+    def on_output(self, out: SensorOutput, rng: np.random.Generator) -> SensorOutput:
+        return _temperature_channel(out, self.temp0_c, self.rise_c, self.tau_s)
+
+
+@register_effect
+@dataclass(frozen=True, eq=False)
+class BiasInstability(Effect):
+    """Non-white bias noise: a first-order Gauss-Markov bias per axis.
+
+    Model: g = K m + b + x(t), with x (deg/s of true rate) independent per axis,
+    x_0 ~ N(0, sigma^2), x_{i+1} = phi_i x_i + sigma sqrt(1 - phi_i^2) w_i, phi_i = exp(-(t_{i+1} - t_i) / tau),
+    w_i ~ N(0, 1) (the sampled form of dx = -x / tau dt + sigma sqrt(2 / tau) dW; stationary std sigma,
+    autocorrelation sigma^2 exp(-|dt| / tau)). Its Allan deviation peaks at about 0.62 sigma at an
+    averaging time of about 1.9 tau, which is the "bias instability" a datasheet or Allan analysis
+    would quote. ``sigma_dps`` (deg/s), ``tau_s`` (s). CLI value: ``SIGMA[,TAU]`` (default tau 30 s).
+    """
+
+    name: ClassVar[str] = "bias_instability"
+    usage: ClassVar[str] = "SIGMA[,TAU] (deg/s, s)"
+    sigma_dps: float = 0.0
+    tau_s: float = 30.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "sigma_dps", _positive(self.sigma_dps, "BiasInstability.sigma_dps", allow_zero=True))
+        object.__setattr__(self, "tau_s", _positive(self.tau_s, "BiasInstability.tau_s"))
+
+    @classmethod
+    def from_text(cls, value: str) -> BiasInstability:
+        v = _numbers(value, cls)
+        if len(v) not in (1, 2):
+            raise _usage_error(cls, value)
+        return cls(*v)
+
+    def path(self, t: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """A realisation x (n, 3) in deg/s at the true times t (n,)."""
+        t = np.asarray(t, dtype=float)
+        phi = np.exp(-np.diff(t) / self.tau_s)
+        drive = rng.standard_normal((t.size, 3))
+        drive[0] *= self.sigma_dps
+        drive[1:] *= self.sigma_dps * np.sqrt(1.0 - phi * phi)[:, None]
+        if phi.size and np.allclose(phi, phi[0], rtol=0, atol=1e-12):
+            from scipy.signal import lfilter  # imported here: scipy.signal adds most of a second to start-up
+
+            return lfilter([1.0], [1.0, -phi[0]], drive, axis=0)
+        x = drive.copy()
+        for i in range(1, t.size):
+            x[i] += phi[i - 1] * x[i - 1]
+        return x
+
+    def on_sensor(self, m: np.ndarray, ctx: SensorContext, rng: np.random.Generator) -> np.ndarray:
+        return m - self.path(ctx.t, rng) / ctx.k

@@ -1,0 +1,129 @@
+"""Errors of the scale factor and its range: asymmetry between directions, nonlinearity with rate, saturation."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import ClassVar
+
+import numpy as np
+
+from .base import (
+    Effect,
+    SensorContext,
+    SensorOutput,
+    SimulationConfigError,
+    _numbers,
+    _one_or_three,
+    _positive,
+    _usage_error,
+    _vec3,
+    register_effect,
+)
+
+
+@register_effect
+@dataclass(frozen=True, eq=False)
+class ScaleAsymmetry(Effect):
+    """Different scale factors for positive and negative rates.
+
+    Model (per axis): g = (1 + s sign(g0)) g0 with g0 = K m + b, s = ``asymmetry`` (dimensionless,
+    |s| < 0.5). So the scale factor is k (1 + s) for positive true rates and k (1 - s) for negative
+    ones, and the zero-rate reading (g = 0) is unchanged. Shows only with turns both ways.
+    CLI value: ``S`` or ``SX,SY,SZ``, e.g. ``scale_asymmetry=0.005``.
+    """
+
+    name: ClassVar[str] = "scale_asymmetry"
+    usage: ClassVar[str] = "S or SX,SY,SZ (fraction)"
+    asymmetry: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    def __post_init__(self) -> None:
+        s = _vec3(self.asymmetry, "ScaleAsymmetry.asymmetry")
+        if np.any(np.abs(s) >= 0.5):
+            raise SimulationConfigError(f"ScaleAsymmetry.asymmetry must be smaller than 0.5 in size; got {self.asymmetry!r}")
+        object.__setattr__(self, "asymmetry", s)
+
+    @classmethod
+    def from_text(cls, value: str) -> ScaleAsymmetry:
+        return cls(_one_or_three(_numbers(value, cls), cls, value))
+
+    def on_sensor(self, m: np.ndarray, ctx: SensorContext, rng: np.random.Generator) -> np.ndarray:
+        g = m * ctx.k + ctx.b
+        g0 = g / (1.0 + self.asymmetry * np.sign(g))
+        return (g0 - ctx.b) / ctx.k
+
+
+@register_effect
+@dataclass(frozen=True, eq=False)
+class ScaleNonlinearity(Effect):
+    """Scale factor that changes with the rate (odd-symmetric, quadratic in |rate|).
+
+    Model (per axis): g = (1 + n |g0| / r0) g0 with g0 = K m + b, n = ``coeff`` (dimensionless: the
+    relative change of the scale factor at |rate| = r0), r0 = ``ref_rate_dps`` (default 1000 deg/s).
+    Over a range +-FS this deviates from the best straight line by n FS / (4 r0) of FS (the datasheet
+    "nonlinearity, % FS"), so n = 0.004 is 0.2 % FS at +-2000 deg/s. Shows with turns at different
+    speeds. CLI value: ``N`` or ``NX,NY,NZ`` optionally ``:R0``, e.g. ``scale_nonlinearity=0.005``.
+    """
+
+    name: ClassVar[str] = "scale_nonlinearity"
+    usage: ClassVar[str] = "N or NX,NY,NZ (fraction at R0)[:R0 (deg/s, default 1000)]"
+    coeff: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    ref_rate_dps: float = 1000.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "coeff", _vec3(self.coeff, "ScaleNonlinearity.coeff"))
+        object.__setattr__(self, "ref_rate_dps", _positive(self.ref_rate_dps, "ScaleNonlinearity.ref_rate_dps"))
+
+    @classmethod
+    def from_text(cls, value: str) -> ScaleNonlinearity:
+        groups = value.split(":")
+        if len(groups) not in (1, 2):
+            raise _usage_error(cls, value)
+        n = _one_or_three(_numbers(groups[0], cls), cls, value)
+        if len(groups) == 1:
+            return cls(n)
+        r0 = _numbers(groups[1], cls)
+        if len(r0) != 1:
+            raise _usage_error(cls, value)
+        return cls(n, r0[0])
+
+    def on_sensor(self, m: np.ndarray, ctx: SensorContext, rng: np.random.Generator) -> np.ndarray:
+        g = m * ctx.k + ctx.b
+        c = self.coeff / self.ref_rate_dps
+        disc = 1.0 + 4.0 * c * np.abs(g)
+        if np.any(disc <= 0):
+            raise SimulationConfigError("scale_nonlinearity: the rates are too high for so negative a coefficient")
+        # |g0| solves |g0| + c |g0|^2 = |g| (stable root)
+        g0 = 2.0 * g / (1.0 + np.sqrt(disc))
+        return (g0 - ctx.b) / ctx.k
+
+
+@register_effect
+@dataclass(frozen=True)
+class Saturation(Effect):
+    """Gyro range: m_out = clip(q(m), -FS, FS), q rounding to ``resolution_dps`` (if given).
+
+    FS = ``full_scale_dps`` (deg/s of reading); the recording's metadata states it
+    (``RecordingMeta.gyro_full_scale_dps``) and the true stages that clip are flagged "saturated".
+    A clipped sample only bounds the reading: |m| >= FS. CLI value: ``FULL_SCALE[,RESOLUTION]`` (deg/s).
+    """
+
+    name: ClassVar[str] = "saturation"
+    usage: ClassVar[str] = "FULL_SCALE[,RESOLUTION] (deg/s)"
+    full_scale_dps: float = 2000.0
+    resolution_dps: float | None = None
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.full_scale_dps) and self.full_scale_dps > 0):
+            raise SimulationConfigError(f"full_scale_dps must be a positive number of deg/s; got {self.full_scale_dps!r}")
+        if self.resolution_dps is not None and not (np.isfinite(self.resolution_dps) and self.resolution_dps > 0):
+            raise SimulationConfigError(f"resolution_dps must be a positive number of deg/s; got {self.resolution_dps!r}")
+        object.__setattr__(self, "full_scale_dps", float(self.full_scale_dps))
+        if self.resolution_dps is not None:
+            object.__setattr__(self, "resolution_dps", float(self.resolution_dps))
+
+    def on_output(self, out: SensorOutput, rng: np.random.Generator) -> SensorOutput:
+        gyro = out.gyro
+        if self.resolution_dps is not None:
+            gyro = np.round(gyro / self.resolution_dps) * self.resolution_dps
+        gyro = np.clip(gyro, -self.full_scale_dps, self.full_scale_dps)
+        return replace(out, gyro=gyro, full_scale_dps=self.full_scale_dps)
