@@ -1,13 +1,14 @@
 """The per-device store (SQLAlchemy 2): SQLite by default, PostgreSQL by URL.
 
 tables (the schema) · engine (connections, SQLite write locking) · guards (append-only triggers, the
-PostgreSQL service role) · chain (hash chains over the history) · schema (creation and migrations) ·
-repository (the Store: every read and write of the service).
+PostgreSQL service role) · chain (hash chains over the history) · schema (creation and migrations) · records
+(what the store hands out) · repository (the Store: every read and write of the service).
 """
 
 from .chain import BrokenLink, ChainReport
 from .errors import DecisionConflict, NotAcceptable, NotFound, StoreError
-from .repository import CalibrationRecord, SessionEnd, Store, sha256_hex
+from .records import CalibrationRecord, SessionEnd, sha256_hex
+from .repository import Store
 from .schema import SCHEMA_VERSION
 from .tables import utcnow
 

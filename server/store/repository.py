@@ -11,11 +11,9 @@ from __future__ import annotations
 
 import csv
 import gzip
-import hashlib
 import io
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field
 from datetime import datetime
 from typing import Any, cast
 
@@ -26,6 +24,15 @@ from sqlalchemy.orm import Session, sessionmaker
 from . import chain
 from .engine import engine_for, writer
 from .errors import DecisionConflict, NotAcceptable, NotFound, StoreError
+from .records import (
+    CalibrationRecord,
+    SessionEnd,
+    calibration_record,
+    device_dict,
+    iso_utc,
+    session_dict,
+    sha256_hex,
+)
 from .schema import migrate
 from .tables import (
     AuditRow,
@@ -42,112 +49,6 @@ from .tables import (
 )
 
 ALL_CHAINS = ("recordings", "calibrations", "audit_log")
-
-
-def sha256_hex(data: bytes) -> str:
-    return hashlib.sha256(data).hexdigest()
-
-
-@dataclass(frozen=True)
-class CalibrationRecord:
-    """One accepted calibration, as the API returns it."""
-
-    id: int
-    device_id: str
-    session_id: str
-    k: list[float]
-    b: list[float]
-    uncertainty: dict[str, Any] | None
-    quality: dict[str, Any] | None
-    method: str
-    software_version: str
-    sensor_model: str | None
-    firmware: str | None
-    source: str
-    operator: str
-    recording_sha256: str | None
-    computed_at: datetime
-    accepted_at: datetime
-
-    def to_dict(self) -> dict[str, Any]:
-        d = asdict(self)
-        d["computed_at"] = self.computed_at.isoformat()
-        d["accepted_at"] = self.accepted_at.isoformat()
-        return d
-
-
-@dataclass(frozen=True)
-class SessionEnd:
-    """A session as it ended: what is written when it ends, and again by an accept if that write was lost."""
-
-    state: str
-    reason_code: str | None = None
-    reason: str | None = None
-    result: dict[str, Any] | None = None
-    passed: bool | None = None
-    info: dict[str, Any] = field(default_factory=dict)
-    ended_at: datetime = field(default_factory=utcnow)
-
-
-def _calibration_record(row: CalibrationRow) -> CalibrationRecord:
-    return CalibrationRecord(
-        id=row.id,
-        device_id=row.device_id,
-        session_id=row.session_id,
-        k=[row.k_x, row.k_y, row.k_z],
-        b=[row.b_x, row.b_y, row.b_z],
-        uncertainty=row.uncertainty,
-        quality=row.quality,
-        method=row.method,
-        software_version=row.software_version,
-        sensor_model=row.sensor_model,
-        firmware=row.firmware,
-        source=row.source or "live",
-        operator=row.operator,
-        recording_sha256=row.recording_sha256,
-        computed_at=aware(row.computed_at),
-        accepted_at=aware(row.accepted_at),
-    )
-
-
-def _iso(dt: datetime | None) -> str | None:
-    return None if dt is None else aware(dt).isoformat()
-
-
-def _session_dict(row: SessionRow) -> dict[str, Any]:
-    return {
-        "id": row.id,
-        "device_id": row.device_id,
-        "kind": row.kind,
-        "state": row.state,
-        "reason_code": row.reason_code,
-        "reason": row.reason,
-        "method": row.method,
-        "operator": row.operator,
-        "started_at": _iso(row.started_at),
-        "ended_at": _iso(row.ended_at),
-        "result": row.result,
-        "passed": row.passed,
-        "decision": row.decision,
-        "decided_at": _iso(row.decided_at),
-        "decided_by": row.decided_by,
-        "software_version": row.software_version,
-        "info": row.info,
-    }
-
-
-def _device_dict(r: Device) -> dict[str, Any]:
-    return {
-        "id": r.id,
-        "name": r.name,
-        "address": r.address,
-        "transport": r.transport,
-        "sensor_model": r.sensor_model,
-        "firmware": r.firmware,
-        "serial": r.serial,
-        "first_seen": _iso(r.first_seen),
-        "last_seen": _iso(r.last_seen),
-    }
 
 
 class Store:
@@ -223,12 +124,12 @@ class Store:
 
     def devices(self) -> list[dict[str, Any]]:
         with self._read() as s:
-            return [_device_dict(r) for r in s.execute(select(Device).order_by(Device.id)).scalars()]
+            return [device_dict(r) for r in s.execute(select(Device).order_by(Device.id)).scalars()]
 
     def device(self, device_id: str) -> dict[str, Any] | None:
         with self._read() as s:
             row = s.get(Device, device_id)
-            return None if row is None else _device_dict(row)
+            return None if row is None else device_dict(row)
 
     # -- operators and tokens -------------------------------------------------------------------
     def add_operator(self, name: str, secret_hash: str) -> None:
@@ -271,7 +172,7 @@ class Store:
     def operators(self) -> list[dict[str, Any]]:
         with self._read() as s:
             rows = s.execute(select(Operator).order_by(Operator.name)).scalars().all()
-            return [{"name": r.name, "created_at": _iso(r.created_at), "active": r.disabled_at is None} for r in rows]
+            return [{"name": r.name, "created_at": iso_utc(r.created_at), "active": r.disabled_at is None} for r in rows]
 
     def operator_secret_hash(self, name: str) -> str | None:
         """The stored hash of an active operator's secret, or None."""
@@ -338,14 +239,14 @@ class Store:
     def session(self, session_id: str) -> dict[str, Any] | None:
         with self._read() as s:
             row = s.get(SessionRow, session_id)
-            return None if row is None else _session_dict(row)
+            return None if row is None else session_dict(row)
 
     def sessions(self, device_id: str | None = None, limit: int = 100) -> list[dict[str, Any]]:
         with self._read() as s:
             q = select(SessionRow).order_by(SessionRow.started_at.desc()).limit(limit)
             if device_id is not None:
                 q = q.where(SessionRow.device_id == device_id)
-            return [_session_dict(r) for r in s.execute(q).scalars()]
+            return [session_dict(r) for r in s.execute(q).scalars()]
 
     def fail_unfinished_sessions(self, reason: str) -> int:
         """Mark sessions a previous run left open as failed (the watchdog's last word after a restart), and
@@ -499,7 +400,7 @@ class Store:
             )
             chain.append(s, cal)
             self._audit(s, operator, "calibration.accept", row.device_id, session_id, {"calibration_id": cal.id})
-            return _calibration_record(cal)
+            return calibration_record(cal)
 
     def current_calibration(self, device_id: str) -> CalibrationRecord | None:
         with self._read() as s:
@@ -507,7 +408,7 @@ class Store:
                 select(CalibrationRow).where(CalibrationRow.device_id == device_id)
                 .order_by(CalibrationRow.accepted_at.desc(), CalibrationRow.id.desc()).limit(1)
             ).scalar_one_or_none()
-            return None if row is None else _calibration_record(row)
+            return None if row is None else calibration_record(row)
 
     def calibrations(self, device_id: str) -> list[CalibrationRecord]:
         """Every accepted calibration of a device, newest first."""
@@ -516,7 +417,7 @@ class Store:
                 select(CalibrationRow).where(CalibrationRow.device_id == device_id)
                 .order_by(CalibrationRow.accepted_at.desc(), CalibrationRow.id.desc())
             ).scalars()
-            return [_calibration_record(r) for r in rows]
+            return [calibration_record(r) for r in rows]
 
     def calibration_count(self) -> int:
         with self._read() as s:
@@ -542,7 +443,7 @@ class Store:
             if device_id is not None:
                 q = q.where(AuditRow.device_id == device_id)
             return [
-                {"id": r.id, "at": _iso(r.at), "operator": r.operator, "action": r.action, "device_id": r.device_id,
+                {"id": r.id, "at": iso_utc(r.at), "operator": r.operator, "action": r.action, "device_id": r.device_id,
                  "session_id": r.session_id, "detail": r.detail}
                 for r in s.execute(q).scalars()
             ]

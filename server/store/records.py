@@ -1,0 +1,117 @@
+"""What the store hands out and takes in: an accepted calibration, a session as it ended, and the plain dicts
+of sessions and devices the API shows."""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import asdict, dataclass, field
+from datetime import datetime
+from typing import Any
+
+from .tables import CalibrationRow, Device, SessionRow, aware, utcnow
+
+
+def sha256_hex(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+@dataclass(frozen=True)
+class CalibrationRecord:
+    """One accepted calibration, as the API returns it."""
+
+    id: int
+    device_id: str
+    session_id: str
+    k: list[float]
+    b: list[float]
+    uncertainty: dict[str, Any] | None
+    quality: dict[str, Any] | None
+    method: str
+    software_version: str
+    sensor_model: str | None
+    firmware: str | None
+    source: str
+    operator: str
+    recording_sha256: str | None
+    computed_at: datetime
+    accepted_at: datetime
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["computed_at"] = self.computed_at.isoformat()
+        d["accepted_at"] = self.accepted_at.isoformat()
+        return d
+
+
+@dataclass(frozen=True)
+class SessionEnd:
+    """A session as it ended: what is written when it ends, and again by an accept if that write was lost."""
+
+    state: str
+    reason_code: str | None = None
+    reason: str | None = None
+    result: dict[str, Any] | None = None
+    passed: bool | None = None
+    info: dict[str, Any] = field(default_factory=dict)
+    ended_at: datetime = field(default_factory=utcnow)
+
+
+def calibration_record(row: CalibrationRow) -> CalibrationRecord:
+    return CalibrationRecord(
+        id=row.id,
+        device_id=row.device_id,
+        session_id=row.session_id,
+        k=[row.k_x, row.k_y, row.k_z],
+        b=[row.b_x, row.b_y, row.b_z],
+        uncertainty=row.uncertainty,
+        quality=row.quality,
+        method=row.method,
+        software_version=row.software_version,
+        sensor_model=row.sensor_model,
+        firmware=row.firmware,
+        source=row.source or "live",
+        operator=row.operator,
+        recording_sha256=row.recording_sha256,
+        computed_at=aware(row.computed_at),
+        accepted_at=aware(row.accepted_at),
+    )
+
+
+def iso_utc(dt: datetime | None) -> str | None:
+    return None if dt is None else aware(dt).isoformat()
+
+
+def session_dict(row: SessionRow) -> dict[str, Any]:
+    return {
+        "id": row.id,
+        "device_id": row.device_id,
+        "kind": row.kind,
+        "state": row.state,
+        "reason_code": row.reason_code,
+        "reason": row.reason,
+        "method": row.method,
+        "operator": row.operator,
+        "started_at": iso_utc(row.started_at),
+        "ended_at": iso_utc(row.ended_at),
+        "result": row.result,
+        "passed": row.passed,
+        "decision": row.decision,
+        "decided_at": iso_utc(row.decided_at),
+        "decided_by": row.decided_by,
+        "software_version": row.software_version,
+        "info": row.info,
+    }
+
+
+def device_dict(r: Device) -> dict[str, Any]:
+    return {
+        "id": r.id,
+        "name": r.name,
+        "address": r.address,
+        "transport": r.transport,
+        "sensor_model": r.sensor_model,
+        "firmware": r.firmware,
+        "serial": r.serial,
+        "first_seen": iso_utc(r.first_seen),
+        "last_seen": iso_utc(r.last_seen),
+    }
