@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..stage import AXES
-from .run import Diagnosis
+from .assemble import Diagnosis
 
 _CSS = """
 body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1100px; color: #222; }

@@ -4,11 +4,9 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
-from typing import Any
+from dataclasses import replace
 
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
 from scipy.stats import norm
 
 from ..effects import CATALOGUE
@@ -17,6 +15,7 @@ from ..protocol_hints import find_protocol_in
 from ..recording import Recording
 from ..stage import AXES, Stage
 from ..stages import detect_stages
+from .assemble import Diagnosis, assemble_diagnosis
 from .data import (
     Problem,
     build_problem,
@@ -26,28 +25,24 @@ from .data import (
     set_design_accel,
 )
 from .engine import Fit, Priors, gauss_newton, system
-from .features import SIGNED, Features, compute_features
+from .features import SIGNED, compute_features
 from .fitting import fit_nominal
 from .models import Model
 from .null import Replay, make_replay, replicate_problems, with_effects
-from .rivals import Worlds, rival_test
+from .rivals import Worlds
 from .saturation import Plateau, find_plateaus, plateau_caps
 from .select import (
-    ADVICE,
     ALPHA,
     Candidate,
     ModelState,
-    Step,
-    criterion,
     gm_of,
     informative_count,
     null_fit,
     p_value,
     plan_tests,
-    press,
     statistics,
-    try_fit,
 )
+from .stepwise import select_effects
 from .timebase import TimeBase, analyse_timebase, bridge
 
 DEFAULT_MAX_SAMPLES = 500_000
@@ -56,71 +51,8 @@ MEMORY_PER_SAMPLE_KB = 15.0  # peak memory of a diagnosis grows by about this pe
 EFFECT_NAMES: tuple[str, ...] = CATALOGUE  # the catalogue, in the order the documentation lists it
 DEFAULT_BOOT = 200
 CHUNK = 50  # replicates simulated and fitted at once
-CLOCK_MIN = 5e-4  # a clock rate error below this (500 ppm) is within what the host's own clock may show
-CLOCK_Z = 6.0
-AMBIGUOUS_IC = 4.0  # a rival this close in the information criterion needs Cox's test to be set aside
-# effects Cox's test leaves alone. With the accelerometer, the replay puts the device back exactly, so the tilts it
-# measured (which scale the placement model's heading prior) are not reproduced and the world would not be like the
-# recording; without it, the per-turn closure variance is a one-dimensional search of refits, too slow to repeat 80 times
-UNSIMULATED = {"placement_error", "placement_var"}
-RIVAL_WINDOW_IC = 20.0  # a significant rival this close may still win Cox's test against the leader
-RIVALS_MAX = 3  # rivals put to Cox's test per step, closest first (each test simulates up to 80 recordings)
 
 Progress = Callable[[float, str], None]
-
-
-@dataclass
-class Diagnosis:
-    """What the recording shows beyond the nominal model, and how much modelling it helps.
-
-    ``to_dict()`` gives the JSON of ``gyrocal diagnose --json``: mismatches (where the recording
-    departs from its simulation), effects (named, fitted, ranked), unexplained (clear departures no
-    catalogued effect explains), plus not_identifiable, recalibration, nominal and simulation_check.
-    """
-
-    mismatches: list[dict]
-    effects: list[dict]
-    unexplained: list[dict]
-    not_identifiable: list[dict]
-    recalibration: dict | None
-    nominal: dict
-    simulation_check: dict
-    info: dict
-    details: dict = field(default_factory=dict, repr=False)  # arrays for the report; not in to_dict()
-
-    @property
-    def names(self) -> list[str]:
-        """The named effects, most important first."""
-        return [e["name"] for e in self.effects]
-
-    def to_dict(self) -> dict[str, Any]:
-        return _jsonable({
-            "mismatches": self.mismatches,
-            "effects": self.effects,
-            "unexplained": self.unexplained,
-            "not_identifiable": self.not_identifiable,
-            "recalibration": self.recalibration,
-            "nominal": self.nominal,
-            "simulation_check": self.simulation_check,
-            "info": self.info,
-        })
-
-
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, (np.floating, float)):
-        v = float(x)
-        return v if np.isfinite(v) else None
-    if isinstance(x, (np.integer,)):
-        return int(x)
-    if isinstance(x, np.bool_):
-        return bool(x)
-    return x
 
 
 # --------------------------------------------------------------------------- entry point
@@ -239,7 +171,7 @@ def diagnose(
     pen = float(np.log(n_info))
     state = ModelState(base, base_fit, priors, {}, ())
     worlds = Worlds(replay, state, priors, pen, caps, a_design, seed)
-    steps, ambiguities = _select(prob, state, cands, specs, priors, alpha, pen, worlds)
+    steps, ambiguities = select_effects(prob, state, cands, specs, priors, alpha, pen, worlds)
     final = steps[-1][1] if steps else state
 
     # ---- what the recording looks like next to a simulation with the effects
@@ -256,7 +188,7 @@ def diagnose(
         boot_feats_after = None
 
     say(0.95, "report")
-    diag = _assemble(rec, raw, host_t, prob, layout, tb, plateaus, fit0, base, base_fit, cap_fit, steps, ambiguities, final, feats,
+    diag = assemble_diagnosis(rec, raw, host_t, prob, layout, tb, plateaus, fit0, base, base_fit, cap_fit, steps, ambiguities, final, feats,
                      boot_feats, boot_feats_after, p_before, p_after, tests, not_ident, specs, alpha, n_boot, duration)
     diag.info["seconds"] = round(time.perf_counter() - t_start, 3)
     say(1.0, "done")
@@ -307,19 +239,6 @@ def _unclipped_start(rec: Recording, layout, clipped: tuple[int, ...], accel, te
         return fit_nominal(p).psi
     except GyrocalError:
         return None
-
-
-def _raw_deviance(raw: Recording | None) -> float:
-    """Nominal deviance of the recording as delivered, each reading held until the next one arrives."""
-    if raw is None:
-        return float("nan")
-    try:
-        st = detect_stages(raw)
-        lay = make_layout(raw, st)
-        p = build_problem(lay, raw.gyro[None], None if raw.accel is None else raw.accel[None])
-        return float(fit_nominal(p).deviance[0])
-    except GyrocalError:
-        return float("nan")
 
 
 def _merge_timebase(lost: TimeBase, bridged: TimeBase) -> TimeBase:
@@ -435,211 +354,6 @@ def _feature_p(obs: np.ndarray, boot: np.ndarray, kinds: list[str]) -> np.ndarra
 # --------------------------------------------------------------------------- selection
 
 
-def _select(prob: Problem, state: ModelState, cands: list[Candidate], specs, base_priors, alpha: float, pen: float,
-            worlds: Worlds | None = None):
-    """Forward selection. Returns ([(Step, ModelState)] in the order accepted, ambiguities).
-
-    The best significant effect (lowest information criterion) is taken only when no other catalogued
-    effect the recording can test explains the mismatch about as well (within ``AMBIGUOUS_IC``), unless
-    Cox's test (rivals.py) rejects that rival's world while keeping the effect's own. A significant rival
-    further behind (within ``RIVAL_WINDOW_IC``) is taken instead when the test rejects the leader's world
-    and keeps the rival's. What stays unresolved is reported as an ambiguity.
-    """
-    steps: list[tuple[Step, ModelState]] = []
-    ambiguities: list[dict] = []
-    remaining = list(cands)
-    others = [s for s in specs if s.key not in {c.key for c in cands}]
-    keys = {s_.name: s_.key for s_ in specs}
-    cur = state
-    cur_ic = criterion(cur, pen)
-    cur_cv = press(cur.fit, prob)
-    while remaining:
-        trials = []
-        for c in remaining:
-            st = try_fit(prob, cur, c.key, base_priors)
-            if st is None:
-                continue
-            lr = float(cur.fit.deviance[0] - st.fit.deviance[0])
-            # on top of an accepted effect, the drop is judged against the misfit that is left (quasi-likelihood
-            # F-test): a model that still leaves residuals beyond noise does not get to add effects to soak them up
-            dispersion = max(1.0, float(st.fit.deviance[0]) / max(float(st.fit.dof[0]), 1.0))
-            p = c.p_value if not steps else _conditional_p(lr / dispersion, c)
-            if p < alpha:
-                trials.append((c, st, lr, p))
-        if not trials:
-            break
-        scored = sorted(((criterion(st, pen), c, st, lr, p) for c, st, lr, p in trials), key=lambda x: x[0])
-        ic, c, st, lr, p = scored[0]
-        cv = press(st.fit, prob)
-        if not (ic < cur_ic and cv < cur_cv):
-            break
-        accepted = {x.name for x, _ in steps}
-        # every rival explanation: name -> (criterion, key, fitted state, significant candidate or None, p)
-        rivals: dict[str, tuple] = {}
-        for r_ic, rc, rst, _, rp in scored[1:]:
-            if rc.name != c.name and rc.name not in rivals:
-                rivals[rc.name] = (r_ic, rc.key, rst, rc, rp)
-        for o in others:
-            if o.name == c.name or o.name in rivals or o.name in accepted:
-                continue
-            ost = try_fit(prob, cur, o.key, base_priors)
-            if ost is not None:
-                rivals[o.name] = (criterion(ost, pen), o.key, ost, None, 1.0)
-        # a rival that explains different residuals is a second effect, not an alternative: with both
-        # modelled the criterion improves again
-        close = sorted((v[0], n) for n, v in rivals.items() if v[0] < ic + AMBIGUOUS_IC and n not in accepted
-                       and not _complementary(prob, st, keys.get(n), base_priors, ic, pen))
-        far = sorted((v[0], n) for n, v in rivals.items() if ic + AMBIGUOUS_IC <= v[0] < ic + RIVAL_WINDOW_IC
-                     and v[3] is not None and n not in accepted)
-        win, win_ic, win_cv = (c, st, p), ic, cv
-        tests: list[dict] = []
-        unresolved: list[str] = []
-        for r_ic, n in close + far:
-            near = r_ic < ic + AMBIGUOUS_IC
-            if worlds is None or len(tests) >= RIVALS_MAX or UNSIMULATED & {win[0].key, rivals[n][1]}:
-                if near:
-                    unresolved.append(n)
-                    break
-                continue
-            _, rkey, rst, rcand, rp = rivals[n]
-            # a close rival that is itself significant may turn out the better explanation: its world being
-            # plausible, the leader's is simulated too
-            t = rival_test(worlds, cur, win[1], rst, win[0].key, rkey, win[0].name, n,
-                           first="b" if near else "a", both=near and rcand is not None)
-            w = t.winner()
-            switch = False
-            if w == n and rcand is not None:
-                r_cv = press(rst.fit, prob)
-                switch = r_ic < cur_ic and r_cv < cur_cv
-            if switch:
-                win, win_ic, win_cv = (rcand, rst, rp), r_ic, r_cv
-                t = t.flipped()
-            tests.append(t.to_dict())
-            if not switch and w != win[0].name and near:
-                unresolved.append(n)
-                break
-        (c, st, p), ic, cv = win, win_ic, win_cv
-        unresolved = [n for n in unresolved if n != c.name]
-        if unresolved:
-            ambiguities.append({"candidates": [c.name] + unresolved,
-                                "ic": {c.name: ic, **{n: rivals[n][0] for n in unresolved if n in rivals}},
-                                "base": sorted(accepted), "rival_tests": tests})
-            break
-        steps.append((Step(c.name, c.key, cur.fit, st.fit, st.model, dict(st.variance), (cur_ic, ic), (cur_cv, cv), p,
-                           c.statistic, tests), st))
-        cur, cur_ic, cur_cv = st, ic, cv
-        remaining = [r for r in remaining if r.name != c.name]
-        others = [o for o in others if o.name != c.name]
-    return steps, ambiguities
-
-
-def _complementary(prob: Problem, st: ModelState, key: str | None, base_priors, ic: float, pen: float) -> bool:
-    if key is None:
-        return False
-    both = try_fit(prob, st, key, base_priors)
-    return both is not None and criterion(both, pen) < ic - AMBIGUOUS_IC
-
-
-def _conditional_p(lr: float, c: Candidate) -> float:
-    """p-value of a likelihood-ratio drop on top of an accepted effect.
-
-    Score effects: chi-square with the tested dimension, scaled by the bootstrap's ratio of mean to
-    dimension (the small-sample correction of the first test). Variance effects: chi-square with
-    their number of variance parameters (conservative for a parameter on its boundary).
-    """
-    lr = max(lr, 0.0)
-    if c.key == "bias_instability":
-        return float(chi2_dist.sf(lr, 2))
-    if c.key == "placement_var":
-        return float(chi2_dist.sf(lr, 1))
-    scale = max(1.0, c.null[0] * c.null[1] / max(c.dof, 1))
-    return float(chi2_dist.sf(lr / scale, max(c.dof, 1)))
-
-
 # --------------------------------------------------------------------------- output
 
 
-def _assemble(rec, raw, host_t, prob, layout, tb, plateaus, fit0, base, base_fit, cap_fit, steps, ambiguities, final, feats,
-              boot_feats,
-              boot_feats_after, p_before, p_after, tests, not_ident, specs, alpha, n_boot, duration) -> Diagnosis:
-    from .describe import (
-        describe_ambiguity,
-        describe_effect,
-        describe_unexplained,
-        mismatch_rows,
-        recalibration,
-    )
-
-    effects: list[dict] = []
-    # deterministic evidence first: the time base and the gyro range
-    if base.clipped:
-        effects.append(describe_effect("saturation", prob, layout, fit0=fit0, base=base, base_fit=base_fit,
-                                       cap_fit=cap_fit, plateaus=plateaus))
-    if tb.lost > 0 and tb.index_source is not None:
-        effects.append(describe_effect("sample_loss", prob, layout, tb=tb, duration=duration,
-                                       closure_fit=(_raw_deviance(raw), float(fit0.deviance[0]))))
-    clock = tb.clock_e is not None and abs(tb.clock_e) > CLOCK_MIN and abs(tb.clock_e) > CLOCK_Z * (tb.clock_std or 0.0)
-    if clock:
-        effects.append(describe_effect("clock_error", prob, layout, tb=tb))
-    for step, st in steps:
-        effects.append(describe_effect(step.name, prob, layout, step=step, state=st, tests=tests, duration=duration))
-    effects.sort(key=lambda e: -_importance(e))
-
-    not_identifiable = [{"name": n, "reason": reason} for n, reason in not_ident.items()
-                        if n not in [e["name"] for e in effects]]
-    if tb.index_source is None and rec.seq is None:
-        not_identifiable.append({"name": "sample_loss", "reason": "not identifiable with this recording: the timestamps "
-                                 "are not the device's own and there is no sample counter; " + ADVICE["sample_loss"]})
-    if tb.clock_e is None:
-        not_identifiable.append({"name": "clock_error", "reason": "not identifiable with this recording: the device "
-                                 "clock only scales every turn like the scale factors do; " + ADVICE["clock_error"]})
-
-    mismatches = mismatch_rows(feats, boot_feats, p_before, alpha_features(feats), tb, plateaus, rec)
-    unexplained = describe_unexplained(prob, layout, final, feats, boot_feats_after if steps else boot_feats,
-                                       p_after if steps else p_before, alpha_features(feats), bool(effects),
-                                       bool(ambiguities))
-    for a in ambiguities:
-        unexplained.insert(0, describe_ambiguity(a))
-    recal = recalibration(prob, fit0, final, effects, tb, plateaus, base, cap_fit)
-    d0 = float(fit0.deviance[0])
-    nominal = {"k": fit0.psi[0, :3], "b": fit0.psi[0, 3:6], "deviance": d0, "dof": float(fit0.dof[0]),
-               "p_value": float(chi2_dist.sf(d0, max(fit0.dof[0], 1.0))), "turns": layout.J, "stills": layout.S}
-    worst_before = float(np.min(p_before)) if p_before.size else 1.0
-    sim = {
-        "features": int(p_before.size),
-        "threshold": alpha_features(feats),
-        "outside_before": int(np.sum(p_before < alpha_features(feats))),
-        "worst_p_before": worst_before,
-        "outside_after": None if p_after is None else int(np.sum(p_after < alpha_features(feats))),
-        "worst_p_after": None if p_after is None else float(np.min(p_after)),
-    }
-    info = {
-        "n_boot": n_boot,
-        "samples": len(rec),
-        "duration_s": duration,
-        "sample_rate_hz": rec.fs,
-        "gyro_full_scale_dps": rec.meta.gyro_full_scale_dps,  # the stated range clipping is judged against (None: unknown)
-        "channels": {"accelerometer": rec.accel is not None, "sample_counter": rec.seq is not None,
-                     "temperature": rec.temp is not None},
-        "tests": {v["name"] if k != "bias_drift_temp" else "bias_drift (temperature)": {
-            "statistic": v["statistic"], "p_value": v["p_value"], "threshold": alpha,
-            "typical_noncentrality": v["noncentrality"]} for k, v in tests.items()},
-        "timebase": tb.summary(),
-    }
-    details = {"features": feats, "boot": boot_feats, "boot_after": boot_feats_after, "p_before": p_before,
-               "p_after": p_after, "prob": prob, "fit0": fit0, "final": final, "plateaus": plateaus, "tb": tb,
-               "layout": layout, "rec": rec, "raw": raw if raw is not None else rec, "steps": steps,
-               "host_t": host_t}
-    return Diagnosis(mismatches, effects, unexplained, not_identifiable, recal, nominal, sim, info, details)
-
-
-def alpha_features(feats: Features) -> float:
-    return ALPHA / max(1, len(feats.names))
-
-
-def _importance(e: dict) -> float:
-    f = e.get("fit") or {}
-    b, a = f.get("before"), f.get("after")
-    if b is None or a is None:
-        return 0.0
-    return float(b - a)
