@@ -1,6 +1,6 @@
 """Fixtures for the BLE tests: a private dbus-daemon per test and the simulated BlueZ on it.
 
-Import the fixtures into a test module (``from ble_fixtures import dbus_bus, simulated_bluez``).
+Registered as a plugin by tests/conftest.py: the fixtures need no import.
 bleak reads DBUS_SYSTEM_BUS_ADDRESS when it connects and keeps one BlueZ manager per event loop;
 every test has its own loop, so every test gets a fresh bus and a fresh bleak manager.
 """

@@ -1,4 +1,5 @@
-"""Shared fixtures: where the real recordings are, and artifact output."""
+"""Shared fixtures: where the real recordings are, and artifact output; the service's, the BLE path's and the
+page's fixtures come from their own modules, registered here as plugins so every test directory sees them."""
 
 from __future__ import annotations
 
@@ -6,6 +7,8 @@ import os
 from pathlib import Path
 
 import pytest
+
+pytest_plugins = ["server_fixtures", "ble_fixtures", "webui_fixtures"]
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL_DATA = Path(os.environ.get("GYROCAL_REAL_DATA", ROOT.parent / "shared" / "data" / "real"))

@@ -1,6 +1,6 @@
 """Fixtures of the service tests: a throwaway PostgreSQL server, store URLs, a running `gyrocal serve`.
 
-Import them into a test module with ``from server_fixtures import *``.
+Registered as a plugin by tests/conftest.py: the fixtures need no import; the helpers are imported by name.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Fixtures of the wizard page tests: the real service with simulated wearables, Debian's Chromium
 driven by Playwright, and a page that refuses every request leaving this computer.
 
-Import them into a test module with ``from webui_fixtures import *``.
+Registered as a plugin by tests/conftest.py: the fixtures need no import; the helpers are imported by name.
 """
 
 from __future__ import annotations

@@ -8,7 +8,6 @@ from collections.abc import Iterator
 from typing import Any
 
 import pytest
-from webui_fixtures import *  # noqa: F403
 from webui_fixtures import Watch, Wizard, api, assert_clean, running_service
 
 from calib.concealed import draw_concealed

@@ -8,17 +8,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from webui_fixtures import *  # noqa: F403
-from webui_fixtures import (
-    OPERATOR,
-    Watch,
-    Wizard,
-    api,
-    assert_clean,
-    device_for,
-    sign_in_token,
-    upload_accepted,
-)
+from webui_fixtures import OPERATOR, Watch, Wizard, api, assert_clean, device_for, sign_in_token, upload_accepted
 
 PORTRAIT_TABLET = {"width": 768, "height": 1024}
 

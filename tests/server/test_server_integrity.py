@@ -13,7 +13,7 @@ from typing import Any
 
 import httpx
 import pytest
-from server_fixtures import API_TOKEN, RunningService, follow_events, postgres, service_store  # noqa: F401
+from server_fixtures import API_TOKEN, RunningService, follow_events
 from sqlalchemy import create_engine, text
 
 from calib.io import write_native_csv

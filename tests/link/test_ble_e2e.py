@@ -10,7 +10,6 @@ import sys
 
 import numpy as np
 import pytest
-from ble_fixtures import dbus_bus, simulated_bluez  # noqa: F401  (fixtures)
 
 import wearable_protocol as wp
 from calib.result import CalibrationResult

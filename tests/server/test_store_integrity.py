@@ -11,7 +11,6 @@ from datetime import UTC
 from pathlib import Path
 
 import pytest
-from server_fixtures import postgres, store_url  # noqa: F401
 from sqlalchemy import text
 from sqlalchemy.exc import SQLAlchemyError
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import httpx
 import pytest
-from server_fixtures import API_TOKEN, RunningService, postgres, service_store  # noqa: F401
+from server_fixtures import API_TOKEN, RunningService
 
 from calib.io import write_native_csv
 from calib.simulator import simulate

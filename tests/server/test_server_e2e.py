@@ -13,15 +13,7 @@ from typing import Any
 import httpx
 import numpy as np
 import pytest
-from server_fixtures import (  # noqa: F401
-    GYROCAL,
-    ROOT,
-    RunningService,
-    bad_csv_uploads,
-    follow_events,
-    postgres,
-    service_store,
-)
+from server_fixtures import GYROCAL, ROOT, RunningService, bad_csv_uploads, follow_events
 
 from calib.api import calibrate
 from calib.io import parse_recording_text, write_native_csv

@@ -7,7 +7,6 @@ from typing import Any
 
 import httpx
 from server_fixtures import RunningService
-from webui_fixtures import *  # noqa: F403
 from webui_fixtures import Watch, Wizard
 
 

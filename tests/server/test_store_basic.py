@@ -6,7 +6,6 @@ import gzip
 from datetime import UTC, datetime, timedelta
 
 import pytest
-from server_fixtures import postgres, store_url  # noqa: F401
 from sqlalchemy import text
 from sqlalchemy.exc import SQLAlchemyError
 
