@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from .result import CalibrationResult
 from .stage import AXES
 
 
@@ -39,9 +40,11 @@ def _check(name: str, axis: str | None, value: float, limit: Any, ok: bool, text
     return {"name": name, "axis": axis, "value": value, "limit": limit, "ok": ok, "text": text}
 
 
-def evaluate(result: dict[str, Any], tol: Tolerances) -> list[dict[str, Any]]:
-    """Each tolerance check of a result (``CalibrationResult.to_dict()`` form): {name, axis, value, limit, ok, text}.
-    A value that is not finite fails its check."""
+def evaluate(result: CalibrationResult | dict[str, Any], tol: Tolerances) -> list[dict[str, Any]]:
+    """Each tolerance check of a result: {name, axis, value, limit, ok, text}. A value that is not finite fails its
+    check. ``result`` may also be a result's ``to_dict()`` form, as stored."""
+    if isinstance(result, CalibrationResult):
+        result = result.to_dict()
     checks: list[dict[str, Any]] = []
     k = result.get("k") or [float("nan")] * 3
     b = result.get("b") or [float("nan")] * 3

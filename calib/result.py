@@ -48,6 +48,34 @@ class CalibrationResult:
         """Calibrated rates g = K m + b (deg/s) for raw readings m of shape (..., 3)."""
         return np.asarray(gyro) @ self.matrix.T + self.b
 
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> CalibrationResult:
+        """The result back from its ``to_dict()`` form (as the store keeps it): ``from_dict(r.to_dict())`` gives the
+        same ``to_dict()``. Extra keys (the service adds the recording's rate and length) are ignored."""
+
+        def arr(v: Any) -> np.ndarray | None:
+            return None if v is None else np.asarray(v, dtype=float)
+
+        unc, bound = d.get("uncertainty") or {}, d.get("bound") or {}
+        K, K_std = d.get("K"), d.get("K_std")
+        return cls(
+            k=np.asarray(d["k"], dtype=float),
+            b=np.asarray(d["b"], dtype=float),
+            method=str(d.get("method") or ""),
+            stages=[Stage.from_dict(s) for s in d.get("stages") or []],
+            quality=dict(d.get("quality") or {}),
+            k_std=arr(unc.get("k")),
+            b_std=arr(unc.get("b")),
+            k_bound=arr(bound.get("k")),
+            b_bound=arr(bound.get("b")),
+            K=arr(K),
+            K_std=arr(K_std),
+            noise_dps=arr(d.get("noise_dps")),
+            residuals=dict(d.get("residuals") or {}),
+            warnings=list(d.get("warnings") or []),
+            iterations=d.get("iterations"),
+        )
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form with keys k, b, method, stages, quality, uncertainty, bound, ..."""
         out: dict[str, Any] = {

@@ -16,10 +16,12 @@ from collections.abc import Callable
 from datetime import datetime
 from typing import Any
 
+from calib.result import CalibrationResult
+
 from ..config import Settings
 from ..devices import Device
 from ..store import SessionEnd, Store, utcnow
-from ..workers.compute import ComputePool, calibrate_recording, recording_csv
+from ..workers.compute import ComputePool, calibrate_recording, recording_csv, result_json
 from . import guidance as say
 from .buffer import SampleBuffer
 from .events import Broadcaster, finite
@@ -32,7 +34,7 @@ SPOOL_PERIOD_S = 1.0  # a running session's new samples are made durable this of
 SPOOL_MAX_SAMPLES = 600_000  # beyond this (15 min at 562.5 Hz, the longest session) nothing more is spooled
 
 
-def compute_result(session: GuidedSession) -> dict[str, Any]:
+def compute_result(session: GuidedSession) -> CalibrationResult:
     """Run the estimator on a session's recording and stages, in this process (tests, tools)."""
     result, error, _ = calibrate_recording(session.recording(), session.method, session.protocol_stages())
     if error is not None:
@@ -242,7 +244,8 @@ class LiveSession:
         if error is not None:
             m.fail("calibration_failed", f"{error} Start a new calibration.")
             return
-        m.set_result(finite(result))
+        assert result is not None
+        m.set_result(result, finite(result_json(result, rec)))
 
     async def _stop_link(self) -> None:
         link = self.device.link

@@ -22,6 +22,7 @@ import numpy as np
 
 from calib.acceptance import evaluate
 from calib.recording import Recording, RecordingMeta
+from calib.result import CalibrationResult
 from calib.stage import Axis, Stage
 from calib.turn_checks import gravity_change_deg, rest_after_full_turn, swept_angles
 
@@ -278,11 +279,12 @@ class GuidedSession:
         stills = [s for s in stills if not any(s.start < tr.end and tr.start < s.end for tr in turns)]
         return sorted(stills + turns, key=lambda s: s.start)
 
-    def set_result(self, result: dict[str, Any]) -> None:
-        """The estimator's result: judge it against the tolerances, then done or failed."""
+    def set_result(self, result: CalibrationResult, shown: dict[str, Any] | None = None) -> None:
+        """The estimator's result: judge it against the tolerances, then done or failed. ``shown`` is its JSON form
+        (with the recording's rate and length), as the page and the store get it; default ``result.to_dict()``."""
         if self.finished:
             return
-        self.result = result
+        self.result = shown if shown is not None else result.to_dict()
         self.checks = evaluate(result, self.tol)
         failures = [c["text"] for c in self.checks if not c["ok"]]
         self.passed = not failures

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from calib.recording import Recording
+    from calib.result import CalibrationResult
 
 log = logging.getLogger(__name__)
 
@@ -67,20 +68,21 @@ def recording_csv(rec: Any) -> bytes:
     return buf.getvalue().encode()
 
 
-def calibrate_recording(rec: Any, method: str, stages: Any) -> tuple[dict[str, Any] | None, str | None, bytes]:
-    """(result dict, None, csv) or (None, error message, csv) for a session's recording."""
+def result_json(result: CalibrationResult, rec: Recording) -> dict[str, Any]:
+    """A result as the API shows it and the store keeps it: its ``to_dict()`` with the recording's rate and length."""
+    return {**result.to_dict(), "sample_rate_hz": rec.fs, "n_samples": len(rec)}
+
+
+def calibrate_recording(rec: Recording, method: str, stages: Any) -> tuple[CalibrationResult | None, str | None, bytes]:
+    """(result, None, csv) or (None, error message, csv) for a session's recording."""
     from calib.api import calibrate
     from calib.errors import GyrocalError
 
     csv = recording_csv(rec)
     try:
-        result = calibrate(rec, method=method, stages=stages)
+        return calibrate(rec, method=method, stages=stages), None, csv
     except GyrocalError as exc:
         return None, str(exc), csv
-    out = result.to_dict()
-    out["sample_rate_hz"] = rec.fs
-    out["n_samples"] = len(rec)
-    return out, None, csv
 
 
 def parse_upload(body: bytes, fs: float | None, layout: str, source: str, max_samples: int) -> Recording:
@@ -95,16 +97,13 @@ def parse_upload(body: bytes, fs: float | None, layout: str, source: str, max_sa
 
 def calibrate_upload(
     body: bytes, fs: float | None, layout: str, method: str, source: str, max_samples: int
-) -> tuple[dict[str, Any], bytes, int]:
+) -> tuple[CalibrationResult, dict[str, Any], bytes, int]:
     """Parse and calibrate an uploaded CSV; raises calib's errors (RecordingError, ProtocolError, ...)."""
     from calib.api import calibrate
 
     rec = parse_upload(body, fs, layout, source, max_samples)
     result = calibrate(rec, method=method)
-    out = result.to_dict()
-    out["sample_rate_hz"] = rec.fs
-    out["n_samples"] = len(rec)
-    return out, recording_csv(rec), len(rec)
+    return result, result_json(result, rec), recording_csv(rec), len(rec)
 
 
 # -- the pool --------------------------------------------------------------------------------------

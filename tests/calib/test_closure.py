@@ -390,3 +390,15 @@ def test_a_turn_that_ends_in_another_pose_is_refused():
     merged = Stage("turn", y.start, motion.end, y.start_s, motion.end_s, "y", 360.0)  # the hand never came back
     with pytest.raises(CalibrationError, match="about y"):
         calibrate_closure(rec, st[:3] + [merged] + st[5:])
+
+
+def test_a_result_round_trips_through_its_dict() -> None:
+    from calib.api import calibrate
+    from calib.result import CalibrationResult
+    from calib.simulator import simulate
+
+    rec, _ = simulate(5, noise=0.03)
+    for result in (calibrate(rec), calibrate(rec, method="paper")):
+        back = CalibrationResult.from_dict(result.to_dict())
+        assert back.to_dict() == result.to_dict()
+        np.testing.assert_allclose(back.apply(rec.gyro), result.apply(rec.gyro), atol=1e-6)

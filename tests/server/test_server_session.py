@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from calib.acceptance import evaluate as evaluate_result
+from calib.result import CalibrationResult
 from calib.simulator import Motion, ProtocolScript, SensorParams, Still, Turn, paper_protocol_script, simulate
 from mock_device.scenarios import get_scenario
 from server.config import ProtocolTimings, Settings
@@ -88,8 +89,8 @@ def test_the_protocol_walks_every_step_and_computes_the_truth() -> None:
     assert len(angles) > 5 and max(abs(a) for a in angles) > 300
     assert run.warnings() == []
     result = compute_result(run.s)
-    np.testing.assert_allclose(result["k"], truth.k, atol=2e-3)
-    np.testing.assert_allclose(result["b"], truth.b, atol=2e-2)
+    np.testing.assert_allclose(result.k, truth.k, atol=2e-3)
+    np.testing.assert_allclose(result.b, truth.b, atol=2e-2)
     run.s.set_result(result)
     assert run.s.state == "done" and run.s.passed
     assert all(c["ok"] for c in run.s.checks)
@@ -196,7 +197,7 @@ def test_link_loss_pauses_and_the_current_turn_is_redone() -> None:
     assert {"link_lost", "link_restored"} <= set(run.warnings())
     assert "x" in run.s.turns and run.s.turns["y"].start_s >= rec.t[resume]
     result = compute_result(run.s)
-    np.testing.assert_allclose(result["k"], truth.k, atol=3e-3)
+    np.testing.assert_allclose(result.k, truth.k, atol=3e-3)
 
 
 def test_retries_ask_for_the_turn_again() -> None:
@@ -245,7 +246,7 @@ def test_cancel_and_results_out_of_tolerance() -> None:
     assert [c["axis"] for c in evaluate_result(nan, tol) if not c["ok"]] == ["x"]
     run = Run()
     run.s.state = "computing"
-    run.s.set_result(bad)
+    run.s.set_result(CalibrationResult.from_dict({**bad, "method": "closure"}))
     assert (run.s.state, run.s.reason_code, run.s.passed) == ("failed", "out_of_tolerance", False)
     assert "k_y = 1.3000" in run.s.reason
 
@@ -290,7 +291,7 @@ def test_time_limits_count_from_the_sessions_first_sample(t0: float) -> None:
         assert got.start_s == pytest.approx(ref.start_s + t0, abs=1e-9)
     assert [(s.kind, s.start, s.end) for s in run.s.protocol_stages()] == [(s.kind, s.start, s.end) for s in base.s.protocol_stages()]
     result = compute_result(run.s)
-    np.testing.assert_allclose(result["k"], truth.k, atol=2e-3)
+    np.testing.assert_allclose(result.k, truth.k, atol=2e-3)
     # the limits still apply, from the session's start: no turn within 60 s fails it, after one hint
     t = ProtocolTimings()
     idle, _ = sim(script(Still(3.5 + t.fail_after_s + 2.0)))

@@ -10,35 +10,20 @@ from __future__ import annotations
 import asyncio
 from typing import Annotated, Any
 
-import numpy as np
 from fastapi import APIRouter, Query, Request
 
 from calib.recording import Recording
 from calib.result import CalibrationResult
-from calib.stage import Stage
 
 from ...deps import Reader, check_session_id, problem, service_of
 from ...live.events import finite
-
-
-def result_from_dict(res: dict[str, Any]) -> CalibrationResult:
-    """A CalibrationResult rebuilt from its to_dict() form (enough to apply it and plot it)."""
-    stages = [Stage.from_dict(s) for s in res.get("stages") or []]
-    K = res.get("K")
-    return CalibrationResult(
-        k=np.asarray(res["k"], dtype=float),
-        b=np.asarray(res["b"], dtype=float),
-        method=str(res.get("method") or ""),
-        stages=stages,
-        K=None if K is None else np.asarray(K, dtype=float),
-    )
 
 
 def session_traces(rec: Recording, res: dict[str, Any], max_points: int) -> dict[str, Any]:
     """The JSON body of GET /sessions/{id}/plot for a recording and its result dict."""
     from calib.plots import calibration_traces
 
-    traces = calibration_traces(rec, result_from_dict(res), max_points=max_points)
+    traces = calibration_traces(rec, CalibrationResult.from_dict(res), max_points=max_points)
     return finite({**traces, "k": res["k"], "b": res["b"], "method": res.get("method")})
 
 

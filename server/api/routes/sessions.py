@@ -325,7 +325,7 @@ async def calibrate_uploaded(
     check_upload(body, layout)
     source = f"upload for {device_id}"
     try:
-        res, csv, n_samples = await asyncio.wait_for(
+        result, res, csv, n_samples = await asyncio.wait_for(
             svc.pool.run(calibrate_upload, body, fs, layout, method, source, svc.settings.max_upload_samples),
             timeout=svc.settings.compute_timeout_s,
         )
@@ -342,7 +342,7 @@ async def calibrate_uploaded(
     except Exception as exc:  # calib's errors and whatever else the parser or estimator trips on
         raise recording_problem(exc, "calibrated", upload=True) from None
     res = finite(res)
-    checks = evaluate(res, svc.settings.tolerances)
+    checks = evaluate(result, svc.settings.tolerances)
     failures = [c["text"] for c in checks if not c["ok"]]
     passed = not failures
     sid = uuid.uuid4().hex
