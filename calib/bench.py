@@ -26,12 +26,11 @@ from typing import Any
 import numpy as np
 
 from .errors import GyrocalError
+from .simulator.ranges import B_RANGE_DPS, K_RANGE
 
 PARAMS = ("kx", "ky", "kz", "bx", "by", "bz")
 # The paper's Fig. 7 statement: "the majority of the estimation error" lies within these bounds.
 PAPER_BOUNDS = {0.03: 5.5e-3, 0.15: 2.5e-2}
-K_RANGE = (0.8, 1.2)  # Section 3, assumption 1
-B_RANGE = (-5.0, 5.0)  # deg/s
 
 BatchFn = Callable[[Any], tuple]
 _BATCH_METHODS: dict[str, BatchFn] = {}
@@ -345,7 +344,7 @@ def paper_sim(
 
     rng = np.random.default_rng(np.random.SeedSequence(seed))
     k_sets = rng.uniform(*K_RANGE, size=(sets, 3))
-    b_sets = rng.uniform(*B_RANGE, size=(sets, 3))
+    b_sets = rng.uniform(*B_RANGE_DPS, size=(sets, 3))
     tasks = [
         {
             "key": (ni, si),

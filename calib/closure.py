@@ -37,7 +37,7 @@ from .closure_fit import (
     windows,
 )
 from .errors import CalibrationError, ProtocolError
-from .recording import Recording
+from .recording import Recording, sample_intervals
 from .result import CalibrationResult
 from .stage import AXES, FLAG_COUNTER_GAP, FLAG_SATURATED, Stage
 from .validation import check_calibration_input
@@ -75,7 +75,7 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool = False
     """
     check_calibration_input(rec)
     stage_list, turns, stills, warnings = _select_stages(rec, stages)
-    dt_all = _sample_intervals(rec.t)
+    dt_all = sample_intervals(rec.t)
 
     gyro = rec.gyro[None]
     m, d = windows(gyro, np.array([[[s.start, s.end] for s in turns]]), dt_all[None])
@@ -325,11 +325,6 @@ def _correlation(cov: np.ndarray) -> np.ndarray:
 
 # --------------------------------------------------------------------------- input
 
-
-def _sample_intervals(t: np.ndarray) -> np.ndarray:
-    """The interval each sample is held for: t[i+1] - t[i], the last one the median interval."""
-    d = np.diff(t)
-    return np.append(d, np.median(d))
 
 
 def _select_stages(rec: Recording, stages: Any) -> tuple[list[Stage], list[Stage], list[Stage], list[str]]:

@@ -31,9 +31,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .quaternion import IDENTITY, hamilton, prefix_products, total_products  # noqa: F401  (re-exported)
-
-DEG = np.pi / 180.0
-
+from .units import DEG
 
 # --------------------------------------------------------------------------- SO(3) Jacobians
 

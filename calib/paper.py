@@ -36,19 +36,19 @@ from scipy.spatial.transform import Rotation
 
 from .errors import CalibrationError, ProtocolError, RecordingError
 from .quaternion import prefix_products
-from .recording import Recording
+from .recording import Recording, sample_intervals
 from .result import CalibrationResult
 from .stage import AXES, FLAG_COUNTER_GAP, FLAG_SATURATED, Stage
+from .units import DEG
 from .validation import check_calibration_input
 
 METHOD = "paper"
-THETA_TOTAL_DEG = 360.0  # the known angle of one turn (Section 2.3)
+THETA_TOTALDEG = 360.0  # the known angle of one turn (Section 2.3)
 TOL = 1e-5  # Algorithm 1, step 4
 MAX_ITER = 50
-CLOSURE_WARN_DEG = 5.0  # a turn whose calibrated attitude does not come back within this is suspicious
+CLOSURE_WARNDEG = 5.0  # a turn whose calibrated attitude does not come back within this is suspicious
 MIN_STILL_S = 1.0  # shorter first stills give a noisy bias
 
-_DEG = np.pi / 180.0
 
 
 # ---------------------------------------------------------------------------------------------
@@ -123,7 +123,7 @@ def _turn_means_batch(m_win: np.ndarray, dt: float, n: np.ndarray, k: np.ndarray
     m_win: (3, L, N) bias-compensated readings of each turn, zero past the turn's end (zero rates
     are identity rotations, so padding changes nothing); n: (N,) samples in each turn; k: (N, 3).
     """
-    q = _rotvec_to_quat(m_win * (k.T[:, None, :] * dt * _DEG))
+    q = _rotvec_to_quat(m_win * (k.T[:, None, :] * dt * DEG))
     C = _quat_to_matrix(prefix_products(q))  # (3, 3, L, N)
     return np.einsum("icln,cln->nic", C, m_win) / n[:, None, None]
 
@@ -201,7 +201,7 @@ def _algorithm1_chunk(gyro, dt, still0, turns, tol, max_iter):
         win = (gyro[rows[:, None], idx] - mean0[:, None, :]) * inside[..., None]  # (R, L, 3)
         m_win[:, :, j * R : (j + 1) * R] = win.transpose(2, 1, 0)
     n_seq = lengths.T.reshape(-1).astype(float)  # (3R,)
-    rate2 = (THETA_TOTAL_DEG / (lengths * dt)) ** 2  # (R, 3): (theta_total / T_j)^2
+    rate2 = (THETA_TOTALDEG / (lengths * dt)) ** 2  # (R, 3): (theta_total / T_j)^2
 
     k = np.ones((R, 3))
     iters = np.zeros(R, dtype=np.int64)
@@ -272,12 +272,12 @@ def algorithm1(
     Built on scipy's Rotation and least_squares, independently of the batch path (numpy
     quaternions, Newton's method); the tests check that both give the same answer.
     """
-    dt_all = _sample_intervals(t)
+    dt_all = sample_intervals(t)
     s0, e0 = still0
     mean0 = gyro[s0:e0].mean(axis=0)
     m_hat = gyro - mean0
     windows = [(m_hat[s:e], dt_all[s:e]) for s, e in turns]
-    rate2 = np.array([(THETA_TOTAL_DEG / d.sum()) ** 2 for _, d in windows])
+    rate2 = np.array([(THETA_TOTALDEG / d.sum()) ** 2 for _, d in windows])
     k = np.ones(3)
     history = [k]
     converged = False
@@ -306,14 +306,6 @@ def algorithm1(
             break
     return Algorithm1Fit(k=k, b=-k * mean0, iterations=it, converged=converged, mean0=mean0, history=history)
 
-
-def _sample_intervals(t: np.ndarray) -> np.ndarray:
-    """The interval each sample is held for: t[i+1] - t[i], the last one the median interval.
-
-    Across lost samples the last reading is held until the next one arrives.
-    """
-    d = np.diff(t)
-    return np.append(d, np.median(d))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -360,7 +352,7 @@ def calibrate_paper(rec: Recording, stages: Any = None) -> CalibrationResult:
             "determine them; record one full turn about each of x, y and z"
         )
 
-    dt_all = _sample_intervals(rec.t)
+    dt_all = sample_intervals(rec.t)
     m_hat = rec.gyro - fit.mean0
     residuals: dict[str, Any] = {}
     warnings: list[str] = []
@@ -378,7 +370,7 @@ def calibrate_paper(rec: Recording, stages: Any = None) -> CalibrationResult:
             "duration_s": float(d.sum()),
             "samples": st.end - st.start,
         }
-        if closure > CLOSURE_WARN_DEG:
+        if closure > CLOSURE_WARNDEG:
             warnings.append(
                 f"turn about {axis}: the calibrated attitude ends {closure:.1f} deg from where it started; "
                 "put the device back exactly in its starting position after each 360-degree turn"

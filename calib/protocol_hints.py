@@ -10,6 +10,7 @@ import numpy as np
 from .errors import ProtocolError
 from .recording import Recording
 from .stage import Stage
+from .units import FULL_TURN_DEG
 
 # Output data rates of common MEMS IMUs (ST LSM6/LSM9DS1, TDK InvenSense, Bosch BMI): where a wrong rate
 # is looked for, Hz
@@ -56,7 +57,7 @@ def rate_that_fits(rec: Recording) -> float | None:
             continue
         turns = list(proto.turns.values())
         if _turns_come_back(scaled, turns):
-            fits.append((float(np.mean([abs(np.log(abs(t.angle_deg or 1.0) / 360.0)) for t in turns])), rate))
+            fits.append((float(np.mean([abs(np.log(abs(t.angle_deg or 1.0) / FULL_TURN_DEG)) for t in turns])), rate))
     return min(fits)[1] if fits else None
 
 

@@ -31,6 +31,13 @@ class RecordingMeta:
     source: str | None = None  # file name or stream name, for messages
 
 
+def sample_intervals(t: np.ndarray) -> np.ndarray:
+    """The interval each sample is held for (s): t[i+1] - t[i], the last one the median interval. Across lost
+    samples the last reading is held until the next one arrives."""
+    d = np.diff(t)
+    return np.append(d, np.median(d)) if d.size else np.array([1.0])
+
+
 @dataclass(frozen=True, eq=False)
 class Recording:
     """One recording: times (s), gyro readings (deg/s) and optional channels."""

@@ -19,11 +19,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..recording import Recording
+from ..recording import Recording, sample_intervals
 from ..stage import AXES, Stage
+from ..units import DEG
 
 BLOCK_S = 0.5  # still block length, s
-DEG = np.pi / 180.0
 
 
 @dataclass(frozen=True)
@@ -65,11 +65,6 @@ class Layout:
         """(J,) +1 for counter-clockwise (positive) turns, -1 for clockwise."""
         return np.array([1.0 if (s.angle_deg or 1.0) > 0 else -1.0 for s in self.turns])
 
-
-def sample_intervals(t: np.ndarray) -> np.ndarray:
-    """The interval each sample is held for: t[i+1] - t[i], the last one the median interval."""
-    d = np.diff(t)
-    return np.append(d, np.median(d)) if d.size else np.array([1.0])
 
 
 def make_layout(rec: Recording, stages: list[Stage], dt: np.ndarray | None = None) -> Layout:

@@ -27,7 +27,8 @@ from scipy.spatial.transform import Rotation
 
 from ..closure_fit import solve_lower
 from ..closure_model import left_jacobian, left_jacobian_inv, prefix_products
-from .data import DEG, Problem
+from ..units import DEG
+from .data import Problem
 from .models import Model
 
 _IDENTITY_Q = np.array([0.0, 0.0, 0.0, 1.0])

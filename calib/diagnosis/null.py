@@ -17,7 +17,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .data import DEG, Inputs, Layout, Problem, build_problem
+from ..units import DEG
+from .data import Inputs, Layout, Problem, build_problem
 from .engine import closure_pass
 from .models import R0_DPS, Model
 

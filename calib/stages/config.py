@@ -9,6 +9,7 @@ import numpy as np
 
 from ..errors import GyrocalError
 from ..stage import Stage
+from ..units import FULL_TURN_DEG
 
 
 class StageConfigError(GyrocalError, ValueError):
@@ -43,8 +44,8 @@ class StageConfig:
     floor_rank: int = 3  # the floor is the floor_rank-th quietest block
     min_noise_dps: float = 0.005
     max_noise_dps: float = 1.0  # moving blocks at the start cannot raise the floor above this
-    min_turn_deg: float = 360.0 / 1.33
-    max_turn_deg: float = 360.0 / 0.75
+    min_turn_deg: float = FULL_TURN_DEG / 1.33  # a full turn as read by a gyro whose k is up to 1.33
+    max_turn_deg: float = FULL_TURN_DEG / 0.75  # ... or down to 0.75
     max_off_axis: float = 0.35  # off-axis rotation allowed in a turn, as a fraction of its angle
     max_turn_s: float = 30.0
     full_scale_fraction: float = 0.995

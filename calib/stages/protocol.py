@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 from ..errors import ProtocolError
 from ..stage import AXES, Stage
+from .config import StageConfig
 
 
 @dataclass(frozen=True)
@@ -56,7 +57,8 @@ def find_protocol(stages: list[Stage], min_still0_s: float = 1.5) -> ProtocolSta
         n_motion = sum(s.kind == "motion" for s in stages)
         detail = (f" Turns found: {found}." if found else " No full turn was found at all.") + (
             f" {n_motion} other motion(s) were not full turns: a turn counts when it is one full turn"
-            f" ({360 / 1.33:.0f}-{360 / 0.75:.0f} degrees as measured) about one device axis, between two pauses."
+            f" ({StageConfig.min_turn_deg:.0f}-{StageConfig.max_turn_deg:.0f} degrees as measured) about one device axis,"
+            " between two pauses."
             if n_motion else ""
         )
         if stages and stages[0].kind == "motion" and stages[0].start == 0:

@@ -23,7 +23,7 @@ import numpy as np
 from calib.acceptance import evaluate
 from calib.recording import Recording, RecordingMeta
 from calib.result import CalibrationResult
-from calib.stage import Axis, Stage
+from calib.stage import AXES, Axis, Stage
 from calib.turn_checks import gravity_change_deg, rest_after_full_turn, swept_angles
 
 from ..config import Settings
@@ -31,8 +31,6 @@ from . import guidance as say
 from .buffer import SampleBuffer
 from .codes import END_STATES, STEPS, TURN_STATES
 from .turns import TurnRecord
-
-AXES = ("x", "y", "z")
 
 Listener = Callable[[str, dict[str, Any]], None]
 

@@ -8,12 +8,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calib.closure_model import DEG, closure_terms
+from calib.closure_model import closure_terms
 from calib.diagnosis.data import build_problem, make_layout
 from calib.diagnosis.engine import closure_pass
 from calib.diagnosis.models import Model
 from calib.simulator import simulate
 from calib.stages import detect_stages
+from calib.units import DEG
 
 
 @pytest.mark.parametrize("seed", [3, 11])

@@ -1,0 +1,9 @@
+"""The units and the one constant of the method, stated once: angles are in degrees everywhere a user sees them
+(radians only inside the geometry), and a full turn sweeps 360 degrees."""
+
+from __future__ import annotations
+
+import numpy as np
+
+DEG = np.pi / 180.0  # radians per degree
+FULL_TURN_DEG = 360.0  # the known angle of one full turn: what the calibration rests on
