@@ -19,7 +19,6 @@ or when some turns are about axes between the sensor axes.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -329,21 +328,9 @@ def _correlation(cov: np.ndarray) -> np.ndarray:
 
 def _select_stages(rec: Recording, stages: Any) -> tuple[list[Stage], list[Stage], list[Stage], list[str]]:
     """(all stages, turns used, stills used, warnings). Every full turn and still is used."""
-    if hasattr(stages, "still0") and hasattr(stages, "turns"):
-        seen: dict[tuple[str, int, int], Stage] = {}
-        for s in (stages.still0, *stages.turns.values(), *getattr(stages, "stills", [])):
-            seen.setdefault((s.kind, s.start, s.end), s)
-        stage_list = sorted(seen.values(), key=lambda s: s.start)
-    else:
-        from .protocol_hints import find_protocol_in
-        from .stages import detect_stages
+    from .stages import resolve_stages
 
-        stage_list = detect_stages(rec) if stages is None else sorted(_as_stages(stages), key=lambda s: s.start)
-        find_protocol_in(rec, stage_list)  # ProtocolError naming the missing stage
-    n = len(rec)
-    for s in stage_list:
-        if not 0 <= s.start < s.end <= n:
-            raise ProtocolError(f"{s.kind} stage [{s.start}, {s.end}) lies outside the recording's {n} samples")
+    stage_list = resolve_stages(rec, stages).stages
     warnings: list[str] = []
     turns = []
     for s in stage_list:
@@ -371,9 +358,3 @@ def _select_stages(rec: Recording, stages: Any) -> tuple[list[Stage], list[Stage
     return stage_list, turns, stills, warnings
 
 
-def _as_stages(stages: Sequence[Any]) -> list[Stage]:
-    out = list(stages)
-    for s in out:
-        if not isinstance(s, Stage):
-            raise ProtocolError(f"stages must be Stage objects (from calib.stages.detect_stages); got {type(s).__name__}")
-    return out

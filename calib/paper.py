@@ -314,16 +314,10 @@ def algorithm1(
 
 def _protocol(rec: Recording, stages: Any) -> tuple[Stage, list[Stage], list[Stage], list[str]]:
     """(still0, [turn x, turn y, turn z], all stages, detector notes) from given or detected stages."""
-    if hasattr(stages, "still0") and hasattr(stages, "turns"):
-        proto = stages
-        given = [proto.still0, *proto.turns.values(), *getattr(proto, "stills", [])]
-        stage_list = sorted({(s.kind, s.start, s.end): s for s in given}.values(), key=lambda s: s.start)
-    else:
-        from .protocol_hints import find_protocol_in  # only needed when stages come as a list or not at all
-        from .stages import detect_stages
+    from .stages import resolve_stages
 
-        stage_list = detect_stages(rec) if stages is None else list(stages)
-        proto = find_protocol_in(rec, stage_list)
+    resolved = resolve_stages(rec, stages)
+    proto, stage_list = resolved.protocol, resolved.stages
     missing = [a for a in AXES if a not in proto.turns]
     if missing:
         raise ProtocolError(f"no full turn about {', '.join(missing)} found: turn the device 360 degrees about each axis")

@@ -11,10 +11,9 @@ from scipy.stats import norm
 
 from ..effects import CATALOGUE
 from ..errors import GyrocalError, RecordingError, RecordingTooLong
-from ..protocol_hints import find_protocol_in
 from ..recording import Recording
 from ..stage import AXES, Stage
-from ..stages import detect_stages
+from ..stages import detect_stages, resolve_stages
 from .assemble import Diagnosis, assemble_diagnosis
 from .data import (
     Problem,
@@ -99,7 +98,7 @@ def diagnose(
     if stages is None:
         stages = detect_stages(rec)
     stages = _clipped_turns(rec, list(stages), plateaus)
-    find_protocol_in(rec, stages)  # a ProtocolError naming the missing stage, as calibrate gives
+    stages = resolve_stages(rec, stages).stages  # a ProtocolError naming the missing stage, as calibrate gives
     if raw is None:
         dt = _intervals(rec, tb)
     else:

@@ -7,10 +7,12 @@ from dataclasses import replace
 
 import numpy as np
 
-from .errors import ProtocolError
-from .recording import Recording
-from .stage import Stage
-from .units import FULL_TURN_DEG
+from ..errors import ProtocolError
+from ..recording import Recording
+from ..stage import Stage
+from ..units import FULL_TURN_DEG
+from .detector import detect_stages
+from .protocol import ProtocolStages, find_protocol
 
 # Output data rates of common MEMS IMUs (ST LSM6/LSM9DS1, TDK InvenSense, Bosch BMI): where a wrong rate
 # is looked for, Hz
@@ -38,8 +40,6 @@ def quietest_second(rec: Recording) -> tuple[float, float] | None:
 def rate_that_fits(rec: Recording) -> float | None:
     """The common IMU rate at which the protocol is found in this recording (its times rescaled) with its turns
     measuring closest to 360 degrees, or None."""
-    from .stages import detect_stages, find_protocol
-
     if len(rec) > MAX_RATE_SEARCH_SAMPLES:
         return None
     fs = rec.fs
@@ -78,11 +78,9 @@ def _turns_come_back(rec: Recording, turns: list[Stage], max_deg: float = 20.0) 
     return True
 
 
-def find_protocol_in(rec: Recording, stages: list[Stage]) -> object:
+def find_protocol_in(rec: Recording, stages: list[Stage]) -> ProtocolStages:
     """calib.stages.find_protocol, whose ProtocolError also says, where it can, why the protocol is not there:
     no rest anywhere, or a sample rate that does not fit; and carries the stages that were found."""
-    from .stages import find_protocol
-
     try:
         return find_protocol(stages)
     except ProtocolError as exc:
