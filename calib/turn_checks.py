@@ -37,6 +37,12 @@ def rest_after_full_turn(t: np.ndarray, gyro: np.ndarray, bias: np.ndarray | flo
     return False
 
 
+def angle_between_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle (deg) between two vectors (e.g. two mean accelerometer readings: how far gravity moved)."""
+    cos = float(np.dot(a, b) / max(float(np.linalg.norm(a) * np.linalg.norm(b)), 1e-12))
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+
+
 def gravity_change_deg(accel_before: np.ndarray, accel_after: np.ndarray) -> float | None:
     """Angle (deg) between gravity in the rest before a turn and in the rest after it (0 when the device was
     put back in place); None when either rest is too short or not resting (|a| far from 1 g)."""
@@ -46,4 +52,4 @@ def gravity_change_deg(accel_before: np.ndarray, accel_after: np.ndarray) -> flo
     na, nb = np.linalg.norm(a), np.linalg.norm(b)
     if not (0.5 < na < 1.5 and 0.5 < nb < 1.5):
         return None
-    return float(np.degrees(np.arccos(np.clip(a @ b / (na * nb), -1.0, 1.0))))
+    return angle_between_deg(a, b)

@@ -88,6 +88,12 @@ async def require_operator(request: Request, creds: Annotated[HTTPAuthorizationC
     return op
 
 
+def bearer_token(request: Request) -> str | None:
+    """The token of an ``Authorization: Bearer`` header (None when the request sends no such header)."""
+    auth = request.headers.get("authorization", "")
+    return auth[7:].strip() if auth[:7].lower() == "bearer " else None
+
+
 async def read_access(
     request: Request,
     access_token: Annotated[
@@ -98,9 +104,8 @@ async def read_access(
     svc = service_of(request)
     if not svc.settings.auth_reads:
         return None
-    auth = request.headers.get("authorization", "")
-    token = auth[7:].strip() if auth[:7].lower() == "bearer " else access_token
-    op = await token_operator(svc, token)
+    token = bearer_token(request)
+    op = await token_operator(svc, token if token is not None else access_token)
     if op is None:
         raise problem(401, "this service needs a token for reads too: sign in (POST /auth/login)", {"WWW-Authenticate": "Bearer"})
     return op
@@ -111,8 +116,8 @@ async def analysis_quota(request: Request, reader: Annotated[str | None, Depends
     svc = service_of(request)
     if reader is not None:
         return reader
-    auth = request.headers.get("authorization", "")
-    if auth[:7].lower() == "bearer " and await token_operator(svc, auth[7:].strip()):
+    token = bearer_token(request)
+    if token and await token_operator(svc, token):
         return None
     wait = svc.anonymous_analyses.take(request.client.host if request.client else "unknown")
     if wait > 0:

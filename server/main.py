@@ -22,7 +22,7 @@ from .config import Settings
 from .middleware import BodyLimit
 from .security import HostCheck, SecurityHeaders, add_docs
 from .service import Service
-from .store import StoreError
+from .store import DecisionConflict, NotAcceptable, NotFound, StoreError
 
 log = logging.getLogger(__name__)
 
@@ -79,6 +79,16 @@ def _error_answers(app: FastAPI) -> None:
     @app.exception_handler(StoreError)
     async def _store_error(request: Request, exc: StoreError) -> JSONResponse:
         return JSONResponse({"detail": f"the store is unavailable: {exc}. Try again; nothing was changed."}, status_code=503)
+
+    # the store's refusals that are the request's doing, not an outage: the message says what happened
+    @app.exception_handler(DecisionConflict)
+    @app.exception_handler(NotAcceptable)
+    async def _conflict(request: Request, exc: StoreError) -> JSONResponse:
+        return JSONResponse({"detail": str(exc)}, status_code=409)
+
+    @app.exception_handler(NotFound)
+    async def _not_found(request: Request, exc: NotFound) -> JSONResponse:
+        return JSONResponse({"detail": str(exc)}, status_code=404)
 
 
     @app.exception_handler(SQLAlchemyError)

@@ -14,11 +14,12 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import httpx
 import pytest
@@ -125,6 +126,53 @@ def service_store(request: pytest.FixtureRequest, tmp_path: Path) -> tuple[str, 
     pg = request.getfixturevalue("postgres")
     owner = pg.create_database()
     return owner, pg.service_url(owner)
+
+
+# -- races and outages ------------------------------------------------------------------------------
+T = TypeVar("T")
+
+
+def at_once(calls: list[Callable[[], T]], timeout_s: float = 90.0) -> list[T]:
+    """Run each call in a thread of its own, all released together by a barrier; their results, in order."""
+    barrier = threading.Barrier(len(calls))
+    out: list[Any] = [None] * len(calls)
+
+    def run(i: int) -> None:
+        barrier.wait()
+        out[i] = calls[i]()
+
+    threads = [threading.Thread(target=run, args=(i,)) for i in range(len(calls))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout_s)
+    return out
+
+
+def store_outage(url: str, on: bool, writes: list[tuple[str, str, str | None]]) -> None:
+    """Make the store at ``url`` (as the tables' owner) refuse some writes, or take them again: each write is
+    (table, operation such as "INSERT" or "UPDATE OF ended_at", a condition on NEW or None), refused by a trigger
+    the way a full disk or a lost connection would refuse it."""
+    from sqlalchemy import create_engine, text
+
+    eng = create_engine(url.replace("postgresql://", "postgresql+psycopg://"))
+    with eng.begin() as conn:
+        pg = eng.dialect.name == "postgresql"
+        if pg and on:
+            conn.execute(text("CREATE OR REPLACE FUNCTION test_outage() RETURNS trigger AS $$ "
+                              "BEGIN RAISE EXCEPTION 'store down'; END; $$ LANGUAGE plpgsql"))
+        for table, op, when in writes:
+            name = f"test_outage_{table}_{op.split()[0].lower()}"
+            conn.execute(text(f"DROP TRIGGER IF EXISTS {name}" + (f" ON {table}" if pg else "")))
+            if not on:
+                continue
+            if pg:
+                cond = f" WHEN ({when})" if when else ""
+                conn.execute(text(f"CREATE TRIGGER {name} BEFORE {op} ON {table} FOR EACH ROW{cond} EXECUTE FUNCTION test_outage()"))
+            else:
+                cond = f" WHEN {when}" if when else ""
+                conn.execute(text(f"CREATE TRIGGER {name} BEFORE {op} ON {table}{cond} BEGIN SELECT RAISE(ABORT, 'store down'); END"))
+    eng.dispose()
 
 
 # -- a running service ----------------------------------------------------------------------------

@@ -10,6 +10,7 @@ import numpy as np
 from ..errors import ProtocolError
 from ..recording import Recording
 from ..stage import Stage
+from ..turn_checks import angle_between_deg
 from ..units import FULL_TURN_DEG
 from .detector import detect_stages
 from .protocol import ProtocolStages, find_protocol
@@ -72,8 +73,7 @@ def _turns_come_back(rec: Recording, turns: list[Stage], max_deg: float = 20.0) 
         after = rec.accel[s.end : s.end + w].mean(axis=0)
         if not (np.all(np.isfinite(before)) and np.all(np.isfinite(after))) or s.start < 1 or s.end + 1 > len(rec):
             continue
-        cos = float(np.dot(before, after) / max(np.linalg.norm(before) * np.linalg.norm(after), 1e-12))
-        if np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) > max_deg:
+        if angle_between_deg(before, after) > max_deg:
             return False
     return True
 
@@ -86,8 +86,8 @@ def find_protocol_in(rec: Recording, stages: list[Stage]) -> ProtocolStages:
     except ProtocolError as exc:
         message, code = str(exc), exc.code
         rate = rate_that_fits(rec)
-        quiet = quietest_second(rec)
-        if rate is None and quiet is not None and not any(s.kind == "still" for s in stages):
+        quiet = quietest_second(rec) if rate is None and not any(s.kind == "still" for s in stages) else None
+        if quiet is not None:
             rest = f"a gyroscope lying on a table varies by about {REST_NOISE_DPS[0]:g}-{REST_NOISE_DPS[1]:g} deg/s"
             if quiet[1] > REST_NOISE_DPS[1]:
                 code = "no_rest"

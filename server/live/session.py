@@ -561,20 +561,21 @@ class GuidedSession:
         else:
             self.fail("moved_during_pause", msg)
 
+    def _rest_reading(self) -> np.ndarray | float:
+        """The raw reading at rest (deg/s): the mean of the last still, 0 before there is one."""
+        still = self._last_still
+        return self.buf.gyro[still.start : still.end].mean(axis=0) if still is not None and still.end > still.start else 0.0
+
     def _turn_angles(self, start: int, end: int) -> np.ndarray:
         """Integrated raw angle (deg) about x, y, z over [start, end), bias from the last still."""
-        still = self._last_still
-        bias = self.buf.gyro[still.start : still.end].mean(axis=0) if still is not None and still.end > still.start else 0.0
-        return swept_angles(self.buf.t[start:end], self.buf.gyro[start:end], bias)
+        return swept_angles(self.buf.t[start:end], self.buf.gyro[start:end], self._rest_reading())
 
     def _rest_after_full_turn(self, st: Stage, k: int) -> bool:
         """Whether the motion holds a rest of rest_seen_s after a full turn about axis k, then moves on."""
         if self.fs is None:
             return False
-        still = self._last_still
-        bias = self.buf.gyro[still.start : still.end].mean(axis=0) if still is not None and still.end > still.start else 0.0
         floor = getattr(self.tracker.live, "noise_floor", None) if self.tracker is not None else None
-        return rest_after_full_turn(self.buf.t[st.start : st.end], self.buf.gyro[st.start : st.end], bias, k, floor,
+        return rest_after_full_turn(self.buf.t[st.start : st.end], self.buf.gyro[st.start : st.end], self._rest_reading(), k, floor,
                                     self.timings.rest_seen_s, self.tol.turn_angle_min_deg)
 
     def _gravity_change_deg(self, st: Stage) -> float | None:

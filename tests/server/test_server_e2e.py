@@ -13,7 +13,7 @@ from typing import Any
 import httpx
 import numpy as np
 import pytest
-from server_fixtures import GYROCAL, ROOT, RunningService, bad_csv_uploads, follow_events
+from server_fixtures import GYROCAL, ROOT, RunningService, bad_csv_uploads, follow_events, store_outage
 
 from calib.api import calibrate
 from calib.io import parse_recording_text, write_native_csv
@@ -287,24 +287,7 @@ def test_garbage_uploads_get_a_4xx_with_a_reason(service: RunningService) -> Non
         assert c.get("/devices/garbage-1").status_code == 404  # refused uploads leave no trace but the log
 
 
-def _inject_store_failure(url: str, on: bool) -> None:
-    from sqlalchemy import create_engine, text
-
-    eng = create_engine(url.replace("postgresql://", "postgresql+psycopg://"))
-    with eng.begin() as conn:
-        if eng.dialect.name == "sqlite":
-            conn.execute(text("DROP TRIGGER IF EXISTS test_disk_full"))
-            if on:
-                conn.execute(text("CREATE TRIGGER test_disk_full BEFORE INSERT ON calibrations "
-                                  "BEGIN SELECT RAISE(ABORT, 'disk full'); END"))
-        else:
-            conn.execute(text("DROP TRIGGER IF EXISTS test_disk_full ON calibrations"))
-            if on:
-                conn.execute(text("CREATE OR REPLACE FUNCTION test_disk_full() RETURNS trigger AS $$ "
-                                  "BEGIN RAISE EXCEPTION 'disk full'; END; $$ LANGUAGE plpgsql"))
-                conn.execute(text("CREATE TRIGGER test_disk_full BEFORE INSERT ON calibrations "
-                                  "FOR EACH ROW EXECUTE FUNCTION test_disk_full()"))
-    eng.dispose()
+CALIBRATION_INSERT = [("calibrations", "INSERT", None)]
 
 
 def test_restart_keeps_history_and_a_failed_store_write_changes_nothing(service_store: tuple[str, str]) -> None:
@@ -329,12 +312,12 @@ def test_restart_keeps_history_and_a_failed_store_write_changes_nothing(service_
             assert c.get(f"/sessions/{sid1}").json()["decision"] == "accepted"
         sid2, events = run_to_end(svc, "mock-1")
         assert events[-1]["state"] == "done"
-        _inject_store_failure(store_url, True)
+        store_outage(store_url, True, CALIBRATION_INSERT)
         with svc.client() as c:
             r = c.post(f"/sessions/{sid2}/accept")
             assert r.status_code == 503 and "previous calibration stays current" in r.json()["detail"]
             assert c.get("/devices/mock-1/calibration").json()["id"] == first["id"]
-            _inject_store_failure(store_url, False)
+            store_outage(store_url, False, CALIBRATION_INSERT)
             r = c.post(f"/sessions/{sid2}/accept")
             assert r.status_code == 200, r.text
             second = r.json()["calibration"]

@@ -6,14 +6,13 @@ from __future__ import annotations
 import io
 import os
 import signal
-import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import httpx
 import pytest
-from server_fixtures import API_TOKEN, RunningService, follow_events
+from server_fixtures import API_TOKEN, RunningService, at_once, follow_events, store_outage
 from sqlalchemy import create_engine, text
 
 from calib.io import write_native_csv
@@ -51,20 +50,15 @@ def _upload_session(svc: RunningService, seed: int, device: str = "upload-1") ->
 
 def _at_once(svc: RunningService, sid: str, actions: list[str]) -> list[httpx.Response]:
     """POST the decisions at the same moment from as many threads (each its own connection)."""
-    barrier = threading.Barrier(len(actions))
-    out: list[Any] = [None] * len(actions)
 
-    def go(i: int) -> None:
-        with httpx.Client(base_url=svc.base, headers={"Authorization": f"Bearer {API_TOKEN}"}, timeout=60) as c:
-            barrier.wait()
-            out[i] = c.post(f"/sessions/{sid}/{actions[i]}")
+    def post(action: str) -> Callable[[], httpx.Response]:
+        def call() -> httpx.Response:
+            with httpx.Client(base_url=svc.base, headers={"Authorization": f"Bearer {API_TOKEN}"}, timeout=60) as c:
+                return c.post(f"/sessions/{sid}/{action}")
 
-    threads = [threading.Thread(target=go, args=(i,)) for i in range(len(actions))]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join(90)
-    return out
+        return call
+
+    return at_once([post(a) for a in actions])
 
 
 def test_concurrent_decisions_over_http_store_one_outcome(service_store: tuple[str, str]) -> None:
@@ -105,36 +99,15 @@ def test_concurrent_decisions_over_http_store_one_outcome(service_store: tuple[s
     print(f"concurrent accepts tried: {tried}, calibration rows stored: {stored}")
 
 
-def _session_writes(owner: str, fail: bool) -> None:
-    """Make the store refuse (or accept again) the writes that end a session: its row's end and its recording."""
-    eng = create_engine(owner.replace("postgresql://", "postgresql+psycopg://"))
-    with eng.begin() as conn:
-        if eng.dialect.name == "sqlite":
-            conn.execute(text("DROP TRIGGER IF EXISTS test_outage_end"))
-            conn.execute(text("DROP TRIGGER IF EXISTS test_outage_rec"))
-            if fail:
-                conn.execute(text("CREATE TRIGGER test_outage_end BEFORE UPDATE OF ended_at ON sessions "
-                                  "WHEN NEW.ended_at IS NOT NULL BEGIN SELECT RAISE(ABORT, 'store down'); END"))
-                conn.execute(text("CREATE TRIGGER test_outage_rec BEFORE INSERT ON recordings "
-                                  "BEGIN SELECT RAISE(ABORT, 'store down'); END"))
-        else:
-            conn.execute(text("DROP TRIGGER IF EXISTS test_outage_end ON sessions"))
-            conn.execute(text("DROP TRIGGER IF EXISTS test_outage_rec ON recordings"))
-            if fail:
-                conn.execute(text("CREATE OR REPLACE FUNCTION test_outage() RETURNS trigger AS $$ "
-                                  "BEGIN RAISE EXCEPTION 'store down'; END; $$ LANGUAGE plpgsql"))
-                conn.execute(text("CREATE TRIGGER test_outage_end BEFORE UPDATE ON sessions FOR EACH ROW "
-                                  "WHEN (NEW.ended_at IS NOT NULL) EXECUTE FUNCTION test_outage()"))
-                conn.execute(text("CREATE TRIGGER test_outage_rec BEFORE INSERT ON recordings FOR EACH ROW "
-                                  "EXECUTE FUNCTION test_outage()"))
-    eng.dispose()
+# the writes that end a session: its row's end, and its recording
+SESSION_END = [("sessions", "UPDATE OF ended_at", "NEW.ended_at IS NOT NULL"), ("recordings", "INSERT", None)]
 
 
 def test_a_store_outage_at_a_sessions_end_is_repaired_by_the_accept(service_store: tuple[str, str]) -> None:
     owner, url = service_store
     svc = RunningService(MOCK, url).start()
     try:
-        _session_writes(owner, True)
+        store_outage(owner, True, SESSION_END)
         try:
             with svc.client() as c:
                 sid = c.post("/devices/mock-1/calibrate", json={}).json()["session_id"]
@@ -145,7 +118,7 @@ def test_a_store_outage_at_a_sessions_end_is_repaired_by_the_accept(service_stor
             store = Store(owner)
             assert store.session(sid)["ended_at"] is None  # the end was not written
         finally:
-            _session_writes(owner, False)
+            store_outage(owner, False, SESSION_END)
         with svc.client() as c:
             r = c.post(f"/sessions/{sid}/accept")
             assert r.status_code == 200, r.text

@@ -3,14 +3,15 @@ history that cannot be rewritten, tampering that shows, a session's end and samp
 
 from __future__ import annotations
 
+import functools
 import multiprocessing
 import sqlite3
-import threading
 from collections import Counter
 from datetime import UTC
 from pathlib import Path
 
 import pytest
+from server_fixtures import at_once
 from sqlalchemy import text
 from sqlalchemy.exc import SQLAlchemyError
 
@@ -38,19 +39,7 @@ def _decide(store: Store, sid: str, how: str, who: str) -> str:
 
 def _race(store: Store, sid: str, plan: list[str]) -> list[str]:
     """Run the decisions of ``plan`` at once in threads (released together by a barrier)."""
-    barrier = threading.Barrier(len(plan))
-    out: list[str] = [""] * len(plan)
-
-    def run(i: int) -> None:
-        barrier.wait()
-        out[i] = _decide(store, sid, plan[i], f"op{i}")
-
-    threads = [threading.Thread(target=run, args=(i,)) for i in range(len(plan))]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join(60)
-    return out
+    return at_once([functools.partial(_decide, store, sid, how, f"op{i}") for i, how in enumerate(plan)], timeout_s=60)
 
 
 def _check_history(store: Store, winners: dict[str, str], device: str = "dev-1") -> None:

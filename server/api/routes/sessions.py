@@ -222,10 +222,8 @@ async def accept(svc: Svc, session_id: str, operator: Operator, body: M.Decision
             recording_csv=(live.csv_bytes if live else None),
             n_samples=(live.machine.buf.n if live else 0),
         )
-    except (DecisionConflict, NotAcceptable) as exc:
-        raise problem(409, str(exc)) from None
-    except NotFound as exc:
-        raise problem(404, str(exc)) from None
+    except (DecisionConflict, NotAcceptable, NotFound):
+        raise  # 409 / 404 with the store's own sentence (server.main)
     except (StoreError, SQLAlchemyError) as exc:
         log.warning("accept of %s failed: %s", session_id, exc)
         raise problem(
@@ -252,10 +250,8 @@ async def discard(svc: Svc, session_id: str, operator: Operator, body: M.Decisio
         await live.wait()
     try:
         await asyncio.to_thread(svc.store.discard_session, session_id, operator, live.session_end() if live is not None else None)
-    except DecisionConflict as exc:
-        raise problem(409, str(exc)) from None
-    except NotFound as exc:
-        raise problem(404, str(exc)) from None
+    except (DecisionConflict, NotFound):
+        raise  # 409 / 404 with the store's own sentence (server.main)
     except (StoreError, SQLAlchemyError) as exc:
         log.warning("discard of %s failed: %s", session_id, exc)
         raise problem(503, f"the decision could not be stored ({type(exc).__name__}); try again") from None
