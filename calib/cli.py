@@ -171,6 +171,23 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_effects(args: argparse.Namespace) -> int:
+    """The catalogue of physical effects: model, ``--effect`` value, drawn range and what reveals each."""
+    from .effects import EFFECTS, catalogue_specs
+
+    specs = catalogue_specs()
+    if args.json:
+        rows = [{"name": n, "model": s.equation, "parameters": s.parameters, "value": EFFECTS[n].usage,
+                 "drawn": {"low": s.drawn.low, "high": s.drawn.high, "unit": s.drawn.unit, "what": s.drawn.what},
+                 "typical": s.typical_text or None, "revealed_by": s.reveal} for n, s in specs.items()]
+        print(json.dumps(rows))
+        return EXIT_OK
+    for name, spec in specs.items():
+        print(f"{name}\n  model:       {spec.equation}\n  --effect:    {name}={EFFECTS[name].usage}\n"
+              f"  drawn:       {spec.drawn.text()} ({spec.drawn.what})\n  revealed by: {spec.reveal}")
+    return EXIT_OK
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     from .bench import paper_sim
 
@@ -279,6 +296,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", type=Path, default=None, help="save a PNG of the rate magnitude and angles before/after calibration")
     p.set_defaults(func=cmd_calibrate)
 
+    from .effects.tables import effect_value_help
+
     p = sub.add_parser("simulate", help="simulate a recording of the protocol")
     p.add_argument("--seed", type=int, required=True)
     p.add_argument("--noise", type=float, default=0.03, help="white noise std on the readings, deg/s (default 0.03)")
@@ -293,23 +312,17 @@ def build_parser() -> argparse.ArgumentParser:
         default=[],
         metavar="NAME=VALUE",
         help=(
-            "add a physical effect (repeatable); one number applies to all axes. "
-            "bias_drift=D|DX,DY,DZ[:C|CX,CY,CZ:RISE[:TAU]] (deg/s per s; with temperature: deg/s per degC, warm-up degC, s); "
-            "axis_misalignment=KXY,KXZ,KYZ (upper off-diagonal entries of K); "
-            "g_sensitivity=G|GX,GY,GZ|9 numbers row-major ((deg/s)/g); "
-            "scale_asymmetry=S|SX,SY,SZ (fraction: k(1+s) for positive, k(1-s) for negative rates); "
-            "scale_nonlinearity=N|NX,NY,NZ[:R0] (fractional scale change at R0 deg/s, default 1000); "
-            "saturation=FULL_SCALE[,RESOLUTION] (deg/s); "
-            "sample_loss=PROB[,BURST] (loss probability per sample, samples per loss); "
-            "placement_error=STD[,HEADING_STD] (deg per turn); "
-            "clock_error=E (fraction: 0.01 = device clock 1%% fast); "
-            "bias_instability=SIGMA[,TAU] (deg/s, s; Gauss-Markov bias); "
-            "temperature=RISE[,TAU[,T0]] (temperature channel only)"
+            "add a physical effect (repeatable; `gyrocal effects` lists them); one number applies to all axes. "
+            + effect_value_help().replace("%", "%%")
         ),
     )
     p.add_argument("-o", "--output", type=Path, required=True, help="native CSV to write")
     p.add_argument("--truth", action="store_true", help="print the simulated truth as JSON")
     p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("effects", help="list the physical effects the simulator and the diagnosis know")
+    p.add_argument("--json", action="store_true", help="print one JSON list instead of the text")
+    p.set_defaults(func=cmd_effects)
 
     p = sub.add_parser("bench", help="benchmarks")
     bsub = p.add_subparsers(dest="bench", metavar="BENCH", required=True)

@@ -8,8 +8,9 @@ given only the recording must find the effect from the data. ``effect=None``
 gives a null case (no effect) for false-positive checks; the same seed gives the same sensor, motion
 and noise with or without the effect.
 
-Magnitudes are drawn in the ranges of ``RANGES`` (log-uniform between the bounds, random signs, per
-axis a random share of the largest component), chosen from the datasheet classes of consumer MEMS
+Each effect draws its own magnitude (``Effect.draw``) in its ``EffectSpec.drawn`` range, gathered in
+``RANGES`` (log-uniform between the bounds, random signs, per axis a random share of the largest
+component), chosen from the datasheet classes of consumer MEMS
 gyroscopes in wearables (InvenSense MPU-6050/MPU-9250/ICM-20948, ST LSM6DS3/LSM9DS1, Bosch BMI160)
 and from the real recordings in shared/data/real: large enough to change a calibration, never beyond
 what such parts show. ``RANGES[name].why`` says where each range comes from.
@@ -26,21 +27,16 @@ import numpy as np
 
 from .effects import (
     CATALOGUE,
-    AxisMisalignment,
+    EFFECTS,
     BiasDrift,
-    BiasInstability,
-    ClockError,
+    DrawContext,
     Effect,
-    GSensitivity,
-    PlacementError,
-    SampleLoss,
-    Saturation,
-    ScaleAsymmetry,
-    ScaleNonlinearity,
+    MagnitudeRange,
     SimulationConfigError,
     TemperatureRamp,
-    warmup_temperature,
+    catalogue_specs,
 )
+from .effects.spec import log_uniform
 from .recording import Recording
 from .simulator import (
     ProtocolScript,
@@ -66,77 +62,17 @@ EFFECT_NAMES: tuple[str, ...] = CATALOGUE
 PROTOCOLS: tuple[str, ...] = ("paper", "extended")
 FS_HZ = 104.0
 NOISE_RANGE_DPS = (0.02, 0.1)  # white reading noise at 104 Hz: 0.004-0.015 (deg/s)/sqrt(Hz) over ~50 Hz
-STANDARD_FULL_SCALES_DPS = (125.0, 245.0, 250.0, 500.0, 1000.0)  # gyro ranges of consumer parts
 DEFAULT_FULL_SCALE_DPS = 2000.0  # the range stated when no saturation is drawn (never reached)
 HOST_LATENCY_S = (0.01, 0.05)  # constant part of the radio link delay to the host
 HOST_JITTER_S = 0.003  # scale of the per-sample delay jitter
 
 
-@dataclass(frozen=True)
-class MagnitudeRange:
-    """The drawn range of an effect's magnitude: [low, high] in ``unit``; ``what`` the magnitude is."""
+# Each catalogue effect's drawn magnitude range (its ``EffectSpec.drawn``).
+RANGES: dict[str, MagnitudeRange] = {name: spec.drawn for name, spec in catalogue_specs().items()}
 
-    low: float
-    high: float
-    unit: str
-    what: str
-    why: str
-
-
-RANGES: dict[str, MagnitudeRange] = {
-    "bias_drift": MagnitudeRange(
-        0.02, 0.2, "deg/s", "largest bias change over the recording (time or temperature)",
-        "zero-rate output vs temperature 0.01-0.05 (deg/s)/degC (LSM6DS3, LSM9DS1, ICM-20948 class) "
-        "over a warm-up of 1.5-5 degC in the recording (power-on self-heating, skin contact)",
-    ),
-    "axis_misalignment": MagnitudeRange(
-        0.003, 0.02, "", "largest off-diagonal entry of K",
-        "cross-axis sensitivity +-1-2 % (MPU-6050, ICM-20948, LSM6DS3 datasheets); 0.0097 in the "
-        "real imucal recording",
-    ),
-    "g_sensitivity": MagnitudeRange(
-        0.02, 0.15, "(deg/s)/g", "largest entry of G",
-        "linear-acceleration sensitivity 0.1 (deg/s)/g typical (MPU-6050/MPU-9250 datasheets); "
-        "0.006 (deg/s)/g in the real imucal recording",
-    ),
-    "scale_asymmetry": MagnitudeRange(
-        0.002, 0.01, "", "largest relative difference s of the scale factor between directions",
-        "within the sensitivity tolerance (+-1-3 %) and nonlinearity budget of consumer parts",
-    ),
-    "scale_nonlinearity": MagnitudeRange(
-        0.002, 0.01, "", "largest relative scale change n at 1000 deg/s",
-        "nonlinearity +-0.1-0.5 % FS at +-2000 deg/s (ICM-20948 0.1 %, MPU-6050 0.2 %, BMI160 0.1 % "
-        "class); n = 4 NL r0 / FS",
-    ),
-    "saturation": MagnitudeRange(
-        50.0, 1000.0, "deg/s", "full scale",
-        "the +-125 / 245 / 250 / 500 / 1000 deg/s ranges of consumer parts, one below the "
-        "recording's peak reading (hand turns reach 110-500 deg/s); 0.7-0.9 of the peak if none is",
-    ),
-    "sample_loss": MagnitudeRange(
-        0.002, 0.03, "", "expected fraction of samples lost",
-        "Bluetooth Low Energy links of wearables lose 0.1-3 % of packets of 1-12 samples",
-    ),
-    "placement_error": MagnitudeRange(
-        0.3, 2.0, "deg", "std of each component of the placement rotation per turn",
-        "a device turned by hand and put back down by eye: tilt and heading off by 0.3-2 deg",
-    ),
-    "clock_error": MagnitudeRange(
-        0.003, 0.03, "", "|e|, fraction the device clock runs fast (+) or slow (-)",
-        "internal oscillators of consumer IMUs set the output data rate to +-1-3 %",
-    ),
-    "bias_instability": MagnitudeRange(
-        0.005, 0.02, "deg/s", "stationary std sigma of the Gauss-Markov bias (tau 5-40 s)",
-        "in-run bias instability 10-40 deg/h (Allan deviation peak 0.62 sigma) of consumer MEMS; "
-        "static poses of the real imucal recording differ by 0.015 deg/s",
-    ),
-}
-
-BIAS_INSTABILITY_TAU_S = (5.0, 40.0)
 TEMP_RECORDING_RISE_C = (1.5, 5.0)  # temperature change over the recording
 TEMP_TAU_S = (30.0, 120.0)
 TEMP0_C = (20.0, 32.0)
-LOSS_BURST = (1, 12)
 
 
 @dataclass(frozen=True, eq=False)
@@ -192,60 +128,6 @@ def strip_channels(rec: Recording, accel: bool = True, seq: bool = True) -> Reco
     return replace(rec, accel=rec.accel if accel else None, seq=rec.seq if seq else None)
 
 
-def _log_uniform(rng: np.random.Generator, low: float, high: float) -> float:
-    return float(np.exp(rng.uniform(np.log(low), np.log(high))))
-
-
-def _spread(rng: np.random.Generator, largest: float, shape: tuple[int, ...] = (3,)) -> np.ndarray:
-    """Random signs and shares, the largest component exactly ``largest`` in size."""
-    u = rng.uniform(-1.0, 1.0, shape)
-    return largest * u / np.max(np.abs(u))
-
-
-def _draw_effect(
-    name: str,
-    rng: np.random.Generator,
-    script: ProtocolScript,
-    duration_s: float,
-    peak_dps: float,
-    temp: tuple[float, float, float] | None,
-) -> tuple[Effect, float]:
-    """One effect of the catalogue and its magnitude (see ``RANGES``)."""
-    r = RANGES[name]
-    if name == "saturation":
-        below = [fs for fs in STANDARD_FULL_SCALES_DPS if fs * 1.05 < peak_dps]
-        fs = float(rng.choice(below)) if below else round(float(rng.uniform(0.7, 0.9) * peak_dps), 1)
-        return Saturation(fs, fs / 32768.0), fs  # 16-bit readings
-    if name == "sample_loss":
-        frac = _log_uniform(rng, r.low, r.high)
-        burst = int(rng.integers(LOSS_BURST[0], LOSS_BURST[1] + 1))
-        return SampleLoss(prob=1.0 - (1.0 - frac) ** (1.0 / burst), burst=burst), frac
-    mag = _log_uniform(rng, r.low, r.high)
-    if name == "bias_drift":
-        change = _spread(rng, mag)
-        if temp is None:
-            return BiasDrift(change / duration_s), mag
-        temp0, rise, tau = temp
-        d_temp = warmup_temperature(duration_s, 0.0, rise, tau)
-        return BiasDrift(np.zeros(3), change / d_temp, rise, tau, temp0), mag
-    if name == "axis_misalignment":
-        return AxisMisalignment(_spread(rng, mag)), mag
-    if name == "g_sensitivity":
-        return GSensitivity(_spread(rng, mag, (3, 3))), mag
-    if name == "scale_asymmetry":
-        return ScaleAsymmetry(_spread(rng, mag)), mag
-    if name == "scale_nonlinearity":
-        return ScaleNonlinearity(_spread(rng, mag)), mag
-    if name == "placement_error":
-        effect = PlacementError(mag)
-        return replace(effect, errors_deg=effect.draw_errors(len(script.turns), rng)), mag
-    if name == "clock_error":
-        return ClockError(mag * rng.choice([-1.0, 1.0])), mag
-    if name == "bias_instability":
-        return BiasInstability(mag, rng.uniform(*BIAS_INSTABILITY_TAU_S)), mag
-    raise SimulationConfigError(f"no draw for effect {name!r}")  # pragma: no cover - catalogue and draws agree
-
-
 def draw_concealed(
     seed: int,
     effect: str | None = None,
@@ -273,7 +155,7 @@ def draw_concealed(
     if effect is not None and effect not in EFFECT_NAMES:
         raise SimulationConfigError(f"effect must be None, 'random' or one of {', '.join(EFFECT_NAMES)}; got {effect!r}")
     if noise is None:
-        noise = _log_uniform(np.random.default_rng(ss_noise), *NOISE_RANGE_DPS)
+        noise = log_uniform(np.random.default_rng(ss_noise), *NOISE_RANGE_DPS)
     script = protocol_script(protocol, np.random.default_rng(ss_script))
     duration = script_duration_s(script)
 
@@ -292,7 +174,7 @@ def draw_concealed(
         peak = float(np.max(np.abs(rec.gyro)))
         # each effect its own stream, so that one seed does not put every effect at the same quantile
         mag_rng = np.random.default_rng(np.random.SeedSequence(ss_mag.entropy, spawn_key=(*ss_mag.spawn_key, EFFECT_NAMES.index(effect))))
-        chosen, magnitude = _draw_effect(effect, mag_rng, script, duration, peak, temp)
+        chosen, magnitude = EFFECTS[effect].draw(mag_rng, DrawContext(len(script.turns), duration, peak, temp))
         effects.append(chosen)
     if temp is not None and not (isinstance(chosen, BiasDrift) and chosen.has_temperature):
         effects.append(TemperatureRamp(temp[1], temp[2], temp[0]))

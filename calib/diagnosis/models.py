@@ -25,6 +25,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..effects import catalogue_specs
 from .data import Inputs
 
 R0_DPS = 1000.0  # reference rate of the nonlinearity, deg/s
@@ -32,16 +33,9 @@ R0_DPS = 1000.0  # reference rate of the nonlinearity, deg/s
 # Effects that change the rate model, with their parameter counts (saturation and placement vary).
 RATE_EFFECTS = ("axis_misalignment", "bias_drift", "bias_drift_temp", "g_sensitivity", "scale_asymmetry",
                 "scale_nonlinearity", "plateau")
-_FIXED_SIZE = {"axis_misalignment": 3, "bias_drift": 3, "bias_drift_temp": 3, "g_sensitivity": 9, "scale_asymmetry": 3,
-               "scale_nonlinearity": 3}
-_PARAM_NAMES = {
-    "axis_misalignment": ("U_xy", "U_xz", "U_yz"),
-    "bias_drift": ("d_x", "d_y", "d_z"),
-    "bias_drift_temp": ("c_x", "c_y", "c_z"),
-    "g_sensitivity": tuple(f"G_{a}{b}" for a in "xyz" for b in "xyz"),
-    "scale_asymmetry": ("s_x", "s_y", "s_z"),
-    "scale_nonlinearity": ("n_x", "n_y", "n_z"),
-}
+# Names of each fixed-size rate term's parameters, from the catalogue (EffectSpec.model_params).
+_PARAM_NAMES: dict[str, tuple[str, ...]] = {term: names for spec in catalogue_specs().values() for term, names in spec.model_params.items()}
+_FIXED_SIZE = {term: len(names) for term, names in _PARAM_NAMES.items()}
 
 
 @dataclass(frozen=True)

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
+from ..effects import catalogue_specs
 from .data import Problem
 from .engine import (
     Fit,
@@ -48,53 +49,17 @@ ALPHA = 0.05  # family-wise false-positive rate on recordings the nominal model 
 IDENTIFY_MIN = 9.0  # noncentrality a typical effect must reach for the protocol to reveal it
 DIRECTION_MIN = 1.0  # test only directions a typical effect moves by at least one standard error
 
-# Typical magnitudes of consumer MEMS gyroscopes (datasheets of MPU-6050/9250, ICM-20948, LSM6DS3, BMI160).
-TYPICAL = {
-    "axis_misalignment": 0.008,  # cross-axis sensitivity ~1 %
-    "bias_drift_change_dps": 0.06,  # zero-rate change over a recording (0.01-0.05 (deg/s)/degC, a few degC)
-    "g_sensitivity": 0.05,  # (deg/s)/g, datasheet 0.1 typical
-    "scale_asymmetry": 0.005,
-    "scale_nonlinearity": 0.005,  # relative scale change at 1000 deg/s (0.1-0.5 % FS nonlinearity)
-    "placement_error": 0.8,  # deg per turn, a device put back by hand
-    "bias_instability_sigma": 0.009,  # deg/s: 20 deg/h bias instability (Allan deviation floor 0.62 sigma)
-    "bias_instability_tau": 20.0,  # s
-}
+# What the catalogue says of each effect (calib.effects, one EffectSpec per effect): typical magnitudes of
+# consumer MEMS gyroscopes (datasheets of MPU-6050/9250, ICM-20948, LSM6DS3, BMI160), in the unit of the
+# effect's drawn magnitude; the motion or channel that reveals it; what tells it from its rivals.
+_SPECS = catalogue_specs()
+TYPICAL: dict[str, float] = {name: spec.typical for name, spec in _SPECS.items() if spec.typical is not None}
+TYPICAL_TEXT: dict[str, str] = {name: spec.typical_text for name, spec in _SPECS.items() if spec.typical_text}
+ADVICE: dict[str, str] = {name: spec.reveal for name, spec in _SPECS.items()}
+DISTINGUISH: dict[str, str] = {name: spec.distinguish for name, spec in _SPECS.items() if spec.distinguish}
+INSTABILITY_TAU_S: float = _SPECS["bias_instability"].typical_extra["tau_s"]
 
 WEAK_MIN = 25.0  # below this noncentrality a typical effect is more often missed than found (at a 3-dof test's threshold)
-TYPICAL_TEXT = {
-    "axis_misalignment": "0.8 % cross-axis coupling",
-    "bias_drift": "0.06 deg/s over the recording",
-    "g_sensitivity": "0.05 (deg/s)/g",
-    "scale_asymmetry": "0.5 % between directions",
-    "scale_nonlinearity": "0.5 % at 1000 deg/s",
-    "placement_error": "0.8 deg per turn",
-    "bias_instability": "a 0.009 deg/s wander with a 20 s time constant (20 deg/h bias instability)",
-}
-
-ADVICE = {
-    "axis_misalignment": "add turns about axes between the sensor axes (e.g. with the device resting on an edge)",
-    "bias_drift": "rest the device longer, or several times spread over a longer recording",
-    "g_sensitivity": "record the accelerometer, and turn about horizontal axes and rest in several poses",
-    "scale_asymmetry": "turn about each axis both ways (clockwise and counter-clockwise)",
-    "scale_nonlinearity": "turn about each axis at two clearly different speeds (one slow, one fast turn)",
-    "placement_error": "record the accelerometer: it measures the tilt the device is put back with",
-    "sample_loss": "record the device's sample counter (or its own timestamps)",
-    "clock_error": "record the host's receive time of each sample (the host_t column) beside the device's sample counter",
-    "bias_instability": "rest the device longer (the wander shows over tens of seconds of rest)",
-    "saturation": "the readings never reached the gyro's full scale",
-}
-
-
-# What tells an effect apart from the others that explain the same misfit.
-DISTINGUISH = {
-    "axis_misalignment": "turns about axes between the sensor axes",
-    "bias_drift": "a longer recording with several rests (a drift keeps its direction, a wander does not)",
-    "g_sensitivity": "rests in several poses with different axes up, recorded with the accelerometer",
-    "scale_asymmetry": "turns about each axis both ways",
-    "scale_nonlinearity": "turns about each axis at two clearly different speeds",
-    "placement_error": "the accelerometer, and putting the device back against a fixed stop after each turn",
-    "bias_instability": "a longer recording with several rests (a wander changes direction, a drift does not)",
-}
 
 
 @dataclass
@@ -142,9 +107,9 @@ class Step:
 def typical_scale(key: str, P: int, prob: Problem, duration: float, temp_range: float) -> np.ndarray:
     """Typical magnitude of each of an effect's P parameters."""
     if key == "bias_drift":
-        return np.full(P, TYPICAL["bias_drift_change_dps"] / max(duration, 1.0))
+        return np.full(P, TYPICAL["bias_drift"] / max(duration, 1.0))
     if key == "bias_drift_temp":
-        return np.full(P, TYPICAL["bias_drift_change_dps"] / max(temp_range, 1e-3))
+        return np.full(P, TYPICAL["bias_drift"] / max(temp_range, 1e-3))
     return np.full(P, TYPICAL[key])
 
 
@@ -203,7 +168,7 @@ def plan_tests(
         if nc < IDENTIFY_MIN or Vk is None:
             continue
         specs.append(TestSpec(name, key, "score", base.with_effects(key), idx, Vk, nc, int(Vk.shape[1])))
-    nc = instability_noncentrality(prob, base_fit.psi, TYPICAL["bias_instability_sigma"], TYPICAL["bias_instability_tau"]) \
+    nc = instability_noncentrality(prob, base_fit.psi, TYPICAL["bias_instability"], INSTABILITY_TAU_S) \
         if prob.layout.NB >= 4 else 0.0
     best_nc["bias_instability"] = nc
     if nc >= IDENTIFY_MIN:

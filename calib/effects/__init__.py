@@ -39,27 +39,37 @@ Each class docstring gives the exact equation, parameters, units and the CLI val
 equations hold exactly for one sensor-stage effect at a time; several compose in the order given
 (each transforms the readings the previous one produced).
 
-Adding an effect: subclass ``Effect`` as a frozen dataclass with a ``name``, override the hooks it
-needs, decorate it with ``@register_effect`` so that ``parse_effect`` (the CLI's ``--effect
-NAME=VALUE``) knows it, and give it ``from_text`` if its CLI value is not just its numeric fields.
+Adding an effect: subclass ``Effect`` as a frozen dataclass with a ``name`` and a ``usage``, override
+the hooks it needs, decorate it with ``@register_effect`` so that ``parse_effect`` (the CLI's ``--effect
+NAME=VALUE``) knows it, and give it ``from_text`` if its CLI value is not just its numeric fields. To
+put it in the catalogue, give it a ``spec`` (``EffectSpec``: its equation, drawn range, typical size,
+the motion that reveals it) and a ``draw``: the concealed-effect generator, the diagnosis's advice and
+test sizes, the CLI help and the documentation's tables (``scripts/effects_tables.py``) all read them.
+For the diagnosis to fit it, its rate-model term goes into ``calib.diagnosis.models.Model.rate`` (the
+terms compose in one vectorised Jacobian) under the names of ``spec.model_params``.
 
 Units: rates deg/s, times s, specific force g, angles deg, temperature degC."""
 
 from .axes import AxisMisalignment, GSensitivity
 from .base import (
-    CATALOGUE,
     EFFECTS,
     Effect,
     SensorContext,
     SensorOutput,
     SimulationConfigError,
     Trajectory,
+    catalogue,
+    catalogue_specs,
     check_effects,
     effect_from_dict,
     parse_effect,
     register_effect,
 )
-from .drift import TEMP_RESOLUTION_C, BiasDrift, BiasInstability, TemperatureRamp, warmup_temperature
+from .drift import TAU_RANGE_S, TEMP_RESOLUTION_C, BiasDrift, BiasInstability, TemperatureRamp, warmup_temperature
 from .placement import PlacementError
-from .scale import Saturation, ScaleAsymmetry, ScaleNonlinearity
-from .timing import ClockError, SampleLoss
+from .scale import STANDARD_FULL_SCALES_DPS, Saturation, ScaleAsymmetry, ScaleNonlinearity
+from .spec import DrawContext, EffectSpec, MagnitudeRange
+from .timing import LOSS_BURST, ClockError, SampleLoss
+
+# The effects of the simulation-vs-reality catalogue (each with an ``EffectSpec``), in the documentation's order.
+CATALOGUE: tuple[str, ...] = catalogue()

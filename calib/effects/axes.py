@@ -8,6 +8,7 @@ from typing import ClassVar
 import numpy as np
 
 from .base import Effect, SensorContext, SimulationConfigError, _numbers, _usage_error, register_effect
+from .spec import DrawContext, EffectSpec, MagnitudeRange, log_uniform, spread
 
 
 @register_effect
@@ -24,6 +25,22 @@ class AxisMisalignment(Effect):
 
     name: ClassVar[str] = "axis_misalignment"
     usage: ClassVar[str] = "KXY,KXZ,KYZ (upper off-diagonal entries of K)"
+    spec: ClassVar[EffectSpec] = EffectSpec(
+        rank=1,
+        equation="g = K m + b, K = [[k_x, K_xy, K_xz], [0, k_y, K_yz], [0, 0, k_z]]",
+        parameters="K_xy, K_xz, K_yz (entries of K)",
+        drawn=MagnitudeRange(
+            0.003, 0.02, "", "largest off-diagonal entry of K",
+            "cross-axis sensitivity +-1-2 % (MPU-6050, ICM-20948, LSM6DS3 datasheets); 0.0097 in the real imucal recording",
+        ),
+        reveal="add turns about axes between the sensor axes (e.g. with the device resting on an edge)",
+        diagnosis_model="g = (K + U) m + b, U upper off-diagonal",
+        diagnosis_parameters="K_xy, K_xz, K_yz",
+        typical=0.008,  # cross-axis sensitivity ~1 %
+        typical_text="0.8 % cross-axis coupling",
+        distinguish="turns about axes between the sensor axes",
+        model_params={"axis_misalignment": ("U_xy", "U_xz", "U_yz")},
+    )
     off_diagonal: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     def __post_init__(self) -> None:
@@ -33,6 +50,11 @@ class AxisMisalignment(Effect):
                 f"AxisMisalignment.off_diagonal must be 3 numbers (K_xy, K_xz, K_yz) smaller than 0.5; got {self.off_diagonal!r}"
             )
         object.__setattr__(self, "off_diagonal", u)
+
+    @classmethod
+    def draw(cls, rng: np.random.Generator, ctx: DrawContext) -> tuple[AxisMisalignment, float]:
+        mag = log_uniform(rng, cls.spec.drawn.low, cls.spec.drawn.high)
+        return cls(spread(rng, mag)), mag
 
     @classmethod
     def from_text(cls, value: str) -> AxisMisalignment:
@@ -65,9 +87,30 @@ class GSensitivity(Effect):
     """
 
     name: ClassVar[str] = "g_sensitivity"
-    usage: ClassVar[str] = "G, GX,GY,GZ (diagonal) or 9 numbers row-major ((deg/s)/g)"
+    usage: ClassVar[str] = "G|GX,GY,GZ (diagonal)|9 numbers row-major ((deg/s)/g)"
+    spec: ClassVar[EffectSpec] = EffectSpec(
+        rank=2,
+        equation="g = K (m - G a) + b",
+        parameters="G (3x3, (deg/s)/g, row = gyro axis)",
+        drawn=MagnitudeRange(
+            0.02, 0.15, "(deg/s)/g", "largest entry of G",
+            "linear-acceleration sensitivity 0.1 (deg/s)/g typical (MPU-6050/MPU-9250 datasheets); "
+            "0.006 (deg/s)/g in the real imucal recording",
+        ),
+        reveal="record the accelerometer, and turn about horizontal axes and rest in several poses",
+        diagnosis_model="g = K (m − G a) + b",
+        diagnosis_parameters="G (3×3, (deg/s)/g)",
+        typical=0.05,  # datasheets quote 0.1 typical
+        typical_text="0.05 (deg/s)/g",
+        distinguish="rests in several poses with different axes up, recorded with the accelerometer",
+        model_params={"g_sensitivity": tuple(f"G_{a}{b}" for a in "xyz" for b in "xyz")},
+    )
     matrix_dps_per_g: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
 
+    @classmethod
+    def draw(cls, rng: np.random.Generator, ctx: DrawContext) -> tuple[GSensitivity, float]:
+        mag = log_uniform(rng, cls.spec.drawn.low, cls.spec.drawn.high)
+        return cls(spread(rng, mag, (3, 3))), mag
     def __post_init__(self) -> None:
         G = np.asarray(self.matrix_dps_per_g, dtype=float)
         if G.shape == ():

@@ -1,5 +1,5 @@
 """What every effect shares: the trajectory and sensor context it acts on, the Effect base class, its registry
-(EFFECTS, CATALOGUE), and how an effect is parsed from the command line or rebuilt from its dict."""
+(EFFECTS, ``catalogue()``), and how an effect is parsed from the command line or rebuilt from its dict."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from ..errors import GyrocalError
 from ..stage import Stage
+from .spec import DrawContext, EffectSpec
 
 
 class SimulationConfigError(GyrocalError, ValueError):
@@ -124,6 +125,12 @@ class Effect:
         return {"name": self.name, **{f.name: _jsonable(getattr(self, f.name)) for f in fields(self)}}
 
     usage: ClassVar[str] = ""  # the CLI value format, for messages
+    spec: ClassVar[EffectSpec | None] = None  # set by the effects of the simulation-vs-reality catalogue
+
+    @classmethod
+    def draw(cls, rng: np.random.Generator, ctx: DrawContext) -> tuple[Effect, float]:
+        """A concealed instance of this effect and its magnitude (unit of ``spec.drawn``), drawn in ``spec.drawn``."""
+        raise SimulationConfigError(f"effect {cls.name!r} is not in the catalogue: it has no concealed draw")
 
     @classmethod
     def from_text(cls, value: str) -> Effect:
@@ -151,7 +158,7 @@ def parse_effect(name: str, value: str = "") -> Effect:
     """An effect from its name and CLI value, e.g. ``("bias_drift", "0.01,0,-0.02")`` or ``("saturation", "500")``."""
     cls = EFFECTS.get(name.strip().lower().replace("-", "_"))
     if cls is None:
-        order = [n for n in CATALOGUE if n in EFFECTS] + sorted(set(EFFECTS) - set(CATALOGUE))
+        order = [*catalogue(), *sorted(set(EFFECTS) - set(catalogue()))]
         known = "; ".join(f"{n}={EFFECTS[n].usage}" for n in order)
         raise SimulationConfigError(f"unknown effect {name!r}; known effects: {known}")
     try:
@@ -204,19 +211,15 @@ def _positive(value: Any, what: str, allow_zero: bool = False) -> float:
     return v
 
 
-# The effects of the simulation-vs-reality catalogue, in the order the documentation lists them.
-CATALOGUE: tuple[str, ...] = (
-    "bias_drift",
-    "axis_misalignment",
-    "g_sensitivity",
-    "scale_asymmetry",
-    "scale_nonlinearity",
-    "saturation",
-    "sample_loss",
-    "placement_error",
-    "clock_error",
-    "bias_instability",
-)
+def catalogue() -> tuple[str, ...]:
+    """The effects of the simulation-vs-reality catalogue (those with a ``spec``), in the documentation's order."""
+    specced = [cls for cls in EFFECTS.values() if cls.spec is not None]
+    return tuple(cls.name for cls in sorted(specced, key=lambda c: c.spec.rank if c.spec else 0))
+
+
+def catalogue_specs() -> dict[str, EffectSpec]:
+    """Each catalogue effect's spec, by name, in the catalogue's order."""
+    return {name: spec for name in catalogue() if (spec := EFFECTS[name].spec) is not None}
 
 
 def check_effects(effects: Sequence[Effect]) -> tuple[Effect, ...]:

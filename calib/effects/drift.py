@@ -20,8 +20,12 @@ from .base import (
     _vec3,
     register_effect,
 )
+from .spec import DrawContext, EffectSpec, MagnitudeRange, log_uniform, spread
 
 TEMP_RESOLUTION_C = 1.0 / 256.0  # temperature channel step (256 LSB/degC, a common IMU temperature sensor)
+
+
+TAU_RANGE_S = (5.0, 40.0)  # drawn time constants of a concealed bias instability
 
 
 def warmup_temperature(t: np.ndarray | float, temp0_c: float, rise_c: float, tau_s: float) -> np.ndarray:
@@ -55,12 +59,38 @@ class BiasDrift(Effect):
 
     name: ClassVar[str] = "bias_drift"
     usage: ClassVar[str] = "RATE or RX,RY,RZ (deg/s per s)[:C or CX,CY,CZ (deg/s per degC):RISE (degC)[:TAU (s)]]"
+    spec: ClassVar[EffectSpec] = EffectSpec(
+        rank=0,
+        equation="g = K m + b + d t; with temperature: g = K m + b + d t + c (T - T0), T(t) = T0 + rise (1 - exp(-t/tau))",
+        parameters="d (deg/s per s), c (deg/s per degC), rise (degC), tau (s)",
+        drawn=MagnitudeRange(
+            0.02, 0.2, "deg/s", "largest bias change over the recording (time or temperature)",
+            "zero-rate output vs temperature 0.01-0.05 (deg/s)/degC (LSM6DS3, LSM9DS1, ICM-20948 class) "
+            "over a warm-up of 1.5-5 degC in the recording (power-on self-heating, skin contact)",
+        ),
+        reveal="rest the device longer, or several times spread over a longer recording",
+        diagnosis_model="g = g0 + d t  (with a temperature channel: g0 + c (T − T0))",
+        diagnosis_parameters="d (deg/s per s) or c (deg/s per °C)",
+        typical=0.06,  # zero-rate change over a recording (0.01-0.05 (deg/s)/degC, a few degC)
+        typical_text="0.06 deg/s over the recording",
+        distinguish="a longer recording with several rests (a drift keeps its direction, a wander does not)",
+        model_params={"bias_drift": ("d_x", "d_y", "d_z"), "bias_drift_temp": ("c_x", "c_y", "c_z")},
+    )
     rate_dps_per_s: np.ndarray = field(default_factory=lambda: np.zeros(3))
     temp_coeff_dps_per_c: np.ndarray | None = None
     temp_rise_c: float = 0.0
     temp_tau_s: float = 120.0
     temp0_c: float = 25.0
 
+    @classmethod
+    def draw(cls, rng: np.random.Generator, ctx: DrawContext) -> tuple[BiasDrift, float]:
+        mag = log_uniform(rng, cls.spec.drawn.low, cls.spec.drawn.high)
+        change = spread(rng, mag)
+        if ctx.temperature is None:
+            return cls(change / ctx.duration_s), mag
+        temp0, rise, tau = ctx.temperature
+        d_temp = warmup_temperature(ctx.duration_s, 0.0, rise, tau)
+        return cls(np.zeros(3), change / d_temp, rise, tau, temp0), mag
     def __post_init__(self) -> None:
         object.__setattr__(self, "rate_dps_per_s", _vec3(self.rate_dps_per_s, "BiasDrift.rate_dps_per_s"))
         if self.temp_coeff_dps_per_c is not None:
@@ -159,9 +189,31 @@ class BiasInstability(Effect):
 
     name: ClassVar[str] = "bias_instability"
     usage: ClassVar[str] = "SIGMA[,TAU] (deg/s, s)"
+    spec: ClassVar[EffectSpec] = EffectSpec(
+        rank=9,
+        equation="g = K m + b + x(t), x_{i+1} = phi x_i + sigma sqrt(1 - phi^2) w_i, phi = exp(-dt/tau)",
+        parameters="sigma (deg/s), tau (s)",
+        drawn=MagnitudeRange(
+            0.005, 0.02, "deg/s", "stationary std sigma of the Gauss-Markov bias (tau 5-40 s)",
+            "in-run bias instability 10-40 deg/h (Allan deviation peak 0.62 sigma) of consumer MEMS; "
+            "static poses of the real imucal recording differ by 0.015 deg/s",
+            drawn_as=f"sigma 0.005-0.02 deg/s, tau {TAU_RANGE_S[0]:g}-{TAU_RANGE_S[1]:g} s",
+        ),
+        reveal="rest the device longer (the wander shows over tens of seconds of rest)",
+        diagnosis_model="g = g0 + x(t), x Gauss-Markov (σ, τ): block covariance σ² exp(−|Δt|/τ), kriged through the turns",
+        diagnosis_parameters="σ, τ",
+        typical=0.009,  # deg/s: 20 deg/h bias instability (Allan deviation floor 0.62 sigma)
+        typical_text="a 0.009 deg/s wander with a 20 s time constant (20 deg/h bias instability)",
+        typical_extra={"tau_s": 20.0},
+        distinguish="a longer recording with several rests (a wander changes direction, a drift does not)",
+    )
     sigma_dps: float = 0.0
     tau_s: float = 30.0
 
+    @classmethod
+    def draw(cls, rng: np.random.Generator, ctx: DrawContext) -> tuple[BiasInstability, float]:
+        mag = log_uniform(rng, cls.spec.drawn.low, cls.spec.drawn.high)
+        return cls(mag, rng.uniform(*TAU_RANGE_S)), mag
     def __post_init__(self) -> None:
         object.__setattr__(self, "sigma_dps", _positive(self.sigma_dps, "BiasInstability.sigma_dps", allow_zero=True))
         object.__setattr__(self, "tau_s", _positive(self.tau_s, "BiasInstability.tau_s"))

@@ -9,6 +9,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .base import Effect, SimulationConfigError, Trajectory, _numbers, _positive, _usage_error, register_effect
+from .spec import DrawContext, EffectSpec, MagnitudeRange, log_uniform
 
 _UP = np.array([0.0, 0.0, 1.0])  # specific force at rest in the start frame, g
 
@@ -40,11 +41,31 @@ class PlacementError(Effect):
 
     name: ClassVar[str] = "placement_error"
     usage: ClassVar[str] = "STD[,HEADING_STD] (deg per turn)"
+    spec: ClassVar[EffectSpec] = EffectSpec(
+        rank=7,
+        equation="turn j ends rotated by the world-frame Exp(e_j); its closure is Exp(R_s^T e_j)",
+        parameters="std of tilt and heading (deg)",
+        drawn=MagnitudeRange(
+            0.3, 2.0, "deg", "std of each component of the placement rotation per turn",
+            "a device turned by hand and put back down by eye: tilt and heading off by 0.3-2 deg",
+        ),
+        reveal="record the accelerometer: it measures the tilt the device is put back with",
+        diagnosis_model="turn j ends rotated by ρ_j; the accelerometer measures its tilt, the heading has a prior of the tilts' size",
+        diagnosis_parameters="ρ_j (deg)",
+        typical=0.8,  # deg per turn, a device put back by hand
+        typical_text="0.8 deg per turn",
+        distinguish="the accelerometer, and putting the device back against a fixed stop after each turn",
+    )
     std_deg: float = 0.0
     heading_std_deg: float | None = None
     errors_deg: np.ndarray | None = None
     ramp_fraction: float = 0.25
 
+    @classmethod
+    def draw(cls, rng: np.random.Generator, ctx: DrawContext) -> tuple[PlacementError, float]:
+        mag = log_uniform(rng, cls.spec.drawn.low, cls.spec.drawn.high)
+        effect = cls(mag)
+        return replace(effect, errors_deg=effect.draw_errors(ctx.turns, rng)), mag
     def __post_init__(self) -> None:
         object.__setattr__(self, "std_deg", _positive(self.std_deg, "PlacementError.std_deg", allow_zero=True))
         if self.heading_std_deg is not None:

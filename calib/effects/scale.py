@@ -19,6 +19,9 @@ from .base import (
     _vec3,
     register_effect,
 )
+from .spec import DrawContext, EffectSpec, MagnitudeRange, log_uniform, spread
+
+STANDARD_FULL_SCALES_DPS = (125.0, 245.0, 250.0, 500.0, 1000.0)  # gyro ranges of consumer parts
 
 
 @register_effect
@@ -34,8 +37,28 @@ class ScaleAsymmetry(Effect):
 
     name: ClassVar[str] = "scale_asymmetry"
     usage: ClassVar[str] = "S or SX,SY,SZ (fraction)"
+    spec: ClassVar[EffectSpec] = EffectSpec(
+        rank=3,
+        equation="g = (1 + s sign(g0)) g0",
+        parameters="s (fraction)",
+        drawn=MagnitudeRange(
+            0.002, 0.01, "", "largest relative difference s of the scale factor between directions",
+            "within the sensitivity tolerance (+-1-3 %) and nonlinearity budget of consumer parts",
+        ),
+        reveal="turn about each axis both ways (clockwise and counter-clockwise)",
+        diagnosis_model="g = (1 + s sign g0) g0",
+        diagnosis_parameters="s per axis",
+        typical=0.005,
+        typical_text="0.5 % between directions",
+        distinguish="turns about each axis both ways",
+        model_params={"scale_asymmetry": ("s_x", "s_y", "s_z")},
+    )
     asymmetry: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
+    @classmethod
+    def draw(cls, rng: np.random.Generator, ctx: DrawContext) -> tuple[ScaleAsymmetry, float]:
+        mag = log_uniform(rng, cls.spec.drawn.low, cls.spec.drawn.high)
+        return cls(spread(rng, mag)), mag
     def __post_init__(self) -> None:
         s = _vec3(self.asymmetry, "ScaleAsymmetry.asymmetry")
         if np.any(np.abs(s) >= 0.5):
@@ -66,9 +89,29 @@ class ScaleNonlinearity(Effect):
 
     name: ClassVar[str] = "scale_nonlinearity"
     usage: ClassVar[str] = "N or NX,NY,NZ (fraction at R0)[:R0 (deg/s, default 1000)]"
+    spec: ClassVar[EffectSpec] = EffectSpec(
+        rank=4,
+        equation="g = (1 + n |g0| / r0) g0, r0 = 1000 deg/s",
+        parameters="n (fraction at r0)",
+        drawn=MagnitudeRange(
+            0.002, 0.01, "", "largest relative scale change n at 1000 deg/s",
+            "nonlinearity +-0.1-0.5 % FS at +-2000 deg/s (ICM-20948 0.1 %, MPU-6050 0.2 %, BMI160 0.1 % class); n = 4 NL r0 / FS",
+        ),
+        reveal="turn about each axis at two clearly different speeds (one slow, one fast turn)",
+        diagnosis_model="g = (1 + n |g0| / 1000 deg/s) g0",
+        diagnosis_parameters="n per axis",
+        typical=0.005,  # relative scale change at 1000 deg/s (0.1-0.5 % FS nonlinearity)
+        typical_text="0.5 % at 1000 deg/s",
+        distinguish="turns about each axis at two clearly different speeds",
+        model_params={"scale_nonlinearity": ("n_x", "n_y", "n_z")},
+    )
     coeff: np.ndarray = field(default_factory=lambda: np.zeros(3))
     ref_rate_dps: float = 1000.0
 
+    @classmethod
+    def draw(cls, rng: np.random.Generator, ctx: DrawContext) -> tuple[ScaleNonlinearity, float]:
+        mag = log_uniform(rng, cls.spec.drawn.low, cls.spec.drawn.high)
+        return cls(spread(rng, mag)), mag
     def __post_init__(self) -> None:
         object.__setattr__(self, "coeff", _vec3(self.coeff, "ScaleNonlinearity.coeff"))
         object.__setattr__(self, "ref_rate_dps", _positive(self.ref_rate_dps, "ScaleNonlinearity.ref_rate_dps"))
@@ -109,9 +152,28 @@ class Saturation(Effect):
 
     name: ClassVar[str] = "saturation"
     usage: ClassVar[str] = "FULL_SCALE[,RESOLUTION] (deg/s)"
+    spec: ClassVar[EffectSpec] = EffectSpec(
+        rank=5,
+        equation="m_out = clip(m, -FS, FS), FS in the metadata",
+        parameters="FS, resolution (deg/s)",
+        drawn=MagnitudeRange(
+            50.0, 1000.0, "deg/s", "full scale",
+            "the +-125 / 245 / 250 / 500 / 1000 deg/s ranges of consumer parts, one below the "
+            "recording's peak reading (hand turns reach 110-500 deg/s); 0.7-0.9 of the peak if none is",
+            drawn_as="125/245/250/500/1000 deg/s below the peak reading (else 0.7-0.9 of the peak)",
+        ),
+        reveal="the readings never reached the gyro's full scale",
+        diagnosis_model="clipped turns' closures left free; plateaus rebuilt as parabolic caps",
+        diagnosis_parameters="full scale, hidden rotation",
+    )
     full_scale_dps: float = 2000.0
     resolution_dps: float | None = None
 
+    @classmethod
+    def draw(cls, rng: np.random.Generator, ctx: DrawContext) -> tuple[Saturation, float]:
+        below = [fs for fs in STANDARD_FULL_SCALES_DPS if fs * 1.05 < ctx.peak_dps]
+        fs = float(rng.choice(below)) if below else round(float(rng.uniform(0.7, 0.9) * ctx.peak_dps), 1)
+        return cls(fs, fs / 32768.0), fs  # 16-bit readings
     def __post_init__(self) -> None:
         if not (np.isfinite(self.full_scale_dps) and self.full_scale_dps > 0):
             raise SimulationConfigError(f"full_scale_dps must be a positive number of deg/s; got {self.full_scale_dps!r}")

@@ -8,6 +8,9 @@ from typing import ClassVar
 import numpy as np
 
 from .base import Effect, SensorOutput, SimulationConfigError, Trajectory, _numbers, register_effect
+from .spec import DrawContext, EffectSpec, MagnitudeRange, log_uniform
+
+LOSS_BURST = (1, 12)  # samples lost together: one BLE packet carries 1-12 samples
 
 
 @register_effect
@@ -24,10 +27,28 @@ class SampleLoss(Effect):
 
     name: ClassVar[str] = "sample_loss"
     usage: ClassVar[str] = "PROB[,BURST] (probability per sample, samples per loss)"
+    spec: ClassVar[EffectSpec] = EffectSpec(
+        rank=6,
+        equation="rows missing; `seq` and `t` of the kept rows show the gap",
+        parameters="probability per sample, burst length",
+        drawn=MagnitudeRange(
+            0.002, 0.03, "", "expected fraction of samples lost",
+            "Bluetooth Low Energy links of wearables lose 0.1-3 % of packets of 1-12 samples",
+            drawn_as=f"0.2-3 % of the samples, in bursts of {LOSS_BURST[0]}-{LOSS_BURST[1]}",
+        ),
+        reveal="record the device's sample counter (or its own timestamps)",
+        diagnosis_model="rows at their counter (or timestamp) sample numbers; the lost readings put back by cubic interpolation",
+        diagnosis_parameters="lost samples",
+    )
     prob: float = 0.0
     ranges: tuple[tuple[int, int], ...] = ()
     burst: int = 1
 
+    @classmethod
+    def draw(cls, rng: np.random.Generator, ctx: DrawContext) -> tuple[SampleLoss, float]:
+        frac = log_uniform(rng, cls.spec.drawn.low, cls.spec.drawn.high)
+        burst = int(rng.integers(LOSS_BURST[0], LOSS_BURST[1] + 1))
+        return cls(prob=1.0 - (1.0 - frac) ** (1.0 / burst), burst=burst), frac
     def __post_init__(self) -> None:
         if not (0.0 <= float(self.prob) < 1.0):
             raise SimulationConfigError(f"SampleLoss.prob must be in [0, 1); got {self.prob!r}")
@@ -84,8 +105,25 @@ class ClockError(Effect):
 
     name: ClassVar[str] = "clock_error"
     usage: ClassVar[str] = "E (fraction: 0.01 = device clock 1 % fast)"
+    spec: ClassVar[EffectSpec] = EffectSpec(
+        rank=8,
+        equation="t_device = (1 + e) t_true: over device time g = (K m + b) / (1 + e)",
+        parameters="e (fraction)",
+        drawn=MagnitudeRange(
+            0.003, 0.03, "", "|e|, fraction the device clock runs fast (+) or slow (-)",
+            "internal oscillators of consumer IMUs set the output data rate to +-1-3 %",
+            drawn_as="|e| 0.3-3 %, either sign",
+        ),
+        reveal="record the host's receive time of each sample (the host_t column) beside the device's sample counter",
+        diagnosis_model="host time = c + n P / (1 + e)",
+        diagnosis_parameters="e",
+    )
     error: float = 0.0
 
+    @classmethod
+    def draw(cls, rng: np.random.Generator, ctx: DrawContext) -> tuple[ClockError, float]:
+        mag = log_uniform(rng, cls.spec.drawn.low, cls.spec.drawn.high)
+        return cls(mag * rng.choice([-1.0, 1.0])), mag
     def __post_init__(self) -> None:
         try:
             e = float(self.error)

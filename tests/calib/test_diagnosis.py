@@ -260,10 +260,10 @@ def test_clipped_counts_without_a_stated_range_are_found():
 
 
 def test_how_visible_a_bias_instability_is_follows_noise_and_rest():
-    from calib.diagnosis.select import TYPICAL
+    from calib.diagnosis.select import INSTABILITY_TAU_S, TYPICAL
     from calib.diagnosis.variance import instability_noncentrality
 
-    sigma, tau = TYPICAL["bias_instability_sigma"], TYPICAL["bias_instability_tau"]
+    sigma, tau = TYPICAL["bias_instability"], INSTABILITY_TAU_S
     seen = {}
     for noise in (0.02, 0.12):
         rec, _ = simulate(3, noise=noise)
