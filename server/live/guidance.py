@@ -41,6 +41,8 @@ def again(retry: bool, axis: str | None = None) -> str:
     return "Start a new calibration."
 
 
+MOVED_RESTART = "The device moved: the count starts again. Keep it still against the block."
+
 PROMPTS = {
     "connecting": "Connecting to the device…",
     "still": "Put the device on the table against the block and take your hands off it.",
@@ -196,3 +198,10 @@ def timeout(limit_s: float) -> str:
 
 def internal_error(detail: str) -> str:
     return f"An internal error stopped the calibration ({detail}). Start a new calibration; if it happens again, report it."
+
+
+def decided(decision: str) -> str:
+    """The prompt once the operator accepted or discarded the result."""
+    if decision == "accepted":
+        return "Calibration accepted: it is now the device's current calibration."
+    return "Result discarded: the device keeps its previous calibration."

@@ -37,7 +37,7 @@ class Run:
     def __init__(self, settings: Settings | None = None, max_attempts: int | None = None, clock: Any = None) -> None:
         self.events: list[tuple[str, dict[str, Any]]] = []
         # live snapshots are rate-limited on the session's clock: by default let it follow device time
-        kw = {"clock": clock or (lambda: self.s._t_now if hasattr(self, "s") else 0.0)}
+        kw = {"clock": clock or (lambda: self.s.t_now if hasattr(self, "s") else 0.0)}
         self.s = GuidedSession("sid", "dev", settings or Settings(db_url="sqlite://"), listener=self._listen,
                                max_attempts=max_attempts, **kw)
         self.s.connected(FS, {"sensor_model": "simulated"}, 500.0)

@@ -1,0 +1,97 @@
+"""A guided session's full state as one JSON-ready dict: what every SSE event and GET /sessions/{id} carry."""
+
+from __future__ import annotations
+
+from typing import Any, Protocol
+
+from calib.stage import AXES
+
+from .buffer import SampleBuffer
+from .codes import STEPS, EndReason, Phase, State
+from .turns import TurnRecord
+
+
+class SessionView(Protocol):
+    """What a snapshot reads of a session (server.live.session.GuidedSession)."""
+
+    id: str
+    device_id: str
+    state: State
+    phase: Phase | None
+    attempt: int
+    max_attempts: int
+    prompt: str
+    live_reading: dict[str, Any]
+    t_now: float
+    turns: dict[str, TurnRecord]
+    warnings: list[dict[str, Any]]
+    reason_code: EndReason | None
+    reason: str | None
+    result: dict[str, Any] | None
+    passed: bool | None
+    checks: list[dict[str, Any]]
+    decision: str | None
+    calibration_id: int | None
+    method: str
+    buf: SampleBuffer
+    lost_samples: int
+    started_at: str
+    ended_at: str | None
+    caused_by: dict[str, Any] | None
+
+    @property
+    def axis(self) -> str | None: ...
+
+    @property
+    def fs(self) -> float | None: ...
+
+    def still_target(self) -> float | None: ...
+
+
+def session_snapshot(s: SessionView, event: str) -> dict[str, Any]:
+    """The snapshot of ``s``, sent as event ``event``."""
+    progress = None
+    target = s.still_target()
+    live = s.live_reading
+    if target is not None:
+        still_s = float(live["still_s"])
+        progress = {"still_s": round(still_s, 3), "target_s": target, "fraction": round(min(1.0, still_s / target), 3)}
+    axis = s.axis
+    angle = live["angle_deg"]
+    return {
+        "session_id": s.id,
+        "device_id": s.device_id,
+        "event": event,
+        "state": s.state,
+        "phase": s.phase,
+        "step": STEPS.index(s.state) if s.state in STEPS else None,
+        "steps": list(STEPS),
+        "axis": axis,
+        "attempt": s.attempt,
+        "max_attempts": s.max_attempts,
+        "prompt": s.prompt,
+        "progress": progress,
+        "live": {
+            "moving": bool(live["moving"]),
+            "still_s": round(float(live["still_s"]), 3),
+            "angle_deg": [round(float(a), 2) for a in angle],
+            "turn_angle_deg": None if axis is None else round(float(angle[AXES.index(axis)]), 2),
+            "t_device_s": round(s.t_now, 4),
+        },
+        "turns": {a: tr.to_dict() for a, tr in s.turns.items()},
+        "warnings": list(s.warnings),
+        "reason_code": s.reason_code,
+        "reason": s.reason,
+        "result": s.result,
+        "passed": s.passed,
+        "checks": s.checks,
+        "decision": s.decision,
+        "calibration_id": s.calibration_id,
+        "method": s.method,
+        "samples": s.buf.n,
+        "lost_samples": s.lost_samples,
+        "sample_rate_hz": s.fs,
+        "started_at": s.started_at,
+        "ended_at": s.ended_at,
+        "caused_by": s.caused_by,
+    }

@@ -1,0 +1,198 @@
+"""The samples of one guided session and what the streaming stage detector finds in them.
+
+``SessionStream`` keeps every sample received (``SampleBuffer``), a strictly increasing device time
+across reconnections, the detector (one per link connection), the stills it closed, and the turn
+physics measured on the raw readings (``calib.turn_checks``). It knows nothing of the protocol's
+states: the session (server.live.session) asks it questions and decides.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import replace
+from typing import Any, cast
+
+import numpy as np
+
+from calib.recording import Recording, RecordingMeta
+from calib.stage import AXES, Axis, Stage
+from calib.turn_checks import gravity_change_deg, rest_after_full_turn, swept_angles
+
+from .buffer import SampleBuffer
+from .turns import TurnRecord
+
+TrackerFactory = Callable[[float, float | None], Any]
+
+
+def default_tracker(fs: float, full_scale_dps: float | None) -> Any:
+    """The streaming stage detector of calib, at fs Hz for a gyro range of ``full_scale_dps``."""
+    from calib.stages import StageTracker
+
+    return StageTracker(fs, full_scale_dps=full_scale_dps)
+
+
+class SessionStream:
+    """One session's samples, device time, stage detector and stills."""
+
+    def __init__(self, tracker_factory: TrackerFactory | None = None) -> None:
+        self._tracker_factory = tracker_factory or default_tracker
+        self.fs: float | None = None
+        self.full_scale: float | None = None
+        self.buf = SampleBuffer()
+        self.tracker: Any = None
+        self.stills: list[Stage] = []
+        self.last_still: Stage | None = None
+        self._offset = 0  # global index of the current tracker's sample 0
+        self._last_t: float | None = None
+        self._t_shift = 0.0
+        self._pending: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None = None
+
+    def start(self, fs: float, full_scale_dps: float | None) -> None:
+        """The link streams at fs Hz: start a detector."""
+        self.fs = float(fs)
+        self.full_scale = float(full_scale_dps) if full_scale_dps else None
+        self.new_tracker()
+
+    def new_tracker(self) -> None:
+        """A fresh detector from the next sample on, keeping the stills the previous one closed."""
+        assert self.fs is not None
+        if self.tracker is not None:
+            try:
+                for ev in self.tracker.finish():
+                    if getattr(ev, "kind", None) == "stage_closed" and ev.stage.kind == "still":
+                        self.stills.append(self.globalise(ev.stage))
+            except Exception:  # a tracker cut short by a link loss may have nothing sensible to close
+                pass
+        self.tracker = self._tracker_factory(self.fs, self.full_scale)
+        self._offset = self.buf.n
+        self.last_still = None
+
+    def monotonic_time(self, t: np.ndarray) -> np.ndarray:
+        """Device times shifted so the session's time stays strictly increasing (a reconnected device may restart its clock)."""
+        t = t + self._t_shift
+        if self._last_t is not None and t[0] <= self._last_t:
+            dt = 1.0 / self.fs if self.fs else 1e-3
+            shift = self._last_t + dt - t[0]
+            self._t_shift += shift
+            t = t + shift
+        self._last_t = float(t[-1])
+        return t
+
+    def receive(self, t: np.ndarray, gyro: np.ndarray, accel: np.ndarray | None, seq: np.ndarray | None) -> np.ndarray | None:
+        """Keep one batch (device time s, gyro deg/s, accel g, sample counter); its session times, None if it is empty."""
+        t = np.asarray(t, dtype=float).reshape(-1)
+        if t.size == 0:
+            return None
+        gyro = np.asarray(gyro, dtype=float).reshape(-1, 3)
+        accel = None if accel is None else np.asarray(accel, dtype=float).reshape(-1, 3)
+        seq = None if seq is None else np.asarray(seq, dtype=np.int64).reshape(-1)
+        t = self.monotonic_time(t)
+        self.buf.append(t, gyro, accel, seq)
+        self._pending = (t, gyro, seq)
+        return t
+
+    def detect(self) -> list[Any]:
+        """The detector's events for the batch received last."""
+        if self._pending is None:
+            return []
+        t, gyro, seq = self._pending
+        self._pending = None
+        return list(self.tracker.feed(t, gyro, seq))
+
+    def globalise(self, st: Stage) -> Stage:
+        """A stage of the current detector, in sample indices of the whole session."""
+        if self._offset == 0:
+            return st
+        return replace(st, start=st.start + self._offset, end=st.end + self._offset)
+
+    def closed_still(self, st: Stage) -> None:
+        """The detector closed a still (session indices)."""
+        self.stills.append(st)
+        self.last_still = st
+
+    def live(self) -> tuple[float, bool, np.ndarray]:
+        """(rest so far in s, moving, live angle (3,) in deg) as the detector reports them now."""
+        live = self.tracker.live
+        moving = bool(getattr(live, "moving", False))
+        still_s = 0.0 if moving else float(getattr(live, "still_for_s", 0.0) or 0.0)
+        angle = np.asarray(getattr(live, "live_angle_deg", np.zeros(3)), dtype=float).reshape(-1)
+        if angle.size != 3 or not np.all(np.isfinite(angle)):
+            angle = np.zeros(3)
+        return still_s, moving, angle
+
+    def rest_before(self, t_motion: float) -> float:
+        """How long the device rested before a motion that began at t_motion (s of device time).
+
+        Taken from the still the detector closed at that instant, so it does not depend on how the
+        samples were batched; 0 when the rest was too short to be a still segment.
+        """
+        still = self.last_still
+        if still is None or abs(still.end_s - t_motion) > 1e-6:
+            return 0.0
+        return float(still.end_s - still.start_s)
+
+    # -- a closed motion, measured ----------------------------------------------------------------
+    def rest_reading(self) -> np.ndarray | float:
+        """The raw reading at rest (deg/s): the mean of the last still, 0 before there is one."""
+        still = self.last_still
+        return self.buf.gyro[still.start : still.end].mean(axis=0) if still is not None and still.end > still.start else 0.0
+
+    def turn_angles(self, st: Stage) -> np.ndarray:
+        """Integrated raw angle (deg) about x, y, z over the stage, bias from the last still."""
+        return swept_angles(self.buf.t[st.start : st.end], self.buf.gyro[st.start : st.end], self.rest_reading())
+
+    def rest_after_full_turn(self, st: Stage, k: int, rest_s: float, min_angle_deg: float) -> bool:
+        """Whether the motion holds a rest of ``rest_s`` after a full turn about axis k, then moves on."""
+        if self.fs is None:
+            return False
+        floor = getattr(self.tracker.live, "noise_floor", None) if self.tracker is not None else None
+        return rest_after_full_turn(self.buf.t[st.start : st.end], self.buf.gyro[st.start : st.end], self.rest_reading(), k, floor,
+                                    rest_s, min_angle_deg)
+
+    def gravity_change_deg(self, st: Stage) -> float | None:
+        """Angle (deg) between gravity in the rest before the motion and in the rest after it."""
+        acc = self.buf.accel if self.buf.has_accel else None
+        still = self.last_still
+        if acc is None or still is None or self.fs is None:
+            return None
+        span = max(2, int(0.5 * self.fs))
+        return gravity_change_deg(acc[max(still.start, still.end - span) : still.end], acc[st.end : min(self.buf.n, st.end + span)])
+
+    def saturated(self, st: Stage) -> bool:
+        """Whether the motion reached the gyro's range (the detector's flag, or readings at the stated full scale)."""
+        m = self.buf.gyro[st.start : st.end]
+        return "saturated" in st.flags or (self.full_scale is not None and m.size > 0 and float(np.abs(m).max()) >= 0.995 * self.full_scale)
+
+    # -- the hand-over to the estimator -----------------------------------------------------------
+    def recording(self, meta: RecordingMeta) -> Recording:
+        """Everything received so far as a Recording (device time, raw readings)."""
+        return self.buf.recording(meta)
+
+    def protocol_stages(self, turns: list[TurnRecord]) -> list[Stage]:
+        """The stages the estimator gets: every still, and the given turns (those that passed their checks)."""
+        stages = list(self.stills)
+        if self.tracker is not None:
+            for st in self.tracker.finish():
+                if getattr(st, "kind", None) == "stage_closed":
+                    st = st.stage
+                if isinstance(st, Stage) and st.kind == "still":
+                    stages.append(self.globalise(st))
+        turn_stages = [
+            Stage("turn", tr.start, tr.end, tr.start_s, tr.end_s, cast(Axis, tr.axis), float(tr.angle_deg[AXES.index(tr.axis)]), tr.flags)
+            for tr in turns
+        ]
+        stills = _dedupe([s for s in stages if s.kind == "still"])
+        # a still must not overlap an accepted turn
+        stills = [s for s in stills if not any(s.start < tr.end and tr.start < s.end for tr in turn_stages)]
+        return sorted(stills + turn_stages, key=lambda s: s.start)
+
+
+def _dedupe(stages: list[Stage]) -> list[Stage]:
+    seen: set[tuple[int, int]] = set()
+    out = []
+    for s in stages:
+        key = (s.start, s.end)
+        if key not in seen:
+            seen.add(key)
+            out.append(s)
+    return out
