@@ -17,9 +17,10 @@ import time
 import uuid
 from collections import Counter
 
+from calib.result import CalibrationResult
 from server.store import DecisionConflict, SessionEnd, Store
 
-RESULT = {"k": [1.01, 0.99, 1.02], "b": [0.5, -0.25, 0.125], "method": "closure", "stages": []}
+RESULT = CalibrationResult.from_dict({"k": [1.01, 0.99, 1.02], "b": [0.5, -0.25, 0.125], "method": "closure", "stages": []})
 
 
 def _session(store: Store) -> str:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 from importlib import import_module
 
 from .errors import GyrocalError
@@ -36,4 +37,5 @@ def calibrate(rec: Recording, method: str = DEFAULT_METHOD, stages: list[Stage] 
     Stages are detected from the data when not given. Raises RecordingError for bad input and
     ProtocolError when a stage of the protocol is missing.
     """
-    return _estimator(method)(rec, stages=stages)
+    result = _estimator(method)(rec, stages=stages)
+    return replace(result, sample_rate_hz=rec.fs, n_samples=len(rec))

@@ -241,7 +241,8 @@ def system(
         sigma=np.repeat(data.sigma, J, axis=0) if need_cov else None,
         jacobian=jacobian or need_cov,
     )
-    if need_cov:
+    if chol is None:
+        assert terms.noise is not None  # asked for with sigma
         chol = np.linalg.cholesky(terms.noise).reshape(R, J, 3, 3)
     r = terms.r.reshape(R, J, 3)
     res_turn = solve_lower(chol, r[..., None])[..., 0]
@@ -254,6 +255,7 @@ def system(
     if not jacobian:
         return System(res, None, chol, terms)
 
+    assert terms.dK is not None and terms.db is not None  # asked for with jacobian
     dK = terms.dK.reshape(R, J, 3, 3, 3)
     jt = np.empty((R, J, 3, P))
     jt[..., 0:3] = np.stack([dK[..., i, i] for i in range(3)], axis=-1)

@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from .json_safe import finite
 from .stage import Stage
 
 
@@ -38,6 +39,8 @@ class CalibrationResult:
     residuals: dict[str, Any] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     iterations: int | None = None
+    sample_rate_hz: float | None = None  # of the recording it was computed from
+    n_samples: int | None = None
 
     @property
     def matrix(self) -> np.ndarray:
@@ -51,7 +54,7 @@ class CalibrationResult:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> CalibrationResult:
         """The result back from its ``to_dict()`` form (as the store keeps it): ``from_dict(r.to_dict())`` gives the
-        same ``to_dict()``. Extra keys (the service adds the recording's rate and length) are ignored."""
+        same ``to_dict()``. Unknown keys are ignored."""
 
         def arr(v: Any) -> np.ndarray | None:
             return None if v is None else np.asarray(v, dtype=float)
@@ -74,6 +77,8 @@ class CalibrationResult:
             residuals=dict(d.get("residuals") or {}),
             warnings=list(d.get("warnings") or []),
             iterations=d.get("iterations"),
+            sample_rate_hz=d.get("sample_rate_hz"),
+            n_samples=d.get("n_samples"),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -96,4 +101,12 @@ class CalibrationResult:
         if self.K is not None:
             out["K"] = [_list(row) for row in self.K]
             out["K_std"] = None if self.K_std is None else [_list(row, 12) for row in self.K_std]
+        if self.sample_rate_hz is not None:
+            out["sample_rate_hz"] = float(self.sample_rate_hz)
+        if self.n_samples is not None:
+            out["n_samples"] = int(self.n_samples)
         return out
+
+    def to_json(self) -> dict[str, Any]:
+        """``to_dict()`` made JSON-safe (NaN and infinities as null): the form the service shows and stores."""
+        return finite(self.to_dict())

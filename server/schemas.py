@@ -10,6 +10,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from calib.api import available_methods
 
 from .live.codes import EndReason, Phase, State
+from .store.records import CalibrationRecord
 
 Method = Enum("Method", {m: m for m in available_methods()}, type=str)  # type: ignore[misc]
 Method.__doc__ = "An estimator: closure (the default, at the noise floor) or paper (the paper's Algorithm 1)."
@@ -72,27 +73,6 @@ class Truth(BaseModel):
     b: Vec3
 
 
-class CalibrationOut(BaseModel):
-    """One accepted calibration (a row of the append-only history)."""
-
-    id: int
-    device_id: str
-    session_id: str
-    k: Vec3
-    b: Vec3
-    uncertainty: dict[str, Any] | None
-    quality: dict[str, Any] | None
-    method: str
-    software_version: str
-    sensor_model: str | None
-    firmware: str | None
-    source: Literal["live", "upload"] = Field(description="live: a guided session on the device; upload: an uploaded recording")
-    operator: str
-    recording_sha256: str | None
-    computed_at: str
-    accepted_at: str
-
-
 class DeviceOut(BaseModel):
     id: str
     name: str | None = None
@@ -107,7 +87,7 @@ class DeviceOut(BaseModel):
     serial: str | None = None
     battery_pct: int | None = Field(None, description="battery level, %, when the service has read it (null: not read yet)")
     active_session: str | None = None
-    current_calibration: CalibrationOut | None = None
+    current_calibration: CalibrationRecord | None = None
     last_seen: str | None = None
 
 
@@ -171,7 +151,7 @@ class DecisionIn(BaseModel):
 
 class AcceptOut(BaseModel):
     session_id: str
-    calibration: CalibrationOut
+    calibration: CalibrationRecord
 
 
 class OfflineResult(BaseModel):

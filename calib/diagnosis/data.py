@@ -130,6 +130,16 @@ class Inputs:
                       pick(self.offset), pick(self.doffset))
 
 
+@dataclass(frozen=True)
+class Tilts:
+    """The tilt across each turn as the accelerometer measures it (R recordings, J turns)."""
+
+    tilt: np.ndarray  # (R, J, 2) deg, in the basis below
+    basis: np.ndarray  # (R, J, 2, 3) unit vectors perpendicular to gravity
+    up: np.ndarray  # (R, J, 3) unit gravity direction (body frame)
+    sd: np.ndarray  # (R, J) standard deviation of each tilt component, deg
+
+
 @dataclass
 class Problem:
     """The data of R recordings sharing one layout."""
@@ -147,6 +157,12 @@ class Problem:
     up: np.ndarray | None = None  # (R, J, 3) unit gravity direction (body frame) at each turn
     tilt_sd: np.ndarray | None = None  # (R, J) standard deviation of each tilt component, deg
     accel_sigma: np.ndarray | None = None  # (R,) accelerometer noise, g
+
+    def tilts(self) -> Tilts:
+        """The accelerometer's tilt measurements; only for problems that have them (``tilt is not None``)."""
+        if self.tilt is None or self.tilt_basis is None or self.up is None or self.tilt_sd is None:
+            raise ValueError("this recording has no accelerometer tilts across its turns")
+        return Tilts(self.tilt, self.tilt_basis, self.up, self.tilt_sd)
 
     @property
     def J(self) -> int:

@@ -217,15 +217,16 @@ def system(
 
     # tilt across turns (accelerometer)
     if prob.tilt is not None and J:
-        sdt = np.where(np.isfinite(prob.tilt_sd), prob.tilt_sd, np.inf)[..., None]  # (R, J, 1)
-        y = prob.tilt.copy()
+        tl = prob.tilts()
+        sdt = np.where(np.isfinite(tl.sd), tl.sd, np.inf)[..., None]  # (R, J, 1)
+        y = tl.tilt.copy()
         jtilt = np.zeros((R, J, 2, P))
         if "placement_error" in model.slices:
             s = model.slices["placement_error"].start
             rho = psi[:, s : s + 3 * J].reshape(R, J, 3)
-            y = y - np.einsum("rjci,rji->rjc", prob.tilt_basis, rho)
+            y = y - np.einsum("rjci,rji->rjc", tl.basis, rho)
             for j in range(J):
-                jtilt[:, j, :, s + 3 * j : s + 3 * j + 3] = -prob.tilt_basis[:, j]
+                jtilt[:, j, :, s + 3 * j : s + 3 * j + 3] = -tl.basis[:, j]
         res_parts.append((y / sdt).reshape(R, 2 * J))
         jac_parts.append((jtilt / sdt[..., None]).reshape(R, 2 * J, P))
         blocks["tilt"] = slice(pos, pos + 2 * J)

@@ -214,15 +214,10 @@ class Model:
         g = g0
         if "scale_asymmetry" in sl or "scale_nonlinearity" in sl:
             f = np.ones(lead + (3,))
-            dfac = np.ones(lead + (3,))  # d g / d g0, per axis
-            extra: list[tuple[int, np.ndarray]] = []
             a0 = np.abs(g0)
             if "scale_asymmetry" in sl:
-                s = sl["scale_asymmetry"]
-                sv = psi[..., s]
+                sv = psi[..., sl["scale_asymmetry"]]
                 f = f * (1.0 + sv * np.sign(g0))
-                for i in range(3):
-                    extra.append((s.start + i, i))
             if "scale_nonlinearity" in sl:
                 s = sl["scale_nonlinearity"]
                 nv = psi[..., s]
@@ -230,20 +225,22 @@ class Model:
                 f = f * fn
             g = g0 * f
             if jacobian:
+                assert dg0 is not None
                 # g = g0 f(g0): dg/dg0 = f + g0 f'(g0); both factors are products of per-axis terms
-                fa = 1.0 + psi[..., sl["scale_asymmetry"]] * np.sign(g0) if "scale_asymmetry" in sl else 1.0
-                fn = 1.0 + psi[..., sl["scale_nonlinearity"]] * a0 / R0_DPS if "scale_nonlinearity" in sl else 1.0
-                nterm = psi[..., sl["scale_nonlinearity"]] * a0 / R0_DPS if "scale_nonlinearity" in sl else 0.0
-                dfac = fa * (fn + nterm)
+                ones = np.ones(np.shape(g0))
+                fa = 1.0 + psi[..., sl["scale_asymmetry"]] * np.sign(g0) if "scale_asymmetry" in sl else ones
+                nterm = psi[..., sl["scale_nonlinearity"]] * a0 / R0_DPS if "scale_nonlinearity" in sl else 0.0 * ones
+                fn = 1.0 + nterm
+                dfac = fa * (fn + nterm)  # d g / d g0, per axis
                 dg = dg0 * dfac[..., None]
                 if "scale_asymmetry" in sl:
                     s = sl["scale_asymmetry"].start
                     for i in range(3):
-                        dg[..., i, col[s + i]] = a0[..., i] * (fn[..., i] if np.ndim(fn) else fn)
+                        dg[..., i, col[s + i]] = a0[..., i] * fn[..., i]
                 if "scale_nonlinearity" in sl:
                     s = sl["scale_nonlinearity"].start
                     for i in range(3):
-                        dg[..., i, col[s + i]] = g0[..., i] * a0[..., i] / R0_DPS * (fa[..., i] if np.ndim(fa) else fa)
+                        dg[..., i, col[s + i]] = g0[..., i] * a0[..., i] / R0_DPS * fa[..., i]
                 dg0 = dg
         return g, dg0
 

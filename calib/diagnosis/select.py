@@ -144,10 +144,11 @@ def plan_tests(
         idx = np.arange(union.P)[union.slices[key]]
         if key == "placement_error":
             # test the tilt the accelerometer measures: two directions per turn
+            tl = prob.tilts()
             V = np.zeros((idx.size, 2 * prob.J))
             for j in range(prob.J):
-                V[3 * j : 3 * j + 3, 2 * j : 2 * j + 2] = prob.tilt_basis[0, j].T
-            finite = np.isfinite(prob.tilt_sd[0])
+                V[3 * j : 3 * j + 3, 2 * j : 2 * j + 2] = tl.basis[0, j].T
+            finite = np.isfinite(tl.sd[0])
             V = V[:, np.repeat(finite, 2)]
             mu = np.full(V.shape[1], TYPICAL["placement_error"])
             I = profile_information(F, base_idx, idx)[0]
@@ -208,6 +209,7 @@ def statistics(prob: Problem, union: Model, base: Model, psi_base: np.ndarray, s
     out: dict[str, np.ndarray] = {}
     for s in specs:
         if s.kind == "score":
+            assert s.idx is not None and s.V is not None  # a score test has its directions
             out[s.key] = score_statistic(sys_, base_idx, s.idx, s.V)[0]
         elif s.kind == "instability":
             out[s.key] = instability_score(prob, sys_, psi)
@@ -248,14 +250,15 @@ def placement_priors(prob: Problem, model: Model, psi: np.ndarray) -> Priors:
     """Heading prior of the placement rotations: rho . up ~ N(0, tau_h^2), tau_h from the measured tilts."""
     J = prob.J
     s = model.slices["placement_error"].start
-    tilt = prob.tilt[0]
-    finite = np.isfinite(prob.tilt_sd[0])
+    tl = prob.tilts()
+    tilt = tl.tilt[0]
+    finite = np.isfinite(tl.sd[0])
     rms = float(np.sqrt(np.mean(tilt[finite] ** 2))) if finite.any() else TYPICAL["placement_error"]
-    floor = 3.0 * float(np.median(prob.tilt_sd[0][finite])) if finite.any() else 0.01
+    floor = 3.0 * float(np.median(tl.sd[0][finite])) if finite.any() else 0.01
     tau_h = max(rms, floor)
     coef = np.zeros((1, J, model.P))
     for j in range(J):
-        coef[0, j, s + 3 * j : s + 3 * j + 3] = prob.up[0, j]
+        coef[0, j, s + 3 * j : s + 3 * j + 3] = tl.up[0, j]
     return Priors(np.zeros(J, dtype=np.int64), np.zeros((1, J)), np.full((1, J), tau_h), coef)
 
 
@@ -320,9 +323,10 @@ def fit_state(prob: Problem, state: ModelState, key: str, base_priors: Priors | 
     if key == "placement_error":
         # start the placement rotations at the measured tilts
         s = model.slices["placement_error"].start
+        tl = prob.tilts()
         for j in range(prob.J):
-            if np.isfinite(prob.tilt_sd[0, j]):
-                psi0[0, s + 3 * j : s + 3 * j + 3] = prob.tilt_basis[0, j].T @ prob.tilt[0, j]
+            if np.isfinite(tl.sd[0, j]):
+                psi0[0, s + 3 * j : s + 3 * j + 3] = tl.basis[0, j].T @ tl.tilt[0, j]
         pri = merge_priors(pri, placement_priors(prob, model, psi0), model.P)
     fit = _refit(prob, model, psi0, pri, variance)
     if variance:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Literal, cast
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -12,7 +12,7 @@ from ..effects import (
     SimulationConfigError,
     Trajectory,
 )
-from ..stage import AXES, Stage
+from ..stage import AXES, Axis, Stage
 from .protocol import Motion, ProtocolScript, Segment, Still, _draw_turn_params, _float
 from .ranges import GRAVITY_UP
 
@@ -136,7 +136,7 @@ class _Resolved:
     kind: Literal["still", "turn", "motion"]
     n: int
     axis: np.ndarray | None = None
-    label: str | None = None
+    label: Axis | None = None
     angle_deg: float = 0.0
     profile: np.ndarray | None = None
     wobble_deg: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
@@ -153,19 +153,22 @@ def _resolve(seg: Segment, fs: float, rng: np.random.Generator) -> _Resolved:
     if isinstance(seg, Still):
         return _Resolved("still", _n_samples(seg.duration_s, fs, "Still", 1))
     if isinstance(seg, Motion):
-        angle = float(np.linalg.norm(seg.rotvec_deg))
-        axis = seg.rotvec_deg / angle if angle > 0 else np.array([1.0, 0.0, 0.0])
-        profile = seg.profile if seg.profile is not None else _draw_turn_params(rng, 1)["profile"][0]
+        rotvec = np.asarray(seg.rotvec_deg, dtype=float)
+        angle = float(np.linalg.norm(rotvec))
+        axis = rotvec / angle if angle > 0 else np.array([1.0, 0.0, 0.0])
+        profile = np.asarray(seg.profile if seg.profile is not None else _draw_turn_params(rng, 1)["profile"][0], dtype=float)
         return _Resolved("motion", _n_samples(seg.duration_s, fs, "Motion", 2), axis, None, angle, profile)
     need = seg.duration_s is None or seg.tilt is None or seg.profile is None or not isinstance(seg.wobble_deg, np.ndarray)
     drawn = {k: v[0] for k, v in _draw_turn_params(rng, 1).items()} if need else {}
     duration = seg.duration_s if seg.duration_s is not None else float(drawn["duration_s"])
-    if isinstance(seg.axis, str):
-        tilt = seg.tilt if seg.tilt is not None else drawn["tilt"]
-        label = seg.axis
+    named: str | np.ndarray = seg.axis if isinstance(seg.axis, str) else np.asarray(seg.axis, dtype=float)
+    label: Axis
+    if isinstance(named, str):
+        tilt = np.asarray(seg.tilt if seg.tilt is not None else drawn["tilt"], dtype=float)
+        label = cast(Axis, named)
     else:
-        tilt = seg.tilt if seg.tilt is not None else np.zeros(2)
-        label = AXES[int(np.argmax(np.abs(seg.axis)))]
+        tilt = np.asarray(seg.tilt, dtype=float) if seg.tilt is not None else np.zeros(2)
+        label = AXES[int(np.argmax(np.abs(named)))]
     if isinstance(seg.wobble_deg, np.ndarray):
         wobble = seg.wobble_deg
     else:
@@ -175,11 +178,11 @@ def _resolve(seg: Segment, fs: float, rng: np.random.Generator) -> _Resolved:
     return _Resolved(
         "turn",
         _n_samples(duration, fs, "Turn", 2),
-        _tilted_axis(seg.axis, tilt),
+        _tilted_axis(named, tilt),
         label,
         seg.angle_deg,
-        seg.profile if seg.profile is not None else drawn["profile"],
-        wobble,
+        np.asarray(seg.profile if seg.profile is not None else drawn["profile"], dtype=float),
+        np.asarray(wobble, dtype=float),
     )
 
 
@@ -194,8 +197,9 @@ def build_trajectory(script: ProtocolScript, fs: float, rng: np.random.Generator
     dt = 1.0 / fs
     res = [_resolve(seg, fs, rng) for seg in script.segments]
     moving = [r for r in res if r.kind != "still"]
+    rates_flat, quats_flat = np.empty((0, 3)), np.empty((0, 4))
     if moving:
-        rates_flat, quats_flat = _segment_motion(
+        rates_flat, poses_flat = _segment_motion(
             np.array([r.n for r in moving]),
             np.array([r.axis for r in moving]),
             np.radians([r.angle_deg for r in moving]),
@@ -204,6 +208,8 @@ def build_trajectory(script: ProtocolScript, fs: float, rng: np.random.Generator
             dt,
             poses=True,
         )
+        assert poses_flat is not None  # asked for with poses=True
+        quats_flat = poses_flat
     n = sum(r.n for r in res)
     rate = np.zeros((n, 3))
     quats = np.empty((n + 1, 4))

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..errors import GyrocalError, RecordingError
 from ..recording import Recording
-from ..stage import AXES, FLAG_COUNTER_GAP, FLAG_SATURATED, Stage
+from ..stage import AXES, FLAG_COUNTER_GAP, FLAG_SATURATED, Axis, Stage, StageKind
 from .config import LiveState, StageConfig, StageEvent, clip_run_needed
 from .prefix_sums import _D1, _D2, _DT, _GAP, _MDT, _NCOL, _S1, _S2, _SAT, _TDT, _Store
 
@@ -136,7 +136,7 @@ class StageTracker:
             g_arr = g_arr.reshape(1, -1)
         if t_arr.ndim != 1 or g_arr.shape != (t_arr.size, 3):
             raise RecordingError(
-                f"feed() needs t of shape (n,) and gyro of shape (n, 3); got {t_arr.shape} and {np.shape(gyro)}"
+                f"feed() needs t of shape (n,) and gyro of shape (n, 3); got {t_arr.shape} and {np.asarray(gyro).shape}"
             )
         s_arr = None
         if self._has_seq is None:
@@ -218,6 +218,7 @@ class StageTracker:
             self._last_x = x[0].copy()
         k = t.size
         xr = x - self._x0
+        assert self._last_x is not None  # set with the first sample
         d = np.diff(x, axis=0, prepend=self._last_x[None, :])
         values = np.empty((k, _NCOL))
         values[:, _S1] = xr
@@ -403,19 +404,23 @@ class StageTracker:
         self._events.append(StageEvent("still_started", self._still_t))
 
     def _close_still(self, end: int) -> None:
-        start = self._still_start
+        start, row = self._still_start, self._still_row
+        assert start is not None and row is not None  # only an open still is closed
         span = min(self._min_still, end - start)
         self._bias_before = self._store.sums(end - span, end)[_S1] / span
         self._bias_before_t = 0.5 * (self._store.time(end - span) + self._store.time(end - 1))
         self._emit(Stage("still", start, end, self._still_t, self._end_time(end),
-                         flags=self._flags(self._still_row, end)))
+                         flags=self._flags(row, end)))
         self._still_start = None
 
     def _close_gap(self, end: int, bias_after: np.ndarray | None) -> None:
         """Close the open motion at ``end``; it is a turn if it qualifies and a still follows it."""
         start, row0 = self._gap_start, self._gap_row
+        assert start is not None and row0 is not None  # only an open motion is closed
         st, cfg = self._store, self.config
-        kind, axis, angle = "motion", None, None
+        kind: StageKind = "motion"
+        axis: Axis | None = None
+        angle: float | None = None
         if bias_after is not None and self._bias_before is not None:
             s = st.row(end) - row0
             t_end = st.time(end)

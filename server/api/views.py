@@ -6,9 +6,10 @@ from __future__ import annotations
 import asyncio
 from typing import Any
 
+from calib.json_safe import finite
+
 from ..deps import problem
 from ..devices import Device
-from ..live.events import finite
 from ..service import Service
 
 

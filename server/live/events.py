@@ -16,6 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from calib.json_safe import finite
+
 KEEPALIVE_S = 15.0
 RETRY_MS = 1000
 CLOSED_RETRY_MS = 3_600_000
@@ -144,17 +146,3 @@ def _safe_dumps(snapshot: dict[str, Any]) -> str:
         # NaN or infinity somewhere in a result: send them as null rather than break the stream
         return dumps(finite(snapshot))
 
-
-def finite(o: Any) -> Any:
-    """A copy with NaN and infinities replaced by None (JSON has neither)."""
-    if isinstance(o, float):
-        return o if np.isfinite(o) else None
-    if isinstance(o, dict):
-        return {k: finite(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [finite(v) for v in o]
-    if isinstance(o, np.generic):
-        return finite(o.item())
-    if isinstance(o, np.ndarray):
-        return finite(o.tolist())
-    return o

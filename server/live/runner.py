@@ -21,10 +21,10 @@ from calib.result import CalibrationResult
 from ..config import Settings
 from ..devices import Device
 from ..store import SessionEnd, Store, utcnow
-from ..workers.compute import ComputePool, calibrate_recording, recording_csv, result_json
+from ..workers.compute import ComputePool, calibrate_recording, recording_csv
 from . import guidance as say
 from .buffer import SampleBuffer
-from .events import Broadcaster, finite
+from .events import Broadcaster
 from .session import GuidedSession
 
 log = logging.getLogger(__name__)
@@ -245,7 +245,7 @@ class LiveSession:
             m.fail("calibration_failed", f"{error} Start a new calibration.")
             return
         assert result is not None
-        m.set_result(result, finite(result_json(result, rec)))
+        m.set_result(result)
 
     async def _stop_link(self) -> None:
         link = self.device.link

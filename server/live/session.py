@@ -75,7 +75,7 @@ class GuidedSession:
         self.reason_code: EndReason | None = None
         self.reason: str | None = None
         self.warnings: list[dict[str, Any]] = []
-        self.result: dict[str, Any] | None = None
+        self.result: CalibrationResult | None = None
         self.passed: bool | None = None
         self.checks: list[dict[str, Any]] = []
         self.decision: str | None = None
@@ -246,12 +246,11 @@ class GuidedSession:
         """The stages the estimator gets: every still, and the turns that passed their checks."""
         return self.stream.protocol_stages(list(self.turns.values()))
 
-    def set_result(self, result: CalibrationResult, shown: dict[str, Any] | None = None) -> None:
-        """The estimator's result: judge it against the tolerances, then done or failed. ``shown`` is its JSON form
-        (with the recording's rate and length), as the page and the store get it; default ``result.to_dict()``."""
+    def set_result(self, result: CalibrationResult) -> None:
+        """The estimator's result: judge it against the tolerances, then done or failed."""
         if self.finished:
             return
-        self.result = shown if shown is not None else result.to_dict()
+        self.result = result
         self.checks = evaluate(result, self.tol)
         failures = [c["text"] for c in self.checks if not c["ok"]]
         self.passed = not failures

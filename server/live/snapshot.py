@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any, Protocol
 
+from calib.result import CalibrationResult
 from calib.stage import AXES
 
 from .buffer import SampleBuffer
@@ -27,7 +28,7 @@ class SessionView(Protocol):
     warnings: list[dict[str, Any]]
     reason_code: EndReason | None
     reason: str | None
-    result: dict[str, Any] | None
+    result: CalibrationResult | None
     passed: bool | None
     checks: list[dict[str, Any]]
     decision: str | None
@@ -82,7 +83,7 @@ def session_snapshot(s: SessionView, event: str) -> dict[str, Any]:
         "warnings": list(s.warnings),
         "reason_code": s.reason_code,
         "reason": s.reason,
-        "result": s.result,
+        "result": None if s.result is None else s.result.to_json(),
         "passed": s.passed,
         "checks": s.checks,
         "decision": s.decision,

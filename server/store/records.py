@@ -4,9 +4,13 @@ of sessions and devices the API shows."""
 from __future__ import annotations
 
 import hashlib
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from datetime import datetime
-from typing import Any
+from typing import Any, Literal, cast
+
+from pydantic import BaseModel, ConfigDict, Field, field_serializer
+
+from calib.result import CalibrationResult
 
 from .tables import CalibrationRow, Device, SessionRow, aware, utcnow
 
@@ -15,32 +19,35 @@ def sha256_hex(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
-@dataclass(frozen=True)
-class CalibrationRecord:
-    """One accepted calibration, as the API returns it."""
+class CalibrationRecord(BaseModel):
+    """One accepted calibration (a row of the append-only history): what the store hands out and the API returns."""
+
+    model_config = ConfigDict(frozen=True)
 
     id: int
     device_id: str
     session_id: str
-    k: list[float]
-    b: list[float]
+    k: list[float] = Field(description="scale factors k_x, k_y, k_z of g = K m + b")
+    b: list[float] = Field(description="biases b_x, b_y, b_z in deg/s of true rate")
     uncertainty: dict[str, Any] | None
     quality: dict[str, Any] | None
     method: str
     software_version: str
     sensor_model: str | None
     firmware: str | None
-    source: str
+    source: Literal["live", "upload"] = Field(description="live: a guided session on the device; upload: an uploaded recording")
     operator: str
     recording_sha256: str | None
     computed_at: datetime
     accepted_at: datetime
 
+    @field_serializer("computed_at", "accepted_at")
+    def _iso(self, value: datetime) -> str:
+        return value.isoformat()
+
     def to_dict(self) -> dict[str, Any]:
-        d = asdict(self)
-        d["computed_at"] = self.computed_at.isoformat()
-        d["accepted_at"] = self.accepted_at.isoformat()
-        return d
+        """JSON-ready, times in ISO 8601 with their UTC offset."""
+        return self.model_dump(mode="json")
 
 
 @dataclass(frozen=True)
@@ -50,7 +57,7 @@ class SessionEnd:
     state: str
     reason_code: str | None = None
     reason: str | None = None
-    result: dict[str, Any] | None = None
+    result: CalibrationResult | None = None
     passed: bool | None = None
     info: dict[str, Any] = field(default_factory=dict)
     ended_at: datetime = field(default_factory=utcnow)
@@ -69,7 +76,7 @@ def calibration_record(row: CalibrationRow) -> CalibrationRecord:
         software_version=row.software_version,
         sensor_model=row.sensor_model,
         firmware=row.firmware,
-        source=row.source or "live",
+        source=cast(Literal["live", "upload"], row.source or "live"),
         operator=row.operator,
         recording_sha256=row.recording_sha256,
         computed_at=aware(row.computed_at),

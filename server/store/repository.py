@@ -21,6 +21,8 @@ from sqlalchemy import CursorResult, delete, func, select, update
 from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
+from calib.result import CalibrationResult
+
 from . import chain
 from .engine import engine_for, writer
 from .errors import DecisionConflict, NotAcceptable, NotFound, StoreError
@@ -218,7 +220,7 @@ class Store:
         row.state = end.state
         row.reason_code = end.reason_code
         row.reason = end.reason
-        row.result = end.result
+        row.result = None if end.result is None else end.result.to_json()
         row.passed = end.passed
         row.ended_at = end.ended_at
         if end.info:
@@ -353,7 +355,7 @@ class Store:
         self,
         session_id: str,
         operator: str,
-        result: dict[str, Any] | None = None,
+        result: CalibrationResult | None = None,
         *,
         end: SessionEnd | None = None,
         sensor_model: str | None = None,
@@ -375,8 +377,7 @@ class Store:
                 if end is None:
                     end = SessionEnd("done", result=result, passed=result is not None)
                 self._apply_end(s, row, end, None)
-            result = row.result
-            if row.state != "done" or not row.passed or result is None:
+            if row.state != "done" or not row.passed or row.result is None:
                 raise NotAcceptable(f"session {session_id} is {row.state}{'' if row.passed else ', outside the tolerances'}: "
                                     "only a finished session within tolerances can become a calibration")
             info = row.info or {}
@@ -389,12 +390,14 @@ class Store:
             digest = s.execute(select(RecordingRow.sha256).where(RecordingRow.session_id == session_id)).scalar_one_or_none()
             if digest is None and recording_csv is not None:
                 digest = self._archive(s, session_id, recording_csv, n_samples)
+            stored = CalibrationResult.from_dict(row.result)  # the result as the session's end recorded it
+            shown = stored.to_json()
             cal = CalibrationRow(
                 device_id=row.device_id, session_id=session_id,
-                k_x=float(result["k"][0]), k_y=float(result["k"][1]), k_z=float(result["k"][2]),
-                b_x=float(result["b"][0]), b_y=float(result["b"][1]), b_z=float(result["b"][2]),
-                uncertainty=result.get("uncertainty"), quality=result.get("quality"), result=result,
-                method=str(result.get("method") or row.method), software_version=row.software_version,
+                k_x=float(stored.k[0]), k_y=float(stored.k[1]), k_z=float(stored.k[2]),
+                b_x=float(stored.b[0]), b_y=float(stored.b[1]), b_z=float(stored.b[2]),
+                uncertainty=shown["uncertainty"], quality=shown["quality"], result=row.result,
+                method=stored.method or row.method, software_version=row.software_version,
                 sensor_model=sensor_model, firmware=firmware, source=row.kind, operator=operator, recording_sha256=digest,
                 computed_at=aware(row.ended_at) if row.ended_at else now, accepted_at=now,
             )

@@ -68,11 +68,6 @@ def recording_csv(rec: Any) -> bytes:
     return buf.getvalue().encode()
 
 
-def result_json(result: CalibrationResult, rec: Recording) -> dict[str, Any]:
-    """A result as the API shows it and the store keeps it: its ``to_dict()`` with the recording's rate and length."""
-    return {**result.to_dict(), "sample_rate_hz": rec.fs, "n_samples": len(rec)}
-
-
 def calibrate_recording(rec: Recording, method: str, stages: Any) -> tuple[CalibrationResult | None, str | None, bytes]:
     """(result, None, csv) or (None, error message, csv) for a session's recording."""
     from calib.api import calibrate
@@ -97,13 +92,13 @@ def parse_upload(body: bytes, fs: float | None, layout: str, source: str, max_sa
 
 def calibrate_upload(
     body: bytes, fs: float | None, layout: str, method: str, source: str, max_samples: int
-) -> tuple[CalibrationResult, dict[str, Any], bytes, int]:
+) -> tuple[CalibrationResult, bytes, int]:
     """Parse and calibrate an uploaded CSV; raises calib's errors (RecordingError, ProtocolError, ...)."""
     from calib.api import calibrate
 
     rec = parse_upload(body, fs, layout, source, max_samples)
     result = calibrate(rec, method=method)
-    return result, result_json(result, rec), recording_csv(rec), len(rec)
+    return result, recording_csv(rec), len(rec)
 
 
 # -- the pool --------------------------------------------------------------------------------------

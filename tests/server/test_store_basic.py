@@ -9,10 +9,11 @@ import pytest
 from sqlalchemy import text
 from sqlalchemy.exc import SQLAlchemyError
 
+from calib.result import CalibrationResult
 from server.auth import Authenticator, AuthError
 from server.store import SCHEMA_VERSION, SessionEnd, Store, StoreError, sha256_hex
 
-RESULT = {
+RESULT_JSON = {
     "k": [1.01, 0.99, 1.02],
     "b": [0.5, -0.25, 0.125],
     "method": "closure",
@@ -20,9 +21,10 @@ RESULT = {
     "quality": {"score": 0.9},
     "stages": [],
 }
+RESULT = CalibrationResult.from_dict(RESULT_JSON)
 
 
-def _done_session(store: Store, sid: str, device: str = "dev-1", result: dict | None = None, state: str = "done") -> None:
+def _done_session(store: Store, sid: str, device: str = "dev-1", result: CalibrationResult | None = None, state: str = "done") -> None:
     store.create_session(sid, device, "live", "connecting", "closure", "alice", "0.1.0", {"sensor_model": "ICM-20948"})
     store.finish_session(sid, SessionEnd(state, result=result or RESULT, passed=state == "done"))
 
@@ -68,14 +70,14 @@ def test_history_is_append_only_and_current_is_latest(store_url: str) -> None:
     s = Store(store_url)
     _done_session(s, "a" * 32)
     first = s.accept("a" * 32, "alice", RESULT)
-    second_result = {**RESULT, "k": [1.03, 0.98, 1.0]}
+    second_result = CalibrationResult.from_dict({**RESULT_JSON, "k": [1.03, 0.98, 1.0]})
     _done_session(s, "b" * 32, result=second_result)
     second = s.accept("b" * 32, "bob", second_result)
     assert second.id != first.id
-    assert s.current_calibration("dev-1").k == second_result["k"]
+    assert s.current_calibration("dev-1").k == [1.03, 0.98, 1.0]
     history = s.calibrations("dev-1")
     assert [c.session_id for c in history] == ["b" * 32, "a" * 32]
-    assert history[1].k == RESULT["k"] and history[1].operator == "alice"
+    assert history[1].k == RESULT_JSON["k"] and history[1].operator == "alice"
     assert history[0].sensor_model == "ICM-20948"
     # the database itself refuses to change or delete history rows
     for stmt in ("UPDATE calibrations SET k_x = 2.0", "DELETE FROM calibrations", "DELETE FROM audit_log",
@@ -83,7 +85,7 @@ def test_history_is_append_only_and_current_is_latest(store_url: str) -> None:
         with pytest.raises(SQLAlchemyError, match="append-only"):
             with s.engine.begin() as conn:
                 conn.execute(text(stmt))
-    assert s.current_calibration("dev-1").k == second_result["k"]
+    assert s.current_calibration("dev-1").k == [1.03, 0.98, 1.0]
     assert len(s.calibrations("dev-1")) == 2
 
 
@@ -93,7 +95,7 @@ def test_a_session_is_accepted_once_and_discarded_ones_never_become_current(stor
     s.accept("c" * 32, "alice", RESULT)
     with pytest.raises(StoreError, match="accepted already"):
         s.accept("c" * 32, "alice", RESULT)
-    _done_session(s, "d" * 32, result={**RESULT, "k": [0.9, 0.9, 0.9]})
+    _done_session(s, "d" * 32, result=CalibrationResult.from_dict({**RESULT_JSON, "k": [0.9, 0.9, 0.9]}))
     s.discard_session("d" * 32, "alice")
     with pytest.raises(StoreError, match="discarded already"):
         s.accept("d" * 32, "alice", RESULT)
@@ -178,3 +180,21 @@ def test_expired_tokens_are_refused(store_url: str) -> None:
     secret = auth.add_operator("dave")
     token, _ = auth.sign_in("dave", secret)
     assert auth.operator_for(token) is None
+
+
+def test_a_calibration_result_goes_into_the_store_and_comes_back_the_same(store_url: str) -> None:
+    from calib.api import calibrate
+    from calib.simulator import simulate
+
+    rec, _ = simulate(4, noise=0.05)
+    result = calibrate(rec)
+    assert result.sample_rate_hz == rec.fs and result.n_samples == len(rec)
+    s = Store(store_url)
+    _done_session(s, "r" * 32, result=result)
+    stored = s.session("r" * 32)
+    assert stored is not None
+    back = CalibrationResult.from_dict(stored["result"])
+    assert back.to_json() == result.to_json()
+    cal = s.accept("r" * 32, "alice")
+    assert cal.k == [float(v) for v in back.k] and cal.b == [float(v) for v in back.b]
+    assert cal.uncertainty == result.to_json()["uncertainty"] and cal.method == result.method

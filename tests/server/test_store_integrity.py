@@ -15,10 +15,11 @@ from server_fixtures import at_once
 from sqlalchemy import text
 from sqlalchemy.exc import SQLAlchemyError
 
+from calib.result import CalibrationResult
 from server.store import DecisionConflict, NotAcceptable, SessionEnd, Store, StoreError
 
-RESULT = {"k": [1.01, 0.99, 1.02], "b": [0.5, -0.25, 0.125], "method": "closure",
-          "uncertainty": {"k": [1e-4] * 3, "b": [1e-3] * 3}, "quality": {"score": 0.9}, "stages": []}
+RESULT = CalibrationResult.from_dict({"k": [1.01, 0.99, 1.02], "b": [0.5, -0.25, 0.125], "method": "closure",
+          "uncertainty": {"k": [1e-4] * 3, "b": [1e-3] * 3}, "quality": {"score": 0.9}, "stages": []})
 
 
 def _done(store: Store, sid: str, device: str = "dev-1") -> None:

@@ -8,6 +8,8 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Query
 
+from calib.json_safe import finite
+
 from ... import schemas as M
 from ...deps import (
     R401,
@@ -18,7 +20,6 @@ from ...deps import (
     check_device_id,
     problem,
 )
-from ...live.events import finite
 from ..views import (
     current_calibration_of,
     device_out,
@@ -65,7 +66,7 @@ async def get_device(svc: Svc, device_id: str, _: Reader) -> dict[str, Any]:
     return await device_out(svc, dev, row, detail=True)
 
 
-@router.get("/devices/{device_id}/calibration", response_model=M.CalibrationOut, responses=R404, tags=["calibrations"])
+@router.get("/devices/{device_id}/calibration", response_model=M.CalibrationRecord, responses=R404, tags=["calibrations"])
 async def current_calibration(svc: Svc, device_id: str, _: Reader) -> dict[str, Any]:
     """The device's current calibration: its latest accepted one."""
     check_device_id(device_id)
@@ -75,7 +76,7 @@ async def current_calibration(svc: Svc, device_id: str, _: Reader) -> dict[str, 
     return cur
 
 
-@router.get("/devices/{device_id}/calibrations", response_model=list[M.CalibrationOut], responses=R404, tags=["calibrations"])
+@router.get("/devices/{device_id}/calibrations", response_model=list[M.CalibrationRecord], responses=R404, tags=["calibrations"])
 async def calibrations(svc: Svc, device_id: str, _: Reader) -> list[dict[str, Any]]:
     """Every accepted calibration of the device, newest first (nothing is ever overwritten)."""
     check_device_id(device_id)

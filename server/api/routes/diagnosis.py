@@ -18,6 +18,7 @@ from fastapi.responses import HTMLResponse, JSONResponse
 from pydantic import BaseModel, ConfigDict, Field
 
 from calib.errors import RecordingTooLong
+from calib.json_safe import finite
 
 from ...deps import (
     CSV_TYPES,
@@ -29,7 +30,6 @@ from ...deps import (
     problem,
     recording_problem,
 )
-from ...live.events import finite
 from ...schemas import Problem
 from ...service import Service
 from ...store import sha256_hex
@@ -193,9 +193,17 @@ async def _session_source(svc: Service, sid: str) -> tuple[str, dict[str, Any] |
     if digest_ is None:
         state = live.machine.state if live is not None else row["state"]  # type: ignore[index]
         raise problem(409, f"session {sid} has no recording to check (it is {state}, with no samples archived)")
-    result = (row or {}).get("result") or (live.machine.result if live is not None else None) or {}
-    stages = result.get("stages") or None
+    stages = _result_stages(row, live)
     return digest("session", digest_, stages), row, digest_
+
+
+def _result_stages(row: dict[str, Any] | None, live: Any) -> list[dict[str, Any]] | None:
+    """The stages a session's result was computed on (as stored, or from the live session), None without a result."""
+    if row is not None and row.get("result"):
+        return row["result"].get("stages") or None
+    if live is not None and live.machine.result is not None:
+        return [s.to_dict() for s in live.machine.result.stages] or None
+    return None
 
 
 async def _session_args(svc: Service, sid: str, row: dict[str, Any] | None, report: bool) -> tuple[Any, ...]:
@@ -204,11 +212,11 @@ async def _session_args(svc: Service, sid: str, row: dict[str, Any] | None, repo
     csv = got[0] if got is not None else (live.csv_bytes if live is not None else None)
     if csv is None:
         raise problem(409, f"session {sid} has no recording to check")
-    result = (row or {}).get("result") or (live.machine.result if live is not None else None) or {}
+    stages = _result_stages(row, live)
     device = (row or {}).get("device_id") or (live.device.id if live is not None else "")
     info = (row or {}).get("info") or {}
     full_scale = info.get("gyro_full_scale_dps") or (live.machine.full_scale if live is not None else None)
-    return (csv, None, "native", f"session {sid}", svc.settings.max_diagnose_samples, result.get("stages") or None,
+    return (csv, None, "native", f"session {sid}", svc.settings.max_diagnose_samples, stages,
             full_scale, f"session {sid} ({device})" if report else None)
 
 

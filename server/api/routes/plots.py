@@ -12,19 +12,19 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request
 
+from calib.json_safe import finite
 from calib.recording import Recording
 from calib.result import CalibrationResult
 
 from ...deps import Reader, check_session_id, problem, service_of
-from ...live.events import finite
 
 
-def session_traces(rec: Recording, res: dict[str, Any], max_points: int) -> dict[str, Any]:
-    """The JSON body of GET /sessions/{id}/plot for a recording and its result dict."""
+def session_traces(rec: Recording, res: CalibrationResult, max_points: int) -> dict[str, Any]:
+    """The JSON body of GET /sessions/{id}/plot for a recording and its result."""
     from calib.plots import calibration_traces
 
-    traces = calibration_traces(rec, CalibrationResult.from_dict(res), max_points=max_points)
-    return finite({**traces, "k": res["k"], "b": res["b"], "method": res.get("method")})
+    traces = calibration_traces(rec, res, max_points=max_points)
+    return finite({**traces, "k": res.k, "b": res.b, "method": res.method})
 
 
 router = APIRouter()
@@ -52,16 +52,20 @@ async def session_plot(
     live = svc.sessions.get(session_id)
     if live is not None:
         res = live.machine.result
-        if not res:
+        if res is None:
             raise problem(409, f"session {session_id} has no result to plot (it is {live.machine.state})")
         rec = await asyncio.to_thread(live.machine.recording)
     else:
         row = await asyncio.to_thread(svc.store.session, session_id)
         if row is None:
             raise problem(404, f"no session {session_id}")
-        res = row.get("result")
-        if not res:
+        stored = row.get("result")
+        if not stored:
             raise problem(409, f"session {session_id} has no result to plot (it is {row['state']})")
+        try:
+            res = CalibrationResult.from_dict(stored)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise problem(409, f"the stored result of session {session_id} cannot be read ({type(exc).__name__}: {exc})") from None
         got = await asyncio.to_thread(svc.store.recording, session_id)
         if got is None:
             raise problem(404, f"no archived recording for session {session_id}")

@@ -16,6 +16,7 @@ from sqlalchemy.exc import SQLAlchemyError
 
 from calib import __version__
 from calib.acceptance import evaluate
+from calib.json_safe import finite
 
 from ... import schemas as M
 from ...deps import (
@@ -34,7 +35,7 @@ from ...deps import (
     recording_problem,
 )
 from ...live.codes import END_STATES
-from ...live.events import Event, dumps, finite
+from ...live.events import Event, dumps
 from ...live.runner import LiveSession
 from ...live.session import GuidedSession
 from ...service import Service
@@ -215,7 +216,7 @@ async def accept(svc: Svc, session_id: str, operator: Operator, body: M.Decision
             svc.store.accept,
             session_id,
             operator,
-            snap["result"],
+            live.machine.result if live is not None else None,
             end=live.session_end() if live is not None else None,
             sensor_model=(live.device.info.get("sensor_model") if live else None) or (body.sensor_model if body else None),
             firmware=(live.device.info.get("firmware") if live else None) or (body.firmware if body else None),
@@ -321,7 +322,7 @@ async def calibrate_uploaded(
     check_upload(body, layout)
     source = f"upload for {device_id}"
     try:
-        result, res, csv, n_samples = await asyncio.wait_for(
+        result, csv, n_samples = await asyncio.wait_for(
             svc.pool.run(calibrate_upload, body, fs, layout, method, source, svc.settings.max_upload_samples),
             timeout=svc.settings.compute_timeout_s,
         )
@@ -337,7 +338,7 @@ async def calibrate_uploaded(
         ) from None
     except Exception as exc:  # calib's errors and whatever else the parser or estimator trips on
         raise recording_problem(exc, "calibrated", upload=True) from None
-    res = finite(res)
+    res = result.to_json()
     checks = evaluate(result, svc.settings.tolerances)
     failures = [c["text"] for c in checks if not c["ok"]]
     passed = not failures
@@ -362,7 +363,7 @@ async def calibrate_uploaded(
         "done" if passed else "failed",
         None if passed else "out_of_tolerance",
         reason,
-        res,
+        result,
         passed,
         {"checks": checks, "samples": n_samples},
     )

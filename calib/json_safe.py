@@ -1,0 +1,22 @@
+"""JSON has no NaN or infinity: one function that makes any result JSON-safe."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+
+def finite(o: Any) -> Any:
+    """A copy with NaN and infinities replaced by None and numpy values by plain Python ones."""
+    if isinstance(o, float):
+        return o if np.isfinite(o) else None
+    if isinstance(o, dict):
+        return {k: finite(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [finite(v) for v in o]
+    if isinstance(o, np.generic):
+        return finite(o.item())
+    if isinstance(o, np.ndarray):
+        return finite(o.tolist())
+    return o
