@@ -32,6 +32,7 @@ lint: $(VENV)/.installed-test
 	$(VENV)/bin/ruff check calib server mock_device wearable_protocol webui tests bench scripts
 	$(VENV)/bin/mypy calib server
 	$(PY) scripts/check_structure.py
+	$(PY) scripts/effects_tables.py --check
 
 ## test: install everything the tests need, then run them all
 test: $(VENV)/.installed-test system-deps lint

@@ -169,3 +169,17 @@ def test_a_hand_held_recording_is_told_it_has_no_rest(real_data: Path) -> None:
     error = json.loads(proc.stdout)["error"]
     assert error["code"] == "no_rest"
     assert "no rest anywhere" in error["message"] and "deg/s, where a gyroscope lying on a table" in error["message"]
+
+
+def test_effects_lists_the_catalogue_with_its_values_and_ranges() -> None:
+    from calib.effects import CATALOGUE, EFFECTS
+
+    proc = gyrocal("effects", "--json")
+    assert proc.returncode == 0, proc.stderr
+    rows = json.loads(proc.stdout)
+    assert [r["name"] for r in rows] == list(CATALOGUE)
+    for r in rows:
+        assert r["value"] == EFFECTS[r["name"]].usage and r["revealed_by"]
+        assert 0 < r["drawn"]["low"] < r["drawn"]["high"]
+    text = gyrocal("effects")
+    assert text.returncode == 0 and "clock_error=E" in text.stdout
