@@ -1,0 +1,164 @@
+"""Accelerometer calibration from rests: the 9-parameter model fitted to |a| = 1 g over every rest.
+
+Model (Tedaldi, Pretto, Menegatti, ICRA 2014 — imu_tk's; readings r and calibrated a in g):
+
+    a = T S (r - o),   S = diag(s),   T = [[1, -a_yz, a_zy], [0, 1, -a_zx], [0, 0, 1]]
+
+with scale factors s (dimensionless), offsets o (g, in reading units) and the three small
+non-orthogonality angles (rad) of T. At rest the calibrated specific force has magnitude 1 g, so each
+rest gives one equation |a_i| = 1; the fit is a nonlinear least squares over the rests' mean readings.
+Nine parameters need rests in enough different orientations: with too few (or too alike) the
+misalignment, then the scale factors are held at their nominal values (0, 1) and the result says so.
+Uncertainties are the least-squares covariance scaled by the residual variance (the rests' spread
+about 1 g includes any hand tremor, so the noise level is measured, not assumed).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from .errors import GyrocalError
+from .recording import Recording
+from .stage import Stage
+
+PARAMS = ("s_x", "s_y", "s_z", "o_x", "o_y", "o_z", "a_yz", "a_zy", "a_zx")
+MIN_RESTS = {9: 12, 6: 9, 3: 4}  # rests needed for each model: at least a few more than its parameters
+CONDITION_MAX = 1e6  # a worse-conditioned fit does not identify every parameter of its model
+MIN_REST_SAMPLES = 10
+
+
+class AccelCalibrationError(GyrocalError, ValueError):
+    """The rests cannot calibrate the accelerometer; the message says what is missing."""
+
+
+@dataclass(frozen=True)
+class AccelCalibration:
+    """A calibrated accelerometer: ``a = T S (r - o)`` (see the module docstring), with its uncertainty."""
+
+    scale: np.ndarray  # (3,) s
+    offset: np.ndarray  # (3,) o, g
+    misalignment: np.ndarray  # (3,) a_yz, a_zy, a_zx, rad
+    scale_std: np.ndarray | None = None
+    offset_std: np.ndarray | None = None
+    misalignment_std: np.ndarray | None = None
+    n_rests: int = 0
+    residual_rms_g: float = 0.0  # rms of |a_i| - 1 over the rests after calibration
+    residuals_g: np.ndarray = field(default_factory=lambda: np.zeros(0))  # |a_i| - 1 per rest
+    identified: tuple[str, ...] = PARAMS
+    note: str = ""
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """T S (3, 3)."""
+        return _t_matrix(self.misalignment) @ np.diag(self.scale)
+
+    def apply(self, readings: np.ndarray) -> np.ndarray:
+        """Calibrated specific force (g) of raw readings (..., 3) in g."""
+        return (np.asarray(readings, dtype=float) - self.offset) @ self.matrix.T
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: scale, bias (the offset o, g), misalignment (rad), uncertainty, fit quality."""
+
+        def lst(a: np.ndarray | None) -> list[float] | None:
+            return None if a is None else [float(v) for v in a]
+
+        return {
+            "model": "a = T S (r - o)",
+            "scale": lst(self.scale),
+            "bias": lst(self.offset),
+            "misalignment": lst(self.misalignment),
+            "uncertainty": {"scale": lst(self.scale_std), "bias": lst(self.offset_std), "misalignment": lst(self.misalignment_std)},
+            "n_rests": self.n_rests,
+            "residual_rms_mg": 1e3 * self.residual_rms_g,
+            "identified": list(self.identified),
+            "note": self.note,
+        }
+
+
+def _t_matrix(mis: np.ndarray) -> np.ndarray:
+    a_yz, a_zy, a_zx = mis
+    return np.array([[1.0, -a_yz, a_zy], [0.0, 1.0, -a_zx], [0.0, 0.0, 1.0]])
+
+
+NOMINAL = np.array([1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+SCALE_SPAN = 1.0  # an axis's scale needs rests with it pointing well up and well down (span of its gravity share)
+OFFSET_SPAN = 0.5  # its offset, rests with it tilted clearly different ways
+
+
+def _residuals(x: np.ndarray, free: np.ndarray, means: np.ndarray) -> np.ndarray:
+    full = NOMINAL.copy()
+    full[free] = x
+    a = ((means - full[3:6]) * full[0:3]) @ _t_matrix(full[6:9]).T
+    return np.linalg.norm(a, axis=1) - 1.0
+
+
+def _plans(means: np.ndarray) -> list[tuple[np.ndarray, str]]:
+    """The parameter sets to try, largest first, each with what it leaves out: what the rests' orientations allow."""
+    u = means / np.linalg.norm(means, axis=1, keepdims=True)
+    span = u.max(axis=0) - u.min(axis=0)
+    scale_ok, offset_ok = span >= SCALE_SPAN, span >= OFFSET_SPAN
+    N = means.shape[0]
+    held = [f"{ax}'s scale (the {ax} axis never pointed well up and well down)" for ax, ok in zip("xyz", scale_ok, strict=True) if not ok]
+    held += [f"{ax}'s offset (the {ax} axis hardly changed its tilt)" for ax, ok in zip("xyz", offset_ok, strict=True) if not ok]
+    base = np.concatenate([scale_ok, offset_ok, np.zeros(3, dtype=bool)])
+    plans = []
+    if scale_ok.all() and N >= MIN_RESTS[9]:
+        plans.append((np.concatenate([base[:6], np.ones(3, dtype=bool)]), held))
+    plans.append((base, [*held, "the misalignment" + ("" if N >= MIN_RESTS[9] else f" ({MIN_RESTS[9]} rests needed, {N} given)")]))
+    plans.append((np.concatenate([np.zeros(3, dtype=bool), offset_ok, np.zeros(3, dtype=bool)]), [*held, "the scale factors"]))
+    return [(free, "held at nominal: " + "; ".join(h) if h else "") for free, h in plans if free.sum() and N >= free.sum() + 1]
+
+
+def fit_accelerometer(means: np.ndarray) -> AccelCalibration:
+    """Calibrate from the mean readings (N, 3) in g of N rests in different orientations."""
+    means = np.asarray(means, dtype=float).reshape(-1, 3)
+    means = means[np.all(np.isfinite(means), axis=1) & (np.linalg.norm(means, axis=1) > 0.1)]
+    N = means.shape[0]
+    if N < MIN_RESTS[3]:
+        raise AccelCalibrationError(
+            f"the recording has {N} rests with the accelerometer; calibrating it needs at least {MIN_RESTS[3]} rests in "
+            "different orientations (put the device down on each face and edge, a few seconds each)")
+    tried = []
+    for free, note in _plans(means):
+        sol = least_squares(_residuals, NOMINAL[free], args=(free, means), method="lm", x_scale="jac")
+        sv = np.linalg.svd(sol.jac, compute_uv=False)
+        if sv[-1] <= 0 or sv[0] / sv[-1] > CONDITION_MAX:
+            tried.append(f"{int(free.sum())} parameters are not separated by the rests' orientations")
+            continue
+        s2 = float(sol.fun @ sol.fun) / max(N - int(free.sum()), 1)
+        std_free = np.sqrt(np.diag(np.linalg.inv(sol.jac.T @ sol.jac) * s2))
+        full, std = NOMINAL.copy(), np.full(9, np.nan)
+        full[free], std[free] = sol.x, std_free
+        has_mis = bool(free[6:].all())
+        return AccelCalibration(
+            scale=full[0:3], offset=full[3:6], misalignment=full[6:9],
+            scale_std=std[0:3] if free[0:3].any() else None, offset_std=std[3:6], misalignment_std=std[6:9] if has_mis else None,
+            n_rests=N, residual_rms_g=float(np.sqrt(np.mean(sol.fun**2))), residuals_g=sol.fun.copy(),
+            identified=tuple(p for p, f in zip(PARAMS, free, strict=True) if f), note="; ".join([*tried, note] if note else tried),
+        )
+    raise AccelCalibrationError(
+        "the rests cannot calibrate the accelerometer: their orientations are too alike"
+        + (f" ({'; '.join(tried)})" if tried else "")
+        + ". Rest the device in more orientations (each face and edge down, a few seconds each)")
+
+
+def rest_means(rec: Recording, stills: list[Stage], trim_s: float = 0.25) -> np.ndarray:
+    """Mean accelerometer reading (g) of each still, its first and last ``trim_s`` left out (the hand lets go)."""
+    if rec.accel is None:
+        raise AccelCalibrationError("the recording has no accelerometer channel")
+    trim = int(round(trim_s * rec.fs))
+    out = []
+    for st in stills:
+        a, b = st.start + trim, st.end - trim
+        if b - a >= MIN_REST_SAMPLES:
+            out.append(rec.accel[a:b].mean(axis=0))
+    return np.array(out).reshape(-1, 3)
+
+
+def calibrate_accelerometer(rec: Recording, stills: list[Stage]) -> AccelCalibration:
+    """The accelerometer's calibration from a recording's stills (as ``calib.stages`` finds them)."""
+    return fit_accelerometer(rest_means(rec, [s for s in stills if s.kind == "still"]))

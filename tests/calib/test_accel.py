@@ -1,0 +1,79 @@
+"""Accelerometer calibration from rests: recovery, honest uncertainty, identification, and imu_tk's real session."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calib.accel import AccelCalibrationError, _t_matrix, fit_accelerometer
+from calib.imu_tk_io import read_imu_tk
+
+REAL = Path(os.environ.get("GYROCAL_REAL_DATA", Path(__file__).resolve().parents[3] / "shared" / "data" / "real"))
+
+
+def _rests(rng: np.random.Generator, n: int, scale, offset, mis, sd_g: float, planar: bool = False) -> np.ndarray:
+    """Mean readings of n rests: gravity in random orientations through the inverse model, plus noise."""
+    g = rng.standard_normal((n, 3))
+    if planar:
+        g[:, 2] = 0.0  # every rest with z horizontal: z's scale and offset are not seen
+    g /= np.linalg.norm(g, axis=1, keepdims=True)
+    M = _t_matrix(np.asarray(mis)) @ np.diag(scale)
+    return np.linalg.solve(M, g.T).T + offset + rng.normal(0.0, sd_g, (n, 3))
+
+
+TRUTH = (np.array([1.02, 0.97, 1.01]), np.array([0.03, -0.05, 0.02]), np.array([0.004, -0.006, 0.002]))
+
+
+def test_recovers_the_nine_parameters_with_honest_uncertainty():
+    rng = np.random.default_rng(0)
+    z = []
+    for _ in range(300):
+        cal = fit_accelerometer(_rests(rng, 37, *TRUTH, sd_g=0.001))
+        est = np.concatenate([cal.scale, cal.offset, cal.misalignment])
+        std = np.concatenate([cal.scale_std, cal.offset_std, cal.misalignment_std])
+        z.append((est - np.concatenate(TRUTH)) / std)
+    z = np.array(z)
+    assert np.all(np.abs(z.mean(axis=0)) < 0.25), z.mean(axis=0)
+    sd = z.std(axis=0)
+    assert np.all((sd > 0.8) & (sd < 1.25)), sd
+
+
+def test_applying_the_calibration_puts_every_rest_at_one_g():
+    rng = np.random.default_rng(1)
+    means = _rests(rng, 30, *TRUTH, sd_g=0.0005)
+    cal = fit_accelerometer(means)
+    assert np.abs(np.linalg.norm(cal.apply(means), axis=1) - 1.0).max() < 0.003
+    assert cal.residual_rms_g < 0.002 and cal.identified == ("s_x", "s_y", "s_z", "o_x", "o_y", "o_z", "a_yz", "a_zy", "a_zx")
+
+
+def test_too_few_rests_fall_back_to_fewer_parameters_and_say_so():
+    rng = np.random.default_rng(2)
+    cal = fit_accelerometer(_rests(rng, 10, TRUTH[0], TRUTH[1], np.zeros(3), sd_g=0.0005))
+    assert cal.identified == ("s_x", "s_y", "s_z", "o_x", "o_y", "o_z")
+    assert cal.misalignment_std is None and "the misalignment (12 rests needed, 10 given)" in cal.note
+    with pytest.raises(AccelCalibrationError, match="at least 4 rests"):
+        fit_accelerometer(_rests(rng, 3, *TRUTH, sd_g=0.001))
+
+
+def test_rests_that_never_turn_an_axis_vertical_cannot_give_its_scale():
+    rng = np.random.default_rng(3)
+    cal = fit_accelerometer(_rests(rng, 20, np.ones(3), np.zeros(3), np.zeros(3), sd_g=0.0005, planar=True))
+    assert "s_z" not in cal.identified and "o_z" not in cal.identified and "z axis never pointed" in cal.note
+    assert cal.scale[2] == 1.0 and np.all(np.abs(cal.scale[:2] - 1) < 0.01)
+
+
+@pytest.mark.skipif(not (REAL / "imu_tk").exists(), reason="the shared real recordings are not present")
+def test_imu_tk_xsens_session_accelerometer_to_a_tenth_of_a_milli_g():
+    from calib.accel import calibrate_accelerometer
+    from calib.stages import detect_stages
+
+    rec = read_imu_tk(REAL / "imu_tk" / "xsens_gyro.mat", REAL / "imu_tk" / "xsens_acc.mat")
+    assert len(rec) == 51175 and rec.fs == pytest.approx(100.0)
+    cal = calibrate_accelerometer(rec, detect_stages(rec))
+    assert cal.n_rests == 38  # the initial rest and the 37 between the re-orientations
+    assert len(cal.identified) == 9
+    assert cal.residual_rms_g < 2e-4  # from 129 mg with the nominal sensitivity
+    assert np.all(np.abs(cal.scale - 0.917) < 0.01)  # the nominal 3724 counts/g is about 9 % off
