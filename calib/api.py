@@ -39,3 +39,36 @@ def calibrate(rec: Recording, method: str = DEFAULT_METHOD, stages: list[Stage] 
     """
     result = _estimator(method)(rec, stages=stages)
     return replace(result, sample_rate_hz=rec.fs, n_samples=len(rec))
+
+
+PROTOCOLS = ("auto", "paper", "multi-position")
+
+
+def calibrate_protocol(rec: Recording, protocol: str = "auto", method: str = DEFAULT_METHOD) -> tuple[CalibrationResult, str]:
+    """Calibrate a recording of ``protocol`` and say which protocol was used.
+
+    "paper": rest, then full turns about x, y, z (``calibrate`` with ``method``). "multi-position": rests
+    in many orientations with re-orientations between them, the accelerometer as reference
+    (``calib.multi_position``). "auto": the paper protocol when the recording holds it, else
+    multi-position when it has an accelerometer; when neither fits, the paper protocol's refusal.
+    """
+    from .errors import ProtocolError
+
+    if protocol not in PROTOCOLS:
+        raise GyrocalError(f"unknown protocol {protocol!r}: choose one of {', '.join(PROTOCOLS)}")
+    if protocol == "multi-position":
+        from .multi_position import calibrate_multi_position
+
+        return calibrate_multi_position(rec), "multi-position"
+    try:
+        return calibrate(rec, method=method), "paper"
+    except ProtocolError:
+        if protocol == "paper" or rec.accel is None:
+            raise
+        from .multi_position import calibrate_multi_position
+
+        try:
+            return calibrate_multi_position(rec), "multi-position"
+        except GyrocalError:
+            pass
+        raise

@@ -78,8 +78,16 @@ def _read(args: argparse.Namespace) -> Any:
     from .errors import SampleRateUnknownError
     from .io import read_recording
 
+    layout = getattr(args, "layout", "auto")
+    if layout == "imu_tk":
+        from .errors import RecordingError
+        from .imu_tk_io import read_imu_tk
+
+        if getattr(args, "accel", None) is None:
+            raise RecordingError("--layout imu_tk reads the gyroscope FILE and the accelerometer from --accel FILE; give both")
+        return read_imu_tk(args.file, args.accel)
     try:
-        return read_recording(args.file, fs=args.fs, layout=getattr(args, "layout", "auto"))
+        return read_recording(args.file, fs=args.fs, layout=layout)
     except SampleRateUnknownError as exc:
         raise SampleRateUnknownError(f"{exc}; on the command line: --fs HZ") from None
 
@@ -103,7 +111,7 @@ def _error_json(exc: Exception, code: str, stages: list[Any]) -> str:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    from .api import calibrate
+    from .api import calibrate_protocol
     from .errors import GyrocalError, ProtocolError
 
     if args.plot:
@@ -115,7 +123,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             print(_error_json(exc, "bad_recording", []))
         raise
     try:
-        result = calibrate(rec, method=args.method)
+        result, protocol = calibrate_protocol(rec, args.protocol, args.method)
     except ProtocolError as exc:
         stages = exc.stages
         if args.plot:
@@ -133,7 +141,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
         plot_calibration(rec, result, args.plot)
     if args.json:
-        print(json.dumps(result.to_dict()))
+        print(json.dumps({**result.to_dict(), "protocol": protocol, "accelerometer": result.quality.get("accelerometer")}))
     else:
         print(_summary(result, str(args.file)))
         if args.plot:
@@ -291,7 +299,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("file", type=Path, help="native CSV (t,gx,gy,gz,...) or imucal layout (gyr_x,...)")
     p.add_argument("--fs", type=float, default=None, help="sample rate in Hz (required when the file has no time column)")
     p.add_argument("--method", choices=available_methods(), default=DEFAULT_METHOD, help=f"estimator (default {DEFAULT_METHOD})")
-    p.add_argument("--layout", choices=["auto", "native", "imucal"], default="auto", help="CSV layout (default: detect from header)")
+    p.add_argument("--layout", choices=["auto", "native", "imucal", "imu_tk"], default="auto",
+                   help="CSV layout (default: detect from header); imu_tk: FILE is imu_tk's gyroscope file, --accel its accelerometer file")
+    p.add_argument("--accel", type=Path, default=None, help="with --layout imu_tk: the accelerometer file")
+    p.add_argument("--protocol", choices=["auto", "paper", "multi-position"], default="auto",
+                   help="auto (default): the paper's turns when the recording holds them, else rests and re-orientations with the "
+                        "accelerometer; paper; multi-position")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the summary")
     p.add_argument("--plot", type=Path, default=None, help="save a PNG of the rate magnitude and angles before/after calibration")
     p.set_defaults(func=cmd_calibrate)

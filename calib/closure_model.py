@@ -134,7 +134,25 @@ def closure_terms(
                         dK=cat("dK"), db=cat("db"), noise=cat("noise"))
 
 
-def _closure_chunk(m, dt, K, b, sigma, jacobian) -> ClosureTerms:
+@dataclass
+class RotationTerms:
+    """The calibrated rotation over each of B motions and its first-order terms, as left perturbations.
+
+    ``C`` (B, 3, 3): the attitude at the motion's end in its start frame (body end to body start).
+    A parameter change moves it to Exp(dphi) C with dphi = dK[:, :, i, j] dK_ij + db @ d_b (rad):
+    ``dK`` (B, 3, 3, 3), ``db`` (B, 3, 3). ``noise`` (B, 3, 3): cov dphi (rad^2) from reading noise.
+    Unlike the closure residual these stay finite at every angle (no logarithm), so they serve motions
+    of any size, e.g. the re-orientations between two rests.
+    """
+
+    C: np.ndarray
+    dK: np.ndarray
+    db: np.ndarray
+    noise: np.ndarray | None = None
+
+
+def _chunk_core(m, dt, K, b, sigma):
+    """Attitudes, swept angles and the un-normalised sensitivities of B motions (see ``_closure_chunk``)."""
     n, B = dt.shape
     w = np.matmul(m.transpose(1, 0, 2), K.transpose(0, 2, 1)).transpose(1, 0, 2) + b  # (n, B, 3) deg/s
     wdt = dt * DEG
@@ -142,25 +160,44 @@ def _closure_chunk(m, dt, K, b, sigma, jacobian) -> ClosureTerms:
     swept = u.sum(axis=0) / DEG
     q = Rotation.from_rotvec(u.reshape(-1, 3)).as_quat()
     q = np.ascontiguousarray(q.T).reshape(4, n, B)
-    if not jacobian:
-        return ClosureTerms(r=Rotation.from_quat(total_products(q).T).as_rotvec(), swept=swept)
     att = prefix_products(q)  # C_t, (4, n, B)
-    r = Rotation.from_quat(att[:, n - 1].T).as_rotvec()
     prev = np.empty_like(att)  # C_{t-1}: identity for t = 0
     prev[:, 0] = IDENTITY[:, None]
     prev[:, 1:] = att[:, :-1]
     Hw = _sensitivities(prev, u, wdt)  # (9, n, B): wdt * C_{t-1} J_l(u_t), row-major 3x3
-    jinv = left_jacobian_inv(r)  # (B, 3, 3)
-    db = np.matmul(jinv, Hw.sum(axis=1).T.reshape(B, 3, 3))
+    db = Hw.sum(axis=1).T.reshape(B, 3, 3)
     H9 = Hw.transpose(2, 0, 1)  # (B, 9, n)
-    T = np.matmul(H9, m.transpose(1, 0, 2)).reshape(B, 3, 3, 3)  # T[b, a, i, j] = sum_t Hw[a, i] m_j
-    dK = np.einsum("bac,bcij->baij", jinv, T)
-    noise = None
+    dK = np.matmul(H9, m.transpose(1, 0, 2)).reshape(B, 3, 3, 3)  # dK[b, a, i, j] = sum_t Hw[a, i] m_j
+    inner = None
     if sigma is not None:
         S = np.matmul(K * np.asarray(sigma)[:, None, :] ** 2, K.transpose(0, 2, 1))  # K diag(sigma^2) K^T
         G = np.matmul(H9, H9.transpose(0, 2, 1)).reshape(B, 3, 3, 3, 3)  # G[b, a, i, c, j] = sum_t Hw[a, i] Hw[c, j]
         inner = np.einsum("baicj,bij->bac", G, S)
-        noise = np.matmul(np.matmul(jinv, inner), jinv.transpose(0, 2, 1))
+    return att[:, n - 1].T, swept, db, dK, inner
+
+
+def rotation_terms(m: np.ndarray, dt: np.ndarray, K: np.ndarray, b: np.ndarray, sigma: np.ndarray | None = None) -> RotationTerms:
+    """The calibrated rotation of each of B motions with its left-perturbation Jacobian and noise covariance.
+
+    Arguments as for ``closure_terms``.
+    """
+    q_end, _, db, dK, inner = _chunk_core(m, dt, K, b, sigma)
+    return RotationTerms(C=Rotation.from_quat(q_end).as_matrix(), dK=dK, db=db, noise=inner)
+
+
+def _closure_chunk(m, dt, K, b, sigma, jacobian) -> ClosureTerms:
+    n, B = dt.shape
+    if not jacobian:
+        w = np.matmul(m.transpose(1, 0, 2), K.transpose(0, 2, 1)).transpose(1, 0, 2) + b  # (n, B, 3) deg/s
+        u = w * (dt * DEG)[..., None]  # rad
+        q = np.ascontiguousarray(Rotation.from_rotvec(u.reshape(-1, 3)).as_quat().T).reshape(4, n, B)
+        return ClosureTerms(r=Rotation.from_quat(total_products(q).T).as_rotvec(), swept=u.sum(axis=0) / DEG)
+    q_end, swept, db0, dK0, inner = _chunk_core(m, dt, K, b, sigma)
+    r = Rotation.from_quat(q_end).as_rotvec()
+    jinv = left_jacobian_inv(r)  # (B, 3, 3)
+    db = np.matmul(jinv, db0)
+    dK = np.einsum("bac,bcij->baij", jinv, dK0)
+    noise = None if inner is None else np.matmul(np.matmul(jinv, inner), jinv.transpose(0, 2, 1))
     return ClosureTerms(r=r, swept=swept, dK=dK, db=db, noise=noise)
 
 
