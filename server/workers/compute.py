@@ -91,14 +91,14 @@ def parse_upload(body: bytes, fs: float | None, layout: str, source: str, max_sa
 
 
 def calibrate_upload(
-    body: bytes, fs: float | None, layout: str, method: str, source: str, max_samples: int
-) -> tuple[CalibrationResult, bytes, int]:
-    """Parse and calibrate an uploaded CSV; raises calib's errors (RecordingError, ProtocolError, ...)."""
-    from calib.api import calibrate
+    body: bytes, fs: float | None, layout: str, method: str, source: str, max_samples: int, protocol: str = "auto"
+) -> tuple[CalibrationResult, str, bytes, int]:
+    """Parse and calibrate an uploaded CSV: (result, protocol used, CSV, samples); raises calib's errors."""
+    from calib.api import calibrate_protocol
 
     rec = parse_upload(body, fs, layout, source, max_samples)
-    result = calibrate(rec, method=method)
-    return result, recording_csv(rec), len(rec)
+    result, used = calibrate_protocol(rec, protocol, method)
+    return result, used, recording_csv(rec), len(rec)
 
 
 # -- the pool --------------------------------------------------------------------------------------

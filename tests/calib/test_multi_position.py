@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib.api import calibrate_protocol
 from calib.accel import AccelCalibration, AccelCalibrationError
+from calib.api import calibrate_protocol
 from calib.errors import CalibrationError, ProtocolError
 from calib.multi_position import calibrate_multi_position
 from calib.simulator import simulate

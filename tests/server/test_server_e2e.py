@@ -259,6 +259,32 @@ def test_uploaded_recordings_calibrate(service: RunningService, ferraris_csv: Pa
         assert c.get("/devices/imu-7").json()["transport"] is None
 
 
+def test_an_uploaded_multi_position_recording_is_calibrated_from_its_re_orientations(service: RunningService) -> None:
+    from calib.simulator.protocol import Motion, ProtocolScript, Still
+
+    rng = np.random.default_rng(21)
+    segs: list = [Still(20.0)]
+    for _ in range(14):
+        axis = rng.standard_normal(3)
+        segs += [Motion(tuple(rng.uniform(90, 180) * axis / np.linalg.norm(axis)), duration_s=2.0), Still(5.0)]
+    rec, truth = simulate(21, noise=0.05, fs=100.0, script=ProtocolScript(tuple(segs)))
+    buf = io.StringIO()
+    write_native_csv(rec, buf)
+    with service.client() as c:
+        r = c.post("/devices/upload-mp/calibrate", content=buf.getvalue(), headers={"Content-Type": "text/csv"})
+        assert r.status_code == 200, r.text
+        res = r.json()
+        assert res["protocol"] == "multi-position" and res["method"] == "multi-position"
+        np.testing.assert_allclose(res["k"], truth.k, atol=2e-3)
+        assert res["accelerometer"]["n_rests"] == 15 and len(res["accelerometer"]["identified"]) == 9
+        r = c.post("/devices/upload-mp/calibrate", params={"protocol": "paper"}, content=buf.getvalue(),
+                   headers={"Content-Type": "text/csv"})
+        assert r.status_code == 422 and "turn" in r.json()["detail"]  # asked for the paper's turns: refused, with the reason
+        r = c.post("/devices/upload-mp/calibrate", params={"protocol": "astrology"}, content=buf.getvalue(),
+                   headers={"Content-Type": "text/csv"})
+        assert r.status_code == 422
+
+
 def test_garbage_uploads_get_a_4xx_with_a_reason(service: RunningService) -> None:
     bodies = bad_csv_uploads()
     with service.client() as c:

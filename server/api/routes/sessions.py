@@ -7,7 +7,7 @@ import asyncio
 import logging
 import uuid
 from collections.abc import AsyncIterator
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Query, Request, Response
 from fastapi.responses import JSONResponse, StreamingResponse
@@ -77,6 +77,9 @@ async def calibrate(svc: Svc,
     fs: Annotated[float | None, Query(gt=0, le=100000, description="sample rate, Hz (CSV without a time column)")] = None,
     method: Annotated[M.Method | None, Query(description="estimator: closure (default) or paper")] = None,
     layout: Annotated[str, Query(max_length=16, description="CSV layout: auto, native, imucal")] = "auto",
+    protocol: Annotated[Literal["auto", "paper", "multi-position"], Query(
+        description="what the uploaded recording holds: auto (default: the paper's turns when present, else rests and "
+                    "re-orientations with the accelerometer), paper, or multi-position")] = "auto",
     sensor_model: Annotated[str | None, Query(min_length=1, max_length=128, pattern=M.SENSOR_TEXT,
                                               description="the sensor an uploaded recording came from (e.g. ICM-20948); "
                                               "needed before its result can be accepted")] = None,
@@ -97,6 +100,7 @@ async def calibrate(svc: Svc,
             method.value if method else None,
             layout,
             {"sensor_model": sensor_model, "firmware": firmware},
+            protocol,
         )
     if ctype and ctype != "application/json" and body:
         raise problem(
@@ -313,6 +317,7 @@ async def calibrate_uploaded(
     method: str | None,
     layout: str,
     sensor: dict[str, str | None],
+    protocol: str = "auto",
 ) -> JSONResponse:
     from calib.api import DEFAULT_METHOD, available_methods
 
@@ -322,8 +327,8 @@ async def calibrate_uploaded(
     check_upload(body, layout)
     source = f"upload for {device_id}"
     try:
-        result, csv, n_samples = await asyncio.wait_for(
-            svc.pool.run(calibrate_upload, body, fs, layout, method, source, svc.settings.max_upload_samples),
+        result, used, csv, n_samples = await asyncio.wait_for(
+            svc.pool.run(calibrate_upload, body, fs, layout, method, source, svc.settings.max_upload_samples, protocol),
             timeout=svc.settings.compute_timeout_s,
         )
     except TimeoutError:
@@ -356,7 +361,7 @@ async def calibrate_uploaded(
         method,
         operator,
         __version__,
-        {"source": "upload", "layout": layout, "fs": fs, **{k: v for k, v in sensor.items() if v}},
+        {"source": "upload", "layout": layout, "fs": fs, "protocol": used, **{k: v for k, v in sensor.items() if v}},
     )
     digest = await asyncio.to_thread(svc.store.archive_recording, sid, csv, n_samples)
     end = SessionEnd(
@@ -372,6 +377,8 @@ async def calibrate_uploaded(
         **res,
         "session_id": sid,
         "device_id": device_id,
+        "protocol": used,
+        "accelerometer": result.quality.get("accelerometer"),
         "state": "done" if passed else "failed",
         "passed": passed,
         "checks": checks,
