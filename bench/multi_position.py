@@ -24,7 +24,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from calib.accel import _t_matrix  # noqa: E402
+from calib.accel import AccelCalibration  # noqa: E402
 from calib.multi_position import calibrate_multi_position  # noqa: E402
 from calib.simulator import simulate  # noqa: E402
 from calib.simulator.protocol import Motion, ProtocolScript, Still  # noqa: E402
@@ -44,7 +44,7 @@ def script(rng: np.random.Generator, n: int = 36, first_rest_s: float = 50.0, re
 def with_accel_error(rec, rng: np.random.Generator):
     """The recording with its accelerometer read through a random scale, offset and misalignment; and the truth."""
     scale, offset, mis = rng.uniform(0.97, 1.03, 3), rng.uniform(-0.05, 0.05, 3), rng.uniform(-0.01, 0.01, 3)
-    M = _t_matrix(mis) @ np.diag(scale)
+    M = AccelCalibration(scale=scale, offset=offset, misalignment=mis).matrix
     raw = np.linalg.solve(M, rec.accel.T).T + offset
     return replace(rec, accel=raw), np.concatenate([scale, offset])
 

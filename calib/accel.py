@@ -29,6 +29,7 @@ PARAMS = ("s_x", "s_y", "s_z", "o_x", "o_y", "o_z", "a_yz", "a_zy", "a_zx")
 MIN_RESTS = {9: 12, 6: 9, 3: 4}  # rests needed for each model: at least a few more than its parameters
 CONDITION_MAX = 1e6  # a worse-conditioned fit does not identify every parameter of its model
 MIN_REST_SAMPLES = 10
+REST_TRIM_S = 0.25  # each rest's first and last quarter second left out (the hand lets go, the device settles)
 
 
 class AccelCalibrationError(GyrocalError, ValueError):
@@ -51,6 +52,23 @@ class AccelCalibration:
     identified: tuple[str, ...] = PARAMS
     note: str = ""
 
+    @classmethod
+    def from_fit(cls, x: np.ndarray, std: np.ndarray, free: np.ndarray, residuals: np.ndarray, note: str) -> AccelCalibration:
+        """The calibration from a fitted parameter vector ``x`` (9, in ``PARAMS`` order), the std of its ``free`` entries
+        (the others held at nominal) and the rests' residuals |a_i| - 1."""
+        return cls(
+            scale=x[0:3].copy(), offset=x[3:6].copy(), misalignment=x[6:9].copy(),
+            scale_std=std[0:3].copy() if free[0:3].any() else None, offset_std=std[3:6].copy(),
+            misalignment_std=std[6:9].copy() if free[6:9].all() else None,
+            n_rests=int(residuals.size), residual_rms_g=float(np.sqrt(np.mean(residuals**2))), residuals_g=residuals.copy(),
+            identified=tuple(p for p, f in zip(PARAMS, free, strict=True) if f), note=note,
+        )
+
+    @property
+    def vector(self) -> np.ndarray:
+        """The parameters (9,) in ``PARAMS`` order."""
+        return np.concatenate([self.scale, self.offset, self.misalignment])
+
     @property
     def matrix(self) -> np.ndarray:
         """T S (3, 3)."""
@@ -58,7 +76,7 @@ class AccelCalibration:
 
     def apply(self, readings: np.ndarray) -> np.ndarray:
         """Calibrated specific force (g) of raw readings (..., 3) in g."""
-        return (np.asarray(readings, dtype=float) - self.offset) @ self.matrix.T
+        return apply_model(self.vector, np.asarray(readings, dtype=float))
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: scale, bias (the offset o, g), misalignment (rad), uncertainty, fit quality."""
@@ -84,6 +102,11 @@ def _t_matrix(mis: np.ndarray) -> np.ndarray:
     return np.array([[1.0, -a_yz, a_zy], [0.0, 1.0, -a_zx], [0.0, 0.0, 1.0]])
 
 
+def apply_model(x: np.ndarray, raw: np.ndarray) -> np.ndarray:
+    """T S (raw - o) for the parameters ``x`` (9, in ``PARAMS`` order) and raw readings (..., 3) in g."""
+    return ((raw - x[3:6]) * x[0:3]) @ _t_matrix(x[6:9]).T
+
+
 NOMINAL = np.array([1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
 SCALE_SPAN = 1.0  # an axis's scale needs rests with it pointing well up and well down (span of its gravity share)
 OFFSET_SPAN = 0.5  # its offset, rests with it tilted clearly different ways
@@ -92,8 +115,7 @@ OFFSET_SPAN = 0.5  # its offset, rests with it tilted clearly different ways
 def _residuals(x: np.ndarray, free: np.ndarray, means: np.ndarray) -> np.ndarray:
     full = NOMINAL.copy()
     full[free] = x
-    a = ((means - full[3:6]) * full[0:3]) @ _t_matrix(full[6:9]).T
-    return np.linalg.norm(a, axis=1) - 1.0
+    return np.linalg.norm(apply_model(full, means), axis=1) - 1.0
 
 
 def _plans(means: np.ndarray) -> list[tuple[np.ndarray, str]]:
@@ -133,29 +155,29 @@ def fit_accelerometer(means: np.ndarray) -> AccelCalibration:
         std_free = np.sqrt(np.diag(np.linalg.inv(sol.jac.T @ sol.jac) * s2))
         full, std = NOMINAL.copy(), np.full(9, np.nan)
         full[free], std[free] = sol.x, std_free
-        has_mis = bool(free[6:].all())
-        return AccelCalibration(
-            scale=full[0:3], offset=full[3:6], misalignment=full[6:9],
-            scale_std=std[0:3] if free[0:3].any() else None, offset_std=std[3:6], misalignment_std=std[6:9] if has_mis else None,
-            n_rests=N, residual_rms_g=float(np.sqrt(np.mean(sol.fun**2))), residuals_g=sol.fun.copy(),
-            identified=tuple(p for p, f in zip(PARAMS, free, strict=True) if f), note="; ".join([*tried, note] if note else tried),
-        )
+        return AccelCalibration.from_fit(full, std, free, sol.fun, "; ".join([*tried, note] if note else tried))
     raise AccelCalibrationError(
         "the rests cannot calibrate the accelerometer: their orientations are too alike"
         + (f" ({'; '.join(tried)})" if tried else "")
         + ". Rest the device in more orientations (each face and edge down, a few seconds each)")
 
 
-def rest_means(rec: Recording, stills: list[Stage], trim_s: float = 0.25) -> np.ndarray:
-    """Mean accelerometer reading (g) of each still, its first and last ``trim_s`` left out (the hand lets go)."""
-    if rec.accel is None:
-        raise AccelCalibrationError("the recording has no accelerometer channel")
-    trim = int(round(trim_s * rec.fs))
+def rest_spans(stills: list[Stage], fs: float) -> list[tuple[int, int]]:
+    """The samples [i, j) of each still that its accelerometer mean is taken over: ``REST_TRIM_S`` left out at
+    each end, less for a still too short for that (always at least one sample, inside the still)."""
+    trim = int(round(REST_TRIM_S * fs))
     out = []
     for st in stills:
-        a, b = st.start + trim, st.end - trim
-        if b - a >= MIN_REST_SAMPLES:
-            out.append(rec.accel[a:b].mean(axis=0))
+        t = min(trim, max(0, (st.end - st.start - 1) // 2))
+        out.append((st.start + t, st.end - t))
+    return out
+
+
+def rest_means(rec: Recording, stills: list[Stage]) -> np.ndarray:
+    """Mean accelerometer reading (g) of each still long enough to be trusted (``rest_spans``, ``MIN_REST_SAMPLES``)."""
+    if rec.accel is None:
+        raise AccelCalibrationError("the recording has no accelerometer channel")
+    out = [rec.accel[i:j].mean(axis=0) for i, j in rest_spans(stills, rec.fs) if j - i >= MIN_REST_SAMPLES]
     return np.array(out).reshape(-1, 3)
 
 

@@ -62,7 +62,7 @@ def calibrate_protocol(rec: Recording, protocol: str = "auto", method: str = DEF
         return calibrate_multi_position(rec), "multi-position"
     try:
         return calibrate(rec, method=method), "paper"
-    except ProtocolError:
+    except ProtocolError as refusal:
         if protocol == "paper" or rec.accel is None:
             raise
         from .multi_position import calibrate_multi_position
@@ -70,5 +70,4 @@ def calibrate_protocol(rec: Recording, protocol: str = "auto", method: str = DEF
         try:
             return calibrate_multi_position(rec), "multi-position"
         except GyrocalError:
-            pass
-        raise
+            raise refusal from None  # neither protocol fits: the paper protocol's reason is the one to act on

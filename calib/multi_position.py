@@ -8,17 +8,19 @@ constraints see both, where the closure of a full turn sees neither):
 - each rest: zero true rate, so its mean reading is -K^-1 b (the bias);
 - each motion between two rests: the calibrated rotation C (body at the end to body at the start,
   ``calib.closure_model.rotation_terms``) must carry the end rest's gravity direction u_e onto the
-  start rest's u_s. Two constraints per motion: rho = B_s^T (C u_e), with B_s an orthonormal basis
-  perpendicular to u_s (rad). The rotation about gravity is unobservable from the accelerometer and
-  is left free; a motion that only turns about the vertical gives (almost) nothing;
+  start rest's u_s. Two constraints per motion: rho = B_s^T (C u_e - u_s), with B_s an orthonormal
+  basis perpendicular to u_s (rad). The rotation about gravity is unobservable from the accelerometer
+  and is left free; a motion that only turns about the vertical gives (almost) nothing;
 - each full turn the stage detector finds (rests on both sides): the closure C = I, three constraints
-  (as the closure estimator), instead of the two gravity ones.
+  (as the closure estimator), instead of the two gravity ones;
+- each rest's accelerometer mean: |T S (r - o)| = 1 g (``calib.accel``'s model).
 
-Gravity directions come from the accelerometer calibrated on the same rests (``calib.accel``). Each
+Gravity directions come from the accelerometer, fitted together with the gyroscope (started from
+``calib.accel``'s fit on the rests alone; given an ``accel`` calibration, that one is held fixed). Each
 residual is whitened by its covariance: gyro reading noise propagated through the motion (first order,
 as the closure model does) plus the accelerometer's direction noise at both rests. Uncertainties are
 the inverse Fisher information, scaled up by the fit's chi-square when the data scatter more than the
-noise explains (the hand, the accelerometer's own calibration error).
+noise explains (the hand, physics the model leaves out).
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from .accel import PARAMS, AccelCalibration, _t_matrix, calibrate_accelerometer
+from .accel import PARAMS, AccelCalibration, apply_model, calibrate_accelerometer, rest_spans
 from .closure_fit import still_statistics, windows
 from .closure_model import closure_terms, rotation_terms
 from .errors import CalibrationError, ProtocolError
@@ -39,7 +41,6 @@ from .stages import detect_stages
 from .validation import check_calibration_input
 
 MIN_MOTIONS = 6  # re-orientations needed before the three scale factors can be separated
-TRIM_S = 0.25  # the rests' ends left out of the gravity directions (the hand lets go, settles)
 MAX_ITERATIONS = 30
 
 
@@ -103,21 +104,21 @@ def calibrate_multi_position(rec: Recording, stages: Any = None, accel: AccelCal
 
     mean, count, sigma = still_statistics(gyro, np.array([[[s.start, s.end] for s in stills]]))
     mean, count, sigma = mean[0], count[0], sigma[0]
-    trim = int(round(TRIM_S * rec.fs))
-    spans = [(s.start + trim, max(s.end - trim, s.start + trim + 2)) for s in stills]
+    spans = rest_spans(stills, rec.fs)
     rests = _AccelRests(
         mean=np.array([rec.accel[i:j].mean(axis=0) for i, j in spans]),
         sd=np.maximum(np.array([rec.accel[i:j].std(axis=0).mean() for i, j in spans]), 1e-4),
         n=np.array([j - i for i, j in spans], dtype=float),
     )
-    xa = np.concatenate([accel.scale, accel.offset, accel.misalignment])
+    xa = accel.vector
     free_a = np.array([p in accel.identified for p in PARAMS]) if joint else np.zeros(9, dtype=bool)
 
     grav = [mo for mo in motions if mo.full_turn is None]
     turns = [mo for mo in motions if mo.full_turn is not None]
-    # integrate from inside the rest before to inside the rest after: the motion's slow start and end, which the
-    # stage detector counts as rest, are then inside the window (the true rate there is ~0, it only adds noise)
-    mg, dg = windows(gyro, np.array([[[mo.start - trim, mo.end + trim] for mo in grav]]), dt_all[None]) if grav else (None, None)
+    # integrate from where the rest before stops being averaged to where the rest after starts: the motion's slow
+    # start and end, which the stage detector counts as rest, are then inside the window (the true rate there is ~0)
+    bounds = [[spans[mo.rest_before][1], spans[mo.rest_after][0]] for mo in grav]
+    mg, dg = windows(gyro, np.array([bounds]), dt_all[None]) if grav else (None, None)
     mt, dtt = windows(gyro, np.array([[[mo.start, mo.end] for mo in turns]]), dt_all[None]) if turns else (None, None)
     pairs = (np.array([mo.rest_before for mo in grav], dtype=int), np.array([mo.rest_after for mo in grav], dtype=int))
     data = _Data(mean, count, sigma, mg, dg, mt, dtt, pairs, rests, free_a)
@@ -146,16 +147,11 @@ def calibrate_multi_position(rec: Recording, stages: Any = None, accel: AccelCal
     rho = res[: 2 * G].reshape(G, 2)
     gravity_deg = np.degrees(np.linalg.norm(_gravity_misfit(K, b, xa, data), axis=1)) if grav else np.zeros(0)
     if joint:
-        a_std, a_bound = np.full(9, np.nan), np.full(9, np.nan)
-        a_std[free_a], a_bound[free_a] = std[12:], bound[12:]
-        mag = np.linalg.norm(_calibrated(xa, rests.mean), axis=1) - 1.0
-        accel = AccelCalibration(
-            scale=xa[0:3].copy(), offset=xa[3:6].copy(), misalignment=xa[6:9].copy(),
-            scale_std=a_std[0:3] if free_a[0:3].any() else None, offset_std=a_std[3:6],
-            misalignment_std=a_std[6:9] if free_a[6:9].all() else None, n_rests=len(stills),
-            residual_rms_g=float(np.sqrt(np.mean(mag**2))), residuals_g=mag, identified=accel.identified,
-            note=(accel.note + "; " if accel.note else "") + "fitted with the gyroscope (rests and re-orientations together)",
-        )
+        a_std = np.full(9, np.nan)
+        a_std[free_a] = std[12:]
+        mag = np.linalg.norm(apply_model(xa, rests.mean), axis=1) - 1.0
+        note = (accel.note + "; " if accel.note else "") + "fitted with the gyroscope (rests and re-orientations together)"
+        accel = AccelCalibration.from_fit(xa, a_std, free_a, mag, note)
     quality = {
         "constraints": {"rests": len(stills), "gravity_motions": G, "full_turns": len(turns)},
         "chi2": chi2, "dof": dof, "birge_ratio": birge,
@@ -193,13 +189,9 @@ class _Data:
     free_a: np.ndarray  # (9,) accelerometer parameters fitted jointly
 
 
-def _calibrated(xa: np.ndarray, raw: np.ndarray) -> np.ndarray:
-    return ((raw - xa[3:6]) * xa[0:3]) @ _t_matrix(xa[6:9]).T
-
-
 def _directions(xa: np.ndarray, rests: _AccelRests) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Unit gravity directions (N, 3), their noise variance per component (rad^2) and |a| - 1 whitened."""
-    a = _calibrated(xa, rests.mean)
+    a = apply_model(xa, rests.mean)
     norm = np.linalg.norm(a, axis=1)
     sd_g = rests.sd * float(np.mean(np.abs(xa[0:3]))) / np.sqrt(rests.n)
     return a / norm[:, None], (sd_g / norm) ** 2, (norm - 1.0) / sd_g
@@ -220,6 +212,25 @@ def _gravity_misfit(K, b, xa, data: _Data) -> np.ndarray:
     return np.einsum("gia,gi->ga", _perp_basis(u[i_s]), np.einsum("gij,gj->gi", C, u[i_e]) - u[i_s])
 
 
+FD_STEP = 1e-6  # central-difference step of the accelerometer parameters
+
+
+def _accel_differences(xa: np.ndarray, data: _Data) -> tuple[np.ndarray, np.ndarray]:
+    """For each free accelerometer parameter, by central differences: the change of the gravity directions
+    (F, N, 3) over +-FD_STEP (not yet divided by 2 FD_STEP), and d(whitened |a| - 1)/d parameter (F, N)."""
+    free = np.flatnonzero(data.free_a)
+    du = np.zeros((free.size, data.rests.n.size, 3))
+    dmag = np.zeros((free.size, data.rests.n.size))
+    for c, p in enumerate(free):
+        xp, xm = xa.copy(), xa.copy()
+        xp[p] += FD_STEP
+        xm[p] -= FD_STEP
+        (up, _, mp), (um, _, mm) = _directions(xp, data.rests), _directions(xm, data.rests)
+        du[c] = up - um
+        dmag[c] = (mp - mm) / (2 * FD_STEP)
+    return du, dmag
+
+
 def _system(K, b, xa, data: _Data) -> tuple[np.ndarray, np.ndarray]:
     """Whitened residuals and Jacobian over (K row-major, b, the free accelerometer parameters):
     gravity motions, full turns, gyro rests, accelerometer magnitudes."""
@@ -227,6 +238,7 @@ def _system(K, b, xa, data: _Data) -> tuple[np.ndarray, np.ndarray]:
     P = 12 + free.size
     res_parts, jac_parts = [], []
     u, dvar, mag = _directions(xa, data.rests)
+    du, dmag = _accel_differences(xa, data)
     if data.mg is not None:
         i_s, i_e = data.pairs
         rt = _rotations(K, b, data, noise=True)
@@ -240,14 +252,9 @@ def _system(K, b, xa, data: _Data) -> tuple[np.ndarray, np.ndarray]:
         cov = Pm @ rt.noise @ Pm.transpose(0, 2, 1) + (dvar[i_s] + dvar[i_e])[:, None, None] * np.eye(2)
         L = np.linalg.cholesky(cov)
         dacc = np.zeros((G, 2, free.size))
-        for c, p in enumerate(free):  # the directions' dependence on the accelerometer, by central differences
-            h = 1e-6
-            xp, xm = xa.copy(), xa.copy()
-            xp[p] += h
-            xm[p] -= h
-            up_, um_ = _directions(xp, data.rests)[0], _directions(xm, data.rests)[0]
-            dv = np.einsum("gij,gj->gi", rt.C, up_[i_e] - um_[i_e]) - (up_[i_s] - um_[i_s])
-            dacc[:, :, c] = np.einsum("gia,gi->ga", B, dv) / (2 * h)
+        for c in range(free.size):  # the directions' dependence on the accelerometer
+            dv = np.einsum("gij,gj->gi", rt.C, du[c][i_e]) - du[c][i_s]
+            dacc[:, :, c] = np.einsum("gia,gi->ga", B, dv) / (2 * FD_STEP)
         res_parts.append(np.linalg.solve(L, rho[..., None])[..., 0].reshape(-1))
         jac_parts.append(np.linalg.solve(L, np.concatenate([dgyro, dacc], axis=-1)).reshape(-1, P))
     if data.mt is not None and data.dtt is not None:
@@ -271,12 +278,8 @@ def _system(K, b, xa, data: _Data) -> tuple[np.ndarray, np.ndarray]:
     dbeta[:, 9:12] = Kinv
     jac_parts.append((w[..., None] * dbeta[None]).reshape(-1, P))
     if free.size:  # accelerometer rests: |a| = 1 g
-        dmag = np.zeros((mag.size, P))
-        for c, p in enumerate(free):
-            xp, xm = xa.copy(), xa.copy()
-            xp[p] += 1e-6
-            xm[p] -= 1e-6
-            dmag[:, 12 + c] = (_directions(xp, data.rests)[2] - _directions(xm, data.rests)[2]) / 2e-6
+        jmag = np.zeros((mag.size, P))
+        jmag[:, 12:] = dmag.T
         res_parts.append(mag)
-        jac_parts.append(dmag)
+        jac_parts.append(jmag)
     return np.concatenate(res_parts), np.concatenate(jac_parts)

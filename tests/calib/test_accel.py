@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib.accel import AccelCalibrationError, _t_matrix, fit_accelerometer
+from calib.accel import AccelCalibration, AccelCalibrationError, fit_accelerometer
 from calib.imu_tk_io import read_imu_tk
 
 REAL = Path(os.environ.get("GYROCAL_REAL_DATA", Path(__file__).resolve().parents[3] / "shared" / "data" / "real"))
@@ -20,7 +20,7 @@ def _rests(rng: np.random.Generator, n: int, scale, offset, mis, sd_g: float, pl
     if planar:
         g[:, 2] = 0.0  # every rest with z horizontal: z's scale and offset are not seen
     g /= np.linalg.norm(g, axis=1, keepdims=True)
-    M = _t_matrix(np.asarray(mis)) @ np.diag(scale)
+    M = AccelCalibration(scale=np.asarray(scale, dtype=float), offset=np.zeros(3), misalignment=np.asarray(mis, dtype=float)).matrix
     return np.linalg.solve(M, g.T).T + offset + rng.normal(0.0, sd_g, (n, 3))
 
 
