@@ -151,15 +151,22 @@ class RotationTerms:
     noise: np.ndarray | None = None
 
 
-def _chunk_core(m, dt, K, b, sigma):
-    """Attitudes, swept angles and the un-normalised sensitivities of B motions (see ``_closure_chunk``)."""
+def _increments(m, dt, K, b) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The calibrated increments u_t = (K m_t + b) dt_t (n, B, 3) in rad, dt_t in rad per deg (n, B), and as
+    quaternions (4, n, B)."""
     n, B = dt.shape
     w = np.matmul(m.transpose(1, 0, 2), K.transpose(0, 2, 1)).transpose(1, 0, 2) + b  # (n, B, 3) deg/s
     wdt = dt * DEG
     u = w * wdt[..., None]  # rad
+    q = np.ascontiguousarray(Rotation.from_rotvec(u.reshape(-1, 3)).as_quat().T).reshape(4, n, B)
+    return u, wdt, q
+
+
+def _chunk_core(m, dt, K, b, sigma):
+    """Attitudes, swept angles and the un-normalised sensitivities of B motions (see ``_closure_chunk``)."""
+    n, B = dt.shape
+    u, wdt, q = _increments(m, dt, K, b)
     swept = u.sum(axis=0) / DEG
-    q = Rotation.from_rotvec(u.reshape(-1, 3)).as_quat()
-    q = np.ascontiguousarray(q.T).reshape(4, n, B)
     att = prefix_products(q)  # C_t, (4, n, B)
     prev = np.empty_like(att)  # C_{t-1}: identity for t = 0
     prev[:, 0] = IDENTITY[:, None]
@@ -186,11 +193,8 @@ def rotation_terms(m: np.ndarray, dt: np.ndarray, K: np.ndarray, b: np.ndarray, 
 
 
 def _closure_chunk(m, dt, K, b, sigma, jacobian) -> ClosureTerms:
-    n, B = dt.shape
     if not jacobian:
-        w = np.matmul(m.transpose(1, 0, 2), K.transpose(0, 2, 1)).transpose(1, 0, 2) + b  # (n, B, 3) deg/s
-        u = w * (dt * DEG)[..., None]  # rad
-        q = np.ascontiguousarray(Rotation.from_rotvec(u.reshape(-1, 3)).as_quat().T).reshape(4, n, B)
+        u, _, q = _increments(m, dt, K, b)
         return ClosureTerms(r=Rotation.from_quat(total_products(q).T).as_rotvec(), swept=u.sum(axis=0) / DEG)
     q_end, swept, db0, dK0, inner = _chunk_core(m, dt, K, b, sigma)
     r = Rotation.from_quat(q_end).as_rotvec()

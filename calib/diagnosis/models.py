@@ -227,9 +227,8 @@ class Model:
             if jacobian:
                 assert dg0 is not None
                 # g = g0 f(g0): dg/dg0 = f + g0 f'(g0); both factors are products of per-axis terms
-                ones = np.ones(np.shape(g0))
-                fa = 1.0 + psi[..., sl["scale_asymmetry"]] * np.sign(g0) if "scale_asymmetry" in sl else ones
-                nterm = psi[..., sl["scale_nonlinearity"]] * a0 / R0_DPS if "scale_nonlinearity" in sl else 0.0 * ones
+                fa = 1.0 + psi[..., sl["scale_asymmetry"]] * np.sign(g0) if "scale_asymmetry" in sl else np.ones(np.shape(g0))
+                nterm = psi[..., sl["scale_nonlinearity"]] * a0 / R0_DPS if "scale_nonlinearity" in sl else np.zeros(np.shape(g0))
                 fn = 1.0 + nterm
                 dfac = fa * (fn + nterm)  # d g / d g0, per axis
                 dg = dg0 * dfac[..., None]

@@ -158,8 +158,7 @@ def parse_effect(name: str, value: str = "") -> Effect:
     """An effect from its name and CLI value, e.g. ``("bias_drift", "0.01,0,-0.02")`` or ``("saturation", "500")``."""
     cls = EFFECTS.get(name.strip().lower().replace("-", "_"))
     if cls is None:
-        order = [*catalogue(), *sorted(set(EFFECTS) - set(catalogue()))]
-        known = "; ".join(f"{n}={EFFECTS[n].usage}" for n in order)
+        known = "; ".join(f"{n}={EFFECTS[n].usage}" for n in registered())
         raise SimulationConfigError(f"unknown effect {name!r}; known effects: {known}")
     try:
         return cls.from_text(value)
@@ -215,6 +214,12 @@ def catalogue() -> tuple[str, ...]:
     """The effects of the simulation-vs-reality catalogue (those with a ``spec``), in the documentation's order."""
     specced = [cls for cls in EFFECTS.values() if cls.spec is not None]
     return tuple(cls.name for cls in sorted(specced, key=lambda c: c.spec.rank if c.spec else 0))
+
+
+def registered() -> list[str]:
+    """Every registered effect's name: the catalogue in its order, then the others (e.g. ``temperature``) by name."""
+    cat = catalogue()
+    return [*cat, *sorted(set(EFFECTS) - set(cat))]
 
 
 def catalogue_specs() -> dict[str, EffectSpec]:

@@ -6,7 +6,7 @@
 
 from __future__ import annotations
 
-from .base import EFFECTS, catalogue, catalogue_specs
+from .base import EFFECTS, catalogue_specs, registered
 
 
 def _cell(text: str) -> str:
@@ -19,8 +19,7 @@ def _row(cells: list[str]) -> str:
 
 def effect_value_help() -> str:
     """Every registered effect's ``NAME=VALUE`` syntax, catalogue first (the ``--effect`` help)."""
-    names = [*catalogue(), *sorted(set(EFFECTS) - set(catalogue()))]
-    return "; ".join(f"{name}={EFFECTS[name].usage}" for name in names)
+    return "; ".join(f"{name}={EFFECTS[name].usage}" for name in registered())
 
 
 def models_table() -> str:

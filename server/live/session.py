@@ -28,6 +28,7 @@ from calib.stage import AXES, Stage
 
 from ..config import Settings
 from . import guidance as say
+from .buffer import SampleBuffer
 from .codes import END_STATES, TURN_STATES, EndReason, Phase, State
 from .snapshot import session_snapshot
 from .stream import SessionStream, TrackerFactory
@@ -84,7 +85,6 @@ class GuidedSession:
         self.device_info: dict[str, Any] = {}
 
         self.stream = SessionStream(tracker_factory)
-        self.buf = self.stream.buf
         self.fs_estimate: float | None = None  # the link's estimate of the true rate from device time
         self._clock_from_next = True  # the current phase's time limit counts from the next sample received
         self.lost_samples = 0
@@ -108,6 +108,11 @@ class GuidedSession:
         self._emitted_state: str | None = None
 
     # -- public properties ------------------------------------------------------------------------
+    @property
+    def buf(self) -> SampleBuffer:
+        """Every sample received so far."""
+        return self.stream.buf
+
     @property
     def fs(self) -> float | None:
         return self.stream.fs
@@ -149,7 +154,7 @@ class GuidedSession:
         """One batch of samples (device time t in s, raw gyro in deg/s, accel in g)."""
         if self.finished or self.state in (State.COMPUTING, State.RECONNECTING, State.CONNECTING) or self.stream.tracker is None:
             return
-        first = self.stream.buf.n == 0
+        first = self.buf.n == 0
         times = self.stream.receive(t, gyro, accel, seq)
         if times is None:
             return

@@ -34,11 +34,13 @@ class SessionView(Protocol):
     decision: str | None
     calibration_id: int | None
     method: str
-    buf: SampleBuffer
     lost_samples: int
     started_at: str
     ended_at: str | None
     caused_by: dict[str, Any] | None
+
+    @property
+    def buf(self) -> SampleBuffer: ...
 
     @property
     def axis(self) -> str | None: ...
