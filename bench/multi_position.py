@@ -17,36 +17,18 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from calib.accel import AccelCalibration  # noqa: E402
 from calib.multi_position import calibrate_multi_position  # noqa: E402
 from calib.simulator import simulate  # noqa: E402
-from calib.simulator.protocol import Motion, ProtocolScript, Still  # noqa: E402
+from calib.simulator.lab_scripts import multi_position_script as script  # noqa: E402
+from calib.simulator.lab_scripts import with_accelerometer_error as with_accel_error  # noqa: E402
 
 ACCEL_NOISE_G = 0.005
-
-
-def script(rng: np.random.Generator, n: int = 36, first_rest_s: float = 50.0, rest_s: float = 5.0) -> ProtocolScript:
-    segs: list = [Still(first_rest_s)]
-    for _ in range(n):
-        axis = rng.standard_normal(3)
-        segs += [Motion(tuple(rng.uniform(90, 180) * axis / np.linalg.norm(axis)), duration_s=float(rng.uniform(1.5, 3.0))),
-                 Still(rest_s)]
-    return ProtocolScript(tuple(segs))
-
-
-def with_accel_error(rec, rng: np.random.Generator):
-    """The recording with its accelerometer read through a random scale, offset and misalignment; and the truth."""
-    scale, offset, mis = rng.uniform(0.97, 1.03, 3), rng.uniform(-0.05, 0.05, 3), rng.uniform(-0.01, 0.01, 3)
-    M = AccelCalibration(scale=scale, offset=offset, misalignment=mis).matrix
-    raw = np.linalg.solve(M, rec.accel.T).T + offset
-    return replace(rec, accel=raw), np.concatenate([scale, offset])
 
 
 def p95_bound(bounds: np.ndarray, rng: np.random.Generator) -> np.ndarray:

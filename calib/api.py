@@ -5,16 +5,22 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import replace
 from importlib import import_module
+from typing import TYPE_CHECKING
 
-from .errors import GyrocalError
+from .errors import GyrocalError, ProtocolError
 from .recording import Recording
 from .result import CalibrationResult
+from .section import Section
 from .stage import Stage
+
+if TYPE_CHECKING:
+    from .recognise import Recognition
 
 # method name -> (module, function); imported on first use so each estimator stays independent.
 _METHODS: dict[str, tuple[str, str]] = {
     "closure": ("calib.closure", "calibrate_closure"),
     "paper": ("calib.paper", "calibrate_paper"),
+    "ferraris": ("calib.ferraris", "calibrate_ferraris"),
 }
 DEFAULT_METHOD = "closure"
 
@@ -41,33 +47,109 @@ def calibrate(rec: Recording, method: str = DEFAULT_METHOD, stages: list[Stage] 
     return replace(result, sample_rate_hz=rec.fs, n_samples=len(rec))
 
 
-PROTOCOLS = ("auto", "paper", "multi-position")
+PROTOCOLS = ("auto", "paper", "ferraris", "multi-position")
 
 
-def calibrate_protocol(rec: Recording, protocol: str = "auto", method: str = DEFAULT_METHOD) -> tuple[CalibrationResult, str]:
+def calibrate_protocol(
+    rec: Recording, protocol: str = "auto", method: str = DEFAULT_METHOD, sections: tuple[Section, ...] | None = None
+) -> tuple[CalibrationResult, str]:
     """Calibrate a recording of ``protocol`` and say which protocol was used.
 
-    "paper": rest, then full turns about x, y, z (``calibrate`` with ``method``). "multi-position": rests
-    in many orientations with re-orientations between them, the accelerometer as reference
-    (``calib.multi_position``). "auto": the paper protocol when the recording holds it, else
-    multi-position when it has an accelerometer; when neither fits, the paper protocol's refusal.
+    "paper": rests, then full turns about x, y, z (``calibrate`` with ``method``). "ferraris": the same
+    estimator on Ferraris' six static poses and three turns (``method="ferraris"``: Ferraris' own equations).
+    "multi-position": rests in many orientations with re-orientations between them, the accelerometer as
+    reference (``calib.multi_position``). "auto": what ``calib.recognise`` finds; when nothing fits, the
+    paper protocol's refusal. ``sections`` (or the recording's own, ``rec.meta.sections``) replace stage
+    detection. The result's ``quality["protocol"]`` holds what was found and what was used.
     """
-    from .errors import ProtocolError
-
     if protocol not in PROTOCOLS:
         raise GyrocalError(f"unknown protocol {protocol!r}: choose one of {', '.join(PROTOCOLS)}")
-    if protocol == "multi-position":
-        from .multi_position import calibrate_multi_position
+    if method not in _METHODS:
+        _estimator(method)
+    from .recognise import recognise
+    from .stages import detect_stages
 
-        return calibrate_multi_position(rec), "multi-position"
+    sections = sections if sections is not None else rec.meta.sections
+    if sections:
+        from .sections import stages_from_sections
+
+        stages = stages_from_sections(rec, sections)
+    else:
+        stages = detect_stages(rec)
+    found = recognise(rec, stages)
+    used = _protocol_to_use(protocol, found.name, rec)
     try:
-        return calibrate(rec, method=method), "paper"
-    except ProtocolError as refusal:
-        if protocol == "paper" or rec.accel is None:
+        result = _calibrate_as(rec, used, method, stages, sections, found)
+    except GyrocalError as exc:
+        if protocol == "auto" and used == "multi-position":
+            # too little in the re-orientations too: the paper protocol's refusal says what to do (a wrong rate, ...)
+            result = _calibrate_as(rec, "paper", method, stages, sections, found)
+            used = "paper"
+        elif not isinstance(exc, ProtocolError):
             raise
+        else:
+            raise _pointing_to(exc, used, found) from None
+    result.quality["protocol"] = {"found": found.to_dict(), "used": used, "sections": len(sections)}
+    if rec.accel is not None and "accelerometer" not in result.quality:
+        result.quality["accelerometer"] = _accelerometer(rec, stages)
+    return result, used
+
+
+def _pointing_to(exc: ProtocolError, used: str, found: Recognition) -> ProtocolError:
+    """The refusal of the protocol asked for, pointing to the one the recording holds when that is another."""
+    if found.name in (used, "unrecognised", "hand-held") or (used == "paper" and found.name == "ferraris"):
+        return exc
+    better = "multi-position" if found.name == "mixed" else found.name
+    return ProtocolError(f"{exc} The recording holds {found.summary}: calibrate it with --protocol {better} (or auto)",
+                         code=exc.code, stages=exc.stages)
+
+
+def _calibrate_as(
+    rec: Recording, used: str, method: str, stages: list[Stage], sections: tuple[Section, ...], found: Recognition
+) -> CalibrationResult:
+    if used == "multi-position":
+        if sections and any(b.start != a.end or a.kind == b.kind == "still" for a, b in zip(sections, sections[1:], strict=False)):
+            raise GyrocalError("the labelled sections do not hold every motion between two rests (two rests follow each "
+                               "other, or samples between sections are missing), so the re-orientations cannot be "
+                               "followed; calibrate without the sections, or choose --protocol paper or ferraris")
         from .multi_position import calibrate_multi_position
 
-        try:
-            return calibrate_multi_position(rec), "multi-position"
-        except GyrocalError:
-            raise refusal from None  # neither protocol fits: the paper protocol's reason is the one to act on
+        return calibrate_multi_position(rec, stages)
+    if used == "ferraris" and len(found.poses) < 6 and method != "ferraris":
+        from .ferraris import calibrate_ferraris
+
+        calibrate_ferraris(rec, stages)  # raises, naming the poses and turns that are missing
+    return calibrate(rec, method=method, stages=stages)
+
+
+def _accelerometer(rec: Recording, stages: list[Stage]) -> dict[str, object] | None:
+    """The accelerometer's calibration from the recording's rests, reported beside the gyroscope's; None when the
+    rests cannot give one."""
+    from .accel import calibrate_accelerometer
+
+    try:
+        return calibrate_accelerometer(rec, [s for s in stages if s.kind == "still"]).to_dict()
+    except GyrocalError:
+        return None
+
+
+def _protocol_to_use(protocol: str, found: str, rec: Recording) -> str:
+    """The protocol to calibrate with: the one asked for, or for "auto" the one found."""
+    if protocol != "auto":
+        return protocol
+    if found in ("ferraris", "paper"):
+        return found
+    if found in ("multi-position", "mixed") and rec.accel is not None:
+        return "multi-position"
+    if found == "hand-held":
+        from .stages.hints import REST_NOISE_DPS, quietest_second
+
+        quiet = quietest_second(rec)
+        where = (f": its quietest second, at {quiet[0]:.1f} s, varies by {quiet[1]:.2f} deg/s, where a gyroscope lying on a "
+                 f"table varies by about {REST_NOISE_DPS[0]:g}-{REST_NOISE_DPS[1]:g} deg/s") if quiet else ""
+        raise ProtocolError(
+            f"the device was held in the hand throughout, there is no rest anywhere in the recording{where}. Without a "
+            "rest the gyro's offset cannot be told apart from its scale factors, and where each full turn begins and "
+            "ends (the pose the hand comes back to) is not known, so gyrocal does not calibrate it. Put the device "
+            "down, still, for about 3 s before, between and after the turns", code="no_rest")
+    return "paper"  # nothing recognised: the paper protocol's own refusal says what is missing

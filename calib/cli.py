@@ -37,6 +37,10 @@ def _summary(result: Any, source: str) -> str:
     """A readable summary of a CalibrationResult."""
     d = result.to_dict()
     lines = [f"gyrocal {__version__} — calibration of {source} (method: {d['method']})", ""]
+    proto = (d.get("quality") or {}).get("protocol")
+    if proto:
+        lines += [f"Protocol found: {proto['found']['name']} — {proto['found']['summary']}; used: {proto['used']}"
+                  + (f" ({proto['sections']} labelled sections)" if proto.get("sections") else ""), ""]
     lines.append("Stages found:")
     for s in d["stages"]:
         extra = ""
@@ -79,6 +83,11 @@ def _read(args: argparse.Namespace) -> Any:
     from .io import read_recording
 
     layout = getattr(args, "layout", "auto")
+    if getattr(args, "accel", None) is not None and layout != "imu_tk":
+        from .errors import RecordingError
+
+        raise RecordingError("--accel FILE names imu_tk's separate accelerometer file: give it with --layout imu_tk, or "
+                             "leave it out when FILE holds the accelerometer's columns")
     if layout == "imu_tk":
         from .errors import RecordingError
         from .imu_tk_io import read_imu_tk
@@ -86,8 +95,12 @@ def _read(args: argparse.Namespace) -> Any:
         if getattr(args, "accel", None) is None:
             raise RecordingError("--layout imu_tk reads the gyroscope FILE and the accelerometer from --accel FILE; give both")
         return read_imu_tk(args.file, args.accel)
+    gyro_sens, accel_sens = getattr(args, "gyro_counts_per_dps", None), getattr(args, "accel_counts_per_g", None)
+    if gyro_sens is not None or accel_sens is not None:
+        layout = "imucal_counts" if layout in ("auto", "imucal") else layout
     try:
-        return read_recording(args.file, fs=args.fs, layout=layout)
+        return read_recording(args.file, fs=args.fs, layout=layout, gyro_counts_per_dps=gyro_sens,
+                              accel_counts_per_g=accel_sens)
     except SampleRateUnknownError as exc:
         raise SampleRateUnknownError(f"{exc}; on the command line: --fs HZ") from None
 
@@ -122,8 +135,18 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         if args.json:
             print(_error_json(exc, "bad_recording", []))
         raise
+    sections = None
+    if args.sections is not None:
+        from .sections import read_sections
+
+        try:
+            sections = read_sections(args.sections, len(rec))
+        except GyrocalError as exc:
+            if args.json:
+                print(_error_json(exc, "bad_sections", []))
+            raise
     try:
-        result, protocol = calibrate_protocol(rec, args.protocol, args.method)
+        result, protocol = calibrate_protocol(rec, args.protocol, args.method, sections)
     except ProtocolError as exc:
         stages = exc.stages
         if args.plot:
@@ -219,6 +242,33 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_bench_methods(args: argparse.Namespace) -> int:
+    """The paper's comparison of calibration methods (Tables 2-3), on simulated sensors."""
+    from .bench_methods import METHODS, compare_methods
+
+    names = [m.strip() for m in args.methods.split(",") if m.strip()] if args.methods else None
+    known = [m.name for m in METHODS]
+    if names and (bad := [n for n in names if n not in known]):
+        from .errors import GyrocalError
+
+        raise GyrocalError(f"unknown method(s) {', '.join(bad)}: choose from {', '.join(known)}")
+    if args.runs < 1:
+        from .errors import GyrocalError
+
+        raise GyrocalError("--runs must be at least 1")
+    if args.plot:
+        _writable(args.plot, "plot")
+    report = compare_methods(runs=args.runs, noise_levels=tuple(args.noise), seed=args.seed, progress=not args.no_progress,
+                             plot_path=args.plot, methods=names)
+    if args.json:
+        print(json.dumps(report.to_dict()))
+    else:
+        print(report.table())
+        if args.plot:
+            print(f"plot saved to {args.plot}")
+    return EXIT_OK
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     """Simulate one recording of the protocol, calibrate it and compare with the truth."""
     from .api import calibrate
@@ -293,7 +343,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"gyrocal {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
-    from .api import DEFAULT_METHOD, available_methods
+    from .api import DEFAULT_METHOD, PROTOCOLS, available_methods
 
     p = sub.add_parser("calibrate", help="calibrate a recording (CSV) of the protocol")
     p.add_argument("file", type=Path, help="native CSV (t,gx,gy,gz,...) or imucal layout (gyr_x,...)")
@@ -302,9 +352,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--layout", choices=["auto", "native", "imucal", "imu_tk"], default="auto",
                    help="CSV layout (default: detect from header); imu_tk: FILE is imu_tk's gyroscope file, --accel its accelerometer file")
     p.add_argument("--accel", type=Path, default=None, help="with --layout imu_tk: the accelerometer file")
-    p.add_argument("--protocol", choices=["auto", "paper", "multi-position"], default="auto",
-                   help="auto (default): the paper's turns when the recording holds them, else rests and re-orientations with the "
-                        "accelerometer; paper; multi-position")
+    p.add_argument("--protocol", choices=list(PROTOCOLS), default="auto",
+                   help="auto (default): the protocol recognised in the recording; paper: rests and full turns about x, y, z; "
+                        "ferraris: six static poses and three turns; multi-position: re-orientations between rests, with the "
+                        "accelerometer")
+    p.add_argument("--sections", type=Path, default=None, metavar="FILE",
+                   help="imucal's section list (JSON: {\"x_p\": {\"start\": 540, \"end\": 1271}, ...}, sample positions, end "
+                        "exclusive) used instead of stage detection; a file's own 'part' column is used without it")
+    p.add_argument("--gyro-counts-per-dps", type=float, default=None, metavar="C",
+                   help="the file holds raw counts: the gyro's sensitivity in counts per deg/s (e.g. 16.4 at +-2000 deg/s)")
+    p.add_argument("--accel-counts-per-g", type=float, default=None, metavar="C",
+                   help="the file holds raw counts: the accelerometer's sensitivity in counts per g (e.g. 2048 at +-16 g)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the summary")
     p.add_argument("--plot", type=Path, default=None, help="save a PNG of the rate magnitude and angles before/after calibration")
     p.set_defaults(func=cmd_calibrate)
@@ -350,6 +408,17 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--json", action="store_true", help="print the report as JSON")
     b.add_argument("--no-progress", action="store_true", help="no progress bar")
     b.set_defaults(func=cmd_bench)
+
+    b = bsub.add_parser("methods", help="the paper's comparison of methods (Tables 2-3): turntable, accelerometer-aided, "
+                        "servomotor, Ferraris, the paper's Algorithm 1 and gyrocal on the same simulated sensors")
+    b.add_argument("--runs", type=int, default=20, help="runs per method, sensor and noise level (default 20)")
+    b.add_argument("--noise", type=float, nargs="+", default=[0.03, 0.15], help="gyro noise levels, deg/s")
+    b.add_argument("--methods", default=None, help="comma-separated subset (default: all)")
+    b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--plot", type=Path, default=Path("methods.png"), help="bar chart PNG (default methods.png)")
+    b.add_argument("--json", action="store_true", help="print the report as JSON")
+    b.add_argument("--no-progress", action="store_true", help="no progress bar")
+    b.set_defaults(func=cmd_bench_methods)
 
     p = sub.add_parser("diagnose", help="compare a recording with its simulation and name the physics the model leaves out")
     p.add_argument("file", type=Path, help="native CSV (t,gx,gy,gz,...) or imucal layout (gyr_x,...)")

@@ -26,6 +26,8 @@ import numpy as np
 
 from .errors import RecordingError, SampleRateUnknownError
 from .recording import STANDARD_GRAVITY, Recording, RecordingMeta
+from .section import Section
+from .sections import sections_from_labels
 from .validation import Locator, check_finite, check_increasing, check_recording, check_sample_rate, validate_recording
 
 __all__ = ["LAYOUTS", "parse_recording_text", "read_recording", "validate_recording", "write_native_csv"]
@@ -358,7 +360,8 @@ def _sensitivities(table: _Table, gyro: object, accel: object, where: str) -> tu
         raise RecordingError(
             f"{where}this file holds raw sensor counts (imucal annotated session); pass the sensitivities "
             "gyro_counts_per_dps and accel_counts_per_g from the sensor's datasheet "
-            "(e.g. 16.4 and 2048 for a +-2000 deg/s, +-16 g setting)"
+            "(e.g. 16.4 and 2048 for a +-2000 deg/s, +-16 g setting; on the command line --gyro-counts-per-dps 16.4 "
+            "--accel-counts-per-g 2048)"
         )
     out: list[np.ndarray | None] = []
     for name, value in (("gyro_counts_per_dps", gyro), ("accel_counts_per_g", accel)):
@@ -406,12 +409,14 @@ def _read_imucal(
         "accel": tuple(header[3:6]) if has_accel else IMUCAL_ACCEL,
     }
     seq = None
+    sections: tuple[Section, ...] = ()
     if index_name is not None:
         where = Locator(source, lines, {**columns, "seq": columns["t"]})
         seq = _counter(values[:, -1], "seq", where)
         if LABEL_COLUMN in table.names:  # rows are grouped by section label: restore recording order
             order = np.argsort(seq, kind="stable")
             values, seq, lines = values[order], seq[order], lines[order]
+            sections = sections_from_labels(_labels(table)[order])
             where = Locator(source, lines, where.columns)
         check_increasing(seq, "seq", where, what="sample index")
         t = seq / fs
@@ -425,6 +430,14 @@ def _read_imucal(
         accel = accel / sens[1] if accel is not None else None
     elif accel is not None:
         accel = accel / STANDARD_GRAVITY
-    rec = Recording(t=t, gyro=gyro, accel=accel, seq=seq, meta=RecordingMeta(sample_rate_hz=fs, source=source))
+    meta = RecordingMeta(sample_rate_hz=fs, source=source, sections=sections)
+    rec = Recording(t=t, gyro=gyro, accel=accel, seq=seq, meta=meta)
     check_recording(rec, where=where)
     return rec
+
+
+def _labels(table: _Table) -> np.ndarray:
+    """The section label column, one string per data line."""
+    c = table.index(LABEL_COLUMN)
+    cells = [line.split(table.delimiter) for line in table.lines]
+    return np.array([row[c].strip().strip("\"'") if c < len(row) else "" for row in cells])

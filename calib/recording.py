@@ -17,6 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from .section import Section
+
 STANDARD_GRAVITY = 9.80665  # m/s^2 per g
 
 
@@ -29,6 +31,7 @@ class RecordingMeta:
     sensor_model: str | None = None
     gyro_full_scale_dps: float | None = None  # readings at +-this value are clipped
     source: str | None = None  # file name or stream name, for messages
+    sections: tuple[Section, ...] = ()  # labelled sections the file carries (imucal's ``part`` column)
 
 
 def sample_intervals(t: np.ndarray) -> np.ndarray:

@@ -14,6 +14,7 @@ import os
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -80,24 +81,43 @@ def calibrate_recording(rec: Recording, method: str, stages: Any) -> tuple[Calib
         return None, str(exc), csv
 
 
-def parse_upload(body: bytes, fs: float | None, layout: str, source: str, max_samples: int) -> Recording:
+@dataclass(frozen=True)
+class UploadOptions:
+    """How to read and calibrate an uploaded CSV beyond its layout: the protocol, labelled sections (imucal's
+    section-list JSON text) and, for raw counts, the sensitivities."""
+
+    protocol: str = "auto"
+    sections: str | None = None
+    gyro_counts_per_dps: float | None = None
+    accel_counts_per_g: float | None = None
+
+
+def parse_upload(body: bytes, fs: float | None, layout: str, source: str, max_samples: int,
+                 options: UploadOptions | None = None) -> Recording:
     """An uploaded CSV as a Recording; raises RecordingError, or TooManySamples above ``max_samples``."""
     from calib.io import parse_recording_text
 
-    rec = parse_recording_text(body, fs, layout, source)
+    opts = options or UploadOptions()
+    if opts.gyro_counts_per_dps is not None or opts.accel_counts_per_g is not None:
+        layout = "imucal_counts" if layout in ("auto", "imucal") else layout
+    rec = parse_recording_text(body, fs, layout, source, gyro_counts_per_dps=opts.gyro_counts_per_dps,
+                               accel_counts_per_g=opts.accel_counts_per_g)
     if len(rec) > max_samples:
         raise TooManySamples(f"the recording has {len(rec)} samples; at most {max_samples} are accepted, send a shorter one")
     return rec
 
 
 def calibrate_upload(
-    body: bytes, fs: float | None, layout: str, method: str, source: str, max_samples: int, protocol: str = "auto"
+    body: bytes, fs: float | None, layout: str, method: str, source: str, max_samples: int, options: UploadOptions | None = None
 ) -> tuple[CalibrationResult, str, bytes, int]:
     """Parse and calibrate an uploaded CSV: (result, protocol used, CSV, samples); raises calib's errors."""
     from calib.api import calibrate_protocol
+    from calib.sections import parse_sections
 
-    rec = parse_upload(body, fs, layout, source, max_samples)
-    result, used = calibrate_protocol(rec, protocol, method)
+    opts = options or UploadOptions()
+    rec = parse_upload(body, fs, layout, source, max_samples, opts)
+    sections = parse_sections(opts.sections, len(rec), "the sections parameter") if opts.sections else None
+    result, used = calibrate_protocol(rec, opts.protocol, method, sections)
     return result, used, recording_csv(rec), len(rec)
 
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -10,8 +9,6 @@ import pytest
 
 from calib.accel import AccelCalibration, AccelCalibrationError, fit_accelerometer
 from calib.imu_tk_io import read_imu_tk
-
-REAL = Path(os.environ.get("GYROCAL_REAL_DATA", Path(__file__).resolve().parents[3] / "shared" / "data" / "real"))
 
 
 def _rests(rng: np.random.Generator, n: int, scale, offset, mis, sd_g: float, planar: bool = False) -> np.ndarray:
@@ -65,12 +62,11 @@ def test_rests_that_never_turn_an_axis_vertical_cannot_give_its_scale():
     assert cal.scale[2] == 1.0 and np.all(np.abs(cal.scale[:2] - 1) < 0.01)
 
 
-@pytest.mark.skipif(not (REAL / "imu_tk").exists(), reason="the shared real recordings are not present")
-def test_imu_tk_xsens_session_accelerometer_to_a_tenth_of_a_milli_g():
+def test_imu_tk_xsens_session_accelerometer_to_a_tenth_of_a_milli_g(real_data: Path):
     from calib.accel import calibrate_accelerometer
     from calib.stages import detect_stages
 
-    rec = read_imu_tk(REAL / "imu_tk" / "xsens_gyro.mat", REAL / "imu_tk" / "xsens_acc.mat")
+    rec = read_imu_tk(real_data / "imu_tk" / "xsens_gyro.mat", real_data / "imu_tk" / "xsens_acc.mat")
     assert len(rec) == 51175 and rec.fs == pytest.approx(100.0)
     cal = calibrate_accelerometer(rec, detect_stages(rec))
     assert cal.n_rests == 38  # the initial rest and the 37 between the re-orientations

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -13,20 +12,7 @@ from calib.api import calibrate_protocol
 from calib.errors import CalibrationError, ProtocolError
 from calib.multi_position import calibrate_multi_position
 from calib.simulator import simulate
-from calib.simulator.protocol import Motion, ProtocolScript, Still
-
-REAL = Path(os.environ.get("GYROCAL_REAL_DATA", Path(__file__).resolve().parents[3] / "shared" / "data" / "real"))
-
-
-def multi_position_script(rng: np.random.Generator, n: int = 36, first_rest_s: float = 50.0, rest_s: float = 5.0,
-                          vertical_only: bool = False) -> ProtocolScript:
-    """imu_tk's protocol: a long rest, then n hand re-orientations of 90-180 deg between short rests."""
-    segs: list = [Still(first_rest_s)]
-    for _ in range(n):
-        axis = np.array([0.0, 0.0, 1.0]) if vertical_only else rng.standard_normal(3)
-        angle = rng.uniform(90.0, 180.0)
-        segs += [Motion(tuple(angle * axis / np.linalg.norm(axis)), duration_s=float(rng.uniform(1.5, 3.0))), Still(rest_s)]
-    return ProtocolScript(tuple(segs))
+from calib.simulator.lab_scripts import multi_position_script
 
 
 def test_recovers_k_and_b_from_re_orientations_with_honest_uncertainty():
@@ -80,11 +66,10 @@ def test_auto_keeps_the_paper_protocol_for_paper_recordings_and_falls_back_for_r
         calibrate_protocol(rec, "paper")
 
 
-@pytest.mark.skipif(not (REAL / "imu_tk").exists(), reason="the shared real recordings are not present")
-def test_imu_tk_xsens_session_is_calibrated_from_its_37_re_orientations():
+def test_imu_tk_xsens_session_is_calibrated_from_its_37_re_orientations(real_data: Path):
     from calib.imu_tk_io import read_imu_tk
 
-    rec = read_imu_tk(REAL / "imu_tk" / "xsens_gyro.mat", REAL / "imu_tk" / "xsens_acc.mat")
+    rec = read_imu_tk(real_data / "imu_tk" / "xsens_gyro.mat", real_data / "imu_tk" / "xsens_acc.mat")
     res, protocol = calibrate_protocol(rec)
     assert protocol == "multi-position"
     q = res.quality

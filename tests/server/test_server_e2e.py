@@ -260,14 +260,10 @@ def test_uploaded_recordings_calibrate(service: RunningService, ferraris_csv: Pa
 
 
 def test_an_uploaded_multi_position_recording_is_calibrated_from_its_re_orientations(service: RunningService) -> None:
-    from calib.simulator.protocol import Motion, ProtocolScript, Still
+    from calib.simulator.lab_scripts import multi_position_script
 
     rng = np.random.default_rng(21)
-    segs: list = [Still(20.0)]
-    for _ in range(14):
-        axis = rng.standard_normal(3)
-        segs += [Motion(tuple(rng.uniform(90, 180) * axis / np.linalg.norm(axis)), duration_s=2.0), Still(5.0)]
-    rec, truth = simulate(21, noise=0.05, fs=100.0, script=ProtocolScript(tuple(segs)))
+    rec, truth = simulate(21, noise=0.05, fs=100.0, script=multi_position_script(rng, n=14, first_rest_s=20.0))
     buf = io.StringIO()
     write_native_csv(rec, buf)
     with service.client() as c:
@@ -283,6 +279,34 @@ def test_an_uploaded_multi_position_recording_is_calibrated_from_its_re_orientat
         r = c.post("/devices/upload-mp/calibrate", params={"protocol": "astrology"}, content=buf.getvalue(),
                    headers={"Content-Type": "text/csv"})
         assert r.status_code == 422
+
+
+def test_an_uploaded_imucal_counts_file_with_sections_is_calibrated_as_ferraris(service: RunningService, real_data: Path) -> None:
+    body = (real_data / "imucal" / "annotated_session.csv").read_bytes()
+    counts = {"fs": 204.8, "gyro_counts_per_dps": 16.4, "accel_counts_per_g": 2048}
+    with service.client() as c:
+        r = c.post("/devices/imucal-a/calibrate", params=counts, content=body, headers={"Content-Type": "text/csv"})
+        assert r.status_code == 200, r.text
+        res = r.json()
+        assert res["protocol"] == "ferraris" and res["quality"]["protocol"]["sections"] == 9
+        np.testing.assert_allclose(res["k"], 16.4 / np.array([16.6777, 16.1879, 16.2534]), atol=5e-4)
+        r = c.post("/devices/imucal-a/calibrate", params={**counts, "method": "ferraris"}, content=body,
+                   headers={"Content-Type": "text/csv"})
+        assert r.status_code == 200 and r.json()["method"] == "ferraris"
+        r = c.post("/devices/imucal-a/calibrate", params={"fs": 204.8}, content=body, headers={"Content-Type": "text/csv"})
+        assert r.status_code == 400 and "gyro_counts_per_dps" in r.json()["detail"]
+
+    example = (real_data / "imucal" / "example_ferraris_session.csv").read_bytes()
+    sections = (real_data / "imucal" / "example_ferraris_session_list.json").read_text()
+    with service.client() as c:
+        r = c.post("/devices/imucal-b/calibrate", params={"fs": 102.4, "sections": sections, "protocol": "ferraris"},
+                   content=example, headers={"Content-Type": "text/csv"})
+        assert r.status_code == 200, r.text
+        assert r.json()["quality"]["protocol"]["sections"] == 9
+        np.testing.assert_allclose(r.json()["k"], [0.97284, 1.01788, 1.00169], atol=5e-4)
+        r = c.post("/devices/imucal-b/calibrate", params={"fs": 102.4, "sections": '{"x_p": {"start": 0}}'},
+                   content=example, headers={"Content-Type": "text/csv"})
+        assert r.status_code == 400 and "section 'x_p'" in r.json()["detail"]
 
 
 def test_garbage_uploads_get_a_4xx_with_a_reason(service: RunningService) -> None:

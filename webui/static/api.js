@@ -30,7 +30,7 @@ export class Api {
     return Boolean(this.token);
   }
 
-  async request(method, path, { json, query, signingIn = false } = {}) {
+  async request(method, path, { json, csv, query, signingIn = false } = {}) {
     const url = new URL(path, location.origin);
     for (const [k, v] of Object.entries(query || {})) if (v !== undefined && v !== null) url.searchParams.set(k, v);
     const headers = { Accept: "application/json" };
@@ -39,6 +39,9 @@ export class Api {
     if (json !== undefined) {
       headers["Content-Type"] = "application/json";
       init.body = JSON.stringify(json);
+    } else if (csv !== undefined) {
+      headers["Content-Type"] = "text/csv";
+      init.body = csv;
     }
     let res;
     try {

@@ -8,6 +8,7 @@ import { requestProblem } from "./messages.js";
 import { devicesView } from "./devices.js";
 import { historyView } from "./history.js";
 import { signInView } from "./signin.js";
+import { uploadView } from "./upload.js";
 import { placeView, sessionView } from "./wizard.js";
 
 const api = new Api();
@@ -22,6 +23,7 @@ const ROUTES = [
   [/^#\/place\/([^/]+)$/, (m) => placeView(ctx, decodeURIComponent(m[1]))],
   [/^#\/session\/([0-9a-f]{32})$/, (m) => sessionView(ctx, m[1])],
   [/^#\/history\/([^/]+)$/, (m) => historyView(ctx, decodeURIComponent(m[1]))],
+  [/^#\/upload$/, () => uploadView(ctx)],
 ];
 
 const ctx = {

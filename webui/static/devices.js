@@ -94,7 +94,8 @@ export function devicesView(ctx) {
     h("div", { class: "panel-head" },
       h("div", null, h("h1", { id: "devices-title" }, "Choose a device"),
         h("p", { class: "lead" }, "Pick the wearable to calibrate.")),
-      scanBtn),
+      h("div", { class: "panel-actions" }, scanBtn,
+        h("a", { class: "button", href: "#/upload", id: "upload-link" }, icon("info"), "Calibrate a recording file"))),
     note, list));
   ctx.focusMain();
   load();

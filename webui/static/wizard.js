@@ -517,6 +517,7 @@ function detailsBlock(ctx, s) {
   const turns = Object.values(s.turns || {});
   const q = res.quality || {};
   const facts = [
+    ["Protocol", q.protocol ? `${q.protocol.found.summary} (found: ${q.protocol.found.name}; used: ${q.protocol.used})` : null],
     ["Method", res.method || s.method],
     ["Samples", s.samples != null ? `${s.samples} at ${num(s.sample_rate_hz || res.sample_rate_hz, 1)} Hz` : res.n_samples],
     ["Lost on the radio link", s.lost_samples != null ? `${s.lost_samples} samples` : null],

@@ -40,7 +40,7 @@ from ...live.runner import LiveSession
 from ...live.session import GuidedSession
 from ...service import Service
 from ...store import DecisionConflict, NotAcceptable, NotFound, SessionEnd, StoreError
-from ...workers.compute import TooManySamples, calibrate_upload
+from ...workers.compute import TooManySamples, UploadOptions, calibrate_upload
 from ..views import session_snapshot, stored_snapshot
 
 log = logging.getLogger(__name__)
@@ -77,9 +77,17 @@ async def calibrate(svc: Svc,
     fs: Annotated[float | None, Query(gt=0, le=100000, description="sample rate, Hz (CSV without a time column)")] = None,
     method: Annotated[M.Method | None, Query(description="estimator: closure (default) or paper")] = None,
     layout: Annotated[str, Query(max_length=16, description="CSV layout: auto, native, imucal")] = "auto",
-    protocol: Annotated[Literal["auto", "paper", "multi-position"], Query(
-        description="what the uploaded recording holds: auto (default: the paper's turns when present, else rests and "
-                    "re-orientations with the accelerometer), paper, or multi-position")] = "auto",
+    protocol: Annotated[Literal["auto", "paper", "ferraris", "multi-position"], Query(
+        description="what the uploaded recording holds: auto (default: the protocol recognised in it), paper (rests and "
+                    "full turns about x, y, z), ferraris (six static poses and three turns) or multi-position "
+                    "(re-orientations between rests, with the accelerometer)")] = "auto",
+    sections: Annotated[str | None, Query(max_length=20000, description="imucal's section list as JSON text "
+                                          '({"x_p": {"start": 540, "end": 1271}, ...}: sample positions, end exclusive), '
+                                          "used instead of stage detection")] = None,
+    gyro_counts_per_dps: Annotated[float | None, Query(gt=0, le=1e9, description="the CSV holds raw counts: the gyro's "
+                                                       "sensitivity in counts per deg/s")] = None,
+    accel_counts_per_g: Annotated[float | None, Query(gt=0, le=1e9, description="the CSV holds raw counts: the "
+                                                      "accelerometer's sensitivity in counts per g")] = None,
     sensor_model: Annotated[str | None, Query(min_length=1, max_length=128, pattern=M.SENSOR_TEXT,
                                               description="the sensor an uploaded recording came from (e.g. ICM-20948); "
                                               "needed before its result can be accepted")] = None,
@@ -100,7 +108,7 @@ async def calibrate(svc: Svc,
             method.value if method else None,
             layout,
             {"sensor_model": sensor_model, "firmware": firmware},
-            protocol,
+            UploadOptions(protocol, sections, gyro_counts_per_dps, accel_counts_per_g),
         )
     if ctype and ctype != "application/json" and body:
         raise problem(
@@ -317,7 +325,7 @@ async def calibrate_uploaded(
     method: str | None,
     layout: str,
     sensor: dict[str, str | None],
-    protocol: str = "auto",
+    options: UploadOptions | None = None,
 ) -> JSONResponse:
     from calib.api import DEFAULT_METHOD, available_methods
 
@@ -328,7 +336,8 @@ async def calibrate_uploaded(
     source = f"upload for {device_id}"
     try:
         result, used, csv, n_samples = await asyncio.wait_for(
-            svc.pool.run(calibrate_upload, body, fs, layout, method, source, svc.settings.max_upload_samples, protocol),
+            svc.pool.run(calibrate_upload, body, fs, layout, method, source, svc.settings.max_upload_samples,
+                         options or UploadOptions()),
             timeout=svc.settings.compute_timeout_s,
         )
     except TimeoutError:
