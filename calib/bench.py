@@ -273,11 +273,10 @@ class BenchReport:
             fig.text(0.5, 0.005, f"The paper's Fig. 7 states errors within {bounds}.", ha="center", fontsize=9)
         fig.suptitle(f"{self.sets} sets x {self.runs_per_set} runs; boxes p25-p75, whiskers p5-p95")
         fig.tight_layout(rect=(0, 0.03, 1, 1))
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        self.plot_path = str(path)
-        return path
+        from .plots import save_figure
+
+        self.plot_path = str(save_figure(fig, path, dpi=110))
+        return Path(self.plot_path)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -207,11 +207,10 @@ class MethodsReport:
         fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=8, title="method (protocol duration)")
         fig.suptitle(f"Calibration methods on the same simulated sensors: median |error| (bars) and p95 (ticks), {self.runs} runs")
         fig.tight_layout(rect=(0, 0.05, 1, 1))
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
-        self.plot_path = str(path)
-        return path
+        from .plots import save_figure
+
+        self.plot_path = str(save_figure(fig, path, dpi=100))
+        return Path(self.plot_path)
 
 
 def compare_methods(runs: int = 20, noise_levels: Sequence[float] = (0.03, 0.15), seed: int = 0, progress: bool = True,

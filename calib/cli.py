@@ -233,12 +233,17 @@ def cmd_bench(args: argparse.Namespace) -> int:
         plot_path=args.plot,
         workers=args.workers,
     )
+    return _print_report(report, args)
+
+
+def _print_report(report: Any, args: argparse.Namespace) -> int:
+    """A benchmark's report: JSON with --json, else its table and where the plot went."""
     if args.json:
         print(json.dumps(report.to_dict()))
     else:
         print(report.table())
         if args.plot:
-            print(f"box plot saved to {args.plot}")
+            print(f"plot saved to {args.plot}")
     return EXIT_OK
 
 
@@ -260,13 +265,7 @@ def cmd_bench_methods(args: argparse.Namespace) -> int:
         _writable(args.plot, "plot")
     report = compare_methods(runs=args.runs, noise_levels=tuple(args.noise), seed=args.seed, progress=not args.no_progress,
                              plot_path=args.plot, methods=names)
-    if args.json:
-        print(json.dumps(report.to_dict()))
-    else:
-        print(report.table())
-        if args.plot:
-            print(f"plot saved to {args.plot}")
-    return EXIT_OK
+    return _print_report(report, args)
 
 
 def cmd_demo(args: argparse.Namespace) -> int:

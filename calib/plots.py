@@ -13,6 +13,17 @@ from .result import CalibrationResult
 from .stage import Stage
 
 
+def save_figure(fig: Any, path: str | Path, dpi: int = 110) -> Path:
+    """Write a matplotlib figure as PNG (its folder created) and release it; the path written."""
+    import matplotlib.pyplot as plt
+
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=dpi)
+    plt.close(fig)
+    return out
+
+
 def calibration_traces(rec: Recording, result: CalibrationResult, max_points: int = 1500) -> dict[str, Any]:
     """Rate magnitude, pose error and swept angles before (raw readings) and after calibration.
 
@@ -98,10 +109,7 @@ def plot_calibration(rec: Recording, result: CalibrationResult, path: str | Path
     axes[-1].set_xlabel("time (s)")
     fig.suptitle(f"gyrocal calibration ({result.method}): k = {np.round(result.k, 5).tolist()}, "
                  f"b = {np.round(result.b, 4).tolist()} deg/s", fontsize=10)
-    out = Path(path)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return save_figure(fig, path)
 
 
 STAGE_COLOURS = {"still": "C2", "turn": "C1", "motion": "C3"}
@@ -132,7 +140,4 @@ def plot_stages(rec: Recording, stages: list[Stage], path: str | Path, title: st
     ax.set_ylabel("gyro reading (deg/s)")
     ax.legend(loc="lower right", fontsize=8)
     ax.set_title(title, fontsize=9, wrap=True)
-    out = Path(path)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return save_figure(fig, path)
