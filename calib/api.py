@@ -64,8 +64,7 @@ def calibrate_protocol(
     """
     if protocol not in PROTOCOLS:
         raise GyrocalError(f"unknown protocol {protocol!r}: choose one of {', '.join(PROTOCOLS)}")
-    if method not in _METHODS:
-        _estimator(method)
+    _estimator(method)  # an unknown method is refused before any work
     from .recognise import recognise
     from .stages import detect_stages
 
@@ -77,7 +76,7 @@ def calibrate_protocol(
     else:
         stages = detect_stages(rec)
     found = recognise(rec, stages)
-    used = _protocol_to_use(protocol, found.name, rec)
+    used = _protocol_to_use(protocol, found, rec)
     try:
         result = _calibrate_as(rec, used, method, stages, sections, found)
     except GyrocalError as exc:
@@ -115,10 +114,10 @@ def _calibrate_as(
         from .multi_position import calibrate_multi_position
 
         return calibrate_multi_position(rec, stages)
-    if used == "ferraris" and len(found.poses) < 6 and method != "ferraris":
-        from .ferraris import calibrate_ferraris
+    if used == "ferraris" and len(found.poses) < 6:
+        from .ferraris import ferraris_stages
 
-        calibrate_ferraris(rec, stages)  # raises, naming the poses and turns that are missing
+        ferraris_stages(rec, stages)  # raises, naming the poses and turns that are missing
     return calibrate(rec, method=method, stages=stages)
 
 
@@ -133,23 +132,21 @@ def _accelerometer(rec: Recording, stages: list[Stage]) -> dict[str, object] | N
         return None
 
 
-def _protocol_to_use(protocol: str, found: str, rec: Recording) -> str:
+def _protocol_to_use(protocol: str, found: Recognition, rec: Recording) -> str:
     """The protocol to calibrate with: the one asked for, or for "auto" the one found."""
     if protocol != "auto":
         return protocol
-    if found in ("ferraris", "paper"):
-        return found
-    if found in ("multi-position", "mixed") and rec.accel is not None:
+    if found.name in ("ferraris", "paper"):
+        return found.name
+    if found.name in ("multi-position", "mixed") and rec.accel is not None:
         return "multi-position"
-    if found == "hand-held":
-        from .stages.hints import REST_NOISE_DPS, quietest_second
+    if found.quietest_second is not None:  # hand-held
+        from .stages.hints import quiet_text
 
-        quiet = quietest_second(rec)
-        where = (f": its quietest second, at {quiet[0]:.1f} s, varies by {quiet[1]:.2f} deg/s, where a gyroscope lying on a "
-                 f"table varies by about {REST_NOISE_DPS[0]:g}-{REST_NOISE_DPS[1]:g} deg/s") if quiet else ""
         raise ProtocolError(
-            f"the device was held in the hand throughout, there is no rest anywhere in the recording{where}. Without a "
-            "rest the gyro's offset cannot be told apart from its scale factors, and where each full turn begins and "
-            "ends (the pose the hand comes back to) is not known, so gyrocal does not calibrate it. Put the device "
-            "down, still, for about 3 s before, between and after the turns", code="no_rest")
+            f"the device was held in the hand throughout, there is no rest anywhere in the recording: "
+            f"{quiet_text(found.quietest_second)}. Without a rest the gyro's offset cannot be told apart from its scale "
+            "factors, and where each full turn begins and ends (the pose the hand comes back to) is not known, so gyrocal "
+            "does not calibrate it. Put the device down, still, for about 3 s before, between and after the turns",
+            code="no_rest")
     return "paper"  # nothing recognised: the paper protocol's own refusal says what is missing

@@ -67,6 +67,19 @@ def ferraris_turns(stages: list[Stage]) -> dict[str, Stage]:
     return turns
 
 
+def ferraris_stages(rec: Recording, stages: list[Stage]) -> tuple[dict[str, Stage], dict[str, Stage]]:
+    """Ferraris' six poses and three turns among ``stages``; ProtocolError naming those that are missing."""
+    poses = find_poses(rec, [s for s in stages if s.kind == "still"])
+    turns = ferraris_turns(stages)
+    missing = [p for p in POSES if p not in poses] + [f"{a}_rot" for a in AXES if a not in turns]
+    if missing:
+        raise ProtocolError(
+            f"Ferraris' protocol needs six static poses (each axis pointing up, then down) and one full turn about "
+            f"each axis; missing: {', '.join(missing)}. Rest the device on each of its six faces, then turn it "
+            "360 degrees about x, y and z")
+    return poses, turns
+
+
 def calibrate_ferraris(rec: Recording, stages: Any = None) -> CalibrationResult:
     """Calibrate one recording of Ferraris' protocol with Ferraris' closed-form equations.
 
@@ -78,14 +91,7 @@ def calibrate_ferraris(rec: Recording, stages: Any = None) -> CalibrationResult:
     if rec.accel is None:
         raise ProtocolError("Ferraris' method needs the accelerometer: it finds the six static poses by gravity")
     stage_list = resolve_stages(rec, stages).stages if stages is None else sorted(stages, key=lambda s: s.start)
-    poses = find_poses(rec, [s for s in stage_list if s.kind == "still"])
-    turns = ferraris_turns(stage_list)
-    missing = [p for p in POSES if p not in poses] + [f"{a}_rot" for a in AXES if a not in turns]
-    if missing:
-        raise ProtocolError(
-            f"Ferraris' protocol needs six static poses (each axis pointing up, then down) and one full turn about "
-            f"each axis; missing: {', '.join(missing)}. Rest the device on each of its six faces, then turn it "
-            "360 degrees about x, y and z")
+    poses, turns = ferraris_stages(rec, stage_list)
 
     def mean(channel: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
         return np.stack([channel[poses[p].start:poses[p].end].mean(axis=0) for p in names], axis=1)

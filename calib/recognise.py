@@ -21,7 +21,7 @@ from .ferraris import ferraris_turns, find_poses
 from .multi_position import MIN_MOTIONS
 from .recording import Recording
 from .stage import AXES, Stage
-from .stages.hints import REST_NOISE_DPS, quietest_second
+from .stages.hints import never_at_rest
 
 MIN_TILT_DEG = 10.0  # a motion between rests counts as a re-orientation when gravity moves this much in the body
 PROTOCOL_NAMES = ("ferraris", "paper", "multi-position", "mixed", "hand-held", "unrecognised")
@@ -36,6 +36,7 @@ class Recognition:
     full_turns: tuple[str, ...]  # axes of the full turns, in recording order
     poses: tuple[str, ...]  # Ferraris poses found (x_p, x_a, ...)
     reorientations: int  # motions between rests that tilt the device
+    quietest_second: tuple[float, float] | None = None  # hand-held: (start s, std deg/s) of its quietest second
 
     @property
     def summary(self) -> str:
@@ -70,12 +71,6 @@ def count_reorientations(rec: Recording, stages: list[Stage]) -> int:
     return int(np.sum(np.degrees(np.arccos(cos)) >= MIN_TILT_DEG))
 
 
-def _never_at_rest(rec: Recording) -> bool:
-    """True when even the quietest second varies more than a gyroscope lying on a table."""
-    quiet = quietest_second(rec)
-    return quiet is not None and quiet[1] > REST_NOISE_DPS[1]
-
-
 def recognise(rec: Recording, stages: list[Stage]) -> Recognition:
     """Name the protocol the stages of ``rec`` hold."""
     stills = [s for s in stages if s.kind == "still"]
@@ -84,7 +79,8 @@ def recognise(rec: Recording, stages: list[Stage]) -> Recognition:
     poses = tuple(find_poses(rec, stills))
     reorient = count_reorientations(rec, stages)
     every_axis = set(AXES) <= set(ferraris_turns(turns))
-    if not stills and _never_at_rest(rec):
+    held = never_at_rest(rec) if not stills else None
+    if held is not None:
         name = "hand-held"
     elif every_axis and len(poses) == 6:
         name = "ferraris"
@@ -94,4 +90,4 @@ def recognise(rec: Recording, stages: list[Stage]) -> Recognition:
         name = "mixed" if turns else "multi-position"
     else:
         name = "unrecognised"
-    return Recognition(name, len(stills), axes, poses, reorient)
+    return Recognition(name, len(stills), axes, poses, reorient, held)

@@ -38,6 +38,19 @@ def quietest_second(rec: Recording) -> tuple[float, float] | None:
     return float(rec.t[i]), float(spread[i])
 
 
+def never_at_rest(rec: Recording) -> tuple[float, float] | None:
+    """The quietest second (start s, largest per-axis std deg/s) when even it varies more than a gyroscope lying on a
+    table (the device was held in the hand throughout); None when the recording has a quiet second or is too short."""
+    quiet = quietest_second(rec)
+    return quiet if quiet is not None and quiet[1] > REST_NOISE_DPS[1] else None
+
+
+def quiet_text(quiet: tuple[float, float]) -> str:
+    """The sentence on a recording's quietest second against what rest looks like, for refusals."""
+    return (f"its quietest second, at {quiet[0]:.1f} s, varies by {quiet[1]:.2f} deg/s, where a gyroscope lying on a table "
+            f"varies by about {REST_NOISE_DPS[0]:g}-{REST_NOISE_DPS[1]:g} deg/s")
+
+
 def rate_that_fits(rec: Recording) -> float | None:
     """The common IMU rate at which the protocol is found in this recording (its times rescaled) with its turns
     measuring closest to 360 degrees, or None."""
@@ -88,12 +101,10 @@ def find_protocol_in(rec: Recording, stages: list[Stage]) -> ProtocolStages:
         rate = rate_that_fits(rec)
         quiet = quietest_second(rec) if rate is None and not any(s.kind == "still" for s in stages) else None
         if quiet is not None:
-            rest = f"a gyroscope lying on a table varies by about {REST_NOISE_DPS[0]:g}-{REST_NOISE_DPS[1]:g} deg/s"
             if quiet[1] > REST_NOISE_DPS[1]:
                 code = "no_rest"
-                message = (f"there is no rest anywhere in the recording (was the device held in the hand?): its quietest "
-                           f"second, at {quiet[0]:.1f} s, varies by {quiet[1]:.2f} deg/s, where {rest}. Put the device down, "
-                           "still, for about 3 s before, between and after the turns. " + message)
+                message = (f"there is no rest anywhere in the recording (was the device held in the hand?): {quiet_text(quiet)}. "
+                           "Put the device down, still, for about 3 s before, between and after the turns. " + message)
             else:
                 message = (f"no rest of at least 1 s was found, although the recording is quiet at {quiet[0]:.1f} s "
                            f"({quiet[1]:.2f} deg/s, as at rest): if its rests last seconds, the sample rate ({rec.fs:g} Hz) "
