@@ -307,6 +307,10 @@ def test_an_uploaded_imucal_counts_file_with_sections_is_calibrated_as_ferraris(
         r = c.post("/devices/imucal-b/calibrate", params={"fs": 102.4, "sections": '{"x_p": {"start": 0}}'},
                    content=example, headers={"Content-Type": "text/csv"})
         assert r.status_code == 400 and "section 'x_p'" in r.json()["detail"]
+        # the longest section list the URL carries, percent-encoded at 12 bytes a character, and one more character
+        r = c.post("/devices/imucal-b/calibrate", params={"fs": 102.4, "sections": "\U0001F600" * 4001},
+                   content=example, headers={"Content-Type": "text/csv"})
+        assert r.status_code == 422 and "at most 4000 characters" in r.json()["detail"]
 
 
 def test_garbage_uploads_get_a_4xx_with_a_reason(service: RunningService) -> None:

@@ -43,6 +43,10 @@ from ...store import DecisionConflict, NotAcceptable, NotFound, SessionEnd, Stor
 from ...workers.compute import TooManySamples, UploadOptions, calibrate_upload
 from ..views import session_snapshot, stored_snapshot
 
+# The section list travels in the URL: 4000 characters (about 80 sections) stay under what the HTTP server reads
+# as one request line even percent-encoded at 12 bytes a character; a longer one gets a 422, not a dropped connection.
+MAX_SECTIONS_TEXT = 4000
+
 log = logging.getLogger(__name__)
 router = APIRouter()
 
@@ -81,7 +85,7 @@ async def calibrate(svc: Svc,
         description="what the uploaded recording holds: auto (default: the protocol recognised in it), paper (rests and "
                     "full turns about x, y, z), ferraris (six static poses and three turns) or multi-position "
                     "(re-orientations between rests, with the accelerometer)")] = "auto",
-    sections: Annotated[str | None, Query(max_length=20000, description="imucal's section list as JSON text "
+    sections: Annotated[str | None, Query(max_length=MAX_SECTIONS_TEXT, description="imucal's section list as JSON text "
                                           '({"x_p": {"start": 540, "end": 1271}, ...}: sample positions, end exclusive), '
                                           "used instead of stage detection")] = None,
     gyro_counts_per_dps: Annotated[float | None, Query(gt=0, le=1e9, description="the CSV holds raw counts: the gyro's "
