@@ -66,6 +66,10 @@ def _summary(result: Any, source: str) -> str:
     if d.get("K") is not None:
         lines.append("Full calibration matrix K:")
         lines.extend("  " + _fmt_vec(row, 6) for row in d["K"])
+    if d.get("G") is not None:
+        lines.append("g-sensitivity G of g = K (m - G a) + b, (deg/s)/g (row: gyro axis, column: acceleration axis):")
+        lines.extend("  " + _fmt_vec(row, 4) for row in d["G"])
+    lines.extend(_g_sensitivity_lines((d.get("quality") or {}).get("g_sensitivity")))
     if d.get("noise_dps"):
         lines.append(f"Noise (from the stills): {_fmt_vec(d['noise_dps'], 4)} deg/s")
     q = d.get("quality") or {}
@@ -75,6 +79,18 @@ def _summary(result: Any, source: str) -> str:
     for w in d.get("warnings") or []:
         lines.append(f"warning: {w}")
     return "\n".join(lines)
+
+
+def _g_sensitivity_lines(test: dict[str, Any] | None) -> list[str]:
+    """What the g-sensitivity test found, and the fit without it (multi-position)."""
+    if not test:
+        return []
+    without = test.get("without") or {}
+    rms = without.get("gravity_residual_rms_deg")
+    before = f"; without it: Birge ratio {without['birge_ratio']:.2f}"
+    if rms is not None:
+        before += f", gravity residuals {rms:.3f} deg rms"
+    return [f"g-sensitivity {'fitted' if test.get('fitted') else 'not fitted'}: {test.get('reason', '')}" + before]
 
 
 def _read(args: argparse.Namespace) -> Any:

@@ -99,6 +99,7 @@ class ClosureTerms:
     dK: np.ndarray | None = None
     db: np.ndarray | None = None
     noise: np.ndarray | None = None
+    dF: np.ndarray | None = None  # (B, 3, 3, 3) as dK with the readings m_j replaced by the ``force`` f_j
 
 
 # Turns are processed in groups of about this many samples, so that the scan's working arrays stay in cache.
@@ -112,26 +113,30 @@ def closure_terms(
     b: np.ndarray,
     sigma: np.ndarray | None = None,
     jacobian: bool = True,
+    force: np.ndarray | None = None,
 ) -> ClosureTerms:
     """Closure residual of each of B turns, with Jacobian and noise covariance when ``jacobian``.
 
     m (n, B, 3) raw readings (deg/s); dt (n, B) s per sample, 0 for padding; K (B, 3, 3); b (B, 3)
     deg/s; sigma (B, 3) reading noise std (deg/s), for the covariance (None: not computed).
+    ``force`` (n, B, 3): a per-sample quantity f whose sensitivities ``dF`` are wanted (with ``jacobian``),
+    for a true-rate term linear in it (the g-sensitivity's specific force).
     """
     n, B = dt.shape
     step = max(1, _CHUNK_SAMPLES // max(n, 1))
     if B <= step:
-        return _closure_chunk(m, dt, K, b, sigma, jacobian)
+        return _closure_chunk(m, dt, K, b, sigma, jacobian, force)
     parts = [
         _closure_chunk(m[:, s : s + step], dt[:, s : s + step], K[s : s + step], b[s : s + step],
-                       None if sigma is None else sigma[s : s + step], jacobian)
+                       None if sigma is None else sigma[s : s + step], jacobian,
+                       None if force is None else force[:, s : s + step])
         for s in range(0, B, step)
     ]
     def cat(name: str) -> np.ndarray | None:
         return None if getattr(parts[0], name) is None else np.concatenate([getattr(p, name) for p in parts])
 
     return ClosureTerms(r=np.concatenate([p.r for p in parts]), swept=np.concatenate([p.swept for p in parts]),
-                        dK=cat("dK"), db=cat("db"), noise=cat("noise"))
+                        dK=cat("dK"), db=cat("db"), noise=cat("noise"), dF=cat("dF"))
 
 
 @dataclass
@@ -149,6 +154,7 @@ class RotationTerms:
     dK: np.ndarray
     db: np.ndarray
     noise: np.ndarray | None = None
+    dF: np.ndarray | None = None  # (B, 3, 3, 3) as dK with the readings m_j replaced by the ``force`` f_j
 
 
 def _increments(m, dt, K, b) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -162,7 +168,7 @@ def _increments(m, dt, K, b) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return u, wdt, q
 
 
-def _chunk_core(m, dt, K, b, sigma):
+def _chunk_core(m, dt, K, b, sigma, force=None):
     """Attitudes, swept angles and the un-normalised sensitivities of B motions (see ``_closure_chunk``)."""
     n, B = dt.shape
     u, wdt, q = _increments(m, dt, K, b)
@@ -175,34 +181,37 @@ def _chunk_core(m, dt, K, b, sigma):
     db = Hw.sum(axis=1).T.reshape(B, 3, 3)
     H9 = Hw.transpose(2, 0, 1)  # (B, 9, n)
     dK = np.matmul(H9, m.transpose(1, 0, 2)).reshape(B, 3, 3, 3)  # dK[b, a, i, j] = sum_t Hw[a, i] m_j
+    dF = None if force is None else np.matmul(H9, force.transpose(1, 0, 2)).reshape(B, 3, 3, 3)
     inner = None
     if sigma is not None:
         S = np.matmul(K * np.asarray(sigma)[:, None, :] ** 2, K.transpose(0, 2, 1))  # K diag(sigma^2) K^T
         G = np.matmul(H9, H9.transpose(0, 2, 1)).reshape(B, 3, 3, 3, 3)  # G[b, a, i, c, j] = sum_t Hw[a, i] Hw[c, j]
         inner = np.einsum("baicj,bij->bac", G, S)
-    return att[:, n - 1].T, swept, db, dK, inner
+    return att[:, n - 1].T, swept, db, dK, inner, dF
 
 
-def rotation_terms(m: np.ndarray, dt: np.ndarray, K: np.ndarray, b: np.ndarray, sigma: np.ndarray | None = None) -> RotationTerms:
+def rotation_terms(m: np.ndarray, dt: np.ndarray, K: np.ndarray, b: np.ndarray, sigma: np.ndarray | None = None,
+                   force: np.ndarray | None = None) -> RotationTerms:
     """The calibrated rotation of each of B motions with its left-perturbation Jacobian and noise covariance.
 
     Arguments as for ``closure_terms``.
     """
-    q_end, _, db, dK, inner = _chunk_core(m, dt, K, b, sigma)
-    return RotationTerms(C=Rotation.from_quat(q_end).as_matrix(), dK=dK, db=db, noise=inner)
+    q_end, _, db, dK, inner, dF = _chunk_core(m, dt, K, b, sigma, force)
+    return RotationTerms(C=Rotation.from_quat(q_end).as_matrix(), dK=dK, db=db, noise=inner, dF=dF)
 
 
-def _closure_chunk(m, dt, K, b, sigma, jacobian) -> ClosureTerms:
+def _closure_chunk(m, dt, K, b, sigma, jacobian, force=None) -> ClosureTerms:
     if not jacobian:
         u, _, q = _increments(m, dt, K, b)
         return ClosureTerms(r=Rotation.from_quat(total_products(q).T).as_rotvec(), swept=u.sum(axis=0) / DEG)
-    q_end, swept, db0, dK0, inner = _chunk_core(m, dt, K, b, sigma)
+    q_end, swept, db0, dK0, inner, dF0 = _chunk_core(m, dt, K, b, sigma, force)
     r = Rotation.from_quat(q_end).as_rotvec()
     jinv = left_jacobian_inv(r)  # (B, 3, 3)
     db = np.matmul(jinv, db0)
     dK = np.einsum("bac,bcij->baij", jinv, dK0)
+    dF = None if dF0 is None else np.einsum("bac,bcij->baij", jinv, dF0)
     noise = None if inner is None else np.matmul(np.matmul(jinv, inner), jinv.transpose(0, 2, 1))
-    return ClosureTerms(r=r, swept=swept, dK=dK, db=db, noise=noise)
+    return ClosureTerms(r=r, swept=swept, dK=dK, db=db, noise=noise, dF=dF)
 
 
 def _matrix_components(q: np.ndarray) -> list[list[np.ndarray]]:

@@ -15,6 +15,11 @@ constraints see both, where the closure of a full turn sees neither):
   (as the closure estimator), instead of the two gravity ones;
 - each rest's accelerometer mean: |T S (r - o)| = 1 g (``calib.accel``'s model).
 
+The g-sensitivity G (g = K (m - G a) + b, a the specific force in g) is fitted as well when the rests face
+enough ways to separate it from the bias and it explains the data significantly better (an F test at
+``G_ALPHA``; ``g_sensitivity=True``/``False`` forces it in or out). A gyro resting in 38 orientations shows it
+directly: each rest's mean reading is then G a - K^-1 b, not one constant.
+
 Gravity directions come from the accelerometer, fitted together with the gyroscope (started from
 ``calib.accel``'s fit on the rests alone; given an ``accel`` calibration, that one is held fixed). Each
 residual is whitened by its covariance: gyro reading noise propagated through the motion (first order,
@@ -29,11 +34,12 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy.stats import f as f_dist
 
 from .accel import PARAMS, AccelCalibration, apply_model, calibrate_accelerometer, rest_spans
 from .closure_fit import still_statistics, windows
-from .closure_model import closure_terms, rotation_terms
 from .errors import CalibrationError, ProtocolError
+from .multi_position_model import AccelRests, Data, Params, Windows, directions, gravity_misfit, system
 from .recording import Recording, sample_intervals
 from .result import CalibrationResult
 from .stage import Stage
@@ -42,6 +48,8 @@ from .validation import check_calibration_input
 
 MIN_MOTIONS = 6  # re-orientations needed before the three scale factors can be separated
 MAX_ITERATIONS = 30
+G_ALPHA = 1e-3  # false-positive rate of the g-sensitivity's F test on a sensor that has none
+G_SPREAD_MIN = 0.25  # the rests' gravity directions must spread at least this much (rms, per principal axis)
 
 
 @dataclass(frozen=True)
@@ -53,19 +61,23 @@ class _Motion:
     full_turn: Stage | None  # the detected full turn, when the motion is one
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    x, y, z = np.moveaxis(v, -1, 0)
-    zero = np.zeros_like(x)
-    return np.stack([np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)], -2)
+@dataclass(frozen=True)
+class _Fit:
+    p: Params
+    res: np.ndarray
+    jac: np.ndarray
 
+    @property
+    def chi2(self) -> float:
+        return float(self.res @ self.res)
 
-def _perp_basis(u: np.ndarray) -> np.ndarray:
-    """(N, 3, 2): two orthonormal vectors perpendicular to each unit vector u (N, 3)."""
-    helper = np.where(np.abs(u[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
-    e1 = np.cross(u, helper)
-    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-    e2 = np.cross(u, e1)
-    return np.stack([e1, e2], axis=-1)
+    @property
+    def dof(self) -> int:
+        return self.res.size - self.jac.shape[1]
+
+    @property
+    def birge(self) -> float:
+        return float(np.sqrt(max(1.0, self.chi2 / self.dof))) if self.dof > 0 else 1.0
 
 
 def _motions(stages: list[Stage]) -> tuple[list[Stage], list[_Motion]]:
@@ -81,12 +93,14 @@ def _motions(stages: list[Stage]) -> tuple[list[Stage], list[_Motion]]:
     return stills, out
 
 
-def calibrate_multi_position(rec: Recording, stages: Any = None, accel: AccelCalibration | None = None) -> CalibrationResult:
+def calibrate_multi_position(rec: Recording, stages: Any = None, accel: AccelCalibration | None = None,
+                             g_sensitivity: bool | None = None) -> CalibrationResult:
     """Calibrate from rests and the motions between them (method "multi-position"); needs the accelerometer.
 
     ``stages``: a list of Stage, or None to detect them. ``accel``: the accelerometer's calibration, or
-    None to fit it on the same rests. Raises ProtocolError when the recording has too few rests or
-    re-orientations, CalibrationError when they do not determine k and b.
+    None to fit it on the same rests. ``g_sensitivity``: fit G (True), not (False), or when identified and
+    significant (None). Raises ProtocolError when the recording has too few rests or re-orientations,
+    CalibrationError when they do not determine k and b (or G, when asked for).
     """
     check_calibration_input(rec)
     if rec.accel is None:
@@ -99,187 +113,132 @@ def calibrate_multi_position(rec: Recording, stages: Any = None, accel: AccelCal
             f"{MIN_MOTIONS}: rest the device a few seconds, turn it to a new orientation, rest again, and so on")
     joint = accel is None  # fit the accelerometer with the gyroscope, from a first fit on the rests alone
     accel = accel or calibrate_accelerometer(rec, stills)
-    dt_all = sample_intervals(rec.t)
-    gyro = rec.gyro[None]
+    free_a = np.array([p in accel.identified for p in PARAMS]) if joint else np.zeros(9, dtype=bool)
+    data = _data(rec, stills, motions, free_a)
 
+    base = _fit(Params(np.eye(3), -data.mean[0], None, accel.vector.copy()), data)
+    fit, g_test = _g_sensitivity_choice(base, data, g_sensitivity)
+    return _result(fit, g_test, base, data, accel, joint, stage_list, rec)
+
+
+def _data(rec: Recording, stills: list[Stage], motions: list[_Motion], free_a: np.ndarray) -> Data:
+    assert rec.accel is not None
+    dt_all = sample_intervals(rec.t)[None]
+    gyro, acc = rec.gyro[None], rec.accel[None]
     mean, count, sigma = still_statistics(gyro, np.array([[[s.start, s.end] for s in stills]]))
-    mean, count, sigma = mean[0], count[0], sigma[0]
     spans = rest_spans(stills, rec.fs)
-    rests = _AccelRests(
+    rests = AccelRests(
         mean=np.array([rec.accel[i:j].mean(axis=0) for i, j in spans]),
         sd=np.maximum(np.array([rec.accel[i:j].std(axis=0).mean() for i, j in spans]), 1e-4),
         n=np.array([j - i for i, j in spans], dtype=float),
     )
-    xa = accel.vector
-    free_a = np.array([p in accel.identified for p in PARAMS]) if joint else np.zeros(9, dtype=bool)
-
     grav = [mo for mo in motions if mo.full_turn is None]
     turns = [mo for mo in motions if mo.full_turn is not None]
+
+    def stacked(bounds: list[list[int]]) -> Windows | None:
+        if not bounds:
+            return None
+        b = np.array([bounds])
+        m, d = windows(gyro, b, dt_all)
+        a, _ = windows(acc, b, dt_all)
+        return Windows(m, a, d)
+
     # integrate from where the rest before stops being averaged to where the rest after starts: the motion's slow
     # start and end, which the stage detector counts as rest, are then inside the window (the true rate there is ~0)
-    bounds = [[spans[mo.rest_before][1], spans[mo.rest_after][0]] for mo in grav]
-    mg, dg = windows(gyro, np.array([bounds]), dt_all[None]) if grav else (None, None)
-    mt, dtt = windows(gyro, np.array([[[mo.start, mo.end] for mo in turns]]), dt_all[None]) if turns else (None, None)
-    pairs = (np.array([mo.rest_before for mo in grav], dtype=int), np.array([mo.rest_after for mo in grav], dtype=int))
-    data = _Data(mean, count, sigma, mg, dg, mt, dtt, pairs, rests, free_a)
+    return Data(
+        mean=mean[0], count=count[0], sigma=sigma[0],
+        gravity=stacked([[spans[mo.rest_before][1], spans[mo.rest_after][0]] for mo in grav]),
+        turns=stacked([[mo.start, mo.end] for mo in turns]),
+        pairs=(np.array([mo.rest_before for mo in grav], dtype=int), np.array([mo.rest_after for mo in grav], dtype=int)),
+        rests=rests, free_a=free_a,
+    )
 
-    K, b = np.eye(3), -mean[0]
+
+def _fit(p: Params, data: Data) -> _Fit:
+    """Gauss-Newton from ``p``; CalibrationError when the constraints do not determine every parameter."""
     for _ in range(MAX_ITERATIONS):
-        res, jac = _system(K, b, xa, data)
+        res, jac = system(p, data)
         step, *_ = np.linalg.lstsq(jac, -res, rcond=None)
-        K, b = K + step[:9].reshape(3, 3), b + step[9:12]
-        xa[free_a] += step[12:]
+        p = p.stepped(step, data.free_a)
         if np.all(np.abs(step[:9]) < 1e-10) and np.all(np.abs(step[9:]) < 1e-8):
             break
-    res, jac = _system(K, b, xa, data)
-    fisher = jac.T @ jac
+    res, jac = system(p, data)
     sv = np.linalg.svd(jac, compute_uv=False)
     if sv[-1] <= 0 or sv[0] / sv[-1] > 1e8:
         raise CalibrationError("the re-orientations do not determine every entry of K: turn the device so that each of its "
                                "axes is tilted (not only turned about the vertical) in several of the motions")
-    cov = np.linalg.inv(fisher)
+    return _Fit(p, res, jac)
+
+
+def _g_sensitivity_choice(base: _Fit, data: Data, asked: bool | None) -> tuple[_Fit, dict[str, Any]]:
+    """The fit to report and the g-sensitivity's test: fitted when asked, or (``asked`` None) when the rests
+    separate it from the bias and the F test finds it at ``G_ALPHA``."""
+    u, _, _ = directions(base.p.xa, data.rests)
+    spread = float(np.linalg.svd(u - u.mean(axis=0), compute_uv=False)[-1] / np.sqrt(len(u)))
+    test: dict[str, Any] = {"fitted": False, "asked": asked, "rest_direction_spread": spread,
+                            "without": {"chi2": base.chi2, "dof": base.dof, "birge_ratio": base.birge}}
+    if asked is False:
+        test["reason"] = "not asked for"
+        return base, test
+    if spread < G_SPREAD_MIN:
+        reason = (f"the rests face too few ways to separate the g-sensitivity from the bias (spread {spread:.2f}, "
+                  f"needs {G_SPREAD_MIN}): rest the device on each of its faces")
+        if asked:
+            raise CalibrationError(reason)
+        test["reason"] = reason
+        return base, test
+    with_g = _fit(Params(base.p.K, base.p.b, np.zeros((3, 3)), base.p.xa.copy()), data)
+    F = (base.chi2 - with_g.chi2) / 9.0 / (with_g.chi2 / with_g.dof)
+    p_value = float(f_dist.sf(F, 9, with_g.dof))
+    test.update(F=float(F), p_value=p_value)
+    if asked or p_value < G_ALPHA:
+        test.update(fitted=True, reason="asked for" if asked else f"significant (p = {p_value:.2g} < {G_ALPHA:g})")
+        return with_g, test
+    test["reason"] = f"not significant (p = {p_value:.2g} >= {G_ALPHA:g})"
+    return base, test
+
+
+def _gravity_deg(p: Params, data: Data) -> np.ndarray:
+    if data.gravity is None:
+        return np.zeros(0)
+    return np.degrees(np.linalg.norm(gravity_misfit(p, data), axis=1))
+
+
+def _rms(v: np.ndarray) -> float | None:
+    return float(np.sqrt(np.mean(v**2))) if v.size else None
+
+
+def _result(fit: _Fit, g_test: dict[str, Any], base: _Fit, data: Data, accel: AccelCalibration, joint: bool,
+            stage_list: list[Stage], rec: Recording) -> CalibrationResult:
+    p = fit.p
+    cov = np.linalg.inv(fit.jac.T @ fit.jac)
     bound = np.sqrt(np.diag(cov))
-    chi2 = float(res @ res)
-    dof = res.size - jac.shape[1]
-    birge = float(np.sqrt(max(1.0, chi2 / dof))) if dof > 0 else 1.0
-    std = bound * birge
-    G = len(grav)
-    rho = res[: 2 * G].reshape(G, 2)
-    gravity_deg = np.degrees(np.linalg.norm(_gravity_misfit(K, b, xa, data), axis=1)) if grav else np.zeros(0)
+    std = bound * fit.birge
+    ng = p.n_gyro
+    n_grav = data.pairs[0].size
+    rho = fit.res[: 2 * n_grav].reshape(n_grav, 2)
+    gravity_deg = _gravity_deg(p, data)
+    g_test["without"]["gravity_residual_rms_deg"] = _rms(_gravity_deg(base.p, data))
     if joint:
         a_std = np.full(9, np.nan)
-        a_std[free_a] = std[12:]
-        mag = np.linalg.norm(apply_model(xa, rests.mean), axis=1) - 1.0
+        a_std[data.free_a] = std[ng:]
+        mag = np.linalg.norm(apply_model(p.xa, data.rests.mean), axis=1) - 1.0
         note = (accel.note + "; " if accel.note else "") + "fitted with the gyroscope (rests and re-orientations together)"
-        accel = AccelCalibration.from_fit(xa, a_std, free_a, mag, note)
+        accel = AccelCalibration.from_fit(p.xa, a_std, data.free_a, mag, note)
     quality = {
-        "constraints": {"rests": len(stills), "gravity_motions": G, "full_turns": len(turns)},
-        "chi2": chi2, "dof": dof, "birge_ratio": birge,
+        "constraints": {"rests": data.mean.shape[0], "gravity_motions": n_grav,
+                        "full_turns": 0 if data.turns is None else data.turns.dt.shape[1]},
+        "chi2": fit.chi2, "dof": fit.dof, "birge_ratio": fit.birge,
         "gravity_residual_deg": [float(v) for v in gravity_deg],
-        "gravity_residual_rms_deg": float(np.sqrt(np.mean(gravity_deg**2))) if G else None,
+        "gravity_residual_rms_deg": _rms(gravity_deg),
         "gravity_z": [float(v) for v in np.linalg.norm(rho, axis=1)],
         "accelerometer": accel.to_dict(),
+        "g_sensitivity": g_test,
     }
     diag = np.array([0, 4, 8])
     return CalibrationResult(
-        k=np.diag(K).copy(), b=b, method="multi-position", stages=stage_list, quality=quality,
-        k_std=std[diag], b_std=std[9:12], k_bound=bound[diag], b_bound=bound[9:12], K=K, K_std=std[:9].reshape(3, 3),
-        noise_dps=sigma, sample_rate_hz=rec.fs, n_samples=len(rec),
+        k=np.diag(p.K).copy(), b=p.b, method="multi-position", stages=stage_list, quality=quality,
+        k_std=std[diag], b_std=std[9:12], k_bound=bound[diag], b_bound=bound[9:12], K=p.K, K_std=std[:9].reshape(3, 3),
+        noise_dps=data.sigma, sample_rate_hz=rec.fs, n_samples=len(rec),
+        G=p.G, G_std=None if p.G is None else std[12:21].reshape(3, 3),
     )
-
-
-@dataclass(frozen=True)
-class _AccelRests:
-    mean: np.ndarray  # (N, 3) raw mean reading of each rest, g
-    sd: np.ndarray  # (N,) its within-rest std (mean over axes), g
-    n: np.ndarray  # (N,) samples averaged
-
-
-@dataclass(frozen=True)
-class _Data:
-    mean: np.ndarray  # (S, 3) gyro mean of each rest
-    count: np.ndarray
-    sigma: np.ndarray  # (3,) gyro reading noise
-    mg: np.ndarray | None  # gravity motions' windows
-    dg: np.ndarray | None
-    mt: np.ndarray | None  # full turns' windows
-    dtt: np.ndarray | None
-    pairs: tuple[np.ndarray, np.ndarray]  # rest before and after each gravity motion
-    rests: _AccelRests
-    free_a: np.ndarray  # (9,) accelerometer parameters fitted jointly
-
-
-def _directions(xa: np.ndarray, rests: _AccelRests) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Unit gravity directions (N, 3), their noise variance per component (rad^2) and |a| - 1 whitened."""
-    a = apply_model(xa, rests.mean)
-    norm = np.linalg.norm(a, axis=1)
-    sd_g = rests.sd * float(np.mean(np.abs(xa[0:3]))) / np.sqrt(rests.n)
-    return a / norm[:, None], (sd_g / norm) ** 2, (norm - 1.0) / sd_g
-
-
-def _rotations(K, b, data: _Data, noise: bool):
-    G = data.pairs[0].size
-    assert data.mg is not None and data.dg is not None
-    return rotation_terms(data.mg, data.dg, np.broadcast_to(K, (G, 3, 3)).copy(), np.broadcast_to(b, (G, 3)).copy(),
-                          sigma=np.broadcast_to(data.sigma, (G, 3)).copy() if noise else None)
-
-
-def _gravity_misfit(K, b, xa, data: _Data) -> np.ndarray:
-    """(G, 2) rad: the end rest's gravity carried to the start, minus the start's, perpendicular to it."""
-    u, _, _ = _directions(xa, data.rests)
-    i_s, i_e = data.pairs
-    C = _rotations(K, b, data, noise=False).C
-    return np.einsum("gia,gi->ga", _perp_basis(u[i_s]), np.einsum("gij,gj->gi", C, u[i_e]) - u[i_s])
-
-
-FD_STEP = 1e-6  # central-difference step of the accelerometer parameters
-
-
-def _accel_differences(xa: np.ndarray, data: _Data) -> tuple[np.ndarray, np.ndarray]:
-    """For each free accelerometer parameter, by central differences: the change of the gravity directions
-    (F, N, 3) over +-FD_STEP (not yet divided by 2 FD_STEP), and d(whitened |a| - 1)/d parameter (F, N)."""
-    free = np.flatnonzero(data.free_a)
-    du = np.zeros((free.size, data.rests.n.size, 3))
-    dmag = np.zeros((free.size, data.rests.n.size))
-    for c, p in enumerate(free):
-        xp, xm = xa.copy(), xa.copy()
-        xp[p] += FD_STEP
-        xm[p] -= FD_STEP
-        (up, _, mp), (um, _, mm) = _directions(xp, data.rests), _directions(xm, data.rests)
-        du[c] = up - um
-        dmag[c] = (mp - mm) / (2 * FD_STEP)
-    return du, dmag
-
-
-def _system(K, b, xa, data: _Data) -> tuple[np.ndarray, np.ndarray]:
-    """Whitened residuals and Jacobian over (K row-major, b, the free accelerometer parameters):
-    gravity motions, full turns, gyro rests, accelerometer magnitudes."""
-    free = np.flatnonzero(data.free_a)
-    P = 12 + free.size
-    res_parts, jac_parts = [], []
-    u, dvar, mag = _directions(xa, data.rests)
-    du, dmag = _accel_differences(xa, data)
-    if data.mg is not None:
-        i_s, i_e = data.pairs
-        rt = _rotations(K, b, data, noise=True)
-        B = _perp_basis(u[i_s])
-        v = np.einsum("gij,gj->gi", rt.C, u[i_e])
-        rho = np.einsum("gia,gi->ga", B, v - u[i_s])
-        Pm = -np.einsum("gia,gij->gaj", B, _skew(v))  # d rho / d phi (G, 2, 3)
-        G = rho.shape[0]
-        dgyro = Pm @ np.concatenate([rt.dK.reshape(G, 3, 9), rt.db], axis=-1)  # (G, 2, 12)
-        assert rt.noise is not None
-        cov = Pm @ rt.noise @ Pm.transpose(0, 2, 1) + (dvar[i_s] + dvar[i_e])[:, None, None] * np.eye(2)
-        L = np.linalg.cholesky(cov)
-        dacc = np.zeros((G, 2, free.size))
-        for c in range(free.size):  # the directions' dependence on the accelerometer
-            dv = np.einsum("gij,gj->gi", rt.C, du[c][i_e]) - du[c][i_s]
-            dacc[:, :, c] = np.einsum("gia,gi->ga", B, dv) / (2 * FD_STEP)
-        res_parts.append(np.linalg.solve(L, rho[..., None])[..., 0].reshape(-1))
-        jac_parts.append(np.linalg.solve(L, np.concatenate([dgyro, dacc], axis=-1)).reshape(-1, P))
-    if data.mt is not None and data.dtt is not None:
-        T = data.mt.shape[1]
-        ct = closure_terms(data.mt, data.dtt, np.broadcast_to(K, (T, 3, 3)).copy(), np.broadcast_to(b, (T, 3)).copy(),
-                           sigma=np.broadcast_to(data.sigma, (T, 3)).copy())
-        assert ct.dK is not None and ct.db is not None and ct.noise is not None
-        d = np.concatenate([ct.dK.reshape(T, 3, 9), ct.db, np.zeros((T, 3, free.size))], axis=-1)
-        L = np.linalg.cholesky(ct.noise)
-        res_parts.append(np.linalg.solve(L, ct.r[..., None])[..., 0].reshape(-1))
-        jac_parts.append(np.linalg.solve(L, d).reshape(-1, P))
-    # gyro rests: the mean reading is -beta, beta = K^-1 b
-    Kinv = np.linalg.inv(K)
-    beta = Kinv @ b
-    w = np.sqrt(data.count)[:, None] / data.sigma[None, :]
-    res_parts.append((w * (data.mean + beta)).reshape(-1))
-    dbeta = np.zeros((3, P))
-    for i in range(3):
-        for j in range(3):
-            dbeta[:, 3 * i + j] = -Kinv[:, i] * beta[j]
-    dbeta[:, 9:12] = Kinv
-    jac_parts.append((w[..., None] * dbeta[None]).reshape(-1, P))
-    if free.size:  # accelerometer rests: |a| = 1 g
-        jmag = np.zeros((mag.size, P))
-        jmag[:, 12:] = dmag.T
-        res_parts.append(mag)
-        jac_parts.append(jmag)
-    return np.concatenate(res_parts), np.concatenate(jac_parts)

@@ -19,7 +19,8 @@ def _list(a: np.ndarray | None, digits: int = 9) -> list[float] | None:
 class CalibrationResult:
     """Parameters of g = K m + b (K diagonal, or upper-triangular in the extended model).
 
-    ``k`` are the scale factors (diagonal of K), ``b`` the biases in deg/s of true rate.
+    ``k`` are the scale factors (diagonal of K), ``b`` the biases in deg/s of true rate. ``G``, when the
+    method fitted it, is the g-sensitivity of g = K (m - G a) + b ((deg/s)/g of reading, a the specific force).
     ``k_std``/``b_std`` are 1-sigma standard errors; ``k_bound``/``b_bound`` the Cramer-Rao
     bound for the recorded protocol, when the method provides them.
     """
@@ -41,15 +42,21 @@ class CalibrationResult:
     iterations: int | None = None
     sample_rate_hz: float | None = None  # of the recording it was computed from
     n_samples: int | None = None
+    G: np.ndarray | None = None  # g-sensitivity (3, 3), (deg/s)/g; None: not part of the model
+    G_std: np.ndarray | None = None
 
     @property
     def matrix(self) -> np.ndarray:
         """The 3x3 calibration matrix K of g = K m + b."""
         return np.diag(self.k) if self.K is None else self.K
 
-    def apply(self, gyro: np.ndarray) -> np.ndarray:
-        """Calibrated rates g = K m + b (deg/s) for raw readings m of shape (..., 3)."""
-        return np.asarray(gyro) @ self.matrix.T + self.b
+    def apply(self, gyro: np.ndarray, accel: np.ndarray | None = None) -> np.ndarray:
+        """Calibrated rates g = K m + b (deg/s) for raw readings m of shape (..., 3); with the g-sensitivity,
+        g = K (m - G a) + b for the specific force ``accel`` a (g, same shape; without it the G term is left out)."""
+        m = np.asarray(gyro, dtype=float)
+        if self.G is not None and accel is not None:
+            m = m - np.asarray(accel, dtype=float) @ self.G.T
+        return m @ self.matrix.T + self.b
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> CalibrationResult:
@@ -79,6 +86,8 @@ class CalibrationResult:
             iterations=d.get("iterations"),
             sample_rate_hz=d.get("sample_rate_hz"),
             n_samples=d.get("n_samples"),
+            G=arr(d.get("G")),
+            G_std=arr(d.get("G_std")),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -101,6 +110,9 @@ class CalibrationResult:
         if self.K is not None:
             out["K"] = [_list(row) for row in self.K]
             out["K_std"] = None if self.K_std is None else [_list(row, 12) for row in self.K_std]
+        if self.G is not None:
+            out["G"] = [_list(row) for row in self.G]
+            out["G_std"] = None if self.G_std is None else [_list(row, 12) for row in self.G_std]
         if self.sample_rate_hz is not None:
             out["sample_rate_hz"] = float(self.sample_rate_hz)
         if self.n_samples is not None:

@@ -1,0 +1,223 @@
+"""The residual system of the multi-position fit (``calib.multi_position``): whitened residuals and Jacobian.
+
+Parameters, in order: K (row-major, 9), b (3), the g-sensitivity G (row-major, 9, only when fitted) and the free
+accelerometer parameters (``calib.accel.PARAMS``). The model is g = K (m - G a) + b, a the calibrated specific force
+(g) at each sample; G = 0 is the paper's eq. (1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .accel import apply_model
+from .closure_model import closure_terms, rotation_terms
+
+FD_STEP = 1e-6  # central-difference step of the accelerometer parameters
+
+
+@dataclass(frozen=True)
+class AccelRests:
+    """The accelerometer over each rest."""
+
+    mean: np.ndarray  # (N, 3) raw mean reading of each rest, g
+    sd: np.ndarray  # (N,) its within-rest std (mean over axes), g
+    n: np.ndarray  # (N,) samples averaged
+
+
+@dataclass(frozen=True)
+class Windows:
+    """Samples of B motions, time-first and zero-padded (``calib.closure_fit.windows``)."""
+
+    gyro: np.ndarray  # (L, B, 3) raw readings, deg/s
+    accel: np.ndarray  # (L, B, 3) raw accelerometer, g
+    dt: np.ndarray  # (L, B) s per sample, 0 past a window's end
+
+
+@dataclass(frozen=True)
+class Data:
+    """Everything the residuals are computed from."""
+
+    mean: np.ndarray  # (S, 3) gyro mean of each rest
+    count: np.ndarray
+    sigma: np.ndarray  # (3,) gyro reading noise
+    gravity: Windows | None  # motions constrained by the gravity directions at their ends
+    turns: Windows | None  # full turns: closure to the identity
+    pairs: tuple[np.ndarray, np.ndarray]  # rest before and after each gravity motion
+    rests: AccelRests
+    free_a: np.ndarray  # (9,) accelerometer parameters fitted jointly
+
+
+@dataclass
+class Params:
+    """One point of the fit."""
+
+    K: np.ndarray
+    b: np.ndarray
+    G: np.ndarray | None  # None: the g-sensitivity is not part of the model
+    xa: np.ndarray  # (9,) accelerometer parameters
+
+    @property
+    def n_gyro(self) -> int:
+        """Parameters before the accelerometer's: K, b and G when fitted."""
+        return 12 if self.G is None else 21
+
+    def stepped(self, step: np.ndarray, free_a: np.ndarray) -> Params:
+        """The point moved by a Gauss-Newton step over the parameters in the documented order."""
+        xa = self.xa.copy()
+        xa[free_a] += step[self.n_gyro:]
+        G = None if self.G is None else self.G + step[12:21].reshape(3, 3)
+        return Params(self.K + step[:9].reshape(3, 3), self.b + step[9:12], G, xa)
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """Cross-product matrices [v]x (..., 3, 3)."""
+    x, y, z = np.moveaxis(v, -1, 0)
+    zero = np.zeros_like(x)
+    return np.stack([np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)], -2)
+
+
+def perp_basis(u: np.ndarray) -> np.ndarray:
+    """(N, 3, 2): two orthonormal vectors perpendicular to each unit vector u (N, 3)."""
+    helper = np.where(np.abs(u[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
+    e1 = np.cross(u, helper)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(u, e1)
+    return np.stack([e1, e2], axis=-1)
+
+
+def directions(xa: np.ndarray, rests: AccelRests) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unit gravity directions (N, 3), their noise variance per component (rad^2) and |a| - 1 whitened."""
+    a = apply_model(xa, rests.mean)
+    norm = np.linalg.norm(a, axis=1)
+    sd_g = rests.sd * float(np.mean(np.abs(xa[0:3]))) / np.sqrt(rests.n)
+    return a / norm[:, None], (sd_g / norm) ** 2, (norm - 1.0) / sd_g
+
+
+def _motion_inputs(p: Params, w: Windows) -> tuple[np.ndarray, np.ndarray | None]:
+    """The readings with the g-sensitivity taken out, m - G a, and the calibrated specific force a (None without G)."""
+    if p.G is None:
+        return w.gyro, None
+    force = apply_model(p.xa, w.accel)
+    return w.gyro - force @ p.G.T, force
+
+
+def _tiled(p: Params, B: int) -> tuple[np.ndarray, np.ndarray]:
+    return np.broadcast_to(p.K, (B, 3, 3)).copy(), np.broadcast_to(p.b, (B, 3)).copy()
+
+
+def motion_rotations(p: Params, data: Data, noise: bool = False):
+    """The calibrated rotation of each gravity motion (``calib.closure_model.RotationTerms``)."""
+    w = data.gravity
+    assert w is not None
+    B = w.dt.shape[1]
+    m, force = _motion_inputs(p, w)
+    return rotation_terms(m, w.dt, *_tiled(p, B), sigma=np.broadcast_to(data.sigma, (B, 3)).copy() if noise else None,
+                          force=force)
+
+
+def gravity_misfit(p: Params, data: Data) -> np.ndarray:
+    """(G, 2) rad: the end rest's gravity carried to the start, minus the start's, perpendicular to it."""
+    u, _, _ = directions(p.xa, data.rests)
+    i_s, i_e = data.pairs
+    C = motion_rotations(p, data).C
+    return np.einsum("gia,gi->ga", perp_basis(u[i_s]), np.einsum("gij,gj->gi", C, u[i_e]) - u[i_s])
+
+
+def _accel_differences(xa: np.ndarray, data: Data) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For each free accelerometer parameter, by central differences over +-FD_STEP: the change of the gravity
+    directions (F, N, 3) and of the calibrated rest means (F, N, 3) (not yet divided by 2 FD_STEP), and
+    d(whitened |a| - 1)/d parameter (F, N)."""
+    free = np.flatnonzero(data.free_a)
+    shape = (free.size, data.rests.n.size)
+    du, da, dmag = np.zeros(shape + (3,)), np.zeros(shape + (3,)), np.zeros(shape)
+    for c, i in enumerate(free):
+        xp, xm = xa.copy(), xa.copy()
+        xp[i] += FD_STEP
+        xm[i] -= FD_STEP
+        (up, _, mp), (um, _, mm) = directions(xp, data.rests), directions(xm, data.rests)
+        du[c] = up - um
+        da[c] = apply_model(xp, data.rests.mean) - apply_model(xm, data.rests.mean)
+        dmag[c] = (mp - mm) / (2 * FD_STEP)
+    return du, da, dmag
+
+
+def _force_jacobian(dF: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """d phi / d G_ij (B, 3, 9) from the force sensitivities: the true rate moves by -K[:, i] a_j."""
+    B = dF.shape[0]
+    return -np.einsum("bacj,ci->baij", dF, K).reshape(B, 3, 9)
+
+
+def system(p: Params, data: Data) -> tuple[np.ndarray, np.ndarray]:
+    """Whitened residuals and Jacobian over the parameters (module docstring): gravity motions, full turns,
+    gyro rests, accelerometer magnitudes. The motions' dependence on the accelerometer through G a is left
+    out of the Jacobian (second order: G times an accelerometer correction)."""
+    free = np.flatnonzero(data.free_a)
+    ng = p.n_gyro
+    P = ng + free.size
+    res_parts, jac_parts = [], []
+    u, dvar, mag = directions(p.xa, data.rests)
+    du, da, dmag = _accel_differences(p.xa, data)
+    if data.gravity is not None:
+        i_s, i_e = data.pairs
+        rt = motion_rotations(p, data, noise=True)
+        Bs = perp_basis(u[i_s])
+        v = np.einsum("gij,gj->gi", rt.C, u[i_e])
+        rho = np.einsum("gia,gi->ga", Bs, v - u[i_s])
+        Pm = -np.einsum("gia,gij->gaj", Bs, skew(v))  # d rho / d phi (G, 2, 3)
+        G = rho.shape[0]
+        parts = [rt.dK.reshape(G, 3, 9), rt.db] + ([] if rt.dF is None else [_force_jacobian(rt.dF, p.K)])
+        dgyro = Pm @ np.concatenate(parts, axis=-1)
+        assert rt.noise is not None
+        cov = Pm @ rt.noise @ Pm.transpose(0, 2, 1) + (dvar[i_s] + dvar[i_e])[:, None, None] * np.eye(2)
+        L = np.linalg.cholesky(cov)
+        dacc = np.zeros((G, 2, free.size))
+        for c in range(free.size):  # the directions' dependence on the accelerometer
+            dv = np.einsum("gij,gj->gi", rt.C, du[c][i_e]) - du[c][i_s]
+            dacc[:, :, c] = np.einsum("gia,gi->ga", Bs, dv) / (2 * FD_STEP)
+        res_parts.append(np.linalg.solve(L, rho[..., None])[..., 0].reshape(-1))
+        jac_parts.append(np.linalg.solve(L, np.concatenate([dgyro, dacc], axis=-1)).reshape(-1, P))
+    if data.turns is not None:
+        w = data.turns
+        T = w.dt.shape[1]
+        m, force = _motion_inputs(p, w)
+        ct = closure_terms(m, w.dt, *_tiled(p, T), sigma=np.broadcast_to(data.sigma, (T, 3)).copy(), force=force)
+        assert ct.dK is not None and ct.db is not None and ct.noise is not None
+        parts = [ct.dK.reshape(T, 3, 9), ct.db] + ([] if ct.dF is None else [_force_jacobian(ct.dF, p.K)])
+        d = np.concatenate(parts + [np.zeros((T, 3, free.size))], axis=-1)
+        L = np.linalg.cholesky(ct.noise)
+        res_parts.append(np.linalg.solve(L, ct.r[..., None])[..., 0].reshape(-1))
+        jac_parts.append(np.linalg.solve(L, d).reshape(-1, P))
+    r, j = _rest_residuals(p, data, da, free.size)
+    res_parts.append(r)
+    jac_parts.append(j)
+    if free.size:  # accelerometer rests: |a| = 1 g
+        jmag = np.zeros((mag.size, P))
+        jmag[:, ng:] = dmag.T
+        res_parts.append(mag)
+        jac_parts.append(jmag)
+    return np.concatenate(res_parts), np.concatenate(jac_parts)
+
+
+def _rest_residuals(p: Params, data: Data, da: np.ndarray, n_free: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gyro rests, whitened residuals and Jacobian: the mean reading is G a - beta, beta = K^-1 b."""
+    ng = p.n_gyro
+    P = ng + n_free
+    S = data.mean.shape[0]
+    Kinv = np.linalg.inv(p.K)
+    beta = Kinv @ p.b
+    w = np.sqrt(data.count)[:, None] / data.sigma[None, :]
+    r = data.mean + beta
+    dr = np.zeros((S, 3, P))
+    for i in range(3):
+        for j in range(3):
+            dr[:, :, 3 * i + j] = -Kinv[:, i] * beta[j]
+    dr[:, :, 9:12] = Kinv
+    if p.G is not None:
+        a = apply_model(p.xa, data.rests.mean)
+        r = r - a @ p.G.T
+        for i in range(3):
+            dr[:, i, 12 + 3 * i : 15 + 3 * i] = -a
+        dr[:, :, ng:] = -np.einsum("ij,fnj->nif", p.G, da) / (2 * FD_STEP)
+    return (w * r).reshape(-1), (w[..., None] * dr).reshape(-1, P)
