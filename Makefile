@@ -30,7 +30,7 @@ system-deps:
 ## and the service, and the structure (no import cycles, the layering rules, module sizes)
 lint: $(VENV)/.installed-test
 	$(VENV)/bin/ruff check calib server mock_device wearable_protocol webui tests bench scripts
-	$(VENV)/bin/mypy calib server
+	$(VENV)/bin/mypy calib server wearable_protocol
 	$(PY) scripts/check_structure.py
 	$(PY) scripts/effects_tables.py --check
 

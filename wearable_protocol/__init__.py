@@ -1,7 +1,8 @@
 """The gyrocal wearable's BLE protocol: UUIDs, the GATT layout, and the binary encodings.
 
 Both sides import this package: the client (``server.link``) and the simulated wearable
-(``mock_device``). It depends on numpy only. The specification is docs/protocol.md.
+(``mock_device``). It depends on numpy only. The specification is docs/protocol.md. Commercial wearables'
+public protocols are in ``wearable_protocol.vendors`` (docs/protocol.md, "Commercial wearables' protocols").
 """
 
 from .codec import (
