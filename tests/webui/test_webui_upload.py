@@ -3,6 +3,7 @@ raw-counts session is read with its sensitivities, recognised as Ferraris' proto
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any
 
@@ -40,3 +41,36 @@ def test_an_uploaded_counts_file_is_recognised_and_its_result_shown(wizard: Wiza
     assert wizard.small_targets() == []
     assert_clean(page_watch, allowed_errors=("status of 400",))  # the refused first try, and only that
     assert sum("status of 400" in e for e in page_watch.console_errors) == 1
+
+
+def test_a_multi_position_upload_shows_the_g_sensitivity_it_found(wizard: Wizard, page: Any, page_watch: Watch,
+                                                                  tmp_path: Path) -> None:
+    import numpy as np
+
+    from calib.effects.axes import GSensitivity
+    from calib.io import write_native_csv
+    from calib.simulator import simulate
+    from calib.simulator.lab_scripts import multi_position_script
+
+    G = 1.5 * np.array([[0.02, -0.06, 0.03], [0.08, 0.01, -0.04], [-0.05, 0.07, 0.02]])  # (deg/s)/g, concealed
+    rec, _ = simulate(5, noise=0.05, fs=100.0, script=multi_position_script(np.random.default_rng(5), n=12, first_rest_s=20.0),
+                      accel_noise_g=0.005, effects=[GSensitivity(G)])
+    path = tmp_path / "re-orientations.csv"
+    write_native_csv(rec, path)
+    wizard.sign_in()
+    page.click("#upload-link")
+    page.wait_for_selector("form.upload-form")
+    page.fill("#up-device", "re-oriented")
+    page.set_input_files("#up-file", str(path))
+    page.click("form.upload-form button[type=submit]")
+    page.wait_for_url("**/#/session/*")
+    page.wait_for_selector(".verdict h1")
+    page.click("details.details summary")
+    facts = page.locator("dl.facts").inner_text()
+    assert "used: multi-position" in facts
+    assert "found and modelled (significant" in facts
+    largest = float(re.search(r"up to ([0-9.]+) \(°/s\)/g", facts).group(1))  # type: ignore[union-attr]
+    assert abs(largest - 0.12) < 0.01  # the concealed G's largest entry
+    assert "without it the gravity residuals were 0.24° rms" in facts and "0.02° rms over 12 motions" in facts
+    wizard.shot("upload-g-sensitivity")
+    assert_clean(page_watch)

@@ -509,6 +509,16 @@ function paramTable(k, b, unc) {
       h("td", null, num(b[i], 3), bu[i] != null ? h("span", { class: "pm" }, ` ± ${sig(bu[i])}`) : null)))));
 }
 
+// What the multi-position fit found about the gyro's sensitivity to acceleration, and the fit without it.
+function gSensitivityText(test, G) {
+  if (!test) return null;
+  if (!test.fitted) return `not modelled: ${test.reason}`;
+  const largest = G ? Math.max(...G.flat().map(Math.abs)) : null;
+  const before = test.without && test.without.gravity_residual_rms_deg != null
+    ? `; without it the gravity residuals were ${num(test.without.gravity_residual_rms_deg, 2)}° rms` : "";
+  return `found and modelled (${test.reason})${largest != null ? `, up to ${num(largest, 3)} (°/s)/g` : ""}${before}`;
+}
+
 function detailsBlock(ctx, s) {
   const res = s.result || {};
   const plots = h("div", { class: "plots", "aria-live": "polite" }, h("p", { class: "muted" }, "Open to load the plots…"));
@@ -523,6 +533,9 @@ function detailsBlock(ctx, s) {
     ["Lost on the radio link", s.lost_samples != null ? `${s.lost_samples} samples` : null],
     ["Noise at rest", res.noise_dps ? `${res.noise_dps.map((v) => num(v, 3)).join(" / ")} °/s (X / Y / Z)` : null],
     ["Fit", q.chi2 != null && q.dof ? `χ²/dof = ${num(q.chi2 / q.dof, 2)} (${q.dof} dof)` : null],
+    ["Gravity after each re-orientation", q.gravity_residual_rms_deg != null
+      ? `${num(q.gravity_residual_rms_deg, 2)}° rms over ${(q.gravity_residual_deg || []).length} motions` : null],
+    ["g-sensitivity", gSensitivityText(q.g_sensitivity, res.G)],
   ].filter(([, v]) => v !== null && v !== undefined);
   const det = h("details", { class: "details" },
     h("summary", null, "Details: values, checks, plots and model check"),
