@@ -218,7 +218,8 @@ def _result(fit: _Fit, g_test: dict[str, Any], base: _Fit, data: Data, accel: Ac
     n_grav = data.pairs[0].size
     rho = fit.res[: 2 * n_grav].reshape(n_grav, 2)
     gravity_deg = _gravity_deg(p, data)
-    g_test["without"]["gravity_residual_rms_deg"] = _rms(_gravity_deg(base.p, data))
+    without_deg = gravity_deg if fit is base else _gravity_deg(base.p, data)
+    g_test["without"]["gravity_residual_rms_deg"] = _rms(without_deg)
     if joint:
         a_std = np.full(9, np.nan)
         a_std[data.free_a] = std[ng:]
