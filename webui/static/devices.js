@@ -2,6 +2,7 @@
 
 import { fill, fmtDate, h } from "./dom.js";
 import { icon } from "./figures.js";
+import { problemLine } from "./messages.js";
 
 function status(dev) {
   if (dev.active_session) return { key: "busy", text: "In a calibration", icon: "busy" };
@@ -84,7 +85,7 @@ export function devicesView(ctx) {
       note.textContent = `Found ${out.devices.length} device${out.devices.length === 1 ? "" : "s"}.`;
       await load();
     } catch (err) {
-      if (err.status !== 401) note.textContent = err.network ? "The service cannot be reached; try again." : err.detail;
+      if (err.status !== 401) note.textContent = problemLine(err);
     } finally {
       scanBtn.disabled = false;
     }

@@ -71,6 +71,11 @@ export function reasonFor(code) {
   return REASONS[code] || { title: "The calibration stopped", fix: "Start a new calibration.", icon: "fail" };
 }
 
+/** A failed request in one line, for a form's status: the service's reason, or that it did not answer. */
+export function problemLine(err) {
+  return err.network ? "The service cannot be reached; try again." : err.detail;
+}
+
 /** A failed request, explained: {title, text, fix, signIn?}. */
 export function requestProblem(err, what) {
   if (err.network) {

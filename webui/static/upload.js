@@ -4,6 +4,7 @@
 
 import { fill, h } from "./dom.js";
 import { icon } from "./figures.js";
+import { problemLine } from "./messages.js";
 
 const PROTOCOLS = [
   ["auto", "Recognise it (paper turns, Ferraris, re-orientations between rests)"],
@@ -63,7 +64,7 @@ export function uploadView(ctx, deviceId) {
       status.textContent = `Calibrated as ${out.protocol}.`;
       ctx.go(`#/session/${out.session_id}`);
     } catch (err) {
-      if (err.status !== 401) status.textContent = err.network ? "The service cannot be reached; try again." : err.detail;
+      if (err.status !== 401) status.textContent = problemLine(err);
     } finally {
       send.disabled = false;
     }
