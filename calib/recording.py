@@ -93,6 +93,15 @@ class Recording:
             pick(self.host_t),
         )
 
+    def timed_by_counter(self, fs_hz: float) -> Recording:
+        """A copy whose times are the sample counter over ``fs_hz`` (from the first sample's time): for
+        devices that send no time stamps, whose sample times were placed live from arrival times with a rate
+        estimate that improved as the session went on. Needs ``seq``."""
+        if self.seq is None or not fs_hz > 0:
+            raise ValueError("timing by the sample counter needs a counter and a positive rate")
+        t = self.t[0] + (self.seq - self.seq[0]) / fs_hz if len(self) else self.t
+        return replace(self, t=t, meta=replace(self.meta, sample_rate_hz=float(fs_hz)))
+
     def with_meta(self, **changes: Any) -> Recording:
         """A copy with some metadata fields replaced."""
         return replace(self, meta=replace(self.meta, **changes))

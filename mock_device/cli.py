@@ -1,9 +1,10 @@
 """``gyrocal mock-device``: a simulated wearable on a simulated BlueZ, for any bleak program.
 
-    gyrocal mock-device --ble [--seed S] [--speed X] [--scenario NAME] [--replay FILE]
+    gyrocal mock-device --ble [--model NAME] [--seed S] [--speed X] [--scenario NAME] [--replay FILE]
 
 starts a private dbus-daemon, serves the wearable on it as ``org.bluez`` and prints one JSON line:
-{"dbus_address": ..., "address": ..., "name": ..., "simulated_truth": {"k": [...], "b": [...]}}.
+{"dbus_address": ..., "address": ..., "name": ..., "model": ..., "simulated_truth": {"k": [...], "b": [...]}}.
+``--model`` picks the protocol it speaks: gyrocal (default), polar-pmd, metawear or thingy52.
 It runs until SIGTERM or SIGINT, then stops its daemon. Run a bleak program with
 DBUS_SYSTEM_BUS_ADDRESS set to ``dbus_address`` and it sees the wearable.
 """
@@ -18,6 +19,7 @@ import sys
 from typing import Any
 
 from calib.errors import GyrocalError
+from wearable_protocol.models import MODELS
 
 from .scenarios import SCENARIOS
 
@@ -37,7 +39,9 @@ def register(subparsers: Any) -> None:
                    help="what the simulated clinician does (default normal)")
     p.add_argument("--replay", metavar="FILE", default=None, help="replay a recorded CSV instead of simulating")
     p.add_argument("--fs", type=float, default=None, help="sample rate of the --replay file if it has no time column")
-    p.add_argument("--rate", type=float, default=None, help="initial sample rate in Hz (default 104)")
+    p.add_argument("--model", default="gyrocal", choices=list(MODELS),
+                   help="the protocol the wearable speaks (default gyrocal)")
+    p.add_argument("--rate", type=float, default=None, help="initial sample rate in Hz (default: the model's, 104 for gyrocal)")
     p.add_argument("--count", type=int, default=1, help="number of wearables (seeds S, S+1, ...; default 1)")
     p.add_argument("--hide-optional-services", action="store_true",
                    help="hide Device Information and Battery, as some BlueZ versions do")
@@ -59,11 +63,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _wearables(args: argparse.Namespace) -> list[Any]:
-    import wearable_protocol as wp
-
     from .sources import ReplaySource, ScriptedSource
-    from .wearable import Wearable
+    from .vendors import WEARABLES
 
+    model = MODELS[args.model]
     out = []
     for i in range(args.count):
         seed = args.seed + i
@@ -74,10 +77,10 @@ def _wearables(args: argparse.Namespace) -> list[Any]:
             source = ScriptedSource(seed=seed, scenario=args.scenario)
             faults = None
         rate = args.rate
-        if rate is not None and not args.replay and not wp.rate_supported(rate):
-            raise GyrocalError(f"--rate {rate:g} is not offered by the wearable: choose one of "
-                               + ", ".join(f"{r:g}" for r in wp.SUPPORTED_RATES_HZ))
-        out.append(Wearable(source, seed=seed, speed=args.speed, faults=faults, rate_hz=rate))
+        if rate is not None and not args.replay and not any(abs(rate - r) < 1e-6 for r in model.rates_hz):
+            raise GyrocalError(f"--rate {rate:g} is not offered by a {model.label}: choose one of "
+                               + ", ".join(f"{r:g}" for r in model.rates_hz))
+        out.append(WEARABLES[args.model](source, seed=seed, speed=args.speed, faults=faults, rate_hz=rate))
     return out
 
 
@@ -99,7 +102,7 @@ async def _serve(args: argparse.Namespace) -> int:
         loop = asyncio.get_running_loop()
         for sig in (signal.SIGTERM, signal.SIGINT):
             loop.add_signal_handler(sig, stop.set)
-        devices = [{"address": w.address, "name": w.name, "simulated_truth": w.truth} for w in wearables]
+        devices = [{"address": w.address, "name": w.name, "model": w.model.key, "simulated_truth": w.truth} for w in wearables]
         line = {"dbus_address": address, **devices[0]}
         if len(devices) > 1:
             line["devices"] = devices

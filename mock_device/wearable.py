@@ -41,6 +41,7 @@ from wearable_protocol import (
     Status,
     StatusReply,
 )
+from wearable_protocol.models import GYROCAL, DeviceModel
 
 from .scenarios import LinkFaults
 from .sources import SampleSource
@@ -87,7 +88,14 @@ def _address(rng: np.random.Generator) -> str:
 
 
 class Wearable:
-    """A simulated IMU wearable implementing :class:`wearable_protocol.GattPeripheral`."""
+    """A simulated IMU wearable implementing :class:`wearable_protocol.GattPeripheral`, speaking gyrocal's
+    protocol. Vendor devices (``mock_device.vendors``) subclass it: they share its sessions, clock, faults
+    and pacing and replace the GATT surface (``services``, ``read``, ``write``, ``set_notify``) and the
+    packet encoding (``_send``)."""
+
+    model: DeviceModel = GYROCAL
+    data_char: str = wp.IMU_DATA_CHAR  # the characteristic the samples go out on
+    gatt_services: tuple[wp.ServiceSpec, ...] = wp.WEARABLE_SERVICES
 
     def __init__(
         self,
@@ -117,12 +125,13 @@ class Wearable:
         self._faults_fixed = faults is not None
         self.faults = faults if faults is not None else getattr(source, "faults", LinkFaults())
         self.address = address or _address(rng)
-        self.name = name or f"gyrocal-{self.address[-5:].replace(':', '')}"
+        self.name = name or self._default_name()
         self.mtu = mtu
         fixed = source.fixed_rate_hz
-        self.rate_hz = float(fixed if fixed is not None else (rate_hz or wp.DEFAULT_RATE_HZ))
-        if fixed is None and not wp.rate_supported(self.rate_hz):
-            raise ValueError(f"rate {self.rate_hz} Hz is not supported: choose one of {wp.SUPPORTED_RATES_HZ}")
+        self.rate_hz = float(fixed if fixed is not None else (rate_hz or self.model.stream_rate_hz))
+        if fixed is None and not self.rate_offered(self.rate_hz):
+            raise ValueError(f"rate {self.rate_hz:g} Hz is not offered by a {self.model.label}: choose one of "
+                             + ", ".join(f"{r:g}" for r in self.model.rates_hz))
         self.gyro_full_scale_dps = int(gyro_full_scale_dps)
         self.accel_range_g = int(accel_range_g)
         self.odr_error = float(rng.uniform(-0.008, 0.008) if odr_error is None else odr_error)
@@ -147,6 +156,13 @@ class Wearable:
         self.events: list[tuple[float, str]] = []  # (device time s, what) for logs and tests
 
     # ------------------------------------------------------------------ clock and configuration
+
+    def _default_name(self) -> str:
+        return f"gyrocal-{self.address[-5:].replace(':', '')}"
+
+    def rate_offered(self, rate_hz: float) -> bool:
+        """Whether the device's sensor offers this output data rate."""
+        return any(abs(rate_hz - r) < 1e-6 for r in self.model.rates_hz)
 
     def device_time_us(self, wall: float | None = None) -> int:
         """The device clock (unwrapped, microseconds since boot)."""
@@ -189,11 +205,11 @@ class Wearable:
 
     @property
     def services(self) -> tuple[wp.ServiceSpec, ...]:
-        return wp.WEARABLE_SERVICES
+        return self.gatt_services
 
     @property
     def advertised_services(self) -> tuple[str, ...]:
-        return (wp.IMU_SERVICE,)
+        return self.model.advertised
 
     def connect(self, central: Central) -> None:
         if self._central is not None:
@@ -263,10 +279,10 @@ class Wearable:
 
     def inject(self, data: bytes) -> bool:
         """Send arbitrary bytes as a data notification now (True if a central received them)."""
-        if self._central is None or wp.IMU_DATA_CHAR not in self._notifying:
+        if self._central is None or self.data_char not in self._notifying:
             return False
         self.stats.packets_injected += 1
-        self._central.notify(wp.IMU_DATA_CHAR, bytes(data))
+        self._central.notify(self.data_char, bytes(data))
         return True
 
     def fail_next_connects(self, count: int) -> None:
@@ -404,7 +420,7 @@ class Wearable:
             if self.faults.drop_at_s is not None and not s.drop_done and start_s >= self.faults.drop_at_s:
                 s.drop_done = True
                 self.drop_link()
-            if self._central is None or not s.streaming or wp.IMU_DATA_CHAR not in self._notifying:
+            if self._central is None or not s.streaming or self.data_char not in self._notifying:
                 self.stats.packets_lost_link += 1
             elif self._lost_by_radio(j):
                 self.stats.packets_lost_radio += 1
@@ -438,9 +454,13 @@ class Wearable:
 
     def _stream_end(self, s: _Session) -> None:
         self._log("replay finished")
+        self._announce_stream_end()
+        self._end_session("replay finished")
+
+    def _announce_stream_end(self) -> None:
+        """Tell the central the stream ended by itself (a replay finished)."""
         if self._central is not None and wp.IMU_CONTROL_CHAR in self._notifying:
             self._central.notify(wp.IMU_CONTROL_CHAR, StatusReply(Opcode.STREAM_END, Status.OK, self.config_id).encode())
-        self._end_session("replay finished")
 
     async def aclose(self) -> None:
         """Stop streaming and drop any central (for shutdown)."""

@@ -43,7 +43,12 @@ def register(sub: Any) -> None:
         "normal, moved_during_still, wrong_axis, too_fast, stops_short, link_drop, packet_loss (default normal)",
     )
     p.add_argument(
-        "--mock-rate", type=float, default=104.0, metavar="HZ", help="sample rate of the simulated wearables (default 104; up to 562.5)"
+        "--mock-rate", type=float, default=None, metavar="HZ",
+        help="sample rate of the simulated wearables (default: the model's streaming rate, 104 for gyrocal)"
+    )
+    p.add_argument(
+        "--mock-model", default="gyrocal", metavar="NAME",
+        help="the protocol the simulated wearables speak: gyrocal, polar-pmd, metawear or thingy52 (default gyrocal)"
     )
     p.add_argument(
         "--ble",
@@ -209,8 +214,12 @@ def build_service(args: argparse.Namespace) -> Any:
     simulators = load_simulators() if args.mock else None
     if args.mock and simulators is None:
         raise ServiceError("--mock needs the simulated wearables (the mock_device package), which are not installed")
-    if simulators is not None and not any(abs(args.mock_rate - r) < 1e-6 for r in simulators.rates_hz):
-        raise ServiceError(f"--mock-rate must be one of {', '.join(f'{r:g}' for r in simulators.rates_hz)} Hz")
+    if simulators is not None and args.mock_model not in simulators.models:
+        raise ServiceError(f"unknown --mock-model {args.mock_model!r}: choose one of {', '.join(simulators.models)}")
+    if simulators is not None and args.mock_rate is not None:
+        offered = simulators.rates(args.mock_model)
+        if not any(abs(args.mock_rate - r) < 1e-6 for r in offered):
+            raise ServiceError(f"--mock-rate must be one of {', '.join(f'{r:g}' for r in offered)} Hz for a {args.mock_model} wearable")
     if args.method not in available_methods():
         raise ServiceError(f"--method must be one of {', '.join(available_methods())}")
     loopback = args.host in ("127.0.0.1", "::1", "localhost")
@@ -254,7 +263,8 @@ def build_service(args: argparse.Namespace) -> Any:
         )
     devices = DeviceManager(ble=args.ble, ble_adapter=args.ble_adapter)
     if simulators is not None:
-        devices.add_mocks(simulators, args.mock, speed=args.mock_speed, seed=args.mock_seed, scenarios=scenarios, rate_hz=args.mock_rate)
+        devices.add_mocks(simulators, args.mock, speed=args.mock_speed, seed=args.mock_seed, scenarios=scenarios, rate_hz=args.mock_rate,
+                          model=args.mock_model)
     return Service(settings, store=store, devices=devices)
 
 

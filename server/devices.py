@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from typing import Any, Protocol
 
+from wearable_protocol.models import MODELS
+
 log = logging.getLogger(__name__)
 
 DEVICE_ID_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._:-]{0,127}$")
@@ -23,12 +25,16 @@ SIMULATORS_GROUP = "gyrocal.simulators"
 
 class Simulators(Protocol):
     """What a package of simulated wearables offers the service (mock_device.simulators, through the
-    ``gyrocal.simulators`` entry point): its scenarios, its rates, and a wearable (a GATT peripheral)."""
+    ``gyrocal.simulators`` entry point): its scenarios, its models and their rates, and a wearable (a GATT
+    peripheral)."""
 
     scenarios: tuple[str, ...]
-    rates_hz: tuple[float, ...]
+    models: tuple[str, ...]
 
-    def wearable(self, *, seed: int, scenario: str, speed: float, name: str, rate_hz: float, noise_dps: float) -> Any: ...
+    def rates(self, model: str) -> tuple[float, ...]: ...
+
+    def wearable(self, *, seed: int, scenario: str, speed: float, name: str, rate_hz: float | None, noise_dps: float,
+                 model: str) -> Any: ...
 
 
 def load_simulators() -> Simulators | None:
@@ -42,6 +48,19 @@ def load_simulators() -> Simulators | None:
     return None
 
 
+def model_facts(key: str | None, info: dict[str, Any] | None = None) -> dict[str, Any]:
+    """What the page and the estimator need to know about a wearable model (see wearable_protocol.models)."""
+    info = info or {}
+    m = MODELS.get(key) if key else None
+    if m is None:
+        return {"model": key, "model_label": None, "sample_rate_hz": info.get("sample_rate_hz"),
+                "gyro_full_scale_dps": info.get("gyro_full_scale_dps"), "time_stamps": None, "loss_detection": None,
+                "limitations": []}
+    return {"model": m.key, "model_label": m.label, "sample_rate_hz": info.get("sample_rate_hz") or m.stream_rate_hz,
+            "gyro_full_scale_dps": info.get("gyro_full_scale_dps") or m.gyro_range_dps, "time_stamps": m.time_stamps,
+            "loss_detection": m.loss_detection, "limitations": list(m.limitations())}
+
+
 @dataclass
 class Device:
     """A wearable the service can stream from."""
@@ -51,6 +70,7 @@ class Device:
     name: str | None
     address: str | None
     make_link: Callable[[], Any]
+    model: str | None = None  # the protocol it speaks (wearable_protocol.models), when known
     simulated: bool = False
     scenario: str | None = None
     peripheral: Any = None  # the simulated wearable object (in-process only)
@@ -60,6 +80,11 @@ class Device:
     @property
     def connected(self) -> bool:
         return bool(self.link is not None and getattr(self.link, "connected", False))
+
+    def model_facts(self) -> dict[str, Any]:
+        """The device's model, the rate and range it streams at (read from it once connected, else the model's
+        choice) and what its protocol cannot tell."""
+        return model_facts(self.info.get("model") or self.model, self.info)
 
     @property
     def simulated_truth(self) -> dict[str, Any] | None:
@@ -123,11 +148,18 @@ class DeviceManager:
         speed: float = 1.0,
         seed: int = 0,
         scenarios: list[str] | None = None,
-        rate_hz: float = 104.0,
+        rate_hz: float | None = None,
         noise_dps: float = 0.03,
+        model: str = "gyrocal",
     ) -> list[Device]:
-        """N simulated wearables mock-1 … mock-N, each performing its scenario when streaming starts."""
+        """N simulated wearables mock-1 … mock-N speaking ``model``'s protocol, each performing its scenario
+        when streaming starts. ``rate_hz`` None: the model's streaming rate."""
+        import time
+
         from .link import InProcessLink, ReconnectPolicy
+
+        def device_clock() -> float:  # arrival times on the simulated wearables' time scale
+            return time.monotonic() * speed
 
         scenarios = scenarios or ["normal"]
         out = []
@@ -135,7 +167,7 @@ class DeviceManager:
             scenario = scenarios[(i - 1) % len(scenarios)]
             dev_seed = seed * 1000 + i
             wearable = simulators.wearable(seed=dev_seed, scenario=scenario, speed=speed, name=f"mock-{i}", rate_hz=rate_hz,
-                                           noise_dps=noise_dps)
+                                           noise_dps=noise_dps, model=model)
             # the reconnection backoff runs on wall time: scale it with the simulated clock
             policy = ReconnectPolicy(initial_delay_s=0.25 / speed, max_delay_s=max(0.05, 5.0 / speed), timeout_s=60.0)
             dev = Device(
@@ -143,7 +175,9 @@ class DeviceManager:
                 transport="inprocess",
                 name=wearable.name,
                 address=wearable.address,
-                make_link=functools.partial(InProcessLink, wearable, reconnect=policy, scan_timeout_s=5.0),
+                make_link=functools.partial(InProcessLink, wearable, reconnect=policy, scan_timeout_s=5.0, model=model,
+                                            clock=device_clock),
+                model=model,
                 simulated=True,
                 scenario=scenario,
                 peripheral=wearable,
@@ -170,7 +204,8 @@ class DeviceManager:
                             transport="ble",
                             name=disc.name,
                             address=disc.address,
-                            make_link=functools.partial(BleLink, disc.address, adapter=self.ble_adapter),
+                            make_link=functools.partial(BleLink, disc.address, adapter=self.ble_adapter, model=disc.model),
+                            model=disc.model,
                         )
                     )
                 known.info["rssi"] = disc.rssi

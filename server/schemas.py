@@ -86,6 +86,15 @@ class DeviceOut(BaseModel):
     firmware: str | None = None
     serial: str | None = None
     battery_pct: int | None = Field(None, description="battery level, %, when the service has read it (null: not read yet)")
+    model: str | None = Field(None, description="the protocol gyrocal speaks with it: gyrocal, polar-pmd, metawear or thingy52 "
+                                                "(null: not known yet)")
+    model_label: str | None = None
+    sample_rate_hz: float | None = Field(None, description="the rate it streams at, Hz (read once connected, else the model's)")
+    gyro_full_scale_dps: int | None = Field(None, description="its gyro range, deg/s (read once connected, else the model's)")
+    time_stamps: Literal["device", "arrival"] | None = Field(None, description="device: the device's clock; arrival: the "
+                                                                               "times samples reached the service")
+    loss_detection: Literal["counter", "time_stamps", "none"] | None = None
+    limitations: list[str] = Field(default_factory=list, description="what this device's protocol cannot tell")
     active_session: str | None = None
     current_calibration: CalibrationRecord | None = None
     last_seen: str | None = None

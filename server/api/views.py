@@ -9,7 +9,7 @@ from typing import Any
 from calib.json_safe import finite
 
 from ..deps import problem
-from ..devices import Device
+from ..devices import Device, model_facts
 from ..service import Service
 
 
@@ -35,6 +35,7 @@ async def device_out(svc: Service, dev: Device | None, row: dict[str, Any] | Non
         "firmware": info.get("firmware") or row.get("firmware"),
         "serial": info.get("serial") or row.get("serial"),
         "battery_pct": info.get("battery_pct"),
+        **(dev.model_facts() if dev else model_facts(None)),
         "active_session": svc.active.get(device_id),
         "current_calibration": await current_calibration_of(svc, device_id),
         "last_seen": row.get("last_seen"),

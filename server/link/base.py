@@ -39,14 +39,15 @@ class CommandError(LinkError):
 
 @dataclass(frozen=True)
 class DiscoveredDevice:
-    """A wearable seen in a scan (advertising the IMU service)."""
+    """A wearable seen in a scan; ``model``: the protocol its advertisement names (``wearable_protocol.models``)."""
 
     address: str
     name: str | None
     rssi: int | None = None
+    model: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        return {"address": self.address, "name": self.name, "rssi": self.rssi}
+        return {"address": self.address, "name": self.name, "rssi": self.rssi, "model": self.model}
 
 
 @dataclass(frozen=True)
@@ -54,7 +55,8 @@ class DeviceInfo:
     """What the wearable says about itself: IMU configuration, Device Information, battery.
 
     The Device Information and Battery services are optional (some host stacks hide or lock them):
-    their fields are None when absent or unreadable.
+    their fields are None when absent or unreadable. ``model`` is the Device Information model number;
+    ``device_model`` the protocol gyrocal speaks with it (``wearable_protocol.models``).
     """
 
     address: str
@@ -65,12 +67,13 @@ class DeviceInfo:
     serial: str | None = None
     firmware: str | None = None
     battery_pct: int | None = None
+    device_model: str = "gyrocal"
 
     def to_dict(self) -> dict[str, Any]:
         return {
             "address": self.address, "name": self.name, "config": self.config.to_dict(),
             "manufacturer": self.manufacturer, "model": self.model, "serial": self.serial,
-            "firmware": self.firmware, "battery_pct": self.battery_pct,
+            "firmware": self.firmware, "battery_pct": self.battery_pct, "device_model": self.device_model,
         }
 
 
@@ -83,7 +86,8 @@ class SampleBatch:
     readings m in deg/s. ``accel_g`` (n, 3). ``seq`` (n,): unwrapped sample counter (one step per
     sample; a jump means lost samples). ``lost_before``: samples lost between the previous batch and
     this one (0 when contiguous). ``fs_hz``: the current estimate of the true sample rate from device
-    time. ``saturated`` (n,): gyro at the int16 limit on some axis.
+    time. ``saturated`` (n,): gyro at the int16 limit on some axis. ``arrival_times``: the device sends no
+    time stamps, so the times were placed from arrival times (evenly, at the rate estimated so far).
     """
 
     t_device_s: np.ndarray
@@ -93,6 +97,7 @@ class SampleBatch:
     lost_before: int
     fs_hz: float
     saturated: np.ndarray
+    arrival_times: bool = False
 
     def __len__(self) -> int:
         return int(self.t_device_s.size)
@@ -110,6 +115,7 @@ class SampleBatch:
             batches[0].lost_before + sum(b.lost_before for b in batches[1:]),
             batches[-1].fs_hz,
             np.concatenate([b.saturated for b in batches]),
+            any(b.arrival_times for b in batches),
         )
 
 
@@ -240,7 +246,8 @@ class RecordingBuilder:
         return sum(len(b) for b in self._batches)
 
     def recording(self) -> Recording:
-        """The samples so far; the rate is the device-time estimate of the last batch."""
+        """The samples so far; the rate is the device-time estimate of the last batch. Samples timed by arrival
+        are re-timed from the sample counter at the final rate estimate."""
         if not self._batches:
             raise LinkError("no samples were received from the wearable")
         b = SampleBatch.concat(self._batches)
@@ -252,4 +259,5 @@ class RecordingBuilder:
             gyro_full_scale_dps=float(cfg.gyro_full_scale_dps) if cfg else None,
             source=self.source or (f"wearable {self.info.address}" if self.info else "wearable"),
         )
-        return Recording(b.t_device_s, b.gyro_dps, b.accel_g, b.seq, None, meta)
+        rec = Recording(b.t_device_s, b.gyro_dps, b.accel_g, b.seq, None, meta)
+        return rec.timed_by_counter(b.fs_hz) if b.arrival_times else rec

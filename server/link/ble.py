@@ -11,7 +11,7 @@ import logging
 from collections.abc import Callable
 from typing import Any
 
-import wearable_protocol as wp
+from wearable_protocol.models import MODELS, identify
 
 from .base import (
     ConnectError,
@@ -33,13 +33,21 @@ def _bleak() -> Any:
     return bleak
 
 
+def _model_of(device: Any, adv: Any) -> str | None:
+    found = identify(adv.local_name or device.name, list(adv.service_uuids))
+    return found.key if found else None
+
+
 class BleLink(LinkCore):
-    """A wearable over BLE via bleak. ``address`` None: connect() takes the first wearable that answers."""
+    """A wearable over BLE via bleak. ``address`` None: connect() takes the first supported wearable that
+    answers (of ``model``, when given). ``adapter``: the Bluetooth adapter (hci0, hci1, ...)."""
 
     def __init__(self, address: str | None = None, *, adapter: str | None = None, scan_timeout_s: float = 5.0,
                  connect_timeout_s: float = 10.0, reconnect: ReconnectPolicy | None = None,
-                 command_timeout_s: float = 5.0) -> None:
-        super().__init__(address.upper() if address else None, reconnect=reconnect, command_timeout_s=command_timeout_s)
+                 command_timeout_s: float = 5.0, model: str | None = None,
+                 clock: Callable[[], float] | None = None) -> None:
+        super().__init__(address.upper() if address else None, reconnect=reconnect, command_timeout_s=command_timeout_s,
+                         model=model, clock=clock)
         self.adapter = adapter
         self.scan_timeout_s = scan_timeout_s
         self.connect_timeout_s = connect_timeout_s
@@ -49,30 +57,33 @@ class BleLink(LinkCore):
         return {"adapter": self.adapter} if self.adapter else {}
 
     async def scan(self, timeout: float = 5.0) -> list[DiscoveredDevice]:
-        """Wearables advertising the IMU service, strongest signal first."""
+        """Wearables of the supported models (by advertised service or name), strongest signal first.
+
+        The scan is unfiltered (Polar sensors advertise no service of their own, only a name), so BlueZ
+        reports every advertiser and the ones gyrocal cannot speak to are left out here."""
         bleak = _bleak()
         try:
-            found = await bleak.BleakScanner.discover(timeout=timeout, service_uuids=[wp.IMU_SERVICE], return_adv=True,
-                                                      bluez=self._bluez_args())
+            found = await bleak.BleakScanner.discover(timeout=timeout, return_adv=True, bluez=self._bluez_args())
         except bleak.exc.BleakError as e:
             raise LinkError(f"Bluetooth scan failed: {e}") from e
-        devices = [DiscoveredDevice(d.address, a.local_name or d.name, a.rssi) for d, a in found.values()]
-        return sorted(devices, key=lambda d: -(d.rssi if d.rssi is not None else -999))
+        devices = [DiscoveredDevice(d.address, a.local_name or d.name, a.rssi, _model_of(d, a)) for d, a in found.values()]
+        wanted = [d for d in devices if d.model is not None and (self.model_key is None or d.model == self.model_key)]
+        return sorted(wanted, key=lambda d: -(d.rssi if d.rssi is not None else -999))
 
     async def _t_connect(self) -> None:
         bleak = _bleak()
         try:
             if self.address is None:
                 device = await bleak.BleakScanner.find_device_by_filter(
-                    lambda d, adv: wp.IMU_SERVICE in [u.lower() for u in adv.service_uuids],
-                    timeout=self.scan_timeout_s, service_uuids=[wp.IMU_SERVICE], bluez=self._bluez_args())
+                    lambda d, adv: _model_of(d, adv) in ((self.model_key,) if self.model_key else tuple(MODELS)),
+                    timeout=self.scan_timeout_s, bluez=self._bluez_args())
             else:
                 device = await bleak.BleakScanner.find_device_by_address(self.address, timeout=self.scan_timeout_s,
                                                                          bluez=self._bluez_args())
         except bleak.exc.BleakError as e:
             raise ConnectError(f"Bluetooth scan failed: {e}") from e
         if device is None:
-            which = f"wearable {self.address} was not found" if self.address else "no gyrocal wearable was found"
+            which = f"wearable {self.address} was not found" if self.address else "no supported wearable was found"
             raise DeviceNotFoundError(
                 f"{which} within {self.scan_timeout_s:g} s: "
                 "check that it is switched on, in range and not connected elsewhere")
@@ -109,8 +120,8 @@ class BleLink(LinkCore):
     async def _t_read(self, char_uuid: str) -> bytes:
         return bytes(await self._live().read_gatt_char(char_uuid))
 
-    async def _t_write(self, char_uuid: str, data: bytes) -> None:
-        await self._live().write_gatt_char(char_uuid, data, response=True)
+    async def _t_write(self, char_uuid: str, data: bytes, *, response: bool = True) -> None:
+        await self._live().write_gatt_char(char_uuid, data, response=response)
 
     async def _t_subscribe(self, char_uuid: str, callback: Callable[[bytes], None]) -> None:
         await self._live().start_notify(char_uuid, lambda _char, value: callback(value))

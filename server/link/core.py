@@ -1,5 +1,5 @@
-"""What both transports share: the command exchange, the decoded stream with its events, and
-reconnection with backoff after a link loss. A transport supplies the GATT primitives (``_t_*``)."""
+"""What both transports share: the protocol adapter of the connected model, the decoded stream with its
+events, and reconnection with backoff after a link loss. A transport supplies the GATT primitives (``_t_*``)."""
 
 from __future__ import annotations
 
@@ -12,16 +12,10 @@ from collections import deque
 from collections.abc import AsyncIterator, Callable
 
 import wearable_protocol as wp
-from wearable_protocol import (
-    Command,
-    DecodeError,
-    DeviceConfig,
-    DeviceState,
-    Opcode,
-    Status,
-    StatusReply,
-)
+from wearable_protocol import DeviceConfig
+from wearable_protocol.models import DeviceModel
 
+from .adapters import ADAPTERS, Adapter, recognise
 from .base import (
     CommandError,
     ConnectError,
@@ -34,7 +28,6 @@ from .base import (
     ReconnectPolicy,
     SampleBatch,
 )
-from .decoder import StreamDecoder
 
 log = logging.getLogger(__name__)
 
@@ -42,26 +35,74 @@ _END = object()  # ends one samples() iteration
 MAX_MERGE = 64  # at most this many queued batches are merged into one when the consumer lags
 
 
+class _LinkIO:
+    """The transport's GATT primitives under the names adapters use."""
+
+    def __init__(self, core: LinkCore) -> None:
+        self.core = core
+
+    def has(self, char_uuid: str) -> bool:
+        return self.core._t_has(char_uuid)
+
+    async def read(self, char_uuid: str) -> bytes:
+        return await self.core._t_read(char_uuid)
+
+    async def write(self, char_uuid: str, data: bytes, *, response: bool = True) -> None:
+        await self.core._t_write(char_uuid, data, response=response)
+
+    async def subscribe(self, char_uuid: str, callback: Callable[[bytes], None]) -> None:
+        await self.core._t_subscribe(char_uuid, callback)
+
+    async def unsubscribe(self, char_uuid: str) -> None:
+        await self.core._t_unsubscribe(char_uuid)
+
+
+class _Sink:
+    def __init__(self, core: LinkCore) -> None:
+        self.core = core
+
+    def batch(self, batch: SampleBatch) -> None:
+        self.core._on_batch(batch)
+
+    def ended(self, message: str) -> None:
+        self.core._on_stream_end(message)
+
+
 class LinkCore(ABC):
-    """Shared behaviour of :class:`~server.link.base.WearableLink` transports."""
+    """Shared behaviour of :class:`~server.link.base.WearableLink` transports.
+
+    ``model``: the wearable model's key (``wearable_protocol.models``); None: recognised from the
+    characteristics the device offers once connected. ``clock``: the central's clock (s), for the arrival
+    times of models that send no time stamps.
+    """
 
     def __init__(self, address: str | None, *, reconnect: ReconnectPolicy | None = None,
-                 command_timeout_s: float = 5.0) -> None:
+                 command_timeout_s: float = 5.0, model: str | None = None,
+                 clock: Callable[[], float] | None = None) -> None:
+        if model is not None and model not in ADAPTERS:
+            raise LinkError(f"unknown wearable model {model!r}: choose one of {', '.join(ADAPTERS)}")
         self.address = address
         self.name: str | None = None
+        self.model_key = model
         self.policy = reconnect or ReconnectPolicy()
         self.command_timeout_s = command_timeout_s
+        self.clock = clock or time.monotonic
         self.stats = LinkStats()
         self.config: DeviceConfig | None = None
-        self._decoder: StreamDecoder | None = None
+        self.protocol: Adapter | None = None
         self._feed: deque[object] = deque()
         self._feed_ready = asyncio.Event()
-        self._waiters: dict[int, asyncio.Future[StatusReply]] = {}
         self._connected = False
         self._streaming = False  # the central wants the stream (survives link loss)
         self._closing = False
         self._reconnect_task: asyncio.Task[None] | None = None
-        self._restore: tuple[int, float] | None = None  # (attempts, time of loss) until the first packet after
+        self._restore: tuple[int, float] | None = None  # (attempts, time of loss) until the first batch after
+
+    @property
+    def model(self) -> DeviceModel | None:
+        """The connected (or named) model; None before connecting to an unnamed one."""
+        key = self.protocol.model.key if self.protocol is not None else self.model_key
+        return ADAPTERS[key].model if key else None
 
     # ------------------------------------------------------------------ transport primitives
 
@@ -83,7 +124,7 @@ class LinkCore(ABC):
     async def _t_read(self, char_uuid: str) -> bytes: ...
 
     @abstractmethod
-    async def _t_write(self, char_uuid: str, data: bytes) -> None: ...
+    async def _t_write(self, char_uuid: str, data: bytes, *, response: bool = True) -> None: ...
 
     @abstractmethod
     async def _t_subscribe(self, char_uuid: str, callback: Callable[[bytes], None]) -> None: ...
@@ -123,8 +164,16 @@ class LinkCore(ABC):
     async def _open(self) -> None:
         await self._t_connect()
         try:
-            await self._t_subscribe(wp.IMU_CONTROL_CHAR, self._on_control)
-            self.config = await self._read_config()
+            adapter = self.protocol
+            if adapter is None:
+                io = _LinkIO(self)
+                cls = ADAPTERS[self.model_key] if self.model_key else recognise(io)
+                if cls is None:
+                    raise ConnectError(f"{self.address} offers none of the protocols gyrocal speaks ("
+                                       + ", ".join(ADAPTERS) + "); is it a supported wearable?")
+                adapter = cls(io, self.stats, _Sink(self), command_timeout_s=self.command_timeout_s, clock=self.clock)
+            self.config = await adapter.open()
+            self.protocol = adapter
         except LinkError:
             with contextlib.suppress(Exception):
                 await self._t_disconnect()
@@ -133,31 +182,20 @@ class LinkCore(ABC):
             with contextlib.suppress(Exception):
                 await self._t_disconnect()
             raise ConnectError(f"connection to {self.address} failed during setup: {e}") from e
-        if self._decoder is None:
-            self._decoder = StreamDecoder(self.config, self.stats)
-        else:
-            self._decoder.set_config(self.config)
         self._connected = True
 
-    async def _read_config(self) -> DeviceConfig:
-        if not self._t_has(wp.IMU_CONFIG_CHAR) or not self._t_has(wp.IMU_DATA_CHAR):
-            raise ConnectError(f"{self.address} does not offer the gyrocal IMU service; is it a gyrocal wearable?")
-        try:
-            return DeviceConfig.decode(await self._t_read(wp.IMU_CONFIG_CHAR))
-        except DecodeError as e:
-            raise ConnectError(f"{self.address} sent an unreadable configuration ({e}); update its firmware") from e
-
-    def _require(self) -> DeviceConfig:
-        if not self._connected or self.config is None:
+    def _require(self) -> Adapter:
+        if not self._connected or self.protocol is None:
             raise LinkError("the wearable is not connected: call connect() first")
-        return self.config
+        return self.protocol
+
+    def _last_t(self) -> float | None:
+        return self.protocol.last_t_s if self.protocol is not None else None
 
     async def read_info(self) -> DeviceInfo:
         """Read config, Device Information (optional) and battery level (optional)."""
-        self._require()
-        self.config = await self._read_config()
-        assert self._decoder is not None
-        self._decoder.set_config(self.config)
+        adapter = self._require()
+        self.config = await adapter.read_config()
 
         async def text(uuid: str) -> str | None:
             raw = await self._optional(uuid)
@@ -168,7 +206,7 @@ class LinkCore(ABC):
             self.address or "", self.name, self.config,
             await text(wp.MANUFACTURER_NAME_CHAR), await text(wp.MODEL_NUMBER_CHAR),
             await text(wp.SERIAL_NUMBER_CHAR), await text(wp.FIRMWARE_REVISION_CHAR),
-            battery[0] if battery else None,
+            battery[0] if battery else None, adapter.model.key,
         )
 
     async def _optional(self, uuid: str) -> bytes | None:
@@ -180,53 +218,23 @@ class LinkCore(ABC):
             log.info("optional characteristic %s not readable: %s", uuid, e)
             return None
 
-    async def _command(self, cmd: Command) -> StatusReply:
-        self._require()
-        loop = asyncio.get_running_loop()
-        fut: asyncio.Future[StatusReply] = loop.create_future()
-        self._waiters[int(cmd.opcode)] = fut
-        try:
-            await self._t_write(wp.IMU_CONTROL_CHAR, cmd.encode())
-            reply = await asyncio.wait_for(fut, self.command_timeout_s)
-        except TimeoutError:
-            raise CommandError(f"the wearable did not answer {cmd.opcode.name} within {self.command_timeout_s:g} s") from None
-        except LinkError:
-            raise
-        except Exception as e:
-            raise CommandError(f"{cmd.opcode.name} could not be sent: {e}") from e
-        finally:
-            self._waiters.pop(int(cmd.opcode), None)
-        if reply.status != Status.OK:
-            hint = {Status.BUSY: "stop streaming first", Status.INVALID_VALUE: "use a supported value",
-                    Status.NOT_SUPPORTED: "this device has fixed settings"}.get(reply.status, "")
-            raise CommandError(f"the wearable refused {cmd.opcode.name}: {reply.status.name.lower()}"
-                               + (f" ({hint})" if hint else ""))
-        return reply
-
     async def configure(self, *, sample_rate_hz: float | None = None, gyro_full_scale_dps: int | None = None,
                         accel_range_g: int | None = None) -> DeviceConfig:
         """Change rate and ranges (refused while streaming); returns the configuration read back."""
         if self._streaming:
             raise CommandError("cannot change the configuration while streaming: stop() first")
-        if sample_rate_hz is not None:
-            await self._command(Command(Opcode.SET_RATE, float(sample_rate_hz)))
-        if gyro_full_scale_dps is not None:
-            await self._command(Command(Opcode.SET_GYRO_RANGE, int(gyro_full_scale_dps)))
-        if accel_range_g is not None:
-            await self._command(Command(Opcode.SET_ACCEL_RANGE, int(accel_range_g)))
-        self.config = await self._read_config()
-        self._decoder = StreamDecoder(self.config, self.stats)
+        adapter = self._require()
+        self.config = await adapter.configure(sample_rate_hz=sample_rate_hz, gyro_full_scale_dps=gyro_full_scale_dps,
+                                              accel_range_g=accel_range_g)
         return self.config
 
     async def start(self) -> None:
         """Subscribe to data and start (or resume) the device's session. Items of an earlier stream that
         were never consumed are discarded."""
-        cfg = self._require()
-        assert self._decoder is not None
+        adapter = self._require()
         self._feed.clear()
-        await self._t_subscribe(wp.IMU_DATA_CHAR, self._on_data)
-        self._decoder.begin(new_session=not cfg.state & DeviceState.SESSION_ACTIVE)
-        await self._command(Command(Opcode.START))
+        await adapter.start(resume=False)
+        self.config = adapter.config
         self._streaming = True
 
     async def stop(self) -> None:
@@ -236,10 +244,9 @@ class LinkCore(ABC):
         if self._reconnect_task is not None:
             self._reconnect_task.cancel()
             self._reconnect_task = None
-        if self._connected:
+        if self._connected and self.protocol is not None:
             try:
-                await self._command(Command(Opcode.STOP))
-                await self._t_unsubscribe(wp.IMU_DATA_CHAR)
+                await self.protocol.stop()
             except LinkError:
                 if self._connected:
                     raise
@@ -290,12 +297,7 @@ class LinkCore(ABC):
         self._feed.append(item)
         self._feed_ready.set()
 
-    def _on_data(self, data: bytes) -> None:
-        if self._decoder is None:
-            return
-        batch = self._decoder.feed(data)
-        if batch is None:
-            return
+    def _on_batch(self, batch: SampleBatch) -> None:
         if self._restore is not None:
             attempts, lost_at = self._restore
             self._restore = None
@@ -304,34 +306,22 @@ class LinkCore(ABC):
                                  attempts, time.monotonic() - lost_at))
         self._push(batch)
 
-    def _on_control(self, data: bytes) -> None:
-        try:
-            reply = StatusReply.decode(data)
-        except DecodeError as e:
-            log.warning("unreadable control reply %r: %s", bytes(data), e)
-            return
-        if reply.opcode == Opcode.STREAM_END:
-            self._streaming = False
-            self._push(LinkEvent("stream_ended", self._decoder.last_t_s if self._decoder else None,
-                                 message="the wearable ended the stream"))
-            self._push(_END)
-            return
-        fut = self._waiters.get(reply.opcode)
-        if fut is not None and not fut.done():
-            fut.set_result(reply)
+    def _on_stream_end(self, message: str) -> None:
+        self._streaming = False
+        self._push(LinkEvent("stream_ended", self._last_t(), message=message))
+        self._push(_END)
 
     def _on_link_lost(self) -> None:
         """Called by the transport when the connection dropped without our asking."""
         if self._closing or not self._connected:
             return
         self._connected = False
-        for fut in self._waiters.values():
-            if not fut.done():
-                fut.set_exception(LinkError("the link dropped while waiting for the wearable's answer"))
+        if self.protocol is not None:
+            self.protocol.link_lost()
         if self._reconnect_task is not None and not self._reconnect_task.done():
             return  # dropped again while reconnecting: the running attempt loop carries on
         self.stats.link_losses += 1
-        last = self._decoder.last_t_s if self._decoder else None
+        last = self._last_t()
         self._push(LinkEvent("link_lost", last, message="the radio link to the wearable dropped"))
         self._reconnect_task = asyncio.get_running_loop().create_task(self._reconnect(time.monotonic()))
 
@@ -353,11 +343,9 @@ class LinkCore(ABC):
             try:
                 await self._open()
                 if self._streaming:
-                    assert self._decoder is not None and self.config is not None
-                    await self._t_subscribe(wp.IMU_DATA_CHAR, self._on_data)
+                    assert self.protocol is not None
                     self._restore = (attempts, lost_at)
-                    self._decoder.begin(new_session=not self.config.state & DeviceState.SESSION_ACTIVE)
-                    await self._command(Command(Opcode.START))
+                    await self.protocol.start(resume=True)
                 self.stats.reconnects += 1
                 log.info("reconnected to %s after %d attempts", self.address, attempts)
                 return
@@ -369,7 +357,7 @@ class LinkCore(ABC):
                 log.info("reconnection attempt %d failed: %s", attempts, e)
         if not self._closing:
             self._push(LinkEvent(
-                "link_failed", self._decoder.last_t_s if self._decoder else None, attempts=attempts,
+                "link_failed", self._last_t(), attempts=attempts,
                 downtime_s=time.monotonic() - lost_at,
                 message=f"the wearable did not come back within {self.policy.timeout_s:g} s ({attempts} attempts; "
                         f"last error: {last_error})",

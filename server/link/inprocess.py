@@ -13,6 +13,7 @@ from wearable_protocol import (
     GattPeripheral,
     PeripheralUnavailable,
 )
+from wearable_protocol.models import identify
 
 from .base import (
     ConnectError,
@@ -47,8 +48,10 @@ class InProcessLink(LinkCore):
     """A :class:`~wearable_protocol.GattPeripheral` in this process, as a WearableLink."""
 
     def __init__(self, peripheral: GattPeripheral, *, reconnect: ReconnectPolicy | None = None,
-                 command_timeout_s: float = 5.0, scan_timeout_s: float = 5.0) -> None:
-        super().__init__(peripheral.address, reconnect=reconnect, command_timeout_s=command_timeout_s)
+                 command_timeout_s: float = 5.0, scan_timeout_s: float = 5.0, model: str | None = None,
+                 clock: Callable[[], float] | None = None) -> None:
+        super().__init__(peripheral.address, reconnect=reconnect, command_timeout_s=command_timeout_s, model=model,
+                         clock=clock)
         self.peripheral = peripheral
         self.name = peripheral.name
         self.scan_timeout_s = scan_timeout_s
@@ -60,7 +63,8 @@ class InProcessLink(LinkCore):
         deadline = time.monotonic() + timeout
         while True:
             if self.peripheral.advertising:
-                return [DiscoveredDevice(self.peripheral.address, self.peripheral.name, -50)]
+                found = identify(self.peripheral.name, self.peripheral.advertised_services)
+                return [DiscoveredDevice(self.peripheral.address, self.peripheral.name, -50, found.key if found else None)]
             if time.monotonic() >= deadline:
                 return []
             await asyncio.sleep(ADVERTISING_POLL_S)
@@ -101,7 +105,7 @@ class InProcessLink(LinkCore):
         except GattError as e:
             raise LinkError(f"reading {char_uuid} failed: {e}") from e
 
-    async def _t_write(self, char_uuid: str, data: bytes) -> None:
+    async def _t_write(self, char_uuid: str, data: bytes, *, response: bool = True) -> None:
         self._live()
         try:
             self.peripheral.write(char_uuid, bytes(data))

@@ -19,7 +19,7 @@ from typing import Any
 from calib.result import CalibrationResult
 
 from ..config import Settings
-from ..devices import Device
+from ..devices import Device, model_facts
 from ..store import SessionEnd, Store, utcnow
 from ..workers.compute import ComputePool, calibrate_recording, recording_csv
 from . import guidance as say
@@ -174,6 +174,9 @@ class LiveSession:
                 "battery_pct": info.battery_pct,
                 "sample_rate_hz": cfg.sample_rate_hz,
                 "gyro_full_scale_dps": cfg.gyro_full_scale_dps,
+                "accel_range_g": cfg.accel_range_g,
+                **model_facts(info.device_model, {"sample_rate_hz": cfg.sample_rate_hz,
+                                                  "gyro_full_scale_dps": cfg.gyro_full_scale_dps}),
             }
         )
         if info.name:

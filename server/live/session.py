@@ -245,7 +245,10 @@ class GuidedSession:
         """Everything received so far as a Recording (device time, raw readings)."""
         meta = RecordingMeta(sample_rate_hz=self.fs_estimate or self.fs, device_id=self.device_id, gyro_full_scale_dps=self.full_scale,
                              sensor_model=self.device_info.get("sensor_model"), source=f"session {self.id}")
-        return self.stream.recording(meta)
+        rec = self.stream.recording(meta)
+        if self.device_info.get("time_stamps") == "arrival" and rec.seq is not None and self.fs_estimate:
+            return rec.timed_by_counter(self.fs_estimate)  # the live times followed an improving rate estimate
+        return rec
 
     def protocol_stages(self) -> list[Stage]:
         """The stages the estimator gets: every still, and the turns that passed their checks."""

@@ -155,7 +155,7 @@ async def test_device_not_found_is_a_clear_error(simulated_bluez):
     assert await link.scan(0.3) == []
     with pytest.raises(DeviceNotFoundError, match="C0:FF:EE:00:00:01 was not found within 0.5 s"):
         await link.connect()
-    with pytest.raises(DeviceNotFoundError, match="no gyrocal wearable was found"):
+    with pytest.raises(DeviceNotFoundError, match="no supported wearable was found"):
         await BleLink(scan_timeout_s=0.3).connect()
 
 

@@ -22,10 +22,19 @@ from enum import IntEnum
 import numpy as np
 
 from ..codec import DecodeError
+from ..gatt import CharacteristicSpec, ServiceSpec
+from ..layout import BATTERY, DEVICE_INFORMATION
 
 METAWEAR_SERVICE = "326a9000-85cb-9195-d9dd-464cfbbae75a"
 COMMAND_CHAR = "326a9001-85cb-9195-d9dd-464cfbbae75a"  # write (without response)
 NOTIFY_CHAR = "326a9006-85cb-9195-d9dd-464cfbbae75a"  # notify
+SERVICES = (
+    ServiceSpec(METAWEAR_SERVICE, (
+        CharacteristicSpec(COMMAND_CHAR, ("write-without-response", "write")),
+        CharacteristicSpec(NOTIFY_CHAR, ("notify",)),
+    )),
+    DEVICE_INFORMATION, BATTERY,
+)
 
 
 class Module(IntEnum):

@@ -23,10 +23,20 @@ from enum import IntEnum
 import numpy as np
 
 from ..codec import DecodeError
+from ..gatt import CharacteristicSpec, ServiceSpec
+from ..layout import BATTERY, DEVICE_INFORMATION
 
 PMD_SERVICE = "fb005c80-02e7-f387-1cad-8acd2d8df0c8"
 PMD_CONTROL_CHAR = "fb005c81-02e7-f387-1cad-8acd2d8df0c8"  # read (features), write, indicate (replies)
 PMD_DATA_CHAR = "fb005c82-02e7-f387-1cad-8acd2d8df0c8"  # notify: data frames
+
+SERVICES = (
+    ServiceSpec(PMD_SERVICE, (
+        CharacteristicSpec(PMD_CONTROL_CHAR, ("read", "write", "indicate")),
+        CharacteristicSpec(PMD_DATA_CHAR, ("notify",)),
+    )),
+    DEVICE_INFORMATION, BATTERY,
+)
 
 RESPONSE_CODE = 0xF0  # first byte of every control-point reply
 FEATURES_CODE = 0x0F  # first byte of the control point's read value
@@ -259,13 +269,17 @@ def _delta_decode(body: bytes, channels: int, size: int, is_float: bool) -> np.n
     return values
 
 
+INT16_FRAME_TYPE = {MeasurementType.GYRO: 0, MeasurementType.ACC: 1, MeasurementType.MAGNETOMETER: 0}
+
+
 def encode_frame(measurement: MeasurementType, timestamp_ns: int, values: np.ndarray, compressed: bool = True) -> bytes:
-    """A frame of int16 samples ``values`` (n, 3): delta-compressed type 0 (one delta block, the narrowest
-    width that holds every delta) or raw type 0."""
+    """A frame of int16 samples ``values`` (n, 3) in the measurement's int16 frame type: delta-compressed (one
+    delta block, the narrowest width that holds every delta) or raw."""
     v = np.asarray(values, dtype=np.int64)
     if v.ndim != 2 or v.shape[1] != CHANNELS or len(v) == 0 or len(v) > 256:
         raise ValueError("values must be (n, 3) with 1 <= n <= 256")
-    header = struct.pack("<BQB", int(measurement), int(timestamp_ns), 0x80 if compressed else 0x00)
+    frame_type = INT16_FRAME_TYPE[MeasurementType(measurement)]
+    header = struct.pack("<BQB", int(measurement), int(timestamp_ns), frame_type | (0x80 if compressed else 0x00))
     if not compressed:
         return header + v.astype("<i2").tobytes()
     body = v[0].astype("<i2").tobytes()

@@ -22,15 +22,27 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..codec import DecodeError
+from ..gatt import CharacteristicSpec, ServiceSpec
+from ..layout import BATTERY
 
 
 def _uuid(short: int) -> str:
     return f"ef68{short:04x}-9b35-4933-9b10-52ffa9740042"
 
 
+CONFIGURATION_SERVICE = _uuid(0x0100)  # the advertised one (m_ble.c advertises the Thingy Configuration service)
+DEVICE_NAME_CHAR = _uuid(0x0101)
 MOTION_SERVICE = _uuid(0x0400)
 CONFIG_CHAR = _uuid(0x0401)  # read, write: ble_tms_config_t
 RAW_DATA_CHAR = _uuid(0x0406)  # notify: ble_tms_raw_t
+SERVICES = (
+    ServiceSpec(CONFIGURATION_SERVICE, (CharacteristicSpec(DEVICE_NAME_CHAR, ("read", "write")),)),
+    ServiceSpec(MOTION_SERVICE, (
+        CharacteristicSpec(CONFIG_CHAR, ("read", "write")),
+        CharacteristicSpec(RAW_DATA_CHAR, ("notify",)),
+    )),
+    BATTERY,
+)
 
 ACCEL_FRACTION_BITS = 10  # Q6.10, g
 GYRO_FRACTION_BITS = 5  # Q11.5, deg/s

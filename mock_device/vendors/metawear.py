@@ -1,0 +1,103 @@
+"""A simulated MbientLab MetaMotion: MetaWear commands, BMI160 gyroscope and accelerometer, packed data."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+import wearable_protocol as wp
+from wearable_protocol.models import METAWEAR
+from wearable_protocol.vendors import metawear as mw
+
+from ..sources import SampleSource
+from ..wearable import Wearable, _Session
+
+PACKED = 3  # samples per packed notification
+
+
+class MetaWearWearable(Wearable):
+    """A MetaWear board: commands without replies; three gyroscope samples and three accelerometer samples
+    per packed notification pair, no counter, no time stamp. The gyroscope's power command starts the
+    session and stops it."""
+
+    model = METAWEAR
+    data_char = mw.NOTIFY_CHAR
+    gatt_services = mw.SERVICES
+
+    def __init__(self, source: SampleSource, **kwargs: Any) -> None:
+        super().__init__(source, **kwargs)
+        self._subscribed: set[tuple[int, int]] = set()
+        self._enabled: set[int] = set()
+
+    def _default_name(self) -> str:
+        return "MetaWear"
+
+    @property
+    def samples_per_packet(self) -> int:
+        return PACKED
+
+    def read(self, char_uuid: str) -> bytes:
+        values = {
+            wp.MANUFACTURER_NAME_CHAR: lambda: b"MbientLab Inc",
+            wp.MODEL_NUMBER_CHAR: lambda: b"5",  # MetaMotion S's model number
+            wp.SERIAL_NUMBER_CHAR: lambda: self.serial.encode(),
+            wp.FIRMWARE_REVISION_CHAR: lambda: b"1.7.3",
+            wp.BATTERY_LEVEL_CHAR: lambda: bytes([self.battery_pct]),
+        }
+        if char_uuid not in values:
+            raise wp.GattError("not_permitted", "Read not permitted")
+        return values[char_uuid]()
+
+    def write(self, char_uuid: str, data: bytes) -> None:
+        if char_uuid != mw.COMMAND_CHAR:
+            raise wp.GattError("not_permitted", "Write not permitted")
+        if len(data) < 3:
+            return  # MetaWear ignores what it does not understand; it never replies to commands
+        module, register = data[0], data[1]
+        if module not in (mw.Module.GYROSCOPE, mw.Module.ACCELEROMETER):
+            return
+        if register == mw.Register.CONFIG:
+            self._configure(bytes(data))
+        elif register in (mw.Register.GYRO_PACKED, mw.Register.ACC_PACKED, mw.Register.GYRO_DATA, mw.Register.ACC_DATA):
+            (self._subscribed.add if data[2] else self._subscribed.discard)((module, register))
+        elif register == mw.Register.DATA_ENABLE:
+            (self._enabled.add if data[2] else self._enabled.discard)(module)
+        elif register == mw.Register.POWER and module == mw.Module.GYROSCOPE:
+            if data[2]:
+                self._start()
+            else:
+                self._end_session("stopped by the central")
+
+    def _configure(self, data: bytes) -> None:
+        try:
+            module, rate, full = mw.parse_config(data)
+        except wp.DecodeError:
+            return
+        if module == mw.Module.GYROSCOPE:
+            if (self.source.fixed_rate_hz is None and rate != self.rate_hz) or full != self.gyro_full_scale_dps:
+                self._end_session("settings changed")
+            if self.source.fixed_rate_hz is None:
+                self.rate_hz = rate
+            self.gyro_full_scale_dps = full
+        else:
+            self.accel_range_g = full
+
+    def _send(self, s: _Session, j: int) -> None:
+        i0, i1 = j * s.n, (j + 1) * s.n
+        blk = self.source.block(i0, i1)
+        assert self._central is not None
+        G, A = mw.Module.GYROSCOPE, mw.Module.ACCELEROMETER
+        s.sent_any = True
+        self.stats.packets_sent += 1
+        if (G, mw.Register.GYRO_PACKED) in self._subscribed and G in self._enabled:
+            counts = np.round(blk.gyro * mw.GYRO_RANGES[self.gyro_full_scale_dps][1])
+            note = mw.encode_notification(G, counts)
+            if self._corrupt_pending > 0:
+                self._corrupt_pending -= 1
+                self.stats.packets_corrupted += 1
+                note = note[:-1]
+            self._central.notify(mw.NOTIFY_CHAR, note)
+        if (A, mw.Register.ACC_PACKED) in self._subscribed and A in self._enabled:
+            counts = np.round(blk.accel * mw.ACC_RANGES[self.accel_range_g][1])
+            self._central.notify(mw.NOTIFY_CHAR, mw.encode_notification(A, counts))

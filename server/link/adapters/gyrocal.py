@@ -1,0 +1,122 @@
+"""gyrocal's own protocol (docs/protocol.md): commands with status replies, the config characteristic,
+packets with a sequence number and the device clock."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+
+import wearable_protocol as wp
+from wearable_protocol import Command, DecodeError, DeviceConfig, DeviceState, Opcode, Status, StatusReply
+from wearable_protocol.models import GYROCAL
+
+from ..base import CommandError, ConnectError, LinkError
+from ..decoder import StreamDecoder
+from .base import Adapter
+
+log = logging.getLogger(__name__)
+
+
+class GyrocalAdapter(Adapter):
+    """A wearable speaking gyrocal's protocol."""
+
+    model = GYROCAL
+    data_char = wp.IMU_DATA_CHAR
+
+    _decoder: StreamDecoder | None = None
+
+    def _setup(self) -> None:
+        self._waiters: dict[int, asyncio.Future[StatusReply]] = {}
+
+    @property
+    def decoder(self) -> StreamDecoder | None:
+        return self._decoder
+
+    async def open(self) -> DeviceConfig:
+        await self.io.subscribe(wp.IMU_CONTROL_CHAR, self._on_control)
+        cfg = await self.read_config()
+        if self._decoder is None:
+            self._decoder = StreamDecoder(cfg, self.stats)
+        return cfg
+
+    async def read_config(self) -> DeviceConfig:
+        if not self.io.has(wp.IMU_CONFIG_CHAR) or not self.io.has(wp.IMU_DATA_CHAR):
+            raise ConnectError("the device does not offer the gyrocal IMU service; is it a gyrocal wearable?")
+        try:
+            cfg = DeviceConfig.decode(await self.io.read(wp.IMU_CONFIG_CHAR))
+        except DecodeError as e:
+            raise ConnectError(f"the wearable sent an unreadable configuration ({e}); update its firmware") from e
+        self.config = cfg
+        if self._decoder is not None:
+            self._decoder.set_config(cfg)
+        return cfg
+
+    async def _command(self, cmd: Command) -> StatusReply:
+        fut: asyncio.Future[StatusReply] = asyncio.get_running_loop().create_future()
+        self._waiters[int(cmd.opcode)] = fut
+        try:
+            await self.io.write(wp.IMU_CONTROL_CHAR, cmd.encode())
+            reply = await asyncio.wait_for(fut, self.command_timeout_s)
+        except TimeoutError:
+            raise CommandError(f"the wearable did not answer {cmd.opcode.name} within {self.command_timeout_s:g} s") from None
+        except LinkError:
+            raise
+        except Exception as e:
+            raise CommandError(f"{cmd.opcode.name} could not be sent: {e}") from e
+        finally:
+            self._waiters.pop(int(cmd.opcode), None)
+        if reply.status != Status.OK:
+            hint = {Status.BUSY: "stop streaming first", Status.INVALID_VALUE: "use a supported value",
+                    Status.NOT_SUPPORTED: "this device has fixed settings"}.get(reply.status, "")
+            raise CommandError(f"the wearable refused {cmd.opcode.name}: {reply.status.name.lower()}"
+                               + (f" ({hint})" if hint else ""))
+        return reply
+
+    async def configure(self, *, sample_rate_hz: float | None, gyro_full_scale_dps: int | None,
+                        accel_range_g: int | None) -> DeviceConfig:
+        if sample_rate_hz is not None:
+            await self._command(Command(Opcode.SET_RATE, float(sample_rate_hz)))
+        if gyro_full_scale_dps is not None:
+            await self._command(Command(Opcode.SET_GYRO_RANGE, int(gyro_full_scale_dps)))
+        if accel_range_g is not None:
+            await self._command(Command(Opcode.SET_ACCEL_RANGE, int(accel_range_g)))
+        cfg = await self.read_config()
+        self._decoder = StreamDecoder(cfg, self.stats)
+        return cfg
+
+    async def start(self, *, resume: bool) -> None:
+        cfg = self.config
+        assert cfg is not None and self._decoder is not None
+        await self.io.subscribe(wp.IMU_DATA_CHAR, self._on_data)
+        self._decoder.begin(new_session=not cfg.state & DeviceState.SESSION_ACTIVE)
+        await self._command(Command(Opcode.START))
+
+    async def stop(self) -> None:
+        await self._command(Command(Opcode.STOP))
+        await self.io.unsubscribe(wp.IMU_DATA_CHAR)
+
+    def link_lost(self) -> None:
+        for fut in self._waiters.values():
+            if not fut.done():
+                fut.set_exception(LinkError("the link dropped while waiting for the wearable's answer"))
+
+    def _on_data(self, data: bytes) -> None:
+        if self._decoder is None:
+            return
+        batch = self._decoder.feed(data)
+        if batch is not None:
+            self.last_t_s = self._decoder.last_t_s
+            self.sink.batch(batch)
+
+    def _on_control(self, data: bytes) -> None:
+        try:
+            reply = StatusReply.decode(data)
+        except DecodeError as e:
+            log.warning("unreadable control reply %r: %s", bytes(data), e)
+            return
+        if reply.opcode == Opcode.STREAM_END:
+            self.sink.ended("the wearable ended the stream")
+            return
+        fut = self._waiters.get(reply.opcode)
+        if fut is not None and not fut.done():
+            fut.set_result(reply)

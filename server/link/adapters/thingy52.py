@@ -1,0 +1,94 @@
+"""Nordic Thingy:52 Motion service: one raw sample (accelerometer, gyroscope, compass) per notification
+(``wearable_protocol.vendors.thingy52`` holds the byte layouts and their sources).
+
+The central writes the motion processing frequency to the configuration characteristic; the sensor
+streams while the raw-data notifications are enabled. No counter and no time stamp: sample times are
+arrival times (``arrival.ArrivalTimeline``) and lost samples cannot be detected. The gyroscope's range
+is fixed at +-2000 deg/s and its resolution is 1/32 deg/s.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wearable_protocol import DecodeError, DeviceConfig
+from wearable_protocol.models import THINGY52
+from wearable_protocol.vendors import thingy52 as th
+
+from ..base import CommandError, ConnectError
+from .arrival import ArrivalTimeline
+from .base import Adapter, vendor_config
+
+GYRO_LIMIT_DPS = 32767 / (1 << th.GYRO_FRACTION_BITS)
+
+
+class Thingy52Adapter(Adapter):
+    """A Thingy:52's raw motion data."""
+
+    model = THINGY52
+    data_char = th.RAW_DATA_CHAR
+
+    def _setup(self) -> None:
+        self._rate = int(self.model.stream_rate_hz)
+        self._motion = th.MotionConfig()
+        self._timeline: ArrivalTimeline | None = None
+
+    async def open(self) -> DeviceConfig:
+        if not self.io.has(th.CONFIG_CHAR):
+            raise ConnectError("the device has no Thingy:52 motion configuration; is it a Thingy:52?")
+        try:
+            self._motion = th.MotionConfig.decode(await self.io.read(th.CONFIG_CHAR))
+        except DecodeError as e:
+            raise ConnectError(f"the Thingy:52's motion configuration is unreadable ({e})") from e
+        return self._config()
+
+    def _config(self, streaming: bool = False) -> DeviceConfig:
+        cfg = vendor_config(self._rate, th.GYRO_FULL_SCALE_DPS, self.model.accel_range_g, 1,
+                            float(1 << th.GYRO_FRACTION_BITS), float(1 << th.ACCEL_FRACTION_BITS), streaming)
+        self.config = cfg
+        return cfg
+
+    async def configure(self, *, sample_rate_hz: float | None, gyro_full_scale_dps: int | None,
+                        accel_range_g: int | None) -> DeviceConfig:
+        if sample_rate_hz is not None:
+            rate = float(sample_rate_hz)
+            if rate != int(rate) or not th.MOTION_FREQ_MIN_HZ <= rate <= th.MOTION_FREQ_MAX_HZ:
+                raise CommandError(f"the Thingy:52 processes motion at a whole number of Hz from {th.MOTION_FREQ_MIN_HZ} "
+                                   f"to {th.MOTION_FREQ_MAX_HZ}; {sample_rate_hz:g} Hz is not one")
+            self._rate = int(rate)
+        if gyro_full_scale_dps not in (None, th.GYRO_FULL_SCALE_DPS):
+            raise CommandError(f"the Thingy:52's gyro range is fixed at {th.GYRO_FULL_SCALE_DPS} deg/s")
+        if accel_range_g not in (None, self.model.accel_range_g):
+            raise CommandError(f"the Thingy:52's accelerometer range is fixed at {self.model.accel_range_g} g")
+        self._timeline = None
+        return self._config()
+
+    async def start(self, *, resume: bool) -> None:
+        self._motion = th.MotionConfig(self._motion.pedometer_interval_ms, self._motion.temperature_interval_ms,
+                                       self._motion.compass_interval_ms, self._rate, self._motion.wake_on_motion)
+        await self.io.write(th.CONFIG_CHAR, self._motion.encode())
+        cfg = self._config(streaming=True)
+        if self._timeline is None:
+            self._timeline = ArrivalTimeline(self.stats, cfg.sample_rate_hz)
+        self._timeline.begin(resume)
+        await self.io.subscribe(th.RAW_DATA_CHAR, self._on_raw)
+
+    async def stop(self) -> None:
+        await self.io.unsubscribe(th.RAW_DATA_CHAR)
+        self._timeline = None
+
+    def _on_raw(self, data: bytes) -> None:
+        now = self.clock()
+        try:
+            raw = th.decode_raw(bytes(data))
+        except DecodeError as e:
+            self.stats.malformed_packets += 1
+            self.stats.malformed_reasons[e.reason] = self.stats.malformed_reasons.get(e.reason, 0) + 1
+            return
+        if self._timeline is None:
+            return
+        gyro = raw.gyro_dps[None, :]
+        saturated = (np.abs(gyro) >= GYRO_LIMIT_DPS).any(axis=1)
+        batch = self._timeline.place(now, gyro, raw.accel_g[None, :], saturated)
+        self.last_t_s = self._timeline.last_t_s
+        self.sink.batch(batch)

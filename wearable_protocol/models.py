@@ -1,0 +1,122 @@
+"""The wearable models gyrocal speaks: what each one's protocol offers and what it cannot tell.
+
+One :class:`DeviceModel` per protocol: how a scan recognises it (advertised service, name), the rates and
+ranges it offers, the settings gyrocal streams with (the highest rate it streams reliably, the smallest
+gyro range a brisk hand turn does not clip), where sample times come from and whether lost samples can
+be detected. The client's adapters (``server.link.adapters``) and the simulated devices
+(``mock_device.vendors``) both read these facts from here, and the page shows them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from .sensor import ACCEL_SENSITIVITY_LSB_PER_G, GYRO_SENSITIVITY_LSB_PER_DPS, SUPPORTED_RATES_HZ
+from .uuids import IMU_SERVICE
+from .vendors import metawear, polar_pmd, thingy52
+
+# Simulated brisk hand turns peak at 150-330 deg/s (docs/protocol.md): the smallest full scale at or above
+# this leaves a third of headroom. Finer ranges clip a fast turn; coarser ones only cost resolution.
+HAND_TURN_RANGE_DPS = 450
+
+TimeStamps = Literal["device", "arrival"]
+LossDetection = Literal["counter", "time_stamps", "none"]
+
+
+@dataclass(frozen=True)
+class DeviceModel:
+    """One wearable protocol as gyrocal uses it."""
+
+    key: str  # "gyrocal", "polar-pmd", "metawear", "thingy52": the CLI's --model and the API's "model"
+    label: str
+    service: str  # the primary service that carries the IMU data
+    advertised: tuple[str, ...]  # service UUIDs in its advertisement
+    name_prefix: str | None  # local-name prefix that identifies it when it advertises no known service
+    rates_hz: tuple[float, ...]
+    stream_rate_hz: float  # the rate gyrocal asks for
+    gyro_ranges_dps: tuple[int, ...]
+    accel_ranges_g: tuple[int, ...]
+    accel_rate_hz: float | None  # None: the accelerometer runs at the gyro's rate
+    time_stamps: TimeStamps  # "device": from the device's clock; "arrival": the central's arrival times
+    loss_detection: LossDetection
+    write_back: bool  # can hold a calibration written to it
+
+    @property
+    def gyro_range_dps(self) -> int:
+        """The smallest offered range that a brisk hand turn does not clip (else the widest)."""
+        wide = [r for r in sorted(self.gyro_ranges_dps) if r >= HAND_TURN_RANGE_DPS]
+        return wide[0] if wide else max(self.gyro_ranges_dps)
+
+    @property
+    def accel_range_g(self) -> int:
+        """The accelerometer range gyrocal asks for: 4 g where offered (rests read 1 g, hand turns little more)."""
+        return 4 if 4 in self.accel_ranges_g else min(self.accel_ranges_g)
+
+    def limitations(self) -> tuple[str, ...]:
+        """What this protocol cannot tell, in the words the page shows."""
+        out = []
+        if self.loss_detection == "none":
+            out.append("This device sends no sample counter or time stamp: lost samples cannot be detected.")
+        elif self.loss_detection == "time_stamps":
+            out.append("This device sends no sample counter: lost samples are found from gaps in its time stamps.")
+        if self.time_stamps == "arrival":
+            out.append("Sample times are the times the samples arrived, not the device's clock.")
+        if not self.write_back:
+            out.append("This device cannot hold a calibration: apply it to its recordings instead.")
+        return tuple(out)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "model": self.key, "label": self.label, "rates_hz": list(self.rates_hz), "stream_rate_hz": self.stream_rate_hz,
+            "gyro_ranges_dps": list(self.gyro_ranges_dps), "gyro_range_dps": self.gyro_range_dps,
+            "accel_ranges_g": list(self.accel_ranges_g), "time_stamps": self.time_stamps,
+            "loss_detection": self.loss_detection, "write_back": self.write_back, "limitations": list(self.limitations()),
+        }
+
+
+GYROCAL = DeviceModel(
+    "gyrocal", "gyrocal protocol wearable", IMU_SERVICE, (IMU_SERVICE,), None, SUPPORTED_RATES_HZ, 104.0,
+    tuple(GYRO_SENSITIVITY_LSB_PER_DPS), tuple(ACCEL_SENSITIVITY_LSB_PER_G), None, "device", "counter", False,
+)
+# Polar Verity Sense: gyroscope 52/104/208/416 Hz, +-250..2000 deg/s; accelerometer 52 Hz, +-8 g (Polar BLE SDK,
+# documentation/products/PolarVeritySense.md). Frames carry the device's time stamps, no counter.
+POLAR_PMD = DeviceModel(
+    "polar-pmd", "Polar Verity Sense / OH1 (PMD)", polar_pmd.PMD_SERVICE, (polar_pmd.PMD_SERVICE,), "Polar ",
+    (52.0, 104.0, 208.0, 416.0), 208.0, (250, 500, 1000, 2000), (8,), 52.0, "device", "time_stamps", False,
+)
+# MetaMotion (BMI160): streaming over BLE keeps up with gyroscope and accelerometer at 100 Hz each (MbientLab's
+# guidance for streaming two sensors; faster rates are for logging to the device's flash).
+METAWEAR = DeviceModel(
+    "metawear", "MbientLab MetaMotion (MetaWear)", metawear.METAWEAR_SERVICE, (metawear.METAWEAR_SERVICE,), "MetaWear",
+    tuple(metawear.GYRO_ODR), 100.0, tuple(sorted(metawear.GYRO_RANGES)), tuple(metawear.ACC_RANGES), None,
+    "arrival", "none", False,
+)
+# Thingy:52: motion processing 1-200 Hz, one notification per sample; gyroscope fixed at +-2000 deg/s and the
+# accelerometer at +-2 g (the InvenSense motion driver's defaults, which the firmware keeps).
+THINGY52 = DeviceModel(
+    "thingy52", "Nordic Thingy:52 (Motion service)", thingy52.MOTION_SERVICE, (thingy52.CONFIGURATION_SERVICE,), "Thingy",
+    (25.0, 50.0, 100.0, 200.0), 100.0, (thingy52.GYRO_FULL_SCALE_DPS,), (2,), None, "arrival", "none", False,
+)
+
+MODELS: dict[str, DeviceModel] = {m.key: m for m in (GYROCAL, POLAR_PMD, METAWEAR, THINGY52)}
+
+
+def model(key: str) -> DeviceModel:
+    """The model called ``key``; ValueError naming the known ones otherwise."""
+    try:
+        return MODELS[key]
+    except KeyError:
+        raise ValueError(f"unknown wearable model {key!r}: choose one of {', '.join(MODELS)}") from None
+
+
+def identify(name: str | None, service_uuids: list[str] | tuple[str, ...]) -> DeviceModel | None:
+    """The model an advertisement belongs to (by advertised service, then by name), or None."""
+    uuids = {u.lower() for u in service_uuids}
+    for m in MODELS.values():
+        if uuids & set(m.advertised):
+            return m
+    for m in MODELS.values():
+        if name and m.name_prefix and name.startswith(m.name_prefix):
+            return m
+    return None
