@@ -66,6 +66,13 @@ def webui_service() -> Iterator[RunningService]:
 
 
 @pytest.fixture(scope="module")
+def metawear_service() -> Iterator[RunningService]:
+    """A service whose one simulated wearable speaks MbientLab's MetaWear protocol."""
+    with running_service(["normal"], "--mock-model", "metawear") as svc:
+        yield svc
+
+
+@pytest.fixture(scope="module")
 def retry_service() -> Iterator[RunningService]:
     """A service that asks for a turn again after a fault (two tries per turn); mock-1 is bumped in a pause."""
     with running_service(["moved_during_still"], "--max-attempts", "2") as svc:

@@ -6,10 +6,15 @@ import json
 import shutil
 import signal
 import subprocess
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 from server_fixtures import GYROCAL, ROOT, RunningService, follow_events
+
+from wearable_protocol.models import MODELS
 
 
 def test_ble_wearable_is_scanned_calibrated_and_stored(tmp_path) -> None:
@@ -43,3 +48,52 @@ def test_ble_wearable_is_scanned_calibrated_and_stored(tmp_path) -> None:
     finally:
         device.send_signal(signal.SIGTERM)
         device.communicate(timeout=15)
+
+
+def _guided_over_ble(model: str, speed: float, seed: int, store: Path) -> dict[str, Any]:
+    """`gyrocal mock-device --ble --model MODEL` and `gyrocal serve --ble` on its bus: scan, calibrate, accept."""
+    device = subprocess.Popen([*GYROCAL, "mock-device", "--ble", "--model", model, "--seed", str(seed), "--speed", str(speed)],
+                              cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = json.loads(device.stdout.readline())
+        svc = RunningService(["--ble"], f"sqlite:///{store}", env={"DBUS_SYSTEM_BUS_ADDRESS": line["dbus_address"]}).start()
+        try:
+            with svc.client() as c:
+                found = c.post("/devices/scan", params={"timeout": 2}).json()["devices"]
+                listed = c.get("/devices").json()
+                sid = c.post(f"/devices/{line['address']}/calibrate", json={}).json()["session_id"]
+            final = follow_events(svc.base, sid, {"done", "failed", "cancelled"}, timeout_s=150, last_event_id=0)[-1]
+            with svc.client() as c:
+                accepted = c.post(f"/sessions/{sid}/accept").status_code if final["state"] == "done" else None
+                cal = c.get(f"/devices/{line['address']}/calibration").json() if accepted == 200 else None
+                dev = c.get(f"/devices/{line['address']}").json()
+            return {"line": line, "found": found, "listed": listed, "final": final, "cal": cal, "dev": dev}
+        finally:
+            svc.stop()
+    finally:
+        device.send_signal(signal.SIGTERM)
+        device.communicate(timeout=15)
+
+
+def test_commercial_wearables_are_scanned_by_model_and_calibrated_through_bleak(tmp_path) -> None:
+    """Every vendor model through the service's real bleak client. Models that send no time stamps are timed by
+    arrival, so their simulated devices run in real time (the service's clock is the wall clock)."""
+    if shutil.which("dbus-daemon") is None:
+        pytest.fail("dbus-daemon is missing: install the Debian package 'dbus' (make test does it)")
+    runs = {"polar-pmd": 20.0, "metawear": 1.0, "thingy52": 1.0}
+    with ThreadPoolExecutor(len(runs)) as pool:
+        futures = {m: pool.submit(_guided_over_ble, m, speed, 40 + i, tmp_path / f"{m}.sqlite3")
+                   for i, (m, speed) in enumerate(runs.items())}
+        results = {m: f.result() for m, f in futures.items()}
+    for model, r in results.items():
+        line = r["line"]
+        assert line["model"] == model
+        assert [(d["id"], d["model"]) for d in r["found"]] == [(line["address"], model)]
+        assert [d["model"] for d in r["listed"]] == [model]
+        assert r["final"]["state"] == "done", (model, r["final"]["reason"])
+        dev = r["dev"]
+        assert dev["model"] == model and dev["connected"]
+        assert dev["sample_rate_hz"] == MODELS[model].stream_rate_hz and dev["gyro_full_scale_dps"] == MODELS[model].gyro_range_dps
+        assert dev["limitations"] == list(MODELS[model].limitations())
+        np.testing.assert_allclose(r["cal"]["k"], line["simulated_truth"]["k"], atol=3e-3)
+        np.testing.assert_allclose(r["cal"]["b"], line["simulated_truth"]["b"], atol=0.03)

@@ -115,6 +115,25 @@ def test_moved_during_the_pause_ends_with_its_reason_and_fix(wizard: Wizard, pag
     assert_clean(page_watch)
 
 
+def test_a_commercial_wearable_shows_its_model_settings_and_limits_and_calibrates(page: Any, metawear_service: Any,
+                                                                                  artifacts: Path, page_watch: Watch) -> None:
+    wizard = Wizard(page, metawear_service, artifacts / "webui" / "test_a_commercial_wearable")
+    wizard.sign_in()
+    card = page.locator(".device-card[data-device='mock-1']")
+    assert "MbientLab MetaMotion (MetaWear)" in card.locator(".dev-sub").inner_text()
+    assert card.locator(".stream-settings").inner_text() == "100 Hz · gyro ±500 deg/s"
+    limits = card.locator(".dev-limits").inner_text()
+    assert "lost samples cannot be detected" in limits and "times the samples arrived" in limits
+    wizard.shot("metawear-card")
+    assert wizard.small_targets() == []
+    wizard.choose("mock-1")
+    wizard.start()
+    wizard.wait_state("done", "failed", timeout_ms=90_000)
+    assert wizard.text(".verdict h1") == "PASS", wizard.text(".sentence")
+    wizard.shot("metawear-pass")
+    assert_clean(page_watch)
+
+
 def test_moving_in_a_pause_resets_the_ring_with_a_gentle_warning(page: Any, retry_service: Any, artifacts: Path,
                                                                  page_watch: Watch) -> None:
     wizard = Wizard(page, retry_service, artifacts / "webui" / "test_moving_in_a_pause")

@@ -15,11 +15,16 @@ function batteryText(pct) {
   return { text: `${Math.round(pct)} %`, low: pct < 20 };
 }
 
+export function streamText(dev) {
+  const range = dev.gyro_full_scale_dps ? ` · gyro ±${dev.gyro_full_scale_dps} deg/s` : "";
+  return `${Number(dev.sample_rate_hz).toLocaleString("en", { maximumFractionDigits: 1 })} Hz${range}`;
+}
+
 function deviceCard(ctx, dev) {
   const st = status(dev);
   const cur = dev.current_calibration;
   const battery = h("dd", { class: "battery" }, icon("battery"), h("span", null, "not read yet"));
-  const kind = [dev.sensor_model, dev.simulated ? `simulated wearable${dev.scenario && dev.scenario !== "normal" ? ` (${dev.scenario.replaceAll("_", " ")})` : ""}` : dev.transport === "ble" ? "Bluetooth" : null]
+  const kind = [dev.model_label, dev.sensor_model, dev.simulated ? `simulated wearable${dev.scenario && dev.scenario !== "normal" ? ` (${dev.scenario.replaceAll("_", " ")})` : ""}` : dev.transport === "ble" ? "Bluetooth" : null]
     .filter(Boolean).join(" · ");
   const actions = [];
   if (dev.active_session) {
@@ -35,9 +40,15 @@ function deviceCard(ctx, dev) {
     h("dl", { class: "dev-facts" },
       h("div", null, h("dt", null, "Status"), h("dd", { class: `status ${st.key}` }, icon(st.icon), h("span", null, st.text))),
       h("div", null, h("dt", null, "Battery"), battery),
+      dev.sample_rate_hz ? h("div", null, h("dt", null, "Streams"),
+        h("dd", { class: "stream-settings" }, h("span", null, streamText(dev)))) : null,
       h("div", null, h("dt", null, "Last calibration"),
         h("dd", { class: cur ? "calibrated" : "never" }, icon(cur ? "check" : "info"),
           h("span", null, cur ? `${fmtDate(cur.accepted_at)} by ${cur.operator}` : "never calibrated")))),
+    dev.limitations && dev.limitations.length
+      ? h("ul", { class: "dev-limits", "aria-label": "What this device cannot tell" },
+        dev.limitations.map((text) => h("li", null, icon("info"), h("span", null, text))))
+      : null,
     h("div", { class: "dev-actions" }, actions));
   card.setBattery = (pct) => {
     const b = batteryText(pct);

@@ -84,6 +84,11 @@ class PolarDecoder:
             return []
         return self._flush()
 
+    def drain(self) -> list[SampleBatch]:
+        """The gyro samples still waiting for the accelerometer, with its last reading held (the link dropped:
+        what came before the gap goes out before it)."""
+        return self._flush(everything=True)
+
     def _times(self, last_ns: int | None, frame_ns: int, n: int, fs: float) -> tuple[np.ndarray, int]:
         """Sample times (ns) of a frame and the samples lost before it, from the time stamps."""
         if last_ns is None:
@@ -125,12 +130,12 @@ class PolarDecoder:
             st.lost_samples += lost
             st.lost_packets += max(1, lost // n)
 
-    def _flush(self) -> list[SampleBatch]:
+    def _flush(self, everything: bool = False) -> list[SampleBatch]:
         out: list[SampleBatch] = []
         while self._pending:
             t, gyro, seq, lost, saturated = self._pending[0]
             covered = self._acc_t.size and self._acc_t[-1] >= t[-1]
-            waited = (self._pending[-1][0][-1] - t[0]) * 1e-9 >= ACC_HOLD_S
+            waited = everything or (self._pending[-1][0][-1] - t[0]) * 1e-9 >= ACC_HOLD_S
             if not covered and not (waited and self._acc_t.size):
                 break
             self._pending.pop(0)
@@ -259,6 +264,9 @@ class PolarAdapter(Adapter):
         for fut in self._waiters.values():
             if not fut.done():
                 fut.set_exception(LinkError("the link dropped while waiting for the Polar sensor's answer"))
+        if self._decoder is not None:
+            for batch in self._decoder.drain():
+                self.sink.batch(batch)
 
     def _on_control(self, data: bytes) -> None:
         if data and data[0] == pmd.MEASUREMENT_STOPPED:

@@ -1,0 +1,56 @@
+"""Commercial wearables' protocols through the real bleak client on the simulated BlueZ: the scan names
+each model, and the stream a model's adapter decodes calibrates to the simulated sensor's truth."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+from test_ble_e2e import FAST, _assert_matches_truth, _calibrate, _stream
+
+from mock_device.sources import ScriptedSource
+from mock_device.vendors import WEARABLES
+from mock_device.wearable import Wearable
+from server.link import RecordingBuilder
+from server.link.ble import BleLink
+from wearable_protocol.models import MODELS
+
+SPEED = 20.0
+
+
+def _device_clock(speed: float):  # type: ignore[no-untyped-def]
+    """Arrival times on the simulated device's time scale (it runs ``speed`` times faster than the wall)."""
+    t0 = time.monotonic()
+    return lambda: (time.monotonic() - t0) * speed
+
+
+async def test_a_scan_names_the_model_of_every_wearable(simulated_bluez):
+    devices = [WEARABLES[m](ScriptedSource(seed=i), seed=i, speed=SPEED) for i, m in enumerate(MODELS, start=1)]
+    simulated_bluez(devices)
+    found = await BleLink().scan(1.5)
+    assert {(d.address, d.model) for d in found} == {(w.address, w.model.key) for w in devices}
+    polar = await BleLink(model="polar-pmd").scan(1.5)
+    assert [d.model for d in polar] == ["polar-pmd"] and polar[0].name.startswith("Polar Sense ")
+
+
+@pytest.mark.parametrize("model", ["polar-pmd", "metawear", "thingy52"])
+async def test_each_vendor_calibrates_through_bleak(simulated_bluez, model):
+    seed = 31
+    w: Wearable = WEARABLES[model](ScriptedSource(seed=seed), seed=seed, speed=SPEED)
+    simulated_bluez([w])
+    link = BleLink(w.address, reconnect=FAST, clock=_device_clock(SPEED))
+    await link.connect()
+    info = await link.read_info()
+    assert info.device_model == model and info.config.sample_rate_hz == MODELS[model].stream_rate_hz
+    await link.start()
+    duration = sum(s.duration_s for s in ScriptedSource(seed=seed).script.segments)
+    rb = RecordingBuilder(info)
+    _, events = await _stream(link, duration, rb.add)
+    await link.stop()
+    await link.disconnect()
+    assert events == [] and link.stats.malformed_packets == 0
+    rec = rb.recording()
+    assert np.all(np.diff(rec.seq) == 1) and np.all(np.diff(rec.t) > 0)
+    assert rec.fs == pytest.approx(w.true_rate_hz, rel=5e-4)
+    _assert_matches_truth(_calibrate(rec), w.truth)
