@@ -1,8 +1,12 @@
 """Sample times for devices that send none: from the central's arrival times, flagged as such.
 
-A notification's arrival time jitters by the connection interval, so single arrival times are not used as
-sample times: the true rate is the least-squares slope of sample count against arrival time over the
-session (the nominal rate until 0.5 s is in) and samples are spaced by it. Without a counter, lost
+A notification's arrival time is its sending time plus a delay that is never negative and sometimes long
+(the connection interval, retransmissions, a busy central), so single arrival times are not used as
+sample times. The true rate is the slope of the lower envelope of arrival time against sample count: in
+every second of samples the earliest arrival relative to the nominal rate is kept, and a straight line
+is fitted through those minima (the least-squares slope over all arrivals until three seconds are in, the
+nominal rate before 0.5 s). Delays only ever push arrivals later, so the minima sit on the sending times
+and a stalled central does not bend the estimate. Samples are spaced by the estimated rate. Without a counter, lost
 samples cannot be detected while the link holds; after a reconnection the gap is estimated from the
 arrival times (rounded to whole samples) and reported like any other loss.
 """
@@ -14,6 +18,42 @@ import numpy as np
 from ..base import LinkStats, SampleBatch
 from .base import RateFit
 
+ENVELOPE_BIN_S = 1.0  # seconds of samples per bin of the lower envelope
+ENVELOPE_MIN_BINS = 3
+
+
+class EnvelopeFit:
+    """The rate from the lower envelope of (sample counter, arrival time): per bin of counters, the earliest
+    arrival relative to the nominal rate; a least-squares line through the bins' minima."""
+
+    def __init__(self, nominal_rate_hz: float) -> None:
+        self.nominal = nominal_rate_hz
+        self.bin = max(1, int(round(ENVELOPE_BIN_S * nominal_rate_hz)))
+        self._minima: dict[int, tuple[int, float]] = {}  # bin -> (counter, arrival - counter / nominal)
+        self._rate: float | None = None
+        self._fitted_bins = 0
+
+    def add(self, counter: int, arrival_s: float) -> None:
+        key = counter // self.bin
+        lead = arrival_s - counter / self.nominal
+        best = self._minima.get(key)
+        if best is None or lead < best[1]:
+            self._minima[key] = (counter, lead)
+
+    def rate(self) -> float | None:
+        """The envelope's rate once ENVELOPE_MIN_BINS whole bins are in, else None."""
+        whole = len(self._minima) - 1  # the newest bin is still filling
+        if whole < ENVELOPE_MIN_BINS:
+            return None
+        if whole != self._fitted_bins:
+            keys = sorted(self._minima)[:-1]
+            c = np.array([self._minima[k][0] for k in keys], dtype=float)
+            a = np.array([self._minima[k][1] + self._minima[k][0] / self.nominal for k in keys])
+            slope = np.polyfit(c - c[0], a - a[0], 1)[0]
+            self._rate = 1.0 / slope if slope > 0 else None
+            self._fitted_bins = whole
+        return self._rate
+
 
 class ArrivalTimeline:
     """Places the samples of each notification on a time line from arrival times."""
@@ -22,6 +62,7 @@ class ArrivalTimeline:
         self.stats = stats
         self.nominal_rate_hz = nominal_rate_hz
         self._fit = RateFit()
+        self._envelope = EnvelopeFit(nominal_rate_hz)
         self._counter = 0
         self._t_next: float | None = None  # time (s from the first sample) of the next sample
         self._arrival0: float | None = None
@@ -31,7 +72,7 @@ class ArrivalTimeline:
 
     @property
     def fs_hz(self) -> float:
-        return self._fit.rate(self.nominal_rate_hz)
+        return self._envelope.rate() or self._fit.rate(self.nominal_rate_hz)
 
     def begin(self, resume: bool) -> None:
         """Streaming (re)starts; ``resume``: after a reconnection, so the next arrival follows a gap."""
@@ -54,6 +95,7 @@ class ArrivalTimeline:
         counter0 = self._counter + lost
         self._counter = counter0 + n
         self._fit.add(self._counter - 1, int(round((arrival_s - self._arrival0) * 1e6)))
+        self._envelope.add(self._counter - 1, arrival_s - self._arrival0)
         fs = self.fs_hz
         self._t_next = float(t[-1]) + 1.0 / fs
         self.last_t_s = float(t[-1])
