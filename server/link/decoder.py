@@ -26,40 +26,7 @@ from wearable_protocol import (
 )
 
 from .base import LinkStats, SampleBatch
-
-MIN_SPAN_FOR_RATE_S = 0.5  # below this span of device time the nominal rate is used
-
-
-class _RateFit:
-    """Running least-squares fit t = a + counter / fs over (counter, t_us) pairs, centred for accuracy."""
-
-    def __init__(self) -> None:
-        self.n = 0
-        self.x0 = 0
-        self.y0 = 0
-        self.sx = self.sy = self.sxx = self.sxy = 0.0
-        self.span_us = 0
-
-    def add(self, counter: int, t_us: int) -> None:
-        if self.n == 0:
-            self.x0, self.y0 = counter, t_us
-        x = float(counter - self.x0)
-        y = float(t_us - self.y0)
-        self.n += 1
-        self.sx += x
-        self.sy += y
-        self.sxx += x * x
-        self.sxy += x * y
-        self.span_us = max(self.span_us, t_us - self.y0)
-
-    def rate(self, nominal: float) -> float:
-        if self.n < 3 or self.span_us < MIN_SPAN_FOR_RATE_S * 1e6:
-            return nominal
-        var = self.sxx - self.sx * self.sx / self.n
-        cov = self.sxy - self.sx * self.sy / self.n
-        if var <= 0 or cov <= 0:
-            return nominal
-        return 1e6 * var / cov
+from .rate_fit import RateFit
 
 
 class StreamDecoder:
@@ -68,7 +35,7 @@ class StreamDecoder:
     def __init__(self, config: DeviceConfig, stats: LinkStats | None = None) -> None:
         self.stats = stats if stats is not None else LinkStats()
         self.config = config
-        self._fit = _RateFit()
+        self._fit = RateFit()
         self._t0_us: int | None = None  # unwrapped device time of the first sample received
         self._last_seq16: int | None = None
         self._last_packet: int = 0  # unwrapped packet index of the last packet
@@ -137,7 +104,7 @@ class StreamDecoder:
                 self._counter_offset = start_new - p.seq * n
                 packet = p.seq
                 lost = start_new - end_prev + p.seq * n
-                self._fit = _RateFit()
+                self._fit = RateFit()
             else:
                 d = (p.seq - self._last_seq16) % SEQ_MODULUS
                 expected = dt_us * 1e-6 * self.fs_hz / n

@@ -8,11 +8,12 @@ import time
 
 import numpy as np
 import pytest
+from test_link_inprocess import _collect
 
 from calib.api import calibrate
 from mock_device.sources import ScriptedSource
 from mock_device.vendors import WEARABLES
-from server.link import CommandError, InProcessLink, LinkEvent, ReconnectPolicy, RecordingBuilder, SampleBatch
+from server.link import CommandError, InProcessLink, ReconnectPolicy, RecordingBuilder
 from server.link.base import ConnectError
 from wearable_protocol.models import MODELS
 from wearable_protocol.vendors import polar_pmd as pmd
@@ -29,18 +30,6 @@ def _link(w, **kw) -> InProcessLink:  # type: ignore[no-untyped-def]
     t0 = time.monotonic()
     speed = w.speed
     return InProcessLink(w, reconnect=FAST, clock=lambda: (time.monotonic() - t0) * speed, **kw)
-
-
-async def _collect(link: InProcessLink, until_s: float) -> tuple[list[SampleBatch], list[LinkEvent]]:
-    batches, events = [], []
-    async for item in link.samples():
-        if isinstance(item, LinkEvent):
-            events.append(item)
-        else:
-            batches.append(item)
-            if item.t_device_s[-1] >= until_s:
-                break
-    return batches, events
 
 
 @pytest.mark.parametrize("model", VENDORS)

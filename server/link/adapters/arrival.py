@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..base import LinkStats, SampleBatch
-from .base import RateFit
+from ..rate_fit import RateFit
 
 ENVELOPE_BIN_S = 1.0  # seconds of samples per bin of the lower envelope
 ENVELOPE_MIN_BINS = 3

@@ -8,16 +8,15 @@ configure, start and stop, and how the data notifications decode into :class:`Sa
 
 from __future__ import annotations
 
+import asyncio
 from abc import ABC, abstractmethod
-from collections.abc import Callable
-from typing import ClassVar, Protocol
+from collections.abc import Callable, Hashable
+from typing import Any, ClassVar, Protocol
 
 from wearable_protocol import DeviceConfig, DeviceState
 from wearable_protocol.models import DeviceModel
 
-from ..base import LinkStats, SampleBatch
-
-MIN_SPAN_FOR_RATE_S = 0.5  # below this span of time the nominal rate is used
+from ..base import CommandError, LinkError, LinkStats, SampleBatch
 
 
 class GattIO(Protocol):
@@ -43,38 +42,6 @@ class StreamSink(Protocol):
         """The device ended the stream by itself."""
 
 
-class RateFit:
-    """Running least-squares fit t = a + counter / fs over (counter, t_us) pairs, centred for accuracy."""
-
-    def __init__(self) -> None:
-        self.n = 0
-        self.x0 = 0
-        self.y0 = 0
-        self.sx = self.sy = self.sxx = self.sxy = 0.0
-        self.span_us = 0
-
-    def add(self, counter: int, t_us: int) -> None:
-        if self.n == 0:
-            self.x0, self.y0 = counter, t_us
-        x = float(counter - self.x0)
-        y = float(t_us - self.y0)
-        self.n += 1
-        self.sx += x
-        self.sy += y
-        self.sxx += x * x
-        self.sxy += x * y
-        self.span_us = max(self.span_us, t_us - self.y0)
-
-    def rate(self, nominal: float) -> float:
-        if self.n < 3 or self.span_us < MIN_SPAN_FOR_RATE_S * 1e6:
-            return nominal
-        var = self.sxx - self.sx * self.sx / self.n
-        cov = self.sxy - self.sx * self.sy / self.n
-        if var <= 0 or cov <= 0:
-            return nominal
-        return 1e6 * var / cov
-
-
 class Adapter(ABC):
     """One model's protocol on a connected device. ``io``: its GATT; ``sink``: where batches go;
     ``clock``: the central's clock in seconds (arrival times of devices that send none of their own)."""
@@ -93,9 +60,10 @@ class Adapter(ABC):
         self.clock = clock or time.monotonic
         self.config: DeviceConfig | None = None
         self.last_t_s: float | None = None  # time of the last sample delivered
+        self._waiters: dict[Hashable, asyncio.Future[Any]] = {}
         self._setup()
 
-    def _setup(self) -> None:  # noqa: B027 - optional hook
+    def _setup(self) -> None:  # noqa: B027 - optional hook for a subclass's own state
         """A subclass's own state."""
 
     @classmethod
@@ -124,8 +92,33 @@ class Adapter(ABC):
     async def stop(self) -> None:
         """Stop streaming and unsubscribe from the data."""
 
-    def link_lost(self) -> None:  # noqa: B027 - optional hook
+    async def _exchange(self, key: Hashable, char_uuid: str, data: bytes, what: str) -> Any:
+        """Write a command and wait for the reply that ``_answer(key, reply)`` delivers; CommandError when the
+        device does not answer in time or the write fails, LinkError when the link drops meanwhile."""
+        fut: asyncio.Future[Any] = asyncio.get_running_loop().create_future()
+        self._waiters[key] = fut
+        try:
+            await self.io.write(char_uuid, data)
+            return await asyncio.wait_for(fut, self.command_timeout_s)
+        except TimeoutError:
+            raise CommandError(f"the {self.model.label} did not answer {what} within {self.command_timeout_s:g} s") from None
+        except LinkError:
+            raise
+        except Exception as e:
+            raise CommandError(f"{what} could not be sent: {e}") from e
+        finally:
+            self._waiters.pop(key, None)
+
+    def _answer(self, key: Hashable, reply: Any) -> None:
+        fut = self._waiters.get(key)
+        if fut is not None and not fut.done():
+            fut.set_result(reply)
+
+    def link_lost(self) -> None:
         """The connection dropped: fail whatever waits for the device's answer."""
+        for fut in self._waiters.values():
+            if not fut.done():
+                fut.set_exception(LinkError("the link dropped while waiting for the wearable's answer"))
 
 
 def vendor_config(rate_hz: float, gyro_dps: int, accel_g: int, samples_per_packet: int,

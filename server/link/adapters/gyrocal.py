@@ -3,14 +3,13 @@ packets with a sequence number and the device clock."""
 
 from __future__ import annotations
 
-import asyncio
 import logging
 
 import wearable_protocol as wp
 from wearable_protocol import Command, DecodeError, DeviceConfig, DeviceState, Opcode, Status, StatusReply
 from wearable_protocol.models import GYROCAL
 
-from ..base import CommandError, ConnectError, LinkError
+from ..base import CommandError, ConnectError
 from ..decoder import StreamDecoder
 from .base import Adapter
 
@@ -24,9 +23,6 @@ class GyrocalAdapter(Adapter):
     data_char = wp.IMU_DATA_CHAR
 
     _decoder: StreamDecoder | None = None
-
-    def _setup(self) -> None:
-        self._waiters: dict[int, asyncio.Future[StatusReply]] = {}
 
     @property
     def decoder(self) -> StreamDecoder | None:
@@ -52,19 +48,7 @@ class GyrocalAdapter(Adapter):
         return cfg
 
     async def _command(self, cmd: Command) -> StatusReply:
-        fut: asyncio.Future[StatusReply] = asyncio.get_running_loop().create_future()
-        self._waiters[int(cmd.opcode)] = fut
-        try:
-            await self.io.write(wp.IMU_CONTROL_CHAR, cmd.encode())
-            reply = await asyncio.wait_for(fut, self.command_timeout_s)
-        except TimeoutError:
-            raise CommandError(f"the wearable did not answer {cmd.opcode.name} within {self.command_timeout_s:g} s") from None
-        except LinkError:
-            raise
-        except Exception as e:
-            raise CommandError(f"{cmd.opcode.name} could not be sent: {e}") from e
-        finally:
-            self._waiters.pop(int(cmd.opcode), None)
+        reply: StatusReply = await self._exchange(int(cmd.opcode), wp.IMU_CONTROL_CHAR, cmd.encode(), cmd.opcode.name)
         if reply.status != Status.OK:
             hint = {Status.BUSY: "stop streaming first", Status.INVALID_VALUE: "use a supported value",
                     Status.NOT_SUPPORTED: "this device has fixed settings"}.get(reply.status, "")
@@ -95,11 +79,6 @@ class GyrocalAdapter(Adapter):
         await self._command(Command(Opcode.STOP))
         await self.io.unsubscribe(wp.IMU_DATA_CHAR)
 
-    def link_lost(self) -> None:
-        for fut in self._waiters.values():
-            if not fut.done():
-                fut.set_exception(LinkError("the link dropped while waiting for the wearable's answer"))
-
     def _on_data(self, data: bytes) -> None:
         if self._decoder is None:
             return
@@ -117,6 +96,4 @@ class GyrocalAdapter(Adapter):
         if reply.opcode == Opcode.STREAM_END:
             self.sink.ended("the wearable ended the stream")
             return
-        fut = self._waiters.get(reply.opcode)
-        if fut is not None and not fut.done():
-            fut.set_result(reply)
+        self._answer(reply.opcode, reply)

@@ -11,7 +11,6 @@ gyroscope's sample times.
 
 from __future__ import annotations
 
-import asyncio
 import logging
 
 import numpy as np
@@ -20,8 +19,9 @@ from wearable_protocol import DecodeError, DeviceConfig
 from wearable_protocol.models import HAND_TURN_RANGE_DPS, POLAR_PMD
 from wearable_protocol.vendors import polar_pmd as pmd
 
-from ..base import CommandError, ConnectError, LinkError, LinkStats, SampleBatch
-from .base import Adapter, RateFit, vendor_config
+from ..base import CommandError, ConnectError, LinkStats, SampleBatch
+from ..rate_fit import RateFit
+from .base import Adapter, vendor_config
 
 log = logging.getLogger(__name__)
 
@@ -156,7 +156,6 @@ class PolarAdapter(Adapter):
     data_char = pmd.PMD_DATA_CHAR
 
     def _setup(self) -> None:
-        self._waiters: dict[tuple[int, int], asyncio.Future[pmd.ControlResponse]] = {}
         self._settings: dict[pmd.MeasurementType, dict[pmd.SettingType, int]] = {}
         self._factors: dict[pmd.MeasurementType, float] = {}
         self._decoder: PolarDecoder | None = None
@@ -240,30 +239,16 @@ class PolarAdapter(Adapter):
 
     async def _command(self, command: pmd.Command, kind: pmd.MeasurementType, settings: bytes = b"",
                        allow_already: bool = False) -> pmd.ControlResponse:
-        key = (int(command), int(kind))
-        fut: asyncio.Future[pmd.ControlResponse] = asyncio.get_running_loop().create_future()
-        self._waiters[key] = fut
         what = f"{command.name} for {kind.name.lower()}"
-        try:
-            await self.io.write(pmd.PMD_CONTROL_CHAR, pmd.encode_command(command, kind, settings))
-            reply = await asyncio.wait_for(fut, self.command_timeout_s)
-        except TimeoutError:
-            raise CommandError(f"the Polar sensor did not answer {what} within {self.command_timeout_s:g} s") from None
-        except LinkError:
-            raise
-        except Exception as e:
-            raise CommandError(f"{what} could not be sent: {e}") from e
-        finally:
-            self._waiters.pop(key, None)
+        reply: pmd.ControlResponse = await self._exchange((int(command), int(kind)), pmd.PMD_CONTROL_CHAR,
+                                                          pmd.encode_command(command, kind, settings), what)
         ok = reply.status == pmd.Status.SUCCESS or (allow_already and reply.status == pmd.Status.ALREADY_IN_STATE)
         if not ok:
             raise CommandError(f"the Polar sensor refused {what}: {reply.status_name.replace('_', ' ')}")
         return reply
 
     def link_lost(self) -> None:
-        for fut in self._waiters.values():
-            if not fut.done():
-                fut.set_exception(LinkError("the link dropped while waiting for the Polar sensor's answer"))
+        super().link_lost()
         if self._decoder is not None:
             for batch in self._decoder.drain():
                 self.sink.batch(batch)
@@ -277,9 +262,7 @@ class PolarAdapter(Adapter):
         except DecodeError as e:
             log.warning("unreadable PMD reply %r: %s", bytes(data), e)
             return
-        fut = self._waiters.get((reply.opcode, reply.measurement))
-        if fut is not None and not fut.done():
-            fut.set_result(reply)
+        self._answer((reply.opcode, reply.measurement), reply)
 
     def _on_data(self, data: bytes) -> None:
         if self._decoder is None:
