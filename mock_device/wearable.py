@@ -22,6 +22,7 @@ import asyncio
 import contextlib
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -231,18 +232,38 @@ class Wearable:
         self._lose_central()
         self._log("disconnected by the central")
 
+    # Device Information: manufacturer, model number, firmware revision (the serial is the device's own)
+    device_information: tuple[bytes, bytes, bytes] = (b"gyrocal", b"GC-1 simulated IMU wearable", b"1.0.0")
+
+    def _readable(self) -> dict[str, Callable[[], bytes]]:
+        """The protocol's own readable characteristics (the standard services' are added by ``read``)."""
+        return {wp.IMU_CONFIG_CHAR: lambda: self.config.encode()}
+
     def read(self, char_uuid: str) -> bytes:
+        manufacturer, model_number, firmware = self.device_information
         values = {
-            wp.IMU_CONFIG_CHAR: lambda: self.config.encode(),
-            wp.MANUFACTURER_NAME_CHAR: lambda: b"gyrocal",
-            wp.MODEL_NUMBER_CHAR: lambda: b"GC-1 simulated IMU wearable",
+            wp.MANUFACTURER_NAME_CHAR: lambda: manufacturer,
+            wp.MODEL_NUMBER_CHAR: lambda: model_number,
             wp.SERIAL_NUMBER_CHAR: lambda: self.serial.encode(),
-            wp.FIRMWARE_REVISION_CHAR: lambda: b"1.0.0",
+            wp.FIRMWARE_REVISION_CHAR: lambda: firmware,
             wp.BATTERY_LEVEL_CHAR: lambda: bytes([self.battery_pct]),
+            **self._readable(),
         }
         if char_uuid not in values:
             raise GattError("not_permitted", "Read not permitted")
         return values[char_uuid]()
+
+    def _set_sensor(self, rate_hz: float | None = None, gyro_full_scale_dps: int | None = None) -> None:
+        """A vendor command set the sensor's rate or gyro range: a paused session cannot resume with other
+        settings, so a change ends it. A replay keeps its file's rate."""
+        new_rate = rate_hz if self.source.fixed_rate_hz is None and rate_hz not in (None, self.rate_hz) else None
+        new_range = gyro_full_scale_dps if gyro_full_scale_dps not in (None, self.gyro_full_scale_dps) else None
+        if new_rate is not None or new_range is not None:
+            self._end_session("settings changed")
+        if new_rate is not None:
+            self.rate_hz = float(new_rate)
+        if new_range is not None:
+            self.gyro_full_scale_dps = int(new_range)
 
     def write(self, char_uuid: str, data: bytes) -> None:
         if char_uuid != wp.IMU_CONTROL_CHAR:

@@ -19,6 +19,20 @@ from .vendors import metawear, polar_pmd, thingy52
 # Simulated brisk hand turns peak at 150-330 deg/s (docs/protocol.md): the smallest full scale at or above
 # this leaves a third of headroom. Finer ranges clip a fast turn; coarser ones only cost resolution.
 HAND_TURN_RANGE_DPS = 450
+HAND_MOTION_RANGE_G = 4
+
+def hand_turn_range(offered: tuple[int, ...] | list[int]) -> int:
+    """The smallest offered gyro range (deg/s) that a brisk hand turn does not clip, else the widest."""
+    wide = [r for r in sorted(offered) if r >= HAND_TURN_RANGE_DPS]
+    return wide[0] if wide else max(offered)
+
+
+def hand_motion_accel_range(offered: tuple[int, ...] | list[int]) -> int:
+    """The smallest offered accelerometer range (g) of 4 g or more, else the widest: rests read 1 g and hand
+    turns little more."""
+    wide = [r for r in sorted(offered) if r >= HAND_MOTION_RANGE_G]
+    return wide[0] if wide else max(offered)
+
 
 TimeStamps = Literal["device", "arrival"]
 LossDetection = Literal["counter", "time_stamps", "none"]
@@ -44,14 +58,13 @@ class DeviceModel:
 
     @property
     def gyro_range_dps(self) -> int:
-        """The smallest offered range that a brisk hand turn does not clip (else the widest)."""
-        wide = [r for r in sorted(self.gyro_ranges_dps) if r >= HAND_TURN_RANGE_DPS]
-        return wide[0] if wide else max(self.gyro_ranges_dps)
+        """The gyro range gyrocal asks for (see :func:`hand_turn_range`)."""
+        return hand_turn_range(self.gyro_ranges_dps)
 
     @property
     def accel_range_g(self) -> int:
-        """The accelerometer range gyrocal asks for: 4 g where offered (rests read 1 g, hand turns little more)."""
-        return 4 if 4 in self.accel_ranges_g else min(self.accel_ranges_g)
+        """The accelerometer range gyrocal asks for (see :func:`hand_motion_accel_range`)."""
+        return hand_motion_accel_range(self.accel_ranges_g)
 
     def limitations(self) -> tuple[str, ...]:
         """What this protocol cannot tell, in the words the page shows."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -37,17 +38,10 @@ class MetaWearWearable(Wearable):
     def samples_per_packet(self) -> int:
         return PACKED
 
-    def read(self, char_uuid: str) -> bytes:
-        values = {
-            wp.MANUFACTURER_NAME_CHAR: lambda: b"MbientLab Inc",
-            wp.MODEL_NUMBER_CHAR: lambda: b"5",  # MetaMotion S's model number
-            wp.SERIAL_NUMBER_CHAR: lambda: self.serial.encode(),
-            wp.FIRMWARE_REVISION_CHAR: lambda: b"1.7.3",
-            wp.BATTERY_LEVEL_CHAR: lambda: bytes([self.battery_pct]),
-        }
-        if char_uuid not in values:
-            raise wp.GattError("not_permitted", "Read not permitted")
-        return values[char_uuid]()
+    device_information = (b"MbientLab Inc", b"5", b"1.7.3")  # model number 5: MetaMotion S
+
+    def _readable(self) -> dict[str, Callable[[], bytes]]:
+        return {}
 
     def write(self, char_uuid: str, data: bytes) -> None:
         if char_uuid != mw.COMMAND_CHAR:
@@ -75,11 +69,7 @@ class MetaWearWearable(Wearable):
         except wp.DecodeError:
             return
         if module == mw.Module.GYROSCOPE:
-            if (self.source.fixed_rate_hz is None and rate != self.rate_hz) or full != self.gyro_full_scale_dps:
-                self._end_session("settings changed")
-            if self.source.fixed_rate_hz is None:
-                self.rate_hz = rate
-            self.gyro_full_scale_dps = full
+            self._set_sensor(rate, full)
         else:
             self.accel_range_g = full
 

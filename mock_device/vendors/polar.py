@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -20,7 +21,7 @@ G, A, S = pmd.MeasurementType.GYRO, pmd.MeasurementType.ACC, pmd.SettingType
 OFFERS: dict[pmd.MeasurementType, dict[pmd.SettingType, tuple[int, ...]]] = {
     G: {S.SAMPLE_RATE: tuple(int(r) for r in POLAR_PMD.rates_hz), S.RESOLUTION: (16,),
         S.RANGE: POLAR_PMD.gyro_ranges_dps, S.CHANNELS: (3,)},
-    A: {S.SAMPLE_RATE: (52,), S.RESOLUTION: (16,), S.RANGE: POLAR_PMD.accel_ranges_g, S.CHANNELS: (3,)},
+    A: {S.SAMPLE_RATE: (int(POLAR_PMD.accel_rate_hz or 52),), S.RESOLUTION: (16,), S.RANGE: POLAR_PMD.accel_ranges_g, S.CHANNELS: (3,)},
 }
 _INVALID = {S.SAMPLE_RATE: pmd.Status.INVALID_SAMPLE_RATE, S.RESOLUTION: pmd.Status.INVALID_RESOLUTION,
             S.RANGE: pmd.Status.INVALID_RANGE, S.CHANNELS: pmd.Status.INVALID_NUMBER_OF_CHANNELS}
@@ -52,18 +53,10 @@ class PolarWearable(Wearable):
     def samples_per_packet(self) -> int:
         return min(MAX_FRAME_SAMPLES, 9 * max(1, int(round(self.rate_hz / 52.0))))
 
-    def read(self, char_uuid: str) -> bytes:
-        values = {
-            pmd.PMD_CONTROL_CHAR: lambda: pmd.encode_features({G, A}),
-            wp.MANUFACTURER_NAME_CHAR: lambda: b"Polar Electro Oy",
-            wp.MODEL_NUMBER_CHAR: lambda: b"Polar Sense",
-            wp.SERIAL_NUMBER_CHAR: lambda: self.serial.encode(),
-            wp.FIRMWARE_REVISION_CHAR: lambda: b"2.1.8",
-            wp.BATTERY_LEVEL_CHAR: lambda: bytes([self.battery_pct]),
-        }
-        if char_uuid not in values:
-            raise wp.GattError("not_permitted", "Read not permitted")
-        return values[char_uuid]()
+    device_information = (b"Polar Electro Oy", b"Polar Sense", b"2.1.8")
+
+    def _readable(self) -> dict[str, Callable[[], bytes]]:
+        return {pmd.PMD_CONTROL_CHAR: lambda: pmd.encode_features({G, A})}
 
     def write(self, char_uuid: str, data: bytes) -> None:
         if char_uuid != pmd.PMD_CONTROL_CHAR:
@@ -103,12 +96,7 @@ class PolarWearable(Wearable):
                 return reply(_INVALID[setting])
         chosen = {k: asked.get(k, v[0]) for k, v in OFFERS[kind].items()}
         if kind == G:
-            rate, full = float(chosen[S.SAMPLE_RATE]), int(chosen[S.RANGE])
-            if (self.source.fixed_rate_hz is None and rate != self.rate_hz) or full != self.gyro_full_scale_dps:
-                self._end_session("settings changed")  # a paused session cannot resume with other settings
-            if self.source.fixed_rate_hz is None:
-                self.rate_hz = rate
-            self.gyro_full_scale_dps = full
+            self._set_sensor(float(chosen[S.SAMPLE_RATE]), int(chosen[S.RANGE]))
         else:
             self.accel_range_g = int(chosen[S.RANGE])
         self._measuring[kind] = chosen
@@ -140,7 +128,7 @@ class PolarWearable(Wearable):
         gyro = np.clip(np.round(blk.gyro / _factor(G, self.gyro_full_scale_dps)), -32768, 32767)
         frames = [pmd.encode_frame(G, self._time_ns(s, i1 - 1), gyro)]
         if A in self._measuring:
-            decimation = max(1, int(round(self.rate_hz / 52.0)))
+            decimation = max(1, int(round(self.rate_hz / self._measuring[A][S.SAMPLE_RATE])))
             idx = np.arange(i0, i1)
             idx = idx[idx % decimation == 0]
             if idx.size:

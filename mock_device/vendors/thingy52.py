@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import wearable_protocol as wp
@@ -35,15 +36,9 @@ class Thingy52Wearable(Wearable):
     def samples_per_packet(self) -> int:
         return 1
 
-    def read(self, char_uuid: str) -> bytes:
-        values = {
-            th.CONFIG_CHAR: lambda: self.motion.encode(),
-            th.DEVICE_NAME_CHAR: lambda: self.name.encode(),
-            wp.BATTERY_LEVEL_CHAR: lambda: bytes([self.battery_pct]),
-        }
-        if char_uuid not in values:
-            raise wp.GattError("not_permitted", "Read not permitted")
-        return values[char_uuid]()
+    def _readable(self) -> dict[str, Callable[[], bytes]]:
+        # the Thingy has no Device Information service (its GATT table leaves it out); battery comes from the base
+        return {th.CONFIG_CHAR: lambda: self.motion.encode(), th.DEVICE_NAME_CHAR: lambda: self.name.encode()}
 
     def write(self, char_uuid: str, data: bytes) -> None:
         if char_uuid == th.DEVICE_NAME_CHAR:
@@ -55,9 +50,7 @@ class Thingy52Wearable(Wearable):
             motion = th.MotionConfig.decode(bytes(data))
         except wp.DecodeError as e:
             raise wp.GattError("invalid_value", str(e)) from e
-        if motion.motion_freq_hz != self.motion.motion_freq_hz and self.source.fixed_rate_hz is None:
-            self._end_session("motion frequency changed")
-            self.rate_hz = float(motion.motion_freq_hz)
+        self._set_sensor(float(motion.motion_freq_hz))
         self.motion = motion
 
     def set_notify(self, char_uuid: str, enabled: bool) -> None:

@@ -88,7 +88,6 @@ class LinkCore(ABC):
         self.command_timeout_s = command_timeout_s
         self.clock = clock or time.monotonic
         self.stats = LinkStats()
-        self.config: DeviceConfig | None = None
         self.protocol: Adapter | None = None
         self._feed: deque[object] = deque()
         self._feed_ready = asyncio.Event()
@@ -97,6 +96,11 @@ class LinkCore(ABC):
         self._closing = False
         self._reconnect_task: asyncio.Task[None] | None = None
         self._restore: tuple[int, float] | None = None  # (attempts, time of loss) until the first batch after
+
+    @property
+    def config(self) -> DeviceConfig | None:
+        """The device's configuration as last read or negotiated (None before the first connection)."""
+        return self.protocol.config if self.protocol is not None else None
 
     @property
     def model(self) -> DeviceModel | None:
@@ -172,7 +176,7 @@ class LinkCore(ABC):
                     raise ConnectError(f"{self.address} offers none of the protocols gyrocal speaks ("
                                        + ", ".join(ADAPTERS) + "); is it a supported wearable?")
                 adapter = cls(io, self.stats, _Sink(self), command_timeout_s=self.command_timeout_s, clock=self.clock)
-            self.config = await adapter.open()
+            await adapter.open()
             self.protocol = adapter
         except LinkError:
             with contextlib.suppress(Exception):
@@ -195,7 +199,7 @@ class LinkCore(ABC):
     async def read_info(self) -> DeviceInfo:
         """Read config, Device Information (optional) and battery level (optional)."""
         adapter = self._require()
-        self.config = await adapter.read_config()
+        config = await adapter.read_config()
 
         async def text(uuid: str) -> str | None:
             raw = await self._optional(uuid)
@@ -203,7 +207,7 @@ class LinkCore(ABC):
 
         battery = await self._optional(wp.BATTERY_LEVEL_CHAR)
         return DeviceInfo(
-            self.address or "", self.name, self.config,
+            self.address or "", self.name, config,
             await text(wp.MANUFACTURER_NAME_CHAR), await text(wp.MODEL_NUMBER_CHAR),
             await text(wp.SERIAL_NUMBER_CHAR), await text(wp.FIRMWARE_REVISION_CHAR),
             battery[0] if battery else None, adapter.model.key,
@@ -224,9 +228,8 @@ class LinkCore(ABC):
         if self._streaming:
             raise CommandError("cannot change the configuration while streaming: stop() first")
         adapter = self._require()
-        self.config = await adapter.configure(sample_rate_hz=sample_rate_hz, gyro_full_scale_dps=gyro_full_scale_dps,
-                                              accel_range_g=accel_range_g)
-        return self.config
+        return await adapter.configure(sample_rate_hz=sample_rate_hz, gyro_full_scale_dps=gyro_full_scale_dps,
+                                       accel_range_g=accel_range_g)
 
     async def start(self) -> None:
         """Subscribe to data and start (or resume) the device's session. Items of an earlier stream that
@@ -234,7 +237,6 @@ class LinkCore(ABC):
         adapter = self._require()
         self._feed.clear()
         await adapter.start(resume=False)
-        self.config = adapter.config
         self._streaming = True
 
     async def stop(self) -> None:

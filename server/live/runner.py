@@ -172,9 +172,8 @@ class LiveSession:
                 "serial": info.serial,
                 "manufacturer": info.manufacturer,
                 "battery_pct": info.battery_pct,
-                "sample_rate_hz": cfg.sample_rate_hz,
-                "gyro_full_scale_dps": cfg.gyro_full_scale_dps,
                 "accel_range_g": cfg.accel_range_g,
+                # the model, its limits, and the rate and range read from the device
                 **model_facts(info.device_model, {"sample_rate_hz": cfg.sample_rate_hz,
                                                   "gyro_full_scale_dps": cfg.gyro_full_scale_dps}),
             }

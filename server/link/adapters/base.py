@@ -9,6 +9,7 @@ configure, start and stop, and how the data notifications decode into :class:`Sa
 from __future__ import annotations
 
 import asyncio
+import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Hashable
 from typing import Any, ClassVar, Protocol
@@ -51,8 +52,6 @@ class Adapter(ABC):
 
     def __init__(self, io: GattIO, stats: LinkStats, sink: StreamSink, *, command_timeout_s: float = 5.0,
                  clock: Callable[[], float] | None = None) -> None:
-        import time
-
         self.io = io
         self.stats = stats
         self.sink = sink

@@ -24,10 +24,6 @@ class GyrocalAdapter(Adapter):
 
     _decoder: StreamDecoder | None = None
 
-    @property
-    def decoder(self) -> StreamDecoder | None:
-        return self._decoder
-
     async def open(self) -> DeviceConfig:
         await self.io.subscribe(wp.IMU_CONTROL_CHAR, self._on_control)
         cfg = await self.read_config()

@@ -16,7 +16,7 @@ import logging
 import numpy as np
 
 from wearable_protocol import DecodeError, DeviceConfig
-from wearable_protocol.models import HAND_TURN_RANGE_DPS, POLAR_PMD
+from wearable_protocol.models import POLAR_PMD, hand_motion_accel_range, hand_turn_range
 from wearable_protocol.vendors import polar_pmd as pmd
 
 from ..base import CommandError, ConnectError, LinkStats, SampleBatch
@@ -30,14 +30,10 @@ ACC_KEEP = 256  # accelerometer samples kept for interpolation
 INT16_LIMITS = (-32768, 32767)
 
 
-def _choose(offered: tuple[int, ...], wanted: float, at_least: bool) -> int:
-    """The offered value nearest ``wanted`` from above (``at_least``) or below; the extreme otherwise."""
-    values = sorted(offered)
-    if at_least:
-        above = [v for v in values if v >= wanted]
-        return above[0] if above else values[-1]
-    below = [v for v in values if v <= wanted]
-    return below[-1] if below else values[0]
+def _fastest_up_to(offered: tuple[int, ...], wanted: float) -> int:
+    """The fastest offered rate at or below ``wanted``; the slowest offered when all are faster."""
+    below = [v for v in sorted(offered) if v <= wanted]
+    return below[-1] if below else min(offered)
 
 
 class PolarDecoder:
@@ -195,10 +191,10 @@ class PolarAdapter(Adapter):
             if asked is not None and int(asked) not in offered:
                 raise CommandError(f"the Polar sensor offers no {what} {asked:g}: choose one of "
                                    + ", ".join(str(v) for v in offered))
-        rate = int(sample_rate_hz) if sample_rate_hz is not None else _choose(rates, self.model.stream_rate_hz, False)
-        gyro_range = int(gyro_full_scale_dps) if gyro_full_scale_dps is not None else _choose(ranges, HAND_TURN_RANGE_DPS, True)
-        acc_rate = _choose(self._offer(A, S.SAMPLE_RATE), rate, False)
-        acc_range = int(accel_range_g) if accel_range_g is not None else _choose(self._offer(A, S.RANGE), 4, True)
+        rate = int(sample_rate_hz) if sample_rate_hz is not None else _fastest_up_to(rates, self.model.stream_rate_hz)
+        gyro_range = int(gyro_full_scale_dps) if gyro_full_scale_dps is not None else hand_turn_range(ranges)
+        acc_rate = _fastest_up_to(self._offer(A, S.SAMPLE_RATE), rate)
+        acc_range = int(accel_range_g) if accel_range_g is not None else hand_motion_accel_range(self._offer(A, S.RANGE))
         self._settings = {
             G: {S.SAMPLE_RATE: rate, S.RESOLUTION: 16, S.RANGE: gyro_range, S.CHANNELS: 3},
             A: {S.SAMPLE_RATE: acc_rate, S.RESOLUTION: 16, S.RANGE: acc_range, S.CHANNELS: 3},
