@@ -77,9 +77,8 @@ def _wearables(args: argparse.Namespace) -> list[Any]:
             source = ScriptedSource(seed=seed, scenario=args.scenario)
             faults = None
         rate = args.rate
-        if rate is not None and not args.replay and not any(abs(rate - r) < 1e-6 for r in model.rates_hz):
-            raise GyrocalError(f"--rate {rate:g} is not offered by a {model.label}: choose one of "
-                               + ", ".join(f"{r:g}" for r in model.rates_hz))
+        if rate is not None and not args.replay and not model.offers_rate(rate):
+            raise GyrocalError(f"--rate {rate:g} is not offered by a {model.label}: choose {model.rates_text()}")
         out.append(WEARABLES[args.model](source, seed=seed, speed=args.speed, faults=faults, rate_hz=rate))
     return out
 

@@ -15,9 +15,10 @@ scenarios: tuple[str, ...] = tuple(SCENARIOS)
 models: tuple[str, ...] = tuple(WEARABLES)
 
 
-def rates(model: str) -> tuple[float, ...]:
-    """The rates a simulated wearable of ``model`` offers (Hz)."""
-    return device_model(model).rates_hz
+def rates_instead(model: str, rate_hz: float) -> str | None:
+    """None when a simulated wearable of ``model`` offers ``rate_hz``; else the rates it does offer, in words."""
+    m = device_model(model)
+    return None if m.offers_rate(rate_hz) else m.rates_text()
 
 
 def wearable(*, seed: int, scenario: str, speed: float, name: str, rate_hz: float | None, noise_dps: float,

@@ -130,9 +130,8 @@ class Wearable:
         self.mtu = mtu
         fixed = source.fixed_rate_hz
         self.rate_hz = float(fixed if fixed is not None else (rate_hz or self.model.stream_rate_hz))
-        if fixed is None and not self.rate_offered(self.rate_hz):
-            raise ValueError(f"rate {self.rate_hz:g} Hz is not offered by a {self.model.label}: choose one of "
-                             + ", ".join(f"{r:g}" for r in self.model.rates_hz))
+        if fixed is None and not self.model.offers_rate(self.rate_hz):
+            raise ValueError(f"rate {self.rate_hz:g} Hz is not offered by a {self.model.label}: choose {self.model.rates_text()}")
         self.gyro_full_scale_dps = int(gyro_full_scale_dps)
         self.accel_range_g = int(accel_range_g)
         self.odr_error = float(rng.uniform(-0.008, 0.008) if odr_error is None else odr_error)
@@ -160,10 +159,6 @@ class Wearable:
 
     def _default_name(self) -> str:
         return f"gyrocal-{self.address[-5:].replace(':', '')}"
-
-    def rate_offered(self, rate_hz: float) -> bool:
-        """Whether the device's sensor offers this output data rate."""
-        return any(abs(rate_hz - r) < 1e-6 for r in self.model.rates_hz)
 
     def device_time_us(self, wall: float | None = None) -> int:
         """The device clock (unwrapped, microseconds since boot)."""

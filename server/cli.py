@@ -217,9 +217,9 @@ def build_service(args: argparse.Namespace) -> Any:
     if simulators is not None and args.mock_model not in simulators.models:
         raise ServiceError(f"unknown --mock-model {args.mock_model!r}: choose one of {', '.join(simulators.models)}")
     if simulators is not None and args.mock_rate is not None:
-        offered = simulators.rates(args.mock_model)
-        if not any(abs(args.mock_rate - r) < 1e-6 for r in offered):
-            raise ServiceError(f"--mock-rate must be one of {', '.join(f'{r:g}' for r in offered)} Hz for a {args.mock_model} wearable")
+        offered = simulators.rates_instead(args.mock_model, args.mock_rate)
+        if offered is not None:
+            raise ServiceError(f"--mock-rate must be {offered} for a {args.mock_model} wearable")
     if args.method not in available_methods():
         raise ServiceError(f"--method must be one of {', '.join(available_methods())}")
     loopback = args.host in ("127.0.0.1", "::1", "localhost")

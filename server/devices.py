@@ -31,7 +31,8 @@ class Simulators(Protocol):
     scenarios: tuple[str, ...]
     models: tuple[str, ...]
 
-    def rates(self, model: str) -> tuple[float, ...]: ...
+    def rates_instead(self, model: str, rate_hz: float) -> str | None:
+        """None when a simulated wearable of ``model`` offers ``rate_hz``; else the rates it offers, in words."""
 
     def wearable(self, *, seed: int, scenario: str, speed: float, name: str, rate_hz: float | None, noise_dps: float,
                  model: str) -> Any: ...

@@ -55,6 +55,19 @@ class DeviceModel:
     time_stamps: TimeStamps  # "device": from the device's clock; "arrival": the central's arrival times
     loss_detection: LossDetection
     write_back: bool  # can hold a calibration written to it
+    whole_rates_hz: tuple[int, int] | None = None  # offers every whole rate in this range (rates_hz: typical ones)
+
+    def offers_rate(self, rate_hz: float) -> bool:
+        """Whether the device offers this output data rate."""
+        if self.whole_rates_hz is not None:
+            return rate_hz == int(rate_hz) and self.whole_rates_hz[0] <= rate_hz <= self.whole_rates_hz[1]
+        return any(abs(rate_hz - r) < 1e-6 for r in self.rates_hz)
+
+    def rates_text(self) -> str:
+        """The offered rates, for messages."""
+        if self.whole_rates_hz is not None:
+            return f"a whole number of Hz from {self.whole_rates_hz[0]} to {self.whole_rates_hz[1]}"
+        return "one of " + ", ".join(f"{r:g}" for r in self.rates_hz) + " Hz"
 
     @property
     def gyro_range_dps(self) -> int:
@@ -110,6 +123,7 @@ METAWEAR = DeviceModel(
 THINGY52 = DeviceModel(
     "thingy52", "Nordic Thingy:52 (Motion service)", thingy52.MOTION_SERVICE, (thingy52.CONFIGURATION_SERVICE,), "Thingy",
     (25.0, 50.0, 100.0, 200.0), 100.0, (thingy52.GYRO_FULL_SCALE_DPS,), (2,), None, "arrival", "none", False,
+    (thingy52.MOTION_FREQ_MIN_HZ, thingy52.MOTION_FREQ_MAX_HZ),
 )
 
 MODELS: dict[str, DeviceModel] = {m.key: m for m in (GYROCAL, POLAR_PMD, METAWEAR, THINGY52)}

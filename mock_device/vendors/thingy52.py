@@ -29,9 +29,6 @@ class Thingy52Wearable(Wearable):
     def _default_name(self) -> str:
         return "Thingy"
 
-    def rate_offered(self, rate_hz: float) -> bool:
-        return rate_hz == int(rate_hz) and th.MOTION_FREQ_MIN_HZ <= rate_hz <= th.MOTION_FREQ_MAX_HZ
-
     @property
     def samples_per_packet(self) -> int:
         return 1

@@ -51,11 +51,9 @@ class Thingy52Adapter(Adapter):
     async def configure(self, *, sample_rate_hz: float | None, gyro_full_scale_dps: int | None,
                         accel_range_g: int | None) -> DeviceConfig:
         if sample_rate_hz is not None:
-            rate = float(sample_rate_hz)
-            if rate != int(rate) or not th.MOTION_FREQ_MIN_HZ <= rate <= th.MOTION_FREQ_MAX_HZ:
-                raise CommandError(f"the Thingy:52 processes motion at a whole number of Hz from {th.MOTION_FREQ_MIN_HZ} "
-                                   f"to {th.MOTION_FREQ_MAX_HZ}; {sample_rate_hz:g} Hz is not one")
-            self._rate = int(rate)
+            if not self.model.offers_rate(float(sample_rate_hz)):
+                raise CommandError(f"the Thingy:52 processes motion at {self.model.rates_text()}; {sample_rate_hz:g} Hz is not one")
+            self._rate = int(sample_rate_hz)
         if gyro_full_scale_dps not in (None, th.GYRO_FULL_SCALE_DPS):
             raise CommandError(f"the Thingy:52's gyro range is fixed at {th.GYRO_FULL_SCALE_DPS} deg/s")
         if accel_range_g not in (None, self.model.accel_range_g):
