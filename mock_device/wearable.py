@@ -23,7 +23,7 @@ import contextlib
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -44,25 +44,11 @@ from wearable_protocol import (
 )
 from wearable_protocol.models import GYROCAL, DeviceModel
 
+from .device_stats import DeviceStats
 from .scenarios import LinkFaults
 from .sources import SampleSource
 
 MIN_SLEEP_S = 0.001
-
-
-@dataclass
-class DeviceStats:
-    """What the device did, for tests and the CLI: packets per fate and link events."""
-
-    sessions: int = 0
-    packets_sent: int = 0
-    packets_lost_radio: int = 0  # dropped by the packet-loss fault
-    packets_lost_link: int = 0  # produced while no central was receiving
-    packets_corrupted: int = 0
-    packets_injected: int = 0
-    link_drops: int = 0
-    connects: int = 0
-    lost_radio_seqs: list[int] = field(default_factory=list)  # session packet indices of the current session
 
 
 @dataclass
@@ -144,6 +130,7 @@ class Wearable:
         self.battery_pct = int(battery_pct if battery_pct is not None else rng.integers(60, 100))
         self.serial = f"GC{self.seed:08d}"
         self.config_id = 1
+        self.held: wp.HeldCalibration | None = None  # the calibration written to it (lost at power-off)
         self.stats = DeviceStats()
         self._central: Central | None = None
         self._notifying: set[str] = set()
@@ -232,7 +219,8 @@ class Wearable:
 
     def _readable(self) -> dict[str, Callable[[], bytes]]:
         """The protocol's own readable characteristics (the standard services' are added by ``read``)."""
-        return {wp.IMU_CONFIG_CHAR: lambda: self.config.encode()}
+        return {wp.IMU_CONFIG_CHAR: lambda: self.config.encode(),
+                wp.IMU_CALIBRATION_CHAR: lambda: wp.encode_slot(self.held)}
 
     def read(self, char_uuid: str) -> bytes:
         manufacturer, model_number, firmware = self.device_information
@@ -315,6 +303,8 @@ class Wearable:
         if op == Opcode.STOP:
             self._end_session("stopped by the central")
             return Status.OK
+        if op in (Opcode.WRITE_CALIBRATION, Opcode.CLEAR_CALIBRATION):
+            return self._hold(cmd)
         if self._session is not None and self._session.streaming:
             return Status.BUSY
         if op == Opcode.SET_RATE:
@@ -336,6 +326,18 @@ class Wearable:
         # a new configuration ends a paused session: its samples would not match the new settings
         self._end_session("configuration changed")
         self.config_id = (self.config_id % 255) + 1
+        return Status.OK
+
+    def _hold(self, cmd: Command) -> Status:
+        """Hold (or forget) a written calibration; the stream stays raw. A corrupt one changes nothing."""
+        if cmd.opcode == Opcode.CLEAR_CALIBRATION:
+            self.held = None
+            return Status.OK
+        try:
+            self.held = wp.HeldCalibration.from_payload(bytes(cmd.value))  # type: ignore[arg-type]
+        except DecodeError as e:
+            return Status.CHECKSUM if e.reason == "checksum" else Status.INVALID_VALUE
+        self._log(f"holds calibration {self.held.calibration_id}")
         return Status.OK
 
     def _reply(self, opcode: int, status: Status) -> None:

@@ -56,10 +56,11 @@ def model_facts(key: str | None, info: dict[str, Any] | None = None) -> dict[str
     if m is None:
         return {"model": key, "model_label": None, "sample_rate_hz": info.get("sample_rate_hz"),
                 "gyro_full_scale_dps": info.get("gyro_full_scale_dps"), "time_stamps": None, "loss_detection": None,
-                "limitations": []}
+                "limitations": [], "write_back": False}
     return {"model": m.key, "model_label": m.label, "sample_rate_hz": info.get("sample_rate_hz") or m.stream_rate_hz,
             "gyro_full_scale_dps": info.get("gyro_full_scale_dps") or m.gyro_range_dps, "time_stamps": m.time_stamps,
-            "loss_detection": m.loss_detection, "limitations": list(m.limitations())}
+            "loss_detection": m.loss_detection, "limitations": list(m.limitations()),
+            "write_back": bool(info.get("write_back", m.write_back))}
 
 
 @dataclass

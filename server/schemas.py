@@ -95,6 +95,12 @@ class DeviceOut(BaseModel):
                                                                                "times samples reached the service")
     loss_detection: Literal["counter", "time_stamps", "none"] | None = None
     limitations: list[str] = Field(default_factory=list, description="what this device's protocol cannot tell")
+    write_back: bool = Field(False, description="it can hold a calibration written to it (POST /devices/{id}/calibration/write)")
+    held_calibration_id: int | None = Field(None, description="the calibration the device last said it holds")
+    held_reported_at: str | None = Field(None, description="when it last said so (null: never asked)")
+    held_state: Literal["current", "other", "none"] | None = Field(
+        None, description="current: it holds the current calibration; other: it holds another one (write the current one "
+                          "to it); none: it holds none; null: not known")
     active_session: str | None = None
     current_calibration: CalibrationRecord | None = None
     last_seen: str | None = None
@@ -156,6 +162,26 @@ class DecisionIn(BaseModel):
     sensor_model: str | None = Field(None, min_length=1, max_length=128, pattern=SENSOR_TEXT,
                                      description="the sensor an uploaded recording came from (accept only; kept with the calibration)")
     firmware: str | None = Field(None, min_length=1, max_length=128, pattern=SENSOR_TEXT)
+
+
+class WriteBackIn(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    calibration_id: int | None = Field(None, ge=1, le=0xFFFFFFFF, description="one of the device's calibrations; "
+                                                                               "default: its current one")
+
+
+class HeldOut(BaseModel):
+    calibration_id: int
+    K: list[list[float]] = Field(description="K of g = K m + b as the device holds it (float32), row by row")
+    b: Vec3 = Field(description="b in deg/s of true rate, as the device holds it (float32)")
+
+
+class WriteBackOut(BaseModel):
+    device_id: str
+    calibration_id: int
+    verified: bool = Field(description="the device read back exactly what was written (float32, CRC-32)")
+    held: HeldOut
+    held_state: Literal["current", "other"]
 
 
 class AcceptOut(BaseModel):

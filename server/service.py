@@ -36,6 +36,7 @@ class Service:
         self.pool = ComputePool(memory_mb=settings.worker_memory_mb)
         self.sessions: dict[str, LiveSession] = {}
         self.active: dict[str, str] = {}  # device id -> running session id
+        self.writing: set[str] = set()  # devices a calibration is being written to
         self.started = time.time()
         self.integrity: dict[str, Any] | None = None  # the last verification of the store's hash chains
         self._integrity_task: asyncio.Task[None] | None = None

@@ -36,6 +36,7 @@ from .gatt import (
     PeripheralUnavailable,
     ServiceSpec,
 )
+from .held_calibration import HeldCalibration, decode_slot, encode_slot
 from .layout import WEARABLE_SERVICES
 from .sensor import (
     ACCEL_SENSITIVITY_LSB_PER_G,
@@ -53,6 +54,7 @@ from .uuids import (
     CCCD_DESCRIPTOR,
     DEVICE_INFORMATION_SERVICE,
     FIRMWARE_REVISION_CHAR,
+    IMU_CALIBRATION_CHAR,
     IMU_CONFIG_CHAR,
     IMU_CONTROL_CHAR,
     IMU_DATA_CHAR,

@@ -172,6 +172,8 @@ class Opcode(IntEnum):
     SET_RATE = 0x03  # payload f32 Hz, one of SUPPORTED_RATES_HZ
     SET_GYRO_RANGE = 0x04  # payload u16 deg/s full scale
     SET_ACCEL_RANGE = 0x05  # payload u8 g
+    WRITE_CALIBRATION = 0x06  # payload: a calibration with its CRC-32 (wearable_protocol.held_calibration)
+    CLEAR_CALIBRATION = 0x07  # forget the held calibration
     STREAM_END = 0x10  # device -> central only: the stream ended by itself (replay finished)
 
 
@@ -184,18 +186,20 @@ class Status(IntEnum):
     BUSY = 3  # configuration cannot change while streaming: STOP first
     BAD_LENGTH = 4
     NOT_SUPPORTED = 5  # e.g. a replaying device cannot change its rate
+    CHECKSUM = 6  # a written calibration's CRC-32 does not match its bytes: nothing was applied
 
 
 _PAYLOAD = {Opcode.START: "", Opcode.STOP: "", Opcode.SET_RATE: "<f", Opcode.SET_GYRO_RANGE: "<H",
-            Opcode.SET_ACCEL_RANGE: "<B"}
+            Opcode.SET_ACCEL_RANGE: "<B", Opcode.WRITE_CALIBRATION: "<56s", Opcode.CLEAR_CALIBRATION: ""}
 
 
 @dataclass(frozen=True)
 class Command:
-    """A control command and its argument (None for START/STOP)."""
+    """A control command and its argument (None for START/STOP/CLEAR_CALIBRATION; the payload bytes for
+    WRITE_CALIBRATION)."""
 
     opcode: Opcode
-    value: float | int | None = None
+    value: float | int | bytes | None = None
 
     def encode(self) -> bytes:
         fmt = _PAYLOAD[self.opcode]

@@ -8,6 +8,7 @@ from .uuids import (
     BATTERY_SERVICE,
     DEVICE_INFORMATION_SERVICE,
     FIRMWARE_REVISION_CHAR,
+    IMU_CALIBRATION_CHAR,
     IMU_CONFIG_CHAR,
     IMU_CONTROL_CHAR,
     IMU_DATA_CHAR,
@@ -21,6 +22,7 @@ IMU = ServiceSpec(IMU_SERVICE, (
     CharacteristicSpec(IMU_DATA_CHAR, ("notify",), "IMU samples"),
     CharacteristicSpec(IMU_CONFIG_CHAR, ("read",), "IMU configuration"),
     CharacteristicSpec(IMU_CONTROL_CHAR, ("write", "notify"), "IMU control"),
+    CharacteristicSpec(IMU_CALIBRATION_CHAR, ("read",), "Held calibration"),
 ))
 DEVICE_INFORMATION = ServiceSpec(DEVICE_INFORMATION_SERVICE, (
     CharacteristicSpec(MANUFACTURER_NAME_CHAR, ("read",)),

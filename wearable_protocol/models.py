@@ -103,7 +103,7 @@ class DeviceModel:
 
 GYROCAL = DeviceModel(
     "gyrocal", "gyrocal protocol wearable", IMU_SERVICE, (IMU_SERVICE,), None, SUPPORTED_RATES_HZ, 104.0,
-    tuple(GYRO_SENSITIVITY_LSB_PER_DPS), tuple(ACCEL_SENSITIVITY_LSB_PER_G), None, "device", "counter", False,
+    tuple(GYRO_SENSITIVITY_LSB_PER_DPS), tuple(ACCEL_SENSITIVITY_LSB_PER_G), None, "device", "counter", True,
 )
 # Polar Verity Sense: gyroscope 52/104/208/416 Hz, +-250..2000 deg/s; accelerometer 52 Hz, +-8 g (Polar BLE SDK,
 # documentation/products/PolarVeritySense.md). Frames carry the device's time stamps, no counter.

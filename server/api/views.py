@@ -18,6 +18,27 @@ async def current_calibration_of(svc: Service, device_id: str) -> dict[str, Any]
     return None if rec is None else rec.to_dict()
 
 
+def held_facts(row: dict[str, Any], current: dict[str, Any] | None) -> dict[str, Any]:
+    """What the device last said it holds, and whether that is its current calibration."""
+    held, reported = row.get("held_calibration_id"), row.get("held_reported_at")
+    state = None if reported is None else "none" if held is None else (
+        "current" if current is not None and current["id"] == held else "other")
+    return {"held_calibration_id": held, "held_reported_at": reported, "held_state": state}
+
+
+async def reachable_device(svc: Service, device_id: str) -> Device:
+    """The device to connect to: known to this service, or a BLE device known to the store; 404 / 409 otherwise."""
+    dev = svc.devices.get(device_id)
+    if dev is not None:
+        return dev
+    known = await asyncio.to_thread(svc.store.device, device_id)
+    if known is None:
+        raise problem(404, f"no device {device_id!r}; see GET /devices or scan with POST /devices/scan")
+    if known.get("transport") == "ble" and svc.devices.ble:
+        return svc.devices.add_ble_address(device_id)
+    raise problem(409, f"device {device_id!r} is not reachable by this service (known from uploads only); scan for it first")
+
+
 async def device_out(svc: Service, dev: Device | None, row: dict[str, Any] | None, detail: bool = False) -> dict[str, Any]:
     device_id = dev.id if dev else row["id"]  # type: ignore[index]
     row = row or {}
@@ -37,7 +58,8 @@ async def device_out(svc: Service, dev: Device | None, row: dict[str, Any] | Non
         "battery_pct": info.get("battery_pct"),
         **(dev.model_facts() if dev else model_facts(None)),
         "active_session": svc.active.get(device_id),
-        "current_calibration": await current_calibration_of(svc, device_id),
+        "current_calibration": (current := await current_calibration_of(svc, device_id)),
+        **held_facts(row, current),
         "last_seen": row.get("last_seen"),
     }
     if detail:

@@ -17,6 +17,7 @@ from .base import (
     RecordingBuilder,
     SampleBatch,
     WearableLink,
+    WriteBackError,
 )
 from .decoder import StreamDecoder
 from .inprocess import InProcessLink
@@ -24,7 +25,7 @@ from .inprocess import InProcessLink
 __all__ = [
     "BleLink", "CommandError", "ConnectError", "DeviceInfo", "DeviceNotFoundError", "DiscoveredDevice",
     "InProcessLink", "LinkError", "LinkEvent", "LinkStats", "ReconnectPolicy", "RecordingBuilder", "SampleBatch",
-    "StreamDecoder", "WearableLink",
+    "StreamDecoder", "WearableLink", "WriteBackError",
 ]
 
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from calib.errors import GyrocalError
 from calib.recording import Recording, RecordingMeta
-from wearable_protocol import DeviceConfig
+from wearable_protocol import DeviceConfig, HeldCalibration
 
 
 class LinkError(GyrocalError):
@@ -35,6 +35,10 @@ class ConnectError(LinkError):
 
 class CommandError(LinkError):
     """The wearable refused or did not answer a control command."""
+
+
+class WriteBackError(LinkError):
+    """A calibration could not be written to the wearable, or what it reads back is not what was written."""
 
 
 @dataclass(frozen=True)
@@ -223,6 +227,16 @@ class WearableLink(Protocol):
 
     async def disconnect(self) -> None:
         """Disconnect on purpose (no reconnection); samples() ends."""
+
+    @property
+    def holds_calibrations(self) -> bool:
+        """Whether the connected wearable can hold a calibration written to it."""
+
+    async def held_calibration(self) -> HeldCalibration | None:
+        """The calibration the wearable says it holds (None: none); WriteBackError if it cannot hold one."""
+
+    async def write_calibration(self, held: HeldCalibration) -> HeldCalibration:
+        """Write a calibration, read it back and verify it; WriteBackError when the device refuses or differs."""
 
     def samples(self) -> AsyncIterator[SampleBatch | LinkEvent]:
         """The stream, in order. Ends after stop(), disconnect(), link_failed or stream_ended."""

@@ -12,7 +12,7 @@ from collections import deque
 from collections.abc import AsyncIterator, Callable
 
 import wearable_protocol as wp
-from wearable_protocol import DeviceConfig
+from wearable_protocol import DeviceConfig, HeldCalibration
 from wearable_protocol.models import DeviceModel
 
 from .adapters import ADAPTERS, Adapter, recognise
@@ -27,6 +27,7 @@ from .base import (
     LinkStats,
     ReconnectPolicy,
     SampleBatch,
+    WriteBackError,
 )
 
 log = logging.getLogger(__name__)
@@ -230,6 +231,27 @@ class LinkCore(ABC):
         adapter = self._require()
         return await adapter.configure(sample_rate_hz=sample_rate_hz, gyro_full_scale_dps=gyro_full_scale_dps,
                                        accel_range_g=accel_range_g)
+
+    @property
+    def holds_calibrations(self) -> bool:
+        """Whether the connected wearable can hold a calibration written to it."""
+        return self._connected and self.protocol is not None and self.protocol.holds_calibrations
+
+    async def held_calibration(self) -> HeldCalibration | None:
+        """The calibration the wearable says it holds (None: none); WriteBackError if it cannot hold one."""
+        return await self._require().held_calibration()
+
+    async def write_calibration(self, held: HeldCalibration) -> HeldCalibration:
+        """Write a calibration, then read back what the device holds and compare it bit for bit (float32, CRC-32
+        checked on both ways); WriteBackError when the device refuses it or holds something else."""
+        adapter = self._require()
+        await adapter.write_calibration(held)
+        back = await adapter.held_calibration()
+        if back != held:
+            got = "nothing" if back is None else f"calibration {back.calibration_id} with other values"
+            raise WriteBackError(f"the wearable accepted calibration {held.calibration_id} but reads back {got}; "
+                                 "write it again, and if that fails, update the wearable's firmware")
+        return back
 
     async def start(self) -> None:
         """Subscribe to data and start (or resume) the device's session. Items of an earlier stream that

@@ -29,6 +29,7 @@ class CalibrationRecord(BaseModel):
     session_id: str
     k: list[float] = Field(description="scale factors k_x, k_y, k_z of g = K m + b")
     b: list[float] = Field(description="biases b_x, b_y, b_z in deg/s of true rate")
+    K: list[list[float]] | None = Field(None, description="the full 3x3 K of the extended model; None: K = diag(k)")
     uncertainty: dict[str, Any] | None
     quality: dict[str, Any] | None
     method: str
@@ -70,6 +71,7 @@ def calibration_record(row: CalibrationRow) -> CalibrationRecord:
         session_id=row.session_id,
         k=[row.k_x, row.k_y, row.k_z],
         b=[row.b_x, row.b_y, row.b_z],
+        K=(row.result or {}).get("K"),
         uncertainty=row.uncertainty,
         quality=row.quality,
         method=row.method,
@@ -119,6 +121,8 @@ def device_dict(r: Device) -> dict[str, Any]:
         "sensor_model": r.sensor_model,
         "firmware": r.firmware,
         "serial": r.serial,
+        "held_calibration_id": r.held_calibration_id,
+        "held_reported_at": iso_utc(r.held_reported_at),
         "first_seen": iso_utc(r.first_seen),
         "last_seen": iso_utc(r.last_seen),
     }

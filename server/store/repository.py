@@ -124,6 +124,20 @@ class Store:
                     setattr(row, key, str(value))
             row.last_seen = now
 
+    def record_held(self, device_id: str, calibration_id: int | None, operator: str | None = None,
+                    written: bool = False) -> None:
+        """What the wearable just reported holding (None: nothing). ``written``: it was read back after a write-back by
+        ``operator``, which the audit log keeps (the device row keeps only the latest report)."""
+        with self._tx(*(("audit_log",) if written else ())) as s:
+            now = utcnow()
+            row = s.get(Device, device_id)
+            if row is None:
+                row = Device(id=device_id, first_seen=now, last_seen=now)
+                s.add(row)
+            row.held_calibration_id, row.held_reported_at, row.last_seen = calibration_id, now, now
+            if written:
+                self._audit(s, operator, "device.write_back", device_id, None, {"calibration_id": calibration_id})
+
     def devices(self) -> list[dict[str, Any]]:
         with self._read() as s:
             return [device_dict(r) for r in s.execute(select(Device).order_by(Device.id)).scalars()]
@@ -411,6 +425,11 @@ class Store:
                 select(CalibrationRow).where(CalibrationRow.device_id == device_id)
                 .order_by(CalibrationRow.accepted_at.desc(), CalibrationRow.id.desc()).limit(1)
             ).scalar_one_or_none()
+            return None if row is None else calibration_record(row)
+
+    def calibration(self, calibration_id: int) -> CalibrationRecord | None:
+        with self._read() as s:
+            row = s.get(CalibrationRow, calibration_id)
             return None if row is None else calibration_record(row)
 
     def calibrations(self, device_id: str) -> list[CalibrationRecord]:

@@ -3,6 +3,7 @@
 Version 1: the first store. Version 2: hash chains on the history (``chain_seq``, ``prev_hash``,
 ``row_hash``, ``chain_heads``), one calibration per session (unique), each calibration's ``source``,
 guards against REPLACE and TRUNCATE, and the spool of running sessions' samples (``session_samples``).
+Version 3: what each wearable last reported holding (``devices.held_calibration_id``, ``held_reported_at``).
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from .tables import (
     utcnow,
 )
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 
 
 def _v2(conn: Any) -> None:
@@ -61,8 +62,15 @@ def _v2(conn: Any) -> None:
     guards.install(conn)
 
 
+def _v3(conn: Any) -> None:
+    """v2 -> v3: the calibration each wearable holds (devices is not append-only: no guard changes)."""
+    conn.execute(text("ALTER TABLE devices ADD COLUMN held_calibration_id INTEGER"))
+    kind = "TIMESTAMP WITH TIME ZONE" if conn.dialect.name == "postgresql" else "DATETIME"
+    conn.execute(text(f"ALTER TABLE devices ADD COLUMN held_reported_at {kind}"))
+
+
 # version -> the step that brings a database from version-1 to version
-MIGRATIONS: dict[int, Callable[[Any], None]] = {2: _v2}
+MIGRATIONS: dict[int, Callable[[Any], None]] = {2: _v2, 3: _v3}
 
 
 def migrate(engine: Engine, display_url: str) -> int:

@@ -56,6 +56,9 @@ class Device(Base):
     sensor_model: Mapped[str | None] = mapped_column(String(128))
     firmware: Mapped[str | None] = mapped_column(String(128))
     serial: Mapped[str | None] = mapped_column(String(128))
+    # what the wearable last said it holds (write-back): a calibration id, or None with held_reported_at set for none
+    held_calibration_id: Mapped[int | None] = mapped_column(Integer)
+    held_reported_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
     first_seen: Mapped[datetime] = mapped_column(DateTime(timezone=True))
     last_seen: Mapped[datetime] = mapped_column(DateTime(timezone=True))
 

@@ -16,7 +16,7 @@ from sqlalchemy import text
 from sqlalchemy.exc import SQLAlchemyError
 
 from calib.result import CalibrationResult
-from server.store import DecisionConflict, NotAcceptable, SessionEnd, Store, StoreError
+from server.store import SCHEMA_VERSION, DecisionConflict, NotAcceptable, SessionEnd, Store, StoreError
 
 RESULT = CalibrationResult.from_dict({"k": [1.01, 0.99, 1.02], "b": [0.5, -0.25, 0.125], "method": "closure",
           "uncertainty": {"k": [1e-4] * 3, "b": [1e-3] * 3}, "quality": {"score": 0.9}, "stages": []})
@@ -289,13 +289,15 @@ def test_a_v1_store_is_migrated_and_its_history_chained(store_url: str) -> None:
                     conn.connection.driver_connection.execute(stmt.rstrip().rstrip(";"))
     eng.dispose()
     store = Store(store_url)
-    assert store.schema_version() == 2
+    assert store.schema_version() == SCHEMA_VERSION == 3
     report = store.verify()
     assert report.ok and report.rows == {"recordings": 0, "calibrations": 2, "audit_log": 5}
     assert [c.source for c in store.calibrations("dev-1")] == ["upload", "live"]
     _done(store, "k" * 32)
     store.accept("k" * 32, "bob", RESULT)  # new rows continue the migrated chains
     assert store.verify().ok and store.calibration_count() == 3
+    store.record_held("dev-1", 3, "bob", written=True)  # v3: what the wearable holds
+    assert store.device("dev-1")["held_calibration_id"] == 3 and store.verify().ok
     with pytest.raises(SQLAlchemyError, match="append-only"):
         with store.engine.begin() as conn:
             conn.execute(text("UPDATE calibrations SET k_x = 2"))

@@ -87,11 +87,29 @@ def test_happy_path_to_a_saved_calibration(wizard: Wizard, page: Any, webui_serv
     snap = session(webui_service, sid)
     assert cur["k"] == pytest.approx(snap["result"]["k"])
 
+    # the wearable can hold it: written, read back and verified from the saved step
+    assert "its stream stays raw" in wizard.text(".writeback")
+    page.click("button.write-back")
+    page.wait_for_selector(f".writeback-status.ok:has-text('holds calibration #{cur['id']}')")
+    wizard.shot("09b-written")
+
     page.click(f"a[href='#/history/{dev}']")
     page.wait_for_selector("table.history")
     assert OPERATOR in wizard.text("table.history tbody tr.current")
     wizard.shot("10-history")
     assert wizard.small_targets() == []
+
+    # a newer calibration (from an uploaded recording) becomes current: the card flags what the device still holds
+    newer = upload_accepted(webui_service, dev, seed=77)
+    page.goto(webui_service.base + "/#/devices")
+    held = page.locator(f".device-card[data-device='{dev}'] .held")
+    page.wait_for_selector(f".device-card[data-device='{dev}'] .held.held-other")
+    assert held.inner_text().strip() == f"#{cur['id']}, not the current #{newer['id']}"
+    wizard.shot("11-holds-another")
+    assert wizard.small_targets() == []
+    page.click(f".device-card[data-device='{dev}'] button.write-back")
+    page.wait_for_selector(f".device-card[data-device='{dev}'] .held.held-current:has-text('#{newer['id']}')")
+    assert page.locator(f".device-card[data-device='{dev}'] button.write-back").count() == 0
     assert_clean(page_watch)
 
 
@@ -124,6 +142,7 @@ def test_a_commercial_wearable_shows_its_model_settings_and_limits_and_calibrate
     assert card.locator(".stream-settings").inner_text() == "100 Hz · gyro ±500 deg/s"
     limits = card.locator(".dev-limits").inner_text()
     assert "lost samples cannot be detected" in limits and "times the samples arrived" in limits
+    assert card.locator(".held").count() == 0 and card.locator("button.write-back").count() == 0
     wizard.shot("metawear-card")
     assert wizard.small_targets() == []
     wizard.choose("mock-1")

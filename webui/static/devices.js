@@ -3,6 +3,7 @@
 import { fill, fmtDate, h } from "./dom.js";
 import { icon } from "./figures.js";
 import { problemLine } from "./messages.js";
+import { heldFact, writeBack } from "./writeback.js";
 
 function status(dev) {
   if (dev.active_session) return { key: "busy", text: "In a calibration", icon: "busy" };
@@ -20,7 +21,7 @@ export function streamText(dev) {
   return `${Number(dev.sample_rate_hz).toLocaleString("en", { maximumFractionDigits: 1 })} Hz${range}`;
 }
 
-function deviceCard(ctx, dev) {
+function deviceCard(ctx, dev, refresh) {
   const st = status(dev);
   const cur = dev.current_calibration;
   const battery = h("dd", { class: "battery" }, icon("battery"), h("span", null, "not read yet"));
@@ -32,6 +33,10 @@ function deviceCard(ctx, dev) {
   } else if (dev.available) {
     actions.push(h("a", { class: "button primary", href: `#/place/${encodeURIComponent(dev.id)}`, "aria-label": `Calibrate ${dev.name || dev.id}` }, icon("play"), "Calibrate"));
   }
+  const held = heldFact(dev);
+  const write = cur && held && !dev.active_session && dev.available && dev.held_state !== "current"
+    ? writeBack(ctx.api, dev.id, cur.id, refresh) : null;
+  if (write) actions.push(write.button);
   actions.push(h("a", { class: "button", href: `#/history/${encodeURIComponent(dev.id)}`, "aria-label": `History of ${dev.name || dev.id}` }, icon("history"), "History"));
   const card = h("li", { class: "device-card", dataset: { device: dev.id, status: st.key } },
     h("div", { class: "dev-main" },
@@ -44,12 +49,15 @@ function deviceCard(ctx, dev) {
         h("dd", { class: "stream-settings" }, h("span", null, streamText(dev)))) : null,
       h("div", null, h("dt", null, "Last calibration"),
         h("dd", { class: cur ? "calibrated" : "never" }, icon(cur ? "check" : "info"),
-          h("span", null, cur ? `${fmtDate(cur.accepted_at)} by ${cur.operator}` : "never calibrated")))),
+          h("span", null, cur ? `${fmtDate(cur.accepted_at)} by ${cur.operator}` : "never calibrated"))),
+      held ? h("div", null, h("dt", null, "Device holds"),
+        h("dd", { class: `held ${held.cls}` }, icon(held.icon), h("span", null, held.text))) : null),
     dev.limitations && dev.limitations.length
       ? h("ul", { class: "dev-limits", "aria-label": "What this device cannot tell" },
         dev.limitations.map((text) => h("li", null, icon("info"), h("span", null, text))))
       : null,
-    h("div", { class: "dev-actions" }, actions));
+    h("div", { class: "dev-actions" }, actions),
+    write ? write.line : null);
   card.setBattery = (pct) => {
     const b = batteryText(pct);
     battery.classList.toggle("low", b.low);
@@ -74,7 +82,7 @@ export function devicesView(ctx) {
     }
     // the battery level is in the list once the service has read it (null: not read yet)
     fill(list, devices.map((d) => {
-      const card = deviceCard(ctx, d);
+      const card = deviceCard(ctx, d, load);
       card.setBattery(d.battery_pct);
       return card;
     }));

@@ -6,6 +6,7 @@ import { angleGauge, icon, placePicture, stillRing, turnAnimation, turnTiles } f
 import { STEP_LABELS, headline, reasonFor, requestProblem, stepOf, subline } from "./messages.js";
 import { modelCheckPanel } from "./modelcheck.js";
 import { calibrationPlots } from "./plots.js";
+import { writeBack } from "./writeback.js";
 
 const END_STATES = new Set(["done", "failed", "cancelled"]);
 const WARNING_SHOW_MS = 10000;
@@ -403,9 +404,10 @@ export function sessionView(ctx, sid) {
     const dev = deviceLabel(device, s.device_id);
     const meta = h("p", { class: "next" }, "Loading the saved record…");
     const values = h("div", { class: "saved-values" });
+    const writeSlot = h("div", { class: "writeback" });
     endLayout(s, 7, verdictEl("saved", "pass", "Saved"), [
       h("p", { class: "sentence" }, `${dev} now uses this calibration.`),
-      meta, values,
+      meta, values, writeSlot,
       h("div", { class: "actions" },
         h("a", { class: "button primary big", href: "#/devices" }, icon("play"), "Calibrate another device"),
         h("a", { class: "button", href: `#/history/${encodeURIComponent(s.device_id)}` }, icon("history"), `History of ${dev}`)),
@@ -427,6 +429,10 @@ export function sessionView(ctx, sid) {
     meta.replaceChildren(icon("user"), h("span", null, h("strong", { class: "saved-by" }, `Accepted by ${cal.operator}`), " on ",
       h("time", { datetime: cal.accepted_at }, fmtDateTime(cal.accepted_at)), `, for ${cal.device_id}.`));
     fill(values, paramTable(cal.k, cal.b, cal.uncertainty));
+    if (device && device.write_back) {
+      const write = writeBack(api, s.device_id, cal.id);
+      fill(writeSlot, h("p", null, `${dev} can hold this calibration itself, for its own use; its stream stays raw.`), write.button, write.line);
+    }
   };
 
   const discardedView = async (s) => {

@@ -1,2 +1,2 @@
-"""One APIRouter per resource: health, auth, devices, sessions, audit, plots (a session's before/after traces)
-and diagnosis (the model check)."""
+"""One APIRouter per resource: health, auth, devices, sessions, write_back (a calibration written to the wearable),
+audit, plots (a session's before/after traces) and diagnosis (the model check)."""

@@ -41,7 +41,7 @@ from ...live.session import GuidedSession
 from ...service import Service
 from ...store import DecisionConflict, NotAcceptable, NotFound, SessionEnd, StoreError
 from ...workers.compute import TooManySamples, UploadOptions, calibrate_upload
-from ..views import session_snapshot, stored_snapshot
+from ..views import reachable_device, session_snapshot, stored_snapshot
 
 # The section list travels in the URL: 4000 characters (about 80 sections) stay under what the HTTP server reads
 # as one request line even percent-encoded at 12 bytes a character; a longer one gets a 422, not a dropped connection.
@@ -285,17 +285,11 @@ async def start_live(svc: Service, device_id: str, operator: str, method: str | 
 
     if method is not None and method not in available_methods():
         raise problem(422, f"unknown method {method!r}: choose one of {', '.join(available_methods())}")
-    dev = svc.devices.get(device_id)
-    if dev is None:
-        known = await asyncio.to_thread(svc.store.device, device_id)
-        if known is None:
-            raise problem(404, f"no device {device_id!r}; see GET /devices or scan with POST /devices/scan")
-        if known.get("transport") == "ble" and svc.devices.ble:
-            dev = svc.devices.add_ble_address(device_id)
-        else:
-            raise problem(409, f"device {device_id!r} is not reachable by this service (known from uploads only); scan for it first")
+    dev = await reachable_device(svc, device_id)
     if device_id in svc.active:
         raise problem(409, f"device {device_id!r} is already in a calibration session ({svc.active[device_id]}); one at a time")
+    if device_id in svc.writing:
+        raise problem(409, f"a calibration is being written to device {device_id!r}; start the session when that is done")
     sid = uuid.uuid4().hex
     machine = GuidedSession(sid, device_id, svc.settings, max_attempts=max_attempts, method=method)
     svc.active[device_id] = sid  # claimed before the first await: a second request gets 409

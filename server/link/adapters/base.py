@@ -14,10 +14,10 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable, Hashable
 from typing import Any, ClassVar, Protocol
 
-from wearable_protocol import DeviceConfig, DeviceState
+from wearable_protocol import DeviceConfig, DeviceState, HeldCalibration
 from wearable_protocol.models import DeviceModel
 
-from ..base import CommandError, LinkError, LinkStats, SampleBatch
+from ..base import CommandError, LinkError, LinkStats, SampleBatch, WriteBackError
 
 
 class GattIO(Protocol):
@@ -90,6 +90,19 @@ class Adapter(ABC):
     @abstractmethod
     async def stop(self) -> None:
         """Stop streaming and unsubscribe from the data."""
+
+    @property
+    def holds_calibrations(self) -> bool:
+        """Whether this device can hold a calibration written to it (no vendor protocol offers it)."""
+        return False
+
+    async def held_calibration(self) -> HeldCalibration | None:
+        """What the device says it holds."""
+        raise WriteBackError(f"a {self.model.label} cannot hold a calibration: apply it to its recordings instead")
+
+    async def write_calibration(self, held: HeldCalibration) -> None:
+        """Send a calibration to the device (the link reads it back)."""
+        raise WriteBackError(f"a {self.model.label} cannot hold a calibration: apply it to its recordings instead")
 
     async def _exchange(self, key: Hashable, char_uuid: str, data: bytes, what: str) -> Any:
         """Write a command and wait for the reply that ``_answer(key, reply)`` delivers; CommandError when the

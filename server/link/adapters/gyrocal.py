@@ -6,10 +6,20 @@ from __future__ import annotations
 import logging
 
 import wearable_protocol as wp
-from wearable_protocol import Command, DecodeError, DeviceConfig, DeviceState, Opcode, Status, StatusReply
+from wearable_protocol import (
+    Command,
+    DecodeError,
+    DeviceConfig,
+    DeviceState,
+    HeldCalibration,
+    Opcode,
+    Status,
+    StatusReply,
+    decode_slot,
+)
 from wearable_protocol.models import GYROCAL
 
-from ..base import CommandError, ConnectError
+from ..base import CommandError, ConnectError, WriteBackError
 from ..decoder import StreamDecoder
 from .base import Adapter
 
@@ -47,7 +57,9 @@ class GyrocalAdapter(Adapter):
         reply: StatusReply = await self._exchange(int(cmd.opcode), wp.IMU_CONTROL_CHAR, cmd.encode(), cmd.opcode.name)
         if reply.status != Status.OK:
             hint = {Status.BUSY: "stop streaming first", Status.INVALID_VALUE: "use a supported value",
-                    Status.NOT_SUPPORTED: "this device has fixed settings"}.get(reply.status, "")
+                    Status.NOT_SUPPORTED: "this device has fixed settings",
+                    Status.CHECKSUM: "the bytes were damaged on the way; write again",
+                    Status.UNKNOWN_OPCODE: "its firmware is older than this command"}.get(reply.status, "")
             raise CommandError(f"the wearable refused {cmd.opcode.name}: {reply.status.name.lower()}"
                                + (f" ({hint})" if hint else ""))
         return reply
@@ -63,6 +75,26 @@ class GyrocalAdapter(Adapter):
         cfg = await self.read_config()
         self._decoder = StreamDecoder(cfg, self.stats)
         return cfg
+
+    @property
+    def holds_calibrations(self) -> bool:
+        return self.io.has(wp.IMU_CALIBRATION_CHAR)
+
+    async def held_calibration(self) -> HeldCalibration | None:
+        if not self.holds_calibrations:
+            return await super().held_calibration()
+        try:
+            return decode_slot(await self.io.read(wp.IMU_CALIBRATION_CHAR))
+        except DecodeError as e:
+            raise WriteBackError(f"the wearable's held calibration is unreadable ({e})") from e
+
+    async def write_calibration(self, held: HeldCalibration) -> None:
+        if not self.holds_calibrations:
+            await super().write_calibration(held)
+        try:
+            await self._command(Command(Opcode.WRITE_CALIBRATION, held.payload()))
+        except CommandError as e:
+            raise WriteBackError(str(e)) from e
 
     async def start(self, *, resume: bool) -> None:
         cfg = self.config
