@@ -5,6 +5,8 @@ need=()
 command -v dbus-daemon >/dev/null 2>&1 || need+=(dbus)
 # the store tests start a throwaway PostgreSQL cluster from Debian's server binaries
 compgen -G "/usr/lib/postgresql/*/bin/initdb" >/dev/null || need+=(postgresql)
+# the firmware library (wearable_protocol/c) is built and tested with the system C compiler
+command -v cc >/dev/null 2>&1 || need+=(gcc libc6-dev)
 # the wizard page tests drive Debian's Chromium through Playwright (never a downloaded browser)
 [ -x /usr/bin/chromium ] || need+=(chromium)
 if [ ${#need[@]} -eq 0 ]; then
