@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import re
 import sys
 from typing import Any
 
@@ -55,7 +56,11 @@ def register(sub: Any) -> None:
         action="store_true",
         help="use Bluetooth LE wearables through bleak (BlueZ, or the simulated one via DBUS_SYSTEM_BUS_ADDRESS)",
     )
-    p.add_argument("--ble-adapter", default=None, metavar="HCI", help="Bluetooth adapter (default: the system's)")
+    p.add_argument("--ble-adapter", default="hci0", metavar="HCI[,HCI...]",
+                   help="Bluetooth adapters to connect through, e.g. hci0,hci1: each wearable goes to the one with the most "
+                        "free connection slots (default hci0)")
+    p.add_argument("--ble-slots", type=int, default=5, metavar="N",
+                   help="connections one adapter holds at once (BlueZ adapters: 5 on CSR chips, 7 on Broadcom; default 5)")
     p.add_argument("--auth-reads", action="store_true", help="require a token for reads too (default: only writes need one)")
     p.add_argument(
         "--allowed-host",
@@ -261,7 +266,12 @@ def build_service(args: argparse.Namespace) -> Any:
             "--service-role gyrocal_service` and start the service with the URL it prints (or pass --allow-db-owner to "
             "run like this anyway)"
         )
-    devices = DeviceManager(ble=args.ble, ble_adapter=args.ble_adapter)
+    adapters = [a.strip() for a in str(args.ble_adapter).split(",")]
+    if not all(re.fullmatch(r"hci\d{1,2}", a) for a in adapters) or len(set(adapters)) != len(adapters):
+        raise ServiceError(f"--ble-adapter {args.ble_adapter!r}: name each adapter once, as BlueZ does (hci0, or hci0,hci1)")
+    if not 1 <= args.ble_slots <= 20:
+        raise ServiceError(f"--ble-slots {args.ble_slots}: an adapter holds between 1 and 20 connections (BlueZ adapters 5-7)")
+    devices = DeviceManager(ble=args.ble, ble_adapters=adapters, ble_slots=args.ble_slots)
     if simulators is not None:
         devices.add_mocks(simulators, args.mock, speed=args.mock_speed, seed=args.mock_seed, scenarios=scenarios, rate_hz=args.mock_rate,
                           model=args.mock_model)

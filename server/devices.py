@@ -10,7 +10,7 @@ import contextlib
 import functools
 import logging
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from typing import Any, Protocol
@@ -131,10 +131,21 @@ class Device:
 class DeviceManager:
     """Known devices, by id; scanning adds BLE ones."""
 
-    def __init__(self, ble: bool = False, ble_adapter: str | None = None) -> None:
+    def __init__(self, ble: bool = False, ble_adapters: Sequence[str] = ("hci0",), ble_slots: int = 5) -> None:
         self.devices: dict[str, Device] = {}
         self.ble = ble
-        self.ble_adapter = ble_adapter
+        self.ble_adapters = tuple(ble_adapters)
+        self._slots: Any = None
+        self.ble_slots = ble_slots
+
+    @property
+    def slots(self) -> Any:
+        """The adapters' connection slots, shared by every BLE link of the service."""
+        if self._slots is None:
+            from .link.slots import AdapterSlots
+
+            self._slots = AdapterSlots(self.ble_adapters, self.ble_slots)
+        return self._slots
 
     def get(self, device_id: str) -> Device | None:
         return self.devices.get(device_id)
@@ -196,8 +207,7 @@ class DeviceManager:
         if self.ble:
             from .link.ble import BleLink
 
-            scanner = BleLink(adapter=self.ble_adapter)
-            for disc in await scanner.scan(timeout_s):
+            for disc in await self._scan_adapters(timeout_s):
                 known = self.devices.get(disc.address)
                 if known is None:
                     known = self.add(
@@ -206,7 +216,7 @@ class DeviceManager:
                             transport="ble",
                             name=disc.name,
                             address=disc.address,
-                            make_link=functools.partial(BleLink, disc.address, adapter=self.ble_adapter, model=disc.model),
+                            make_link=functools.partial(BleLink, disc.address, slots=self.slots, model=disc.model),
                             model=disc.model,
                         )
                     )
@@ -215,6 +225,28 @@ class DeviceManager:
                     known.name = disc.name
                 found.append(known)
         return found
+
+    async def _scan_adapters(self, timeout_s: float) -> list[Any]:
+        """What every adapter sees, each wearable once (at its strongest signal); an adapter that fails is skipped
+        while another one answers."""
+        import asyncio
+
+        from .link.ble import BleLink
+
+        results = await asyncio.gather(*(BleLink(adapter=a).scan(timeout_s) for a in self.ble_adapters), return_exceptions=True)
+        errors = [r for r in results if isinstance(r, BaseException)]
+        if len(errors) == len(results):
+            raise errors[0]
+        for adapter, r in zip(self.ble_adapters, results, strict=True):
+            if isinstance(r, BaseException):
+                log.warning("Bluetooth adapter %s could not scan: %s", adapter, r)
+        best: dict[str, Any] = {}
+        for r in results:
+            for disc in [] if isinstance(r, BaseException) else r:
+                old = best.get(disc.address)
+                if old is None or (disc.rssi or -999) > (old.rssi or -999):
+                    best[disc.address] = disc
+        return sorted(best.values(), key=lambda d: -(d.rssi if d.rssi is not None else -999))
 
     def add_ble_address(self, address: str) -> Device:
         """A BLE wearable known by address (from the store) that has not been scanned yet."""
@@ -228,7 +260,7 @@ class DeviceManager:
                     transport="ble",
                     name=None,
                     address=address,
-                    make_link=functools.partial(BleLink, address, adapter=self.ble_adapter),
+                    make_link=functools.partial(BleLink, address, slots=self.slots),
                 )
             )
         return dev

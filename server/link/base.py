@@ -22,7 +22,10 @@ from wearable_protocol import DeviceConfig, HeldCalibration
 
 
 class LinkError(GyrocalError):
-    """The wearable link failed; the message says what happened and what to try."""
+    """The wearable link failed; the message says what happened and what to try. ``retryable``: whether
+    connect() should try again (False when the transport has retried already, or retrying cannot help)."""
+
+    retryable = True
 
 
 class DeviceNotFoundError(LinkError):

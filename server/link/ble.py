@@ -21,6 +21,7 @@ from .base import (
     ReconnectPolicy,
 )
 from .core import LinkCore
+from .slots import AdapterSlots, OutOfConnectionSlots
 
 log = logging.getLogger(__name__)
 
@@ -38,20 +39,44 @@ def _model_of(device: Any, adv: Any) -> str | None:
     return found.key if found else None
 
 
+async def _connect(bleak: Any, device: Any, on_disconnect: Callable[[Any], None], attempts: int) -> Any:
+    """A connected BleakClient, through bleak-retry-connector; its errors as LinkErrors that say what to do."""
+    import bleak_retry_connector as brc
+
+    name = device.name or device.address
+    try:
+        return await brc.establish_connection(bleak.BleakClient, device, name, disconnected_callback=on_disconnect,
+                                              max_attempts=attempts)
+    except brc.BleakOutOfConnectionSlotsError as e:
+        raise OutOfConnectionSlots(f"the Bluetooth adapter has no free connection slot for {device.address} ({e}); end a "
+                                   "session on another wearable or add another adapter to --ble-adapter") from e
+    except brc.BleakNotFoundError as e:
+        raise DeviceNotFoundError(f"wearable {device.address} disappeared while connecting ({e}); move it closer and "
+                                  "check it is not connected to another phone or computer") from e
+    except (TimeoutError, bleak.exc.BleakError, OSError) as e:
+        err = ConnectError(f"could not connect to wearable {device.address} after {attempts} attempts ({e or type(e).__name__}); "
+                           "move it closer, check it is charged and not connected to another phone or computer")
+        err.retryable = False  # bleak-retry-connector has retried already
+        raise err from e
+
+
 class BleLink(LinkCore):
     """A wearable over BLE via bleak. ``address`` None: connect() takes the first supported wearable that
-    answers (of ``model``, when given). ``adapter``: the Bluetooth adapter (hci0, hci1, ...)."""
+    answers (of ``model``, when given). ``adapter``: the Bluetooth adapter (hci0, hci1, ...); ``slots``: the
+    service's adapters and their connection slots (then the adapter with the most free slots is used)."""
 
     def __init__(self, address: str | None = None, *, adapter: str | None = None, scan_timeout_s: float = 5.0,
                  connect_timeout_s: float = 10.0, reconnect: ReconnectPolicy | None = None,
                  command_timeout_s: float = 5.0, model: str | None = None,
-                 clock: Callable[[], float] | None = None) -> None:
+                 clock: Callable[[], float] | None = None, slots: AdapterSlots | None = None) -> None:
         super().__init__(address.upper() if address else None, reconnect=reconnect, command_timeout_s=command_timeout_s,
                          model=model, clock=clock)
         self.adapter = adapter
+        self.slots = slots
         self.scan_timeout_s = scan_timeout_s
         self.connect_timeout_s = connect_timeout_s
         self._client: Any = None
+        self._device: Any = None
 
     def _bluez_args(self) -> dict[str, Any]:
         return {"adapter": self.adapter} if self.adapter else {}
@@ -70,32 +95,48 @@ class BleLink(LinkCore):
         wanted = [d for d in devices if d.model is not None and (self.model_key is None or d.model == self.model_key)]
         return sorted(wanted, key=lambda d: -(d.rssi if d.rssi is not None else -999))
 
-    async def _t_connect(self) -> None:
-        bleak = _bleak()
+    async def _find(self, bleak: Any, adapter: str | None) -> Any:
+        """The wearable as ``adapter`` sees it (None: not found there)."""
+        bluez = {"adapter": adapter} if adapter else {}
         try:
             if self.address is None:
-                device = await bleak.BleakScanner.find_device_by_filter(
-                    lambda d, adv: _model_of(d, adv) in ((self.model_key,) if self.model_key else tuple(MODELS)),
-                    timeout=self.scan_timeout_s, bluez=self._bluez_args())
-            else:
-                device = await bleak.BleakScanner.find_device_by_address(self.address, timeout=self.scan_timeout_s,
-                                                                         bluez=self._bluez_args())
+                wanted = (self.model_key,) if self.model_key else tuple(MODELS)
+                return await bleak.BleakScanner.find_device_by_filter(lambda d, adv: _model_of(d, adv) in wanted,
+                                                                      timeout=self.scan_timeout_s, bluez=bluez)
+            return await bleak.BleakScanner.find_device_by_address(self.address, timeout=self.scan_timeout_s, bluez=bluez)
         except bleak.exc.BleakError as e:
             raise ConnectError(f"Bluetooth scan failed: {e}") from e
+
+    async def _t_connect(self) -> None:
+        """Find the wearable on the adapter with the most free connection slots, take a slot there, and connect with
+        bleak-retry-connector (BlueZ-aware retries and backoff, stale connections closed first)."""
+        bleak = _bleak()
+        adapters: list[str | None] = list(await self.slots.by_free_slots()) if self.slots else [self.adapter]
+        device = None
+        seen = False
+        for adapter in adapters:
+            found = await self._find(bleak, adapter)
+            if found is None:
+                continue
+            seen = True
+            if self.slots is None or await self.slots.allocate(found):
+                device, self.adapter = found, adapter
+                break
         if device is None:
+            if seen and self.slots is not None:
+                raise OutOfConnectionSlots(await self.slots.full_message())
             which = f"wearable {self.address} was not found" if self.address else "no supported wearable was found"
             raise DeviceNotFoundError(
                 f"{which} within {self.scan_timeout_s:g} s: "
                 "check that it is switched on, in range and not connected elsewhere")
         self.address = device.address.upper()
-        client = bleak.BleakClient(device, disconnected_callback=self._disconnected, timeout=self.connect_timeout_s,
-                                   bluez=self._bluez_args())
-        self._client = client
+        self._device = device
         try:
-            await client.connect()
-        except (TimeoutError, bleak.exc.BleakError, OSError) as e:
-            self._client = None
-            raise ConnectError(f"connecting to {self.address} failed: {e or type(e).__name__}") from e
+            self._client = await _connect(bleak, device, self._disconnected, self.policy.connect_attempts)
+        except LinkError:
+            if self.slots is not None:
+                await self.slots.release(device)
+            raise
         self.name = device.name
 
     def _disconnected(self, client: Any) -> None:
@@ -107,6 +148,8 @@ class BleLink(LinkCore):
         if client is not None:
             with contextlib.suppress(Exception):
                 await client.disconnect()
+        if self.slots is not None and self._device is not None:
+            await self.slots.release(self._device)
 
     def _t_has(self, char_uuid: str) -> bool:
         services = self._client.services if self._client is not None else None

@@ -158,6 +158,8 @@ class LinkCore(ABC):
             except DeviceNotFoundError:
                 raise
             except LinkError as e:
+                if not e.retryable:
+                    raise
                 if attempt == self.policy.connect_attempts:
                     raise ConnectError(
                         f"could not connect to wearable {self.address} after {attempt} attempts ({e}); "

@@ -199,3 +199,21 @@ def test_mock_device_cli_refuses_bad_arguments_with_a_message(capsys):
     assert "--speed must be a positive number" in capsys.readouterr().err
     assert main(["mock-device", "--ble", "--rate", "100"]) == 2
     assert "--rate 100 is not offered" in capsys.readouterr().err
+
+
+async def test_an_adapter_out_of_connection_slots_is_said_plainly(simulated_bluez):
+    from server.link.slots import AdapterSlots, OutOfConnectionSlots
+
+    w1, w2 = (Wearable(ScriptedSource(seed=s), seed=s, speed=SPEED) for s in (5, 6))
+    th = simulated_bluez([w1, w2])
+    slots = AdapterSlots(("hci0",), slots_per_adapter=1)  # as a BlueZ adapter whose controller holds one link
+    first = BleLink(w1.address, reconnect=FAST, slots=slots)
+    await first.connect()
+    second = BleLink(w2.address, reconnect=FAST, slots=slots)
+    with pytest.raises(OutOfConnectionSlots, match=f"using its 1 connection slots \\(hci0: {w1.address}\\); end a session"):
+        await second.connect()
+    assert th.call(lambda: w2.stats.connects) == 0  # refused before BlueZ was asked: nothing to clean up
+    await first.disconnect()
+    await second.connect()  # the slot is free again
+    assert second.connected and second.adapter == "hci0"
+    await second.disconnect()

@@ -52,6 +52,9 @@ def test_operator_commands(tmp_path: Path, capsys: pytest.CaptureFixture[str], m
         (["--db", "nonsense"], "not a database URL"),
         (["--host", "0.0.0.0"], "add --auth-reads so reads need a token too, or --open-reads"),
         (["--worker-memory-mb", "10"], "--worker-memory-mb must be between"),
+        (["--ble", "--ble-adapter", "hci0,usb1"], "name each adapter once, as BlueZ does"),
+        (["--ble", "--ble-adapter", "hci0,hci0"], "name each adapter once"),
+        (["--ble", "--ble-slots", "0"], "an adapter holds between 1 and 20 connections"),
     ],
 )
 def test_serve_refuses_bad_options_with_a_message(
