@@ -114,8 +114,14 @@ class BleLink(LinkCore):
         adapters: list[str | None] = list(await self.slots.by_free_slots()) if self.slots else [self.adapter]
         device = None
         seen = False
+        failures: list[ConnectError] = []
         for adapter in adapters:
-            found = await self._find(bleak, adapter)
+            try:
+                found = await self._find(bleak, adapter)
+            except ConnectError as e:  # this adapter cannot scan (unplugged, powered off): try the next one
+                log.warning("Bluetooth adapter %s: %s", adapter, e)
+                failures.append(e)
+                continue
             if found is None:
                 continue
             seen = True
@@ -125,6 +131,8 @@ class BleLink(LinkCore):
         if device is None:
             if seen and self.slots is not None:
                 raise OutOfConnectionSlots(await self.slots.full_message())
+            if len(failures) == len(adapters):
+                raise failures[0]
             which = f"wearable {self.address} was not found" if self.address else "no supported wearable was found"
             raise DeviceNotFoundError(
                 f"{which} within {self.scan_timeout_s:g} s: "

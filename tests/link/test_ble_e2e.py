@@ -217,3 +217,20 @@ async def test_an_adapter_out_of_connection_slots_is_said_plainly(simulated_blue
     await second.connect()  # the slot is free again
     assert second.connected and second.adapter == "hci0"
     await second.disconnect()
+
+
+async def test_several_adapters_an_unplugged_one_is_skipped(simulated_bluez):
+    from server.devices import DeviceManager
+    from server.link.slots import AdapterSlots, OutOfConnectionSlots
+
+    w1, w2 = (Wearable(ScriptedSource(seed=s), seed=s, speed=SPEED) for s in (7, 8))
+    simulated_bluez([w1, w2])  # the simulated BlueZ has hci0 only: hci1 stands for an unplugged adapter
+    manager = DeviceManager(ble=True, ble_adapters=("hci1", "hci0"), ble_slots=1)
+    assert {d.address for d in await manager.scan(1.0)} == {w1.address, w2.address}  # hci0's scan is enough
+    slots = AdapterSlots(("hci1", "hci0"), slots_per_adapter=1)
+    first = BleLink(w1.address, reconnect=FAST, slots=slots, scan_timeout_s=1.0)
+    await first.connect()
+    assert first.adapter == "hci0"
+    with pytest.raises(OutOfConnectionSlots, match=f"hci1: none; hci0: {w1.address}"):
+        await BleLink(w2.address, reconnect=FAST, slots=slots, scan_timeout_s=1.0).connect()
+    await first.disconnect()
