@@ -6,6 +6,7 @@ device owns one link (server.link) that the guided sessions use one at a time.
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import functools
 import logging
@@ -16,6 +17,8 @@ from importlib.metadata import entry_points
 from typing import Any, Protocol
 
 from wearable_protocol.models import MODELS
+
+from .link.slots import AdapterSlots
 
 log = logging.getLogger(__name__)
 
@@ -113,6 +116,18 @@ class Device:
         if raw:
             self.info["battery_pct"] = int(raw[0])
 
+    async def note_held(self, link: Any, store: Any) -> None:
+        """Ask the connected wearable which calibration it holds and record the answer in ``store`` (when it can hold
+        one). A failed read or store write is only logged: nothing waits on it."""
+        self.info["write_back"] = bool(link.holds_calibrations)
+        if not link.holds_calibrations:
+            return
+        try:
+            held = await link.held_calibration()
+            await asyncio.to_thread(store.record_held, self.id, held.calibration_id if held else None)
+        except Exception as exc:
+            log.info("what %s holds was not recorded: %s", self.id, exc)
+
     def get_link(self) -> Any:
         if self.link is None:
             self.link = self.make_link()
@@ -135,17 +150,7 @@ class DeviceManager:
         self.devices: dict[str, Device] = {}
         self.ble = ble
         self.ble_adapters = tuple(ble_adapters)
-        self._slots: Any = None
-        self.ble_slots = ble_slots
-
-    @property
-    def slots(self) -> Any:
-        """The adapters' connection slots, shared by every BLE link of the service."""
-        if self._slots is None:
-            from .link.slots import AdapterSlots
-
-            self._slots = AdapterSlots(self.ble_adapters, self.ble_slots)
-        return self._slots
+        self.slots = AdapterSlots(self.ble_adapters, ble_slots)  # shared by every BLE link of the service
 
     def get(self, device_id: str) -> Device | None:
         return self.devices.get(device_id)
@@ -229,8 +234,7 @@ class DeviceManager:
     async def _scan_adapters(self, timeout_s: float) -> list[Any]:
         """What every adapter sees, each wearable once (at its strongest signal); an adapter that fails is skipped
         while another one answers."""
-        import asyncio
-
+        from .link.base import by_signal
         from .link.ble import BleLink
 
         results = await asyncio.gather(*(BleLink(adapter=a).scan(timeout_s) for a in self.ble_adapters), return_exceptions=True)
@@ -241,12 +245,9 @@ class DeviceManager:
             if isinstance(r, BaseException):
                 log.warning("Bluetooth adapter %s could not scan: %s", adapter, r)
         best: dict[str, Any] = {}
-        for r in results:
-            for disc in [] if isinstance(r, BaseException) else r:
-                old = best.get(disc.address)
-                if old is None or (disc.rssi or -999) > (old.rssi or -999):
-                    best[disc.address] = disc
-        return sorted(best.values(), key=lambda d: -(d.rssi if d.rssi is not None else -999))
+        for disc in by_signal(d for r in results if not isinstance(r, BaseException) for d in r):
+            best.setdefault(disc.address, disc)  # the strongest sighting of each wearable
+        return list(best.values())
 
     def add_ble_address(self, address: str) -> Device:
         """A BLE wearable known by address (from the store) that has not been scanned yet."""

@@ -38,6 +38,9 @@ TimeStamps = Literal["device", "arrival"]
 LossDetection = Literal["counter", "time_stamps", "none"]
 
 
+CANNOT_HOLD = "cannot hold a calibration: apply it to its recordings instead"
+
+
 @dataclass(frozen=True)
 class DeviceModel:
     """One wearable protocol as gyrocal uses it."""
@@ -89,7 +92,7 @@ class DeviceModel:
         if self.time_stamps == "arrival":
             out.append("Sample times are the times the samples arrived, not the device's clock.")
         if not self.write_back:
-            out.append("This device cannot hold a calibration: apply it to its recordings instead.")
+            out.append(f"This device {CANNOT_HOLD}.")
         return tuple(out)
 
     def to_dict(self) -> dict[str, Any]:

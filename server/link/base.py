@@ -40,6 +40,14 @@ class CommandError(LinkError):
     """The wearable refused or did not answer a control command."""
 
 
+def connect_gave_up(address: str | None, attempts: int, cause: object) -> ConnectError:
+    """The error after the last of ``attempts`` connection attempts failed (not to be retried again)."""
+    err = ConnectError(f"could not connect to wearable {address} after {attempts} attempts ({cause}); "
+                       "move it closer, check it is charged and not connected to another phone or computer")
+    err.retryable = False
+    return err
+
+
 class WriteBackError(LinkError):
     """A calibration could not be written to the wearable, or what it reads back is not what was written."""
 
@@ -55,6 +63,11 @@ class DiscoveredDevice:
 
     def to_dict(self) -> dict[str, Any]:
         return {"address": self.address, "name": self.name, "rssi": self.rssi, "model": self.model}
+
+
+def by_signal(found: Iterable[DiscoveredDevice]) -> list[DiscoveredDevice]:
+    """Scan results, the strongest signal first (an unknown strength last)."""
+    return sorted(found, key=lambda d: -(d.rssi if d.rssi is not None else -999))
 
 
 @dataclass(frozen=True)

@@ -19,6 +19,8 @@ from .base import (
     DiscoveredDevice,
     LinkError,
     ReconnectPolicy,
+    by_signal,
+    connect_gave_up,
 )
 from .core import LinkCore
 from .slots import AdapterSlots, OutOfConnectionSlots
@@ -53,11 +55,8 @@ async def _connect(bleak: Any, device: Any, on_disconnect: Callable[[Any], None]
     except brc.BleakNotFoundError as e:
         raise DeviceNotFoundError(f"wearable {device.address} disappeared while connecting ({e}); move it closer and "
                                   "check it is not connected to another phone or computer") from e
-    except (TimeoutError, bleak.exc.BleakError, OSError) as e:
-        err = ConnectError(f"could not connect to wearable {device.address} after {attempts} attempts ({e or type(e).__name__}); "
-                           "move it closer, check it is charged and not connected to another phone or computer")
-        err.retryable = False  # bleak-retry-connector has retried already
-        raise err from e
+    except (TimeoutError, bleak.exc.BleakError, OSError) as e:  # bleak-retry-connector has retried already
+        raise connect_gave_up(device.address, attempts, e or type(e).__name__) from e
 
 
 class BleLink(LinkCore):
@@ -66,7 +65,7 @@ class BleLink(LinkCore):
     service's adapters and their connection slots (then the adapter with the most free slots is used)."""
 
     def __init__(self, address: str | None = None, *, adapter: str | None = None, scan_timeout_s: float = 5.0,
-                 connect_timeout_s: float = 10.0, reconnect: ReconnectPolicy | None = None,
+                 reconnect: ReconnectPolicy | None = None,
                  command_timeout_s: float = 5.0, model: str | None = None,
                  clock: Callable[[], float] | None = None, slots: AdapterSlots | None = None) -> None:
         super().__init__(address.upper() if address else None, reconnect=reconnect, command_timeout_s=command_timeout_s,
@@ -74,7 +73,6 @@ class BleLink(LinkCore):
         self.adapter = adapter
         self.slots = slots
         self.scan_timeout_s = scan_timeout_s
-        self.connect_timeout_s = connect_timeout_s
         self._client: Any = None
         self._device: Any = None
 
@@ -93,7 +91,7 @@ class BleLink(LinkCore):
             raise LinkError(f"Bluetooth scan failed: {e}") from e
         devices = [DiscoveredDevice(d.address, a.local_name or d.name, a.rssi, _model_of(d, a)) for d, a in found.values()]
         wanted = [d for d in devices if d.model is not None and (self.model_key is None or d.model == self.model_key)]
-        return sorted(wanted, key=lambda d: -(d.rssi if d.rssi is not None else -999))
+        return by_signal(wanted)
 
     async def _find(self, bleak: Any, adapter: str | None) -> Any:
         """The wearable as ``adapter`` sees it (None: not found there)."""

@@ -28,6 +28,7 @@ from .base import (
     ReconnectPolicy,
     SampleBatch,
     WriteBackError,
+    connect_gave_up,
 )
 
 log = logging.getLogger(__name__)
@@ -161,10 +162,7 @@ class LinkCore(ABC):
                 if not e.retryable:
                     raise
                 if attempt == self.policy.connect_attempts:
-                    raise ConnectError(
-                        f"could not connect to wearable {self.address} after {attempt} attempts ({e}); "
-                        "move it closer, check it is charged and not connected to another phone or computer"
-                    ) from e
+                    raise connect_gave_up(self.address, attempt, e) from e
                 log.info("connect attempt %d failed (%s), retrying", attempt, e)
                 await asyncio.sleep(next(delays))
 

@@ -185,7 +185,7 @@ class LiveSession:
                 self.store.upsert_device, dev.id, name=dev.name, address=dev.address, transport=dev.transport,
                 sensor_model=info.model, firmware=info.firmware, serial=info.serial,
             )
-        await self._note_held(link)
+        await dev.note_held(link, self.store)
         m.connected(cfg.sample_rate_hz, dict(dev.info), float(cfg.gyro_full_scale_dps))
         try:
             await link.start()
@@ -206,19 +206,6 @@ class LiveSession:
                 m.feed(item.t_device_s, item.gyro_dps, item.accel_g, item.seq, int(item.lost_before), time.time())
             if m.finished or m.state == "computing":
                 return
-
-    async def _note_held(self, link: Any) -> None:
-        """Record which calibration the wearable says it holds (a device that can hold one); a failed read is
-        only logged: the session does not need it."""
-        dev = self.device
-        dev.info["write_back"] = bool(link.holds_calibrations)
-        if not link.holds_calibrations:
-            return
-        try:
-            held = await link.held_calibration()
-            await asyncio.to_thread(self.store.record_held, dev.id, held.calibration_id if held else None)
-        except Exception as exc:
-            log.info("what %s holds was not recorded: %s", dev.id, exc)
 
     def _on_link_event(self, ev: Any) -> None:
         m = self.machine

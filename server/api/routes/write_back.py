@@ -11,10 +11,11 @@ from fastapi import APIRouter
 from sqlalchemy.exc import SQLAlchemyError
 
 from wearable_protocol import HeldCalibration
+from wearable_protocol.models import CANNOT_HOLD
 
 from ... import schemas as M
 from ...deps import R401, R404, R409, R503, Operator, Svc, check_device_id, problem
-from ...link import LinkError, WriteBackError
+from ...link import LinkError
 from ...store import CalibrationRecord, StoreError
 from ..views import reachable_device
 
@@ -78,16 +79,12 @@ async def _write(svc: Svc, dev: Any, held: HeldCalibration) -> HeldCalibration:
         if not link.holds_calibrations:
             dev.info["write_back"] = False
             label = dev.model_facts().get("model_label") or "this wearable"
-            raise problem(409, f"{label} cannot hold a calibration: apply it to its recordings instead")
+            raise problem(409, f"{label} {CANNOT_HOLD}")
         try:
             return await link.write_calibration(held)
         except LinkError as exc:
-            with contextlib.suppress(LinkError):
-                now = await link.held_calibration()
-                await asyncio.to_thread(svc.store.record_held, dev.id, now.calibration_id if now else None)
+            await dev.note_held(link, svc.store)
             raise problem(502, f"calibration {held.calibration_id} was not written: {exc}") from None
-    except WriteBackError as exc:
-        raise problem(502, str(exc)) from None
     except LinkError as exc:
         raise problem(502, f"could not reach the wearable to write the calibration: {exc}") from None
     finally:

@@ -15,7 +15,7 @@ from collections.abc import Callable, Hashable
 from typing import Any, ClassVar, Protocol
 
 from wearable_protocol import DeviceConfig, DeviceState, HeldCalibration
-from wearable_protocol.models import DeviceModel
+from wearable_protocol.models import CANNOT_HOLD, DeviceModel
 
 from ..base import CommandError, LinkError, LinkStats, SampleBatch, WriteBackError
 
@@ -98,11 +98,11 @@ class Adapter(ABC):
 
     async def held_calibration(self) -> HeldCalibration | None:
         """What the device says it holds."""
-        raise WriteBackError(f"a {self.model.label} cannot hold a calibration: apply it to its recordings instead")
+        raise WriteBackError(f"a {self.model.label} {CANNOT_HOLD}")
 
     async def write_calibration(self, held: HeldCalibration) -> None:
         """Send a calibration to the device (the link reads it back)."""
-        raise WriteBackError(f"a {self.model.label} cannot hold a calibration: apply it to its recordings instead")
+        raise WriteBackError(f"a {self.model.label} {CANNOT_HOLD}")
 
     async def _exchange(self, key: Hashable, char_uuid: str, data: bytes, what: str) -> Any:
         """Write a command and wait for the reply that ``_answer(key, reply)`` delivers; CommandError when the
