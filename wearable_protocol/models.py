@@ -21,17 +21,19 @@ from .vendors import metawear, polar_pmd, thingy52
 HAND_TURN_RANGE_DPS = 450
 HAND_MOTION_RANGE_G = 4
 
+def _smallest_at_least(offered: tuple[int, ...] | list[int], floor: int) -> int:
+    return min((r for r in offered if r >= floor), default=max(offered))
+
+
 def hand_turn_range(offered: tuple[int, ...] | list[int]) -> int:
     """The smallest offered gyro range (deg/s) that a brisk hand turn does not clip, else the widest."""
-    wide = [r for r in sorted(offered) if r >= HAND_TURN_RANGE_DPS]
-    return wide[0] if wide else max(offered)
+    return _smallest_at_least(offered, HAND_TURN_RANGE_DPS)
 
 
 def hand_motion_accel_range(offered: tuple[int, ...] | list[int]) -> int:
     """The smallest offered accelerometer range (g) of 4 g or more, else the widest: rests read 1 g and hand
     turns little more."""
-    wide = [r for r in sorted(offered) if r >= HAND_MOTION_RANGE_G]
-    return wide[0] if wide else max(offered)
+    return _smallest_at_least(offered, HAND_MOTION_RANGE_G)
 
 
 TimeStamps = Literal["device", "arrival"]
