@@ -76,7 +76,7 @@ def calibrate_protocol(
     else:
         stages = detect_stages(rec)
     found = recognise(rec, stages)
-    used = _protocol_to_use(protocol, found, rec)
+    used = protocol_to_use(protocol, found, rec)
     try:
         result = _calibrate_as(rec, used, method, stages, sections, found)
     except GyrocalError as exc:
@@ -132,7 +132,7 @@ def _accelerometer(rec: Recording, stages: list[Stage]) -> dict[str, object] | N
         return None
 
 
-def _protocol_to_use(protocol: str, found: Recognition, rec: Recording) -> str:
+def protocol_to_use(protocol: str, found: Recognition, rec: Recording) -> str:
     """The protocol to calibrate with: the one asked for, or for "auto" the one found."""
     if protocol != "auto":
         return protocol

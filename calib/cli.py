@@ -93,34 +93,6 @@ def _g_sensitivity_lines(test: dict[str, Any] | None) -> list[str]:
     return [f"g-sensitivity {'fitted' if test.get('fitted') else 'not fitted'}: {test.get('reason', '')}" + before]
 
 
-def _read(args: argparse.Namespace) -> Any:
-    """The recording named on the command line (``file``, ``--fs``, ``--layout`` if the command has it)."""
-    from .errors import SampleRateUnknownError
-    from .io import read_recording
-
-    layout = getattr(args, "layout", "auto")
-    if getattr(args, "accel", None) is not None and layout != "imu_tk":
-        from .errors import RecordingError
-
-        raise RecordingError("--accel FILE names imu_tk's separate accelerometer file: give it with --layout imu_tk, or "
-                             "leave it out when FILE holds the accelerometer's columns")
-    if layout == "imu_tk":
-        from .errors import RecordingError
-        from .imu_tk_io import read_imu_tk
-
-        if getattr(args, "accel", None) is None:
-            raise RecordingError("--layout imu_tk reads the gyroscope FILE and the accelerometer from --accel FILE; give both")
-        return read_imu_tk(args.file, args.accel)
-    gyro_sens, accel_sens = getattr(args, "gyro_counts_per_dps", None), getattr(args, "accel_counts_per_g", None)
-    if gyro_sens is not None or accel_sens is not None:
-        layout = "imucal_counts" if layout in ("auto", "imucal") else layout
-    try:
-        return read_recording(args.file, fs=args.fs, layout=layout, gyro_counts_per_dps=gyro_sens,
-                              accel_counts_per_g=accel_sens)
-    except SampleRateUnknownError as exc:
-        raise SampleRateUnknownError(f"{exc}; on the command line: --fs HZ") from None
-
-
 def _writable(path: Path, what: str) -> Path:
     """``path`` if a file can be written there, else OutputError saying why (checked before any work is done)."""
     from .errors import OutputError
@@ -135,32 +107,25 @@ def _writable(path: Path, what: str) -> Path:
     return path
 
 
-def _error_json(exc: Exception, code: str, stages: list[Any]) -> str:
-    return json.dumps({"error": {"code": code, "message": str(exc), "stages": [s.to_dict() for s in stages]}})
-
-
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from .api import calibrate_protocol
+    from .cli_input import error_json, read_recording_args, read_sections_arg
     from .errors import GyrocalError, ProtocolError
 
     if args.plot:
         _writable(args.plot, "plot")
     try:
-        rec = _read(args)
+        rec = read_recording_args(args)
     except GyrocalError as exc:
         if args.json:
-            print(_error_json(exc, "bad_recording", []))
+            print(error_json(exc, "bad_recording", []))
         raise
-    sections = None
-    if args.sections is not None:
-        from .sections import read_sections
-
-        try:
-            sections = read_sections(args.sections, len(rec))
-        except GyrocalError as exc:
-            if args.json:
-                print(_error_json(exc, "bad_sections", []))
-            raise
+    try:
+        sections = read_sections_arg(args, rec)
+    except GyrocalError as exc:
+        if args.json:
+            print(error_json(exc, "bad_sections", []))
+        raise
     try:
         result, protocol = calibrate_protocol(rec, args.protocol, args.method, sections)
     except ProtocolError as exc:
@@ -173,7 +138,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             plot_stages(rec, stages, args.plot, f"{args.file}: not calibrated. {exc}")
             print(f"the stages found are drawn in {args.plot}", file=sys.stderr)
         if args.json:
-            print(_error_json(exc, exc.code, stages))
+            print(error_json(exc, exc.code, stages))
         raise
     if args.plot:
         from .plots import plot_calibration
@@ -300,55 +265,6 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def cmd_diagnose(args: argparse.Namespace) -> int:
-    """Compare a recording with its simulation, name the physics the nominal model leaves out."""
-    from tqdm import tqdm
-
-    from .diagnosis import diagnose
-
-    rec = _read(args)
-    with tqdm(total=100, desc="diagnose", unit="%", file=sys.stderr, disable=args.json and not sys.stderr.isatty()) as bar:
-
-        def progress(fraction: float, stage: str) -> None:
-            bar.set_postfix_str(stage, refresh=False)
-            bar.update(round(100 * fraction) - bar.n)
-
-        diag = diagnose(rec, progress=progress, max_samples=args.max_samples)
-    if args.report:
-        from .diagnosis.report import write_report
-
-        path = write_report(diag, args.report, title=str(args.file))
-        print(f"report written to {path}", file=sys.stderr)
-    if args.json:
-        print(json.dumps(diag.to_dict()))
-    else:
-        print(_diagnosis_summary(diag.to_dict(), str(args.file)))
-    return EXIT_OK
-
-
-def _diagnosis_summary(d: dict[str, Any], source: str) -> str:
-    lines = [f"gyrocal {__version__} — diagnosis of {source}", ""]
-    if d["effects"]:
-        lines.append("Effects (most important first; fit: lower is better):")
-        for e in d["effects"]:
-            lines.append(f"  {e['name']:<20} fit {e['fit']['before']:.4g} -> {e['fit']['after']:.4g}")
-            lines.append(f"      {e['evidence'].get('summary', '')}")
-            lines += [f"      told apart from {t['rival']}: {t['summary']}" for t in e["evidence"].get("rivals", [])]
-    else:
-        lines.append("The nominal model explains the recording: no catalogued effect is needed.")
-    for u in d["unexplained"]:
-        lines.append(f"unexplained: {u.get('description', '')}")
-    if d["mismatches"]:
-        lines.append("")
-        lines.append("Mismatches against the nominal simulation:")
-        for m in d["mismatches"][:10]:
-            lines.append(f"  {m['where']}: {m['statistic']} = {m['observed']:.4g} (simulated {m['simulated_range'][0]:.3g} "
-                         f"to {m['simulated_range'][1]:.3g}, p = {m['p_value']:.2g})")
-    for n in d["not_identifiable"]:
-        lines.append(f"{n['name']}: {n['reason']}")
-    return "\n".join(lines)
-
-
 def build_parser() -> argparse.ArgumentParser:
     """The full argument parser, with the subcommands other gyrocal packages register."""
     parser = argparse.ArgumentParser(
@@ -358,26 +274,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"gyrocal {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
-    from .api import DEFAULT_METHOD, PROTOCOLS, available_methods
+    from .api import DEFAULT_METHOD, available_methods
+    from .cli_diagnose import add_diagnose_parser
+    from .cli_input import add_recording_arguments
 
     p = sub.add_parser("calibrate", help="calibrate a recording (CSV) of the protocol")
-    p.add_argument("file", type=Path, help="native CSV (t,gx,gy,gz,...) or imucal layout (gyr_x,...)")
-    p.add_argument("--fs", type=float, default=None, help="sample rate in Hz (required when the file has no time column)")
+    add_recording_arguments(p)
     p.add_argument("--method", choices=available_methods(), default=DEFAULT_METHOD, help=f"estimator (default {DEFAULT_METHOD})")
-    p.add_argument("--layout", choices=["auto", "native", "imucal", "imu_tk"], default="auto",
-                   help="CSV layout (default: detect from header); imu_tk: FILE is imu_tk's gyroscope file, --accel its accelerometer file")
-    p.add_argument("--accel", type=Path, default=None, help="with --layout imu_tk: the accelerometer file")
-    p.add_argument("--protocol", choices=list(PROTOCOLS), default="auto",
-                   help="auto (default): the protocol recognised in the recording; paper: rests and full turns about x, y, z; "
-                        "ferraris: six static poses and three turns; multi-position: re-orientations between rests, with the "
-                        "accelerometer")
-    p.add_argument("--sections", type=Path, default=None, metavar="FILE",
-                   help="imucal's section list (JSON: {\"x_p\": {\"start\": 540, \"end\": 1271}, ...}, sample positions, end "
-                        "exclusive) used instead of stage detection; a file's own 'part' column is used without it")
-    p.add_argument("--gyro-counts-per-dps", type=float, default=None, metavar="C",
-                   help="the file holds raw counts: the gyro's sensitivity in counts per deg/s (e.g. 16.4 at +-2000 deg/s)")
-    p.add_argument("--accel-counts-per-g", type=float, default=None, metavar="C",
-                   help="the file holds raw counts: the accelerometer's sensitivity in counts per g (e.g. 2048 at +-16 g)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the summary")
     p.add_argument("--plot", type=Path, default=None, help="save a PNG of the rate magnitude and angles before/after calibration")
     p.set_defaults(func=cmd_calibrate)
@@ -435,15 +338,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--no-progress", action="store_true", help="no progress bar")
     b.set_defaults(func=cmd_bench_methods)
 
-    p = sub.add_parser("diagnose", help="compare a recording with its simulation and name the physics the model leaves out")
-    p.add_argument("file", type=Path, help="native CSV (t,gx,gy,gz,...) or imucal layout (gyr_x,...)")
-    p.add_argument("--fs", type=float, default=None, help="sample rate in Hz (required when the file has no time column)")
-    p.add_argument("--json", action="store_true", help="print one JSON object instead of the summary")
-    p.add_argument("--report", type=Path, default=None, metavar="DIR", help="write an HTML report with plots into DIR")
-    p.add_argument("--max-samples", type=int, default=500_000, metavar="N",
-                   help="refuse recordings of more samples (counting lost ones put back): a diagnosis needs about 15 kB "
-                   "of memory a sample (default 500000)")
-    p.set_defaults(func=cmd_diagnose)
+    add_diagnose_parser(sub)
 
     p = sub.add_parser("demo", help="simulate a recording, calibrate it and compare with the truth")
     p.add_argument("--seed", type=int, default=1)

@@ -53,7 +53,9 @@ G_SPREAD_MIN = 0.25  # the rests' gravity directions must spread at least this m
 
 
 @dataclass(frozen=True)
-class _Motion:
+class Motion:
+    """A motion between two consecutive rests."""
+
     start: int  # first sample after the start rest
     end: int  # first sample of the end rest
     rest_before: int  # index into the stills
@@ -80,7 +82,8 @@ class _Fit:
         return float(np.sqrt(max(1.0, self.chi2 / self.dof))) if self.dof > 0 else 1.0
 
 
-def _motions(stages: list[Stage]) -> tuple[list[Stage], list[_Motion]]:
+def motions_between_rests(stages: list[Stage]) -> tuple[list[Stage], list[Motion]]:
+    """The stills of ``stages`` and every motion between two consecutive ones."""
     stills = [s for s in stages if s.kind == "still"]
     out = []
     for i in range(len(stills) - 1):
@@ -89,7 +92,7 @@ def _motions(stages: list[Stage]) -> tuple[list[Stage], list[_Motion]]:
             continue
         between = [s for s in stages if s.start >= a.end and s.end <= b.start and s.kind != "still"]
         turn = between[0] if len(between) == 1 and between[0].kind == "turn" else None
-        out.append(_Motion(a.end, b.start, i, i + 1, turn))
+        out.append(Motion(a.end, b.start, i, i + 1, turn))
     return stills, out
 
 
@@ -106,7 +109,7 @@ def calibrate_multi_position(rec: Recording, stages: Any = None, accel: AccelCal
     if rec.accel is None:
         raise ProtocolError("calibrating from re-orientations needs the accelerometer: record its channel with the gyroscope")
     stage_list = list(stages) if stages is not None else detect_stages(rec)
-    stills, motions = _motions(stage_list)
+    stills, motions = motions_between_rests(stage_list)
     if len(motions) < MIN_MOTIONS:
         raise ProtocolError(
             f"the recording has {len(motions)} motions between rests; calibrating from re-orientations needs at least "
@@ -121,7 +124,7 @@ def calibrate_multi_position(rec: Recording, stages: Any = None, accel: AccelCal
     return _result(fit, g_test, base, data, accel, joint, stage_list, rec)
 
 
-def _data(rec: Recording, stills: list[Stage], motions: list[_Motion], free_a: np.ndarray) -> Data:
+def _data(rec: Recording, stills: list[Stage], motions: list[Motion], free_a: np.ndarray) -> Data:
     assert rec.accel is not None
     dt_all = sample_intervals(rec.t)[None]
     gyro, acc = rec.gyro[None], rec.accel[None]

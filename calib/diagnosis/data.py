@@ -10,6 +10,11 @@ of R recordings with that layout, time-first for the turns like ``calib.closure_
   means (the zero-rate output over time) and, within each still, whether the noise is white;
 - accelerometer tilt across each turn: the rotation between the gravity directions of the stills
   before and after it (0 when the device came back to its pose).
+
+A window is either a full turn (it closes to the identity) or a **re-orientation** between two rests
+(``REORIENTATION`` in its stage's flags): the device ends in a new pose, and its closing rotation is
+taken against a reference rotation ``ref`` (the motion as a first calibration integrates it), so that
+only the gravity it carries can be compared with the accelerometer (engine.py).
 """
 
 from __future__ import annotations
@@ -18,12 +23,14 @@ import itertools
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from ..recording import Recording, sample_intervals
 from ..stage import AXES, Stage
 from ..units import DEG
 
 BLOCK_S = 0.5  # still block length, s
+REORIENTATION = "reorientation"  # the flag of a motion between two rests that ends in a new pose
 
 
 @dataclass(frozen=True)
@@ -41,10 +48,22 @@ class Layout:
     block_bounds: np.ndarray  # (NB, 2)
     block_still: np.ndarray  # (NB,) still index of each block
     neighbours: np.ndarray  # (J, 2) index of the still before and after each turn, -1 if none
+    ref: np.ndarray | None = None  # (J, 4) reference rotation of each window (x, y, z, w); None: all identity
 
     @property
     def J(self) -> int:
         return len(self.turns)
+
+    @property
+    def moves(self) -> np.ndarray:
+        """(J,) True for the re-orientations (windows that end in a new pose), False for full turns."""
+        return np.array([REORIENTATION in s.flags for s in self.turns], dtype=bool)
+
+    def ref_quats(self) -> np.ndarray:
+        """(J, 4) reference rotation of each window, identity for full turns."""
+        if self.ref is None:
+            return np.tile([0.0, 0.0, 0.0, 1.0], (self.J, 1))
+        return self.ref
 
     @property
     def NB(self) -> int:
@@ -68,11 +87,11 @@ class Layout:
 
 
 def make_layout(rec: Recording, stages: list[Stage], dt: np.ndarray | None = None) -> Layout:
-    """The layout of ``rec`` from its stages: every full turn and every still of at least 2 samples."""
+    """The layout of ``rec`` from its stages: every full turn, every re-orientation and every still of at least 2 samples."""
     t = rec.t - rec.t[0]
     dt = sample_intervals(rec.t) if dt is None else dt
     stages = sorted(stages, key=lambda s: s.start)
-    turns = tuple(s for s in stages if s.kind == "turn" and s.n >= 2)
+    turns = tuple(s for s in stages if (s.kind == "turn" or REORIENTATION in s.flags) and s.n >= 2)
     stills = tuple(s for s in stages if s.kind == "still" and s.n >= 2)
     blocks, owner = [], []
     for i, s in enumerate(stills):
@@ -300,6 +319,7 @@ def _add_tilt(prob: Problem, accel: np.ndarray) -> None:
     for s, st in enumerate(lay.stills):
         still_mean[:, s] = accel[:, st.start : st.end].mean(axis=1)
         still_n[s] = st.n
+    ref = Rotation.from_quat(lay.ref_quats()) if J else None
     tilt = np.zeros((R, J, 2))
     basis = np.zeros((R, J, 2, 3))
     up = np.zeros((R, J, 3))
@@ -312,6 +332,8 @@ def _add_tilt(prob: Problem, accel: np.ndarray) -> None:
             basis[:, j] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
             continue
         a0, a1 = still_mean[:, i0], still_mean[:, i1]
+        if ref is not None and lay.ref is not None:
+            a0 = ref[j].inv().apply(a0)  # the pose before, carried into the pose after by the reference rotation
         u0 = a0 / np.linalg.norm(a0, axis=1, keepdims=True)
         u1 = a1 / np.linalg.norm(a1, axis=1, keepdims=True)
         u = u0 + u1

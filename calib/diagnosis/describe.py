@@ -7,7 +7,7 @@ import numpy as np
 from ..stage import AXES
 from .data import Layout, Problem
 from .engine import Fit, covariance
-from .features import Features
+from .features import Features, window_label
 from .models import R0_DPS, Model
 from .saturation import Plateau
 from .select import DISTINGUISH, ModelState, Step
@@ -358,7 +358,7 @@ def _shape(group: str, idx: list[int], feats: Features, layout: Layout, values: 
         for j in turns:
             v = np.array([values[feats.names.index(f"closure_{j}_{a}")] for a in AXES])
             i = int(np.argmax(np.abs(v)))
-            parts.append(f"the turn about {layout.turns[j].axis} at {layout.turns[j].start_s:.1f} s ends "
+            parts.append(f"the {window_label(layout, j)} ends "
                          f"{np.linalg.norm(v):.3f} deg from where it began, mostly about {AXES[i]}")
         return prefix + "; ".join(parts)
     if group == "whiteness":
@@ -368,6 +368,10 @@ def _shape(group: str, idx: list[int], feats: Features, layout: Layout, values: 
     if group == "tilt":
         parts = [f"{feats.where[i]}: {values[i]:.3f} deg" for i in idx]
         return prefix + "the device came back tilted: " + "; ".join(parts)
+    if group == "gravity":
+        parts = [f"{window_label(layout, int(feats.names[i].split('_')[1]))}: {values[i]:.3f} deg" for i in idx]
+        return prefix + ("the gravity the calibrated gyro carries across these re-orientations misses the accelerometer's: "
+                         + "; ".join(parts))
     return prefix + group
 
 

@@ -10,6 +10,11 @@ The residual vector of a recording stacks, each whitened to unit variance under 
   noise inside each still is white;
 - ``tilt`` (2 per turn, with an accelerometer): the tilt across the turn measured from gravity minus
   the modelled one (deg), weighted by the accelerometer noise;
+- for a **re-orientation** (a motion between rests that ends in a new pose) the rotation about gravity
+  is unobservable: its closing rotation r_j (against the layout's reference rotation) is free in the
+  direction of gravity, so its 3 closure rows are left empty and its 2 tilt rows hold the gravity the
+  calibrated gyro carries against the accelerometer's, t_j - P_j r_j, weighted by the accelerometer
+  noise plus P_j cov(r_j) P_j^T (the closure rows with a free rotation profiled out, exactly);
 - ``prior`` rows of an effect (the heading of a placement error, the height of a clipped plateau).
 
 The calibrated rate w_t and its Jacobian come from ``Model.rate``; the closing rotations and their
@@ -23,10 +28,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.linalg import solve_triangular
 from scipy.spatial.transform import Rotation
 
 from ..closure_fit import solve_lower
 from ..closure_model import left_jacobian, left_jacobian_inv, prefix_products
+from ..quaternion import hamilton
 from ..units import DEG
 from .data import Problem
 from .models import Model
@@ -47,15 +54,23 @@ def closure_pass(model: Model, psi_cols: np.ndarray, prob: Problem, sigma_cols: 
     """Closing rotations of the R*J turns at parameters psi_cols (R*J, P), with Jacobian and noise covariance."""
     L, B = prob.dt.shape
     Pr = model.rate_params.size
+    lay = prob.layout
+    ref = None
+    if lay.ref is not None and lay.J:
+        # closing rotations against each window's reference A: Log(A^T prod Exp(w dt)), A^T first in every product
+        inv = lay.ref_quats().copy()
+        inv[:, :3] *= -1.0
+        ref = np.tile(inv, (prob.R, 1))
     step = max(1, _CHUNK // max(1, L * 3 * max(Pr, 9)))
     parts = []
     for s in range(0, B, step):
         cols = slice(s, min(B, s + step))
-        parts.append(_pass_chunk(model, psi_cols[cols], prob.turn.take(cols), prob.dt[:, cols], sigma_cols[cols], jacobian))
+        parts.append(_pass_chunk(model, psi_cols[cols], prob.turn.take(cols), prob.dt[:, cols], sigma_cols[cols], jacobian,
+                                 None if ref is None else ref[cols]))
     return Closure(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("r", "jac", "noise", "swept")))
 
 
-def _pass_chunk(model, psi, inp, dt, sigma, jacobian) -> Closure:
+def _pass_chunk(model, psi, inp, dt, sigma, jacobian, ref_inv=None) -> Closure:
     L, B = dt.shape
     w, dw = model.rate(psi[None], inp, jacobian=True)  # (L, B, 3), (L, B, 3, Pr)
     wdt = dt * DEG
@@ -64,9 +79,13 @@ def _pass_chunk(model, psi, inp, dt, sigma, jacobian) -> Closure:
     q = Rotation.from_rotvec(u.reshape(-1, 3)).as_quat()
     q = np.ascontiguousarray(q.T).reshape(4, L, B)
     att = prefix_products(q)
+    first = np.broadcast_to(_IDENTITY_Q[:, None], (4, B))
+    if ref_inv is not None:
+        first = np.ascontiguousarray(ref_inv.T)
+        att = hamilton(np.broadcast_to(first[:, None], att.shape), att)
     r = Rotation.from_quat(att[:, L - 1].T).as_rotvec()
     prev = np.empty_like(att)
-    prev[:, 0] = _IDENTITY_Q[:, None]
+    prev[:, 0] = first
     prev[:, 1:] = att[:, :-1]
     C = Rotation.from_quat(prev.reshape(4, -1).T).as_matrix().reshape(L, B, 3, 3)
     Hw = np.matmul(C, left_jacobian(u))
@@ -122,7 +141,34 @@ class Variance:
     still: np.ndarray | None = None
     closure: np.ndarray | None = None
     turn_bias: np.ndarray | None = None  # (R, J) variance (deg/s)^2 of a bias offset common to each turn
-    turn_path: np.ndarray | None = None  # (R, 3, L, J, NB): the expected bias wander at each turn sample from the still block rates
+    turn_path: Wander | None = None  # the expected bias wander at each turn sample from the still block rates
+
+
+@dataclass
+class Wander:
+    """The expected bias wander at every turn sample given the still block rates (kriging): o = c_j C^-1 e.
+
+    Only the blocks within a few correlation times of a turn enter its ``c_j``: the weights of the
+    others are below exp(-WANDER_REACH)."""
+
+    Cinv: np.ndarray  # (R, 3, NB, NB) inverse covariance of the still block rates
+    spans: list[tuple[int, int]]  # per turn: the blocks [lo, hi) near enough to matter
+    cs: list[np.ndarray]  # per turn: (L, hi - lo) covariance of the wander at each turn sample with each of those blocks
+
+    def offsets(self, e: np.ndarray, de: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The wander (L, R*J, 3) at the turn samples and its derivative (L, R*J, 3, Pr), from the still block
+        rates e (R, NB, 3) and their derivatives de (R, NB, 3, Pr)."""
+        R, Pr = e.shape[0], de.shape[-1]
+        a = np.einsum("ribc,rci->rbi", self.Cinv, e)
+        da = np.einsum("ribc,rcip->rbip", self.Cinv, de)
+        L, J, NB = self.cs[0].shape[0], len(self.cs), e.shape[1]
+        # blocks first, everything else in one row: each turn is then one matrix product
+        ab = np.ascontiguousarray(np.concatenate((a[..., None], da), axis=3).transpose(1, 0, 2, 3)).reshape(NB, -1)
+        out = np.zeros((L, J, R, 3, 1 + Pr))
+        for j, ((lo, hi), c) in enumerate(zip(self.spans, self.cs, strict=True)):
+            out[:, j] = (c @ ab[lo:hi]).reshape(L, R, 3, 1 + Pr)
+        out = out.transpose(0, 2, 1, 3, 4).reshape(L, R * J, 3, 1 + Pr)
+        return out[..., 0], out[..., 1:]
 
 
 def system(
@@ -140,6 +186,7 @@ def system(
     psi_cols = np.repeat(psi, J, axis=0)
     sig_cols = np.repeat(prob.sigma, J, axis=0)
     blocks: dict[str, slice] = {}
+    move_terms = None
     res_parts, jac_parts = [], []
     logdet = np.zeros(R)
     pos = 0
@@ -156,9 +203,7 @@ def system(
             # the bias wander the still blocks imply, carried through each turn as an added rate
             from dataclasses import replace as _replace
 
-            L = prob.dt.shape[0]
-            o = np.einsum("riljb,rbi->lrji", variance.turn_path, e).reshape(L, R * J, 3)
-            do = np.einsum("riljb,rbip->lrjip", variance.turn_path, djs[..., ridx]).reshape(L, R * J, 3, ridx.size)
+            o, do = variance.turn_path.offsets(e, djs[..., ridx])
             turn_prob = _replace(prob, turn=_replace(prob.turn, offset=o, doffset=do))
         cl = closure_pass(model, psi_cols, turn_prob, sig_cols)
         r = cl.r.reshape(R, J, 3)
@@ -178,13 +223,22 @@ def system(
         if variance is not None and variance.turn_bias is not None:
             Jb = jt[..., 3:6]  # closure per deg/s of bias, (R, J, 3, 3)
             cov = cov + variance.turn_bias[..., None, None] * np.matmul(Jb, Jb.transpose(0, 1, 3, 2))
+        moves = prob.layout.moves
         if chol is None:
             chol = np.linalg.cholesky(cov)
             if extra_cov:
                 base = np.linalg.cholesky(cl.noise.reshape(R, J, 3, 3))
-                logdet += 2.0 * (np.log(np.einsum("rjii->rji", chol)) - np.log(np.einsum("rjii->rji", base))).sum(axis=(1, 2))
-        res_parts.append(solve_lower(chol, r[..., None])[..., 0].reshape(R, 3 * J))
-        jac_parts.append(solve_lower(chol, jt).reshape(R, 3 * J, P))
+                ld = 2.0 * (np.log(np.einsum("rjii->rji", chol)) - np.log(np.einsum("rjii->rji", base)))
+                logdet += ld[:, ~moves].sum(axis=(1, 2))
+        zc = solve_lower(chol, r[..., None])[..., 0]
+        jc = solve_lower(chol, jt)
+        if moves.any():
+            # a re-orientation's closure is free about gravity: its evidence is in the tilt rows below
+            zc[:, moves] = 0.0
+            jc[:, moves] = 0.0
+            move_terms = (r[:, moves], jt[:, moves], cov[:, moves], cl.noise.reshape(R, J, 3, 3)[:, moves], extra_cov)
+        res_parts.append(zc.reshape(R, 3 * J))
+        jac_parts.append(jc.reshape(R, 3 * J, P))
         blocks["closure"] = slice(0, 3 * J)
         pos = 3 * J
     else:
@@ -198,16 +252,17 @@ def system(
         # full covariance per axis: diag(sd^2) + extra
         C = variance.still + np.einsum("rbi,bc->ribc", sd**2, np.eye(NB))
         Lc = np.linalg.cholesky(C)  # (R, 3, NB, NB)
-        Li = np.linalg.inv(Lc)
-        ei = np.moveaxis(e, 2, 1)[..., None]  # (R, 3, NB, 1)
-        ji = np.moveaxis(djs, 2, 1)  # (R, 3, NB, P)
-        we = np.matmul(Li, ei)
-        wj = np.matmul(Li, ji)
+        # whitened rates, Jacobian and constant: one triangular solve per recording and axis
+        rhs = np.concatenate((np.moveaxis(e, 2, 1)[..., None], np.moveaxis(djs, 2, 1), np.ones((R, 3, NB, 1))), axis=3)
+        sol = np.empty_like(rhs)
+        for r_ in range(R):
+            for i in range(3):
+                sol[r_, i] = solve_triangular(Lc[r_, i], rhs[r_, i], lower=True, check_finite=False)
+        we, wj, w1 = sol[..., :1], sol[..., 1:-1], sol[..., -1]
         res_parts.append(np.moveaxis(we[..., 0], 1, 2).reshape(R, 3 * NB))
         jac_parts.append(np.moveaxis(wj, 1, 2).reshape(R, 3 * NB, P))
         logdet += 2.0 * (np.log(np.einsum("ribb->rib", Lc)) - np.log(np.moveaxis(sd, 2, 1))).sum(axis=(1, 2))
         # restricted likelihood: each axis' constant (the bias) integrated out, so that a variance it absorbs costs nothing
-        w1 = np.matmul(Li, np.ones((NB, 1)))[..., 0]  # (R, 3, NB)
         logdet += (np.log(np.einsum("rib,rib->ri", w1, w1)) - np.log(np.sum(1.0 / sd**2, axis=1))).sum(axis=1)
     else:
         res_parts.append((e / sd).reshape(R, 3 * NB))
@@ -227,8 +282,12 @@ def system(
             y = y - np.einsum("rjci,rji->rjc", tl.basis, rho)
             for j in range(J):
                 jtilt[:, j, :, s + 3 * j : s + 3 * j + 3] = -tl.basis[:, j]
-        res_parts.append((y / sdt).reshape(R, 2 * J))
-        jac_parts.append((jtilt / sdt[..., None]).reshape(R, 2 * J, P))
+        zt, jzt = y / sdt, jtilt / sdt[..., None]
+        if move_terms is not None:
+            zt, jzt, ld = _gravity_rows(zt, jzt, tl, prob.layout.moves, move_terms)
+            logdet += ld
+        res_parts.append(zt.reshape(R, 2 * J))
+        jac_parts.append(jzt.reshape(R, 2 * J, P))
         blocks["tilt"] = slice(pos, pos + 2 * J)
         pos += 2 * J
 
@@ -249,6 +308,29 @@ def system(
     res = np.concatenate(res_parts, axis=1)
     jac = np.concatenate(jac_parts, axis=1)
     return System(res, jac, blocks, cl, chol, logdet)
+
+
+def _gravity_rows(zt: np.ndarray, jzt: np.ndarray, tl, moves: np.ndarray, terms) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The tilt rows of the re-orientations: the measured tilt t minus the closing rotation r's components
+    across gravity (P r), whitened by the accelerometer's variance plus P cov(r) P^T; and the extra
+    log-determinant of a variance model beyond the white noise's."""
+    r, jt, cov, noise, extra = terms
+    Pm = tl.basis[:, moves]  # (R, M, 2, 3)
+    sd = tl.sd[:, moves]
+    y = tl.tilt[:, moves] - np.einsum("rmci,rmi->rmc", Pm, r)
+    jy = -np.einsum("rmci,rmip->rmcp", Pm, jt)
+    PT = Pm.transpose(0, 1, 3, 2)
+    acc = np.einsum("rm,cd->rmcd", sd**2, np.eye(2))
+    C = acc + Pm @ cov @ PT
+    Lc = np.linalg.cholesky(C)
+    zt, jzt = zt.copy(), jzt.copy()
+    zt[:, moves] = np.linalg.solve(Lc, y[..., None])[..., 0]
+    jzt[:, moves] = np.linalg.solve(Lc, jy)
+    logdet = np.zeros(zt.shape[0])
+    if extra:
+        Lb = np.linalg.cholesky(acc + Pm @ noise @ PT)
+        logdet = 2.0 * (np.log(np.einsum("rmii->rmi", Lc)) - np.log(np.einsum("rmii->rmi", Lb))).sum(axis=(1, 2))
+    return zt, jzt, logdet
 
 
 # --------------------------------------------------------------------------- fitting
@@ -335,7 +417,7 @@ def gauss_newton(
             break
     A = np.einsum("rmp,rmq->rpq", sys_.J, sys_.J)
     _, rank = _pinv_solve(A, np.zeros((R, model.P)))
-    M = sys_.res.shape[1]
+    M = sys_.res.shape[1] - 3 * int(prob.layout.moves.sum())  # a re-orientation's closure rows are empty
     dof = M - rank
     return Fit(psi, dev, A, dof.astype(float), sys_, it, conv, rank)
 

@@ -7,7 +7,9 @@ Every feature is computed the same way on the recording and on each simulated re
 - ``whiteness``   per still: chi-square per degree of freedom of its block means about the still's
                   mean (about 1 for white noise, larger when the zero-rate output wanders);
 - ``closure``     per turn and axis: the closing rotation (deg), 0 when the turn came back;
-- ``tilt``        per turn (with an accelerometer): the tilt between the poses before and after (deg).
+- ``tilt``        per turn (with an accelerometer): the tilt between the poses before and after (deg);
+- ``gravity``     per re-orientation: the angle between the gravity the calibrated gyro carries from the
+                  pose after to the pose before and the accelerometer's there (deg), 0 under the model.
 """
 
 from __future__ import annotations
@@ -41,8 +43,16 @@ def _still_label(layout: Layout, s: int) -> str:
 
 
 def _turn_label(layout: Layout, j: int) -> str:
+    return window_label(layout, j, f" ({layout.turns[j].start_s:.1f}-{layout.turns[j].end_s:.1f} s)")
+
+
+def window_label(layout: Layout, j: int, when: str | None = None) -> str:
+    """"turn about x at 12.3 s" or "re-orientation 4 at 12.3 s" (``when`` replaces " at 12.3 s")."""
     st = layout.turns[j]
-    return f"turn about {st.axis} ({st.start_s:.1f}-{st.end_s:.1f} s)"
+    when = f" at {st.start_s:.1f} s" if when is None else when
+    if layout.moves[j]:
+        return f"re-orientation {int(layout.moves[: j + 1].sum())}{when}"
+    return f"turn about {st.axis}{when}"
 
 
 def compute_features(prob: Problem, sys_: System, psi: np.ndarray) -> Features:
@@ -81,17 +91,28 @@ def compute_features(prob: Problem, sys_: System, psi: np.ndarray) -> Features:
         where.append(_still_label(lay, s))
         kinds.append(UPPER)
         groups.append("whiteness")
+    moves = lay.moves
     if J:
         r = sys_.closure.r.reshape(R, J, 3)
-        for j in range(J):
+        for j in map(int, np.flatnonzero(~moves)):
             for i, a in enumerate(AXES):
                 cols.append(r[:, j, i])
                 names.append(f"closure_{j}_{a}")
                 where.append(f"{_turn_label(lay, j)}, {a} component")
                 kinds.append(SIGNED)
                 groups.append("closure")
+    if prob.tilt is not None and prob.tilt_sd is not None and moves.any():
+        tl = prob.tilts()
+        r = sys_.closure.r.reshape(R, J, 3)
+        miss = tl.tilt - np.einsum("rjci,rji->rjc", tl.basis, r)  # deg, exact for the re-orientations
+        for j in map(int, np.flatnonzero(moves)):
+            cols.append(np.linalg.norm(miss[:, j], axis=1))
+            names.append(f"gravity_{j}")
+            where.append(f"{_turn_label(lay, j)}: gravity carried by the gyro vs the accelerometer")
+            kinds.append(UPPER)
+            groups.append("gravity")
     if prob.tilt is not None and prob.tilt_sd is not None and J:
-        for j in range(J):
+        for j in map(int, np.flatnonzero(~moves)):
             if not np.all(np.isfinite(prob.tilt_sd[:, j])):
                 continue
             cols.append(np.linalg.norm(prob.tilt[:, j], axis=1))

@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from ..units import DEG
 from .data import Inputs, Layout, Problem, build_problem
@@ -80,11 +81,12 @@ def _close_turns(layout: Layout, g: np.ndarray, target: np.ndarray | None = None
     prob = build_problem(layout, g[None])
     c = np.zeros((J, 3))
     goal = np.zeros((J, 3)) if target is None else target
+    moves = layout.moves
     for _ in range(4):
         psi = np.repeat(one, J, axis=0)
         psi[:, 3:6] = -c
         cl = closure_pass(model, psi, prob, np.full((J, 3), 1e-3))
-        err = cl.r - goal
+        err = np.where(moves[:, None], 0.0, cl.r - goal)  # a re-orientation ends wherever the motion took it
         if np.max(np.abs(err)) < 1e-9:
             break
         dr_db = cl.jac[:, :, 3:6]  # deg per (deg/s) of constant rate
@@ -92,6 +94,14 @@ def _close_turns(layout: Layout, g: np.ndarray, target: np.ndarray | None = None
     for j, (a, b) in enumerate(layout.turn_bounds):
         g[a:b] -= c[j]
     return g
+
+
+def window_rotations(layout: Layout, g: np.ndarray) -> Rotation:
+    """The rotation (J,) the true rate g (n, 3) makes over each window: end pose into start pose."""
+    model = Model((), layout.J)
+    psi = np.repeat(np.array([[1.0, 1.0, 1.0, 0.0, 0.0, 0.0]]), layout.J, axis=0)
+    cl = closure_pass(model, psi, build_problem(layout, g[None]), np.full((layout.J, 3), 1e-3), jacobian=False)
+    return Rotation.from_quat(layout.ref_quats()) * Rotation.from_rotvec(cl.r * DEG)
 
 
 def closure_targets(model: Model, psi: np.ndarray, J: int) -> np.ndarray | None:
@@ -132,11 +142,14 @@ def make_replay(
     if accel is not None:
         a = accel.copy()
         means = [accel[s.start : s.end].mean(axis=0) for s in layout.stills]
-        # the device comes back after each turn: the still after it has the pose of the still before
+        # the device comes back after each turn: the still after it has the pose of the still before; after a
+        # re-orientation, the pose the true motion took it to
+        moves = layout.moves
+        turned = window_rotations(layout, g) if moves.any() else None
         for j in range(layout.J):
             i0, i1 = layout.neighbours[j]
             if i0 >= 0 and i1 >= 0:
-                means[i1] = means[i0]
+                means[i1] = turned[j].inv().apply(means[i0]) if turned is not None and moves[j] else means[i0]
         for s, mu in zip(layout.stills, means, strict=False):
             a[s.start : s.end] = mu
     extra = {"full_scale": full_scale} if full_scale is not None else {}
@@ -159,8 +172,6 @@ def with_effects(replay: Replay, model: Model, psi: np.ndarray, gm: tuple[np.nda
         rho = psi[sl["placement_error"]].reshape(lay.J, 3)
         g = _close_turns(lay, g, target=closure_targets(model, psi, lay.J))
         if a is not None:
-            from scipy.spatial.transform import Rotation
-
             a = a.copy()
             for j in range(lay.J):
                 i0, i1 = lay.neighbours[j]

@@ -191,7 +191,8 @@ def _feature_figure(diag: Diagnosis):
     if det["boot_after"] is not None:
         panels.append(("simulation with the named effects", det["boot_after"]))
     fig, axes = plt.subplots(1, len(panels), figsize=(6.5 * len(panels), 4.2), squeeze=False, sharey=True)
-    colours = {"still_rate": "tab:blue", "whiteness": "tab:purple", "closure": "tab:orange", "tilt": "tab:green"}
+    colours = {"still_rate": "tab:blue", "whiteness": "tab:purple", "closure": "tab:orange", "tilt": "tab:green",
+               "gravity": "tab:red"}
     x = np.arange(obs.size)
     for ax, (label, boot) in zip(axes[0], panels, strict=False):
         z = _z(obs, boot)

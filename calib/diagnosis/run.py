@@ -9,9 +9,13 @@ from dataclasses import replace
 import numpy as np
 from scipy.stats import norm
 
+from ..api import PROTOCOLS, protocol_to_use
 from ..effects import CATALOGUE
 from ..errors import GyrocalError, RecordingError, RecordingTooLong
+from ..recognise import Recognition, recognise
 from ..recording import Recording
+from ..section import Section
+from ..sections import stages_from_sections
 from ..stage import AXES, Stage
 from ..stages import detect_stages, resolve_stages
 from .assemble import Diagnosis, assemble_diagnosis
@@ -28,6 +32,7 @@ from .features import SIGNED, compute_features
 from .fitting import fit_nominal
 from .models import Model
 from .null import Replay, make_replay, replicate_problems, with_effects
+from .reorientation import prepare as prepare_reorientations
 from .rivals import Worlds
 from .saturation import Plateau, find_plateaus, plateau_caps
 from .select import (
@@ -65,8 +70,15 @@ def diagnose(
     host_t: np.ndarray | None = None,
     stages: list[Stage] | None = None,
     max_samples: int | None = DEFAULT_MAX_SAMPLES,
+    protocol: str = "auto",
+    sections: tuple[Section, ...] | None = None,
 ) -> Diagnosis:
     """Diagnose a recording of the protocol against the nominal model g = K m + b.
+
+    The constraints are those ``calib.api.calibrate_protocol`` calibrates with: ``protocol`` "auto" (what the
+    recording holds), "paper", "ferraris" (rests and full turns) or "multi-position" (rests and the gravity each
+    re-orientation carries, with the accelerometer calibrated first); ``sections`` (or the recording's own)
+    replace stage detection, as do ``stages``.
 
     ``max_samples``: refuse (RecordingTooLong) a recording that has, or would have once its lost samples are
     put back, more samples than this; the work and memory grow with them (about 15 kB a sample).
@@ -95,10 +107,14 @@ def diagnose(
         if stages is not None:
             stages = None  # stage indices refer to the delivered rows: detect them again
     plateaus = find_plateaus(rec)
-    if stages is None:
-        stages = detect_stages(rec)
-    stages = _clipped_turns(rec, list(stages), plateaus)
-    stages = resolve_stages(rec, stages).stages  # a ProtocolError naming the missing stage, as calibrate gives
+    stages, found, used = _protocol_stages(rec, stages, protocol, sections)
+    moving = None
+    if used == "multi-position":
+        moving = prepare_reorientations(rec, stages)
+        rec, stages = moving.rec, moving.stages
+    else:
+        stages = _clipped_turns(rec, list(stages), plateaus)
+        stages = resolve_stages(rec, stages).stages  # a ProtocolError naming the missing stage, as calibrate gives
     if raw is None:
         dt = _intervals(rec, tb)
     else:
@@ -107,14 +123,19 @@ def diagnose(
         dt = _intervals(rec, tb)
         tb = _merge_timebase(lost_tb, tb)
     layout = make_layout(rec, stages, dt)
+    if moving is not None:
+        layout = moving.with_references(layout)
     caps = plateau_caps(len(rec), rec.t, plateaus) if plateaus else None
     temp = rec.temp - rec.temp[0] if rec.temp is not None else None
     accel = rec.accel
     prob = build_problem(layout, rec.gyro[None], None if accel is None else accel[None], temp, caps)
     say(0.05, "nominal fit")
 
-    clipped = tuple(j for j, s in enumerate(layout.turns) if any(s.start <= p.start < s.end for p in plateaus))
+    clipped = tuple(j for j, s in enumerate(layout.turns)
+                    if not layout.moves[j] and any(s.start <= p.start < s.end for p in plateaus))
     start = _unclipped_start(rec, layout, clipped, accel, temp) if clipped else None
+    if start is None and moving is not None:
+        start = moving.start
     fit0 = fit_nominal(prob, start)
     start = fit0.psi if start is None else start
     a_design = None
@@ -189,9 +210,24 @@ def diagnose(
     say(0.95, "report")
     diag = assemble_diagnosis(rec, raw, host_t, prob, layout, tb, plateaus, fit0, base, base_fit, cap_fit, steps, ambiguities, final, feats,
                      boot_feats, boot_feats_after, p_before, p_after, tests, not_ident, specs, alpha, n_boot, duration)
+    diag.info["protocol"] = {"found": found.to_dict(), "used": used}
+    if moving is not None:
+        diag.info["accelerometer"] = moving.accel.to_dict()
     diag.info["seconds"] = round(time.perf_counter() - t_start, 3)
     say(1.0, "done")
     return diag
+
+
+def _protocol_stages(rec: Recording, stages: list[Stage] | None, protocol: str,
+                     sections: tuple[Section, ...] | None) -> tuple[list[Stage], Recognition, str]:
+    """The stages to diagnose, what protocol they hold, and the protocol to diagnose them as (as calibrate does)."""
+    if protocol not in PROTOCOLS:
+        raise GyrocalError(f"unknown protocol {protocol!r}: choose one of {', '.join(PROTOCOLS)}")
+    sections = sections if sections is not None else rec.meta.sections
+    if stages is None:
+        stages = stages_from_sections(rec, sections) if sections else detect_stages(rec)
+    found = recognise(rec, list(stages))
+    return list(stages), found, protocol_to_use(protocol, found, rec)
 
 
 def _check_size(rec: Recording, tb: TimeBase, max_samples: int | None) -> None:

@@ -128,8 +128,8 @@ def plan_tests(
     if has_temp and temp_range > 0.05:
         keys.append("bias_drift_temp")
     keys.append("g_sensitivity")  # without an accelerometer, against the gravity of a device resting flat
-    if has_accel:
-        keys.append("placement_error")
+    if has_accel and not prob.layout.moves.any():
+        keys.append("placement_error")  # re-orientations end in a new pose by design: their ends are free already
     union = base.with_effects(*keys)
     psi = union.zeros(base_fit.psi, base)
     sys_ = system(prob, union, psi, _extend_priors(priors, base, union))
@@ -240,7 +240,7 @@ def p_value(stat: float, null: tuple[float, float]) -> float:
 
 
 def informative_count(prob: Problem, has_tilt: bool) -> int:
-    n = 3 * prob.J + 3 * prob.layout.S
+    n = 3 * (prob.J - int(prob.layout.moves.sum())) + 3 * prob.layout.S
     if has_tilt and prob.tilt_sd is not None:
         n += 2 * int(np.isfinite(prob.tilt_sd[0]).sum())
     return max(n, 2)
@@ -429,7 +429,7 @@ def press(fit: Fit, prob: Problem) -> float:
     groups: list[np.ndarray] = []
     if "closure" in sys_.blocks:
         s = sys_.blocks["closure"].start
-        groups += [np.arange(s + 3 * j, s + 3 * j + 3) for j in range(prob.J)]
+        groups += [np.arange(s + 3 * j, s + 3 * j + 3) for j in np.flatnonzero(~prob.layout.moves)]
     s0 = sys_.blocks["still"].start
     owner = prob.layout.block_still
     for st in range(prob.layout.S):

@@ -18,10 +18,11 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from .data import Problem
-from .engine import Fit, System, Variance
+from .engine import Fit, System, Variance, Wander
 from .models import Model
 
 TAU_GRID_S = (3.0, 10.0, 30.0, 100.0)
+WANDER_REACH = 8.0  # correlation times beyond a turn whose still blocks still inform the wander in it
 
 
 def gm_correlation(tb: np.ndarray, tau: float) -> np.ndarray:
@@ -104,9 +105,13 @@ def instability_variance(prob: Problem, psi: np.ndarray, sigma: float, tau: floa
         turn_var = np.maximum(v.mean(axis=1), 0.0)  # one variance per turn, averaged over the axes
         # the expected wander at every turn sample given the still block rates (kriging weights)
         ts = prob.turn.t[:, : lay.J]  # (L, J) sample times of the first recording's turns
-        cs = sigma**2 * np.exp(-np.abs(ts[..., None] - tb[None, None, :]) / tau)  # (L, J, NB)
-        Cinv = np.linalg.inv(C)  # (R, 3, NB, NB)
-        path = np.einsum("ljb,ribc->riljc", cs, Cinv)  # (R, 3, L, J, NB)
+        spans, cs = [], []
+        for j, s in enumerate(lay.turns):
+            near = np.flatnonzero((tb >= lay.t[s.start] - WANDER_REACH * tau) & (tb <= lay.t[s.end - 1] + WANDER_REACH * tau))
+            lo, hi = (int(near[0]), int(near[-1]) + 1) if near.size else (0, 0)
+            spans.append((lo, hi))
+            cs.append(sigma**2 * np.exp(-np.abs(ts[:, j, None] - tb[None, lo:hi]) / tau))
+        path = Wander(np.linalg.inv(C), spans, cs)
     else:
         path = None
     return Variance(still=np.broadcast_to(M, (prob.R, 3) + M.shape).copy(), turn_bias=turn_var, turn_path=path)

@@ -28,6 +28,8 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
+from .compute import UploadOptions
+
 log = logging.getLogger(__name__)
 
 DEFAULT_WORKERS = max(1, min(2, (os.cpu_count() or 1) - 1))
@@ -49,24 +51,28 @@ class WorkerDied(Exception):
 
 # -- what the workers run (module level, so that spawned processes can import it) ------------------
 def diagnose_csv(csv: bytes, fs: float | None, layout: str, source: str, max_samples: int,
-                 stages: list[dict[str, Any]] | None, full_scale_dps: float | None, report_title: str | None,
-                 progress: Progress | None = None) -> tuple[dict[str, Any], str | None]:
+                 stages: list[dict[str, Any]] | None, full_scale_dps: float | None, options: UploadOptions | None,
+                 report_title: str | None, progress: Progress | None = None) -> tuple[dict[str, Any], str | None]:
     """Parse a CSV recording and diagnose it: (Diagnosis.to_dict(), the HTML report or None).
 
     ``stages`` (Stage.to_dict() form) are used instead of detecting them, as a session accepted them;
-    ``full_scale_dps`` is the gyro range the wearable stated (a CSV does not carry it).
+    ``full_scale_dps`` is the gyro range the wearable stated (a CSV does not carry it); ``options`` the
+    upload's protocol, sections and raw-count sensitivities, as for a calibration.
     Raises calib's errors (RecordingError, ProtocolError, ...) and server.compute.TooManySamples.
     """
     from calib.diagnosis import diagnose
+    from calib.sections import parse_sections
     from calib.stage import Stage
 
     from .compute import parse_upload
 
-    rec = parse_upload(csv, fs, layout, source, max_samples)
+    opts = options or UploadOptions()
+    rec = parse_upload(csv, fs, layout, source, max_samples, opts)
     if full_scale_dps:
         rec = rec.with_meta(gyro_full_scale_dps=float(full_scale_dps))
     found = [Stage.from_dict(s) for s in stages] if stages else None
-    diag = diagnose(rec, progress=progress, stages=found, max_samples=max_samples)
+    sections = parse_sections(opts.sections, len(rec), "the sections parameter") if opts.sections else None
+    diag = diagnose(rec, progress=progress, stages=found, max_samples=max_samples, protocol=opts.protocol, sections=sections)
     html = None
     if report_title is not None:
         from calib.diagnosis.report import write_report

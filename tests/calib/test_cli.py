@@ -183,3 +183,17 @@ def test_effects_lists_the_catalogue_with_its_values_and_ranges() -> None:
         assert 0 < r["drawn"]["low"] < r["drawn"]["high"]
     text = gyrocal("effects")
     assert text.returncode == 0 and "clock_error=E" in text.stdout
+
+
+def test_diagnose_takes_the_recording_options_calibrate_takes(ferraris_csv: Path, real_data: Path):
+    sections = real_data / "imucal" / "example_ferraris_session_list.json"
+    proc = gyrocal("diagnose", str(ferraris_csv), "--fs", "102.4", "--sections", str(sections), "--json")
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout)
+    assert out["info"]["protocol"]["used"] == "ferraris"
+    assert sorted(out["info"]["protocol"]["found"]["poses"]) == ["x_a", "x_p", "y_a", "y_p", "z_a", "z_p"]
+    assert out["nominal"]["stills"] == 6 and out["nominal"]["turns"] == 3  # the labelled sections, not detection
+    refused = gyrocal("diagnose", str(ferraris_csv), "--fs", "102.4", "--protocol", "multi-position", "--sections",
+                      str(sections), "--json")
+    assert_user_error(refused, 3, "re-orientations needs at least 6")
+    assert_user_error(gyrocal("diagnose", str(ferraris_csv), "--layout", "imu_tk"), 2, "--accel FILE")

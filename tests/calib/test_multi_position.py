@@ -138,14 +138,14 @@ def test_g_sensitivity_is_kept_and_applied_by_the_result():
 
 
 def test_the_fit_jacobian_matches_finite_differences_with_the_g_sensitivity():
-    from calib.multi_position import _data, _motions
+    from calib.multi_position import _data, motions_between_rests
     from calib.multi_position_model import Params, system
     from calib.stages import detect_stages
 
     rng = np.random.default_rng(902)
     rec, truth = simulate(2, noise=0.05, fs=100.0, script=multi_position_script(rng, n=8, first_rest_s=10.0),
                           accel_noise_g=0.005, effects=[GSensitivity(G_TRUE)])
-    stills, motions = _motions(detect_stages(rec))
+    stills, motions = motions_between_rests(detect_stages(rec))
     data = _data(rec, stills, motions, np.zeros(9, dtype=bool))
     # at the true K and b with G half its value: the whitening's own dependence on the parameters (left out of
     # the Gauss-Newton Jacobian) is then negligible

@@ -126,6 +126,28 @@ def test_a_null_recording_in_imucal_layout_names_nothing(service: RunningService
     assert "scale_nonlinearity" in {n["name"] for n in d["not_identifiable"]}
 
 
+def test_an_uploaded_multi_position_recording_is_diagnosed_on_its_re_orientations(service: RunningService) -> None:
+    from calib.effects.axes import AxisMisalignment
+    from calib.simulator.lab_scripts import multi_position_script
+
+    script = multi_position_script(np.random.default_rng(12), n=16, first_rest_s=10.0, rest_s=3.0)
+    rec, _ = simulate(12, noise=0.05, fs=50.0, script=script, accel_noise_g=0.005,
+                      effects=[AxisMisalignment((0.0, 0.0, 0.03))])
+    body = native_csv(rec)
+    with service.client() as c:
+        refused = c.post("/diagnose", params={"protocol": "paper"}, content=body, headers=CSV)
+        r = c.post("/diagnose", params={"protocol": "multi-position"}, content=body, headers=CSV)
+        bad = c.post("/diagnose", params={"sections": "{\"x_p\": {\"start\": 10}}"}, content=body, headers=CSV)
+        unknown = c.post("/diagnose", params={"protocol": "turntable"}, content=body, headers=CSV)
+    assert refused.status_code == 422 and "full turn" in refused.json()["detail"], refused.text
+    assert r.status_code == 200, r.text
+    d = r.json()
+    assert d["info"]["protocol"]["used"] == "multi-position" and d["info"]["accelerometer"]["scale"]
+    assert d["effects"][0]["name"] == "axis_misalignment", [e["name"] for e in d["effects"]]
+    assert bad.status_code == 400 and "start and end" in bad.json()["detail"], bad.text
+    assert unknown.status_code == 422, unknown.text
+
+
 def test_the_report_of_an_upload_is_html(service: RunningService) -> None:
     rec, _ = simulate(21)
     with service.client() as c:

@@ -33,7 +33,7 @@ from ...deps import (
 from ...schemas import Problem
 from ...service import Service
 from ...store import sha256_hex
-from ...workers.compute import TooManySamples
+from ...workers.compute import TooManySamples, UploadOptions
 from ...workers.diagnosis import (
     REPORTS_KEPT,
     Busy,
@@ -43,6 +43,7 @@ from ...workers.diagnosis import (
     diagnose_csv,
     digest,
 )
+from ..upload_options import Upload
 
 log = logging.getLogger(__name__)
 
@@ -161,11 +162,12 @@ class Diagnoser:
         self.queue.shutdown()
 
 
-def _upload_args(body: bytes, fs: float | None, layout: str, max_samples: int) -> tuple[str, tuple[Any, ...]]:
+def _upload_args(body: bytes, fs: float | None, layout: str, max_samples: int, upload: UploadOptions) -> tuple[str, tuple[Any, ...]]:
     """The cache key and the worker's arguments of an uploaded recording's model check."""
     check_upload(body, layout)
-    key = digest("upload", sha256_hex(body), fs, layout)
-    return key, (body, fs, layout, "uploaded recording", max_samples, None, None, "uploaded recording")
+    key = digest("upload", sha256_hex(body), fs, layout, upload.protocol, upload.sections, upload.gyro_counts_per_dps,
+                 upload.accel_counts_per_g)
+    return key, (body, fs, layout, "uploaded recording", max_samples, None, None, upload, "uploaded recording")
 
 
 async def _body(request: Request) -> bytes:
@@ -217,7 +219,7 @@ async def _session_args(svc: Service, sid: str, row: dict[str, Any] | None, repo
     info = (row or {}).get("info") or {}
     full_scale = info.get("gyro_full_scale_dps") or (live.machine.full_scale if live is not None else None)
     return (csv, None, "native", f"session {sid}", svc.settings.max_diagnose_samples, stages,
-            full_scale, f"session {sid} ({device})" if report else None)
+            full_scale, None, f"session {sid} ({device})" if report else None)
 
 
 def _json(d: dict[str, Any], kept: bool, sha: str | None = None) -> JSONResponse:
@@ -268,11 +270,11 @@ html_ok: Responses = {200: {"content": {"text/html": {}}, "description": "the HT
 
 @router.post("/diagnose", response_model=DiagnosisOut, responses=upload_responses, openapi_extra=csv_body, tags=["diagnosis"])
 async def diagnose_upload(
-    svc: Svc, diag: Diag, request: Request, _: AnalysisReader, fs: Fs = None, layout: Layout = "auto"
+    svc: Svc, diag: Diag, request: Request, _: AnalysisReader, upload: Upload, fs: Fs = None, layout: Layout = "auto"
 ) -> JSONResponse:
     """Compare an uploaded recording with its simulation: where it departs, which physical effect
     explains it, how much the fit improves (as `gyrocal diagnose --json`). Nothing is stored."""
-    key, args = _upload_args(await _body(request), fs, layout, svc.settings.max_diagnose_samples)
+    key, args = _upload_args(await _body(request), fs, layout, svc.settings.max_diagnose_samples, upload)
     d, _, kept = await diag.run(key, args, report=False, upload=True)
     return _json(d, kept)
 
@@ -281,10 +283,10 @@ async def diagnose_upload(
     "/diagnose/report", response_class=Response, responses={**html_ok, **upload_responses}, openapi_extra=csv_body, tags=["diagnosis"]
 )
 async def diagnose_upload_report(
-    svc: Svc, diag: Diag, request: Request, _: AnalysisReader, fs: Fs = None, layout: Layout = "auto"
+    svc: Svc, diag: Diag, request: Request, _: AnalysisReader, upload: Upload, fs: Fs = None, layout: Layout = "auto"
 ) -> HTMLResponse:
     """The HTML report of an uploaded recording's model check (as `gyrocal diagnose --report`)."""
-    key, args = _upload_args(await _body(request), fs, layout, svc.settings.max_diagnose_samples)
+    key, args = _upload_args(await _body(request), fs, layout, svc.settings.max_diagnose_samples, upload)
     _d, html, kept = await diag.run(key, args, report=True, upload=True)
     return _html(html, kept)
 

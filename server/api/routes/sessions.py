@@ -7,7 +7,7 @@ import asyncio
 import logging
 import uuid
 from collections.abc import AsyncIterator
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request, Response
 from fastapi.responses import JSONResponse, StreamingResponse
@@ -41,11 +41,11 @@ from ...live.session import GuidedSession
 from ...service import Service
 from ...store import DecisionConflict, NotAcceptable, NotFound, SessionEnd, StoreError
 from ...workers.compute import TooManySamples, UploadOptions, calibrate_upload
+from ..upload_options import Upload
 from ..views import reachable_device, session_snapshot, stored_snapshot
 
 # The section list travels in the URL: 4000 characters (about 80 sections) stay under what the HTTP server reads
 # as one request line even percent-encoded at 12 bytes a character; a longer one gets a 422, not a dropped connection.
-MAX_SECTIONS_TEXT = 4000
 
 log = logging.getLogger(__name__)
 router = APIRouter()
@@ -78,20 +78,10 @@ async def calibrate(svc: Svc,
     request: Request,
     response: Response,
     operator: Operator,
+    upload: Upload,
     fs: Annotated[float | None, Query(gt=0, le=100000, description="sample rate, Hz (CSV without a time column)")] = None,
     method: Annotated[M.Method | None, Query(description="estimator: closure (default) or paper")] = None,
     layout: Annotated[str, Query(max_length=16, description="CSV layout: auto, native, imucal")] = "auto",
-    protocol: Annotated[Literal["auto", "paper", "ferraris", "multi-position"], Query(
-        description="what the uploaded recording holds: auto (default: the protocol recognised in it), paper (rests and "
-                    "full turns about x, y, z), ferraris (six static poses and three turns) or multi-position "
-                    "(re-orientations between rests, with the accelerometer)")] = "auto",
-    sections: Annotated[str | None, Query(max_length=MAX_SECTIONS_TEXT, description="imucal's section list as JSON text "
-                                          '({"x_p": {"start": 540, "end": 1271}, ...}: sample positions, end exclusive), '
-                                          "used instead of stage detection")] = None,
-    gyro_counts_per_dps: Annotated[float | None, Query(gt=0, le=1e9, description="the CSV holds raw counts: the gyro's "
-                                                       "sensitivity in counts per deg/s")] = None,
-    accel_counts_per_g: Annotated[float | None, Query(gt=0, le=1e9, description="the CSV holds raw counts: the "
-                                                      "accelerometer's sensitivity in counts per g")] = None,
     sensor_model: Annotated[str | None, Query(min_length=1, max_length=128, pattern=M.SENSOR_TEXT,
                                               description="the sensor an uploaded recording came from (e.g. ICM-20948); "
                                               "needed before its result can be accepted")] = None,
@@ -112,7 +102,7 @@ async def calibrate(svc: Svc,
             method.value if method else None,
             layout,
             {"sensor_model": sensor_model, "firmware": firmware},
-            UploadOptions(protocol, sections, gyro_counts_per_dps, accel_counts_per_g),
+            upload,
         )
     if ctype and ctype != "application/json" and body:
         raise problem(

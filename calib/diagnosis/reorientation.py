@@ -1,0 +1,88 @@
+"""Recordings of re-orientations between rests (imu_tk's multi-position protocol), set up for the diagnosis.
+
+The diagnosis compares such a recording with its simulation on the constraints the multi-position
+calibration uses (calib.multi_position): zero rate at every rest, and for every motion between two
+rests the gravity its calibrated rotation carries from the rest after onto the rest before. So:
+
+- the accelerometer is calibrated first (on the rests, jointly with the gyroscope, as ``gyrocal
+  calibrate`` does) and the diagnosis reads gravity from the calibrated specific force;
+- each rest keeps the samples its accelerometer mean is taken over (``calib.accel.rest_spans``) and
+  each motion is integrated over everything between two such rests;
+- a motion that is a full turn stays a turn (it closes); every other motion is a re-orientation whose
+  reference rotation is the motion as that first calibration integrates it, so that the closing
+  rotation the diagnosis fits against it stays within a degree or so.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..accel import AccelCalibration, rest_spans
+from ..multi_position import calibrate_multi_position, motions_between_rests
+from ..recording import Recording
+from ..stage import Stage
+from .data import REORIENTATION, Layout
+from .null import window_rotations
+
+
+@dataclass(frozen=True)
+class Reorientations:
+    """A multi-position recording prepared for the diagnosis."""
+
+    rec: Recording  # the recording with its accelerometer calibrated (g)
+    stages: list[Stage]  # the rests and the windows between them
+    accel: AccelCalibration
+    K: np.ndarray  # (3, 3) the first calibration's gyro matrix
+    b: np.ndarray  # (3,) deg/s
+    G: np.ndarray | None  # (3, 3) its g-sensitivity, (deg/s)/g, when it found one
+
+    @property
+    def start(self) -> np.ndarray:
+        """Starting values (1, 6) of the nominal fit: the first calibration's scale factors and bias."""
+        return np.concatenate([np.diag(self.K), self.b])[None]
+
+    def with_references(self, layout: Layout) -> Layout:
+        """``layout`` with each re-orientation's reference rotation: the motion the first calibration integrates."""
+        rec = self.rec
+        m = rec.gyro
+        if self.G is not None and rec.accel is not None:
+            m = m - rec.accel @ self.G.T
+        rate = m @ self.K.T + self.b
+        ident = np.tile([0.0, 0.0, 0.0, 1.0], (layout.J, 1))
+        turned = window_rotations(replace(layout, ref=ident), rate).as_quat()
+        return replace(layout, ref=np.where(layout.moves[:, None], turned, ident))
+
+
+def prepare(rec: Recording, stages: list[Stage]) -> Reorientations:
+    """Calibrate accelerometer and gyroscope from the re-orientations (calib.multi_position) and lay the recording
+    out as rests and the windows between them. Raises the calibration's ProtocolError or CalibrationError."""
+    result = calibrate_multi_position(rec, stages)
+    acc = _accel_of(result.quality["accelerometer"])
+    assert rec.accel is not None  # calibrate_multi_position refuses a recording without one
+    cal = replace(rec, accel=acc.apply(rec.accel))
+    stills, motions = motions_between_rests(stages)
+    spans = rest_spans(stills, rec.fs)
+    t = rec.t
+    used = sorted({i for mo in motions for i in (mo.rest_before, mo.rest_after)})
+    out = [Stage("still", spans[i][0], spans[i][1], float(t[spans[i][0]]), float(t[spans[i][1] - 1])) for i in used]
+    for mo in motions:
+        a, b = spans[mo.rest_before][1], spans[mo.rest_after][0]
+        if b - a < 2:
+            continue
+        turn = mo.full_turn
+        if turn is not None:
+            out.append(Stage("turn", a, b, float(t[a]), float(t[b - 1]), turn.axis, turn.angle_deg, turn.flags))
+        else:
+            out.append(Stage("motion", a, b, float(t[a]), float(t[b - 1]), flags=(REORIENTATION,)))
+    K = np.asarray(result.K if result.K is not None else np.diag(result.k), dtype=float)
+    G = None if result.G is None else np.asarray(result.G, dtype=float)
+    return Reorientations(cal, sorted(out, key=lambda s: s.start), acc, K, np.asarray(result.b, dtype=float), G)
+
+
+def _accel_of(d: dict) -> AccelCalibration:
+    """The AccelCalibration a result reports (its ``to_dict`` form)."""
+    return AccelCalibration(scale=np.asarray(d["scale"], float), offset=np.asarray(d["bias"], float),
+                            misalignment=np.asarray(d["misalignment"], float))
+
