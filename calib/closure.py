@@ -48,6 +48,8 @@ P_VALUE_WARN = 1e-3  # chi-square this improbable: the model does not explain th
 MAX_CLOSURE_DEG = 45.0  # a turn that still misses its start by this much after the fit was not a full turn
 CLOSURE_WARN_SIGMA = 5.0  # a turn whose closure is this many standard errors off did not come back
 OFFDIAG_WARN = 5e-3  # extended model: off-diagonal terms known worse than this are weakly identified
+EXTENDED_ALPHA = 0.01  # the extended model is chosen when its likelihood-ratio test is below this
+EXTENDED_FIT_MIN = 1e-3  # ... and when it explains the recording itself (its chi-square's p-value above this)
 OFFDIAG_FAIL = 0.05  # ... and worse than this, not identified at all
 _LSQ = {"method": "lm", "xtol": 1e-10, "ftol": 1e-12, "gtol": 1e-10, "x_scale": "jac"}
 
@@ -64,13 +66,15 @@ class _Fit:
     converged: bool
 
 
-def calibrate_closure(rec: Recording, stages: Any = None, extended: bool = False) -> CalibrationResult:
+def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None = None) -> CalibrationResult:
     """Calibrate one recording with the closure maximum-likelihood estimator (method "closure").
 
     stages: a list of Stage, a ProtocolStages, or None to detect them. Every full turn and every
-    still segment is used. ``extended`` adds the three non-orthogonality terms of an upper-triangular K.
-    Raises RecordingError for bad input, ProtocolError when a stage is missing, CalibrationError when
-    the recording does not determine the parameters.
+    still segment is used. ``extended`` True adds the three non-orthogonality terms of an upper-triangular K,
+    False keeps K diagonal; None (default) adds them where the recording identifies them (each known to
+    ``OFFDIAG_WARN``) and the likelihood-ratio test finds them (p < ``EXTENDED_ALPHA``), and says which in
+    ``quality["model_choice"]``. Raises RecordingError for bad input, ProtocolError when a stage is missing,
+    CalibrationError when the recording does not determine the parameters (or the terms asked for).
     """
     check_calibration_input(rec)
     stage_list, turns, stills, warnings = _select_stages(rec, stages)
@@ -91,12 +95,48 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool = False
             + (f" ({'; '.join(dropped)})" if dropped else "")
         )
     fit = _solve(data, theta0[0], extended=False)
+    choice: dict[str, Any] = {"asked": extended}
     if extended:
         start = np.concatenate((fit.theta, np.zeros(3)))
         _check_identified(data, start)
         fit = _solve(data, start, extended=True)
+        choice["reason"] = "asked for"
+    elif extended is None:
+        fit, extended, choice = _choose_model(data, fit)
+    else:
+        choice["reason"] = "not asked for"
     _check_closed(turns, fit)
-    return _result(rec, stage_list, turns, stills, data, fit, n_rev[0], extended, warnings, dt_all)
+    result = _result(rec, stage_list, turns, stills, data, fit, n_rev[0], bool(extended), warnings, dt_all)
+    result.quality["model_choice"] = choice
+    return result
+
+
+def _choose_model(data: ClosureData, diagonal: _Fit) -> tuple[_Fit, bool, dict[str, Any]]:
+    """The diagonal fit, or the extended one where the recording identifies its terms and needs them."""
+    choice: dict[str, Any] = {"asked": None}
+    start = np.concatenate((diagonal.theta, np.zeros(3)))
+    bound = offdiag_bounds(data, start)
+    choice["offdiag_bound"] = [float(v) for v in bound]
+    if np.any(bound > OFFDIAG_WARN):
+        choice["reason"] = (f"the non-orthogonality terms are not identified (standard errors up to {bound.max():.2g}, "
+                            f"needs {OFFDIAG_WARN:g}): turns about the sensor axes leave them free")
+        return diagonal, False, choice
+    ext = _solve(data, start, extended=True)
+    lr = float(diagonal.res @ diagonal.res - ext.res @ ext.res)
+    p = float(chi2_dist.sf(max(lr, 0.0), 3))
+    chi2_ext, dof_ext = float(ext.res @ ext.res), int(data.dof(True)[0])
+    fits = float(chi2_dist.sf(chi2_ext, dof_ext)) if dof_ext > 0 else 1.0
+    choice.update(likelihood_ratio=lr, p_value=p, extended_fit_p_value=fits)
+    if fits < EXTENDED_FIT_MIN:
+        # a misfit the terms only partly absorb (a turn that did not come back, ...) is not non-orthogonality
+        choice["reason"] = (f"the extended model does not explain the recording either (chi2/dof = {chi2_ext / dof_ext:.1f}): "
+                            "the misfit is something else, see the warnings")
+        return diagonal, False, choice
+    if p < EXTENDED_ALPHA:
+        choice["reason"] = f"identified and significant (p = {p:.2g} < {EXTENDED_ALPHA:g})"
+        return ext, True, choice
+    choice["reason"] = f"identified but not significant (p = {p:.2g} >= {EXTENDED_ALPHA:g})"
+    return diagonal, False, choice
 
 
 # --------------------------------------------------------------------------- fitting
@@ -168,17 +208,21 @@ def _check_closed(turns: list[Stage], fit: _Fit) -> None:
         )
 
 
-def _check_identified(data: ClosureData, theta: np.ndarray) -> None:
-    """Raise CalibrationError when the recording cannot tell the non-orthogonality terms apart."""
+def offdiag_bounds(data: ClosureData, theta: np.ndarray) -> np.ndarray:
+    """Cramér-Rao standard errors (3,) of the non-orthogonality terms at ``theta`` (9,); inf where not identified."""
     s = system(data, theta[None], True, jacobian=True)
     F = s.J[0].T @ s.J[0]
     scale = np.sqrt(np.diag(F))
     if np.any(scale <= 0):
-        bound = np.full(3, np.inf)
-    else:
-        Fn = F / np.outer(scale, scale)
-        ev = np.linalg.eigvalsh(Fn)
-        bound = np.full(3, np.inf) if ev[0] < 1e-12 * ev[-1] else np.sqrt(np.diag(np.linalg.inv(Fn)))[6:] / scale[6:]
+        return np.full(3, np.inf)
+    Fn = F / np.outer(scale, scale)
+    ev = np.linalg.eigvalsh(Fn)
+    return np.full(3, np.inf) if ev[0] < 1e-12 * ev[-1] else np.sqrt(np.diag(np.linalg.inv(Fn)))[6:] / scale[6:]
+
+
+def _check_identified(data: ClosureData, theta: np.ndarray) -> None:
+    """Raise CalibrationError when the recording cannot tell the non-orthogonality terms apart."""
+    bound = offdiag_bounds(data, theta)
     if np.any(bound > OFFDIAG_FAIL):
         raise CalibrationError(
             "this recording does not determine the non-orthogonality terms of the extended model "

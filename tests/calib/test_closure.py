@@ -250,8 +250,27 @@ def test_extended_model_recovers_non_orthogonality_from_turns_about_diagonal_axe
         assert np.all(np.abs((res.b - params.b) / res.b_std) < 5.0)
         assert np.all(res.K_std[[0, 0, 1], [1, 2, 2]] < 1e-4)
         # the diagonal model cannot explain these data
-        diag = calibrate_closure(rec, list(truth.stages))
+        diag = calibrate_closure(rec, list(truth.stages), extended=False)
         assert diag.quality["p_value"] < 1e-6 and any("worse than the noise" in w for w in diag.warnings)
+        # left to choose, the estimator takes the extended model: identified here, and needed
+        auto = calibrate_closure(rec, list(truth.stages))
+        assert auto.K is not None and "significant" in auto.quality["model_choice"]["reason"]
+        assert np.allclose(auto.K, res.K)
+
+
+def test_the_extended_model_is_not_chosen_where_the_turns_leave_it_free_or_it_is_not_needed():
+    rec, truth = simulate(95, noise=0.03, script=script(*(Turn(a, 360.0, 3.5, wobble_deg=0.0, tilt=0) for a in "xyz")))
+    res = calibrate_closure(rec, list(truth.stages))
+    assert res.K is None and "not identified" in res.quality["model_choice"]["reason"]
+    diag_axes = [np.array(v, dtype=float) for v in ((1, 1, 0), (0, 1, 1), (1, 0, 1))]
+    proto = script(*(Turn(a, 360.0, 3.5) for a in ("x", "y", "z", *diag_axes)))
+    chosen = 0
+    for seed in range(10):
+        rec, truth = simulate(200 + seed, noise=0.03, script=proto)  # orthogonal axes
+        res = calibrate_closure(rec, list(truth.stages))
+        assert res.quality["model_choice"]["p_value"] is not None
+        chosen += res.K is not None
+    assert chosen <= 2  # a 1 % test: rarely taken when the axes are orthogonal
 
 
 def test_extended_model_refuses_when_the_turns_cannot_identify_it():
