@@ -251,6 +251,52 @@ def test_redo_on_a_simulated_wearable_passes_again(wizard: Wizard, page: Any, we
     assert_clean(page_watch)
 
 
+def test_closing_an_unsaved_pass_asks_first_and_the_list_shows_date_and_time(wizard: Wizard, page: Any, webui_service: Any,
+                                                                             page_watch: Watch) -> None:
+    dev = device_for("normal", 7)
+    wizard.sign_in()
+    wizard.choose(dev)
+    sid = wizard.start()
+    wizard.wait_state("done")
+    page.click(".wiz-head button.cancel:has-text('Close')")
+    dialog = page.wait_for_selector("dialog.ask[open]")
+    assert "Leave without saving?" in dialog.inner_text() and "keeps its previous calibration" in dialog.inner_text()
+    wizard.shot("leave-unsaved-pass")
+    # the safe answer has the focus: Enter keeps the PASS on screen
+    page.keyboard.press("Enter")
+    page.wait_for_selector("dialog.ask", state="detached")
+    assert wizard.text(".verdict h1") == "PASS" and page.url.endswith(f"#/session/{sid}")
+    page.click(".wiz-head button.cancel:has-text('Close')")
+    page.wait_for_selector("dialog.ask[open]")
+    page.keyboard.press("Escape")  # Escape is "stay" too
+    page.wait_for_selector("dialog.ask", state="detached")
+    assert wizard.text(".verdict h1") == "PASS"
+    # saved, Close asks nothing; the device list then says when, to the minute
+    page.click("button.accept")
+    page.wait_for_selector(".wizard[data-decision='accepted']")
+    page.click(".wiz-head button.cancel:has-text('Close')")
+    card = page.wait_for_selector(f".device-card[data-device='{dev}']")
+    assert page.locator("dialog.ask").count() == 0
+    assert re.search(r"\d{1,2}:\d{2}", card.inner_text()), card.inner_text()
+    assert session(webui_service, sid)["decision"] == "accepted"
+    assert_clean(page_watch)
+
+
+def test_leaving_an_unsaved_pass_on_purpose_keeps_the_previous_calibration(wizard: Wizard, page: Any, webui_service: Any,
+                                                                           page_watch: Watch) -> None:
+    dev = device_for("normal", 8)
+    wizard.sign_in()
+    wizard.choose(dev)
+    sid = wizard.start()
+    wizard.wait_state("done")
+    page.click(".wiz-head button.cancel:has-text('Close')")
+    page.click("dialog.ask button:has-text('Leave without saving')")
+    page.wait_for_selector(f".device-card[data-device='{dev}']")
+    assert "never calibrated" in page.locator(f".device-card[data-device='{dev}']").inner_text()
+    assert session(webui_service, sid)["decision"] is None
+    assert_clean(page_watch)
+
+
 def test_cancel_keeps_the_previous_calibration(wizard: Wizard, page: Any, webui_service: Any, page_watch: Watch) -> None:
     dev = device_for("normal", 2)
     wizard.sign_in()

@@ -1,6 +1,6 @@
 // Step 0: pick the device to calibrate (list or scan), with its status, battery and last calibration.
 
-import { fill, fmtDate, h } from "./dom.js";
+import { fill, fmtDateTime, h } from "./dom.js";
 import { icon } from "./figures.js";
 import { problemLine } from "./messages.js";
 import { heldFact, writeBack } from "./writeback.js";
@@ -49,7 +49,7 @@ function deviceCard(ctx, dev, refresh) {
         h("dd", { class: "stream-settings" }, h("span", null, streamText(dev)))) : null,
       h("div", null, h("dt", null, "Last calibration"),
         h("dd", { class: cur ? "calibrated" : "never" }, icon(cur ? "check" : "info"),
-          h("span", null, cur ? `${fmtDate(cur.accepted_at)} by ${cur.operator}` : "never calibrated"))),
+          h("span", null, cur ? `${fmtDateTime(cur.accepted_at)} by ${cur.operator}` : "never calibrated"))),
       held ? h("div", null, h("dt", null, "Device holds"),
         h("dd", { class: `held ${held.cls}` }, icon(held.icon), h("span", null, held.text))) : null),
     dev.limitations && dev.limitations.length

@@ -2,6 +2,7 @@
 // shows the service's session as it streams it (SSE); everything it shows comes from the service.
 
 import { AXES, AXIS_LABEL, fill, fmtDateTime, h, num, sig } from "./dom.js";
+import { ask } from "./confirm.js";
 import { angleGauge, icon, placePicture, stillRing, turnAnimation, turnTiles } from "./figures.js";
 import { STEP_LABELS, headline, reasonFor, requestProblem, stepOf, subline } from "./messages.js";
 import { modelCheckPanel } from "./modelcheck.js";
@@ -390,13 +391,22 @@ export function sessionView(ctx, sid) {
       ? "Press “Accept & save” to make it the device's calibration, or Redo if anything went wrong during the turns."
       : reasonFor("out_of_tolerance").fix;
     ctx.title(pass ? "PASS" : "FAIL");
+    // leaving a PASS nobody accepted loses it from the device: ask first, with staying as the safe answer
+    const close = cancelButton(async () => {
+      if (pass && !(snap && snap.decision) && !(await ask({
+        title: "Leave without saving?",
+        text: `This PASS is not saved: ${dev} keeps its previous calibration until you press “Accept & save”.`,
+        stay: "Stay and save", leave: "Leave without saving",
+      }))) return;
+      ctx.go("#/devices");
+    }, "Close");
     endLayout(s, 6, verdictEl(pass ? "pass" : "fail", pass ? "pass" : "fail", pass ? "PASS" : "FAIL"), [
       h("p", { class: "sentence" }, sentence),
       h("p", { class: "next" }, next),
       h("div", { class: "actions split" }, h("div", { class: "actions" }, redo, drop), accept),
       message,
       detailsBlock(ctx, s),
-    ], cancelButton(() => ctx.go("#/devices"), "Close"));
+    ], close);
   };
 
   const savedView = async (s, cal) => {
