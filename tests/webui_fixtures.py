@@ -28,7 +28,7 @@ OPERATOR = "alice"
 SECRET = "correct horse battery staple"
 MOCK_SPEED = 3.0
 # the simulated clinician of mock-N performs the N-th scenario in every session
-SCENARIOS = ["normal", "moved_during_still", "wrong_axis", "link_drop", "normal", "normal", "normal", "normal", "normal", "normal", "normal"]
+SCENARIOS = ["normal", "moved_during_still", "wrong_axis", "link_drop", *["normal"] * 7]
 TABLET = {"width": 1024, "height": 768}
 LOCAL_HOSTS = {"127.0.0.1", "localhost", "[::1]", "::1"}
 
