@@ -251,14 +251,20 @@ def test_redo_on_a_simulated_wearable_passes_again(wizard: Wizard, page: Any, we
     assert_clean(page_watch)
 
 
-def test_closing_an_unsaved_pass_asks_first_and_the_list_shows_date_and_time(wizard: Wizard, page: Any, webui_service: Any,
-                                                                             page_watch: Watch) -> None:
-    dev = device_for("normal", 7)
+def _close_a_fresh_pass(wizard: Wizard, page: Any, dev: str) -> str:
+    """Calibrate ``dev`` to a PASS and press Close without saving; returns the session id."""
     wizard.sign_in()
     wizard.choose(dev)
     sid = wizard.start()
     wizard.wait_state("done")
     page.click(".wiz-head button.cancel:has-text('Close')")
+    return sid
+
+
+def test_closing_an_unsaved_pass_asks_first_and_the_list_shows_date_and_time(wizard: Wizard, page: Any, webui_service: Any,
+                                                                             page_watch: Watch) -> None:
+    dev = device_for("normal", 7)
+    sid = _close_a_fresh_pass(wizard, page, dev)
     dialog = page.wait_for_selector("dialog.ask[open]")
     assert "Leave without saving?" in dialog.inner_text() and "keeps its previous calibration" in dialog.inner_text()
     wizard.shot("leave-unsaved-pass")
@@ -285,11 +291,7 @@ def test_closing_an_unsaved_pass_asks_first_and_the_list_shows_date_and_time(wiz
 def test_leaving_an_unsaved_pass_on_purpose_keeps_the_previous_calibration(wizard: Wizard, page: Any, webui_service: Any,
                                                                            page_watch: Watch) -> None:
     dev = device_for("normal", 8)
-    wizard.sign_in()
-    wizard.choose(dev)
-    sid = wizard.start()
-    wizard.wait_state("done")
-    page.click(".wiz-head button.cancel:has-text('Close')")
+    sid = _close_a_fresh_pass(wizard, page, dev)
     page.click("dialog.ask button:has-text('Leave without saving')")
     page.wait_for_selector(f".device-card[data-device='{dev}']")
     assert "never calibrated" in page.locator(f".device-card[data-device='{dev}']").inner_text()
