@@ -45,6 +45,16 @@ async def _collect(link: InProcessLink, until_s: float) -> tuple[list[SampleBatc
     return batches, events
 
 
+async def _session(link: InProcessLink, until_s: float) -> tuple[list[SampleBatch], list[LinkEvent]]:
+    """Connect, stream until the device's clock passes ``until_s``, stop and disconnect: what arrived."""
+    await link.connect()
+    await link.start()
+    got = await _collect(link, until_s)
+    await link.stop()
+    await link.disconnect()
+    return got
+
+
 def _packets(n_packets: int, fs_true: float = 104.5, n: int = 3, t0_us: int = 2**32 - 3_000_000,
              seq0: int = 0) -> list[bytes]:
     raw = np.arange(n * 6, dtype=np.int16).reshape(n, 6)
@@ -151,11 +161,7 @@ async def test_inprocess_link_streams_the_protocol_and_it_calibrates():
 async def test_link_drop_is_reported_with_the_exact_gap_and_the_stream_resumes():
     w = _wearable(seed=4, scenario="link_drop", speed=100)
     link = InProcessLink(w, reconnect=FAST)
-    await link.connect()
-    await link.start()
-    batches, events = await _collect(link, until_s=w.faults.drop_at_s + 6.0)
-    await link.stop()
-    await link.disconnect()
+    batches, events = await _session(link, until_s=w.faults.drop_at_s + 6.0)
     assert [e.kind for e in events] == ["link_lost", "link_restored"]
     lost, restored = events
     assert lost.t_device_s == pytest.approx(w.faults.drop_at_s, abs=0.05)

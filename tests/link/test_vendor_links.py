@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 import pytest
-from test_link_inprocess import _collect
+from test_link_inprocess import _collect, _session
 
 from calib.api import calibrate
 from mock_device.sources import ScriptedSource
@@ -89,12 +89,7 @@ async def test_polar_settings_are_negotiated_and_scaled_by_the_start_replys_fact
 async def test_a_link_drop_is_bridged_and_its_gap_measured(model):
     speed = 20.0 if MODELS[model].time_stamps == "device" else 5.0  # arrival times carry the event loop's jitter x speed
     w = _device(model, seed=4, scenario="link_drop", speed=speed)
-    link = _link(w)
-    await link.connect()
-    await link.start()
-    batches, events = await _collect(link, until_s=w.faults.drop_at_s + 6.0)
-    await link.stop()
-    await link.disconnect()
+    batches, events = await _session(_link(w), until_s=w.faults.drop_at_s + 6.0)
     assert [e.kind for e in events] == ["link_lost", "link_restored"]
     restored = events[1]
     truth = w.stats.packets_lost_link * w.samples_per_packet
@@ -111,11 +106,7 @@ async def test_a_link_drop_is_bridged_and_its_gap_measured(model):
 async def test_polar_frames_lost_on_the_radio_are_found_from_the_time_stamps():
     w = _device("polar-pmd", seed=8, scenario="packet_loss", speed=20.0)
     link = _link(w)
-    await link.connect()
-    await link.start()
-    batches, _ = await _collect(link, until_s=25.0)
-    await link.stop()
-    await link.disconnect()
+    batches, _ = await _session(link, until_s=25.0)
     n = w.samples_per_packet
     last_packet = batches[-1].seq[-1] // n
     lost = [j for j in w.stats.lost_radio_seqs if j < last_packet]
