@@ -64,6 +64,12 @@ class AccelCalibration:
             identified=tuple(p for p, f in zip(PARAMS, free, strict=True) if f), note=note,
         )
 
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> AccelCalibration:
+        """The calibration's model parameters from its ``to_dict`` form (a result's ``quality["accelerometer"]``)."""
+        return cls(scale=np.asarray(d["scale"], float), offset=np.asarray(d["bias"], float),
+                   misalignment=np.asarray(d["misalignment"], float))
+
     @property
     def vector(self) -> np.ndarray:
         """The parameters (9,) in ``PARAMS`` order."""

@@ -62,21 +62,10 @@ def calibrate_protocol(
     paper protocol's refusal. ``sections`` (or the recording's own, ``rec.meta.sections``) replace stage
     detection. The result's ``quality["protocol"]`` holds what was found and what was used.
     """
-    if protocol not in PROTOCOLS:
-        raise GyrocalError(f"unknown protocol {protocol!r}: choose one of {', '.join(PROTOCOLS)}")
+    check_protocol(protocol)
     _estimator(method)  # an unknown method is refused before any work
-    from .recognise import recognise
-    from .stages import detect_stages
-
     sections = sections if sections is not None else rec.meta.sections
-    if sections:
-        from .sections import stages_from_sections
-
-        stages = stages_from_sections(rec, sections)
-    else:
-        stages = detect_stages(rec)
-    found = recognise(rec, stages)
-    used = protocol_to_use(protocol, found, rec)
+    stages, found, used = protocol_stages(rec, protocol, sections)
     try:
         result = _calibrate_as(rec, used, method, stages, sections, found)
     except GyrocalError as exc:
@@ -92,6 +81,34 @@ def calibrate_protocol(
     if rec.accel is not None and "accelerometer" not in result.quality:
         result.quality["accelerometer"] = _accelerometer(rec, stages)
     return result, used
+
+
+def check_protocol(protocol: str) -> None:
+    """GyrocalError naming the choices when ``protocol`` is not one of ``PROTOCOLS``."""
+    if protocol not in PROTOCOLS:
+        raise GyrocalError(f"unknown protocol {protocol!r}: choose one of {', '.join(PROTOCOLS)}")
+
+
+def protocol_stages(
+    rec: Recording, protocol: str, sections: tuple[Section, ...] | None = None, stages: list[Stage] | None = None
+) -> tuple[list[Stage], Recognition, str]:
+    """The stages of ``rec`` (``stages`` as given, else from ``sections`` or the recording's own, else detected),
+    the protocol they hold and the protocol to take them as: the one asked for, or for "auto" the one found."""
+    from .recognise import recognise
+
+    check_protocol(protocol)
+    if stages is None:
+        sections = sections if sections is not None else rec.meta.sections
+        if sections:
+            from .sections import stages_from_sections
+
+            stages = stages_from_sections(rec, sections)
+        else:
+            from .stages import detect_stages
+
+            stages = detect_stages(rec)
+    found = recognise(rec, list(stages))
+    return list(stages), found, protocol_to_use(protocol, found, rec)
 
 
 def _pointing_to(exc: ProtocolError, used: str, found: Recognition) -> ProtocolError:

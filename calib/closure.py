@@ -122,9 +122,9 @@ def _choose_model(data: ClosureData, diagonal: _Fit) -> tuple[_Fit, bool, dict[s
                             f"needs {OFFDIAG_WARN:g}): turns about the sensor axes leave them free")
         return diagonal, False, choice
     ext = _solve(data, start, extended=True)
-    lr = float(diagonal.res @ diagonal.res - ext.res @ ext.res)
-    p = float(chi2_dist.sf(max(lr, 0.0), 3))
     chi2_ext, dof_ext = float(ext.res @ ext.res), int(data.dof(True)[0])
+    lr = float(diagonal.res @ diagonal.res) - chi2_ext
+    p = float(chi2_dist.sf(max(lr, 0.0), 3))
     fits = float(chi2_dist.sf(chi2_ext, dof_ext)) if dof_ext > 0 else 1.0
     choice.update(likelihood_ratio=lr, p_value=p, extended_fit_p_value=fits)
     if fits < EXTENDED_FIT_MIN:

@@ -319,7 +319,7 @@ def _add_tilt(prob: Problem, accel: np.ndarray) -> None:
     for s, st in enumerate(lay.stills):
         still_mean[:, s] = accel[:, st.start : st.end].mean(axis=1)
         still_n[s] = st.n
-    ref = Rotation.from_quat(lay.ref_quats()) if J else None
+    ref = Rotation.from_quat(lay.ref) if lay.ref is not None and J else None
     tilt = np.zeros((R, J, 2))
     basis = np.zeros((R, J, 2, 3))
     up = np.zeros((R, J, 3))
@@ -332,7 +332,7 @@ def _add_tilt(prob: Problem, accel: np.ndarray) -> None:
             basis[:, j] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
             continue
         a0, a1 = still_mean[:, i0], still_mean[:, i1]
-        if ref is not None and lay.ref is not None:
+        if ref is not None:
             a0 = ref[j].inv().apply(a0)  # the pose before, carried into the pose after by the reference rotation
         u0 = a0 / np.linalg.norm(a0, axis=1, keepdims=True)
         u1 = a1 / np.linalg.norm(a1, axis=1, keepdims=True)

@@ -58,8 +58,7 @@ def closure_pass(model: Model, psi_cols: np.ndarray, prob: Problem, sigma_cols: 
     ref = None
     if lay.ref is not None and lay.J:
         # closing rotations against each window's reference A: Log(A^T prod Exp(w dt)), A^T first in every product
-        inv = lay.ref_quats().copy()
-        inv[:, :3] *= -1.0
+        inv = lay.ref * [-1.0, -1.0, -1.0, 1.0]
         ref = np.tile(inv, (prob.R, 1))
     step = max(1, _CHUNK // max(1, L * 3 * max(Pr, 9)))
     parts = []

@@ -50,16 +50,16 @@ class Reorientations:
         if self.G is not None and rec.accel is not None:
             m = m - rec.accel @ self.G.T
         rate = m @ self.K.T + self.b
-        ident = np.tile([0.0, 0.0, 0.0, 1.0], (layout.J, 1))
-        turned = window_rotations(replace(layout, ref=ident), rate).as_quat()
-        return replace(layout, ref=np.where(layout.moves[:, None], turned, ident))
+        plain = replace(layout, ref=None)  # every window against the identity: the rotation it makes
+        turned = window_rotations(plain, rate).as_quat()
+        return replace(layout, ref=np.where(layout.moves[:, None], turned, plain.ref_quats()))
 
 
 def prepare(rec: Recording, stages: list[Stage]) -> Reorientations:
     """Calibrate accelerometer and gyroscope from the re-orientations (calib.multi_position) and lay the recording
     out as rests and the windows between them. Raises the calibration's ProtocolError or CalibrationError."""
     result = calibrate_multi_position(rec, stages)
-    acc = _accel_of(result.quality["accelerometer"])
+    acc = AccelCalibration.from_dict(result.quality["accelerometer"])
     assert rec.accel is not None  # calibrate_multi_position refuses a recording without one
     cal = replace(rec, accel=acc.apply(rec.accel))
     stills, motions = motions_between_rests(stages)
@@ -79,10 +79,4 @@ def prepare(rec: Recording, stages: list[Stage]) -> Reorientations:
     K = np.asarray(result.K if result.K is not None else np.diag(result.k), dtype=float)
     G = None if result.G is None else np.asarray(result.G, dtype=float)
     return Reorientations(cal, sorted(out, key=lambda s: s.start), acc, K, np.asarray(result.b, dtype=float), G)
-
-
-def _accel_of(d: dict) -> AccelCalibration:
-    """The AccelCalibration a result reports (its ``to_dict`` form)."""
-    return AccelCalibration(scale=np.asarray(d["scale"], float), offset=np.asarray(d["bias"], float),
-                            misalignment=np.asarray(d["misalignment"], float))
 

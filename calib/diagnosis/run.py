@@ -9,15 +9,13 @@ from dataclasses import replace
 import numpy as np
 from scipy.stats import norm
 
-from ..api import PROTOCOLS, protocol_to_use
+from ..api import protocol_stages
 from ..effects import CATALOGUE
 from ..errors import GyrocalError, RecordingError, RecordingTooLong
-from ..recognise import Recognition, recognise
 from ..recording import Recording
 from ..section import Section
-from ..sections import stages_from_sections
 from ..stage import AXES, Stage
-from ..stages import detect_stages, resolve_stages
+from ..stages import resolve_stages
 from .assemble import Diagnosis, assemble_diagnosis
 from .data import (
     Problem,
@@ -107,7 +105,7 @@ def diagnose(
         if stages is not None:
             stages = None  # stage indices refer to the delivered rows: detect them again
     plateaus = find_plateaus(rec)
-    stages, found, used = _protocol_stages(rec, stages, protocol, sections)
+    stages, found, used = protocol_stages(rec, protocol, sections, stages)
     moving = None
     if used == "multi-position":
         moving = prepare_reorientations(rec, stages)
@@ -216,18 +214,6 @@ def diagnose(
     diag.info["seconds"] = round(time.perf_counter() - t_start, 3)
     say(1.0, "done")
     return diag
-
-
-def _protocol_stages(rec: Recording, stages: list[Stage] | None, protocol: str,
-                     sections: tuple[Section, ...] | None) -> tuple[list[Stage], Recognition, str]:
-    """The stages to diagnose, what protocol they hold, and the protocol to diagnose them as (as calibrate does)."""
-    if protocol not in PROTOCOLS:
-        raise GyrocalError(f"unknown protocol {protocol!r}: choose one of {', '.join(PROTOCOLS)}")
-    sections = sections if sections is not None else rec.meta.sections
-    if stages is None:
-        stages = stages_from_sections(rec, sections) if sections else detect_stages(rec)
-    found = recognise(rec, list(stages))
-    return list(stages), found, protocol_to_use(protocol, found, rec)
 
 
 def _check_size(rec: Recording, tb: TimeBase, max_samples: int | None) -> None:

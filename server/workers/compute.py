@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from calib.recording import Recording
     from calib.result import CalibrationResult
+    from calib.section import Section
 
 log = logging.getLogger(__name__)
 
@@ -107,17 +108,22 @@ def parse_upload(body: bytes, fs: float | None, layout: str, source: str, max_sa
     return rec
 
 
+def upload_sections(opts: UploadOptions, rec: Recording) -> tuple[Section, ...] | None:
+    """The upload's labelled sections (its ``sections`` parameter), checked against the recording; None without."""
+    from calib.sections import parse_sections
+
+    return parse_sections(opts.sections, len(rec), "the sections parameter") if opts.sections else None
+
+
 def calibrate_upload(
     body: bytes, fs: float | None, layout: str, method: str, source: str, max_samples: int, options: UploadOptions | None = None
 ) -> tuple[CalibrationResult, str, bytes, int]:
     """Parse and calibrate an uploaded CSV: (result, protocol used, CSV, samples); raises calib's errors."""
     from calib.api import calibrate_protocol
-    from calib.sections import parse_sections
 
     opts = options or UploadOptions()
     rec = parse_upload(body, fs, layout, source, max_samples, opts)
-    sections = parse_sections(opts.sections, len(rec), "the sections parameter") if opts.sections else None
-    result, used = calibrate_protocol(rec, opts.protocol, method, sections)
+    result, used = calibrate_protocol(rec, opts.protocol, method, upload_sections(opts, rec))
     return result, used, recording_csv(rec), len(rec)
 
 

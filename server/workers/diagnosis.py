@@ -61,18 +61,17 @@ def diagnose_csv(csv: bytes, fs: float | None, layout: str, source: str, max_sam
     Raises calib's errors (RecordingError, ProtocolError, ...) and server.compute.TooManySamples.
     """
     from calib.diagnosis import diagnose
-    from calib.sections import parse_sections
     from calib.stage import Stage
 
-    from .compute import parse_upload
+    from .compute import parse_upload, upload_sections
 
     opts = options or UploadOptions()
     rec = parse_upload(csv, fs, layout, source, max_samples, opts)
     if full_scale_dps:
         rec = rec.with_meta(gyro_full_scale_dps=float(full_scale_dps))
     found = [Stage.from_dict(s) for s in stages] if stages else None
-    sections = parse_sections(opts.sections, len(rec), "the sections parameter") if opts.sections else None
-    diag = diagnose(rec, progress=progress, stages=found, max_samples=max_samples, protocol=opts.protocol, sections=sections)
+    diag = diagnose(rec, progress=progress, stages=found, max_samples=max_samples, protocol=opts.protocol,
+                    sections=upload_sections(opts, rec))
     html = None
     if report_title is not None:
         from calib.diagnosis.report import write_report
