@@ -76,7 +76,7 @@ def calibrate_protocol(
         elif not isinstance(exc, ProtocolError):
             raise
         else:
-            raise _pointing_to(exc, used, found) from None
+            raise pointing_to(exc, used, found) from None
     result.quality["protocol"] = {"found": found.to_dict(), "used": used, "sections": len(sections)}
     if rec.accel is not None and "accelerometer" not in result.quality:
         result.quality["accelerometer"] = _accelerometer(rec, stages)
@@ -111,12 +111,13 @@ def protocol_stages(
     return list(stages), found, protocol_to_use(protocol, found, rec)
 
 
-def _pointing_to(exc: ProtocolError, used: str, found: Recognition) -> ProtocolError:
-    """The refusal of the protocol asked for, pointing to the one the recording holds when that is another."""
+def pointing_to(exc: ProtocolError, used: str, found: Recognition, doing: str = "calibrate") -> ProtocolError:
+    """The refusal of the protocol asked for, pointing to the one the recording holds when that is another
+    (``doing``: what to do with it, "calibrate" or "diagnose")."""
     if found.name in (used, "unrecognised", "hand-held") or (used == "paper" and found.name == "ferraris"):
         return exc
     better = "multi-position" if found.name == "mixed" else found.name
-    return ProtocolError(f"{exc} The recording holds {found.summary}: calibrate it with --protocol {better} (or auto)",
+    return ProtocolError(f"{exc} The recording holds {found.summary}: {doing} it with --protocol {better} (or auto)",
                          code=exc.code, stages=exc.stages)
 
 

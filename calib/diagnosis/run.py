@@ -9,9 +9,9 @@ from dataclasses import replace
 import numpy as np
 from scipy.stats import norm
 
-from ..api import protocol_stages
+from ..api import pointing_to, protocol_stages
 from ..effects import CATALOGUE
-from ..errors import GyrocalError, RecordingError, RecordingTooLong
+from ..errors import GyrocalError, ProtocolError, RecordingError, RecordingTooLong
 from ..recording import Recording
 from ..section import Section
 from ..stage import AXES, Stage
@@ -112,7 +112,10 @@ def diagnose(
         rec, stages = moving.rec, moving.stages
     else:
         stages = _clipped_turns(rec, list(stages), plateaus)
-        stages = resolve_stages(rec, stages).stages  # a ProtocolError naming the missing stage, as calibrate gives
+        try:
+            stages = resolve_stages(rec, stages).stages  # a ProtocolError naming the missing stage, as calibrate gives
+        except ProtocolError as exc:
+            raise pointing_to(exc, used, found, "diagnose") from None  # ... and the protocol the recording holds instead
     if raw is None:
         dt = _intervals(rec, tb)
     else:

@@ -45,7 +45,7 @@ def test_a_concealed_axis_misalignment_is_found_in_the_gravity_the_re_orientatio
 
 def test_the_protocol_asked_for_is_used_or_refused_with_its_reason():
     rec, _ = _recording(13)
-    with pytest.raises(ProtocolError, match="full turn"):
+    with pytest.raises(ProtocolError, match="full turn.*diagnose it with --protocol multi-position"):
         diagnose(rec, n_boot=20, protocol="paper")
     with pytest.raises(GyrocalError, match="unknown protocol"):
         diagnose(rec, n_boot=20, protocol="turntable")
