@@ -93,9 +93,9 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--max-attempts",
         type=int,
-        default=1,
+        default=3,
         metavar="N",
-        help="tries per turn before a session fails (default 1: any fault ends the session with its reason)",
+        help="tries per turn before a session fails (default 3; 1: any fault ends the session with its reason)",
     )
     p.add_argument(
         "--demo-operator",

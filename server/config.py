@@ -61,7 +61,7 @@ class Settings:
     method: str = "closure"  # estimator of live sessions
     timings: ProtocolTimings = field(default_factory=ProtocolTimings)
     tolerances: Tolerances = field(default_factory=Tolerances)
-    max_turn_attempts: int = 1  # a failed turn check ends the session (1) or asks for the turn again (>1)
+    max_turn_attempts: int = 3  # tries per turn: a failed turn check asks for the turn again until this many (1: it ends the session)
     link_silence_s: float = 2.0  # wall-clock seconds without samples before the link counts as lost
     reconnect_timeout_s: float = 60.0  # wall-clock seconds to get the link back before failing
     compute_timeout_s: float = 120.0  # the estimator gets this long (wall clock) for one session

@@ -121,7 +121,7 @@ class SessionStart(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     method: Method | None = Field(None, description="estimator: closure (default) or paper")
-    max_attempts: int | None = Field(None, ge=1, le=5, strict=True, description="tries per turn before the session fails (default 1)")
+    max_attempts: int | None = Field(None, ge=1, le=5, strict=True, description="tries per turn before the session fails (default 3)")
 
 
 class SessionStarted(BaseModel):

@@ -60,8 +60,9 @@ def running_service(scenarios: list[str], *extra: str) -> Iterator[RunningServic
 
 @pytest.fixture(scope="module")
 def webui_service() -> Iterator[RunningService]:
-    """The service the page tests run against: mock-N performs SCENARIOS[N-1], one try per turn."""
-    with running_service(SCENARIOS) as svc:
+    """The service the page tests run against: mock-N performs SCENARIOS[N-1], one try per turn (the scripted
+    clinicians play a fixed script and never turn again, so each fault ends its session with its own screen)."""
+    with running_service(SCENARIOS, "--max-attempts", "1") as svc:
         yield svc
 
 
@@ -188,16 +189,23 @@ class Wizard:
         return self.page.inner_text(selector).strip()
 
     def record(self) -> None:
-        """Start recording, in the page, what passes too quickly to wait for: the largest angle the
-        gauge showed in each turn, whether the stillness ring showed the device moving, every notice."""
+        """Start recording, in the page, what passes too quickly to wait for: the largest angle the gauge
+        showed in each turn and its target, every text the gauge showed, every headline in order, whether the
+        stillness ring showed the device moving, every notice."""
         self.page.evaluate("""() => {
-          window.seen = { gauge: {}, ringMoving: false, notices: [] };
+          window.seen = { gauge: {}, gaugeText: {}, targets: {}, headlines: [], ringMoving: false, notices: [] };
           setInterval(() => {
             const w = document.querySelector('.wizard'), g = document.querySelector('.gauge-text');
             if (w && g && w.dataset.phase === 'turning') {
-              const axis = w.dataset.state.slice(5);
-              window.seen.gauge[axis] = Math.max(window.seen.gauge[axis] || 0, parseInt(g.textContent, 10));
+              const axis = w.dataset.state.slice(5), n = parseInt(g.textContent, 10);
+              if (!Number.isNaN(n)) window.seen.gauge[axis] = Math.max(window.seen.gauge[axis] || 0, n);
+              const texts = window.seen.gaugeText[axis] = window.seen.gaugeText[axis] || [];
+              if (!texts.includes(g.textContent)) texts.push(g.textContent);
+              window.seen.targets[axis] = document.querySelector('.gauge-wrap').dataset.target;
             }
+            const hl = document.querySelector('.instruction');
+            const hs = window.seen.headlines;
+            if (hl && hs[hs.length - 1] !== hl.textContent) hs.push(hl.textContent);
             if (document.querySelector('.ring-wrap.moving')) window.seen.ringMoving = true;
             for (const n of document.querySelectorAll('.notice')) {
               const t = n.textContent.trim();

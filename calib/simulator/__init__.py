@@ -16,4 +16,4 @@ from .protocol import (
 )
 from .ranges import ACCEL_NOISE_G, B_RANGE_DPS, GRAVITY_UP, K_RANGE, STILL_S, TILT_RANGE, TURN_DURATION_S, WOBBLE_DEG
 from .simulate import SensorParams, Truth, simulate
-from .trajectory import build_trajectory
+from .trajectory import build_trajectory, tilted_axis

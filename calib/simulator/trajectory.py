@@ -46,7 +46,7 @@ def _perp_basis(axes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return u, np.cross(axes, u)
 
 
-def _tilted_axis(axis: str | np.ndarray, tilt: np.ndarray) -> np.ndarray:
+def tilted_axis(axis: str | np.ndarray, tilt: np.ndarray) -> np.ndarray:
     """Unit true axis: a named body axis plus its two off-axis components, or a vector plus tilt in its perpendicular plane."""
     if isinstance(axis, str):
         i = AXES.index(axis)
@@ -178,7 +178,7 @@ def _resolve(seg: Segment, fs: float, rng: np.random.Generator) -> _Resolved:
     return _Resolved(
         "turn",
         _n_samples(duration, fs, "Turn", 2),
-        _tilted_axis(named, tilt),
+        tilted_axis(named, tilt),
         label,
         seg.angle_deg,
         np.asarray(seg.profile if seg.profile is not None else drawn["profile"], dtype=float),

@@ -24,12 +24,14 @@ class State(StrEnum):
 
 class Phase(StrEnum):
     """Within the still and turn states: waiting for rest, settling after a reconnection or retry, asking for
-    the turn, turning, and the pause after a checked turn."""
+    the turn, turning, placing (the turn's motion has stopped: waiting for the device to rest in its place),
+    and the pause after a checked turn."""
 
     WAITING = "waiting"
     SETTLE = "settle"
     READY = "ready"
     TURNING = "turning"
+    PLACING = "placing"
     PAUSE = "pause"
 
 

@@ -58,7 +58,14 @@ def turn_prompt(axis: str) -> str:
 
 
 def turning_prompt(axis: str) -> str:
-    return f"Keep turning about {ax(axis)} until the device is back against the block."
+    return f"Turning about {ax(axis)}: stop when the device is back in its place against the block."
+
+
+def placing_prompt(axis: str, calibrated: bool) -> str:
+    if calibrated:
+        return f"Put the device back against the block and hold it still: the turn about {ax(axis)} is checked once it rests."
+    return (f"Hold it still. If the device is back in its place against the block, leave it there; "
+            f"if not, finish the turn about {ax(axis)} first.")
 
 
 def pause_prompt(axis: str, next_axis: str | None) -> str:

@@ -3,7 +3,10 @@
 States (in protocol order): connecting -> still -> turn_x -> turn_y -> turn_z -> computing -> done,
 with reconnecting while the link is down, and the end states done, failed, cancelled. Turn states
 have phases: settle (rest again after a reconnection or a retry), ready (prompting the turn),
-turning (live angle), pause (rest after the checked turn). Every change is reported to a listener
+turning (live angle), placing (the motion stopped: rest in place), pause (rest after the checked turn).
+A turn is checked as soon as the device has rested ``rest_seen_s`` after it, and confirmed when the
+stage detector closes it; moving before that asks for the turn again, moving after only restarts the
+pause's count. Every change is reported to a listener
 as a full snapshot; the listener (server.events) numbers them and streams them as SSE.
 
 The machine is synchronous and knows no I/O: the runner (server.live.runner) feeds it sample batches,
@@ -33,7 +36,8 @@ from .codes import END_STATES, TURN_STATES, EndReason, Phase, State
 from .snapshot import session_snapshot
 from .stream import SessionStream, TrackerFactory
 from .time_limits import overdue
-from .turn_judge import TurnMeasure, is_no_turn, judge_turn
+from .turn_checks import TurnChecks
+from .turn_watch import LiveAngle
 from .turns import TurnRecord
 
 Listener = Callable[[str, dict[str, Any]], None]
@@ -43,7 +47,7 @@ def _utc() -> str:
     return datetime.now(UTC).isoformat()
 
 
-class GuidedSession:
+class GuidedSession(TurnChecks):
     """One guided calibration of one device."""
 
     def __init__(
@@ -56,6 +60,7 @@ class GuidedSession:
         max_attempts: int | None = None,
         method: str | None = None,
         clock: Callable[[], float] = time.monotonic,
+        live_angle: LiveAngle | None = None,
     ) -> None:
         self.id = session_id
         self.device_id = device_id
@@ -66,6 +71,7 @@ class GuidedSession:
         self.max_attempts = max(1, int(max_attempts or settings.max_turn_attempts))
         self.listener = listener
         self.clock = clock
+        self.live_angle = live_angle or LiveAngle()  # the accepted calibration's K for the live angle, if any
 
         self.state: State = State.CONNECTING
         self.phase: Phase | None = None
@@ -99,8 +105,12 @@ class GuidedSession:
         self._provisional: str | None = None  # a turn started before the countdown ended: "initial" | "pause"
         self._rest_before_s = 0.0
         self._rested_after_turn = False
+        self._motion_t: float | None = None  # device time at which the current turn's motion began
+        self._turn_confirmed = True  # the detector closed the recorded turn (a still follows it)
+        self._early: float | None = None  # a motion in a confirmed pause, with the rest before it: a bump or the next turn
         self._link_lost_mono: float | None = None
-        self.live_reading: dict[str, Any] = {"still_s": 0.0, "moving": False, "angle_deg": [0.0, 0.0, 0.0]}
+        self.live_reading: dict[str, Any] = {"still_s": 0.0, "moving": False, "angle_deg": [0.0, 0.0, 0.0],
+                                             "raw_angle_deg": [0.0, 0.0, 0.0]}
         self.t_now = 0.0
         self.caused_by: dict[str, Any] | None = None
         self._last_live_emit = -1e9
@@ -190,7 +200,13 @@ class GuidedSession:
         """The radio link dropped: pause; the current turn is redone after reconnection."""
         if self.finished or self.state in (State.COMPUTING, State.RECONNECTING, State.CONNECTING):
             return
-        self._resume = (self.state, self.phase)
+        phase = self.phase
+        if phase == Phase.PAUSE and not self._turn_confirmed:
+            # the turn's rest was cut short: the turn cannot be closed and is done again
+            self.turns.pop(AXES[self._axis_i], None)
+            self._turn_confirmed, phase = True, Phase.TURNING
+        self._early = None
+        self._resume = (self.state, phase)
         self._link_lost_mono = self.clock()
         self._warn("link_lost", say.PROMPTS["reconnecting"])
         self._set_state(State.RECONNECTING, None, say.PROMPTS["reconnecting"])
@@ -297,11 +313,12 @@ class GuidedSession:
         self.state = state
         self._set_phase(phase, prompt, "state" if changed else "prompt")
 
-    def _set_phase(self, phase: Phase | None, prompt: str, event: str = "prompt") -> None:
+    def _set_phase(self, phase: Phase | None, prompt: str, event: str = "prompt", keep_clock: bool = False) -> None:
         self.phase = phase
         self.prompt = prompt
-        self._phase_since_t = self.t_now
-        self._hinted = False
+        if not keep_clock:  # turning and placing share the turn's time limit
+            self._phase_since_t = self.t_now
+            self._hinted = False
         self._emit(event)
 
     def _warn(self, code: str, message: str, emit: bool = True) -> None:
@@ -320,25 +337,21 @@ class GuidedSession:
         """How long the device must rest in the current state or phase (s), None when no rest is asked for."""
         if self.state == State.STILL:
             return self.timings.initial_still_s
-        if self.phase == Phase.PAUSE:
+        if self.phase in (Phase.PAUSE, Phase.PLACING):
             return self.timings.pause_s
         if self.phase == Phase.SETTLE:
             return self.timings.settle_s
         return None
 
     def _update_live(self) -> None:
-        still_s, moving, angle = self.stream.live()
-        self.live_reading = {"still_s": still_s, "moving": moving, "angle_deg": angle.tolist()}
-
-        if self.phase == Phase.TURNING:
-            axis = AXES[self._axis_i]
-            if not moving and still_s >= self.timings.rest_seen_s and abs(angle[AXES.index(axis)]) >= self.tol.turn_angle_min_deg:
-                self._rested_after_turn = True
-            elif moving and self._rested_after_turn:
-                # back at rest after a full turn, then moved again before the rest was long enough to
-                # close the turn: the turn and that motion cannot be told apart any more
-                self._moved_during_pause(axis)
+        still_s, moving, raw = self.stream.live()
+        angle = self.live_angle.of(raw)
+        self.live_reading = {"still_s": still_s, "moving": moving, "angle_deg": angle.tolist(), "raw_angle_deg": raw.tolist()}
+        if self.phase in (Phase.TURNING, Phase.PLACING):
+            if self._watch_turn(still_s, moving, raw, angle):
                 return
+        elif self.phase == Phase.PAUSE and self._watch_pause(moving, angle):
+            return
 
         target = self.still_target()
         if target is not None and still_s >= target:
@@ -346,7 +359,7 @@ class GuidedSession:
             return
         now = self.clock()
         if now - self._last_live_emit >= 1.0 / self.settings.sse_rate_hz:
-            if self.phase == Phase.TURNING:
+            if self.phase in (Phase.TURNING, Phase.PLACING):
                 self._last_live_emit = now
                 self._emit("angle")
             elif target is not None:
@@ -367,7 +380,7 @@ class GuidedSession:
             else:
                 self._set_phase(Phase.READY, say.turn_prompt(axis))
             return
-        if self.phase == Phase.PAUSE:
+        if self.phase == Phase.PAUSE and self._turn_confirmed and self._early is None:
             if self._axis_i < 2:
                 self._axis_i += 1
                 self.attempt = 1
@@ -382,8 +395,13 @@ class GuidedSession:
             st = self.stream.globalise(ev.stage)
             if st.kind == "still":
                 self.stream.closed_still(st)
-            elif self.phase == Phase.TURNING:
+            elif self.phase in (Phase.TURNING, Phase.PLACING):
                 self._check_turn(st)
+            elif self.phase == Phase.PAUSE and not self._turn_confirmed:
+                self._confirm_turn(st)
+            elif self.phase == Phase.PAUSE and self._early is not None:
+                self._early = None  # a bump that never became a turn: the pause's count starts again
+                self._warn("moved", say.MOVED_RESTART)
             return
         if kind == "motion_started":
             self._on_motion(float(getattr(ev, "t", self.t_now)))
@@ -395,6 +413,7 @@ class GuidedSession:
         self._rested_after_turn = False
 
     def _on_motion(self, t_motion: float) -> None:
+        self._motion_t = t_motion
         still_s = self.stream.rest_before(t_motion)
         if self.state == State.STILL:
             if still_s >= self.timings.min_rest_before_turn_s:
@@ -415,73 +434,9 @@ class GuidedSession:
             self._begin_turn(still_s, None)
             self._set_phase(Phase.TURNING, say.turning_prompt(axis))
         elif self.phase == Phase.PAUSE:
-            if self._axis_i < 2:
-                # the next turn, started before the countdown ended (checked when it closes)
-                self._begin_turn(still_s, "pause")
-                self._axis_i += 1
-                self.attempt = 1
-                nxt = AXES[self._axis_i]
-                self._set_state(TURN_STATES[nxt], Phase.TURNING, say.turning_prompt(nxt))
-            else:
-                self._moved_during_pause(axis)
-
-    def _moved_during_pause(self, axis: str) -> None:
-        retry = self.retry_allowed
-        recorded = axis in self.turns
-        msg = say.moved_during_pause(axis, self.timings.pause_s, retry, recorded)
-        if retry:
-            self.attempt += 1
-            self._warn(EndReason.MOVED_DURING_PAUSE, msg)
-            self._set_phase(Phase.SETTLE, say.PROMPTS["settle"])
-            # a recorded turn keeps its place and only the pause is done again; otherwise the turn is asked again
-            self._resume_phase = Phase.PAUSE if recorded else Phase.READY
-        else:
-            self.fail(EndReason.MOVED_DURING_PAUSE, msg)
-
-    def _undo_early_motion(self) -> None:
-        """An early motion (before a countdown ended) that was no turn at all."""
-        provisional, self._provisional = self._provisional, None
-        if provisional == "initial":
-            self._warn("moved", say.MOVED_RESTART)
-            self._axis_i = 0
-            self._set_state(State.STILL, Phase.WAITING, say.PROMPTS["still"])
-        else:
-            self._axis_i -= 1
-            self.state = TURN_STATES[AXES[self._axis_i]]
-            self._moved_during_pause(AXES[self._axis_i])
-
-    def _check_turn(self, st: Stage) -> None:
-        axis = AXES[self._axis_i]
-        angles = self.stream.turn_angles(st)
-        if self._provisional is not None and is_no_turn(angles, self.tol):
-            self._undo_early_motion()
-            return
-        self._provisional = None
-        if self.stream.rest_after_full_turn(st, AXES.index(axis), self.timings.rest_seen_s, self.tol.turn_angle_min_deg):
-            # back at rest after a full turn, then moved again before the rest was long enough to close
-            # the turn (the stage detector merged the two): the turn cannot be used
-            self._moved_during_pause(axis)
-            return
-        lost = self._turn_lost or (1 if "counter_gap" in st.flags else 0)
-        measure = TurnMeasure(angles, self.stream.saturated(st), lost, self.stream.gravity_change_deg(st))
-        problem = judge_turn(axis, measure, self.tol, self.full_scale, self.retry_allowed)
-        if problem is not None:
-            self._turn_failed(*problem)
-            return
-        flags = tuple(f for f in st.flags if f not in ("saturated", "counter_gap"))
-        self.turns[axis] = TurnRecord(axis, st.start, st.end, st.start_s, st.end_s, angles, flags, self._rest_before_s, measure.gravity_deg)
-        self.live_reading["still_s"] = 0.0
-        nxt = AXES[self._axis_i + 1] if self._axis_i < 2 else None
-        self._set_phase(Phase.PAUSE, say.pause_prompt(axis, nxt))
-
-    def _turn_failed(self, code: EndReason, message: str) -> None:
-        if self.retry_allowed:
-            self.attempt += 1
-            self._warn(code, message)
-            self._set_phase(Phase.SETTLE, say.PROMPTS["settle"])
-            self._resume_phase = Phase.READY
-        else:
-            self.fail(code, message)
+            # a bump (the count starts again) or the next turn started before the count ended: told apart
+            # by how far it turns (_watch_pause)
+            self._early = still_s
 
     def _check_time_limits(self) -> None:
         """Protocol time limits, in device time (so they scale with a simulated device's speed)."""

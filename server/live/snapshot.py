@@ -9,6 +9,7 @@ from calib.stage import AXES
 
 from .buffer import SampleBuffer
 from .codes import STEPS, EndReason, Phase, State
+from .turn_watch import LiveAngle
 from .turns import TurnRecord
 
 
@@ -50,6 +51,9 @@ class SessionView(Protocol):
 
     def still_target(self) -> float | None: ...
 
+    @property
+    def live_angle(self) -> LiveAngle: ...
+
 
 def session_snapshot(s: SessionView, event: str) -> dict[str, Any]:
     """The snapshot of ``s``, sent as event ``event``."""
@@ -61,6 +65,7 @@ def session_snapshot(s: SessionView, event: str) -> dict[str, Any]:
         progress = {"still_s": round(still_s, 3), "target_s": target, "fraction": round(min(1.0, still_s / target), 3)}
     axis = s.axis
     angle = live["angle_deg"]
+    raw = live.get("raw_angle_deg", angle)
     return {
         "session_id": s.id,
         "device_id": s.device_id,
@@ -79,6 +84,9 @@ def session_snapshot(s: SessionView, event: str) -> dict[str, Any]:
             "still_s": round(float(live["still_s"]), 3),
             "angle_deg": [round(float(a), 2) for a in angle],
             "turn_angle_deg": None if axis is None else round(float(angle[AXES.index(axis)]), 2),
+            "raw_turn_angle_deg": None if axis is None else round(float(raw[AXES.index(axis)]), 2),
+            "angle_calibrated": s.live_angle.calibrated,
+            "target_deg": s.live_angle.target_deg,
             "t_device_s": round(s.t_now, 4),
         },
         "turns": {a: tr.to_dict() for a, tr in s.turns.items()},

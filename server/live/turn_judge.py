@@ -12,6 +12,7 @@ import numpy as np
 
 from calib.acceptance import Tolerances
 from calib.stage import AXES
+from calib.units import FULL_TURN_DEG
 
 from . import guidance as say
 from .codes import EndReason
@@ -25,6 +26,12 @@ class TurnMeasure:
     saturated: bool  # the readings reached the gyro's range
     lost: int  # samples lost on the link during the motion
     gravity_deg: float | None  # gravity's direction change from the rest before to the rest after (None without accelerometer)
+    true_angle_deg: float | None = None  # the angle about the asked axis through the device's accepted calibration, if any
+
+
+# With an accepted calibration the angle is known in true degrees, up to the power-up change of k since (about
+# 1 %): a turn this far from a full one was not one, even where the raw range (k 0.78-1.24) would let it pass.
+CALIBRATED_TURN_TOL_DEG = 25.0
 
 
 def is_no_turn(angles: np.ndarray, tol: Tolerances) -> bool:
@@ -50,6 +57,10 @@ def judge_turn(axis: str, m: TurnMeasure, tol: Tolerances, full_scale_dps: float
         return EndReason.TURN_INCOMPLETE, say.turn_incomplete(axis, a, retry)
     if abs(a) > tol.turn_angle_max_deg:
         return EndReason.TURN_TOO_FAR, say.turn_too_far(axis, a, retry)
+    if m.true_angle_deg is not None and abs(abs(m.true_angle_deg) - FULL_TURN_DEG) > CALIBRATED_TURN_TOL_DEG:
+        short = abs(m.true_angle_deg) < FULL_TURN_DEG
+        code = EndReason.TURN_INCOMPLETE if short else EndReason.TURN_TOO_FAR
+        return code, (say.turn_incomplete if short else say.turn_too_far)(axis, m.true_angle_deg, retry)
     if off_axis > tol.off_axis_max_fraction * abs(a):
         return EndReason.WRONG_AXIS, say.not_one_axis(axis, off_axis, retry)
     if m.gravity_deg is not None and m.gravity_deg > tol.gravity_closure_max_deg:

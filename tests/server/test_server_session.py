@@ -34,7 +34,9 @@ STANDARD = script(Still(3.5), turn("x"), Still(3.0), turn("y"), Still(3.0), turn
 class Run:
     """Feeds a recording to a GuidedSession in small batches, as a link would."""
 
-    def __init__(self, settings: Settings | None = None, max_attempts: int | None = None, clock: Any = None) -> None:
+    def __init__(self, settings: Settings | None = None, max_attempts: int | None = 1, clock: Any = None) -> None:
+        """max_attempts: 1 (the default here) ends the session at the first fault, so a test sees that fault's
+        verdict; None takes the service's default."""
         self.events: list[tuple[str, dict[str, Any]]] = []
         # live snapshots are rate-limited on the session's clock: by default let it follow device time
         kw = {"clock": clock or (lambda: self.s.t_now if hasattr(self, "s") else 0.0)}
@@ -81,7 +83,14 @@ def test_the_protocol_walks_every_step_and_computes_the_truth() -> None:
     phases = [(snap["state"], snap["phase"]) for kind, snap in run.events if kind in ("state", "prompt")]
     for axis in "xyz":
         i = phases.index((f"turn_{axis}", "ready"))
-        assert phases[i + 1] == (f"turn_{axis}", "turning") and phases[i + 2] == (f"turn_{axis}", "pause")
+        assert phases[i + 1: i + 4] == [(f"turn_{axis}", "turning"), (f"turn_{axis}", "placing"), (f"turn_{axis}", "pause")]
+    # "hold it still" within 200 ms of the hand stopping; the turn checked well before the detector closes it
+    ends = {st.axis: st.end_s for st in truth.stages if st.kind == "turn"}
+    for axis in "xyz":
+        placing = next(snap for kind, snap in run.events if snap["state"] == f"turn_{axis}" and snap["phase"] == "placing")
+        assert -0.3 < placing["live"]["t_device_s"] - ends[axis] <= 0.2
+        pause = next(snap for kind, snap in run.events if snap["state"] == f"turn_{axis}" and snap["phase"] == "pause")
+        assert pause["live"]["t_device_s"] - ends[axis] < 1.0
     # live feedback: stillness progress grows to the 3 s target, the live angle grows during turns
     progress = [snap["progress"]["fraction"] for kind, snap in run.events if kind == "progress" and snap["state"] == "still"]
     assert progress and progress[-1] > 0.8 and progress == sorted(progress)
@@ -321,24 +330,25 @@ def test_a_second_session_after_the_first_on_one_device_clock() -> None:
 
 @pytest.mark.parametrize("rest_s, recorded", [(1.0, False), (1.8, True)])
 def test_moving_in_the_pause_says_what_happens_next(rest_s: float, recorded: bool) -> None:
-    """A bump after the x turn: before the turn was recorded it is asked for again; after, only the pause
-    is done again. The warning says which, and the session does what it says."""
+    """A bump after the x turn: before the detector could close the turn it is asked for again; after, the
+    pause's count just starts again (no attempt used). The warning says which, and the session does what it says."""
     bump = (Motion((4, -3, 12), 0.4), Motion((-4, 3, -12), 0.4))
     redo = (turn("x"), Still(3.0)) if not recorded else ()
     sc = script(Still(3.5), turn("x"), Still(rest_s), *bump, Still(3.0), *redo, turn("y"), Still(3.0), turn("z"), Still(3.0))
     rec, _ = sim(sc)
-    run = Run(max_attempts=2)
+    run = Run(max_attempts=None)
     run.feed(rec)
     assert run.s.state == "computing", run.s.reason
-    assert run.warnings() == ["moved_during_pause"]
-    message = run.s.warnings[0]["message"]
-    assert "moved during the pause after the turn about X" in message
     i = next(i for i, (_, snap) in enumerate(run.events) if snap["warnings"])  # the warning's snapshot
     after = [(snap["state"], snap["phase"]) for kind, snap in run.events[i + 1:] if kind in ("state", "prompt")]
+    message = run.s.warnings[0]["message"]
     if recorded:
-        assert "the pause starts again" in message and "turn again" not in message
-        assert after[:3] == [("turn_x", "settle"), ("turn_x", "pause"), ("turn_y", "ready")]
+        assert run.warnings() == ["moved"] and "count starts again" in message
+        assert (run.events[i][1]["state"], run.events[i][1]["phase"]) == ("turn_x", "pause") and after[0] == ("turn_y", "ready")
+        assert run.s.attempt == 1
     else:
+        assert run.warnings() == ["moved_during_pause"]
+        assert "moved during the pause after the turn about X" in message
         assert "turn again about X" in message and "pause starts again" not in message
         assert after[:3] == [("turn_x", "settle"), ("turn_x", "ready"), ("turn_x", "turning")]
         assert run.s.turns["x"].start_s > rec.t[int((3.5 + 3.0 + rest_s + 0.8) * FS)]  # the turn made again

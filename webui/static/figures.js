@@ -144,11 +144,16 @@ function polar(deg, r = GAUGE_R) {
   return [100 + r * Math.cos(a), 100 + r * Math.sin(a)];
 }
 
-/** The live angle gauge (0-360°) of the current turn; update(angle) with the signed live angle. */
+/** The live angle gauge of the current turn; update(angle, target) with the signed live angle and its target.
+ * With a target (the device's accepted calibration makes the angle true degrees) the arc fills towards 360°
+ * and the degrees are shown. Without one the raw angle can be 20 % off a full turn, so no number and no
+ * end mark are shown: only a marker that goes round as the device turns. */
 export function angleGauge(axis) {
   const arc = s("path", { class: `gauge-fill ${AXIS_CLASS[axis]}`, d: "" });
   const dot = s("circle", { r: 9, class: `gauge-dot ${AXIS_CLASS[axis]}`, cx: 100, cy: 100 - GAUGE_R });
   const text = s("text", { x: 100, y: 108, class: "gauge-text" }, "0°");
+  const sub = s("text", { x: 100, y: 136, class: "gauge-sub" }, `about ${AXIS_LABEL[axis]}`);
+  const goal = s("path", { class: "gauge-goal", d: `M100 ${100 - GAUGE_R - 16} v32` });
   const svg = s("svg", { viewBox: "0 0 200 200", class: "gauge", "aria-hidden": "true" },
     s("circle", { cx: 100, cy: 100, r: GAUGE_R, class: "gauge-track" }),
     ...[0, 90, 180, 270].map((d) => {
@@ -156,11 +161,25 @@ export function angleGauge(axis) {
       const [x2, y2] = polar(d, GAUGE_R - 4);
       return s("line", { x1, y1, x2, y2, class: "gauge-tick" });
     }),
-    arc, dot, text,
-    s("text", { x: 100, y: 136, class: "gauge-sub" }, `about ${AXIS_LABEL[axis]}`));
+    arc, goal, dot, text, sub);
   const el = h("div", { class: "gauge-wrap", role: "meter", "aria-label": `Measured turn about ${AXIS_LABEL[axis]}`, "aria-valuemin": "0", "aria-valuemax": "360", "aria-valuenow": "0" }, svg);
-  el.update = (angle) => {
+  el.update = (angle, target) => {
     const a = Math.abs(Number(angle) || 0);
+    const targeted = Boolean(target);
+    el.classList.toggle("no-target", !targeted);
+    el.dataset.target = targeted ? String(target) : "";
+    if (!targeted) {
+      // a marker that turns with the device, and words instead of a number it cannot know
+      const [x, y] = polar(a % 360);
+      arc.setAttribute("d", "");
+      dot.setAttribute("cx", x.toFixed(2));
+      dot.setAttribute("cy", y.toFixed(2));
+      text.textContent = a < 5 ? "ready" : "turning";
+      sub.textContent = "back to the block";
+      el.removeAttribute("aria-valuenow");
+      el.setAttribute("aria-valuetext", a < 5 ? "not turning yet" : "turning; no angle target: stop when the device is back against the block");
+      return;
+    }
     const shown = Math.min(a, 359.9);
     const [x, y] = polar(shown);
     const large = shown > 180 ? 1 : 0;
@@ -168,7 +187,9 @@ export function angleGauge(axis) {
     dot.setAttribute("cx", x.toFixed(2));
     dot.setAttribute("cy", y.toFixed(2));
     text.textContent = `${Math.round(a)}°`;
+    sub.textContent = `of ${Math.round(target)}° about ${AXIS_LABEL[axis]}`;
     el.setAttribute("aria-valuenow", String(Math.round(Math.min(a, 360))));
+    el.removeAttribute("aria-valuetext");
   };
   return el;
 }

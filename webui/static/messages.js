@@ -20,7 +20,9 @@ export function headline(snap, deviceName) {
         case "settle":
           return "Put it back and hold still";
         case "turning":
-          return `Keep turning about ${ax(axis)}`;
+          return `Turning about ${ax(axis)}`;
+        case "placing":
+          return "Hold it still";
         case "pause":
           return `${ax(axis)} done — hold still`;
         default:
@@ -41,7 +43,10 @@ export function subline(snap) {
     return `One full turn about the ${ax(snap.axis)} axis, then put it back against the block.`;
   }
   if (snap.state.startsWith("turn_") && snap.phase === "turning") {
-    return "Stop when the device is back in its place against the block.";
+    const target = snap.live && snap.live.target_deg;
+    return target
+      ? `Stop when the gauge reads ${Math.round(target)}° and the device is back in its place against the block.`
+      : "Stop when the device is back in its place against the block.";
   }
   return snap.prompt || "";
 }

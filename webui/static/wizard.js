@@ -209,7 +209,7 @@ export function sessionView(ctx, sid) {
   };
 
   const stageKey = (s) => {
-    if (s.state.startsWith("turn_")) return s.phase === "pause" || s.phase === "settle" ? `rest:${s.axis}:${s.phase}` : `turn:${s.axis}`;
+    if (s.state.startsWith("turn_")) return ["pause", "settle", "placing"].includes(s.phase) ? `rest:${s.axis}:${s.phase}` : `turn:${s.axis}`;
     return s.state;
   };
 
@@ -233,9 +233,11 @@ export function sessionView(ctx, sid) {
       case "rest": {
         ui.ring = stillRing();
         // settling after a lost connection or a moved device: the turn is kept if it was recorded already
-        const recorded = s.turns && s.turns[s.axis]
-          ? h("p", { class: "recorded" }, icon("check"), `Turn ${AXIS_LABEL[s.axis]} recorded`)
-          : h("p", { class: "recorded redo" }, icon("redo"), `Turn ${AXIS_LABEL[s.axis]} will be asked again`);
+        const recorded = s.phase === "placing"
+          ? h("p", { class: "recorded checking" }, icon("clock"), `Checking turn ${AXIS_LABEL[s.axis]}…`)
+          : s.turns && s.turns[s.axis]
+            ? h("p", { class: "recorded" }, icon("check"), `Turn ${AXIS_LABEL[s.axis]} recorded`)
+            : h("p", { class: "recorded redo" }, icon("redo"), `Turn ${AXIS_LABEL[s.axis]} will be asked again`);
         content = [ui.ring, h("div", { class: "side-note" }, recorded, placePicture())];
         break;
       }
@@ -264,15 +266,18 @@ export function sessionView(ctx, sid) {
       const w = warnings[warnings.length - 1];
       seenWarnings = warnings.length;
       const kind = w.code === "link_restored" || w.code === "hint" ? "info" : "warn";
-      shownWarning = { until: Date.now() + WARNING_SHOW_MS, message: w.message };
+      shownWarning = { until: Date.now() + WARNING_SHOW_MS, message: w.message, axis: s.axis };
       ui.noticeBox.dataset.key = `warning-${seenWarnings}`;
       fill(ui.noticeBox, notice(kind, WARNING_ICON[w.code] || "warn", w.message));
       clearTimeout(warningTimer);
       warningTimer = setTimeout(() => alive && snap && ui && updateNotice(snap), WARNING_SHOW_MS + 50);
     }
     if (shownWarning) {
-      // a warning stays a while, unless the instruction itself now says the same
-      if (shownWarning.message !== s.prompt && Date.now() < shownWarning.until) return;
+      // a warning stays a while, unless the instruction itself now says the same or the session has moved on
+      // to the step it asked for (a new turn started, or another state): then it would contradict the screen
+      const movedOn = ["turning", "placing"].includes(s.phase) || s.state === "computing"
+        || Boolean(shownWarning.axis && s.axis && s.axis !== shownWarning.axis);
+      if (shownWarning.message !== s.prompt && Date.now() < shownWarning.until && !movedOn) return;
       shownWarning = null;
     }
     const resting = s.state === "still" || s.phase === "pause" || s.phase === "settle";
@@ -305,7 +310,7 @@ export function sessionView(ctx, sid) {
       const p = s.progress || { fraction: 0, still_s: 0, target_s: 0 };
       ui.ring.update(s.live && s.live.moving ? 0 : p.fraction, s.live && s.live.moving, (p.target_s || 0) - (p.still_s || 0));
     }
-    if (ui.gauge) ui.gauge.update(s.phase === "turning" && s.live ? s.live.turn_angle_deg : 0);
+    if (ui.gauge) ui.gauge.update(s.phase === "turning" && s.live ? s.live.turn_angle_deg : 0, s.live && s.live.target_deg);
     if (s.state.startsWith("turn_")) lastAxis = s.axis;
     ui.tiles.update(Object.keys(s.turns || {}), s.state.startsWith("turn_") ? s.axis : s.state === "reconnecting" ? lastAxis : null);
     ui.tiles.hidden = !(s.state.startsWith("turn_") || s.state === "still" || s.state === "reconnecting");

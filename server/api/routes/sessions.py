@@ -38,6 +38,7 @@ from ...live.codes import END_STATES
 from ...live.events import Event, dumps
 from ...live.runner import LiveSession
 from ...live.session import GuidedSession
+from ...live.turn_watch import LiveAngle
 from ...service import Service
 from ...store import DecisionConflict, NotAcceptable, NotFound, SessionEnd, StoreError
 from ...workers.compute import TooManySamples, UploadOptions, calibrate_upload
@@ -270,6 +271,17 @@ async def discard(svc: Svc, session_id: str, operator: Operator, body: M.Decisio
     return finite(await session_snapshot(svc, session_id))
 
 
+async def live_angle_of(svc: Service, device_id: str) -> LiveAngle:
+    """The live angle a session shows: through the device's accepted calibration, or raw when it has none
+    (or the store cannot say: the session still runs, without a target on its gauge)."""
+    try:
+        cur = await asyncio.to_thread(svc.store.current_calibration, device_id)
+    except (StoreError, SQLAlchemyError) as exc:
+        log.warning("no accepted calibration for the live angle of %s: %s", device_id, exc)
+        return LiveAngle()
+    return LiveAngle() if cur is None else LiveAngle.from_calibration(cur.k, cur.K)
+
+
 async def start_live(svc: Service, device_id: str, operator: str, method: str | None, max_attempts: int | None) -> LiveSession:
     from calib.api import available_methods
 
@@ -281,7 +293,8 @@ async def start_live(svc: Service, device_id: str, operator: str, method: str | 
     if device_id in svc.writing:
         raise problem(409, f"a calibration is being written to device {device_id!r}; start the session when that is done")
     sid = uuid.uuid4().hex
-    machine = GuidedSession(sid, device_id, svc.settings, max_attempts=max_attempts, method=method)
+    machine = GuidedSession(sid, device_id, svc.settings, max_attempts=max_attempts, method=method,
+                            live_angle=await live_angle_of(svc, device_id))
     svc.active[device_id] = sid  # claimed before the first await: a second request gets 409
     try:
         await asyncio.to_thread(

@@ -1,0 +1,194 @@
+"""A simulated clinician who follows the session's prompts, as the page shows them.
+
+The hand reads the session's snapshots (the same events the page gets: state, phase, prompt, warnings,
+the live gauge), reacts after a human delay, and says what it does next as motion segments of calib's
+simulator, from a moment of device time on. Its habits are a ``HandStyle``: careful, hurried (starts some
+turns early, some late), sloppy (over- or under-turns some first tries), bumping (knocks the device once in
+a pause) and gauge-watching (stops each turn where the page's gauge reads a full turn, when the gauge shows
+one, then puts it down against the block as the page says; otherwise it turns back to the block like the others).
+
+The hand is pure logic: ``PromptedSource`` (mock_device.prompted) plays what it decides.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from calib.simulator import Motion, Segment, Still, Turn, paper_protocol_script, tilted_axis
+
+HUMAN_DELAY_S = (0.3, 1.5)  # from a new prompt on the screen to the hand acting on it
+GAUGE_LOOK_S = 0.25  # the gauge-watcher's pause to read the gauge before the last part of a turn
+GAUGE_RATE_DPS = 45.0  # ... and the speed of that last part
+GAUGE_OVERSHOOT_DEG = (0.0, 5.0)  # how far past the gauge's 360 deg the hand's reaction carries it
+BLOCK_CATCH_DEG = 15.0  # a device put down this close to its place is pushed flush against the block
+BUMP_DEG = np.array([4.0, -3.0, 12.0])  # a knock of the device and back (mock_device.scenarios' bump)
+
+
+@dataclass(frozen=True)
+class HandStyle:
+    """How a simulated clinician follows the prompts (probabilities per session or per turn)."""
+
+    name: str
+    description: str
+    early: float = 0.0  # per turn: starts it before the count on the screen has ended
+    late: float = 0.0  # per turn: waits 2-5 s longer than the human delay
+    miss: float = 0.0  # per first try of a turn: turns 30-70 deg too far or too short
+    bump: float = 0.0  # per session: knocks the device once, in one of the pauses
+    watches_gauge: bool = False  # stops where the gauge reads a full turn, when the gauge shows a target
+    old_gauge: bool = False  # reads the raw angle as if 360 deg were its target (the gauge before targets)
+
+
+HANDS: dict[str, HandStyle] = {
+    h.name: h
+    for h in (
+        HandStyle("careful", "waits for each prompt and turns back to the block"),
+        HandStyle("hurried", "starts some turns before the count ends, some late", early=0.3, late=0.2),
+        HandStyle("sloppy", "over- or under-turns a third of the first tries by 30-70 deg", miss=1 / 3),
+        HandStyle("bumps", "knocks the device once, in one of the pauses", bump=1.0),
+        HandStyle("gauge", "stops each turn where the gauge reads 360 deg, when it shows that target", watches_gauge=True),
+        HandStyle("old_gauge", "stops where the raw angle reads 360 deg (the gauge without a calibration, as it was)",
+                  watches_gauge=True, old_gauge=True),
+    )
+}
+
+
+@dataclass(frozen=True)
+class Act:
+    """Motion the hand starts at device time ``at_s`` (from the end of whatever motion it is in)."""
+
+    at_s: float
+    segments: tuple[Segment, ...]
+
+
+@dataclass
+class _Plan:
+    at_s: float
+    what: str
+    axis: str | None = None
+    angle_deg: float = 0.0
+
+
+@dataclass
+class PromptHand:
+    """Decides the next motion from the session's snapshots; see the module docstring."""
+
+    style: HandStyle
+    rng: np.random.Generator
+    pending: list[_Plan] = field(default_factory=list)
+    tries: dict[str, int] = field(default_factory=dict)  # turns started per axis
+    offset: np.ndarray = field(default_factory=lambda: np.zeros(3))  # how far the device rests from its place (rotation vector, deg)
+    bumped: bool = False
+    bump_in: str | None = None  # the pause (axis) the bumping hand knocks the device in
+    last: dict[str, Any] | None = None
+    busy_until_s: float = 0.0  # the end of the motion the hand has started
+    _key: tuple[Any, ...] | None = None
+    _params: list[Turn] = field(default_factory=list)
+    _true_axis: np.ndarray = field(default_factory=lambda: np.array([1.0, 0.0, 0.0]))
+
+    def __post_init__(self) -> None:
+        if self.style.bump and self.rng.random() < self.style.bump:
+            self.bump_in = str(self.rng.choice(["x", "y", "z"]))
+
+    # -- what the hand sees --------------------------------------------------------------------
+    def observe(self, snap: dict[str, Any]) -> None:
+        """A snapshot of the session arrived (at its ``live.t_device_s``)."""
+        self.last = snap
+        key = (snap.get("state"), snap.get("phase"), snap.get("axis"), snap.get("attempt"), len(snap.get("warnings") or ()))
+        if key == self._key:
+            return
+        self._key = key
+        self.pending = [p for p in self.pending if p.what in ("bump", "gauge_finish")]  # a new prompt: re-decide
+        self._decide(snap, float((snap.get("live") or {}).get("t_device_s") or 0.0))
+
+    def due(self, until_s: float) -> list[Act]:
+        """The motions to start before device time ``until_s`` (each once the motion before it has ended)."""
+        out: list[Act] = []
+        for p in sorted((p for p in self.pending if p.at_s < until_s), key=lambda p: p.at_s):
+            self.pending.remove(p)
+            start = max(p.at_s, self.busy_until_s)
+            segs = self._segments(p, start)
+            if segs:
+                out.append(Act(start, segs))
+                self.busy_until_s = start + sum(float(getattr(sg, "duration_s", 0.0) or 0.0) for sg in segs)
+        return out
+
+    # -- decisions ---------------------------------------------------------------------------------
+    def _delay(self) -> float:
+        return float(self.rng.uniform(*HUMAN_DELAY_S))
+
+    def _decide(self, snap: dict[str, Any], t: float) -> None:
+        state, phase, axis = snap.get("state"), snap.get("phase"), snap.get("axis")
+        if state == "still" and self.rng.random() < self.style.early:
+            self.pending.append(_Plan(t + float(self.rng.uniform(1.7, 2.6)), "turn", "x"))
+        if not (isinstance(state, str) and state.startswith("turn_")) or axis is None:
+            return
+        if phase == "ready":
+            wait = self._delay() + (float(self.rng.uniform(2.0, 5.0)) if self.rng.random() < self.style.late else 0.0)
+            self.pending.append(_Plan(t + wait, "turn", axis))
+        elif phase == "settle" and np.linalg.norm(self.offset) > 0.5:
+            self.pending.append(_Plan(t + self._delay(), "put_back"))
+        elif phase == "pause":
+            if self.bump_in == axis and not self.bumped:
+                self.bumped = True
+                self.pending.append(_Plan(t + float(self.rng.uniform(0.0, 1.2)), "bump"))
+            nxt = {"x": "y", "y": "z"}.get(axis)
+            if nxt is not None and self.rng.random() < self.style.early:
+                self.pending.append(_Plan(t + float(self.rng.uniform(0.9, 1.5)), "turn", nxt))
+
+    # -- motions -----------------------------------------------------------------------------------
+    def _turn_shape(self, axis: str) -> Turn:
+        """Duration, tilt, wobble and speed profile of one hand turn, drawn as the paper's protocol draws them."""
+        if not self._params:
+            self._params = list(paper_protocol_script(self.rng).turns)
+        t = self._params.pop()
+        return replace(t, axis=axis) if isinstance(t.axis, str) else t
+
+    def _segments(self, p: _Plan, start_s: float) -> tuple[Segment, ...]:
+        if p.what == "bump":
+            return (Motion(BUMP_DEG, 0.4), Motion(-BUMP_DEG, 0.4), Still(0.05))
+        if p.what == "put_back":
+            back = -self.offset
+            self.offset = np.zeros(3)
+            return (Motion(back, 1.0), Still(0.05))
+        if p.what == "gauge_finish":
+            return self._gauge_finish(p)
+        assert p.axis is not None
+        return self._turn(p.axis, start_s)
+
+    def _turn(self, axis: str, start_s: float) -> tuple[Segment, ...]:
+        self.tries[axis] = self.tries.get(axis, 0) + 1
+        shape = self._turn_shape(axis)
+        true_axis = tilted_axis(axis, np.asarray(shape.tilt, dtype=float))
+        live = (self.last or {}).get("live") or {}
+        if self.style.watches_gauge and (self.style.old_gauge or live.get("target_deg")):
+            # most of the turn at the hand's pace, then a look at the gauge and the rest slowly (gauge_finish)
+            first = float(self.rng.uniform(250.0, 290.0))
+            seg = replace(shape, angle_deg=first, duration_s=float(shape.duration_s or 3.0) * first / 360.0)
+            self.pending.append(_Plan(start_s + float(seg.duration_s or 0.0) + GAUGE_LOOK_S, "gauge_finish", axis, first))
+            self._true_axis = true_axis
+            return (seg, Still(GAUGE_LOOK_S))
+        angle = 360.0
+        if self.tries[axis] == 1 and self.rng.random() < self.style.miss:
+            angle += float(self.rng.choice([-1.0, 1.0]) * self.rng.uniform(30.0, 70.0))
+        self.offset = self.offset + (angle - 360.0) * true_axis
+        return (replace(shape, angle_deg=angle), Still(0.05))
+
+    def _gauge_finish(self, p: _Plan) -> tuple[Segment, ...]:
+        """The last part of a gauge-watcher's turn: on until the gauge reads 360 deg, with a reaction's overshoot."""
+        live = (self.last or {}).get("live") or {}
+        shown = abs(float(live.get("raw_turn_angle_deg" if self.style.old_gauge else "turn_angle_deg") or 0.0))
+        total = p.angle_deg * 360.0 / shown if shown > 1.0 else 360.0
+        rest = max(0.0, total - p.angle_deg) + float(self.rng.uniform(*GAUGE_OVERSHOOT_DEG))
+        self.offset = self.offset + (p.angle_deg + rest - 360.0) * self._true_axis
+        # on about the same true axis, so the whole turn is one rotation
+        segs: list[Segment] = []
+        if rest >= 1.0:
+            segs.append(Turn(self._true_axis, rest, duration_s=max(0.4, rest / GAUGE_RATE_DPS), wobble_deg=0.0))
+        if 0.5 < np.linalg.norm(self.offset) <= BLOCK_CATCH_DEG:
+            # then down "back against the block", as the page says: the block's edge sets it flush
+            segs.append(Motion(-self.offset, 0.5))
+            self.offset = np.zeros(3)
+        return (*segs, Still(0.05))

@@ -1,0 +1,198 @@
+"""How a guided session checks each turn: when its motion stops, when it has rested long enough to be checked,
+what a move in the pause after it means, and what a failed check leads to (a try again or the end).
+
+``TurnChecks`` is a part of ``GuidedSession`` (server.live.session), which keeps the states, the link and the
+outcome; the fields and methods declared here without a body are the session's.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from calib.acceptance import Tolerances
+from calib.stage import AXES, Stage
+
+from ..config import ProtocolTimings
+from . import guidance as say
+from .codes import TURN_STATES, EndReason, Phase, State
+from .stream import SessionStream
+from .turn_judge import TurnMeasure, is_no_turn, judge_turn
+from .turn_watch import EARLY_TURN_DEG, RESUME_DPS, STOP_DPS, STOP_WINDOW_S, LiveAngle
+from .turns import TurnRecord
+
+
+class TurnChecks:
+    """The turn phases of a guided session: turning, placing, the check, the pause and retries."""
+
+    state: State
+    phase: Phase | None
+    attempt: int
+    turns: dict[str, TurnRecord]
+    stream: SessionStream
+    tol: Tolerances
+    timings: ProtocolTimings
+    live_angle: LiveAngle
+    live_reading: dict[str, Any]
+    _axis_i: int
+    _provisional: str | None
+    _turn_confirmed: bool
+    _early: float | None
+    _turn_lost: int
+    _rested_after_turn: bool
+    _resume_phase: Phase
+    _motion_t: float | None
+    _rest_before_s: float
+
+    @property
+    def retry_allowed(self) -> bool:
+        raise NotImplementedError
+
+    @property
+    def full_scale(self) -> float | None:
+        raise NotImplementedError
+
+    def fail(self, code: EndReason | str, message: str) -> None: ...
+
+    def _set_phase(self, phase: Phase | None, prompt: str, event: str = "prompt", keep_clock: bool = False) -> None: ...
+
+    def _set_state(self, state: State, phase: Phase | None, prompt: str) -> None: ...
+
+    def _warn(self, code: str, message: str, emit: bool = True) -> None: ...
+
+    def _begin_turn(self, rest_before_s: float, provisional: str | None) -> None: ...
+
+    def _watch_turn(self, still_s: float, moving: bool, raw: np.ndarray, angle: np.ndarray) -> bool:
+        """The turn in progress: say "hold still" the moment it stops, check it once it rests. True when the
+        session moved on."""
+        axis = AXES[self._axis_i]
+        k = AXES.index(axis)
+        if not moving and still_s >= self.timings.rest_seen_s and abs(raw[k]) >= self.tol.turn_angle_min_deg:
+            self._rested_after_turn = True
+        elif moving and self._rested_after_turn:
+            # back at rest after a full turn, then moved again before the rest was long enough to
+            # close the turn: the turn and that motion cannot be told apart any more
+            self._moved_during_pause(axis)
+            return True
+        rate = self.stream.recent_rate(STOP_WINDOW_S)
+        if self.phase == Phase.TURNING:
+            if rate < STOP_DPS and float(np.abs(raw).max()) >= EARLY_TURN_DEG and self.live_angle.near_full(float(angle[k])):
+                self._set_phase(Phase.PLACING, say.placing_prompt(axis, self.live_angle.calibrated), keep_clock=True)
+        elif rate > RESUME_DPS:
+            self._set_phase(Phase.TURNING, say.turning_prompt(axis), keep_clock=True)
+        elif not moving and still_s >= self.timings.rest_seen_s:
+            return self._check_rested_turn(axis)
+        return False
+
+    def _check_rested_turn(self, axis: str) -> bool:
+        """The device has rested ``rest_seen_s`` after the turn: record it now if it passes its checks (the
+        detector confirms it later); a turn that would not pass waits for the detector's verdict."""
+        st = None if self._motion_t is None else self.stream.turn_so_far(self._motion_t, axis)
+        if st is None:
+            return False
+        angles = self.stream.turn_angles(st)
+        measure = TurnMeasure(angles, self.stream.saturated(st), self._turn_lost, self.stream.gravity_change_deg(st),
+                              self._true_angle(axis, angles))
+        if is_no_turn(angles, self.tol) or judge_turn(axis, measure, self.tol, self.full_scale, self.retry_allowed) is not None:
+            return False
+        self._provisional = None
+        self._record_turn(axis, st, angles, measure.gravity_deg, confirmed=False)
+        return True
+
+    def _true_angle(self, axis: str, raw: np.ndarray) -> float | None:
+        """The turn's angle about ``axis`` through the accepted calibration; None without one."""
+        return float(self.live_angle.of(raw)[AXES.index(axis)]) if self.live_angle.calibrated else None
+
+    def _record_turn(self, axis: str, st: Stage, angles: np.ndarray, gravity_deg: float | None, confirmed: bool) -> None:
+        self.turns[axis] = TurnRecord(axis, st.start, st.end, st.start_s, st.end_s, angles,
+                                      tuple(f for f in st.flags if f not in ("saturated", "counter_gap")), self._rest_before_s, gravity_deg)
+        self._turn_confirmed = confirmed
+        self._early = None
+        nxt = AXES[self._axis_i + 1] if self._axis_i < 2 else None
+        self._set_phase(Phase.PAUSE, say.pause_prompt(axis, nxt))
+
+    def _confirm_turn(self, st: Stage) -> None:
+        """The detector closed the turn recorded early: keep its exact bounds."""
+        axis = AXES[self._axis_i]
+        tr = self.turns.get(axis)
+        self._turn_confirmed = True
+        if tr is not None:
+            self.turns[axis] = TurnRecord(axis, st.start, st.end, st.start_s, st.end_s, self.stream.turn_angles(st), tr.flags,
+                                          tr.rest_before_s, tr.gravity_change_deg)
+
+    def _watch_pause(self, moving: bool, angle: np.ndarray) -> bool:
+        """A motion in the pause: before the turn was confirmed it spoils the turn; after, it is a bump that
+        restarts the count, or the next turn started early once it has turned far enough."""
+        axis = AXES[self._axis_i]
+        if moving and not self._turn_confirmed:
+            self.turns.pop(axis, None)  # its rest was cut short: the turn cannot be closed and is asked again
+            self._turn_confirmed = True
+            self._moved_during_pause(axis)
+            return True
+        if self._early is not None and self._axis_i < 2 and float(np.abs(angle).max()) >= EARLY_TURN_DEG:
+            rest, self._early = self._early, None
+            self._begin_turn(rest, "pause")
+            self._axis_i += 1
+            self.attempt = 1
+            nxt = AXES[self._axis_i]
+            self._set_state(TURN_STATES[nxt], Phase.TURNING, say.turning_prompt(nxt))
+            return True
+        return False
+
+    def _moved_during_pause(self, axis: str) -> None:
+        retry = self.retry_allowed
+        recorded = axis in self.turns
+        msg = say.moved_during_pause(axis, self.timings.pause_s, retry, recorded)
+        if retry:
+            self.attempt += 1
+            self._warn(EndReason.MOVED_DURING_PAUSE, msg)
+            self._set_phase(Phase.SETTLE, say.PROMPTS["settle"])
+            # a recorded turn keeps its place and only the pause is done again; otherwise the turn is asked again
+            self._resume_phase = Phase.PAUSE if recorded else Phase.READY
+        else:
+            self.fail(EndReason.MOVED_DURING_PAUSE, msg)
+
+    def _undo_early_motion(self) -> None:
+        """An early motion (before a countdown ended) that was no turn at all."""
+        provisional, self._provisional = self._provisional, None
+        if provisional == "initial":
+            self._warn("moved", say.MOVED_RESTART)
+            self._axis_i = 0
+            self._set_state(State.STILL, Phase.WAITING, say.PROMPTS["still"])
+        else:
+            # the turn before was confirmed and stays; its pause is counted again
+            self._axis_i -= 1
+            axis = AXES[self._axis_i]
+            self.state = TURN_STATES[axis]
+            self._warn("moved", say.MOVED_RESTART)
+            self._set_phase(Phase.PAUSE, say.pause_prompt(axis, AXES[self._axis_i + 1] if self._axis_i < 2 else None))
+
+    def _check_turn(self, st: Stage) -> None:
+        axis = AXES[self._axis_i]
+        angles = self.stream.turn_angles(st)
+        if self._provisional is not None and is_no_turn(angles, self.tol):
+            self._undo_early_motion()
+            return
+        self._provisional = None
+        if self.stream.rest_after_full_turn(st, AXES.index(axis), self.timings.rest_seen_s, self.tol.turn_angle_min_deg):
+            # back at rest after a full turn, then moved again before the rest was long enough to close
+            # the turn (the stage detector merged the two): the turn cannot be used
+            self._moved_during_pause(axis)
+            return
+        lost = self._turn_lost or (1 if "counter_gap" in st.flags else 0)
+        measure = TurnMeasure(angles, self.stream.saturated(st), lost, self.stream.gravity_change_deg(st), self._true_angle(axis, angles))
+        problem = judge_turn(axis, measure, self.tol, self.full_scale, self.retry_allowed)
+        if problem is not None:
+            self._turn_failed(*problem)
+            return
+        self._record_turn(axis, st, angles, measure.gravity_deg, confirmed=True)
+
+    def _turn_failed(self, code: EndReason, message: str) -> None:
+        if self.retry_allowed:
+            self.attempt += 1
+            self._warn(code, message)
+            self._set_phase(Phase.SETTLE, say.PROMPTS["settle"])
+            self._resume_phase = Phase.READY
+        else:
+            self.fail(code, message)
