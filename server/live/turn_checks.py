@@ -102,7 +102,9 @@ class TurnChecks:
 
     def _true_angle(self, axis: str, raw: np.ndarray) -> float | None:
         """The turn's angle about ``axis`` through the accepted calibration; None without one."""
-        return float(self.live_angle.of(raw)[AXES.index(axis)]) if self.live_angle.calibrated else None
+        if not (self.live_angle.calibrated and self.live_angle.checks_turns):
+            return None
+        return float(self.live_angle.of(raw)[AXES.index(axis)])
 
     def _record_turn(self, axis: str, st: Stage, angles: np.ndarray, gravity_deg: float | None, confirmed: bool) -> None:
         self.turns[axis] = TurnRecord(axis, st.start, st.end, st.start_s, st.end_s, angles,

@@ -29,13 +29,16 @@ EARLY_TURN_DEG = 45.0  # a motion in a pause becomes the next turn once it has t
 class LiveAngle:
     """How a session turns the detector's raw live angle into the angle it shows.
 
-    ``scale`` is the 3x3 K of the device's accepted calibration, None when it has none.
+    ``scale`` is the 3x3 K of the device's accepted calibration, None when it has none. ``checks_turns``: the
+    calibration was made on this device by a guided session, so its angle may also refuse a turn that is not a
+    full one (an uploaded recording's calibration only drives the gauge).
     """
 
     scale: np.ndarray | None = None
+    checks_turns: bool = True
 
     @classmethod
-    def from_calibration(cls, k: list[float] | None, full_k: list[list[float]] | None = None) -> LiveAngle:
+    def from_calibration(cls, k: list[float] | None, full_k: list[list[float]] | None = None, checks_turns: bool = True) -> LiveAngle:
         """From an accepted calibration's k (3,) or full K (3, 3); no calibration: the raw angle."""
         if full_k is not None:
             m = np.asarray(full_k, dtype=float)
@@ -44,7 +47,7 @@ class LiveAngle:
         else:
             return cls(None)
         ok = m.shape == (3, 3) and bool(np.all(np.isfinite(m))) and bool(np.all(np.diag(m) > 0))
-        return cls(m if ok else None)
+        return cls(m if ok else None, checks_turns)
 
     @property
     def calibrated(self) -> bool:

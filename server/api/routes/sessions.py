@@ -279,7 +279,7 @@ async def live_angle_of(svc: Service, device_id: str) -> LiveAngle:
     except (StoreError, SQLAlchemyError) as exc:
         log.warning("no accepted calibration for the live angle of %s: %s", device_id, exc)
         return LiveAngle()
-    return LiveAngle() if cur is None else LiveAngle.from_calibration(cur.k, cur.K)
+    return LiveAngle() if cur is None else LiveAngle.from_calibration(cur.k, cur.K, checks_turns=cur.source == "live")
 
 
 async def start_live(svc: Service, device_id: str, operator: str, method: str | None, max_attempts: int | None) -> LiveSession:
