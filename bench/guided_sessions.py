@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from calib.simulator import Still
 from mock_device.hand import HANDS
 from mock_device.prompted import PromptedSource
 from server.config import Settings
@@ -102,7 +103,7 @@ def run_session(hand: str, seed: int, calibrated_gauge: bool) -> Outcome:
 def _stop_latencies(src: PromptedSource, placing: list[float]) -> tuple[float, ...]:
     """For each "hold it still" snapshot, the time since the hand's motion before it ended."""
     ends = np.asarray(src.segment_bounds[1:], dtype=float) / FS  # each segment's end
-    moving = np.array([type(s).__name__ != "Still" for s in src.segments])
+    moving = np.array([not isinstance(s, Still) for s in src.segments])
     motion_ends = ends[: moving.size][moving]
     out = []
     for tp in placing:

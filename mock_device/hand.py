@@ -68,7 +68,8 @@ class _Plan:
     at_s: float
     what: str
     axis: str | None = None
-    angle_deg: float = 0.0
+    angle_deg: float = 0.0  # a gauge-watcher's turn: the part already made
+    true_axis: np.ndarray | None = None  # ... and the true axis it was made about
 
 
 @dataclass
@@ -86,7 +87,6 @@ class PromptHand:
     busy_until_s: float = 0.0  # the end of the motion the hand has started
     _key: tuple[Any, ...] | None = None
     _params: list[Turn] = field(default_factory=list)
-    _true_axis: np.ndarray = field(default_factory=lambda: np.array([1.0, 0.0, 0.0]))
 
     def __post_init__(self) -> None:
         if self.style.bump and self.rng.random() < self.style.bump:
@@ -167,8 +167,7 @@ class PromptHand:
             # most of the turn at the hand's pace, then a look at the gauge and the rest slowly (gauge_finish)
             first = float(self.rng.uniform(250.0, 290.0))
             seg = replace(shape, angle_deg=first, duration_s=float(shape.duration_s or 3.0) * first / 360.0)
-            self.pending.append(_Plan(start_s + float(seg.duration_s or 0.0) + GAUGE_LOOK_S, "gauge_finish", axis, first))
-            self._true_axis = true_axis
+            self.pending.append(_Plan(start_s + float(seg.duration_s or 0.0) + GAUGE_LOOK_S, "gauge_finish", axis, first, true_axis))
             return (seg, Still(GAUGE_LOOK_S))
         angle = 360.0
         if self.tries[axis] == 1 and self.rng.random() < self.style.miss:
@@ -182,11 +181,12 @@ class PromptHand:
         shown = abs(float(live.get("raw_turn_angle_deg" if self.style.old_gauge else "turn_angle_deg") or 0.0))
         total = p.angle_deg * 360.0 / shown if shown > 1.0 else 360.0
         rest = max(0.0, total - p.angle_deg) + float(self.rng.uniform(*GAUGE_OVERSHOOT_DEG))
-        self.offset = self.offset + (p.angle_deg + rest - 360.0) * self._true_axis
+        assert p.true_axis is not None
+        self.offset = self.offset + (p.angle_deg + rest - 360.0) * p.true_axis
         # on about the same true axis, so the whole turn is one rotation
         segs: list[Segment] = []
         if rest >= 1.0:
-            segs.append(Turn(self._true_axis, rest, duration_s=max(0.4, rest / GAUGE_RATE_DPS), wobble_deg=0.0))
+            segs.append(Turn(p.true_axis, rest, duration_s=max(0.4, rest / GAUGE_RATE_DPS), wobble_deg=0.0))
         if 0.5 < np.linalg.norm(self.offset) <= BLOCK_CATCH_DEG:
             # then down "back against the block", as the page says: the block's edge sets it flush
             segs.append(Motion(-self.offset, 0.5))

@@ -200,11 +200,7 @@ class GuidedSession(TurnChecks):
         """The radio link dropped: pause; the current turn is redone after reconnection."""
         if self.finished or self.state in (State.COMPUTING, State.RECONNECTING, State.CONNECTING):
             return
-        phase = self.phase
-        if phase == Phase.PAUSE and not self._turn_confirmed:
-            # the turn's rest was cut short: the turn cannot be closed and is done again
-            self.turns.pop(AXES[self._axis_i], None)
-            self._turn_confirmed, phase = True, Phase.TURNING
+        phase = Phase.TURNING if self._drop_unconfirmed_turn() else self.phase  # then the turn is done again
         self._early = None
         self._resume = (self.state, phase)
         self._link_lost_mono = self.clock()

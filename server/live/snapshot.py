@@ -65,7 +65,7 @@ def session_snapshot(s: SessionView, event: str) -> dict[str, Any]:
         progress = {"still_s": round(still_s, 3), "target_s": target, "fraction": round(min(1.0, still_s / target), 3)}
     axis = s.axis
     angle = live["angle_deg"]
-    raw = live.get("raw_angle_deg", angle)
+    raw = live["raw_angle_deg"]
     return {
         "session_id": s.id,
         "device_id": s.device_id,

@@ -7,6 +7,7 @@ outcome; the fields and methods declared here without a body are the session's.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -92,19 +93,19 @@ class TurnChecks:
         if st is None:
             return False
         angles = self.stream.turn_angles(st)
-        measure = TurnMeasure(angles, self.stream.saturated(st), self._turn_lost, self.stream.gravity_change_deg(st),
-                              self._true_angle(axis, angles))
+        measure = self._measure(axis, st, angles, self._turn_lost)
         if is_no_turn(angles, self.tol) or judge_turn(axis, measure, self.tol, self.full_scale, self.retry_allowed) is not None:
             return False
         self._provisional = None
         self._record_turn(axis, st, angles, measure.gravity_deg, confirmed=False)
         return True
 
-    def _true_angle(self, axis: str, raw: np.ndarray) -> float | None:
-        """The turn's angle about ``axis`` through the accepted calibration; None without one."""
-        if not (self.live_angle.calibrated and self.live_angle.checks_turns):
-            return None
-        return float(self.live_angle.of(raw)[AXES.index(axis)])
+    def _measure(self, axis: str, st: Stage, angles: np.ndarray, lost: int) -> TurnMeasure:
+        """What the checks of a turn about ``axis`` over ``st`` read (``angles``: its raw swept angles)."""
+        true_angle = None
+        if self.live_angle.calibrated and self.live_angle.checks_turns:
+            true_angle = float(self.live_angle.of(angles)[AXES.index(axis)])
+        return TurnMeasure(angles, self.stream.saturated(st), lost, self.stream.gravity_change_deg(st), true_angle)
 
     def _record_turn(self, axis: str, st: Stage, angles: np.ndarray, gravity_deg: float | None, confirmed: bool) -> None:
         self.turns[axis] = TurnRecord(axis, st.start, st.end, st.start_s, st.end_s, angles,
@@ -120,16 +121,23 @@ class TurnChecks:
         tr = self.turns.get(axis)
         self._turn_confirmed = True
         if tr is not None:
-            self.turns[axis] = TurnRecord(axis, st.start, st.end, st.start_s, st.end_s, self.stream.turn_angles(st), tr.flags,
-                                          tr.rest_before_s, tr.gravity_change_deg)
+            self.turns[axis] = replace(tr, start=st.start, end=st.end, start_s=st.start_s, end_s=st.end_s,
+                                       angle_deg=self.stream.turn_angles(st))
+
+    def _drop_unconfirmed_turn(self) -> bool:
+        """A turn recorded early whose rest was cut short cannot be closed: forget it (it is asked again).
+        True when there was one."""
+        if self.phase != Phase.PAUSE or self._turn_confirmed:
+            return False
+        self.turns.pop(AXES[self._axis_i], None)
+        self._turn_confirmed = True
+        return True
 
     def _watch_pause(self, moving: bool, angle: np.ndarray) -> bool:
         """A motion in the pause: before the turn was confirmed it spoils the turn; after, it is a bump that
         restarts the count, or the next turn started early once it has turned far enough."""
         axis = AXES[self._axis_i]
-        if moving and not self._turn_confirmed:
-            self.turns.pop(axis, None)  # its rest was cut short: the turn cannot be closed and is asked again
-            self._turn_confirmed = True
+        if moving and self._drop_unconfirmed_turn():
             self._moved_during_pause(axis)
             return True
         if self._early is not None and self._axis_i < 2 and float(np.abs(angle).max()) >= EARLY_TURN_DEG:
@@ -183,7 +191,7 @@ class TurnChecks:
             self._moved_during_pause(axis)
             return
         lost = self._turn_lost or (1 if "counter_gap" in st.flags else 0)
-        measure = TurnMeasure(angles, self.stream.saturated(st), lost, self.stream.gravity_change_deg(st), self._true_angle(axis, angles))
+        measure = self._measure(axis, st, angles, lost)
         problem = judge_turn(axis, measure, self.tol, self.full_scale, self.retry_allowed)
         if problem is not None:
             self._turn_failed(*problem)
