@@ -28,7 +28,7 @@ OPERATOR = "alice"
 SECRET = "correct horse battery staple"
 MOCK_SPEED = 3.0
 # the simulated clinician of mock-N performs the N-th scenario in every session
-SCENARIOS = ["normal", "moved_during_still", "wrong_axis", "link_drop", *["normal"] * 7]
+SCENARIOS = ["normal", "moved_during_still", "wrong_axis", "link_drop", *["normal"] * 9]
 TABLET = {"width": 1024, "height": 768}
 LOCAL_HOSTS = {"127.0.0.1", "localhost", "[::1]", "::1"}
 
@@ -190,10 +190,18 @@ class Wizard:
 
     def record(self) -> None:
         """Start recording, in the page, what passes too quickly to wait for: the largest angle the gauge
-        showed in each turn and its target, every text the gauge showed, every headline in order, whether the
+        showed in each turn and its target, every text the gauge showed, every headline and every state:phase
+        in order (taken at each change of the page, so none that lasts a single event is missed), whether the
         stillness ring showed the device moving, every notice."""
         self.page.evaluate("""() => {
-          window.seen = { gauge: {}, gaugeText: {}, targets: {}, headlines: [], ringMoving: false, notices: [] };
+          window.seen = { gauge: {}, gaugeText: {}, targets: {}, headlines: [], phases: [], ringMoving: false, notices: [] };
+          const last = (list) => list[list.length - 1];
+          new MutationObserver(() => {
+            const w = document.querySelector('.wizard'), hl = document.querySelector('.instruction');
+            if (hl && last(window.seen.headlines) !== hl.textContent) window.seen.headlines.push(hl.textContent);
+            const sp = w ? `${w.dataset.state}:${w.dataset.phase || ''}` : null;
+            if (sp && last(window.seen.phases) !== sp) window.seen.phases.push(sp);
+          }).observe(document.body, { subtree: true, childList: true, characterData: true, attributes: true });
           setInterval(() => {
             const w = document.querySelector('.wizard'), g = document.querySelector('.gauge-text');
             if (w && g && w.dataset.phase === 'turning') {
@@ -203,9 +211,6 @@ class Wizard:
               if (!texts.includes(g.textContent)) texts.push(g.textContent);
               window.seen.targets[axis] = document.querySelector('.gauge-wrap').dataset.target;
             }
-            const hl = document.querySelector('.instruction');
-            const hs = window.seen.headlines;
-            if (hl && hs[hs.length - 1] !== hl.textContent) hs.push(hl.textContent);
             if (document.querySelector('.ring-wrap.moving')) window.seen.ringMoving = true;
             for (const n of document.querySelectorAll('.notice')) {
               const t = n.textContent.trim();
