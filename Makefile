@@ -20,7 +20,7 @@ install: $(VENV)/.installed
 
 ## run: start gyrocal with simulated wearables and an embedded store
 run: $(VENV)/.installed
-	$(VENV)/bin/gyrocal serve --mock 2 --demo-operator demo
+	$(VENV)/bin/gyrocal serve --mock 2 --mock-scenario hand:careful,hand:bumps --demo-operator demo
 
 ## system-deps: Debian packages the tests drive for real (D-Bus daemon, Chromium, PostgreSQL)
 system-deps:

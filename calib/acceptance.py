@@ -36,8 +36,22 @@ class Tolerances:
     closure_max_deg: float = 0.25
 
 
+# a check that passes having used this much of its allowance is shown as close to its limit
+NEAR_LIMIT_USED = 0.8
+
+
+def _used(value: float, limit: Any) -> float:
+    """How much of its allowance a value uses: 0 at the ideal (k = 1, everything else 0), 1 at the limit."""
+    if isinstance(limit, (list, tuple)):
+        lo, hi = float(limit[0]), float(limit[1])
+        return (value - 1.0) / (hi - 1.0) if value >= 1.0 else (1.0 - value) / (1.0 - lo)
+    return abs(value) / float(limit)
+
+
 def _check(name: str, axis: str | None, value: float, limit: Any, ok: bool, text: str) -> dict[str, Any]:
-    return {"name": name, "axis": axis, "value": value, "limit": limit, "ok": ok, "text": text}
+    used = _used(value, limit)
+    return {"name": name, "axis": axis, "value": value, "limit": limit, "ok": ok, "text": text,
+            "used": used, "near_limit": bool(ok and used >= NEAR_LIMIT_USED)}
 
 
 def evaluate(result: CalibrationResult | dict[str, Any], tol: Tolerances) -> list[dict[str, Any]]:
@@ -78,4 +92,20 @@ def evaluate(result: CalibrationResult | dict[str, Any], tol: Tolerances) -> lis
     for c in checks:
         if not np.isfinite(c["value"]):
             c["ok"] = False
+            c["near_limit"] = False
+            c["used"] = None
     return checks
+
+
+def turn_accuracy(result: CalibrationResult | dict[str, Any]) -> dict[str, float] | None:
+    """How far a full turn read from 360° before calibration and after it, the worst turn of each:
+    {"before_deg", "after_deg"}; None for a result without the closure estimator's turn rows."""
+    if isinstance(result, CalibrationResult):
+        result = result.to_dict()
+    rows = [t for t in (result.get("residuals") or {}).get("turns") or []
+            if isinstance(t, dict) and t.get("raw_angle_deg") is not None and t.get("closure_norm_deg") is not None]
+    if not rows:
+        return None
+    before = max(abs(abs(float(t["raw_angle_deg"])) - 360.0 * max(abs(int(t.get("revolutions") or 1)), 1)) for t in rows)
+    after = max(float(t["closure_norm_deg"]) for t in rows)
+    return {"before_deg": before, "after_deg": after}

@@ -278,6 +278,8 @@ def _result(
                 "samples": st.n,
                 "revolutions": int(n_rev[j]),
                 "angle_deg": float(swept[axis]),  # calibrated rate integrated on the turn's axis
+                # the raw readings' angle on that axis (bias from the stills removed): what the sensor said before
+                "raw_angle_deg": None if st.angle_deg is None else float(st.angle_deg),
                 "closure_deg": [float(v) for v in r_deg],  # net rotation over the turn: 0 when it came back
                 "closure_norm_deg": float(np.linalg.norm(r_deg)),
                 "closure_std_deg": float(np.degrees(np.sqrt(np.trace(fit.chol[j] @ fit.chol[j].T) / 3.0))),

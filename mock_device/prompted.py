@@ -3,12 +3,16 @@
 ``PromptedSource`` is a ``SampleSource`` whose plan grows as the hand decides: it starts at rest on the
 table against the block; before each block of readings it asks the hand what it starts by then, and every
 ``Act`` cuts the rest the plan is in at that moment and appends the act's motion and a rest. Whoever
-carries the session's events (a test, a benchmark, an SSE client) hands them to ``hand.observe``. The plan is
+carries the session's events (a test, a benchmark, ``follower.SessionFollower`` reading the service's
+events over HTTP) hands them to ``observe``. The plan is
 simulated again from the session's start each time (calib's simulator is deterministic for a seed) and every
 sample already produced is kept as it was.
 """
 
 from __future__ import annotations
+
+import threading
+from typing import Any
 
 import numpy as np
 
@@ -30,6 +34,21 @@ class PromptedSource(ScriptedSource):
         self.hand = PromptHand(self.style, np.random.default_rng([seed, 0x4A4D]))
         self.segments: list[Segment] = [Still(REST_AHEAD_S)]
         self._delivered = 0  # samples handed out so far: what is past cannot change
+        self._lock = threading.Lock()  # the hand sees snapshots on one thread and acts on the streaming one
+
+    def observe(self, snap: dict[str, Any]) -> None:
+        """A snapshot of the session, as the page gets it: the hand reads it (from any thread)."""
+        with self._lock:
+            self.hand.observe(snap)
+
+    def observe_now(self, snap: dict[str, Any]) -> None:
+        """A snapshot that arrived just now over the network: the hand takes it as seen at the latest sample this
+        source handed out (the service's device clock runs on across streaming sessions; this source's restarts)."""
+        if self._fs is None:
+            return
+        live = dict(snap.get("live") or {})
+        live["t_device_s"] = self._delivered / self._fs
+        self.observe({**snap, "live": live})
 
     def prepare(self, fs_hz: float) -> None:
         super().prepare(fs_hz)
@@ -39,7 +58,9 @@ class PromptedSource(ScriptedSource):
 
     def block(self, start: int, end: int) -> Block:
         if self._fs is not None:
-            for act in self.hand.due(end / self._fs):
+            with self._lock:
+                acts = self.hand.due(end / self._fs)
+            for act in acts:
                 self.perform(act)
         self._delivered = max(self._delivered, end)
         return super().block(start, end)

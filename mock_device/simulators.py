@@ -4,14 +4,21 @@ classes behind them."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from wearable_protocol.models import model as device_model
 
+from .follower import SessionFollower
+from .hand import HANDS
+from .prompted import PromptedSource
 from .scenarios import SCENARIOS
-from .sources import ScriptedSource
+from .sources import SampleSource, ScriptedSource
 from .vendors import WEARABLES
 from .wearable import Wearable
 
-scenarios: tuple[str, ...] = tuple(SCENARIOS)
+HAND_PREFIX = "hand:"
+# the scripted clinicians, then those who follow the session's prompts (hand:careful, hand:bumps, ...)
+scenarios: tuple[str, ...] = (*SCENARIOS, *(HAND_PREFIX + h for h in HANDS))
 models: tuple[str, ...] = tuple(WEARABLES)
 
 
@@ -22,8 +29,15 @@ def rates_instead(model: str, rate_hz: float) -> str | None:
 
 
 def wearable(*, seed: int, scenario: str, speed: float, name: str, rate_hz: float | None, noise_dps: float,
-             model: str = "gyrocal") -> Wearable:
+             model: str = "gyrocal", service_url: Callable[[], str | None] | None = None) -> Wearable:
     """A simulated wearable speaking ``model``'s protocol whose clinician performs ``scenario`` whenever
-    streaming starts."""
-    source = ScriptedSource(seed=seed, scenario=scenario, noise_dps=noise_dps)
+    streaming starts. A ``hand:<style>`` clinician follows the prompts of the wearable's sessions on the
+    service at ``service_url()``, reading its events over HTTP as the page does."""
+    source: SampleSource
+    if scenario.startswith(HAND_PREFIX):
+        prompted = PromptedSource(seed=seed, hand=scenario[len(HAND_PREFIX):], noise_dps=noise_dps)
+        SessionFollower(name, prompted.observe_now, service_url or (lambda: None)).start()
+        source = prompted
+    else:
+        source = ScriptedSource(seed=seed, scenario=scenario, noise_dps=noise_dps)
     return WEARABLES[model](source, seed=seed, speed=speed, name=name, rate_hz=rate_hz)

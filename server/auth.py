@@ -4,6 +4,11 @@ An operator has a name and a secret of at least 12 characters (stored as a salte
 in with both gives a random bearer token (stored as its SHA-256, valid for Settings.token_ttl_s). When
 GYROCAL_API_TOKEN is set, that value is also accepted as the bearer token of an operator named "api".
 
+An operator may also have a PIN of 4 to 8 digits (also a salted scrypt hash), for tablets: it is accepted
+only from the client addresses the service trusts with PINs (this computer unless `--pin-from` adds
+networks), after 3 free failures each try waits 1, 2, 4, ... s, and after 10 wrong PINs in a row the PIN is
+switched off until the operator (with their secret) or an administrator sets a new one.
+
 Sign-ins over HTTP go through ``SignIns``: failed ones are audited and throttled per operator name and
 per client address (growing delays, answered 429 with Retry-After), and scrypt runs in a small pool of
 its own so a flood of sign-ins cannot hold up the threads every database call uses.
@@ -15,8 +20,10 @@ import asyncio
 import base64
 import hashlib
 import hmac
+import ipaddress
 import re
 import secrets
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from datetime import UTC, datetime, timedelta
 
@@ -31,12 +38,20 @@ MIN_SECRET = 12
 OPERATOR_FREE_FAILURES = 5  # then 1, 2, 4, ... s between attempts, up to MAX_DELAY_S
 ADDRESS_FREE_FAILURES = 20  # one tablet may be shared by several operators
 MAX_DELAY_S = 300.0
+PIN_RE = re.compile(r"^[0-9]{4,8}$")
+PIN_FREE_FAILURES = 3
+PIN_MAX_FAILURES = 10  # wrong PINs in a row that switch an operator's PIN off
+PIN_FROM_DEFAULT = ("127.0.0.0/8", "::1/128")
 HASH_THREADS = 2
 HASH_QUEUE = 8  # sign-ins verifying or waiting to, at most; more get 429
 
 
 class AuthError(Exception):
     """Missing or wrong credentials; the message says what to do."""
+
+
+class PinRefused(AuthError):
+    """A PIN from an address the service does not trust with PINs."""
 
 
 class Throttled(AuthError):
@@ -72,6 +87,12 @@ def verify_secret(secret: str, stored: str) -> bool:
     except (ValueError, TypeError):
         return False
     return hmac.compare_digest(got, want)
+
+
+def check_pin(pin: str) -> str:
+    if not PIN_RE.match(pin or ""):
+        raise AuthError("a PIN is 4 to 8 digits")
+    return pin
 
 
 def new_secret() -> str:
@@ -112,6 +133,11 @@ class Authenticator:
         self.store.reset_operator(name, hash_secret(secret))
         return secret
 
+    def set_pin(self, name: str, pin: str | None) -> None:
+        """Give an operator a PIN, or take it away (None)."""
+        self.store.set_operator_pin(name, None if pin is None else hash_secret(check_pin(pin)),
+                                    "operator.pin_set" if pin is not None else "operator.pin_removed")
+
     def sign_in(self, name: str, secret: str, client: str | None = None) -> tuple[str, datetime]:
         """A new bearer token for an operator and its expiry; AuthError on a wrong name or secret (no throttle:
         the CLI and tests; the service signs in through SignIns)."""
@@ -151,35 +177,77 @@ class SignIns:
     """The service's sign-ins: throttled per operator and per client address, failures audited, scrypt in its
     own bounded pool."""
 
-    def __init__(self, auth: Authenticator) -> None:
+    def __init__(self, auth: Authenticator, pin_from: tuple[str, ...] = PIN_FROM_DEFAULT) -> None:
         self.auth = auth
         self.by_operator = SignInThrottle(OPERATOR_FREE_FAILURES, MAX_DELAY_S)
         self.by_address = SignInThrottle(ADDRESS_FREE_FAILURES, MAX_DELAY_S)
+        self.by_pin = SignInThrottle(PIN_FREE_FAILURES, MAX_DELAY_S)
+        self.pin_networks = tuple(ipaddress.ip_network(n, strict=False) for n in pin_from)
         self._pool = ThreadPoolExecutor(HASH_THREADS, thread_name_prefix="gyrocal-scrypt")
         self._busy = 0
 
-    async def sign_in(self, name: str, secret: str, client: str) -> tuple[str, datetime]:
-        """A token for a correct name and secret; Throttled or AuthError otherwise."""
-        op_key, addr_key = name.lower(), client
-        wait = max(self.by_operator.retry_after(op_key), self.by_address.retry_after(addr_key))
+    def pin_allowed_from(self, client: str) -> bool:
+        """Whether PINs are accepted from this client address."""
+        try:
+            addr = ipaddress.ip_address(client)
+        except ValueError:
+            return False
+        return any(addr in net for net in self.pin_networks)
+
+    def _wait(self, *throttled: tuple[SignInThrottle, str]) -> None:
+        wait = max(t.retry_after(key) for t, key in throttled)
         if wait > 0:
             raise Throttled(f"too many failed sign-ins for this operator or from this computer: try again in {wait:.0f} s", wait)
         if self._busy >= HASH_QUEUE:
             raise Throttled("too many sign-ins at once: try again in a moment", 1.0)
+
+    async def _matches(self, given: str, lookup: Callable[[str], str | None], name: str) -> bool:
         self._busy += 1
         try:
-            stored = await asyncio.to_thread(self.auth.store.operator_secret_hash, name)
-            ok = await asyncio.get_running_loop().run_in_executor(self._pool, secret_matches, secret, stored)
+            stored = await asyncio.to_thread(lookup, name)
+            return await asyncio.get_running_loop().run_in_executor(self._pool, secret_matches, given, stored)
         finally:
             self._busy -= 1
-        if not ok:
+
+    async def _failed(self, name: str, client: str, what: str, failures: int) -> None:
+        await asyncio.to_thread(self.auth.store.audit, None, "auth.sign_in_failed", None, None,
+                                {"operator": name, "client": client, "failures": failures, "with": what})
+
+    async def sign_in(self, name: str, secret: str, client: str) -> tuple[str, datetime]:
+        """A token for a correct name and secret; Throttled or AuthError otherwise."""
+        op_key, addr_key = name.lower(), client
+        self._wait((self.by_operator, op_key), (self.by_address, addr_key))
+        if not await self._matches(secret, self.auth.store.operator_secret_hash, name):
             self.by_operator.failed(op_key)
             self.by_address.failed(addr_key)
-            failures = self.by_operator.failures(op_key)
-            await asyncio.to_thread(self.auth.store.audit, None, "auth.sign_in_failed", None, None,
-                                    {"operator": name, "client": client, "failures": failures})
+            await self._failed(name, client, "secret", self.by_operator.failures(op_key))
             raise AuthError("unknown operator or wrong secret")
         self.by_operator.succeeded(op_key)
+        self.by_pin.succeeded(op_key)  # the secret proves the operator: their PIN tries start afresh
+        return await asyncio.to_thread(self.auth.issue, name, client)
+
+    async def sign_in_pin(self, name: str, pin: str, client: str) -> tuple[str, datetime]:
+        """A token for a correct name and PIN from a trusted address; Throttled, PinRefused or AuthError otherwise."""
+        if not self.pin_allowed_from(client):
+            raise PinRefused("PINs are accepted only on the tablets this service trusts; sign in with your secret, "
+                             "or ask the administrator to allow this tablet (gyrocal serve --pin-from)")
+        op_key, addr_key = name.lower(), client
+        self._wait((self.by_pin, op_key), (self.by_address, addr_key))
+        if not await self._matches(pin, self.auth.store.operator_pin_hash, name):
+            self.by_pin.failed(op_key)
+            self.by_address.failed(addr_key)
+            failures = self.by_pin.failures(op_key)
+            await self._failed(name, client, "pin", failures)
+            pin_hash: str | None = None
+            if failures >= PIN_MAX_FAILURES:
+                pin_hash = await asyncio.to_thread(self.auth.store.operator_pin_hash, name)
+            if pin_hash is not None:
+                await asyncio.to_thread(self.auth.store.set_operator_pin, name, None, "operator.pin_locked")
+                self.by_pin.succeeded(op_key)
+                raise AuthError(f"{PIN_MAX_FAILURES} wrong PINs in a row: the PIN of this operator is now switched off. "
+                                "Sign in with your secret and set a new PIN")
+            raise AuthError("unknown operator, no PIN set, or wrong PIN")
+        self.by_pin.succeeded(op_key)
         return await asyncio.to_thread(self.auth.issue, name, client)
 
     def close(self) -> None:

@@ -41,7 +41,9 @@ def register(sub: Any) -> None:
         default="normal",
         metavar="NAMES",
         help="what the simulated clinician does, comma-separated, assigned to mock-1, mock-2, ... in turn: "
-        "normal, moved_during_still, wrong_axis, too_fast, stops_short, link_drop, packet_loss (default normal)",
+        "normal, moved_during_still, wrong_axis, too_fast, stops_short, link_drop, packet_loss (a fixed script), or "
+        "hand:careful, hand:hurried, hand:sloppy, hand:bumps, hand:gauge (a clinician who follows the session's prompts, "
+        "reading them from the service as the page does) (default normal)",
     )
     p.add_argument(
         "--mock-rate", type=float, default=None, metavar="HZ",
@@ -98,6 +100,13 @@ def register(sub: Any) -> None:
         help="tries per turn before a session fails (default 3; 1: any fault ends the session with its reason)",
     )
     p.add_argument(
+        "--pin-from",
+        action="append",
+        default=[],
+        metavar="NETWORK",
+        help="also accept operators' PINs from this network (e.g. 10.1.2.0/24, the ward's tablets); this computer always may",
+    )
+    p.add_argument(
         "--demo-operator",
         default=None,
         metavar="NAME",
@@ -123,6 +132,11 @@ def register_operator(sub: Any) -> None:
     d = osub.add_parser("remove", help="disable an operator (kept in the audit trail)")
     d.add_argument("name")
     d.set_defaults(func=cmd_operator_remove)
+    pn = osub.add_parser("pin", help="give an operator a PIN of 4-8 digits for the tablets the service trusts (or --remove it)")
+    pn.add_argument("name")
+    pn.add_argument("--pin-stdin", action="store_true", help="read the PIN from standard input (else it is asked for)")
+    pn.add_argument("--remove", action="store_true", help="take the operator's PIN away")
+    pn.set_defaults(func=cmd_operator_pin)
     ls = osub.add_parser("list", help="list operators")
     ls.set_defaults(func=cmd_operator_list)
 
@@ -183,6 +197,23 @@ def cmd_operator_reset(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_operator_pin(args: argparse.Namespace) -> int:
+    import getpass
+
+    from .auth import AuthError
+    from .store import StoreError
+
+    pin = None
+    if not args.remove:
+        pin = sys.stdin.readline().strip() if args.pin_stdin else getpass.getpass(f"PIN for {args.name} (4-8 digits): ")
+    try:
+        _auth(args).set_pin(args.name, pin)
+    except (AuthError, StoreError) as exc:
+        raise ServiceError(str(exc)) from None
+    print(f"operator {args.name} " + ("has no PIN now" if args.remove else "has a new PIN"))
+    return EXIT_OK
+
+
 def cmd_operator_remove(args: argparse.Namespace) -> int:
     from .store import StoreError
 
@@ -204,6 +235,16 @@ def cmd_operator_list(args: argparse.Namespace) -> int:
 
 
 # -- serve ---------------------------------------------------------------------------------------
+def pin_networks(given: list[str]) -> list[str]:
+    """The --pin-from networks, checked."""
+    import ipaddress
+
+    try:
+        return [str(ipaddress.ip_network(n, strict=False)) for n in given]
+    except ValueError as exc:
+        raise ServiceError(f"--pin-from: {exc}; give a network such as 10.1.2.0/24 or one address") from None
+
+
 def build_service(args: argparse.Namespace) -> Any:
     """Settings, store and devices from the command line (no event loop needed)."""
     from calib.api import available_methods
@@ -251,6 +292,7 @@ def build_service(args: argparse.Namespace) -> Any:
         max_turn_attempts=args.max_attempts,
         worker_memory_mb=args.worker_memory_mb,
         allowed_hosts=tuple(dict.fromkeys(h.lower() for h in hosts)),
+        pin_from=(*Settings.pin_from, *pin_networks(args.pin_from)),
     )
     from .store import Store, StoreError
 
@@ -297,6 +339,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     port = sock.getsockname()[1]
     host = f"[{args.host}]" if ":" in args.host else args.host
     shown = "127.0.0.1" if args.host in ("0.0.0.0", "") else host
+    svc.devices.service_url = f"http://{shown}:{port}"
     mocks = ", ".join(d for d in svc.devices.devices if d.startswith("mock-"))
     print(
         f"gyrocal calibration service: open the wizard at http://{shown}:{port}/ "

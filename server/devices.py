@@ -38,7 +38,7 @@ class Simulators(Protocol):
         """None when a simulated wearable of ``model`` offers ``rate_hz``; else the rates it offers, in words."""
 
     def wearable(self, *, seed: int, scenario: str, speed: float, name: str, rate_hz: float | None, noise_dps: float,
-                 model: str) -> Any: ...
+                 model: str, service_url: Callable[[], str | None]) -> Any: ...
 
 
 def load_simulators() -> Simulators | None:
@@ -151,6 +151,8 @@ class DeviceManager:
         self.ble = ble
         self.ble_adapters = tuple(ble_adapters)
         self.slots = AdapterSlots(self.ble_adapters, ble_slots)  # shared by every BLE link of the service
+        # where the service answers, once it listens: simulated clinicians who follow the prompts read it there
+        self.service_url: str | None = None
 
     def get(self, device_id: str) -> Device | None:
         return self.devices.get(device_id)
@@ -185,7 +187,7 @@ class DeviceManager:
             scenario = scenarios[(i - 1) % len(scenarios)]
             dev_seed = seed * 1000 + i
             wearable = simulators.wearable(seed=dev_seed, scenario=scenario, speed=speed, name=f"mock-{i}", rate_hz=rate_hz,
-                                           noise_dps=noise_dps, model=model)
+                                           noise_dps=noise_dps, model=model, service_url=lambda: self.service_url)
             # the reconnection backoff runs on wall time: scale it with the simulated clock
             policy = ReconnectPolicy(initial_delay_s=0.25 / speed, max_delay_s=max(0.05, 5.0 / speed), timeout_s=60.0)
             dev = Device(

@@ -5,7 +5,7 @@ from __future__ import annotations
 from enum import Enum
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from calib.api import available_methods
 
@@ -54,7 +54,19 @@ class Health(BaseModel):
 class LoginIn(BaseModel):
     operator: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9][A-Za-z0-9._@-]{0,63}$",
                           description="letters, digits and . _ @ -")
-    secret: str = Field(min_length=1, max_length=512)
+    secret: str | None = Field(None, min_length=1, max_length=512, description="the operator's secret; or give pin")
+    pin: str | None = Field(None, pattern=r"^[0-9]{4,8}$", description="the operator's PIN (4-8 digits), from a trusted tablet")
+
+    @model_validator(mode="after")
+    def _one_credential(self) -> LoginIn:
+        if (self.secret is None) == (self.pin is None):
+            raise ValueError("give either secret or pin")
+        return self
+
+
+class PinIn(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    pin: str = Field(pattern=r"^[0-9]{4,8}$", description="4 to 8 digits")
 
 
 class LoginOut(BaseModel):
@@ -132,6 +144,17 @@ class SessionStarted(BaseModel):
     events: str
 
 
+class TurnAccuracy(BaseModel):
+    """How well a full turn measures, the worst of the session's turns, before and after the calibration."""
+
+    before_deg: float = Field(description="how far the raw readings (bias removed) of a full turn were from 360°")
+    after_deg: float = Field(description="how far from where it began a turn ends, measured with the calibration")
+
+
+CHECKS_TEXT = ("each tolerance check: name, axis, value, limit, ok, text, used (the share of the allowance the value "
+               "uses: 0 ideal, 1 at the limit) and near_limit (passed with used >= 0.8)")
+
+
 class SessionOut(BaseModel):
     """A full snapshot of a session: what every SSE event carries too."""
 
@@ -146,7 +169,8 @@ class SessionOut(BaseModel):
     reason: str | None = None
     result: dict[str, Any] | None = None
     passed: bool | None = None
-    checks: list[dict[str, Any]] = Field(default_factory=list)
+    checks: list[dict[str, Any]] = Field(default_factory=list, description=CHECKS_TEXT)
+    accuracy: TurnAccuracy | None = Field(None, description="a full turn before and after the calibration (closure estimator)")
     decision: Literal["accepted", "discarded"] | None = None
     calibration_id: int | None = None
     started_at: str | None = None
@@ -197,7 +221,8 @@ class OfflineResult(BaseModel):
     device_id: str
     state: Literal["done", "failed"]
     passed: bool
-    checks: list[dict[str, Any]]
+    checks: list[dict[str, Any]] = Field(description=CHECKS_TEXT)
+    accuracy: TurnAccuracy | None = None
     reason: str | None = None
     k: Vec3
     b: Vec3

@@ -30,7 +30,7 @@ class Service:
         self.settings = settings
         self.store = store or Store(settings.db_url)
         self.auth = Authenticator(self.store, settings.api_token, settings.token_ttl_s)
-        self.sign_ins = SignIns(self.auth)
+        self.sign_ins = SignIns(self.auth, settings.pin_from)
         self.anonymous_analyses = TokenBucket(settings.anonymous_analyses_per_min, burst=3)
         self.devices = devices or DeviceManager()
         self.pool = ComputePool(memory_mb=settings.worker_memory_mb)

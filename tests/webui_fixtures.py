@@ -29,6 +29,9 @@ SECRET = "correct horse battery staple"
 MOCK_SPEED = 3.0
 # the simulated clinician of mock-N performs the N-th scenario in every session
 SCENARIOS = ["normal", "moved_during_still", "wrong_axis", "link_drop", *["normal"] * 9]
+PIN = "4831"
+# clinicians who follow the page's prompts (mock_device.hand), each on a wearable of its own
+HAND_SCENARIOS = ["hand:careful", "hand:careful", "hand:bumps", "hand:gauge", "hand:careful"]
 TABLET = {"width": 1024, "height": 768}
 LOCAL_HOSTS = {"127.0.0.1", "localhost", "[::1]", "::1"}
 
@@ -63,6 +66,17 @@ def webui_service() -> Iterator[RunningService]:
     """The service the page tests run against: mock-N performs SCENARIOS[N-1], one try per turn (the scripted
     clinicians play a fixed script and never turn again, so each fault ends its session with its own screen)."""
     with running_service(SCENARIOS, "--max-attempts", "1") as svc:
+        yield svc
+
+
+@pytest.fixture(scope="module")
+def hand_service() -> Iterator[RunningService]:
+    """A service whose simulated clinicians follow the session's prompts, read from the service as the page reads
+    them (mock-N performs HAND_SCENARIOS[N-1]); the operator also has a PIN."""
+    with running_service(HAND_SCENARIOS) as svc:
+        r = subprocess.run([*GYROCAL, "operator", "--db", svc.db_url, "pin", OPERATOR, "--pin-stdin"], input=PIN + "\n", check=False,
+                           cwd=ROOT, capture_output=True, text=True, timeout=60)
+        assert r.returncode == 0, r.stderr
         yield svc
 
 
@@ -118,25 +132,35 @@ def page_watch() -> Watch:
     return Watch()
 
 
-@pytest.fixture
-def page(browser: Any, webui_service: RunningService, page_watch: Watch) -> Iterator[Any]:
-    """A fresh tablet-sized page on the service; requests to anywhere but this computer are refused."""
-    context = browser.new_context(viewport=TABLET, has_touch=True, base_url=webui_service.base, locale="en-GB", timezone_id="Europe/Vienna")
+@contextlib.contextmanager
+def watched_page(browser: Any, service: RunningService, watch: Watch, viewport: dict[str, int] | None = None,
+                 timeout_ms: float = 30_000) -> Iterator[Any]:
+    """A fresh page on ``service`` (tablet-sized unless ``viewport``); requests to anywhere but this computer are
+    refused, and every request, refusal and console error goes to ``watch``."""
+    context = browser.new_context(viewport=viewport or TABLET, has_touch=True, base_url=service.base, locale="en-GB",
+                                  timezone_id="Europe/Vienna")
 
     def refuse(route: Any) -> None:
-        page_watch.blocked.append(route.request.url)
+        watch.blocked.append(route.request.url)
         route.abort()
 
     context.route(lambda url: not _is_local(url), refuse)
-    context.on("request", lambda req: page_watch.requests.append(req.url))
+    context.on("request", lambda req: watch.requests.append(req.url))
     pg = context.new_page()
-    pg.set_default_timeout(30_000)
-    pg.on("console", lambda msg: page_watch.console_errors.append(msg.text) if msg.type == "error" else None)
-    pg.on("pageerror", lambda exc: page_watch.console_errors.append(f"uncaught: {exc}"))
+    pg.set_default_timeout(timeout_ms)
+    pg.on("console", lambda msg: watch.console_errors.append(msg.text) if msg.type == "error" else None)
+    pg.on("pageerror", lambda exc: watch.console_errors.append(f"uncaught: {exc}"))
     try:
         yield pg
     finally:
         context.close()
+
+
+@pytest.fixture
+def page(browser: Any, webui_service: RunningService, page_watch: Watch) -> Iterator[Any]:
+    """A fresh tablet-sized page on the service; requests to anywhere but this computer are refused."""
+    with watched_page(browser, webui_service, page_watch) as pg:
+        yield pg
 
 
 @pytest.fixture
@@ -230,6 +254,14 @@ class Wizard:
           .filter(([el, r]) => r.width > 0 && (r.width < 44 || r.height < 44))
           .map(([el, r]) =>
             `${el.tagName.toLowerCase()} "${el.textContent.trim().slice(0, 30)}" ${Math.round(r.width)}x${Math.round(r.height)}`)""")
+
+
+def assert_turns_end_with_hold_still(headlines: list[str]) -> None:
+    """Every turn's headline went from turning to "Hold it still" to done, and never told her to keep turning."""
+    assert not any(h.startswith("Keep turning") for h in headlines), headlines
+    for axis in "XYZ":
+        i = headlines.index(f"Turning about {axis}")
+        assert headlines[i + 1:i + 3] == ["Hold it still", f"{axis} done — hold still"], headlines
 
 
 def assert_clean(watch: Watch, allowed_errors: tuple[str, ...] = ()) -> None:

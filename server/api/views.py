@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 from typing import Any
 
+from calib.acceptance import turn_accuracy
 from calib.json_safe import finite
 
 from ..deps import problem
@@ -87,6 +88,7 @@ def stored_snapshot(row: dict[str, Any]) -> dict[str, Any]:
         "result": row["result"],
         "passed": row["passed"],
         "checks": info.get("checks") or [],
+        "accuracy": turn_accuracy(row["result"]) if row["result"] else None,
         "warnings": info.get("warnings") or [],
         "turns": info.get("turns") or {},
         "decision": row["decision"],

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any, Protocol
 
+from calib.acceptance import turn_accuracy
 from calib.result import CalibrationResult
 from calib.stage import AXES
 
@@ -96,6 +97,7 @@ def session_snapshot(s: SessionView, event: str) -> dict[str, Any]:
         "result": None if s.result is None else s.result.to_json(),
         "passed": s.passed,
         "checks": s.checks,
+        "accuracy": None if s.result is None else turn_accuracy(s.result),
         "decision": s.decision,
         "calibration_id": s.calibration_id,
         "method": s.method,

@@ -197,6 +197,17 @@ class Store:
                 select(Operator.secret_hash).where(Operator.name == name, Operator.disabled_at.is_(None))
             ).scalar_one_or_none()
 
+    def set_operator_pin(self, name: str, pin_hash: str | None, why: str = "operator.pin_set") -> None:
+        """Give an active operator a PIN (its hash), or take it away (None); audited as ``why``."""
+        with self._tx("audit_log") as s:
+            self._active_operator(s, name).pin_hash = pin_hash
+            self._audit(s, None, why, detail={"operator": name})
+
+    def operator_pin_hash(self, name: str) -> str | None:
+        """The stored hash of an active operator's PIN, or None (no such operator, or no PIN)."""
+        with self._read() as s:
+            return s.execute(select(Operator.pin_hash).where(Operator.name == name, Operator.disabled_at.is_(None))).scalar_one_or_none()
+
     def add_token(self, operator: str, token_hash: str, expires_at: datetime, client: str | None = None) -> None:
         with self._tx("audit_log") as s:
             op = self._active_operator(s, operator)

@@ -4,6 +4,7 @@ Version 1: the first store. Version 2: hash chains on the history (``chain_seq``
 ``row_hash``, ``chain_heads``), one calibration per session (unique), each calibration's ``source``,
 guards against REPLACE and TRUNCATE, and the spool of running sessions' samples (``session_samples``).
 Version 3: what each wearable last reported holding (``devices.held_calibration_id``, ``held_reported_at``).
+Version 4: an operator's short PIN for signing in on the tablets the service trusts (``operators.pin_hash``).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from .tables import (
     utcnow,
 )
 
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 
 
 def _v2(conn: Any) -> None:
@@ -69,8 +70,13 @@ def _v3(conn: Any) -> None:
     conn.execute(text(f"ALTER TABLE devices ADD COLUMN held_reported_at {kind}"))
 
 
+def _v4(conn: Any) -> None:
+    """v3 -> v4: operators' PINs (operators is not append-only: no guard changes)."""
+    conn.execute(text("ALTER TABLE operators ADD COLUMN pin_hash VARCHAR(512)"))
+
+
 # version -> the step that brings a database from version-1 to version
-MIGRATIONS: dict[int, Callable[[Any], None]] = {2: _v2, 3: _v3}
+MIGRATIONS: dict[int, Callable[[Any], None]] = {2: _v2, 3: _v3, 4: _v4}
 
 
 def migrate(engine: Engine, display_url: str) -> int:

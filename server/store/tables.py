@@ -68,6 +68,7 @@ class Operator(Base):
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
     name: Mapped[str] = mapped_column(String(128), unique=True)
     secret_hash: Mapped[str] = mapped_column(String(512))
+    pin_hash: Mapped[str | None] = mapped_column(String(512))  # a short PIN for trusted tablets (None: no PIN)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
     disabled_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
 

@@ -289,7 +289,7 @@ def test_a_v1_store_is_migrated_and_its_history_chained(store_url: str) -> None:
                     conn.connection.driver_connection.execute(stmt.rstrip().rstrip(";"))
     eng.dispose()
     store = Store(store_url)
-    assert store.schema_version() == SCHEMA_VERSION == 3
+    assert store.schema_version() == SCHEMA_VERSION == 4
     report = store.verify()
     assert report.ok and report.rows == {"recordings": 0, "calibrations": 2, "audit_log": 5}
     assert [c.source for c in store.calibrations("dev-1")] == ["upload", "live"]

@@ -9,7 +9,17 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from webui_fixtures import OPERATOR, Watch, Wizard, api, assert_clean, device_for, sign_in_token, upload_accepted
+from webui_fixtures import (
+    OPERATOR,
+    Watch,
+    Wizard,
+    api,
+    assert_clean,
+    assert_turns_end_with_hold_still,
+    device_for,
+    sign_in_token,
+    upload_accepted,
+)
 
 PORTRAIT_TABLET = {"width": 768, "height": 1024}
 
@@ -38,7 +48,7 @@ def test_happy_path_to_a_saved_calibration(wizard: Wizard, page: Any, webui_serv
     wizard.shot("01-devices")
     assert wizard.small_targets() == []
     wizard.choose(dev)
-    assert wizard.text(".instruction") == "Place the device flat against the block"
+    assert wizard.text(".instruction") == "Place it against the block"
     assert "Step 1 of 7" in wizard.text(".stepno")
     wizard.shot("02-place")
     assert wizard.small_targets() == []
@@ -156,14 +166,6 @@ def test_a_commercial_wearable_shows_its_model_settings_and_limits_and_calibrate
     assert wizard.text(".verdict h1") == "PASS", wizard.text(".sentence")
     wizard.shot("metawear-pass")
     assert_clean(page_watch)
-
-
-def assert_turns_end_with_hold_still(headlines: list[str]) -> None:
-    """Every turn's headline went from turning to "Hold it still" to done, and never told her to keep turning."""
-    assert not any(h.startswith("Keep turning") for h in headlines), headlines
-    for axis in "XYZ":
-        i = headlines.index(f"Turning about {axis}")
-        assert headlines[i + 1:i + 3] == ["Hold it still", f"{axis} done — hold still"], headlines
 
 
 @pytest.mark.parametrize("viewport", [{"width": 1280, "height": 800}, {"width": 820, "height": 1180}], ids=["1280x800", "820x1180"])
@@ -423,7 +425,7 @@ def test_history_lists_calibrations_and_plots_the_parameters(wizard: Wizard, pag
     assert rows.count() == 3
     newest = rows.nth(0).inner_text()
     assert "current" in newest and "api" in newest
-    assert "uploaded recording · ICM-20948 (firmware 1.2.0)" in newest  # where each calibration came from
+    assert "uploaded recording · closure" in newest and "ICM-20948, firmware 1.2.0" in newest  # where each calibration came from
     assert OPERATOR in rows.nth(1).inner_text()
     assert f"{cals[-1]['k'][0]:.4f}" in newest
     # one marker per calibration and axis in each of the two parameter plots

@@ -79,8 +79,9 @@ export class Api {
     return h;
   }
 
-  async signIn(operator, secret) {
-    const out = await this.request("POST", "/auth/login", { json: { operator, secret }, signingIn: true });
+  /** Sign in with a secret, or with a PIN ({pin}) on a tablet the service trusts with PINs. */
+  async signIn(operator, secret, { pin } = {}) {
+    const out = await this.request("POST", "/auth/login", { json: pin ? { operator, pin } : { operator, secret }, signingIn: true });
     this.token = out.token;
     this.operator = out.operator;
     sessionStorage.setItem(TOKEN_KEY, out.token);

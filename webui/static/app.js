@@ -7,7 +7,7 @@ import { icon } from "./figures.js";
 import { requestProblem } from "./messages.js";
 import { devicesView } from "./devices.js";
 import { historyView } from "./history.js";
-import { signInView } from "./signin.js";
+import { pinView, signInView } from "./signin.js";
 import { uploadView } from "./upload.js";
 import { placeView, sessionView } from "./wizard.js";
 
@@ -24,6 +24,7 @@ const ROUTES = [
   [/^#\/session\/([0-9a-f]{32})$/, (m) => sessionView(ctx, m[1])],
   [/^#\/history\/([^/]+)$/, (m) => historyView(ctx, decodeURIComponent(m[1]))],
   [/^#\/upload$/, () => uploadView(ctx)],
+  [/^#\/pin$/, () => pinView(ctx)],
 ];
 
 const ctx = {
@@ -81,6 +82,7 @@ function renderWho() {
   }
   who.replaceChildren(
     h("span", { class: "who-name" }, icon("user"), h("span", null, api.operator)),
+    api.operator !== "api" ? h("a", { class: "button small", href: "#/pin" }, "My PIN") : null,
     h("button", { class: "button small", type: "button", onclick: async () => {
       await api.signOut();
       renderWho();

@@ -25,8 +25,11 @@ function deviceCard(ctx, dev, refresh) {
   const st = status(dev);
   const cur = dev.current_calibration;
   const battery = h("dd", { class: "battery" }, icon("battery"), h("span", null, "not read yet"));
-  const kind = [dev.model_label, dev.sensor_model, dev.simulated ? `simulated wearable${dev.scenario && dev.scenario !== "normal" ? ` (${dev.scenario.replaceAll("_", " ")})` : ""}` : dev.transport === "ble" ? "Bluetooth" : null]
-    .filter(Boolean).join(" · ");
+  // each fact once: "gyrocal protocol wearable (simulated: moved during still) · ICM-20948"
+  const how = dev.simulated
+    ? `simulated${dev.scenario && dev.scenario !== "normal" ? `: ${dev.scenario.replaceAll("_", " ")}` : ""}`
+    : dev.transport === "ble" ? "Bluetooth" : null;
+  const kind = [dev.model_label ? `${dev.model_label}${how ? ` (${how})` : ""}` : how, dev.sensor_model].filter(Boolean).join(" · ");
   const actions = [];
   if (dev.active_session) {
     actions.push(h("a", { class: "button primary", href: `#/session/${dev.active_session}` }, icon("play"), "Resume"));

@@ -56,6 +56,11 @@ export function fmtDate(iso) {
   return d ? dateFmt.format(d) : "—";
 }
 
+/** "08:13" */
+export function fmtTime(d) {
+  return timeFmt.format(d);
+}
+
 /** "21 Nov 2026, 08:13" */
 export function fmtDateTime(iso) {
   const d = parseTime(iso);

@@ -1,7 +1,7 @@
 // A device's history: every accepted calibration with its values and who accepted it, how the
 // parameters moved over time, and every session whatever its outcome.
 
-import { AXES, AXIS_LABEL, fill, fmtDateTime, h, num, parseTime, sig } from "./dom.js";
+import { AXES, AXIS_LABEL, fill, fmtDate, fmtDateTime, fmtTime, h, num, parseTime, sig } from "./dom.js";
 import { icon } from "./figures.js";
 import { reasonFor } from "./messages.js";
 import { historyChart } from "./plots.js";
@@ -29,19 +29,26 @@ function parameterCharts(cals) {
     historyChart({ title: "Biases b", caption: "the rate each axis reads at rest, in true °/s", yLabel: "°/s", when, series: series("b") }));
 }
 
+/** A date over its time, so a narrow column breaks between them rather than anywhere. */
+function when(iso) {
+  const d = parseTime(iso);
+  if (!d) return "—";
+  return h("time", { datetime: iso, class: "when" }, h("span", null, fmtDate(iso)), h("span", { class: "when-time" }, fmtTime(d)));
+}
+
 function calibrationTable(cals) {
-  return h("table", { class: "history" },
+  const values = (vals, unc, digits, uDigits) => vals.map((v, j) => h("span", { class: "val" }, num(v, digits),
+    unc ? h("span", { class: "pm" }, ` ±${sig(unc[j], uDigits)}`) : null));
+  return h("table", { class: "history calibrations" },
     h("caption", null, "Accepted calibrations, newest first"),
-    h("thead", null, h("tr", null, ["Accepted", "By", "Scale factors k (X, Y, Z)", "Biases b, °/s (X, Y, Z)", "Method", "Measured on", "Recording"].map((c) => h("th", { scope: "col" }, c)))),
+    h("thead", null, h("tr", null, ["Accepted", "By, how", "Scale factors k (X, Y, Z)", "Biases b, °/s (X, Y, Z)", "Recording"].map((c) => h("th", { scope: "col" }, c)))),
     h("tbody", null, cals.map((c, i) => h("tr", { class: i === 0 ? "current" : "" },
-      h("td", null, h("time", { datetime: c.accepted_at }, fmtDateTime(c.accepted_at)),
-        i === 0 ? h("span", { class: "badge" }, icon("check"), "current") : null),
-      h("td", null, c.operator),
-      h("td", { class: "num" }, c.k.map((v, j) => h("span", { class: "val" }, num(v, 4), c.uncertainty && c.uncertainty.k ? h("span", { class: "pm" }, ` ±${sig(c.uncertainty.k[j], 1)}`) : null))),
-      h("td", { class: "num" }, c.b.map((v, j) => h("span", { class: "val" }, num(v, 3), c.uncertainty && c.uncertainty.b ? h("span", { class: "pm" }, ` ±${sig(c.uncertainty.b[j], 1)}`) : null))),
-      h("td", null, c.method),
-      h("td", { class: "source" }, c.source === "upload" ? "uploaded recording" : "guided session",
-        c.sensor_model ? h("span", { class: "muted" }, ` · ${c.sensor_model}${c.firmware ? ` (firmware ${c.firmware})` : ""}`) : null),
+      h("td", null, when(c.accepted_at), i === 0 ? h("span", { class: "badge" }, icon("check"), "current") : null),
+      h("td", { class: "source" }, h("strong", null, c.operator),
+        h("span", { class: "how" }, `${c.source === "upload" ? "uploaded recording" : "guided session"} · ${c.method}`),
+        c.sensor_model ? h("span", { class: "how" }, `${c.sensor_model}${c.firmware ? `, firmware ${c.firmware}` : ""}`) : null),
+      h("td", { class: "num" }, values(c.k, c.uncertainty && c.uncertainty.k, 4, 1)),
+      h("td", { class: "num" }, values(c.b, c.uncertainty && c.uncertainty.b, 3, 1)),
       h("td", null, c.recording_sha256 ? h("a", { href: `/sessions/${c.session_id}/recording`, download: `${c.session_id}.csv` }, "CSV") : "—")))));
 }
 
@@ -52,7 +59,7 @@ function sessionTable(sessions) {
     h("tbody", null, sessions.map((sess) => {
       const o = outcome(sess);
       return h("tr", null,
-        h("td", null, h("a", { href: `#/session/${sess.session_id}` }, fmtDateTime(sess.started_at))),
+        h("td", { class: "nowrap" }, h("a", { href: `#/session/${sess.session_id}` }, fmtDateTime(sess.started_at))),
         h("td", null, h("span", { class: `outcome ${o.cls}` }, icon(o.icon), h("span", null, o.text))),
         h("td", null, sess.operator || "—"),
         h("td", null, sess.kind === "upload" ? "uploaded recording" : "guided"));

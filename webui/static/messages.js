@@ -2,6 +2,7 @@
 // (the service's reason codes) a title and the fix. The service's own sentence says what happened.
 
 import { AXIS_LABEL } from "./dom.js";
+import { TURN_SENTENCE, TURN_SHORT } from "./guide.js";
 
 const ax = (a) => AXIS_LABEL[a] || String(a || "").toUpperCase();
 
@@ -26,7 +27,7 @@ export function headline(snap, deviceName) {
         case "pause":
           return `${ax(axis)} done — hold still`;
         default:
-          return `Turn about ${ax(axis)}`;
+          return `Turn ${ax(axis)}: ${TURN_SHORT[axis] || "one full turn"}`;
       }
     case "reconnecting":
       return "Connection lost";
@@ -40,7 +41,8 @@ export function headline(snap, deviceName) {
 /** The plain sentence under the headline (the service's prompt, made shorter where it helps). */
 export function subline(snap) {
   if (snap.state.startsWith("turn_") && snap.phase === "ready") {
-    return `One full turn about the ${ax(snap.axis)} axis, then put it back against the block.`;
+    // the turn in a sentence, as the picture beside shows it
+    return TURN_SENTENCE[snap.axis] || snap.prompt || "";
   }
   if (snap.state.startsWith("turn_") && snap.phase === "turning") {
     const target = snap.live && snap.live.target_deg;

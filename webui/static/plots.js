@@ -38,7 +38,7 @@ function tickText(v, ticks) {
   return v.toFixed(d);
 }
 
-function frame(xTicks, yTicks, sx, sy, xFmt, xLabel, yLabel) {
+function frame(xTicks, yTicks, sx, sy, xFmt, xLabel, yLabel, top = M.t) {
   const g = s("g", { class: "axes" });
   for (const v of yTicks) {
     const y = sy(v);
@@ -54,9 +54,9 @@ function frame(xTicks, yTicks, sx, sy, xFmt, xLabel, yLabel) {
   }
   g.append(
     s("line", { x1: M.l, x2: W - M.r, y1: H - M.b, y2: H - M.b, class: "axis" }),
-    s("line", { x1: M.l, x2: M.l, y1: M.t, y2: H - M.b, class: "axis" }),
+    s("line", { x1: M.l, x2: M.l, y1: top, y2: H - M.b, class: "axis" }),
     s("text", { x: (M.l + W - M.r) / 2, y: H - 6, class: "axis-title" }, xLabel),
-    s("text", { x: 14, y: (M.t + H - M.b) / 2, class: "axis-title", transform: `rotate(-90 14 ${(M.t + H - M.b) / 2})` }, yLabel),
+    s("text", { x: 14, y: (top + H - M.b) / 2, class: "axis-title", transform: `rotate(-90 14 ${(top + H - M.b) / 2})` }, yLabel),
   );
   return g;
 }
@@ -89,14 +89,16 @@ export function lineChart(opts) {
   const xTicks = niceTicks(x0, x1, 8).filter((v) => v >= x0 - 1e-9 && v <= x1 + 1e-9);
   if (x1 === x0) x1 = x0 + 1;
   if (y1 === y0) y1 = y0 + 1;
+  // the bands' labels get a strip of their own above the plot, so no curve runs through them
+  const top = opts.bands && opts.bands.length ? M.t + 20 : M.t;
   const sx = (v) => M.l + ((v - x0) / (x1 - x0)) * (W - M.l - M.r);
-  const sy = (v) => H - M.b - ((v - y0) / (y1 - y0)) * (H - M.t - M.b);
+  const sy = (v) => H - M.b - ((v - y0) / (y1 - y0)) * (H - top - M.b);
   const svg = s("svg", { viewBox: `0 0 ${W} ${H}`, class: "chart", role: "img", "aria-label": opts.caption || opts.title });
   for (const b of opts.bands || []) {
     svg.append(s("rect", { x: sx(b.from), y: M.t, width: Math.max(1, sx(b.to) - sx(b.from)), height: H - M.t - M.b, class: "band" }),
-      s("text", { x: (sx(b.from) + sx(b.to)) / 2, y: M.t + 14, class: "band-label" }, b.label));
+      s("text", { x: (sx(b.from) + sx(b.to)) / 2, y: M.t + 13, class: "band-label" }, b.label));
   }
-  svg.append(frame(xTicks, yTicks, sx, sy, opts.xFmt || ((v, t) => tickText(v, t)), opts.xLabel, opts.yLabel));
+  svg.append(frame(xTicks, yTicks, sx, sy, opts.xFmt || ((v, t) => tickText(v, t)), opts.xLabel, opts.yLabel, top));
   for (const se of series) {
     let d = "";
     let pen = false;

@@ -1,12 +1,13 @@
 // Steps 1-7: place the device, hold still, the three turns, the result and the decision. The page
 // shows the service's session as it streams it (SSE); everything it shows comes from the service.
 
-import { AXES, AXIS_LABEL, fill, fmtDateTime, h, num, sig } from "./dom.js";
+import { AXES, AXIS_LABEL, fill, fmtDateTime, h } from "./dom.js";
 import { ask } from "./confirm.js";
+import { TURN_SUMMARY, turnGuide } from "./guide.js";
 import { angleGauge, icon, placePicture, stillRing, turnAnimation, turnTiles } from "./figures.js";
 import { STEP_LABELS, headline, reasonFor, requestProblem, stepOf, subline } from "./messages.js";
-import { modelCheckPanel } from "./modelcheck.js";
-import { calibrationPlots } from "./plots.js";
+import { detailsBlock, paramTable } from "./details.js";
+import { readiness } from "./readiness.js";
 import { writeBack } from "./writeback.js";
 
 const END_STATES = new Set(["done", "failed", "cancelled"]);
@@ -65,13 +66,20 @@ export function placeView(ctx, deviceId) {
   const message = h("div", { class: "inline-problem", "aria-live": "assertive" });
   const start = h("button", { class: "button primary big", type: "button", disabled: true }, icon("play"), "Start");
   const cancel = cancelButton(() => ctx.go("#/devices"));
-  const sub = h("p", { class: "sub" }, "Face up, one edge pushed against the block, as in the picture. Then press Start and take your hands off it.");
-  const title = h("h1", { class: "instruction" }, "Place the device flat against the block");
+  const sub = h("p", { class: "sub" }, "Flat, face up, one edge against the block. Press Start, then hands off.");
+  const overview = h("div", { class: "overview" },
+    h("h2", null, "What happens: 3 turns, about 30 s"),
+    h("ol", { class: "overview-list" },
+      h("li", null, h("span", { class: "ov-thumb still" }, icon("clock")), h("span", null, h("strong", null, "Rest"), " 3 s, hands off")),
+      AXES.map((a) => h("li", null, h("span", { class: "ov-thumb" }, turnGuide(a, { small: true })),
+        h("span", null, h("strong", null, `Turn ${AXIS_LABEL[a]}`), ` ${TURN_SUMMARY[a].toLowerCase()}`)))),
+    h("p", { class: "muted" }, "After each turn, back against the block. The screen shows each step as you go."));
+  const title = h("h1", { class: "instruction" }, "Place it against the block");
   fill(ctx.main, h("section", { class: "wizard", "aria-labelledby": "place-title", dataset: { state: "place" } },
     stepHeader(1, cancel),
     h("div", { class: "prompt", "aria-live": "polite" }, Object.assign(title, { id: "place-title" }), sub),
     h("div", { class: "stage two" }, placePicture(),
-      h("div", { class: "place-side" }, h("p", { class: "device-name" }, icon("info"), h("span", { class: "dev-label" }, deviceId)), start, message))));
+      h("div", { class: "place-side" }, h("p", { class: "device-name" }, icon("info"), h("span", { class: "dev-label" }, deviceId)), overview, start, message))));
   ctx.focusMain();
 
   let device = null;
@@ -201,7 +209,7 @@ export function sessionView(ctx, sid) {
     const noticeBox = h("div", { class: "notice-box" });
     const stage = h("div", { class: "stage" });
     const tiles = turnTiles();
-    const root = h("section", { class: "wizard", "aria-labelledby": "instruction" },
+    const root = h("section", { class: "wizard live", "aria-labelledby": "instruction" },
       head, h("div", { class: "prompt", "aria-live": "polite", "aria-atomic": "true" }, title, sub), noticeBox, stage, tiles);
     fill(ctx.main, root);
     ctx.focusMain();
@@ -228,7 +236,7 @@ export function sessionView(ctx, sid) {
         break;
       case "turn":
         ui.gauge = angleGauge(s.axis);
-        content = [turnAnimation(s.axis), ui.gauge];
+        content = [h("div", { class: "how-to" }, turnGuide(s.axis), h("p", { class: `axis-caption ax-${s.axis}` }, `Turn ${AXIS_LABEL[s.axis]}`)), ui.gauge];
         break;
       case "rest": {
         ui.ring = stillRing();
@@ -336,9 +344,9 @@ export function sessionView(ctx, sid) {
     return root;
   };
 
-  const verdictEl = (kind, iconName, text, kicker) => h("div", { class: `verdict ${kind}`, role: "status" },
+  const verdictEl = (kind, iconName, text, kicker, under = null) => h("div", { class: `verdict ${kind}`, role: "status" },
     icon(iconName, { cls: "verdict-icon" }),
-    h("div", null, kicker ? h("p", { class: "kicker" }, kicker) : null, h("h1", { id: "verdict-title" }, text)));
+    h("div", null, kicker ? h("p", { class: "kicker" }, kicker) : null, h("h1", { id: "verdict-title" }, text), under));
 
   const discard = async () => {
     if (snap && snap.decision) return snap;
@@ -389,6 +397,7 @@ export function sessionView(ctx, sid) {
       buttons.push(accept);
     }
     const failures = (s.checks || []).filter((c) => !c.ok).map((c) => c.text);
+    const summary = readiness(s, dev, pass);
     const sentence = pass
       ? `The gyroscope of ${dev} is calibrated within the tolerances.`
       : `The result is outside the tolerances: ${failures.join("; ") || s.reason}.`;
@@ -405,11 +414,15 @@ export function sessionView(ctx, sid) {
       }))) return;
       ctx.go("#/devices");
     }, "Close");
-    endLayout(s, 6, verdictEl(pass ? "pass" : "fail", pass ? "pass" : "fail", pass ? "PASS" : "FAIL"), [
-      h("p", { class: "sentence" }, sentence),
-      h("p", { class: "next" }, next),
+    const kind = pass ? (summary.near.length ? "pass near-limit" : "pass") : "fail";
+    endLayout(s, 6, verdictEl(kind, pass ? "pass" : "fail", pass ? "PASS" : "FAIL", null, summary.ready), [
+      ...summary.parts,
+      // on a PASS the decision comes first, with what it means under it; a FAIL says why before what to do
+      pass ? null : h("p", { class: "sentence" }, sentence),
+      pass ? null : h("p", { class: "next" }, next),
       h("div", { class: "actions split" }, h("div", { class: "actions" }, redo, drop), accept),
       message,
+      pass ? h("p", { class: "sentence" }, sentence, " ", h("span", { class: "next-inline" }, next)) : null,
       detailsBlock(ctx, s),
     ], close);
   };
@@ -461,10 +474,14 @@ export function sessionView(ctx, sid) {
         h("a", { class: "button", href: "#/devices" }, icon("back"), "Device list")),
     ]);
     try {
-      const cur = await api.get(`/devices/${encodeURIComponent(s.device_id)}/calibration`);
-      if (alive) keeps.textContent = `${dev} keeps its current calibration, accepted by ${cur.operator} on ${fmtDateTime(cur.accepted_at)}.`;
-    } catch (err) {
-      if (alive && err.status === 404) keeps.textContent = `${dev} has no calibration yet: nothing was saved.`;
+      // the device's record says whether it has a calibration (asking for a missing one would be a 404)
+      const cur = (await api.get(`/devices/${encodeURIComponent(s.device_id)}`)).current_calibration;
+      if (!alive) return;
+      keeps.textContent = cur
+        ? `${dev} keeps its current calibration, accepted by ${cur.operator} on ${fmtDateTime(cur.accepted_at)}.`
+        : `${dev} has no calibration yet: nothing was saved.`;
+    } catch {
+      // the sentence above already says what matters
     }
   };
 
@@ -515,79 +532,4 @@ export function sessionView(ctx, sid) {
     clearTimeout(warningTimer);
     closeStream();
   };
-}
-
-// -- details ---------------------------------------------------------------------------------------
-function paramTable(k, b, unc) {
-  const ku = (unc && unc.k) || [];
-  const bu = (unc && unc.b) || [];
-  return h("table", { class: "params" },
-    h("caption", null, "Calibration g = K·m + b"),
-    h("thead", null, h("tr", null, h("th", { scope: "col" }, "Axis"), h("th", { scope: "col" }, "Scale factor k"), h("th", { scope: "col" }, "Bias b (°/s)"))),
-    h("tbody", null, AXES.map((a, i) => h("tr", null,
-      h("th", { scope: "row" }, AXIS_LABEL[a]),
-      h("td", null, num(k[i], 5), ku[i] != null ? h("span", { class: "pm" }, ` ± ${sig(ku[i])}`) : null),
-      h("td", null, num(b[i], 3), bu[i] != null ? h("span", { class: "pm" }, ` ± ${sig(bu[i])}`) : null)))));
-}
-
-// What the multi-position fit found about the gyro's sensitivity to acceleration, and the fit without it.
-function gSensitivityText(test, G) {
-  if (!test) return null;
-  if (!test.fitted) return `not modelled: ${test.reason}`;
-  const largest = G ? Math.max(...G.flat().map(Math.abs)) : null;
-  const before = test.without && test.without.gravity_residual_rms_deg != null
-    ? `; without it the gravity residuals were ${num(test.without.gravity_residual_rms_deg, 2)}° rms` : "";
-  return `found and modelled (${test.reason})${largest != null ? `, up to ${num(largest, 3)} (°/s)/g` : ""}${before}`;
-}
-
-function detailsBlock(ctx, s) {
-  const res = s.result || {};
-  const plots = h("div", { class: "plots", "aria-live": "polite" }, h("p", { class: "muted" }, "Open to load the plots…"));
-  const checks = h("ul", { class: "checks" }, (s.checks || []).map((c) => h("li", { class: c.ok ? "ok" : "bad" },
-    icon(c.ok ? "check" : "cross"), h("span", { class: "check-state" }, c.ok ? "within" : "outside"), h("span", null, c.text))));
-  const turns = Object.values(s.turns || {});
-  const q = res.quality || {};
-  const facts = [
-    ["Protocol", q.protocol ? `${q.protocol.found.summary} (found: ${q.protocol.found.name}; used: ${q.protocol.used})` : null],
-    ["Method", res.method || s.method],
-    ["Samples", s.samples != null ? `${s.samples} at ${num(s.sample_rate_hz || res.sample_rate_hz, 1)} Hz` : res.n_samples],
-    ["Lost on the radio link", s.lost_samples != null ? `${s.lost_samples} samples` : null],
-    ["Noise at rest", res.noise_dps ? `${res.noise_dps.map((v) => num(v, 3)).join(" / ")} °/s (X / Y / Z)` : null],
-    ["Fit", q.chi2 != null && q.dof ? `χ²/dof = ${num(q.chi2 / q.dof, 2)} (${q.dof} dof)` : null],
-    ["Gravity after each re-orientation", q.gravity_residual_rms_deg != null
-      ? `${num(q.gravity_residual_rms_deg, 2)}° rms over ${(q.gravity_residual_deg || []).length} motions` : null],
-    ["g-sensitivity", gSensitivityText(q.g_sensitivity, res.G)],
-  ].filter(([, v]) => v !== null && v !== undefined);
-  const det = h("details", { class: "details" },
-    h("summary", null, "Details: values, checks, plots and model check"),
-    h("div", { class: "details-body" },
-      h("div", { class: "details-grid" },
-        h("div", null, h("h2", null, "Values"), paramTable(res.k || [], res.b || [], res.uncertainty),
-          h("p", { class: "muted" }, "± is one standard deviation: the uncertainty of each value.")),
-        h("div", null, h("h2", null, "Checks"), checks)),
-      turns.length ? h("div", null, h("h2", null, "Turns"), h("table", { class: "turns" },
-        h("thead", null, h("tr", null, ["Turn", "Measured before calibration", "Duration", "Rest before"].map((t) => h("th", { scope: "col" }, t)))),
-        h("tbody", null, turns.map((t) => h("tr", null,
-          h("th", { scope: "row" }, AXIS_LABEL[t.axis]),
-          h("td", null, `${num(Math.abs(t.angle_deg["xyz".indexOf(t.axis)]), 0)}°`),
-          h("td", null, `${num(t.duration_s, 1)} s`),
-          h("td", null, `${num(t.rest_before_s, 1)} s`)))))) : null,
-      h("dl", { class: "facts" }, facts.map(([k, v]) => h("div", null, h("dt", null, k), h("dd", null, String(v))))),
-      h("h2", null, "Before and after calibration"),
-      plots,
-      h("p", null, h("a", { class: "download", href: `/sessions/${s.session_id}/recording`, download: `${s.session_id}.csv` }, "Download the raw recording (CSV)")),
-      modelCheckPanel(ctx, s.session_id)));
-  let loaded = false;
-  det.addEventListener("toggle", async () => {
-    if (!det.open || loaded) return;
-    loaded = true;
-    try {
-      const tr = await ctx.api.get(`/sessions/${s.session_id}/plot`, { max_points: 700 });
-      fill(plots, calibrationPlots(tr));
-    } catch (err) {
-      loaded = false;
-      fill(plots, notice("warn", "warn", `The plots could not be loaded: ${err.network ? "the service cannot be reached" : err.detail}`));
-    }
-  });
-  return det;
 }

@@ -15,7 +15,7 @@ from pydantic import ValidationError
 from sqlalchemy.exc import SQLAlchemyError
 
 from calib import __version__
-from calib.acceptance import evaluate
+from calib.acceptance import evaluate, turn_accuracy
 from calib.json_safe import finite
 
 from ... import schemas as M
@@ -392,6 +392,7 @@ async def calibrate_uploaded(
         "state": "done" if passed else "failed",
         "passed": passed,
         "checks": checks,
+        "accuracy": turn_accuracy(result),
         "reason": reason,
         "recording_sha256": digest,
     }

@@ -1,0 +1,76 @@
+"""A simulated clinician's eyes: the session events of one wearable, read over HTTP as the page reads them.
+
+``SessionFollower`` runs in a thread of its own. It asks the service which session its wearable is in
+(``GET /devices/{id}``), follows that session's Server-Sent Events (``GET /sessions/{sid}/events``) and hands
+every snapshot to a callback, until the session ends; then it waits for the next one. The service's address
+comes from a callable because a service learns its port only once it listens.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import httpx
+
+END_STATES = {"done", "failed", "cancelled"}
+POLL_S = 0.2  # between looks for the wearable's next session
+
+
+class SessionFollower:
+    """Follows the sessions of ``device_id`` on the service at ``base_url()`` and calls ``on_snapshot`` with each."""
+
+    def __init__(self, device_id: str, on_snapshot: Callable[[dict[str, Any]], None], base_url: Callable[[], str | None]) -> None:
+        self.device_id = device_id
+        self.on_snapshot = on_snapshot
+        self.base_url = base_url
+        token = os.environ.get("GYROCAL_API_TOKEN")  # needed only when the service asks a token for reads
+        self.headers = {"Authorization": f"Bearer {token}"} if token else {}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=f"follow-{device_id}", daemon=True)
+
+    def start(self) -> SessionFollower:
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def _run(self) -> None:
+        done: set[str] = set()
+        while not self._stop.is_set():
+            base = self.base_url()
+            sid = None
+            if base:
+                try:
+                    sid = self._active_session(base)
+                    if sid and sid not in done:
+                        self._follow(base, sid)
+                        done.add(sid)
+                except (httpx.HTTPError, ValueError):
+                    pass  # the service is starting or stopping: look again
+            self._stop.wait(POLL_S)
+
+    def _active_session(self, base: str) -> str | None:
+        r = httpx.get(f"{base}/devices/{self.device_id}", headers=self.headers, timeout=5.0)
+        return r.json().get("active_session") if r.status_code == 200 else None
+
+    def _follow(self, base: str, sid: str) -> None:
+        """Hand each snapshot of the session to the callback until it ends (or the stream closes)."""
+        deadline = time.monotonic() + 3600.0
+        with httpx.stream("GET", f"{base}/sessions/{sid}/events", headers=self.headers, timeout=httpx.Timeout(30.0)) as r:
+            if r.status_code != 200:
+                return
+            for line in r.iter_lines():
+                if self._stop.is_set() or time.monotonic() > deadline:
+                    return
+                if not line.startswith("data:"):
+                    continue
+                snap = json.loads(line[5:])
+                self.on_snapshot(snap)
+                if snap.get("state") in END_STATES:
+                    return

@@ -1,0 +1,70 @@
+// What a result means for the study, in a clinician's words: ready or not, how much better the device now
+// measures a turn, and which value passed close to its limit. The engineer's values stay in the details.
+
+import { AXIS_LABEL, h, num } from "./dom.js";
+import { icon } from "./figures.js";
+
+const ax = (a) => AXIS_LABEL[a] || String(a || "").toUpperCase();
+
+/** Degrees people read: 0.01° and 0.2° with their decimals, 59° without. */
+function degrees(v) {
+  if (typeof v !== "number" || !Number.isFinite(v)) return "—";
+  if (v < 0.095) return `${num(Math.max(v, 0.01), 2)}°`;
+  if (v < 9.5) return `${num(v, 1)}°`;
+  return `${num(v, 0)}°`;
+}
+
+/** "within 0.01° per full turn; before this calibration a full turn read up to 59° wrong" */
+export function accuracySentence(acc, dev) {
+  if (!acc) return null;
+  return `${dev} now measures a full turn to within ${degrees(acc.after_deg)}; before this calibration it was up to ${degrees(acc.before_deg)} off.`;
+}
+
+/** A few words for a check that passed close to its limit. */
+function nearLimitText(c) {
+  const a = ax(c.axis);
+  switch (c.name) {
+    case "k": {
+      const limit = Math.round(Math.max(Math.abs(c.limit[0] - 1), Math.abs(c.limit[1] - 1)) * 100);
+      return `The ${a} axis ${c.value >= 1 ? "over" : "under"}-reads by ${Math.round(Math.abs(c.value - 1) * 100)} % (at most ${limit} % is allowed).`;
+    }
+    case "b":
+      return `The ${a} axis reads ${num(Math.abs(c.value), 1)} °/s while still (at most ${num(c.limit, 0)} °/s is allowed).`;
+    case "k_std":
+    case "b_std":
+      return `The ${a} axis's value is less certain than usual: smoother turns give a firmer result.`;
+    case "closure":
+      return `Turn ${a} did not bring the device back exactly to its start (${degrees(c.value)}; at most ${degrees(c.limit)} is allowed).`;
+    default:
+      return c.text;
+  }
+}
+
+/** The checks that passed within 20 % of their limit. */
+export function nearLimits(checks) {
+  return (checks || []).filter((c) => c.ok && c.near_limit);
+}
+
+/** The PASS or FAIL screen's plain summary: ``ready`` (ready or not, for the verdict box) and ``parts`` (the
+ * accuracy gained and the values near a limit, under it). */
+export function readiness(s, dev, pass) {
+  const near = pass ? nearLimits(s.checks) : [];
+  const sensorNear = near.some((c) => c.name === "k" || c.name === "b");
+  const ready = h("p", { class: `ready ${pass ? (near.length ? "caution" : "yes") : "no"}` },
+    icon(pass ? (near.length ? "warn" : "check") : "cross"),
+    pass ? (near.length ? "Ready for the study, with a caution" : "Ready for the study") : "Not ready for the study");
+  const accuracy = pass ? accuracySentence(s.accuracy, dev) : null;
+  return {
+    near,
+    ready,
+    parts: [
+      accuracy ? h("p", { class: "accuracy" }, accuracy) : null,
+      near.length ? h("div", { class: "near-limits", role: "note" },
+        h("p", { class: "near-title" }, icon("warn"), near.length === 1 ? "One value is close to its limit" : `${near.length} values are close to their limits`),
+        h("ul", null, near.map((c) => h("li", { dataset: { check: `${c.name}:${c.axis || ""}` } }, nearLimitText(c)))),
+        h("p", { class: "near-next" }, sensorNear
+          ? "The calibration corrects this. If a later calibration fails, have the device checked."
+          : "Redo the calibration if you can; otherwise the result may be used.")) : null,
+    ],
+  };
+}
