@@ -12,14 +12,23 @@ from .recording import Recording
 from .section import Section
 
 
-def add_recording_arguments(p: argparse.ArgumentParser) -> None:
-    """``file`` and the options that say how to read it and what protocol it holds."""
+def add_reading_arguments(p: argparse.ArgumentParser) -> None:
+    """``file`` and the options that say how to read it (layout, sample rate, raw-count sensitivities)."""
     p.add_argument("file", type=Path, help="native CSV (t,gx,gy,gz,...) or imucal layout (gyr_x,...)")
     p.add_argument("--fs", type=float, default=None, help="sample rate in Hz (required when the file has no time column)")
     p.add_argument("--layout", choices=["auto", "native", "imucal", "imu_tk"], default="auto",
                    help="CSV layout (default: detect from header); imu_tk: FILE is imu_tk's gyroscope file, --accel its "
                         "accelerometer file")
     p.add_argument("--accel", type=Path, default=None, help="with --layout imu_tk: the accelerometer file")
+    p.add_argument("--gyro-counts-per-dps", type=float, default=None, metavar="C",
+                   help="the file holds raw counts: the gyro's sensitivity in counts per deg/s (e.g. 16.4 at +-2000 deg/s)")
+    p.add_argument("--accel-counts-per-g", type=float, default=None, metavar="C",
+                   help="the file holds raw counts: the accelerometer's sensitivity in counts per g (e.g. 2048 at +-16 g)")
+
+
+def add_recording_arguments(p: argparse.ArgumentParser) -> None:
+    """``file``, how to read it, and what protocol it holds."""
+    add_reading_arguments(p)
     p.add_argument("--protocol", choices=list(PROTOCOLS), default="auto",
                    help="auto (default): the protocol recognised in the recording; paper: rests and full turns about x, y, z; "
                         "ferraris: six static poses and three turns; multi-position: re-orientations between rests, with the "
@@ -27,10 +36,6 @@ def add_recording_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sections", type=Path, default=None, metavar="FILE",
                    help="imucal's section list (JSON: {\"x_p\": {\"start\": 540, \"end\": 1271}, ...}, sample positions, end "
                         "exclusive) used instead of stage detection; a file's own 'part' column is used without it")
-    p.add_argument("--gyro-counts-per-dps", type=float, default=None, metavar="C",
-                   help="the file holds raw counts: the gyro's sensitivity in counts per deg/s (e.g. 16.4 at +-2000 deg/s)")
-    p.add_argument("--accel-counts-per-g", type=float, default=None, metavar="C",
-                   help="the file holds raw counts: the accelerometer's sensitivity in counts per g (e.g. 2048 at +-16 g)")
 
 
 def read_recording_args(args: argparse.Namespace) -> Recording:

@@ -142,7 +142,7 @@ def register_operator(sub: Any) -> None:
 
 
 # -- operator ------------------------------------------------------------------------------------
-def _store(url: str | None) -> Any:
+def open_store(url: str | None) -> Any:
     from .config import default_db_url
     from .store import Store, StoreError
 
@@ -162,7 +162,7 @@ def _read_secret() -> str:
 def _auth(args: argparse.Namespace) -> Any:
     from .auth import Authenticator
 
-    return Authenticator(_store(args.db))
+    return Authenticator(open_store(args.db))
 
 
 def cmd_operator_add(args: argparse.Namespace) -> int:
@@ -218,7 +218,7 @@ def cmd_operator_remove(args: argparse.Namespace) -> int:
     from .store import StoreError
 
     try:
-        _store(args.db).disable_operator(args.name)
+        open_store(args.db).disable_operator(args.name)
     except StoreError as exc:
         raise ServiceError(str(exc)) from None
     print(f"operator {args.name} removed")
@@ -226,7 +226,7 @@ def cmd_operator_remove(args: argparse.Namespace) -> int:
 
 
 def cmd_operator_list(args: argparse.Namespace) -> int:
-    ops = _store(args.db).operators()
+    ops = open_store(args.db).operators()
     if not ops:
         print("no operators yet: add one with `gyrocal operator add NAME`")
     for op in ops:

@@ -59,6 +59,16 @@ def check_upload(body: bytes, layout: str) -> None:
         raise problem(400, "the CSV body is empty: send a recording (header t,gx,gy,gz,... or gyr_x,gyr_y,gyr_z,...)")
 
 
+async def read_csv_body(request: Request) -> bytes:
+    """The request's body, which must be a CSV recording (415 otherwise)."""
+    ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    body = await request.body()
+    if ctype not in CSV_TYPES:
+        raise problem(415, f"send the recording as CSV (Content-Type: text/csv), native (t,gx,gy,gz,...) or imucal layout; "
+                       f"got {ctype or 'no content type'}")
+    return body
+
+
 def service_of(request: Request) -> Service:
     return request.app.state.service
 

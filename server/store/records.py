@@ -30,6 +30,7 @@ class CalibrationRecord(BaseModel):
     k: list[float] = Field(description="scale factors k_x, k_y, k_z of g = K m + b")
     b: list[float] = Field(description="biases b_x, b_y, b_z in deg/s of true rate")
     K: list[list[float]] | None = Field(None, description="the full 3x3 K of the extended model; None: K = diag(k)")
+    G: list[list[float]] | None = Field(None, description="the g-sensitivity of g = K (m - G a) + b, (deg/s)/g; None: not modelled")
     uncertainty: dict[str, Any] | None
     quality: dict[str, Any] | None
     method: str
@@ -72,6 +73,7 @@ def calibration_record(row: CalibrationRow) -> CalibrationRecord:
         k=[row.k_x, row.k_y, row.k_z],
         b=[row.b_x, row.b_y, row.b_z],
         K=(row.result or {}).get("K"),
+        G=(row.result or {}).get("G"),
         uncertainty=row.uncertainty,
         quality=row.quality,
         method=row.method,

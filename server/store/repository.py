@@ -14,7 +14,7 @@ import gzip
 import io
 from collections.abc import Iterator
 from contextlib import contextmanager
-from datetime import datetime
+from datetime import UTC, datetime
 from typing import Any, cast
 
 from sqlalchemy import CursorResult, delete, func, select, update
@@ -430,12 +430,13 @@ class Store:
             self._audit(s, operator, "calibration.accept", row.device_id, session_id, {"calibration_id": cal.id})
             return calibration_record(cal)
 
-    def current_calibration(self, device_id: str) -> CalibrationRecord | None:
+    def current_calibration(self, device_id: str, at: datetime | None = None) -> CalibrationRecord | None:
+        """The device's latest accepted calibration; with ``at``, the latest one accepted at or before that time."""
         with self._read() as s:
-            row = s.execute(
-                select(CalibrationRow).where(CalibrationRow.device_id == device_id)
-                .order_by(CalibrationRow.accepted_at.desc(), CalibrationRow.id.desc()).limit(1)
-            ).scalar_one_or_none()
+            q = select(CalibrationRow).where(CalibrationRow.device_id == device_id)
+            if at is not None:  # in UTC, as every time is written (SQLite compares the text)
+                q = q.where(CalibrationRow.accepted_at <= aware(at).astimezone(UTC))
+            row = s.execute(q.order_by(CalibrationRow.accepted_at.desc(), CalibrationRow.id.desc()).limit(1)).scalar_one_or_none()
             return None if row is None else calibration_record(row)
 
     def calibration(self, calibration_id: int) -> CalibrationRecord | None:

@@ -167,3 +167,14 @@ class ComputePool:
             # the workers are idle or finishing one short job
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
+
+
+def apply_upload(body: bytes, fs: float | None, layout: str, source: str, max_samples: int, options: UploadOptions | None,
+                 calibration: dict[str, Any]) -> tuple[bytes, bool]:
+    """An uploaded CSV corrected by a calibration (its JSON form): (native CSV, whether the accelerometer was corrected
+    too); raises calib's errors."""
+    from calib.correction import Correction, corrected
+
+    rec = parse_upload(body, fs, layout, source, max_samples, options)
+    correction = Correction.from_json(calibration)
+    return recording_csv(corrected(rec, correction)), correction.A is not None and rec.accel is not None

@@ -11,6 +11,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from webui_fixtures import (
     OPERATOR,
@@ -23,6 +24,9 @@ from webui_fixtures import (
     upload_accepted,
     watched_page,
 )
+
+from calib.io import read_recording, write_native_csv
+from calib.simulator import simulate
 
 VIEWS = {"1280x800": {"width": 1280, "height": 800}, "820x1180": {"width": 820, "height": 1180}}
 
@@ -226,6 +230,28 @@ def test_the_history_table_keeps_each_value_and_date_on_one_line(hand_wizard: Wi
       .map((el) => el.textContent)""")
     assert broken == [], broken
     assert w.page.locator("table.calibrations tbody tr").count() == 2
+    # the calibration in force at a moment: none before the first, the latest one later on, with its age warned of
+    w.page.fill("#in-force-at", "2001-01-01T10:00:00")
+    w.page.click("form.in-force button")
+    w.page.wait_for_selector(".in-force-out:has-text('had been accepted by then')")
+    w.page.fill("#in-force-at", "2099-01-01T10:00:00")
+    w.page.click("form.in-force button")
+    w.page.wait_for_selector(".in-force-answer")
+    with api(hand_service) as c:
+        newest = c.get("/devices/bench-unit-9/calibration").json()
+    assert f"Calibration #{newest['id']} (row 1 below)" in w.text(".in-force-answer")
+    assert "more than the 30 days allowed" in w.text(".in-force-out")
+    # a study recording corrected by the calibration in force, downloaded from the page
+    rec, _ = simulate(12, noise=0.03)
+    study = Path(w.shots) / "study.csv"
+    write_native_csv(rec, study)
+    w.page.set_input_files("#apply-file", str(study))
+    w.page.click("form.apply button")
+    w.page.wait_for_selector(f"form.apply .in-force-answer:has-text('Corrected with calibration #{newest['id']}')")
+    with w.page.expect_download() as dl:
+        w.page.click("form.apply a.download")
+    got = read_recording(dl.value.path())
+    assert np.allclose(got.gyro, rec.gyro @ np.diag(newest["k"]).T + np.asarray(newest["b"]), atol=1e-9)
     w.shot("history")
     assert_clean(page_watch)
 

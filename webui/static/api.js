@@ -30,7 +30,8 @@ export class Api {
     return Boolean(this.token);
   }
 
-  async request(method, path, { json, csv, query, signingIn = false } = {}) {
+  /** One request; the parsed JSON answer (or, with raw, {text, headers} of a successful one). */
+  async request(method, path, { json, csv, query, signingIn = false, raw = false } = {}) {
     const url = new URL(path, location.origin);
     for (const [k, v] of Object.entries(query || {})) if (v !== undefined && v !== null) url.searchParams.set(k, v);
     const headers = { Accept: "application/json" };
@@ -50,6 +51,7 @@ export class Api {
       throw new ApiError(0, "The gyrocal service cannot be reached.", path);
     }
     if (res.status === 204) return null;
+    if (raw && res.ok) return { text: await res.text(), headers: res.headers };
     let body = null;
     try {
       body = await res.json();

@@ -1,7 +1,7 @@
 // How each turn is made, for someone who has never done it: the table and the block seen from above, the
 // device on it, where the two hands hold it and which way it goes round; with the same in three short steps.
 
-import { AXIS_LABEL, h, s } from "./dom.js";
+import { s } from "./dom.js";
 
 /** What to do for each turn, in plain words: where to hold, how to turn, where to put it back. */
 export const TURN_STEPS = {
@@ -94,12 +94,4 @@ export function turnGuide(axis, { small = false } = {}) {
   }
   const label = `${TURN_SUMMARY[axis]}: ${TURN_STEPS[axis].join(" ")}`;
   return s("svg", { viewBox: "0 0 360 280", class: `turn-guide turn-guide-${axis}`, role: "img", "aria-label": label }, ...parts);
-}
-
-/** The turn's picture with its three steps beneath, numbered. */
-export function turnHowTo(axis) {
-  return h("div", { class: "how-to" },
-    turnGuide(axis),
-    h("ol", { class: `how-steps ax-${axis}` }, TURN_STEPS[axis].map((t) => h("li", null, t))),
-    h("p", { class: `axis-caption ax-${axis}` }, `Turn about ${AXIS_LABEL[axis]}`));
 }

@@ -3,7 +3,7 @@
 
 import { AXES, AXIS_LABEL, fill, fmtDate, fmtDateTime, fmtTime, h, num, parseTime, sig } from "./dom.js";
 import { icon } from "./figures.js";
-import { reasonFor } from "./messages.js";
+import { problemLine, reasonFor } from "./messages.js";
 import { historyChart } from "./plots.js";
 
 const MARKERS = { x: "circle", y: "square", z: "triangle" };
@@ -41,7 +41,7 @@ function calibrationTable(cals) {
     unc ? h("span", { class: "pm" }, ` ±${sig(unc[j], uDigits)}`) : null));
   return h("table", { class: "history calibrations" },
     h("caption", null, "Accepted calibrations, newest first"),
-    h("thead", null, h("tr", null, ["Accepted", "By, how", "Scale factors k (X, Y, Z)", "Biases b, °/s (X, Y, Z)", "Recording"].map((c) => h("th", { scope: "col" }, c)))),
+    h("thead", null, h("tr", null, ["Accepted", "By, how", "Scale factors k (X, Y, Z)", "Biases b, °/s (X, Y, Z)", "Files"].map((c) => h("th", { scope: "col" }, c)))),
     h("tbody", null, cals.map((c, i) => h("tr", { class: i === 0 ? "current" : "" },
       h("td", null, when(c.accepted_at), i === 0 ? h("span", { class: "badge" }, icon("check"), "current") : null),
       h("td", { class: "source" }, h("strong", null, c.operator),
@@ -49,7 +49,10 @@ function calibrationTable(cals) {
         c.sensor_model ? h("span", { class: "how" }, `${c.sensor_model}${c.firmware ? `, firmware ${c.firmware}` : ""}`) : null),
       h("td", { class: "num" }, values(c.k, c.uncertainty && c.uncertainty.k, 4, 1)),
       h("td", { class: "num" }, values(c.b, c.uncertainty && c.uncertainty.b, 3, 1)),
-      h("td", null, c.recording_sha256 ? h("a", { href: `/sessions/${c.session_id}/recording`, download: `${c.session_id}.csv` }, "CSV") : "—")))));
+      h("td", null, h("div", { class: "files" },
+        c.recording_sha256 ? h("a", { href: `/sessions/${c.session_id}/recording`, download: `${c.session_id}.csv`, title: "the raw recording" }, "recording") : null,
+        h("a", { href: `/calibrations/${c.id}?format=imucal`, download: `${c.device_id}-calibration-${c.id}.imucal.json`, title: "for imucal's load_calibration_info" }, "imucal"),
+        h("a", { href: `/calibrations/${c.id}?format=csv`, download: `${c.device_id}-calibration-${c.id}.csv`, title: "k, b (and K, G) with their uncertainties" }, "CSV")))))));
 }
 
 function sessionTable(sessions) {
@@ -64,6 +67,80 @@ function sessionTable(sessions) {
         h("td", null, sess.operator || "—"),
         h("td", null, sess.kind === "upload" ? "uploaded recording" : "guided"));
     })));
+}
+
+/** "Which calibration was in force at…": a moment in, the calibration the service says was in force then out. */
+function inForceForm(ctx, deviceId, cals) {
+  const input = h("input", { id: "in-force-at", type: "datetime-local", step: "1", required: true });
+  const out = h("div", { class: "in-force-out", "aria-live": "polite" });
+  const ask = h("button", { class: "button", type: "submit" }, icon("search"), "Find");
+  const form = h("form", { class: "in-force" },
+    h("label", { for: "in-force-at" }, "Which calibration was in force at"), input, ask, out);
+  form.addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    const when = input.value ? new Date(input.value) : null;
+    if (!when || Number.isNaN(when.getTime())) {
+      fill(out, h("p", { class: "form-error" }, icon("warn"), h("span", null, "Choose a date and a time.")));
+      return;
+    }
+    const first = Math.min(...cals.map((c) => parseTime(c.accepted_at).getTime()));
+    if (when.getTime() < first) {
+      // known from the list already: no need to ask the service for what it would answer 404
+      fill(out, h("p", { class: "form-error" }, icon("warn"), h("span", null, `No calibration of ${deviceId} had been accepted by then.`)));
+      return;
+    }
+    try {
+      const cal = await ctx.api.get(`/devices/${encodeURIComponent(deviceId)}/calibration`, { at: when.toISOString() });
+      const n = cals.findIndex((c) => c.id === cal.id);
+      const age = cal.in_force.age_days;
+      fill(out, h("p", { class: "in-force-answer" }, icon("check"),
+        h("span", null, `Calibration #${cal.id}${n >= 0 ? ` (row ${n + 1} below)` : ""}, accepted by ${cal.operator} on ${fmtDateTime(cal.accepted_at)}: `,
+          `${age < 1 ? `${num(age * 24, 1)} hours` : `${num(age, 1)} days`} old then.`)),
+        cal.in_force.warnings.map((w) => h("p", { class: "form-error" }, icon("warn"), h("span", null, w))));
+    } catch (err) {
+      if (err.status === 401) return;
+      fill(out, h("p", { class: "form-error" }, icon("warn"), h("span", null, err.status === 404 ? `No calibration of ${deviceId} had been accepted by then.` : problemLine(err))));
+    }
+  });
+  return form;
+}
+
+/** "Correct a study recording": a CSV in, the recording corrected by the calibration in force when it was made out. */
+function applyForm(ctx, deviceId) {
+  const file = h("input", { id: "apply-file", type: "file", accept: ".csv,text/csv", required: true });
+  const when = h("input", { id: "apply-at", type: "datetime-local", step: "1" });
+  const out = h("div", { class: "in-force-out", "aria-live": "polite" });
+  const go = h("button", { class: "button", type: "submit" }, icon("save"), "Correct");
+  const form = h("form", { class: "in-force apply" },
+    h("label", { for: "apply-file" }, "Correct a study recording (CSV)"), file,
+    h("label", { for: "apply-at" }, "recorded at"), when, go, out);
+  let url = null;
+  form.addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    const f = file.files && file.files[0];
+    if (!f) {
+      fill(out, h("p", { class: "form-error" }, icon("warn"), h("span", null, "Choose the recording's CSV file.")));
+      return;
+    }
+    go.disabled = true;
+    try {
+      const at = when.value ? new Date(when.value).toISOString() : undefined;
+      const res = await ctx.api.request("POST", `/devices/${encodeURIComponent(deviceId)}/apply`, { csv: await f.text(), query: { at }, raw: true });
+      if (url) URL.revokeObjectURL(url);
+      url = URL.createObjectURL(new Blob([res.text], { type: "text/csv" }));
+      const name = f.name.replace(/\.csv$/i, "") + ".calibrated.csv";
+      const warnings = JSON.parse(res.headers.get("X-Gyrocal-Warnings") || "[]");
+      fill(out, h("p", { class: "in-force-answer" }, icon("check"), h("span", null,
+        `Corrected with calibration #${res.headers.get("X-Gyrocal-Calibration-Id")} (${res.headers.get("X-Gyrocal-Corrected")}). `,
+        h("a", { class: "download", href: url, download: name }, `Download ${name}`))),
+      warnings.map((w) => h("p", { class: "form-error" }, icon("warn"), h("span", null, w))));
+    } catch (err) {
+      if (err.status !== 401) fill(out, h("p", { class: "form-error" }, icon("warn"), h("span", null, problemLine(err))));
+    } finally {
+      go.disabled = false;
+    }
+  });
+  return form;
 }
 
 export function historyView(ctx, deviceId) {
@@ -99,7 +176,7 @@ export function historyView(ctx, deviceId) {
     fill(body,
       h("p", { class: `current-line ${cur ? "calibrated" : "never"}` }, icon(cur ? "check" : "info"),
         h("span", null, cur ? `Current calibration: accepted by ${cur.operator} on ${fmtDateTime(cur.accepted_at)}.` : `${name} has no accepted calibration yet.`)),
-      cals.length ? [parameterCharts(cals), calibrationTable(cals)] : null,
+      cals.length ? [parameterCharts(cals), calibrationTable(cals), inForceForm(ctx, deviceId, cals), applyForm(ctx, deviceId)] : null,
       sessions.length ? sessionTable(sessions) : h("p", { class: "muted" }, "No calibration attempts yet."),
       dev.available && !dev.active_session ? h("div", { class: "actions" }, h("a", { class: "button primary big", href: `#/place/${encodeURIComponent(deviceId)}` }, icon("play"), `Calibrate ${name}`)) : null);
   })();

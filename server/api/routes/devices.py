@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+from datetime import datetime
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query
@@ -20,8 +21,8 @@ from ...deps import (
     check_device_id,
     problem,
 )
+from ...lifecycle import CalibrationInForce, in_force_async
 from ..views import (
-    current_calibration_of,
     device_out,
     session_snapshot,
     stored_snapshot,
@@ -66,14 +67,19 @@ async def get_device(svc: Svc, device_id: str, _: Reader) -> dict[str, Any]:
     return await device_out(svc, dev, row, detail=True)
 
 
-@router.get("/devices/{device_id}/calibration", response_model=M.CalibrationRecord, responses=R404, tags=["calibrations"])
-async def current_calibration(svc: Svc, device_id: str, _: Reader) -> dict[str, Any]:
-    """The device's current calibration: its latest accepted one."""
+@router.get("/devices/{device_id}/calibration", response_model=CalibrationInForce, responses=R404, tags=["calibrations"])
+async def current_calibration(
+    svc: Svc, device_id: str, _: Reader,
+    at: Annotated[datetime | None, Query(description="ISO 8601 time (UTC unless it carries an offset); default now")] = None,
+) -> dict[str, Any]:
+    """The calibration in force: the device's latest accepted one, or with ``at`` the latest accepted at or before
+    that moment; ``in_force`` says how old it was then and warns past the service's age limit."""
     check_device_id(device_id)
-    cur = await current_calibration_of(svc, device_id)
+    cur = await in_force_async(svc.store, device_id, at, svc.settings.calibration_max_age_days)
     if cur is None:
-        raise problem(404, f"device {device_id!r} has no accepted calibration yet")
-    return cur
+        when = "yet" if at is None else f"by {at.isoformat()}"
+        raise problem(404, f"device {device_id!r} has no accepted calibration {when}")
+    return cur.model_dump(mode="json")
 
 
 @router.get("/devices/{device_id}/calibrations", response_model=list[M.CalibrationRecord], responses=R404, tags=["calibrations"])

@@ -21,13 +21,13 @@ from calib.errors import RecordingTooLong
 from calib.json_safe import finite
 
 from ...deps import (
-    CSV_TYPES,
     AnalysisReader,
     Reader,
     Svc,
     check_session_id,
     check_upload,
     problem,
+    read_csv_body,
     recording_problem,
 )
 from ...schemas import Problem
@@ -170,15 +170,6 @@ def _upload_args(body: bytes, fs: float | None, layout: str, max_samples: int, u
     return key, (body, fs, layout, "uploaded recording", max_samples, None, None, upload, "uploaded recording")
 
 
-async def _body(request: Request) -> bytes:
-    ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
-    body = await request.body()
-    if ctype not in CSV_TYPES:
-        raise problem(415, f"send the recording as CSV (Content-Type: text/csv), native (t,gx,gy,gz,...) or imucal layout; "
-                       f"got {ctype or 'no content type'}")
-    return body
-
-
 async def _session_source(svc: Service, sid: str) -> tuple[str, dict[str, Any] | None, str | None]:
     """(cache key, stored session row, recording SHA-256) of an ended session with a recording; 404/409 otherwise."""
     check_session_id(sid)
@@ -274,7 +265,7 @@ async def diagnose_upload(
 ) -> JSONResponse:
     """Compare an uploaded recording with its simulation: where it departs, which physical effect
     explains it, how much the fit improves (as `gyrocal diagnose --json`). Nothing is stored."""
-    key, args = _upload_args(await _body(request), fs, layout, svc.settings.max_diagnose_samples, upload)
+    key, args = _upload_args(await read_csv_body(request), fs, layout, svc.settings.max_diagnose_samples, upload)
     d, _, kept = await diag.run(key, args, report=False, upload=True)
     return _json(d, kept)
 
@@ -286,7 +277,7 @@ async def diagnose_upload_report(
     svc: Svc, diag: Diag, request: Request, _: AnalysisReader, upload: Upload, fs: Fs = None, layout: Layout = "auto"
 ) -> HTMLResponse:
     """The HTML report of an uploaded recording's model check (as `gyrocal diagnose --report`)."""
-    key, args = _upload_args(await _body(request), fs, layout, svc.settings.max_diagnose_samples, upload)
+    key, args = _upload_args(await read_csv_body(request), fs, layout, svc.settings.max_diagnose_samples, upload)
     _d, html, kept = await diag.run(key, args, report=True, upload=True)
     return _html(html, kept)
 

@@ -1,0 +1,170 @@
+"""`gyrocal calibration DEVICE [--at TIME]`: the calibration in force for a device at a moment, from the store;
+`gyrocal apply RECORDING (--device ID | --calibration FILE)`: a recording corrected by a calibration (plugged into
+calib's CLI)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+from .cli import EXIT_OK, ServiceError, open_store
+
+EXIT_NONE = 5  # no calibration had been accepted by then
+
+
+def register(sub: Any) -> None:
+    """Add `gyrocal calibration`."""
+    p = sub.add_parser(
+        "calibration",
+        help="the calibration in force for a device at a moment (default now), with its age and warnings",
+        description="Print, as JSON, the device's calibration in force at --at: the latest one accepted at or before "
+        "that moment, with in_force {at, age_days, warnings}. Exit 5 when none had been accepted by then.",
+    )
+    p.add_argument("device", help="the device's id, as in `gyrocal serve`'s device list")
+    p.add_argument("--at", default=None, metavar="TIME", help="ISO 8601 time, e.g. 2026-11-20T14:30 (UTC unless it carries an offset)")
+    p.add_argument("--db", default=None, metavar="URL", help="the store's URL (default as for `gyrocal serve`)")
+    p.add_argument("--max-age-days", type=float, default=30.0, metavar="DAYS", help="warn when the calibration is older (default 30)")
+    p.set_defaults(func=cmd_calibration)
+
+
+def cmd_calibration(args: argparse.Namespace) -> int:
+    from .lifecycle import in_force
+
+    at = _parse_at(args.at)
+    if not args.max_age_days > 0:
+        raise ServiceError("--max-age-days must be a positive number of days")
+    cal = in_force(open_store(args.db), args.device, at, args.max_age_days)
+    if cal is None:
+        when = "yet" if at is None else f"by {args.at}"
+        print(f"gyrocal: device {args.device!r} has no accepted calibration {when}")
+        return EXIT_NONE
+    print(json.dumps(cal.model_dump(mode="json"), indent=2))
+    return EXIT_OK
+
+
+def register_apply(sub: Any) -> None:
+    """Add `gyrocal apply`."""
+    from calib.cli_input import add_reading_arguments
+
+    p = sub.add_parser(
+        "apply",
+        help="correct a recording with a calibration: the device's in force (--device) or one from a file (--calibration)",
+        description="Write FILE corrected by a calibration (g = K (m - G a) + b for the gyroscope; the accelerometer's "
+        "model too when the calibration has one) as native CSV, with a JSON sidecar OUT.calibration.json naming the "
+        "calibration used and its warnings. --device takes the device's calibration in force at --at (default now) "
+        "from the store; --calibration FILE takes gyrocal's calibration JSON ({\"k\": [..], \"b\": [..]} at least) or an "
+        "imucal calibration file.",
+    )
+    add_reading_arguments(p)
+    which = p.add_mutually_exclusive_group(required=True)
+    which.add_argument("--device", default=None, metavar="ID", help="the device whose calibration in force is applied")
+    which.add_argument("--calibration", type=Path, default=None, metavar="FILE", help="gyrocal's calibration JSON or imucal's")
+    p.add_argument("--at", default=None, metavar="TIME", help="with --device: when the recording was made (ISO 8601; default now)")
+    p.add_argument("--db", default=None, metavar="URL", help="with --device: the store's URL (default as for `gyrocal serve`)")
+    p.add_argument("--max-age-days", type=float, default=30.0, metavar="DAYS", help="warn when the calibration is older (default 30)")
+    p.add_argument("-o", "--output", type=Path, default=None, metavar="OUT",
+                   help="the corrected CSV (default: FILE's name with .calibrated.csv)")
+    p.set_defaults(func=cmd_apply)
+
+
+def _read_calibration_file(path: Path) -> Any:
+    from calib.correction import Correction, CorrectionFileError
+
+    try:
+        return Correction.from_json(json.loads(path.read_text(encoding="utf-8")))
+    except FileNotFoundError:
+        raise ServiceError(f"{path} does not exist; give the path of a calibration JSON file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ServiceError(f"{path} cannot be read ({exc}); give gyrocal's or imucal's calibration JSON") from None
+    except json.JSONDecodeError as exc:
+        raise ServiceError(f"{path} is not JSON ({exc.msg} at line {exc.lineno}); give gyrocal's or imucal's calibration file") from None
+    except CorrectionFileError as exc:
+        raise ServiceError(f"{path}: {exc}") from None
+
+
+def cmd_apply(args: argparse.Namespace) -> int:
+    from calib.cli_input import read_recording_args
+    from calib.correction import Correction, corrected
+    from calib.io import write_native_csv
+
+    from .lifecycle import in_force
+
+    used: dict[str, Any]
+    if args.calibration is not None:
+        correction = _read_calibration_file(args.calibration)
+        used = {"file": str(args.calibration), "source": correction.source, "warnings": []}
+    else:
+        at = _parse_at(args.at)
+        cal = in_force(open_store(args.db), args.device, at, args.max_age_days)
+        if cal is None:
+            when = "yet" if at is None else f"by {args.at}"
+            raise ServiceError(f"device {args.device!r} has no accepted calibration {when}: calibrate it first, or give --calibration FILE")
+        correction = Correction.from_json(cal.model_dump(mode="json"))
+        used = {"calibration_id": cal.id, "device_id": cal.device_id, "accepted_at": cal.accepted_at.isoformat(),
+                "operator": cal.operator, "in_force": cal.in_force.model_dump(mode="json"), "warnings": cal.in_force.warnings}
+    rec = read_recording_args(args)
+    out = args.output or args.file.with_name(args.file.stem + ".calibrated.csv")
+    write_native_csv(corrected(rec, correction), out)
+    side = out.with_name(out.name + ".calibration.json") if out.suffix != ".csv" else out.with_suffix(".calibration.json")
+    side.write_text(json.dumps({"recording": str(args.file), "corrected": str(out), "calibration": correction.to_json(), **used},
+                               indent=2), encoding="utf-8")
+    for w in used["warnings"]:
+        print(f"gyrocal: warning: {w}")
+    print(f"{out} written ({'gyroscope and accelerometer' if correction.A is not None and rec.accel is not None else 'gyroscope'} "
+          f"corrected); the calibration used is in {side}")
+    return EXIT_OK
+
+
+def _parse_at(text: str | None) -> datetime | None:
+    if text is None:
+        return None
+    try:
+        return datetime.fromisoformat(text)
+    except ValueError:
+        raise ServiceError(f"--at {text!r} is not an ISO 8601 time; write it like 2026-11-20T14:30 or 2026-11-20T14:30+01:00") from None
+
+
+def register_export(sub: Any) -> None:
+    """Add `gyrocal export`."""
+    p = sub.add_parser(
+        "export",
+        help="write an accepted calibration for other tools: gyrocal's JSON, imucal's calibration file, or CSV",
+        description="Write calibration #ID (or the calibration of --device in force at --at, default now) as gyrocal's "
+        "JSON, as an imucal calibration file (imucal.management.load_calibration_info loads it), or as CSV.",
+    )
+    which = p.add_mutually_exclusive_group(required=True)
+    which.add_argument("--id", type=int, default=None, metavar="N", help="the calibration's id (GET /devices/{id}/calibrations)")
+    which.add_argument("--device", default=None, metavar="ID", help="the device whose calibration in force is written")
+    p.add_argument("--at", default=None, metavar="TIME", help="with --device: the moment (ISO 8601; default now)")
+    p.add_argument("--format", choices=["gyrocal", "imucal", "csv"], default="gyrocal")
+    p.add_argument("--db", default=None, metavar="URL", help="the store's URL (default as for `gyrocal serve`)")
+    p.add_argument("-o", "--output", type=Path, default=None, metavar="OUT", help="the file to write (default: standard output)")
+    p.set_defaults(func=cmd_export)
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from .export import export_text
+    from .lifecycle import in_force
+
+    store = open_store(args.db)
+    if args.id is not None:
+        cal = store.calibration(args.id)
+        if cal is None:
+            raise ServiceError(f"no calibration #{args.id} in {store.display_url}; `gyrocal calibration DEVICE` names a device's")
+    else:
+        cal = in_force(store, args.device, _parse_at(args.at), 1e9)
+        if cal is None:
+            raise ServiceError(f"device {args.device!r} has no accepted calibration {'yet' if args.at is None else f'by {args.at}'}")
+    text, _, _ = export_text(cal, args.format)
+    if args.output is None:
+        print(text)
+        return EXIT_OK
+    try:
+        args.output.write_text(text if text.endswith("\n") else text + "\n", encoding="utf-8")
+    except OSError as exc:
+        raise ServiceError(f"cannot write {args.output} ({exc.strerror or exc}); check the folder exists and is writable") from None
+    print(f"calibration #{cal.id} of {cal.device_id} written to {args.output} ({args.format})")
+    return EXIT_OK

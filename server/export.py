@@ -1,0 +1,36 @@
+"""An accepted calibration written for other tools: gyrocal's JSON, imucal's calibration file, or CSV."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+
+from calib.correction import Correction
+
+from .store.records import CalibrationRecord
+
+
+def export_text(cal: CalibrationRecord, fmt: str) -> tuple[str, str, str]:
+    """(text, media type, file extension) of ``cal`` in format ``fmt``: gyrocal, imucal or csv."""
+    record = cal.model_dump(mode="json")
+    if fmt == "imucal":
+        corr = Correction.from_json(record)
+        comment = (f"gyrocal calibration #{cal.id} of {cal.device_id}, accepted by {cal.operator} at {cal.accepted_at.isoformat()} "
+                   f"({cal.method}); gyrocal's g = K (m - G a) + b written as imucal's Ferraris model")
+        return json.dumps(corr.to_imucal(comment), indent=2), "application/json", ".imucal.json"
+    if fmt == "csv":
+        out = io.StringIO()
+        w = csv.writer(out, lineterminator="\n")
+        w.writerow(["parameter", "axis", "value", "std", "unit"])
+        unc = cal.uncertainty or {}
+        for name, unit in (("k", ""), ("b", "deg/s")):
+            stds = unc.get(name) or [None] * 3
+            for axis, v, sd in zip("xyz", getattr(cal, name), stds, strict=True):
+                w.writerow([name, axis, repr(float(v)), "" if sd is None else repr(float(sd)), unit])
+        for name, matrix, unit in (("K", cal.K, ""), ("G", cal.G, "(deg/s)/g")):
+            for i, row in enumerate(matrix or []):
+                for j, v in enumerate(row):
+                    w.writerow([f"{name}_{'xyz'[i]}{'xyz'[j]}", "", repr(float(v)), "", unit])
+        return out.getvalue(), "text/csv", ".csv"
+    return json.dumps(record, indent=2), "application/json", ".json"

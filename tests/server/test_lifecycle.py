@@ -1,0 +1,194 @@
+"""The calibration in force at a moment: the latest accepted at or before it, with its age and a warning past the
+age limit; 404 (exit 5) before the first; the same answer from the REST API and the CLI. Applying it: a recording
+corrected by the device's calibration in force (CLI and REST give the same bytes) or by a calibration file."""
+
+from __future__ import annotations
+
+import io
+import json
+import subprocess
+import time
+from collections.abc import Iterator
+from datetime import datetime, timedelta, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from server_fixtures import GYROCAL, ROOT, RunningService
+
+from calib.correction import Correction
+from calib.io import read_recording, write_native_csv
+from calib.simulator import simulate
+
+DEVICE = "ward-3-unit-12"
+
+
+@pytest.fixture(scope="module")
+def history(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[RunningService, list[dict[str, Any]]]]:
+    """A service whose store holds three accepted calibrations of DEVICE, a moment apart."""
+    db = f"sqlite:///{tmp_path_factory.mktemp('lifecycle') / 'store.sqlite3'}"
+    svc = RunningService([], db).start()
+    cals = []
+    try:
+        with svc.client() as c:
+            for seed in (1, 2, 3):
+                rec, _ = simulate(seed, noise=0.03)
+                buf = io.StringIO()
+                write_native_csv(rec, buf)
+                r = c.post(f"/devices/{DEVICE}/calibrate", content=buf.getvalue(), headers={"Content-Type": "text/csv"},
+                           params={"sensor_model": "ICM-20948", "firmware": "1.2.0"})
+                assert r.status_code == 200 and r.json()["passed"], r.text
+                r = c.post(f"/sessions/{r.json()['session_id']}/accept")
+                assert r.status_code == 200, r.text
+                cals.append(r.json()["calibration"])
+                time.sleep(0.05)
+        yield svc, cals
+    finally:
+        svc.stop()
+
+
+def _t(iso: str) -> datetime:
+    return datetime.fromisoformat(iso)
+
+
+def _between(a: dict[str, Any], b: dict[str, Any]) -> datetime:
+    ta, tb = _t(a["accepted_at"]), _t(b["accepted_at"])
+    return ta + (tb - ta) / 2
+
+
+def test_the_calibration_in_force_is_the_latest_accepted_by_then(history: tuple[RunningService, list[dict[str, Any]]]) -> None:
+    svc, cals = history
+    with svc.client() as c:
+        now = c.get(f"/devices/{DEVICE}/calibration").json()
+        assert now["id"] == cals[-1]["id"] and now["in_force"]["warnings"] == [] and now["in_force"]["age_days"] >= 0
+        for i, (a, b) in enumerate(zip(cals, cals[1:], strict=False)):
+            got = c.get(f"/devices/{DEVICE}/calibration", params={"at": _between(a, b).isoformat()}).json()
+            assert got["id"] == cals[i]["id"], (i, got["id"])
+        # the moment of an acceptance is in force of that calibration
+        assert c.get(f"/devices/{DEVICE}/calibration", params={"at": cals[1]["accepted_at"]}).json()["id"] == cals[1]["id"]
+        # the same moment written in another time zone is the same moment
+        local = _between(cals[0], cals[1]).astimezone(timezone(timedelta(hours=5, minutes=30))).isoformat()
+        assert c.get(f"/devices/{DEVICE}/calibration", params={"at": local}).json()["id"] == cals[0]["id"]
+
+
+def test_an_old_calibration_is_warned_of_and_none_before_the_first(history: tuple[RunningService, list[dict[str, Any]]]) -> None:
+    svc, cals = history
+    later = _t(cals[-1]["accepted_at"]) + timedelta(days=45)
+    with svc.client() as c:
+        got = c.get(f"/devices/{DEVICE}/calibration", params={"at": later.isoformat()}).json()
+        assert got["id"] == cals[-1]["id"] and round(got["in_force"]["age_days"]) == 45
+        assert len(got["in_force"]["warnings"]) == 1 and "45 days" in got["in_force"]["warnings"][0]
+        before = _t(cals[0]["accepted_at"]) - timedelta(seconds=1)
+        r = c.get(f"/devices/{DEVICE}/calibration", params={"at": before.isoformat()})
+        assert r.status_code == 404 and "no accepted calibration by" in r.json()["detail"]
+        r = c.get(f"/devices/{DEVICE}/calibration", params={"at": "last tuesday"})
+        assert r.status_code == 422
+
+
+def _cli(svc: RunningService, *args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([*GYROCAL, "calibration", DEVICE, "--db", svc.db_url, *args], cwd=ROOT, capture_output=True, text=True,
+                          timeout=60)
+
+
+def test_the_cli_gives_the_same_answer(history: tuple[RunningService, list[dict[str, Any]]]) -> None:
+    svc, cals = history
+    r = _cli(svc, "--at", _between(cals[1], cals[2]).isoformat())
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["id"] == cals[1]["id"]
+    r = _cli(svc, "--at", (_t(cals[-1]["accepted_at"]) + timedelta(days=3)).isoformat(), "--max-age-days", "2")
+    assert r.returncode == 0 and "more than the 2 days allowed" in json.loads(r.stdout)["in_force"]["warnings"][0]
+    r = _cli(svc, "--at", "2001-01-01T00:00")
+    assert r.returncode == 5 and "no accepted calibration by 2001-01-01T00:00" in r.stdout
+    r = _cli(svc, "--at", "yesterday")
+    assert r.returncode != 0 and "not an ISO 8601 time" in r.stderr and "Traceback" not in r.stderr
+
+
+def _recording_csv(tmp: Path, seed: int = 9) -> tuple[Path, Any]:
+    rec, truth = simulate(seed, noise=0.03)
+    path = tmp / "study.csv"
+    write_native_csv(rec, path)
+    return path, rec
+
+
+def test_apply_corrects_a_recording_with_the_devices_calibration_in_force(
+    history: tuple[RunningService, list[dict[str, Any]]], tmp_path: Path
+) -> None:
+    svc, cals = history
+    src, rec = _recording_csv(tmp_path)
+    out = tmp_path / "study-corrected.csv"
+    at = _between(cals[0], cals[1]).isoformat()
+    r = subprocess.run([*GYROCAL, "apply", str(src), "--device", DEVICE, "--at", at, "--db", svc.db_url, "-o", str(out)], cwd=ROOT,
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    got = read_recording(out)
+    want = rec.gyro @ np.diag(cals[0]["k"]).T + np.asarray(cals[0]["b"])
+    assert np.allclose(got.gyro, want, atol=1e-9) and np.array_equal(got.t, rec.t)
+    side = json.loads(out.with_suffix(".calibration.json").read_text())
+    assert side["calibration_id"] == cals[0]["id"] and side["calibration"]["k"] == pytest.approx(cals[0]["k"])
+    # the same over HTTP, at the same moment
+    with svc.client() as c:
+        resp = c.post(f"/devices/{DEVICE}/apply", content=src.read_text(), params={"at": at}, headers={"Content-Type": "text/csv"})
+        assert resp.status_code == 200, resp.text
+        assert resp.headers["content-type"].startswith("text/csv") and resp.headers["x-gyrocal-calibration-id"] == str(cals[0]["id"])
+        assert json.loads(resp.headers["x-gyrocal-warnings"]) == []
+        assert resp.text == out.read_text()
+        # a device with no calibration, a body that is no CSV: said, nothing else
+        r404 = c.post("/devices/never-calibrated/apply", content=src.read_text(), headers={"Content-Type": "text/csv"})
+        assert r404.status_code == 404 and "calibrate it before" in r404.json()["detail"]
+        assert c.post(f"/devices/{DEVICE}/apply", json={"k": [1, 1, 1]}).status_code == 415
+        bad = c.post(f"/devices/{DEVICE}/apply", content="not,a,recording\n1,2,3\n", headers={"Content-Type": "text/csv"})
+        assert bad.status_code == 400
+
+
+def test_apply_with_a_calibration_file_gyrocals_or_imucals(tmp_path: Path) -> None:
+    src, rec = _recording_csv(tmp_path, seed=10)
+    corr = Correction(K=np.diag([1.1, 0.95, 1.02]), b=np.array([0.3, -0.4, 0.5]))
+    for name, doc in (("ours.json", corr.to_json()), ("imucal.json", corr.to_imucal())):
+        cal = tmp_path / name
+        cal.write_text(json.dumps(doc))
+        out = tmp_path / f"out-{name}.csv"
+        r = subprocess.run([*GYROCAL, "apply", str(src), "--calibration", str(cal), "-o", str(out)], cwd=ROOT, capture_output=True,
+                           text=True, timeout=60)
+        assert r.returncode == 0, r.stderr
+        assert np.allclose(read_recording(out).gyro, corr.apply(rec.gyro)[0], atol=1e-9), name
+    broken = tmp_path / "broken.json"
+    broken.write_text('{"k": [1, 1]}')
+    r = subprocess.run([*GYROCAL, "apply", str(src), "--calibration", str(broken)], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert r.returncode != 0 and "three finite numbers" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_export_for_imucal_is_loaded_by_the_real_imucal_and_gives_back_our_numbers(
+    history: tuple[RunningService, list[dict[str, Any]]], tmp_path: Path
+) -> None:
+    from imucal.management import load_calibration_info
+
+    svc, cals = history
+    cal = cals[1]
+    with svc.client() as c:
+        r = c.get(f"/calibrations/{cal['id']}", params={"format": "imucal"})
+        assert r.status_code == 200 and "attachment" in r.headers["content-disposition"]
+        path = tmp_path / "from-api.json"
+        path.write_bytes(r.content)
+        as_csv = c.get(f"/calibrations/{cal['id']}", params={"format": "csv"}).text
+        assert c.get(f"/calibrations/{cal['id']}").json()["k"] == cal["k"]
+        assert c.get("/calibrations/999999").status_code == 404
+        assert c.get(f"/calibrations/{cal['id']}", params={"format": "xls"}).status_code == 422
+    info = load_calibration_info(path)
+    # imucal's convention: K_g = diag(1/k), b_g = -b/k, no rotation, no g-sensitivity (none was fitted)
+    assert np.allclose(np.diag(info.K_g), 1.0 / np.asarray(cal["k"]), rtol=1e-12)
+    assert np.allclose(info.b_g, -np.asarray(cal["b"]) / np.asarray(cal["k"]), rtol=1e-12)
+    assert np.allclose(info.R_g, np.eye(3)) and not np.any(info.K_ga)
+    gyro = np.random.default_rng(8).normal(0, 100, (20, 3))
+    _, gyr = info.calibrate(np.zeros((20, 3)), gyro, acc_unit="g", gyr_unit="deg/s")
+    assert np.allclose(gyr, gyro * np.asarray(cal["k"]) + np.asarray(cal["b"]), atol=1e-9)
+    rows = {(r.split(",")[0], r.split(",")[1]): float(r.split(",")[2]) for r in as_csv.splitlines()[1:] if r.split(",")[1]}
+    assert rows[("k", "y")] == cal["k"][1] and rows[("b", "z")] == cal["b"][2]
+    # the CLI writes the same file
+    out = tmp_path / "from-cli.json"
+    r2 = subprocess.run([*GYROCAL, "export", "--id", str(cal["id"]), "--format", "imucal", "--db", svc.db_url, "-o", str(out)], cwd=ROOT,
+                        capture_output=True, text=True, timeout=60)
+    assert r2.returncode == 0, r2.stderr
+    assert json.loads(out.read_text()) == json.loads(path.read_text())
+    r3 = subprocess.run([*GYROCAL, "export", "--id", "999999", "--db", svc.db_url], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert r3.returncode != 0 and "no calibration #999999" in r3.stderr
