@@ -11,6 +11,8 @@ one thing:
 - ``stops_short``: the z turn stops at 320 deg instead of 360 deg.
 - ``link_drop``: the radio link drops halfway through the y turn; the device is out of range 1.5 s.
 - ``packet_loss``: 2 % of the data packets never arrive (seeded, independent per packet).
+- ``dropped``: the protocol, but the device was dropped after its second session: from the third on, its x scale
+  factor is 4 % higher (what the departure check of a new calibration must catch).
 """
 
 from __future__ import annotations
@@ -44,6 +46,9 @@ class Scenario:
     faults: LinkFaults = field(default_factory=LinkFaults)
     # set by faults that depend on the script (e.g. "halfway through the y turn")
     fault_builder: Callable[[ProtocolScript], LinkFaults] | None = None
+    # the sensor's scale factors change by this factor from session ``damaged_from`` on (a drop); None: never
+    damaged_from: int | None = None
+    damage_k: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     def script(self, rng: np.random.Generator) -> ProtocolScript:
         return self.build(rng)
@@ -108,6 +113,8 @@ SCENARIOS: dict[str, Scenario] = {
         Scenario("stops_short", "the z turn stops at 320 deg", _stops_short),
         Scenario("link_drop", "the link drops halfway through the y turn for 1.5 s", _normal, fault_builder=_mid_y_turn),
         Scenario("packet_loss", "2 % of data packets are lost", _normal, LinkFaults(packet_loss=0.02)),
+        Scenario("dropped", "dropped after its second session: x scale factor 4 % higher from then on", _normal,
+                 damaged_from=3, damage_k=(1.04, 1.0, 1.0)),
     )
 }
 

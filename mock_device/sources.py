@@ -87,6 +87,9 @@ class ScriptedSource:
             self.faults = self.scenario.link_faults(self.script)
             self._sim_seed = int(ss_noise.generate_state(1)[0])
             self._noise_key = (self.seed, self.session)
+        if self.scenario.damaged_from is not None and self.session == self.scenario.damaged_from:
+            self.params = SensorParams(k=self.params.k * np.asarray(self.scenario.damage_k), b=self.params.b)
+            self.truth = {"k": self.params.k.tolist(), "b": self.params.b.tolist()}
         self._fs = float(fs_hz)
         self.replans = 0
         self._play(self.script)

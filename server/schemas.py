@@ -155,6 +155,10 @@ CHECKS_TEXT = ("each tolerance check: name, axis, value, limit, ok, text, used (
                "uses: 0 ideal, 1 at the limit) and near_limit (passed with used >= 0.8)")
 
 
+DEPARTURES_TEXT = ("the result's parameters that the device's own earlier calibrations (two at least) do not explain: "
+                   "name, axis, value, history_mean, history_spread, z, n_history, text (a dropped or damaged sensor)")
+
+
 class SessionOut(BaseModel):
     """A full snapshot of a session: what every SSE event carries too."""
 
@@ -171,6 +175,7 @@ class SessionOut(BaseModel):
     passed: bool | None = None
     checks: list[dict[str, Any]] = Field(default_factory=list, description=CHECKS_TEXT)
     accuracy: TurnAccuracy | None = Field(None, description="a full turn before and after the calibration (closure estimator)")
+    departures: list[dict[str, Any]] = Field(default_factory=list, description=DEPARTURES_TEXT)
     decision: Literal["accepted", "discarded"] | None = None
     calibration_id: int | None = None
     started_at: str | None = None
@@ -223,6 +228,7 @@ class OfflineResult(BaseModel):
     passed: bool
     checks: list[dict[str, Any]] = Field(description=CHECKS_TEXT)
     accuracy: TurnAccuracy | None = None
+    departures: list[dict[str, Any]] = Field(default_factory=list, description="as a session's departures")
     reason: str | None = None
     k: Vec3
     b: Vec3

@@ -88,6 +88,7 @@ def stored_snapshot(row: dict[str, Any]) -> dict[str, Any]:
         "result": row["result"],
         "passed": row["passed"],
         "checks": info.get("checks") or [],
+        "departures": info.get("departures") or [],
         "accuracy": turn_accuracy(row["result"]) if row["result"] else None,
         "warnings": info.get("warnings") or [],
         "turns": info.get("turns") or {},

@@ -248,7 +248,12 @@ class LiveSession:
             m.fail("calibration_failed", f"{error} Start a new calibration.")
             return
         assert result is not None
-        m.set_result(result)
+        try:
+            history = [c.model_dump() for c in await asyncio.to_thread(self.store.calibrations, m.device_id)]
+        except Exception:  # the store's history only adds a caution: a result stands without it
+            log.warning("the history of %s could not be read to compare the new calibration with", m.device_id, exc_info=True)
+            history = []
+        m.set_result(result, history)
 
     async def _stop_link(self) -> None:
         link = self.device.link
@@ -264,7 +269,8 @@ class LiveSession:
         return SessionEnd(
             state=m.state, reason_code=m.reason_code, reason=m.reason, result=m.result, passed=m.passed, ended_at=ended,
             info={"lost_samples": m.lost_samples, "warnings": m.warnings, "turns": {a: t.to_dict() for a, t in m.turns.items()},
-                  "checks": m.checks, "samples": m.buf.n, "sample_rate_hz": m.fs, "gyro_full_scale_dps": m.full_scale},
+                  "checks": m.checks, "departures": m.departures, "samples": m.buf.n, "sample_rate_hz": m.fs,
+                  "gyro_full_scale_dps": m.full_scale},
         )
 
     async def _spool_loop(self) -> None:

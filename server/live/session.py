@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from calib.acceptance import evaluate
+from calib.departure import departures
 from calib.recording import Recording, RecordingMeta
 from calib.result import CalibrationResult
 from calib.stage import AXES, Stage
@@ -85,6 +86,7 @@ class GuidedSession(TurnChecks):
         self.result: CalibrationResult | None = None
         self.passed: bool | None = None
         self.checks: list[dict[str, Any]] = []
+        self.departures: list[dict[str, Any]] = []  # parameters the device's own history does not explain
         self.decision: str | None = None
         self.calibration_id: int | None = None
         self.attempt = 1
@@ -266,12 +268,14 @@ class GuidedSession(TurnChecks):
         """The stages the estimator gets: every still, and the turns that passed their checks."""
         return self.stream.protocol_stages(list(self.turns.values()))
 
-    def set_result(self, result: CalibrationResult) -> None:
-        """The estimator's result: judge it against the tolerances, then done or failed."""
+    def set_result(self, result: CalibrationResult, history: list[dict[str, Any]] | None = None) -> None:
+        """The estimator's result: judge it against the tolerances (and the device's earlier calibrations,
+        ``history``), then done or failed."""
         if self.finished:
             return
         self.result = result
         self.checks = evaluate(result, self.tol)
+        self.departures = [d.to_dict() for d in departures(result.to_dict(), history or [])]
         failures = [c["text"] for c in self.checks if not c["ok"]]
         self.passed = not failures
         if failures:

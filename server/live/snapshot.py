@@ -33,6 +33,7 @@ class SessionView(Protocol):
     result: CalibrationResult | None
     passed: bool | None
     checks: list[dict[str, Any]]
+    departures: list[dict[str, Any]]
     decision: str | None
     calibration_id: int | None
     method: str
@@ -97,6 +98,7 @@ def session_snapshot(s: SessionView, event: str) -> dict[str, Any]:
         "result": None if s.result is None else s.result.to_json(),
         "passed": s.passed,
         "checks": s.checks,
+        "departures": s.departures,
         "accuracy": None if s.result is None else turn_accuracy(s.result),
         "decision": s.decision,
         "calibration_id": s.calibration_id,

@@ -286,7 +286,7 @@ def test_every_scenario_builds_and_unknown_names_are_refused():
     from mock_device.scenarios import SCENARIOS, get_scenario
 
     assert set(SCENARIOS) == {"normal", "moved_during_still", "wrong_axis", "too_fast", "stops_short", "link_drop",
-                              "packet_loss"}
+                              "packet_loss", "dropped"}
     turns = {name: [s for s in ScriptedSource(seed=1, scenario=name).script.segments if isinstance(s, Turn)]
              for name in SCENARIOS}
     assert [t.axis for t in turns["normal"]] == ["x", "y", "z"]
@@ -299,6 +299,13 @@ def test_every_scenario_builds_and_unknown_names_are_refused():
     assert t_y < link_drop.faults.drop_at_s < t_y + link_drop.script.segments[3].duration_s
     with pytest.raises(GyrocalError, match="choose one of normal"):
         get_scenario("sideways")
+    # dropped: the same sensor for two sessions, then its x scale factor 4 % higher
+    dropped = ScriptedSource(seed=1, scenario="dropped")
+    ks = []
+    for _ in range(4):
+        dropped.prepare(104.0)
+        ks.append(dropped.params.k.copy())
+    assert np.array_equal(ks[0], ks[1]) and np.allclose(ks[2], ks[0] * [1.04, 1.0, 1.0]) and np.array_equal(ks[2], ks[3])
 
 
 async def test_too_fast_turns_arrive_saturated_and_flagged():

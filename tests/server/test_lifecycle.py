@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from server_fixtures import GYROCAL, ROOT, RunningService
+from server_fixtures import GYROCAL, ROOT, RunningService, follow_events
 
 from calib.correction import Correction
 from calib.io import read_recording, write_native_csv
@@ -192,3 +192,59 @@ def test_export_for_imucal_is_loaded_by_the_real_imucal_and_gives_back_our_numbe
     assert json.loads(out.read_text()) == json.loads(path.read_text())
     r3 = subprocess.run([*GYROCAL, "export", "--id", "999999", "--db", svc.db_url], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert r3.returncode != 0 and "no calibration #999999" in r3.stderr
+
+
+def test_a_new_calibration_unlike_the_devices_history_is_flagged_before_accept(
+    history: tuple[RunningService, list[dict[str, Any]]]
+) -> None:
+    from calib.simulator import SensorParams
+
+    svc, _ = history
+    sensor = SensorParams(k=np.array([1.08, 0.93, 1.12]), b=np.array([1.5, -2.0, 0.7]))
+
+    def upload(seed: int, params: SensorParams, accept: bool) -> dict[str, Any]:
+        rec, _ = simulate(seed, noise=0.03, params=params)
+        buf = io.StringIO()
+        write_native_csv(rec, buf)
+        with svc.client() as c:
+            r = c.post("/devices/worn-by-ward-7/calibrate", content=buf.getvalue(), headers={"Content-Type": "text/csv"},
+                       params={"sensor_model": "ICM-20948", "firmware": "1.2.0"})
+            assert r.status_code == 200, r.text
+            if accept:
+                assert c.post(f"/sessions/{r.json()['session_id']}/accept").status_code == 200
+            return r.json()
+
+    for seed in (21, 22):
+        assert upload(seed, sensor, accept=True)["departures"] == []
+    assert upload(23, sensor, accept=False)["departures"] == []
+    knocked = upload(24, SensorParams(k=sensor.k * np.array([1.0, 1.0, 0.95]), b=sensor.b), accept=False)
+    assert [(d["name"], d["axis"]) for d in knocked["departures"]] == [("k", "z")], knocked["departures"]
+    # the session keeps it: the page shows it before anyone accepts
+    with svc.client() as c:
+        snap = c.get(f"/sessions/{knocked['session_id']}").json()
+    assert snap["departures"] == knocked["departures"] and "2 earlier calibrations" in snap["departures"][0]["text"]
+
+
+def test_a_simulated_wearable_dropped_between_sessions_is_flagged_in_its_live_session(tmp_path: Path) -> None:
+    """mock-1 (scenario `dropped`, seed 1001: k_x 0.94) is calibrated twice and accepted; dropped, its x scale
+    factor is 4 % higher at the third power-up, and that session's result names k_x before anyone accepts it."""
+    db = f"sqlite:///{tmp_path / 'store.sqlite3'}"
+    svc = RunningService(["--mock", "1", "--mock-speed", "40", "--mock-seed", "1", "--mock-scenario", "dropped"], db).start()
+    try:
+        last: dict[str, Any] = {}
+        for n in range(3):
+            with svc.client() as c:
+                r = c.post("/devices/mock-1/calibrate", json={})
+                assert r.status_code == 202, r.text
+                sid = r.json()["session_id"]
+            events = follow_events(svc.base, sid, {"done", "failed", "cancelled"}, timeout_s=90, last_event_id=0)
+            last = events[-1]
+            assert last["state"] == "done", last.get("reason")
+            if n < 2:
+                assert last["departures"] == []
+                with svc.client() as c:
+                    assert c.post(f"/sessions/{sid}/accept").status_code == 200
+        assert [(d["name"], d["axis"]) for d in last["departures"]] == [("k", "x")], last["departures"]
+        assert last["departures"][0]["value"] == pytest.approx(1.04 * last["departures"][0]["history_mean"], rel=2e-3)
+    finally:
+        svc.stop()

@@ -255,3 +255,32 @@ def test_the_history_table_keeps_each_value_and_date_on_one_line(hand_wizard: Wi
     w.shot("history")
     assert_clean(page_watch)
 
+
+
+def test_a_result_unlike_the_devices_history_is_named_before_accept(hand_wizard: Wizard, hand_service: Any, page_watch: Watch) -> None:
+    from calib.simulator import SensorParams
+
+    sensor = SensorParams(k=np.array([1.05, 0.96, 1.02]), b=np.array([0.8, -1.1, 0.4]))
+
+    def upload(seed: int, params: SensorParams) -> dict[str, Any]:
+        rec, _ = simulate(seed, noise=0.03, params=params)
+        path = Path(hand_wizard.shots) / f"upload-{seed}.csv"
+        write_native_csv(rec, path)
+        with api(hand_service) as c:
+            r = c.post("/devices/bench-unit-11/calibrate", content=path.read_text(), headers={"Content-Type": "text/csv"},
+                       params={"sensor_model": "ICM-20948", "firmware": "1.2.0"})
+            assert r.status_code == 200, r.text
+            return r.json()
+
+    for seed in (31, 32):
+        with api(hand_service) as c:
+            assert c.post(f"/sessions/{upload(seed, sensor)['session_id']}/accept").status_code == 200
+    knocked = upload(33, SensorParams(k=sensor.k * np.array([1.0, 1.05, 1.0]), b=sensor.b))
+    w = hand_wizard
+    sign_in_with_pin(w)
+    w.page.goto(f"{w.service.base}/#/session/{knocked['session_id']}")
+    w.page.wait_for_selector(".departures li[data-departure='k:y']")
+    assert w.text(".verdict .ready") == "Ready for the study, with a caution"
+    assert "earlier calibrations" in w.text(".departures") and "dropped or knocked" in w.text(".departures")
+    w.shot("departure")
+    assert_clean(page_watch)

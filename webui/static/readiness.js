@@ -49,16 +49,23 @@ export function nearLimits(checks) {
  * accuracy gained and the values near a limit, under it). */
 export function readiness(s, dev, pass) {
   const near = pass ? nearLimits(s.checks) : [];
+  const departed = s.departures || [];
   const sensorNear = near.some((c) => c.name === "k" || c.name === "b");
-  const ready = h("p", { class: `ready ${pass ? (near.length ? "caution" : "yes") : "no"}` },
-    icon(pass ? (near.length ? "warn" : "check") : "cross"),
-    pass ? (near.length ? "Ready for the study, with a caution" : "Ready for the study") : "Not ready for the study");
+  const caution = near.length > 0 || departed.length > 0;
+  const ready = h("p", { class: `ready ${pass ? (caution ? "caution" : "yes") : "no"}` },
+    icon(pass ? (caution ? "warn" : "check") : "cross"),
+    pass ? (caution ? "Ready for the study, with a caution" : "Ready for the study") : "Not ready for the study");
   const accuracy = pass ? accuracySentence(s.accuracy, dev) : null;
   return {
     near,
+    departed,
     ready,
     parts: [
       accuracy ? h("p", { class: "accuracy" }, accuracy) : null,
+      departed.length ? h("div", { class: "near-limits departures", role: "note" },
+        h("p", { class: "near-title" }, icon("warn"), `Not like ${dev}'s earlier calibrations`),
+        h("ul", null, departed.map((d) => h("li", { dataset: { departure: `${d.name}:${d.axis}` } }, d.text))),
+        h("p", { class: "near-next" }, "A sensor that was dropped or knocked changes like this. Check the device; accept only if you are sure it is fine.")) : null,
       near.length ? h("div", { class: "near-limits", role: "note" },
         h("p", { class: "near-title" }, icon("warn"), near.length === 1 ? "One value is close to its limit" : `${near.length} values are close to their limits`),
         h("ul", null, near.map((c) => h("li", { dataset: { check: `${c.name}:${c.axis || ""}` } }, nearLimitText(c)))),

@@ -414,7 +414,7 @@ export function sessionView(ctx, sid) {
       }))) return;
       ctx.go("#/devices");
     }, "Close");
-    const kind = pass ? (summary.near.length ? "pass near-limit" : "pass") : "fail";
+    const kind = pass ? (summary.near.length || summary.departed.length ? "pass near-limit" : "pass") : "fail";
     endLayout(s, 6, verdictEl(kind, pass ? "pass" : "fail", pass ? "PASS" : "FAIL", null, summary.ready), [
       ...summary.parts,
       // on a PASS the decision comes first, with what it means under it; a FAIL says why before what to do

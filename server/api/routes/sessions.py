@@ -16,6 +16,7 @@ from sqlalchemy.exc import SQLAlchemyError
 
 from calib import __version__
 from calib.acceptance import evaluate, turn_accuracy
+from calib.departure import departures
 from calib.json_safe import finite
 
 from ... import schemas as M
@@ -357,6 +358,8 @@ async def calibrate_uploaded(
     checks = evaluate(result, svc.settings.tolerances)
     failures = [c["text"] for c in checks if not c["ok"]]
     passed = not failures
+    history = [c.model_dump() for c in await asyncio.to_thread(svc.store.calibrations, device_id)]
+    departed = [d.to_dict() for d in departures(result.to_dict(), history)]
     sid = uuid.uuid4().hex
     from ...live import guidance as say
 
@@ -380,7 +383,7 @@ async def calibrate_uploaded(
         reason,
         result,
         passed,
-        {"checks": checks, "samples": n_samples},
+        {"checks": checks, "departures": departed, "samples": n_samples},
     )
     await asyncio.to_thread(svc.store.finish_session, sid, end)
     out = {
@@ -392,6 +395,7 @@ async def calibrate_uploaded(
         "state": "done" if passed else "failed",
         "passed": passed,
         "checks": checks,
+        "departures": departed,
         "accuracy": turn_accuracy(result),
         "reason": reason,
         "recording_sha256": digest,
