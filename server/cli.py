@@ -100,6 +100,13 @@ def register(sub: Any) -> None:
         help="tries per turn before a session fails (default 3; 1: any fault ends the session with its reason)",
     )
     p.add_argument(
+        "--calibration-max-age-days",
+        type=float,
+        default=30.0,
+        metavar="DAYS",
+        help="a device whose calibration is older is due, and applying that calibration warns (default 30)",
+    )
+    p.add_argument(
         "--pin-from",
         action="append",
         default=[],
@@ -277,6 +284,8 @@ def build_service(args: argparse.Namespace) -> Any:
     hosts = ("localhost", "127.0.0.1", "::1", *([] if args.host in ("0.0.0.0", "::", "") else [args.host]), *args.allowed_host)
     if not 256 <= args.worker_memory_mb <= 1_048_576:
         raise ServiceError("--worker-memory-mb must be between 256 and 1048576")
+    if not args.calibration_max_age_days > 0:
+        raise ServiceError("--calibration-max-age-days must be a positive number of days")
     if not 1 <= args.max_attempts <= 5:
         raise ServiceError("--max-attempts must be between 1 and 5")
     scenarios = [s.strip() for s in args.mock_scenario.split(",") if s.strip()]
@@ -293,6 +302,7 @@ def build_service(args: argparse.Namespace) -> Any:
         worker_memory_mb=args.worker_memory_mb,
         allowed_hosts=tuple(dict.fromkeys(h.lower() for h in hosts)),
         pin_from=(*Settings.pin_from, *pin_networks(args.pin_from)),
+        calibration_max_age_days=args.calibration_max_age_days,
     )
     from .store import Store, StoreError
 

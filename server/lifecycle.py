@@ -47,5 +47,22 @@ def in_force(store: Store, device_id: str, at: datetime | None, max_age_days: fl
     return CalibrationInForce(**cal.model_dump(), in_force=InForce(at=when, age_days=age, warnings=warnings))
 
 
+class CalibrationDue(BaseModel):
+    """Whether a device should be calibrated again before it is used for a study, and why."""
+
+    due: bool
+    reason: str = Field(description="in words: never calibrated, or how old its calibration is against the limit")
+
+
+def calibration_due(current_accepted_at: datetime | None, max_age_days: float, now: datetime | None = None) -> CalibrationDue:
+    """Due when never calibrated, or when its current calibration is older than ``max_age_days``."""
+    if current_accepted_at is None:
+        return CalibrationDue(due=True, reason="never calibrated")
+    age = ((now or datetime.now(UTC)) - current_accepted_at.astimezone(UTC)).total_seconds() / DAY_S
+    if age > max_age_days:
+        return CalibrationDue(due=True, reason=f"its calibration is {age:.0f} days old, more than the {max_age_days:g} days allowed")
+    return CalibrationDue(due=False, reason=f"its calibration is {age:.0f} days old, within the {max_age_days:g} days allowed")
+
+
 async def in_force_async(store: Store, device_id: str, at: datetime | None, max_age_days: float) -> CalibrationInForce | None:
     return await asyncio.to_thread(in_force, store, device_id, at, max_age_days)

@@ -9,6 +9,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from calib.api import available_methods
 
+from .lifecycle import CalibrationDue
 from .live.codes import EndReason, Phase, State
 from .store.records import CalibrationRecord
 
@@ -115,6 +116,8 @@ class DeviceOut(BaseModel):
                           "to it); none: it holds none; null: not known")
     active_session: str | None = None
     current_calibration: CalibrationRecord | None = None
+    calibration_due: CalibrationDue | None = Field(None, description="whether the device should be calibrated again before "
+                                                   "a study: never calibrated, or its calibration older than the limit")
     last_seen: str | None = None
 
 

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import asyncio
+from datetime import datetime
 from typing import Any
 
 from calib.acceptance import turn_accuracy
@@ -11,6 +12,7 @@ from calib.json_safe import finite
 
 from ..deps import problem
 from ..devices import Device, model_facts
+from ..lifecycle import calibration_due
 from ..service import Service
 
 
@@ -61,6 +63,8 @@ async def device_out(svc: Service, dev: Device | None, row: dict[str, Any] | Non
         "active_session": svc.active.get(device_id),
         "current_calibration": (current := await current_calibration_of(svc, device_id)),
         **held_facts(row, current),
+        "calibration_due": calibration_due(None if current is None else datetime.fromisoformat(current["accepted_at"]),
+                                           svc.settings.calibration_max_age_days).model_dump(),
         "last_seen": row.get("last_seen"),
     }
     if detail:

@@ -248,3 +248,26 @@ def test_a_simulated_wearable_dropped_between_sessions_is_flagged_in_its_live_se
         assert last["departures"][0]["value"] == pytest.approx(1.04 * last["departures"][0]["history_mean"], rel=2e-3)
     finally:
         svc.stop()
+
+
+def test_a_device_is_due_when_never_calibrated_or_its_calibration_is_too_old(tmp_path: Path) -> None:
+    db = f"sqlite:///{tmp_path / 'store.sqlite3'}"
+    svc = RunningService(["--calibration-max-age-days", "0.00001", "--mock", "1"], db).start()  # 0.86 s: due almost at once
+    try:
+        rec, _ = simulate(41, noise=0.03)
+        buf = io.StringIO()
+        write_native_csv(rec, buf)
+        with svc.client() as c:
+            r = c.post("/devices/ward-1-unit-2/calibrate", content=buf.getvalue(), headers={"Content-Type": "text/csv"},
+                       params={"sensor_model": "ICM-20948", "firmware": "1.2.0"})
+            c.post(f"/sessions/{r.json()['session_id']}/accept").raise_for_status()
+            fresh = c.get("/devices/ward-1-unit-2").json()["calibration_due"]
+            time.sleep(1.0)
+            old = c.get("/devices/ward-1-unit-2").json()["calibration_due"]
+            listed = {d["id"]: d for d in c.get("/devices").json()}
+        assert fresh == {"due": False, "reason": "its calibration is 0 days old, within the 1e-05 days allowed"}
+        assert old["due"] and "more than the 1e-05 days allowed" in old["reason"]
+        assert listed["mock-1"]["calibration_due"] == {"due": True, "reason": "never calibrated"}
+        assert listed["ward-1-unit-2"]["calibration_due"]["due"]
+    finally:
+        svc.stop()

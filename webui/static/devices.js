@@ -24,6 +24,7 @@ export function streamText(dev) {
 function deviceCard(ctx, dev, refresh) {
   const st = status(dev);
   const cur = dev.current_calibration;
+  const due = Boolean(dev.calibration_due && dev.calibration_due.due);
   const battery = h("dd", { class: "battery" }, icon("battery"), h("span", null, "not read yet"));
   // each fact once: "gyrocal protocol wearable (simulated: moved during still) · ICM-20948"
   const how = dev.simulated
@@ -51,8 +52,9 @@ function deviceCard(ctx, dev, refresh) {
       dev.sample_rate_hz ? h("div", null, h("dt", null, "Streams"),
         h("dd", { class: "stream-settings" }, h("span", null, streamText(dev)))) : null,
       h("div", null, h("dt", null, "Last calibration"),
-        h("dd", { class: cur ? "calibrated" : "never" }, icon(cur ? "check" : "info"),
-          h("span", null, cur ? `${fmtDateTime(cur.accepted_at)} by ${cur.operator}` : "never calibrated"))),
+        h("dd", { class: cur ? (due ? "calibrated due" : "calibrated") : "never" }, icon(cur ? (due ? "warn" : "check") : "info"),
+          h("span", null, cur ? `${fmtDateTime(cur.accepted_at)} by ${cur.operator}` : "never calibrated",
+            due && cur ? h("span", { class: "due-note" }, ` · due: ${dev.calibration_due.reason}`) : null))),
       held ? h("div", null, h("dt", null, "Device holds"),
         h("dd", { class: `held ${held.cls}` }, icon(held.icon), h("span", null, held.text))) : null),
     dev.limitations && dev.limitations.length
