@@ -18,12 +18,13 @@ from __future__ import annotations
 
 import asyncio
 import base64
+import contextlib
 import hashlib
 import hmac
 import ipaddress
 import re
 import secrets
-from collections.abc import Callable
+from collections.abc import AsyncIterator, Callable
 from concurrent.futures import ThreadPoolExecutor
 from datetime import UTC, datetime, timedelta
 
@@ -185,6 +186,23 @@ class SignIns:
         self.pin_networks = tuple(ipaddress.ip_network(n, strict=False) for n in pin_from)
         self._pool = ThreadPoolExecutor(HASH_THREADS, thread_name_prefix="gyrocal-scrypt")
         self._busy = 0
+        self._checking: dict[str, tuple[asyncio.Lock, int]] = {}  # operator -> its lock, and the sign-ins holding or awaiting it
+
+    @contextlib.asynccontextmanager
+    async def _one_at_a_time(self, op_key: str) -> AsyncIterator[None]:
+        """One sign-in of an operator checked at a time: each sees the failures of those before it, so guesses sent
+        together get no more tries before the waits begin than guesses sent one after another."""
+        lock, users = self._checking.get(op_key, (asyncio.Lock(), 0))
+        self._checking[op_key] = (lock, users + 1)
+        try:
+            async with lock:
+                yield
+        finally:
+            lock, users = self._checking[op_key]
+            if users == 1:
+                del self._checking[op_key]
+            else:
+                self._checking[op_key] = (lock, users - 1)
 
     def pin_allowed_from(self, client: str) -> bool:
         """Whether PINs are accepted from this client address."""
@@ -216,14 +234,15 @@ class SignIns:
     async def sign_in(self, name: str, secret: str, client: str) -> tuple[str, datetime]:
         """A token for a correct name and secret; Throttled or AuthError otherwise."""
         op_key, addr_key = name.lower(), client
-        self._wait((self.by_operator, op_key), (self.by_address, addr_key))
-        if not await self._matches(secret, self.auth.store.operator_secret_hash, name):
-            self.by_operator.failed(op_key)
-            self.by_address.failed(addr_key)
-            await self._failed(name, client, "secret", self.by_operator.failures(op_key))
-            raise AuthError("unknown operator or wrong secret")
-        self.by_operator.succeeded(op_key)
-        self.by_pin.succeeded(op_key)  # the secret proves the operator: their PIN tries start afresh
+        async with self._one_at_a_time(op_key):
+            self._wait((self.by_operator, op_key), (self.by_address, addr_key))
+            if not await self._matches(secret, self.auth.store.operator_secret_hash, name):
+                self.by_operator.failed(op_key)
+                self.by_address.failed(addr_key)
+                await self._failed(name, client, "secret", self.by_operator.failures(op_key))
+                raise AuthError("unknown operator or wrong secret")
+            self.by_operator.succeeded(op_key)
+            self.by_pin.succeeded(op_key)  # the secret proves the operator: their PIN tries start afresh
         return await asyncio.to_thread(self.auth.issue, name, client)
 
     async def sign_in_pin(self, name: str, pin: str, client: str) -> tuple[str, datetime]:
@@ -232,22 +251,23 @@ class SignIns:
             raise PinRefused("PINs are accepted only on the tablets this service trusts; sign in with your secret, "
                              "or ask the administrator to allow this tablet (gyrocal serve --pin-from)")
         op_key, addr_key = name.lower(), client
-        self._wait((self.by_pin, op_key), (self.by_address, addr_key))
-        if not await self._matches(pin, self.auth.store.operator_pin_hash, name):
-            self.by_pin.failed(op_key)
-            self.by_address.failed(addr_key)
-            failures = self.by_pin.failures(op_key)
-            await self._failed(name, client, "pin", failures)
-            pin_hash: str | None = None
-            if failures >= PIN_MAX_FAILURES:
-                pin_hash = await asyncio.to_thread(self.auth.store.operator_pin_hash, name)
-            if pin_hash is not None:
-                await asyncio.to_thread(self.auth.store.set_operator_pin, name, None, "operator.pin_locked")
-                self.by_pin.succeeded(op_key)
-                raise AuthError(f"{PIN_MAX_FAILURES} wrong PINs in a row: the PIN of this operator is now switched off. "
-                                "Sign in with your secret and set a new PIN")
-            raise AuthError("unknown operator, no PIN set, or wrong PIN")
-        self.by_pin.succeeded(op_key)
+        async with self._one_at_a_time(op_key):
+            self._wait((self.by_pin, op_key), (self.by_address, addr_key))
+            if not await self._matches(pin, self.auth.store.operator_pin_hash, name):
+                self.by_pin.failed(op_key)
+                self.by_address.failed(addr_key)
+                failures = self.by_pin.failures(op_key)
+                await self._failed(name, client, "pin", failures)
+                pin_hash: str | None = None
+                if failures >= PIN_MAX_FAILURES:
+                    pin_hash = await asyncio.to_thread(self.auth.store.operator_pin_hash, name)
+                if pin_hash is not None:
+                    await asyncio.to_thread(self.auth.store.set_operator_pin, name, None, "operator.pin_locked")
+                    self.by_pin.succeeded(op_key)
+                    raise AuthError(f"{PIN_MAX_FAILURES} wrong PINs in a row: the PIN of this operator is now switched off. "
+                                    "Sign in with your secret and set a new PIN")
+                raise AuthError("unknown operator, no PIN set, or wrong PIN")
+            self.by_pin.succeeded(op_key)
         return await asyncio.to_thread(self.auth.issue, name, client)
 
     def close(self) -> None:

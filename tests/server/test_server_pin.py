@@ -9,7 +9,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from server_fixtures import GYROCAL, ROOT, RunningService
+from server_fixtures import GYROCAL, ROOT, RunningService, at_once
 
 from server.auth import PIN_MAX_FAILURES, Authenticator, AuthError, PinRefused, SignIns, Throttled
 from server.store import Store
@@ -127,3 +127,20 @@ def test_ten_wrong_pins_switch_the_pin_off_and_only_trusted_addresses_may_use_on
     finally:
         sign_ins.close()
         store.close()
+
+
+def test_guesses_sent_at_once_get_no_more_tries_than_one_after_another(service_store: tuple[str, str]) -> None:
+    """Twelve wrong PINs fired together on SQLite and PostgreSQL: exactly 3 are checked, as when sent one after
+    another, the rest wait; then even the right PIN waits."""
+    owner_url, service_url = service_store
+    assert _cli(owner_url, "add", "dora", "--secret-stdin", stdin=SECRET + "\n").returncode == 0
+    assert _cli(owner_url, "pin", "dora", "--pin-stdin", stdin="5151\n").returncode == 0
+    svc = RunningService([], service_url).start()
+    try:
+        with svc.client(token=None) as c:
+            codes = at_once([lambda pin=f"{i:04d}": c.post("/auth/login", json={"operator": "dora", "pin": pin}).status_code
+                             for i in range(12)])
+            assert sorted(codes) == [401] * 3 + [429] * 9, codes
+            assert c.post("/auth/login", json={"operator": "dora", "pin": "5151"}).status_code == 429
+    finally:
+        svc.stop()
