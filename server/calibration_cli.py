@@ -1,6 +1,6 @@
 """`gyrocal calibration DEVICE [--at TIME]`: the calibration in force for a device at a moment, from the store;
-`gyrocal apply RECORDING (--device ID | --calibration FILE)`: a recording corrected by a calibration (plugged into
-calib's CLI)."""
+`gyrocal apply RECORDING (--device ID | --calibration FILE)`: a recording corrected by a calibration;
+`gyrocal export`: a calibration for other tools (plugged into calib's CLI)."""
 
 from __future__ import annotations
 
@@ -13,6 +13,27 @@ from typing import Any
 from .cli import EXIT_OK, ServiceError, open_store
 
 EXIT_NONE = 5  # no calibration had been accepted by then
+MAX_AGE_DAYS = 30.0
+
+
+def _add_moment_arguments(p: argparse.ArgumentParser, at_help: str, db_help: str, max_age: bool = True) -> None:
+    """--at, --db and (with ``max_age``) --max-age-days: which moment, which store, how old is too old."""
+    p.add_argument("--at", default=None, metavar="TIME", help=at_help)
+    p.add_argument("--db", default=None, metavar="URL", help=db_help)
+    if max_age:
+        p.add_argument("--max-age-days", type=float, default=MAX_AGE_DAYS, metavar="DAYS",
+                       help=f"warn when the calibration is older (default {MAX_AGE_DAYS:g})")
+
+
+def _in_force_of(args: argparse.Namespace, store: Any = None) -> Any:
+    """The calibration of ``args.device`` in force at ``args.at`` (None when none had been accepted by then)."""
+    from .lifecycle import in_force
+
+    at = _parse_at(args.at)
+    max_age = getattr(args, "max_age_days", MAX_AGE_DAYS)
+    if not max_age > 0:
+        raise ServiceError("--max-age-days must be a positive number of days")
+    return in_force(store or open_store(args.db), args.device, at, max_age)
 
 
 def register(sub: Any) -> None:
@@ -24,22 +45,17 @@ def register(sub: Any) -> None:
         "that moment, with in_force {at, age_days, warnings}. Exit 5 when none had been accepted by then.",
     )
     p.add_argument("device", help="the device's id, as in `gyrocal serve`'s device list")
-    p.add_argument("--at", default=None, metavar="TIME", help="ISO 8601 time, e.g. 2026-11-20T14:30 (UTC unless it carries an offset)")
-    p.add_argument("--db", default=None, metavar="URL", help="the store's URL (default as for `gyrocal serve`)")
-    p.add_argument("--max-age-days", type=float, default=30.0, metavar="DAYS", help="warn when the calibration is older (default 30)")
+    _add_moment_arguments(p, "ISO 8601 time, e.g. 2026-11-20T14:30 (UTC unless it carries an offset)",
+                          "the store's URL (default as for `gyrocal serve`)")
     p.set_defaults(func=cmd_calibration)
 
 
 def cmd_calibration(args: argparse.Namespace) -> int:
-    from .lifecycle import in_force
+    from .lifecycle import none_in_force
 
-    at = _parse_at(args.at)
-    if not args.max_age_days > 0:
-        raise ServiceError("--max-age-days must be a positive number of days")
-    cal = in_force(open_store(args.db), args.device, at, args.max_age_days)
+    cal = _in_force_of(args)
     if cal is None:
-        when = "yet" if at is None else f"by {args.at}"
-        print(f"gyrocal: device {args.device!r} has no accepted calibration {when}")
+        print(f"gyrocal: {none_in_force(args.device, args.at)}")
         return EXIT_NONE
     print(json.dumps(cal.model_dump(mode="json"), indent=2))
     return EXIT_OK
@@ -62,9 +78,8 @@ def register_apply(sub: Any) -> None:
     which = p.add_mutually_exclusive_group(required=True)
     which.add_argument("--device", default=None, metavar="ID", help="the device whose calibration in force is applied")
     which.add_argument("--calibration", type=Path, default=None, metavar="FILE", help="gyrocal's calibration JSON or imucal's")
-    p.add_argument("--at", default=None, metavar="TIME", help="with --device: when the recording was made (ISO 8601; default now)")
-    p.add_argument("--db", default=None, metavar="URL", help="with --device: the store's URL (default as for `gyrocal serve`)")
-    p.add_argument("--max-age-days", type=float, default=30.0, metavar="DAYS", help="warn when the calibration is older (default 30)")
+    _add_moment_arguments(p, "with --device: when the recording was made (ISO 8601; default now)",
+                          "with --device: the store's URL (default as for `gyrocal serve`)")
     p.add_argument("-o", "--output", type=Path, default=None, metavar="OUT",
                    help="the corrected CSV (default: FILE's name with .calibrated.csv)")
     p.set_defaults(func=cmd_apply)
@@ -90,18 +105,16 @@ def cmd_apply(args: argparse.Namespace) -> int:
     from calib.correction import Correction, corrected
     from calib.io import write_native_csv
 
-    from .lifecycle import in_force
+    from .lifecycle import none_in_force
 
     used: dict[str, Any]
     if args.calibration is not None:
         correction = _read_calibration_file(args.calibration)
         used = {"file": str(args.calibration), "source": correction.source, "warnings": []}
     else:
-        at = _parse_at(args.at)
-        cal = in_force(open_store(args.db), args.device, at, args.max_age_days)
+        cal = _in_force_of(args)
         if cal is None:
-            when = "yet" if at is None else f"by {args.at}"
-            raise ServiceError(f"device {args.device!r} has no accepted calibration {when}: calibrate it first, or give --calibration FILE")
+            raise ServiceError(f"{none_in_force(args.device, args.at)}: calibrate it first, or give --calibration FILE")
         correction = Correction.from_json(cal.model_dump(mode="json"))
         used = {"calibration_id": cal.id, "device_id": cal.device_id, "accepted_at": cal.accepted_at.isoformat(),
                 "operator": cal.operator, "in_force": cal.in_force.model_dump(mode="json"), "warnings": cal.in_force.warnings}
@@ -138,16 +151,16 @@ def register_export(sub: Any) -> None:
     which = p.add_mutually_exclusive_group(required=True)
     which.add_argument("--id", type=int, default=None, metavar="N", help="the calibration's id (GET /devices/{id}/calibrations)")
     which.add_argument("--device", default=None, metavar="ID", help="the device whose calibration in force is written")
-    p.add_argument("--at", default=None, metavar="TIME", help="with --device: the moment (ISO 8601; default now)")
+    _add_moment_arguments(p, "with --device: the moment (ISO 8601; default now)", "the store's URL (default as for `gyrocal serve`)",
+                          max_age=False)
     p.add_argument("--format", choices=["gyrocal", "imucal", "csv"], default="gyrocal")
-    p.add_argument("--db", default=None, metavar="URL", help="the store's URL (default as for `gyrocal serve`)")
     p.add_argument("-o", "--output", type=Path, default=None, metavar="OUT", help="the file to write (default: standard output)")
     p.set_defaults(func=cmd_export)
 
 
 def cmd_export(args: argparse.Namespace) -> int:
     from .export import export_text
-    from .lifecycle import in_force
+    from .lifecycle import none_in_force
 
     store = open_store(args.db)
     if args.id is not None:
@@ -155,9 +168,9 @@ def cmd_export(args: argparse.Namespace) -> int:
         if cal is None:
             raise ServiceError(f"no calibration #{args.id} in {store.display_url}; `gyrocal calibration DEVICE` names a device's")
     else:
-        cal = in_force(store, args.device, _parse_at(args.at), 1e9)
+        cal = _in_force_of(args, store)
         if cal is None:
-            raise ServiceError(f"device {args.device!r} has no accepted calibration {'yet' if args.at is None else f'by {args.at}'}")
+            raise ServiceError(none_in_force(args.device, args.at))
     text, _, _ = export_text(cal, args.format)
     if args.output is None:
         print(text)

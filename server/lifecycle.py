@@ -32,6 +32,16 @@ class CalibrationInForce(CalibrationRecord):
     in_force: InForce
 
 
+def none_in_force(device_id: str, at: str | None) -> str:
+    """The sentence for a device with no calibration in force at ``at`` (as the user wrote it; None: now)."""
+    return f"device {device_id!r} has no accepted calibration {'yet' if at is None else f'by {at}'}"
+
+
+def age_days(accepted_at: datetime, at: datetime) -> float:
+    """Days from a calibration's acceptance to the moment ``at`` (both aware)."""
+    return (at - accepted_at.astimezone(UTC)).total_seconds() / DAY_S
+
+
 def in_force(store: Store, device_id: str, at: datetime | None, max_age_days: float) -> CalibrationInForce | None:
     """The calibration of ``device_id`` in force at ``at`` (now when None; a naive time is UTC), or None when
     none had been accepted by then."""
@@ -39,7 +49,7 @@ def in_force(store: Store, device_id: str, at: datetime | None, max_age_days: fl
     cal = store.current_calibration(device_id, when)
     if cal is None:
         return None
-    age = (when - cal.accepted_at.astimezone(UTC)).total_seconds() / DAY_S
+    age = age_days(cal.accepted_at, when)
     warnings = []
     if age > max_age_days:
         warnings.append(f"calibration #{cal.id} was accepted {age:.0f} days before this moment, more than the "
@@ -58,7 +68,7 @@ def calibration_due(current_accepted_at: datetime | None, max_age_days: float, n
     """Due when never calibrated, or when its current calibration is older than ``max_age_days``."""
     if current_accepted_at is None:
         return CalibrationDue(due=True, reason="never calibrated")
-    age = ((now or datetime.now(UTC)) - current_accepted_at.astimezone(UTC)).total_seconds() / DAY_S
+    age = age_days(current_accepted_at, now or datetime.now(UTC))
     if age > max_age_days:
         return CalibrationDue(due=True, reason=f"its calibration is {age:.0f} days old, more than the {max_age_days:g} days allowed")
     return CalibrationDue(due=False, reason=f"its calibration is {age:.0f} days old, within the {max_age_days:g} days allowed")

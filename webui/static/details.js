@@ -2,13 +2,9 @@
 // the facts of the recording, the before/after plots and the model check.
 
 import { AXES, AXIS_LABEL, fill, h, num, sig } from "./dom.js";
-import { icon } from "./figures.js";
+import { icon, notice } from "./figures.js";
 import { modelCheckPanel } from "./modelcheck.js";
 import { calibrationPlots } from "./plots.js";
-
-function notice(kind, iconName, text) {
-  return h("div", { class: `notice ${kind}`, role: "status" }, icon(iconName), h("span", null, text));
-}
 
 export function paramTable(k, b, unc) {
   const ku = (unc && unc.k) || [];

@@ -38,6 +38,11 @@ export function icon(name, { label, cls } = {}) {
   return el;
 }
 
+/** A notice box: an icon and a sentence; kind warn, info or error (an error is announced at once). */
+export function notice(kind, iconName, text) {
+  return h("div", { class: `notice ${kind}`, role: kind === "error" ? "alert" : "status" }, icon(iconName), h("span", null, text));
+}
+
 // -- the device and its printed axes -----------------------------------------------------------
 const AXIS_CLASS = { x: "ax-x", y: "ax-y", z: "ax-z" };
 

@@ -69,6 +69,13 @@ function sessionTable(sessions) {
     })));
 }
 
+/** A line under a form saying what went wrong (or what to be warned of). */
+function formProblem(text) {
+  return h("p", { class: "form-error" }, icon("warn"), h("span", null, text));
+}
+
+const noneBy = (deviceId) => `No calibration of ${deviceId} had been accepted by then.`;
+
 /** "Which calibration was in force at…": a moment in, the calibration the service says was in force then out. */
 function inForceForm(ctx, deviceId, cals) {
   const input = h("input", { id: "in-force-at", type: "datetime-local", step: "1", required: true });
@@ -80,13 +87,13 @@ function inForceForm(ctx, deviceId, cals) {
     ev.preventDefault();
     const when = input.value ? new Date(input.value) : null;
     if (!when || Number.isNaN(when.getTime())) {
-      fill(out, h("p", { class: "form-error" }, icon("warn"), h("span", null, "Choose a date and a time.")));
+      fill(out, formProblem("Choose a date and a time."));
       return;
     }
     const first = Math.min(...cals.map((c) => parseTime(c.accepted_at).getTime()));
     if (when.getTime() < first) {
       // known from the list already: no need to ask the service for what it would answer 404
-      fill(out, h("p", { class: "form-error" }, icon("warn"), h("span", null, `No calibration of ${deviceId} had been accepted by then.`)));
+      fill(out, formProblem(noneBy(deviceId)));
       return;
     }
     try {
@@ -96,10 +103,10 @@ function inForceForm(ctx, deviceId, cals) {
       fill(out, h("p", { class: "in-force-answer" }, icon("check"),
         h("span", null, `Calibration #${cal.id}${n >= 0 ? ` (row ${n + 1} below)` : ""}, accepted by ${cal.operator} on ${fmtDateTime(cal.accepted_at)}: `,
           `${age < 1 ? `${num(age * 24, 1)} hours` : `${num(age, 1)} days`} old then.`)),
-        cal.in_force.warnings.map((w) => h("p", { class: "form-error" }, icon("warn"), h("span", null, w))));
+        cal.in_force.warnings.map((w) => formProblem(w)));
     } catch (err) {
       if (err.status === 401) return;
-      fill(out, h("p", { class: "form-error" }, icon("warn"), h("span", null, err.status === 404 ? `No calibration of ${deviceId} had been accepted by then.` : problemLine(err))));
+      fill(out, formProblem(err.status === 404 ? noneBy(deviceId) : problemLine(err)));
     }
   });
   return form;
@@ -119,7 +126,7 @@ function applyForm(ctx, deviceId) {
     ev.preventDefault();
     const f = file.files && file.files[0];
     if (!f) {
-      fill(out, h("p", { class: "form-error" }, icon("warn"), h("span", null, "Choose the recording's CSV file.")));
+      fill(out, formProblem("Choose the recording's CSV file."));
       return;
     }
     go.disabled = true;
@@ -133,9 +140,9 @@ function applyForm(ctx, deviceId) {
       fill(out, h("p", { class: "in-force-answer" }, icon("check"), h("span", null,
         `Corrected with calibration #${res.headers.get("X-Gyrocal-Calibration-Id")} (${res.headers.get("X-Gyrocal-Corrected")}). `,
         h("a", { class: "download", href: url, download: name }, `Download ${name}`))),
-      warnings.map((w) => h("p", { class: "form-error" }, icon("warn"), h("span", null, w))));
+      warnings.map((w) => formProblem(w)));
     } catch (err) {
-      if (err.status !== 401) fill(out, h("p", { class: "form-error" }, icon("warn"), h("span", null, problemLine(err))));
+      if (err.status !== 401) fill(out, formProblem(problemLine(err)));
     } finally {
       go.disabled = false;
     }

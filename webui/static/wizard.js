@@ -4,7 +4,7 @@
 import { AXES, AXIS_LABEL, fill, fmtDateTime, h } from "./dom.js";
 import { ask } from "./confirm.js";
 import { TURN_SUMMARY, turnGuide } from "./guide.js";
-import { angleGauge, icon, placePicture, stillRing, turnAnimation, turnTiles } from "./figures.js";
+import { angleGauge, icon, notice, placePicture, stillRing, turnAnimation, turnTiles } from "./figures.js";
 import { STEP_LABELS, headline, reasonFor, requestProblem, stepOf, subline } from "./messages.js";
 import { detailsBlock, paramTable } from "./details.js";
 import { readiness } from "./readiness.js";
@@ -49,10 +49,6 @@ function stoppedStep(s) {
 
 function cancelButton(onclick, label = "Cancel") {
   return h("button", { class: "button cancel", type: "button", onclick }, icon("cross"), label);
-}
-
-function notice(kind, iconName, text) {
-  return h("div", { class: `notice ${kind}`, role: kind === "error" ? "alert" : "status" }, icon(iconName), h("span", null, text));
 }
 
 function deviceLabel(dev, id) {

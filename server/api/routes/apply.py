@@ -13,7 +13,7 @@ from fastapi import APIRouter, Path, Query, Request, Response
 from ... import schemas as M
 from ...deps import R404, Reader, Svc, check_device_id, check_upload, problem, read_csv_body, recording_problem
 from ...export import export_text
-from ...lifecycle import in_force_async
+from ...lifecycle import in_force_async, none_in_force
 from ...workers.compute import TooManySamples, apply_upload
 from ..upload_options import Upload
 
@@ -47,8 +47,7 @@ async def apply_calibration(
     check_upload(body, layout)
     cal = await in_force_async(svc.store, device_id, at, svc.settings.calibration_max_age_days)
     if cal is None:
-        when = "yet" if at is None else f"by {at.isoformat()}"
-        raise problem(404, f"device {device_id!r} has no accepted calibration {when}: calibrate it before applying one")
+        raise problem(404, f"{none_in_force(device_id, None if at is None else at.isoformat())}: calibrate it before applying one")
     params = cal.model_dump(mode="json")
     try:
         csv, accel_too = await asyncio.wait_for(

@@ -21,7 +21,7 @@ from ...deps import (
     check_device_id,
     problem,
 )
-from ...lifecycle import CalibrationInForce, in_force_async
+from ...lifecycle import CalibrationInForce, in_force_async, none_in_force
 from ..views import (
     device_out,
     session_snapshot,
@@ -77,8 +77,7 @@ async def current_calibration(
     check_device_id(device_id)
     cur = await in_force_async(svc.store, device_id, at, svc.settings.calibration_max_age_days)
     if cur is None:
-        when = "yet" if at is None else f"by {at.isoformat()}"
-        raise problem(404, f"device {device_id!r} has no accepted calibration {when}")
+        raise problem(404, none_in_force(device_id, None if at is None else at.isoformat()))
     return cur.model_dump(mode="json")
 
 
