@@ -9,6 +9,7 @@ comes from a callable because a service learns its port only once it listens.
 from __future__ import annotations
 
 import json
+import logging
 import os
 import threading
 import time
@@ -34,6 +35,8 @@ class SessionFollower:
         self._thread = threading.Thread(target=self._run, name=f"follow-{device_id}", daemon=True)
 
     def start(self) -> SessionFollower:
+        # httpx logs every request at INFO: in the service's log, one line per look for a session, five a second
+        logging.getLogger("httpx").setLevel(max(logging.WARNING, logging.getLogger("httpx").level))
         self._thread.start()
         return self
 
