@@ -2,7 +2,8 @@
 
 tables (the schema) · engine (connections, SQLite write locking) · guards (append-only triggers, the
 PostgreSQL service role) · chain (hash chains over the history) · schema (creation and migrations) · records
-(what the store hands out) · repository (the Store: every read and write of the service).
+(what the store hands out) · base (transactions, integrity, audit log) · operators · sessions (sessions, spool,
+recordings) · calibrations (the history) · repository (the Store: all of them, and the devices).
 """
 
 from .chain import BrokenLink, ChainReport
