@@ -78,6 +78,8 @@ def calibrate_protocol(
         else:
             raise pointing_to(exc, used, found) from None
     result.quality["protocol"] = {"found": found.to_dict(), "used": used, "sections": len(sections)}
+    if rec.mean_temperature_c is not None:  # the sensor's temperature during the recording
+        result.quality["temperature_c"] = rec.mean_temperature_c
     if rec.accel is not None and "accelerometer" not in result.quality:
         result.quality["accelerometer"] = _accelerometer(rec, stages)
     return result, used

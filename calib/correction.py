@@ -23,6 +23,7 @@ import numpy as np
 
 from .accel import AccelCalibration
 from .errors import GyrocalError
+from .identity import IdentityError, SensorIdentity
 from .recording import Recording
 from .result import CalibrationResult
 
@@ -45,6 +46,7 @@ class Correction:
     A: np.ndarray | None = None  # (3, 3) the accelerometer's a = A (r - o): T S for gyrocal's model; None: not calibrated
     o: np.ndarray | None = None  # (3,) its offsets, g
     source: str = "gyrocal"  # gyrocal | imucal: the file it was read from
+    identity: SensorIdentity | None = None  # the sensor, power-up and temperature it was measured at, when the file says
 
     @classmethod
     def from_result(cls, result: CalibrationResult) -> Correction:
@@ -66,11 +68,14 @@ class Correction:
             K = np.diag(k) if d.get("K") is None else _matrix(d["K"], "K")
             G = None if d.get("G") is None else _matrix(d["G"], "G")
             A, o = _accel(d.get("accelerometer") or (d.get("quality") or {}).get("accelerometer"))
+            identity = None if d.get("identity") is None else SensorIdentity.from_json(d["identity"])
+        except IdentityError as exc:
+            raise CorrectionFileError(f"the calibration's identity is unreadable: {exc}") from None
         except (KeyError, TypeError, ValueError) as exc:
             raise CorrectionFileError(f"not a gyrocal calibration: {exc}; it needs \"k\" and \"b\", three numbers each") from None
         if abs(np.linalg.det(K)) < 1e-9:
             raise CorrectionFileError("this K cannot be a calibration (it is singular): check the file's \"k\" (or \"K\")")
-        return cls(K=K, b=b, G=G, A=A, o=o)
+        return cls(K=K, b=b, G=G, A=A, o=o, identity=identity)
 
     @classmethod
     def _from_imucal(cls, d: dict[str, Any]) -> Correction:
@@ -121,6 +126,7 @@ class Correction:
             "G": None if self.G is None else self.G.tolist(),
             "accelerometer": None if self.A is None or self.o is None else {"model": "a = A (r - o)", "matrix": self.A.tolist(),
                                                                             "offset": [float(v) for v in self.o]},
+            "identity": None if self.identity is None else self.identity.to_json(),
         }
 
     def to_imucal(self, comment: str = "") -> dict[str, Any]:

@@ -85,6 +85,13 @@ class Recording:
             return float(self.meta.sample_rate_hz)
         return float(1.0 / np.median(np.diff(self.t)))
 
+    @property
+    def mean_temperature_c(self) -> float | None:
+        """The sensor's mean temperature over the recording (degC, to 0.01), None without a temperature channel."""
+        if self.temp is None or not np.isfinite(self.temp).any():
+            return None
+        return round(float(np.nanmean(self.temp)), 2)
+
     def slice(self, start: int, end: int) -> Recording:
         """Samples start..end-1 as a new Recording with the same metadata."""
         pick = lambda a: None if a is None else a[start:end]  # noqa: E731

@@ -43,6 +43,9 @@ def register(subparsers: Any) -> None:
                    help="the protocol the wearable speaks (default gyrocal)")
     p.add_argument("--rate", type=float, default=None, help="initial sample rate in Hz (default: the model's, 104 for gyrocal)")
     p.add_argument("--count", type=int, default=1, help="number of wearables (seeds S, S+1, ...; default 1)")
+    p.add_argument("--boot-count", type=int, default=1,
+                   help="the power-up count the gyrocal wearable reports (default 1; each simulated power cycle adds one)")
+    p.add_argument("--temperature", type=float, default=24.0, help="the IMU's temperature at power-up in degC (default 24)")
     p.add_argument("--hide-optional-services", action="store_true",
                    help="hide Device Information and Battery, as some BlueZ versions do")
     p.set_defaults(func=run)
@@ -54,6 +57,10 @@ def run(args: argparse.Namespace) -> int:
                            "(for an in-process wearable use `gyrocal serve --mock`)")
     if not (args.speed > 0):
         raise GyrocalError(f"--speed must be a positive number (1 = real time), got {args.speed}")
+    if not 0 <= args.boot_count <= 0xFFFFFFFF:
+        raise GyrocalError(f"--boot-count must be between 0 and 4294967295, got {args.boot_count}")
+    if not -40.0 <= args.temperature <= 85.0:
+        raise GyrocalError(f"--temperature must be within an IMU's operating range, -40 to 85 degC; got {args.temperature:g}")
     if not 1 <= args.count <= 64:
         raise GyrocalError(f"--count must be between 1 and 64, got {args.count}")
     if args.replay and args.scenario not in ("normal", "packet_loss"):
@@ -63,6 +70,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _wearables(args: argparse.Namespace) -> list[Any]:
+    from .power import PowerUpState
     from .sources import ReplaySource, ScriptedSource
     from .vendors import WEARABLES
 
@@ -79,7 +87,8 @@ def _wearables(args: argparse.Namespace) -> list[Any]:
         rate = args.rate
         if rate is not None and not args.replay and not model.offers_rate(rate):
             raise GyrocalError(f"--rate {rate:g} is not offered by a {model.label}: choose {model.rates_text()}")
-        out.append(WEARABLES[args.model](source, seed=seed, speed=args.speed, faults=faults, rate_hz=rate))
+        out.append(WEARABLES[args.model](source, seed=seed, speed=args.speed, faults=faults, rate_hz=rate,
+                                         power_up=PowerUpState(args.boot_count, args.temperature)))
     return out
 
 

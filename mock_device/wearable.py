@@ -1,19 +1,10 @@
 """The simulated wearable: a GATT peripheral that streams protocol packets from a sample source.
 
-Device behaviour (docs/protocol.md, "Device behaviour"):
-
-- START opens a streaming session (seq 0, SESSION_START flag) or resumes the current one after a link
-  loss (RESUMED flag). The session clock keeps running while the link is down: the clinician goes on
-  turning and the packets of that time are lost, so the central sees the gap in seq and device time.
-  On resuming, the sample source is told (``resumed``): a scripted clinician then redoes the step the
-  loss interrupted, as the service asks.
-- Every START after STOP is a new session, and the source performs anew (``prepare``).
-- STOP ends the session. Configuration changes are refused (BUSY) while streaming.
-- The device clock is in microseconds (32-bit on the wire). It starts 2-20 s before its 32-bit wrap, so
-  the first session exercises the central's unwrapping; it keeps running between sessions.
-- The true output data rate differs from the nominal one by up to +-0.8 % (a real sensor's oscillator),
-  so a central must estimate the rate from device time.
-- ``speed`` runs the device clock faster than wall time (20 = twenty times real time).
+It behaves as docs/protocol.md ("Device behaviour") asks of a device: sessions that survive a link loss
+(the clinician goes on turning; the source is told when the session resumes so a scripted clinician redoes
+the interrupted step), a microsecond clock that starts 2-20 s before its 32-bit wrap (the first session
+exercises the central's unwrapping), a true output rate up to +-0.8 % off the nominal one, and its power-up
+and temperature (``mock_device.power``). ``speed`` runs the device clock faster than wall time.
 """
 
 from __future__ import annotations
@@ -45,6 +36,7 @@ from wearable_protocol import (
 from wearable_protocol.models import GYROCAL, DeviceModel
 
 from .device_stats import DeviceStats
+from .power import PowerUpState
 from .scenarios import LinkFaults
 from .sources import SampleSource
 
@@ -101,6 +93,7 @@ class Wearable:
         clock_start_us: int | None = None,
         session_timeout_s: float = 60.0,
         battery_pct: int | None = None,
+        power_up: PowerUpState | None = None,
     ) -> None:
         if not (speed > 0 and math.isfinite(speed)):
             raise ValueError(f"speed must be a positive number (1 = real time), got {speed!r}")
@@ -131,6 +124,7 @@ class Wearable:
         self.serial = f"GC{self.seed:08d}"
         self.config_id = 1
         self.held: wp.HeldCalibration | None = None  # the calibration written to it (lost at power-off)
+        self.power = power_up or PowerUpState()
         self.stats = DeviceStats()
         self._central: Central | None = None
         self._notifying: set[str] = set()
@@ -220,7 +214,8 @@ class Wearable:
     def _readable(self) -> dict[str, Callable[[], bytes]]:
         """The protocol's own readable characteristics (the standard services' are added by ``read``)."""
         return {wp.IMU_CONFIG_CHAR: lambda: self.config.encode(),
-                wp.IMU_CALIBRATION_CHAR: lambda: wp.encode_slot(self.held)}
+                wp.IMU_CALIBRATION_CHAR: lambda: wp.encode_slot(self.held),
+                wp.IMU_POWER_UP_CHAR: lambda: self.power.value(self.device_time_us() / 1e6)}
 
     def read(self, char_uuid: str) -> bytes:
         manufacturer, model_number, firmware = self.device_information
@@ -276,6 +271,16 @@ class Wearable:
         if self._central is not None:
             central = self._lose_central()
             central.link_lost()
+
+    def power_cycle(self) -> None:
+        """Switched off and on: the link and any session end, the held calibration is lost, the clock restarts
+        at 0 and the boot count steps."""
+        if self._central is not None:
+            self._lose_central().link_lost()
+        self._end_session("power cycle")
+        self.held = None
+        self._clock_start_us, self._boot_wall = 0, time.monotonic()
+        self.power.rebooted()
 
     def corrupt_next_packets(self, count: int) -> None:
         """The next ``count`` data packets go out with a bad version byte (malformed)."""

@@ -1,6 +1,7 @@
 """`gyrocal calibration DEVICE [--at TIME]`: the calibration in force for a device at a moment, from the store;
 `gyrocal apply RECORDING (--device ID | --calibration FILE)`: a recording corrected by a calibration;
-`gyrocal export`: a calibration for other tools (plugged into calib's CLI)."""
+`gyrocal export`: a calibration for other tools; `gyrocal import FILE --device ID`: one made elsewhere into the
+history (plugged into calib's CLI)."""
 
 from __future__ import annotations
 
@@ -8,32 +9,85 @@ import argparse
 import json
 from datetime import datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+from calib.identity import DEFAULT_MAX_TEMPERATURE_CHANGE_C, SensorIdentity
 
 from .cli import EXIT_OK, ServiceError, open_store
+
+if TYPE_CHECKING:
+    from .config import CalibrationLimits
 
 EXIT_NONE = 5  # no calibration had been accepted by then
 MAX_AGE_DAYS = 30.0
 
 
 def _add_moment_arguments(p: argparse.ArgumentParser, at_help: str, db_help: str, max_age: bool = True) -> None:
-    """--at, --db and (with ``max_age``) --max-age-days: which moment, which store, how old is too old."""
+    """--at, --db, the recording's identity and (with ``max_age``) the limits: which moment and recording, which store,
+    what is too old or too far in temperature."""
     p.add_argument("--at", default=None, metavar="TIME", help=at_help)
     p.add_argument("--db", default=None, metavar="URL", help=db_help)
+    _add_identity_arguments(p, "the recording's sensor and power-up (docs/lifecycle.md, 'Identity')", "during the recording",
+                            boot_note=": a calibration of that power-up is taken first",
+                            temperature_note=" (default: the recording's temp column, if any)")
     if max_age:
         p.add_argument("--max-age-days", type=float, default=MAX_AGE_DAYS, metavar="DAYS",
                        help=f"warn when the calibration is older (default {MAX_AGE_DAYS:g})")
+        p.add_argument("--max-temperature-change-c", type=float, default=DEFAULT_MAX_TEMPERATURE_CHANGE_C, metavar="DEGC",
+                       help=f"warn when the recording is this much warmer or colder (default {DEFAULT_MAX_TEMPERATURE_CHANGE_C:g})")
 
 
-def _in_force_of(args: argparse.Namespace, store: Any = None) -> Any:
-    """The calibration of ``args.device`` in force at ``args.at`` (None when none had been accepted by then)."""
+def _add_identity_arguments(p: argparse.ArgumentParser, title: str, when: str, boot_note: str = "",
+                            temperature_note: str = "") -> None:
+    """--serial, --sensor-model, --boot-count and --temperature: a sensor and the power-up and temperature ``when``."""
+    g = p.add_argument_group(title)
+    g.add_argument("--serial", default=None, help="the sensor's serial or chip id")
+    g.add_argument("--sensor-model", default=None, metavar="MODEL", help="the sensor model, e.g. ICM-20948")
+    g.add_argument("--boot-count", type=int, default=None, metavar="N", help=f"the device's power-up count {when}{boot_note}")
+    g.add_argument("--temperature", type=float, default=None, metavar="DEGC", help=f"the sensor's temperature {when}{temperature_note}")
+
+
+def _recording_identity(args: argparse.Namespace, temperature_c: float | None = None) -> SensorIdentity:
+    """The recording's identity from the command line (``temperature_c``: the recording's own, when it has one)."""
+    from calib.identity import IdentityError
+
+    try:
+        return SensorIdentity.from_json({
+            "serial": args.serial, "sensor_model": args.sensor_model, "boot_count": args.boot_count,
+            "temperature_c": args.temperature if args.temperature is not None else temperature_c})
+    except IdentityError as exc:
+        flags = {"identity boot_count": "--boot-count", "identity temperature_c": "--temperature"}
+        text = str(exc)
+        for field, flag in flags.items():
+            text = text.replace(field, flag)
+        raise ServiceError(text) from None
+
+
+def _limits(args: argparse.Namespace) -> CalibrationLimits:
+    from .config import CalibrationLimits
+
+    limits = CalibrationLimits(getattr(args, "max_age_days", MAX_AGE_DAYS),
+                               getattr(args, "max_temperature_change_c", DEFAULT_MAX_TEMPERATURE_CHANGE_C))
+    if not limits.max_age_days > 0:
+        raise ServiceError("--max-age-days must be a positive number of days")
+    if not limits.max_temperature_change_c > 0:
+        raise ServiceError("--max-temperature-change-c must be a positive number of degrees Celsius")
+    return limits
+
+
+def _in_force_of(args: argparse.Namespace, store: Any = None, temperature_c: float | None = None) -> Any:
+    """The calibration of ``args.device`` in force at ``args.at`` for the recording the arguments describe (None when
+    none had been accepted by then); ServiceError when the only ones are another sensor's."""
+    from calib.identity import WrongSensor
+
     from .lifecycle import in_force
 
     at = _parse_at(args.at)
-    max_age = getattr(args, "max_age_days", MAX_AGE_DAYS)
-    if not max_age > 0:
-        raise ServiceError("--max-age-days must be a positive number of days")
-    return in_force(store or open_store(args.db), args.device, at, max_age)
+    recording = _recording_identity(args, temperature_c)
+    try:
+        return in_force(store or open_store(args.db), args.device, at, _limits(args), recording)
+    except WrongSensor as exc:
+        raise ServiceError(str(exc)) from None
 
 
 def register(sub: Any) -> None:
@@ -41,8 +95,10 @@ def register(sub: Any) -> None:
     p = sub.add_parser(
         "calibration",
         help="the calibration in force for a device at a moment (default now), with its age and warnings",
-        description="Print, as JSON, the device's calibration in force at --at: the latest one accepted at or before "
-        "that moment, with in_force {at, age_days, warnings}. Exit 5 when none had been accepted by then.",
+        description="Print, as JSON, the device's calibration in force for a recording: one of the recording's power-up when "
+        "--boot-count names it, else the latest one accepted at or before --at (default now); never one of another sensor "
+        "(--serial, --sensor-model). in_force {at, age_days, chosen_by, identity_check, warnings} says why and warns. Exit 5 "
+        "when none had been accepted by then.",
     )
     p.add_argument("device", help="the device's id, as in `gyrocal serve`'s device list")
     _add_moment_arguments(p, "ISO 8601 time, e.g. 2026-11-20T14:30 (UTC unless it carries an offset)",
@@ -103,22 +159,29 @@ def _read_calibration_file(path: Path) -> Any:
 def cmd_apply(args: argparse.Namespace) -> int:
     from calib.cli_input import read_recording_args
     from calib.correction import Correction, corrected
+    from calib.identity import check_identity
     from calib.io import write_native_csv
 
     from .lifecycle import none_in_force
 
+    rec = read_recording_args(args)
     used: dict[str, Any]
     if args.calibration is not None:
         correction = _read_calibration_file(args.calibration)
-        used = {"file": str(args.calibration), "source": correction.source, "warnings": []}
+        recording = _recording_identity(args, rec.mean_temperature_c)
+        check = check_identity(correction.identity or SensorIdentity(), recording,
+                               max_temperature_change_c=_limits(args).max_temperature_change_c)
+        if check.refusal is not None:
+            raise ServiceError(f"{args.calibration}: {check.refusal}")
+        used = {"file": str(args.calibration), "source": correction.source, "identity_check": check.to_json(),
+                "warnings": list(check.warnings)}
     else:
-        cal = _in_force_of(args)
+        cal = _in_force_of(args, temperature_c=rec.mean_temperature_c)
         if cal is None:
             raise ServiceError(f"{none_in_force(args.device, args.at)}: calibrate it first, or give --calibration FILE")
         correction = Correction.from_json(cal.model_dump(mode="json"))
         used = {"calibration_id": cal.id, "device_id": cal.device_id, "accepted_at": cal.accepted_at.isoformat(),
                 "operator": cal.operator, "in_force": cal.in_force.model_dump(mode="json"), "warnings": cal.in_force.warnings}
-    rec = read_recording_args(args)
     out = args.output or args.file.with_name(args.file.stem + ".calibrated.csv")
     write_native_csv(corrected(rec, correction), out)
     side = out.with_name(out.name + ".calibration.json") if out.suffix != ".csv" else out.with_suffix(".calibration.json")
@@ -180,4 +243,44 @@ def cmd_export(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise ServiceError(f"cannot write {args.output} ({exc.strerror or exc}); check the folder exists and is writable") from None
     print(f"calibration #{cal.id} of {cal.device_id} written to {args.output} ({args.format})")
+    return EXIT_OK
+
+
+def register_import(sub: Any) -> None:
+    """Add `gyrocal import`."""
+    p = sub.add_parser(
+        "import",
+        help="add a calibration made elsewhere (an imucal calibration file or gyrocal's JSON) to a device's history",
+        description="Read FILE (imucal's Ferraris calibration file, or gyrocal's calibration JSON) and add it to the device's "
+        "history, marked as imported: it becomes the device's calibration in force from now, as an accepted one does. "
+        "The same file is imported once per device.",
+    )
+    p.add_argument("file", type=Path, help="the calibration file (JSON)")
+    p.add_argument("--device", required=True, metavar="ID", help="the device it calibrates")
+    p.add_argument("--operator", required=True, metavar="NAME", help="who imports it (an operator of the store; `gyrocal operator list`)")
+    p.add_argument("--db", default=None, metavar="URL", help="the store's URL (default as for `gyrocal serve`)")
+    _add_identity_arguments(p, "the sensor it was measured on, when the file does not say", "when it was measured")
+    p.set_defaults(func=cmd_import)
+
+
+def cmd_import(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from calib import __version__
+
+    from .store import NotAcceptable, sha256_hex
+
+    correction = _read_calibration_file(args.file)
+    stated = _recording_identity(args)
+    correction = replace(correction, identity=(correction.identity or SensorIdentity()).completed(stated))
+    store = open_store(args.db)
+    if args.operator not in {o["name"] for o in store.operators() if o["active"]}:
+        raise ServiceError(f"no active operator {args.operator!r} in {store.display_url}; `gyrocal operator list` names them")
+    try:
+        rec = store.import_calibration(args.device, correction, args.operator, __version__, file_name=args.file.name,
+                                       file_sha256=sha256_hex(args.file.read_bytes()))
+    except NotAcceptable as exc:
+        raise ServiceError(str(exc)) from None
+    print(f"{args.file} imported for {args.device} as calibration #{rec.id} ({correction.source}); it is in force from "
+          f"{rec.accepted_at.isoformat(timespec='seconds')}")
     return EXIT_OK

@@ -107,6 +107,13 @@ def register(sub: Any) -> None:
         help="a device whose calibration is older is due, and applying that calibration warns (default 30)",
     )
     p.add_argument(
+        "--calibration-max-temperature-change-c",
+        type=float,
+        default=3.0,
+        metavar="DEGC",
+        help="applying a calibration to a recording this much warmer or colder than the calibration warns (default 3)",
+    )
+    p.add_argument(
         "--pin-from",
         action="append",
         default=[],
@@ -256,7 +263,7 @@ def build_service(args: argparse.Namespace) -> Any:
     """Settings, store and devices from the command line (no event loop needed)."""
     from calib.api import available_methods
 
-    from .config import Settings, default_db_url
+    from .config import CalibrationLimits, Settings, default_db_url
     from .devices import DeviceManager, load_simulators
     from .service import Service
 
@@ -286,6 +293,8 @@ def build_service(args: argparse.Namespace) -> Any:
         raise ServiceError("--worker-memory-mb must be between 256 and 1048576")
     if not args.calibration_max_age_days > 0:
         raise ServiceError("--calibration-max-age-days must be a positive number of days")
+    if not args.calibration_max_temperature_change_c > 0:
+        raise ServiceError("--calibration-max-temperature-change-c must be a positive number of degrees Celsius")
     if not 1 <= args.max_attempts <= 5:
         raise ServiceError("--max-attempts must be between 1 and 5")
     scenarios = [s.strip() for s in args.mock_scenario.split(",") if s.strip()]
@@ -302,7 +311,7 @@ def build_service(args: argparse.Namespace) -> Any:
         worker_memory_mb=args.worker_memory_mb,
         allowed_hosts=tuple(dict.fromkeys(h.lower() for h in hosts)),
         pin_from=(*Settings.pin_from, *pin_networks(args.pin_from)),
-        calibration_max_age_days=args.calibration_max_age_days,
+        limits=CalibrationLimits(args.calibration_max_age_days, args.calibration_max_temperature_change_c),
     )
     from .store import Store, StoreError
 

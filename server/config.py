@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from calib.acceptance import Tolerances
+from calib.identity import DEFAULT_MAX_TEMPERATURE_CHANGE_C
 
 
 def default_db_path() -> Path:
@@ -43,6 +44,14 @@ class ProtocolTimings:
 
 
 @dataclass(frozen=True)
+class CalibrationLimits:
+    """How old, and how far in temperature from a recording, a calibration may be before it is warned of."""
+
+    max_age_days: float = 30.0  # as imucal warns
+    max_temperature_change_c: float = DEFAULT_MAX_TEMPERATURE_CHANGE_C
+
+
+@dataclass(frozen=True)
 class Settings:
     """Everything the service needs to start."""
 
@@ -51,7 +60,7 @@ class Settings:
     port: int = 8000
     api_token: str | None = field(default_factory=lambda: os.environ.get("GYROCAL_API_TOKEN") or None)
     allowed_hosts: tuple[str, ...] = ("localhost", "127.0.0.1", "::1")  # Host names answered ("*": any); others get 400
-    calibration_max_age_days: float = 30.0  # a calibration older than this at the moment asked about is warned of
+    limits: CalibrationLimits = field(default_factory=lambda: CalibrationLimits())  # when a calibration in force is warned of
     pin_from: tuple[str, ...] = ("127.0.0.0/8", "::1/128")  # client networks whose sign-ins may use a PIN
     auth_reads: bool = False  # when True, reads need a token too (SSE may pass it as ?access_token=)
     max_body_bytes: int = 32 * 1024 * 1024  # uploads above this get 413

@@ -16,8 +16,10 @@ from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from typing import Any, Protocol
 
+from calib.identity import SensorIdentity
 from wearable_protocol.models import MODELS
 
+from .link.base import DeviceInfo
 from .link.slots import AdapterSlots
 
 log = logging.getLogger(__name__)
@@ -64,6 +66,14 @@ def model_facts(key: str | None, info: dict[str, Any] | None = None) -> dict[str
             "gyro_full_scale_dps": info.get("gyro_full_scale_dps") or m.gyro_range_dps, "time_stamps": m.time_stamps,
             "loss_detection": m.loss_detection, "limitations": list(m.limitations()),
             "write_back": bool(info.get("write_back", m.write_back))}
+
+
+def sensor_identity(device_id: str, info: DeviceInfo) -> SensorIdentity:
+    """The sensor a connected wearable described, with its power-up and temperature when it reports them."""
+    p = info.power_up
+    return SensorIdentity(device_id=device_id, sensor_model=info.model, serial=info.serial, firmware=info.firmware,
+                          boot_count=p.boot_count if p else None, booted_at=p.booted_at if p else None,
+                          temperature_c=p.temperature_c if p else None)
 
 
 @dataclass

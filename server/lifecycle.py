@@ -1,17 +1,24 @@
 """Which calibration was in force when a recording was made, and what the user should be warned of.
 
 A calibration is in force from the moment it was accepted until the next one is. Scale factors and biases
-change at every power-up and with temperature (the paper), so a calibration used long after it was made
-deserves a warning: past ``max_age_days`` (30 by default, as imucal warns) the answer says so.
+change at every power-up and with temperature (the paper), so when the recording's power-up is known a
+calibration of that same power-up is taken first; otherwise the latest one accepted by then. A calibration of
+another sensor (a different serial or sensor model) is never taken. Past ``max_age_days`` (30 by default, as
+imucal warns), across a power-up, or beyond ``max_temperature_change_c`` the answer warns.
 """
 
 from __future__ import annotations
 
 import asyncio
+from dataclasses import replace
 from datetime import UTC, datetime
+from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
+from calib.identity import SensorIdentity, WrongSensor, check_identity, same_power_up
+
+from .config import CalibrationLimits
 from .store import Store
 from .store.records import CalibrationRecord
 
@@ -19,10 +26,14 @@ DAY_S = 86400.0
 
 
 class InForce(BaseModel):
-    """When a calibration was asked for, how old it was then, and what to be warned of."""
+    """When a calibration was asked for, why it is the one, how old it was then, and what to be warned of."""
 
     at: datetime = Field(description="the moment asked about (UTC)")
-    age_days: float = Field(description="days from its acceptance to that moment")
+    age_days: float = Field(description="days from its acceptance to that moment (negative: accepted later in the same power-up)")
+    chosen_by: Literal["same_power_up", "latest_before"] = Field(
+        "latest_before", description="same_power_up: measured in the recording's power-up; latest_before: the latest accepted by then")
+    identity_check: dict[str, Any] | None = Field(
+        None, description="sensor, power_up, temperature: same | different | unknown; temperature_change_c (calib.identity)")
     warnings: list[str] = Field(default_factory=list, description="plain sentences: what makes it doubtful for that moment")
 
 
@@ -42,19 +53,44 @@ def age_days(accepted_at: datetime, at: datetime) -> float:
     return (at - accepted_at.astimezone(UTC)).total_seconds() / DAY_S
 
 
-def in_force(store: Store, device_id: str, at: datetime | None, max_age_days: float) -> CalibrationInForce | None:
-    """The calibration of ``device_id`` in force at ``at`` (now when None; a naive time is UTC), or None when
-    none had been accepted by then."""
+def _identity_of(cal: CalibrationRecord) -> SensorIdentity:
+    return (cal.identity or SensorIdentity()).completed(SensorIdentity(device_id=cal.device_id, sensor_model=cal.sensor_model,
+                                                                       firmware=cal.firmware))
+
+
+def in_force(store: Store, device_id: str, at: datetime | None, limits: CalibrationLimits,
+             recording: SensorIdentity | None = None) -> CalibrationInForce | None:
+    """The calibration of ``device_id`` in force at ``at`` (now when None; a naive time is UTC) for a recording made
+    as ``recording`` says (sensor, power-up, temperature; all optional). None when none had been accepted by then;
+    raises WrongSensor when the only ones there are were measured on another sensor."""
     when = datetime.now(UTC) if at is None else (at if at.tzinfo is not None else at.replace(tzinfo=UTC)).astimezone(UTC)
-    cal = store.current_calibration(device_id, when)
+    rec = replace(recording or SensorIdentity(), device_id=device_id)
+    history = store.calibrations(device_id)  # newest first
+    own = [c for c in history if check_identity(_identity_of(c), rec).refusal is None]
+    same = [c for c in own if same_power_up(_identity_of(c), rec)]
+    earlier = [c for c in own if c.accepted_at <= when]
+    cal = same[0] if same else earlier[0] if earlier else None
     if cal is None:
+        others = [c for c in history if c not in own and c.accepted_at <= when]
+        if others:
+            raise WrongSensor(check_identity(_identity_of(others[0]), rec).refusal or "measured on another sensor")
         return None
+    return judged(cal, when, limits, rec, "same_power_up" if same else "latest_before")
+
+
+def judged(cal: CalibrationRecord, when: datetime, limits: CalibrationLimits, recording: SensorIdentity,
+           chosen_by: Literal["same_power_up", "latest_before"] = "latest_before") -> CalibrationInForce:
+    """``cal`` with its age at ``when``, its identity compared with the recording's, and the warnings."""
     age = age_days(cal.accepted_at, when)
+    check = check_identity(_identity_of(cal), recording, max_temperature_change_c=limits.max_temperature_change_c)
     warnings = []
-    if age > max_age_days:
+    if age > limits.max_age_days:
         warnings.append(f"calibration #{cal.id} was accepted {age:.0f} days before this moment, more than the "
-                        f"{max_age_days:g} days allowed: calibrate the device again before using it for a study")
-    return CalibrationInForce(**cal.model_dump(), in_force=InForce(at=when, age_days=age, warnings=warnings))
+                        f"{limits.max_age_days:g} days allowed: calibrate the device again before using it for a study")
+    warnings += check.warnings
+    base = cal.model_dump(exclude={"in_force"})
+    return CalibrationInForce(**base, in_force=InForce(at=when, age_days=age, chosen_by=chosen_by, identity_check=check.to_json(),
+                                                       warnings=warnings))
 
 
 class CalibrationDue(BaseModel):
@@ -64,15 +100,29 @@ class CalibrationDue(BaseModel):
     reason: str = Field(description="in words: never calibrated, or how old its calibration is against the limit")
 
 
-def calibration_due(current_accepted_at: datetime | None, max_age_days: float, now: datetime | None = None) -> CalibrationDue:
-    """Due when never calibrated, or when its current calibration is older than ``max_age_days``."""
+def calibration_due(current_accepted_at: datetime | None, max_age_days: float, now: datetime | None = None, *,
+                    powered_up_since: bool = False) -> CalibrationDue:
+    """Due when never calibrated, when the device was switched on again since its current calibration
+    (``powered_up_since``), or when that calibration is older than ``max_age_days``."""
     if current_accepted_at is None:
         return CalibrationDue(due=True, reason="never calibrated")
     age = age_days(current_accepted_at, now or datetime.now(UTC))
+    if powered_up_since:
+        return CalibrationDue(due=True, reason=f"switched on again since its calibration ({age:.0f} days old): a power-up changes "
+                              "the gyroscope's scale factors and biases")
     if age > max_age_days:
         return CalibrationDue(due=True, reason=f"its calibration is {age:.0f} days old, more than the {max_age_days:g} days allowed")
     return CalibrationDue(due=False, reason=f"its calibration is {age:.0f} days old, within the {max_age_days:g} days allowed")
 
 
-async def in_force_async(store: Store, device_id: str, at: datetime | None, max_age_days: float) -> CalibrationInForce | None:
-    return await asyncio.to_thread(in_force, store, device_id, at, max_age_days)
+def powered_up_since(calibration_identity: dict[str, Any] | None, device_power_up: dict[str, Any] | None) -> bool:
+    """Whether the power-up a device last reported is another than the one its calibration was measured in."""
+    if not calibration_identity or not device_power_up:
+        return False
+    now = SensorIdentity.from_json({k: device_power_up.get(k) for k in ("boot_count", "booted_at")})
+    return same_power_up(SensorIdentity.from_json(calibration_identity), now) is False
+
+
+async def in_force_async(store: Store, device_id: str, at: datetime | None, limits: CalibrationLimits,
+                         recording: SensorIdentity | None = None) -> CalibrationInForce | None:
+    return await asyncio.to_thread(in_force, store, device_id, at, limits, recording)

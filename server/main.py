@@ -14,6 +14,7 @@ from fastapi.responses import JSONResponse
 from sqlalchemy.exc import SQLAlchemyError
 
 from calib import __version__
+from calib.identity import WrongSensor
 
 from . import schemas as M
 from .api import page
@@ -83,7 +84,8 @@ def _error_answers(app: FastAPI) -> None:
     # the store's refusals that are the request's doing, not an outage: the message says what happened
     @app.exception_handler(DecisionConflict)
     @app.exception_handler(NotAcceptable)
-    async def _conflict(request: Request, exc: StoreError) -> JSONResponse:
+    @app.exception_handler(WrongSensor)
+    async def _conflict(request: Request, exc: Exception) -> JSONResponse:
         return JSONResponse({"detail": str(exc)}, status_code=409)
 
     @app.exception_handler(NotFound)

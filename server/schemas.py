@@ -86,6 +86,13 @@ class Truth(BaseModel):
     b: Vec3
 
 
+class PowerUpOut(BaseModel):
+    boot_count: int | None = Field(None, description="its count of power-ups (null: it keeps none)")
+    booted_at: str | None = Field(None, description="when it was switched on (ISO 8601, to the second)")
+    temperature_c: float | None = Field(None, description="its IMU's temperature then, degC (null: no sensor)")
+    read_at: str | None = Field(None, description="when the service read it")
+
+
 class DeviceOut(BaseModel):
     id: str
     name: str | None = None
@@ -117,7 +124,10 @@ class DeviceOut(BaseModel):
     active_session: str | None = None
     current_calibration: CalibrationRecord | None = None
     calibration_due: CalibrationDue | None = Field(None, description="whether the device should be calibrated again before "
-                                                   "a study: never calibrated, or its calibration older than the limit")
+                                                   "a study: never calibrated, switched on again since its calibration, or "
+                                                   "its calibration older than the limit")
+    power_up: PowerUpOut | None = Field(None, description="the power-up the device last reported (null: it reports none, or "
+                                        "has not been connected)")
     last_seen: str | None = None
 
 
@@ -168,7 +178,7 @@ class SessionOut(BaseModel):
     model_config = ConfigDict(extra="allow")
     session_id: str
     device_id: str
-    kind: Literal["live", "upload"] = "live"
+    kind: Literal["live", "upload", "import"] = "live"
     state: State = Field(description="where the session is (protocol order, then reconnecting, computing and the end states)")
     phase: Phase | None = None
     prompt: str | None = None

@@ -278,8 +278,10 @@ def api(service: RunningService, token: str | None = None) -> httpx.Client:
     return service.client(token) if token else service.client()
 
 
-def upload_accepted(service: RunningService, device: str, seed: int, operator_token: str | None = None) -> dict[str, Any]:
-    """Calibrate a simulated recording uploaded for a device and accept it; returns the stored calibration."""
+def upload_accepted(service: RunningService, device: str, seed: int, operator_token: str | None = None,
+                    **sensor: Any) -> dict[str, Any]:
+    """Calibrate a simulated recording uploaded for a device and accept it; returns the stored calibration. ``sensor``:
+    more of what the upload says about its sensor (serial, boot_count)."""
     from calib.io import write_native_csv
     from calib.simulator import simulate
 
@@ -291,7 +293,7 @@ def upload_accepted(service: RunningService, device: str, seed: int, operator_to
             f"/devices/{device}/calibrate",
             content=buf.getvalue(),
             headers={"Content-Type": "text/csv"},
-            params={"sensor_model": "ICM-20948", "firmware": "1.2.0"},
+            params={"sensor_model": "ICM-20948", "firmware": "1.2.0", **sensor},
         )
         assert r.status_code == 200, r.text
         assert r.json()["passed"], r.json()

@@ -38,6 +38,7 @@ from .gatt import (
 )
 from .held_calibration import HeldCalibration, decode_slot, encode_slot
 from .layout import WEARABLE_SERVICES
+from .power_up import POWER_UP_SIZE, PowerUp, PowerUpFlags
 from .sensor import (
     ACCEL_SENSITIVITY_LSB_PER_G,
     DEFAULT_ACCEL_RANGE_G,
@@ -58,6 +59,7 @@ from .uuids import (
     IMU_CONFIG_CHAR,
     IMU_CONTROL_CHAR,
     IMU_DATA_CHAR,
+    IMU_POWER_UP_CHAR,
     IMU_SERVICE,
     MANUFACTURER_NAME_CHAR,
     MODEL_NUMBER_CHAR,

@@ -12,6 +12,7 @@ from .uuids import (
     IMU_CONFIG_CHAR,
     IMU_CONTROL_CHAR,
     IMU_DATA_CHAR,
+    IMU_POWER_UP_CHAR,
     IMU_SERVICE,
     MANUFACTURER_NAME_CHAR,
     MODEL_NUMBER_CHAR,
@@ -23,6 +24,7 @@ IMU = ServiceSpec(IMU_SERVICE, (
     CharacteristicSpec(IMU_CONFIG_CHAR, ("read",), "IMU configuration"),
     CharacteristicSpec(IMU_CONTROL_CHAR, ("write", "notify"), "IMU control"),
     CharacteristicSpec(IMU_CALIBRATION_CHAR, ("read",), "Held calibration"),
+    CharacteristicSpec(IMU_POWER_UP_CHAR, ("read",), "Power-up and temperature"),
 ))
 DEVICE_INFORMATION = ServiceSpec(DEVICE_INFORMATION_SERVICE, (
     CharacteristicSpec(MANUFACTURER_NAME_CHAR, ("read",)),

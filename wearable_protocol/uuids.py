@@ -23,6 +23,7 @@ IMU_DATA_CHAR = _custom(0x0002)  # notify: sample packets
 IMU_CONFIG_CHAR = _custom(0x0003)  # read: current configuration
 IMU_CONTROL_CHAR = _custom(0x0004)  # write + notify: commands and their status replies
 IMU_CALIBRATION_CHAR = _custom(0x0005)  # read: the calibration the device holds (devices that can hold one)
+IMU_POWER_UP_CHAR = _custom(0x0006)  # read: boot count, uptime, temperature (devices that report them)
 
 DEVICE_INFORMATION_SERVICE = sig_uuid(0x180A)
 MANUFACTURER_NAME_CHAR = sig_uuid(0x2A29)

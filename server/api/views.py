@@ -12,7 +12,7 @@ from calib.json_safe import finite
 
 from ..deps import problem
 from ..devices import Device, model_facts
-from ..lifecycle import calibration_due
+from ..lifecycle import calibration_due, powered_up_since
 from ..service import Service
 
 
@@ -63,8 +63,11 @@ async def device_out(svc: Service, dev: Device | None, row: dict[str, Any] | Non
         "active_session": svc.active.get(device_id),
         "current_calibration": (current := await current_calibration_of(svc, device_id)),
         **held_facts(row, current),
-        "calibration_due": calibration_due(None if current is None else datetime.fromisoformat(current["accepted_at"]),
-                                           svc.settings.calibration_max_age_days).model_dump(),
+        "calibration_due": calibration_due(
+            None if current is None else datetime.fromisoformat(current["accepted_at"]), svc.settings.limits.max_age_days,
+            powered_up_since=powered_up_since(None if current is None else current.get("identity"), row.get("power_up")),
+        ).model_dump(),
+        "power_up": row.get("power_up"),
         "last_seen": row.get("last_seen"),
     }
     if detail:

@@ -13,6 +13,7 @@ from .base import (
     LinkError,
     LinkEvent,
     LinkStats,
+    PowerUpReading,
     ReconnectPolicy,
     RecordingBuilder,
     SampleBatch,
@@ -23,7 +24,7 @@ from .decoder import StreamDecoder
 from .inprocess import InProcessLink
 
 __all__ = [
-    "BleLink", "CommandError", "ConnectError", "DeviceInfo", "DeviceNotFoundError", "DiscoveredDevice",
+    "BleLink", "CommandError", "ConnectError", "DeviceInfo", "PowerUpReading", "DeviceNotFoundError", "DiscoveredDevice",
     "InProcessLink", "LinkError", "LinkEvent", "LinkStats", "ReconnectPolicy", "RecordingBuilder", "SampleBatch",
     "StreamDecoder", "WearableLink", "WriteBackError",
 ]

@@ -12,13 +12,14 @@ from __future__ import annotations
 
 from collections.abc import AsyncIterator, Iterable
 from dataclasses import dataclass, field
+from datetime import datetime, timedelta
 from typing import Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
 
 from calib.errors import GyrocalError
 from calib.recording import Recording, RecordingMeta
-from wearable_protocol import DeviceConfig, HeldCalibration
+from wearable_protocol import DeviceConfig, HeldCalibration, PowerUp
 
 
 class LinkError(GyrocalError):
@@ -88,13 +89,33 @@ class DeviceInfo:
     firmware: str | None = None
     battery_pct: int | None = None
     device_model: str = "gyrocal"
+    power_up: PowerUpReading | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
             "address": self.address, "name": self.name, "config": self.config.to_dict(),
             "manufacturer": self.manufacturer, "model": self.model, "serial": self.serial,
             "firmware": self.firmware, "battery_pct": self.battery_pct, "device_model": self.device_model,
+            **(self.power_up.to_dict() if self.power_up else {"boot_count": None, "booted_at": None, "temperature_c": None}),
         }
+
+
+@dataclass(frozen=True)
+class PowerUpReading:
+    """The device's power-up as read at ``read_at``: its boot count (None: it keeps none), when it started (the
+    read time minus its uptime, to the second) and its IMU's temperature in degC (None: no sensor)."""
+
+    boot_count: int | None
+    booted_at: datetime
+    temperature_c: float | None
+    read_at: datetime
+
+    @classmethod
+    def from_power_up(cls, p: PowerUp, read_at: datetime) -> PowerUpReading:
+        return cls(p.boot_count, (read_at - timedelta(seconds=p.uptime_s)).replace(microsecond=0), p.temperature_c, read_at)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"boot_count": self.boot_count, "booted_at": self.booted_at.isoformat(), "temperature_c": self.temperature_c}
 
 
 @dataclass(frozen=True, eq=False)
@@ -230,6 +251,9 @@ class WearableLink(Protocol):
 
     async def read_info(self) -> DeviceInfo:
         """Read the IMU configuration and the optional device information and battery level."""
+
+    async def read_power_up(self) -> PowerUpReading | None:
+        """Boot count, power-up time and temperature now (None: the device reports none)."""
 
     async def configure(self, *, sample_rate_hz: float | None = None, gyro_full_scale_dps: int | None = None,
                         accel_range_g: int | None = None) -> DeviceConfig:

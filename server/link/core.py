@@ -10,6 +10,7 @@ import time
 from abc import ABC, abstractmethod
 from collections import deque
 from collections.abc import AsyncIterator, Callable
+from datetime import UTC, datetime
 
 import wearable_protocol as wp
 from wearable_protocol import DeviceConfig, HeldCalibration
@@ -25,6 +26,7 @@ from .base import (
     LinkError,
     LinkEvent,
     LinkStats,
+    PowerUpReading,
     ReconnectPolicy,
     SampleBatch,
     WriteBackError,
@@ -211,8 +213,17 @@ class LinkCore(ABC):
             self.address or "", self.name, config,
             await text(wp.MANUFACTURER_NAME_CHAR), await text(wp.MODEL_NUMBER_CHAR),
             await text(wp.SERIAL_NUMBER_CHAR), await text(wp.FIRMWARE_REVISION_CHAR),
-            battery[0] if battery else None, adapter.model.key,
+            battery[0] if battery else None, adapter.model.key, await self.read_power_up(),
         )
+
+    async def read_power_up(self) -> PowerUpReading | None:
+        """The wearable's power-up and temperature now; None when its protocol reports none or the read failed."""
+        try:
+            found = await self._require().power_up()
+        except Exception as e:  # a lost link or a refused read: the power-up is simply unknown this time
+            log.info("power-up not readable: %s", e)
+            return None
+        return None if found is None else PowerUpReading.from_power_up(found, datetime.now(UTC))
 
     async def _optional(self, uuid: str) -> bytes | None:
         if not self._t_has(uuid):

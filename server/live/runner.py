@@ -13,13 +13,15 @@ import io
 import logging
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from datetime import datetime
 from typing import Any
 
+from calib.identity import SensorIdentity
 from calib.result import CalibrationResult
 
 from ..config import Settings
-from ..devices import Device, model_facts
+from ..devices import Device, model_facts, sensor_identity
 from ..store import SessionEnd, Store, utcnow
 from ..workers.compute import ComputePool, calibrate_recording, recording_csv
 from . import guidance as say
@@ -91,6 +93,8 @@ class LiveSession:
         self._link_down = False
         self.persisted = False
         self.persist_error: str | None = None
+        self.identity: SensorIdentity | None = None  # the sensor, its power-up and temperature, once connected
+        self.temperatures_c: tuple[float, float] | None = None  # at the session's start and end
         self._spooled = 0  # samples of the buffer made durable in the store's spool
         self._spool_chunk = 0
 
@@ -133,6 +137,7 @@ class LiveSession:
             with contextlib.suppress(asyncio.CancelledError):
                 await self._pump
             await self._stop_link()
+            await self._note_end_temperature()
             if m.state == "computing":
                 await self._compute()
             if not m.finished:
@@ -173,6 +178,7 @@ class LiveSession:
                 "manufacturer": info.manufacturer,
                 "battery_pct": info.battery_pct,
                 "accel_range_g": cfg.accel_range_g,
+                **(info.power_up.to_dict() if info.power_up else {}),
                 # the model, its limits, and the rate and range read from the device
                 **model_facts(info.device_model, {"sample_rate_hz": cfg.sample_rate_hz,
                                                   "gyro_full_scale_dps": cfg.gyro_full_scale_dps}),
@@ -184,7 +190,9 @@ class LiveSession:
             await asyncio.to_thread(
                 self.store.upsert_device, dev.id, name=dev.name, address=dev.address, transport=dev.transport,
                 sensor_model=info.model, firmware=info.firmware, serial=info.serial,
+                power_up=info.power_up.to_dict() if info.power_up else None,
             )
+        self.identity = sensor_identity(dev.id, info)
         await dev.note_held(link, self.store)
         m.connected(cfg.sample_rate_hz, dict(dev.info), float(cfg.gyro_full_scale_dps))
         try:
@@ -206,6 +214,17 @@ class LiveSession:
                 m.feed(item.t_device_s, item.gyro_dps, item.accel_g, item.seq, int(item.lost_before), time.time())
             if m.finished or m.state == "computing":
                 return
+
+    async def _note_end_temperature(self) -> None:
+        """The sensor's temperature over the session: the mean of its readings at the start and at the end."""
+        link, start = self.device.link, self.identity
+        if link is None or start is None or start.temperature_c is None or not getattr(link, "connected", False):
+            return
+        with contextlib.suppress(Exception):
+            end = await asyncio.wait_for(link.read_power_up(), timeout=5.0)
+            if end is not None and end.temperature_c is not None:
+                self.temperatures_c = (start.temperature_c, end.temperature_c)
+                self.identity = replace(start, temperature_c=round((start.temperature_c + end.temperature_c) / 2, 2))
 
     def _on_link_event(self, ev: Any) -> None:
         m = self.machine
@@ -270,7 +289,8 @@ class LiveSession:
             state=m.state, reason_code=m.reason_code, reason=m.reason, result=m.result, passed=m.passed, ended_at=ended,
             info={"lost_samples": m.lost_samples, "warnings": m.warnings, "turns": {a: t.to_dict() for a, t in m.turns.items()},
                   "checks": m.checks, "departures": m.departures, "samples": m.buf.n, "sample_rate_hz": m.fs,
-                  "gyro_full_scale_dps": m.full_scale},
+                  "gyro_full_scale_dps": m.full_scale, "identity": self.identity.to_json() if self.identity else None,
+                  "temperatures_c": self.temperatures_c},
         )
 
     async def _spool_loop(self) -> None:

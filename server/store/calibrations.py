@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import uuid
+from dataclasses import replace
 from datetime import UTC, datetime
 
 from sqlalchemy import func, select
 
+from calib.correction import Correction
+from calib.identity import SensorIdentity
 from calib.result import CalibrationResult
 
 from . import chain
@@ -13,7 +17,7 @@ from .base import ALL_CHAINS
 from .errors import NotAcceptable
 from .records import CalibrationRecord, SessionEnd, calibration_record
 from .sessions import SessionStore
-from .tables import CalibrationRow, RecordingRow, aware, utcnow
+from .tables import CalibrationRow, RecordingRow, SessionRow, aware, utcnow
 
 
 class CalibrationStore(SessionStore):
@@ -28,6 +32,7 @@ class CalibrationStore(SessionStore):
         end: SessionEnd | None = None,
         sensor_model: str | None = None,
         firmware: str | None = None,
+        identity: SensorIdentity | None = None,
         recording_csv: bytes | None = None,
         n_samples: int = 0,
     ) -> CalibrationRecord:
@@ -36,7 +41,8 @@ class CalibrationStore(SessionStore):
         The decision is a compare-and-set: of concurrent accepts and discards exactly one wins and the others
         raise DecisionConflict. When the session's end was not written (a store outage), ``end`` — the session as
         it ended — is written in the same transaction, and the recording archived, so a retried accept completes
-        everything or nothing.
+        everything or nothing. ``identity``: the sensor, power-up and temperature it was measured at (what the session
+        recorded fills the fields it leaves unknown).
         """
         with self._tx(*ALL_CHAINS) as s:
             now = utcnow()
@@ -55,6 +61,9 @@ class CalibrationStore(SessionStore):
                 raise NotAcceptable("this result comes from an uploaded recording that names no sensor: upload it again with "
                                     "?sensor_model=...&firmware=... (or give sensor_model when accepting) so the calibration "
                                     "is tied to the sensor it was measured on")
+            known = (identity or SensorIdentity()).completed(SensorIdentity.from_json(info.get("identity")))
+            known = replace(known.completed(SensorIdentity(sensor_model=sensor_model, firmware=firmware, serial=info.get("serial"))),
+                            device_id=row.device_id)
             digest = s.execute(select(RecordingRow.sha256).where(RecordingRow.session_id == session_id)).scalar_one_or_none()
             if digest is None and recording_csv is not None:
                 digest = self._archive(s, session_id, recording_csv, n_samples)
@@ -67,10 +76,42 @@ class CalibrationStore(SessionStore):
                 uncertainty=shown["uncertainty"], quality=shown["quality"], result=row.result,
                 method=stored.method or row.method, software_version=row.software_version,
                 sensor_model=sensor_model, firmware=firmware, source=row.kind, operator=operator, recording_sha256=digest,
-                computed_at=aware(row.ended_at) if row.ended_at else now, accepted_at=now,
+                computed_at=aware(row.ended_at) if row.ended_at else now, accepted_at=now, identity=known.to_json(),
             )
             chain.append(s, cal)
             self._audit(s, operator, "calibration.accept", row.device_id, session_id, {"calibration_id": cal.id})
+            return calibration_record(cal)
+
+    def import_calibration(self, device_id: str, correction: Correction, operator: str, software_version: str, *,
+                           file_name: str, file_sha256: str) -> CalibrationRecord:
+        """Add a calibration made elsewhere (an imucal or gyrocal file) to a device's history, marked ``import``: one
+        session of kind ``import`` (done, accepted) and its calibration row. The same file (by SHA-256) is imported
+        once per device: again raises NotAcceptable naming the calibration it became."""
+        with self._tx("calibrations", "audit_log") as s:
+            before = s.execute(select(SessionRow.id, SessionRow.info).where(SessionRow.device_id == device_id,
+                                                                            SessionRow.kind == "import")).all()
+            for sid, info in before:
+                if (info or {}).get("sha256") == file_sha256:
+                    cid = s.execute(select(CalibrationRow.id).where(CalibrationRow.session_id == sid)).scalar_one_or_none()
+                    raise NotAcceptable(f"this file was imported for {device_id} already, as calibration #{cid}")
+            now = utcnow()
+            ident = replace(correction.identity or SensorIdentity(), device_id=device_id)
+            doc = {**correction.to_json(), "identity": ident.to_json(), "method": "imported"}
+            info = {"source": "import", "file": file_name, "sha256": file_sha256, "format": correction.source}
+            sid = uuid.uuid4().hex
+            s.add(SessionRow(id=sid, device_id=device_id, kind="import", state="done", method="imported", operator=operator,
+                             started_at=now, ended_at=now, result=doc, passed=True, decision="accepted", decided_at=now,
+                             decided_by=operator, software_version=software_version, info=info))
+            s.flush()
+            k, b = doc["k"], doc["b"]
+            cal = CalibrationRow(
+                device_id=device_id, session_id=sid, k_x=k[0], k_y=k[1], k_z=k[2], b_x=b[0], b_y=b[1], b_z=b[2],
+                uncertainty=None, quality={"accelerometer": doc["accelerometer"]} if doc["accelerometer"] else {}, result=doc,
+                method="imported", software_version=software_version, sensor_model=ident.sensor_model, firmware=ident.firmware,
+                source="import", operator=operator, recording_sha256=None, computed_at=now, accepted_at=now, identity=ident.to_json(),
+            )
+            chain.append(s, cal)
+            self._audit(s, operator, "calibration.import", device_id, sid, {"calibration_id": cal.id, **info})
             return calibration_record(cal)
 
     def current_calibration(self, device_id: str, at: datetime | None = None) -> CalibrationRecord | None:

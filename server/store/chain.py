@@ -4,14 +4,16 @@ Each row of ``calibrations``, ``recordings`` and ``audit_log`` carries ``row_has
 SHA-256(``prev_hash`` + newline + the row's canonical JSON), where ``prev_hash`` is the ``row_hash`` of the
 row before it in its chain (64 zeros for the first) and the canonical JSON holds every other column
 (ids, ``chain_seq``, times in UTC to the microsecond, JSON values with sorted keys, a binary column as
-its SHA-256). ``chain_heads`` keeps each chain's length and last hash, so rows removed from the end
-show too. Appending locks the chain's head row: concurrent writers queue instead of forking the chain.
+its SHA-256; a column added to the schema later, such as ``identity``, only when it is set). ``chain_heads``
+keeps each chain's length and last hash, so rows removed from the end show too. Appending locks the chain's
+head row: concurrent writers queue instead of forking the chain.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
@@ -23,6 +25,8 @@ from .tables import CHAINED, Chained, ChainHead, aware
 
 GENESIS = "0" * 64
 _NOT_HASHED = {"prev_hash", "row_hash"}
+# columns added after rows were chained: hashed when set, left out when NULL, so older rows keep their hashes
+_ADDED_LATER = {"identity"}
 
 
 def _canonical(value: Any) -> Any:
@@ -36,7 +40,12 @@ def _canonical(value: Any) -> Any:
 def row_content(row: Chained) -> dict[str, Any]:
     """Every hashed column of a chained row, canonical."""
     cols = row.__table__.columns  # type: ignore[attr-defined]
-    return {c.key: _canonical(getattr(row, c.key)) for c in cols if c.key not in _NOT_HASHED}
+    return content_of({c.key: getattr(row, c.key) for c in cols})
+
+
+def content_of(values: Mapping[str, Any]) -> dict[str, Any]:
+    """The hashed part of a row given as column -> value, canonical."""
+    return {k: _canonical(v) for k, v in values.items() if k not in _NOT_HASHED and not (k in _ADDED_LATER and v is None)}
 
 
 def row_hash(prev_hash: str, content: dict[str, Any]) -> str:

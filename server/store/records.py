@@ -10,6 +10,7 @@ from typing import Any, Literal, cast
 
 from pydantic import BaseModel, ConfigDict, Field, field_serializer
 
+from calib.identity import SensorIdentity
 from calib.result import CalibrationResult
 
 from .tables import CalibrationRow, Device, SessionRow, aware, utcnow
@@ -37,15 +38,22 @@ class CalibrationRecord(BaseModel):
     software_version: str
     sensor_model: str | None
     firmware: str | None
-    source: Literal["live", "upload"] = Field(description="live: a guided session on the device; upload: an uploaded recording")
+    source: Literal["live", "upload", "import"] = Field(
+        description="live: a guided session on the device; upload: an uploaded recording; import: a calibration file made elsewhere")
     operator: str
     recording_sha256: str | None
     computed_at: datetime
     accepted_at: datetime
+    identity: SensorIdentity | None = Field(None, description="the sensor, power-up and temperature it was measured at; "
+                                            "None for a calibration stored before gyrocal recorded them")
 
     @field_serializer("computed_at", "accepted_at")
     def _iso(self, value: datetime) -> str:
         return value.isoformat()
+
+    @field_serializer("identity")
+    def _identity(self, value: SensorIdentity | None) -> dict[str, Any] | None:
+        return None if value is None else value.to_json()
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready, times in ISO 8601 with their UTC offset."""
@@ -80,11 +88,12 @@ def calibration_record(row: CalibrationRow) -> CalibrationRecord:
         software_version=row.software_version,
         sensor_model=row.sensor_model,
         firmware=row.firmware,
-        source=cast(Literal["live", "upload"], row.source or "live"),
+        source=cast(Literal["live", "upload", "import"], row.source or "live"),
         operator=row.operator,
         recording_sha256=row.recording_sha256,
         computed_at=aware(row.computed_at),
         accepted_at=aware(row.accepted_at),
+        identity=None if row.identity is None else SensorIdentity.from_json(row.identity),
     )
 
 
@@ -125,6 +134,7 @@ def device_dict(r: Device) -> dict[str, Any]:
         "serial": r.serial,
         "held_calibration_id": r.held_calibration_id,
         "held_reported_at": iso_utc(r.held_reported_at),
+        "power_up": r.power_up,
         "first_seen": iso_utc(r.first_seen),
         "last_seen": iso_utc(r.last_seen),
     }

@@ -35,6 +35,8 @@ class Store(OperatorStore, CalibrationStore):
             for key, value in info.items():
                 if key in cols and value is not None:
                     setattr(row, key, str(value))
+            if info.get("power_up") is not None:
+                row.power_up = {**info["power_up"], "read_at": now.isoformat()}
             row.last_seen = now
 
     def record_held(self, device_id: str, calibration_id: int | None, operator: str | None = None,

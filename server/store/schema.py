@@ -5,6 +5,8 @@ Version 1: the first store. Version 2: hash chains on the history (``chain_seq``
 guards against REPLACE and TRUNCATE, and the spool of running sessions' samples (``session_samples``).
 Version 3: what each wearable last reported holding (``devices.held_calibration_id``, ``held_reported_at``).
 Version 4: an operator's short PIN for signing in on the tablets the service trusts (``operators.pin_hash``).
+Version 5: each calibration's sensor, power-up and temperature (``calibrations.identity``) and each device's last
+reported power-up (``devices.power_up``).
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ from .tables import (
     utcnow,
 )
 
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 
 
 def _v2(conn: Any) -> None:
@@ -42,14 +44,20 @@ def _v2(conn: Any) -> None:
     s = Session(bind=conn)
     kinds = {sid: kind for sid, kind in s.execute(select(SessionRow.id, SessionRow.kind))}
     for name, model in CHAINED.items():
-        rows = s.execute(select(model).order_by(model.id)).scalars().all()  # type: ignore[attr-defined]
+        # Core over the columns this version has: a later version's columns are not there yet
+        table = model.__table__  # type: ignore[attr-defined]
+        present = {c["name"] for c in inspect(conn).get_columns(name)}
+        rows = conn.execute(select(*[c for c in table.columns if c.name in present]).order_by(table.c.id)).mappings().all()
         prev = chain.GENESIS
-        for i, row in enumerate(rows, start=1):
+        for i, r in enumerate(rows, start=1):
+            values = dict(r)
             if name == "calibrations":
-                row.source = "upload" if kinds.get(row.session_id) == "upload" else "live"  # type: ignore[attr-defined]
-            row.chain_seq, row.prev_hash = i, prev
-            row.row_hash = prev = chain.row_hash(prev, chain.row_content(row))
-        last_id = rows[-1].id if rows else 0  # type: ignore[attr-defined]
+                values["source"] = "upload" if kinds.get(values["session_id"]) == "upload" else "live"
+            values.update(chain_seq=i, prev_hash=prev)
+            values["row_hash"] = prev = chain.row_hash(prev, chain.content_of(values))
+            changed = {k: values[k] for k in ("chain_seq", "prev_hash", "row_hash", "source") if k in values}
+            conn.execute(update(table).where(table.c.id == values["id"]).values(**changed))
+        last_id = rows[-1]["id"] if rows else 0
         s.add(ChainHead(chain=name, seq=len(rows), last_id=last_id, hash=prev))
     s.flush()
     dup = conn.execute(text("SELECT session_id FROM calibrations GROUP BY session_id HAVING COUNT(*) > 1")).scalars().all()
@@ -75,8 +83,14 @@ def _v4(conn: Any) -> None:
     conn.execute(text("ALTER TABLE operators ADD COLUMN pin_hash VARCHAR(512)"))
 
 
+def _v5(conn: Any) -> None:
+    """v4 -> v5: identities (a new column is NULL on the existing rows: no row changes, their hashes stand)."""
+    conn.execute(text("ALTER TABLE calibrations ADD COLUMN identity JSON"))
+    conn.execute(text("ALTER TABLE devices ADD COLUMN power_up JSON"))
+
+
 # version -> the step that brings a database from version-1 to version
-MIGRATIONS: dict[int, Callable[[Any], None]] = {2: _v2, 3: _v3, 4: _v4}
+MIGRATIONS: dict[int, Callable[[Any], None]] = {2: _v2, 3: _v3, 4: _v4, 5: _v5}
 
 
 def migrate(engine: Engine, display_url: str) -> int:

@@ -59,6 +59,8 @@ class Device(Base):
     # what the wearable last said it holds (write-back): a calibration id, or None with held_reported_at set for none
     held_calibration_id: Mapped[int | None] = mapped_column(Integer)
     held_reported_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    # the power-up it last reported {boot_count, booted_at, temperature_c, read_at}; None: never reported one
+    power_up: Mapped[dict[str, Any] | None] = mapped_column(JSON)
     first_seen: Mapped[datetime] = mapped_column(DateTime(timezone=True))
     last_seen: Mapped[datetime] = mapped_column(DateTime(timezone=True))
 
@@ -86,7 +88,7 @@ class SessionRow(Base):
     __tablename__ = "sessions"
     id: Mapped[str] = mapped_column(String(64), primary_key=True)
     device_id: Mapped[str] = mapped_column(String(128), index=True)
-    kind: Mapped[str] = mapped_column(String(16))  # live | upload
+    kind: Mapped[str] = mapped_column(String(16))  # live | upload | import
     state: Mapped[str] = mapped_column(String(32))
     reason_code: Mapped[str | None] = mapped_column(String(64))
     reason: Mapped[str | None] = mapped_column(Text)
@@ -151,11 +153,13 @@ class CalibrationRow(Chained, Base):
     software_version: Mapped[str] = mapped_column(String(32))
     sensor_model: Mapped[str | None] = mapped_column(String(128))
     firmware: Mapped[str | None] = mapped_column(String(128))
-    source: Mapped[str] = mapped_column(String(16))  # live | upload: where the recording came from
+    source: Mapped[str] = mapped_column(String(16))  # live | upload | import: where the calibration came from
     operator: Mapped[str] = mapped_column(String(128))
     recording_sha256: Mapped[str | None] = mapped_column(String(64))
     computed_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
     accepted_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
+    # the sensor, power-up and temperature it was measured at (calib.identity.SensorIdentity's JSON); None before v5
+    identity: Mapped[dict[str, Any] | None] = mapped_column(JSON)
 
 
 class AuditRow(Chained, Base):

@@ -67,7 +67,8 @@ async def test_cli_wearable_streams_the_protocol_through_bleak_and_calibrates(db
     """gyrocal mock-device --ble on its own bus; scan, connect, read, stream at 20x, decode, calibrate."""
     seed = 21
     proc = subprocess.Popen(
-        [sys.executable, "-m", "calib.cli", "mock-device", "--ble", "--seed", str(seed), "--speed", str(SPEED)],
+        [sys.executable, "-m", "calib.cli", "mock-device", "--ble", "--seed", str(seed), "--speed", str(SPEED), "--boot-count", "41",
+         "--temperature", "19.5"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     try:
@@ -83,6 +84,9 @@ async def test_cli_wearable_streams_the_protocol_through_bleak_and_calibrates(db
         assert info.config.sample_rate_hz == wp.DEFAULT_RATE_HZ and info.config.gyro_full_scale_dps == 500
         assert info.manufacturer == "gyrocal" and info.model and info.serial and info.firmware
         assert 0 < info.battery_pct <= 100
+        # the power-up characteristic: count as set, warmed from 19.5 degC (4 degC at most), started before the read
+        assert info.power_up is not None and info.power_up.boot_count == 41 and 19.5 <= info.power_up.temperature_c <= 23.5
+        assert info.power_up.booted_at <= info.power_up.read_at
         await link.start()
         protocol_s = ScriptedSource(seed=seed).script.segments
         duration = sum(s.duration_s for s in protocol_s)

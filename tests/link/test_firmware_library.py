@@ -225,6 +225,17 @@ def test_calibration_payload_and_slot_are_bit_exact(lib, cid, values, held):
     assert slot.raw == wp.encode_slot(py if held else None)
 
 
+@given(st.one_of(st.none(), st.integers(0, 0xFFFFFFFF)), st.integers(0, 0xFFFFFFFF),
+       st.one_of(st.none(), st.integers(-32768, 32767)))
+def test_power_up_is_bit_exact(lib, boot_count, uptime_s, centi):
+    out = _buf(wp.POWER_UP_SIZE)
+    lib.gc_encode_power_up(out, ctypes.c_bool(boot_count is not None), ctypes.c_uint32(boot_count or 0),
+                           ctypes.c_uint32(uptime_s), ctypes.c_bool(centi is not None), ctypes.c_int16(centi or 0))
+    py = wp.PowerUp(boot_count, uptime_s, None if centi is None else centi / 100)
+    assert out.raw == py.encode()
+    assert wp.PowerUp.decode(out.raw) == py
+
+
 def test_applying_a_calibration(lib):
     held = HeldCalibration.from_parameters(3, [[1.01, 0.002, -0.003], [0, 0.98, 0.001], [0, 0, 1.03]], [0.5, -0.25, 0.125])
     cal = Calibration(3, (ctypes.c_float * 9)(*held.K), (ctypes.c_float * 3)(*held.b))

@@ -126,6 +126,22 @@ def test_first_packet_of_a_new_session_counts_missing_leading_packets_as_lost():
 # ---------------------------------------------------------------------------- link
 
 
+async def test_a_power_cycle_is_seen_in_the_power_up_the_wearable_reports():
+    w = _wearable(seed=12, speed=1)
+    link = InProcessLink(w, reconnect=FAST)
+    await link.connect()
+    first = (await link.read_info()).power_up
+    assert first is not None and first.boot_count == 1 and first.temperature_c is not None
+    w.power_cycle()  # switched off and on: the link goes, the count steps, the clock and the warm-up start again
+    await link.disconnect()
+    await link.connect()
+    again = await link.read_power_up()
+    assert again is not None and again.boot_count == 2 and again.booted_at > first.booted_at
+    assert again.temperature_c == pytest.approx(24.0, abs=0.05) and again.temperature_c < first.temperature_c
+    await link.disconnect()
+
+
+
 async def test_inprocess_link_streams_the_protocol_and_it_calibrates():
     w = _wearable(seed=11, speed=200)
     link = InProcessLink(w, reconnect=FAST)

@@ -123,3 +123,18 @@ def test_command_errors():
 def test_status_round_trip(op, status, cid):
     r = wp.StatusReply(op, status, cid)
     assert wp.StatusReply.decode(r.encode()) == r
+
+
+def test_power_up_layout_and_errors():
+    # 12 bytes: version 1, flags (boot count | temperature), boot count 7, uptime 3600 s, 31.25 degC as 3125
+    data = wp.PowerUp(7, 3600, 31.25).encode()
+    assert data == bytes([1, 3]) + struct.pack("<IIh", 7, 3600, 3125)
+    assert wp.PowerUp.decode(bytes([1, 0]) + struct.pack("<IIh", 9, 5, 77)) == wp.PowerUp(None, 5, None)
+    assert wp.PowerUp.decode(wp.PowerUp(0, 0, -40.0).encode()) == wp.PowerUp(0, 0, -40.0)
+    for bad, reason in ((data[:-1], "length"), (bytes([2]) + data[1:], "version"), (data[:1] + bytes([4]) + data[2:], "flags")):
+        with pytest.raises(wp.DecodeError, match=reason):
+            wp.PowerUp.decode(bad)
+    with pytest.raises(ValueError, match="32 bits"):
+        wp.PowerUp(2**32, 0).encode()
+    with pytest.raises(ValueError, match="temperature"):
+        wp.PowerUp(1, 0, float("nan")).encode()

@@ -9,7 +9,7 @@ import json
 import subprocess
 import time
 from collections.abc import Iterator
-from datetime import datetime, timedelta, timezone
+from datetime import UTC, datetime, timedelta, timezone
 from pathlib import Path
 from typing import Any
 
@@ -269,5 +269,144 @@ def test_a_device_is_due_when_never_calibrated_or_its_calibration_is_too_old(tmp
         assert old["due"] and "more than the 1e-05 days allowed" in old["reason"]
         assert listed["mock-1"]["calibration_due"] == {"due": True, "reason": "never calibrated"}
         assert listed["ward-1-unit-2"]["calibration_due"]["due"]
+    finally:
+        svc.stop()
+
+
+def test_a_calibration_records_its_sensor_power_up_and_temperature_and_is_applied_by_those_rules(tmp_path: Path) -> None:
+    """A live session on the simulated wearable stores its serial, power-up and temperature with the calibration. The
+    calibration in force then prefers the recording's power-up, warns across another one and beyond the temperature
+    limit, and is refused for another sensor (409 from the API, an error from the CLI); the device is due once it
+    reports another power-up than its calibration's."""
+    from server.store import Store
+
+    db = f"sqlite:///{tmp_path / 'store.sqlite3'}"
+    svc = RunningService(["--mock", "1", "--mock-speed", "40", "--mock-seed", "3"], db).start()
+    try:
+        with svc.client() as c:
+            sid = c.post("/devices/mock-1/calibrate", json={}).json()["session_id"]
+        assert follow_events(svc.base, sid, {"done", "failed", "cancelled"}, timeout_s=90, last_event_id=0)[-1]["state"] == "done"
+        with svc.client() as c:
+            cal = c.post(f"/sessions/{sid}/accept").json()["calibration"]
+            dev = c.get("/devices/mock-1").json()
+        ident = cal["identity"]
+        assert ident["device_id"] == "mock-1" and ident["serial"] == dev["serial"] and ident["serial"]
+        assert ident["boot_count"] == 1 and ident["booted_at"] and 24.0 <= ident["temperature_c"] <= 28.0
+        assert dev["power_up"]["boot_count"] == 1 and dev["calibration_due"]["due"] is False
+
+        def in_force(**params: Any) -> Any:
+            with svc.client() as c:
+                return c.get("/devices/mock-1/calibration", params=params)
+
+        same = in_force(boot_count=1, temperature_c=ident["temperature_c"] + 1).json()["in_force"]
+        assert same["chosen_by"] == "same_power_up" and same["warnings"] == []
+        assert same["identity_check"] == {"sensor": "same", "power_up": "same", "temperature": "same", "temperature_change_c": 1.0,
+                                          "warnings": [], "refusal": None}
+        later = in_force(boot_count=2, serial=ident["serial"], temperature_c=ident["temperature_c"] + 8).json()["in_force"]
+        assert later["chosen_by"] == "latest_before" and len(later["warnings"]) == 2
+        assert "power-up #1" in later["warnings"][0] and "power-up #2" in later["warnings"][0]
+        assert "8.0 degC warmer" in later["warnings"][1]
+        other = in_force(serial="NOT-" + ident["serial"])
+        assert other.status_code == 409 and "another sensor" in other.json()["detail"]
+
+        # a study recording with a temperature channel 8 degC above the calibration's: applied, with the warning
+        rec, _ = simulate(12, noise=0.03)
+        rec = rec.__class__(t=rec.t, gyro=rec.gyro, accel=rec.accel, temp=np.full(len(rec), ident["temperature_c"] + 8.0))
+        src = tmp_path / "warm.csv"
+        write_native_csv(rec, src)
+        with svc.client() as c:
+            r = c.post("/devices/mock-1/apply", content=src.read_text(), headers={"Content-Type": "text/csv"})
+            assert r.status_code == 200, r.text
+            assert any("8.0 degC warmer" in w for w in json.loads(r.headers["x-gyrocal-warnings"]))
+            assert json.loads(r.headers["x-gyrocal-identity-check"])["temperature"] == "different"
+            refused = c.post("/devices/mock-1/apply", content=src.read_text(), headers={"Content-Type": "text/csv"},
+                             params={"serial": "B-0002"})
+            assert refused.status_code == 409 and "another sensor" in refused.json()["detail"]
+            exported = c.get(f"/calibrations/{cal['id']}").content
+
+        # the CLI: the exported calibration carries its identity and is refused for another serial
+        cal_file = tmp_path / "cal.json"
+        cal_file.write_bytes(exported)
+        run = [*GYROCAL, "apply", str(src), "--calibration", str(cal_file), "-o", str(tmp_path / "out.csv")]
+        r = subprocess.run([*run, "--serial", "B-0002"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+        assert r.returncode != 0 and "another sensor" in r.stderr and "Traceback" not in r.stderr
+        r = subprocess.run([*run, "--boot-count", "2"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+        assert r.returncode == 0 and "power-up #2" in r.stdout and "warmer" in r.stdout, r.stdout + r.stderr
+        side = json.loads((tmp_path / "out.calibration.json").read_text())
+        assert side["identity_check"]["power_up"] == "different" and side["calibration"]["identity"]["boot_count"] == 1
+
+        # switched off and on: once the device reports its new power-up, it is due
+        Store(db).upsert_device("mock-1", power_up={"boot_count": 2, "booted_at": datetime.now(UTC).isoformat(),
+                                                    "temperature_c": 24.0})
+        with svc.client() as c:
+            due = c.get("/devices/mock-1").json()["calibration_due"]
+        assert due["due"] and "switched on again" in due["reason"]
+    finally:
+        svc.stop()
+
+
+def test_a_calibration_made_with_imucal_is_imported_into_the_history_and_applied(tmp_path: Path) -> None:
+    """A Ferraris calibration written by the real imucal package is imported with the CLI (marked as imported, in
+    force from then, once per file) and a gyrocal JSON file over the API; bad files are refused with why."""
+    from imucal import FerrarisCalibrationInfo
+
+    K_g = np.diag([1 / 1.05, 1 / 0.97, 1 / 1.02])  # imucal's K_g: counts per unit, here per deg/s
+    info = FerrarisCalibrationInfo(
+        K_a=np.eye(3), R_a=np.eye(3), b_a=np.zeros(3), K_g=K_g, R_g=np.eye(3), K_ga=np.zeros((3, 3)), b_g=np.array([0.4, -0.2, 0.1]),
+        acc_unit="g", gyr_unit="deg/s", from_acc_unit="g", from_gyr_unit="deg/s", comment="bench turntable, 2026-11-02")
+    path = tmp_path / "unit-5.imucal.json"
+    info.to_json_file(path)
+    db = f"sqlite:///{tmp_path / 'store.sqlite3'}"
+    svc = RunningService([], db).start()
+    try:
+        subprocess.run([*GYROCAL, "operator", "--db", db, "add", "lab-tech"], cwd=ROOT, capture_output=True, check=True, timeout=60)
+        run = [*GYROCAL, "import", str(path), "--device", "bench-5", "--db", db, "--serial", "IMU-5"]
+        r = subprocess.run([*run, "--operator", "nobody"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+        assert r.returncode != 0 and "no active operator 'nobody'" in r.stderr
+        r = subprocess.run([*run, "--operator", "lab-tech"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+        assert r.returncode == 0 and "imported for bench-5 as calibration #1 (imucal)" in r.stdout, r.stdout + r.stderr
+        again = subprocess.run([*run, "--operator", "lab-tech"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+        assert again.returncode != 0 and "imported for bench-5 already, as calibration #1" in again.stderr
+        with svc.client() as c:
+            cal = c.get("/devices/bench-5/calibration").json()
+            assert cal["source"] == "import" and cal["method"] == "imported" and cal["identity"]["serial"] == "IMU-5"
+            assert cal["k"] == pytest.approx([1.05, 0.97, 1.02], rel=1e-12)
+            assert cal["b"] == pytest.approx(list(-np.diag([1.05, 0.97, 1.02]) @ np.array([0.4, -0.2, 0.1])), rel=1e-12)
+            # it corrects a recording as imucal itself does
+            rec, _ = simulate(14, noise=0.03)
+            src = tmp_path / "study.csv"
+            write_native_csv(rec, src)
+            got = c.post("/devices/bench-5/apply", content=src.read_text(), headers={"Content-Type": "text/csv"})
+            assert got.status_code == 200 and got.headers["x-gyrocal-calibration-id"] == "1"
+            _, want = info.calibrate(rec.accel, rec.gyro, acc_unit="g", gyr_unit="deg/s")
+            (tmp_path / "corrected.csv").write_text(got.text)
+            assert np.allclose(read_recording(tmp_path / "corrected.csv").gyro, want, atol=1e-9)
+            # gyrocal's own JSON over the API, its sensor named in the query
+            ours = Correction(K=np.diag([1.01, 1.0, 0.99]), b=np.array([0.1, 0.2, 0.3])).to_json()
+            r = c.post("/devices/bench-5/calibrations", content=json.dumps(ours), params={"name": "ours.json", "boot_count": 4},
+                       headers={"Content-Type": "application/json"})
+            assert r.status_code == 201, r.text
+            imported = r.json()["calibration"]
+            assert imported["id"] == 2 and imported["identity"]["boot_count"] == 4 and imported["k"] == [1.01, 1.0, 0.99]
+            assert c.get("/devices/bench-5/calibration", params={"boot_count": 4}).json()["in_force"]["chosen_by"] == "same_power_up"
+            kinds = {s["kind"] for s in c.get("/devices/bench-5/sessions").json()}
+            assert kinds == {"import"}
+            session = c.get(f"/sessions/{r.json()['session_id']}").json()
+            assert (session["kind"], session["state"], session["decision"]) == ("import", "done", "accepted")
+            for body, ctype, status, words in (
+                ("{not json", "application/json", 400, "not JSON"),
+                ('{"k": [1, 1]}', "application/json", 422, "three finite numbers"),
+                ('{"cal_type": "Turntable"}', "application/json", 422, "Ferraris"),
+                ("k,b", "text/csv", 415, "application/json"),
+            ):
+                bad = c.post("/devices/bench-5/calibrations", content=body, headers={"Content-Type": ctype})
+                assert bad.status_code == status and words in bad.json()["detail"], (body, bad.text)
+            assert len(c.get("/devices/bench-5/calibrations").json()) == 2  # nothing else was stored
+        with svc.client(token=None) as anonymous:
+            assert anonymous.post("/devices/bench-5/calibrations", content=json.dumps(ours),
+                                  headers={"Content-Type": "application/json"}).status_code == 401
+        from server.store import Store
+
+        assert Store(db).verify().ok
     finally:
         svc.stop()

@@ -289,10 +289,11 @@ def test_a_v1_store_is_migrated_and_its_history_chained(store_url: str) -> None:
                     conn.connection.driver_connection.execute(stmt.rstrip().rstrip(";"))
     eng.dispose()
     store = Store(store_url)
-    assert store.schema_version() == SCHEMA_VERSION == 4
+    assert store.schema_version() == SCHEMA_VERSION == 5
     report = store.verify()
     assert report.ok and report.rows == {"recordings": 0, "calibrations": 2, "audit_log": 5}
     assert [c.source for c in store.calibrations("dev-1")] == ["upload", "live"]
+    assert [c.identity for c in store.calibrations("dev-1")] == [None, None]  # v5: unknown for older calibrations
     _done(store, "k" * 32)
     store.accept("k" * 32, "bob", RESULT)  # new rows continue the migrated chains
     assert store.verify().ok and store.calibration_count() == 3

@@ -6,6 +6,7 @@ recovered without restarting, a clinician who watches the gauge, and the history
 
 from __future__ import annotations
 
+import json
 import re
 from collections.abc import Iterator
 from pathlib import Path
@@ -25,6 +26,7 @@ from webui_fixtures import (
     watched_page,
 )
 
+from calib.correction import Correction
 from calib.io import read_recording, write_native_csv
 from calib.simulator import simulate
 
@@ -218,8 +220,8 @@ def test_a_clinician_who_watches_the_gauge_stops_at_360_degrees(hand_wizard: Wiz
 
 
 def test_the_history_table_keeps_each_value_and_date_on_one_line(hand_wizard: Wizard, hand_service: Any, page_watch: Watch) -> None:
-    for seed in (5, 6):
-        upload_accepted(hand_service, "bench-unit-9", seed=seed)
+    for seed, boot in ((5, 3), (6, 4)):
+        upload_accepted(hand_service, "bench-unit-9", seed=seed, serial="BU9-0001", boot_count=boot)
     w = hand_wizard
     sign_in_with_pin(w)
     w.page.goto(w.service.base + "/#/history/bench-unit-9")
@@ -241,6 +243,13 @@ def test_the_history_table_keeps_each_value_and_date_on_one_line(hand_wizard: Wi
         newest = c.get("/devices/bench-unit-9/calibration").json()
     assert f"Calibration #{newest['id']} (row 1 below)" in w.text(".in-force-answer")
     assert "more than the 30 days allowed" in w.text(".in-force-out")
+    assert "serial BU9-0001 · power-up #4" in w.text("table.calibrations tbody tr:first-child")
+    # a recording of power-up #3 takes that power-up's calibration, even asked about a later moment
+    w.page.fill("#in-force-boot", "3")
+    w.page.click("form.in-force button")
+    w.page.wait_for_selector(".in-force-answer:has-text('Measured in that power-up')")
+    assert "(row 2 below)" in w.text(".in-force-answer")
+    w.page.fill("#in-force-boot", "")
     # a study recording corrected by the calibration in force, downloaded from the page
     rec, _ = simulate(12, noise=0.03)
     study = Path(w.shots) / "study.csv"
@@ -252,8 +261,21 @@ def test_the_history_table_keeps_each_value_and_date_on_one_line(hand_wizard: Wi
         w.page.click("form.apply a.download")
     got = read_recording(dl.value.path())
     assert np.allclose(got.gyro, rec.gyro @ np.diag(newest["k"]).T + np.asarray(newest["b"]), atol=1e-9)
+    # never another sensor's calibration: the page says so and offers no file
+    w.page.fill("#apply-serial", "BU9-0002")
+    w.page.click("form.apply button")
+    w.page.wait_for_selector("form.apply .form-error:has-text('another sensor')")
+    assert w.page.locator("form.apply a.download").count() == 0
+    # a calibration made elsewhere (gyrocal's JSON here) imported into the history: the newest row, marked imported
+    made = Path(w.shots) / "bench-turntable.json"
+    made.write_text(json.dumps(Correction(K=np.diag([1.02, 0.98, 1.0]), b=np.array([0.2, -0.1, 0.05])).to_json()))
+    w.page.set_input_files("#import-file", str(made))
+    w.page.fill("#import-serial", "BU9-0001")
+    w.page.click("form.import button")
+    w.page.wait_for_selector("table.calibrations tbody tr:nth-child(3)")
+    assert "imported file" in w.text("table.calibrations tbody tr:first-child")
     w.shot("history")
-    assert_clean(page_watch)
+    assert_clean(page_watch, allowed_errors=("409 (Conflict)",))  # the refused apply
 
 
 

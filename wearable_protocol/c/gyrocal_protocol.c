@@ -140,6 +140,15 @@ void gc_encode_slot(uint8_t out[GC_SLOT_SIZE], const gc_calibration *held) {
     }
 }
 
+void gc_encode_power_up(uint8_t out[GC_POWER_UP_SIZE], bool has_boot_count, uint32_t boot_count, uint32_t uptime_s,
+                        bool has_temperature, int16_t temperature_centi_c) {
+    out[0] = (uint8_t)GC_PROTOCOL_VERSION;
+    out[1] = (uint8_t)((has_boot_count ? 0x01u : 0u) | (has_temperature ? 0x02u : 0u));
+    put_u32(out + 2, has_boot_count ? boot_count : 0u);
+    put_u32(out + 6, uptime_s);
+    put_u16(out + 10, has_temperature ? (uint16_t)temperature_centi_c : 0u);
+}
+
 static bool sensible(float v) {
     double d = (double)v;
     return d == d && d <= MAX_ABS_PARAMETER && d >= -MAX_ABS_PARAMETER; /* NaN fails d == d; infinities the bounds */

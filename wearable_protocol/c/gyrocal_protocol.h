@@ -27,6 +27,7 @@ extern "C" {
 #define GC_STATUS_SIZE 3u
 #define GC_CALIBRATION_SIZE 56u    /* WRITE_CALIBRATION payload: id, K, b, CRC-32 */
 #define GC_SLOT_SIZE 58u           /* the calibration characteristic: version, held, then the 56 bytes */
+#define GC_POWER_UP_SIZE 12u       /* the power-up characteristic: boot count, uptime, temperature */
 #ifndef GC_MAX_SAMPLES
 /* Samples one packet (and gc_stream's buffer) can hold: 19 fills an ATT MTU of 247, (247 - 3 - 10) / 12. A firmware
  * that negotiates a larger MTU may define it up to 255 before including this header. */
@@ -140,6 +141,12 @@ void gc_encode_calibration(uint8_t out[GC_CALIBRATION_SIZE], const gc_calibratio
 
 /* The calibration characteristic's value: what the device holds, or none when `held` is NULL. */
 void gc_encode_slot(uint8_t out[GC_SLOT_SIZE], const gc_calibration *held);
+
+/* The power-up characteristic's value. `boot_count` counts power-ups in non-volatile memory (pass
+ * has_boot_count false when the device keeps no count); `uptime_s` is the seconds since this power-up;
+ * `temperature_centi_c` the IMU temperature in 0.01 degC (pass has_temperature false without a sensor). */
+void gc_encode_power_up(uint8_t out[GC_POWER_UP_SIZE], bool has_boot_count, uint32_t boot_count, uint32_t uptime_s,
+                        bool has_temperature, int16_t temperature_centi_c);
 
 /* g = K m + b for one raw reading m (deg/s). */
 void gc_apply_calibration(const gc_calibration *cal, const float m[3], float g[3]);

@@ -31,15 +31,15 @@ export class Api {
   }
 
   /** One request; the parsed JSON answer (or, with raw, {text, headers} of a successful one). */
-  async request(method, path, { json, csv, query, signingIn = false, raw = false } = {}) {
+  async request(method, path, { json, jsonText, csv, query, signingIn = false, raw = false } = {}) {
     const url = new URL(path, location.origin);
     for (const [k, v] of Object.entries(query || {})) if (v !== undefined && v !== null) url.searchParams.set(k, v);
     const headers = { Accept: "application/json" };
     if (this.token) headers.Authorization = `Bearer ${this.token}`;
     const init = { method, headers, cache: "no-store" };
-    if (json !== undefined) {
+    if (json !== undefined || jsonText !== undefined) {
       headers["Content-Type"] = "application/json";
-      init.body = JSON.stringify(json);
+      init.body = jsonText !== undefined ? jsonText : JSON.stringify(json); // jsonText: a file's own bytes, as they are
     } else if (csv !== undefined) {
       headers["Content-Type"] = "text/csv";
       init.body = csv;

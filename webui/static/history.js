@@ -36,6 +36,30 @@ function when(iso) {
   return h("time", { datetime: iso, class: "when" }, h("span", null, fmtDate(iso)), h("span", { class: "when-time" }, fmtTime(d)));
 }
 
+const SOURCE = { upload: "uploaded recording", import: "imported file", live: "guided session" };
+
+/** The sensor, power-up and temperature a calibration was measured at, as far as it was recorded. */
+function identityLine(c) {
+  const id = c.identity || {};
+  const parts = [
+    id.serial ? `serial ${id.serial}` : null,
+    id.boot_count != null ? `power-up #${id.boot_count}` : id.booted_at ? `switched on ${fmtDateTime(id.booted_at)}` : null,
+    id.temperature_c != null ? `${num(id.temperature_c, 1)} °C` : null,
+  ].filter(Boolean);
+  return parts.length ? h("span", { class: "how identity" }, parts.join(" · ")) : null;
+}
+
+/** Optional fields saying which sensor and power-up a recording comes from (the service prefers that power-up's
+ * calibration and refuses another sensor's). */
+function recordingFields(prefix) {
+  const serial = h("input", { id: `${prefix}-serial`, type: "text", maxlength: "128", autocomplete: "off", placeholder: "optional" });
+  const boot = h("input", { id: `${prefix}-boot`, type: "number", min: "0", max: "4294967295", step: "1", inputmode: "numeric", placeholder: "optional" });
+  return {
+    fields: [h("label", { for: `${prefix}-serial` }, "sensor serial"), serial, h("label", { for: `${prefix}-boot` }, "power-up #"), boot],
+    query: () => ({ serial: serial.value.trim() || undefined, boot_count: boot.value === "" ? undefined : boot.value }),
+  };
+}
+
 function calibrationTable(cals) {
   const values = (vals, unc, digits, uDigits) => vals.map((v, j) => h("span", { class: "val" }, num(v, digits),
     unc ? h("span", { class: "pm" }, ` ±${sig(unc[j], uDigits)}`) : null));
@@ -45,8 +69,9 @@ function calibrationTable(cals) {
     h("tbody", null, cals.map((c, i) => h("tr", { class: i === 0 ? "current" : "" },
       h("td", null, when(c.accepted_at), i === 0 ? h("span", { class: "badge" }, icon("check"), "current") : null),
       h("td", { class: "source" }, h("strong", null, c.operator),
-        h("span", { class: "how" }, `${c.source === "upload" ? "uploaded recording" : "guided session"} · ${c.method}`),
-        c.sensor_model ? h("span", { class: "how" }, `${c.sensor_model}${c.firmware ? `, firmware ${c.firmware}` : ""}`) : null),
+        h("span", { class: "how" }, `${SOURCE[c.source] || c.source} · ${c.method}`),
+        c.sensor_model ? h("span", { class: "how" }, `${c.sensor_model}${c.firmware ? `, firmware ${c.firmware}` : ""}`) : null,
+        identityLine(c)),
       h("td", { class: "num" }, values(c.k, c.uncertainty && c.uncertainty.k, 4, 1)),
       h("td", { class: "num" }, values(c.b, c.uncertainty && c.uncertainty.b, 3, 1)),
       h("td", null, h("div", { class: "files" },
@@ -65,7 +90,7 @@ function sessionTable(sessions) {
         h("td", { class: "nowrap" }, h("a", { href: `#/session/${sess.session_id}` }, fmtDateTime(sess.started_at))),
         h("td", null, h("span", { class: `outcome ${o.cls}` }, icon(o.icon), h("span", null, o.text))),
         h("td", null, sess.operator || "—"),
-        h("td", null, sess.kind === "upload" ? "uploaded recording" : "guided"));
+        h("td", null, sess.kind === "upload" ? "uploaded recording" : sess.kind === "import" ? "imported file" : "guided"));
     })));
 }
 
@@ -81,8 +106,9 @@ function inForceForm(ctx, deviceId, cals) {
   const input = h("input", { id: "in-force-at", type: "datetime-local", step: "1", required: true });
   const out = h("div", { class: "in-force-out", "aria-live": "polite" });
   const ask = h("button", { class: "button", type: "submit" }, icon("search"), "Find");
+  const rec = recordingFields("in-force");
   const form = h("form", { class: "in-force" },
-    h("label", { for: "in-force-at" }, "Which calibration was in force at"), input, ask, out);
+    h("label", { for: "in-force-at" }, "Which calibration was in force at"), input, rec.fields, ask, out);
   form.addEventListener("submit", async (ev) => {
     ev.preventDefault();
     const when = input.value ? new Date(input.value) : null;
@@ -97,16 +123,17 @@ function inForceForm(ctx, deviceId, cals) {
       return;
     }
     try {
-      const cal = await ctx.api.get(`/devices/${encodeURIComponent(deviceId)}/calibration`, { at: when.toISOString() });
+      const cal = await ctx.api.get(`/devices/${encodeURIComponent(deviceId)}/calibration`, { at: when.toISOString(), ...rec.query() });
       const n = cals.findIndex((c) => c.id === cal.id);
       const age = cal.in_force.age_days;
       fill(out, h("p", { class: "in-force-answer" }, icon("check"),
         h("span", null, `Calibration #${cal.id}${n >= 0 ? ` (row ${n + 1} below)` : ""}, accepted by ${cal.operator} on ${fmtDateTime(cal.accepted_at)}: `,
-          `${age < 1 ? `${num(age * 24, 1)} hours` : `${num(age, 1)} days`} old then.`)),
+          `${age < 1 ? `${num(Math.abs(age) * 24, 1)} hours` : `${num(age, 1)} days`} ${age < 0 ? "later, in the same power-up" : "old then"}.`,
+          cal.in_force.chosen_by === "same_power_up" ? " Measured in that power-up." : "")),
         cal.in_force.warnings.map((w) => formProblem(w)));
     } catch (err) {
       if (err.status === 401) return;
-      fill(out, formProblem(err.status === 404 ? noneBy(deviceId) : problemLine(err)));
+      fill(out, formProblem(err.status === 404 && !rec.query().serial ? noneBy(deviceId) : problemLine(err)));
     }
   });
   return form;
@@ -118,9 +145,10 @@ function applyForm(ctx, deviceId) {
   const when = h("input", { id: "apply-at", type: "datetime-local", step: "1" });
   const out = h("div", { class: "in-force-out", "aria-live": "polite" });
   const go = h("button", { class: "button", type: "submit" }, icon("save"), "Correct");
+  const rec = recordingFields("apply");
   const form = h("form", { class: "in-force apply" },
     h("label", { for: "apply-file" }, "Correct a study recording (CSV)"), file,
-    h("label", { for: "apply-at" }, "recorded at"), when, go, out);
+    h("label", { for: "apply-at" }, "recorded at"), when, rec.fields, go, out);
   let url = null;
   form.addEventListener("submit", async (ev) => {
     ev.preventDefault();
@@ -132,7 +160,7 @@ function applyForm(ctx, deviceId) {
     go.disabled = true;
     try {
       const at = when.value ? new Date(when.value).toISOString() : undefined;
-      const res = await ctx.api.request("POST", `/devices/${encodeURIComponent(deviceId)}/apply`, { csv: await f.text(), query: { at }, raw: true });
+      const res = await ctx.api.request("POST", `/devices/${encodeURIComponent(deviceId)}/apply`, { csv: await f.text(), query: { at, ...rec.query() }, raw: true });
       if (url) URL.revokeObjectURL(url);
       url = URL.createObjectURL(new Blob([res.text], { type: "text/csv" }));
       const name = f.name.replace(/\.csv$/i, "") + ".calibrated.csv";
@@ -141,6 +169,35 @@ function applyForm(ctx, deviceId) {
         `Corrected with calibration #${res.headers.get("X-Gyrocal-Calibration-Id")} (${res.headers.get("X-Gyrocal-Corrected")}). `,
         h("a", { class: "download", href: url, download: name }, `Download ${name}`))),
       warnings.map((w) => formProblem(w)));
+    } catch (err) {
+      if (err.status !== 401) fill(out, formProblem(problemLine(err)));
+    } finally {
+      go.disabled = false;
+    }
+  });
+  return form;
+}
+
+/** "Import a calibration file": imucal's or gyrocal's JSON into the history, marked as imported. */
+function importForm(ctx, deviceId) {
+  const file = h("input", { id: "import-file", type: "file", accept: ".json,application/json", required: true });
+  const out = h("div", { class: "in-force-out", "aria-live": "polite" });
+  const go = h("button", { class: "button", type: "submit" }, icon("save"), "Import");
+  const rec = recordingFields("import");
+  const form = h("form", { class: "in-force import" },
+    h("label", { for: "import-file" }, "Import a calibration file (imucal or gyrocal JSON)"), file, rec.fields, go, out);
+  form.addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    const f = file.files && file.files[0];
+    if (!f) {
+      fill(out, formProblem("Choose the calibration file."));
+      return;
+    }
+    go.disabled = true;
+    try {
+      await ctx.api.request("POST", `/devices/${encodeURIComponent(deviceId)}/calibrations`,
+        { jsonText: await f.text(), query: { name: f.name, ...rec.query() } });
+      ctx.go(`#/history/${encodeURIComponent(deviceId)}`);
     } catch (err) {
       if (err.status !== 401) fill(out, formProblem(problemLine(err)));
     } finally {
@@ -184,6 +241,7 @@ export function historyView(ctx, deviceId) {
       h("p", { class: `current-line ${cur ? "calibrated" : "never"}` }, icon(cur ? "check" : "info"),
         h("span", null, cur ? `Current calibration: accepted by ${cur.operator} on ${fmtDateTime(cur.accepted_at)}.` : `${name} has no accepted calibration yet.`)),
       cals.length ? [parameterCharts(cals), calibrationTable(cals), inForceForm(ctx, deviceId, cals), applyForm(ctx, deviceId)] : null,
+      importForm(ctx, deviceId),
       sessions.length ? sessionTable(sessions) : h("p", { class: "muted" }, "No calibration attempts yet."),
       dev.available && !dev.active_session ? h("div", { class: "actions" }, h("a", { class: "button primary big", href: `#/place/${encodeURIComponent(deviceId)}` }, icon("play"), `Calibrate ${name}`)) : null);
   })();

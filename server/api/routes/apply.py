@@ -1,20 +1,28 @@
-"""A calibration at work outside the service: POST /devices/{id}/apply (a recording corrected: CSV in, CSV out) and
-GET /calibrations/{id}?format= (a calibration written for other tools)."""
+"""A calibration at work outside the service: POST /devices/{id}/apply (a recording corrected: CSV in, CSV out),
+GET /calibrations/{id}?format= (a calibration written for other tools) and POST /devices/{id}/calibrations (one
+made elsewhere imported into the history)."""
 
 from __future__ import annotations
 
 import asyncio
 import json
+from dataclasses import replace
 from datetime import datetime
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Path, Query, Request, Response
 
+from calib import __version__
+from calib.correction import Correction, CorrectionFileError
+from calib.identity import SensorIdentity
+
 from ... import schemas as M
-from ...deps import R404, Reader, Svc, check_device_id, check_upload, problem, read_csv_body, recording_problem
+from ...deps import R404, R409, Operator, Reader, Svc, check_device_id, check_upload, problem, read_csv_body, recording_problem
 from ...export import export_text
-from ...lifecycle import in_force_async, none_in_force
+from ...lifecycle import in_force_async, judged, none_in_force
+from ...store import sha256_hex
 from ...workers.compute import TooManySamples, apply_upload
+from ..identity_query import RecordingIdentity
 from ..upload_options import Upload
 
 router = APIRouter()
@@ -25,32 +33,34 @@ router = APIRouter()
     response_class=Response,
     responses={
         200: {"content": {"text/csv": {}}, "description": "the recording corrected (native CSV); X-Gyrocal-Calibration-Id "
-              "names the calibration used, X-Gyrocal-Calibration its parameters (JSON), X-Gyrocal-Warnings its warnings (JSON list)"},
+              "names the calibration used, X-Gyrocal-Calibration its parameters (JSON), X-Gyrocal-Warnings its warnings (JSON list), "
+              "X-Gyrocal-Identity-Check the sensor, power-up and temperature compared (JSON)"},
         400: {"model": M.Problem, "description": "the recording cannot be read"},
         413: {"model": M.Problem, "description": "the recording is too large"},
         415: {"model": M.Problem, "description": "not a CSV body"},
-        **R404,
+        **R404, **R409,
     },
     openapi_extra={"requestBody": {"required": True, "content": {"text/csv": {"schema": {"type": "string"}}}}},
     tags=["calibrations"],
 )
 async def apply_calibration(
-    svc: Svc, device_id: str, request: Request, _: Reader, upload: Upload,
+    svc: Svc, device_id: str, request: Request, _: Reader, upload: Upload, recording: RecordingIdentity,
     at: Annotated[datetime | None, Query(description="when the recording was made (ISO 8601); default now")] = None,
     fs: Annotated[float | None, Query(gt=0, le=100000, description="sample rate, Hz (CSV without a time column)")] = None,
     layout: Annotated[str, Query(max_length=16, description="CSV layout: auto, native, imucal")] = "auto",
 ) -> Response:
-    """Correct an uploaded recording with the device's calibration in force at ``at`` (the gyroscope; the accelerometer
-    too when that calibration has its model). Nothing is stored."""
+    """Correct an uploaded recording with the device's calibration in force for it (as GET /devices/{id}/calibration
+    chooses it: same power-up first, never another sensor's) on the gyroscope, and on the accelerometer too when that
+    calibration has its model. Nothing is stored."""
     check_device_id(device_id)
     body = await read_csv_body(request)
     check_upload(body, layout)
-    cal = await in_force_async(svc.store, device_id, at, svc.settings.calibration_max_age_days)
+    cal = await in_force_async(svc.store, device_id, at, svc.settings.limits, recording)
     if cal is None:
         raise problem(404, f"{none_in_force(device_id, None if at is None else at.isoformat())}: calibrate it before applying one")
     params = cal.model_dump(mode="json")
     try:
-        csv, accel_too = await asyncio.wait_for(
+        csv, accel_too, temperature_c = await asyncio.wait_for(
             svc.pool.run(apply_upload, body, fs, layout, f"recording for {device_id}", svc.settings.max_upload_samples, upload, params),
             timeout=svc.settings.compute_timeout_s,
         )
@@ -60,12 +70,16 @@ async def apply_calibration(
         raise problem(413, str(exc)) from None
     except Exception as exc:  # calib's errors and whatever else the parser trips on
         raise recording_problem(exc, "corrected", upload=True) from None
+    if recording.temperature_c is None and temperature_c is not None:  # the recording's temp column: judged against it
+        cal = judged(cal, cal.in_force.at, svc.settings.limits, replace(recording, device_id=device_id, temperature_c=temperature_c),
+                     cal.in_force.chosen_by)
     used = {k: params[k] for k in ("k", "b", "K", "G")}
     return Response(csv, media_type="text/csv", headers={
         "X-Gyrocal-Calibration-Id": str(cal.id),
         "X-Gyrocal-Calibration": json.dumps(used, separators=(",", ":")),
         "X-Gyrocal-Corrected": "gyroscope,accelerometer" if accel_too else "gyroscope",
         "X-Gyrocal-Warnings": json.dumps(cal.in_force.warnings),
+        "X-Gyrocal-Identity-Check": json.dumps(cal.in_force.identity_check, separators=(",", ":")),
         "Content-Disposition": f'attachment; filename="{device_id}-calibrated.csv"',
     })
 
@@ -94,3 +108,43 @@ async def export_calibration(
     body, media, ext = export_text(cal, format)
     return Response(body, media_type=media, headers={
         "Content-Disposition": f'attachment; filename="{cal.device_id}-calibration-{cal.id}{ext}"'})
+
+
+@router.post(
+    "/devices/{device_id}/calibrations",
+    status_code=201,
+    response_model=M.AcceptOut,
+    responses={400: {"model": M.Problem, "description": "the body is not JSON"}, 401: {"model": M.Problem},
+               409: {"model": M.Problem, "description": "this file was imported for the device already"},
+               415: {"model": M.Problem, "description": "not a JSON body"},
+               422: {"model": M.Problem, "description": "not a calibration gyrocal can use (the reason is given)"}},
+    openapi_extra={"requestBody": {"required": True, "content": {"application/json": {"schema": {
+        "type": "object",
+        "description": "imucal's Ferraris calibration file, or gyrocal's calibration JSON ({\"k\": [..], \"b\": [..]} at least)"}}}}},
+    tags=["calibrations"],
+)
+async def import_calibration(
+    svc: Svc, device_id: str, request: Request, operator: Operator, sensor: RecordingIdentity,
+    name: Annotated[str | None, Query(min_length=1, max_length=200, pattern=M.SENSOR_TEXT,
+                                      description="the file's name, kept with the import")] = None,
+) -> dict[str, Any]:
+    """Add a calibration made elsewhere to the device's history, marked ``import``: it is in force from now. The query's
+    serial, sensor_model, boot_count and temperature_c fill what the file does not say about its sensor."""
+    check_device_id(device_id)
+    ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    if ctype != "application/json":
+        raise problem(415, f"send the calibration file as application/json; got {ctype or 'no content type'}")
+    raw = await request.body()
+    try:
+        doc = json.loads(raw)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise problem(400, f"the body is not JSON ({exc}); send imucal's or gyrocal's calibration file") from None
+    try:
+        correction = Correction.from_json(doc)
+    except CorrectionFileError as exc:
+        raise problem(422, str(exc)) from None
+    correction = replace(correction, identity=(correction.identity or SensorIdentity()).completed(sensor))
+    await asyncio.to_thread(svc.store.upsert_device, device_id)
+    rec = await asyncio.to_thread(svc.store.import_calibration, device_id, correction, operator, __version__,
+                                  file_name=name or "upload.json", file_sha256=sha256_hex(raw))
+    return {"session_id": rec.session_id, "calibration": rec.to_dict()}

@@ -15,6 +15,7 @@ from ... import schemas as M
 from ...deps import (
     R401,
     R404,
+    R409,
     Operator,
     Reader,
     Svc,
@@ -22,6 +23,7 @@ from ...deps import (
     problem,
 )
 from ...lifecycle import CalibrationInForce, in_force_async, none_in_force
+from ..identity_query import RecordingIdentity
 from ..views import (
     device_out,
     session_snapshot,
@@ -67,15 +69,18 @@ async def get_device(svc: Svc, device_id: str, _: Reader) -> dict[str, Any]:
     return await device_out(svc, dev, row, detail=True)
 
 
-@router.get("/devices/{device_id}/calibration", response_model=CalibrationInForce, responses=R404, tags=["calibrations"])
+@router.get("/devices/{device_id}/calibration", response_model=CalibrationInForce, responses={**R404, **R409}, tags=["calibrations"])
 async def current_calibration(
     svc: Svc, device_id: str, _: Reader,
+    recording: RecordingIdentity,
     at: Annotated[datetime | None, Query(description="ISO 8601 time (UTC unless it carries an offset); default now")] = None,
 ) -> dict[str, Any]:
-    """The calibration in force: the device's latest accepted one, or with ``at`` the latest accepted at or before
-    that moment; ``in_force`` says how old it was then and warns past the service's age limit."""
+    """The calibration in force: a calibration of the recording's power-up when ``boot_count`` (or ``booted_at``) names
+    one, else the device's latest accepted one at or before ``at`` (default now); never one of another sensor (409).
+    ``in_force`` says why it was taken, how old it was then, and warns past the service's age and temperature limits
+    or across a power-up."""
     check_device_id(device_id)
-    cur = await in_force_async(svc.store, device_id, at, svc.settings.calibration_max_age_days)
+    cur = await in_force_async(svc.store, device_id, at, svc.settings.limits, recording)
     if cur is None:
         raise problem(404, none_in_force(device_id, None if at is None else at.isoformat()))
     return cur.model_dump(mode="json")

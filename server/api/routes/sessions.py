@@ -17,6 +17,7 @@ from sqlalchemy.exc import SQLAlchemyError
 from calib import __version__
 from calib.acceptance import evaluate, turn_accuracy
 from calib.departure import departures
+from calib.identity import SensorIdentity
 from calib.json_safe import finite
 
 from ... import schemas as M
@@ -89,6 +90,10 @@ async def calibrate(svc: Svc,
                                               "needed before its result can be accepted")] = None,
     firmware: Annotated[str | None, Query(min_length=1, max_length=128, pattern=M.SENSOR_TEXT,
                                           description="the device's firmware version, for an uploaded recording")] = None,
+    serial: Annotated[str | None, Query(min_length=1, max_length=128, pattern=M.SENSOR_TEXT,
+                                        description="the sensor's serial or chip id, for an uploaded recording")] = None,
+    boot_count: Annotated[int | None, Query(ge=0, le=0xFFFFFFFF,
+                                            description="the device's power-up count the recording was made in")] = None,
 ) -> Any:
     """Start a guided live session (JSON body or none) → 202; or calibrate an uploaded CSV → 200."""
     check_device_id(device_id)
@@ -103,7 +108,8 @@ async def calibrate(svc: Svc,
             fs,
             method.value if method else None,
             layout,
-            {"sensor_model": sensor_model, "firmware": firmware},
+            {"sensor_model": sensor_model, "firmware": firmware, "serial": serial},
+            boot_count,
             upload,
         )
     if ctype and ctype != "application/json" and body:
@@ -226,6 +232,7 @@ async def accept(svc: Svc, session_id: str, operator: Operator, body: M.Decision
             operator,
             live.machine.result if live is not None else None,
             end=live.session_end() if live is not None else None,
+            identity=live.identity if live is not None else None,
             sensor_model=(live.device.info.get("sensor_model") if live else None) or (body.sensor_model if body else None),
             firmware=(live.device.info.get("firmware") if live else None) or (body.firmware if body else None),
             recording_csv=(live.csv_bytes if live else None),
@@ -327,6 +334,7 @@ async def calibrate_uploaded(
     method: str | None,
     layout: str,
     sensor: dict[str, str | None],
+    boot_count: int | None = None,
     options: UploadOptions | None = None,
 ) -> JSONResponse:
     from calib.api import DEFAULT_METHOD, available_methods
@@ -374,7 +382,10 @@ async def calibrate_uploaded(
         method,
         operator,
         __version__,
-        {"source": "upload", "layout": layout, "fs": fs, "protocol": used, **{k: v for k, v in sensor.items() if v}},
+        {"source": "upload", "layout": layout, "fs": fs, "protocol": used, **{k: v for k, v in sensor.items() if v},
+         "identity": SensorIdentity(device_id=device_id, sensor_model=sensor.get("sensor_model"), serial=sensor.get("serial"),
+                                    firmware=sensor.get("firmware"), boot_count=boot_count,
+                                    temperature_c=result.quality.get("temperature_c")).to_json()},
     )
     digest = await asyncio.to_thread(svc.store.archive_recording, sid, csv, n_samples)
     end = SessionEnd(

@@ -14,7 +14,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable, Hashable
 from typing import Any, ClassVar, Protocol
 
-from wearable_protocol import DeviceConfig, DeviceState, HeldCalibration
+from wearable_protocol import DeviceConfig, DeviceState, HeldCalibration, PowerUp
 from wearable_protocol.models import CANNOT_HOLD, DeviceModel
 
 from ..base import CommandError, LinkError, LinkStats, SampleBatch, WriteBackError
@@ -90,6 +90,10 @@ class Adapter(ABC):
     @abstractmethod
     async def stop(self) -> None:
         """Stop streaming and unsubscribe from the data."""
+
+    async def power_up(self) -> PowerUp | None:
+        """The device's boot count, uptime and temperature; None when its protocol reports none (no vendor's does)."""
+        return None
 
     @property
     def holds_calibrations(self) -> bool:

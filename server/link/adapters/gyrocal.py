@@ -76,6 +76,15 @@ class GyrocalAdapter(Adapter):
         self._decoder = StreamDecoder(cfg, self.stats)
         return cfg
 
+    async def power_up(self) -> wp.PowerUp | None:
+        if not self.io.has(wp.IMU_POWER_UP_CHAR):  # firmware older than the power-up characteristic
+            return None
+        try:
+            return wp.PowerUp.decode(await self.io.read(wp.IMU_POWER_UP_CHAR))
+        except DecodeError as e:
+            log.warning("the wearable's power-up characteristic is unreadable (%s): its power-up stays unknown", e)
+            return None
+
     @property
     def holds_calibrations(self) -> bool:
         return self.io.has(wp.IMU_CALIBRATION_CHAR)
