@@ -138,6 +138,9 @@ def register_apply(sub: Any) -> None:
                           "with --device: the store's URL (default as for `gyrocal serve`)")
     p.add_argument("-o", "--output", type=Path, default=None, metavar="OUT",
                    help="the corrected CSV (default: FILE's name with .calibrated.csv)")
+    p.add_argument("--orientation", action="store_true",
+                   help="also estimate the orientation before and after correction (Madgwick filter of the ahrs package, or "
+                   "gyroscope integration without an accelerometer): OUT.orientation.csv and a plot OUT.orientation.png")
     p.set_defaults(func=cmd_apply)
 
 
@@ -183,7 +186,10 @@ def cmd_apply(args: argparse.Namespace) -> int:
         used = {"calibration_id": cal.id, "device_id": cal.device_id, "accepted_at": cal.accepted_at.isoformat(),
                 "operator": cal.operator, "in_force": cal.in_force.model_dump(mode="json"), "warnings": cal.in_force.warnings}
     out = args.output or args.file.with_name(args.file.stem + ".calibrated.csv")
-    write_native_csv(corrected(rec, correction), out)
+    fixed = corrected(rec, correction)
+    write_native_csv(fixed, out)
+    if args.orientation:
+        used["orientation"] = _write_orientation(rec, fixed, out)
     side = out.with_name(out.name + ".calibration.json") if out.suffix != ".csv" else out.with_suffix(".calibration.json")
     side.write_text(json.dumps({"recording": str(args.file), "corrected": str(out), "calibration": correction.to_json(), **used},
                                indent=2), encoding="utf-8")
@@ -192,6 +198,25 @@ def cmd_apply(args: argparse.Namespace) -> int:
     print(f"{out} written ({'gyroscope and accelerometer' if correction.A is not None and rec.accel is not None else 'gyroscope'} "
           f"corrected); the calibration used is in {side}")
     return EXIT_OK
+
+
+def _write_orientation(rec: Any, calibrated: Any, out: Path) -> dict[str, Any]:
+    """OUT.orientation.csv and .png: the orientation before and after correction, with a progress bar."""
+    import sys
+
+    from tqdm import tqdm
+
+    from calib.orientation import orientation, plot_orientation
+
+    stem = out.with_suffix("") if out.suffix == ".csv" else out
+    with tqdm(total=2 * max(0, len(rec) - 1), desc="orientation", unit="sample", file=sys.stderr, disable=not sys.stderr.isatty()) as bar:
+        o = orientation(rec, calibrated, bar.update)
+    table = stem.with_name(stem.name + ".orientation.csv")
+    table.write_text(o.to_csv(), encoding="utf-8")
+    plot = plot_orientation(o, stem.with_name(stem.name + ".orientation.png"))
+    final = float(o.difference_deg[-1])
+    print(f"orientation written to {table} and {plot}: the calibration moves the final orientation by {final:.1f} deg")
+    return {"csv": str(table), "plot": str(plot), "method": o.method, "final_difference_deg": final}
 
 
 def _parse_at(text: str | None) -> datetime | None:

@@ -170,12 +170,18 @@ class ComputePool:
 
 
 def apply_upload(body: bytes, fs: float | None, layout: str, source: str, max_samples: int, options: UploadOptions | None,
-                 calibration: dict[str, Any]) -> tuple[bytes, bool, float | None]:
+                 calibration: dict[str, Any], orientation: bool = False) -> tuple[bytes, bool, float | None, dict[str, Any] | None]:
     """An uploaded CSV corrected by a calibration (its JSON form): (native CSV, whether the accelerometer was corrected
-    too, the recording's mean temperature in degC when it has a temp column); raises calib's errors."""
+    too, the recording's mean temperature in degC when it has a temp column, and with ``orientation`` the summary of
+    its orientation before and after); raises calib's errors."""
     from calib.correction import Correction, corrected
 
     rec = parse_upload(body, fs, layout, source, max_samples, options)
     correction = Correction.from_json(calibration)
-    return (recording_csv(corrected(rec, correction)), correction.A is not None and rec.accel is not None,
-            rec.mean_temperature_c)
+    fixed = corrected(rec, correction)
+    summary = None
+    if orientation:
+        from calib.orientation import orientation as estimate
+
+        summary = estimate(rec, fixed).summary()
+    return recording_csv(fixed), correction.A is not None and rec.accel is not None, rec.mean_temperature_c, summary

@@ -133,6 +133,12 @@ def test_apply_corrects_a_recording_with_the_devices_calibration_in_force(
         assert resp.headers["content-type"].startswith("text/csv") and resp.headers["x-gyrocal-calibration-id"] == str(cals[0]["id"])
         assert json.loads(resp.headers["x-gyrocal-warnings"]) == []
         assert resp.text == out.read_text()
+        # the orientation before and after, for the page's plots
+        o = c.post(f"/devices/{DEVICE}/orientation", content=src.read_text(), params={"at": at}, headers={"Content-Type": "text/csv"})
+        assert o.status_code == 200, o.text
+        o = o.json()
+        assert o["calibration_id"] == cals[0]["id"] and "Madgwick" in o["method"] and len(o["t"]) == len(o["before"]["yaw"]) <= 2000
+        assert o["final_difference_deg"] > 1.0 and o["difference_deg"][0] == 0.0
         # a device with no calibration, a body that is no CSV: said, nothing else
         r404 = c.post("/devices/never-calibrated/apply", content=src.read_text(), headers={"Content-Type": "text/csv"})
         assert r404.status_code == 404 and "calibrate it before" in r404.json()["detail"]
@@ -152,6 +158,15 @@ def test_apply_with_a_calibration_file_gyrocals_or_imucals(tmp_path: Path) -> No
                            text=True, timeout=60)
         assert r.returncode == 0, r.stderr
         assert np.allclose(read_recording(out).gyro, corr.apply(rec.gyro)[0], atol=1e-9), name
+    # with the orientation before and after: a table, a plot and the sidecar's summary
+    out = tmp_path / "oriented.csv"
+    r = subprocess.run([*GYROCAL, "apply", str(src), "--calibration", str(tmp_path / "ours.json"), "-o", str(out), "--orientation"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and "oriented.orientation.png" in r.stdout, r.stdout + r.stderr
+    side = json.loads((tmp_path / "oriented.calibration.json").read_text())["orientation"]
+    table = np.genfromtxt(tmp_path / "oriented.orientation.csv", delimiter=",", names=True)
+    assert len(table) == len(rec) and side["final_difference_deg"] == pytest.approx(table["difference"][-1], abs=1e-4)
+    assert "Madgwick" in side["method"] and (tmp_path / "oriented.orientation.png").read_bytes()[:4] == b"\x89PNG"
     broken = tmp_path / "broken.json"
     broken.write_text('{"k": [1, 1]}')
     r = subprocess.run([*GYROCAL, "apply", str(src), "--calibration", str(broken)], cwd=ROOT, capture_output=True, text=True, timeout=60)

@@ -261,6 +261,13 @@ def test_the_history_table_keeps_each_value_and_date_on_one_line(hand_wizard: Wi
         w.page.click("form.apply a.download")
     got = read_recording(dl.value.path())
     assert np.allclose(got.gyro, rec.gyro @ np.diag(newest["k"]).T + np.asarray(newest["b"]), atol=1e-9)
+    # and its orientation before and after, plotted
+    w.page.check("#apply-orientation")
+    w.page.click("form.apply button")
+    w.page.wait_for_selector("form.apply .plots.orientation figure >> nth=3")
+    assert "the orientation ends" in w.text("form.apply .in-force-out")
+    w.shot("history-orientation")
+    w.page.uncheck("#apply-orientation")
     # never another sensor's calibration: the page says so and offers no file
     w.page.fill("#apply-serial", "BU9-0002")
     w.page.click("form.apply button")

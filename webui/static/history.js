@@ -4,7 +4,7 @@
 import { AXES, AXIS_LABEL, fill, fmtDate, fmtDateTime, fmtTime, h, num, parseTime, sig } from "./dom.js";
 import { icon } from "./figures.js";
 import { problemLine, reasonFor } from "./messages.js";
-import { historyChart } from "./plots.js";
+import { historyChart, orientationPlots } from "./plots.js";
 
 const MARKERS = { x: "circle", y: "square", z: "triangle" };
 
@@ -146,9 +146,11 @@ function applyForm(ctx, deviceId) {
   const out = h("div", { class: "in-force-out", "aria-live": "polite" });
   const go = h("button", { class: "button", type: "submit" }, icon("save"), "Correct");
   const rec = recordingFields("apply");
+  const orient = h("input", { id: "apply-orientation", type: "checkbox" });
   const form = h("form", { class: "in-force apply" },
     h("label", { for: "apply-file" }, "Correct a study recording (CSV)"), file,
-    h("label", { for: "apply-at" }, "recorded at"), when, rec.fields, go, out);
+    h("label", { for: "apply-at" }, "recorded at"), when, rec.fields,
+    h("label", { class: "check", for: "apply-orientation" }, orient, "show its orientation before and after"), go, out);
   let url = null;
   form.addEventListener("submit", async (ev) => {
     ev.preventDefault();
@@ -160,7 +162,9 @@ function applyForm(ctx, deviceId) {
     go.disabled = true;
     try {
       const at = when.value ? new Date(when.value).toISOString() : undefined;
-      const res = await ctx.api.request("POST", `/devices/${encodeURIComponent(deviceId)}/apply`, { csv: await f.text(), query: { at, ...rec.query() }, raw: true });
+      const csv = await f.text();
+      const path = `/devices/${encodeURIComponent(deviceId)}`;
+      const res = await ctx.api.request("POST", `${path}/apply`, { csv, query: { at, ...rec.query() }, raw: true });
       if (url) URL.revokeObjectURL(url);
       url = URL.createObjectURL(new Blob([res.text], { type: "text/csv" }));
       const name = f.name.replace(/\.csv$/i, "") + ".calibrated.csv";
@@ -169,6 +173,13 @@ function applyForm(ctx, deviceId) {
         `Corrected with calibration #${res.headers.get("X-Gyrocal-Calibration-Id")} (${res.headers.get("X-Gyrocal-Corrected")}). `,
         h("a", { class: "download", href: url, download: name }, `Download ${name}`))),
       warnings.map((w) => formProblem(w)));
+      if (orient.checked) {
+        out.append(h("p", { class: "muted" }, "Estimating the orientation…"));
+        const o = await ctx.api.request("POST", `${path}/orientation`, { csv, query: { at, ...rec.query() } });
+        out.lastChild.replaceWith(h("p", { class: "in-force-answer" }, icon("check"), h("span", null,
+          `With the calibration the orientation ends ${num(o.final_difference_deg, 1)}° from where the raw readings put it (${o.method}).`)),
+        h("div", { class: "plots orientation" }, orientationPlots(o)));
+      }
     } catch (err) {
       if (err.status !== 401) fill(out, formProblem(problemLine(err)));
     } finally {

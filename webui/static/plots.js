@@ -184,3 +184,22 @@ export function calibrationPlots(tr) {
     }),
   ];
 }
+
+/** Roll, pitch and yaw a recording implies before and after its calibration, and the angle between the two. */
+export function orientationPlots(o) {
+  const before = { cls: "before", label: "raw readings" };
+  const after = { cls: "after", label: "calibrated" };
+  const angle = (name, caption) => lineChart({
+    title: name[0].toUpperCase() + name.slice(1), caption, xLabel: "time (s)", yLabel: "°",
+    series: [{ ...before, x: o.t, y: o.before[name] }, { ...after, x: o.t, y: o.after[name] }],
+  });
+  return [
+    angle("yaw", "the heading: only the gyroscope tells it, so a calibration shows here most"),
+    angle("pitch", "held to gravity by the accelerometer when the recording has one"),
+    angle("roll", "held to gravity by the accelerometer when the recording has one"),
+    lineChart({
+      title: "Difference", caption: "the angle between the orientation from raw and from calibrated readings",
+      xLabel: "time (s)", yLabel: "°", yZero: true, series: [{ cls: "after", label: "difference", x: o.t, y: o.difference_deg }],
+    }),
+  ];
+}

@@ -15,13 +15,15 @@ from fastapi import APIRouter, Path, Query, Request, Response
 from calib import __version__
 from calib.correction import Correction, CorrectionFileError
 from calib.identity import SensorIdentity
+from calib.json_safe import finite
 
 from ... import schemas as M
 from ...deps import R404, R409, Operator, Reader, Svc, check_device_id, check_upload, problem, read_csv_body, recording_problem
 from ...export import export_text
-from ...lifecycle import in_force_async, judged, none_in_force
+from ...lifecycle import CalibrationInForce, in_force_async, judged, none_in_force
+from ...service import Service
 from ...store import sha256_hex
-from ...workers.compute import TooManySamples, apply_upload
+from ...workers.compute import TooManySamples, UploadOptions, apply_upload
 from ..identity_query import RecordingIdentity
 from ..upload_options import Upload
 
@@ -52,16 +54,33 @@ async def apply_calibration(
     """Correct an uploaded recording with the device's calibration in force for it (as GET /devices/{id}/calibration
     chooses it: same power-up first, never another sensor's) on the gyroscope, and on the accelerometer too when that
     calibration has its model. Nothing is stored."""
+    cal, (csv, accel_too, _) = await _corrected(svc, device_id, request, upload, recording, at, fs, layout, orientation=False)
+    params = cal.model_dump(mode="json")
+    used = {k: params[k] for k in ("k", "b", "K", "G")}
+    return Response(csv, media_type="text/csv", headers={
+        "X-Gyrocal-Calibration-Id": str(cal.id),
+        "X-Gyrocal-Calibration": json.dumps(used, separators=(",", ":")),
+        "X-Gyrocal-Corrected": "gyroscope,accelerometer" if accel_too else "gyroscope",
+        "X-Gyrocal-Warnings": json.dumps(cal.in_force.warnings),
+        "X-Gyrocal-Identity-Check": json.dumps(cal.in_force.identity_check, separators=(",", ":")),
+        "Content-Disposition": f'attachment; filename="{device_id}-calibrated.csv"',
+    })
+
+
+async def _corrected(svc: Service, device_id: str, request: Request, upload: UploadOptions, recording: SensorIdentity,
+                     at: datetime | None, fs: float | None, layout: str, *, orientation: bool) -> tuple[CalibrationInForce, Any]:
+    """The calibration in force for an uploaded recording (judged against the recording's temp column too) and what the
+    worker made of the recording with it: (corrected CSV, accelerometer corrected too, orientation summary or None)."""
     check_device_id(device_id)
     body = await read_csv_body(request)
     check_upload(body, layout)
     cal = await in_force_async(svc.store, device_id, at, svc.settings.limits, recording)
     if cal is None:
         raise problem(404, f"{none_in_force(device_id, None if at is None else at.isoformat())}: calibrate it before applying one")
-    params = cal.model_dump(mode="json")
     try:
-        csv, accel_too, temperature_c = await asyncio.wait_for(
-            svc.pool.run(apply_upload, body, fs, layout, f"recording for {device_id}", svc.settings.max_upload_samples, upload, params),
+        csv, accel_too, temperature_c, summary = await asyncio.wait_for(
+            svc.pool.run(apply_upload, body, fs, layout, f"recording for {device_id}", svc.settings.max_upload_samples, upload,
+                         cal.model_dump(mode="json"), orientation),
             timeout=svc.settings.compute_timeout_s,
         )
     except TimeoutError:
@@ -73,15 +92,34 @@ async def apply_calibration(
     if recording.temperature_c is None and temperature_c is not None:  # the recording's temp column: judged against it
         cal = judged(cal, cal.in_force.at, svc.settings.limits, replace(recording, device_id=device_id, temperature_c=temperature_c),
                      cal.in_force.chosen_by)
-    used = {k: params[k] for k in ("k", "b", "K", "G")}
-    return Response(csv, media_type="text/csv", headers={
-        "X-Gyrocal-Calibration-Id": str(cal.id),
-        "X-Gyrocal-Calibration": json.dumps(used, separators=(",", ":")),
-        "X-Gyrocal-Corrected": "gyroscope,accelerometer" if accel_too else "gyroscope",
-        "X-Gyrocal-Warnings": json.dumps(cal.in_force.warnings),
-        "X-Gyrocal-Identity-Check": json.dumps(cal.in_force.identity_check, separators=(",", ":")),
-        "Content-Disposition": f'attachment; filename="{device_id}-calibrated.csv"',
-    })
+    return cal, (csv, accel_too, summary)
+
+
+@router.post(
+    "/devices/{device_id}/orientation",
+    responses={
+        200: {"description": "t (s), roll/pitch/yaw before and after correction (deg, unwrapped), difference_deg between the "
+              "two orientations, at most max_points samples; the calibration used, its warnings and identity check"},
+        400: {"model": M.Problem, "description": "the recording cannot be read"},
+        413: {"model": M.Problem, "description": "the recording is too large"},
+        415: {"model": M.Problem, "description": "not a CSV body"},
+        **R404, **R409,
+    },
+    openapi_extra={"requestBody": {"required": True, "content": {"text/csv": {"schema": {"type": "string"}}}}},
+    tags=["calibrations"],
+)
+async def orientation_of(
+    svc: Svc, device_id: str, request: Request, _: Reader, upload: Upload, recording: RecordingIdentity,
+    at: Annotated[datetime | None, Query(description="when the recording was made (ISO 8601); default now")] = None,
+    fs: Annotated[float | None, Query(gt=0, le=100000, description="sample rate, Hz (CSV without a time column)")] = None,
+    layout: Annotated[str, Query(max_length=16, description="CSV layout: auto, native, imucal")] = "auto",
+) -> dict[str, Any]:
+    """The orientation an uploaded recording implies before and after the device's calibration in force for it
+    (Madgwick's filter of the ahrs package; gyroscope integration without an accelerometer): the paper's Figs. 2 and 10
+    for the user's own data. Nothing is stored."""
+    cal, (_, _, summary) = await _corrected(svc, device_id, request, upload, recording, at, fs, layout, orientation=True)
+    return finite({"calibration_id": cal.id, "warnings": cal.in_force.warnings, "identity_check": cal.in_force.identity_check,
+                   **summary})
 
 
 EXPORT_FORMATS = ("gyrocal", "imucal", "csv")
