@@ -178,7 +178,7 @@ class SessionOut(BaseModel):
     model_config = ConfigDict(extra="allow")
     session_id: str
     device_id: str
-    kind: Literal["live", "upload", "import"] = "live"
+    kind: Literal["live", "upload", "import", "verify"] = "live"
     state: State = Field(description="where the session is (protocol order, then reconnecting, computing and the end states)")
     phase: Phase | None = None
     prompt: str | None = None

@@ -14,6 +14,7 @@ from .auth import Authenticator, SignIns
 from .config import Settings
 from .devices import DeviceManager
 from .live.runner import LiveSession
+from .live.verify_run import VerifyRun
 from .store import Store
 from .throttle import TokenBucket
 from .workers.compute import ComputePool
@@ -37,6 +38,7 @@ class Service:
         self.sessions: dict[str, LiveSession] = {}
         self.active: dict[str, str] = {}  # device id -> running session id
         self.writing: set[str] = set()  # devices a calibration is being written to
+        self.verify_runs: dict[str, VerifyRun] = {}  # live verification turns, by id (kept after they end, for the page)
         self.started = time.time()
         self.integrity: dict[str, Any] | None = None  # the last verification of the store's hash chains
         self._integrity_task: asyncio.Task[None] | None = None
@@ -70,6 +72,9 @@ class Service:
     async def shutdown(self) -> None:
         if self._integrity_task is not None:
             self._integrity_task.cancel()
+        for run in list(self.verify_runs.values()):
+            run.cancel()
+            await run.wait()
         for live in list(self.sessions.values()):
             if not live.machine.finished:
                 with contextlib.suppress(Exception):
@@ -79,6 +84,10 @@ class Service:
         self.sign_ins.close()
         self.pool.shutdown()
         self.store.close()
+
+    def verification_ended(self, run: VerifyRun) -> None:
+        if self.active.get(run.device.id) == run.id:
+            del self.active[run.device.id]
 
     def _session_ended(self, live: LiveSession) -> None:
         if self.active.get(live.device.id) == live.id:

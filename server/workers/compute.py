@@ -185,3 +185,18 @@ def apply_upload(body: bytes, fs: float | None, layout: str, source: str, max_sa
 
         summary = estimate(rec, fixed).summary()
     return recording_csv(fixed), correction.A is not None and rec.accel is not None, rec.mean_temperature_c, summary
+
+
+def verify_recording(rec: Any, calibration: dict[str, Any]) -> dict[str, Any]:
+    """The verification turn of a recording measured with a calibration (its JSON form); raises NoVerificationTurn."""
+    from calib.correction import Correction
+    from calib.verification import verify_turn
+
+    return verify_turn(rec, Correction.from_json(calibration), calibration.get("uncertainty")).to_json()
+
+
+def verify_upload(body: bytes, fs: float | None, layout: str, source: str, max_samples: int, options: UploadOptions | None,
+                  calibration: dict[str, Any]) -> tuple[dict[str, Any], bytes, int]:
+    """An uploaded recording of a verification turn measured with a calibration: (verification, CSV, samples)."""
+    rec = parse_upload(body, fs, layout, source, max_samples, options)
+    return verify_recording(rec, calibration), recording_csv(rec), len(rec)

@@ -288,6 +288,15 @@ def test_a_device_is_due_when_never_calibrated_or_its_calibration_is_too_old(tmp
         svc.stop()
 
 
+def _live_accepted(svc: RunningService) -> dict[str, Any]:
+    """A guided session on the service's simulated wearable mock-1, run to its end and accepted: the calibration."""
+    with svc.client() as c:
+        sid = c.post("/devices/mock-1/calibrate", json={}).json()["session_id"]
+    assert follow_events(svc.base, sid, {"done", "failed", "cancelled"}, timeout_s=90, last_event_id=0)[-1]["state"] == "done"
+    with svc.client() as c:
+        return dict(c.post(f"/sessions/{sid}/accept").json()["calibration"])
+
+
 def test_a_calibration_records_its_sensor_power_up_and_temperature_and_is_applied_by_those_rules(tmp_path: Path) -> None:
     """A live session on the simulated wearable stores its serial, power-up and temperature with the calibration. The
     calibration in force then prefers the recording's power-up, warns across another one and beyond the temperature
@@ -298,11 +307,8 @@ def test_a_calibration_records_its_sensor_power_up_and_temperature_and_is_applie
     db = f"sqlite:///{tmp_path / 'store.sqlite3'}"
     svc = RunningService(["--mock", "1", "--mock-speed", "40", "--mock-seed", "3"], db).start()
     try:
+        cal = _live_accepted(svc)
         with svc.client() as c:
-            sid = c.post("/devices/mock-1/calibrate", json={}).json()["session_id"]
-        assert follow_events(svc.base, sid, {"done", "failed", "cancelled"}, timeout_s=90, last_event_id=0)[-1]["state"] == "done"
-        with svc.client() as c:
-            cal = c.post(f"/sessions/{sid}/accept").json()["calibration"]
             dev = c.get("/devices/mock-1").json()
         ident = cal["identity"]
         assert ident["device_id"] == "mock-1" and ident["serial"] == dev["serial"] and ident["serial"]
@@ -422,6 +428,53 @@ def test_a_calibration_made_with_imucal_is_imported_into_the_history_and_applied
                                   headers={"Content-Type": "application/json"}).status_code == 401
         from server.store import Store
 
+        assert Store(db).verify().ok
+    finally:
+        svc.stop()
+
+
+def test_a_verification_turn_after_accept_is_measured_and_kept_with_the_calibration(tmp_path: Path) -> None:
+    """After Accept, one more turn on the simulated wearable (live) and an uploaded recording of one: each is measured
+    with the calibration (360 degrees within its uncertainty, against the raw angle) and kept with it."""
+    from server.store import Store
+
+    db = f"sqlite:///{tmp_path / 'store.sqlite3'}"
+    svc = RunningService(["--mock", "1", "--mock-speed", "40", "--mock-seed", "5"], db).start()
+    try:
+        cal = _live_accepted(svc)
+        with svc.client() as c:
+            started = c.post(f"/calibrations/{cal['id']}/verify", json={})
+            assert started.status_code == 202 and started.headers["location"] == f"/verifications/{started.json()['verification_id']}"
+            busy = c.post("/devices/mock-1/calibrate", json={})  # the device is in the verification: one thing at a time
+            assert busy.status_code == 409
+            prompts = []
+            deadline = time.monotonic() + 60
+            while time.monotonic() < deadline:
+                run = c.get(started.headers["location"]).json()
+                prompts.append(run["state"])
+                if run["state"] in ("done", "failed"):
+                    break
+                time.sleep(0.1)
+            assert run["state"] == "done", run
+            live = run["result"]
+            assert live["source"] == "live" and live["confirmed"] and abs(live["calibrated_deg"] - 360) < 3 * live["uncertainty_deg"] + 0.5
+            assert abs(live["raw_deg"] - 360) > 5 and set(prompts) <= {"connecting", "still", "turn", "settle", "computing", "done"}
+            # an uploaded recording of a turn
+            rec, _ = simulate(5, noise=0.03)
+            buf = io.StringIO()
+            write_native_csv(rec.slice(0, 1100), buf)
+            up = c.post(f"/calibrations/{cal['id']}/verify", content=buf.getvalue(), headers={"Content-Type": "text/csv"})
+            assert up.status_code == 201 and up.json()["source"] == "upload", up.text
+            still = io.StringIO()
+            write_native_csv(rec.slice(0, 250), still)
+            none = c.post(f"/calibrations/{cal['id']}/verify", content=still.getvalue(), headers={"Content-Type": "text/csv"})
+            assert none.status_code == 400 and "turn it once all the way round" in none.json()["detail"]
+            assert c.post("/calibrations/9999/verify", json={}).status_code == 404
+            kept = c.get(f"/calibrations/{cal['id']}/verifications").json()
+            assert [v["source"] for v in kept] == ["upload", "live"] and kept[1]["session_id"] == live["session_id"]
+            assert c.get(f"/sessions/{live['session_id']}/recording").status_code == 200  # the turn's samples are archived
+            actions = [a["action"] for a in c.get("/audit", params={"device_id": "mock-1"}).json()]
+            assert actions.count("calibration.verify") == 2
         assert Store(db).verify().ok
     finally:
         svc.stop()

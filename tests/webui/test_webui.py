@@ -108,9 +108,17 @@ def test_happy_path_to_a_saved_calibration(wizard: Wizard, page: Any, webui_serv
     page.wait_for_selector(f".writeback-status.ok:has-text('holds calibration #{cur['id']}')")
     wizard.shot("09b-written")
 
+    # one more turn verifies it: the calibrated angle of a full turn against the raw one, kept with the calibration
+    page.click("button.verify")
+    page.wait_for_selector(".verification.ok .verification-verdict:has-text('the calibration holds')", timeout=60_000)
+    assert re.search(r"(359\.\d|360\.\d)° ± [\d.]+° calibrated", wizard.text(".verification-angles")), wizard.text(".verification")
+    wizard.shot("09c-verified")
+    assert wizard.small_targets() == []
+
     page.click(f"a[href='#/history/{dev}']")
     page.wait_for_selector("table.history")
     assert OPERATOR in wizard.text("table.history tbody tr.current")
+    assert "verified: 360.0°" in wizard.text("table.history tbody tr.current")
     wizard.shot("10-history")
     assert wizard.small_targets() == []
 

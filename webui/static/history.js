@@ -60,7 +60,14 @@ function recordingFields(prefix) {
   };
 }
 
-function calibrationTable(cals) {
+/** The latest verification turn of a calibration, in a few words. */
+function verifiedLine(v) {
+  if (!v) return null;
+  return h("span", { class: `how verified ${v.confirmed ? "ok" : "off"}` }, icon(v.confirmed ? "check" : "warn"),
+    `verified: ${num(v.calibrated_deg, 1)}° ± ${sig(v.uncertainty_deg, 1)}° (raw ${num(v.raw_deg, 1)}°)`);
+}
+
+function calibrationTable(cals, verifications = []) {
   const values = (vals, unc, digits, uDigits) => vals.map((v, j) => h("span", { class: "val" }, num(v, digits),
     unc ? h("span", { class: "pm" }, ` ±${sig(unc[j], uDigits)}`) : null));
   return h("table", { class: "history calibrations" },
@@ -71,7 +78,7 @@ function calibrationTable(cals) {
       h("td", { class: "source" }, h("strong", null, c.operator),
         h("span", { class: "how" }, `${SOURCE[c.source] || c.source} · ${c.method}`),
         c.sensor_model ? h("span", { class: "how" }, `${c.sensor_model}${c.firmware ? `, firmware ${c.firmware}` : ""}`) : null,
-        identityLine(c)),
+        identityLine(c), verifiedLine(verifications.find((v) => v.calibration_id === c.id))),
       h("td", { class: "num" }, values(c.k, c.uncertainty && c.uncertainty.k, 4, 1)),
       h("td", { class: "num" }, values(c.b, c.uncertainty && c.uncertainty.b, 3, 1)),
       h("td", null, h("div", { class: "files" },
@@ -85,12 +92,12 @@ function sessionTable(sessions) {
     h("caption", null, "All calibration attempts, newest first"),
     h("thead", null, h("tr", null, ["Started", "Outcome", "Operator", "Kind"].map((c) => h("th", { scope: "col" }, c)))),
     h("tbody", null, sessions.map((sess) => {
-      const o = outcome(sess);
+      const o = sess.kind === "verify" ? { cls: sess.passed ? "pass" : "fail", icon: sess.passed ? "pass" : "warn", text: sess.passed ? "verified" : "verification off" } : outcome(sess);
       return h("tr", null,
         h("td", { class: "nowrap" }, h("a", { href: `#/session/${sess.session_id}` }, fmtDateTime(sess.started_at))),
         h("td", null, h("span", { class: `outcome ${o.cls}` }, icon(o.icon), h("span", null, o.text))),
         h("td", null, sess.operator || "—"),
-        h("td", null, sess.kind === "upload" ? "uploaded recording" : sess.kind === "import" ? "imported file" : "guided"));
+        h("td", null, { upload: "uploaded recording", import: "imported file", verify: "verification turn" }[sess.kind] || "guided"));
     })));
 }
 
@@ -234,10 +241,12 @@ export function historyView(ctx, deviceId) {
     let dev;
     let cals;
     let sessions;
+    let verifications;
     try {
       const enc = encodeURIComponent(deviceId);
-      [dev, cals, sessions] = await Promise.all([
+      [dev, cals, sessions, verifications] = await Promise.all([
         ctx.api.get(`/devices/${enc}`), ctx.api.get(`/devices/${enc}/calibrations`), ctx.api.get(`/devices/${enc}/sessions`, { limit: 100 }),
+        ctx.api.get(`/devices/${enc}/verifications`),
       ]);
     } catch (err) {
       if (alive && err.status !== 401) ctx.problem(err, `load the history of ${deviceId}`);
@@ -251,7 +260,7 @@ export function historyView(ctx, deviceId) {
     fill(body,
       h("p", { class: `current-line ${cur ? "calibrated" : "never"}` }, icon(cur ? "check" : "info"),
         h("span", null, cur ? `Current calibration: accepted by ${cur.operator} on ${fmtDateTime(cur.accepted_at)}.` : `${name} has no accepted calibration yet.`)),
-      cals.length ? [parameterCharts(cals), calibrationTable(cals), inForceForm(ctx, deviceId, cals), applyForm(ctx, deviceId)] : null,
+      cals.length ? [parameterCharts(cals), calibrationTable(cals, verifications), inForceForm(ctx, deviceId, cals), applyForm(ctx, deviceId)] : null,
       importForm(ctx, deviceId),
       sessions.length ? sessionTable(sessions) : h("p", { class: "muted" }, "No calibration attempts yet."),
       dev.available && !dev.active_session ? h("div", { class: "actions" }, h("a", { class: "button primary big", href: `#/place/${encodeURIComponent(deviceId)}` }, icon("play"), `Calibrate ${name}`)) : null);

@@ -8,6 +8,7 @@ import { angleGauge, icon, notice, placePicture, stillRing, turnAnimation, turnT
 import { STEP_LABELS, headline, reasonFor, requestProblem, stepOf, subline } from "./messages.js";
 import { detailsBlock, paramTable } from "./details.js";
 import { readiness } from "./readiness.js";
+import { verifyTurn } from "./verify.js";
 import { writeBack } from "./writeback.js";
 
 const END_STATES = new Set(["done", "failed", "cancelled"]);
@@ -429,9 +430,10 @@ export function sessionView(ctx, sid) {
     const meta = h("p", { class: "next" }, "Loading the saved record…");
     const values = h("div", { class: "saved-values" });
     const writeSlot = h("div", { class: "writeback" });
+    const verifySlot = h("div", { class: "verify-turn" });
     endLayout(s, 7, verdictEl("saved", "pass", "Saved"), [
       h("p", { class: "sentence" }, `${dev} now uses this calibration.`),
-      meta, values, writeSlot,
+      meta, values, verifySlot, writeSlot,
       h("div", { class: "actions" },
         h("a", { class: "button primary big", href: "#/devices" }, icon("play"), "Calibrate another device"),
         h("a", { class: "button", href: `#/history/${encodeURIComponent(s.device_id)}` }, icon("history"), `History of ${dev}`)),
@@ -453,6 +455,11 @@ export function sessionView(ctx, sid) {
     meta.replaceChildren(icon("user"), h("span", null, h("strong", { class: "saved-by" }, `Accepted by ${cal.operator}`), " on ",
       h("time", { datetime: cal.accepted_at }, fmtDateTime(cal.accepted_at)), `, for ${cal.device_id}.`));
     fill(values, paramTable(cal.k, cal.b, cal.uncertainty));
+    if (s.kind !== "upload") {
+      const check = verifyTurn(api, cal.id);
+      fill(verifySlot, h("p", null, "To check it, put the device back against the block and verify with one more full turn, about any axis (optional)."),
+        check.button, check.status);
+    }
     if (device && device.write_back) {
       const write = writeBack(api, s.device_id, cal.id);
       fill(writeSlot, h("p", null, `${dev} can hold this calibration itself, for its own use; its stream stays raw.`), write.button, write.line);

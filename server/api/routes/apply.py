@@ -152,7 +152,7 @@ async def export_calibration(
     "/devices/{device_id}/calibrations",
     status_code=201,
     response_model=M.AcceptOut,
-    responses={400: {"model": M.Problem, "description": "the body is not JSON"}, 401: {"model": M.Problem},
+    responses={400: {"model": M.Problem, "description": "the body is not JSON"}, 401: {"model": M.Problem}, **R404,
                409: {"model": M.Problem, "description": "this file was imported for the device already"},
                415: {"model": M.Problem, "description": "not a JSON body"},
                422: {"model": M.Problem, "description": "not a calibration gyrocal can use (the reason is given)"}},
