@@ -53,7 +53,8 @@ def age_days(accepted_at: datetime, at: datetime) -> float:
     return (at - accepted_at.astimezone(UTC)).total_seconds() / DAY_S
 
 
-def _identity_of(cal: CalibrationRecord) -> SensorIdentity:
+def calibration_identity(cal: CalibrationRecord) -> SensorIdentity:
+    """What a calibration records of its sensor (its identity, completed by the columns every calibration has)."""
     return (cal.identity or SensorIdentity()).completed(SensorIdentity(device_id=cal.device_id, sensor_model=cal.sensor_model,
                                                                        firmware=cal.firmware))
 
@@ -66,14 +67,14 @@ def in_force(store: Store, device_id: str, at: datetime | None, limits: Calibrat
     when = datetime.now(UTC) if at is None else (at if at.tzinfo is not None else at.replace(tzinfo=UTC)).astimezone(UTC)
     rec = replace(recording or SensorIdentity(), device_id=device_id)
     history = store.calibrations(device_id)  # newest first
-    own = [c for c in history if check_identity(_identity_of(c), rec).refusal is None]
-    same = [c for c in own if same_power_up(_identity_of(c), rec)]
+    own = [c for c in history if check_identity(calibration_identity(c), rec).refusal is None]
+    same = [c for c in own if same_power_up(calibration_identity(c), rec)]
     earlier = [c for c in own if c.accepted_at <= when]
     cal = same[0] if same else earlier[0] if earlier else None
     if cal is None:
         others = [c for c in history if c not in own and c.accepted_at <= when]
         if others:
-            raise WrongSensor(check_identity(_identity_of(others[0]), rec).refusal or "measured on another sensor")
+            raise WrongSensor(check_identity(calibration_identity(others[0]), rec).refusal or "measured on another sensor")
         return None
     return judged(cal, when, limits, rec, "same_power_up" if same else "latest_before")
 
@@ -82,7 +83,7 @@ def judged(cal: CalibrationRecord, when: datetime, limits: CalibrationLimits, re
            chosen_by: Literal["same_power_up", "latest_before"] = "latest_before") -> CalibrationInForce:
     """``cal`` with its age at ``when``, its identity compared with the recording's, and the warnings."""
     age = age_days(cal.accepted_at, when)
-    check = check_identity(_identity_of(cal), recording, max_temperature_change_c=limits.max_temperature_change_c)
+    check = check_identity(calibration_identity(cal), recording, max_temperature_change_c=limits.max_temperature_change_c)
     warnings = []
     if age > limits.max_age_days:
         warnings.append(f"calibration #{cal.id} was accepted {age:.0f} days before this moment, more than the "

@@ -224,6 +224,7 @@ class WriteBackOut(BaseModel):
     verified: bool = Field(description="the device read back exactly what was written (float32, CRC-32)")
     held: HeldOut
     held_state: Literal["current", "other"]
+    warnings: list[str] = Field(default_factory=list, description="the calibration is of another power-up or temperature")
 
 
 class AcceptOut(BaseModel):

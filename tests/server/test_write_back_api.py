@@ -50,6 +50,7 @@ def test_the_current_calibration_is_written_verified_and_flagged_when_superseded
             if ok is None:  # the session won the race: the write works once it has ended
                 ok = c.post("/devices/mock-1/calibration/write").json()
             assert ok["verified"] and ok["calibration_id"] == first["id"] and ok["held_state"] == "current"
+            assert ok["warnings"] == []  # the same sensor, power-up and temperature as it was calibrated at
             k = [ok["held"]["K"][i][i] for i in range(3)]
             assert k == pytest.approx(first["k"], rel=1e-6) and ok["held"]["b"] == pytest.approx(first["b"], abs=1e-6)
             dev = c.get("/devices/mock-1").json()
@@ -86,6 +87,14 @@ def test_the_current_calibration_is_written_verified_and_flagged_when_superseded
             r = c.post("/devices/mock-1/calibration/write", json={"calibration_id": first["id"]})
             assert r.status_code == 200 and r.json()["held_state"] == "other"
             assert c.get("/devices/mock-1").json()["held_state"] == "other"
+
+            # a calibration of another sensor (imported for this device id, with another serial) is never written to it
+            foreign = c.post("/devices/mock-1/calibrations", params={"serial": "NOT-THIS-ONE"},
+                             content='{"k": [1.01, 1, 1], "b": [0, 0, 0]}', headers={"Content-Type": "application/json"})
+            assert foreign.status_code == 201, foreign.text
+            r = c.post("/devices/mock-1/calibration/write", json={"calibration_id": foreign.json()["calibration"]["id"]})
+            assert r.status_code == 409 and "another sensor" in r.json()["detail"] and "NOT-THIS-ONE" in r.json()["detail"], r.text
+            assert c.get("/devices/mock-1").json()["held_calibration_id"] == first["id"]
         store = Store(owner)
         writes = [e for e in store.audit_log("mock-1") if e["action"] == "device.write_back"]
         assert [e["detail"]["calibration_id"] for e in writes][:2] == [first["id"], second["id"]]

@@ -10,11 +10,14 @@ from typing import Any
 from fastapi import APIRouter
 from sqlalchemy.exc import SQLAlchemyError
 
+from calib.identity import check_identity
 from wearable_protocol import HeldCalibration
 from wearable_protocol.models import CANNOT_HOLD
 
 from ... import schemas as M
 from ...deps import R401, R404, R409, R503, Operator, Svc, check_device_id, problem
+from ...devices import sensor_identity
+from ...lifecycle import calibration_identity
 from ...link import LinkError
 from ...store import CalibrationRecord, StoreError
 from ..views import reachable_device
@@ -55,7 +58,7 @@ async def write_to_device(svc: Svc, device_id: str, operator: Operator, body: M.
     try:
         rec = await _chosen(svc, device_id, body.calibration_id if body else None)
         held = HeldCalibration.from_parameters(rec.id, rec.K if rec.K is not None else rec.k, rec.b)
-        back = await _write(svc, dev, held)
+        back, warnings = await _write(svc, dev, held, rec)
         try:
             await asyncio.to_thread(svc.store.record_held, device_id, back.calibration_id, operator, True)
         except (StoreError, SQLAlchemyError) as exc:
@@ -66,11 +69,12 @@ async def write_to_device(svc: Svc, device_id: str, operator: Operator, body: M.
     finally:
         svc.writing.discard(device_id)
     return {"device_id": device_id, "calibration_id": back.calibration_id, "verified": True, "held": back.to_dict(),
-            "held_state": "current" if current is not None and current.id == back.calibration_id else "other"}
+            "held_state": "current" if current is not None and current.id == back.calibration_id else "other", "warnings": warnings}
 
 
-async def _write(svc: Svc, dev: Any, held: HeldCalibration) -> HeldCalibration:
-    """Connect if needed, write and verify; whatever happens after connecting, what the device holds is recorded."""
+async def _write(svc: Svc, dev: Any, held: HeldCalibration, rec: CalibrationRecord) -> tuple[HeldCalibration, list[str]]:
+    """Connect if needed, refuse another sensor's calibration, write and verify; whatever happens after connecting, what
+    the device holds is recorded. The warnings: a calibration of another power-up or temperature."""
     link = dev.get_link()
     was_connected = bool(getattr(link, "connected", False))
     try:
@@ -80,8 +84,12 @@ async def _write(svc: Svc, dev: Any, held: HeldCalibration) -> HeldCalibration:
             dev.info["write_back"] = False
             label = dev.model_facts().get("model_label") or "this wearable"
             raise problem(409, f"{label} {CANNOT_HOLD}")
+        check = check_identity(calibration_identity(rec), sensor_identity(dev.id, await link.read_info()),
+                               max_temperature_change_c=svc.settings.limits.max_temperature_change_c)
+        if check.refusal is not None:
+            raise problem(409, f"calibration #{rec.id} was not written: {check.refusal}")
         try:
-            return await link.write_calibration(held)
+            return await link.write_calibration(held), list(check.warnings)
         except LinkError as exc:
             await dev.note_held(link, svc.store)
             raise problem(502, f"calibration {held.calibration_id} was not written: {exc}") from None
