@@ -2,7 +2,8 @@
 
 ``SessionFollower`` runs in a thread of its own. It asks the service which session its wearable is in
 (``GET /devices/{id}``), follows that session's Server-Sent Events (``GET /sessions/{sid}/events``) and hands
-every snapshot to a callback, until the session ends; then it waits for the next one. The service's address
+every snapshot to a callback, until the session ends; then it waits for the next one. A verification turn
+(``GET /verifications/{id}``) is polled instead, and its request for the turn handed on as a prompt to turn. The service's address
 comes from a callable because a service learns its port only once it listens.
 """
 
@@ -62,10 +63,27 @@ class SessionFollower:
         r = httpx.get(f"{base}/devices/{self.device_id}", headers=self.headers, timeout=5.0)
         return r.json().get("active_session") if r.status_code == 200 else None
 
+    def _follow_verification(self, base: str, vid: str) -> None:
+        """A verification turn (``GET /verifications/{id}``, polled as the page does): when it asks for the turn, the
+        hand is told what a guided session's ready-for-x prompt tells it."""
+        while not self._stop.is_set():
+            r = httpx.get(f"{base}/verifications/{vid}", headers=self.headers, timeout=5.0)
+            if r.status_code != 200:
+                return
+            state = r.json().get("state")
+            if state == "turn":
+                self.on_snapshot({"state": "turn_x", "phase": "ready", "axis": "x", "attempt": 1, "warnings": []})
+            if state in ("done", "failed"):
+                return
+            self._stop.wait(POLL_S)
+
     def _follow(self, base: str, sid: str) -> None:
         """Hand each snapshot of the session to the callback until it ends (or the stream closes)."""
         deadline = time.monotonic() + 3600.0
         with httpx.stream("GET", f"{base}/sessions/{sid}/events", headers=self.headers, timeout=httpx.Timeout(30.0)) as r:
+            if r.status_code == 404:  # not a guided session: a verification turn
+                self._follow_verification(base, sid)
+                return
             if r.status_code != 200:
                 return
             for line in r.iter_lines():

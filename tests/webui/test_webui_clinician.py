@@ -209,6 +209,10 @@ def test_a_clinician_who_watches_the_gauge_stops_at_360_degrees(hand_wizard: Wiz
     assert w.text(".verdict h1") == "PASS"
     w.page.click("button.accept")
     w.page.wait_for_selector(".verdict.saved")
+    # she verifies it with one more turn, prompted by the page as the service sees her hand
+    w.page.click("button.verify")
+    w.page.wait_for_selector(".verification.ok", timeout=90_000)
+    assert "calibrated" in w.text(".verification-angles") and "raw" in w.text(".verification-angles")
     w.page.goto(w.service.base + "/#/devices")
     w.page.wait_for_selector(".device-card[data-device='mock-4'] .calibrated")
     run_to_result(w, "mock-4", check_turns=False)
