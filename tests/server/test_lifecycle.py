@@ -459,22 +459,42 @@ def test_a_verification_turn_after_accept_is_measured_and_kept_with_the_calibrat
             live = run["result"]
             assert live["source"] == "live" and live["confirmed"] and abs(live["calibrated_deg"] - 360) < 3 * live["uncertainty_deg"] + 0.5
             assert abs(live["raw_deg"] - 360) > 5 and set(prompts) <= {"connecting", "still", "turn", "settle", "computing", "done"}
-            # an uploaded recording of a turn
+            # uploaded recordings of a turn: the live one's archived samples (confirmed again), another sensor's (not confirmed)
+            own = c.get(f"/sessions/{live['session_id']}/recording")
+            assert own.status_code == 200
+            (tmp_path / "turn.csv").write_text(own.text)
+            up = c.post(f"/calibrations/{cal['id']}/verify", content=own.text, headers={"Content-Type": "text/csv"})
+            assert up.status_code == 201 and up.json()["source"] == "upload" and up.json()["confirmed"], up.text
+            assert up.json()["calibrated_deg"] == pytest.approx(live["calibrated_deg"], abs=1e-6)
             rec, _ = simulate(5, noise=0.03)
             buf = io.StringIO()
             write_native_csv(rec.slice(0, 1100), buf)
-            up = c.post(f"/calibrations/{cal['id']}/verify", content=buf.getvalue(), headers={"Content-Type": "text/csv"})
-            assert up.status_code == 201 and up.json()["source"] == "upload", up.text
-            still = io.StringIO()
-            write_native_csv(rec.slice(0, 250), still)
-            none = c.post(f"/calibrations/{cal['id']}/verify", content=still.getvalue(), headers={"Content-Type": "text/csv"})
+            other = c.post(f"/calibrations/{cal['id']}/verify", content=buf.getvalue(), headers={"Content-Type": "text/csv"})
+            assert other.status_code == 201 and not other.json()["confirmed"] and abs(other.json()["error_deg"]) > 1
+            write_native_csv(rec.slice(0, 250), tmp_path / "still.csv")
+            none = c.post(f"/calibrations/{cal['id']}/verify", content=(tmp_path / "still.csv").read_text(),
+                          headers={"Content-Type": "text/csv"})
             assert none.status_code == 400 and "turn it once all the way round" in none.json()["detail"]
             assert c.post("/calibrations/9999/verify", json={}).status_code == 404
             kept = c.get(f"/calibrations/{cal['id']}/verifications").json()
-            assert [v["source"] for v in kept] == ["upload", "live"] and kept[1]["session_id"] == live["session_id"]
-            assert c.get(f"/sessions/{live['session_id']}/recording").status_code == 200  # the turn's samples are archived
+            assert [v["source"] for v in kept] == ["upload", "upload", "live"] and kept[2]["session_id"] == live["session_id"]
             actions = [a["action"] for a in c.get("/audit", params={"device_id": "mock-1"}).json()]
-            assert actions.count("calibration.verify") == 2
+            assert actions.count("calibration.verify") == 3
+        # the CLI: a recorded turn verified and kept, and the device's history with its latest verification
+        turn = tmp_path / "turn.csv"
+        subprocess.run([*GYROCAL, "operator", "--db", db, "add", "lab-tech"], cwd=ROOT, capture_output=True, check=True, timeout=60)
+        r = subprocess.run([*GYROCAL, "verify", str(turn), "--id", str(cal["id"]), "--operator", "lab-tech", "--db", db], cwd=ROOT,
+                           capture_output=True, text=True, timeout=60)
+        assert r.returncode == 0 and "confirmed: the calibration holds" in r.stdout, r.stdout + r.stderr
+        r = subprocess.run([*GYROCAL, "verify", str(tmp_path / "still.csv"), "--id", str(cal["id"]), "--operator", "lab-tech",
+                            "--db", db], cwd=ROOT, capture_output=True, text=True, timeout=60)
+        assert r.returncode != 0 and "Traceback" not in r.stderr
+        r = subprocess.run([*GYROCAL, "history", "mock-1", "--db", db, "--json"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+        listed = json.loads(r.stdout)
+        assert [c["id"] for c in listed["calibrations"]] == [cal["id"]] and listed["calibrations"][0]["departures"] == []
+        assert listed["calibrations"][0]["verification"]["source"] == "upload" and listed["calibration_due"]["due"] is False
+        r = subprocess.run([*GYROCAL, "history", "mock-1", "--db", db], cwd=ROOT, capture_output=True, text=True, timeout=60)
+        assert "verified" in r.stdout and "due: no" in r.stdout, r.stdout
         assert Store(db).verify().ok
     finally:
         svc.stop()
