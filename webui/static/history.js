@@ -94,7 +94,8 @@ function sessionTable(sessions) {
     h("tbody", null, sessions.map((sess) => {
       const o = sess.kind === "verify" ? { cls: sess.passed ? "pass" : "fail", icon: sess.passed ? "pass" : "warn", text: sess.passed ? "verified" : "verification off" } : outcome(sess);
       return h("tr", null,
-        h("td", { class: "nowrap" }, h("a", { href: `#/session/${sess.session_id}` }, fmtDateTime(sess.started_at))),
+        h("td", { class: "nowrap" }, ["live", "upload"].includes(sess.kind)
+          ? h("a", { href: `#/session/${sess.session_id}` }, fmtDateTime(sess.started_at)) : fmtDateTime(sess.started_at)),
         h("td", null, h("span", { class: `outcome ${o.cls}` }, icon(o.icon), h("span", null, o.text))),
         h("td", null, sess.operator || "—"),
         h("td", null, { upload: "uploaded recording", import: "imported file", verify: "verification turn" }[sess.kind] || "guided"));
