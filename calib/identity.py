@@ -1,8 +1,9 @@
 """Which sensor a calibration was measured on, in which power-up and at what temperature, and the rules for
 applying it to a recording (docs/lifecycle.md, "Identity").
 
-A calibration is never applied to another sensor: a device id, sensor model or serial that both sides name
-and that differ refuse it. Across a power-up (the paper, section 1: scale factors and biases change at every
+A calibration is never applied to another sensor: a device id or serial (chip id) that both sides name and that
+differ refuse it; sensor models that differ only warn (a model name is a product's model number or its IMU
+chip's, not an identity). Across a power-up (the paper, section 1: scale factors and biases change at every
 power-up) or a temperature change beyond a limit (the zero-rate output moves 0.01-0.05 (deg/s)/degC in this
 class of IMU) it still applies, with a warning. A power-up is the device's boot count when it keeps one, else
 the time it started (read time minus uptime, to the second).
@@ -117,16 +118,21 @@ def check_identity(calibrated: SensorIdentity, recording: SensorIdentity, *,
                    max_temperature_change_c: float = DEFAULT_MAX_TEMPERATURE_CHANGE_C) -> IdentityCheck:
     """May a calibration measured as ``calibrated`` be applied to a recording made as ``recording``?"""
     differ = [f"{label} {getattr(calibrated, name)!r}, this recording {label} {getattr(recording, name)!r}"
-              for name, label in (("device_id", "device"), ("sensor_model", "sensor"), ("serial", "serial"))
+              for name, label in (("device_id", "device"), ("serial", "serial"))
               if _norm(getattr(calibrated, name)) and _norm(getattr(recording, name))
               and _norm(getattr(calibrated, name)) != _norm(getattr(recording, name))]
-    named = any(_norm(getattr(calibrated, n)) and _norm(getattr(recording, n)) for n in ("device_id", "sensor_model", "serial"))
+    named = any(_norm(getattr(calibrated, n)) and _norm(getattr(recording, n)) for n in ("device_id", "serial"))
     sensor: Verdict = "different" if differ else "same" if named else "unknown"
     refusal = None
     if differ:
         refusal = ("this calibration was measured on another sensor (calibrated: " + "; ".join(differ) + "). A calibration "
                    "holds only for the sensor it was measured on: use that sensor's own calibration, or calibrate this one")
     warnings: list[str] = []
+    model_a, model_b = _norm(calibrated.sensor_model), _norm(recording.sensor_model)
+    if refusal is None and model_a and model_b and model_a != model_b:
+        warnings.append(f"the calibration names the sensor {calibrated.sensor_model!r} and the recording {recording.sensor_model!r}: "
+                        "a model name is not an identity (a product's model number or its IMU chip), so check they are the "
+                        "same sensor; its serial would tell")
     same = same_power_up(calibrated, recording)
     power_up: Verdict = "unknown" if same is None else "same" if same else "different"
     if same is False:

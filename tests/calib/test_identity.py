@@ -21,14 +21,17 @@ def test_the_same_sensor_power_up_and_temperature_pass_without_a_warning() -> No
     check.raise_if_refused()
 
 
-@pytest.mark.parametrize("other", [
-    SensorIdentity(serial="B2"), SensorIdentity(sensor_model="LSM9DS1"), SensorIdentity(device_id="ward-4"),
-])
+@pytest.mark.parametrize("other", [SensorIdentity(serial="B2"), SensorIdentity(device_id="ward-4")])
 def test_another_sensor_is_refused_and_says_which(other: SensorIdentity) -> None:
     check = check_identity(CAL, other)
     assert check.sensor == "different" and check.refusal is not None and "another sensor" in check.refusal
     with pytest.raises(WrongSensor, match="calibrate this one"):
         check.raise_if_refused()
+
+
+def test_another_sensor_model_name_warns_but_is_not_an_identity() -> None:
+    check = check_identity(CAL, SensorIdentity(serial="A1", sensor_model="GC-1 wearable"))
+    assert check.refusal is None and check.sensor == "same" and "not an identity" in check.warnings[0]
 
 
 def test_another_power_up_and_a_warmer_recording_warn() -> None:
