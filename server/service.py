@@ -22,6 +22,7 @@ from .workers.compute import ComputePool
 log = logging.getLogger(__name__)
 
 KEEP_FINISHED = 200  # finished live sessions kept in memory for their event streams
+KEEP_VERIFY_RUNS = 50  # ended live verifications answered at GET /verifications/{id}
 
 
 class Service:
@@ -86,8 +87,12 @@ class Service:
         self.store.close()
 
     def verification_ended(self, run: VerifyRun) -> None:
+        """Free the device; keep the newest KEEP_VERIFY_RUNS ended runs for pages still polling (they are in the store)."""
         if self.active.get(run.device.id) == run.id:
             del self.active[run.device.id]
+        ended = [rid for rid, r in self.verify_runs.items() if r.state in ("done", "failed")]
+        for rid in ended[:-KEEP_VERIFY_RUNS]:  # dicts keep insertion order: the oldest first
+            del self.verify_runs[rid]
 
     def _session_ended(self, live: LiveSession) -> None:
         if self.active.get(live.device.id) == live.id:

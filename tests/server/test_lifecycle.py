@@ -498,3 +498,27 @@ def test_a_verification_turn_after_accept_is_measured_and_kept_with_the_calibrat
         assert Store(db).verify().ok
     finally:
         svc.stop()
+
+
+def test_ended_live_verifications_kept_in_memory_are_bounded(tmp_path: Path) -> None:
+    """The service answers GET /verifications/{id} from memory for pages still polling; only the newest ended runs
+    are kept (each is in the store), and a running one is never dropped."""
+    from types import SimpleNamespace
+
+    from server.config import Settings
+    from server.service import KEEP_VERIFY_RUNS, Service
+
+    svc = Service(Settings(db_url=f"sqlite:///{tmp_path / 'store.sqlite3'}"))
+    try:
+        running = SimpleNamespace(id="r0", state="turn", device=SimpleNamespace(id="dev-0"))
+        svc.verify_runs["r0"] = running  # type: ignore[assignment]
+        for i in range(1, KEEP_VERIFY_RUNS + 11):
+            run = SimpleNamespace(id=f"r{i}", state="done", device=SimpleNamespace(id=f"dev-{i}"))
+            svc.verify_runs[run.id] = run  # type: ignore[assignment]
+            svc.active[run.device.id] = run.id
+            svc.verification_ended(run)  # type: ignore[arg-type]
+            assert run.device.id not in svc.active
+        assert "r0" in svc.verify_runs and len(svc.verify_runs) == KEEP_VERIFY_RUNS + 1
+        assert f"r{KEEP_VERIFY_RUNS + 10}" in svc.verify_runs and "r1" not in svc.verify_runs
+    finally:
+        svc.store.close()
