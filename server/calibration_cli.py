@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 from calib.identity import DEFAULT_MAX_TEMPERATURE_CHANGE_C, SensorIdentity
 
-from .cli import EXIT_OK, ServiceError, open_store
+from .cli import EXIT_OK, ServiceError, open_store, require_active_operator
 
 if TYPE_CHECKING:
     from .config import CalibrationLimits
@@ -299,8 +299,7 @@ def cmd_import(args: argparse.Namespace) -> int:
     stated = _recording_identity(args)
     correction = replace(correction, identity=(correction.identity or SensorIdentity()).completed(stated))
     store = open_store(args.db)
-    if args.operator not in {o["name"] for o in store.operators() if o["active"]}:
-        raise ServiceError(f"no active operator {args.operator!r} in {store.display_url}; `gyrocal operator list` names them")
+    require_active_operator(store, args.operator)
     try:
         rec = store.import_calibration(args.device, correction, args.operator, __version__, file_name=args.file.name,
                                        file_sha256=sha256_hex(args.file.read_bytes()))

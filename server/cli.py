@@ -166,6 +166,12 @@ def open_store(url: str | None) -> Any:
         raise ServiceError(str(exc)) from None
 
 
+def require_active_operator(store: Any, name: str) -> None:
+    """ServiceError unless ``name`` is an active operator of ``store`` (who the CLI records as having done it)."""
+    if not any(o["name"] == name and o["active"] for o in store.operators()):
+        raise ServiceError(f"no active operator {name!r} in {store.display_url}; `gyrocal operator list` names them")
+
+
 def _read_secret() -> str:
     secret = sys.stdin.readline().rstrip("\r\n")
     if not secret:

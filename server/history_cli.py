@@ -9,7 +9,7 @@ import json
 from datetime import datetime
 from typing import Any
 
-from .cli import EXIT_OK, ServiceError, open_store
+from .cli import EXIT_OK, ServiceError, open_store, require_active_operator
 
 MAX_AGE_DAYS = 30.0
 
@@ -43,7 +43,7 @@ def _row(cal: Any, departed: list[Any], verified: dict[str, Any] | None) -> dict
 def cmd_history(args: argparse.Namespace) -> int:
     from calib.departure import departures
 
-    from .lifecycle import calibration_due, powered_up_since
+    from .lifecycle import calibration_due
 
     store = open_store(args.db)
     cals = list(reversed(store.calibrations(args.device)))  # oldest first
@@ -57,8 +57,9 @@ def cmd_history(args: argparse.Namespace) -> int:
         latest = next((v for v in verifications if v["calibration_id"] == cal.id), None)
         rows.append(_row(cal, departures(cal.model_dump(), before), latest))
     current = cals[-1] if cals else None
-    due = calibration_due(None if current is None else current.accepted_at, args.max_age_days, powered_up_since=powered_up_since(
-        None if current is None or current.identity is None else current.identity.to_json(), (device or {}).get("power_up")))
+    due = calibration_due(None if current is None else current.accepted_at, args.max_age_days,
+                          calibration_identity=None if current is None or current.identity is None else current.identity.to_json(),
+                          device_power_up=(device or {}).get("power_up"))
     if args.json:
         print(json.dumps({"device_id": args.device, "calibrations": rows, "calibration_due": due.model_dump()}, indent=2))
         return EXIT_OK
@@ -113,8 +114,7 @@ def cmd_verify(args: argparse.Namespace) -> int:
     if cal is None:
         raise ServiceError(f"no calibration {'#' + str(args.id) if args.id is not None else 'of ' + repr(args.device)} in "
                            f"{store.display_url}; `gyrocal history DEVICE` lists them")
-    if args.operator not in {o["name"] for o in store.operators() if o["active"]}:
-        raise ServiceError(f"no active operator {args.operator!r} in {store.display_url}; `gyrocal operator list` names them")
+    require_active_operator(store, args.operator)
     rec = read_recording_args(args)
     try:
         found = verify_turn(rec, Correction.from_json(cal.model_dump(mode="json")), cal.uncertainty).to_json()

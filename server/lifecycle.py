@@ -67,14 +67,15 @@ def in_force(store: Store, device_id: str, at: datetime | None, limits: Calibrat
     when = datetime.now(UTC) if at is None else (at if at.tzinfo is not None else at.replace(tzinfo=UTC)).astimezone(UTC)
     rec = replace(recording or SensorIdentity(), device_id=device_id)
     history = store.calibrations(device_id)  # newest first
-    own = [c for c in history if check_identity(calibration_identity(c), rec).refusal is None]
+    refusals = {c.id: check_identity(calibration_identity(c), rec).refusal for c in history}
+    own = [c for c in history if refusals[c.id] is None]
     same = [c for c in own if same_power_up(calibration_identity(c), rec)]
     earlier = [c for c in own if c.accepted_at <= when]
     cal = same[0] if same else earlier[0] if earlier else None
     if cal is None:
-        others = [c for c in history if c not in own and c.accepted_at <= when]
-        if others:
-            raise WrongSensor(check_identity(calibration_identity(others[0]), rec).refusal or "measured on another sensor")
+        refused = next((refusals[c.id] for c in history if refusals[c.id] is not None and c.accepted_at <= when), None)
+        if refused is not None:
+            raise WrongSensor(refused)
         return None
     return judged(cal, when, limits, rec, "same_power_up" if same else "latest_before")
 
@@ -102,13 +103,15 @@ class CalibrationDue(BaseModel):
 
 
 def calibration_due(current_accepted_at: datetime | None, max_age_days: float, now: datetime | None = None, *,
-                    powered_up_since: bool = False) -> CalibrationDue:
-    """Due when never calibrated, when the device was switched on again since its current calibration
-    (``powered_up_since``), or when that calibration is older than ``max_age_days``."""
+                    calibration_identity: dict[str, Any] | None = None,
+                    device_power_up: dict[str, Any] | None = None) -> CalibrationDue:
+    """Due when never calibrated, when the device was switched on again since its current calibration (the power-up
+    it last reported, ``device_power_up``, is not the one in ``calibration_identity``), or when that calibration is
+    older than ``max_age_days``."""
     if current_accepted_at is None:
         return CalibrationDue(due=True, reason="never calibrated")
     age = age_days(current_accepted_at, now or datetime.now(UTC))
-    if powered_up_since:
+    if _powered_up_since(calibration_identity, device_power_up):
         return CalibrationDue(due=True, reason=f"switched on again since its calibration ({age:.0f} days old): a power-up changes "
                               "the gyroscope's scale factors and biases")
     if age > max_age_days:
@@ -116,7 +119,7 @@ def calibration_due(current_accepted_at: datetime | None, max_age_days: float, n
     return CalibrationDue(due=False, reason=f"its calibration is {age:.0f} days old, within the {max_age_days:g} days allowed")
 
 
-def powered_up_since(calibration_identity: dict[str, Any] | None, device_power_up: dict[str, Any] | None) -> bool:
+def _powered_up_since(calibration_identity: dict[str, Any] | None, device_power_up: dict[str, Any] | None) -> bool:
     """Whether the power-up a device last reported is another than the one its calibration was measured in."""
     if not calibration_identity or not device_power_up:
         return False

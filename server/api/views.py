@@ -12,8 +12,9 @@ from calib.json_safe import finite
 
 from ..deps import problem
 from ..devices import Device, model_facts
-from ..lifecycle import calibration_due, powered_up_since
+from ..lifecycle import calibration_due
 from ..service import Service
+from ..store import CalibrationRecord
 
 
 async def current_calibration_of(svc: Service, device_id: str) -> dict[str, Any] | None:
@@ -42,6 +43,14 @@ async def reachable_device(svc: Service, device_id: str) -> Device:
     raise problem(409, f"device {device_id!r} is not reachable by this service (known from uploads only); scan for it first")
 
 
+async def calibration_or_404(svc: Service, calibration_id: int) -> CalibrationRecord:
+    """The stored calibration of that id; 404 naming where the ids are listed otherwise."""
+    cal = await asyncio.to_thread(svc.store.calibration, calibration_id)
+    if cal is None:
+        raise problem(404, f"no calibration #{calibration_id}; see GET /devices/{{id}}/calibrations")
+    return cal
+
+
 async def device_out(svc: Service, dev: Device | None, row: dict[str, Any] | None, detail: bool = False) -> dict[str, Any]:
     device_id = dev.id if dev else row["id"]  # type: ignore[index]
     row = row or {}
@@ -65,7 +74,7 @@ async def device_out(svc: Service, dev: Device | None, row: dict[str, Any] | Non
         **held_facts(row, current),
         "calibration_due": calibration_due(
             None if current is None else datetime.fromisoformat(current["accepted_at"]), svc.settings.limits.max_age_days,
-            powered_up_since=powered_up_since(None if current is None else current.get("identity"), row.get("power_up")),
+            calibration_identity=None if current is None else current.get("identity"), device_power_up=row.get("power_up"),
         ).model_dump(),
         "power_up": row.get("power_up"),
         "last_seen": row.get("last_seen"),

@@ -23,7 +23,7 @@ from calib.result import CalibrationResult
 from ..config import Settings
 from ..devices import Device, model_facts, sensor_identity
 from ..store import SessionEnd, Store, utcnow
-from ..workers.compute import ComputePool, calibrate_recording, recording_csv
+from ..workers.compute import ComputePool, calibrate_recording, off_loop, recording_csv
 from . import guidance as say
 from .buffer import SampleBuffer
 from .events import Broadcaster
@@ -255,8 +255,7 @@ class LiveSession:
     async def _compute(self) -> None:
         m = self.machine
         rec, stages = m.recording(), m.protocol_stages()
-        job = (self.pool.run(calibrate_recording, rec, m.method, stages) if self.pool is not None
-               else asyncio.to_thread(calibrate_recording, rec, m.method, stages))
+        job = off_loop(self.pool, calibrate_recording, rec, m.method, stages)
         try:
             result, error, csv = await asyncio.wait_for(job, timeout=self.settings.compute_timeout_s)
         except TimeoutError:
@@ -319,7 +318,7 @@ class LiveSession:
         try:
             if m.buf.n > 0 and self._csv is None:
                 rec = m.recording()
-                self._csv = await (self.pool.run(recording_csv, rec) if self.pool else asyncio.to_thread(recording_csv, rec))
+                self._csv = await off_loop(self.pool, recording_csv, rec)
             if self._csv is not None and self.recording_sha256 is None:
                 self.recording_sha256 = await asyncio.to_thread(self.store.archive_recording, self.id, self._csv, m.buf.n)
             await asyncio.to_thread(self.store.finish_session, self.id, self.session_end(),

@@ -19,7 +19,7 @@ from calib.verification import find_turn
 from ..devices import Device
 from ..link import RecordingBuilder
 from ..store import CalibrationRecord, Store
-from ..workers.compute import ComputePool, recording_csv, verify_recording
+from ..workers.compute import ComputePool, off_loop, recording_csv, verify_recording
 
 log = logging.getLogger(__name__)
 
@@ -77,9 +77,7 @@ class VerifyRun:
             async with asyncio.timeout(TIME_LIMIT_S):
                 rec = await self._record(link)
             self.state = "computing"
-            job = (self.pool.run(verify_recording, rec, self.calibration.model_dump(mode="json")) if self.pool is not None
-                   else asyncio.to_thread(verify_recording, rec, self.calibration.model_dump(mode="json")))
-            verification = await job
+            verification = await off_loop(self.pool, verify_recording, rec, self.calibration.model_dump(mode="json"))
             csv = await asyncio.to_thread(recording_csv, rec)
             stored = await asyncio.to_thread(self.store.add_verification, self.calibration.id, self.operator, __version__,
                                              verification, source="live", recording_csv=csv, n_samples=len(rec))

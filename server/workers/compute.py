@@ -11,7 +11,7 @@ import io
 import logging
 import multiprocessing
 import os
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
@@ -125,6 +125,11 @@ def calibrate_upload(
     rec = parse_upload(body, fs, layout, source, max_samples, opts)
     result, used = calibrate_protocol(rec, opts.protocol, method, upload_sections(opts, rec))
     return result, used, recording_csv(rec), len(rec)
+
+
+def off_loop(pool: ComputePool | None, fn: Callable[..., Any], *args: Any) -> Awaitable[Any]:
+    """``fn(*args)`` off the event loop: in the pool's worker processes, or in a thread when there is no pool."""
+    return pool.run(fn, *args) if pool is not None else asyncio.to_thread(fn, *args)
 
 
 # -- the pool --------------------------------------------------------------------------------------

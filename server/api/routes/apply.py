@@ -26,6 +26,7 @@ from ...store import sha256_hex
 from ...workers.compute import TooManySamples, UploadOptions, apply_upload
 from ..identity_query import RecordingIdentity
 from ..upload_options import Upload
+from ..views import calibration_or_404
 
 router = APIRouter()
 
@@ -140,9 +141,7 @@ async def export_calibration(
     """One accepted calibration, for other tools: gyrocal's JSON, imucal's calibration file, or CSV."""
     if format not in EXPORT_FORMATS:
         raise problem(422, f"unknown format {format!r}: choose {', '.join(EXPORT_FORMATS)}")
-    cal = await asyncio.to_thread(svc.store.calibration, calibration_id)
-    if cal is None:
-        raise problem(404, f"no calibration #{calibration_id}; see GET /devices/{{id}}/calibrations")
+    cal = await calibration_or_404(svc, calibration_id)
     body, media, ext = export_text(cal, format)
     return Response(body, media_type=media, headers={
         "Content-Disposition": f'attachment; filename="{cal.device_id}-calibration-{cal.id}{ext}"'})

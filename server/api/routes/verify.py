@@ -14,23 +14,14 @@ from calib import __version__
 from calib.verification import NoVerificationTurn
 
 from ... import schemas as M
-from ...deps import R404, R409, Operator, Reader, Svc, check_device_id, check_upload, problem, recording_problem
+from ...deps import CSV_TYPES, R404, R409, Operator, Reader, Svc, check_device_id, check_upload, problem, recording_problem
 from ...live.verify_run import VerifyRun
-from ...store import CalibrationRecord
 from ...workers.compute import TooManySamples, verify_upload
 from ..upload_options import Upload
-from ..views import reachable_device
+from ..views import calibration_or_404, reachable_device
 
 router = APIRouter()
-CSV_TYPES = {"text/csv", "application/csv", "text/plain"}
 CalibrationId = Annotated[int, Path(ge=1, le=2**31 - 1)]
-
-
-async def _calibration(svc: Svc, calibration_id: int) -> CalibrationRecord:
-    cal = await asyncio.to_thread(svc.store.calibration, calibration_id)
-    if cal is None:
-        raise problem(404, f"no calibration #{calibration_id}; see GET /devices/{{id}}/calibrations")
-    return cal
 
 
 @router.post(
@@ -54,7 +45,7 @@ async def verify(
 ) -> dict[str, Any]:
     """One more full turn, about any axis, measured with the calibration: the calibrated angle (360° ± its uncertainty
     when the calibration holds) against the raw one, kept with the calibration."""
-    cal = await _calibration(svc, calibration_id)
+    cal = await calibration_or_404(svc, calibration_id)
     ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
     body = await request.body()
     if ctype in CSV_TYPES:
@@ -103,7 +94,7 @@ async def verification(svc: Svc, verification_id: Annotated[str, Path(pattern=r"
 @router.get("/calibrations/{calibration_id}/verifications", responses=R404, tags=["calibrations"])
 async def calibration_verifications(svc: Svc, calibration_id: CalibrationId, _: Reader) -> list[dict[str, Any]]:
     """The verification turns kept with a calibration, newest first."""
-    cal = await _calibration(svc, calibration_id)
+    cal = await calibration_or_404(svc, calibration_id)
     return await asyncio.to_thread(svc.store.verifications, cal.device_id, calibration_id)
 
 
