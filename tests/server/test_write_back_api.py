@@ -4,6 +4,7 @@ and the flag for a device that holds another calibration."""
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 
 import httpx
@@ -114,5 +115,40 @@ def test_a_device_that_cannot_hold_one_says_so(tmp_path) -> None:
             r = c.post("/devices/mock-1/calibration/write")
             assert r.status_code == 409 and "cannot hold a calibration" in r.json()["detail"], r.text
             assert c.get("/devices/mock-1").json()["current_calibration"]["id"] == cal["id"]
+    finally:
+        svc.stop()
+
+
+def test_imports_and_a_verification_racing_a_session_on_one_device(service_store: tuple[str, str]) -> None:
+    """The same calibration file imported twice at once becomes one calibration; a verification turn and a guided
+    session started at once on one device: one starts, the other is told the device is busy."""
+    _, url = service_store
+    svc = RunningService(MOCK, url).start()
+    try:
+        body = '{"k": [1.01, 0.99, 1.0], "b": [0.1, 0.0, -0.1]}'
+
+        def imported() -> httpx.Response:
+            with httpx.Client(base_url=svc.base, headers={"Authorization": f"Bearer {API_TOKEN}"}, timeout=60) as c:
+                return c.post("/devices/mock-1/calibrations", content=body, headers={"Content-Type": "application/json"})
+
+        answers = at_once([imported] * 4)
+        assert sorted(r.status_code for r in answers) == [201, 409, 409, 409], [r.text for r in answers]
+        cal = next(r.json()["calibration"] for r in answers if r.status_code == 201)
+        assert all("already, as calibration #" + str(cal["id"]) in r.json()["detail"] for r in answers if r.status_code == 409)
+
+        verify, session = at_once([_post(svc, f"/calibrations/{cal['id']}/verify", {}), _post(svc, "/devices/mock-1/calibrate", {})])
+        assert sorted((verify.status_code, session.status_code)) == [202, 409], (verify.text, session.text)
+        with svc.client() as c:
+            if session.status_code == 202:
+                assert "busy" not in session.text
+                assert c.post(f"/sessions/{session.json()['session_id']}/cancel").status_code == 200
+            else:
+                assert "mock-1" in session.json()["detail"]
+                for _ in range(600):
+                    if c.get(verify.headers["location"]).json()["state"] in ("done", "failed"):
+                        break
+                    time.sleep(0.1)
+            assert len(c.get("/devices/mock-1/calibrations").json()) == 1
+        assert Store(url).verify().ok
     finally:
         svc.stop()
