@@ -43,6 +43,20 @@ async def reachable_device(svc: Service, device_id: str) -> Device:
     raise problem(409, f"device {device_id!r} is not reachable by this service (known from uploads only); scan for it first")
 
 
+def claim_device(svc: Service, device_id: str, holder: str | None, then: str) -> None:
+    """Reserve a device for a session or verification (`holder`, its id) or for a write (`holder` None); 409 saying
+    what holds it otherwise. Called with no await between it and the caller's check that the device is reachable, so
+    of two requests at once exactly one gets the device."""
+    if device_id in svc.active:
+        raise problem(409, f"device {device_id!r} is in a calibration session or verification ({svc.active[device_id]}); {then}")
+    if device_id in svc.writing:
+        raise problem(409, f"a calibration is being written to device {device_id!r}; {then}")
+    if holder is None:
+        svc.writing.add(device_id)
+    else:
+        svc.active[device_id] = holder
+
+
 async def calibration_or_404(svc: Service, calibration_id: int) -> CalibrationRecord:
     """The stored calibration of that id; 404 naming where the ids are listed otherwise."""
     cal = await asyncio.to_thread(svc.store.calibration, calibration_id)

@@ -45,7 +45,7 @@ from ...service import Service
 from ...store import DecisionConflict, NotAcceptable, NotFound, SessionEnd, StoreError
 from ...workers.compute import TooManySamples, UploadOptions, calibrate_upload
 from ..upload_options import Upload
-from ..views import reachable_device, session_snapshot, stored_snapshot
+from ..views import claim_device, reachable_device, session_snapshot, stored_snapshot
 
 # The section list travels in the URL: 4000 characters (about 80 sections) stay under what the HTTP server reads
 # as one request line even percent-encoded at 12 bytes a character; a longer one gets a 422, not a dropped connection.
@@ -296,15 +296,11 @@ async def start_live(svc: Service, device_id: str, operator: str, method: str | 
     if method is not None and method not in available_methods():
         raise problem(422, f"unknown method {method!r}: choose one of {', '.join(available_methods())}")
     dev = await reachable_device(svc, device_id)
-    if device_id in svc.active:
-        raise problem(409, f"device {device_id!r} is already in a calibration session ({svc.active[device_id]}); one at a time")
-    if device_id in svc.writing:
-        raise problem(409, f"a calibration is being written to device {device_id!r}; start the session when that is done")
     sid = uuid.uuid4().hex
-    machine = GuidedSession(sid, device_id, svc.settings, max_attempts=max_attempts, method=method,
-                            live_angle=await live_angle_of(svc, device_id))
-    svc.active[device_id] = sid  # claimed before the first await: a second request gets 409
+    claim_device(svc, device_id, sid, "one at a time")
     try:
+        machine = GuidedSession(sid, device_id, svc.settings, max_attempts=max_attempts, method=method,
+                                live_angle=await live_angle_of(svc, device_id))
         await asyncio.to_thread(
             svc.store.create_session,
             sid,

@@ -18,7 +18,7 @@ from ...deps import CSV_TYPES, R404, R409, Operator, Reader, Svc, check_device_i
 from ...live.verify_run import VerifyRun
 from ...workers.compute import TooManySamples, verify_upload
 from ..upload_options import Upload
-from ..views import calibration_or_404, reachable_device
+from ..views import calibration_or_404, claim_device, reachable_device
 
 router = APIRouter()
 CalibrationId = Annotated[int, Path(ge=1, le=2**31 - 1)]
@@ -68,12 +68,9 @@ async def verify(
     if ctype and ctype != "application/json" and body:
         raise problem(415, f"send a recording (text/csv) of the turn, or {{}} (application/json) for a live turn; got {ctype}")
     dev = await reachable_device(svc, cal.device_id)
-    if cal.device_id in svc.active:
-        raise problem(409, f"device {cal.device_id!r} is busy ({svc.active[cal.device_id]}); verify when that is done")
-    if cal.device_id in svc.writing:
-        raise problem(409, f"a calibration is being written to device {cal.device_id!r}; verify when that is done")
-    run = VerifyRun(uuid.uuid4().hex, dev, cal, svc.store, svc.pool, operator, on_end=svc.verification_ended)
-    svc.active[cal.device_id] = run.id
+    run_id = uuid.uuid4().hex
+    claim_device(svc, cal.device_id, run_id, "verify when that is done")
+    run = VerifyRun(run_id, dev, cal, svc.store, svc.pool, operator, on_end=svc.verification_ended)
     svc.verify_runs[run.id] = run
     run.start()
     response.status_code = 202

@@ -20,7 +20,7 @@ from ...devices import sensor_identity
 from ...lifecycle import calibration_identity
 from ...link import LinkError
 from ...store import CalibrationRecord, StoreError
-from ..views import reachable_device
+from ..views import claim_device, reachable_device
 
 log = logging.getLogger(__name__)
 router = APIRouter()
@@ -50,11 +50,7 @@ async def write_to_device(svc: Svc, device_id: str, operator: Operator, body: M.
     it bit for bit and record that the device holds it. The wearable keeps streaming raw readings."""
     check_device_id(device_id)
     dev = await reachable_device(svc, device_id)
-    if device_id in svc.active:
-        raise problem(409, f"device {device_id!r} is in a calibration session ({svc.active[device_id]}); write when it has ended")
-    if device_id in svc.writing:
-        raise problem(409, f"a calibration is being written to device {device_id!r} already; wait for it to finish")
-    svc.writing.add(device_id)  # claimed before the next await: a second request gets 409
+    claim_device(svc, device_id, None, "write when that is done")
     try:
         rec = await _chosen(svc, device_id, body.calibration_id if body else None)
         held = HeldCalibration.from_parameters(rec.id, rec.K if rec.K is not None else rec.k, rec.b)
