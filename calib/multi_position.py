@@ -50,6 +50,7 @@ MIN_MOTIONS = 6  # re-orientations needed before the three scale factors can be 
 MAX_ITERATIONS = 30
 G_ALPHA = 1e-3  # false-positive rate of the g-sensitivity's F test on a sensor that has none
 G_SPREAD_MIN = 0.25  # the rests' gravity directions must spread at least this much (rms, per principal axis)
+NOISE_LAGS = 3  # lags of the rests' noise autocorrelation counted in the noise of means and integrals
 
 
 @dataclass(frozen=True)
@@ -124,11 +125,31 @@ def calibrate_multi_position(rec: Recording, stages: Any = None, accel: AccelCal
     return _result(fit, g_test, base, data, accel, joint, stage_list, rec)
 
 
+def noise_colour(gyro: np.ndarray, spans: list[tuple[int, int]], max_lag: int = NOISE_LAGS) -> np.ndarray:
+    """Per axis, 1 + 2 sum of the rests' noise autocorrelation over lags 1..max_lag: how much more a mean or an
+    integral over many samples scatters than white noise of the same per-sample spread would (1 for white noise;
+    a sensor's internal low-pass filter makes it larger)."""
+    inside = np.zeros(len(gyro), dtype=bool)
+    dev = np.zeros_like(gyro)
+    for i, j in spans:
+        inside[i:j] = True
+        dev[i:j] = gyro[i:j] - gyro[i:j].mean(axis=0)
+    var = np.sum(dev**2, axis=0) / max(int(inside.sum()), 1)
+    factor = np.ones(3)
+    for k in range(1, max_lag + 1):
+        pair = inside[:-k] & inside[k:]
+        pair &= np.cumsum(~inside)[:-k] == np.cumsum(~inside)[k:]  # both samples of the pair in the same rest
+        if pair.any():
+            factor += 2.0 * np.sum(dev[:-k][pair] * dev[k:][pair], axis=0) / pair.sum() / np.maximum(var, 1e-300)
+    return np.clip(factor, 0.25, 16.0)
+
+
 def _data(rec: Recording, stills: list[Stage], motions: list[Motion], free_a: np.ndarray) -> Data:
     assert rec.accel is not None
     dt_all = sample_intervals(rec.t)[None]
     gyro, acc = rec.gyro[None], rec.accel[None]
     mean, count, sigma = still_statistics(gyro, np.array([[[s.start, s.end] for s in stills]]))
+    colour = noise_colour(rec.gyro, [(s.start, s.end) for s in stills])
     spans = rest_spans(stills, rec.fs)
     rests = AccelRests(
         mean=np.array([rec.accel[i:j].mean(axis=0) for i, j in spans]),
@@ -149,7 +170,7 @@ def _data(rec: Recording, stills: list[Stage], motions: list[Motion], free_a: np
     # integrate from where the rest before stops being averaged to where the rest after starts: the motion's slow
     # start and end, which the stage detector counts as rest, are then inside the window (the true rate there is ~0)
     return Data(
-        mean=mean[0], count=count[0], sigma=sigma[0],
+        mean=mean[0], count=count[0], sigma=sigma[0], sigma_slow=sigma[0] * np.sqrt(colour),
         gravity=stacked([[spans[mo.rest_before][1], spans[mo.rest_after][0]] for mo in grav]),
         turns=stacked([[mo.start, mo.end] for mo in turns]),
         pairs=(np.array([mo.rest_before for mo in grav], dtype=int), np.array([mo.rest_after for mo in grav], dtype=int)),

@@ -41,7 +41,8 @@ class Data:
 
     mean: np.ndarray  # (S, 3) gyro mean of each rest
     count: np.ndarray
-    sigma: np.ndarray  # (3,) gyro reading noise
+    sigma: np.ndarray  # (3,) gyro reading noise, per sample
+    sigma_slow: np.ndarray  # (3,) the same noise as it scatters means and integrals over many samples (its colour counted)
     gravity: Windows | None  # motions constrained by the gravity directions at their ends
     turns: Windows | None  # full turns: closure to the identity
     pairs: tuple[np.ndarray, np.ndarray]  # rest before and after each gravity motion
@@ -113,7 +114,7 @@ def motion_rotations(p: Params, data: Data, noise: bool = False):
     assert w is not None
     B = w.dt.shape[1]
     m, force = _motion_inputs(p, w)
-    return rotation_terms(m, w.dt, *_tiled(p, B), sigma=np.broadcast_to(data.sigma, (B, 3)).copy() if noise else None,
+    return rotation_terms(m, w.dt, *_tiled(p, B), sigma=np.broadcast_to(data.sigma_slow, (B, 3)).copy() if noise else None,
                           force=force)
 
 
@@ -182,7 +183,7 @@ def system(p: Params, data: Data) -> tuple[np.ndarray, np.ndarray]:
         w = data.turns
         T = w.dt.shape[1]
         m, force = _motion_inputs(p, w)
-        ct = closure_terms(m, w.dt, *_tiled(p, T), sigma=np.broadcast_to(data.sigma, (T, 3)).copy(), force=force)
+        ct = closure_terms(m, w.dt, *_tiled(p, T), sigma=np.broadcast_to(data.sigma_slow, (T, 3)).copy(), force=force)
         assert ct.dK is not None and ct.db is not None and ct.noise is not None
         parts = [ct.dK.reshape(T, 3, 9), ct.db] + ([] if ct.dF is None else [_force_jacobian(ct.dF, p.K)])
         d = np.concatenate(parts + [np.zeros((T, 3, free.size))], axis=-1)
@@ -207,7 +208,7 @@ def _rest_residuals(p: Params, data: Data, da: np.ndarray, n_free: int) -> tuple
     S = data.mean.shape[0]
     Kinv = np.linalg.inv(p.K)
     beta = Kinv @ p.b
-    w = np.sqrt(data.count)[:, None] / data.sigma[None, :]
+    w = np.sqrt(data.count)[:, None] / data.sigma_slow[None, :]
     r = data.mean + beta
     dr = np.zeros((S, 3, P))
     for i in range(3):

@@ -11,7 +11,8 @@ from calib.accel import AccelCalibration, AccelCalibrationError
 from calib.api import calibrate_protocol
 from calib.effects.axes import GSensitivity
 from calib.errors import CalibrationError, ProtocolError
-from calib.multi_position import calibrate_multi_position
+from calib.multi_position import calibrate_multi_position, noise_colour
+from calib.recording import Recording
 from calib.result import CalibrationResult
 from calib.simulator import simulate
 from calib.simulator.lab_scripts import multi_position_script
@@ -34,6 +35,39 @@ def test_recovers_k_and_b_from_re_orientations_with_honest_uncertainty():
     assert np.all(np.abs(z_a) < 5.0)
     sd = z_a.std(axis=0)
     assert np.all((sd > 0.6) & (sd < 1.6)), sd  # 24 runs: the sd of a unit normal's sample sd is about 0.15
+
+
+def _filtered_noise(rng: np.random.Generator, n: int, sd: float) -> np.ndarray:
+    """White noise through a 3-sample moving average (as a sensor's low-pass filter): per-sample sd ``sd``,
+    autocorrelation 2/3 and 1/3 at lags 1 and 2, so means and integrals scatter 3x the variance white noise would."""
+    e = rng.normal(0.0, sd, (n + 2, 3))
+    return (e[2:] + e[1:-1] + e[:-2]) / np.sqrt(3.0)
+
+
+def test_noise_colour_is_one_for_white_noise_and_counts_a_low_pass_filters_correlation():
+    rng = np.random.default_rng(7)
+    spans = [(0, 4000), (4500, 9000), (9100, 12000)]
+    white = rng.normal(0.0, 0.1, (12000, 3))
+    np.testing.assert_allclose(noise_colour(white, spans), 1.0, atol=0.08)
+    filtered = _filtered_noise(rng, 12000, 0.1) + np.array([5.0, -3.0, 0.0]) * (np.arange(12000) >= 4500)[:, None]
+    np.testing.assert_allclose(noise_colour(filtered, spans), 3.0, atol=0.25)  # the step between rests is not noise
+
+
+def test_low_pass_filtered_gyro_noise_is_counted_in_the_fits_noise():
+    """A gyro whose noise is correlated from sample to sample (its own filter): the rests' means and the motions'
+    integrals scatter 3x the variance the per-sample spread says. Counted, the fit's chi-square matches its degrees
+    of freedom (it would be 3x them otherwise, and read as physics left out) and the uncertainties stay honest."""
+    z, birge = [], []
+    for seed in range(20):
+        rng = np.random.default_rng(900 + seed)
+        rec, truth = simulate(seed, noise=1e-4, fs=100.0, script=multi_position_script(rng), accel_noise_g=0.005)
+        noisy = Recording(rec.t, rec.gyro + _filtered_noise(rng, len(rec), 0.08), rec.accel, meta=rec.meta)
+        res = calibrate_multi_position(noisy)
+        z.append(np.concatenate([res.k - truth.k, res.b - truth.b]) / np.concatenate([res.k_std, res.b_std]))
+        birge.append(res.quality["birge_ratio"])
+    assert 0.85 < float(np.mean(np.square(birge))) < 1.2, birge
+    sd = np.array(z).std(axis=0)
+    assert np.all((sd > 0.5) & (sd < 1.5)), sd
 
 
 def test_turns_about_the_vertical_only_cannot_calibrate_and_say_why():
