@@ -76,7 +76,7 @@ def remove(conn: Any) -> None:
 # -- PostgreSQL: the service's role ------------------------------------------------------------------
 APPEND_ONLY_GRANTS = "SELECT, INSERT"
 READ_WRITE_TABLES = ("devices", "operators", "auth_tokens", "sessions", "chain_heads")
-SPOOL_TABLES = ("session_samples",)
+SPOOL_TABLES = ("session_samples", "gateways", "device_sightings", "device_leases")  # rows come and go
 
 
 def grant_service_role(conn: Any, role: str) -> None:
@@ -87,9 +87,9 @@ def grant_service_role(conn: Any, role: str) -> None:
     db = conn.execute(text("SELECT current_database()")).scalar_one()
     conn.execute(text(f"GRANT CONNECT ON DATABASE {q(db)} TO {r}"))
     conn.execute(text(f"GRANT USAGE ON SCHEMA public TO {r}"))
-    every = ("schema_info", *APPEND_ONLY_TABLES, *READ_WRITE_TABLES, *SPOOL_TABLES)
+    every = ("schema_info", "alembic_version", *APPEND_ONLY_TABLES, *READ_WRITE_TABLES, *SPOOL_TABLES)
     conn.execute(text(f"REVOKE ALL ON {', '.join(every)} FROM {r}"))
-    conn.execute(text(f"GRANT SELECT ON schema_info TO {r}"))
+    conn.execute(text(f"GRANT SELECT ON schema_info, alembic_version TO {r}"))
     conn.execute(text(f"GRANT {APPEND_ONLY_GRANTS} ON {', '.join(APPEND_ONLY_TABLES)} TO {r}"))
     conn.execute(text(f"GRANT SELECT, INSERT, UPDATE ON {', '.join(READ_WRITE_TABLES)} TO {r}"))
     conn.execute(text(f"GRANT SELECT, INSERT, UPDATE, DELETE ON {', '.join(SPOOL_TABLES)} TO {r}"))

@@ -192,3 +192,37 @@ class SpooledSamples(Base):
 
 
 CHAINED: dict[str, type[Chained]] = {"recordings": RecordingRow, "calibrations": CalibrationRow, "audit_log": AuditRow}
+
+
+class GatewayRow(Base):
+    """A service that reaches wearables (one per room in a hospital), registered in the shared store."""
+
+    __tablename__ = "gateways"
+    name: Mapped[str] = mapped_column(String(64), primary_key=True)
+    url: Mapped[str | None] = mapped_column(String(512))  # where its pages and API answer
+    version: Mapped[str] = mapped_column(String(32))  # gyrocal's version
+    started_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
+    heartbeat_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
+
+
+class SightingRow(Base):
+    """A wearable as one gateway last saw it (advertising, or connected)."""
+
+    __tablename__ = "device_sightings"
+    device_id: Mapped[str] = mapped_column(String(128), primary_key=True)
+    gateway: Mapped[str] = mapped_column(String(64), primary_key=True)
+    last_seen: Mapped[datetime] = mapped_column(DateTime(timezone=True))
+    rssi_dbm: Mapped[int | None] = mapped_column(Integer)  # signal strength at that gateway, when the radio says
+
+
+class LeaseRow(Base):
+    """Which gateway may run a session (or a verification, or a write) on a wearable, until when."""
+
+    __tablename__ = "device_leases"
+    device_id: Mapped[str] = mapped_column(String(128), primary_key=True)
+    gateway: Mapped[str] = mapped_column(String(64))
+    holder: Mapped[str] = mapped_column(String(64))  # the session or verification id, or "write"
+    expires_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), index=True)
+
+
+FLEET_TABLES = ("gateways", "device_sightings", "device_leases")

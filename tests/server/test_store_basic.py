@@ -6,7 +6,7 @@ import gzip
 from datetime import UTC, datetime, timedelta
 
 import pytest
-from sqlalchemy import text
+from sqlalchemy import create_engine, text
 from sqlalchemy.exc import SQLAlchemyError
 
 from calib.result import CalibrationResult
@@ -41,10 +41,22 @@ def test_schema_is_created_and_reopening_keeps_it(store_url: str) -> None:
 
 
 def test_newer_schema_is_refused(store_url: str) -> None:
+    """A store a newer gyrocal upgraded (a revision this one does not know) is refused with what to do; so is one
+    whose pre-Alembic schema version is newer. Nothing in it is changed."""
     s = Store(store_url)
+    s.upsert_device("dev-1", name="wrist", transport="ble")
     with s.engine.begin() as conn:
-        conn.execute(text("UPDATE schema_info SET version = :v"), {"v": SCHEMA_VERSION + 1})
+        conn.execute(text("UPDATE alembic_version SET version_num = '0099'"))
     s.close()
+    with pytest.raises(StoreError, match=r"schema revision 0099, newer than this gyrocal .*knows up to 0006.*upgrade gyrocal"):
+        Store(store_url)
+    eng = create_engine(store_url.replace("postgresql://", "postgresql+psycopg://"))
+    with eng.begin() as conn:
+        assert conn.execute(text("SELECT version_num FROM alembic_version")).scalar_one() == "0099"
+        assert conn.execute(text("SELECT name FROM devices")).scalar_one() == "wrist"
+        conn.execute(text("DROP TABLE alembic_version"))
+        conn.execute(text("UPDATE schema_info SET version = :v"), {"v": SCHEMA_VERSION + 1})
+    eng.dispose()
     with pytest.raises(StoreError, match="newer than this gyrocal"):
         Store(store_url)
 

@@ -256,7 +256,8 @@ def test_a_crashed_sessions_spooled_samples_are_archived_at_restart(store_url: s
     assert again.spooled_recording("j" * 32) is None and again.verify().ok
 
 
-def test_a_v1_store_is_migrated_and_its_history_chained(store_url: str) -> None:
+def _make_v1_store(store_url: str) -> None:
+    """A store as gyrocal 0.1 left it: schema version 1, two calibrations, five audit entries."""
     from sqlalchemy import create_engine
 
     dialect = "sqlite" if store_url.startswith("sqlite") else "postgresql"
@@ -288,8 +289,15 @@ def test_a_v1_store_is_migrated_and_its_history_chained(store_url: str) -> None:
                 if stmt.strip():
                     conn.connection.driver_connection.execute(stmt.rstrip().rstrip(";"))
     eng.dispose()
+
+
+def test_a_v1_store_is_migrated_and_its_history_chained(store_url: str) -> None:
+    _make_v1_store(store_url)
     store = Store(store_url)
-    assert store.schema_version() == SCHEMA_VERSION == 5
+    assert store.schema_version() == SCHEMA_VERSION == 6
+    with store.engine.connect() as conn:  # stamped with its old version, then upgraded by Alembic to the head
+        assert conn.execute(text("SELECT version_num FROM alembic_version")).scalar_one() == "0006"
+        assert conn.execute(text("SELECT COUNT(*) FROM device_leases")).scalar_one() == 0
     report = store.verify()
     assert report.ok and report.rows == {"recordings": 0, "calibrations": 2, "audit_log": 5}
     assert [c.source for c in store.calibrations("dev-1")] == ["upload", "live"]
@@ -302,6 +310,21 @@ def test_a_v1_store_is_migrated_and_its_history_chained(store_url: str) -> None:
     with pytest.raises(SQLAlchemyError, match="append-only"):
         with store.engine.begin() as conn:
             conn.execute(text("UPDATE calibrations SET k_x = 2"))
+
+
+def test_gateways_starting_at_once_on_an_old_store_upgrade_it_once(store_url: str) -> None:
+    """Four services open a v1 store at the same moment: one upgrades it (under the schema lock), the others find
+    it done; the history is chained once, not four times."""
+    _make_v1_store(store_url)
+    stores = at_once([lambda: Store(store_url)] * 4)
+    for st in stores:
+        assert st.schema_version() == SCHEMA_VERSION
+    report = stores[0].verify()
+    assert report.ok and report.rows == {"recordings": 0, "calibrations": 2, "audit_log": 5}
+    with stores[0].engine.connect() as conn:
+        assert conn.execute(text("SELECT version_num FROM alembic_version")).scalar_one() == "0006"
+    for st in stores:
+        st.close()
 
 
 def test_a_store_that_cannot_be_opened_says_why(tmp_path: Path) -> None:

@@ -1,0 +1,32 @@
+"""The fleet: gateways (one service per room), the wearables each has seen, and the lease that lets one gateway
+at a time run a session on a wearable. A service role the store was set up with gets these tables too.
+
+Revision ID: 0006
+Revises: 0005
+"""
+
+from __future__ import annotations
+
+from alembic import op
+from sqlalchemy import text
+
+from server.store.tables import Base, GatewayRow, LeaseRow, SightingRow
+
+revision = "0006"
+down_revision = "0005"
+branch_labels = None
+depends_on = None
+
+
+def upgrade() -> None:
+    conn = op.get_bind()
+    Base.metadata.create_all(conn, tables=[GatewayRow.__table__, SightingRow.__table__, LeaseRow.__table__])  # type: ignore[list-item]
+    if conn.dialect.name == "postgresql":
+        q = conn.dialect.identifier_preparer.quote
+        roles = conn.execute(text(
+            "SELECT DISTINCT grantee FROM information_schema.role_table_grants WHERE table_schema = 'public' "
+            "AND table_name = 'sessions' AND privilege_type = 'INSERT' AND grantee <> current_user"
+        )).scalars().all()
+        for role in roles:  # the service roles `gyrocal store setup` made: they keep working after the upgrade
+            conn.execute(text(f"GRANT SELECT, INSERT, UPDATE, DELETE ON gateways, device_sightings, device_leases TO {q(role)}"))
+            conn.execute(text(f"GRANT SELECT ON alembic_version TO {q(role)}"))
