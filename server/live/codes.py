@@ -53,6 +53,7 @@ class EndReason(StrEnum):
     CALIBRATION_FAILED = "calibration_failed"
     TIMEOUT = "timeout"
     SERVICE_RESTARTED = "service_restarted"
+    GATEWAY_LOST = "gateway_lost"
     INTERNAL_ERROR = "internal_error"
     CANCELLED = "cancelled"
 

@@ -3,11 +3,13 @@
 tables (the schema) · engine (connections, SQLite write locking) · guards (append-only triggers, the
 PostgreSQL service role) · chain (hash chains over the history) · schema (creation and migrations) · records
 (what the store hands out) · base (transactions, integrity, audit log) · operators · sessions (sessions, spool,
-recordings) · calibrations (the history) · repository (the Store: all of them, and the devices).
+recordings) · calibrations (the history) · fleet (gateways, sightings, leases) · repository (the Store: all of them,
+and the devices).
 """
 
 from .chain import BrokenLink, ChainReport
 from .errors import DecisionConflict, NotAcceptable, NotFound, StoreError
+from .fleet import Lease
 from .records import CalibrationRecord, SessionEnd, sha256_hex
 from .repository import Store
 from .schema import SCHEMA_VERSION
@@ -19,6 +21,7 @@ __all__ = [
     "CalibrationRecord",
     "ChainReport",
     "DecisionConflict",
+    "Lease",
     "NotAcceptable",
     "NotFound",
     "SessionEnd",

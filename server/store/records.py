@@ -120,6 +120,7 @@ def session_dict(row: SessionRow) -> dict[str, Any]:
         "decided_by": row.decided_by,
         "software_version": row.software_version,
         "info": row.info,
+        "gateway": row.gateway,
     }
 
 

@@ -14,12 +14,13 @@ from typing import Any
 from sqlalchemy import select
 
 from .calibrations import CalibrationStore
+from .fleet import FleetStore
 from .operators import OperatorStore
 from .records import device_dict
 from .tables import Device, utcnow
 
 
-class Store(OperatorStore, CalibrationStore):
+class Store(OperatorStore, CalibrationStore, FleetStore):
     """All persistent state of the service. Thread-safe; every method is one transaction."""
 
     # -- devices --------------------------------------------------------------------------------

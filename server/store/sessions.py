@@ -23,10 +23,10 @@ class SessionStore(StoreBase):
 
     # -- sessions -------------------------------------------------------------------------------
     def create_session(self, session_id: str, device_id: str, kind: str, state: str, method: str, operator: str | None,
-                       software_version: str, info: dict[str, Any] | None = None) -> None:
+                       software_version: str, info: dict[str, Any] | None = None, gateway: str | None = None) -> None:
         with self._tx("audit_log") as s:
             s.add(SessionRow(id=session_id, device_id=device_id, kind=kind, state=state, method=method, operator=operator,
-                             started_at=utcnow(), software_version=software_version, info=info))
+                             started_at=utcnow(), software_version=software_version, info=info, gateway=gateway))
             self._audit(s, operator, "session.start", device_id, session_id, {"kind": kind, "method": method})
 
     def _apply_end(self, s: Session, row: SessionRow, end: SessionEnd, operator: str | None) -> None:
@@ -63,20 +63,26 @@ class SessionStore(StoreBase):
                 q = q.where(SessionRow.device_id == device_id)
             return [session_dict(r) for r in s.execute(q).scalars()]
 
-    def fail_unfinished_sessions(self, reason: str) -> int:
-        """Mark sessions a previous run left open as failed (the watchdog's last word after a restart), and
-        archive the samples they had spooled, so a crash leaves the recording for the audit."""
+    def fail_unfinished_sessions(self, reason: str, gateway: str | None = None) -> int:
+        """Mark sessions a previous run of this service (this ``gateway``; None: a service on its own) left open as
+        failed (the watchdog's last word after a restart), and archive the samples they had spooled, so a crash
+        leaves the recording for the audit. Other gateways' sessions are theirs: their leases end them."""
+        mine = SessionRow.gateway.is_(None) if gateway is None else SessionRow.gateway == gateway
         with self._tx("recordings", "audit_log") as s:
-            rows = s.execute(select(SessionRow).where(SessionRow.ended_at.is_(None)).with_for_update()).scalars().all()
+            rows = s.execute(select(SessionRow).where(SessionRow.ended_at.is_(None), mine).with_for_update()).scalars().all()
             for row in rows:
-                spooled = self._assemble_spool(s, row.id)
-                info: dict[str, Any] = {}
-                if spooled is not None:
-                    data, n = spooled
-                    self._archive(s, row.id, data, n)
-                    info = {"samples": n, "recovered_from_spool": True}
-                self._apply_end(s, row, SessionEnd("failed", "service_restarted", reason, info=info), None)
+                self._end_with_spool(s, row, "service_restarted", reason)
             return len(rows)
+
+    def _end_with_spool(self, s: Session, row: SessionRow, reason_code: str, reason: str) -> None:
+        """End a session its runner can no longer end, as failed, its spooled samples archived."""
+        spooled = self._assemble_spool(s, row.id)
+        info: dict[str, Any] = {}
+        if spooled is not None:
+            data, n = spooled
+            self._archive(s, row.id, data, n)
+            info = {"samples": n, "recovered_from_spool": True}
+        self._apply_end(s, row, SessionEnd("failed", reason_code, reason, info=info), None)
 
     def _decide(self, s: Session, session_id: str, decision: str, operator: str, now: datetime) -> SessionRow:
         """Compare-and-set: mark an undecided session decided; DecisionConflict if someone else was first."""

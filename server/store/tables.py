@@ -98,6 +98,7 @@ class SessionRow(Base):
     ended_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
     result: Mapped[dict[str, Any] | None] = mapped_column(JSON)
     passed: Mapped[bool | None] = mapped_column(Boolean)
+    gateway: Mapped[str | None] = mapped_column(String(64))  # the gateway that runs it (None: a service on its own)
     decision: Mapped[str | None] = mapped_column(String(16))  # accepted | discarded
     decided_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
     decided_by: Mapped[str | None] = mapped_column(String(128))

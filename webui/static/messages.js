@@ -70,6 +70,7 @@ export const REASONS = {
   calibration_failed: { title: "The calibration could not be computed", fix: "Start again, following each step on the screen.", icon: "fail" },
   timeout: { title: "The calibration took too long", fix: "Start again; the whole calibration takes about a minute.", icon: "clock" },
   service_restarted: { title: "The service was restarted", fix: "Start a new calibration.", icon: "fail" },
+  gateway_lost: { title: "The room's gateway stopped answering", fix: "The device is free again: start a new calibration from any gateway that sees it.", icon: "fail" },
   internal_error: { title: "Something went wrong in the service", fix: "Start again. If it happens again, report it with the time shown below.", icon: "fail" },
   cancelled: { title: "Calibration cancelled", fix: "Nothing was saved: the device keeps its previous calibration.", icon: "stop" },
 };

@@ -1,5 +1,5 @@
-"""The fleet: gateways (one service per room), the wearables each has seen, and the lease that lets one gateway
-at a time run a session on a wearable. A service role the store was set up with gets these tables too.
+"""The fleet: gateways (one service per room), the wearables each has seen, the lease that lets one gateway
+at a time run a session on a wearable, and the gateway each session runs on. A service role the store was set up with gets these tables too.
 
 Revision ID: 0006
 Revises: 0005
@@ -21,6 +21,7 @@ depends_on = None
 def upgrade() -> None:
     conn = op.get_bind()
     Base.metadata.create_all(conn, tables=[GatewayRow.__table__, SightingRow.__table__, LeaseRow.__table__])  # type: ignore[list-item]
+    conn.execute(text("ALTER TABLE sessions ADD COLUMN gateway VARCHAR(64)"))
     if conn.dialect.name == "postgresql":
         q = conn.dialect.identifier_preparer.quote
         roles = conn.execute(text(

@@ -1,0 +1,122 @@
+"""The fleet's part of the store: gateways (one service per room) and their heartbeats, the wearables each one
+sees, and the lease on each wearable that lets one gateway at a time run a session, a verification or a write.
+
+A lease is one row per device, taken with one atomic upsert that only succeeds when the row is free, expired or
+already this gateway's, so of two gateways asking at once exactly one gets it, on SQLite and PostgreSQL alike.
+A gateway renews its leases with its heartbeat; when it dies they expire, and the next sweep (any gateway's)
+ends the session it was running as failed, ``gateway_lost``, with the samples it had spooled archived.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import datetime, timedelta
+from typing import Any, cast
+
+from sqlalchemy import CursorResult, delete, select, update
+from sqlalchemy.dialects import postgresql, sqlite
+
+from .records import iso_utc
+from .sessions import SessionStore
+from .tables import GatewayRow, LeaseRow, SessionRow, SightingRow, aware, utcnow
+
+
+@dataclass(frozen=True)
+class Lease:
+    """Who may use a device, until when."""
+
+    device_id: str
+    gateway: str
+    holder: str  # a session or verification id, or "write"
+    expires_at: datetime
+
+
+class FleetStore(SessionStore):
+    """Gateways, sightings and leases."""
+
+    # -- gateways -------------------------------------------------------------------------------
+    def register_gateway(self, name: str, url: str | None, version: str) -> None:
+        """A gateway starting (again): its URL and version; its heartbeat starts now."""
+        now = utcnow()
+        with self._tx() as s:
+            row = s.get(GatewayRow, name, with_for_update=True)
+            if row is None:
+                s.add(GatewayRow(name=name, url=url, version=version, started_at=now, heartbeat_at=now))
+            else:
+                row.url, row.version, row.started_at, row.heartbeat_at = url, version, now, now
+
+    def heartbeat(self, name: str, lease_s: float, seen: dict[str, int | None]) -> int:
+        """The gateway is alive: its heartbeat, the wearables it sees now (id -> signal strength in dBm, or None),
+        and its leases renewed for ``lease_s`` more seconds. Returns how many leases it holds."""
+        now = utcnow()
+        with self._tx() as s:
+            s.execute(update(GatewayRow).where(GatewayRow.name == name).values(heartbeat_at=now))
+            for device_id, rssi in sorted(seen.items()):  # a fixed order: two gateways never wait on each other's rows
+                row = s.get(SightingRow, (device_id, name))
+                if row is None:
+                    s.add(SightingRow(device_id=device_id, gateway=name, last_seen=now, rssi_dbm=rssi))
+                else:
+                    row.last_seen, row.rssi_dbm = now, rssi
+            renewed = s.execute(update(LeaseRow).where(LeaseRow.gateway == name)
+                                .values(expires_at=now + timedelta(seconds=lease_s)).execution_options(synchronize_session=False))
+            return cast(CursorResult[Any], renewed).rowcount
+
+    def gateways(self) -> list[dict[str, Any]]:
+        with self._read() as s:
+            return [{"name": r.name, "url": r.url, "version": r.version, "started_at": iso_utc(r.started_at),
+                     "heartbeat_at": iso_utc(r.heartbeat_at)}
+                    for r in s.execute(select(GatewayRow).order_by(GatewayRow.name)).scalars()]
+
+    def sightings(self) -> list[dict[str, Any]]:
+        with self._read() as s:
+            q = select(SightingRow).order_by(SightingRow.device_id, SightingRow.last_seen.desc())
+            return [{"device_id": r.device_id, "gateway": r.gateway, "last_seen": iso_utc(r.last_seen), "rssi_dbm": r.rssi_dbm}
+                    for r in s.execute(q).scalars()]
+
+    # -- leases ---------------------------------------------------------------------------------
+    def take_lease(self, device_id: str, gateway: str, holder: str, lease_s: float) -> Lease:
+        """The device's lease for ``holder`` on ``gateway`` (granted when free, expired or already this gateway's);
+        otherwise the lease that stands in the way (its gateway differs from ``gateway``)."""
+        now = utcnow()
+        expires = now + timedelta(seconds=lease_s)
+        values = {"device_id": device_id, "gateway": gateway, "holder": holder, "expires_at": expires}
+        ins = (postgresql.insert(LeaseRow) if self.dialect == "postgresql" else sqlite.insert(LeaseRow)).values(**values)
+        stmt = ins.on_conflict_do_update(
+            index_elements=[LeaseRow.device_id],
+            set_={"gateway": gateway, "holder": holder, "expires_at": expires},
+            where=(LeaseRow.expires_at < now) | (LeaseRow.gateway == gateway),
+        )
+        with self._tx() as s:
+            s.execute(stmt)
+            row = s.execute(select(LeaseRow).where(LeaseRow.device_id == device_id)).scalar_one()
+            return Lease(row.device_id, row.gateway, row.holder, aware(row.expires_at))
+
+    def release_lease(self, device_id: str, gateway: str, holder: str) -> None:
+        """Give a lease back (the session, verification or write ended); someone else's lease is left alone."""
+        with self._tx() as s:
+            s.execute(delete(LeaseRow).where(LeaseRow.device_id == device_id, LeaseRow.gateway == gateway, LeaseRow.holder == holder))
+
+    def leases(self) -> list[Lease]:
+        with self._read() as s:
+            return [Lease(r.device_id, r.gateway, r.holder, aware(r.expires_at))
+                    for r in s.execute(select(LeaseRow).order_by(LeaseRow.device_id)).scalars()]
+
+    def sweep_expired_leases(self) -> list[Lease]:
+        """Drop the leases whose gateway stopped renewing them, and end as failed (``gateway_lost``) the sessions
+        they held that are still open; the leases dropped. Safe to run on every gateway at once: each lease is
+        dropped (and its session ended) by exactly one of them."""
+        now = utcnow()
+        with self._tx("recordings", "audit_log") as s:
+            gone = s.execute(select(LeaseRow).where(LeaseRow.expires_at < now).with_for_update()).scalars().all()
+            out = []
+            for lease in gone:
+                out.append(Lease(lease.device_id, lease.gateway, lease.holder, aware(lease.expires_at)))
+                session = s.get(SessionRow, lease.holder, with_for_update=True)
+                if session is not None and session.ended_at is None and session.gateway == lease.gateway:
+                    self._end_with_spool(
+                        s, session, "gateway_lost",
+                        f"gateway {lease.gateway!r} stopped answering during the session (its lease on {lease.device_id} "
+                        f"expired at {iso_utc(lease.expires_at)}); the device is free again: start a new session",
+                    )
+                s.delete(lease)
+            return out
