@@ -6,9 +6,12 @@ import argparse
 import logging
 import re
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from calib.errors import GyrocalError
+
+if TYPE_CHECKING:
+    from .config import GatewaySettings
 
 EXIT_OK = 0
 EXIT_USAGE = 2
@@ -32,6 +35,8 @@ def register(sub: Any) -> None:
                    help="SQLAlchemy URL of the store: sqlite:///path or postgresql://user@host/db "
                    "(default: GYROCAL_DB, else gyrocal.sqlite3 in the user's data directory)")
     p.add_argument("--mock", type=int, default=0, metavar="N", help="add N simulated wearables mock-1 ... mock-N")
+    p.add_argument("--mock-first", type=int, default=1, metavar="I",
+                   help="number the simulated wearables from mock-I (default 1): gateways of one fleet sharing some wearables")
     p.add_argument(
         "--mock-speed", type=float, default=1.0, metavar="X", help="simulated time runs X times faster than real time (default 1)"
     )
@@ -126,6 +131,12 @@ def register(sub: Any) -> None:
         metavar="NAME",
         help="create operator NAME (or give it a new secret) and print the secret: for trying the service",
     )
+    p.add_argument("--gateway", default=None, metavar="NAME",
+                   help="run as the gateway NAME of a fleet sharing one store (one per room; see docs/deployment.md)")
+    p.add_argument("--gateway-url", default=None, metavar="URL",
+                   help="where clinicians reach this gateway from other rooms (default http://HOST:PORT)")
+    p.add_argument("--lease-s", type=float, default=30.0, metavar="S",
+                   help="a gateway's hold on a wearable lasts S seconds past its last heartbeat (default 30)")
     p.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
     p.set_defaults(func=cmd_serve)
 
@@ -275,6 +286,8 @@ def build_service(args: argparse.Namespace) -> Any:
 
     if args.mock < 0 or args.mock > 1000:
         raise ServiceError("--mock takes a number of simulated wearables between 0 and 1000")
+    if not 1 <= args.mock_first <= 100000:
+        raise ServiceError("--mock-first takes the first simulated wearable's number, from 1 to 100000")
     if not (args.mock_speed > 0):
         raise ServiceError("--mock-speed must be a positive number (1 = real time)")
     simulators = load_simulators() if args.mock else None
@@ -318,6 +331,7 @@ def build_service(args: argparse.Namespace) -> Any:
         allowed_hosts=tuple(dict.fromkeys(h.lower() for h in hosts)),
         pin_from=(*Settings.pin_from, *pin_networks(args.pin_from)),
         limits=CalibrationLimits(args.calibration_max_age_days, args.calibration_max_temperature_change_c),
+        gateway=gateway_settings(args),
     )
     from .store import Store, StoreError
 
@@ -341,8 +355,27 @@ def build_service(args: argparse.Namespace) -> Any:
     devices = DeviceManager(ble=args.ble, ble_adapters=adapters, ble_slots=args.ble_slots)
     if simulators is not None:
         devices.add_mocks(simulators, args.mock, speed=args.mock_speed, seed=args.mock_seed, scenarios=scenarios, rate_hz=args.mock_rate,
+                          first=args.mock_first,
                           model=args.mock_model)
     return Service(settings, store=store, devices=devices)
+
+
+def gateway_settings(args: argparse.Namespace) -> GatewaySettings | None:
+    """--gateway and its options, checked; None for a service on its own."""
+    from .config import GatewaySettings
+
+    if args.gateway is None:
+        if args.gateway_url is not None:
+            raise ServiceError("--gateway-url needs --gateway NAME: the URL is where other rooms' pages find this gateway")
+        return None
+    if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}", args.gateway):
+        raise ServiceError(f"--gateway {args.gateway!r}: use letters, digits, '.', '_' or '-' (up to 64), e.g. birth-room-3")
+    if not 5.0 <= args.lease_s <= 3600.0:
+        raise ServiceError(f"--lease-s {args.lease_s:g}: between 5 and 3600 seconds (a lease must outlast a few heartbeats)")
+    url = args.gateway_url or f"http://{args.host}:{args.port}"
+    if not re.fullmatch(r"https?://[^\s/]+(/\S*)?", url):
+        raise ServiceError(f"--gateway-url {url!r}: give the http(s):// address clinicians use to reach this gateway")
+    return GatewaySettings(args.gateway, url.rstrip("/"), lease_s=args.lease_s, heartbeat_s=min(5.0, args.lease_s / 4))
 
 
 def cmd_serve(args: argparse.Namespace) -> int:

@@ -52,6 +52,16 @@ class CalibrationLimits:
 
 
 @dataclass(frozen=True)
+class GatewaySettings:
+    """This service as one gateway of a fleet sharing one store (docs/deployment.md)."""
+
+    name: str  # the room's gateway name, unique in the fleet
+    url: str | None = None  # where other gateways' pages send a clinician to reach this one
+    lease_s: float = 30.0  # a device's lease lasts this long unless the heartbeat renews it
+    heartbeat_s: float = 5.0  # how often the gateway says it is alive, reports what it sees and renews its leases
+
+
+@dataclass(frozen=True)
 class Settings:
     """Everything the service needs to start."""
 
@@ -60,7 +70,8 @@ class Settings:
     port: int = 8000
     api_token: str | None = field(default_factory=lambda: os.environ.get("GYROCAL_API_TOKEN") or None)
     allowed_hosts: tuple[str, ...] = ("localhost", "127.0.0.1", "::1")  # Host names answered ("*": any); others get 400
-    limits: CalibrationLimits = field(default_factory=lambda: CalibrationLimits())  # when a calibration in force is warned of
+    limits: CalibrationLimits = field(default_factory=lambda: CalibrationLimits())
+    gateway: GatewaySettings | None = None  # None: a service on its own  # when a calibration in force is warned of
     pin_from: tuple[str, ...] = ("127.0.0.0/8", "::1/128")  # client networks whose sign-ins may use a PIN
     auth_reads: bool = False  # when True, reads need a token too (SSE may pass it as ?access_token=)
     max_body_bytes: int = 32 * 1024 * 1024  # uploads above this get 413

@@ -181,9 +181,11 @@ class DeviceManager:
         rate_hz: float | None = None,
         noise_dps: float = 0.03,
         model: str = "gyrocal",
+        first: int = 1,
     ) -> list[Device]:
-        """N simulated wearables mock-1 … mock-N speaking ``model``'s protocol, each performing its scenario
-        when streaming starts. ``rate_hz`` None: the model's streaming rate."""
+        """N simulated wearables mock-``first`` … mock-(first+N-1) speaking ``model``'s protocol, each performing its
+        scenario when streaming starts. ``rate_hz`` None: the model's streaming rate. A wearable's number alone sets
+        its sensor, so two gateways simulating mock-8 simulate the same wearable."""
         import time
 
         from .link import InProcessLink, ReconnectPolicy
@@ -193,7 +195,7 @@ class DeviceManager:
 
         scenarios = scenarios or ["normal"]
         out = []
-        for i in range(1, n + 1):
+        for i in range(first, first + n):
             scenario = scenarios[(i - 1) % len(scenarios)]
             dev_seed = seed * 1000 + i
             wearable = simulators.wearable(seed=dev_seed, scenario=scenario, speed=speed, name=f"mock-{i}", rate_hz=rate_hz,

@@ -13,6 +13,7 @@ from typing import Any
 from .auth import Authenticator, SignIns
 from .config import Settings
 from .devices import DeviceManager
+from .gateway import WRITE_HOLDER, GatewayAgent
 from .live.runner import LiveSession
 from .live.verify_run import VerifyRun
 from .store import Store
@@ -40,6 +41,8 @@ class Service:
         self.active: dict[str, str] = {}  # device id -> running session id
         self.writing: set[str] = set()  # devices a calibration is being written to
         self.verify_runs: dict[str, VerifyRun] = {}  # live verification turns, by id (kept after they end, for the page)
+        self.gateway = (GatewayAgent(self.store, settings.gateway, seen=self._seen, held=self._held)
+                        if settings.gateway is not None else None)
         self.started = time.time()
         self.integrity: dict[str, Any] | None = None  # the last verification of the store's hash chains
         self._integrity_task: asyncio.Task[None] | None = None
@@ -64,15 +67,45 @@ class Service:
         n = await asyncio.to_thread(
             self.store.fail_unfinished_sessions,
             "The service was restarted while this calibration ran. Start a new calibration.",
+            self.gateway_name,
         )
         if n:
             log.warning("%d sessions left open by a previous run were marked failed", n)
         for dev in self.devices.devices.values():
             await asyncio.to_thread(self.store.upsert_device, dev.id, name=dev.name, address=dev.address, transport=dev.transport)
+        if self.gateway is not None:
+            await self.gateway.start()
+
+    @property
+    def gateway_name(self) -> str | None:
+        """This service's name in the fleet (None: a service on its own)."""
+        return None if self.gateway is None else self.gateway.name
+
+    def _seen(self) -> dict[str, int | None]:
+        """The wearables this service reaches now, with their last signal strength (dBm) when the radio gave one."""
+        return {d.id: d.info.get("rssi") for d in self.devices.devices.values()}
+
+    def _held(self) -> dict[str, str]:
+        """What this service runs on which device now: a session's or verification's id, or a write."""
+        return {**{d: WRITE_HOLDER for d in self.writing}, **self.active}
+
+    def release_device(self, device_id: str, holder: str | None) -> None:
+        """The session or verification ``holder`` (None: the write) is done with the device: free it here and in the
+        fleet."""
+        if holder is None:
+            self.writing.discard(device_id)
+        elif self.active.get(device_id) == holder:
+            del self.active[device_id]
+        else:
+            return
+        if self.gateway is not None:
+            self.gateway.release(device_id, WRITE_HOLDER if holder is None else holder)
 
     async def shutdown(self) -> None:
         if self._integrity_task is not None:
             self._integrity_task.cancel()
+        if self.gateway is not None:
+            await self.gateway.stop()
         for run in list(self.verify_runs.values()):
             run.cancel()
             await run.wait()
@@ -88,15 +121,13 @@ class Service:
 
     def verification_ended(self, run: VerifyRun) -> None:
         """Free the device; keep the newest KEEP_VERIFY_RUNS ended runs for pages still polling (they are in the store)."""
-        if self.active.get(run.device.id) == run.id:
-            del self.active[run.device.id]
+        self.release_device(run.device.id, run.id)
         ended = [rid for rid, r in self.verify_runs.items() if r.state in ("done", "failed")]
         for rid in ended[:-KEEP_VERIFY_RUNS]:  # dicts keep insertion order: the oldest first
             del self.verify_runs[rid]
 
     def _session_ended(self, live: LiveSession) -> None:
-        if self.active.get(live.device.id) == live.id:
-            del self.active[live.device.id]
+        self.release_device(live.device.id, live.id)
         finished = [s for s in self.sessions.values() if s.machine.finished]
         for old in finished[: max(0, len(finished) - KEEP_FINISHED)]:
             old.broadcaster.close()

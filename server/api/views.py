@@ -12,6 +12,7 @@ from calib.json_safe import finite
 
 from ..deps import problem
 from ..devices import Device, model_facts
+from ..gateway import WRITE_HOLDER
 from ..lifecycle import calibration_due
 from ..service import Service
 from ..store import CalibrationRecord
@@ -43,10 +44,11 @@ async def reachable_device(svc: Service, device_id: str) -> Device:
     raise problem(409, f"device {device_id!r} is not reachable by this service (known from uploads only); scan for it first")
 
 
-def claim_device(svc: Service, device_id: str, holder: str | None, then: str) -> None:
-    """Reserve a device for a session or verification (`holder`, its id) or for a write (`holder` None); 409 saying
-    what holds it otherwise. Called with no await between it and the caller's check that the device is reachable, so
-    of two requests at once exactly one gets the device."""
+async def claim_device(svc: Service, device_id: str, holder: str | None, then: str) -> None:
+    """Reserve a device for a session or verification (``holder``, its id) or for a write (``holder`` None); 409 saying
+    what holds it otherwise. The claim here is made before the first await (of two requests at once exactly one gets
+    the device); a gateway then takes the device's lease in the shared store, and gives the claim up when another
+    gateway holds it."""
     if device_id in svc.active:
         raise problem(409, f"device {device_id!r} is in a calibration session or verification ({svc.active[device_id]}); {then}")
     if device_id in svc.writing:
@@ -55,6 +57,17 @@ def claim_device(svc: Service, device_id: str, holder: str | None, then: str) ->
         svc.writing.add(device_id)
     else:
         svc.active[device_id] = holder
+    if svc.gateway is None:
+        return
+    try:
+        lease = await svc.gateway.take(device_id, WRITE_HOLDER if holder is None else holder)
+    except Exception:
+        svc.release_device(device_id, holder)
+        raise problem(503, f"the fleet's store could not be reached to take device {device_id!r}; try again") from None
+    if lease.gateway != svc.gateway.name:
+        svc.release_device(device_id, holder)
+        raise problem(409, f"device {device_id!r} is in use on gateway {lease.gateway!r} ({lease.holder}) until "
+                           f"{lease.expires_at.isoformat(timespec='seconds')} at the latest; {then}, or open it there")
 
 
 async def calibration_or_404(svc: Service, calibration_id: int) -> CalibrationRecord:

@@ -45,10 +45,12 @@ class FleetStore(SessionStore):
             else:
                 row.url, row.version, row.started_at, row.heartbeat_at = url, version, now, now
 
-    def heartbeat(self, name: str, lease_s: float, seen: dict[str, int | None]) -> int:
-        """The gateway is alive: its heartbeat, the wearables it sees now (id -> signal strength in dBm, or None),
-        and its leases renewed for ``lease_s`` more seconds. Returns how many leases it holds."""
+    def heartbeat(self, name: str, lease_s: float, seen: dict[str, int | None], held: dict[str, str]) -> int:
+        """The gateway is alive: its heartbeat, the wearables it sees now (id -> signal strength in dBm, or None), and
+        the leases of what it still runs (device id -> holder) renewed for ``lease_s`` more seconds; a lease it no
+        longer uses is left to expire. Returns how many leases it renewed."""
         now = utcnow()
+        renewed = 0
         with self._tx() as s:
             s.execute(update(GatewayRow).where(GatewayRow.name == name).values(heartbeat_at=now))
             for device_id, rssi in sorted(seen.items()):  # a fixed order: two gateways never wait on each other's rows
@@ -57,9 +59,12 @@ class FleetStore(SessionStore):
                     s.add(SightingRow(device_id=device_id, gateway=name, last_seen=now, rssi_dbm=rssi))
                 else:
                     row.last_seen, row.rssi_dbm = now, rssi
-            renewed = s.execute(update(LeaseRow).where(LeaseRow.gateway == name)
-                                .values(expires_at=now + timedelta(seconds=lease_s)).execution_options(synchronize_session=False))
-            return cast(CursorResult[Any], renewed).rowcount
+            for device_id, holder in sorted(held.items()):
+                done = s.execute(update(LeaseRow).where(LeaseRow.device_id == device_id, LeaseRow.gateway == name,
+                                                        LeaseRow.holder == holder)
+                                 .values(expires_at=now + timedelta(seconds=lease_s)).execution_options(synchronize_session=False))
+                renewed += cast(CursorResult[Any], done).rowcount
+            return renewed
 
     def gateways(self) -> list[dict[str, Any]]:
         with self._read() as s:

@@ -14,8 +14,8 @@ def test_gateways_register_heartbeat_and_report_what_they_see(store_url: str) ->
     store = Store(store_url)
     store.register_gateway("room-1", "http://gw1:8000", "1.0")
     store.register_gateway("room-2", None, "1.0")
-    store.heartbeat("room-1", 30.0, {"aa": -60, "bb": None})
-    store.heartbeat("room-2", 30.0, {"bb": -75})
+    store.heartbeat("room-1", 30.0, {"aa": -60, "bb": None}, {})
+    store.heartbeat("room-2", 30.0, {"bb": -75}, {})
     assert [g["name"] for g in store.gateways()] == ["room-1", "room-2"]
     seen = {(s["device_id"], s["gateway"]): s["rssi_dbm"] for s in store.sightings()}
     assert seen == {("aa", "room-1"): -60, ("bb", "room-1"): None, ("bb", "room-2"): -75}
@@ -52,7 +52,7 @@ def test_a_dead_gateways_lease_expires_and_its_session_is_ended_once(store_url: 
     assert store.take_lease("dev-1", "room-1", "s" * 32, 0.3).gateway == "room-1"
     assert store.take_lease("dev-2", "room-2", "t" * 32, 60.0).gateway == "room-2"
     assert store.take_lease("dev-1", "room-2", "u", 30.0).gateway == "room-1"  # not expired yet
-    assert store.heartbeat("room-2", 60.0, {}) == 1  # room-2 is alive and renews its lease; room-1 is silent
+    assert store.heartbeat("room-2", 60.0, {}, {"dev-2": "t" * 32, "dev-9": "gone"}) == 1  # room-2 renews what it runs
     time.sleep(0.5)
     swept = at_once([lambda: Store(store_url).sweep_expired_leases() for _ in range(3)])
     assert sorted(len(s) for s in swept) == [0, 0, 1], swept  # one sweeper drops it, the others find nothing

@@ -297,7 +297,7 @@ async def start_live(svc: Service, device_id: str, operator: str, method: str | 
         raise problem(422, f"unknown method {method!r}: choose one of {', '.join(available_methods())}")
     dev = await reachable_device(svc, device_id)
     sid = uuid.uuid4().hex
-    claim_device(svc, device_id, sid, "one at a time")
+    await claim_device(svc, device_id, sid, "one at a time")
     try:
         machine = GuidedSession(sid, device_id, svc.settings, max_attempts=max_attempts, method=method,
                                 live_angle=await live_angle_of(svc, device_id))
@@ -311,9 +311,10 @@ async def start_live(svc: Service, device_id: str, operator: str, method: str | 
             operator,
             __version__,
             {"transport": dev.transport, "scenario": dev.scenario},
+            svc.gateway_name,
         )
     except Exception:
-        svc.active.pop(device_id, None)
+        svc.release_device(device_id, sid)
         raise
     live = LiveSession(machine, dev, svc.store, svc.settings, __version__, operator, on_end=svc._session_ended, pool=svc.pool)
     svc.sessions[sid] = live
@@ -382,6 +383,7 @@ async def calibrate_uploaded(
          "identity": SensorIdentity(device_id=device_id, sensor_model=sensor.get("sensor_model"), serial=sensor.get("serial"),
                                     firmware=sensor.get("firmware"), boot_count=boot_count,
                                     temperature_c=result.quality.get("temperature_c")).to_json()},
+        svc.gateway_name,
     )
     digest = await asyncio.to_thread(svc.store.archive_recording, sid, csv, n_samples)
     end = SessionEnd(

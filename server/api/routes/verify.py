@@ -69,7 +69,7 @@ async def verify(
         raise problem(415, f"send a recording (text/csv) of the turn, or {{}} (application/json) for a live turn; got {ctype}")
     dev = await reachable_device(svc, cal.device_id)
     run_id = uuid.uuid4().hex
-    claim_device(svc, cal.device_id, run_id, "verify when that is done")
+    await claim_device(svc, cal.device_id, run_id, "verify when that is done")
     run = VerifyRun(run_id, dev, cal, svc.store, svc.pool, operator, on_end=svc.verification_ended)
     svc.verify_runs[run.id] = run
     run.start()

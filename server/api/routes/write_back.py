@@ -50,7 +50,7 @@ async def write_to_device(svc: Svc, device_id: str, operator: Operator, body: M.
     it bit for bit and record that the device holds it. The wearable keeps streaming raw readings."""
     check_device_id(device_id)
     dev = await reachable_device(svc, device_id)
-    claim_device(svc, device_id, None, "write when that is done")
+    await claim_device(svc, device_id, None, "write when that is done")
     try:
         rec = await _chosen(svc, device_id, body.calibration_id if body else None)
         held = HeldCalibration.from_parameters(rec.id, rec.K if rec.K is not None else rec.k, rec.b)
@@ -63,7 +63,7 @@ async def write_to_device(svc: Svc, device_id: str, operator: Operator, body: M.
                                f"({type(exc).__name__}); write again to record it") from None
         current = await asyncio.to_thread(svc.store.current_calibration, device_id)
     finally:
-        svc.writing.discard(device_id)
+        svc.release_device(device_id, None)
     return {"device_id": device_id, "calibration_id": back.calibration_id, "verified": True, "held": back.to_dict(),
             "held_state": "current" if current is not None and current.id == back.calibration_id else "other", "warnings": warnings}
 

@@ -1,0 +1,129 @@
+"""A fleet: three gateway processes (`gyrocal serve --gateway`) on one real PostgreSQL, each with its own simulated
+wearables, some seen by two gateways. Sessions on all at once; one device never booked twice; a gateway killed
+mid-session releases its device when its lease expires; every calibration visible from every gateway."""
+
+from __future__ import annotations
+
+import signal
+import time
+from typing import Any
+
+import httpx
+import pytest
+from server_fixtures import API_TOKEN, RunningService, at_once, follow_events
+
+END = {"done", "failed", "cancelled"}
+SPEED = ["--mock-speed", "40", "--lease-s", "6"]
+
+
+def _gateway(name: str, first: int, n: int, url: str) -> RunningService:
+    return RunningService(["--gateway", name, "--mock", str(n), "--mock-first", str(first), *SPEED], url)
+
+
+def _post(svc: RunningService, path: str, json: Any = None) -> httpx.Response:
+    with httpx.Client(base_url=svc.base, headers={"Authorization": f"Bearer {API_TOKEN}"}, timeout=60) as c:
+        return c.post(path, json=json if json is not None else {})
+
+
+def _fleet(svc: RunningService) -> dict[str, Any]:
+    with svc.client() as c:
+        r = c.get("/fleet")
+        assert r.status_code == 200, r.text
+        return r.json()
+
+
+def _wait(check: Any, timeout_s: float, what: str) -> Any:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        got = check()
+        if got:
+            return got
+        time.sleep(0.2)
+    raise AssertionError(f"{what} within {timeout_s} s")
+
+
+@pytest.fixture
+def fleet_db(postgres) -> str:  # noqa: F811
+    return postgres.service_url(postgres.create_database())
+
+
+def test_three_gateways_share_wearables_without_double_booking(fleet_db: str) -> None:
+    # room-a: mock-1..4, room-b: mock-3..6 (mock-3 and mock-4 seen by both), room-c: mock-11..13
+    rooms = {"room-a": (1, 4), "room-b": (3, 4), "room-c": (11, 3)}
+    gws = dict(zip(rooms, at_once([lambda r=r: _gateway(r, *rooms[r], fleet_db).start(60) for r in rooms]), strict=True))
+    try:
+        for svc in gws.values():  # the same fleet from every gateway
+            view = _fleet(svc)
+            assert {g["name"] for g in view["gateways"] if g["alive"]} == set(rooms)
+            assert [d["id"] for d in view["devices"]] == sorted(f"mock-{i}" for i in (*range(1, 7), 11, 12, 13))
+            shared = next(d for d in view["devices"] if d["id"] == "mock-3")
+            assert {s["gateway"] for s in shared["seen_by"]} == {"room-a", "room-b"}
+            assert all(d["calibration"]["status"] == "never" and not d["in_session"] for d in view["devices"])
+
+        # the shared wearables asked for by both of their gateways at once: one session each, the other told where
+        for dev in ("mock-3", "mock-4"):
+            a, b = at_once([lambda dev=dev: _post(gws["room-a"], f"/devices/{dev}/calibrate"),
+                            lambda dev=dev: _post(gws["room-b"], f"/devices/{dev}/calibrate")])
+            assert sorted((a.status_code, b.status_code)) == [202, 409], (a.text, b.text)
+            lost = a if a.status_code == 409 else b
+            assert "room-a" in lost.json()["detail"] or "room-b" in lost.json()["detail"], lost.text
+        view = _fleet(gws["room-c"])
+        holders = {d["id"]: d for d in view["devices"] if d["in_session"]}
+        assert set(holders) == {"mock-3", "mock-4"}
+        for d in holders.values():  # the link opens the wizard on the gateway that holds the device
+            assert d["wizard_url"] == f"{gws[d['gateway']].base}/#/place/{d['id']}"
+
+        # every other wearable, all at once, each on a gateway that sees it
+        rest = {"mock-1": "room-a", "mock-2": "room-a", "mock-5": "room-b", "mock-6": "room-b", "mock-11": "room-c",
+                "mock-12": "room-c", "mock-13": "room-c"}
+        answers = at_once([lambda d=d, g=g: _post(gws[g], f"/devices/{d}/calibrate") for d, g in rest.items()])
+        assert all(r.status_code == 202 for r in answers), [r.text for r in answers]
+        started = {d: (g, r.json()["session_id"]) for (d, g), r in zip(rest.items(), answers, strict=True)}
+        for d in ("mock-3", "mock-4"):
+            owner = _fleet(gws["room-a"])
+            row = next(x for x in owner["devices"] if x["id"] == d)
+            started[d] = (row["gateway"], row["session"])
+        ends = at_once([lambda g=g, s=s: follow_events(gws[g].base, s, END, timeout_s=120, last_event_id=0)[-1]
+                        for g, s in started.values()], timeout_s=180)
+        assert all(e["state"] == "done" for e in ends), [(e["state"], e.get("reason")) for e in ends]
+        accepted = at_once([lambda g=g, s=s: _post(gws[g], f"/sessions/{s}/accept") for g, s in started.values()])
+        assert all(r.status_code == 200 for r in accepted), [r.text for r in accepted]
+
+        # every calibration visible from every gateway, and the fleet says so
+        for svc in gws.values():
+            with svc.client() as c:
+                for d in started:
+                    assert c.get(f"/devices/{d}/calibration").status_code == 200
+            view = _wait(lambda svc=svc: (v := _fleet(svc)) and not any(d["in_session"] for d in v["devices"]) and v,
+                         15, "leases given back")
+            assert all(d["calibration"]["status"] == "current" for d in view["devices"]), view["devices"]
+    finally:
+        for svc in gws.values():
+            svc.stop()
+
+
+def test_a_gateway_killed_mid_session_frees_its_wearable_when_the_lease_expires(fleet_db: str) -> None:
+    a = _gateway("room-a", 1, 2, fleet_db).start(60)
+    b = _gateway("room-b", 2, 2, fleet_db).start(60)
+    try:
+        r = _post(a, "/devices/mock-2/calibrate")
+        assert r.status_code == 202, r.text
+        sid = r.json()["session_id"]
+        follow_events(a.base, sid, {"still", "turn_x"}, timeout_s=30, last_event_id=0)
+        assert _post(b, "/devices/mock-2/calibrate").status_code == 409
+        assert a.proc is not None
+        a.proc.send_signal(signal.SIGKILL)  # no goodbye: the heartbeat stops, the lease runs out
+        a.proc.wait()
+        row = _wait(lambda: next((d for d in _fleet(b)["devices"] if d["id"] == "mock-2" and not d["in_session"]), None),
+                    30, "the dead gateway's lease expired")
+        assert row["calibration"]["status"] == "never"
+        with b.client() as c:
+            gone = c.get(f"/sessions/{sid}").json()
+        assert gone["state"] == "failed" and gone["reason_code"] == "gateway_lost" and "room-a" in gone["reason"], gone
+        again = _post(b, "/devices/mock-2/calibrate")
+        assert again.status_code == 202, again.text
+        end = follow_events(b.base, again.json()["session_id"], END, timeout_s=120, last_event_id=0)[-1]
+        assert end["state"] == "done"
+    finally:
+        a.stop()
+        b.stop()
