@@ -6,6 +6,7 @@ import { fill, h } from "./dom.js";
 import { icon } from "./figures.js";
 import { requestProblem } from "./messages.js";
 import { devicesView } from "./devices.js";
+import { fleetView } from "./fleet.js";
 import { historyView } from "./history.js";
 import { pinView, signInView } from "./signin.js";
 import { uploadView } from "./upload.js";
@@ -24,6 +25,7 @@ const ROUTES = [
   [/^#\/session\/([0-9a-f]{32})$/, (m) => sessionView(ctx, m[1])],
   [/^#\/history\/([^/]+)$/, (m) => historyView(ctx, decodeURIComponent(m[1]))],
   [/^#\/upload$/, () => uploadView(ctx)],
+  [/^#\/fleet$/, () => fleetView(ctx)],
   [/^#\/pin$/, () => pinView(ctx)],
 ];
 

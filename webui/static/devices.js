@@ -120,7 +120,8 @@ export function devicesView(ctx) {
       h("div", null, h("h1", { id: "devices-title" }, "Choose a device"),
         h("p", { class: "lead" }, "Pick the wearable to calibrate.")),
       h("div", { class: "panel-actions" }, scanBtn,
-        h("a", { class: "button", href: "#/upload", id: "upload-link" }, icon("info"), "Calibrate a recording file"))),
+        h("a", { class: "button", href: "#/upload", id: "upload-link" }, icon("info"), "Calibrate a recording file"),
+        h("a", { class: "button", href: "#/fleet", id: "fleet-link" }, icon("search"), "Fleet"))),
     note, list));
   ctx.focusMain();
   load();
