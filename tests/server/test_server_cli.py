@@ -55,6 +55,11 @@ def test_operator_commands(tmp_path: Path, capsys: pytest.CaptureFixture[str], m
         (["--ble", "--ble-adapter", "hci0,usb1"], "name each adapter once, as BlueZ does"),
         (["--ble", "--ble-adapter", "hci0,hci0"], "name each adapter once"),
         (["--ble", "--ble-slots", "0"], "an adapter holds between 1 and 20 connections"),
+        (["--gateway", "room 3!"], "use letters, digits, '.', '_' or '-'"),
+        (["--gateway", "room-3", "--lease-s", "1"], "between 5 and 3600 seconds"),
+        (["--gateway-url", "http://gw:8000"], "--gateway-url needs --gateway NAME"),
+        (["--gateway", "room-3", "--gateway-url", "gw3"], "give the http(s):// address"),
+        (["--mock", "1", "--mock-first", "0"], "--mock-first takes the first simulated wearable's number"),
     ],
 )
 def test_serve_refuses_bad_options_with_a_message(
