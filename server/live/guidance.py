@@ -26,6 +26,7 @@ REASONS: dict[EndReason, str] = {
     EndReason.CALIBRATION_FAILED: "the estimator could not compute a calibration from the recording",
     EndReason.TIMEOUT: "the session did not reach its end within the overall time limit",
     EndReason.SERVICE_RESTARTED: "the service was restarted while the session ran",
+    EndReason.GATEWAY_LOST: "the gateway running the session stopped answering",
     EndReason.INTERNAL_ERROR: "an unexpected error stopped the session",
     EndReason.CANCELLED: "an operator cancelled the session",
 }

@@ -117,8 +117,13 @@ def test_a_gateway_killed_mid_session_frees_its_wearable_when_the_lease_expires(
         row = _wait(lambda: next((d for d in _fleet(b)["devices"] if d["id"] == "mock-2" and not d["in_session"]), None),
                     30, "the dead gateway's lease expired")
         assert row["calibration"]["status"] == "never"
-        with b.client() as c:
-            gone = c.get(f"/sessions/{sid}").json()
+
+        def ended() -> dict[str, Any] | None:  # ended by the next heartbeat's sweep after the lease ran out
+            with b.client() as c:
+                s = c.get(f"/sessions/{sid}").json()
+            return s if s["state"] in END else None
+
+        gone = _wait(ended, 15, "the lost gateway's session ended")
         assert gone["state"] == "failed" and gone["reason_code"] == "gateway_lost" and "room-a" in gone["reason"], gone
         again = _post(b, "/devices/mock-2/calibrate")
         assert again.status_code == 202, again.text
