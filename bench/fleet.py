@@ -53,7 +53,8 @@ def _start(name: str, first: int, n: int, db: str, speed: float) -> tuple[subpro
 
 def _db_stats(db: str) -> tuple[int, int, int]:
     with psycopg.connect(db.replace("postgresql+psycopg://", "postgresql://"), autocommit=True) as conn:
-        commits, inserted = conn.execute("SELECT xact_commit, tup_inserted FROM pg_stat_database WHERE datname = current_database()").fetchone()
+        q = "SELECT xact_commit, tup_inserted FROM pg_stat_database WHERE datname = current_database()"
+        commits, inserted = conn.execute(q).fetchone()
         wal = conn.execute("SELECT pg_current_wal_lsn() - '0/0'::pg_lsn").fetchone()[0]
     return int(commits), int(inserted), int(wal)
 
@@ -93,7 +94,7 @@ def main() -> None:
         ends: dict[str, str] = {}
         with tqdm(total=len(started), desc="sessions", unit="session") as bar:
             while len(ends) < len(started):
-                for g, dev, sid in started:
+                for g, _dev, sid in started:
                     if sid not in ends:
                         state = clients[g].get(f"/sessions/{sid}").json()["state"]
                         if state in ("done", "failed", "cancelled"):
