@@ -136,9 +136,9 @@ def noise_colour(gyro: np.ndarray, spans: list[tuple[int, int]], max_lag: int = 
         dev[i:j] = gyro[i:j] - gyro[i:j].mean(axis=0)
     var = np.sum(dev**2, axis=0) / max(int(inside.sum()), 1)
     factor = np.ones(3)
+    gaps = np.cumsum(~inside)  # equal for two samples exactly when no sample between them is outside a rest
     for k in range(1, max_lag + 1):
-        pair = inside[:-k] & inside[k:]
-        pair &= np.cumsum(~inside)[:-k] == np.cumsum(~inside)[k:]  # both samples of the pair in the same rest
+        pair = inside[:-k] & inside[k:] & (gaps[:-k] == gaps[k:])  # both samples of the pair in the same rest
         if pair.any():
             factor += 2.0 * np.sum(dev[:-k][pair] * dev[k:][pair], axis=0) / pair.sum() / np.maximum(var, 1e-300)
     return np.clip(factor, 0.25, 16.0)

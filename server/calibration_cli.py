@@ -14,12 +14,12 @@ from typing import TYPE_CHECKING, Any
 from calib.identity import DEFAULT_MAX_TEMPERATURE_CHANGE_C, SensorIdentity
 
 from .cli import EXIT_OK, ServiceError, open_store, require_active_operator
+from .config import DEFAULT_MAX_AGE_DAYS
 
 if TYPE_CHECKING:
     from .config import CalibrationLimits
 
 EXIT_NONE = 5  # no calibration had been accepted by then
-MAX_AGE_DAYS = 30.0
 
 
 def _add_moment_arguments(p: argparse.ArgumentParser, at_help: str, db_help: str, max_age: bool = True) -> None:
@@ -31,8 +31,8 @@ def _add_moment_arguments(p: argparse.ArgumentParser, at_help: str, db_help: str
                             boot_note=": a calibration of that power-up is taken first",
                             temperature_note=" (default: the recording's temp column, if any)")
     if max_age:
-        p.add_argument("--max-age-days", type=float, default=MAX_AGE_DAYS, metavar="DAYS",
-                       help=f"warn when the calibration is older (default {MAX_AGE_DAYS:g})")
+        p.add_argument("--max-age-days", type=float, default=DEFAULT_MAX_AGE_DAYS, metavar="DAYS",
+                       help=f"warn when the calibration is older (default {DEFAULT_MAX_AGE_DAYS:g})")
         p.add_argument("--max-temperature-change-c", type=float, default=DEFAULT_MAX_TEMPERATURE_CHANGE_C, metavar="DEGC",
                        help=f"warn when the recording is this much warmer or colder (default {DEFAULT_MAX_TEMPERATURE_CHANGE_C:g})")
 
@@ -66,7 +66,7 @@ def _recording_identity(args: argparse.Namespace, temperature_c: float | None = 
 def _limits(args: argparse.Namespace) -> CalibrationLimits:
     from .config import CalibrationLimits
 
-    limits = CalibrationLimits(getattr(args, "max_age_days", MAX_AGE_DAYS),
+    limits = CalibrationLimits(getattr(args, "max_age_days", DEFAULT_MAX_AGE_DAYS),
                                getattr(args, "max_temperature_change_c", DEFAULT_MAX_TEMPERATURE_CHANGE_C))
     if not limits.max_age_days > 0:
         raise ServiceError("--max-age-days must be a positive number of days")

@@ -23,6 +23,8 @@ class ServiceError(GyrocalError):
 
 def register(sub: Any) -> None:
     """Add `gyrocal serve`."""
+    from .config import DEFAULT_LEASE_S, DEFAULT_MAX_AGE_DAYS
+
     p = sub.add_parser(
         "serve",
         help="run the calibration service (REST API, live guided sessions, per-device store)",
@@ -107,9 +109,9 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--calibration-max-age-days",
         type=float,
-        default=30.0,
+        default=DEFAULT_MAX_AGE_DAYS,
         metavar="DAYS",
-        help="a device whose calibration is older is due, and applying that calibration warns (default 30)",
+        help=f"a device whose calibration is older is due, and applying that calibration warns (default {DEFAULT_MAX_AGE_DAYS:g})",
     )
     p.add_argument(
         "--calibration-max-temperature-change-c",
@@ -135,8 +137,8 @@ def register(sub: Any) -> None:
                    help="run as the gateway NAME of a fleet sharing one store (one per room; see docs/deployment.md)")
     p.add_argument("--gateway-url", default=None, metavar="URL",
                    help="where clinicians reach this gateway from other rooms (default http://HOST:PORT)")
-    p.add_argument("--lease-s", type=float, default=30.0, metavar="S",
-                   help="a gateway's hold on a wearable lasts S seconds past its last heartbeat (default 30)")
+    p.add_argument("--lease-s", type=float, default=DEFAULT_LEASE_S, metavar="S",
+                   help=f"a gateway's hold on a wearable lasts S seconds past its last heartbeat (default {DEFAULT_LEASE_S:g})")
     p.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
     p.set_defaults(func=cmd_serve)
 
@@ -362,7 +364,7 @@ def build_service(args: argparse.Namespace) -> Any:
 
 def gateway_settings(args: argparse.Namespace) -> GatewaySettings | None:
     """--gateway and its options, checked; None for a service on its own."""
-    from .config import GatewaySettings
+    from .config import DEFAULT_HEARTBEAT_S, GatewaySettings
 
     if args.gateway is None:
         if args.gateway_url is not None:
@@ -375,7 +377,7 @@ def gateway_settings(args: argparse.Namespace) -> GatewaySettings | None:
     url = args.gateway_url or f"http://{args.host}:{args.port}"
     if not re.fullmatch(r"https?://[^\s/]+(/\S*)?", url):
         raise ServiceError(f"--gateway-url {url!r}: give the http(s):// address clinicians use to reach this gateway")
-    return GatewaySettings(args.gateway, url.rstrip("/"), lease_s=args.lease_s, heartbeat_s=min(5.0, args.lease_s / 4))
+    return GatewaySettings(args.gateway, url.rstrip("/"), lease_s=args.lease_s, heartbeat_s=min(DEFAULT_HEARTBEAT_S, args.lease_s / 4))
 
 
 def cmd_serve(args: argparse.Namespace) -> int:

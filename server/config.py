@@ -43,11 +43,16 @@ class ProtocolTimings:
     max_turn_s: float = 30.0  # a turn longer than this is not a hand turn of the protocol
 
 
+DEFAULT_MAX_AGE_DAYS = 30.0  # a calibration older than this is due (as imucal warns)
+DEFAULT_LEASE_S = 30.0  # a gateway's hold on a wearable outlasts its last heartbeat by this long
+DEFAULT_HEARTBEAT_S = 5.0  # how often a gateway says it is alive (at most: a quarter of a shorter lease)
+
+
 @dataclass(frozen=True)
 class CalibrationLimits:
     """How old, and how far in temperature from a recording, a calibration may be before it is warned of."""
 
-    max_age_days: float = 30.0  # as imucal warns
+    max_age_days: float = DEFAULT_MAX_AGE_DAYS
     max_temperature_change_c: float = DEFAULT_MAX_TEMPERATURE_CHANGE_C
 
 
@@ -57,8 +62,13 @@ class GatewaySettings:
 
     name: str  # the room's gateway name, unique in the fleet
     url: str | None = None  # where other gateways' pages send a clinician to reach this one
-    lease_s: float = 30.0  # a device's lease lasts this long unless the heartbeat renews it
-    heartbeat_s: float = 5.0  # how often the gateway says it is alive, reports what it sees and renews its leases
+    lease_s: float = DEFAULT_LEASE_S  # a device's lease lasts this long unless the heartbeat renews it
+    heartbeat_s: float = DEFAULT_HEARTBEAT_S  # how often the gateway says it is alive, reports what it sees and renews its leases
+
+    @property
+    def silent_after_s(self) -> float:
+        """A gateway whose last heartbeat is older than this is shown as silent."""
+        return max(3 * self.heartbeat_s, self.lease_s)
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,6 @@ class GatewayAgent:
         self._held = held  # device id -> holder of what this gateway runs on it now
         self._task: asyncio.Task[None] | None = None
         self._releasing: set[asyncio.Task[None]] = set()
-        self.last_heartbeat_error: str | None = None
 
     async def start(self) -> None:
         """Register (again, after a restart), then beat the heart in the background."""
@@ -58,20 +57,19 @@ class GatewayAgent:
             await asyncio.sleep(self.settings.heartbeat_s)
             try:
                 await self.beat()
-                self.last_heartbeat_error = None
             except Exception as exc:  # the database away: keep trying; leases run out if it stays away
-                self.last_heartbeat_error = str(exc)
                 log.warning("gateway %r heartbeat failed: %s", self.name, exc)
 
-    async def take(self, device_id: str, holder: str) -> Lease:
-        """The device's lease for ``holder`` here, or the lease of the gateway that holds it."""
-        return await asyncio.to_thread(self.store.take_lease, device_id, self.name, holder, self.settings.lease_s)
+    async def take(self, device_id: str, holder: str | None) -> Lease:
+        """The device's lease for ``holder`` (a session's or verification's id; None: a write) here, or the lease of the
+        gateway that holds it."""
+        return await asyncio.to_thread(self.store.take_lease, device_id, self.name, holder or WRITE_HOLDER, self.settings.lease_s)
 
-    def release(self, device_id: str, holder: str) -> None:
+    def release(self, device_id: str, holder: str | None) -> None:
         """Give the lease back in the background; if that fails, it expires (the heartbeat no longer renews it)."""
         async def release() -> None:
             try:
-                await asyncio.to_thread(self.store.release_lease, device_id, self.name, holder)
+                await asyncio.to_thread(self.store.release_lease, device_id, self.name, holder or WRITE_HOLDER)
             except Exception as exc:
                 log.warning("releasing the lease on %s failed (%s); the next heartbeat drops it", device_id, exc)
 

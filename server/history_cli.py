@@ -10,8 +10,7 @@ from datetime import datetime
 from typing import Any
 
 from .cli import EXIT_OK, ServiceError, open_store, require_active_operator
-
-MAX_AGE_DAYS = 30.0
+from .config import DEFAULT_MAX_AGE_DAYS
 
 
 def register_history(sub: Any) -> None:
@@ -25,8 +24,8 @@ def register_history(sub: Any) -> None:
     )
     p.add_argument("device", help="the device's id")
     p.add_argument("--db", default=None, metavar="URL", help="the store's URL (default as for `gyrocal serve`)")
-    p.add_argument("--max-age-days", type=float, default=MAX_AGE_DAYS, metavar="DAYS",
-                   help=f"a calibration older than this makes the device due (default {MAX_AGE_DAYS:g})")
+    p.add_argument("--max-age-days", type=float, default=DEFAULT_MAX_AGE_DAYS, metavar="DAYS",
+                   help=f"a calibration older than this makes the device due (default {DEFAULT_MAX_AGE_DAYS:g})")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     p.set_defaults(func=cmd_history)
 

@@ -99,7 +99,7 @@ class Service:
         else:
             return
         if self.gateway is not None:
-            self.gateway.release(device_id, WRITE_HOLDER if holder is None else holder)
+            self.gateway.release(device_id, holder)
 
     async def shutdown(self) -> None:
         if self._integrity_task is not None:

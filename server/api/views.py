@@ -12,7 +12,6 @@ from calib.json_safe import finite
 
 from ..deps import problem
 from ..devices import Device, model_facts
-from ..gateway import WRITE_HOLDER
 from ..lifecycle import calibration_due
 from ..service import Service
 from ..store import CalibrationRecord
@@ -60,7 +59,7 @@ async def claim_device(svc: Service, device_id: str, holder: str | None, then: s
     if svc.gateway is None:
         return
     try:
-        lease = await svc.gateway.take(device_id, WRITE_HOLDER if holder is None else holder)
+        lease = await svc.gateway.take(device_id, holder)
     except Exception:
         svc.release_device(device_id, holder)
         raise problem(503, f"the fleet's store could not be reached to take device {device_id!r}; try again") from None

@@ -14,6 +14,7 @@ A gyrocal older than the store's revision refuses to start and says so.
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 from alembic import command
@@ -39,9 +40,15 @@ def _config(conn: Connection) -> Config:
     return cfg
 
 
+@functools.cache
+def _scripts() -> ScriptDirectory:
+    """The revisions this gyrocal knows (read from their files once)."""
+    return ScriptDirectory(str(MIGRATIONS))
+
+
 def head_revision() -> str:
     """The newest revision this gyrocal knows."""
-    head = ScriptDirectory(str(MIGRATIONS)).get_current_head()
+    head = _scripts().get_current_head()
     assert head is not None
     return head
 
@@ -78,12 +85,11 @@ def migrate(engine: Engine, display_url: str) -> int:
                                      f"({SCHEMA_VERSION}); upgrade gyrocal")
                 current = f"{version:04d}"
                 command.stamp(_config(conn), current)
-            script = ScriptDirectory(str(MIGRATIONS))
-            if current not in {r.revision for r in script.walk_revisions()}:
+            if current not in {r.revision for r in _scripts().walk_revisions()}:
                 raise StoreError(f"the store at {display_url} has schema revision {current}, newer than this gyrocal "
-                                 f"(which knows up to {script.get_current_head()}): upgrade gyrocal on this computer, or "
+                                 f"(which knows up to {head_revision()}): upgrade gyrocal on this computer, or "
                                  "point it at another store")
-            if current != script.get_current_head():
+            if current != head_revision():
                 command.upgrade(_config(conn), "head")
                 conn.execute(update(SchemaInfo).values(version=SCHEMA_VERSION, migrated_at=utcnow()))
             return SCHEMA_VERSION

@@ -10,6 +10,7 @@ from typing import Any
 
 from fastapi import APIRouter
 
+from ...config import GatewaySettings
 from ...deps import Reader, Svc
 from ...lifecycle import calibration_due
 from ...service import Service
@@ -33,10 +34,9 @@ def fleet_view(svc: Service) -> dict[str, Any]:
     now = datetime.now(UTC)
     gateways = store.gateways()
     urls = {g["name"]: g["url"] for g in gateways}
-    beat_s = svc.settings.gateway.heartbeat_s if svc.settings.gateway else 5.0
-    lease_s = svc.settings.gateway.lease_s if svc.settings.gateway else 30.0
+    silent_after_s = (svc.settings.gateway or GatewaySettings(name="")).silent_after_s  # a service on its own: the defaults
     for g in gateways:
-        g["alive"] = datetime.fromisoformat(g["heartbeat_at"]) > now - timedelta(seconds=max(3 * beat_s, lease_s))
+        g["alive"] = datetime.fromisoformat(g["heartbeat_at"]) > now - timedelta(seconds=silent_after_s)
         g["this"] = g["name"] == svc.gateway_name
     leases: dict[str, Lease] = {lease.device_id: lease for lease in store.leases() if lease.expires_at > now}
     seen: dict[str, list[dict[str, Any]]] = {}
@@ -50,7 +50,7 @@ def fleet_view(svc: Service) -> dict[str, Any]:
         sightings = seen.get(device_id, [])
         where = lease.gateway if lease else (sightings[0]["gateway"] if sightings else svc.gateway_name)
         local_session = svc.active.get(device_id) if svc.gateway is None else None
-        base = urls.get(where or "", None) if where else None
+        base = urls.get(where) if where else None
         devices.append({
             "id": device_id,
             "name": row.get("name"),
