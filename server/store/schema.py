@@ -15,6 +15,7 @@ A gyrocal older than the store's revision refuses to start and says so.
 from __future__ import annotations
 
 import functools
+import logging
 from pathlib import Path
 
 from alembic import command
@@ -28,6 +29,9 @@ from . import chain, guards
 from .engine import writer
 from .errors import StoreError
 from .tables import CHAINED, Base, ChainHead, SchemaInfo, utcnow
+
+log = logging.getLogger(__name__)
+logging.getLogger("alembic").setLevel(logging.WARNING)  # its step-by-step lines; gyrocal says what was upgraded, once
 
 MIGRATIONS = Path(__file__).parent / "migrations"
 SCHEMA_LOCK = 0x67797263616C  # PostgreSQL advisory lock key of schema changes ("gyrcal")
@@ -92,6 +96,7 @@ def migrate(engine: Engine, display_url: str) -> int:
             if current != head_revision():
                 command.upgrade(_config(conn), "head")
                 conn.execute(update(SchemaInfo).values(version=SCHEMA_VERSION, migrated_at=utcnow()))
+                log.info("the store at %s was upgraded from schema revision %s to %s", display_url, current, head_revision())
             return SCHEMA_VERSION
     except ProgrammingError as exc:
         if "permission denied" in str(exc.orig).lower() or "must be owner" in str(exc.orig).lower():
