@@ -23,12 +23,14 @@ class GatewayAgent:
     """The gateway's side of the fleet tables: registration, heartbeat, leases."""
 
     def __init__(self, store: Store, settings: GatewaySettings, seen: Callable[[], dict[str, int | None]],
-                 held: Callable[[], dict[str, str]]) -> None:
+                 held: Callable[[], dict[str, str]], changed: Callable[[str, str | None], None]) -> None:
         self.store = store
         self.settings = settings
         self.name = settings.name
         self._seen = seen  # device id -> signal strength (dBm) of the wearables this gateway reaches now
         self._held = held  # device id -> holder of what this gateway runs on it now
+        self._changed = changed  # tells the fleet's pages what changed (server.fleet_events)
+        self._reported: tuple[frozenset[str], dict[str, str]] | None = None  # what the last heartbeat said
         self._task: asyncio.Task[None] | None = None
         self._releasing: set[asyncio.Task[None]] = set()
 
@@ -36,6 +38,7 @@ class GatewayAgent:
         """Register (again, after a restart), then beat the heart in the background."""
         await asyncio.to_thread(self.store.register_gateway, self.name, self.settings.url, __version__)
         await self.beat()
+        self._changed("gateway", None)
         self._task = asyncio.get_running_loop().create_task(self._beat_forever())
 
     async def stop(self) -> None:
@@ -46,11 +49,16 @@ class GatewayAgent:
 
     async def beat(self) -> None:
         """One heartbeat: alive, what it sees, its leases renewed (only those it still uses), expired ones swept."""
-        held = self._held()
-        await asyncio.to_thread(self.store.heartbeat, self.name, self.settings.lease_s, self._seen(), held)
+        held, seen = self._held(), self._seen()
+        await asyncio.to_thread(self.store.heartbeat, self.name, self.settings.lease_s, seen, held)
+        reported = (frozenset(seen), held)
+        if reported != self._reported:
+            self._reported = reported
+            self._changed("sightings", None)
         for lease in await asyncio.to_thread(self.store.sweep_expired_leases):
             log.warning("gateway %r lost its lease on %s (holder %s): the device is free again", lease.gateway, lease.device_id,
                         lease.holder)
+            self._changed("lease", lease.device_id)
 
     async def _beat_forever(self) -> None:
         while True:
@@ -63,13 +71,17 @@ class GatewayAgent:
     async def take(self, device_id: str, holder: str | None) -> Lease:
         """The device's lease for ``holder`` (a session's or verification's id; None: a write) here, or the lease of the
         gateway that holds it."""
-        return await asyncio.to_thread(self.store.take_lease, device_id, self.name, holder or WRITE_HOLDER, self.settings.lease_s)
+        lease = await asyncio.to_thread(self.store.take_lease, device_id, self.name, holder or WRITE_HOLDER, self.settings.lease_s)
+        if lease.gateway == self.name:
+            self._changed("lease", device_id)
+        return lease
 
     def release(self, device_id: str, holder: str | None) -> None:
         """Give the lease back in the background; if that fails, it expires (the heartbeat no longer renews it)."""
         async def release() -> None:
             try:
                 await asyncio.to_thread(self.store.release_lease, device_id, self.name, holder or WRITE_HOLDER)
+                self._changed("lease", device_id)
             except Exception as exc:
                 log.warning("releasing the lease on %s failed (%s); the next heartbeat drops it", device_id, exc)
 

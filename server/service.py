@@ -13,8 +13,10 @@ from typing import Any
 from .auth import Authenticator, SignIns
 from .config import Settings
 from .devices import DeviceManager
+from .fleet_events import FleetEvents
 from .gateway import WRITE_HOLDER, GatewayAgent
 from .live.runner import LiveSession
+from .live.snapshot import stored_snapshot
 from .live.verify_run import VerifyRun
 from .store import Store
 from .throttle import TokenBucket
@@ -41,8 +43,9 @@ class Service:
         self.active: dict[str, str] = {}  # device id -> running session id
         self.writing: set[str] = set()  # devices a calibration is being written to
         self.verify_runs: dict[str, VerifyRun] = {}  # live verification turns, by id (kept after they end, for the page)
-        self.gateway = (GatewayAgent(self.store, settings.gateway, seen=self._seen, held=self._held)
-                        if settings.gateway is not None else None)
+        self.events = FleetEvents(settings.db_url, self._stored_snapshot, self._decided_elsewhere)
+        self.gateway = (GatewayAgent(self.store, settings.gateway, seen=self._seen, held=self._held,
+                                     changed=self.events.fleet_changed) if settings.gateway is not None else None)
         self.started = time.time()
         self.integrity: dict[str, Any] | None = None  # the last verification of the store's hash chains
         self._integrity_task: asyncio.Task[None] | None = None
@@ -73,6 +76,7 @@ class Service:
             log.warning("%d sessions left open by a previous run were marked failed", n)
         for dev in self.devices.devices.values():
             await asyncio.to_thread(self.store.upsert_device, dev.id, name=dev.name, address=dev.address, transport=dev.transport)
+        await self.events.start()
         if self.gateway is not None:
             await self.gateway.start()
 
@@ -89,6 +93,17 @@ class Service:
         """What this service runs on which device now: a session's or verification's id, or a write."""
         return {**{d: WRITE_HOLDER for d in self.writing}, **self.active}
 
+    def _stored_snapshot(self, session_id: str) -> dict[str, Any] | None:
+        row = self.store.session(session_id)
+        return None if row is None else stored_snapshot(row)
+
+    def _decided_elsewhere(self, session_id: str, stored: dict[str, Any]) -> None:
+        """A session running here was accepted or discarded on another gateway: its pages here show the decision."""
+        live = self.sessions.get(session_id)
+        if live is not None and live.machine.decision is None:
+            live.machine.decide(stored["decision"], None)
+            live.broadcaster.close()
+
     def release_device(self, device_id: str, holder: str | None) -> None:
         """The session or verification ``holder`` (None: the write) is done with the device: free it here and in the
         fleet."""
@@ -100,12 +115,15 @@ class Service:
             return
         if self.gateway is not None:
             self.gateway.release(device_id, holder)
+        else:
+            self.events.fleet_changed("release", device_id)
 
     async def shutdown(self) -> None:
         if self._integrity_task is not None:
             self._integrity_task.cancel()
         if self.gateway is not None:
             await self.gateway.stop()
+        await self.events.stop()
         for run in list(self.verify_runs.values()):
             run.cancel()
             await run.wait()
@@ -132,3 +150,4 @@ class Service:
         for old in finished[: max(0, len(finished) - KEEP_FINISHED)]:
             old.broadcaster.close()
             self.sessions.pop(old.id, None)
+            self.events.session_over(old.id)

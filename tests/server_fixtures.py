@@ -11,6 +11,7 @@ import os
 import shutil
 import signal
 import socket
+import sqlite3
 import subprocess
 import sys
 import tempfile
@@ -66,11 +67,22 @@ class PostgresServer:
         r = self._run(str(self.bindir / "initdb"), "-D", str(self.data), "-A", "trust", "-U", "postgres", "--no-sync", "-E", "UTF8")
         if r.returncode:
             raise RuntimeError(f"initdb failed: {r.stderr}")
+        self._pg_ctl_start()
+
+    def _pg_ctl_start(self) -> None:
         opts = f"-p {self.port} -k {self.dir} -c listen_addresses=127.0.0.1 -c fsync=off -c full_page_writes=off"
         r = self._run(str(self.bindir / "pg_ctl"), "-D", str(self.data), "-o", opts, "-l", str(self.dir / "log"), "-w", "start")
         if r.returncode:
             log = (self.dir / "log").read_text() if (self.dir / "log").exists() else ""
             raise RuntimeError(f"pg_ctl start failed: {r.stderr}\n{log}")
+
+    def restart(self, down_s: float = 0.0) -> None:
+        """Stop the server (fast: clients are disconnected), stay down ``down_s`` seconds, start it again."""
+        r = self._run(str(self.bindir / "pg_ctl"), "-D", str(self.data), "-m", "fast", "-w", "stop")
+        if r.returncode:
+            raise RuntimeError(f"pg_ctl stop failed: {r.stderr}")
+        time.sleep(down_s)
+        self._pg_ctl_start()
 
     def url(self, db: str = "postgres") -> str:
         return f"postgresql://postgres@127.0.0.1:{self.port}/{db}"
@@ -277,3 +289,38 @@ def bad_csv_uploads() -> dict[str, bytes]:
         "no protocol": still_only.getvalue().encode(),
         "latin-1": "t,gx,gy,gz\n0,1,2,3\n\xe9\n".encode("latin-1"),
     }
+
+
+def make_v1_store(store_url: str) -> None:
+    """A store as gyrocal 0.1 left it: schema version 1, two calibrations, five audit entries."""
+    from sqlalchemy import create_engine
+
+    dialect = "sqlite" if store_url.startswith("sqlite") else "postgresql"
+    ddl = (ROOT / "tests" / "server" / "data" / f"store_v1_{dialect}.sql").read_text()
+    url = store_url.replace("postgresql://", "postgresql+psycopg://")
+    eng = create_engine(url)
+    rows = [
+        "INSERT INTO schema_info VALUES (1, 1, '2026-01-01T00:00:00')",
+        "INSERT INTO sessions (id, device_id, kind, state, method, started_at, ended_at, result, passed, decision, "
+        "software_version) VALUES ('s1', 'dev-1', 'live', 'done', 'closure', '2026-01-01', '2026-01-01', "
+        "'{\"k\": [1, 1, 1], \"b\": [0, 0, 0]}', true, 'accepted', '0.1.0')",
+        "INSERT INTO sessions (id, device_id, kind, state, method, started_at, ended_at, result, passed, decision, "
+        "software_version) VALUES ('s2', 'dev-1', 'upload', 'done', 'closure', '2026-01-02', '2026-01-02', "
+        "'{\"k\": [1, 1, 1], \"b\": [0, 0, 0]}', true, 'accepted', '0.1.0')",
+        *[f"INSERT INTO calibrations (device_id, session_id, k_x, k_y, k_z, b_x, b_y, b_z, result, method, software_version, "
+          f"operator, computed_at, accepted_at) VALUES ('dev-1', '{sid}', 1.01, 1, 1, 0, 0, 0, '{{}}', 'closure', '0.1.0', "
+          f"'alice', '2026-01-0{i}', '2026-01-0{i}')" for i, sid in ((1, "s1"), (2, "s2"))],
+        *[f"INSERT INTO audit_log (at, operator, action) VALUES ('2026-01-01', 'alice', 'a{i}')" for i in range(5)],
+    ]
+    if dialect == "sqlite":
+        raw = sqlite3.connect(store_url.removeprefix("sqlite:///"))
+        raw.executescript(ddl + ";\n".join(rows) + ";")
+        raw.commit()
+        raw.close()
+    else:
+        with eng.begin() as conn:
+            body = "\n".join(line for line in ddl.splitlines() if not line.startswith("--"))
+            for stmt in [*body.split(";\n\n"), *rows]:
+                if stmt.strip():
+                    conn.connection.driver_connection.execute(stmt.rstrip().rstrip(";"))
+    eng.dispose()

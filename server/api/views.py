@@ -7,12 +7,12 @@ import asyncio
 from datetime import datetime
 from typing import Any
 
-from calib.acceptance import turn_accuracy
 from calib.json_safe import finite
 
 from ..deps import problem
 from ..devices import Device, model_facts
 from ..lifecycle import calibration_due
+from ..live.snapshot import stored_snapshot
 from ..service import Service
 from ..store import CalibrationRecord
 
@@ -57,6 +57,7 @@ async def claim_device(svc: Service, device_id: str, holder: str | None, then: s
     else:
         svc.active[device_id] = holder
     if svc.gateway is None:
+        svc.events.fleet_changed("claim", device_id)
         return
     try:
         lease = await svc.gateway.take(device_id, holder)
@@ -115,34 +116,6 @@ async def device_out(svc: Service, dev: Device | None, row: dict[str, Any] | Non
     return out
 
 
-def stored_snapshot(row: dict[str, Any]) -> dict[str, Any]:
-    info = row.get("info") or {}
-    return {
-        "session_id": row["id"],
-        "device_id": row["device_id"],
-        "kind": row["kind"],
-        "event": "state",
-        "state": row["state"],
-        "phase": None,
-        "prompt": row.get("reason"),
-        "reason_code": row["reason_code"],
-        "reason": row["reason"],
-        "result": row["result"],
-        "passed": row["passed"],
-        "checks": info.get("checks") or [],
-        "departures": info.get("departures") or [],
-        "accuracy": turn_accuracy(row["result"]) if row["result"] else None,
-        "warnings": info.get("warnings") or [],
-        "turns": info.get("turns") or {},
-        "decision": row["decision"],
-        "calibration_id": None,
-        "method": row["method"],
-        "operator": row["operator"],
-        "started_at": row["started_at"],
-        "ended_at": row["ended_at"],
-    }
-
-
 async def session_snapshot(svc: Service, sid: str) -> dict[str, Any]:
     live = svc.sessions.get(sid)
     if live is not None:
@@ -150,7 +123,24 @@ async def session_snapshot(svc: Service, sid: str) -> dict[str, Any]:
         snap["kind"] = "live"
         snap["operator"] = live.operator
         return snap
+    followed = svc.events.followed(sid)  # running on another gateway and followed here: its latest relayed state
+    if followed is not None:
+        return followed
     row = await asyncio.to_thread(svc.store.session, sid)
     if row is None:
         raise problem(404, f"no session {sid}")
+    if runs_elsewhere(svc, row):
+        return {**stored_snapshot(row), "remote": await remote_gateway(svc, row["gateway"])}
     return stored_snapshot(row)
+
+
+def runs_elsewhere(svc: Service, row: dict[str, Any]) -> bool:
+    """Whether a stored session runs (or awaits its decision) on another gateway, whose events reach this one."""
+    return (svc.events.shared and bool(row.get("gateway")) and row["gateway"] != svc.gateway_name
+            and row["decision"] is None and (row["ended_at"] is None or row["state"] == "done"))
+
+
+async def remote_gateway(svc: Service, name: str) -> dict[str, Any]:
+    """Where a session of another gateway runs: its name and the URL its pages are at (None if not known)."""
+    gateways = await asyncio.to_thread(svc.store.gateways)
+    return {"gateway": name, "url": next((g["url"] for g in gateways if g["name"] == name), None)}

@@ -26,7 +26,7 @@ from ..store import SessionEnd, Store, utcnow
 from ..workers.compute import ComputePool, calibrate_recording, off_loop, recording_csv
 from . import guidance as say
 from .buffer import SampleBuffer
-from .events import Broadcaster
+from .events import Broadcaster, Event
 from .session import GuidedSession
 
 log = logging.getLogger(__name__)
@@ -74,8 +74,10 @@ class LiveSession:
         operator: str,
         on_end: Callable[[LiveSession], None] | None = None,
         pool: ComputePool | None = None,
+        relay: Callable[[str, Event], None] | None = None,
     ) -> None:
         self.pool = pool
+        self.relay = relay  # hands each snapshot on to other gateways' followers (server.fleet_events)
         self.machine = machine
         self.device = device
         self.store = store
@@ -103,7 +105,9 @@ class LiveSession:
         return self.machine.id
 
     def _on_snapshot(self, event: str, snapshot: dict[str, Any]) -> None:
-        self.broadcaster.publish(event, snapshot)
+        published = self.broadcaster.publish(event, snapshot)
+        if self.relay is not None:
+            self.relay(self.id, published)
 
     def start(self) -> None:
         # publish the first snapshot (connecting) before anyone can subscribe to the stream

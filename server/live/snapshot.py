@@ -110,3 +110,32 @@ def session_snapshot(s: SessionView, event: str) -> dict[str, Any]:
         "ended_at": s.ended_at,
         "caused_by": s.caused_by,
     }
+
+
+def stored_snapshot(row: dict[str, Any]) -> dict[str, Any]:
+    """The snapshot of a session as the store keeps it (a session that ended, or runs on another gateway)."""
+    info = row.get("info") or {}
+    return {
+        "session_id": row["id"],
+        "device_id": row["device_id"],
+        "kind": row["kind"],
+        "event": "state",
+        "state": row["state"],
+        "phase": None,
+        "prompt": row.get("reason"),
+        "reason_code": row["reason_code"],
+        "reason": row["reason"],
+        "result": row["result"],
+        "passed": row["passed"],
+        "checks": info.get("checks") or [],
+        "departures": info.get("departures") or [],
+        "accuracy": turn_accuracy(row["result"]) if row["result"] else None,
+        "warnings": info.get("warnings") or [],
+        "turns": info.get("turns") or {},
+        "decision": row["decision"],
+        "calibration_id": None,
+        "method": row["method"],
+        "operator": row["operator"],
+        "started_at": row["started_at"],
+        "ended_at": row["ended_at"],
+    }

@@ -155,6 +155,15 @@ class CalibrationStore(SessionStore):
             row = s.execute(q.order_by(CalibrationRow.accepted_at.desc(), CalibrationRow.id.desc()).limit(1)).scalar_one_or_none()
             return None if row is None else calibration_record(row)
 
+    def current_calibrations(self) -> dict[str, CalibrationRecord]:
+        """Every device's latest accepted calibration, by device id (one query, for the fleet view)."""
+        rank = func.row_number().over(partition_by=CalibrationRow.device_id,
+                                      order_by=(CalibrationRow.accepted_at.desc(), CalibrationRow.id.desc())).label("rank")
+        ranked = select(CalibrationRow.id, rank).subquery()
+        q = select(CalibrationRow).join(ranked, ranked.c.id == CalibrationRow.id).where(ranked.c.rank == 1)
+        with self._read() as s:
+            return {r.device_id: calibration_record(r) for r in s.execute(q).scalars()}
+
     def calibration(self, calibration_id: int) -> CalibrationRecord | None:
         with self._read() as s:
             row = s.get(CalibrationRow, calibration_id)

@@ -78,6 +78,12 @@ class FleetStore(SessionStore):
             return [{"device_id": r.device_id, "gateway": r.gateway, "last_seen": iso_utc(r.last_seen), "rssi_dbm": r.rssi_dbm}
                     for r in s.execute(q).scalars()]
 
+    def open_sessions(self) -> dict[str, str]:
+        """The calibration sessions running now (not yet ended), by device id -> session id."""
+        with self._read() as s:
+            q = select(SessionRow.device_id, SessionRow.id).where(SessionRow.ended_at.is_(None)).order_by(SessionRow.started_at)
+            return {device_id: session_id for device_id, session_id in s.execute(q)}
+
     # -- leases ---------------------------------------------------------------------------------
     def take_lease(self, device_id: str, gateway: str, holder: str, lease_s: float) -> Lease:
         """The device's lease for ``holder`` on ``gateway`` (granted when free, expired or already this gateway's);

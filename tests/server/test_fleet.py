@@ -1,4 +1,4 @@
-"""A fleet: three gateway processes (`gyrocal serve --gateway`) on one real PostgreSQL, each with its own simulated
+"""A fleet: three gateway processes (`gyrocal serve --gateway`) on one real PostgreSQL, each with ten simulated
 wearables, some seen by two gateways. Sessions on all at once; one device never booked twice; a gateway killed
 mid-session releases its device when its lease expires; every calibration visible from every gateway."""
 
@@ -13,7 +13,7 @@ import pytest
 from server_fixtures import API_TOKEN, RunningService, at_once, follow_events
 
 END = {"done", "failed", "cancelled"}
-SPEED = ["--mock-speed", "40", "--lease-s", "6"]
+SPEED = ["--mock-speed", "20", "--lease-s", "6"]
 
 
 def _gateway(name: str, first: int, n: int, url: str) -> RunningService:
@@ -48,20 +48,21 @@ def fleet_db(postgres) -> str:  # noqa: F811
 
 
 def test_three_gateways_share_wearables_without_double_booking(fleet_db: str) -> None:
-    # room-a: mock-1..4, room-b: mock-3..6 (mock-3 and mock-4 seen by both), room-c: mock-11..13
-    rooms = {"room-a": (1, 4), "room-b": (3, 4), "room-c": (11, 3)}
+    # ten wearables a room: room-a mock-1..10, room-b mock-9..18 (mock-9 and mock-10 seen by both), room-c mock-21..30
+    rooms = {"room-a": (1, 10), "room-b": (9, 10), "room-c": (21, 10)}
     gws = dict(zip(rooms, at_once([lambda r=r: _gateway(r, *rooms[r], fleet_db).start(60) for r in rooms]), strict=True))
+    everyone = sorted(f"mock-{i}" for i in (*range(1, 19), *range(21, 31)))
     try:
         for svc in gws.values():  # the same fleet from every gateway
-            view = _fleet(svc)
+            view = _wait(lambda svc=svc: (v := _fleet(svc)) and len(v["devices"]) == len(everyone) and v, 15, "every sighting")
             assert {g["name"] for g in view["gateways"] if g["alive"]} == set(rooms)
-            assert [d["id"] for d in view["devices"]] == sorted(f"mock-{i}" for i in (*range(1, 7), 11, 12, 13))
-            shared = next(d for d in view["devices"] if d["id"] == "mock-3")
+            assert sorted(d["id"] for d in view["devices"]) == everyone
+            shared = next(d for d in view["devices"] if d["id"] == "mock-9")
             assert {s["gateway"] for s in shared["seen_by"]} == {"room-a", "room-b"}
             assert all(d["calibration"]["status"] == "never" and not d["in_session"] for d in view["devices"])
 
         # the shared wearables asked for by both of their gateways at once: one session each, the other told where
-        for dev in ("mock-3", "mock-4"):
+        for dev in ("mock-9", "mock-10"):
             a, b = at_once([lambda dev=dev: _post(gws["room-a"], f"/devices/{dev}/calibrate"),
                             lambda dev=dev: _post(gws["room-b"], f"/devices/{dev}/calibrate")])
             assert sorted((a.status_code, b.status_code)) == [202, 409], (a.text, b.text)
@@ -69,22 +70,22 @@ def test_three_gateways_share_wearables_without_double_booking(fleet_db: str) ->
             assert "room-a" in lost.json()["detail"] or "room-b" in lost.json()["detail"], lost.text
         view = _fleet(gws["room-c"])
         holders = {d["id"]: d for d in view["devices"] if d["in_session"]}
-        assert set(holders) == {"mock-3", "mock-4"}
+        assert set(holders) == {"mock-9", "mock-10"}
         for d in holders.values():  # the link opens the wizard on the gateway that holds the device
             assert d["wizard_url"] == f"{gws[d['gateway']].base}/#/place/{d['id']}"
 
         # every other wearable, all at once, each on a gateway that sees it
-        rest = {"mock-1": "room-a", "mock-2": "room-a", "mock-5": "room-b", "mock-6": "room-b", "mock-11": "room-c",
-                "mock-12": "room-c", "mock-13": "room-c"}
+        rest = {f"mock-{i}": "room-a" for i in range(1, 9)} | {f"mock-{i}": "room-b" for i in range(11, 19)} | {
+            f"mock-{i}": "room-c" for i in range(21, 31)}
         answers = at_once([lambda d=d, g=g: _post(gws[g], f"/devices/{d}/calibrate") for d, g in rest.items()])
         assert all(r.status_code == 202 for r in answers), [r.text for r in answers]
         started = {d: (g, r.json()["session_id"]) for (d, g), r in zip(rest.items(), answers, strict=True)}
-        for d in ("mock-3", "mock-4"):
+        for d in ("mock-9", "mock-10"):
             owner = _fleet(gws["room-a"])
             row = next(x for x in owner["devices"] if x["id"] == d)
             started[d] = (row["gateway"], row["session"])
-        ends = at_once([lambda g=g, s=s: follow_events(gws[g].base, s, END, timeout_s=120, last_event_id=0)[-1]
-                        for g, s in started.values()], timeout_s=180)
+        ends = at_once([lambda g=g, s=s: follow_events(gws[g].base, s, END, timeout_s=240, last_event_id=0)[-1]
+                        for g, s in started.values()], timeout_s=300)
         assert all(e["state"] == "done" for e in ends), [(e["state"], e.get("reason")) for e in ends]
         accepted = at_once([lambda g=g, s=s: _post(gws[g], f"/sessions/{s}/accept") for g, s in started.values()])
         assert all(r.status_code == 200 for r in accepted), [r.text for r in accepted]

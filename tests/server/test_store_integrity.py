@@ -11,7 +11,7 @@ from datetime import UTC
 from pathlib import Path
 
 import pytest
-from server_fixtures import at_once
+from server_fixtures import at_once, make_v1_store
 from sqlalchemy import text
 from sqlalchemy.exc import SQLAlchemyError
 
@@ -256,43 +256,8 @@ def test_a_crashed_sessions_spooled_samples_are_archived_at_restart(store_url: s
     assert again.spooled_recording("j" * 32) is None and again.verify().ok
 
 
-def _make_v1_store(store_url: str) -> None:
-    """A store as gyrocal 0.1 left it: schema version 1, two calibrations, five audit entries."""
-    from sqlalchemy import create_engine
-
-    dialect = "sqlite" if store_url.startswith("sqlite") else "postgresql"
-    ddl = (Path(__file__).parent / "data" / f"store_v1_{dialect}.sql").read_text()
-    url = store_url.replace("postgresql://", "postgresql+psycopg://")
-    eng = create_engine(url)
-    rows = [
-        "INSERT INTO schema_info VALUES (1, 1, '2026-01-01T00:00:00')",
-        "INSERT INTO sessions (id, device_id, kind, state, method, started_at, ended_at, result, passed, decision, "
-        "software_version) VALUES ('s1', 'dev-1', 'live', 'done', 'closure', '2026-01-01', '2026-01-01', "
-        "'{\"k\": [1, 1, 1], \"b\": [0, 0, 0]}', true, 'accepted', '0.1.0')",
-        "INSERT INTO sessions (id, device_id, kind, state, method, started_at, ended_at, result, passed, decision, "
-        "software_version) VALUES ('s2', 'dev-1', 'upload', 'done', 'closure', '2026-01-02', '2026-01-02', "
-        "'{\"k\": [1, 1, 1], \"b\": [0, 0, 0]}', true, 'accepted', '0.1.0')",
-        *[f"INSERT INTO calibrations (device_id, session_id, k_x, k_y, k_z, b_x, b_y, b_z, result, method, software_version, "
-          f"operator, computed_at, accepted_at) VALUES ('dev-1', '{sid}', 1.01, 1, 1, 0, 0, 0, '{{}}', 'closure', '0.1.0', "
-          f"'alice', '2026-01-0{i}', '2026-01-0{i}')" for i, sid in ((1, "s1"), (2, "s2"))],
-        *[f"INSERT INTO audit_log (at, operator, action) VALUES ('2026-01-01', 'alice', 'a{i}')" for i in range(5)],
-    ]
-    if dialect == "sqlite":
-        raw = sqlite3.connect(store_url.removeprefix("sqlite:///"))
-        raw.executescript(ddl + ";\n".join(rows) + ";")
-        raw.commit()
-        raw.close()
-    else:
-        with eng.begin() as conn:
-            body = "\n".join(line for line in ddl.splitlines() if not line.startswith("--"))
-            for stmt in [*body.split(";\n\n"), *rows]:
-                if stmt.strip():
-                    conn.connection.driver_connection.execute(stmt.rstrip().rstrip(";"))
-    eng.dispose()
-
-
 def test_a_v1_store_is_migrated_and_its_history_chained(store_url: str) -> None:
-    _make_v1_store(store_url)
+    make_v1_store(store_url)
     store = Store(store_url)
     assert store.schema_version() == SCHEMA_VERSION == 6
     with store.engine.connect() as conn:  # stamped with its old version, then upgraded by Alembic to the head
@@ -315,7 +280,7 @@ def test_a_v1_store_is_migrated_and_its_history_chained(store_url: str) -> None:
 def test_gateways_starting_at_once_on_an_old_store_upgrade_it_once(store_url: str) -> None:
     """Four services open a v1 store at the same moment: one upgrades it (under the schema lock), the others find
     it done; the history is chained once, not four times."""
-    _make_v1_store(store_url)
+    make_v1_store(store_url)
     stores = at_once([lambda: Store(store_url)] * 4)
     for st in stores:
         assert st.schema_version() == SCHEMA_VERSION

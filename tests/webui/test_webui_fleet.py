@@ -1,6 +1,7 @@
 """The fleet page in a real browser: two gateway processes on one PostgreSQL; the page of one lists both rooms'
-wearables, updates live when the other room starts a session, and links to the wizard on the gateway that holds
-each wearable."""
+wearables, updates live when the other room starts a session, follows that session live from its own gateway
+(through the database's notifications), accepts its result there, and links to the wizard on the gateway that
+holds each wearable."""
 
 from __future__ import annotations
 
@@ -51,12 +52,28 @@ def test_the_fleet_page_shows_both_rooms_live_and_links_to_the_gateway_that_hold
         with api(b) as c:  # room-b starts a session; room-a's page shows it without a reload
             r = c.post("/devices/mock-3/calibrate", json={})
             assert r.status_code == 202, r.text
+        sid = r.json()["session_id"]
         page.wait_for_selector(".fleet-table tr[data-device='mock-3'] td.fleet-status.busy", timeout=15_000)
-        link = page.query_selector(".fleet-table tr[data-device='mock-3'] a")
-        assert link.inner_text().strip() == "Follow on room-b" and link.get_attribute("href") == f"{b.base}/#/place/mock-3"
+        links = page.query_selector_all(".fleet-table tr[data-device='mock-3'] a")
+        assert [(a.inner_text().strip(), a.get_attribute("href")) for a in links] == [
+            ("Follow", f"#/session/{sid}"), ("Open on room-b", f"{b.base}/#/place/mock-3")]
+        assert "In a calibration" in page.inner_text(".fleet-table tr[data-device='mock-3']")
         wizard.shot("fleet")
         assert wizard.small_targets() == []
+
+        # room-a's page follows room-b's session live: its steps, then its result, which room-a can accept
+        links[0].click()
+        page.wait_for_selector(".remote-note:has-text('room-b')")
+        assert page.get_attribute(".wiz-head a.remote", "href") == f"{b.base}/#/session/{sid}"
+        assert page.locator(".wiz-head button.cancel").count() == 0  # cancelled where the wearable is
+        wizard.wait_state("turn_x", "turn_y", "turn_z", timeout_ms=60_000)
+        wizard.shot("followed-from-another-gateway")
+        page.wait_for_selector("button.accept", timeout=90_000)
+        page.click("button.accept")
+        page.wait_for_selector(".wizard[data-decision='accepted']")
         with api(b) as c:
-            assert c.post(f"/sessions/{r.json()['session_id']}/cancel").status_code == 200
+            assert c.get(f"/sessions/{sid}").json()["decision"] == "accepted"
+        page.goto(f"{a.base}/#/fleet")
         page.wait_for_selector(".fleet-table tr[data-device='mock-3'] td.fleet-status.free", timeout=15_000)
+        assert "Current" in page.inner_text(".fleet-table tr[data-device='mock-3'] td.fleet-cal")
     assert_clean(page_watch)

@@ -114,21 +114,30 @@ export class Api {
    * Returns a function that closes the stream.
    */
   follow(sessionId, onSnapshot, onLink) {
-    const url = new URL(`/sessions/${encodeURIComponent(sessionId)}/events`, location.origin);
+    return this.stream(`/sessions/${encodeURIComponent(sessionId)}/events`, EVENT_NAMES, onSnapshot, onLink);
+  }
+
+  /** Follow the fleet: onView(view) with the whole fleet view each time it changes on any gateway. */
+  followFleet(onView, onLink) {
+    return this.stream("/fleet/events", ["fleet"], onView, onLink);
+  }
+
+  stream(path, names, onData, onLink) {
+    const url = new URL(path, location.origin);
     if (this.authReads && this.token) url.searchParams.set("access_token", this.token);
     const es = new EventSource(url);
     let closed = false;
     const handler = (ev) => {
       if (closed) return;
-      let snap;
+      let data;
       try {
-        snap = JSON.parse(ev.data);
+        data = JSON.parse(ev.data);
       } catch {
         return;
       }
-      onSnapshot(snap, ev.type);
+      onData(data, ev.type);
     };
-    for (const name of EVENT_NAMES) es.addEventListener(name, handler);
+    for (const name of names) es.addEventListener(name, handler);
     es.onopen = () => !closed && onLink && onLink("open");
     es.onerror = () => !closed && onLink && onLink(es.readyState === EventSource.CLOSED ? "closed" : "retrying");
     return () => {

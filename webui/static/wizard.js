@@ -52,6 +52,12 @@ function cancelButton(onclick, label = "Cancel") {
   return h("button", { class: "button cancel", type: "button", onclick }, icon("cross"), label);
 }
 
+/** A session another gateway runs, followed from this page: it is cancelled there, where the device is. */
+function remoteLink(remote, sid) {
+  const href = remote.url ? `${remote.url}/#/session/${encodeURIComponent(sid)}` : "#/fleet";
+  return h("a", { class: "button remote", href }, icon("play"), `Open on ${remote.gateway}`);
+}
+
 function deviceLabel(dev, id) {
   return (dev && dev.name) || id;
 }
@@ -199,18 +205,20 @@ export function sessionView(ctx, sid) {
   };
 
   const buildRunning = (s) => {
-    const cancel = cancelButton(() => doCancel(cancel));
+    const cancel = s.remote ? remoteLink(s.remote, sid) : cancelButton(() => doCancel(cancel));
     const head = stepHeader(stepOf(s) || 1, cancel);
     const title = h("h1", { class: "instruction", id: "instruction" });
     const sub = h("p", { class: "sub" });
+    const where = s.remote ? h("p", { class: "remote-note", role: "note" }, icon("info"),
+      `This calibration runs on gateway ${s.remote.gateway}, where the wearable is; this page follows it live.`) : null;
     const noticeBox = h("div", { class: "notice-box" });
     const stage = h("div", { class: "stage" });
     const tiles = turnTiles();
     const root = h("section", { class: "wizard live", "aria-labelledby": "instruction" },
-      head, h("div", { class: "prompt", "aria-live": "polite", "aria-atomic": "true" }, title, sub), noticeBox, stage, tiles);
+      head, where, h("div", { class: "prompt", "aria-live": "polite", "aria-atomic": "true" }, title, sub), noticeBox, stage, tiles);
     fill(ctx.main, root);
     ctx.focusMain();
-    ui = { root, head, title, sub, noticeBox, stage, tiles, key: null, ring: null, gauge: null };
+    ui = { root, head, title, sub, noticeBox, stage, tiles, key: null, ring: null, gauge: null, remote: Boolean(s.remote) };
   };
 
   const stageKey = (s) => {
@@ -293,7 +301,7 @@ export function sessionView(ctx, sid) {
   };
 
   const renderRunning = (s) => {
-    if (!ui) buildRunning(s);
+    if (!ui || ui.remote !== Boolean(s.remote)) buildRunning(s);
     ui.root.dataset.state = s.state;
     ui.root.dataset.phase = s.phase || "";
     ui.head.update(stepOf(s) || ui.head.dataset.step || 1);

@@ -184,4 +184,5 @@ async def import_calibration(
     await asyncio.to_thread(svc.store.upsert_device, device_id)
     rec = await asyncio.to_thread(svc.store.import_calibration, device_id, correction, operator, __version__,
                                   file_name=name or "upload.json", file_sha256=sha256_hex(raw))
+    svc.events.fleet_changed("calibration", device_id)
     return {"session_id": rec.session_id, "calibration": rec.to_dict()}

@@ -23,12 +23,9 @@ from ...deps import (
     problem,
 )
 from ...lifecycle import CalibrationInForce, in_force_async, none_in_force
+from ...live.snapshot import stored_snapshot
 from ..identity_query import RecordingIdentity
-from ..views import (
-    device_out,
-    session_snapshot,
-    stored_snapshot,
-)
+from ..views import device_out, session_snapshot
 
 log = logging.getLogger(__name__)
 router = APIRouter()

@@ -1,18 +1,23 @@
 """GET /fleet: every gateway of the fleet sharing this store, and every wearable any of them has seen — where it
 was last seen, whether a session holds it and on which gateway, its calibration status, and the link that opens
-the wizard on the gateway that holds it (or saw it last)."""
+the wizard on the gateway that holds it (or saw it last). GET /fleet/events: the same view again each time the
+fleet changes, on any gateway (server.fleet_events)."""
 
 from __future__ import annotations
 
 import asyncio
+from collections.abc import AsyncIterator
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
 from fastapi import APIRouter
+from fastapi.responses import StreamingResponse
 
 from ...config import GatewaySettings
 from ...deps import Reader, Svc
+from ...gateway import WRITE_HOLDER
 from ...lifecycle import calibration_due
+from ...live.events import Event, dumps
 from ...service import Service
 from ...store import Lease
 
@@ -26,6 +31,16 @@ def _status(current: Any, row: dict[str, Any], max_age_days: float) -> dict[str,
     due = calibration_due(current.accepted_at, max_age_days, calibration_identity=identity,
                           device_power_up=row.get("power_up"))
     return {"status": "due" if due.due else "current", "reason": due.reason, "calibration_id": current.id}
+
+
+def _activity(holder: str | None, running_session: str | None) -> str | None:
+    """What holds a device: a calibration session (whose events any gateway's page can follow), a verification turn
+    or a write of its calibration; None when nothing does."""
+    if holder is None:
+        return None
+    if holder == WRITE_HOLDER:
+        return "write"
+    return "calibration" if holder == running_session else "verification"
 
 
 def fleet_view(svc: Service) -> dict[str, Any]:
@@ -43,6 +58,8 @@ def fleet_view(svc: Service) -> dict[str, Any]:
     for s in store.sightings():  # newest first for each device
         seen.setdefault(s["device_id"], []).append({k: s[k] for k in ("gateway", "last_seen", "rssi_dbm")})
     rows = {r["id"]: r for r in store.devices()}
+    current = store.current_calibrations()
+    running = store.open_sessions()
     devices = []
     for device_id in sorted(set(rows) | set(seen)):
         row = rows.get(device_id, {})
@@ -50,6 +67,7 @@ def fleet_view(svc: Service) -> dict[str, Any]:
         sightings = seen.get(device_id, [])
         where = lease.gateway if lease else (sightings[0]["gateway"] if sightings else svc.gateway_name)
         local_session = svc.active.get(device_id) if svc.gateway is None else None
+        holder = lease.holder if lease else local_session
         base = urls.get(where) if where else None
         devices.append({
             "id": device_id,
@@ -58,9 +76,10 @@ def fleet_view(svc: Service) -> dict[str, Any]:
             "last_seen": sightings[0]["last_seen"] if sightings else row.get("last_seen"),
             "seen_by": sightings,
             "in_session": lease is not None or local_session is not None,
-            "session": lease.holder if lease else local_session,
+            "session": holder,
+            "activity": _activity(holder, running.get(device_id)),
             "lease_expires_at": lease.expires_at.isoformat() if lease else None,
-            "calibration": _status(store.current_calibration(device_id), row, svc.settings.limits.max_age_days),
+            "calibration": _status(current.get(device_id), row, svc.settings.limits.max_age_days),
             "wizard_url": f"{base or ''}/#/place/{device_id}",
         })
     return {"this_gateway": svc.gateway_name, "gateways": gateways, "devices": devices, "at": now.isoformat()}
@@ -70,3 +89,25 @@ def fleet_view(svc: Service) -> dict[str, Any]:
 async def fleet(svc: Svc, _: Reader) -> dict[str, Any]:
     """Every gateway sharing this store and every wearable they see: where, in a session or not, calibration status."""
     return await asyncio.to_thread(fleet_view, svc)
+
+
+@router.get(
+    "/fleet/events",
+    responses={200: {"content": {"text/event-stream": {}}, "description": "Server-Sent Events: each the whole fleet view"}},
+    response_class=StreamingResponse,
+    tags=["fleet"],
+)
+async def fleet_events(svc: Svc, _: Reader) -> StreamingResponse:
+    """The fleet view now, then again whenever the fleet changes on any gateway (a session started or ended, a
+    calibration accepted, a wearable seen), and after a quiet heartbeat interval (a gateway falling silent)."""
+    quiet_s = (svc.settings.gateway or GatewaySettings(name="")).heartbeat_s * 2
+
+    async def stream() -> AsyncIterator[bytes]:
+        yield b"retry: 1000\n\n"
+        n = 1
+        yield Event(n, "fleet", dumps(await asyncio.to_thread(fleet_view, svc))).encode()
+        async for _change in svc.events.fleet_changes(quiet_s):
+            n += 1
+            yield Event(n, "fleet", dumps(await asyncio.to_thread(fleet_view, svc))).encode()
+
+    return StreamingResponse(stream(), media_type="text/event-stream", headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})

@@ -40,12 +40,13 @@ from ...live.codes import END_STATES
 from ...live.events import Event, dumps
 from ...live.runner import LiveSession
 from ...live.session import GuidedSession
+from ...live.snapshot import stored_snapshot
 from ...live.turn_watch import LiveAngle
 from ...service import Service
 from ...store import DecisionConflict, NotAcceptable, NotFound, SessionEnd, StoreError
 from ...workers.compute import TooManySamples, UploadOptions, calibrate_upload
 from ..upload_options import Upload
-from ..views import claim_device, reachable_device, session_snapshot, stored_snapshot
+from ..views import claim_device, reachable_device, remote_gateway, runs_elsewhere, session_snapshot
 
 # The section list travels in the URL: 4000 characters (about 80 sections) stay under what the HTTP server reads
 # as one request line even percent-encoded at 12 bytes a character; a longer one gets a 422, not a dropped connection.
@@ -170,6 +171,10 @@ async def session_events(
     if row is None:
         raise problem(404, f"no session {session_id}")
     snap = finite(stored_snapshot(row))
+    if runs_elsewhere(svc, row):
+        remote = await remote_gateway(svc, row["gateway"])
+        return StreamingResponse(svc.events.follow(session_id, snap, remote).stream(last_event_id),
+                                 media_type="text/event-stream", headers=headers)
 
     async def once() -> AsyncIterator[bytes]:
         yield Event(0, "state", dumps(snap)).encode()
@@ -203,7 +208,9 @@ async def cancel(svc: Svc, session_id: str, operator: Operator) -> dict[str, Any
     check_session_id(session_id)
     live = svc.sessions.get(session_id)
     if live is None:
-        await session_snapshot(svc, session_id)  # 404 if unknown
+        snap = await session_snapshot(svc, session_id)  # 404 if unknown
+        if snap.get("remote") and snap["state"] not in END_STATES:
+            raise problem(409, f"this session runs on gateway {snap['remote']['gateway']!r}, where the wearable is: cancel it there")
         raise problem(409, "the session has ended already; nothing to cancel")
     if not live.cancel(f"Cancelled by {operator}."):
         raise problem(409, f"the session has ended already ({live.machine.state}); nothing to cancel")
@@ -251,6 +258,8 @@ async def accept(svc: Svc, session_id: str, operator: Operator, body: M.Decision
     if live is not None:
         live.machine.decide("accepted", rec.id)
         live.broadcaster.close()
+    svc.events.fleet_changed("calibration", rec.device_id)
+    svc.events.decided(session_id)
     return {"session_id": session_id, "calibration": rec.to_dict()}
 
 
@@ -276,6 +285,7 @@ async def discard(svc: Svc, session_id: str, operator: Operator, body: M.Decisio
     if live is not None:
         live.machine.decide("discarded", None)
         live.broadcaster.close()
+    svc.events.decided(session_id)
     return finite(await session_snapshot(svc, session_id))
 
 
@@ -316,7 +326,8 @@ async def start_live(svc: Service, device_id: str, operator: str, method: str | 
     except Exception:
         svc.release_device(device_id, sid)
         raise
-    live = LiveSession(machine, dev, svc.store, svc.settings, __version__, operator, on_end=svc._session_ended, pool=svc.pool)
+    live = LiveSession(machine, dev, svc.store, svc.settings, __version__, operator, on_end=svc._session_ended, pool=svc.pool,
+                       relay=svc.events.relay)
     svc.sessions[sid] = live
     live.start()
     return live
