@@ -125,15 +125,15 @@ def calibrate_multi_position(rec: Recording, stages: Any = None, accel: AccelCal
     return _result(fit, g_test, base, data, accel, joint, stage_list, rec)
 
 
-def noise_colour(gyro: np.ndarray, spans: list[tuple[int, int]], max_lag: int = NOISE_LAGS) -> np.ndarray:
+def noise_colour(readings: np.ndarray, spans: list[tuple[int, int]], max_lag: int = NOISE_LAGS) -> np.ndarray:
     """Per axis, 1 + 2 sum of the rests' noise autocorrelation over lags 1..max_lag: how much more a mean or an
     integral over many samples scatters than white noise of the same per-sample spread would (1 for white noise;
-    a sensor's internal low-pass filter makes it larger)."""
-    inside = np.zeros(len(gyro), dtype=bool)
-    dev = np.zeros_like(gyro)
+    a sensor's internal low-pass filter makes it larger). ``readings``: a gyroscope's or an accelerometer's."""
+    inside = np.zeros(len(readings), dtype=bool)
+    dev = np.zeros_like(readings)
     for i, j in spans:
         inside[i:j] = True
-        dev[i:j] = gyro[i:j] - gyro[i:j].mean(axis=0)
+        dev[i:j] = readings[i:j] - readings[i:j].mean(axis=0)
     var = np.sum(dev**2, axis=0) / max(int(inside.sum()), 1)
     factor = np.ones(3)
     gaps = np.cumsum(~inside)  # equal for two samples exactly when no sample between them is outside a rest
@@ -151,9 +151,10 @@ def _data(rec: Recording, stills: list[Stage], motions: list[Motion], free_a: np
     mean, count, sigma = still_statistics(gyro, np.array([[[s.start, s.end] for s in stills]]))
     colour = noise_colour(rec.gyro, [(s.start, s.end) for s in stills])
     spans = rest_spans(stills, rec.fs)
+    accel_colour = float(np.mean(noise_colour(rec.accel, spans)))  # its rest means scatter by this much more, too
     rests = AccelRests(
         mean=np.array([rec.accel[i:j].mean(axis=0) for i, j in spans]),
-        sd=np.maximum(np.array([rec.accel[i:j].std(axis=0).mean() for i, j in spans]), 1e-4),
+        sd=np.maximum(np.array([rec.accel[i:j].std(axis=0).mean() for i, j in spans]), 1e-4) * np.sqrt(accel_colour),
         n=np.array([j - i for i, j in spans], dtype=float),
     )
     grav = [mo for mo in motions if mo.full_turn is None]

@@ -22,7 +22,7 @@ class AccelRests:
     """The accelerometer over each rest."""
 
     mean: np.ndarray  # (N, 3) raw mean reading of each rest, g
-    sd: np.ndarray  # (N,) its within-rest std (mean over axes), g
+    sd: np.ndarray  # (N,) its within-rest std (mean over axes), g, times the root of its colour (scatter of a mean)
     n: np.ndarray  # (N,) samples averaged
 
 

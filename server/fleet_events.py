@@ -25,7 +25,7 @@ import logging
 import time
 import uuid
 import zlib
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Callable, Coroutine
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -85,6 +85,7 @@ class FleetEvents:
         self._out_other: dict[tuple[str, str], str] = {}  # (channel, payload) queued, deduplicated
         self._wake = asyncio.Event()
         self._tasks: list[asyncio.Task[None]] = []
+        self._reads: set[asyncio.Task[None]] = set()  # store reads under way (kept referenced until done)
 
     @property
     def shared(self) -> bool:
@@ -156,7 +157,7 @@ class FleetEvents:
         """A session was accepted or discarded here: its pages here and on every gateway (and the gateway running it,
         if not this one) learn it from the store."""
         if session_id in self._followed:
-            asyncio.get_running_loop().create_task(self._refresh(session_id, decided=True))
+            self._spawn(self._refresh(session_id, decided=True))
         if self._conninfo is not None:
             self._queue(SESSION, json.dumps({"o": self.origin, "s": session_id, "decided": True}))
 
@@ -198,6 +199,11 @@ class FleetEvents:
         if snapshot.get("decision"):
             followed.broadcaster.close()
 
+    def _spawn(self, read: Coroutine[Any, Any, None]) -> None:
+        task = asyncio.get_running_loop().create_task(read)
+        self._reads.add(task)
+        task.add_done_callback(self._reads.discard)
+
     # -- the database end -----------------------------------------------------------------------------
     def _queue(self, channel: str, payload: str) -> None:
         self._out_other[(channel, payload)] = payload
@@ -225,19 +231,16 @@ class FleetEvents:
         sid = str(msg.get("s"))
         if msg.get("decided"):
             if sid in self._latest or sid in self._followed:
-                asyncio.get_running_loop().create_task(self._refresh(sid, decided=True))
+                self._spawn(self._refresh(sid, decided=True))
             return
         followed = self._followed.get(sid)
         if followed is None:
             return
-        if "d" in msg:
-            data = msg["d"]
-        elif "z" in msg:
-            data = zlib.decompress(base64.b64decode(msg["z"])).decode()
-        else:  # too large to travel: the follower reads it from the store
-            asyncio.get_running_loop().create_task(self._refresh(sid))
+        snapshot = session_snapshot(msg)
+        if snapshot is None:  # too large to travel: the follower reads it from the store
+            self._spawn(self._refresh(sid))
             return
-        self._publish_followed(sid, followed, str(msg.get("n") or "state"), json.loads(data))
+        self._publish_followed(sid, followed, str(msg.get("n") or "state"), snapshot)
 
     async def _refresh(self, session_id: str, decided: bool = False) -> None:
         """Read a session from the store: a followed one that ended (or was decided) shows it; one running here that
@@ -271,19 +274,6 @@ class FleetEvents:
                 self._want(sid)
                 await self._refresh(sid)
 
-    def _session_payload(self, sid: str, event: Event) -> str:
-        msg: dict[str, Any] = {"o": self.origin, "s": sid, "n": event.name, "d": event.data}
-        payload = json.dumps(msg, separators=(",", ":"))
-        if len(payload.encode()) <= PAYLOAD_MAX:
-            return payload
-        del msg["d"]
-        msg["z"] = base64.b64encode(zlib.compress(event.data.encode(), 6)).decode()
-        payload = json.dumps(msg, separators=(",", ":"))
-        if len(payload.encode()) <= PAYLOAD_MAX:
-            return payload
-        del msg["z"]
-        return json.dumps(msg, separators=(",", ":"))
-
     async def _send(self) -> None:
         """Send what is queued, in one transaction every ``FLUSH_S`` at most; reconnect when the database went away
         (what was queued meanwhile is sent then: sessions' latest snapshots, fleet changes once each)."""
@@ -291,7 +281,7 @@ class FleetEvents:
         while True:
             await self._wake.wait()
             self._wake.clear()
-            batch = [(SESSION, self._session_payload(sid, ev)) for sid, ev in self._out_sessions.items()]
+            batch = [(SESSION, session_payload(self.origin, sid, ev)) for sid, ev in self._out_sessions.items()]
             batch += list(self._out_other)
             self._out_sessions.clear()
             self._out_other.clear()
@@ -342,7 +332,32 @@ class FleetEvents:
         self._to_watchers("reconnected")
         for sid in list(self._followed):
             self._want(sid)
-            asyncio.get_running_loop().create_task(self._refresh(sid))
+            self._spawn(self._refresh(sid))
+
+
+def session_payload(origin: str, session_id: str, event: Event) -> str:
+    """A session's snapshot as one notification's payload: as it is, zlib-compressed when that is too large, or only
+    its session id (the receiver reads the store) when even that is."""
+    msg: dict[str, Any] = {"o": origin, "s": session_id, "n": event.name, "d": event.data}
+    payload = json.dumps(msg, separators=(",", ":"))
+    if len(payload.encode()) <= PAYLOAD_MAX:
+        return payload
+    del msg["d"]
+    msg["z"] = base64.b64encode(zlib.compress(event.data.encode(), 6)).decode()
+    payload = json.dumps(msg, separators=(",", ":"))
+    if len(payload.encode()) <= PAYLOAD_MAX:
+        return payload
+    del msg["z"]
+    return json.dumps(msg, separators=(",", ":"))
+
+
+def session_snapshot(msg: dict[str, Any]) -> dict[str, Any] | None:
+    """The snapshot a session notification carries (None: it was too large to travel)."""
+    if "d" in msg:
+        return dict(json.loads(msg["d"]))
+    if "z" in msg:
+        return dict(json.loads(zlib.decompress(base64.b64decode(msg["z"])).decode()))
+    return None
 
 
 def _settled(snapshot: dict[str, Any]) -> bool:

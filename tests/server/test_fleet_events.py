@@ -52,19 +52,24 @@ class FleetStream:
 
     def __init__(self, base: str) -> None:
         self.views: list[dict[str, Any]] = []
+        self.error: Exception | None = None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._read, args=(base,), daemon=True)
         self._thread.start()
         _wait(lambda: self.views, 30, "the fleet stream's first view")
 
     def _read(self, base: str) -> None:
-        with httpx.stream("GET", f"{base}/fleet/events", timeout=httpx.Timeout(120)) as r:
-            assert r.status_code == 200
-            for line in r.iter_lines():
-                if self._stop.is_set():
-                    return
-                if line.startswith("data:"):
-                    self.views.append(json.loads(line[5:]))
+        try:
+            with httpx.stream("GET", f"{base}/fleet/events", timeout=httpx.Timeout(120)) as r:
+                assert r.status_code == 200
+                for line in r.iter_lines():
+                    if self._stop.is_set():
+                        return
+                    if line.startswith("data:"):
+                        self.views.append(json.loads(line[5:]))
+        except httpx.HTTPError as exc:
+            if not self._stop.is_set():  # the stream broke while the test still read it
+                self.error = exc
 
     def device(self, device_id: str) -> Iterator[dict[str, Any]]:
         """The device's row in every view received so far."""
@@ -72,7 +77,9 @@ class FleetStream:
             yield from (d for d in view["devices"] if d["id"] == device_id)
 
     def close(self) -> None:
+        """Stop reading; the stream must not have broken before."""
         self._stop.set()
+        assert self.error is None, f"the fleet's event stream broke: {self.error}"
 
 
 @pytest.fixture
