@@ -11,6 +11,7 @@ The database must be empty; the gateways connect as its owner (--allow-db-owner:
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import statistics
@@ -87,14 +88,15 @@ class FleetPage(threading.Thread):
         self.base, self.headers, self.current_at, self.views = base, headers, {}, 0
 
     def run(self) -> None:
-        with httpx.stream("GET", f"{self.base}/fleet/events", headers=self.headers, timeout=None) as r:
-            for line in r.iter_lines():
-                if line.startswith("data:"):
-                    now = time.perf_counter()
-                    self.views += 1
-                    for d in json.loads(line[5:])["devices"]:
-                        if d["calibration"]["status"] == "current":
-                            self.current_at.setdefault(d["id"], now)
+        with contextlib.suppress(httpx.HTTPError):  # the gateway stopping at the end of the run
+            with httpx.stream("GET", f"{self.base}/fleet/events", headers=self.headers, timeout=None) as r:
+                for line in r.iter_lines():
+                    if line.startswith("data:"):
+                        now = time.perf_counter()
+                        self.views += 1
+                        for d in json.loads(line[5:])["devices"]:
+                            if d["calibration"]["status"] == "current":
+                                self.current_at.setdefault(d["id"], now)
 
 
 def main() -> None:
@@ -154,13 +156,18 @@ def main() -> None:
         poller.join()
         t1, s1, n1 = time.monotonic(), _db_stats(args.db), (notes.count, notes.bytes)
         relayed = sum(not f.is_alive() for f in followers)
-        appear: list[float] = []
+        appear: list[float] = []  # on the other gateway's fleet page (pushed)
+        readable: list[float] = []  # through the other gateway's API (the same rows)
         for g, dev, sid in tqdm(started, desc="accepting", unit="session"):
             if ends[sid] != "done":
                 continue
-            other = pages[(g + 1) % len(pages)]
+            other, other_api = pages[(g + 1) % len(pages)], clients[(g + 1) % len(clients)]
+            time.sleep(0.3)  # one accept at a time, past the pages' refresh throttle: what one clinician's accept sees
             t = time.perf_counter()
             assert clients[g].post(f"/sessions/{sid}/accept").status_code == 200
+            while other_api.get(f"/devices/{dev}/calibration").status_code != 200:
+                time.sleep(0.002)
+            readable.append(time.perf_counter() - t)
             while dev not in other.current_at:
                 time.sleep(0.001)
             appear.append(other.current_at[dev] - t)
@@ -173,6 +180,9 @@ def main() -> None:
         if len(appear) > 1:
             print(f"accepted on one gateway -> current on another gateway's fleet page (pushed): median "
                   f"{statistics.median(appear) * 1e3:.0f} ms, p95 {q(appear, n=20)[-1] * 1e3:.0f} ms (accept included)")
+        if len(readable) > 1:
+            print(f"accepted on one gateway -> GET /devices/{{id}}/calibration on another: median "
+                  f"{statistics.median(readable) * 1e3:.0f} ms, p95 {q(readable, n=20)[-1] * 1e3:.0f} ms (accept included)")
         print(f"sessions followed live from another gateway: {relayed} of {len(followers)} streams reached the end")
         print(f"database during the sessions: {(s1[0] - s0[0]) / dt:.0f} commits/s, {(s1[1] - s0[1]) / dt:.0f} rows inserted/s, "
               f"WAL {(s1[2] - s0[2]) / dt / 1e6:.2f} MB/s, {(n1[0] - n0[0]) / dt:.1f} notifications/s "

@@ -43,7 +43,7 @@ FLUSH_S = 0.25  # a followed session's snapshots are relayed at most this often
 WANT_S = 10.0  # a follower asks again this often; the running gateway relays for 3 times as long
 IDLE_S = 60.0  # a followed session nobody watches (or that ended) is dropped after this long
 PING_S = 30.0  # the listening connection is checked this often when nothing arrives
-DEBOUNCE_S = 0.2  # fleet changes this close together refresh a fleet page once
+DEBOUNCE_S = 0.2  # a fleet page refreshes at most this often
 
 SessionReader = Callable[[str], "dict[str, Any] | None"]  # the stored snapshot of a session, or None
 
@@ -119,11 +119,12 @@ class FleetEvents:
             self._queue(FLEET, json.dumps({"o": self.origin, "what": what, "device": device_id}))
 
     async def fleet_changes(self, quiet_s: float, debounce_s: float = DEBOUNCE_S) -> AsyncIterator[str]:
-        """What changed in the fleet, as it happens; a burst of changes within ``debounce_s`` (many sessions starting)
-        comes as one, the last. "quiet" after ``quiet_s`` without a change (time passing shows in the fleet too: a
-        gateway falling silent). Ends at shutdown."""
+        """What changed in the fleet, as it happens: a change at once, then at most one every ``debounce_s`` (a burst
+        of changes, many sessions starting, comes as one: the last). "quiet" after ``quiet_s`` without a change (time
+        passing shows in the fleet too: a gateway falling silent). Ends at shutdown."""
         q: asyncio.Queue[str] = asyncio.Queue(maxsize=1000)
         self._watchers.add(q)
+        last = -debounce_s
         try:
             while True:
                 try:
@@ -131,11 +132,12 @@ class FleetEvents:
                 except TimeoutError:
                     what = "quiet"
                 else:
-                    await asyncio.sleep(debounce_s)
+                    await asyncio.sleep(max(0.0, last + debounce_s - time.monotonic()))
                     while not q.empty():
                         what = q.get_nowait()
                 if what == "stop":
                     return
+                last = time.monotonic()
                 yield what
         finally:
             self._watchers.discard(q)

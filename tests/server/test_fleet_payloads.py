@@ -46,7 +46,7 @@ def test_only_postgresql_stores_share_events() -> None:
         "postgresql://u:p%40ss@db.example:5433/gy?sslmode=verify-full"
 
 
-def test_on_sqlite_fleet_changes_reach_this_services_pages_debounced() -> None:
+def test_on_sqlite_fleet_changes_reach_this_services_pages_at_once_then_throttled() -> None:
     async def run() -> list[str]:
         events = FleetEvents("sqlite:///:memory:", lambda _sid: None, lambda _sid, _snap: None)
         assert not events.shared
@@ -56,15 +56,17 @@ def test_on_sqlite_fleet_changes_reach_this_services_pages_debounced() -> None:
         async def page() -> None:
             async for what in events.fleet_changes(quiet_s=0.5, debounce_s=0.05):
                 got.append(what)
-                if len(got) == 2:
+                if len(got) == 3:
                     return
 
         reader = asyncio.get_running_loop().create_task(page())
         await asyncio.sleep(0.01)
-        events.fleet_changed("claim", "dev-1")
-        events.fleet_changed("release", "dev-1")  # within the debounce: one refresh, the last change
+        events.fleet_changed("claim", "dev-1")  # the first change at once
+        await asyncio.sleep(0.01)
+        events.fleet_changed("release", "dev-1")  # then at most one refresh a debounce interval: the last change
+        events.fleet_changed("lease", "dev-2")
         await asyncio.wait_for(reader, 5)
         await events.stop()
         return got
 
-    assert asyncio.run(run()) == ["release", "quiet"]
+    assert asyncio.run(run()) == ["claim", "lease", "quiet"]  # quiet: nothing changed for quiet_s
