@@ -5,6 +5,7 @@ Registered as a plugin by tests/conftest.py: the fixtures need no import; the he
 
 from __future__ import annotations
 
+import contextlib
 import glob
 import json
 import os
@@ -26,6 +27,7 @@ import httpx
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
+T = TypeVar("T")
 GYROCAL = [sys.executable, "-m", "calib.cli"]
 API_TOKEN = "test-token-" + uuid.uuid4().hex
 
@@ -109,15 +111,34 @@ class PostgresServer:
         shutil.rmtree(self.dir, ignore_errors=True)
 
 
-@pytest.fixture(scope="session")
-def postgres() -> Iterator[PostgresServer]:
-    """A real PostgreSQL server for the whole test session."""
+@contextlib.contextmanager
+def running_postgres() -> Iterator[PostgresServer]:
+    """A throwaway PostgreSQL server, stopped and removed afterwards."""
     server = PostgresServer()
     server.start()
     try:
         yield server
     finally:
         server.stop()
+
+
+@pytest.fixture(scope="session")
+def postgres() -> Iterator[PostgresServer]:
+    """A real PostgreSQL server for the whole test session."""
+    with running_postgres() as server:
+        yield server
+
+
+def wait_for(check: Callable[[], T], timeout_s: float, what: str) -> T:
+    """Call ``check`` every 0.2 s until it returns something true, and return that; AssertionError naming ``what``
+    when it does not within ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        got = check()
+        if got:
+            return got
+        time.sleep(0.2)
+    raise AssertionError(f"{what} within {timeout_s} s")
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])
@@ -141,7 +162,6 @@ def service_store(request: pytest.FixtureRequest, tmp_path: Path) -> tuple[str, 
 
 
 # -- races and outages ------------------------------------------------------------------------------
-T = TypeVar("T")
 
 
 def at_once(calls: list[Callable[[], T]], timeout_s: float = 90.0) -> list[T]:

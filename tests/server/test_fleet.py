@@ -5,12 +5,11 @@ mid-session releases its device when its lease expires; every calibration visibl
 from __future__ import annotations
 
 import signal
-import time
 from typing import Any
 
 import httpx
 import pytest
-from server_fixtures import API_TOKEN, RunningService, at_once, follow_events
+from server_fixtures import API_TOKEN, RunningService, at_once, follow_events, wait_for
 
 END = {"done", "failed", "cancelled"}
 SPEED = ["--mock-speed", "20", "--lease-s", "6"]
@@ -32,16 +31,6 @@ def _fleet(svc: RunningService) -> dict[str, Any]:
         return r.json()
 
 
-def _wait(check: Any, timeout_s: float, what: str) -> Any:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        got = check()
-        if got:
-            return got
-        time.sleep(0.2)
-    raise AssertionError(f"{what} within {timeout_s} s")
-
-
 @pytest.fixture
 def fleet_db(postgres) -> str:  # noqa: F811
     return postgres.service_url(postgres.create_database())
@@ -54,7 +43,7 @@ def test_three_gateways_share_wearables_without_double_booking(fleet_db: str) ->
     everyone = sorted(f"mock-{i}" for i in (*range(1, 19), *range(21, 31)))
     try:
         for svc in gws.values():  # the same fleet from every gateway
-            view = _wait(lambda svc=svc: (v := _fleet(svc)) and len(v["devices"]) == len(everyone) and v, 15, "every sighting")
+            view = wait_for(lambda svc=svc: (v := _fleet(svc)) and len(v["devices"]) == len(everyone) and v, 15, "every sighting")
             assert {g["name"] for g in view["gateways"] if g["alive"]} == set(rooms)
             assert sorted(d["id"] for d in view["devices"]) == everyone
             shared = next(d for d in view["devices"] if d["id"] == "mock-9")
@@ -95,7 +84,7 @@ def test_three_gateways_share_wearables_without_double_booking(fleet_db: str) ->
             with svc.client() as c:
                 for d in started:
                     assert c.get(f"/devices/{d}/calibration").status_code == 200
-            view = _wait(lambda svc=svc: (v := _fleet(svc)) and not any(d["in_session"] for d in v["devices"]) and v,
+            view = wait_for(lambda svc=svc: (v := _fleet(svc)) and not any(d["in_session"] for d in v["devices"]) and v,
                          15, "leases given back")
             assert all(d["calibration"]["status"] == "current" for d in view["devices"]), view["devices"]
     finally:
@@ -115,7 +104,7 @@ def test_a_gateway_killed_mid_session_frees_its_wearable_when_the_lease_expires(
         assert a.proc is not None
         a.proc.send_signal(signal.SIGKILL)  # no goodbye: the heartbeat stops, the lease runs out
         a.proc.wait()
-        row = _wait(lambda: next((d for d in _fleet(b)["devices"] if d["id"] == "mock-2" and not d["in_session"]), None),
+        row = wait_for(lambda: next((d for d in _fleet(b)["devices"] if d["id"] == "mock-2" and not d["in_session"]), None),
                     30, "the dead gateway's lease expired")
         assert row["calibration"]["status"] == "never"
 
@@ -124,7 +113,7 @@ def test_a_gateway_killed_mid_session_frees_its_wearable_when_the_lease_expires(
                 s = c.get(f"/sessions/{sid}").json()
             return s if s["state"] in END else None
 
-        gone = _wait(ended, 15, "the lost gateway's session ended")
+        gone = wait_for(ended, 15, "the lost gateway's session ended")
         assert gone["state"] == "failed" and gone["reason_code"] == "gateway_lost" and "room-a" in gone["reason"], gone
         again = _post(b, "/devices/mock-2/calibrate")
         assert again.status_code == 202, again.text

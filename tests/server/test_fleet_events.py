@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import threading
-import time
 from collections.abc import Iterator
 from typing import Any
 
@@ -20,6 +19,8 @@ from server_fixtures import (
     at_once,
     follow_events,
     make_v1_store,
+    running_postgres,
+    wait_for,
 )
 from sqlalchemy import create_engine, text
 
@@ -37,16 +38,6 @@ def _post(svc: RunningService, path: str) -> httpx.Response:
         return c.post(path, json={})
 
 
-def _wait(check: Any, timeout_s: float, what: str) -> Any:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        got = check()
-        if got:
-            return got
-        time.sleep(0.2)
-    raise AssertionError(f"{what} within {timeout_s} s")
-
-
 class FleetStream:
     """A fleet page's event stream (GET /fleet/events), read in the background."""
 
@@ -56,7 +47,7 @@ class FleetStream:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._read, args=(base,), daemon=True)
         self._thread.start()
-        _wait(lambda: self.views, 30, "the fleet stream's first view")
+        wait_for(lambda: self.views, 30, "the fleet stream's first view")
 
     def _read(self, base: str) -> None:
         try:
@@ -110,12 +101,12 @@ def test_a_session_is_followed_live_and_accepted_from_another_gateway(fleet_db: 
         accepted = _post(b, f"/sessions/{sid}/accept")
         assert accepted.status_code == 200, accepted.text
         decided = follow_events(a.base, sid, END, timeout_s=30, last_event_id=0)
-        assert _wait(lambda: (s := _get(a, f"/sessions/{sid}")) and s.get("decision") == "accepted" and s, 15,
+        assert wait_for(lambda: (s := _get(a, f"/sessions/{sid}")) and s.get("decision") == "accepted" and s, 15,
                      "room-a told of the decision"), decided
         assert _post(a, f"/sessions/{sid}/accept").status_code == 409  # decided once, wherever
 
         # room-b's fleet page heard each step without asking: in a session on room-a, then calibrated
-        _wait(lambda: any(d["calibration"]["status"] == "current" for d in fleet_b.device("mock-1")), 15, "fleet current")
+        wait_for(lambda: any(d["calibration"]["status"] == "current" for d in fleet_b.device("mock-1")), 15, "fleet current")
         rows = list(fleet_b.device("mock-1"))
         busy = [d for d in rows if d["in_session"]]
         assert busy and busy[0]["gateway"] == "room-a" and busy[0]["activity"] == "calibration" and busy[0]["session"] == sid
@@ -136,12 +127,8 @@ def _get(svc: RunningService, path: str) -> dict[str, Any]:
 @pytest.fixture
 def own_postgres() -> Iterator[PostgresServer]:
     """A PostgreSQL of this test's own, to restart."""
-    server = PostgresServer()
-    server.start()
-    try:
+    with running_postgres() as server:
         yield server
-    finally:
-        server.stop()
 
 
 def test_the_database_restarting_under_running_sessions_loses_nothing(own_postgres: PostgresServer) -> None:
@@ -159,7 +146,7 @@ def test_the_database_restarting_under_running_sessions_loses_nothing(own_postgr
         remote = threading.Thread(target=lambda: followed.update(
             events=follow_events(b.base, sids["mock-1"][1], END, timeout_s=180, last_event_id=0)), daemon=True)
         remote.start()
-        _wait(lambda: "remote" in _get(b, f"/sessions/{sids['mock-1'][1]}"), 30, "room-b following the session")
+        wait_for(lambda: "remote" in _get(b, f"/sessions/{sids['mock-1'][1]}"), 30, "room-b following the session")
         own_postgres.restart(down_s=2.0)  # every connection of both gateways cut mid-session
 
         ends = at_once([lambda gw=gw, sid=sid: follow_events(gw.base, sid, END, timeout_s=180, last_event_id=0)[-1]
@@ -178,7 +165,7 @@ def test_the_database_restarting_under_running_sessions_loses_nothing(own_postgr
                 for dev in sids:
                     assert c.get(f"/devices/{dev}/calibration").status_code == 200
                 assert c.get("/health", params={"verify": "true"}).json()["integrity"]["ok"]
-        _wait(lambda: all(d["calibration"]["status"] == "current" for d in fleet_b.views[-1]["devices"]), 20,
+        wait_for(lambda: all(d["calibration"]["status"] == "current" for d in fleet_b.views[-1]["devices"]), 20,
               "the fleet page on room-b showing every calibration")
         fleet_b.close()
     finally:
