@@ -109,6 +109,8 @@ class FleetEvents:
         for followed in self._followed.values():
             followed.broadcaster.close()
         for q in list(self._watchers):
+            while q.full():  # the stop must get in: what it displaces no longer matters
+                q.get_nowait()
             q.put_nowait("stop")
 
     # -- the fleet channel ----------------------------------------------------------------------------
@@ -293,7 +295,7 @@ class FleetEvents:
                 async with conn.transaction():
                     async with conn.cursor() as cur:
                         await cur.executemany("SELECT pg_notify(%s, %s)", batch)
-            except psycopg.Error as exc:
+            except (psycopg.Error, OSError) as exc:
                 log.warning("fleet events could not be sent (%s); trying again", exc)
                 if conn is not None:
                     await conn.close()
@@ -320,9 +322,12 @@ class FleetEvents:
                     self._resync()
                     while True:
                         async for note in conn.notifies(timeout=PING_S):
-                            self._dispatch(note.channel, note.payload)
+                            try:
+                                self._dispatch(note.channel, note.payload)
+                            except Exception:  # one malformed notification must not stop the others
+                                log.exception("a fleet notification on %s could not be read", note.channel)
                         await conn.execute("SELECT 1")  # a link that died quietly shows here
-            except psycopg.Error as exc:
+            except (psycopg.Error, OSError) as exc:
                 if self.connected:
                     log.warning("lost the fleet's events (%s); reconnecting", exc)
                 self.connected = False
