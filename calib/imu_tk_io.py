@@ -1,7 +1,9 @@
 """Reader of imu_tk's ASCII recordings: gyroscope and accelerometer in separate files of raw counts.
 
 imu_tk (Tedaldi, Pretto, Menegatti, ICRA 2014) stores each sensor as whitespace-separated rows
-``t x y z``: time in s, then raw counts per axis. The counts become gyrocal's units with the sensor's
+``t x y z``: time in s, then raw counts per axis. When the times lie within about half a sample of a fixed rate
+(no sample missing), the samples are put on that rate's uniform grid: the times are then a logging clock's,
+not the sensor's sampling instants. The counts become gyrocal's units with the sensor's
 nominal sensitivities and zero level (for imu_tk's Xsens test data, unsigned 16-bit counts with zero
 at 32768, 6258 counts per rad/s and about 3724 counts per g — the starting values of imu_tk's example
 program, not a calibration).
@@ -14,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import RecordingError
-from .recording import Recording, RecordingMeta
+from .recording import Recording, RecordingMeta, fixed_rate_instants
 
 XSENS_GYRO_COUNTS_PER_RAD_S = 6258.0
 XSENS_ACCEL_COUNTS_PER_G = 3724.0
@@ -52,6 +54,9 @@ def read_imu_tk(
     t = g[:, 0] - g[0, 0]
     if np.any(np.diff(t) <= 0):
         raise RecordingError(f"the times in {gyro_path} must increase from row to row")
+    # the files' times are the logging computer's (the Xsens test data's wander up to half a sample about the
+    # device's fixed 100 Hz); integrating over them would add each stamp's error times the rate of the moment
+    t = grid - grid[0] if (grid := fixed_rate_instants(t)) is not None else t
     gyro = np.degrees((g[:, 1:] - zero_counts) / gyro_counts_per_rad_s)
     accel = (a[:, 1:] - zero_counts) / accel_counts_per_g
     full_scale = float(np.degrees(zero_counts / gyro_counts_per_rad_s))

@@ -34,6 +34,20 @@ class RecordingMeta:
     sections: tuple[Section, ...] = ()  # labelled sections the file carries (imucal's ``part`` column)
 
 
+def fixed_rate_instants(t: np.ndarray, tolerance: float = 0.6) -> np.ndarray | None:
+    """The instants of samples taken at a fixed rate but time-stamped by another clock (a host's, quantised or
+    jittered): the least-squares uniform grid through ``t``, when every stamp lies within ``tolerance`` of a period
+    of it (so no sample is missing and none doubled); None otherwise (the stamps are then all there is)."""
+    if t.size < 3:
+        return None
+    i = np.arange(t.size, dtype=float)
+    period, start = np.polyfit(i, t, 1)
+    grid = start + period * i
+    if period <= 0 or np.max(np.abs(t - grid)) > tolerance * period:
+        return None
+    return grid
+
+
 def sample_intervals(t: np.ndarray) -> np.ndarray:
     """The interval each sample is held for (s): t[i+1] - t[i], the last one the median interval. Across lost
     samples the last reading is held until the next one arrives."""

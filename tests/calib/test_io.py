@@ -542,3 +542,28 @@ def test_host_time_channel_round_trips_and_is_checked(tmp_path) -> None:
     lines[10] = lines[10].rsplit(",", 1)[0] + ",0.0"
     with pytest.raises(RecordingError, match="line 11, column host_t: the host receive time goes backwards"):
         parse_recording_text("\n".join(lines))
+
+
+def test_time_stamps_of_another_clock_are_put_on_the_sampling_grid() -> None:
+    """A fixed-rate sensor logged with a host's time stamps (quantised to 0.1 ms, wandering up to half a sample):
+    the uniform grid through them, which is the sampling; a missing sample makes the stamps all there is."""
+    from calib.recording import fixed_rate_instants
+
+    rng = np.random.default_rng(3)
+    true = 0.25 + np.arange(5000) * 0.0099990  # 100.01 Hz
+    stamps = np.round(true + rng.uniform(-0.004, 0.004, true.size), 4)  # 0.1 ms steps, up to 0.45 sample off
+    grid = fixed_rate_instants(stamps)
+    assert grid is not None and np.abs(grid - true).max() < 1e-4  # within a tenth of a millisecond of the truth
+    assert np.ptp(np.diff(grid)) < 1e-12
+    assert fixed_rate_instants(np.delete(stamps, 2500)) is None  # one sample lost: not a fixed rate any more
+    assert fixed_rate_instants(stamps[:2]) is None
+
+
+def test_imu_tk_xsens_session_is_read_on_its_sampling_grid(real_data: Path) -> None:
+    from calib.imu_tk_io import read_imu_tk
+
+    rec = read_imu_tk(real_data / "imu_tk" / "xsens_gyro.mat", real_data / "imu_tk" / "xsens_acc.mat")
+    raw = np.loadtxt(real_data / "imu_tk" / "xsens_gyro.mat", usecols=0)
+    step = np.diff(rec.t)
+    assert np.ptp(step) < 1e-9 and 1 / step.mean() == pytest.approx(100.01, abs=1e-3) and rec.t[0] == 0
+    assert 0.4e-3 < np.abs((raw - raw[0]) - rec.t - np.mean((raw - raw[0]) - rec.t)).max() < 0.6e-3  # the file's times wander half a sample about it
