@@ -30,7 +30,7 @@ class GatewayAgent:
         self._seen = seen  # device id -> signal strength (dBm) of the wearables this gateway reaches now
         self._held = held  # device id -> holder of what this gateway runs on it now
         self._changed = changed  # tells the fleet's pages what changed (server.fleet_events)
-        self._reported: tuple[frozenset[str], dict[str, str]] | None = None  # what the last heartbeat said
+        self._reported: frozenset[str] | None = None  # the wearables the last heartbeat said it sees
         self._task: asyncio.Task[None] | None = None
         self._releasing: set[asyncio.Task[None]] = set()
 
@@ -51,9 +51,8 @@ class GatewayAgent:
         """One heartbeat: alive, what it sees, its leases renewed (only those it still uses), expired ones swept."""
         held, seen = self._held(), self._seen()
         await asyncio.to_thread(self.store.heartbeat, self.name, self.settings.lease_s, seen, held)
-        reported = (frozenset(seen), held)
-        if reported != self._reported:
-            self._reported = reported
+        if frozenset(seen) != self._reported:  # what it runs is announced as it starts and ends, not here
+            self._reported = frozenset(seen)
             self._changed("sightings", None)
         for lease in await asyncio.to_thread(self.store.sweep_expired_leases):
             log.warning("gateway %r lost its lease on %s (holder %s): the device is free again", lease.gateway, lease.device_id,
@@ -70,11 +69,9 @@ class GatewayAgent:
 
     async def take(self, device_id: str, holder: str | None) -> Lease:
         """The device's lease for ``holder`` (a session's or verification's id; None: a write) here, or the lease of the
-        gateway that holds it."""
-        lease = await asyncio.to_thread(self.store.take_lease, device_id, self.name, holder or WRITE_HOLDER, self.settings.lease_s)
-        if lease.gateway == self.name:
-            self._changed("lease", device_id)
-        return lease
+        gateway that holds it. The fleet hears of it from the caller, once what holds the device is recorded
+        (``server.api.views.claim_device``)."""
+        return await asyncio.to_thread(self.store.take_lease, device_id, self.name, holder or WRITE_HOLDER, self.settings.lease_s)
 
     def release(self, device_id: str, holder: str | None) -> None:
         """Give the lease back in the background; if that fails, it expires (the heartbeat no longer renews it)."""

@@ -43,11 +43,12 @@ async def reachable_device(svc: Service, device_id: str) -> Device:
     raise problem(409, f"device {device_id!r} is not reachable by this service (known from uploads only); scan for it first")
 
 
-async def claim_device(svc: Service, device_id: str, holder: str | None, then: str) -> None:
+async def claim_device(svc: Service, device_id: str, holder: str | None, then: str, announce: bool = True) -> None:
     """Reserve a device for a session or verification (``holder``, its id) or for a write (``holder`` None); 409 saying
     what holds it otherwise. The claim here is made before the first await (of two requests at once exactly one gets
     the device); a gateway then takes the device's lease in the shared store, and gives the claim up when another
-    gateway holds it."""
+    gateway holds it. ``announce``: tell the fleet's pages now (a session does once its row is stored, so that the
+    fleet view knows the lease holds a calibration)."""
     if device_id in svc.active:
         raise problem(409, f"device {device_id!r} is in a calibration session or verification ({svc.active[device_id]}); {then}")
     if device_id in svc.writing:
@@ -56,9 +57,14 @@ async def claim_device(svc: Service, device_id: str, holder: str | None, then: s
         svc.writing.add(device_id)
     else:
         svc.active[device_id] = holder
-    if svc.gateway is None:
+    if svc.gateway is not None:
+        await _take_lease(svc, device_id, holder, then)
+    if announce:
         svc.events.fleet_changed("claim", device_id)
-        return
+
+
+async def _take_lease(svc: Service, device_id: str, holder: str | None, then: str) -> None:
+    assert svc.gateway is not None
     try:
         lease = await svc.gateway.take(device_id, holder)
     except Exception:

@@ -78,11 +78,12 @@ class FleetStore(SessionStore):
             return [{"device_id": r.device_id, "gateway": r.gateway, "last_seen": iso_utc(r.last_seen), "rssi_dbm": r.rssi_dbm}
                     for r in s.execute(q).scalars()]
 
-    def open_sessions(self) -> dict[str, str]:
-        """The calibration sessions running now (not yet ended), by device id -> session id."""
+    def known_sessions(self, ids: list[str]) -> set[str]:
+        """Which of ``ids`` are calibration sessions (live or uploaded) in the store."""
+        if not ids:
+            return set()
         with self._read() as s:
-            q = select(SessionRow.device_id, SessionRow.id).where(SessionRow.ended_at.is_(None)).order_by(SessionRow.started_at)
-            return {device_id: session_id for device_id, session_id in s.execute(q)}
+            return set(s.execute(select(SessionRow.id).where(SessionRow.id.in_(ids))).scalars())
 
     # -- leases ---------------------------------------------------------------------------------
     def take_lease(self, device_id: str, gateway: str, holder: str, lease_s: float) -> Lease:

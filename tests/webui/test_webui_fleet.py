@@ -54,6 +54,7 @@ def test_the_fleet_page_shows_both_rooms_live_and_links_to_the_gateway_that_hold
             assert r.status_code == 202, r.text
         sid = r.json()["session_id"]
         page.wait_for_selector(".fleet-table tr[data-device='mock-3'] td.fleet-status.busy", timeout=15_000)
+        page.wait_for_selector(".fleet-table tr[data-device='mock-3'] a:has-text('Follow')", timeout=15_000)
         links = page.query_selector_all(".fleet-table tr[data-device='mock-3'] a")
         assert [(a.inner_text().strip(), a.get_attribute("href")) for a in links] == [
             ("Follow", f"#/session/{sid}"), ("Open on room-b", f"{b.base}/#/place/mock-3")]

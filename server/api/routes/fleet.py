@@ -33,14 +33,14 @@ def _status(current: Any, row: dict[str, Any], max_age_days: float) -> dict[str,
     return {"status": "due" if due.due else "current", "reason": due.reason, "calibration_id": current.id}
 
 
-def _activity(holder: str | None, running_session: str | None) -> str | None:
+def _activity(holder: str | None, sessions: set[str]) -> str | None:
     """What holds a device: a calibration session (whose events any gateway's page can follow), a verification turn
     or a write of its calibration; None when nothing does."""
     if holder is None:
         return None
     if holder == WRITE_HOLDER:
         return "write"
-    return "calibration" if holder == running_session else "verification"
+    return "calibration" if holder in sessions else "verification"
 
 
 def fleet_view(svc: Service) -> dict[str, Any]:
@@ -59,7 +59,7 @@ def fleet_view(svc: Service) -> dict[str, Any]:
         seen.setdefault(s["device_id"], []).append({k: s[k] for k in ("gateway", "last_seen", "rssi_dbm")})
     rows = {r["id"]: r for r in store.devices()}
     current = store.current_calibrations()
-    running = store.open_sessions()
+    sessions = store.known_sessions(sorted({lease.holder for lease in leases.values()} | set(svc.active.values())))
     devices = []
     for device_id in sorted(set(rows) | set(seen)):
         row = rows.get(device_id, {})
@@ -77,7 +77,7 @@ def fleet_view(svc: Service) -> dict[str, Any]:
             "seen_by": sightings,
             "in_session": lease is not None or local_session is not None,
             "session": holder,
-            "activity": _activity(holder, running.get(device_id)),
+            "activity": _activity(holder, sessions),
             "lease_expires_at": lease.expires_at.isoformat() if lease else None,
             "calibration": _status(current.get(device_id), row, svc.settings.limits.max_age_days),
             "wizard_url": f"{base or ''}/#/place/{device_id}",

@@ -307,7 +307,7 @@ async def start_live(svc: Service, device_id: str, operator: str, method: str | 
         raise problem(422, f"unknown method {method!r}: choose one of {', '.join(available_methods())}")
     dev = await reachable_device(svc, device_id)
     sid = uuid.uuid4().hex
-    await claim_device(svc, device_id, sid, "one at a time")
+    await claim_device(svc, device_id, sid, "one at a time", announce=False)
     try:
         machine = GuidedSession(sid, device_id, svc.settings, max_attempts=max_attempts, method=method,
                                 live_angle=await live_angle_of(svc, device_id))
@@ -326,6 +326,7 @@ async def start_live(svc: Service, device_id: str, operator: str, method: str | 
     except Exception:
         svc.release_device(device_id, sid)
         raise
+    svc.events.fleet_changed("session", device_id)
     live = LiveSession(machine, dev, svc.store, svc.settings, __version__, operator, on_end=svc._session_ended, pool=svc.pool,
                        relay=svc.events.relay)
     svc.sessions[sid] = live
