@@ -12,6 +12,7 @@ from calib.json_safe import finite
 from ..deps import problem
 from ..devices import Device, model_facts
 from ..lifecycle import calibration_due
+from ..live.codes import END_STATES
 from ..live.snapshot import stored_snapshot
 from ..service import Service
 from ..store import CalibrationRecord
@@ -129,13 +130,13 @@ async def session_snapshot(svc: Service, sid: str) -> dict[str, Any]:
         snap["kind"] = "live"
         snap["operator"] = live.operator
         return snap
-    followed = svc.events.followed(sid)  # running on another gateway and followed here: its latest relayed state
-    if followed is not None:
-        return followed
     row = await asyncio.to_thread(svc.store.session, sid)
     if row is None:
         raise problem(404, f"no session {sid}")
     if runs_elsewhere(svc, row):
+        followed = svc.events.followed(sid)  # followed here: its latest relayed state, unless the store says it ended
+        if followed is not None and (row["ended_at"] is None or followed["state"] in END_STATES):
+            return followed
         return {**stored_snapshot(row), "remote": await remote_gateway(svc, row["gateway"])}
     return stored_snapshot(row)
 

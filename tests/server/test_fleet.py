@@ -5,6 +5,7 @@ mid-session releases its device when its lease expires; every calibration visibl
 from __future__ import annotations
 
 import signal
+import threading
 from typing import Any
 
 import httpx
@@ -92,6 +93,11 @@ def test_three_gateways_share_wearables_without_double_booking(fleet_db: str) ->
             svc.stop()
 
 
+def _session(svc: RunningService, sid: str) -> dict[str, Any]:
+    with svc.client() as c:
+        return dict(c.get(f"/sessions/{sid}").json())
+
+
 def test_a_gateway_killed_mid_session_frees_its_wearable_when_the_lease_expires(fleet_db: str) -> None:
     a = _gateway("room-a", 1, 2, fleet_db).start(60)
     b = _gateway("room-b", 2, 2, fleet_db).start(60)
@@ -101,6 +107,11 @@ def test_a_gateway_killed_mid_session_frees_its_wearable_when_the_lease_expires(
         sid = r.json()["session_id"]
         follow_events(a.base, sid, {"still", "turn_x"}, timeout_s=30, last_event_id=0)
         assert _post(b, "/devices/mock-2/calibrate").status_code == 409
+        followed: dict[str, Any] = {}  # room-b's page following room-a's session: it learns the end from the store
+        follower = threading.Thread(target=lambda: followed.update(
+            events=follow_events(b.base, sid, END, timeout_s=90, last_event_id=0)), daemon=True)
+        follower.start()
+        wait_for(lambda: "remote" in _session(b, sid), 30, "room-b following the session")
         assert a.proc is not None
         a.proc.send_signal(signal.SIGKILL)  # no goodbye: the heartbeat stops, the lease runs out
         a.proc.wait()
@@ -108,13 +119,11 @@ def test_a_gateway_killed_mid_session_frees_its_wearable_when_the_lease_expires(
                     30, "the dead gateway's lease expired")
         assert row["calibration"]["status"] == "never"
 
-        def ended() -> dict[str, Any] | None:  # ended by the next heartbeat's sweep after the lease ran out
-            with b.client() as c:
-                s = c.get(f"/sessions/{sid}").json()
-            return s if s["state"] in END else None
-
-        gone = wait_for(ended, 15, "the lost gateway's session ended")
+        gone = wait_for(lambda: (s := _session(b, sid))["state"] in END and s, 15,
+                        "the lost gateway's session ended")  # by the next heartbeat's sweep after the lease ran out
         assert gone["state"] == "failed" and gone["reason_code"] == "gateway_lost" and "room-a" in gone["reason"], gone
+        follower.join(30)
+        assert followed["events"][-1]["reason_code"] == "gateway_lost", followed["events"][-1]
         again = _post(b, "/devices/mock-2/calibrate")
         assert again.status_code == 202, again.text
         end = follow_events(b.base, again.json()["session_id"], END, timeout_s=120, last_event_id=0)[-1]
