@@ -29,6 +29,7 @@ from tqdm import tqdm
 
 ROOT = Path(__file__).resolve().parents[1]
 TOKEN = "bench-" + uuid.uuid4().hex
+END = ("done", "failed", "cancelled")  # a session's end states
 
 
 def _free_port() -> int:
@@ -148,7 +149,7 @@ def main() -> None:
                 for g, _dev, sid in started:
                     if sid not in ends:
                         state = clients[g].get(f"/sessions/{sid}").json()["state"]
-                        if state in ("done", "failed", "cancelled"):
+                        if state in END:
                             ends[sid] = state
                             bar.update(1)
                 time.sleep(1.0)
@@ -200,7 +201,7 @@ def _follow(base: str, sid: str, headers: dict[str, str]) -> None:
     """Read a session's event stream (on a gateway that does not run it) to its end."""
     with httpx.stream("GET", f"{base}/sessions/{sid}/events", headers=headers, timeout=None) as r:
         for line in r.iter_lines():
-            if line.startswith("data:") and json.loads(line[5:])["state"] in ("done", "failed", "cancelled"):
+            if line.startswith("data:") and json.loads(line[5:])["state"] in END:
                 return
 
 

@@ -80,8 +80,8 @@ class Settings:
     port: int = 8000
     api_token: str | None = field(default_factory=lambda: os.environ.get("GYROCAL_API_TOKEN") or None)
     allowed_hosts: tuple[str, ...] = ("localhost", "127.0.0.1", "::1")  # Host names answered ("*": any); others get 400
-    limits: CalibrationLimits = field(default_factory=lambda: CalibrationLimits())
-    gateway: GatewaySettings | None = None  # None: a service on its own  # when a calibration in force is warned of
+    limits: CalibrationLimits = field(default_factory=lambda: CalibrationLimits())  # when a calibration in force is warned of
+    gateway: GatewaySettings | None = None  # None: a service on its own
     pin_from: tuple[str, ...] = ("127.0.0.0/8", "::1/128")  # client networks whose sign-ins may use a PIN
     auth_reads: bool = False  # when True, reads need a token too (SSE may pass it as ?access_token=)
     max_body_bytes: int = 32 * 1024 * 1024  # uploads above this get 413

@@ -82,7 +82,7 @@ class FleetEvents:
         self._followed: dict[str, _Followed] = {}
         self._watchers: set[asyncio.Queue[str]] = set()
         self._out_sessions: dict[str, Event] = {}
-        self._out_other: dict[tuple[str, str], str] = {}  # (channel, payload) queued, deduplicated
+        self._out_other: dict[tuple[str, str], None] = {}  # (channel, payload) queued, in order, each once
         self._wake = asyncio.Event()
         self._tasks: list[asyncio.Task[None]] = []
         self._reads: set[asyncio.Task[None]] = set()  # store reads under way (kept referenced until done)
@@ -194,8 +194,7 @@ class FleetEvents:
     def _publish_followed(self, session_id: str, followed: _Followed, name: str, snapshot: dict[str, Any]) -> None:
         if followed.broadcaster.closed:
             return
-        latest = followed.broadcaster.latest
-        if latest is not None and _settled(json.loads(latest.data)) and not _settled(snapshot):
+        if followed.ended is not None and snapshot.get("state") not in END_STATES:
             return  # a late relayed snapshot after the stored end state
         followed.broadcaster.publish(name, {**snapshot, "remote": followed.remote})
         if snapshot.get("state") in END_STATES and followed.ended is None:
@@ -210,7 +209,7 @@ class FleetEvents:
 
     # -- the database end -----------------------------------------------------------------------------
     def _queue(self, channel: str, payload: str) -> None:
-        self._out_other[(channel, payload)] = payload
+        self._out_other[(channel, payload)] = None
         self._wake.set()
 
     def _dispatch(self, channel: str, payload: str) -> None:
@@ -240,7 +239,7 @@ class FleetEvents:
         followed = self._followed.get(sid)
         if followed is None:
             return
-        snapshot = session_snapshot(msg)
+        snapshot = relayed_snapshot(msg)
         if snapshot is None:  # too large to travel: the follower reads it from the store
             self._spawn(self._refresh(sid))
             return
@@ -302,7 +301,7 @@ class FleetEvents:
                 conn = None
                 for channel, payload in batch:
                     if channel != SESSION:
-                        self._out_other.setdefault((channel, payload), payload)
+                        self._out_other.setdefault((channel, payload), None)
                 self._wake.set()
                 await asyncio.sleep(1.0)
                 continue
@@ -358,14 +357,10 @@ def session_payload(origin: str, session_id: str, event: Event) -> str:
     return json.dumps(msg, separators=(",", ":"))
 
 
-def session_snapshot(msg: dict[str, Any]) -> dict[str, Any] | None:
+def relayed_snapshot(msg: dict[str, Any]) -> dict[str, Any] | None:
     """The snapshot a session notification carries (None: it was too large to travel)."""
     if "d" in msg:
         return dict(json.loads(msg["d"]))
     if "z" in msg:
         return dict(json.loads(zlib.decompress(base64.b64decode(msg["z"])).decode()))
     return None
-
-
-def _settled(snapshot: dict[str, Any]) -> bool:
-    return snapshot.get("state") in END_STATES

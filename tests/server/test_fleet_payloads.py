@@ -7,7 +7,7 @@ import asyncio
 import json
 import os
 
-from server.fleet_events import PAYLOAD_MAX, FleetEvents, conninfo, session_payload, session_snapshot
+from server.fleet_events import PAYLOAD_MAX, FleetEvents, conninfo, relayed_snapshot, session_payload
 from server.live.events import Event, dumps
 
 
@@ -19,7 +19,7 @@ def test_a_small_snapshot_travels_as_it_is() -> None:
     snap = {"session_id": "s" * 32, "state": "turn_x", "live": {"angle_deg": [1.5, 0.0, -2.0]}}
     payload = session_payload("gw", "s" * 32, _event(snap))
     msg = json.loads(payload)
-    assert "d" in msg and session_snapshot(msg) == snap and msg["n"] == "state"
+    assert "d" in msg and relayed_snapshot(msg) == snap and msg["n"] == "state"
 
 
 def test_a_snapshot_with_a_result_travels_compressed_and_comes_back_whole() -> None:
@@ -30,14 +30,14 @@ def test_a_snapshot_with_a_result_travels_compressed_and_comes_back_whole() -> N
     payload = session_payload("gw", "s" * 32, _event(snap))
     msg = json.loads(payload)
     assert len(payload.encode()) <= PAYLOAD_MAX and "z" in msg and "d" not in msg
-    assert session_snapshot(msg) == snap
+    assert relayed_snapshot(msg) == snap
 
 
 def test_a_snapshot_too_large_even_compressed_is_read_from_the_store() -> None:
     snap = {"session_id": "s" * 32, "state": "done", "noise": os.urandom(12_000).hex()}  # does not compress
     payload = session_payload("gw", "s" * 32, _event(snap))
     msg = json.loads(payload)
-    assert len(payload.encode()) <= PAYLOAD_MAX and session_snapshot(msg) is None and msg["s"] == "s" * 32
+    assert len(payload.encode()) <= PAYLOAD_MAX and relayed_snapshot(msg) is None and msg["s"] == "s" * 32
 
 
 def test_only_postgresql_stores_share_events() -> None:

@@ -33,6 +33,11 @@ def _status(current: Any, row: dict[str, Any], max_age_days: float) -> dict[str,
     return {"status": "due" if due.due else "current", "reason": due.reason, "calibration_id": current.id}
 
 
+def _gateway_settings(svc: Service) -> GatewaySettings:
+    """This gateway's settings; a service on its own judges the fleet's gateways by the defaults."""
+    return svc.settings.gateway or GatewaySettings(name="")
+
+
 def _activity(holder: str | None, sessions: set[str]) -> str | None:
     """What holds a device: a calibration session (whose events any gateway's page can follow), a verification turn
     or a write of its calibration; None when nothing does."""
@@ -49,7 +54,7 @@ def fleet_view(svc: Service) -> dict[str, Any]:
     now = datetime.now(UTC)
     gateways = store.gateways()
     urls = {g["name"]: g["url"] for g in gateways}
-    silent_after_s = (svc.settings.gateway or GatewaySettings(name="")).silent_after_s  # a service on its own: the defaults
+    silent_after_s = _gateway_settings(svc).silent_after_s
     for g in gateways:
         g["alive"] = datetime.fromisoformat(g["heartbeat_at"]) > now - timedelta(seconds=silent_after_s)
         g["this"] = g["name"] == svc.gateway_name
@@ -100,7 +105,7 @@ async def fleet(svc: Svc, _: Reader) -> dict[str, Any]:
 async def fleet_events(svc: Svc, _: Reader) -> StreamingResponse:
     """The fleet view now, then again whenever the fleet changes on any gateway (a session started or ended, a
     calibration accepted, a wearable seen), and after a quiet heartbeat interval (a gateway falling silent)."""
-    quiet_s = (svc.settings.gateway or GatewaySettings(name="")).heartbeat_s * 2
+    quiet_s = _gateway_settings(svc).heartbeat_s * 2
 
     async def stream() -> AsyncIterator[bytes]:
         yield b"retry: 1000\n\n"
