@@ -251,9 +251,9 @@ class RunningService:
                 self.proc.wait()
         return self.proc.returncode
 
-    def client(self, token: str | None = API_TOKEN) -> httpx.Client:
+    def client(self, token: str | None = API_TOKEN, timeout_s: float = 30.0) -> httpx.Client:
         headers = {"Authorization": f"Bearer {token}"} if token else {}
-        return httpx.Client(base_url=self.base, headers=headers, timeout=30.0)
+        return httpx.Client(base_url=self.base, headers=headers, timeout=timeout_s)
 
 
 def follow_events(base: str, sid: str, until: set[str], timeout_s: float = 60.0, last_event_id: int | None = None,

@@ -10,7 +10,7 @@ from typing import Any
 
 import httpx
 import pytest
-from server_fixtures import API_TOKEN, RunningService, at_once, follow_events, wait_for
+from server_fixtures import RunningService, at_once, follow_events, wait_for
 
 END = {"done", "failed", "cancelled"}
 SPEED = ["--mock-speed", "20", "--lease-s", "6"]
@@ -21,7 +21,7 @@ def _gateway(name: str, first: int, n: int, url: str) -> RunningService:
 
 
 def _post(svc: RunningService, path: str, json: Any = None) -> httpx.Response:
-    with httpx.Client(base_url=svc.base, headers={"Authorization": f"Bearer {API_TOKEN}"}, timeout=60) as c:
+    with svc.client(timeout_s=60) as c:
         return c.post(path, json=json if json is not None else {})
 
 
@@ -52,15 +52,17 @@ def test_three_gateways_share_wearables_without_double_booking(fleet_db: str) ->
             assert all(d["calibration"]["status"] == "never" and not d["in_session"] for d in view["devices"])
 
         # the shared wearables asked for by both of their gateways at once: one session each, the other told where
+        shared_sessions: dict[str, tuple[str, str]] = {}  # device -> (gateway that won it, session id)
         for dev in ("mock-9", "mock-10"):
             a, b = at_once([lambda dev=dev: _post(gws["room-a"], f"/devices/{dev}/calibrate"),
                             lambda dev=dev: _post(gws["room-b"], f"/devices/{dev}/calibrate")])
             assert sorted((a.status_code, b.status_code)) == [202, 409], (a.text, b.text)
             lost = a if a.status_code == 409 else b
             assert "room-a" in lost.json()["detail"] or "room-b" in lost.json()["detail"], lost.text
+            shared_sessions[dev] = ("room-a", a.json()["session_id"]) if a.status_code == 202 else ("room-b", b.json()["session_id"])
         view = _fleet(gws["room-c"])
         holders = {d["id"]: d for d in view["devices"] if d["in_session"]}
-        assert set(holders) == {"mock-9", "mock-10"}
+        assert {d: (h["gateway"], h["session"]) for d, h in holders.items()} == shared_sessions  # the winners hold them
         for d in holders.values():  # the link opens the wizard on the gateway that holds the device
             assert d["wizard_url"] == f"{gws[d['gateway']].base}/#/place/{d['id']}"
 
@@ -69,11 +71,7 @@ def test_three_gateways_share_wearables_without_double_booking(fleet_db: str) ->
             f"mock-{i}": "room-c" for i in range(21, 31)}
         answers = at_once([lambda d=d, g=g: _post(gws[g], f"/devices/{d}/calibrate") for d, g in rest.items()])
         assert all(r.status_code == 202 for r in answers), [r.text for r in answers]
-        started = {d: (g, r.json()["session_id"]) for (d, g), r in zip(rest.items(), answers, strict=True)}
-        for d in ("mock-9", "mock-10"):
-            owner = _fleet(gws["room-a"])
-            row = next(x for x in owner["devices"] if x["id"] == d)
-            started[d] = (row["gateway"], row["session"])
+        started = {d: (g, r.json()["session_id"]) for (d, g), r in zip(rest.items(), answers, strict=True)} | shared_sessions
         ends = at_once([lambda g=g, s=s: follow_events(gws[g].base, s, END, timeout_s=240, last_event_id=0)[-1]
                         for g, s in started.values()], timeout_s=300)
         assert all(e["state"] == "done" for e in ends), [(e["state"], e.get("reason")) for e in ends]

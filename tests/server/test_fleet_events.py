@@ -13,7 +13,6 @@ from typing import Any
 import httpx
 import pytest
 from server_fixtures import (
-    API_TOKEN,
     PostgresServer,
     RunningService,
     at_once,
@@ -34,7 +33,7 @@ def _gateway(name: str, first: int, n: int, url: str, speed: str = "10", *extra:
 
 
 def _post(svc: RunningService, path: str) -> httpx.Response:
-    with httpx.Client(base_url=svc.base, headers={"Authorization": f"Bearer {API_TOKEN}"}, timeout=60) as c:
+    with svc.client(timeout_s=60) as c:
         return c.post(path, json={})
 
 
