@@ -14,7 +14,6 @@ from datetime import datetime, timedelta
 from typing import Any, cast
 
 from sqlalchemy import CursorResult, delete, select, update
-from sqlalchemy.dialects import postgresql, sqlite
 
 from .records import iso_utc
 from .sessions import SessionStore
@@ -92,7 +91,7 @@ class FleetStore(SessionStore):
         now = utcnow()
         expires = now + timedelta(seconds=lease_s)
         values = {"device_id": device_id, "gateway": gateway, "holder": holder, "expires_at": expires}
-        ins = (postgresql.insert(LeaseRow) if self.dialect == "postgresql" else sqlite.insert(LeaseRow)).values(**values)
+        ins = self._insert(LeaseRow).values(**values)
         stmt = ins.on_conflict_do_update(
             index_elements=[LeaseRow.device_id],
             set_={"gateway": gateway, "holder": holder, "expires_at": expires},

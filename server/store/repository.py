@@ -9,9 +9,11 @@ concurrent decisions exactly one wins, the others get DecisionConflict.
 
 from __future__ import annotations
 
+from datetime import datetime
 from typing import Any
 
 from sqlalchemy import select
+from sqlalchemy.orm import Session
 
 from .calibrations import CalibrationStore
 from .fleet import FleetStore
@@ -29,10 +31,7 @@ class Store(OperatorStore, CalibrationStore, FleetStore):
         now = utcnow()
         cols = {"name", "address", "transport", "sensor_model", "firmware", "serial"}
         with self._tx() as s:
-            row = s.get(Device, device_id)
-            if row is None:
-                row = Device(id=device_id, first_seen=now, last_seen=now)
-                s.add(row)
+            row = self._device_row(s, device_id, now)
             for key, value in info.items():
                 if key in cols and value is not None:
                     setattr(row, key, str(value))
@@ -46,13 +45,17 @@ class Store(OperatorStore, CalibrationStore, FleetStore):
         ``operator``, which the audit log keeps (the device row keeps only the latest report)."""
         with self._tx(*(("audit_log",) if written else ())) as s:
             now = utcnow()
-            row = s.get(Device, device_id)
-            if row is None:
-                row = Device(id=device_id, first_seen=now, last_seen=now)
-                s.add(row)
+            row = self._device_row(s, device_id, now)
             row.held_calibration_id, row.held_reported_at, row.last_seen = calibration_id, now, now
             if written:
                 self._audit(s, operator, "device.write_back", device_id, None, {"calibration_id": calibration_id})
+
+    def _device_row(self, s: Session, device_id: str, now: datetime) -> Device:
+        """The device's row, created first when missing; atomically, so services meeting a new device at once all
+        get the one row (a read, then an insert, would let the second insert fail)."""
+        s.execute(self._insert(Device).values(id=device_id, first_seen=now, last_seen=now)
+                  .on_conflict_do_nothing(index_elements=[Device.id]))
+        return s.get_one(Device, device_id)
 
     def devices(self) -> list[dict[str, Any]]:
         with self._read() as s:

@@ -75,3 +75,20 @@ def test_a_gateway_restarting_fails_only_its_own_open_sessions(store_url: str) -
     assert store.fail_unfinished_sessions("restarted") == 1  # a service on its own: the sessions without a gateway
     assert store.session("c" * 32)["state"] == "failed" and store.session("b" * 32)["ended_at"] is None
     store.finish_session("b" * 32, SessionEnd("cancelled"))
+
+
+def test_gateways_meeting_a_new_wearable_at_once_record_it_once(store_url: str) -> None:
+    """Gateways starting together that see the same new wearables each record them (and what each wearable reports
+    holding) without one of them failing on the other's insert; one row per wearable."""
+    stores = [Store(store_url) for _ in range(6)]
+    try:
+        for n in range(5):
+            at_once([lambda st=st, n=n: st.upsert_device(f"shared-{n}", name=f"shared-{n}", transport="inprocess")
+                     for st in stores])
+            at_once([lambda st=st, n=n: st.record_held(f"held-{n}", None) for st in stores])
+        ids = [d["id"] for d in stores[0].devices()]
+        assert ids == sorted([*(f"held-{n}" for n in range(5)), *(f"shared-{n}" for n in range(5))])
+        assert stores[0].device("shared-3")["name"] == "shared-3"
+    finally:
+        for st in stores:
+            st.close()
