@@ -39,7 +39,7 @@ from scipy.stats import f as f_dist
 from .accel import PARAMS, AccelCalibration, apply_model, calibrate_accelerometer, rest_spans
 from .closure_fit import still_statistics, windows
 from .errors import CalibrationError, ProtocolError
-from .multi_position_model import AccelRests, Data, Params, Windows, directions, gravity_misfit, system
+from .multi_position_model import AccelRests, Data, Params, Windows, directions, gravity_misfit, settling, system
 from .recording import Recording, sample_intervals
 from .result import CalibrationResult
 from .stage import Stage
@@ -47,7 +47,8 @@ from .stages import detect_stages
 from .validation import check_calibration_input
 
 MIN_MOTIONS = 6  # re-orientations needed before the three scale factors can be separated
-MAX_ITERATIONS = 30
+MAX_GRAVITY_RMS_DEG = 2.0  # gravity residuals (rms) beyond which the re-orientations fit no calibration
+MAX_ITERATIONS = 50  # steps tried, the damped ones counted
 G_ALPHA = 1e-3  # false-positive rate of the g-sensitivity's F test on a sensor that has none
 G_SPREAD_MIN = 0.25  # the rests' gravity directions must spread at least this much (rms, per principal axis)
 NOISE_LAGS = 3  # lags of the rests' noise autocorrelation counted in the noise of means and integrals
@@ -122,6 +123,7 @@ def calibrate_multi_position(rec: Recording, stages: Any = None, accel: AccelCal
 
     base = _fit(Params(np.eye(3), -data.mean[0], None, accel.vector.copy()), data)
     fit, g_test = _g_sensitivity_choice(base, data, g_sensitivity)
+    _check_agreement(fit, data)
     return _result(fit, g_test, base, data, accel, joint, stage_list, rec)
 
 
@@ -156,6 +158,8 @@ def _data(rec: Recording, stills: list[Stage], motions: list[Motion], free_a: np
         mean=np.array([rec.accel[i:j].mean(axis=0) for i, j in spans]),
         sd=np.maximum(np.array([rec.accel[i:j].std(axis=0).mean() for i, j in spans]), 1e-4) * np.sqrt(accel_colour),
         n=np.array([j - i for i, j in spans], dtype=float),
+        drift=np.array([_thirds_drift(rec.accel[i:j]) for i, j in spans]),
+        seconds=np.array([rec.t[j - 1] - rec.t[i] for i, j in spans]) + 1.0 / rec.fs,
     )
     grav = [mo for mo in motions if mo.full_turn is None]
     turns = [mo for mo in motions if mo.full_turn is not None]
@@ -179,20 +183,45 @@ def _data(rec: Recording, stills: list[Stage], motions: list[Motion], free_a: np
     )
 
 
+def _thirds_drift(readings: np.ndarray) -> np.ndarray:
+    """Mean of the last third minus mean of the first third."""
+    third = len(readings) // 3
+    return readings[-third:].mean(axis=0) - readings[:third].mean(axis=0)
+
+
 def _fit(p: Params, data: Data) -> _Fit:
-    """Gauss-Newton from ``p``; CalibrationError when the constraints do not determine every parameter."""
+    """Levenberg-Marquardt from ``p``; CalibrationError when the constraints do not determine every parameter.
+
+    Damped because a long motion integrated with the starting scale factors can end tens of degrees off, where
+    a full Gauss-Newton step overshoots (the misfit is far from linear there) and the iteration diverges."""
+    res, jac = system(p, data)
+    chi2, damping = float(res @ res), 0.0
     for _ in range(MAX_ITERATIONS):
-        res, jac = system(p, data)
-        step, *_ = np.linalg.lstsq(jac, -res, rcond=None)
-        p = p.stepped(step, data.free_a)
+        step = _damped_step(jac, res, damping)
+        trial = p.stepped(step, data.free_a)
+        res_t, jac_t = system(trial, data)
+        chi2_t = float(res_t @ res_t)
+        if not np.isfinite(chi2_t) or chi2_t > chi2 * (1 + 1e-12):
+            damping = max(10.0 * damping, 1e-3)
+            continue
+        p, res, jac, chi2, damping = trial, res_t, jac_t, chi2_t, damping / 10.0
         if np.all(np.abs(step[:9]) < 1e-10) and np.all(np.abs(step[9:]) < 1e-8):
             break
-    res, jac = system(p, data)
     sv = np.linalg.svd(jac, compute_uv=False)
     if sv[-1] <= 0 or sv[0] / sv[-1] > 1e8:
         raise CalibrationError("the re-orientations do not determine every entry of K: turn the device so that each of its "
                                "axes is tilted (not only turned about the vertical) in several of the motions")
     return _Fit(p, res, jac)
+
+
+def _damped_step(jac: np.ndarray, res: np.ndarray, damping: float) -> np.ndarray:
+    """The Gauss-Newton step (``damping`` 0), or Levenberg-Marquardt's with the normal matrix's diagonal scaled
+    by 1 + ``damping``."""
+    if damping == 0.0:
+        return np.linalg.lstsq(jac, -res, rcond=None)[0]
+    scale = np.sqrt(damping * np.sum(jac**2, axis=0))
+    augmented = np.vstack([jac, np.diag(scale)])
+    return np.linalg.lstsq(augmented, np.concatenate([-res, np.zeros(scale.size)]), rcond=None)[0]
 
 
 def _g_sensitivity_choice(base: _Fit, data: Data, asked: bool | None) -> tuple[_Fit, dict[str, Any]]:
@@ -223,10 +252,34 @@ def _g_sensitivity_choice(base: _Fit, data: Data, asked: bool | None) -> tuple[_
     return base, test
 
 
+def _check_agreement(fit: _Fit, data: Data) -> None:
+    """CalibrationError when, at the best fit, the motions still carry gravity degrees off: no gyro calibration
+    explains them, so the recording is not what the fit takes it for (a wrong sample rate, the accelerometer's
+    axes not the gyro's, motions that are not between rests)."""
+    rms = _rms(_gravity_deg(fit.p, data))
+    if rms is not None and rms > MAX_GRAVITY_RMS_DEG:
+        raise CalibrationError(
+            f"no calibration makes the re-orientations agree with the accelerometer: at the best fit, gravity is still "
+            f"{rms:.1f} deg rms off after them (a calibrated gyro leaves a few tenths at most). Check the sample rate, "
+            "that the accelerometer's axes are the gyro's, and that the device rested between the re-orientations")
+
+
 def _gravity_deg(p: Params, data: Data) -> np.ndarray:
     if data.gravity is None:
         return np.zeros(0)
     return np.degrees(np.linalg.norm(gravity_misfit(p, data), axis=1))
+
+
+def _settling_report(p: Params, data: Data) -> dict[str, Any]:
+    """The rests that were still settling: their gravity's drift across itself between their first and last thirds
+    (deg), counted in their directions' noise where it is beyond chance."""
+    u, _, _ = directions(p.xa, data.rests)
+    var_g = (data.rests.sd * float(np.mean(np.abs(p.xa[0:3]))) / np.sqrt(data.rests.n)) ** 2
+    st = settling(p.xa, data.rests, u, var_g)
+    drift_deg = np.degrees(np.sqrt(2.0 * st.across))
+    counted = np.flatnonzero(st.counted_across)
+    return {"rests_counted": [int(i) for i in counted], "drift_deg": [float(v) for v in drift_deg],
+            "largest_deg": float(drift_deg.max()) if drift_deg.size else None}
 
 
 def _rms(v: np.ndarray) -> float | None:
@@ -260,6 +313,7 @@ def _result(fit: _Fit, g_test: dict[str, Any], base: _Fit, data: Data, accel: Ac
         "gravity_z": [float(v) for v in np.linalg.norm(rho, axis=1)],
         "accelerometer": accel.to_dict(),
         "g_sensitivity": g_test,
+        "settling": _settling_report(p, data),
     }
     diag = np.array([0, 4, 8])
     return CalibrationResult(

@@ -15,6 +15,9 @@ from .accel import apply_model
 from .closure_model import closure_terms, rotation_terms
 
 FD_STEP = 1e-6  # central-difference step of the accelerometer parameters
+SETTLE_SHARE = 0.5625  # (1/2 / (2/3))^2: a steady drift's edge-to-mean part over its thirds-to-thirds part, squared
+SETTLE_CHI2 = (10.83, 13.82)  # chi-square quantiles at 0.999, 1 and 2 degrees of freedom
+THIRDS_NOISE = 6.0  # variance of the difference of two thirds' means over that of the whole mean, white noise
 
 
 @dataclass(frozen=True)
@@ -24,6 +27,8 @@ class AccelRests:
     mean: np.ndarray  # (N, 3) raw mean reading of each rest, g
     sd: np.ndarray  # (N,) its within-rest std (mean over axes), g, times the root of its colour (scatter of a mean)
     n: np.ndarray  # (N,) samples averaged
+    drift: np.ndarray  # (N, 3) raw mean of the rest's last third minus its first third, g (the device settling)
+    seconds: np.ndarray  # (N,) time the mean is taken over, s
 
 
 @dataclass(frozen=True)
@@ -88,12 +93,57 @@ def perp_basis(u: np.ndarray) -> np.ndarray:
     return np.stack([e1, e2], axis=-1)
 
 
-def directions(xa: np.ndarray, rests: AccelRests) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Unit gravity directions (N, 3), their noise variance per component (rad^2) and |a| - 1 whitened."""
+@dataclass(frozen=True)
+class Settling:
+    """Each rest's drift between its first and last thirds against the noise (``directions``)."""
+
+    across: np.ndarray  # (N,) per component across gravity, squared (g^2)
+    along: np.ndarray  # (N,) along gravity, squared (g^2)
+    noise: np.ndarray  # (N,) what noise alone gives a component, its variance (g^2)
+
+    @property
+    def counted_across(self) -> np.ndarray:
+        return 2.0 * self.across > SETTLE_CHI2[1] * self.noise
+
+    @property
+    def counted_along(self) -> np.ndarray:
+        return self.along > SETTLE_CHI2[0] * self.noise
+
+
+def settling(xa: np.ndarray, rests: AccelRests, u: np.ndarray, var_g: np.ndarray) -> Settling:
+    """The rests' drifts, calibrated by ``xa`` and split about their gravity directions ``u``."""
+    drift = apply_model(xa, rests.drift) - apply_model(xa, np.zeros((1, 3)))  # the model's linear part
+    along = np.sum(drift * u, axis=1) ** 2
+    return Settling((np.sum(drift**2, axis=1) - along) / 2.0, along, THIRDS_NOISE * var_g)
+
+
+def settling_rate_variance(xa: np.ndarray, rests: AccelRests) -> np.ndarray:
+    """(N,) (deg/s)^2 per axis: the true rate a settling rest's tilt puts into its mean gyro reading. A steady tilt
+    that moves gravity by the thirds' drift d turns at 1.5 d / T on average (d over two thirds of the rest)."""
     a = apply_model(xa, rests.mean)
     norm = np.linalg.norm(a, axis=1)
-    sd_g = rests.sd * float(np.mean(np.abs(xa[0:3]))) / np.sqrt(rests.n)
-    return a / norm[:, None], (sd_g / norm) ** 2, (norm - 1.0) / sd_g
+    var_g = (rests.sd * float(np.mean(np.abs(xa[0:3]))) / np.sqrt(rests.n)) ** 2
+    st = settling(xa, rests, a / norm[:, None], var_g)
+    excess = np.where(st.counted_across, st.across - st.noise, 0.0) / norm**2  # rad^2 per component
+    return np.degrees(1.0) ** 2 * 4.0 * SETTLE_SHARE * excess / rests.seconds**2  # (2 * 3/4 d / T)^2
+
+
+def directions(xa: np.ndarray, rests: AccelRests) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unit gravity directions (N, 3), their noise variance per component (rad^2) and |a| - 1 whitened.
+
+    Both variances count the rest's settling: a rest whose mean reading drifts between its first and last thirds
+    by more than its noise explains (a device rocking or easing into place, an accelerometer wandering) is taken to
+    differ at its edges from its mean by half its drift (SETTLE_SHARE of the thirds' difference, squared). Across
+    gravity that widens the direction's variance, along it the magnitude's. A drift counts only where noise alone
+    would give it one time in a thousand (SETTLE_CHI2), so quiet rests keep their noise."""
+    a = apply_model(xa, rests.mean)
+    norm = np.linalg.norm(a, axis=1)
+    u = a / norm[:, None]
+    var_g = (rests.sd * float(np.mean(np.abs(xa[0:3]))) / np.sqrt(rests.n)) ** 2
+    st = settling(xa, rests, u, var_g)
+    var_dir = var_g + SETTLE_SHARE * np.where(st.counted_across, st.across - st.noise, 0.0)
+    var_mag = var_g + SETTLE_SHARE * np.where(st.counted_along, st.along - st.noise, 0.0)
+    return u, var_dir / norm**2, (norm - 1.0) / np.sqrt(var_mag)
 
 
 def _motion_inputs(p: Params, w: Windows) -> tuple[np.ndarray, np.ndarray | None]:
@@ -208,7 +258,8 @@ def _rest_residuals(p: Params, data: Data, da: np.ndarray, n_free: int) -> tuple
     S = data.mean.shape[0]
     Kinv = np.linalg.inv(p.K)
     beta = Kinv @ p.b
-    w = np.sqrt(data.count)[:, None] / data.sigma_slow[None, :]
+    var = data.sigma_slow[None, :] ** 2 / data.count[:, None] + settling_rate_variance(p.xa, data.rests)[:, None]
+    w = 1.0 / np.sqrt(var)
     r = data.mean + beta
     dr = np.zeros((S, 3, P))
     for i in range(3):
