@@ -39,7 +39,7 @@ from scipy.stats import f as f_dist
 from .accel import PARAMS, AccelCalibration, apply_model, calibrate_accelerometer, rest_spans
 from .closure_fit import still_statistics, windows
 from .errors import CalibrationError, ProtocolError
-from .multi_position_model import AccelRests, Data, Params, Windows, directions, gravity_misfit, settling, system
+from .multi_position_model import AccelRests, Data, Params, Windows, directions, gravity_misfit, rest_gravity, system
 from .recording import Recording, sample_intervals
 from .result import CalibrationResult
 from .stage import Stage
@@ -273,13 +273,10 @@ def _gravity_deg(p: Params, data: Data) -> np.ndarray:
 def _settling_report(p: Params, data: Data) -> dict[str, Any]:
     """The rests that were still settling: their gravity's drift across itself between their first and last thirds
     (deg), counted in their directions' noise where it is beyond chance."""
-    u, _, _ = directions(p.xa, data.rests)
-    var_g = (data.rests.sd * float(np.mean(np.abs(p.xa[0:3]))) / np.sqrt(data.rests.n)) ** 2
-    st = settling(p.xa, data.rests, u, var_g)
-    drift_deg = np.degrees(np.sqrt(2.0 * st.across))
-    counted = np.flatnonzero(st.counted_across)
-    return {"rests_counted": [int(i) for i in counted], "drift_deg": [float(v) for v in drift_deg],
-            "largest_deg": float(drift_deg.max()) if drift_deg.size else None}
+    gravity = rest_gravity(p.xa, data.rests)
+    drift_deg = np.degrees(np.sqrt(2.0 * gravity.across))
+    return {"rests_counted": [int(i) for i in np.flatnonzero(gravity.counted_across)],
+            "drift_deg": [float(v) for v in drift_deg], "largest_deg": float(drift_deg.max()) if drift_deg.size else None}
 
 
 def _rms(v: np.ndarray) -> float | None:

@@ -94,38 +94,49 @@ def perp_basis(u: np.ndarray) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class Settling:
-    """Each rest's drift between its first and last thirds against the noise (``directions``)."""
+class RestGravity:
+    """The calibrated accelerometer over each rest: its gravity direction, the noise of its mean, and its drift
+    between its first and last thirds split about gravity (the device settling, ``directions``)."""
 
-    across: np.ndarray  # (N,) per component across gravity, squared (g^2)
-    along: np.ndarray  # (N,) along gravity, squared (g^2)
-    noise: np.ndarray  # (N,) what noise alone gives a component, its variance (g^2)
+    u: np.ndarray  # (N, 3) unit gravity direction
+    norm: np.ndarray  # (N,) |a|, g
+    var_g: np.ndarray  # (N,) the noise variance of the mean, per component (g^2)
+    across: np.ndarray  # (N,) the drift's component across gravity, squared, per component (g^2)
+    along: np.ndarray  # (N,) the drift along gravity, squared (g^2)
 
     @property
     def counted_across(self) -> np.ndarray:
-        return 2.0 * self.across > SETTLE_CHI2[1] * self.noise
+        """Rests whose drift across gravity is beyond what noise alone gives one time in a thousand."""
+        return 2.0 * self.across > SETTLE_CHI2[1] * THIRDS_NOISE * self.var_g
 
     @property
-    def counted_along(self) -> np.ndarray:
-        return self.along > SETTLE_CHI2[0] * self.noise
+    def excess_across(self) -> np.ndarray:
+        """The drift across gravity beyond the noise's, where it counts, per component (g^2)."""
+        return np.where(self.counted_across, self.across - THIRDS_NOISE * self.var_g, 0.0)
+
+    @property
+    def excess_along(self) -> np.ndarray:
+        """The same along gravity (g^2)."""
+        noise = THIRDS_NOISE * self.var_g
+        return np.where(self.along > SETTLE_CHI2[0] * noise, self.along - noise, 0.0)
 
 
-def settling(xa: np.ndarray, rests: AccelRests, u: np.ndarray, var_g: np.ndarray) -> Settling:
-    """The rests' drifts, calibrated by ``xa`` and split about their gravity directions ``u``."""
-    drift = apply_model(xa, rests.drift) - apply_model(xa, np.zeros((1, 3)))  # the model's linear part
-    along = np.sum(drift * u, axis=1) ** 2
-    return Settling((np.sum(drift**2, axis=1) - along) / 2.0, along, THIRDS_NOISE * var_g)
-
-
-def settling_rate_variance(xa: np.ndarray, rests: AccelRests) -> np.ndarray:
-    """(N,) (deg/s)^2 per axis: the true rate a settling rest's tilt puts into its mean gyro reading. A steady tilt
-    that moves gravity by the thirds' drift d turns at 1.5 d / T on average (d over two thirds of the rest)."""
+def rest_gravity(xa: np.ndarray, rests: AccelRests) -> RestGravity:
+    """The rests' gravity, noise and drift, the accelerometer calibrated by ``xa``."""
     a = apply_model(xa, rests.mean)
     norm = np.linalg.norm(a, axis=1)
+    u = a / norm[:, None]
     var_g = (rests.sd * float(np.mean(np.abs(xa[0:3]))) / np.sqrt(rests.n)) ** 2
-    st = settling(xa, rests, a / norm[:, None], var_g)
-    excess = np.where(st.counted_across, st.across - st.noise, 0.0) / norm**2  # rad^2 per component
-    return np.degrees(1.0) ** 2 * 4.0 * SETTLE_SHARE * excess / rests.seconds**2  # (2 * 3/4 d / T)^2
+    drift = apply_model(xa, rests.drift) - apply_model(xa, np.zeros((1, 3)))  # the model's linear part
+    along = np.sum(drift * u, axis=1) ** 2
+    return RestGravity(u, norm, var_g, (np.sum(drift**2, axis=1) - along) / 2.0, along)
+
+
+def settling_rate_variance(g: RestGravity, seconds: np.ndarray) -> np.ndarray:
+    """(N,) (deg/s)^2 per axis: the true rate a settling rest's tilt puts into its mean gyro reading. A steady tilt
+    that moves gravity by the thirds' drift d turns at 1.5 d / T on average (d over two thirds of the rest)."""
+    excess = g.excess_across / g.norm**2  # rad^2 per component
+    return np.degrees(1.0) ** 2 * 4.0 * SETTLE_SHARE * excess / seconds**2  # (2 * 3/4 d / T)^2
 
 
 def directions(xa: np.ndarray, rests: AccelRests) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -136,14 +147,13 @@ def directions(xa: np.ndarray, rests: AccelRests) -> tuple[np.ndarray, np.ndarra
     differ at its edges from its mean by half its drift (SETTLE_SHARE of the thirds' difference, squared). Across
     gravity that widens the direction's variance, along it the magnitude's. A drift counts only where noise alone
     would give it one time in a thousand (SETTLE_CHI2), so quiet rests keep their noise."""
-    a = apply_model(xa, rests.mean)
-    norm = np.linalg.norm(a, axis=1)
-    u = a / norm[:, None]
-    var_g = (rests.sd * float(np.mean(np.abs(xa[0:3]))) / np.sqrt(rests.n)) ** 2
-    st = settling(xa, rests, u, var_g)
-    var_dir = var_g + SETTLE_SHARE * np.where(st.counted_across, st.across - st.noise, 0.0)
-    var_mag = var_g + SETTLE_SHARE * np.where(st.counted_along, st.along - st.noise, 0.0)
-    return u, var_dir / norm**2, (norm - 1.0) / np.sqrt(var_mag)
+    return _directions(rest_gravity(xa, rests))
+
+
+def _directions(g: RestGravity) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    var_dir = g.var_g + SETTLE_SHARE * g.excess_across
+    var_mag = g.var_g + SETTLE_SHARE * g.excess_along
+    return g.u, var_dir / g.norm**2, (g.norm - 1.0) / np.sqrt(var_mag)
 
 
 def _motion_inputs(p: Params, w: Windows) -> tuple[np.ndarray, np.ndarray | None]:
@@ -208,7 +218,8 @@ def system(p: Params, data: Data) -> tuple[np.ndarray, np.ndarray]:
     ng = p.n_gyro
     P = ng + free.size
     res_parts, jac_parts = [], []
-    u, dvar, mag = directions(p.xa, data.rests)
+    gravity = rest_gravity(p.xa, data.rests)
+    u, dvar, mag = _directions(gravity)
     du, da, dmag = _accel_differences(p.xa, data)
     if data.gravity is not None:
         i_s, i_e = data.pairs
@@ -240,7 +251,7 @@ def system(p: Params, data: Data) -> tuple[np.ndarray, np.ndarray]:
         L = np.linalg.cholesky(ct.noise)
         res_parts.append(np.linalg.solve(L, ct.r[..., None])[..., 0].reshape(-1))
         jac_parts.append(np.linalg.solve(L, d).reshape(-1, P))
-    r, j = _rest_residuals(p, data, da, free.size)
+    r, j = _rest_residuals(p, data, da, free.size, settling_rate_variance(gravity, data.rests.seconds))
     res_parts.append(r)
     jac_parts.append(j)
     if free.size:  # accelerometer rests: |a| = 1 g
@@ -251,14 +262,15 @@ def system(p: Params, data: Data) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(res_parts), np.concatenate(jac_parts)
 
 
-def _rest_residuals(p: Params, data: Data, da: np.ndarray, n_free: int) -> tuple[np.ndarray, np.ndarray]:
+def _rest_residuals(p: Params, data: Data, da: np.ndarray, n_free: int, settling_var: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
     """Gyro rests, whitened residuals and Jacobian: the mean reading is G a - beta, beta = K^-1 b."""
     ng = p.n_gyro
     P = ng + n_free
     S = data.mean.shape[0]
     Kinv = np.linalg.inv(p.K)
     beta = Kinv @ p.b
-    var = data.sigma_slow[None, :] ** 2 / data.count[:, None] + settling_rate_variance(p.xa, data.rests)[:, None]
+    var = data.sigma_slow[None, :] ** 2 / data.count[:, None] + settling_var[:, None]
     w = 1.0 / np.sqrt(var)
     r = data.mean + beta
     dr = np.zeros((S, 3, P))
