@@ -70,6 +70,7 @@ def _summary(result: Any, source: str) -> str:
         lines.append("g-sensitivity G of g = K (m - G a) + b, (deg/s)/g (row: gyro axis, column: acceleration axis):")
         lines.extend("  " + _fmt_vec(row, 4) for row in d["G"])
     lines.extend(_g_sensitivity_lines((d.get("quality") or {}).get("g_sensitivity")))
+    lines.extend(_constraint_lines(d.get("quality") or {}))
     if d.get("noise_dps"):
         lines.append(f"Noise (from the stills): {_fmt_vec(d['noise_dps'], 4)} deg/s")
     q = d.get("quality") or {}
@@ -91,6 +92,21 @@ def _g_sensitivity_lines(test: dict[str, Any] | None) -> list[str]:
     if rms is not None:
         before += f", gravity residuals {rms:.3f} deg rms"
     return [f"g-sensitivity {'fitted' if test.get('fitted') else 'not fitted'}: {test.get('reason', '')}" + before]
+
+
+def _constraint_lines(q: dict[str, Any]) -> list[str]:
+    """Each kind of constraint's chi-square against what noise explains, and the rests still settling (multi-position)."""
+    out = []
+    fits = q.get("constraint_fit") or {}
+    if fits:
+        shown = (f"{kind.replace('_', ' ')} {f['chi2']:.1f} / {f['expected']:.1f} = {f['ratio']:.2f} (p {f['p_value']:.2g})"
+                 for kind, f in fits.items() if f.get("ratio") is not None)
+        out.append("Chi-square per constraint / what the noise explains: " + "; ".join(shown))
+    settling = q.get("settling") or {}
+    if settling.get("drift_deg"):
+        out.append(f"Rests still settling (counted in their noise): {len(settling['rests_counted'])} of "
+                   f"{len(settling['drift_deg'])}, largest drift {settling['largest_deg']:.3f} deg")
+    return out
 
 
 def _writable(path: Path, what: str) -> Path:

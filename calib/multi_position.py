@@ -34,6 +34,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy.stats import chi2 as chi2_dist
 from scipy.stats import f as f_dist
 
 from .accel import PARAMS, AccelCalibration, apply_model, calibrate_accelerometer, rest_spans
@@ -279,6 +280,30 @@ def _settling_report(p: Params, data: Data) -> dict[str, Any]:
             "drift_deg": [float(v) for v in drift_deg], "largest_deg": float(drift_deg.max()) if drift_deg.size else None}
 
 
+def _constraint_fit(fit: _Fit, data: Data) -> dict[str, dict[str, Any]]:
+    """Per kind of constraint, in ``system``'s order: its whitened chi-square against what noise alone gives it, the
+    equations less the share of the fitted parameters they carry (their leverages' sum), with the chance of a
+    chi-square that large. A kind well above 1 is where the model or the noise falls short."""
+    n_grav = data.pairs[0].size
+    n_turns = 0 if data.turns is None else data.turns.dt.shape[1]
+    sizes = {"motions": 2 * n_grav, "full_turns": 3 * n_turns, "rests": data.mean.size,
+             "accelerometer_magnitude": fit.res.size - 2 * n_grav - 3 * n_turns - data.mean.size}
+    q, _ = np.linalg.qr(fit.jac)
+    leverage = np.sum(q**2, axis=1)
+    out: dict[str, dict[str, Any]] = {}
+    start = 0
+    for kind, size in sizes.items():
+        rows = slice(start, start + size)
+        start += size
+        if size == 0:
+            continue
+        chi2 = float(fit.res[rows] @ fit.res[rows])
+        expected = float(size - leverage[rows].sum())
+        out[kind] = {"equations": size, "chi2": chi2, "expected": expected, "ratio": chi2 / expected if expected > 0 else None,
+                     "p_value": float(chi2_dist.sf(chi2, expected)) if expected > 0 else None}
+    return out
+
+
 def _rms(v: np.ndarray) -> float | None:
     return float(np.sqrt(np.mean(v**2))) if v.size else None
 
@@ -311,6 +336,7 @@ def _result(fit: _Fit, g_test: dict[str, Any], base: _Fit, data: Data, accel: Ac
         "accelerometer": accel.to_dict(),
         "g_sensitivity": g_test,
         "settling": _settling_report(p, data),
+        "constraint_fit": _constraint_fit(fit, data),
     }
     diag = np.array([0, 4, 8])
     return CalibrationResult(

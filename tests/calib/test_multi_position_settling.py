@@ -42,13 +42,20 @@ def test_settling_rests_are_found_counted_and_the_fit_stays_honest(monkeypatch: 
         assert counted <= set(SETTLING), counted  # a quiet rest is counted one time in a thousand
         assert len(settling["drift_deg"]) == 37
         found += len(counted)
+        fits = res.quality["constraint_fit"]
+        assert sum(f["expected"] for f in fits.values()) == pytest.approx(res.quality["dof"])  # the parameters' share
         if counted != set(SETTLING):
-            continue  # a tilt about gravity itself: the accelerometer cannot see it (the Birge ratio carries it)
+            # a tilt about gravity itself: the accelerometer cannot see it; the gyro's rest means do (the rests' group)
+            assert fits["rests"]["ratio"] > 3.0 and fits["motions"]["ratio"] < 1.6, fits
+            continue
         assert res.quality["birge_ratio"] < 1.25
+        assert all(0.5 < f["ratio"] < 1.6 for f in fits.values()), fits
         z.append(np.concatenate([res.k - truth.k, res.b - truth.b]) / np.concatenate([res.k_std, res.b_std]))
         with monkeypatch.context() as m:  # the same recording, settling left out of the noise
             m.setattr(model, "SETTLE_SHARE", 0.0)
-            assert calibrate_multi_position(rec).quality["birge_ratio"] > 1.5
+            left_out = calibrate_multi_position(rec).quality
+            assert left_out["birge_ratio"] > 1.5
+            assert left_out["constraint_fit"]["motions"]["ratio"] > 3.0 and left_out["constraint_fit"]["rests"]["ratio"] > 5.0
     assert found >= 20 and len(z) >= 4, (found, len(z))
     assert np.all(np.abs(np.array(z)) < 4.0)
 
@@ -62,3 +69,5 @@ def test_imu_tk_rests_that_settle_are_named_and_counted(real_data: Path):
     # the rest at 207.9-211.6 s tilts by 0.16 deg within itself (its accelerometer and gyro both scatter more)
     assert 13 in settling["rests_counted"] and settling["largest_deg"] == pytest.approx(0.157, abs=0.01)
     assert len(res.stages) > 0 and res.quality["birge_ratio"] < 1.75
+    fits = res.quality["constraint_fit"]  # the accelerometer's |a| = 1 g is the kind furthest from its noise
+    assert fits["accelerometer_magnitude"]["ratio"] > 5.0 and 1.0 < fits["motions"]["ratio"] < 2.0
