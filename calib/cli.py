@@ -69,11 +69,11 @@ def _summary(result: Any, source: str) -> str:
     if d.get("G") is not None:
         lines.append("g-sensitivity G of g = K (m - G a) + b, (deg/s)/g (row: gyro axis, column: acceleration axis):")
         lines.extend("  " + _fmt_vec(row, 4) for row in d["G"])
-    lines.extend(_g_sensitivity_lines((d.get("quality") or {}).get("g_sensitivity")))
-    lines.extend(_constraint_lines(d.get("quality") or {}))
+    q = d.get("quality") or {}
+    lines.extend(_g_sensitivity_lines(q.get("g_sensitivity")))
+    lines.extend(_constraint_lines(q))
     if d.get("noise_dps"):
         lines.append(f"Noise (from the stills): {_fmt_vec(d['noise_dps'], 4)} deg/s")
-    q = d.get("quality") or {}
     if q:
         shown = (f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in q.items() if not isinstance(v, (dict, list)))
         lines.append("Quality: " + ", ".join(shown))

@@ -40,7 +40,17 @@ from scipy.stats import f as f_dist
 from .accel import PARAMS, AccelCalibration, apply_model, calibrate_accelerometer, rest_spans
 from .closure_fit import still_statistics, windows
 from .errors import CalibrationError, ProtocolError
-from .multi_position_model import AccelRests, Data, Params, Windows, directions, gravity_misfit, rest_gravity, system
+from .multi_position_model import (
+    AccelRests,
+    Data,
+    Params,
+    Windows,
+    directions,
+    gravity_misfit,
+    residual_layout,
+    rest_gravity,
+    system,
+)
 from .recording import Recording, sample_intervals
 from .result import CalibrationResult
 from .stage import Stage
@@ -280,19 +290,15 @@ def _settling_report(p: Params, data: Data) -> dict[str, Any]:
             "drift_deg": [float(v) for v in drift_deg], "largest_deg": float(drift_deg.max()) if drift_deg.size else None}
 
 
-def _constraint_fit(fit: _Fit, data: Data) -> dict[str, dict[str, Any]]:
-    """Per kind of constraint, in ``system``'s order: its whitened chi-square against what noise alone gives it, the
-    equations less the share of the fitted parameters they carry (their leverages' sum), with the chance of a
-    chi-square that large. A kind well above 1 is where the model or the noise falls short."""
-    n_grav = data.pairs[0].size
-    n_turns = 0 if data.turns is None else data.turns.dt.shape[1]
-    sizes = {"motions": 2 * n_grav, "full_turns": 3 * n_turns, "rests": data.mean.size,
-             "accelerometer_magnitude": fit.res.size - 2 * n_grav - 3 * n_turns - data.mean.size}
-    q, _ = np.linalg.qr(fit.jac)
-    leverage = np.sum(q**2, axis=1)
+def _constraint_fit(fit: _Fit, cov: np.ndarray, data: Data) -> dict[str, dict[str, Any]]:
+    """Per kind of constraint (``residual_layout``): its whitened chi-square against what noise alone gives it, the
+    equations less the share of the fitted parameters they carry (their leverages' sum, ``cov`` the parameters'
+    inverse Fisher information), with the chance of a chi-square that large. A kind well above 1 is where the
+    model or the noise falls short."""
+    leverage = np.einsum("ij,jk,ik->i", fit.jac, cov, fit.jac)
     out: dict[str, dict[str, Any]] = {}
     start = 0
-    for kind, size in sizes.items():
+    for kind, size in residual_layout(data).items():
         rows = slice(start, start + size)
         start += size
         if size == 0:
@@ -336,7 +342,7 @@ def _result(fit: _Fit, g_test: dict[str, Any], base: _Fit, data: Data, accel: Ac
         "accelerometer": accel.to_dict(),
         "g_sensitivity": g_test,
         "settling": _settling_report(p, data),
-        "constraint_fit": _constraint_fit(fit, data),
+        "constraint_fit": _constraint_fit(fit, cov, data),
     }
     diag = np.array([0, 4, 8])
     return CalibrationResult(

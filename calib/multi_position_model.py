@@ -210,6 +210,12 @@ def _force_jacobian(dF: np.ndarray, K: np.ndarray) -> np.ndarray:
     return -np.einsum("bacj,ci->baij", dF, K).reshape(B, 3, 9)
 
 
+def residual_layout(data: Data) -> dict[str, int]:
+    """How many of ``system``'s residual rows each kind of constraint takes, in its order."""
+    return {"motions": 2 * data.pairs[0].size, "full_turns": 0 if data.turns is None else 3 * data.turns.dt.shape[1],
+            "rests": data.mean.size, "accelerometer_magnitude": data.rests.n.size if data.free_a.any() else 0}
+
+
 def system(p: Params, data: Data) -> tuple[np.ndarray, np.ndarray]:
     """Whitened residuals and Jacobian over the parameters (module docstring): gravity motions, full turns,
     gyro rests, accelerometer magnitudes. The motions' dependence on the accelerometer through G a is left
