@@ -95,13 +95,22 @@ def _g_sensitivity_lines(test: dict[str, Any] | None) -> list[str]:
 
 
 def _constraint_lines(q: dict[str, Any]) -> list[str]:
-    """Each kind of constraint's chi-square against what noise explains, and the rests still settling (multi-position)."""
+    """Each kind of constraint's chi-square against what noise explains, the accelerometer's noise floor and the
+    rests still settling (multi-position)."""
     out = []
     fits = q.get("constraint_fit") or {}
     if fits:
         shown = (f"{kind.replace('_', ' ')} {f['chi2']:.1f} / {f['expected']:.1f} = {f['ratio']:.2f} (p {f['p_value']:.2g})"
                  for kind, f in fits.items() if f.get("ratio") is not None)
         out.append("Chi-square per constraint / what the noise explains: " + "; ".join(shown))
+    floor = q.get("accelerometer_floor") or {}
+    if floor.get("measured"):
+        axes = ", ".join(f"{axis} {mg:.3f}" if mg > 0 else f"{axis} none" for axis, mg in zip("xyz", floor["per_axis_mg"], strict=True))
+        out.append(f"Accelerometer noise floor (rest means' scatter beyond white noise, measured on rest {floor['rest']} "
+                   f"over {floor['tau_s']:.1f} s spans): {axes} mg")
+    elif floor:
+        out.append("Accelerometer noise floor: not measured (no rest holds four spans of a typical rest's length); "
+                   "rest means counted as white noise only")
     settling = q.get("settling") or {}
     if settling.get("drift_deg"):
         out.append(f"Rests still settling (counted in their noise): {len(settling['rests_counted'])} of "

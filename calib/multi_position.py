@@ -38,6 +38,7 @@ from scipy.stats import chi2 as chi2_dist
 from scipy.stats import f as f_dist
 
 from .accel import PARAMS, AccelCalibration, apply_model, calibrate_accelerometer, rest_spans
+from .accel_floor import accel_floor
 from .closure_fit import still_statistics, windows
 from .errors import CalibrationError, ProtocolError
 from .multi_position_model import (
@@ -164,13 +165,15 @@ def _data(rec: Recording, stills: list[Stage], motions: list[Motion], free_a: np
     mean, count, sigma = still_statistics(gyro, np.array([[[s.start, s.end] for s in stills]]))
     colour = noise_colour(rec.gyro, [(s.start, s.end) for s in stills])
     spans = rest_spans(stills, rec.fs)
-    accel_colour = float(np.mean(noise_colour(rec.accel, spans)))  # its rest means scatter by this much more, too
+    accel_colours = noise_colour(rec.accel, spans)
+    accel_colour = float(np.mean(accel_colours))  # its rest means scatter by this much more, too
     rests = AccelRests(
         mean=np.array([rec.accel[i:j].mean(axis=0) for i, j in spans]),
         sd=np.maximum(np.array([rec.accel[i:j].std(axis=0).mean() for i, j in spans]), 1e-4) * np.sqrt(accel_colour),
         n=np.array([j - i for i, j in spans], dtype=float),
         drift=np.array([_thirds_drift(rec.accel[i:j]) for i, j in spans]),
         seconds=np.array([rec.t[j - 1] - rec.t[i] for i, j in spans]) + 1.0 / rec.fs,
+        floor=accel_floor(rec.accel, spans, accel_colours, rec.fs),
     )
     grav = [mo for mo in motions if mo.full_turn is None]
     turns = [mo for mo in motions if mo.full_turn is not None]
@@ -342,6 +345,7 @@ def _result(fit: _Fit, g_test: dict[str, Any], base: _Fit, data: Data, accel: Ac
         "accelerometer": accel.to_dict(),
         "g_sensitivity": g_test,
         "settling": _settling_report(p, data),
+        "accelerometer_floor": data.rests.floor.to_dict(),
         "constraint_fit": _constraint_fit(fit, cov, data),
     }
     diag = np.array([0, 4, 8])

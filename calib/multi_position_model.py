@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .accel import apply_model
+from .accel_floor import AccelFloor
 from .closure_model import closure_terms, rotation_terms
 
 FD_STEP = 1e-6  # central-difference step of the accelerometer parameters
@@ -29,6 +30,7 @@ class AccelRests:
     n: np.ndarray  # (N,) samples averaged
     drift: np.ndarray  # (N, 3) raw mean of the rest's last third minus its first third, g (the device settling)
     seconds: np.ndarray  # (N,) time the mean is taken over, s
+    floor: AccelFloor  # the scatter of a mean beyond white noise, per raw axis (``calib.accel_floor``)
 
 
 @dataclass(frozen=True)
@@ -100,24 +102,32 @@ class RestGravity:
 
     u: np.ndarray  # (N, 3) unit gravity direction
     norm: np.ndarray  # (N,) |a|, g
-    var_g: np.ndarray  # (N,) the noise variance of the mean, per component (g^2)
+    var_g: np.ndarray  # (N,) the white noise variance of the mean, per component (g^2)
+    floor_across: np.ndarray  # (N,) the accelerometer's floor across gravity, per component (g^2)
+    floor_along: np.ndarray  # (N,) the same along gravity (g^2)
     across: np.ndarray  # (N,) the drift's component across gravity, squared, per component (g^2)
     along: np.ndarray  # (N,) the drift along gravity, squared (g^2)
 
     @property
+    def thirds_noise_across(self) -> np.ndarray:
+        """Variance per component of the thirds' difference across gravity from noise alone: the white part
+        and the floor (two means, each off by the floor)."""
+        return THIRDS_NOISE * self.var_g + 2.0 * self.floor_across
+
+    @property
     def counted_across(self) -> np.ndarray:
         """Rests whose drift across gravity is beyond what noise alone gives one time in a thousand."""
-        return 2.0 * self.across > SETTLE_CHI2[1] * THIRDS_NOISE * self.var_g
+        return 2.0 * self.across > SETTLE_CHI2[1] * self.thirds_noise_across
 
     @property
     def excess_across(self) -> np.ndarray:
         """The drift across gravity beyond the noise's, where it counts, per component (g^2)."""
-        return np.where(self.counted_across, self.across - THIRDS_NOISE * self.var_g, 0.0)
+        return np.where(self.counted_across, self.across - self.thirds_noise_across, 0.0)
 
     @property
     def excess_along(self) -> np.ndarray:
         """The same along gravity (g^2)."""
-        noise = THIRDS_NOISE * self.var_g
+        noise = THIRDS_NOISE * self.var_g + 2.0 * self.floor_along
         return np.where(self.along > SETTLE_CHI2[0] * noise, self.along - noise, 0.0)
 
 
@@ -126,10 +136,14 @@ def rest_gravity(xa: np.ndarray, rests: AccelRests) -> RestGravity:
     a = apply_model(xa, rests.mean)
     norm = np.linalg.norm(a, axis=1)
     u = a / norm[:, None]
-    var_g = (rests.sd * float(np.mean(np.abs(xa[0:3]))) / np.sqrt(rests.n)) ** 2
+    scale = float(np.mean(np.abs(xa[0:3])))
+    var_g = (rests.sd * scale / np.sqrt(rests.n)) ** 2
+    floor2 = (rests.floor.sd * scale) ** 2
+    floor_along = (u**2) @ floor2
     drift = apply_model(xa, rests.drift) - apply_model(xa, np.zeros((1, 3)))  # the model's linear part
     along = np.sum(drift * u, axis=1) ** 2
-    return RestGravity(u, norm, var_g, (np.sum(drift**2, axis=1) - along) / 2.0, along)
+    return RestGravity(u, norm, var_g, (float(floor2.sum()) - floor_along) / 2.0, floor_along,
+                       (np.sum(drift**2, axis=1) - along) / 2.0, along)
 
 
 def settling_rate_variance(g: RestGravity, seconds: np.ndarray) -> np.ndarray:
@@ -142,17 +156,18 @@ def settling_rate_variance(g: RestGravity, seconds: np.ndarray) -> np.ndarray:
 def directions(xa: np.ndarray, rests: AccelRests) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Unit gravity directions (N, 3), their noise variance per component (rad^2) and |a| - 1 whitened.
 
-    Both variances count the rest's settling: a rest whose mean reading drifts between its first and last thirds
-    by more than its noise explains (a device rocking or easing into place, an accelerometer wandering) is taken to
-    differ at its edges from its mean by half its drift (SETTLE_SHARE of the thirds' difference, squared). Across
-    gravity that widens the direction's variance, along it the magnitude's. A drift counts only where noise alone
+    Both variances count the accelerometer's floor (``calib.accel_floor``) beside its white noise, and the rest's
+    settling: a rest whose mean reading drifts between its first and last thirds by more than its noise explains (a
+    device rocking or easing into place) is taken to differ at its edges from its mean by half its drift
+    (SETTLE_SHARE of the thirds' difference, squared). Across gravity that widens the direction's variance, along it
+    the magnitude's. A drift counts only where noise alone
     would give it one time in a thousand (SETTLE_CHI2), so quiet rests keep their noise."""
     return _directions(rest_gravity(xa, rests))
 
 
 def _directions(g: RestGravity) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    var_dir = g.var_g + SETTLE_SHARE * g.excess_across
-    var_mag = g.var_g + SETTLE_SHARE * g.excess_along
+    var_dir = g.var_g + g.floor_across + SETTLE_SHARE * g.excess_across
+    var_mag = g.var_g + g.floor_along + SETTLE_SHARE * g.excess_along
     return g.u, var_dir / g.norm**2, (g.norm - 1.0) / np.sqrt(var_mag)
 
 
