@@ -56,9 +56,9 @@ def accel_floor(accel: np.ndarray, spans: list[tuple[int, int]], colour: np.ndar
     if M < MIN_SPANS:
         return NO_FLOOR
     i = spans[longest][0]
-    readings = accel[i : i + M * n]
-    means = readings.reshape(M, n, 3).mean(axis=1)
-    white = np.var(readings - np.repeat(means, n, axis=0), axis=0) * np.asarray(colour) / n  # a span mean's white part
+    spans_of = accel[i : i + M * n].reshape(M, n, 3)
+    means = spans_of.mean(axis=1)
+    white = spans_of.var(axis=1).mean(axis=0) * np.asarray(colour) / n  # a span mean's white part
     ratio = np.var(means, axis=0, ddof=1) / np.maximum(white, 1e-300)
     beyond = ratio > chi2_dist.ppf(1.0 - FLOOR_ALPHA, M - 1) / (M - 1)
     sd = np.where(beyond, np.sqrt(np.maximum(ratio - 1.0, 0.0) * white), 0.0)

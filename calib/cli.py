@@ -109,7 +109,9 @@ def _constraint_lines(q: dict[str, Any]) -> list[str]:
         out.append(f"Accelerometer noise floor (rest means' scatter beyond white noise, measured on rest {floor['rest']} "
                    f"over {floor['tau_s']:.1f} s spans): {axes} mg")
     elif floor:
-        out.append("Accelerometer noise floor: not measured (no rest holds four spans of a typical rest's length); "
+        from .accel_floor import MIN_SPANS
+
+        out.append(f"Accelerometer noise floor: not measured (no rest holds {MIN_SPANS} spans of a typical rest's length); "
                    "rest means counted as white noise only")
     settling = q.get("settling") or {}
     if settling.get("drift_deg"):

@@ -115,6 +115,11 @@ class RestGravity:
         return THIRDS_NOISE * self.var_g + 2.0 * self.floor_across
 
     @property
+    def thirds_noise_along(self) -> np.ndarray:
+        """The same along gravity."""
+        return THIRDS_NOISE * self.var_g + 2.0 * self.floor_along
+
+    @property
     def counted_across(self) -> np.ndarray:
         """Rests whose drift across gravity is beyond what noise alone gives one time in a thousand."""
         return 2.0 * self.across > SETTLE_CHI2[1] * self.thirds_noise_across
@@ -127,7 +132,7 @@ class RestGravity:
     @property
     def excess_along(self) -> np.ndarray:
         """The same along gravity (g^2)."""
-        noise = THIRDS_NOISE * self.var_g + 2.0 * self.floor_along
+        noise = self.thirds_noise_along
         return np.where(self.along > SETTLE_CHI2[0] * noise, self.along - noise, 0.0)
 
 
@@ -160,8 +165,8 @@ def directions(xa: np.ndarray, rests: AccelRests) -> tuple[np.ndarray, np.ndarra
     settling: a rest whose mean reading drifts between its first and last thirds by more than its noise explains (a
     device rocking or easing into place) is taken to differ at its edges from its mean by half its drift
     (SETTLE_SHARE of the thirds' difference, squared). Across gravity that widens the direction's variance, along it
-    the magnitude's. A drift counts only where noise alone
-    would give it one time in a thousand (SETTLE_CHI2), so quiet rests keep their noise."""
+    the magnitude's. A drift counts only where noise alone would give it one time in a thousand (SETTLE_CHI2), so
+    quiet rests keep their noise."""
     return _directions(rest_gravity(xa, rests))
 
 
