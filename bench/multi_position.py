@@ -1,7 +1,11 @@
 """Calibration from re-orientations between rests (imu_tk's protocol), simulated: accuracy against each run's
 Cramer-Rao bound, honesty of the reported uncertainty, the accelerometer's own calibration, and speed.
 
-Run: .venv/bin/python bench/multi_position.py [--runs 200] [--noise 0.03 0.15] [--g-runs 50]
+Run: .venv/bin/python bench/multi_position.py [--runs 200] [--noise 0.03 0.15] [--g-runs 50] [--motion-noise-runs 50]
+
+The motion-noise section conceals a gyro noisier while it turns (the simulator's motion_noise effect, variance ratio
+1.2-2.5, gyro noise 0.15 deg/s, accelerometer 1 mg so that the gyro's noise rules the re-orientations) and reports the
+ratio measured, the re-orientations' chi-square against their noise with and without it counted, and err/std of k.
 
 The g-sensitivity section conceals a random G (largest entry 0.02-0.15 (deg/s)/g, the simulator's drawn
 range) in each run and reports how often the fit finds it, how much the fit improves, the parameters'
@@ -28,7 +32,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+import calib.multi_position as multi_position  # noqa: E402
+from calib.effects import MotionNoise  # noqa: E402
 from calib.effects.axes import GSensitivity  # noqa: E402
+from calib.motion_noise import no_motion_noise  # noqa: E402
 from calib.multi_position import calibrate_multi_position  # noqa: E402
 from calib.simulator import simulate  # noqa: E402
 from calib.simulator.lab_scripts import multi_position_script as script  # noqa: E402
@@ -43,7 +50,7 @@ def p95_bound(bounds: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 
 def run(noise: float, runs: int) -> None:
-    errs, stds, bounds, a_errs, a_stds, times, g_fitted, floors = [], [], [], [], [], [], 0, 0
+    errs, stds, bounds, a_errs, a_stds, times, g_fitted, floors, moving = [], [], [], [], [], [], 0, 0, 0
     for i in range(runs):
         rng = np.random.default_rng([7, i])
         rec, truth = simulate(10_000 + i, noise=noise, fs=100.0, script=script(rng), accel_noise_g=ACCEL_NOISE_G)
@@ -53,6 +60,7 @@ def run(noise: float, runs: int) -> None:
         times.append(time.perf_counter() - t0)
         g_fitted += bool(res.quality["g_sensitivity"]["fitted"])
         floors += sum(mg > 0 for mg in res.quality["accelerometer_floor"]["per_axis_mg"])
+        moving += sum(c != 1.0 for c in res.quality["gyro_motion_noise"]["counted"])
         errs.append(np.concatenate([res.k - truth.k, res.b - truth.b]))
         stds.append(np.concatenate([res.k_std, res.b_std]))
         bounds.append(np.concatenate([res.k_bound, res.b_bound]))
@@ -67,7 +75,7 @@ def run(noise: float, runs: int) -> None:
     names = ["k_x", "k_y", "k_z", "b_x", "b_y", "b_z"]
     print(f"\nnoise {noise} deg/s, accelerometer {1e3 * ACCEL_NOISE_G:g} mg, {runs} runs; median time {np.median(times):.3f} s; "
           f"g-sensitivity fitted (none simulated) in {g_fitted}; accelerometer floor found (white noise simulated) on "
-          f"{floors} of {3 * runs} axes")
+          f"{floors} of {3 * runs} axes; gyro noise while moving counted on {moving} of {3 * runs} axes (none simulated)")
     print("  param   |err| p95     bound   ratio   err/std sd")
     for j, n in enumerate(names):
         e = np.percentile(np.abs(errs[:, j]), 95)
@@ -111,6 +119,36 @@ def concealed_g_sensitivity(runs: int, noise: float = 0.05) -> None:
         print(f"  G err/std sd (all entries): {np.std(np.array(z)):.3f}")
 
 
+def concealed_motion_noise(runs: int, noise: float = 0.15) -> None:
+    """Runs with a gyro noisier while it turns, which the recording does not announce: measured, counted, and the
+    re-orientations back at their noise."""
+    rows = []
+    measure = multi_position.motion_noise
+    for i in range(runs):
+        rng = np.random.default_rng([9, i])
+        ratio = rng.uniform(1.2, 2.5)
+        rec, truth = simulate(30_000 + i, noise=noise, fs=100.0, script=script(rng), accel_noise_g=0.001,
+                              effects=[MotionNoise(np.full(3, ratio))])
+        multi_position.motion_noise = measure
+        res = calibrate_multi_position(rec)
+        multi_position.motion_noise = lambda gyro, rests, motions, fs: no_motion_noise(fs)
+        plain = calibrate_multi_position(rec)
+        multi_position.motion_noise = measure
+        q, qp = res.quality, plain.quality
+        rows.append([ratio, *q["gyro_motion_noise"]["variance_ratio"], qp["constraint_fit"]["motions"]["ratio"],
+                     q["constraint_fit"]["motions"]["ratio"], *((plain.k - truth.k) / plain.k_std), *((res.k - truth.k) / res.k_std)])
+        print(f"\r  motion noise: {i + 1}/{runs}", end="", file=sys.stderr, flush=True)
+    print(file=sys.stderr)
+    a = np.array(rows)
+    measured = a[:, 1:4] / a[:, :1]
+    print(f"\nconcealed motion noise (variance ratio 1.2-2.5 while turning), gyro {noise} deg/s, accelerometer 1 mg, {runs} runs")
+    lo, hi = np.percentile(measured, [5, 95])
+    print(f"  measured / true ratio: median {np.median(measured):.2f}, 5-95 % {lo:.2f}-{hi:.2f}")
+    print("                                   not counted   counted")
+    print(f"  re-orientations chi2 / expected  {np.mean(a[:, 4]):11.2f}  {np.mean(a[:, 5]):8.2f}   (mean over runs)")
+    print(f"  k err/std sd                     {np.std(a[:, 6:9]):11.2f}  {np.std(a[:, 9:12]):8.2f}")
+
+
 def speed() -> None:
     """A 10-minute, 100 Hz multi-position recording: 50 s rest, 73 re-orientations between 5 s rests."""
     rng = np.random.default_rng(99)
@@ -130,10 +168,12 @@ def main() -> int:
     ap.add_argument("--runs", type=int, default=200)
     ap.add_argument("--noise", type=float, nargs="+", default=[0.03, 0.15])
     ap.add_argument("--g-runs", type=int, default=50, help="runs with a concealed g-sensitivity")
+    ap.add_argument("--motion-noise-runs", type=int, default=50, help="runs with a gyro noisier while it turns")
     args = ap.parse_args()
     for noise in args.noise:
         run(noise, args.runs)
     concealed_g_sensitivity(args.g_runs)
+    concealed_motion_noise(args.motion_noise_runs)
     speed()
     return 0
 

@@ -95,8 +95,8 @@ def _g_sensitivity_lines(test: dict[str, Any] | None) -> list[str]:
 
 
 def _constraint_lines(q: dict[str, Any]) -> list[str]:
-    """Each kind of constraint's chi-square against what noise explains, the accelerometer's noise floor and the
-    rests still settling (multi-position)."""
+    """Each kind of constraint's chi-square against what noise explains, the accelerometer's noise floor, the gyro's
+    noise while moving and the rests still settling (multi-position)."""
     out = []
     fits = q.get("constraint_fit") or {}
     if fits:
@@ -113,6 +113,15 @@ def _constraint_lines(q: dict[str, Any]) -> list[str]:
 
         out.append(f"Accelerometer noise floor: not measured (no rest holds {MIN_SPANS} spans of a typical rest's length); "
                    "rest means counted as white noise only")
+    moving = q.get("gyro_motion_noise") or {}
+    if moving.get("measured"):
+        lo, hi = moving["band_hz"]
+        axes = ", ".join(f"{axis} {r:.2f}" + ("" if c != 1.0 else " (within chance, not counted)")
+                         for axis, r, c in zip("xyz", moving["variance_ratio"], moving["counted"], strict=True))
+        out.append(f"Gyroscope noise while moving over at rest (variance, {lo:.0f}-{hi:.0f} Hz): {axes}")
+    elif moving:
+        out.append(f"Gyroscope noise while moving: not measured ({moving.get('reason') or 'no reason given'}); "
+                   "motions counted with the rests' noise")
     settling = q.get("settling") or {}
     if settling.get("drift_deg"):
         out.append(f"Rests still settling (counted in their noise): {len(settling['rests_counted'])} of "

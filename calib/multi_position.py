@@ -41,6 +41,7 @@ from .accel import PARAMS, AccelCalibration, apply_model, calibrate_acceleromete
 from .accel_floor import accel_floor
 from .closure_fit import still_statistics, windows
 from .errors import CalibrationError, ProtocolError
+from .motion_noise import motion_noise
 from .multi_position_model import (
     AccelRests,
     Data,
@@ -177,6 +178,7 @@ def _data(rec: Recording, stills: list[Stage], motions: list[Motion], free_a: np
     )
     grav = [mo for mo in motions if mo.full_turn is None]
     turns = [mo for mo in motions if mo.full_turn is not None]
+    moving = [(spans[mo.rest_before][1], spans[mo.rest_after][0]) for mo in grav] + [(mo.start, mo.end) for mo in turns]
 
     def stacked(bounds: list[list[int]]) -> Windows | None:
         if not bounds:
@@ -190,6 +192,7 @@ def _data(rec: Recording, stills: list[Stage], motions: list[Motion], free_a: np
     # start and end, which the stage detector counts as rest, are then inside the window (the true rate there is ~0)
     return Data(
         mean=mean[0], count=count[0], sigma=sigma[0], sigma_slow=sigma[0] * np.sqrt(colour),
+        motion_noise=motion_noise(rec.gyro, spans, moving, rec.fs),
         gravity=stacked([[spans[mo.rest_before][1], spans[mo.rest_after][0]] for mo in grav]),
         turns=stacked([[mo.start, mo.end] for mo in turns]),
         pairs=(np.array([mo.rest_before for mo in grav], dtype=int), np.array([mo.rest_after for mo in grav], dtype=int)),
@@ -346,6 +349,7 @@ def _result(fit: _Fit, g_test: dict[str, Any], base: _Fit, data: Data, accel: Ac
         "g_sensitivity": g_test,
         "settling": _settling_report(p, data),
         "accelerometer_floor": data.rests.floor.to_dict(),
+        "gyro_motion_noise": data.motion_noise.to_dict(),
         "constraint_fit": _constraint_fit(fit, cov, data),
     }
     diag = np.array([0, 4, 8])

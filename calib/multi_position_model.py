@@ -14,6 +14,7 @@ import numpy as np
 from .accel import apply_model
 from .accel_floor import AccelFloor
 from .closure_model import closure_terms, rotation_terms
+from .motion_noise import MotionNoise
 
 FD_STEP = 1e-6  # central-difference step of the accelerometer parameters
 SETTLE_SHARE = 0.5625  # (1/2 / (2/3))^2: a steady drift's edge-to-mean part over its thirds-to-thirds part, squared
@@ -50,11 +51,17 @@ class Data:
     count: np.ndarray
     sigma: np.ndarray  # (3,) gyro reading noise, per sample
     sigma_slow: np.ndarray  # (3,) the same noise as it scatters means and integrals over many samples (its colour counted)
+    motion_noise: MotionNoise  # how much noisier the gyro is while moving (``calib.motion_noise``)
     gravity: Windows | None  # motions constrained by the gravity directions at their ends
     turns: Windows | None  # full turns: closure to the identity
     pairs: tuple[np.ndarray, np.ndarray]  # rest before and after each gravity motion
     rests: AccelRests
     free_a: np.ndarray  # (9,) accelerometer parameters fitted jointly
+
+    @property
+    def sigma_moving(self) -> np.ndarray:
+        """(3,) the noise that scatters a motion's integrated rotation: the rests' with the motions' excess counted."""
+        return self.sigma_slow * np.sqrt(self.motion_noise.counted)
 
 
 @dataclass
@@ -194,7 +201,7 @@ def motion_rotations(p: Params, data: Data, noise: bool = False):
     assert w is not None
     B = w.dt.shape[1]
     m, force = _motion_inputs(p, w)
-    return rotation_terms(m, w.dt, *_tiled(p, B), sigma=np.broadcast_to(data.sigma_slow, (B, 3)).copy() if noise else None,
+    return rotation_terms(m, w.dt, *_tiled(p, B), sigma=np.broadcast_to(data.sigma_moving, (B, 3)).copy() if noise else None,
                           force=force)
 
 
@@ -270,7 +277,7 @@ def system(p: Params, data: Data) -> tuple[np.ndarray, np.ndarray]:
         w = data.turns
         T = w.dt.shape[1]
         m, force = _motion_inputs(p, w)
-        ct = closure_terms(m, w.dt, *_tiled(p, T), sigma=np.broadcast_to(data.sigma_slow, (T, 3)).copy(), force=force)
+        ct = closure_terms(m, w.dt, *_tiled(p, T), sigma=np.broadcast_to(data.sigma_moving, (T, 3)).copy(), force=force)
         assert ct.dK is not None and ct.db is not None and ct.noise is not None
         parts = [ct.dK.reshape(T, 3, 9), ct.db] + ([] if ct.dF is None else [_force_jacobian(ct.dF, p.K)])
         d = np.concatenate(parts + [np.zeros((T, 3, free.size))], axis=-1)

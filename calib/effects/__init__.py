@@ -66,6 +66,7 @@ from .base import (
     register_effect,
 )
 from .drift import TAU_RANGE_S, TEMP_RESOLUTION_C, BiasDrift, BiasInstability, TemperatureRamp, warmup_temperature
+from .noise import MotionNoise
 from .placement import PlacementError
 from .scale import STANDARD_FULL_SCALES_DPS, Saturation, ScaleAsymmetry, ScaleNonlinearity
 from .spec import DrawContext, EffectSpec, MagnitudeRange

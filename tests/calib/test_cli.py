@@ -78,15 +78,17 @@ def test_calibrate_real_imucal_session(ferraris_csv: Path) -> None:
 
 def test_calibrate_imu_tk_session_summary(real_data: Path) -> None:
     """imu_tk's two files from the command line: the re-orientations found and used, and the summary says how far each
-    kind of constraint is from its noise, the accelerometer's noise floor and which rests were still settling."""
+    kind of constraint is from its noise, the accelerometer's noise floor, the gyro's noise while moving and which rests
+    were still settling."""
     folder = real_data / "imu_tk"
     proc = gyrocal("calibrate", str(folder / "xsens_gyro.mat"), "--layout", "imu_tk", "--accel", str(folder / "xsens_acc.mat"))
     assert proc.returncode == 0, proc.stderr
     assert "used: multi-position" in proc.stdout
     fit_line = next(line for line in proc.stdout.splitlines() if line.startswith("Chi-square per constraint"))
-    assert "motions 94" in fit_line and "rests " in fit_line and "accelerometer magnitude " in fit_line
+    assert "motions 64.8 / 63.7 = 1.02" in fit_line and "rests " in fit_line and "accelerometer magnitude " in fit_line
     assert "Accelerometer noise floor (rest means' scatter beyond white noise, measured on rest 0 over 7.9 s spans): " \
            "x none, y 0.063, z 0.083 mg" in proc.stdout
+    assert "Gyroscope noise while moving over at rest (variance, 45-50 Hz): x 1.27, y 2.10, z 1.24" in proc.stdout
     assert "Rests still settling (counted in their noise): 6 of 38, largest drift 0.157 deg" in proc.stdout
 
 

@@ -69,5 +69,6 @@ def test_imu_tk_rests_that_settle_are_named_and_counted(real_data: Path):
     # the rest at 207.9-211.6 s tilts by 0.16 deg within itself (its accelerometer and gyro both scatter more)
     assert 13 in settling["rests_counted"] and settling["largest_deg"] == pytest.approx(0.157, abs=0.01)
     assert len(res.stages) > 0 and res.quality["birge_ratio"] < 1.4
-    fits = res.quality["constraint_fit"]  # the re-orientations are the kind least explained by the noise
-    assert 1.2 < fits["motions"]["ratio"] < 2.0 and fits["motions"]["p_value"] < 0.05
+    fits = res.quality["constraint_fit"]  # |a| = 1 g is the kind least explained by the noise; the re-orientations are at it
+    assert fits["accelerometer_magnitude"]["ratio"] > fits["rests"]["ratio"] > fits["motions"]["ratio"]
+    assert fits["motions"]["p_value"] > 0.1
