@@ -8,7 +8,9 @@ ratio, if the noise is white. Measured axis by axis in the top tenth of the band
 Nyquist frequency), with an F test at ``MOTION_NOISE_ALPHA``; counted (each motion's noise scaled by it) only
 where it is beyond chance. A knock that reaches the top band counts as noise: the ratio is an upper bound. A sensor
 whose own low-pass filter empties the top of the band (its rests' power there far below white noise's share) leaves
-the ratio unmeasured: what is left there is not the noise that is integrated.
+the ratio unmeasured: what is left there is not the noise that is integrated. So does a sample rate whose top band
+starts below ``MIN_BAND_HZ``: a hand's motion still has power there (on imu_tk's Xsens, 20 times the noise's at
+20 Hz), which would read as noise many times over.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ BAND = (0.9, 1.0)  # the band the power is compared in, as fractions of the Nyqu
 MOTION_NOISE_ALPHA = 0.01  # chance that white noise of one level shows a ratio on an axis
 FILTER_ORDER = 8
 EDGE_SAMPLES = 16  # samples the high-pass filter's response takes to die away: left out at each span's ends
+MIN_BAND_HZ = 40.0  # the band's lower edge must be at least this high (a sample rate of about 89 Hz or more)
 MIN_WHITE_SHARE = 0.25  # the rests' power in the band, over white noise's share of their variance, needed to measure
 MIN_SAMPLES = 1000  # samples the rests and the motions must each hold for the ratio to be measured (to ~15 %)
 
@@ -58,6 +61,9 @@ def no_motion_noise(fs: float, reason: str = "not measured") -> MotionNoise:
 
 def motion_noise(gyro: np.ndarray, rests: list[tuple[int, int]], motions: list[tuple[int, int]], fs: float) -> MotionNoise:
     """The ratio for ``gyro`` (n, 3) deg/s sampled at ``fs`` Hz, with the rests and the motions as [i, j) spans."""
+    if BAND[0] * fs / 2 < MIN_BAND_HZ:
+        return no_motion_noise(fs, f"at {fs:g} Hz the top of the band ({BAND[0] * fs / 2:.0f}-{fs / 2:.0f} Hz) still holds the "
+                                   f"hand's motion; it needs {2 * MIN_BAND_HZ / BAND[0]:.0f} Hz or more")
     top = high_band(gyro)
     power_r, n_r = _band_power(top, rests)
     power_m, n_m = _band_power(top, motions)

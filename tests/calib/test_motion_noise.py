@@ -47,6 +47,12 @@ def test_motion_noise_is_measured_axis_by_axis():
     assert found.to_dict()["counted"] == [float(v) for v in found.counted]
 
 
+def test_a_sample_rate_whose_top_band_holds_the_hand_leaves_it_unmeasured():
+    rng = np.random.default_rng(15)
+    found = motion_noise(_gyro(rng, np.full(3, 2.0)), RESTS, MOTIONS, 50.0)
+    assert not found.measured and "89 Hz or more" in found.to_dict()["reason"]
+
+
 def test_too_few_samples_leave_it_unmeasured():
     rng = np.random.default_rng(13)
     found = motion_noise(_gyro(rng, np.full(3, 2.0)), RESTS, MOTIONS[:1], FS)
