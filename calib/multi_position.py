@@ -49,6 +49,7 @@ from .multi_position_model import (
     Windows,
     directions,
     gravity_misfit,
+    gravity_z,
     residual_layout,
     rest_gravity,
     system,
@@ -328,7 +329,6 @@ def _result(fit: _Fit, g_test: dict[str, Any], base: _Fit, data: Data, accel: Ac
     std = bound * fit.birge
     ng = p.n_gyro
     n_grav = data.pairs[0].size
-    rho = fit.res[: 2 * n_grav].reshape(n_grav, 2)
     gravity_deg = _gravity_deg(p, data)
     without_deg = gravity_deg if fit is base else _gravity_deg(base.p, data)
     g_test["without"]["gravity_residual_rms_deg"] = _rms(without_deg)
@@ -344,7 +344,7 @@ def _result(fit: _Fit, g_test: dict[str, Any], base: _Fit, data: Data, accel: Ac
         "chi2": fit.chi2, "dof": fit.dof, "birge_ratio": fit.birge,
         "gravity_residual_deg": [float(v) for v in gravity_deg],
         "gravity_residual_rms_deg": _rms(gravity_deg),
-        "gravity_z": [float(v) for v in np.linalg.norm(rho, axis=1)],
+        "gravity_z": [float(v) for v in gravity_z(p, data)] if n_grav else [],
         "accelerometer": accel.to_dict(),
         "g_sensitivity": g_test,
         "settling": _settling_report(p, data),

@@ -178,9 +178,16 @@ def directions(xa: np.ndarray, rests: AccelRests) -> tuple[np.ndarray, np.ndarra
 
 
 def _directions(g: RestGravity) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    var_dir = g.var_g + g.floor_across + SETTLE_SHARE * g.excess_across
+    shared, edge = direction_noise(g)
     var_mag = g.var_g + g.floor_along + SETTLE_SHARE * g.excess_along
-    return g.u, var_dir / g.norm**2, (g.norm - 1.0) / np.sqrt(var_mag)
+    return g.u, shared + edge, (g.norm - 1.0) / np.sqrt(var_mag)
+
+
+def direction_noise(g: RestGravity) -> tuple[np.ndarray, np.ndarray]:
+    """(N,) each, rad^2 per component across gravity: the noise of a rest's mean direction (white and floor), which
+    both motions that meet the rest share, and the offset of each of its edges from that mean where it settles (half
+    its drift), which each motion meets alone."""
+    return (g.var_g + g.floor_across) / g.norm**2, SETTLE_SHARE * g.excess_across / g.norm**2
 
 
 def _motion_inputs(p: Params, w: Windows) -> tuple[np.ndarray, np.ndarray | None]:
@@ -208,9 +215,64 @@ def motion_rotations(p: Params, data: Data, noise: bool = False):
 def gravity_misfit(p: Params, data: Data) -> np.ndarray:
     """(G, 2) rad: the end rest's gravity carried to the start, minus the start's, perpendicular to it."""
     u, _, _ = directions(p.xa, data.rests)
-    i_s, i_e = data.pairs
-    C = motion_rotations(p, data).C
-    return np.einsum("gia,gi->ga", perp_basis(u[i_s]), np.einsum("gij,gj->gi", C, u[i_e]) - u[i_s])
+    return _gravity_terms(motion_rotations(p, data).C, u, data.pairs).rho
+
+
+def gravity_z(p: Params, data: Data) -> np.ndarray:
+    """(G,) each motion's gravity misfit in units of its own noise (its 2x2 block of the joint covariance)."""
+    gravity = rest_gravity(p.xa, data.rests)
+    rt = motion_rotations(p, data, noise=True)
+    assert rt.noise is not None
+    terms = _gravity_terms(rt.C, gravity.u, data.pairs)
+    G = terms.rho.shape[0]
+    own = terms.covariance(rt.noise, *direction_noise(gravity)).reshape(G, 2, G, 2)[np.arange(G), :, np.arange(G), :]
+    return np.sqrt(np.einsum("ga,ga->g", terms.rho, np.linalg.solve(own, terms.rho[..., None])[..., 0]))
+
+
+@dataclass(frozen=True)
+class GravityTerms:
+    """The gravity misfits of G motions and what their noise is made of (``_gravity_terms``)."""
+
+    rho: np.ndarray  # (G, 2) rad: the end rest's direction carried to the start, minus the start's, in ``basis``
+    basis: np.ndarray  # (G, 3, 2) two unit vectors across the start rest's gravity
+    at_end: np.ndarray  # (G, 2, 3) d rho / d (end rest's direction): basis^T C
+    d_phi: np.ndarray  # (G, 2, 3) d rho / d (the motion's rotation vector)
+    u: np.ndarray  # (S, 3) the rests' gravity directions
+    pairs: tuple[np.ndarray, np.ndarray]  # rest before and after each motion
+
+    def covariance(self, gyro_noise: np.ndarray, shared: np.ndarray, edge: np.ndarray) -> np.ndarray:
+        """(2G, 2G) joint noise of the misfits, rows motion-major: each motion's integrated gyro noise (``gyro_noise``,
+        (G, 3, 3) in its rotation vector), and the rests' directions (``direction_noise``), which correlate the
+        misfits of the two motions that meet a rest through its mean's noise ``shared``. Its edges' offsets from the
+        mean (``edge``, where it settles) are each motion's own: the arriving motion meets its first edge, the leaving
+        one its last, and a device that eases into place moves most early, so they need not cancel."""
+        i_s, i_e = self.pairs
+        G = self.rho.shape[0]
+        g = np.arange(G)
+        # each motion meets two rests: the rest, the edge it meets (arriving: the first), and how the rest's
+        # direction's noise enters the motion's misfit
+        motion, rest = np.concatenate([g, g]), np.concatenate([i_e, i_s])
+        arriving = np.arange(2 * G) < G
+        maps = np.concatenate([self.at_end, -self.basis.transpose(0, 2, 1)])
+        a, b = np.nonzero(rest[:, None] == rest[None, :])  # every pair of meetings at one rest, both orders
+        r = rest[a]
+        across = np.eye(3) - self.u[r, :, None] * self.u[r, None, :]  # a direction's noise lies across gravity
+        weight = (shared[r] + np.where(arriving[a] == arriving[b], edge[r], 0.0))[:, None, None] * across
+        blocks = np.einsum("pij,pjk,plk->pil", maps[a], weight, maps[b])
+        cov = np.zeros((G, G, 2, 2))
+        np.add.at(cov, (motion[a], motion[b]), blocks)
+        cov[g, g] += self.d_phi @ gyro_noise @ self.d_phi.transpose(0, 2, 1)
+        return cov.transpose(0, 2, 1, 3).reshape(2 * G, 2 * G)
+
+
+def _gravity_terms(C: np.ndarray, u: np.ndarray, pairs: tuple[np.ndarray, np.ndarray]) -> GravityTerms:
+    """The misfits of the motions whose calibrated rotations are ``C`` (G, 3, 3), between rests of directions ``u``."""
+    i_s, i_e = pairs
+    basis = perp_basis(u[i_s])
+    v = np.einsum("gij,gj->gi", C, u[i_e])
+    rho = np.einsum("gia,gi->ga", basis, v - u[i_s])
+    at_end = np.einsum("gia,gij->gaj", basis, C)
+    return GravityTerms(rho, basis, at_end, -np.einsum("gia,gij->gaj", basis, skew(v)), u, pairs)
 
 
 def _accel_differences(xa: np.ndarray, data: Data) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -252,27 +314,26 @@ def system(p: Params, data: Data) -> tuple[np.ndarray, np.ndarray]:
     P = ng + free.size
     res_parts, jac_parts = [], []
     gravity = rest_gravity(p.xa, data.rests)
-    u, dvar, mag = _directions(gravity)
+    u, _, mag = _directions(gravity)
     du, da, dmag = _accel_differences(p.xa, data)
     if data.gravity is not None:
         i_s, i_e = data.pairs
         rt = motion_rotations(p, data, noise=True)
-        Bs = perp_basis(u[i_s])
-        v = np.einsum("gij,gj->gi", rt.C, u[i_e])
-        rho = np.einsum("gia,gi->ga", Bs, v - u[i_s])
-        Pm = -np.einsum("gia,gij->gaj", Bs, skew(v))  # d rho / d phi (G, 2, 3)
-        G = rho.shape[0]
+        terms = _gravity_terms(rt.C, u, data.pairs)
+        G = terms.rho.shape[0]
         parts = [rt.dK.reshape(G, 3, 9), rt.db] + ([] if rt.dF is None else [_force_jacobian(rt.dF, p.K)])
-        dgyro = Pm @ np.concatenate(parts, axis=-1)
+        dgyro = terms.d_phi @ np.concatenate(parts, axis=-1)
         assert rt.noise is not None
-        cov = Pm @ rt.noise @ Pm.transpose(0, 2, 1) + (dvar[i_s] + dvar[i_e])[:, None, None] * np.eye(2)
-        L = np.linalg.cholesky(cov)
+        L = np.linalg.cholesky(terms.covariance(rt.noise, *direction_noise(gravity)))
         dacc = np.zeros((G, 2, free.size))
         for c in range(free.size):  # the directions' dependence on the accelerometer
             dv = np.einsum("gij,gj->gi", rt.C, du[c][i_e]) - du[c][i_s]
-            dacc[:, :, c] = np.einsum("gia,gi->ga", Bs, dv) / (2 * FD_STEP)
-        res_parts.append(np.linalg.solve(L, rho[..., None])[..., 0].reshape(-1))
-        jac_parts.append(np.linalg.solve(L, np.concatenate([dgyro, dacc], axis=-1)).reshape(-1, P))
+            dacc[:, :, c] = np.einsum("gia,gi->ga", terms.basis, dv) / (2 * FD_STEP)
+        # one general solve for both: LAPACK's triangular solve with many right-hand sides stalls on busy cores
+        whitened = np.linalg.solve(L, np.concatenate([terms.rho.reshape(2 * G, 1), np.concatenate([dgyro, dacc], axis=-1)
+                                                      .reshape(2 * G, P)], axis=1))
+        res_parts.append(whitened[:, 0])
+        jac_parts.append(whitened[:, 1:])
     if data.turns is not None:
         w = data.turns
         T = w.dt.shape[1]
