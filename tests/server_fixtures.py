@@ -258,33 +258,48 @@ class RunningService:
 
 def follow_events(base: str, sid: str, until: set[str], timeout_s: float = 60.0, last_event_id: int | None = None,
                   stop_after: int | None = None, params: dict[str, str] | None = None) -> list[dict[str, Any]]:
-    """Read a session's SSE stream until its state is in ``until`` (or ``stop_after`` events)."""
+    """Read a session's SSE stream until its state is in ``until`` (or ``stop_after`` events). A 503 (the store
+    restarting) is retried after a second, resuming after the last event read, as the page does."""
     events: list[dict[str, Any]] = []
-    headers = {"Last-Event-ID": str(last_event_id)} if last_event_id is not None else {}
     deadline = time.monotonic() + timeout_s
-    with httpx.stream("GET", f"{base}/sessions/{sid}/events", headers=headers, params=params,
-                      timeout=httpx.Timeout(timeout_s)) as r:
-        assert r.status_code == 200, r.read()
-        assert r.headers["content-type"].startswith("text/event-stream")
-        current: dict[str, str] = {}
-        for line in r.iter_lines():
-            if time.monotonic() > deadline:
-                raise TimeoutError(f"session {sid} did not reach {until} within {timeout_s} s; last: {events[-1:]}")
-            if line == "":
-                if "data" in current:
-                    snap = json.loads(current["data"])
-                    snap["_sse_id"] = int(current["id"])
-                    snap["_sse_event"] = current.get("event")
-                    events.append(snap)
-                    if snap["state"] in until or (stop_after is not None and len(events) >= stop_after):
-                        return events
-                current = {}
+    while True:
+        resume = events[-1]["_sse_id"] if events else last_event_id
+        headers = {"Last-Event-ID": str(resume)} if resume is not None else {}
+        with httpx.stream("GET", f"{base}/sessions/{sid}/events", headers=headers, params=params,
+                          timeout=httpx.Timeout(timeout_s)) as r:
+            if r.status_code == 503 and time.monotonic() + 1.0 < deadline:
+                r.read()
+                time.sleep(1.0)
                 continue
-            if line.startswith(":"):
-                continue
-            key, _, value = line.partition(":")
-            current[key] = value[1:] if value.startswith(" ") else value
-    raise AssertionError(f"the event stream of {sid} ended before {until}; last: {events[-1:]}")
+            assert r.status_code == 200, r.read()
+            assert r.headers["content-type"].startswith("text/event-stream")
+            if _read_events(r, sid, until, deadline, stop_after, events):
+                return events
+        raise AssertionError(f"the event stream of {sid} ended before {until}; last: {events[-1:]}")
+
+
+def _read_events(r: httpx.Response, sid: str, until: set[str], deadline: float, stop_after: int | None,
+                 events: list[dict[str, Any]]) -> bool:
+    """Append the stream's snapshots to ``events``; True once one's state is in ``until`` (or ``stop_after`` read)."""
+    current: dict[str, str] = {}
+    for line in r.iter_lines():
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"session {sid} did not reach {until}; last: {events[-1:]}")
+        if line == "":
+            if "data" in current:
+                snap = json.loads(current["data"])
+                snap["_sse_id"] = int(current["id"])
+                snap["_sse_event"] = current.get("event")
+                events.append(snap)
+                if snap["state"] in until or (stop_after is not None and len(events) >= stop_after):
+                    return True
+            current = {}
+            continue
+        if line.startswith(":"):
+            continue
+        key, _, value = line.partition(":")
+        current[key] = value[1:] if value.startswith(" ") else value
+    return False
 
 
 def bad_csv_uploads() -> dict[str, bytes]:

@@ -74,7 +74,9 @@ def test_three_gateways_share_wearables_without_double_booking(fleet_db: str) ->
         started = {d: (g, r.json()["session_id"]) for (d, g), r in zip(rest.items(), answers, strict=True)} | shared_sessions
         ends = at_once([lambda g=g, s=s: follow_events(gws[g].base, s, END, timeout_s=240, last_event_id=0)[-1]
                         for g, s in started.values()], timeout_s=300)
-        assert all(e["state"] == "done" for e in ends), [(e["state"], e.get("reason")) for e in ends]
+        unfinished = [(dev, e["state"], e.get("reason"), e.get("message")) for dev, e in zip(started, ends, strict=True)
+                      if e["state"] != "done"]
+        assert not unfinished, unfinished
         accepted = at_once([lambda g=g, s=s: _post(gws[g], f"/sessions/{s}/accept") for g, s in started.values()])
         assert all(r.status_code == 200 for r in accepted), [r.text for r in accepted]
 

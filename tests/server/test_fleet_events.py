@@ -151,7 +151,9 @@ def test_the_database_restarting_under_running_sessions_loses_nothing(own_postgr
 
         ends = at_once([lambda gw=gw, sid=sid: follow_events(gw.base, sid, END, timeout_s=180, last_event_id=0)[-1]
                         for gw, sid in sids.values()], timeout_s=200)
-        assert all(e["state"] == "done" for e in ends), [(e["state"], e.get("reason")) for e in ends]
+        unfinished = [(dev, e["state"], e.get("reason"), e.get("message")) for dev, e in zip(sids, ends, strict=True)
+                      if e["state"] != "done"]
+        assert not unfinished, unfinished
         remote.join(60)
         assert followed["events"][-1]["state"] == "done", followed["events"][-1]  # room-b's follower caught up
         accepted = at_once([lambda gw=gw, sid=sid: _post(gw, f"/sessions/{sid}/accept") for gw, sid in sids.values()])

@@ -526,3 +526,28 @@ def test_plot_data_of_a_stored_session(webui_service: Any) -> None:
     assert tr["k"] == pytest.approx(cal["k"])
     # after calibration the device comes back to its start pose; the raw readings drift away from it
     assert abs(tr["pose_error_after"][-1]) < 1.0 < abs(tr["pose_error_before"][-1])
+
+
+def test_the_page_follows_on_when_the_service_refuses_its_stream_for_a_while(wizard: Wizard, page: Any,
+                                                                             page_watch: Watch) -> None:
+    """While the store restarts, the service answers a stream's reconnection with 503, on which a browser gives up
+    for good; the page opens a new stream after a pause, resuming after the last event it had."""
+    refused: list[str] = []
+
+    def refuse_twice(route: Any) -> None:
+        if len(refused) < 2:
+            refused.append(route.request.url)
+            route.fulfill(status=503, content_type="application/json",
+                          body='{"detail": "the store is unavailable (OperationalError). Try again; nothing was changed."}')
+        else:
+            route.continue_()
+
+    page.route(re.compile(r"/sessions/[0-9a-f]+/events"), refuse_twice)
+    wizard.sign_in()
+    wizard.choose(device_for("normal", 10))  # a device no other test calibrates
+    wizard.start()
+    page.wait_for_selector("#banner:has-text('Reconnecting')")
+    wizard.wait_state("done", timeout_ms=60_000)  # the session's states reach the page only through its stream
+    assert len(refused) == 2
+    assert page.is_hidden("#banner")
+    assert_clean(page_watch, allowed_errors=("503",))

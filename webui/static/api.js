@@ -110,7 +110,7 @@ export class Api {
 
   /**
    * Follow a session's Server-Sent Events. onSnapshot(snapshot, eventName) for each; onLink(state) with
-   * "open" | "retrying" when the stream connects or drops (the browser reconnects with Last-Event-ID).
+   * "open" | "retrying" when the stream connects or drops (it reconnects, resuming after the last event).
    * Returns a function that closes the stream.
    */
   follow(sessionId, onSnapshot, onLink) {
@@ -122,13 +122,20 @@ export class Api {
     return this.stream("/fleet/events", ["fleet"], onView, onLink);
   }
 
+  /**
+   * An EventSource that does not give up. The browser reconnects by itself when a stream drops, but not when the
+   * service answers without a stream (a 503 while its store restarts, a gateway starting): then a new stream is
+   * opened after a pause (1 s, doubling to 15 s), resuming after the last event it had.
+   */
   stream(path, names, onData, onLink) {
-    const url = new URL(path, location.origin);
-    if (this.authReads && this.token) url.searchParams.set("access_token", this.token);
-    const es = new EventSource(url);
     let closed = false;
+    let es = null;
+    let lastEventId = null;
+    let retries = 0;
+    let timer = null;
     const handler = (ev) => {
       if (closed) return;
+      if (ev.lastEventId) lastEventId = ev.lastEventId;
       let data;
       try {
         data = JSON.parse(ev.data);
@@ -137,11 +144,26 @@ export class Api {
       }
       onData(data, ev.type);
     };
-    for (const name of names) es.addEventListener(name, handler);
-    es.onopen = () => !closed && onLink && onLink("open");
-    es.onerror = () => !closed && onLink && onLink(es.readyState === EventSource.CLOSED ? "closed" : "retrying");
+    const open = () => {
+      const url = new URL(path, location.origin);
+      if (this.authReads && this.token) url.searchParams.set("access_token", this.token);
+      if (lastEventId !== null) url.searchParams.set("last_event_id", lastEventId);
+      es = new EventSource(url);
+      for (const name of names) es.addEventListener(name, handler);
+      es.onopen = () => {
+        retries = 0;
+        if (!closed && onLink) onLink("open");
+      };
+      es.onerror = () => {
+        if (closed) return;
+        if (es.readyState === EventSource.CLOSED) timer = setTimeout(open, Math.min(1000 * 2 ** retries++, 15000));
+        if (onLink) onLink("retrying");
+      };
+    };
+    open();
     return () => {
       closed = true;
+      clearTimeout(timer);
       es.close();
     };
   }
