@@ -32,10 +32,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-import calib.multi_position as multi_position  # noqa: E402
 from calib.effects import MotionNoise  # noqa: E402
 from calib.effects.axes import GSensitivity  # noqa: E402
-from calib.motion_noise import no_motion_noise  # noqa: E402
 from calib.multi_position import calibrate_multi_position  # noqa: E402
 from calib.simulator import simulate  # noqa: E402
 from calib.simulator.lab_scripts import multi_position_script as script  # noqa: E402
@@ -123,17 +121,13 @@ def concealed_motion_noise(runs: int, noise: float = 0.15) -> None:
     """Runs with a gyro noisier while it turns, which the recording does not announce: measured, counted, and the
     re-orientations back at their noise."""
     rows = []
-    measure = multi_position.motion_noise
     for i in range(runs):
         rng = np.random.default_rng([9, i])
         ratio = rng.uniform(1.2, 2.5)
         rec, truth = simulate(30_000 + i, noise=noise, fs=100.0, script=script(rng), accel_noise_g=0.001,
                               effects=[MotionNoise(np.full(3, ratio))])
-        multi_position.motion_noise = measure
         res = calibrate_multi_position(rec)
-        multi_position.motion_noise = lambda gyro, rests, motions, fs: no_motion_noise(fs)
-        plain = calibrate_multi_position(rec)
-        multi_position.motion_noise = measure
+        plain = calibrate_multi_position(rec, motion_noise=False)
         q, qp = res.quality, plain.quality
         rows.append([ratio, *q["gyro_motion_noise"]["variance_ratio"], qp["constraint_fit"]["motions"]["ratio"],
                      q["constraint_fit"]["motions"]["ratio"], *((plain.k - truth.k) / plain.k_std), *((res.k - truth.k) / res.k_std)])

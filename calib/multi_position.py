@@ -41,7 +41,7 @@ from .accel import PARAMS, AccelCalibration, apply_model, calibrate_acceleromete
 from .accel_floor import accel_floor
 from .closure_fit import still_statistics, windows
 from .errors import CalibrationError, ProtocolError
-from .motion_noise import motion_noise
+from .motion_noise import motion_noise, no_motion_noise
 from .multi_position_model import (
     AccelRests,
     Data,
@@ -113,13 +113,14 @@ def motions_between_rests(stages: list[Stage]) -> tuple[list[Stage], list[Motion
 
 
 def calibrate_multi_position(rec: Recording, stages: Any = None, accel: AccelCalibration | None = None,
-                             g_sensitivity: bool | None = None) -> CalibrationResult:
+                             g_sensitivity: bool | None = None, motion_noise: bool = True) -> CalibrationResult:
     """Calibrate from rests and the motions between them (method "multi-position"); needs the accelerometer.
 
     ``stages``: a list of Stage, or None to detect them. ``accel``: the accelerometer's calibration, or
     None to fit it on the same rests. ``g_sensitivity``: fit G (True), not (False), or when identified and
-    significant (None). Raises ProtocolError when the recording has too few rests or re-orientations,
-    CalibrationError when they do not determine k and b (or G, when asked for).
+    significant (None). ``motion_noise``: measure the gyro's noise while moving and count it where beyond chance
+    (True), or take the motions' noise as the rests' (False). Raises ProtocolError when the recording has too few
+    rests or re-orientations, CalibrationError when they do not determine k and b (or G, when asked for).
     """
     check_calibration_input(rec)
     if rec.accel is None:
@@ -133,7 +134,7 @@ def calibrate_multi_position(rec: Recording, stages: Any = None, accel: AccelCal
     joint = accel is None  # fit the accelerometer with the gyroscope, from a first fit on the rests alone
     accel = accel or calibrate_accelerometer(rec, stills)
     free_a = np.array([p in accel.identified for p in PARAMS]) if joint else np.zeros(9, dtype=bool)
-    data = _data(rec, stills, motions, free_a)
+    data = _data(rec, stills, motions, free_a, motion_noise)
 
     base = _fit(Params(np.eye(3), -data.mean[0], None, accel.vector.copy()), data)
     fit, g_test = _g_sensitivity_choice(base, data, g_sensitivity)
@@ -160,7 +161,8 @@ def noise_colour(readings: np.ndarray, spans: list[tuple[int, int]], max_lag: in
     return np.clip(factor, 0.25, 16.0)
 
 
-def _data(rec: Recording, stills: list[Stage], motions: list[Motion], free_a: np.ndarray) -> Data:
+def _data(rec: Recording, stills: list[Stage], motions: list[Motion], free_a: np.ndarray, measure_motion_noise: bool = True
+          ) -> Data:
     assert rec.accel is not None
     dt_all = sample_intervals(rec.t)[None]
     gyro, acc = rec.gyro[None], rec.accel[None]
@@ -193,7 +195,8 @@ def _data(rec: Recording, stills: list[Stage], motions: list[Motion], free_a: np
     # start and end, which the stage detector counts as rest, are then inside the window (the true rate there is ~0)
     return Data(
         mean=mean[0], count=count[0], sigma=sigma[0], sigma_slow=sigma[0] * np.sqrt(colour),
-        motion_noise=motion_noise(rec.gyro, spans, moving, rec.fs),
+        motion_noise=motion_noise(rec.gyro, spans, moving, rec.fs) if measure_motion_noise
+        else no_motion_noise(rec.fs, "not asked for"),
         gravity=stacked([[spans[mo.rest_before][1], spans[mo.rest_after][0]] for mo in grav]),
         turns=stacked([[mo.start, mo.end] for mo in turns]),
         pairs=(np.array([mo.rest_before for mo in grav], dtype=int), np.array([mo.rest_after for mo in grav], dtype=int)),

@@ -8,7 +8,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import calib.multi_position as mp
 from calib.effects import MotionNoise, SimulationConfigError, parse_effect
 from calib.motion_noise import MOTION_NOISE_ALPHA, motion_noise, no_motion_noise
 from calib.multi_position import calibrate_multi_position
@@ -70,7 +69,7 @@ def test_the_effect_is_parsed_and_checked():
         parse_effect("motion_noise", "1,2,3,4,5")
 
 
-def test_a_concealed_motion_noise_is_found_and_counted(monkeypatch: pytest.MonkeyPatch):
+def test_a_concealed_motion_noise_is_found_and_counted():
     """A gyro twice as noisy while turning, with an accelerometer quiet enough that the gyro's noise rules the
     re-orientations' residuals: measured (diluted by the motions' slow ends, below the effect's threshold),
     and counted, the re-orientations are back at their noise and the scale factors' uncertainty honest."""
@@ -81,14 +80,14 @@ def test_a_concealed_motion_noise_is_found_and_counted(monkeypatch: pytest.Monke
     moving = res.quality["gyro_motion_noise"]
     assert moving["measured"] and all(1.7 < r < 2.4 for r in moving["variance_ratio"])
     assert moving["counted"] == moving["variance_ratio"]
-    monkeypatch.setattr(mp, "motion_noise", lambda gyro, rests, motions, fs: no_motion_noise(fs))
-    plain = calibrate_multi_position(rec)
+    plain = calibrate_multi_position(rec, motion_noise=False)
+    assert plain.quality["gyro_motion_noise"] == no_motion_noise(FS, "not asked for").to_dict()
     with_it, without = res.quality["constraint_fit"]["motions"]["ratio"], plain.quality["constraint_fit"]["motions"]["ratio"]
     assert without > 1.6 and with_it < 1.25
     assert np.max(np.abs(res.k - truth.k) / res.k_std) < 3.5
 
 
-def test_imu_tk_gyro_is_noisier_while_moving(real_data: Path, monkeypatch: pytest.MonkeyPatch):
+def test_imu_tk_gyro_is_noisier_while_moving(real_data: Path):
     """Xsens' gyro carries 1.2-2.1 times its rest noise variance at 45-50 Hz while the hand turns it; counted, the
     re-orientations' gravity residuals are at their noise (chi-square ratio ~1), where they were 1.5 times it."""
     from calib.imu_tk_io import read_imu_tk
@@ -100,8 +99,7 @@ def test_imu_tk_gyro_is_noisier_while_moving(real_data: Path, monkeypatch: pytes
     assert max(moving["p_value"]) < 1e-6
     motions = res.quality["constraint_fit"]["motions"]
     assert 0.85 < motions["ratio"] < 1.15 and motions["p_value"] > 0.1
-    monkeypatch.setattr(mp, "motion_noise", lambda gyro, rests, motions, fs: no_motion_noise(fs))
-    plain = calibrate_multi_position(rec).quality["constraint_fit"]["motions"]
+    plain = calibrate_multi_position(rec, motion_noise=False).quality["constraint_fit"]["motions"]
     assert plain["ratio"] > 1.4 and plain["p_value"] < 0.01
 
 
