@@ -42,10 +42,14 @@ def _summary(result: Any, source: str) -> str:
         lines += [f"Protocol found: {proto['found']['name']} — {proto['found']['summary']}; used: {proto['used']}"
                   + (f" ({proto['sections']} labelled sections)" if proto.get("sections") else ""), ""]
     lines.append("Stages found:")
+    residuals = _gravity_residuals_by_motion(d.get("quality") or {})
     for s in d["stages"]:
         extra = ""
         if s["kind"] == "turn":
             extra = f"  about {s['axis']}, {s['angle_deg']:+.1f} deg"
+        if s["kind"] != "still":
+            extra += next((residuals.pop(span) for span in list(residuals)
+                           if span[0] - 1e-6 <= s["start_s"] and s["end_s"] <= span[1] + 1e-6), "")
         flags = f"  [{', '.join(s['flags'])}]" if s["flags"] else ""
         lines.append(f"  {s['kind']:<7} {s['start_s']:8.2f} – {s['end_s']:8.2f} s{extra}{flags}")
     lines.append("")
@@ -92,6 +96,14 @@ def _g_sensitivity_lines(test: dict[str, Any] | None) -> list[str]:
     if rms is not None:
         before += f", gravity residuals {rms:.3f} deg rms"
     return [f"g-sensitivity {'fitted' if test.get('fitted') else 'not fitted'}: {test.get('reason', '')}" + before]
+
+
+def _gravity_residuals_by_motion(q: dict[str, Any]) -> dict[tuple[float, float], str]:
+    """Each re-orientation's gravity residual after calibration (multi-position), as printed beside its motion,
+    keyed by the motion's [start, end] s."""
+    spans, deg, z = q.get("gravity_motions_s") or [], q.get("gravity_residual_deg") or [], q.get("gravity_z") or []
+    return {(a, b): f"  gravity residual {r:.3f} deg (chi-square {zz**2:.1f} for 2)"
+            for (a, b), r, zz in zip(spans, deg, z, strict=False)}
 
 
 def _constraint_lines(q: dict[str, Any]) -> list[str]:

@@ -112,6 +112,11 @@ def motions_between_rests(stages: list[Stage]) -> tuple[list[Stage], list[Motion
     return stills, out
 
 
+def gravity_motions(motions: list[Motion]) -> list[Motion]:
+    """The motions constrained by the gravity directions at their ends (those that are not full turns), in order."""
+    return [mo for mo in motions if mo.full_turn is None]
+
+
 def calibrate_multi_position(rec: Recording, stages: Any = None, accel: AccelCalibration | None = None,
                              g_sensitivity: bool | None = None, motion_noise: bool = True) -> CalibrationResult:
     """Calibrate from rests and the motions between them (method "multi-position"); needs the accelerometer.
@@ -179,7 +184,7 @@ def _data(rec: Recording, stills: list[Stage], motions: list[Motion], free_a: np
         seconds=np.array([rec.t[j - 1] - rec.t[i] for i, j in spans]) + 1.0 / rec.fs,
         floor=accel_floor(rec.accel, spans, accel_colours, rec.fs),
     )
-    grav = [mo for mo in motions if mo.full_turn is None]
+    grav = gravity_motions(motions)
     turns = [mo for mo in motions if mo.full_turn is not None]
     moving = [(spans[mo.rest_before][1], spans[mo.rest_after][0]) for mo in grav] + [(mo.start, mo.end) for mo in turns]
 
@@ -320,6 +325,13 @@ def _constraint_fit(fit: _Fit, cov: np.ndarray, data: Data) -> dict[str, dict[st
     return out
 
 
+def _motion_times(rec: Recording, stage_list: list[Stage]) -> list[list[float]]:
+    """[start, end] s of each motion the gravity residuals are of, in their order."""
+    last = len(rec) - 1
+    return [[float(rec.t[min(mo.start, last)]), float(rec.t[min(mo.end, last)])]
+            for mo in gravity_motions(motions_between_rests(stage_list)[1])]
+
+
 def _rms(v: np.ndarray) -> float | None:
     return float(np.sqrt(np.mean(v**2))) if v.size else None
 
@@ -346,6 +358,7 @@ def _result(fit: _Fit, g_test: dict[str, Any], base: _Fit, data: Data, accel: Ac
                         "full_turns": 0 if data.turns is None else data.turns.dt.shape[1]},
         "chi2": fit.chi2, "dof": fit.dof, "birge_ratio": fit.birge,
         "gravity_residual_deg": [float(v) for v in gravity_deg],
+        "gravity_motions_s": _motion_times(rec, stage_list),
         "gravity_residual_rms_deg": _rms(gravity_deg),
         "gravity_z": [float(v) for v in gravity_z(p, data)] if n_grav else [],
         "accelerometer": accel.to_dict(),

@@ -77,13 +77,16 @@ def test_calibrate_real_imucal_session(ferraris_csv: Path) -> None:
 
 
 def test_calibrate_imu_tk_session_summary(real_data: Path) -> None:
-    """imu_tk's two files from the command line: the re-orientations found and used, and the summary says how far each
-    kind of constraint is from its noise, the accelerometer's noise floor, the gyro's noise while moving and which rests
-    were still settling."""
+    """imu_tk's two files from the command line: the re-orientations found and used, each with its gravity residual, and
+    the summary says how far each kind of constraint is from its noise, the accelerometer's noise floor, the gyro's
+    noise while moving and which rests were still settling."""
     folder = real_data / "imu_tk"
     proc = gyrocal("calibrate", str(folder / "xsens_gyro.mat"), "--layout", "imu_tk", "--accel", str(folder / "xsens_acc.mat"))
     assert proc.returncode == 0, proc.stderr
     assert "used: multi-position" in proc.stdout
+    motions = [line.strip() for line in proc.stdout.splitlines() if line.strip().startswith("motion ")]
+    assert [i for i, line in enumerate(motions) if "gravity residual" not in line] == [37]  # the last: no rest after it
+    assert "motion    401.69 –   405.29 s  gravity residual 0.209 deg (chi-square 6.9 for 2)" in motions
     fit_line = next(line for line in proc.stdout.splitlines() if line.startswith("Chi-square per constraint"))
     assert "motions 64.8 / 63.7 = 1.02" in fit_line and "rests " in fit_line and "accelerometer magnitude " in fit_line
     assert "Accelerometer noise floor (rest means' scatter beyond white noise, measured on rest 0 over 7.9 s spans): " \
