@@ -53,8 +53,8 @@ def recording_problem(exc: Exception, doing: str, upload: bool) -> HTTPException
 
 def check_upload(body: bytes, layout: str) -> None:
     """Refuse an uploaded CSV that names an unknown layout (422) or is empty (400)."""
-    if layout not in ("auto", "native", "imucal"):
-        raise problem(422, f"unknown layout {layout!r}: choose auto, native or imucal")
+    if layout not in ("auto", "native", "imucal", "imu_tk"):
+        raise problem(422, f"unknown layout {layout!r}: choose auto, native, imucal or imu_tk")
     if not body.strip():
         raise problem(400, "the CSV body is empty: send a recording (header t,gx,gy,gz,... or gyr_x,gyr_y,gyr_z,...)")
 
@@ -67,6 +67,25 @@ async def read_csv_body(request: Request) -> bytes:
         raise problem(415, f"send the recording as CSV (Content-Type: text/csv), native (t,gx,gy,gz,...) or imucal layout; "
                        f"got {ctype or 'no content type'}")
     return body
+
+
+IMU_TK_PARTS = {"gyro": "imu_tk's gyroscope file", "accel": "imu_tk's accelerometer file"}
+
+
+async def read_imu_tk_parts(request: Request, layout: str) -> tuple[bytes, bytes]:
+    """imu_tk's two files from a multipart/form-data body: its parts 'gyro' and 'accel' (415 or 422 otherwise)."""
+    if layout != "imu_tk":
+        raise problem(415, "a multipart/form-data body carries imu_tk's two files: add layout=imu_tk, or send one recording "
+                           "as text/csv")
+    form = await request.form()
+    parts = []
+    for name, what in IMU_TK_PARTS.items():
+        item = form.get(name)
+        if item is None:
+            raise problem(422, f"the multipart body has no part '{name}' ({what}): send the gyroscope's file as 'gyro' and "
+                               "the accelerometer's as 'accel'")
+        parts.append(item.encode() if isinstance(item, str) else await item.read())
+    return parts[0], parts[1]
 
 
 def service_of(request: Request) -> Service:

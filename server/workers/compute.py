@@ -85,27 +85,56 @@ def calibrate_recording(rec: Recording, method: str, stages: Any) -> tuple[Calib
 @dataclass(frozen=True)
 class UploadOptions:
     """How to read and calibrate an uploaded CSV beyond its layout: the protocol, labelled sections (imucal's
-    section-list JSON text) and, for raw counts, the sensitivities."""
+    section-list JSON text), for raw counts the sensitivities, and for imu_tk's layout its accelerometer file (the
+    upload's body then being its gyroscope file)."""
 
     protocol: str = "auto"
     sections: str | None = None
     gyro_counts_per_dps: float | None = None
     accel_counts_per_g: float | None = None
+    accel_file: bytes | None = None
 
 
 def parse_upload(body: bytes, fs: float | None, layout: str, source: str, max_samples: int,
                  options: UploadOptions | None = None) -> Recording:
-    """An uploaded CSV as a Recording; raises RecordingError, or TooManySamples above ``max_samples``."""
+    """An uploaded CSV (or imu_tk's two files) as a Recording; raises RecordingError, or TooManySamples above
+    ``max_samples``."""
     from calib.io import parse_recording_text
 
     opts = options or UploadOptions()
-    if opts.gyro_counts_per_dps is not None or opts.accel_counts_per_g is not None:
-        layout = "imucal_counts" if layout in ("auto", "imucal") else layout
-    rec = parse_recording_text(body, fs, layout, source, gyro_counts_per_dps=opts.gyro_counts_per_dps,
-                               accel_counts_per_g=opts.accel_counts_per_g)
+    if layout == "imu_tk":
+        rec = _parse_imu_tk_upload(body, source, opts)
+    else:
+        if opts.gyro_counts_per_dps is not None or opts.accel_counts_per_g is not None:
+            layout = "imucal_counts" if layout in ("auto", "imucal") else layout
+        rec = parse_recording_text(body, fs, layout, source, gyro_counts_per_dps=opts.gyro_counts_per_dps,
+                                   accel_counts_per_g=opts.accel_counts_per_g)
     if len(rec) > max_samples:
         raise TooManySamples(f"the recording has {len(rec)} samples; at most {max_samples} are accepted, send a shorter one")
     return rec
+
+
+def _parse_imu_tk_upload(gyro: bytes, source: str, opts: UploadOptions) -> Recording:
+    """imu_tk's gyroscope and accelerometer files, with the sensitivities given (else the Xsens test data's)."""
+    from calib.errors import RecordingError
+    from calib.imu_tk_io import XSENS_ACCEL_COUNTS_PER_G, XSENS_GYRO_COUNTS_PER_RAD_S, parse_imu_tk
+    from calib.units import DEG
+
+    if opts.accel_file is None:
+        raise RecordingError("imu_tk's layout is two files: send the gyroscope's and the accelerometer's as the parts "
+                             "'gyro' and 'accel' of a multipart/form-data body")
+    counts_per_rad_s = XSENS_GYRO_COUNTS_PER_RAD_S if opts.gyro_counts_per_dps is None else opts.gyro_counts_per_dps / DEG
+    return parse_imu_tk(_text(gyro, "gyroscope"), _text(opts.accel_file, "accelerometer"), source, counts_per_rad_s,
+                        opts.accel_counts_per_g or XSENS_ACCEL_COUNTS_PER_G)
+
+
+def _text(data: bytes, what: str) -> str:
+    from calib.errors import RecordingError
+
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise RecordingError(f"the {what} file is not text: imu_tk's files are rows 't x y z' of numbers") from None
 
 
 def upload_sections(opts: UploadOptions, rec: Recording) -> tuple[Section, ...] | None:

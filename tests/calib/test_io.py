@@ -568,3 +568,17 @@ def test_imu_tk_xsens_session_is_read_on_its_sampling_grid(real_data: Path) -> N
     assert np.ptp(step) < 1e-9 and 1 / step.mean() == pytest.approx(100.01, abs=1e-3) and rec.t[0] == 0
     off = (raw - raw[0]) - rec.t
     assert 0.4e-3 < np.abs(off - off.mean()).max() < 0.6e-3  # the file's times wander half a sample about it
+
+
+def test_imu_tk_files_read_from_their_text_as_from_their_paths(real_data: Path) -> None:
+    from calib.imu_tk_io import parse_imu_tk, read_imu_tk
+
+    folder = real_data / "imu_tk"
+    by_path = read_imu_tk(folder / "xsens_gyro.mat", folder / "xsens_acc.mat")
+    by_text = parse_imu_tk((folder / "xsens_gyro.mat").read_text(), (folder / "xsens_acc.mat").read_text())
+    assert np.array_equal(by_path.t, by_text.t) and np.array_equal(by_path.gyro, by_text.gyro)
+    assert by_text.accel is not None and by_path.accel is not None and np.array_equal(by_path.accel, by_text.accel)
+    with pytest.raises(RecordingError, match=r"gyroscope file \(gyro\) \(imu_tk's files are whitespace-separated rows 't x y z'"):
+        parse_imu_tk("t,gx,gy,gz\n0,1,2,3\n", (folder / "xsens_acc.mat").read_text())
+    with pytest.raises(RecordingError, match="sampled at the same instants"):
+        parse_imu_tk("0 1 2 3\n0.01 1 2 3\n", (folder / "xsens_acc.mat").read_text())

@@ -31,7 +31,7 @@ export class Api {
   }
 
   /** One request; the parsed JSON answer (or, with raw, {text, headers} of a successful one). */
-  async request(method, path, { json, jsonText, csv, query, signingIn = false, raw = false } = {}) {
+  async request(method, path, { json, jsonText, csv, form, query, signingIn = false, raw = false } = {}) {
     const url = new URL(path, location.origin);
     for (const [k, v] of Object.entries(query || {})) if (v !== undefined && v !== null) url.searchParams.set(k, v);
     const headers = { Accept: "application/json" };
@@ -43,6 +43,8 @@ export class Api {
     } else if (csv !== undefined) {
       headers["Content-Type"] = "text/csv";
       init.body = csv;
+    } else if (form !== undefined) {
+      init.body = form; // FormData: the browser writes the multipart content type with its boundary
     }
     let res;
     try {

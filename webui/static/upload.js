@@ -19,7 +19,7 @@ function field(id, label, input, hint) {
 
 export function uploadView(ctx, deviceId) {
   ctx.title("Calibrate a recording file");
-  const file = h("input", { id: "up-file", type: "file", accept: ".csv,text/csv", required: true });
+  const file = h("input", { id: "up-file", type: "file", accept: ".csv,.txt,.mat,text/csv,text/plain", required: true });
   const device = h("input", { id: "up-device", type: "text", value: deviceId || "", required: true, maxlength: 64,
     pattern: "[A-Za-z0-9_.:\\-]+", autocomplete: "off" });
   const protocol = h("select", { id: "up-protocol" }, PROTOCOLS.map(([v, t]) => h("option", { value: v }, t)));
@@ -27,11 +27,15 @@ export function uploadView(ctx, deviceId) {
   const gyroCounts = h("input", { id: "up-gyro-counts", type: "number", min: "0", step: "any", placeholder: "deg/s already" });
   const accelCounts = h("input", { id: "up-accel-counts", type: "number", min: "0", step: "any", placeholder: "g or m/s² already" });
   const sections = h("input", { id: "up-sections", type: "file", accept: ".json,application/json" });
+  const accelFile = h("input", { id: "up-accel-file", type: "file" });
   const status = h("p", { class: "scan-note", role: "status", "aria-live": "polite" });
   const send = h("button", { class: "button primary", type: "submit" }, icon("check"), "Calibrate");
   const form = h("form", { class: "upload-form", novalidate: true },
     field("up-device", "Device", device, "The wearable the recording came from; its calibration is stored under this name."),
-    field("up-file", "Recording (CSV)", file, "Native (t,gx,gy,gz,…), imucal (gyr_x,…) or raw counts with a part column."),
+    field("up-file", "Recording (CSV)", file, "Native (t,gx,gy,gz,…), imucal (gyr_x,…) or raw counts with a part column; "
+      + "for imu_tk's two files, its gyroscope file."),
+    field("up-accel-file", "Accelerometer file (imu_tk, optional)", accelFile,
+      "imu_tk keeps the accelerometer in a file of its own (rows t x y z of raw counts): give it here."),
     field("up-protocol", "What was done", protocol),
     field("up-fs", "Sample rate (Hz)", fs, "Only for a file without a time column (e.g. 102.4 for imucal's session)."),
     field("up-gyro-counts", "Gyro counts per °/s", gyroCounts, "Only for raw counts (e.g. 16.4 at ±2000 °/s)."),
@@ -60,7 +64,16 @@ export function uploadView(ctx, deviceId) {
     status.textContent = "Calibrating the recording…";
     try {
       if (sections.files.length) query.sections = await sections.files[0].text();
-      const out = await ctx.api.request("POST", `/devices/${encodeURIComponent(id)}/calibrate`, { csv: await file.files[0].text(), query });
+      let body = { csv: await file.files[0].text() };
+      if (accelFile.files.length) {
+        // imu_tk's layout: the two files as the parts of one multipart body
+        const form = new FormData();
+        form.append("gyro", file.files[0]);
+        form.append("accel", accelFile.files[0]);
+        body = { form };
+        query.layout = "imu_tk";
+      }
+      const out = await ctx.api.request("POST", `/devices/${encodeURIComponent(id)}/calibrate`, { ...body, query });
       status.textContent = `Calibrated as ${out.protocol}.`;
       ctx.go(`#/session/${out.session_id}`);
     } catch (err) {

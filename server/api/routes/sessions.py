@@ -7,6 +7,7 @@ import asyncio
 import logging
 import uuid
 from collections.abc import AsyncIterator
+from dataclasses import replace
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request, Response
@@ -34,6 +35,7 @@ from ...deps import (
     check_session_id,
     check_upload,
     problem,
+    read_imu_tk_parts,
     recording_problem,
 )
 from ...live.codes import END_STATES
@@ -72,6 +74,12 @@ router = APIRouter()
             "content": {
                 "application/json": {"schema": M.SessionStart.model_json_schema()},
                 "text/csv": {"schema": {"type": "string", "description": "a recording: native (t,gx,gy,gz,...) or imucal layout"}},
+                "multipart/form-data": {"schema": {
+                    "type": "object", "required": ["gyro", "accel"],
+                    "description": "with layout=imu_tk: imu_tk's two files, rows 't x y z' of raw counts",
+                    "properties": {"gyro": {"type": "string", "format": "binary", "description": "the gyroscope's file"},
+                                   "accel": {"type": "string", "format": "binary", "description": "the accelerometer's file"}},
+                }},
             },
         }
     },
@@ -85,7 +93,8 @@ async def calibrate(svc: Svc,
     upload: Upload,
     fs: Annotated[float | None, Query(gt=0, le=100000, description="sample rate, Hz (CSV without a time column)")] = None,
     method: Annotated[M.Method | None, Query(description="estimator: closure (default) or paper")] = None,
-    layout: Annotated[str, Query(max_length=16, description="CSV layout: auto, native, imucal")] = "auto",
+    layout: Annotated[str, Query(max_length=16, description="CSV layout: auto, native, imucal; imu_tk for imu_tk's two "
+                                 "files (a multipart/form-data body)")] = "auto",
     sensor_model: Annotated[str | None, Query(min_length=1, max_length=128, pattern=M.SENSOR_TEXT,
                                               description="the sensor an uploaded recording came from (e.g. ICM-20948); "
                                               "needed before its result can be accepted")] = None,
@@ -96,11 +105,17 @@ async def calibrate(svc: Svc,
     boot_count: Annotated[int | None, Query(ge=0, le=0xFFFFFFFF,
                                             description="the device's power-up count the recording was made in")] = None,
 ) -> Any:
-    """Start a guided live session (JSON body or none) → 202; or calibrate an uploaded CSV → 200."""
+    """Start a guided live session (JSON body or none) → 202; or calibrate an uploaded CSV (or imu_tk's two files,
+    multipart) → 200."""
     check_device_id(device_id)
     ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
-    body = await request.body()
-    if ctype in CSV_TYPES:
+    if ctype == "multipart/form-data":
+        gyro, accel = await read_imu_tk_parts(request, layout)
+        upload = replace(upload, accel_file=accel)
+        body = gyro
+    else:
+        body = await request.body()
+    if ctype in CSV_TYPES or ctype == "multipart/form-data":
         return await calibrate_uploaded(
             svc,
             device_id,
