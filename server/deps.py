@@ -51,10 +51,13 @@ def recording_problem(exc: Exception, doing: str, upload: bool) -> HTTPException
     return problem(422, f"this session's recording cannot be {doing} ({type(exc).__name__}: {exc})")
 
 
-def check_upload(body: bytes, layout: str) -> None:
-    """Refuse an uploaded CSV that names an unknown layout (422) or is empty (400)."""
-    if layout not in ("auto", "native", "imucal", "imu_tk"):
-        raise problem(422, f"unknown layout {layout!r}: choose auto, native, imucal or imu_tk")
+CSV_LAYOUTS = ("auto", "native", "imucal")
+
+
+def check_upload(body: bytes, layout: str, layouts: tuple[str, ...] = CSV_LAYOUTS) -> None:
+    """Refuse an upload that names a layout the route does not read (422) or is empty (400)."""
+    if layout not in layouts:
+        raise problem(422, f"unknown layout {layout!r}: choose {', '.join(layouts[:-1])} or {layouts[-1]}")
     if not body.strip():
         raise problem(400, "the CSV body is empty: send a recording (header t,gx,gy,gz,... or gyr_x,gyr_y,gyr_z,...)")
 

@@ -345,6 +345,8 @@ def test_imu_tk_s_two_files_are_uploaded_and_calibrated_from_their_re_orientatio
         assert r.status_code == 415 and "layout=imu_tk" in r.json()["detail"]
         r = c.post("/devices/xsens-1/calibrate", params={"layout": "imu_tk"}, content=gyro, headers={"Content-Type": "text/csv"})
         assert r.status_code == 400 and "'gyro' and 'accel'" in r.json()["detail"]
+        r = c.post("/diagnose", params={"layout": "imu_tk"}, content=gyro, headers={"Content-Type": "text/csv"})
+        assert r.status_code == 422 and "choose auto, native or imucal" in r.json()["detail"]  # read by calibrate only
     # a form any web page could send: without an operator's Authorization header it is refused before it is read
     with service.client(token=None) as c:
         r = c.post("/devices/xsens-2/calibrate", params={"layout": "imu_tk"},

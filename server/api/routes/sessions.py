@@ -23,6 +23,7 @@ from calib.json_safe import finite
 
 from ... import schemas as M
 from ...deps import (
+    CSV_LAYOUTS,
     CSV_TYPES,
     R401,
     R404,
@@ -366,7 +367,7 @@ async def calibrate_uploaded(
     method = method or DEFAULT_METHOD
     if method not in available_methods():
         raise problem(422, f"unknown method {method!r}: choose one of {', '.join(available_methods())}")
-    check_upload(body, layout)
+    check_upload(body, layout, (*CSV_LAYOUTS, "imu_tk"))
     source = f"upload for {device_id}"
     try:
         result, used, csv, n_samples = await asyncio.wait_for(
