@@ -144,7 +144,7 @@ def calibrate_multi_position(rec: Recording, stages: Any = None, accel: AccelCal
     base = _fit(Params(np.eye(3), -data.mean[0], None, accel.vector.copy()), data)
     fit, g_test = _g_sensitivity_choice(base, data, g_sensitivity)
     _check_agreement(fit, data)
-    return _result(fit, g_test, base, data, accel, joint, stage_list, rec)
+    return _result(fit, g_test, base, data, accel, joint, stage_list, rec, _motion_times(rec, motions))
 
 
 def noise_colour(readings: np.ndarray, spans: list[tuple[int, int]], max_lag: int = NOISE_LAGS) -> np.ndarray:
@@ -325,11 +325,10 @@ def _constraint_fit(fit: _Fit, cov: np.ndarray, data: Data) -> dict[str, dict[st
     return out
 
 
-def _motion_times(rec: Recording, stage_list: list[Stage]) -> list[list[float]]:
+def _motion_times(rec: Recording, motions: list[Motion]) -> list[list[float]]:
     """[start, end] s of each motion the gravity residuals are of, in their order."""
     last = len(rec) - 1
-    return [[float(rec.t[min(mo.start, last)]), float(rec.t[min(mo.end, last)])]
-            for mo in gravity_motions(motions_between_rests(stage_list)[1])]
+    return [[float(rec.t[min(mo.start, last)]), float(rec.t[min(mo.end, last)])] for mo in gravity_motions(motions)]
 
 
 def _rms(v: np.ndarray) -> float | None:
@@ -337,7 +336,7 @@ def _rms(v: np.ndarray) -> float | None:
 
 
 def _result(fit: _Fit, g_test: dict[str, Any], base: _Fit, data: Data, accel: AccelCalibration, joint: bool,
-            stage_list: list[Stage], rec: Recording) -> CalibrationResult:
+            stage_list: list[Stage], rec: Recording, motion_times: list[list[float]]) -> CalibrationResult:
     p = fit.p
     cov = np.linalg.inv(fit.jac.T @ fit.jac)
     bound = np.sqrt(np.diag(cov))
@@ -358,7 +357,7 @@ def _result(fit: _Fit, g_test: dict[str, Any], base: _Fit, data: Data, accel: Ac
                         "full_turns": 0 if data.turns is None else data.turns.dt.shape[1]},
         "chi2": fit.chi2, "dof": fit.dof, "birge_ratio": fit.birge,
         "gravity_residual_deg": [float(v) for v in gravity_deg],
-        "gravity_motions_s": _motion_times(rec, stage_list),
+        "gravity_motions_s": motion_times,
         "gravity_residual_rms_deg": _rms(gravity_deg),
         "gravity_z": [float(v) for v in gravity_z(p, data)] if n_grav else [],
         "accelerometer": accel.to_dict(),
