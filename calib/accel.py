@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import least_squares
 
-from .errors import GyrocalError
+from .errors import CalibrationError
 from .recording import Recording
 from .stage import Stage
 
@@ -32,8 +32,10 @@ MIN_REST_SAMPLES = 10
 REST_TRIM_S = 0.25  # each rest's first and last quarter second left out (the hand lets go, the device settles)
 
 
-class AccelCalibrationError(GyrocalError, ValueError):
+class AccelCalibrationError(CalibrationError, ValueError):
     """The rests cannot calibrate the accelerometer; the message says what is missing."""
+
+    default_code = "accelerometer_not_determined"
 
 
 @dataclass(frozen=True)

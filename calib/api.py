@@ -119,7 +119,7 @@ def pointing_to(exc: ProtocolError, used: str, found: Recognition, doing: str = 
     if found.name in (used, "unrecognised", "hand-held") or (used == "paper" and found.name == "ferraris"):
         return exc
     better = "multi-position" if found.name == "mixed" else found.name
-    return ProtocolError(f"{exc} The recording holds {found.summary}: {doing} it with --protocol {better} (or auto)",
+    return ProtocolError(f"{str(exc).rstrip('.')}. The recording holds {found.summary}: {doing} it with --protocol {better} (or auto)",
                          code=exc.code, stages=exc.stages)
 
 
@@ -128,9 +128,10 @@ def _calibrate_as(
 ) -> CalibrationResult:
     if used == "multi-position":
         if sections and any(b.start != a.end or a.kind == b.kind == "still" for a, b in zip(sections, sections[1:], strict=False)):
-            raise GyrocalError("the labelled sections do not hold every motion between two rests (two rests follow each "
-                               "other, or samples between sections are missing), so the re-orientations cannot be "
-                               "followed; calibrate without the sections, or choose --protocol paper or ferraris")
+            raise ProtocolError("the labelled sections do not hold every motion between two rests (two rests follow each "
+                                "other, or samples between sections are missing), so the re-orientations cannot be "
+                                "followed; calibrate without the sections, or choose --protocol paper or ferraris",
+                                code="sections_incomplete")
         from .multi_position import calibrate_multi_position
 
         return calibrate_multi_position(rec, stages)

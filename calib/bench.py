@@ -54,8 +54,11 @@ def _resolve(name: str) -> BatchFn:
     if name not in _BATCH_METHODS:
         try:
             import_module(f"calib.{name}")
-        except ImportError:
-            pass
+        except ImportError as exc:
+            if exc.name != f"calib.{name}":  # the module is there, but something it needs is not
+                from .extras import install_hint
+
+                raise GyrocalError(f"bench method {name!r} cannot be loaded: {install_hint(exc)}") from None
     if name not in _BATCH_METHODS:
         raise GyrocalError(f"unknown bench method {name!r}: registered methods are {', '.join(_BATCH_METHODS) or 'none'}")
     return _BATCH_METHODS[name]

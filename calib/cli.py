@@ -20,11 +20,13 @@ import numpy as np
 
 from . import __version__
 from .errors import GyrocalError
+from .extras import missing_module, register_unavailable
 
 EXIT_OK = 0
 EXIT_USAGE = 2  # bad arguments or bad input file
-EXIT_PROTOCOL = 3  # the recording is fine but the protocol was not found in it
+EXIT_PROTOCOL = 3  # the recording was read and is refused: the protocol is not in it, or it does not determine the calibration
 EXIT_INTERNAL = 70
+OUR_PACKAGES = ("calib", "server", "mock_device", "wearable_protocol", "webui")
 
 
 def _fmt_vec(v: Sequence[float] | np.ndarray | None, digits: int = 5) -> str:
@@ -158,7 +160,7 @@ def _writable(path: Path, what: str) -> Path:
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from .api import calibrate_protocol
     from .cli_input import error_json, read_recording_args, read_sections_arg
-    from .errors import GyrocalError, ProtocolError
+    from .errors import CalibrationError, GyrocalError, Refusal
 
     if args.plot:
         _writable(args.plot, "plot")
@@ -175,14 +177,19 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             print(error_json(exc, "bad_sections", []))
         raise
     try:
-        result, protocol = calibrate_protocol(rec, args.protocol, args.method, sections)
-    except ProtocolError as exc:
-        stages = exc.stages
+        try:
+            result, protocol = calibrate_protocol(rec, args.protocol, args.method, sections)
+        except Refusal:
+            raise
+        except GyrocalError as exc:  # the file was read: whatever else stops the calibration refuses this recording
+            raise CalibrationError(str(exc), code="not_calibrated") from None
+    except Refusal as exc:
+        from .stages import detect_stages
+
+        stages = exc.stages or detect_stages(rec)
         if args.plot:
             from .plots import plot_stages
-            from .stages import detect_stages
 
-            stages = stages or detect_stages(rec)
             plot_stages(rec, stages, args.plot, f"{args.file}: not calibrated. {exc}")
             print(f"the stages found are drawn in {args.plot}", file=sys.stderr)
         if args.json:
@@ -396,8 +403,9 @@ def build_parser() -> argparse.ArgumentParser:
     for ep in entry_points(group="gyrocal.commands"):
         try:
             register: Callable[[Any], None] = ep.load()
-        except ImportError:
-            continue  # that part of gyrocal is not installed
+        except ImportError as exc:
+            register_unavailable(sub, ep.name, exc)  # that part of gyrocal is not installed: say so when it is asked for
+            continue
         register(sub)
     return parser
 
@@ -412,10 +420,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except GyrocalError as exc:
-        from .errors import ProtocolError
+        from .errors import Refusal
 
         print(f"gyrocal: error: {exc}", file=sys.stderr)
-        return EXIT_PROTOCOL if isinstance(exc, ProtocolError) else EXIT_USAGE
+        return EXIT_PROTOCOL if isinstance(exc, Refusal) else EXIT_USAGE
+    except ImportError as exc:
+        if (exc.name or "").split(".")[0] in OUR_PACKAGES:
+            raise  # a fault of gyrocal's own, not a missing install
+        print(f"gyrocal: error: {missing_module(args.command, exc)}", file=sys.stderr)
+        return EXIT_USAGE
     except KeyboardInterrupt:
         print("gyrocal: interrupted", file=sys.stderr)
         return 130

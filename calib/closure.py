@@ -174,7 +174,8 @@ def _solve(data: ClosureData, theta0: np.ndarray, extended: bool) -> _Fit:
         sol = least_squares(fun, theta, jac=jac, **_LSQ)
         nfev += int(sol.nfev)
         if not np.all(np.isfinite(sol.x)):
-            raise CalibrationError("the closure fit diverged: check that each turn is one full turn that ends where it began")
+            raise CalibrationError("the closure fit diverged: check that each turn is one full turn that ends where it began",
+                                   code="not_closed")
         theta = sol.x
         converged = bool(sol.success)
         current = system(data, theta[None], extended, jacobian=True)
@@ -204,7 +205,8 @@ def _check_closed(turns: list[Stage], fit: _Fit) -> None:
         raise CalibrationError(
             f"the turn about {st.axis} at {st.start_s:.1f}-{st.end_s:.1f} s ends {angle[worst]:.0f} deg from where it "
             "began even after calibration: it is not a full turn back to the starting pose. Repeat it, turning "
-            "exactly 360 degrees and putting the device back in its starting position"
+            "exactly 360 degrees and putting the device back in its starting position",
+            code="not_closed",
         )
 
 

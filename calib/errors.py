@@ -11,25 +11,55 @@ class RecordingError(GyrocalError):
     """The recording cannot be read or fails validation (bad file, bad values, bad layout)."""
 
 
-class ProtocolError(GyrocalError):
+# Every reason a read recording can be refused, in a word: the ``code`` of a Refusal, the CLI's ``{"error": {"code"}}``.
+REFUSAL_CODES = {
+    "turn_missing": "a full turn about an axis was not found",
+    "still_missing": "no rest long enough before the first turn",
+    "no_rest": "no rest anywhere (the device was held in the hand)",
+    "sample_rate_suspect": "the recording holds the protocol at another sample rate",
+    "sections_incomplete": "the labelled sections do not hold every motion between two rests",
+    "protocol_not_found": "the protocol asked for is not in the recording",
+    "not_determined": "the motions do not determine every parameter",
+    "not_closed": "a turn does not end where it began",
+    "reorientations_disagree": "no calibration makes the re-orientations agree with the accelerometer",
+    "accelerometer_not_determined": "the rests cannot calibrate the accelerometer",
+    "not_calibrated": "any other reason the estimator gave",
+}
+
+
+class Refusal(GyrocalError):
+    """The recording was read, and cannot be calibrated as asked: ``code`` says why in a word, ``stages`` are the
+    stages that were found, so a caller can show them. The command line exits 3 on every refusal."""
+
+    default_code = "not_calibrated"
+
+    def __init__(self, message: str, *, code: str | None = None, stages: list | None = None) -> None:
+        super().__init__(message)
+        self.code = code or self.default_code
+        self.stages = list(stages or [])
+
+
+class ProtocolError(Refusal):
     """The recording is valid but does not contain the calibration protocol (a stage is missing).
 
-    ``code`` says why in a word (turn_missing, still_missing, no_rest, sample_rate_suspect, protocol_not_found);
-    ``stages`` are the stages that were found, so a caller can show them.
+    ``code``: turn_missing, still_missing, no_rest, sample_rate_suspect, sections_incomplete, protocol_not_found.
     """
 
-    def __init__(self, message: str, *, code: str = "protocol_not_found", stages: list | None = None) -> None:
-        super().__init__(message)
-        self.code = code
-        self.stages = list(stages or [])
+    default_code = "protocol_not_found"
 
 
 class OutputError(GyrocalError):
     """A result cannot be written where asked (a missing folder, no permission)."""
 
 
-class CalibrationError(GyrocalError):
-    """The estimator could not produce a trustworthy result from this recording."""
+class CalibrationError(Refusal):
+    """The estimator could not produce a trustworthy result from this recording.
+
+    ``code``: not_determined (the motions do not determine the parameters), not_closed (a turn does not end where it
+    began), reorientations_disagree, accelerometer_not_determined, not_calibrated (any other reason).
+    """
+
+    default_code = "not_determined"
 
 
 class RecordingTooLong(RecordingError):

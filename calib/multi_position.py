@@ -287,7 +287,8 @@ def _check_agreement(fit: _Fit, data: Data) -> None:
         raise CalibrationError(
             f"no calibration makes the re-orientations agree with the accelerometer: at the best fit, gravity is still "
             f"{rms:.1f} deg rms off after them (a calibrated gyro leaves a few tenths at most). Check the sample rate, "
-            "that the accelerometer's axes are the gyro's, and that the device rested between the re-orientations")
+            "that the accelerometer's axes are the gyro's, and that the device rested between the re-orientations",
+            code="reorientations_disagree")
 
 
 def _gravity_deg(p: Params, data: Data) -> np.ndarray:

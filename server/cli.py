@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 import re
+import signal
 import sys
 from typing import TYPE_CHECKING, Any
 
@@ -283,7 +284,7 @@ def build_service(args: argparse.Namespace) -> Any:
     from calib.api import available_methods
 
     from .config import CalibrationLimits, Settings, default_db_url
-    from .devices import DeviceManager, load_simulators
+    from .devices import DeviceManager, SimulatorsUnavailable, load_simulators
     from .service import Service
 
     if args.mock < 0 or args.mock > 1000:
@@ -292,9 +293,12 @@ def build_service(args: argparse.Namespace) -> Any:
         raise ServiceError("--mock-first takes the first simulated wearable's number, from 1 to 100000")
     if not (args.mock_speed > 0):
         raise ServiceError("--mock-speed must be a positive number (1 = real time)")
-    simulators = load_simulators() if args.mock else None
-    if args.mock and simulators is None:
-        raise ServiceError("--mock needs the simulated wearables (the mock_device package), which are not installed")
+    simulators = None
+    if args.mock:
+        try:
+            simulators = load_simulators()
+        except SimulatorsUnavailable as exc:
+            raise ServiceError(f"--mock needs the simulated wearables, and {exc}") from None
     if simulators is not None and args.mock_model not in simulators.models:
         raise ServiceError(f"unknown --mock-model {args.mock_model!r}: choose one of {', '.join(simulators.models)}")
     if simulators is not None and args.mock_rate is not None:
@@ -426,6 +430,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
         print(f"warning: listening on {args.host}: other computers can reach the service", file=sys.stderr, flush=True)
     config = uvicorn.Config(app, log_level=args.log_level, access_log=args.log_level == "debug", timeout_graceful_shutdown=5)
     server = uvicorn.Server(config)
+    # uvicorn stops gracefully on SIGTERM, then raises the signal again for the handler it found: this one makes a
+    # stop asked for (systemd, docker, make run's terminal) an ordinary end, exit 0, as Ctrl-C already is
+    signal.signal(signal.SIGTERM, lambda _sig, _frame: None)
     try:
         server.run(sockets=[sock])
     except KeyboardInterrupt:

@@ -94,8 +94,9 @@ class Settings:
     timings: ProtocolTimings = field(default_factory=ProtocolTimings)
     tolerances: Tolerances = field(default_factory=Tolerances)
     max_turn_attempts: int = 3  # tries per turn: a failed turn check asks for the turn again until this many (1: it ends the session)
-    link_silence_s: float = 2.0  # wall-clock seconds without samples before the link counts as lost
-    reconnect_timeout_s: float = 60.0  # wall-clock seconds to get the link back before failing
+    link_silence_s: float = 2.0  # seconds of the service's running time without data before the page says so
+    reconnect_timeout_s: float = 60.0  # wall-clock seconds to get the link (or its data) back before failing
+    service_late_limit_s: float = 300.0  # a session whose service did not run this long in all ends service_overloaded
     compute_timeout_s: float = 120.0  # the estimator gets this long (wall clock) for one session
     session_timeout_s: float = 900.0  # wall-clock watchdog: no live session runs longer than this
     sse_linger_s: float = 600.0  # an ended session's event stream closes after this, or at its decision

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from typing import Any, Protocol
 
+from calib.extras import install_hint
 from calib.identity import SensorIdentity
 from wearable_protocol.models import MODELS
 
@@ -43,15 +44,23 @@ class Simulators(Protocol):
                  model: str, service_url: Callable[[], str | None]) -> Any: ...
 
 
-def load_simulators() -> Simulators | None:
-    """The installed simulated wearables, or None when no package offers them."""
+class SimulatorsUnavailable(Exception):
+    """No package of simulated wearables could be loaded; the message says which module failed and what installs it."""
+
+
+def load_simulators() -> Simulators:
+    """The installed simulated wearables; SimulatorsUnavailable, naming the reason, when none can be loaded."""
+    failures: list[str] = []
     for ep in entry_points(group=SIMULATORS_GROUP):
         try:
             simulators: Simulators = ep.load()
             return simulators
-        except ImportError:
-            log.warning("the simulated wearables of %s cannot be loaded", ep.value)
-    return None
+        except ImportError as exc:
+            failures.append(f"the simulated wearables of {ep.value} cannot be loaded: {install_hint(exc)}")
+    if not failures:
+        raise SimulatorsUnavailable("no package offers simulated wearables (the entry point group "
+                                    f"{SIMULATORS_GROUP!r} is empty): reinstall gyrocal with pip install 'gyrocal[server,ble]'")
+    raise SimulatorsUnavailable("; ".join(failures))
 
 
 def model_facts(key: str | None, info: dict[str, Any] | None = None) -> dict[str, Any]:

@@ -4,11 +4,14 @@ docs served from this computer (no CDN)."""
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 from typing import Any
 
 from fastapi import FastAPI
 from fastapi.responses import HTMLResponse, JSONResponse, Response
+
+log = logging.getLogger(__name__)
 
 LOOPBACK_NAMES = ("localhost", "127.0.0.1", "::1")
 PAGE_CSP = ("default-src 'self'; script-src 'self'; style-src 'self'; img-src 'self' data: blob:; connect-src 'self'; "
@@ -92,7 +95,10 @@ def docs_assets() -> Path | None:
     """The folder of Swagger UI's files as the fastapi-offline package ships them, or None when it is missing."""
     try:
         import fastapi_offline
-    except ImportError:
+    except ImportError as exc:
+        from calib.extras import install_hint
+
+        log.warning("the interactive API docs at /docs are off: %s", install_hint(exc))
         return None
     folder = Path(fastapi_offline.__file__).parent / "static"
     return folder if (folder / "swagger-ui-bundle.js").is_file() else None

@@ -242,6 +242,7 @@ class WearableLink(Protocol):
 
     address: str | None
     stats: LinkStats
+    last_data_mono: float | None  # when samples last arrived from the transport (time.monotonic), None before any
 
     async def scan(self, timeout: float = 5.0) -> list[DiscoveredDevice]:
         """Wearables advertising the IMU service, strongest first (works before connect)."""

@@ -100,6 +100,7 @@ class LinkCore(ABC):
         self._closing = False
         self._reconnect_task: asyncio.Task[None] | None = None
         self._restore: tuple[int, float] | None = None  # (attempts, time of loss) until the first batch after
+        self.last_data_mono: float | None = None  # when the transport last handed over samples (time.monotonic)
 
     @property
     def config(self) -> DeviceConfig | None:
@@ -333,6 +334,7 @@ class LinkCore(ABC):
         self._feed_ready.set()
 
     def _on_batch(self, batch: SampleBatch) -> None:
+        self.last_data_mono = time.monotonic()
         if self._restore is not None:
             attempts, lost_at = self._restore
             self._restore = None

@@ -52,6 +52,7 @@ class EndReason(StrEnum):
     OUT_OF_TOLERANCE = "out_of_tolerance"
     CALIBRATION_FAILED = "calibration_failed"
     TIMEOUT = "timeout"
+    SERVICE_OVERLOADED = "service_overloaded"
     SERVICE_RESTARTED = "service_restarted"
     GATEWAY_LOST = "gateway_lost"
     INTERNAL_ERROR = "internal_error"

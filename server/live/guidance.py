@@ -25,6 +25,7 @@ REASONS: dict[EndReason, str] = {
     EndReason.OUT_OF_TOLERANCE: "the computed calibration is outside the documented tolerances",
     EndReason.CALIBRATION_FAILED: "the estimator could not compute a calibration from the recording",
     EndReason.TIMEOUT: "the session did not reach its end within the overall time limit",
+    EndReason.SERVICE_OVERLOADED: "the service itself fell too far behind to follow the session (not the device, not the hand)",
     EndReason.SERVICE_RESTARTED: "the service was restarted while the session ran",
     EndReason.GATEWAY_LOST: "the gateway running the session stopped answering",
     EndReason.INTERNAL_ERROR: "an unexpected error stopped the session",
@@ -181,6 +182,26 @@ def link_restored(axis: str | None) -> str:
     if axis:
         return f"Reconnected. The turn about {ax(axis)} will be done again: put the device back against the block and keep it still."
     return "Reconnected. Put the device back against the block and keep it still."
+
+
+def no_data(silent_s: float) -> str:
+    return (f"No data from the device for {silent_s:.0f} s. Keep it still and close to the receiver: "
+            "the session carries on as soon as its data arrives.")
+
+
+def data_resumed(late_s: float) -> str:
+    return f"The device's data arrived {late_s:.1f} s late, complete: nothing was lost. Carry on."
+
+
+def service_late(late_s: float) -> str:
+    return (f"The calibration service fell {late_s:.1f} s behind (the computer running it is busy). It is catching up "
+            "with the device's data: nothing was lost, and nothing needs to be done again.")
+
+
+def service_overloaded(late_s: float) -> str:
+    return (f"The calibration service fell {late_s:.0f} s behind the device and could not follow the calibration: the "
+            "computer running it is overloaded. This was not the device, nor the way it was turned. Start a new "
+            "calibration; if it happens again, tell the administrator.")
 
 
 def out_of_tolerance(failures: list[str]) -> str:

@@ -32,6 +32,7 @@ from .session import GuidedSession
 log = logging.getLogger(__name__)
 
 WATCHDOG_PERIOD_S = 0.25
+SERVICE_LATE_S = 0.75  # the watchdog woke this much later than it asked: the service itself was not running
 SPOOL_PERIOD_S = 1.0  # a running session's new samples are made durable this often
 SPOOL_MAX_SAMPLES = 600_000  # beyond this (15 min at 562.5 Hz, the longest session) nothing more is spooled
 
@@ -92,7 +93,8 @@ class LiveSession:
         self._task: asyncio.Task[None] | None = None
         self._pump: asyncio.Task[None] | None = None
         self._last_sample_mono = time.monotonic()
-        self._link_down = False
+        self._link_down = False  # the link said it dropped (a LinkEvent), until it says it is back
+        self._silent = False  # the watchdog found no data for link_silence_s, until data comes again
         self.persisted = False
         self.persist_error: str | None = None
         self.identity: SensorIdentity | None = None  # the sensor, its power-up and temperature, once connected
@@ -214,6 +216,10 @@ class LiveSession:
                 if self._link_down:
                     self._link_down = False
                     m.link_restored()
+                if self._silent:
+                    # whether the silence lost anything is read from the samples, never from the service's clock
+                    self._silent = False
+                    m.data_resumed(int(item.lost_before))
                 m.fs_estimate = float(item.fs_hz) if item.fs_hz else m.fs_estimate
                 m.feed(item.t_device_s, item.gyro_dps, item.accel_g, item.seq, int(item.lost_before), time.time())
             if m.finished or m.state == "computing":
@@ -244,15 +250,27 @@ class LiveSession:
             m.fail("link_lost", say.stream_stopped())
 
     async def _watchdog(self) -> None:
+        """The wall-clock limits, the service's own lateness, and silence from a link that says it is up."""
         m = self.machine
+        due = time.monotonic() + WATCHDOG_PERIOD_S
         while not m.finished:
-            await asyncio.sleep(WATCHDOG_PERIOD_S)
+            await asyncio.sleep(max(0.0, due - time.monotonic()))
+            now = time.monotonic()
+            late = now - due
+            due = now + WATCHDOG_PERIOD_S
+            if late > SERVICE_LATE_S:
+                # the process did not run (starved of CPU, stopped, a blocked loop): time it says nothing of the
+                # link or the hand, so the silence and the limits do not count it
+                self._last_sample_mono += late
+                m.service_was_late(late)
             m.tick()
-            silent = time.monotonic() - self._last_sample_mono
-            if m.state not in ("connecting", "computing", "reconnecting") and not m.finished and silent > self.settings.link_silence_s:
-                # no samples and no word from the link: treat it as lost until samples come back
-                self._link_down = True
-                m.link_lost()
+            if m.finished or self._silent or self._link_down or m.state in ("connecting", "computing", "reconnecting"):
+                continue
+            arrived = getattr(self.device.link, "last_data_mono", None)
+            last = max(self._last_sample_mono, arrived or 0.0)  # samples waiting to be read are not silence
+            if now - last > self.settings.link_silence_s:
+                self._silent = True
+                m.data_silent(now - last)
         if self._pump is not None and not self._pump.done():
             self._pump.cancel()
 
@@ -290,7 +308,8 @@ class LiveSession:
         ended = datetime.fromisoformat(m.ended_at) if m.ended_at else utcnow()
         return SessionEnd(
             state=m.state, reason_code=m.reason_code, reason=m.reason, result=m.result, passed=m.passed, ended_at=ended,
-            info={"lost_samples": m.lost_samples, "warnings": m.warnings, "turns": {a: t.to_dict() for a, t in m.turns.items()},
+            info={"lost_samples": m.lost_samples, "service_late_s": round(m.service_late_s, 3), "warnings": m.warnings,
+                  "turns": {a: t.to_dict() for a, t in m.turns.items()},
                   "checks": m.checks, "departures": m.departures, "samples": m.buf.n, "sample_rate_hz": m.fs,
                   "gyro_full_scale_dps": m.full_scale, "identity": self.identity.to_json() if self.identity else None,
                   "temperatures_c": self.temperatures_c},

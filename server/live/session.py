@@ -34,6 +34,7 @@ from ..config import Settings
 from . import guidance as say
 from .buffer import SampleBuffer
 from .codes import END_STATES, TURN_STATES, EndReason, Phase, State
+from .lateness import Lateness
 from .snapshot import session_snapshot
 from .stream import SessionStream, TrackerFactory
 from .time_limits import overdue
@@ -48,7 +49,7 @@ def _utc() -> str:
     return datetime.now(UTC).isoformat()
 
 
-class GuidedSession(TurnChecks):
+class GuidedSession(TurnChecks, Lateness):
     """One guided calibration of one device."""
 
     def __init__(
@@ -111,6 +112,9 @@ class GuidedSession(TurnChecks):
         self._turn_confirmed = True  # the detector closed the recorded turn (a still follows it)
         self._early: float | None = None  # a motion in a confirmed pause, with the rest before it: a bump or the next turn
         self._link_lost_mono: float | None = None
+        self._silent_since: float | None = None  # the watchdog's clock when the data stopped (the link still up)
+        self.service_late_s = 0.0  # how long the service itself did not run during this session (its own lateness)
+        self._late_said_at = -1e9  # device time of the last service_late warning
         self.live_reading: dict[str, Any] = {"still_s": 0.0, "moving": False, "angle_deg": [0.0, 0.0, 0.0],
                                              "raw_angle_deg": [0.0, 0.0, 0.0]}
         self.t_now = 0.0
@@ -236,6 +240,9 @@ class GuidedSession(TurnChecks):
             if now - self._link_lost_mono > self.settings.reconnect_timeout_s:
                 self.fail(EndReason.LINK_LOST, say.link_lost(self.settings.reconnect_timeout_s))
                 return
+        if self._silent_since is not None and now - self._silent_since > self.settings.reconnect_timeout_s:
+            self.fail(EndReason.LINK_LOST, say.link_lost(self.settings.reconnect_timeout_s))
+            return
         if now - self.started_mono > self.settings.session_timeout_s:
             self.fail(EndReason.TIMEOUT, say.timeout(self.settings.session_timeout_s))
 

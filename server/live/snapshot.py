@@ -38,6 +38,7 @@ class SessionView(Protocol):
     calibration_id: int | None
     method: str
     lost_samples: int
+    service_late_s: float
     started_at: str
     ended_at: str | None
     caused_by: dict[str, Any] | None
@@ -105,6 +106,7 @@ def session_snapshot(s: SessionView, event: str) -> dict[str, Any]:
         "method": s.method,
         "samples": s.buf.n,
         "lost_samples": s.lost_samples,
+        "service_late_s": round(s.service_late_s, 3),  # how long the service itself did not run (a starved process)
         "sample_rate_hz": s.fs,
         "started_at": s.started_at,
         "ended_at": s.ended_at,

@@ -44,7 +44,6 @@ def test_two_starts_on_one_device_while_the_store_is_slow_give_one_device_holder
     settings = Settings(db_url=f"sqlite:///{tmp_path / 'store.sqlite3'}", api_token=TOKEN)
     devices = DeviceManager()
     simulators = load_simulators()
-    assert simulators is not None
     devices.add_mocks(simulators, 1, speed=40.0, seed=3)
     svc = Service(settings, devices=devices)
     app = create_app(settings, svc)

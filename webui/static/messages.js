@@ -69,6 +69,7 @@ export const REASONS = {
   out_of_tolerance: { title: "The result is outside the tolerances", fix: "Redo the calibration. If it fails again, the sensor may be faulty.", icon: "fail" },
   calibration_failed: { title: "The calibration could not be computed", fix: "Start again, following each step on the screen.", icon: "fail" },
   timeout: { title: "The calibration took too long", fix: "Start again; the whole calibration takes about a minute.", icon: "clock" },
+  service_overloaded: { title: "The service was too busy to follow", fix: "Not the device, nor your turns: start again. If it happens again, tell the administrator the service is overloaded.", icon: "clock" },
   service_restarted: { title: "The service was restarted", fix: "Start a new calibration.", icon: "fail" },
   gateway_lost: { title: "The room's gateway stopped answering", fix: "The device is free again: start a new calibration from any gateway that sees it.", icon: "fail" },
   internal_error: { title: "Something went wrong in the service", fix: "Start again. If it happens again, report it with the time shown below.", icon: "fail" },

@@ -14,7 +14,8 @@ import { writeBack } from "./writeback.js";
 const END_STATES = new Set(["done", "failed", "cancelled"]);
 const WARNING_SHOW_MS = 10000;
 const TURN_FAULTS = new Set(["wrong_axis", "too_fast", "turn_incomplete", "turn_too_far", "turn_too_long", "no_motion"]);
-const WARNING_ICON = { moved: "hand", hint: "info", link_lost: "link", link_restored: "link", moved_during_pause: "hand" };
+const WARNING_ICON = { moved: "hand", hint: "info", link_lost: "link", link_restored: "link", moved_during_pause: "hand",
+  no_data: "link", data_resumed: "link", service_late: "clock" };
 
 // -- shared pieces -------------------------------------------------------------------------------
 /** "Step n of 7" and the bar of steps; stopped=true marks step n as the one where the calibration stopped. */
@@ -278,7 +279,7 @@ export function sessionView(ctx, sid) {
     if (warnings.length > seenWarnings) {
       const w = warnings[warnings.length - 1];
       seenWarnings = warnings.length;
-      const kind = w.code === "link_restored" || w.code === "hint" ? "info" : "warn";
+      const kind = ["link_restored", "hint", "data_resumed", "service_late"].includes(w.code) ? "info" : "warn";
       shownWarning = { until: Date.now() + WARNING_SHOW_MS, message: w.message, axis: s.axis };
       ui.noticeBox.dataset.key = `warning-${seenWarnings}`;
       fill(ui.noticeBox, notice(kind, WARNING_ICON[w.code] || "warn", w.message));
