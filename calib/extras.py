@@ -31,8 +31,11 @@ def install_hint(exc: ImportError) -> str:
     """'the module X could not be imported (...); install it with: ...', for a message that names what failed."""
     module = exc.name or "?"
     extra = _extra_of(module)
-    command = f"pip install 'gyrocal[{extra}]'" if extra else "pip install 'gyrocal[server,ble]'"
-    return f"the module {module!r} could not be imported ({exc}); install it with: {command} (in a clone: make install)"
+    if extra:
+        command = f"pip install 'gyrocal[{extra}]' (in a clone: make install)"
+    else:  # not one of gyrocal's own dependencies: the package of that name
+        command = f"pip install {module.split('.')[0].replace('_', '-')}"
+    return f"the module {module!r} could not be imported ({exc}); install it with: {command}"
 
 
 def missing_module(command: str, exc: ImportError) -> str:

@@ -46,8 +46,12 @@ def engine_for(url: str) -> Engine:
         kwargs["pool_pre_ping"] = True
     try:
         engine = create_engine(parsed, **kwargs)
-    except (ArgumentError, ImportError) as exc:
+    except ArgumentError as exc:
         raise StoreError(f"cannot use the database {parsed.render_as_string(hide_password=True)}: {exc}") from exc
+    except ImportError as exc:  # the database's driver is not installed
+        from calib.extras import install_hint
+
+        raise StoreError(f"cannot use the database {parsed.render_as_string(hide_password=True)}: {install_hint(exc)}") from exc
     if backend == "sqlite":
         _sqlite_transactions(engine)
     return engine

@@ -43,10 +43,6 @@ def no_rest(tmp: Path, real: Path) -> list[str]:
     return [str(real / "sunsided" / "sunsided_xyz_uniform.csv")]
 
 
-def sample_rate_suspect(tmp: Path, real: Path) -> list[str]:
-    return [str(real / "imucal" / "example_ferraris_session.csv"), "--fs", "10"]
-
-
 def protocol_not_found(tmp: Path, real: Path) -> list[str]:
     rec, _ = simulate(1, noise=0.03)
     return [str(_write(rec, tmp / "paper.csv")), "--protocol", "ferraris"]
@@ -76,8 +72,10 @@ def accelerometer_not_determined(tmp: Path, real: Path) -> list[str]:
     return [str(_multi_position(tmp, vertical_only=True)), "--protocol", "multi-position"]
 
 
-FROM_RECORDINGS = {f.__name__: f for f in (turn_missing, still_missing, no_rest, sample_rate_suspect, protocol_not_found,
-                                           sections_incomplete, not_closed, accelerometer_not_determined)}
+FROM_RECORDINGS = {f.__name__: f for f in (turn_missing, still_missing, no_rest, protocol_not_found, sections_incomplete,
+                                           not_closed, accelerometer_not_determined)}
+# refusals another test already drives through the installed command, JSON and exit code included
+IN_OTHER_TESTS = {"sample_rate_suspect": "tests/calib/test_cli.py::test_a_wrong_sample_rate_is_named"}
 # refusals no recording of a few seconds provokes reliably: the estimator's refusal raised where it stands
 FROM_THE_ESTIMATOR = {
     "not_determined": CalibrationError("the re-orientations do not determine every entry of K"),
@@ -119,7 +117,7 @@ def test_an_estimator_refusal_prints_its_code_as_json_and_exits_3(code: str, tmp
 
 
 def test_every_refusal_code_is_tested() -> None:
-    assert set(FROM_RECORDINGS) | set(FROM_THE_ESTIMATOR) == set(REFUSAL_CODES)
+    assert set(FROM_RECORDINGS) | set(FROM_THE_ESTIMATOR) | set(IN_OTHER_TESTS) == set(REFUSAL_CODES)
 
 
 def test_an_unreadable_file_is_a_usage_error_with_json_and_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

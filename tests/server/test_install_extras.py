@@ -119,3 +119,11 @@ def test_a_command_whose_entry_point_cannot_be_loaded_is_listed_and_says_what_to
     err = capsys.readouterr().err
     assert "'gyrocal serve' cannot be loaded: the module 'fastapi_missing_here' could not be imported" in err
     assert "install it with: pip install" in err
+
+
+def test_a_database_driver_that_is_not_installed_is_named_with_its_install_command() -> None:
+    from server.store.engine import engine_for
+    from server.store.errors import StoreError
+
+    with pytest.raises(StoreError, match=r"the module 'psycopg2' could not be imported .*install it with: pip install psycopg2"):
+        engine_for("postgresql+psycopg2://gyrocal@127.0.0.1/gyrocal")
