@@ -71,30 +71,32 @@ def test_concurrent_decisions_in_threads_have_one_winner(store_url: str, plan: l
     assert store.calibration_count() == sum(w == "accept" for w in winners.values())
 
 
-def _process_decider(url: str, sid: str, how: str, who: str, barrier: multiprocessing.synchronize.Barrier,
+def _process_decider(url: str, sids: list[str], how: str, who: str, barrier: multiprocessing.synchronize.Barrier,
                      out: multiprocessing.queues.Queue) -> None:
     store = Store(url)  # each process opens the store itself: its own engine, its own connections
-    barrier.wait()
-    out.put(_decide(store, sid, how, who))
+    for sid in sids:  # the processes are released together on each session in turn
+        barrier.wait()
+        out.put((sid, _decide(store, sid, how, who)))
     store.close()
 
 
 def test_concurrent_decisions_in_processes_have_one_winner(store_url: str) -> None:
     store = Store(store_url)
     ctx = multiprocessing.get_context("spawn")
-    winners: dict[str, str] = {}
     plan = ["accept", "accept", "discard", "accept"]
-    for round_ in range(4):
-        sid = f"{round_:02d}" + "b" * 30
+    sids = [f"{round_:02d}" + "b" * 30 for round_ in range(4)]
+    for sid in sids:
         _done(store, sid)
-        barrier, q = ctx.Barrier(len(plan)), ctx.Queue()
-        procs = [ctx.Process(target=_process_decider, args=(store_url, sid, how, f"p{i}", barrier, q)) for i, how in enumerate(plan)]
-        for p in procs:
-            p.start()
-        out = [q.get(timeout=120) for _ in procs]
-        for p in procs:
-            p.join(30)
-        wins = [o for o in out if o != "conflict"]
+    barrier, q = ctx.Barrier(len(plan)), ctx.Queue()
+    procs = [ctx.Process(target=_process_decider, args=(store_url, sids, how, f"p{i}", barrier, q)) for i, how in enumerate(plan)]
+    for p in procs:
+        p.start()
+    out = [q.get(timeout=120) for _ in range(len(procs) * len(sids))]
+    for p in procs:
+        p.join(30)
+    winners: dict[str, str] = {}
+    for sid in sids:
+        wins = [o for s, o in out if s == sid and o != "conflict"]
         assert len(wins) == 1, out
         winners[sid] = wins[0]
     _check_history(store, winners)
