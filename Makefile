@@ -34,9 +34,9 @@ lint: $(VENV)/.installed-test
 	$(PY) scripts/check_structure.py
 	$(PY) scripts/effects_tables.py --check
 
-## test: install everything the tests need, then run them all (TEST_WORKERS parallel workers: most tests wait on
-## services, browsers and real time rather than compute, so more workers than cores)
-TEST_WORKERS ?= 4
+## test: install everything the tests need, then run them all (TEST_WORKERS parallel workers, one a core: the tests that
+## follow a hand at real speed must not be starved by their neighbours)
+TEST_WORKERS ?= 2
 test: $(VENV)/.installed-test system-deps lint
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist worksteal
 

@@ -398,6 +398,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         sock = socket.socket(socket.AF_INET6 if ":" in args.host else socket.AF_INET, socket.SOCK_STREAM)
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         sock.bind((args.host, args.port))
+        sock.listen(2048)  # from now on a connection waits for the app instead of being refused: the URL printed is true
     except OSError as exc:
         raise ServiceError(f"cannot listen on {args.host}:{args.port} ({exc.strerror or exc}); choose another --port") from None
     port = sock.getsockname()[1]

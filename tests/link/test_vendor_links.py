@@ -54,7 +54,10 @@ async def test_each_vendor_streams_a_protocol_that_calibrates_to_the_truth(model
         rec.add(b)
     r = rec.recording()
     assert np.all(np.diff(r.t) > 0) and np.all(np.diff(r.seq) == 1)
-    assert r.meta.sample_rate_hz == pytest.approx(w.true_rate_hz, rel=2e-4)
+    # a model stamped on arrival has its rate estimated from when packets came: a busy machine delays some (2.7e-4
+    # seen beside a full test run); one with its own clock gives the rate to the part in ten thousand
+    rel = 1e-3 if m.time_stamps == "arrival" else 2e-4
+    assert r.meta.sample_rate_hz == pytest.approx(w.true_rate_hz, rel=rel)
     assert batches[0].arrival_times == (m.time_stamps == "arrival")
     rest = r.accel[: int(2 * r.fs)]
     assert np.linalg.norm(rest.mean(axis=0)) == pytest.approx(1.0, abs=0.02)  # the accelerometer, in g
