@@ -56,6 +56,8 @@ def request(method: str, url: str, body: dict | None = None, token: str | None =
             status = r.status
     except urllib.error.HTTPError as exc:
         raw, status = exc.read().decode(), exc.code
+    except (urllib.error.URLError, OSError) as exc:  # refused, reset, timed out: the user's browser would fail too
+        raise SmokeFailure(f"{method} {url} did not answer: {getattr(exc, 'reason', exc)}") from None
     try:
         return status, json.loads(raw)
     except ValueError:
@@ -174,11 +176,12 @@ def main() -> int:
         snap = run_session(base, secret)
         stop(out)
     except SmokeFailure as exc:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
         print(f"smoke test of `make run` FAILED: {exc}\n--- what `make run` printed ---\n{out.text()}", file=sys.stderr)
         return 1
     finally:
+        if proc.poll() is None:  # whatever happened, leave no service behind (it would hold port 8000)
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
         if not keep:
             shutil.rmtree(work, ignore_errors=True)
     print(f"make run: the service started in {started:.0f} s (a fresh virtualenv), printed {base} and the sign-in secret; "

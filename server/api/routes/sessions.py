@@ -46,7 +46,7 @@ from ...live.session import GuidedSession
 from ...live.snapshot import stored_snapshot
 from ...live.turn_watch import LiveAngle
 from ...service import Service
-from ...store import DecisionConflict, NotAcceptable, NotFound, SessionEnd, StoreError
+from ...store import DecisionConflict, NotAcceptable, NotFound, SessionEnd, StoreError, sha256_hex
 from ...workers.compute import TooManySamples, UploadOptions, calibrate_upload
 from ..upload_options import Upload
 from ..views import claim_device, reachable_device, remote_gateway, runs_elsewhere, session_snapshot
@@ -208,6 +208,10 @@ async def session_recording(svc: Svc, session_id: str, _: Reader) -> Response:
     """The session's archived raw recording; header X-Recording-SHA256 is its checksum."""
     check_session_id(session_id)
     got = await asyncio.to_thread(svc.store.recording, session_id)
+    live = svc.sessions.get(session_id)
+    if got is None and live is not None and live.machine.finished and live.csv_bytes:
+        # ended a moment ago and not yet in the store: the same bytes the store is about to keep
+        got = (live.csv_bytes, sha256_hex(live.csv_bytes))
     if got is None:
         raise problem(404, f"no archived recording for session {session_id}")
     data, digest = got
