@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
 from sqlalchemy import select
 from sqlalchemy.dialects import postgresql, sqlite
-from sqlalchemy.exc import SQLAlchemyError
+from sqlalchemy.exc import OperationalError, SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
 from . import chain
@@ -31,7 +32,15 @@ class StoreBase:
         self._read = sessionmaker(self.engine, expire_on_commit=False)
         self._write = sessionmaker(writer(self.engine), expire_on_commit=False)
         try:
-            self.migrate()
+            for wait_s in (0.2, 0.5, 1.0, 2.0, None):
+                try:
+                    self.migrate()
+                    break
+                except OperationalError as exc:
+                    # SQLite: another process is upgrading the same file and holds its lock; wait for it, then find it done
+                    if wait_s is None or self.engine.dialect.name != "sqlite" or "database is locked" not in str(exc):
+                        raise
+                    time.sleep(wait_s)
         except SQLAlchemyError as exc:
             raise StoreError(f"cannot open the store at {self.display_url}: {exc.__class__.__name__}: "
                              f"{getattr(exc, 'orig', None) or exc}") from exc
