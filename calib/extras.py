@@ -27,20 +27,23 @@ def _extra_of(module: str) -> str | None:
     return None
 
 
-def install_hint(exc: ImportError) -> str:
-    """'the module X could not be imported (...); install it with: ...', for a message that names what failed."""
+def install_command(exc: ImportError) -> str:
+    """The command that installs the module ``exc`` could not import: gyrocal's extra that lists it, else its package."""
     module = exc.name or "?"
     extra = _extra_of(module)
     if extra:
-        command = f"pip install 'gyrocal[{extra}]' (in a clone: make install)"
-    else:  # not one of gyrocal's own dependencies: the package of that name
-        command = f"pip install {module.split('.')[0].replace('_', '-')}"
-    return f"the module {module!r} could not be imported ({exc}); install it with: {command}"
+        return f"pip install 'gyrocal[{extra}]' (in a clone: make install)"
+    return f"pip install {module.split('.')[0].replace('_', '-')}"  # not one of gyrocal's own dependencies
+
+
+def install_hint(exc: ImportError) -> str:
+    """'the module X could not be imported (...); install it with: ...', for a message that names what failed."""
+    return f"the module {exc.name or '?'!r} could not be imported ({exc}); install it with: {install_command(exc)}"
 
 
 def missing_module(command: str, exc: ImportError) -> str:
     """What to tell a user whose ``gyrocal COMMAND`` stopped on a module that is not installed."""
-    return f"'gyrocal {command}' needs the module {exc.name!r}, which could not be imported: {install_hint(exc).split('; ', 1)[-1]}"
+    return f"'gyrocal {command}' needs the module {exc.name!r}, which could not be imported: install it with: {install_command(exc)}"
 
 
 def register_unavailable(sub: Any, name: str, exc: ImportError) -> None:
