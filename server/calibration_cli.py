@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 from calib.identity import DEFAULT_MAX_TEMPERATURE_CHANGE_C, SensorIdentity
 
 from .cli import EXIT_OK, ServiceError, open_store, require_active_operator
-from .config import DEFAULT_MAX_AGE_DAYS
+from .config import DB_URL_HELP, DEFAULT_MAX_AGE_DAYS
 
 if TYPE_CHECKING:
     from .config import CalibrationLimits
@@ -102,7 +102,7 @@ def register(sub: Any) -> None:
     )
     p.add_argument("device", help="the device's id, as in `gyrocal serve`'s device list")
     _add_moment_arguments(p, "ISO 8601 time, e.g. 2026-11-20T14:30 (UTC unless it carries an offset)",
-                          "the store's URL (default as for `gyrocal serve`)")
+                          DB_URL_HELP)
     p.set_defaults(func=cmd_calibration)
 
 
@@ -135,7 +135,7 @@ def register_apply(sub: Any) -> None:
     which.add_argument("--device", default=None, metavar="ID", help="the device whose calibration in force is applied")
     which.add_argument("--calibration", type=Path, default=None, metavar="FILE", help="gyrocal's calibration JSON or imucal's")
     _add_moment_arguments(p, "with --device: when the recording was made (ISO 8601; default now)",
-                          "with --device: the store's URL (default as for `gyrocal serve`)")
+                          "with --device: " + DB_URL_HELP)
     p.add_argument("-o", "--output", type=Path, default=None, metavar="OUT",
                    help="the corrected CSV (default: FILE's name with .calibrated.csv)")
     p.add_argument("--orientation", action="store_true",
@@ -239,7 +239,7 @@ def register_export(sub: Any) -> None:
     which = p.add_mutually_exclusive_group(required=True)
     which.add_argument("--id", type=int, default=None, metavar="N", help="the calibration's id (GET /devices/{id}/calibrations)")
     which.add_argument("--device", default=None, metavar="ID", help="the device whose calibration in force is written")
-    _add_moment_arguments(p, "with --device: the moment (ISO 8601; default now)", "the store's URL (default as for `gyrocal serve`)",
+    _add_moment_arguments(p, "with --device: the moment (ISO 8601; default now)", DB_URL_HELP,
                           max_age=False)
     p.add_argument("--format", choices=["gyrocal", "imucal", "csv"], default="gyrocal")
     p.add_argument("-o", "--output", type=Path, default=None, metavar="OUT", help="the file to write (default: standard output)")
@@ -283,7 +283,7 @@ def register_import(sub: Any) -> None:
     p.add_argument("file", type=Path, help="the calibration file (JSON)")
     p.add_argument("--device", required=True, metavar="ID", help="the device it calibrates")
     p.add_argument("--operator", required=True, metavar="NAME", help="who imports it (an operator of the store; `gyrocal operator list`)")
-    p.add_argument("--db", default=None, metavar="URL", help="the store's URL (default as for `gyrocal serve`)")
+    p.add_argument("--db", default=None, metavar="URL", help=DB_URL_HELP)
     _add_identity_arguments(p, "the sensor it was measured on, when the file does not say", "when it was measured")
     p.set_defaults(func=cmd_import)
 

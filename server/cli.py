@@ -11,6 +11,8 @@ from typing import TYPE_CHECKING, Any
 
 from calib.errors import GyrocalError
 
+from .config import DB_URL_HELP
+
 if TYPE_CHECKING:
     from .config import GatewaySettings
 
@@ -147,25 +149,33 @@ def register(sub: Any) -> None:
 def register_operator(sub: Any) -> None:
     """Add `gyrocal operator add|list|remove|reset`."""
     p = sub.add_parser("operator", help="manage the operators who may write to the service (hashed secrets)")
-    p.add_argument("--db", default=None, metavar="URL", help="the store's URL (default as for `gyrocal serve`)")
+    p.add_argument("--db", default=None, metavar="URL", help=DB_URL_HELP)
+    # --db is accepted after the action too (`gyrocal operator add NAME --db URL`, as the docs write it); SUPPRESS
+    # keeps an action without it from overwriting a --db given before the action
+    db_after = argparse.ArgumentParser(add_help=False)
+    db_after.add_argument("--db", default=argparse.SUPPRESS, metavar="URL", help=DB_URL_HELP)
     osub = p.add_subparsers(dest="operator_command", metavar="ACTION", required=True)
-    a = osub.add_parser("add", help="add an operator; prints the secret once")
+
+    def action(name: str, help: str) -> Any:
+        return osub.add_parser(name, help=help, parents=[db_after])
+
+    a = action("add", "add an operator; prints the secret once")
     a.add_argument("name")
     a.add_argument("--secret-stdin", action="store_true", help="read the secret from standard input instead of generating one")
     a.set_defaults(func=cmd_operator_add)
-    r = osub.add_parser("reset", help="give an operator a new secret (signs them out everywhere)")
+    r = action("reset", "give an operator a new secret (signs them out everywhere)")
     r.add_argument("name")
     r.add_argument("--secret-stdin", action="store_true", help="read the secret from standard input instead of generating one")
     r.set_defaults(func=cmd_operator_reset)
-    d = osub.add_parser("remove", help="disable an operator (kept in the audit trail)")
+    d = action("remove", "disable an operator (kept in the audit trail)")
     d.add_argument("name")
     d.set_defaults(func=cmd_operator_remove)
-    pn = osub.add_parser("pin", help="give an operator a PIN of 4-8 digits for the tablets the service trusts (or --remove it)")
+    pn = action("pin", "give an operator a PIN of 4-8 digits for the tablets the service trusts (or --remove it)")
     pn.add_argument("name")
     pn.add_argument("--pin-stdin", action="store_true", help="read the PIN from standard input (else it is asked for)")
     pn.add_argument("--remove", action="store_true", help="take the operator's PIN away")
     pn.set_defaults(func=cmd_operator_pin)
-    ls = osub.add_parser("list", help="list operators")
+    ls = action("list", "list operators")
     ls.set_defaults(func=cmd_operator_list)
 
 

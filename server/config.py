@@ -21,6 +21,9 @@ def default_db_path() -> Path:
     return Path(user_data_dir("gyrocal", appauthor=False)) / "gyrocal.sqlite3"
 
 
+DB_URL_HELP = "the store's URL (default as for `gyrocal serve`: GYROCAL_DB, else an SQLite file in the user's data folder)"
+
+
 def default_db_url() -> str:
     """GYROCAL_DB if set, else the SQLite file in the user's data directory."""
     env = os.environ.get("GYROCAL_DB")

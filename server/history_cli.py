@@ -10,7 +10,7 @@ from datetime import datetime
 from typing import Any
 
 from .cli import EXIT_OK, ServiceError, open_store, require_active_operator
-from .config import DEFAULT_MAX_AGE_DAYS
+from .config import DB_URL_HELP, DEFAULT_MAX_AGE_DAYS
 
 
 def register_history(sub: Any) -> None:
@@ -23,7 +23,7 @@ def register_history(sub: Any) -> None:
         "damaged sensor) and its latest verification turn; then whether the device is due for calibration.",
     )
     p.add_argument("device", help="the device's id")
-    p.add_argument("--db", default=None, metavar="URL", help="the store's URL (default as for `gyrocal serve`)")
+    p.add_argument("--db", default=None, metavar="URL", help=DB_URL_HELP)
     p.add_argument("--max-age-days", type=float, default=DEFAULT_MAX_AGE_DAYS, metavar="DAYS",
                    help=f"a calibration older than this makes the device due (default {DEFAULT_MAX_AGE_DAYS:g})")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
@@ -96,7 +96,7 @@ def register_verify(sub: Any) -> None:
     which.add_argument("--id", type=int, default=None, metavar="N", help="the calibration's id")
     which.add_argument("--device", default=None, metavar="ID", help="the device whose current calibration is verified")
     p.add_argument("--operator", required=True, metavar="NAME", help="who verifies (an operator of the store)")
-    p.add_argument("--db", default=None, metavar="URL", help="the store's URL (default as for `gyrocal serve`)")
+    p.add_argument("--db", default=None, metavar="URL", help=DB_URL_HELP)
     p.set_defaults(func=cmd_verify)
 
 

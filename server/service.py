@@ -65,7 +65,6 @@ class Service:
             await asyncio.sleep(self.settings.integrity_check_s)
 
     async def startup(self) -> None:
-        self._integrity_task = asyncio.get_running_loop().create_task(self._verify_periodically())
         await self.pool.start()
         n = await asyncio.to_thread(
             self.store.fail_unfinished_sessions,
@@ -74,6 +73,8 @@ class Service:
         )
         if n:
             log.warning("%d sessions left open by a previous run were marked failed", n)
+        # the first check of the history runs after the recovery above, so it counts the recordings it archived
+        self._integrity_task = asyncio.get_running_loop().create_task(self._verify_periodically())
         for dev in self.devices.devices.values():
             await asyncio.to_thread(self.store.upsert_device, dev.id, name=dev.name, address=dev.address, transport=dev.transport)
         await self.events.start()

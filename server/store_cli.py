@@ -11,6 +11,7 @@ import sys
 from typing import Any
 
 from .cli import ServiceError
+from .config import DB_URL_HELP
 
 EXIT_OK = 0
 EXIT_TAMPERED = 4  # `gyrocal store verify`: a hash chain is broken
@@ -38,7 +39,7 @@ def register(sub: Any) -> None:
     v = ssub.add_parser("verify", help="check the hash chains over calibrations, recordings and the audit log",
                         description="Walk the hash chains over the store's history. Exit 0: intact. Exit 4: a link is "
                         "broken; the first broken one is printed (a row changed, removed or replaced after it was written).")
-    v.add_argument("--db", default=None, metavar="URL", help="the store's URL (default as for `gyrocal serve`)")
+    v.add_argument("--db", default=None, metavar="URL", help=DB_URL_HELP)
     v.add_argument("--json", action="store_true", help="print the report as one JSON object")
     v.set_defaults(func=cmd_verify)
 

@@ -41,6 +41,18 @@ def test_operator_commands(tmp_path: Path, capsys: pytest.CaptureFixture[str], m
     assert main(["operator", "--db", db, "remove", "nobody"]) == 2
 
 
+def test_operator_db_after_the_action(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`gyrocal operator add NAME --db URL`, as the docs write it, acts on URL; a --db before the action still does."""
+    db = f"sqlite:///{tmp_path / 'ops.sqlite3'}"
+    assert main(["operator", "add", "carol", "--db", db]) == 0
+    assert main(["operator", "--db", db, "add", "dave"]) == 0
+    capsys.readouterr()
+    assert main(["operator", "list", "--db", db]) == 0
+    listing = capsys.readouterr().out
+    assert "carol" in listing and "dave" in listing
+    assert {o["name"] for o in Store(db).operators()} == {"carol", "dave"}
+
+
 @pytest.mark.parametrize(
     "args, message",
     [

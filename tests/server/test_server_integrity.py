@@ -148,9 +148,12 @@ def test_kill_9_mid_turn_leaves_the_recording_for_the_audit(service_store: tuple
         svc.proc.wait(10)
     finally:
         svc.stop()
+    recordings_before = Store(owner).verify().rows["recordings"]
     again = RunningService(MOCK, url).start()
     try:
         with again.client() as c:
+            # the first word on the history, asked at once, counts the recording the restart recovered
+            assert c.get("/health", params={"verify": "true"}).json()["integrity"]["rows"]["recordings"] == recordings_before + 1
             row = c.get(f"/sessions/{sid}").json()
             assert row["state"] == "failed" and row["reason_code"] == "service_restarted"
             r = c.get(f"/sessions/{sid}/recording")
