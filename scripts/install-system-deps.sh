@@ -9,6 +9,8 @@ compgen -G "/usr/lib/postgresql/*/bin/initdb" >/dev/null || need+=(postgresql)
 command -v cc >/dev/null 2>&1 || need+=(gcc libc6-dev)
 # the wizard page tests drive Debian's Chromium through Playwright (never a downloaded browser)
 [ -x /usr/bin/chromium ] || need+=(chromium)
+# a fleet test runs one gateway with its clock set back (libfaketime), as a gateway off NTP would be
+compgen -G "/usr/lib/*/faketime/libfaketime.so.1" >/dev/null || need+=(faketime)
 if [ ${#need[@]} -eq 0 ]; then
   exit 0
 fi

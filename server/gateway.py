@@ -11,6 +11,7 @@ from collections.abc import Callable
 
 from calib import __version__
 
+from .clock import ClockWatch
 from .config import GatewaySettings
 from .store import Lease, Store
 
@@ -23,13 +24,14 @@ class GatewayAgent:
     """The gateway's side of the fleet tables: registration, heartbeat, leases."""
 
     def __init__(self, store: Store, settings: GatewaySettings, seen: Callable[[], dict[str, int | None]],
-                 held: Callable[[], dict[str, str]], changed: Callable[[str, str | None], None]) -> None:
+                 held: Callable[[], dict[str, str]], changed: Callable[[str, str | None], None], clock: ClockWatch) -> None:
         self.store = store
         self.settings = settings
         self.name = settings.name
         self._seen = seen  # device id -> signal strength (dBm) of the wearables this gateway reaches now
         self._held = held  # device id -> holder of what this gateway runs on it now
         self._changed = changed  # tells the fleet's pages what changed (server.fleet_events)
+        self._clock = clock  # measured at every heartbeat: a clock drifting off the database's is said as it happens
         self._reported: frozenset[str] | None = None  # the wearables the last heartbeat said it sees
         self._task: asyncio.Task[None] | None = None
         self._releasing: set[asyncio.Task[None]] = set()
@@ -51,6 +53,7 @@ class GatewayAgent:
         """One heartbeat: alive, what it sees, its leases renewed (only those it still uses), expired ones swept."""
         held, seen = self._held(), self._seen()
         await asyncio.to_thread(self.store.heartbeat, self.name, self.settings.lease_s, seen, held)
+        await self._clock.measure(self.store)
         if frozenset(seen) != self._reported:  # what it runs is announced as it starts and ends, not here
             self._reported = frozenset(seen)
             self._changed("sightings", None)

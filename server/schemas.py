@@ -41,6 +41,14 @@ class Integrity(BaseModel):
     checked_at: str
 
 
+class ClockOut(BaseModel):
+    offset_s: float | None = Field(description="the store's database clock minus this service's (s; positive: this "
+                                               "computer's clock is behind); None before the first measurement")
+    ok: bool = Field(description="whether the offset is within the tolerance (server.clock.MAX_CLOCK_OFFSET_S)")
+    measured_at: str | None
+    warning: str | None = Field(description="what is wrong and what to do, when not ok")
+
+
 class Health(BaseModel):
     status: Literal["ok", "tampered"] = Field(description="tampered: a hash chain of the store's history is broken")
     integrity: Integrity
@@ -50,6 +58,8 @@ class Health(BaseModel):
     devices: int
     active_sessions: int
     auth_reads: bool = Field(description="whether reads need a token too")
+    clock: ClockOut
+    warnings: list[str] = Field(description="what an operator should act on now, in words (a clock far off the store's)")
 
 
 class LoginIn(BaseModel):

@@ -11,6 +11,7 @@ from datetime import UTC, datetime
 from typing import Any
 
 from .auth import Authenticator, SignIns
+from .clock import ClockWatch
 from .config import Settings
 from .devices import DeviceManager
 from .fleet_events import FleetEvents
@@ -44,8 +45,10 @@ class Service:
         self.writing: set[str] = set()  # devices a calibration is being written to
         self.verify_runs: dict[str, VerifyRun] = {}  # live verification turns, by id (kept after they end, for the page)
         self.events = FleetEvents(settings.db_url, self._stored_snapshot, self._decided_elsewhere)
+        self.clock = ClockWatch()  # how far this computer's clock is from the store's
         self.gateway = (GatewayAgent(self.store, settings.gateway, seen=self._seen, held=self._held,
-                                     changed=self.events.fleet_changed) if settings.gateway is not None else None)
+                                     changed=self.events.fleet_changed, clock=self.clock)
+                        if settings.gateway is not None else None)
         self.started = time.time()
         self.integrity: dict[str, Any] | None = None  # the last verification of the store's hash chains
         self._integrity_task: asyncio.Task[None] | None = None
@@ -78,6 +81,7 @@ class Service:
         for dev in self.devices.devices.values():
             await asyncio.to_thread(self.store.upsert_device, dev.id, name=dev.name, address=dev.address, transport=dev.transport)
         await self.events.start()
+        await self.clock.measure(self.store)
         if self.gateway is not None:
             await self.gateway.start()
 

@@ -344,8 +344,11 @@ class LiveSession:
                 self._csv = await off_loop(self.pool, recording_csv, rec)
             if self._csv is not None and self.recording_sha256 is None:
                 self.recording_sha256 = await asyncio.to_thread(self.store.archive_recording, self.id, self._csv, m.buf.n)
-            await asyncio.to_thread(self.store.finish_session, self.id, self.session_end(),
-                                    self.operator if m.state == "cancelled" else None)
+            stored = await asyncio.to_thread(self.store.finish_session, self.id, self.session_end(),
+                                             self.operator if m.state == "cancelled" else None)
+            if stored is not None and (stored["state"], stored["reason_code"]) != (m.state, m.reason_code):
+                log.warning("session %s ended %s here, but the store had already ended it %s (%s): %s", self.id, m.state,
+                            stored["state"], stored["reason_code"], stored["reason"])
             self.persisted = True
             self.persist_error = None
         except Exception as exc:

@@ -5,9 +5,10 @@ from __future__ import annotations
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from datetime import datetime
 from typing import Any
 
-from sqlalchemy import select
+from sqlalchemy import func, select
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.exc import OperationalError, SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
@@ -17,7 +18,7 @@ from .engine import engine_for, writer
 from .errors import StoreError
 from .records import iso_utc
 from .schema import migrate
-from .tables import AuditRow, SchemaInfo, utcnow
+from .tables import AuditRow, SchemaInfo, aware, utcnow
 
 ALL_CHAINS = ("recordings", "calibrations", "audit_log")
 
@@ -52,6 +53,22 @@ class StoreBase:
     @property
     def dialect(self) -> str:
         return self.engine.dialect.name
+
+    def _db_now(self, s: Session) -> datetime:
+        """The database's time (UTC): what every gateway of a fleet judges leases and heartbeats by, whatever its own
+        clock says. A PostgreSQL server's clock; an SQLite file's is this computer's, the only one that can open it."""
+        if self.dialect == "postgresql":
+            return aware(s.execute(select(func.now())).scalar_one())
+        return utcnow()
+
+    def clock_offset_s(self) -> float:
+        """How far the database's clock is ahead of this computer's (s; negative: behind), measured at the middle of
+        one round trip."""
+        with self._read() as s:
+            before = utcnow()
+            db = self._db_now(s)
+            after = utcnow()
+        return (db - (before + (after - before) / 2)).total_seconds()
 
     def _insert(self, table: type[Any]) -> Any:
         """An INSERT into ``table`` in this store's dialect, which has ON CONFLICT (an atomic upsert)."""

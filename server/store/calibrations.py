@@ -52,9 +52,13 @@ class CalibrationStore(SessionStore):
                 if end is None:
                     end = SessionEnd("done", result=result, passed=result is not None)
                 self._apply_end(s, row, end, None)
-            if row.state != "done" or not row.passed or row.result is None:
-                raise NotAcceptable(f"session {session_id} is {row.state}{'' if row.passed else ', outside the tolerances'}: "
-                                    "only a finished session within tolerances can become a calibration")
+            if row.state != "done" or row.result is None:
+                why = f" ({row.reason_code}: {row.reason})" if row.reason else ""
+                raise NotAcceptable(f"session {session_id} ended {row.state} in the store{why}: only a finished session "
+                                    "within tolerances can become a calibration")
+            if not row.passed:
+                raise NotAcceptable(f"session {session_id} is outside the tolerances: only a finished session within "
+                                    "tolerances can become a calibration")
             info = row.info or {}
             sensor_model = sensor_model or info.get("sensor_model")
             firmware = firmware or info.get("firmware")

@@ -17,7 +17,7 @@ from sqlalchemy import CursorResult, delete, select, update
 
 from .records import iso_utc
 from .sessions import SessionStore
-from .tables import GatewayRow, LeaseRow, SessionRow, SightingRow, aware, utcnow
+from .tables import GatewayRow, LeaseRow, SessionRow, SightingRow, aware
 
 
 @dataclass(frozen=True)
@@ -36,8 +36,8 @@ class FleetStore(SessionStore):
     # -- gateways -------------------------------------------------------------------------------
     def register_gateway(self, name: str, url: str | None, version: str) -> None:
         """A gateway starting (again): its URL and version; its heartbeat starts now."""
-        now = utcnow()
         with self._tx() as s:
+            now = self._db_now(s)
             row = s.get(GatewayRow, name, with_for_update=True)
             if row is None:
                 s.add(GatewayRow(name=name, url=url, version=version, started_at=now, heartbeat_at=now))
@@ -48,9 +48,9 @@ class FleetStore(SessionStore):
         """The gateway is alive: its heartbeat, the wearables it sees now (id -> signal strength in dBm, or None), and
         the leases of what it still runs (device id -> holder) renewed for ``lease_s`` more seconds; a lease it no
         longer uses is left to expire. Returns how many leases it renewed."""
-        now = utcnow()
         renewed = 0
         with self._tx() as s:
+            now = self._db_now(s)
             s.execute(update(GatewayRow).where(GatewayRow.name == name).values(heartbeat_at=now))
             for device_id, rssi in sorted(seen.items()):  # a fixed order: two gateways never wait on each other's rows
                 row = s.get(SightingRow, (device_id, name))
@@ -88,16 +88,15 @@ class FleetStore(SessionStore):
     def take_lease(self, device_id: str, gateway: str, holder: str, lease_s: float) -> Lease:
         """The device's lease for ``holder`` on ``gateway`` (granted when free, expired or already this gateway's);
         otherwise the lease that stands in the way (its gateway differs from ``gateway``)."""
-        now = utcnow()
-        expires = now + timedelta(seconds=lease_s)
-        values = {"device_id": device_id, "gateway": gateway, "holder": holder, "expires_at": expires}
-        ins = self._insert(LeaseRow).values(**values)
-        stmt = ins.on_conflict_do_update(
-            index_elements=[LeaseRow.device_id],
-            set_={"gateway": gateway, "holder": holder, "expires_at": expires},
-            where=(LeaseRow.expires_at < now) | (LeaseRow.gateway == gateway),
-        )
         with self._tx() as s:
+            now = self._db_now(s)
+            expires = now + timedelta(seconds=lease_s)
+            values = {"device_id": device_id, "gateway": gateway, "holder": holder, "expires_at": expires}
+            stmt = self._insert(LeaseRow).values(**values).on_conflict_do_update(
+                index_elements=[LeaseRow.device_id],
+                set_={"gateway": gateway, "holder": holder, "expires_at": expires},
+                where=(LeaseRow.expires_at < now) | (LeaseRow.gateway == gateway),
+            )
             s.execute(stmt)
             row = s.execute(select(LeaseRow).where(LeaseRow.device_id == device_id)).scalar_one()
             return Lease(row.device_id, row.gateway, row.holder, aware(row.expires_at))
@@ -108,16 +107,24 @@ class FleetStore(SessionStore):
             s.execute(delete(LeaseRow).where(LeaseRow.device_id == device_id, LeaseRow.gateway == gateway, LeaseRow.holder == holder))
 
     def leases(self) -> list[Lease]:
+        """The leases that stand now, on the database's clock (an expired one not yet swept is not among them)."""
         with self._read() as s:
+            now = self._db_now(s)
             return [Lease(r.device_id, r.gateway, r.holder, aware(r.expires_at))
-                    for r in s.execute(select(LeaseRow).order_by(LeaseRow.device_id)).scalars()]
+                    for r in s.execute(select(LeaseRow).where(LeaseRow.expires_at >= now).order_by(LeaseRow.device_id)).scalars()]
+
+    def silent_gateways(self, silent_after_s: float) -> set[str]:
+        """The gateways whose last heartbeat is older than ``silent_after_s`` on the database's clock."""
+        with self._read() as s:
+            since = self._db_now(s) - timedelta(seconds=silent_after_s)
+            return set(s.execute(select(GatewayRow.name).where(GatewayRow.heartbeat_at <= since)).scalars())
 
     def sweep_expired_leases(self) -> list[Lease]:
         """Drop the leases whose gateway stopped renewing them, and end as failed (``gateway_lost``) the sessions
         they held that are still open; the leases dropped. Safe to run on every gateway at once: each lease is
         dropped (and its session ended) by exactly one of them."""
-        now = utcnow()
         with self._tx("recordings", "audit_log") as s:
+            now = self._db_now(s)
             gone = s.execute(select(LeaseRow).where(LeaseRow.expires_at < now).with_for_update()).scalars().all()
             out = []
             for lease in gone:

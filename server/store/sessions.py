@@ -41,15 +41,17 @@ class SessionStore(StoreBase):
         self._audit(s, operator, f"session.{end.state}", row.device_id, row.id,
                     {"reason_code": end.reason_code} if end.reason_code else None)
 
-    def finish_session(self, session_id: str, end: SessionEnd, operator: str | None = None) -> None:
+    def finish_session(self, session_id: str, end: SessionEnd, operator: str | None = None) -> dict[str, Any] | None:
         """Record a session's end (done, failed, cancelled): state, result and what it saw. Written once: a
-        session whose end is stored already is left as it is."""
+        session whose end is stored already is left as it is, and returned (None when this end was written)."""
         with self._tx("audit_log") as s:
             row = s.get(SessionRow, session_id, with_for_update=True)
             if row is None:
                 raise NotFound(f"no session {session_id}")
             if row.ended_at is None:
                 self._apply_end(s, row, end, operator)
+                return None
+            return session_dict(row)
 
     def session(self, session_id: str) -> dict[str, Any] | None:
         with self._read() as s:

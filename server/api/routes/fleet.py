@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import AsyncIterator
-from datetime import UTC, datetime, timedelta
+from datetime import UTC, datetime
 from typing import Any
 
 from fastapi import APIRouter
@@ -51,14 +51,13 @@ def _activity(holder: str | None, sessions: set[str]) -> str | None:
 def fleet_view(svc: Service) -> dict[str, Any]:
     """The fleet as the store knows it (one consistent read of each table)."""
     store = svc.store
-    now = datetime.now(UTC)
     gateways = store.gateways()
     urls = {g["name"]: g["url"] for g in gateways}
-    silent_after_s = _gateway_settings(svc).silent_after_s
+    silent = store.silent_gateways(_gateway_settings(svc).silent_after_s)  # on the database's clock, as leases are
     for g in gateways:
-        g["alive"] = datetime.fromisoformat(g["heartbeat_at"]) > now - timedelta(seconds=silent_after_s)
+        g["alive"] = g["name"] not in silent
         g["this"] = g["name"] == svc.gateway_name
-    leases: dict[str, Lease] = {lease.device_id: lease for lease in store.leases() if lease.expires_at > now}
+    leases: dict[str, Lease] = {lease.device_id: lease for lease in store.leases()}
     seen: dict[str, list[dict[str, Any]]] = {}
     for s in store.sightings():  # newest first for each device
         seen.setdefault(s["device_id"], []).append({k: s[k] for k in ("gateway", "last_seen", "rssi_dbm")})
@@ -87,7 +86,7 @@ def fleet_view(svc: Service) -> dict[str, Any]:
             "calibration": _status(current.get(device_id), row, svc.settings.limits.max_age_days),
             "wizard_url": f"{base or ''}/#/place/{device_id}",
         })
-    return {"this_gateway": svc.gateway_name, "gateways": gateways, "devices": devices, "at": now.isoformat()}
+    return {"this_gateway": svc.gateway_name, "gateways": gateways, "devices": devices, "at": datetime.now(UTC).isoformat()}
 
 
 @router.get("/fleet", tags=["fleet"])

@@ -22,7 +22,8 @@ router = APIRouter()
 
 
 @router.get("/health", response_model=M.Health, tags=["service"])
-async def health(svc: Svc, 
+async def health(
+    svc: Svc,
     verify: Annotated[bool, Query(description="verify the store's hash chains now (at most every few seconds) "
                                               "instead of reporting the last periodic check")] = False,
 ) -> dict[str, Any]:
@@ -30,6 +31,7 @@ async def health(svc: Svc,
     integrity = svc.integrity
     if integrity is None or (verify and time.time() - datetime.fromisoformat(integrity["checked_at"]).timestamp() > 2.0):
         integrity = await svc.verify_store()
+    clock = svc.clock.to_dict(svc.store.dialect)
     return {
         "status": "ok" if integrity["ok"] else "tampered",
         "integrity": integrity,
@@ -39,4 +41,6 @@ async def health(svc: Svc,
         "devices": len(svc.devices.devices),
         "active_sessions": len(svc.active),
         "auth_reads": svc.settings.auth_reads,
+        "clock": clock,
+        "warnings": [w for w in [clock["warning"]] if w],
     }
