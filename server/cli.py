@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 from calib.errors import GyrocalError
 
 from .config import DB_URL_HELP
+from .http_guard import DEFAULT_HEADER_TIMEOUT_S, DEFAULT_MAX_CONNECTIONS
 
 if TYPE_CHECKING:
     from .config import GatewaySettings
@@ -142,6 +143,12 @@ def register(sub: Any) -> None:
                    help="where clinicians reach this gateway from other rooms (default http://HOST:PORT)")
     p.add_argument("--lease-s", type=float, default=DEFAULT_LEASE_S, metavar="S",
                    help=f"a gateway's hold on a wearable lasts S seconds past its last heartbeat (default {DEFAULT_LEASE_S:g})")
+    p.add_argument("--header-timeout-s", type=float, default=DEFAULT_HEADER_TIMEOUT_S, metavar="S",
+                   help=f"close a connection that has not sent a whole request's headers within S seconds (default "
+                   f"{DEFAULT_HEADER_TIMEOUT_S:g}; half-open connections are how a service is starved of file descriptors)")
+    p.add_argument("--max-connections", type=int, default=DEFAULT_MAX_CONNECTIONS, metavar="N",
+                   help=f"at most N open connections (default {DEFAULT_MAX_CONNECTIONS}, and always below the file limit): "
+                   "beyond it the longest-waiting connection without a request is closed")
     p.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
     p.set_defaults(func=cmd_serve)
 
@@ -303,6 +310,10 @@ def build_service(args: argparse.Namespace) -> Any:
         raise ServiceError("--mock-first takes the first simulated wearable's number, from 1 to 100000")
     if not (args.mock_speed > 0):
         raise ServiceError("--mock-speed must be a positive number (1 = real time)")
+    if not (0.5 <= args.header_timeout_s <= 600):
+        raise ServiceError("--header-timeout-s must be between 0.5 and 600 seconds")
+    if not (16 <= args.max_connections <= 1_000_000):
+        raise ServiceError("--max-connections must be between 16 and 1000000")
     simulators = None
     if args.mock:
         try:
@@ -399,6 +410,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
     import uvicorn
 
+    from . import log_repeats
+    from .http_guard import ACCEPT_BURST, connection_bound, guarded_protocol, raise_file_limit
     from .main import create_app
 
     logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
@@ -408,7 +421,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         sock = socket.socket(socket.AF_INET6 if ":" in args.host else socket.AF_INET, socket.SOCK_STREAM)
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         sock.bind((args.host, args.port))
-        sock.listen(2048)  # from now on a connection waits for the app instead of being refused: the URL printed is true
+        sock.listen(ACCEPT_BURST)  # from now on a connection waits for the app instead of being refused: the URL printed is true
     except OSError as exc:
         raise ServiceError(f"cannot listen on {args.host}:{args.port} ({exc.strerror or exc}); choose another --port") from None
     port = sock.getsockname()[1]
@@ -439,7 +452,14 @@ def cmd_serve(args: argparse.Namespace) -> int:
         print("no operators yet: add one with `gyrocal operator add NAME` (or set GYROCAL_API_TOKEN) to start calibrations", flush=True)
     if args.host not in ("127.0.0.1", "::1", "localhost"):
         print(f"warning: listening on {args.host}: other computers can reach the service", file=sys.stderr, flush=True)
-    config = uvicorn.Config(app, log_level=args.log_level, access_log=args.log_level == "debug", timeout_graceful_shutdown=5)
+    file_limit = raise_file_limit()
+    max_connections = connection_bound(args.max_connections, file_limit)
+    if max_connections < args.max_connections:
+        print(f"warning: at most {max_connections} connections, not {args.max_connections}: this process may open "
+              f"{file_limit} files (ulimit -n; LimitNOFILE= in a systemd unit raises it)", file=sys.stderr, flush=True)
+    config = uvicorn.Config(app, log_level=args.log_level, access_log=args.log_level == "debug", timeout_graceful_shutdown=5,
+                            http=guarded_protocol(args.header_timeout_s, max_connections), backlog=ACCEPT_BURST)
+    log_repeats.install()  # after uvicorn has set up its loggers' handlers
     server = uvicorn.Server(config)
     # uvicorn stops gracefully on SIGTERM, then raises the signal again for the handler it found: this one makes a
     # stop asked for (systemd, docker, make run's terminal) an ordinary end, exit 0, as Ctrl-C already is

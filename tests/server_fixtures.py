@@ -211,7 +211,8 @@ def store_outage(url: str, on: bool, writes: list[tuple[str, str, str | None]]) 
 class RunningService:
     """`gyrocal serve` in a subprocess, reached over real HTTP."""
 
-    def __init__(self, args: list[str], db_url: str, env: dict[str, str] | None = None) -> None:
+    def __init__(self, args: list[str], db_url: str, env: dict[str, str] | None = None, prefix: list[str] | None = None) -> None:
+        self.prefix = prefix or []  # a command the service runs under (prlimit, ...)
         self.port = free_port()
         self.db_url = db_url
         self.base = f"http://127.0.0.1:{self.port}"
@@ -221,7 +222,7 @@ class RunningService:
         self.log = tempfile.NamedTemporaryFile("w+", prefix="gyrocal-serve-", suffix=".log", delete=False)
 
     def start(self, timeout_s: float = 30.0) -> RunningService:
-        cmd = [*GYROCAL, "serve", "--port", str(self.port), "--db", self.db_url, "--log-level", "warning", *self.args]
+        cmd = [*self.prefix, *GYROCAL, "serve", "--port", str(self.port), "--db", self.db_url, "--log-level", "warning", *self.args]
         self.proc = subprocess.Popen(cmd, cwd=ROOT, env=self.env, stdout=self.log, stderr=subprocess.STDOUT, text=True)
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:

@@ -72,6 +72,8 @@ def test_operator_db_after_the_action(tmp_path: Path, capsys: pytest.CaptureFixt
         (["--gateway-url", "http://gw:8000"], "--gateway-url needs --gateway NAME"),
         (["--gateway", "room-3", "--gateway-url", "gw3"], "give the http(s):// address"),
         (["--mock", "1", "--mock-first", "0"], "--mock-first takes the first simulated wearable's number"),
+        (["--header-timeout-s", "0"], "--header-timeout-s must be between 0.5 and 600 seconds"),
+        (["--max-connections", "3"], "--max-connections must be between 16 and 1000000"),
     ],
 )
 def test_serve_refuses_bad_options_with_a_message(
