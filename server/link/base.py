@@ -196,12 +196,13 @@ class LinkStats:
     samples: int = 0
     lost_samples: int = 0  # sequence gaps x N, including link outages
     lost_packets: int = 0
-    malformed_packets: int = 0  # dropped: bad length, version, flags, N, config id, clock
+    malformed_packets: int = 0  # dropped: bad length, version, flags, N, config id, clock, sequence and time disagreeing
     malformed_reasons: dict[str, int] = field(default_factory=dict)
     duplicate_packets: int = 0  # same or older sequence number: dropped
     link_losses: int = 0
     reconnects: int = 0
     session_restarts: int = 0  # the device started a new session mid-stream (gap from device time)
+    resyncs: int = 0  # the device's clock or sequence jumped and stayed: followed after RESYNC_AFTER packets agreed
     fs_estimate_hz: float | None = None
 
     def to_dict(self) -> dict[str, Any]:

@@ -418,3 +418,50 @@ async def test_every_session_on_a_wearable_performs_the_protocol_again():
         assert [a for _, a, _, _ in _stage_axes(b.gyro_dps, w.true_rate_hz)] == ["x", "y", "z"]
     n = min(len(first), len(second))
     assert not np.allclose(first.gyro_dps[:n], second.gyro_dps[:n])  # a new recording, not a replay
+
+
+def _retimed(seq: int, t_us: int, n: int = 3) -> bytes:
+    return wp.encode_packet(seq % wp.SEQ_MODULUS, t_us % wp.CLOCK_MODULUS, np.zeros((n, 6), np.int16), 0, CFG.config_id)
+
+
+def test_one_packet_stamped_2000_s_ahead_is_dropped_not_trusted_as_the_clock():
+    pk = _packets(200, fs_true=104.0, t0_us=0)
+    pk[50] = _retimed(50, round(50 * 3e6 / 104.0) + 2_000_000_000)
+    dec = StreamDecoder(CFG)
+    dec.begin(new_session=True)
+    out = [b for b in (dec.feed(p) for p in pk) if b is not None]
+    t = np.concatenate([b.t_device_s for b in out])
+    assert len(out) == 199 and np.all(np.diff(t) > 0) and t[-1] == pytest.approx(599 / 104.0, abs=1e-4)
+    assert dec.stats.lost_samples == 3 and dec.stats.malformed_reasons == {"inconsistent": 1}  # its own samples only
+
+
+def test_one_packet_with_its_sequence_number_30000_ahead_is_dropped():
+    pk = _packets(200, fs_true=104.0, t0_us=0)
+    pk[50] = _retimed(50 + 30_000, round(50 * 3e6 / 104.0))
+    dec = StreamDecoder(CFG)
+    dec.begin(new_session=True)
+    out = [b for b in (dec.feed(p) for p in pk) if b is not None]
+    assert len(out) == 199 and dec.stats.lost_samples == 3 and out[-1].seq[-1] == 599
+    assert dec.stats.malformed_reasons == {"inconsistent": 1} and dec.stats.resyncs == 0
+
+
+def test_a_clock_that_jumps_and_stays_is_followed_after_three_packets_with_a_continuous_time_line():
+    fs = 104.0
+    pk = _packets(50, fs_true=fs, t0_us=0) + [_retimed(j, round(j * 3e6 / fs) + 700_000_000) for j in range(50, 200)]
+    dec = StreamDecoder(CFG)
+    dec.begin(new_session=True)
+    out = [b for b in (dec.feed(p) for p in pk) if b is not None]
+    t = np.concatenate([b.t_device_s for b in out])
+    assert dec.stats.resyncs == 1 and dec.stats.malformed_reasons == {"inconsistent": 2}
+    assert dec.stats.lost_samples == 6 and out[-1].seq[-1] == 599  # the two packets dropped before following it
+    assert np.all(np.diff(t) > 0) and float(np.diff(t).max()) == pytest.approx(7 / fs, rel=1e-3)
+    assert t[-1] == pytest.approx(599 / fs, abs=1e-3) and dec.fs_hz == pytest.approx(fs, rel=1e-4)
+
+
+def test_a_corrupt_first_packet_does_not_hold_the_stream_hostage():
+    pk = _packets(100, fs_true=104.0, t0_us=0)
+    pk[0] = _retimed(0, 123_456_789)
+    dec = StreamDecoder(CFG)
+    dec.begin(new_session=True)
+    out = [b for b in (dec.feed(p) for p in pk) if b is not None]
+    assert dec.stats.resyncs == 1 and len(out) == 98 and out[-1].seq[-1] == 299
