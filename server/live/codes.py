@@ -49,6 +49,8 @@ class EndReason(StrEnum):
     TURN_TOO_LONG = "turn_too_long"
     SAMPLE_LOSS = "sample_loss"
     LINK_LOST = "link_lost"
+    UNREADABLE_DATA = "unreadable_data"
+    SENSOR_FAULT = "sensor_fault"
     OUT_OF_TOLERANCE = "out_of_tolerance"
     CALIBRATION_FAILED = "calibration_failed"
     TIMEOUT = "timeout"

@@ -26,6 +26,7 @@ from ..store import SessionEnd, Store, utcnow
 from ..workers.compute import ComputePool, calibrate_recording, off_loop, recording_csv
 from . import guidance as say
 from .buffer import SampleBuffer
+from .codes import EndReason
 from .events import Broadcaster, Event
 from .session import GuidedSession
 
@@ -95,6 +96,7 @@ class LiveSession:
         self._last_sample_mono = time.monotonic()
         self._link_down = False  # the link said it dropped (a LinkEvent), until it says it is back
         self._silent = False  # the watchdog found no data for link_silence_s, until data comes again
+        self._refused_at_sample: dict[str, int] = {}  # the link's refused packets by reason, at the last sample
         self.persisted = False
         self.persist_error: str | None = None
         self.identity: SensorIdentity | None = None  # the sensor, its power-up and temperature, once connected
@@ -207,12 +209,14 @@ class LiveSession:
             m.fail("connect_failed", say.connect_failed(f"the stream did not start: {exc}"))
             return
         self._last_sample_mono = time.monotonic()
+        self._refused_at_sample = self._refused_now()  # a link kept from an earlier session brings its own counts
         async for item in link.samples():
             kind = getattr(item, "kind", None)
             if kind is not None:
                 self._on_link_event(item)
             else:
                 self._last_sample_mono = time.monotonic()
+                self._refused_at_sample = self._refused_now()
                 if self._link_down:
                     self._link_down = False
                     m.link_restored()
@@ -269,10 +273,24 @@ class LiveSession:
             arrived = getattr(self.device.link, "last_data_mono", None)
             last = max(self._last_sample_mono, arrived or 0.0)  # samples waiting to be read are not silence
             if now - last > self.settings.link_silence_s:
+                refused = self._refused_since_last_sample()
+                if refused:  # packets come, none of them readable: the wearable speaks another format
+                    m.fail(EndReason.UNREADABLE_DATA, say.unreadable_data(refused, self.device.info.get("firmware")))
+                    continue
                 self._silent = True
                 m.data_silent(now - last)
         if self._pump is not None and not self._pump.done():
             self._pump.cancel()
+
+    def _refused_now(self) -> dict[str, int]:
+        """The packets the link has refused so far, by reason (server.link: LinkStats.malformed_reasons)."""
+        stats = getattr(self.device.link, "stats", None)
+        return {} if stats is None else dict(stats.malformed_reasons)
+
+    def _refused_since_last_sample(self) -> dict[str, int]:
+        """The packets the link refused since the last sample it could read, by reason."""
+        before = self._refused_at_sample
+        return {r: c - before.get(r, 0) for r, c in self._refused_now().items() if c > before.get(r, 0)}
 
     async def _compute(self) -> None:
         m = self.machine

@@ -35,6 +35,7 @@ from . import guidance as say
 from .buffer import SampleBuffer
 from .codes import END_STATES, TURN_STATES, EndReason, Phase, State
 from .lateness import Lateness
+from .sensor_faults import SensorFaultWatch
 from .snapshot import session_snapshot
 from .stream import SessionStream, TrackerFactory
 from .time_limits import overdue
@@ -94,6 +95,7 @@ class GuidedSession(TurnChecks, Lateness):
         self.device_info: dict[str, Any] = {}
 
         self.stream = SessionStream(tracker_factory)
+        self._faults = SensorFaultWatch()  # readings no working sensor gives at rest
         self.fs_estimate: float | None = None  # the link's estimate of the true rate from device time
         self._clock_from_next = True  # the current phase's time limit counts from the next sample received
         self.lost_samples = 0
@@ -175,6 +177,10 @@ class GuidedSession(TurnChecks, Lateness):
         if times is None:
             return
         t = times
+        self._faults.add(t, gyro, accel)
+        if self.still_target() is not None and (fault := self._faults.check(self.full_scale)):
+            self.fail(EndReason.SENSOR_FAULT, say.sensor_fault(fault))  # a sensor no rest can satisfy: not the hands
+            return
         self.caused_by = {"t_device_s": float(t[-1]), "received_at": received_at if received_at is not None else time.time()}
         if first:
             # samples missing before the first are not part of this session's recording (e.g. the time

@@ -66,6 +66,8 @@ export const REASONS = {
   turn_too_long: { title: "The turn took too long", fix: "Make one smooth turn, then put the device down against the block.", icon: "clock" },
   sample_loss: { title: "Data was lost on the radio link", fix: "Keep the device within a few metres of the receiver, with nothing in between.", icon: "link" },
   link_lost: { title: "The connection was lost", fix: "Check the device is switched on, charged and close to the receiver, then try again.", icon: "link" },
+  unreadable_data: { title: "The device sends data this version cannot read", fix: "Not your turns, not the radio: start again. If it happens again, the device's firmware and this service do not match: tell the administrator.", icon: "fail" },
+  sensor_fault: { title: "The device's sensor is faulty", fix: "Not your turns: switch the device off and on and start again. If it happens again, the device needs repair.", icon: "fail" },
   out_of_tolerance: { title: "The result is outside the tolerances", fix: "Redo the calibration. If it fails again, the sensor may be faulty.", icon: "fail" },
   calibration_failed: { title: "The calibration could not be computed", fix: "Start again, following each step on the screen.", icon: "fail" },
   timeout: { title: "The calibration took too long", fix: "Start again; the whole calibration takes about a minute.", icon: "clock" },
