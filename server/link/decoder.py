@@ -11,10 +11,11 @@ notification. Rules (docs/protocol.md, "Client rules"):
 - The 32-bit microsecond device clock is unwrapped; the true sample rate is the least-squares slope
   of packet time against sample counter, from device time only (never from arrival time).
 - A packet whose sequence number and device time disagree (one of them corrupt: a time stamp 2,000 s
-  ahead, a sequence number 30,000 ahead) is an outlier: counted and dropped, never trusted as the new
-  clock. Only when RESYNC_AFTER packets in a row agree with each other and not with the stream before
-  them does the decoder follow them (the device's clock or counter really jumped), counting the
-  packets it dropped meanwhile as lost and keeping the time line continuous.
+  ahead, a sequence number 30,000 ahead) is an outlier, and so, until confirmed, is one after a gap longer
+  than LONG_GAP_S: held back, never trusted as the new clock. When RESYNC_AFTER such packets in a row agree
+  with each other, the stream really went there (a long outage, or the device's clock or counter jumped) and
+  they are all delivered; otherwise each is counted (``inconsistent``) and dropped. A jumped clock is left out
+  of the time line, which stays continuous.
 """
 
 from __future__ import annotations
@@ -26,22 +27,27 @@ from wearable_protocol import (
     SEQ_MODULUS,
     DecodeError,
     DeviceConfig,
+    Packet,
     PacketFlags,
     decode_packet,
 )
 
 from .base import LinkStats, SampleBatch
+from .outliers import Suspects
 from .rate_fit import RateFit
 
-OUTLIER_TOLERANCE_PACKETS = 2.0  # sequence and device time may disagree by this many packets ...
-OUTLIER_TOLERANCE_FRACTION = 0.05  # ... plus this share of the gap (the rate estimate's error over a long gap)
-RESYNC_AFTER = 3  # consecutive outliers that agree with each other: the stream really jumped; follow it
+# a packet's device time may differ from where its sequence number puts it by half a sample (so that no two packets'
+# samples can overlap) plus this share of the gap (the rate estimate's error, before it is fitted, over a long gap)
+OUTLIER_TOLERANCE_SAMPLES = 0.5
+OUTLIER_TOLERANCE_FRACTION = 0.05
+LONG_GAP_S = 10.0  # a packet this far ahead of the last waits for the next ones to confirm it (16-bit sequence
+# numbers wrap every few minutes, so a corrupt time stamp can look like a long outage)
 
 
 def _agree(d_packets: int, dt_us: float, fs_hz: float, n: int) -> bool:
     """Whether a sequence step of ``d_packets`` and a device-time step of ``dt_us`` tell the same gap."""
-    expected = dt_us * 1e-6 * fs_hz / n
-    return abs(d_packets - expected) <= OUTLIER_TOLERANCE_PACKETS + OUTLIER_TOLERANCE_FRACTION * expected
+    expected = dt_us * 1e-6 * fs_hz  # samples
+    return abs(d_packets * n - expected) <= OUTLIER_TOLERANCE_SAMPLES + OUTLIER_TOLERANCE_FRACTION * expected
 
 
 class StreamDecoder:
@@ -59,7 +65,8 @@ class StreamDecoder:
         self._expect_new_session = False
         self._last_sample_t_s: float | None = None
         self._shift_us = 0  # device-clock time left out of the time line by resyncs (a clock that jumped)
-        self._suspects: list[tuple[int, int]] = []  # (seq16, unwrapped device time) of the outliers in a row
+        # the packets held back in a row: (packet, unwrapped device time, its gap in packets when that agreed with time)
+        self._suspects: Suspects[tuple[Packet, int, int | None]] = Suspects()
 
     @property
     def fs_hz(self) -> float:
@@ -83,22 +90,8 @@ class StreamDecoder:
         self.stats.malformed_packets += 1
         self.stats.malformed_reasons[reason] = self.stats.malformed_reasons.get(reason, 0) + 1
 
-    def _suspected(self, seq16: int, t_us: int) -> bool:
-        """Count and drop a packet whose sequence number and device time disagree with the stream's; True when it
-        is the RESYNC_AFTER-th in a row that agrees with the one before it (then it is followed, not dropped)."""
-        if self._suspects:
-            last_seq, last_t = self._suspects[-1]
-            d = (seq16 - last_seq) % SEQ_MODULUS
-            if not (0 < d < SEQ_MODULUS // 2 and _agree(d, (t_us - last_t) % CLOCK_MODULUS, self.fs_hz, self.config.samples_per_packet)):
-                self._suspects = []
-        self._suspects.append((seq16, t_us))
-        if len(self._suspects) >= RESYNC_AFTER:
-            return True
-        self._malformed("inconsistent")
-        return False
-
     def feed(self, data: bytes | bytearray) -> SampleBatch | None:
-        """Decode one notification; None if it was dropped (malformed or duplicate)."""
+        """Decode one notification; None if it was dropped (malformed or duplicate) or is held back (an outlier)."""
         cfg = self.config
         try:
             p = decode_packet(data, expected_n=cfg.samples_per_packet)
@@ -108,70 +101,106 @@ class StreamDecoder:
         if p.config_id != cfg.config_id:
             self._malformed("config_id")
             return None
+        placed = self._place(p)
+        return self._emit(placed) if placed else None
+
+    def _place(self, p: Packet) -> list[tuple[Packet, int, int, int]]:
+        """Where ``p`` goes: (packet, unwrapped packet index, unwrapped device time, samples lost before it) for it and
+        any packets held back with it; empty when it is dropped or held back."""
         n = p.n
-        lost = 0
         if self._last_seq16 is None:  # first packet on this link
-            t_us = p.t_first_us
-            packet = p.seq
-            if self._expect_new_session and not (p.flags & PacketFlags.RESUMED):
-                lost = p.seq * n
-            self._t0_us = t_us
-        else:
-            dt_us = (p.t_first_us - self._last_t_us) % CLOCK_MODULUS
-            t_us = self._last_t_us + dt_us
-            backwards = dt_us >= CLOCK_MODULUS // 2  # older than the last packet
-            if backwards and ((d16 := (p.seq - self._last_seq16) % SEQ_MODULUS) == 0 or d16 >= SEQ_MODULUS // 2):
-                self.stats.duplicate_packets += 1  # a stale packet delivered again
-                return None
-            if p.flags & PacketFlags.SESSION_START and not backwards:
-                # the device began a new session (seq restarts): place it after the old one by device time
-                self.stats.session_restarts += 1
-                fs = self.fs_hz
-                end_prev = self._last_packet * n + self._counter_offset + n
-                start_new = max(end_prev, self._last_packet * n + self._counter_offset + int(round(dt_us * 1e-6 * fs)))
-                self._counter_offset = start_new - p.seq * n
-                packet = p.seq
-                lost = start_new - end_prev + p.seq * n
-                self._fit = RateFit()
-            else:
-                d = (p.seq - self._last_seq16) % SEQ_MODULUS
-                expected = dt_us * 1e-6 * self.fs_hz / n
-                d += SEQ_MODULUS * max(0, int(round((expected - d) / SEQ_MODULUS)))
-                if not backwards and (d == 0 or d >= SEQ_MODULUS // 2 and expected < SEQ_MODULUS // 4):
-                    self.stats.duplicate_packets += 1
-                    return None
-                if backwards or not _agree(d, dt_us, self.fs_hz, n):
-                    # a newer sequence number with device time running backwards, or the two telling different gaps
-                    if not self._suspected(p.seq, t_us):
-                        return None
-                    # the stream moved on together: the packets dropped as outliers meanwhile are lost, and the
-                    # jump in device time is left out of the time line, which goes on at the sample rate
-                    d = len(self._suspects)
-                    self._shift_us += t_us - (self._last_t_us + round(d * n * 1e6 / self.fs_hz))
-                    self.stats.resyncs += 1
-                packet = self._last_packet + d
-                lost = (d - 1) * n
-        self._expect_new_session = False
-        self._suspects = []
-        self._last_seq16 = p.seq
-        self._last_packet = packet
-        self._last_t_us = t_us
-        counter0 = packet * n + self._counter_offset
-        self._fit.add(counter0, t_us - self._shift_us)
+            lost = p.seq * n if self._expect_new_session and not (p.flags & PacketFlags.RESUMED) else 0
+            self._t0_us = p.t_first_us
+            return [(p, p.seq, p.t_first_us, lost)]
+        dt_us = (p.t_first_us - self._last_t_us) % CLOCK_MODULUS
+        t_us = self._last_t_us + dt_us
+        backwards = dt_us >= CLOCK_MODULUS // 2  # older than the last packet
+        if backwards and ((d16 := (p.seq - self._last_seq16) % SEQ_MODULUS) == 0 or d16 >= SEQ_MODULUS // 2):
+            self.stats.duplicate_packets += 1  # a stale packet delivered again
+            return []
         fs = self.fs_hz
-        assert self._t0_us is not None
-        t = (t_us - self._shift_us - self._t0_us) * 1e-6 + np.arange(n) / fs
-        raw = p.raw
-        gyro = raw[:, :3] / cfg.gyro_lsb_per_dps
-        accel = raw[:, 3:] / cfg.accel_lsb_per_g
+        if p.flags & PacketFlags.SESSION_START and not backwards:
+            # the device began a new session (seq restarts): place it after the old one by device time
+            self.stats.session_restarts += 1
+            end_prev = self._last_packet * n + self._counter_offset + n
+            start_new = max(end_prev, self._last_packet * n + self._counter_offset + int(round(dt_us * 1e-6 * fs)))
+            self._counter_offset = start_new - p.seq * n
+            self._fit = RateFit()
+            return [(p, p.seq, t_us, start_new - end_prev + p.seq * n)]
+        d = (p.seq - self._last_seq16) % SEQ_MODULUS
+        expected = dt_us * 1e-6 * fs / n
+        d += SEQ_MODULUS * max(0, int(round((expected - d) / SEQ_MODULUS)))
+        if not backwards and (d == 0 or d >= SEQ_MODULUS // 2 and expected < SEQ_MODULUS // 4):
+            self.stats.duplicate_packets += 1
+            return []
+        agrees = not backwards and _agree(d, dt_us, fs, n)
+        if agrees and d * n < LONG_GAP_S * fs:
+            return [(p, self._last_packet + d, t_us, (d - 1) * n)]
+        return self._hold_back(p, t_us, d if agrees else None)
+
+    def _hold_back(self, p: Packet, t_us: int, d: int | None) -> list[tuple[Packet, int, int, int]]:
+        """An outlier, or a packet after a long gap: counted and held back until RESYNC_AFTER in a row agree with each
+        other; then all of them, placed after a gap that was real (``d`` of the first) or after a clock that jumped."""
+        n = p.n
+        fs = self.fs_hz
+
+        def follows(prev: tuple[Packet, int, int | None], cur: tuple[Packet, int, int | None]) -> bool:
+            step = (cur[0].seq - prev[0].seq) % SEQ_MODULUS
+            return 0 < step < SEQ_MODULUS // 2 and _agree(step, (cur[1] - prev[1]) % CLOCK_MODULUS, fs, n)
+
+        self._malformed("inconsistent")
+        if not self._suspects.add((p, t_us, d), follows):
+            return []
+        held = self._suspects.items
+        self._suspects.clear()
+        self.stats.malformed_packets -= len(held)  # confirmed: delivered, not dropped
+        left = self.stats.malformed_reasons["inconsistent"] - len(held)
+        if left:
+            self.stats.malformed_reasons["inconsistent"] = left
+        else:
+            del self.stats.malformed_reasons["inconsistent"]
+        first, first_t, first_d = held[0]
+        if first_d is None:  # the device's clock or counter jumped: the time line goes on at the sample rate
+            self.stats.resyncs += 1
+            self._shift_us += first_t - (self._last_t_us + round(n * 1e6 / fs))
+            first_d = 1
+        out, packet, last = [], self._last_packet + first_d, self._last_packet
+        for k, (q, tq, _) in enumerate(held):
+            if k:
+                packet += (q.seq - held[k - 1][0].seq) % SEQ_MODULUS
+            out.append((q, packet, tq, (packet - last - 1) * n))
+            last = packet
+        return out
+
+    def _emit(self, placed: list[tuple[Packet, int, int, int]]) -> SampleBatch:
+        """The samples of packets placed in order, as one batch; the stream's state moved on past the last."""
+        cfg = self.config
+        self._expect_new_session = False
+        self._suspects.clear()
+        parts = []
+        lost_total = 0
+        for p, packet, t_us, lost in placed:
+            n = p.n
+            self._last_seq16, self._last_packet, self._last_t_us = p.seq, packet, t_us
+            counter0 = packet * n + self._counter_offset
+            self._fit.add(counter0, t_us - self._shift_us)
+            assert self._t0_us is not None
+            t = (t_us - self._shift_us - self._t0_us) * 1e-6 + np.arange(n) / self.fs_hz
+            parts.append((t, p.raw, np.arange(counter0, counter0 + n, dtype=np.int64)))
+            lost_total += lost
+            st = self.stats
+            st.packets += 1
+            st.samples += n
+            if lost:
+                st.lost_samples += lost
+                st.lost_packets += lost // n
+        t = np.concatenate([x[0] for x in parts])
+        raw = np.concatenate([x[1] for x in parts])
+        counter = np.concatenate([x[2] for x in parts])
+        fs = self.fs_hz
+        self.stats.fs_estimate_hz = fs
+        self._last_sample_t_s = float(t[-1])
         g = raw[:, :3]
         saturated = ((g == 32767) | (g == -32768)).any(axis=1)
-        st = self.stats
-        st.packets += 1
-        st.samples += n
-        if lost:
-            st.lost_samples += lost
-            st.lost_packets += lost // n
-        st.fs_estimate_hz = fs
-        self._last_sample_t_s = float(t[-1])
-        return SampleBatch(t, gyro, accel, np.arange(counter0, counter0 + n, dtype=np.int64), lost, fs, saturated)
+        return SampleBatch(t, raw[:, :3] / cfg.gyro_lsb_per_dps, raw[:, 3:] / cfg.accel_lsb_per_g, counter, lost_total, fs,
+                           saturated)

@@ -5,6 +5,7 @@ reconnection, and a calibration from what the link delivered."""
 from __future__ import annotations
 
 import time
+from typing import Any
 
 import numpy as np
 import pytest
@@ -175,3 +176,34 @@ def test_polar_decoder_interpolates_the_slower_accelerometer_onto_the_gyro_times
     expected_x = np.arange(accel.shape[0]) / 4 * 10 / 1000  # one accelerometer sample every 4 gyro samples
     np.testing.assert_allclose(accel[:, 0], expected_x, atol=1e-6)
     np.testing.assert_allclose(accel[:, 2], 1.0)
+
+
+def _polar_stream(frames: int, stamp: dict[int, int] | None = None) -> tuple[list[Any], Any]:
+    """Gyro and accelerometer frames of a Polar stream at 208 / 52 Hz; ``stamp`` replaces gyro frames' time stamps."""
+    from server.link.adapters.polar import PolarDecoder
+    from server.link.base import LinkStats
+
+    dec = PolarDecoder(LinkStats(), 208.0, 500 / 32768, 52.0, 1.0)
+    t_ns, out = 10**15, []
+    for f in range(frames):
+        last = (stamp or {}).get(f, t_ns + int((f * 36 + 35) * 1e9 / 208))
+        acc_idx = np.arange(f * 9, f * 9 + 9)
+        acc = np.column_stack([np.zeros(9), np.zeros(9), np.full(9, 1000)])
+        out += dec.feed(pmd.encode_frame(pmd.MeasurementType.GYRO, last, np.zeros((36, 3))))
+        out += dec.feed(pmd.encode_frame(pmd.MeasurementType.ACC, t_ns + int(acc_idx[-1] * 4 * 1e9 / 208), acc))
+    return out, dec
+
+
+def test_a_polar_frame_stamped_2000_s_ahead_costs_that_frame_only():
+    out, dec = _polar_stream(40, stamp={20: 10**15 + 2000 * 10**9})
+    t = np.concatenate([b.t_device_s for b in out])
+    assert dec.stats.lost_samples == 36 and dec.stats.malformed_reasons == {"inconsistent": 1}
+    assert dec.stats.duplicate_packets == 0 and np.all(np.diff(t) > 0) and t[-1] < 8.0  # no 2000 s in the time line
+
+
+def test_a_long_polar_gap_confirmed_by_the_frames_after_it_is_a_real_loss():
+    gap_ns = 60 * 10**9  # the device out of reach for a minute: every frame from the 20th on is later by that
+    out, dec = _polar_stream(40, stamp={f: 10**15 + gap_ns + int((f * 36 + 35) * 1e9 / 208) for f in range(20, 40)})
+    t = np.concatenate([b.t_device_s for b in out])
+    assert dec.stats.malformed_packets == 0 and dec.stats.lost_samples == round(60 * 208)
+    assert np.all(np.diff(t) > 0) and float(np.diff(t).max()) == pytest.approx(60 + 1 / 208, abs=1e-3)

@@ -20,6 +20,7 @@ from wearable_protocol.models import POLAR_PMD, hand_motion_accel_range, hand_tu
 from wearable_protocol.vendors import polar_pmd as pmd
 
 from ..base import CommandError, ConnectError, LinkStats, SampleBatch
+from ..outliers import Suspects
 from ..rate_fit import RateFit
 from .base import Adapter, vendor_config
 
@@ -27,6 +28,7 @@ log = logging.getLogger(__name__)
 
 ACC_HOLD_S = 0.5  # gyro samples wait at most this long for the accelerometer samples around them
 ACC_KEEP = 256  # accelerometer samples kept for interpolation
+LONG_GAP_S = 10.0  # a frame stamped this far after the last waits for the next ones to confirm it
 INT16_LIMITS = (-32768, 32767)
 
 
@@ -55,6 +57,7 @@ class PolarDecoder:
         self._acc = np.zeros((0, 3))
         self._pending: list[tuple[np.ndarray, np.ndarray, np.ndarray, int, np.ndarray]] = []
         self.last_t_s: float | None = None
+        self._suspects: Suspects[pmd.Frame] = Suspects()  # gyro frames held back in a row (server.link.outliers)
 
     @property
     def fs_hz(self) -> float:
@@ -104,9 +107,45 @@ class PolarDecoder:
         self._acc = np.concatenate([self._acc, frame.scaled(self.acc_factor_g)])[-ACC_KEEP:]
 
     def _add_gyro(self, frame: pmd.Frame) -> None:
-        if self._last_ns is not None and frame.timestamp_ns <= self._last_ns:
-            self.stats.duplicate_packets += 1
+        if self._last_ns is not None and not self._fits(frame):
             return
+        self._add_gyro_frame(frame)
+
+    def _fits(self, frame: pmd.Frame) -> bool:
+        """Whether a gyro frame continues the stream. One stamped at or before the last is a duplicate (a replay);
+        one far ahead of it (LONG_GAP_S: a corrupt time stamp, or a long outage) is held back until RESYNC_AFTER
+        frames in a row follow each other from it, then all are delivered; a frame that goes on from the old
+        stream instead drops the held ones (counted ``inconsistent``), so one bad time stamp costs one frame."""
+        assert self._last_ns is not None
+        gap_s = (frame.timestamp_ns - self._last_ns) * 1e-9
+        if gap_s <= 0:
+            self.stats.duplicate_packets += 1
+            return False
+        if gap_s < LONG_GAP_S:
+            self._suspects.clear()
+            return True
+        fs = self.fs_hz
+
+        def follows(prev: pmd.Frame, cur: pmd.Frame) -> bool:
+            step_s = (cur.timestamp_ns - prev.timestamp_ns) * 1e-9
+            return abs(step_s * fs - len(cur.values)) <= 0.5 + 0.05 * len(cur.values)
+
+        self._malformed("inconsistent")
+        if not self._suspects.add(frame, follows):
+            return False
+        held = self._suspects.items
+        self._suspects.clear()
+        self.stats.malformed_packets -= len(held)  # confirmed: a real gap, delivered
+        left = self.stats.malformed_reasons["inconsistent"] - len(held)
+        if left:
+            self.stats.malformed_reasons["inconsistent"] = left
+        else:
+            del self.stats.malformed_reasons["inconsistent"]
+        for f in held[:-1]:
+            self._add_gyro_frame(f)
+        return True
+
+    def _add_gyro_frame(self, frame: pmd.Frame) -> None:
         n = len(frame.values)
         t, lost = self._times(self._last_ns, frame.timestamp_ns, n, self.fs_hz)
         self._last_ns = frame.timestamp_ns
