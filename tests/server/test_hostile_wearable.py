@@ -8,6 +8,9 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 TOKEN = "hostile-wearable-token"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
@@ -98,3 +101,48 @@ def test_a_working_sensor_is_never_called_faulty() -> None:
         rec, _ = sim(STANDARD, seed=seed)
         s = _run_on(rec)
         assert s.state == "computing", (seed, s.reason_code, s.reason)
+
+
+segment = st.tuples(
+    st.sampled_from(["rest", "constant", "noise", "rail", "turn"]),
+    st.floats(0.2, 6.0),  # seconds
+    st.integers(0, 2),  # axis
+    st.floats(-600.0, 600.0),  # a rate (deg/s) or an amplitude
+)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(segment, min_size=1, max_size=12), st.integers(0, 2**32 - 1))
+def test_a_live_session_fed_any_sensor_stream_never_raises_and_always_says_why_it_ended(segments: list[Any], seed: int) -> None:
+    """Whatever values the int16 samples take (stuck, saturated, wild, turning), the session stays in a known state,
+    and a session that ends says why with one of its documented reasons."""
+    from test_server_session import FS, Run
+
+    from server.live.codes import END_STATES, STEPS, EndReason, State
+
+    rng = np.random.default_rng(seed)
+    parts = []
+    for kind, dur, axis, value in segments:
+        n = max(1, int(dur * FS))
+        g = rng.normal(0.0, 0.03, (n, 3))
+        if kind == "constant":
+            g[:, axis] = round(value * 65.5) / 65.5
+        elif kind == "noise":
+            g += rng.normal(0.0, abs(value), (n, 3))
+        elif kind == "rail":
+            g[:, axis] = np.sign(value or 1.0) * 32768 / 65.5
+        elif kind == "turn":
+            g[:, axis] += value
+        parts.append(np.clip(np.round(g * 65.5), -32768, 32767) / 65.5)
+    gyro = np.concatenate(parts)
+    accel = np.tile([0.0, 0.0, 1.0], (len(gyro), 1)) + rng.normal(0, 0.002, (len(gyro), 3))
+    run = Run(max_attempts=3)
+    for i in range(0, len(gyro), 3):
+        j = min(len(gyro), i + 3)
+        run.s.feed(np.arange(i, j) / FS, gyro[i:j], accel[i:j], np.arange(i, j))
+        assert run.s.state in {*STEPS, *END_STATES, State.RECONNECTING}
+        if run.s.finished:
+            break
+    if run.s.finished:
+        assert run.s.reason_code is None or run.s.reason_code in set(EndReason)
+        assert run.s.state == State.DONE or run.s.reason
