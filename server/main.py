@@ -23,7 +23,7 @@ from .config import Settings
 from .middleware import BodyLimit
 from .security import HostCheck, SecurityHeaders, add_docs
 from .service import Service
-from .store import DecisionConflict, NotAcceptable, NotFound, StoreError
+from .store import DecisionConflict, NotAcceptable, NotFound, StoreError, StoreFull
 
 log = logging.getLogger(__name__)
 
@@ -80,6 +80,10 @@ def _error_answers(app: FastAPI) -> None:
     @app.exception_handler(StoreError)
     async def _store_error(request: Request, exc: StoreError) -> JSONResponse:
         return JSONResponse({"detail": f"the store is unavailable: {exc}. Try again; nothing was changed."}, status_code=503)
+
+    @app.exception_handler(StoreFull)
+    async def _store_full(request: Request, exc: StoreFull) -> JSONResponse:
+        return JSONResponse({"detail": f"{exc}. This request changed nothing; try again once space is freed."}, status_code=503)
 
     # the store's refusals that are the request's doing, not an outage: the message says what happened
     @app.exception_handler(DecisionConflict)

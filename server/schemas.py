@@ -50,7 +50,9 @@ class ClockOut(BaseModel):
 
 
 class Health(BaseModel):
-    status: Literal["ok", "tampered"] = Field(description="tampered: a hash chain of the store's history is broken")
+    status: Literal["ok", "degraded", "tampered"] = Field(
+        description="tampered: a hash chain of the store's history is broken; degraded: the store cannot take new "
+                    "calibrations now (its disk full, finished sessions waiting to be written; `warnings` says which)")
     integrity: Integrity
     version: str
     store: str = Field(description="database dialect of the store (sqlite, postgresql)")
@@ -59,7 +61,10 @@ class Health(BaseModel):
     active_sessions: int
     auth_reads: bool = Field(description="whether reads need a token too")
     clock: ClockOut
-    warnings: list[str] = Field(description="what an operator should act on now, in words (a clock far off the store's)")
+    store_free_bytes: int | None = Field(description="free space on the disk holding an SQLite store (None: a database "
+                                                      "elsewhere, whose space this service cannot see)")
+    warnings: list[str] = Field(description="what an operator should act on now, in words (the store's disk full, a "
+                                            "clock far off the store's)")
 
 
 class LoginIn(BaseModel):
@@ -203,6 +208,9 @@ class SessionOut(BaseModel):
     calibration_id: int | None = None
     started_at: str | None = None
     ended_at: str | None = None
+    stored: bool | None = Field(None, description="a live session that ended: whether the store has its outcome and "
+                                                  "recording yet (false: kept by the service and written when it can)")
+    store_error: str | None = Field(None, description="why the store could not take them yet (its disk full, ...)")
 
 
 SENSOR_TEXT = r"^[^\x00-\x1f\x7f]*$"  # printable text: no NUL or other control characters

@@ -26,6 +26,7 @@ from .workers.compute import ComputePool
 log = logging.getLogger(__name__)
 
 KEEP_FINISHED = 200  # finished live sessions kept in memory for their event streams
+MIN_FREE_BYTES = 20_000_000  # a session's recording and rows, many times over: below this no session is started
 KEEP_VERIFY_RUNS = 50  # ended live verifications answered at GET /verifications/{id}
 
 
@@ -136,6 +137,8 @@ class Service:
             if not live.machine.finished:
                 with contextlib.suppress(Exception):
                     await asyncio.wait_for(live.shutdown(), timeout=10.0)
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(live.stop_retrying(), timeout=10.0)
             live.broadcaster.close()
         await self.devices.close()
         self.sign_ins.close()
@@ -149,9 +152,37 @@ class Service:
         for rid in ended[:-KEEP_VERIFY_RUNS]:  # dicts keep insertion order: the oldest first
             del self.verify_runs[rid]
 
+    def storage_problem(self) -> str | None:
+        """Why a new session could not be kept now (the store's disk full or nearly, finished sessions still waiting
+        to be written), in an operator's words; None when it can."""
+        waiting = self.unstored()
+        free = self.store.free_bytes()
+        if waiting:
+            return (f"{len(waiting)} finished calibration{'s' if len(waiting) > 1 else ''} could not be written to the "
+                    f"store yet ({waiting[0].persist_error}); they are kept and written when it can take them. Free "
+                    "space on the store's disk, then start again")
+        if free is not None and free < MIN_FREE_BYTES:
+            return (f"the disk holding the store ({self.store.display_url}) has {free / 1e6:.1f} MB free, less than a "
+                    f"calibration needs ({MIN_FREE_BYTES / 1e6:.0f} MB): free space there, then start again")
+        return None  # a database whose space this service cannot see: the session's first write says whether it fits
+
+    def storage_warnings(self) -> list[str]:
+        """What /health says of the store's space: the blockers above, or a write that failed for a full disk."""
+        if (problem := self.storage_problem()) is not None:
+            return [f"the store cannot take new calibrations: {problem}"]
+        if self.store.full_since is not None:
+            since = datetime.fromtimestamp(self.store.full_since, UTC).isoformat(timespec="seconds")
+            return [f"the disk holding the store was full at the last write ({since}); the next write says whether space "
+                    "has been freed"]
+        return []
+
+    def unstored(self) -> list[LiveSession]:
+        """Finished sessions whose outcome the store has not taken yet (kept here, written again until it does)."""
+        return [s for s in self.sessions.values() if s.machine.finished and not s.persisted]
+
     def _session_ended(self, live: LiveSession) -> None:
         self.release_device(live.device.id, live.id)
-        finished = [s for s in self.sessions.values() if s.machine.finished]
+        finished = [s for s in self.sessions.values() if s.machine.finished and s.persisted]
         for old in finished[: max(0, len(finished) - KEEP_FINISHED)]:
             old.broadcaster.close()
             self.sessions.pop(old.id, None)

@@ -129,6 +129,8 @@ async def session_snapshot(svc: Service, sid: str) -> dict[str, Any]:
         snap = live.machine.snapshot("state")
         snap["kind"] = "live"
         snap["operator"] = live.operator
+        if live.machine.finished:
+            snap["stored"], snap["store_error"] = live.persisted, live.persist_error
         return snap
     row = await asyncio.to_thread(svc.store.session, sid)
     if row is None:

@@ -22,7 +22,7 @@ from calib.result import CalibrationResult
 
 from ..config import Settings
 from ..devices import Device, model_facts, sensor_identity
-from ..store import SessionEnd, Store, utcnow
+from ..store import SessionEnd, Store, StoreFull, utcnow
 from ..workers.compute import ComputePool, calibrate_recording, off_loop, recording_csv
 from . import guidance as say
 from .buffer import SampleBuffer
@@ -35,6 +35,7 @@ log = logging.getLogger(__name__)
 WATCHDOG_PERIOD_S = 0.25
 SERVICE_LATE_S = 0.75  # the watchdog woke this much later than it asked: the service itself was not running
 SPOOL_PERIOD_S = 1.0  # a running session's new samples are made durable this often
+PERSIST_RETRY_S = 5.0  # a session's outcome the store could not take is written again this often
 SPOOL_MAX_SAMPLES = 600_000  # beyond this (15 min at 562.5 Hz, the longest session) nothing more is spooled
 
 
@@ -98,7 +99,8 @@ class LiveSession:
         self._silent = False  # the watchdog found no data for link_silence_s, until data comes again
         self._refused_at_sample: dict[str, int] = {}  # the link's refused packets by reason, at the last sample
         self.persisted = False
-        self.persist_error: str | None = None
+        self.persist_error: str | None = None  # why the last write to the store failed, until one succeeds
+        self._retry: asyncio.Task[None] | None = None  # writing the outcome again while the store cannot take it
         self.identity: SensorIdentity | None = None  # the sensor, its power-up and temperature, once connected
         self.temperatures_c: tuple[float, float] | None = None  # at the session's start and end
         self._spooled = 0  # samples of the buffer made durable in the store's spool
@@ -134,6 +136,17 @@ class LiveSession:
         self.cancel("The service was stopped during the calibration.")
         await self.wait()
         self.broadcaster.close()
+
+    async def stop_retrying(self) -> None:
+        """The service stops: one last try to write an outcome the store could not take, then say it is lost."""
+        if self._retry is None or self.persisted:
+            return
+        self._retry.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await self._retry
+        if not await self._persist_once():
+            log.error("session %s (%s) could not be written to the store before the service stopped: %s", self.id,
+                      self.machine.state, self.persist_error)
 
     # -- the session's life -------------------------------------------------------------------
     async def _run(self) -> None:
@@ -354,7 +367,18 @@ class LiveSession:
         self._spooled = end
 
     async def _persist(self) -> None:
-        """Archive the recording and write the outcome; a failure is kept and retried on accept."""
+        """Archive the recording and write the outcome. When the store cannot take them (a full disk, an outage) they
+        stay here and are written again every PERSIST_RETRY_S until it can (an accept writes them too)."""
+        if not await self._persist_once():
+            self._retry = asyncio.get_running_loop().create_task(self._persist_until_stored())
+
+    async def _persist_until_stored(self) -> None:
+        while not self.persisted:
+            await asyncio.sleep(PERSIST_RETRY_S)
+            if await self._persist_once():
+                log.info("session %s is written to the store at last", self.id)
+
+    async def _persist_once(self) -> bool:
         m = self.machine
         try:
             if m.buf.n > 0 and self._csv is None:
@@ -369,9 +393,13 @@ class LiveSession:
                             stored["state"], stored["reason_code"], stored["reason"])
             self.persisted = True
             self.persist_error = None
+            return True
         except Exception as exc:
-            log.exception("could not write session %s to the store", self.id)
-            self.persist_error = f"{type(exc).__name__}: {exc}"
+            if self.persist_error is None:  # said once; the retries are quiet until they succeed
+                log.warning("could not write session %s to the store (kept, retried every %g s): %s", self.id,
+                            PERSIST_RETRY_S, exc)
+            self.persist_error = str(exc) if isinstance(exc, StoreFull) else f"{type(exc).__name__}: {exc}"
+            return False
 
     @property
     def csv_bytes(self) -> bytes | None:

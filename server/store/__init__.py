@@ -8,7 +8,7 @@ and the devices).
 """
 
 from .chain import BrokenLink, ChainReport
-from .errors import DecisionConflict, NotAcceptable, NotFound, StoreError
+from .errors import DecisionConflict, NotAcceptable, NotFound, StoreError, StoreFull
 from .fleet import Lease
 from .records import CalibrationRecord, SessionEnd, sha256_hex
 from .repository import Store
@@ -27,6 +27,7 @@ __all__ = [
     "SessionEnd",
     "Store",
     "StoreError",
+    "StoreFull",
     "sha256_hex",
     "utcnow",
 ]

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import shutil
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from datetime import datetime
+from pathlib import Path
 from typing import Any
 
 from sqlalchemy import func, select
@@ -15,7 +17,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from . import chain
 from .engine import engine_for, writer
-from .errors import StoreError
+from .errors import StoreError, StoreFull, is_disk_full
 from .records import iso_utc
 from .schema import migrate
 from .tables import AuditRow, SchemaInfo, aware, utcnow
@@ -29,6 +31,7 @@ class StoreBase:
 
     def __init__(self, url: str) -> None:
         self.url = url
+        self.full_since: float | None = None  # when a write last failed for a full disk (None: writes succeed)
         self.engine = engine_for(url)
         self._read = sessionmaker(self.engine, expire_on_commit=False)
         self._write = sessionmaker(writer(self.engine), expire_on_commit=False)
@@ -70,6 +73,14 @@ class StoreBase:
             after = utcnow()
         return (db - (before + (after - before) / 2)).total_seconds()
 
+    def free_bytes(self) -> int | None:
+        """Free space on the disk holding an SQLite store's file; None for a database elsewhere (PostgreSQL) or in
+        memory, whose space this service cannot see."""
+        db = self.engine.url.database
+        if self.dialect != "sqlite" or not db or db == ":memory:":
+            return None
+        return shutil.disk_usage(Path(db).resolve().parent).free
+
     def _insert(self, table: type[Any]) -> Any:
         """An INSERT into ``table`` in this store's dialect, which has ON CONFLICT (an atomic upsert)."""
         return postgresql.insert(table) if self.dialect == "postgresql" else sqlite.insert(table)
@@ -103,10 +114,19 @@ class StoreBase:
 
     @contextmanager
     def _tx(self, *chains: str) -> Iterator[Session]:
-        """A write transaction; the heads of the chains it appends to are locked first, in a fixed order."""
-        with self._write.begin() as s:
-            chain.lock(s, *chains)
-            yield s
+        """A write transaction; the heads of the chains it appends to are locked first, in a fixed order. A full
+        disk raises StoreFull (and is remembered in ``full_since`` until a write succeeds again)."""
+        try:
+            with self._write.begin() as s:
+                chain.lock(s, *chains)
+                yield s
+        except SQLAlchemyError as exc:
+            if is_disk_full(exc):
+                if self.full_since is None:
+                    self.full_since = time.time()
+                raise StoreFull(self.display_url, str(getattr(exc, "orig", None) or exc).splitlines()[0]) from exc
+            raise
+        self.full_since = None
 
     # -- audit ----------------------------------------------------------------------------------
     @staticmethod

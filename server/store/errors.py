@@ -28,3 +28,22 @@ class DecisionConflict(StoreError):
 
 class NotAcceptable(StoreError):
     """A session that cannot become a calibration (not done, out of tolerance, no sensor identity)."""
+
+
+class StoreFull(StoreError):
+    """The disk (or the database's space) holding the store is full: nothing more can be written until space is freed."""
+
+    def __init__(self, where: str, detail: str) -> None:
+        super().__init__(f"the disk holding the store ({where}) is full ({detail}): free space there; what could not be "
+                         "written is kept by the service and written when space returns")
+        self.where = where
+
+
+def is_disk_full(exc: BaseException) -> bool:
+    """Whether a database error means the disk or the database's space is full (SQLite's SQLITE_FULL, PostgreSQL's
+    disk_full 53100, or the operating system's ENOSPC as either reports it)."""
+    orig = getattr(exc, "orig", None) or exc
+    if getattr(orig, "sqlite_errorcode", None) == 13 or getattr(orig, "sqlstate", None) == "53100":
+        return True
+    text = str(orig).lower()
+    return "database or disk is full" in text or "no space left on device" in text

@@ -32,8 +32,9 @@ async def health(
     if integrity is None or (verify and time.time() - datetime.fromisoformat(integrity["checked_at"]).timestamp() > 2.0):
         integrity = await svc.verify_store()
     clock = svc.clock.to_dict(svc.store.dialect)
+    storage = svc.storage_warnings()
     return {
-        "status": "ok" if integrity["ok"] else "tampered",
+        "status": "tampered" if not integrity["ok"] else "degraded" if storage else "ok",
         "integrity": integrity,
         "version": __version__,
         "store": svc.store.dialect,
@@ -42,5 +43,6 @@ async def health(
         "active_sessions": len(svc.active),
         "auth_reads": svc.settings.auth_reads,
         "clock": clock,
-        "warnings": [w for w in [clock["warning"]] if w],
+        "store_free_bytes": svc.store.free_bytes(),
+        "warnings": [*storage, *(w for w in [clock["warning"]] if w)],
     }

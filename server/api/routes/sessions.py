@@ -325,6 +325,8 @@ async def start_live(svc: Service, device_id: str, operator: str, method: str | 
 
     if method is not None and method not in available_methods():
         raise problem(422, f"unknown method {method!r}: choose one of {', '.join(available_methods())}")
+    if (cannot_keep := svc.storage_problem()) is not None:
+        raise problem(503, f"no calibration can be started: {cannot_keep}")
     dev = await reachable_device(svc, device_id)
     sid = uuid.uuid4().hex
     await claim_device(svc, device_id, sid, "one at a time", announce=False)
