@@ -19,6 +19,7 @@ from .gateway import WRITE_HOLDER, GatewayAgent
 from .live.runner import LiveSession
 from .live.snapshot import stored_snapshot
 from .live.verify_run import VerifyRun
+from .memory import TRIM_PERIOD_S, release_free_memory
 from .store import Store
 from .throttle import TokenBucket
 from .workers.compute import ComputePool
@@ -53,6 +54,8 @@ class Service:
         self.started = time.time()
         self.integrity: dict[str, Any] | None = None  # the last verification of the store's hash chains
         self._integrity_task: asyncio.Task[None] | None = None
+        self._trim_task: asyncio.Task[None] | None = None
+        self._freed = False  # sessions ended since the allocator last gave memory back
 
     async def verify_store(self) -> dict[str, Any]:
         """Verify the store's hash chains now (in a thread); the result is what /health reports."""
@@ -61,6 +64,13 @@ class Service:
         if not report.ok:
             log.error("the store's history was tampered with: %s", report.broken)
         return self.integrity
+
+    async def _trim_periodically(self) -> None:
+        while True:
+            await asyncio.sleep(TRIM_PERIOD_S)
+            if self._freed:
+                self._freed = False
+                await asyncio.to_thread(release_free_memory)
 
     async def _verify_periodically(self) -> None:
         while True:
@@ -79,6 +89,7 @@ class Service:
             log.warning("%d sessions left open by a previous run were marked failed", n)
         # the first check of the history runs after the recovery above, so it counts the recordings it archived
         self._integrity_task = asyncio.get_running_loop().create_task(self._verify_periodically())
+        self._trim_task = asyncio.get_running_loop().create_task(self._trim_periodically())
         for dev in self.devices.devices.values():
             await asyncio.to_thread(self.store.upsert_device, dev.id, name=dev.name, address=dev.address, transport=dev.transport)
         await self.events.start()
@@ -125,8 +136,9 @@ class Service:
             self.events.fleet_changed("release", device_id)
 
     async def shutdown(self) -> None:
-        if self._integrity_task is not None:
-            self._integrity_task.cancel()
+        for task in (self._integrity_task, self._trim_task):
+            if task is not None:
+                task.cancel()
         if self.gateway is not None:
             await self.gateway.stop()
         await self.events.stop()
@@ -187,3 +199,5 @@ class Service:
             old.broadcaster.close()
             self.sessions.pop(old.id, None)
             self.events.session_over(old.id)
+            old.release()
+        self._freed = True  # what the ended sessions freed goes back to the system at the next trim (server.memory)

@@ -22,12 +22,13 @@ from calib.result import CalibrationResult
 
 from ..config import Settings
 from ..devices import Device, model_facts, sensor_identity
-from ..store import SessionEnd, Store, StoreFull, utcnow
-from ..workers.compute import ComputePool, calibrate_recording, off_loop, recording_csv
+from ..store import SessionEnd, Store, utcnow
+from ..workers.compute import ComputePool, calibrate_recording, off_loop
 from . import guidance as say
 from .buffer import SampleBuffer
 from .codes import EndReason
 from .events import Broadcaster, Event
+from .persistence import Persistence
 from .session import GuidedSession
 
 log = logging.getLogger(__name__)
@@ -35,7 +36,6 @@ log = logging.getLogger(__name__)
 WATCHDOG_PERIOD_S = 0.25
 SERVICE_LATE_S = 0.75  # the watchdog woke this much later than it asked: the service itself was not running
 SPOOL_PERIOD_S = 1.0  # a running session's new samples are made durable this often
-PERSIST_RETRY_S = 5.0  # a session's outcome the store could not take is written again this often
 SPOOL_MAX_SAMPLES = 600_000  # beyond this (15 min at 562.5 Hz, the longest session) nothing more is spooled
 
 
@@ -64,7 +64,7 @@ def spool_rows(buf: SampleBuffer, start: int, end: int) -> tuple[str, bytes]:
     return header, rows.encode()
 
 
-class LiveSession:
+class LiveSession(Persistence):
     """A guided session on a connected device, with its event stream."""
 
     def __init__(
@@ -137,16 +137,13 @@ class LiveSession:
         await self.wait()
         self.broadcaster.close()
 
-    async def stop_retrying(self) -> None:
-        """The service stops: one last try to write an outcome the store could not take, then say it is lost."""
-        if self._retry is None or self.persisted:
-            return
-        self._retry.cancel()
-        with contextlib.suppress(asyncio.CancelledError):
-            await self._retry
-        if not await self._persist_once():
-            log.error("session %s (%s) could not be written to the store before the service stopped: %s", self.id,
-                      self.machine.state, self.persist_error)
+    def release(self) -> None:
+        """The service forgets this ended session: break the references between it, its machine and its tasks so that
+        it is freed at once, not at the garbage collector's next full pass (server.memory)."""
+        self.machine.listener = None
+        self._task = self._pump = self._retry = None
+        self.on_end = None
+        self.relay = None
 
     # -- the session's life -------------------------------------------------------------------
     async def _run(self) -> None:
@@ -365,41 +362,6 @@ class LiveSession:
             return
         self._spool_chunk += 1
         self._spooled = end
-
-    async def _persist(self) -> None:
-        """Archive the recording and write the outcome. When the store cannot take them (a full disk, an outage) they
-        stay here and are written again every PERSIST_RETRY_S until it can (an accept writes them too)."""
-        if not await self._persist_once():
-            self._retry = asyncio.get_running_loop().create_task(self._persist_until_stored())
-
-    async def _persist_until_stored(self) -> None:
-        while not self.persisted:
-            await asyncio.sleep(PERSIST_RETRY_S)
-            if await self._persist_once():
-                log.info("session %s is written to the store at last", self.id)
-
-    async def _persist_once(self) -> bool:
-        m = self.machine
-        try:
-            if m.buf.n > 0 and self._csv is None:
-                rec = m.recording()
-                self._csv = await off_loop(self.pool, recording_csv, rec)
-            if self._csv is not None and self.recording_sha256 is None:
-                self.recording_sha256 = await asyncio.to_thread(self.store.archive_recording, self.id, self._csv, m.buf.n)
-            stored = await asyncio.to_thread(self.store.finish_session, self.id, self.session_end(),
-                                             self.operator if m.state == "cancelled" else None)
-            if stored is not None and (stored["state"], stored["reason_code"]) != (m.state, m.reason_code):
-                log.warning("session %s ended %s here, but the store had already ended it %s (%s): %s", self.id, m.state,
-                            stored["state"], stored["reason_code"], stored["reason"])
-            self.persisted = True
-            self.persist_error = None
-            return True
-        except Exception as exc:
-            if self.persist_error is None:  # said once; the retries are quiet until they succeed
-                log.warning("could not write session %s to the store (kept, retried every %g s): %s", self.id,
-                            PERSIST_RETRY_S, exc)
-            self.persist_error = str(exc) if isinstance(exc, StoreFull) else f"{type(exc).__name__}: {exc}"
-            return False
 
     @property
     def csv_bytes(self) -> bytes | None:

@@ -77,24 +77,29 @@ def test_half_open_connections_under_a_1024_file_limit_leave_health_answering(tm
 
 
 def test_a_request_whose_headers_never_end_is_closed_and_a_whole_one_is_answered(tmp_path: Path) -> None:
-    svc = RunningService(["--header-timeout-s", "1"], f"sqlite:///{tmp_path / 'store.sqlite3'}").start()
+    svc = RunningService(["--header-timeout-s", "3"], f"sqlite:///{tmp_path / 'store.sqlite3'}").start()
     try:
         slow = socket.create_connection(("127.0.0.1", svc.port), timeout=15)
         slow.sendall(b"GET /health HTTP/1.1\r\nHost: 127.0.0.1\r\n")
-        for _ in range(3):  # a header line every half second: never idle, never finished
-            time.sleep(0.5)
-            slow.sendall(b"X-Slow: 1\r\n")
-        try:
-            closed = slow.recv(1024) == b""
-        except ConnectionResetError:
-            closed = True
+        closed = False
+        deadline = time.monotonic() + 30
+        while not closed and time.monotonic() < deadline:  # a header line every 0.3 s: never idle, never finished
+            time.sleep(0.3)
+            try:
+                slow.sendall(b"X-Slow: 1\r\n")
+                slow.settimeout(0.01)
+                closed = slow.recv(1024) == b""
+            except (BrokenPipeError, ConnectionResetError):
+                closed = True
+            except TimeoutError:
+                pass
         assert closed, "the service kept a connection whose headers never ended"
         slow.close()
         with socket.create_connection(("127.0.0.1", svc.port), timeout=15) as ok:  # one keep-alive connection,
-            for _ in range(2):  # two whole requests a second apart: each has its own deadline
+            for _ in range(14):  # whole requests 0.3 s apart, 4 s in all, past the 3 s deadline: each has its own
                 ok.sendall(b"GET /health HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
                 assert _response(ok).startswith(b"HTTP/1.1 200")
-                time.sleep(0.6)
+                time.sleep(0.3)
     finally:
         svc.stop()
 

@@ -1,0 +1,90 @@
+"""Writing a finished session to the store, and keeping it until the store can take it.
+
+``Persistence`` is a part of ``LiveSession`` (server.live.runner); the fields and methods declared here without a
+body are the session's.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from typing import TYPE_CHECKING
+
+from ..store import SessionEnd, Store, StoreFull
+from ..workers.compute import ComputePool, off_loop, recording_csv
+
+if TYPE_CHECKING:
+    from .session import GuidedSession
+
+log = logging.getLogger(__name__)
+
+PERSIST_RETRY_S = 5.0  # a session's outcome the store could not take is written again this often
+
+
+class Persistence:
+    """The outcome and recording of a finished session, written to the store until it takes them."""
+
+    machine: GuidedSession
+    store: Store
+    pool: ComputePool | None
+    operator: str
+    recording_sha256: str | None
+    persisted: bool
+    persist_error: str | None
+    _csv: bytes | None
+    _retry: asyncio.Task[None] | None
+
+    @property
+    def id(self) -> str:
+        raise NotImplementedError
+
+    def session_end(self) -> SessionEnd:
+        raise NotImplementedError
+
+    async def _persist(self) -> None:
+        """Archive the recording and write the outcome. When the store cannot take them (a full disk, an outage) they
+        stay here and are written again every PERSIST_RETRY_S until it can (an accept writes them too)."""
+        if not await self._persist_once():
+            self._retry = asyncio.get_running_loop().create_task(self._persist_until_stored())
+
+    async def _persist_until_stored(self) -> None:
+        while not self.persisted:
+            await asyncio.sleep(PERSIST_RETRY_S)
+            if await self._persist_once():
+                log.info("session %s is written to the store at last", self.id)
+
+    async def _persist_once(self) -> bool:
+        m = self.machine
+        try:
+            if m.buf.n > 0 and self._csv is None:
+                rec = m.recording()
+                self._csv = await off_loop(self.pool, recording_csv, rec)
+            if self._csv is not None and self.recording_sha256 is None:
+                self.recording_sha256 = await asyncio.to_thread(self.store.archive_recording, self.id, self._csv, m.buf.n)
+            stored = await asyncio.to_thread(self.store.finish_session, self.id, self.session_end(),
+                                             self.operator if m.state == "cancelled" else None)
+            if stored is not None and (stored["state"], stored["reason_code"]) != (m.state, m.reason_code):
+                log.warning("session %s ended %s here, but the store had already ended it %s (%s): %s", self.id, m.state,
+                            stored["state"], stored["reason_code"], stored["reason"])
+            self.persisted = True
+            self.persist_error = None
+            return True
+        except Exception as exc:
+            if self.persist_error is None:  # said once; the retries are quiet until they succeed
+                log.warning("could not write session %s to the store (kept, retried every %g s): %s", self.id,
+                            PERSIST_RETRY_S, exc)
+            self.persist_error = str(exc) if isinstance(exc, StoreFull) else f"{type(exc).__name__}: {exc}"
+            return False
+
+    async def stop_retrying(self) -> None:
+        """The service stops: one last try to write an outcome the store could not take, then say it is lost."""
+        if self._retry is None or self.persisted:
+            return
+        self._retry.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await self._retry
+        if not await self._persist_once():
+            log.error("session %s (%s) could not be written to the store before the service stopped: %s", self.id,
+                      self.machine.state, self.persist_error)
+
