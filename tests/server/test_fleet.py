@@ -148,8 +148,8 @@ def test_a_gateway_whose_clock_is_45_s_behind_keeps_its_sessions_and_says_so(fle
     """Leases are judged on the database's clock: a gateway 45 s behind it is not swept by one that is right, its
     sessions end done and are accepted, and its /health names the offset (the right one's does not)."""
     assert FAKETIME_LIB, "libfaketime is missing: make system-deps installs Debian's faketime"
-    right = _gateway("room-a", 1, 1, fleet_db, speed=2).start(60)
-    late = RunningService(["--gateway", "room-b", "--mock", "2", "--mock-first", "2", "--mock-speed", "2", *LEASE], fleet_db,
+    right = _gateway("room-a", 1, 1, fleet_db, speed=4).start(60)
+    late = RunningService(["--gateway", "room-b", "--mock", "2", "--mock-first", "2", "--mock-speed", "4", *LEASE], fleet_db,
                           env={"LD_PRELOAD": FAKETIME_LIB, "FAKETIME": "-45s", "FAKETIME_DONT_RESET": "1"})
     late.start(60)
     try:
