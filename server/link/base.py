@@ -205,6 +205,16 @@ class LinkStats:
     resyncs: int = 0  # the device's clock or sequence jumped and stayed: followed after RESYNC_AFTER packets agreed
     fs_estimate_hz: float | None = None
 
+    def refused(self, reason: str, count: int = 1) -> None:
+        """Count ``count`` packets dropped for ``reason``; a negative count takes back packets that were held as
+        outliers and then delivered after all (server.link.outliers)."""
+        self.malformed_packets += count
+        left = self.malformed_reasons.get(reason, 0) + count
+        if left:
+            self.malformed_reasons[reason] = left
+        else:
+            self.malformed_reasons.pop(reason, None)
+
     def to_dict(self) -> dict[str, Any]:
         return dict(self.__dict__, malformed_reasons=dict(self.malformed_reasons))
 

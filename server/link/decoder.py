@@ -33,21 +33,14 @@ from wearable_protocol import (
 )
 
 from .base import LinkStats, SampleBatch
-from .outliers import Suspects
+from .outliers import LONG_GAP_S, TOLERANCE_FRACTION, TOLERANCE_SAMPLES, Suspects
 from .rate_fit import RateFit
-
-# a packet's device time may differ from where its sequence number puts it by half a sample (so that no two packets'
-# samples can overlap) plus this share of the gap (the rate estimate's error, before it is fitted, over a long gap)
-OUTLIER_TOLERANCE_SAMPLES = 0.5
-OUTLIER_TOLERANCE_FRACTION = 0.05
-LONG_GAP_S = 10.0  # a packet this far ahead of the last waits for the next ones to confirm it (16-bit sequence
-# numbers wrap every few minutes, so a corrupt time stamp can look like a long outage)
 
 
 def _agree(d_packets: int, dt_us: float, fs_hz: float, n: int) -> bool:
     """Whether a sequence step of ``d_packets`` and a device-time step of ``dt_us`` tell the same gap."""
     expected = dt_us * 1e-6 * fs_hz  # samples
-    return abs(d_packets * n - expected) <= OUTLIER_TOLERANCE_SAMPLES + OUTLIER_TOLERANCE_FRACTION * expected
+    return abs(d_packets * n - expected) <= TOLERANCE_SAMPLES + TOLERANCE_FRACTION * expected
 
 
 class StreamDecoder:
@@ -86,20 +79,16 @@ class StreamDecoder:
         first packet received should be seq 0 (packets missing before it count as lost)."""
         self._expect_new_session = new_session
 
-    def _malformed(self, reason: str) -> None:
-        self.stats.malformed_packets += 1
-        self.stats.malformed_reasons[reason] = self.stats.malformed_reasons.get(reason, 0) + 1
-
     def feed(self, data: bytes | bytearray) -> SampleBatch | None:
         """Decode one notification; None if it was dropped (malformed or duplicate) or is held back (an outlier)."""
         cfg = self.config
         try:
             p = decode_packet(data, expected_n=cfg.samples_per_packet)
         except DecodeError as e:
-            self._malformed(e.reason)
+            self.stats.refused(e.reason)
             return None
         if p.config_id != cfg.config_id:
-            self._malformed("config_id")
+            self.stats.refused("config_id")
             return None
         placed = self._place(p)
         return self._emit(placed) if placed else None
@@ -148,17 +137,12 @@ class StreamDecoder:
             step = (cur[0].seq - prev[0].seq) % SEQ_MODULUS
             return 0 < step < SEQ_MODULUS // 2 and _agree(step, (cur[1] - prev[1]) % CLOCK_MODULUS, fs, n)
 
-        self._malformed("inconsistent")
+        self.stats.refused("inconsistent")
         if not self._suspects.add((p, t_us, d), follows):
             return []
         held = self._suspects.items
         self._suspects.clear()
-        self.stats.malformed_packets -= len(held)  # confirmed: delivered, not dropped
-        left = self.stats.malformed_reasons["inconsistent"] - len(held)
-        if left:
-            self.stats.malformed_reasons["inconsistent"] = left
-        else:
-            del self.stats.malformed_reasons["inconsistent"]
+        self.stats.refused("inconsistent", -len(held))  # confirmed: delivered, not dropped
         first, first_t, first_d = held[0]
         if first_d is None:  # the device's clock or counter jumped: the time line goes on at the sample rate
             self.stats.resyncs += 1

@@ -12,6 +12,12 @@ from collections.abc import Callable
 from typing import Generic, TypeVar
 
 RESYNC_AFTER = 3  # consecutive outliers that agree with each other: the stream really jumped; follow it
+LONG_GAP_S = 10.0  # a packet this far ahead of the last waits for the next ones to confirm it (16-bit sequence
+# numbers wrap every few minutes, so a corrupt time stamp can look like a long outage)
+# two gaps agree (in samples) within half a sample (so that no two packets' samples can overlap) plus this share of
+# the gap (the rate estimate's error, before it is fitted, over a long gap)
+TOLERANCE_SAMPLES = 0.5
+TOLERANCE_FRACTION = 0.05
 
 T = TypeVar("T")
 

@@ -89,15 +89,11 @@ class MetaWearAdapter(Adapter):
                          mw.subscribe(G, mw.Register.GYRO_PACKED, False), mw.subscribe(A, mw.Register.ACC_PACKED, False))
         self._timeline = None
 
-    def _malformed(self, reason: str) -> None:
-        self.stats.malformed_packets += 1
-        self.stats.malformed_reasons[reason] = self.stats.malformed_reasons.get(reason, 0) + 1
-
     def _on_notify(self, data: bytes) -> None:
         try:
             note = mw.decode_notification(bytes(data))
         except DecodeError as e:
-            self._malformed(e.reason)
+            self.stats.refused(e.reason)
             return
         now = self.clock()
         if note.module == mw.Module.GYROSCOPE:

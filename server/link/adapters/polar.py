@@ -20,7 +20,7 @@ from wearable_protocol.models import POLAR_PMD, hand_motion_accel_range, hand_tu
 from wearable_protocol.vendors import polar_pmd as pmd
 
 from ..base import CommandError, ConnectError, LinkStats, SampleBatch
-from ..outliers import Suspects
+from ..outliers import LONG_GAP_S, TOLERANCE_FRACTION, TOLERANCE_SAMPLES, Suspects
 from ..rate_fit import RateFit
 from .base import Adapter, vendor_config
 
@@ -28,7 +28,6 @@ log = logging.getLogger(__name__)
 
 ACC_HOLD_S = 0.5  # gyro samples wait at most this long for the accelerometer samples around them
 ACC_KEEP = 256  # accelerometer samples kept for interpolation
-LONG_GAP_S = 10.0  # a frame stamped this far after the last waits for the next ones to confirm it
 INT16_LIMITS = (-32768, 32767)
 
 
@@ -63,23 +62,19 @@ class PolarDecoder:
     def fs_hz(self) -> float:
         return self._fit.rate(self.gyro_rate_hz)
 
-    def _malformed(self, reason: str) -> None:
-        self.stats.malformed_packets += 1
-        self.stats.malformed_reasons[reason] = self.stats.malformed_reasons.get(reason, 0) + 1
-
     def feed(self, data: bytes) -> list[SampleBatch]:
         """Decode one data notification; the batches it completes (none while waiting for the accelerometer)."""
         try:
             frame = pmd.decode_frame(data)
         except DecodeError as e:
-            self._malformed(e.reason)
+            self.stats.refused(e.reason)
             return []
         if frame.measurement == pmd.MeasurementType.ACC:
             self._add_acc(frame)
         elif frame.measurement == pmd.MeasurementType.GYRO:
             self._add_gyro(frame)
         else:
-            self._malformed("measurement")
+            self.stats.refused("measurement")
             return []
         return self._flush()
 
@@ -99,7 +94,7 @@ class PolarDecoder:
 
     def _add_acc(self, frame: pmd.Frame) -> None:
         if self._acc_last_ns is not None and frame.timestamp_ns <= self._acc_last_ns:
-            self._malformed("clock")
+            self.stats.refused("clock")
             return
         t, _ = self._times(self._acc_last_ns, frame.timestamp_ns, len(frame.values), self.acc_rate_hz)
         self._acc_last_ns = frame.timestamp_ns
@@ -128,19 +123,14 @@ class PolarDecoder:
 
         def follows(prev: pmd.Frame, cur: pmd.Frame) -> bool:
             step_s = (cur.timestamp_ns - prev.timestamp_ns) * 1e-9
-            return abs(step_s * fs - len(cur.values)) <= 0.5 + 0.05 * len(cur.values)
+            return abs(step_s * fs - len(cur.values)) <= TOLERANCE_SAMPLES + TOLERANCE_FRACTION * len(cur.values)
 
-        self._malformed("inconsistent")
+        self.stats.refused("inconsistent")
         if not self._suspects.add(frame, follows):
             return False
         held = self._suspects.items
         self._suspects.clear()
-        self.stats.malformed_packets -= len(held)  # confirmed: a real gap, delivered
-        left = self.stats.malformed_reasons["inconsistent"] - len(held)
-        if left:
-            self.stats.malformed_reasons["inconsistent"] = left
-        else:
-            del self.stats.malformed_reasons["inconsistent"]
+        self.stats.refused("inconsistent", -len(held))  # confirmed: a real gap, delivered
         for f in held[:-1]:
             self._add_gyro_frame(f)
         return True

@@ -80,8 +80,7 @@ class Thingy52Adapter(Adapter):
         try:
             raw = th.decode_raw(bytes(data))
         except DecodeError as e:
-            self.stats.malformed_packets += 1
-            self.stats.malformed_reasons[e.reason] = self.stats.malformed_reasons.get(e.reason, 0) + 1
+            self.stats.refused(e.reason)
             return
         if self._timeline is None:
             return
