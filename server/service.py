@@ -93,9 +93,10 @@ class Service:
         for dev in self.devices.devices.values():
             await asyncio.to_thread(self.store.upsert_device, dev.id, name=dev.name, address=dev.address, transport=dev.transport)
         await self.events.start()
-        await self.clock.measure(self.store)
         if self.gateway is not None:
-            await self.gateway.start()
+            await self.gateway.start()  # its first heartbeat measures the clock, and every one after it
+        else:
+            await self.clock.measure(self.store)
 
     @property
     def gateway_name(self) -> str | None:
