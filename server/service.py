@@ -169,11 +169,11 @@ class Service:
         """Why a new session could not be kept now (the store's disk full or nearly, finished sessions still waiting
         to be written), in an operator's words; None when it can."""
         waiting = self.unstored()
-        free = self.store.free_bytes()
         if waiting:
             return (f"{len(waiting)} finished calibration{'s' if len(waiting) > 1 else ''} could not be written to the "
                     f"store yet ({waiting[0].persist_error}); they are kept and written when it can take them. Free "
                     "space on the store's disk, then start again")
+        free = self.store.free_bytes()
         if free is not None and free < MIN_FREE_BYTES:
             return (f"the disk holding the store ({self.store.display_url}) has {free / 1e6:.1f} MB free, less than a "
                     f"calibration needs ({MIN_FREE_BYTES / 1e6:.0f} MB): free space there, then start again")
