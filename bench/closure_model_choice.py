@@ -4,7 +4,7 @@ non-orthogonal sensor axes, on simulated hand recordings of the paper protocol.
 Run: .venv/bin/python bench/closure_model_choice.py [--runs 20] [--offdiag 0.02]
 
 Each run simulates one paper-protocol recording (seed = run number, the simulator's hand wobble and tilt) and
-calibrates it with calib.closure's default model choice; with ``--offdiag`` the sensor's K has that value in
+calibrates it with calib.estimators.closure.estimator's default model choice; with ``--offdiag`` the sensor's K has that value in
 each of K_xy, K_xz, K_yz (alternating signs). Reported: how many runs chose the extended model, and why the others
 did not (``quality["model_choice"]["reason"]``, up to its first colon).
 """
@@ -15,8 +15,8 @@ import argparse
 import sys
 from collections import Counter
 
-from calib.closure import calibrate_closure
 from calib.effects.axes import AxisMisalignment
+from calib.estimators.closure.estimator import calibrate_closure
 from calib.simulator import simulate
 
 

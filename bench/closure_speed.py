@@ -16,9 +16,9 @@ import time
 
 import numpy as np
 
-from calib.closure import calibrate_closure
+from calib.estimators.closure.estimator import calibrate_closure
 from calib.simulator import paper_protocol_script, simulate
-from calib.stages import detect_stages
+from calib.stages.detector import detect_stages
 
 
 def _best(fn, repeat: int) -> float:

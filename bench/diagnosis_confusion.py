@@ -1,7 +1,7 @@
 """Confusion matrix of the simulation-vs-reality diagnosis on concealed-effect recordings.
 
 For every catalogued effect (and null cases with no effect), with and without the accelerometer and
-the sample counter, ``calib.concealed.draw_concealed`` hides the effect at a random magnitude in a
+the sample counter, ``calib.simulator.concealed.draw_concealed`` hides the effect at a random magnitude in a
 simulated recording of the protocol; ``calib.diagnosis.diagnose`` gets the recording (with the host's
 receive times, as a recording app logs them) and names what it finds. The table counts the
 top-ranked effect named per true effect; the summary gives the share named correctly, the share of
@@ -27,8 +27,8 @@ os.environ.setdefault("MKL_NUM_THREADS", "1")
 
 import numpy as np
 
-from calib.concealed import EFFECT_NAMES, draw_concealed
 from calib.diagnosis import diagnose
+from calib.simulator.concealed import EFFECT_NAMES, draw_concealed
 
 NONE = "none"
 SEED_BASE = 10_000  # concealed seeds used here start at this, apart from the seeds the tests use
@@ -293,8 +293,8 @@ def main() -> int:
     if args.write:
         intro = (
             "## Diagnosis\n\n"
-            "Concealed-effect recordings from `calib.concealed.draw_concealed` (magnitudes drawn log-uniform in the "
-            "consumer-MEMS ranges of `calib.concealed.RANGES`, reading noise 0.02-0.1 deg/s); each diagnosed with "
+            "Concealed-effect recordings from `calib.simulator.concealed.draw_concealed` (magnitudes drawn log-uniform in the "
+            "consumer-MEMS ranges of `calib.simulator.concealed.RANGES`, reading noise 0.02-0.1 deg/s); each diagnosed with "
             "`calib.diagnosis.diagnose` given only the recording and the host's receive times. Decision thresholds come "
             "from each recording's own null bootstrap, never from these seeds. Reproduce with "
             "`.venv/bin/python bench/diagnosis_confusion.py --seeds 25 --protocol paper` and "

@@ -30,7 +30,7 @@ def _one(n: int, out: object) -> None:
 def _refusal() -> tuple[float, float]:
     from calib.diagnosis import diagnose
     from calib.errors import RecordingTooLong
-    from calib.io import parse_recording_text
+    from calib.io.readers import parse_recording_text
 
     rows = "".join(f"{i / 100:.2f},0.1,0.2,0.3\n" for i in range(20_000)) + "200000.0,0.1,0.2,0.3\n"
     t0 = time.perf_counter()

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.concealed import EFFECT_NAMES, draw_concealed
 from calib.diagnosis import diagnose
+from calib.simulator.concealed import EFFECT_NAMES, draw_concealed
 
 REAL = Path(os.environ.get("GYROCAL_REAL_DATA", Path(__file__).resolve().parents[2] / "shared" / "data" / "real"))
 
@@ -40,7 +40,7 @@ def measure(recordings: int, protocol: str = "paper", n_boot: int = 200) -> list
              f"max {times.max():.2f} s per diagnosis")]
     real = REAL / "imucal" / "example_ferraris_session.csv"
     if real.is_file():
-        from calib.io import read_recording
+        from calib.io.readers import read_recording
 
         rec = read_recording(real, fs=102.4)
         t0 = time.perf_counter()
@@ -48,7 +48,7 @@ def measure(recordings: int, protocol: str = "paper", n_boot: int = 200) -> list
         lines.append(f"real imucal session ({rec.duration_s:.0f} s, 13 rests): {time.perf_counter() - t0:.2f} s")
     gyro, acc = REAL / "imu_tk" / "xsens_gyro.mat", REAL / "imu_tk" / "xsens_acc.mat"
     if gyro.is_file() and acc.is_file():
-        from calib.imu_tk_io import read_imu_tk
+        from calib.io.imu_tk import read_imu_tk
 
         rec = read_imu_tk(gyro, acc)
         t0 = time.perf_counter()

@@ -43,7 +43,7 @@ def _free_port() -> int:
 def _start(name: str, first: int, n: int, db: str, speed: float) -> tuple[subprocess.Popen[bytes], str]:
     port = _free_port()
     log = tempfile.NamedTemporaryFile(prefix=f"gyrocal-{name}-", suffix=".log", delete=False)
-    cmd = [sys.executable, "-m", "calib.cli", "serve", "--port", str(port), "--db", db, "--allow-db-owner", "--log-level", "warning",
+    cmd = [sys.executable, "-m", "calib.cli.main", "serve", "--port", str(port), "--db", db, "--allow-db-owner", "--log-level", "warning",
            "--gateway", name, "--mock", str(n), "--mock-first", str(first), "--mock-speed", str(speed), "--mock-rate", "104"]
     proc = subprocess.Popen(cmd, cwd=ROOT, env={**os.environ, "GYROCAL_API_TOKEN": TOKEN}, stdout=log, stderr=subprocess.STDOUT)
     base = f"http://127.0.0.1:{port}"

@@ -15,7 +15,7 @@ import time
 import numpy as np
 
 from calib.errors import RecordingError
-from calib.io import parse_recording_text, write_native_csv
+from calib.io.readers import parse_recording_text, write_native_csv
 from calib.recording import Recording
 
 

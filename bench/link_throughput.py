@@ -27,7 +27,7 @@ import time
 import numpy as np
 
 import wearable_protocol as wp
-from calib.stages import StageTracker
+from calib.stages.detector import StageTracker
 from mock_device.sources import ScriptedSource
 from server.link import StreamDecoder
 
@@ -122,7 +122,7 @@ async def _ble_clients(addresses: list[str], rate: float, seconds: float) -> dic
 
 def bench_ble(devices: int, rate: float, seconds: float) -> dict[str, float]:
     proc = subprocess.Popen(
-        [sys.executable, "-m", "calib.cli", "mock-device", "--ble", "--count", str(devices), "--rate", str(rate)],
+        [sys.executable, "-m", "calib.cli.main", "mock-device", "--ble", "--count", str(devices), "--rate", str(rate)],
         stdout=subprocess.PIPE, text=True,
     )
     try:

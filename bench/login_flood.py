@@ -51,7 +51,7 @@ def main() -> None:
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="gyrocal-login-"))
     db = f"sqlite:///{tmp / 'store.sqlite3'}"
-    gyrocal = [sys.executable, "-m", "calib.cli"]
+    gyrocal = [sys.executable, "-m", "calib.cli.main"]
     subprocess.run([*gyrocal, "operator", "--db", db, "add", "nurse", "--secret-stdin"], input=SECRET + "\n", text=True,
                    cwd=ROOT, check=True, capture_output=True)
     port = free_port()

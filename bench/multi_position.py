@@ -14,8 +14,9 @@ sensor that has none (false positives; the test is at 0.1 %).
 
 Each run simulates a 50 s rest, then 36 hand re-orientations of 90-180 deg (random axes, 1.5-3 s) between
 5 s rests at 100 Hz, with gyro white noise sigma and accelerometer noise 5 mg; the accelerometer reads
-through a random 9-parameter error (scale 0.97-1.03, offset +-50 mg, misalignment +-0.01 rad), which
-calib.multi_position fits together with the gyroscope (started from calib.accel's fit on the rests). "bound" is the
+through a random 9-parameter error (scale 0.97-1.03, offset +-50 mg, misalignment +-0.01 rad), which the
+multi-position estimator fits together with the gyroscope (started from calib.estimators.accel's fit on the rests).
+"bound" is the
 |err| p95 an efficient unbiased estimator would reach: the p95 of |N(0, bound_i^2)| over the runs, bound_i
 each run's own inverse-Fisher standard deviation (for the gyro: k and b; for the accelerometer: scale and
 offset; the accelerometer's std is scaled by the fit's chi-square like the gyroscope's).
@@ -34,7 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from calib.effects import MotionNoise  # noqa: E402
 from calib.effects.axes import GSensitivity  # noqa: E402
-from calib.multi_position import calibrate_multi_position  # noqa: E402
+from calib.estimators.multi_position.estimator import calibrate_multi_position  # noqa: E402
 from calib.simulator import simulate  # noqa: E402
 from calib.simulator.lab_scripts import multi_position_script as script  # noqa: E402
 from calib.simulator.lab_scripts import with_accelerometer_error as with_accel_error  # noqa: E402

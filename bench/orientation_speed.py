@@ -1,4 +1,4 @@
-"""How long the orientation before and after a calibration takes (calib.orientation: ahrs' Madgwick filter), per
+"""How long the orientation before and after a calibration takes (calib.apply.orientation: ahrs' Madgwick filter), per
 sample and for an hour of a 100 Hz recording, with and without an accelerometer.
 
 Run: .venv/bin/python bench/orientation_speed.py [--repeat 14]
@@ -14,8 +14,8 @@ import time
 
 import numpy as np
 
-from calib.correction import Correction, corrected
-from calib.orientation import orientation
+from calib.apply.correction import Correction, corrected
+from calib.apply.orientation import orientation
 from calib.recording import Recording
 from calib.simulator import simulate
 

@@ -93,7 +93,7 @@ async def run(args: argparse.Namespace) -> dict[str, Any]:
     token = uuid.uuid4().hex
     port = free_port()
     tmp = tempfile.mkdtemp(prefix="gyrocal-bench-")
-    cmd = [sys.executable, "-m", "calib.cli", "serve", "--port", str(port), "--db", f"sqlite:///{tmp}/bench.sqlite3",
+    cmd = [sys.executable, "-m", "calib.cli.main", "serve", "--port", str(port), "--db", f"sqlite:///{tmp}/bench.sqlite3",
            "--mock", str(args.devices), "--mock-rate", str(args.rate), "--mock-speed", str(args.speed),
            "--mock-seed", str(args.seed), "--log-level", "warning"]
     proc = subprocess.Popen(cmd, cwd=ROOT, env={**os.environ, "GYROCAL_API_TOKEN": token},

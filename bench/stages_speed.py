@@ -12,7 +12,7 @@ import argparse
 import time
 
 from calib.simulator import simulate
-from calib.stages import StageTracker, detect_stages
+from calib.stages.detector import StageTracker, detect_stages
 
 
 def _feed(rec, batch: int) -> float:

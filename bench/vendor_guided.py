@@ -33,7 +33,7 @@ import httpx
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-GYROCAL = [sys.executable, "-m", "calib.cli"]
+GYROCAL = [sys.executable, "-m", "calib.cli.main"]
 TOKEN = "bench-" + uuid.uuid4().hex
 MODELS = ("gyrocal", "polar-pmd", "metawear", "thingy52")
 ARRIVAL_TIMED = {"metawear", "thingy52"}

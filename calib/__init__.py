@@ -3,10 +3,10 @@
 This package imports nothing else of gyrocal's.
 """
 
-from .errors import CalibrationError, GyrocalError, ProtocolError, RecordingError
-from .recording import Recording, RecordingMeta
-from .result import CalibrationResult
-from .stage import Stage
+from calib.errors import CalibrationError, GyrocalError, ProtocolError, RecordingError
+from calib.recording import Recording, RecordingMeta
+from calib.result import CalibrationResult
+from calib.stages.stage import Stage
 
 __version__ = "0.1.0"
 

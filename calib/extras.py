@@ -7,7 +7,7 @@ import re
 from importlib.metadata import PackageNotFoundError, requires
 from typing import Any
 
-from .errors import GyrocalError
+from calib.errors import GyrocalError
 
 DISTRIBUTION = "gyrocal"
 

@@ -7,10 +7,10 @@ from typing import Any
 
 import numpy as np
 
-from .attitude import cumulative_attitude
-from .recording import Recording
-from .result import CalibrationResult
-from .stage import Stage
+from calib.numerics.attitude import cumulative_attitude
+from calib.recording import Recording
+from calib.result import CalibrationResult
+from calib.stages.stage import Stage
 
 
 def save_figure(fig: Any, path: str | Path, dpi: int = 110) -> Path:

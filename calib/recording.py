@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from .section import Section
+from calib.io.section import Section
 
 STANDARD_GRAVITY = 9.80665  # m/s^2 per g
 

@@ -7,8 +7,8 @@ from typing import Any
 
 import numpy as np
 
-from .json_safe import finite
-from .stage import Stage
+from calib.json_safe import finite
+from calib.stages.stage import Stage
 
 
 def _list(a: np.ndarray | None, digits: int = 9) -> list[float] | None:

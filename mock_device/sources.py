@@ -177,7 +177,7 @@ class ReplaySource:
     """A recorded CSV replayed at its own rate; the stream ends with the file."""
 
     def __init__(self, path: str | Path, fs: float | None = None) -> None:
-        from calib.io import read_recording  # calib's reader: native CSV or the imucal layout
+        from calib.io.readers import read_recording  # calib's reader: native CSV or the imucal layout
 
         rec = read_recording(path, fs=fs)
         self.path = Path(path)

@@ -44,7 +44,7 @@ MIN_SLEEP_S = 0.001
 
 
 @dataclass
-class _Session:
+class WearableSession:
     number: int
     fs: float  # true output data rate
     n: int
@@ -128,7 +128,7 @@ class Wearable:
         self.stats = DeviceStats()
         self._central: Central | None = None
         self._notifying: set[str] = set()
-        self._session: _Session | None = None
+        self._session: WearableSession | None = None
         self._task: asyncio.Task[None] | None = None
         self._out_of_range_until = -math.inf
         self._fail_connects = int(self.faults.fail_connects)
@@ -370,7 +370,7 @@ class Wearable:
         self.stats.sessions += 1
         self.stats.lost_radio_seqs = []
         self._loss_cache.clear()
-        s = _Session(self.stats.sessions, self.true_rate_hz, self.samples_per_packet, now, self.device_time_us(now),
+        s = WearableSession(self.stats.sessions, self.true_rate_hz, self.samples_per_packet, now, self.device_time_us(now),
                      self.config_id)
         self._session = s
         self._log(f"session {s.number} started at {self.rate_hz:g} Hz, N={s.n}")
@@ -400,13 +400,13 @@ class Wearable:
 
     # ------------------------------------------------------------------ streaming
 
-    def _packet_end_s(self, s: _Session, j: int) -> float:
+    def _packet_end_s(self, s: WearableSession, j: int) -> float:
         """Session time (s) at which packet j is complete."""
         last = (j + 1) * s.n - 1
         t = self.source.times_s(last, last + 1)
         return float(t[0]) if t is not None else last / s.fs
 
-    def _sample_times_us(self, s: _Session, start: int, end: int) -> int:
+    def _sample_times_us(self, s: WearableSession, start: int, end: int) -> int:
         t = self.source.times_s(start, start + 1)
         offset = float(t[0]) if t is not None else start / s.fs
         return s.clock0_us + int(round(offset * 1e6))
@@ -420,7 +420,7 @@ class Wearable:
             self._loss_cache[block] = np.random.default_rng([self.seed, 0x1055, block]).random(4096) < p
         return bool(self._loss_cache[block][off])
 
-    async def _run(self, s: _Session) -> None:
+    async def _run(self, s: WearableSession) -> None:
         total = None if self.source.length is None else self.source.length // s.n
         try:
             while self._session is s:
@@ -434,7 +434,7 @@ class Wearable:
         except asyncio.CancelledError:
             pass
 
-    def _advance(self, s: _Session, elapsed: float, total: int | None) -> None:
+    def _advance(self, s: WearableSession, elapsed: float, total: int | None) -> None:
         while self._session is s and (total is None or s.next_packet < total):
             j = s.next_packet
             if self._packet_end_s(s, j) > elapsed:
@@ -452,7 +452,7 @@ class Wearable:
                 self._send(s, j)
             s.next_packet = j + 1
 
-    def _send(self, s: _Session, j: int) -> None:
+    def _send(self, s: WearableSession, j: int) -> None:
         i0, i1 = j * s.n, (j + 1) * s.n
         blk = self.source.block(i0, i1)
         cfg = self.config
@@ -475,7 +475,7 @@ class Wearable:
         assert self._central is not None
         self._central.notify(wp.IMU_DATA_CHAR, data)
 
-    def _stream_end(self, s: _Session) -> None:
+    def _stream_end(self, s: WearableSession) -> None:
         self._log("replay finished")
         self._announce_stream_end()
         self._end_session("replay finished")

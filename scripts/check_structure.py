@@ -1,7 +1,8 @@
 """The house's structure, measured: import cycles between gyrocal's modules, the layering rules
 (calib imports no other package of ours; the server never imports mock_device; the mock device only the
-protocol and calib), and every module's size, largest first. Exit 1 on a cycle or a layering breach;
-sizes are listed (modules over MAX_LINES flagged) for review, not failed on.
+protocol and calib), no module importing another's private (underscore) names, and every module's size,
+largest first. Exit 1 on a cycle, a layering breach or a borrowed private name; sizes are listed (modules
+over MAX_LINES flagged) for review, not failed on.
 
 Run: python scripts/check_structure.py [--sizes N]   (make test runs it)
 """
@@ -61,6 +62,25 @@ def imports(name: str, path: Path, known: dict[str, Path]) -> set[str]:
     return found
 
 
+def borrowed_private_names(name: str, path: Path, known: dict[str, Path]) -> list[str]:
+    """``from other import _name`` in module ``name``: another module's private name taken for its own use."""
+    is_pkg = path.name == "__init__.py"
+    out = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if not isinstance(node, ast.ImportFrom):
+            continue
+        if node.level:
+            base = name.split(".")
+            base = base[: len(base) - node.level + (1 if is_pkg else 0)]
+            source = ".".join(base + ([node.module] if node.module else []))
+        else:
+            source = node.module or ""
+        if source.split(".")[0] not in PACKAGES or source == name:
+            continue
+        out += [f"{name} imports {a.name} from {source}" for a in node.names if a.name.startswith("_") and not a.name.startswith("__")]
+    return out
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", type=int, default=15, help="list this many of the largest modules")
@@ -79,6 +99,8 @@ def main() -> int:
         pa, pb = a.split(".")[0], b.split(".")[0]
         if pa != pb and pb not in ALLOWED[pa]:
             failures.append(f"layering: {a} imports {b} ({pa} may import only {', '.join(sorted(ALLOWED[pa])) or 'none of ours'})")
+    for name, path in known.items():
+        failures += [f"private name borrowed: {b}" for b in borrowed_private_names(name, path, known)]
     sizes = sorted(((sum(1 for _ in p.open()), n) for n, p in known.items()), reverse=True)
     print(f"{len(known)} modules, {graph.number_of_edges()} imports between them, {len(cycles)} cycles")
     print(f"largest modules (over {MAX_LINES} lines marked *):")

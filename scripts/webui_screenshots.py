@@ -39,7 +39,7 @@ def service() -> Iterator[str]:
     """`gyrocal serve` on a free port with the simulated wearables and an operator with a secret and a PIN."""
     tmp = Path(tempfile.mkdtemp(prefix="gyrocal-shots-"))
     db = f"sqlite:///{tmp / 'store.sqlite3'}"
-    gyrocal = [sys.executable, "-m", "calib.cli"]
+    gyrocal = [sys.executable, "-m", "calib.cli.main"]
     subprocess.run([*gyrocal, "operator", "--db", db, "add", OPERATOR, "--secret-stdin"], input=SECRET + "\n", check=True,
                    cwd=ROOT, capture_output=True, text=True)
     subprocess.run([*gyrocal, "operator", "--db", db, "pin", OPERATOR, "--pin-stdin"], input=PIN + "\n", check=True,

@@ -11,7 +11,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from calib.identity import DEFAULT_MAX_TEMPERATURE_CHANGE_C, SensorIdentity
+from calib.apply.identity import DEFAULT_MAX_TEMPERATURE_CHANGE_C, SensorIdentity
 
 from .cli import EXIT_OK, ServiceError, open_store, require_active_operator
 from .config import DB_URL_HELP, DEFAULT_MAX_AGE_DAYS
@@ -49,7 +49,7 @@ def _add_identity_arguments(p: argparse.ArgumentParser, title: str, when: str, b
 
 def _recording_identity(args: argparse.Namespace, temperature_c: float | None = None) -> SensorIdentity:
     """The recording's identity from the command line (``temperature_c``: the recording's own, when it has one)."""
-    from calib.identity import IdentityError
+    from calib.apply.identity import IdentityError
 
     try:
         return SensorIdentity.from_json({
@@ -78,7 +78,7 @@ def _limits(args: argparse.Namespace) -> CalibrationLimits:
 def _in_force_of(args: argparse.Namespace, store: Any = None, temperature_c: float | None = None) -> Any:
     """The calibration of ``args.device`` in force at ``args.at`` for the recording the arguments describe (None when
     none had been accepted by then); ServiceError when the only ones are another sensor's."""
-    from calib.identity import WrongSensor
+    from calib.apply.identity import WrongSensor
 
     from .lifecycle import in_force
 
@@ -119,7 +119,7 @@ def cmd_calibration(args: argparse.Namespace) -> int:
 
 def register_apply(sub: Any) -> None:
     """Add `gyrocal apply`."""
-    from calib.cli_input import add_reading_arguments
+    from calib.cli.options import add_reading_arguments
 
     p = sub.add_parser(
         "apply",
@@ -145,7 +145,7 @@ def register_apply(sub: Any) -> None:
 
 
 def _read_calibration_file(path: Path) -> Any:
-    from calib.correction import Correction, CorrectionFileError
+    from calib.apply.correction import Correction, CorrectionFileError
 
     try:
         return Correction.from_json(json.loads(path.read_text(encoding="utf-8")))
@@ -160,10 +160,10 @@ def _read_calibration_file(path: Path) -> Any:
 
 
 def cmd_apply(args: argparse.Namespace) -> int:
-    from calib.cli_input import read_recording_args
-    from calib.correction import Correction, corrected
-    from calib.identity import check_identity
-    from calib.io import write_native_csv
+    from calib.apply.correction import Correction, corrected
+    from calib.apply.identity import check_identity
+    from calib.cli.options import read_recording_args
+    from calib.io.readers import write_native_csv
 
     from .lifecycle import none_in_force
 
@@ -206,7 +206,7 @@ def _write_orientation(rec: Any, calibrated: Any, out: Path) -> dict[str, Any]:
 
     from tqdm import tqdm
 
-    from calib.orientation import orientation, plot_orientation
+    from calib.apply.orientation import orientation, plot_orientation
 
     stem = out.with_suffix("") if out.suffix == ".csv" else out
     with tqdm(total=2 * max(0, len(rec) - 1), desc="orientation", unit="sample", file=sys.stderr, disable=not sys.stderr.isatty()) as bar:

@@ -298,7 +298,7 @@ def pin_networks(given: list[str]) -> list[str]:
 
 def build_service(args: argparse.Namespace) -> Any:
     """Settings, store and devices from the command line (no event loop needed)."""
-    from calib.api import available_methods
+    from calib.pipeline import available_methods
 
     from .config import CalibrationLimits, Settings, default_db_url
     from .devices import DeviceManager, SimulatorsUnavailable, load_simulators

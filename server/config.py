@@ -10,8 +10,8 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from calib.acceptance import Tolerances
-from calib.identity import DEFAULT_MAX_TEMPERATURE_CHANGE_C
+from calib.apply.identity import DEFAULT_MAX_TEMPERATURE_CHANGE_C
+from calib.judge.acceptance import Tolerances
 
 
 def default_db_path() -> Path:

@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from typing import Any, Protocol
 
+from calib.apply.identity import SensorIdentity
 from calib.extras import install_hint
-from calib.identity import SensorIdentity
 from wearable_protocol.models import MODELS
 
 from .link.base import DeviceInfo

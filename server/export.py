@@ -6,7 +6,7 @@ import csv
 import io
 import json
 
-from calib.correction import Correction
+from calib.apply.correction import Correction
 
 from .store.records import CalibrationRecord
 

@@ -19,7 +19,7 @@ def register_history(sub: Any) -> None:
         "history",
         help="a device's calibrations over time: values, uncertainties, sensor, departures from its history, verifications, due",
         description="List every accepted calibration of DEVICE, oldest first, with its k and b (± their standard deviations), "
-        "its sensor and power-up, whether it departed from the calibrations before it (calib.departure: a dropped or "
+        "its sensor and power-up, whether it departed from the calibrations before it (calib.judge.departure: a dropped or "
         "damaged sensor) and its latest verification turn; then whether the device is due for calibration.",
     )
     p.add_argument("device", help="the device's id")
@@ -40,7 +40,7 @@ def _row(cal: Any, departed: list[Any], verified: dict[str, Any] | None) -> dict
 
 
 def cmd_history(args: argparse.Namespace) -> int:
-    from calib.departure import departures
+    from calib.judge.departure import departures
 
     from .lifecycle import calibration_due
 
@@ -83,7 +83,7 @@ def cmd_history(args: argparse.Namespace) -> int:
 
 def register_verify(sub: Any) -> None:
     """Add `gyrocal verify`."""
-    from calib.cli_input import add_reading_arguments
+    from calib.cli.options import add_reading_arguments
 
     p = sub.add_parser(
         "verify",
@@ -102,9 +102,9 @@ def register_verify(sub: Any) -> None:
 
 def cmd_verify(args: argparse.Namespace) -> int:
     from calib import __version__
-    from calib.cli_input import read_recording_args
-    from calib.correction import Correction
-    from calib.verification import NoVerificationTurn, verify_turn
+    from calib.apply.correction import Correction
+    from calib.cli.options import read_recording_args
+    from calib.judge.verification import NoVerificationTurn, verify_turn
 
     from .workers.compute import recording_csv
 

@@ -16,7 +16,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
-from calib.identity import SensorIdentity, WrongSensor, check_identity, same_power_up
+from calib.apply.identity import SensorIdentity, WrongSensor, check_identity, same_power_up
 
 from .config import CalibrationLimits
 from .store import Store
@@ -33,7 +33,7 @@ class InForce(BaseModel):
     chosen_by: Literal["same_power_up", "latest_before"] = Field(
         "latest_before", description="same_power_up: measured in the recording's power-up; latest_before: the latest accepted by then")
     identity_check: dict[str, Any] | None = Field(
-        None, description="sensor, power_up, temperature: same | different | unknown; temperature_change_c (calib.identity)")
+        None, description="sensor, power_up, temperature: same | different | unknown; temperature_change_c (calib.apply.identity)")
     warnings: list[str] = Field(default_factory=list, description="plain sentences: what makes it doubtful for that moment")
 
 

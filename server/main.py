@@ -14,7 +14,7 @@ from fastapi.responses import JSONResponse
 from sqlalchemy.exc import SQLAlchemyError
 
 from calib import __version__
-from calib.identity import WrongSensor
+from calib.apply.identity import WrongSensor
 
 from . import schemas as M
 from .api import page

@@ -7,7 +7,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from calib.api import available_methods
+from calib.pipeline import available_methods
 
 from .lifecycle import CalibrationDue
 from .live.codes import EndReason, Phase, State

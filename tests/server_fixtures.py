@@ -28,7 +28,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 T = TypeVar("T")
-GYROCAL = [sys.executable, "-m", "calib.cli"]
+GYROCAL = [sys.executable, "-m", "calib.cli.main"]
 API_TOKEN = "test-token-" + uuid.uuid4().hex
 
 
@@ -307,7 +307,7 @@ def bad_csv_uploads() -> dict[str, bytes]:
     """CSV bodies every upload endpoint must refuse with a 4xx and a reason, by what is wrong with them."""
     import io
 
-    from calib.io import write_native_csv
+    from calib.io.readers import write_native_csv
     from calib.simulator import simulate
 
     still_only = io.StringIO()

@@ -282,7 +282,7 @@ def upload_accepted(service: RunningService, device: str, seed: int, operator_to
                     **sensor: Any) -> dict[str, Any]:
     """Calibrate a simulated recording uploaded for a device and accept it; returns the stored calibration. ``sensor``:
     more of what the upload says about its sensor (serial, boot_count)."""
-    from calib.io import write_native_csv
+    from calib.io.readers import write_native_csv
     from calib.simulator import simulate
 
     rec, _ = simulate(seed, noise=0.03)

@@ -7,6 +7,6 @@ that null, fits the effects the recording shows and reports them (``Diagnosis.to
 See docs/diagnosis.md for the method.
 """
 
-from .run import EFFECT_NAMES, Diagnosis, diagnose
+from calib.diagnosis.run import EFFECT_NAMES, Diagnosis, diagnose
 
 __all__ = ["EFFECT_NAMES", "Diagnosis", "diagnose"]

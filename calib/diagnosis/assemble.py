@@ -9,19 +9,13 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
-from ..errors import GyrocalError
-from ..recording import Recording
-from ..stages import detect_stages
-from .data import (
-    build_problem,
-    make_layout,
-)
-from .features import Features
-from .fitting import fit_nominal
-from .select import (
-    ADVICE,
-    ALPHA,
-)
+from calib.diagnosis.data import build_problem, make_layout
+from calib.diagnosis.features import Features
+from calib.diagnosis.fitting import fit_nominal
+from calib.diagnosis.select import ADVICE, ALPHA
+from calib.errors import GyrocalError
+from calib.recording import Recording
+from calib.stages.detector import detect_stages
 
 CLOCK_MIN = 5e-4  # a clock rate error below this (500 ppm) is within what the host's own clock may show
 CLOCK_Z = 6.0
@@ -97,13 +91,7 @@ def _raw_deviance(raw: Recording | None) -> float:
 def assemble_diagnosis(rec, raw, host_t, prob, layout, tb, plateaus, fit0, base, base_fit, cap_fit, steps, ambiguities, final, feats,
               boot_feats,
               boot_feats_after, p_before, p_after, tests, not_ident, specs, alpha, n_boot, duration) -> Diagnosis:
-    from .describe import (
-        describe_ambiguity,
-        describe_effect,
-        describe_unexplained,
-        mismatch_rows,
-        recalibration,
-    )
+    from calib.diagnosis.describe import describe_ambiguity, describe_effect, describe_unexplained, mismatch_rows, recalibration
 
     effects: list[dict] = []
     # deterministic evidence first: the time base and the gyro range

@@ -2,7 +2,7 @@
 
 ``Layout`` fixes where things are (turn windows, still blocks, the stills on either side of each
 turn) and is shared by a recording and every bootstrap replicate of it. ``Problem`` holds the data
-of R recordings with that layout, time-first for the turns like ``calib.closure_fit``:
+of R recordings with that layout, time-first for the turns like ``calib.estimators.closure.fit``:
 
 - turn samples: readings m (L, R*J, 3), intervals dt, times t, specific force a, temperature;
 - still blocks: each still is cut into blocks of about ``BLOCK_S``; a block's mean reading, time,
@@ -25,9 +25,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..recording import Recording, sample_intervals
-from ..stage import AXES, Stage
-from ..units import DEG
+from calib.recording import Recording, sample_intervals
+from calib.stages.stage import AXES, Stage
+from calib.units import DEG
 
 BLOCK_S = 0.5  # still block length, s
 REORIENTATION = "reorientation"  # the flag of a motion between two rests that ends in a new pose
@@ -291,7 +291,7 @@ def set_design_accel(prob: Problem, a: np.ndarray) -> None:
 def gravity_proxy(layout: Layout, rate_dps: np.ndarray, up: np.ndarray | None = None) -> np.ndarray:
     """Specific force (n, 3) in g for a recording without accelerometer, assuming gravity along ``up`` in
     the body frame at the start (the device resting flat) and following the calibrated rates after that."""
-    from ..attitude import cumulative_attitude
+    from calib.numerics.attitude import cumulative_attitude
 
     up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, dtype=float)
     att = cumulative_attitude(rate_dps, layout.dt)

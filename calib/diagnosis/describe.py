@@ -4,17 +4,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..stage import AXES
-from .data import Layout, Problem
-from .engine import Fit, covariance
-from .features import Features, window_label
-from .models import R0_DPS, Model
-from .saturation import Plateau
-from .select import DISTINGUISH, ModelState, Step
-from .timebase import TimeBase
+from calib.diagnosis.data import Layout, Problem
+from calib.diagnosis.engine import Fit, covariance
+from calib.diagnosis.features import Features, window_label
+from calib.diagnosis.models import R0_DPS, Model
+from calib.diagnosis.saturation import Plateau
+from calib.diagnosis.select import DISTINGUISH, ModelState, Step
+from calib.diagnosis.timebase import TimeBase
+from calib.stages.stage import AXES
 
 
-def _std(fit: Fit) -> np.ndarray:
+def std_of(fit: Fit) -> np.ndarray:
     """Standard errors of a fit's parameters, scaled up by the Birge ratio when the fit is poor."""
     cov = covariance(fit.fisher)[0]
     birge = np.sqrt(max(1.0, float(fit.deviance[0]) / max(float(fit.dof[0]), 1.0)))
@@ -47,7 +47,7 @@ def describe_effect(name: str, prob: Problem, layout: Layout, **kw) -> dict:
     tests = kw["tests"]
     test = tests.get(step.key, {})
     fit = state.fit
-    std = _std(fit)
+    std = std_of(fit)
     psi = fit.psi[0]
     sl = state.model.slices
     params: dict = {}
@@ -164,7 +164,7 @@ def _rival_evidence(name: str, t: dict) -> dict:
 
 def _profile_sd(prob: Problem, state: ModelState, which: str) -> float:
     """Standard error of a variance parameter from the curvature of the profile deviance (log scale)."""
-    from .select import _refit
+    from calib.diagnosis.select import refit
 
     base = dict(state.variance)
     v = base[which]
@@ -173,7 +173,7 @@ def _profile_sd(prob: Problem, state: ModelState, which: str) -> float:
     def dev(scale: float) -> float:
         var = dict(base)
         var[which] = (x * scale, v[1]) if isinstance(v, tuple) else x * scale
-        return float(_refit(prob, state.model, state.fit.psi, state.priors, var, max_iter=1).deviance[0])
+        return float(refit(prob, state.model, state.fit.psi, state.priors, var, max_iter=1).deviance[0])
 
     h = 0.1
     d0, dp, dm = dev(1.0), dev(np.exp(h)), dev(np.exp(-h))
@@ -381,9 +381,9 @@ def recalibration(prob: Problem, fit0: Fit, final: ModelState, effects: list[dic
     if not effects:
         return None
     k0, b0 = fit0.psi[0, :3], fit0.psi[0, 3:6]
-    s0 = _std(fit0)
+    s0 = std_of(fit0)
     psi = final.fit.psi[0]
-    s1 = _std(final.fit)
+    s1 = std_of(final.fit)
     k, b = psi[:3].copy(), psi[3:6].copy()
     sk, sb = s1[:3].copy(), s1[3:6].copy()
     notes = []

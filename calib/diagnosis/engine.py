@@ -4,7 +4,7 @@ The residual vector of a recording stacks, each whitened to unit variance under 
 
 - ``closure`` (3 per turn): the closing rotation r_j = Log(prod_t Exp(w_t dt_t)) of each turn (deg),
   minus the placement rotation rho_j when that effect is modelled, weighted by the covariance white
-  reading noise gives it (as in calib.closure_fit);
+  reading noise gives it (as in calib.estimators.closure.fit);
 - ``still`` (3 per still block): the calibrated mean rate of each still block (deg/s), 0 at rest,
   weighted by k_i sigma_i / sqrt(N_block); the blocks carry the still means over time and whether the
   noise inside each still is white;
@@ -18,7 +18,7 @@ The residual vector of a recording stacks, each whitened to unit variance under 
 - ``prior`` rows of an effect (the heading of a placement error, the height of a clipped plateau).
 
 The calibrated rate w_t and its Jacobian come from ``Model.rate``; the closing rotations and their
-Jacobians from one vectorised pass per turn (same algebra as calib.closure_model, with an arbitrary
+Jacobians from one vectorised pass per turn (same algebra as calib.estimators.closure.model, with an arbitrary
 design). Minimising the sum of squares (plus the log-determinant of a variance model) is maximum
 likelihood; its value is the fit statistic ("deviance"; lower is better).
 """
@@ -31,12 +31,12 @@ import numpy as np
 from scipy.linalg import solve_triangular
 from scipy.spatial.transform import Rotation
 
-from ..closure_fit import solve_lower
-from ..closure_model import left_jacobian, left_jacobian_inv, prefix_products
-from ..quaternion import hamilton
-from ..units import DEG
-from .data import Problem
-from .models import Model
+from calib.diagnosis.data import Problem
+from calib.diagnosis.models import Model
+from calib.estimators.closure.fit import solve_lower
+from calib.estimators.closure.model import left_jacobian, left_jacobian_inv, prefix_products
+from calib.numerics.quaternion import hamilton
+from calib.units import DEG
 
 _IDENTITY_Q = np.array([0.0, 0.0, 0.0, 1.0])
 _CHUNK = 2_500_000  # elements of the (L, B, 3, P) Jacobian processed at once
@@ -347,7 +347,7 @@ class Fit:
     rank: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
-def _pinv_solve(A: np.ndarray, g: np.ndarray, rcond: float = 1e-10) -> tuple[np.ndarray, np.ndarray]:
+def pinv_solve(A: np.ndarray, g: np.ndarray, rcond: float = 1e-10) -> tuple[np.ndarray, np.ndarray]:
     """Minimum-norm solutions of A x = g for stacked symmetric A (R, P, P), in scaled coordinates, and ranks."""
     d = np.sqrt(np.maximum(np.einsum("rpp->rp", A), 1e-300))
     An = A / (d[:, :, None] * d[:, None, :])
@@ -395,7 +395,7 @@ def gauss_newton(
     for it in range(1, max_iter + 1):  # noqa: B007 - the count is returned after the loop
         A = np.einsum("rmp,rmq->rpq", sys_.J, sys_.J)
         g = np.einsum("rmp,rm->rp", sys_.J, sys_.res)
-        step, rank = _pinv_solve(A, -g)
+        step, rank = pinv_solve(A, -g)
         std = np.sqrt(np.maximum(np.einsum("rpp->rp", covariance(A)), 0.0))
         small = np.all((np.abs(step) <= tol * np.where(np.isfinite(std), std, np.inf)) | (step == 0), axis=1)
         lam = np.ones(R)
@@ -415,7 +415,7 @@ def gauss_newton(
         if conv.all():
             break
     A = np.einsum("rmp,rmq->rpq", sys_.J, sys_.J)
-    _, rank = _pinv_solve(A, np.zeros((R, model.P)))
+    _, rank = pinv_solve(A, np.zeros((R, model.P)))
     M = sys_.res.shape[1] - 3 * int(prob.layout.moves.sum())  # a re-orientation's closure rows are empty
     dof = M - rank
     return Fit(psi, dev, A, dof.astype(float), sys_, it, conv, rank)

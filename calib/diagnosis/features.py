@@ -18,9 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..stage import AXES
-from .data import Layout, Problem
-from .engine import System
+from calib.diagnosis.data import Layout, Problem
+from calib.diagnosis.engine import System
+from calib.stages.stage import AXES
 
 SIGNED = "signed"
 UPPER = "upper"

@@ -6,11 +6,11 @@ from typing import Any
 
 import numpy as np
 
-from ..closure_fit import ClosureData, start_values
-from ..errors import CalibrationError, ProtocolError
-from .data import Problem
-from .engine import Fit, gauss_newton, score_statistic, system
-from .models import Model
+from calib.diagnosis.data import Problem
+from calib.diagnosis.engine import Fit, gauss_newton, score_statistic, system
+from calib.diagnosis.models import Model
+from calib.errors import CalibrationError, ProtocolError
+from calib.estimators.closure.fit import ClosureData, start_values
 
 
 def still_means(prob: Problem) -> tuple[np.ndarray, np.ndarray]:
@@ -27,7 +27,7 @@ def still_means(prob: Problem) -> tuple[np.ndarray, np.ndarray]:
 
 
 def nominal_start(prob: Problem) -> np.ndarray:
-    """Starting values (R, 6) from the stills and the integrated turns (calib.closure_fit.start_values)."""
+    """Starting values (R, 6) from the stills and the integrated turns (calib.estimators.closure.fit.start_values)."""
     mean, cnt = still_means(prob)
     data = ClosureData(prob.turn.m, prob.dt, mean, np.broadcast_to(cnt, (prob.R, cnt.size)).copy(), prob.sigma)
     theta, _, rank = start_values(data)

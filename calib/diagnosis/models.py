@@ -25,8 +25,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..effects import catalogue_specs
-from .data import Inputs
+from calib.diagnosis.data import Inputs
+from calib.effects import catalogue_specs
 
 R0_DPS = 1000.0  # reference rate of the nonlinearity, deg/s
 

@@ -18,10 +18,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..units import DEG
-from .data import Inputs, Layout, Problem, build_problem
-from .engine import closure_pass
-from .models import R0_DPS, Model
+from calib.diagnosis.data import Inputs, Layout, Problem, build_problem
+from calib.diagnosis.engine import closure_pass
+from calib.diagnosis.models import R0_DPS, Model
+from calib.units import DEG
 
 
 @dataclass

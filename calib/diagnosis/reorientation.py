@@ -1,12 +1,12 @@
 """Recordings of re-orientations between rests (imu_tk's multi-position protocol), set up for the diagnosis.
 
 The diagnosis compares such a recording with its simulation on the constraints the multi-position
-calibration uses (calib.multi_position): zero rate at every rest, and for every motion between two
+calibration uses (calib.estimators.multi_position.estimator): zero rate at every rest, and for every motion between two
 rests the gravity its calibrated rotation carries from the rest after onto the rest before. So:
 
 - the accelerometer is calibrated first (on the rests, jointly with the gyroscope, as ``gyrocal
   calibrate`` does) and the diagnosis reads gravity from the calibrated specific force;
-- each rest keeps the samples its accelerometer mean is taken over (``calib.accel.rest_spans``) and
+- each rest keeps the samples its accelerometer mean is taken over (``calib.estimators.accel.rest_spans``) and
   each motion is integrated over everything between two such rests;
 - a motion that is a full turn stays a turn (it closes); every other motion is a re-orientation whose
   reference rotation is the motion as that first calibration integrates it, so that the closing
@@ -19,12 +19,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..accel import AccelCalibration, rest_spans
-from ..multi_position import calibrate_multi_position, motions_between_rests
-from ..recording import Recording
-from ..stage import Stage
-from .data import REORIENTATION, Layout
-from .null import window_rotations
+from calib.diagnosis.data import REORIENTATION, Layout
+from calib.diagnosis.null import window_rotations
+from calib.estimators.accel import AccelCalibration, rest_spans
+from calib.estimators.multi_position.estimator import calibrate_multi_position, motions_between_rests
+from calib.recording import Recording
+from calib.stages.stage import Stage
 
 
 @dataclass(frozen=True)
@@ -56,7 +56,7 @@ class Reorientations:
 
 
 def prepare(rec: Recording, stages: list[Stage]) -> Reorientations:
-    """Calibrate accelerometer and gyroscope from the re-orientations (calib.multi_position) and lay the recording
+    """Calibrate accelerometer and gyroscope from the re-orientations (calib.estimators.multi_position.estimator) and lay the recording
     out as rests and the windows between them. Raises the calibration's ProtocolError or CalibrationError."""
     result = calibrate_multi_position(rec, stages)
     acc = AccelCalibration.from_dict(result.quality["accelerometer"])

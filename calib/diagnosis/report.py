@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..stage import AXES
-from .assemble import Diagnosis
+from calib.diagnosis.assemble import Diagnosis
+from calib.stages.stage import AXES
 
 _CSS = """
 body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1100px; color: #222; }

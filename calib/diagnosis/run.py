@@ -9,43 +9,26 @@ from dataclasses import replace
 import numpy as np
 from scipy.stats import norm
 
-from ..api import pointing_to, protocol_stages
-from ..effects import CATALOGUE
-from ..errors import GyrocalError, ProtocolError, RecordingError, RecordingTooLong
-from ..recording import Recording
-from ..section import Section
-from ..stage import AXES, Stage
-from ..stages import resolve_stages
-from .assemble import Diagnosis, assemble_diagnosis
-from .data import (
-    Problem,
-    build_problem,
-    gravity_proxy,
-    make_layout,
-    sample_intervals,
-    set_design_accel,
-)
-from .engine import Fit, Priors, gauss_newton, system
-from .features import SIGNED, compute_features
-from .fitting import fit_nominal
-from .models import Model
-from .null import Replay, make_replay, replicate_problems, with_effects
-from .reorientation import prepare as prepare_reorientations
-from .rivals import Worlds
-from .saturation import Plateau, find_plateaus, plateau_caps
-from .select import (
-    ALPHA,
-    Candidate,
-    ModelState,
-    gm_of,
-    informative_count,
-    null_fit,
-    p_value,
-    plan_tests,
-    statistics,
-)
-from .stepwise import select_effects
-from .timebase import TimeBase, analyse_timebase, bridge
+from calib.diagnosis.assemble import Diagnosis, assemble_diagnosis
+from calib.diagnosis.data import Problem, build_problem, gravity_proxy, make_layout, sample_intervals, set_design_accel
+from calib.diagnosis.engine import Fit, Priors, gauss_newton, system
+from calib.diagnosis.features import SIGNED, compute_features
+from calib.diagnosis.fitting import fit_nominal
+from calib.diagnosis.models import Model
+from calib.diagnosis.null import Replay, make_replay, replicate_problems, with_effects
+from calib.diagnosis.reorientation import prepare as prepare_reorientations
+from calib.diagnosis.rivals import Worlds
+from calib.diagnosis.saturation import Plateau, find_plateaus, plateau_caps
+from calib.diagnosis.select import ALPHA, Candidate, ModelState, gm_of, informative_count, null_fit, p_value, plan_tests, statistics
+from calib.diagnosis.stepwise import select_effects
+from calib.diagnosis.timebase import TimeBase, analyse_timebase, bridge
+from calib.effects import CATALOGUE
+from calib.errors import GyrocalError, ProtocolError, RecordingError, RecordingTooLong
+from calib.io.section import Section
+from calib.pipeline import pointing_to, protocol_stages
+from calib.recording import Recording
+from calib.stages.resolve import resolve_stages
+from calib.stages.stage import AXES, Stage
 
 DEFAULT_MAX_SAMPLES = 500_000
 MEMORY_PER_SAMPLE_KB = 15.0  # peak memory of a diagnosis grows by about this per sample (measured, bench/diagnosis_memory.py)
@@ -73,7 +56,7 @@ def diagnose(
 ) -> Diagnosis:
     """Diagnose a recording of the protocol against the nominal model g = K m + b.
 
-    The constraints are those ``calib.api.calibrate_protocol`` calibrates with: ``protocol`` "auto" (what the
+    The constraints are those ``calib.pipeline.calibrate_protocol`` calibrates with: ``protocol`` "auto" (what the
     recording holds), "paper", "ferraris" (rests and full turns) or "multi-position" (rests and the gravity each
     re-orientation carries, with the accelerometer calibrated first); ``sections`` (or the recording's own)
     replace stage detection, as do ``stages``.
@@ -237,7 +220,7 @@ def _check_size(rec: Recording, tb: TimeBase, max_samples: int | None) -> None:
 
 def _check(rec: Recording, host_t: np.ndarray | None, n_boot: int) -> None:
     if not isinstance(rec, Recording):
-        raise RecordingError(f"expected a Recording, got {type(rec).__name__}: read files with calib.io.read_recording")
+        raise RecordingError(f"expected a Recording, got {type(rec).__name__}: read files with calib.io.readers.read_recording")
     if len(rec) < 10:
         raise RecordingError(f"the recording has {len(rec)} samples: record the full protocol (about 30 s)")
     if not np.all(np.isfinite(rec.gyro)) or not np.all(np.isfinite(rec.t)):
@@ -301,7 +284,7 @@ def _clipped_turns(rec: Recording, stages: list[Stage], plateaus: list[Plateau])
 
 def _clipped_axis_priors(layout, clipped: tuple[int, ...], cap_fit: Fit) -> Priors | None:
     """Prior on each scale factor whose every turn was clipped: the value the rebuilt plateaus give."""
-    from .describe import _std
+    from calib.diagnosis.describe import std_of
 
     axes = []
     for ax, name in enumerate(AXES):
@@ -310,7 +293,7 @@ def _clipped_axis_priors(layout, clipped: tuple[int, ...], cap_fit: Fit) -> Prio
             axes.append(ax)
     if not axes:
         return None
-    std = _std(cap_fit)
+    std = std_of(cap_fit)
     k = cap_fit.psi[0, axes]
     sd = np.maximum(std[axes], 2e-3 * np.abs(k))
     return Priors(np.array(axes), k[None, :], sd[None, :])
@@ -327,12 +310,12 @@ def _plateau_priors(plateaus: list[Plateau], model: Model) -> Priors:
 
 def _one_step(prob: Problem, model: Model, psi: np.ndarray, priors: Priors | None) -> np.ndarray:
     """One Gauss-Newton step from psi (the replicates start at their true parameters)."""
-    from .engine import _pinv_solve
+    from calib.diagnosis.engine import pinv_solve
 
     sys_ = system(prob, model, psi, priors)
     A = np.einsum("rmp,rmq->rpq", sys_.J, sys_.J)
     g = np.einsum("rmp,rm->rp", sys_.J, sys_.res)
-    step, _ = _pinv_solve(A, -g)
+    step, _ = pinv_solve(A, -g)
     return psi + step
 
 

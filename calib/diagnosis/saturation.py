@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..recording import Recording
-from ..stages import StageConfig, clip_run_needed
+from calib.recording import Recording
+from calib.stages.config import StageConfig, clip_run_needed
 
 # the stage detector's clipping rule, so that the live flag and the diagnosis agree on what is clipped
 FULL_SCALE_FRACTION = StageConfig.full_scale_fraction

@@ -24,26 +24,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
-from ..effects import catalogue_specs
-from .data import Problem
-from .engine import (
-    Fit,
-    Priors,
-    System,
-    covariance,
-    gauss_newton,
-    profile_information,
-    score_statistic,
-    system,
-)
-from .models import Model
-from .variance import (
-    fit_instability,
-    fit_placement_variance,
-    instability_noncentrality,
-    instability_score,
-    placement_score,
-)
+from calib.diagnosis.data import Problem
+from calib.diagnosis.engine import Fit, Priors, System, covariance, gauss_newton, profile_information, score_statistic, system
+from calib.diagnosis.models import Model
+from calib.diagnosis.variance import fit_instability, fit_placement_variance, instability_noncentrality, instability_score, placement_score
+from calib.effects import catalogue_specs
 
 ALPHA = 0.05  # family-wise false-positive rate on recordings the nominal model explains
 IDENTIFY_MIN = 9.0  # noncentrality a typical effect must reach for the protocol to reveal it
@@ -328,7 +313,7 @@ def fit_state(prob: Problem, state: ModelState, key: str, base_priors: Priors | 
             if np.isfinite(tl.sd[0, j]):
                 psi0[0, s + 3 * j : s + 3 * j + 3] = tl.basis[0, j].T @ tl.tilt[0, j]
         pri = merge_priors(pri, placement_priors(prob, model, psi0), model.P)
-    fit = _refit(prob, model, psi0, pri, variance)
+    fit = refit(prob, model, psi0, pri, variance)
     if variance:
         return _state(prob, model, fit, pri, variance, keys)
     return ModelState(model, fit, pri, variance, keys)
@@ -344,10 +329,10 @@ def _state(prob: Problem, model: Model, fit: Fit, pri: Priors | None, variance: 
 
         def deviance(tp: float) -> float:
             var = dict(others, placement_var=tp)
-            return float(_refit(prob, model, fit.psi, pri, var, max_iter=1).deviance[0])
+            return float(refit(prob, model, fit.psi, pri, var, max_iter=1).deviance[0])
 
         variance["placement_var"] = fit_placement_variance(prob, deviance)
-    fit = _refit(prob, model, fit.psi, pri, variance)
+    fit = refit(prob, model, fit.psi, pri, variance)
     return ModelState(model, fit, pri, variance, keys)
 
 
@@ -365,8 +350,8 @@ def _extend_priors_any(priors: Priors | None, src: Model, dst: Model) -> Priors 
 
 
 def variance_of(prob: Problem, psi: np.ndarray, variance: dict):
-    from .engine import Variance
-    from .variance import instability_variance
+    from calib.diagnosis.engine import Variance
+    from calib.diagnosis.variance import instability_variance
 
     if not variance:
         return None
@@ -403,7 +388,7 @@ def criterion(state: ModelState, pen: float) -> float:
     return float(state.fit.deviance[0]) + pen * (effective_params(state.fit) + extra)
 
 
-def _refit(prob: Problem, model: Model, psi0: np.ndarray, priors: Priors | None, variance: dict, max_iter: int = 10) -> Fit:
+def refit(prob: Problem, model: Model, psi0: np.ndarray, priors: Priors | None, variance: dict, max_iter: int = 10) -> Fit:
     return gauss_newton(prob, model, psi0, priors=priors, variance=variance_of(prob, psi0, variance), max_iter=max_iter)
 
 

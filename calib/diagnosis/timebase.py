@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..recording import Recording
+from calib.recording import Recording
 
 JITTER_FLOOR = 0.01  # of a period: timestamps are never trusted beyond this
 DEVICE_LIKE = 0.02  # timestamps whose intervals scatter less than this (of a period) are the device's own

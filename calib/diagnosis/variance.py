@@ -17,9 +17,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from .data import Problem
-from .engine import Fit, System, Variance, Wander
-from .models import Model
+from calib.diagnosis.data import Problem
+from calib.diagnosis.engine import Fit, System, Variance, Wander
+from calib.diagnosis.models import Model
 
 TAU_GRID_S = (3.0, 10.0, 30.0, 100.0)
 WANDER_REACH = 8.0  # correlation times beyond a turn whose still blocks still inform the wander in it

@@ -50,8 +50,8 @@ terms compose in one vectorised Jacobian) under the names of ``spec.model_params
 
 Units: rates deg/s, times s, specific force g, angles deg, temperature degC."""
 
-from .axes import AxisMisalignment, GSensitivity
-from .base import (
+from calib.effects.axes import AxisMisalignment, GSensitivity
+from calib.effects.base import (
     EFFECTS,
     Effect,
     SensorContext,
@@ -65,12 +65,12 @@ from .base import (
     parse_effect,
     register_effect,
 )
-from .drift import TAU_RANGE_S, TEMP_RESOLUTION_C, BiasDrift, BiasInstability, TemperatureRamp, warmup_temperature
-from .noise import MotionNoise
-from .placement import PlacementError
-from .scale import STANDARD_FULL_SCALES_DPS, Saturation, ScaleAsymmetry, ScaleNonlinearity
-from .spec import DrawContext, EffectSpec, MagnitudeRange
-from .timing import LOSS_BURST, ClockError, SampleLoss
+from calib.effects.drift import TAU_RANGE_S, TEMP_RESOLUTION_C, BiasDrift, BiasInstability, TemperatureRamp, warmup_temperature
+from calib.effects.noise import MotionNoise
+from calib.effects.placement import PlacementError
+from calib.effects.scale import STANDARD_FULL_SCALES_DPS, Saturation, ScaleAsymmetry, ScaleNonlinearity
+from calib.effects.spec import DrawContext, EffectSpec, MagnitudeRange
+from calib.effects.timing import LOSS_BURST, ClockError, SampleLoss
 
 # The effects of the simulation-vs-reality catalogue (each with an ``EffectSpec``), in the documentation's order.
 CATALOGUE: tuple[str, ...] = catalogue()

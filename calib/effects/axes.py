@@ -7,8 +7,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from .base import Effect, SensorContext, SimulationConfigError, _numbers, _usage_error, register_effect
-from .spec import DrawContext, EffectSpec, MagnitudeRange, log_uniform, spread
+from calib.effects.base import Effect, SensorContext, SimulationConfigError, numbers_of, register_effect, usage_error
+from calib.effects.spec import DrawContext, EffectSpec, MagnitudeRange, log_uniform, spread
 
 
 @register_effect
@@ -58,9 +58,9 @@ class AxisMisalignment(Effect):
 
     @classmethod
     def from_text(cls, value: str) -> AxisMisalignment:
-        v = _numbers(value, cls)
+        v = numbers_of(value, cls)
         if len(v) != 3:
-            raise _usage_error(cls, value)
+            raise usage_error(cls, value)
         return cls(np.asarray(v))
 
     def matrix(self, k: np.ndarray) -> np.ndarray:
@@ -127,9 +127,9 @@ class GSensitivity(Effect):
 
     @classmethod
     def from_text(cls, value: str) -> GSensitivity:
-        v = _numbers(value, cls)
+        v = numbers_of(value, cls)
         if len(v) not in (1, 3, 9):
-            raise _usage_error(cls, value)
+            raise usage_error(cls, value)
         return cls(np.asarray(v[0] if len(v) == 1 else v, dtype=float))
 
     def on_sensor(self, m: np.ndarray, ctx: SensorContext, rng: np.random.Generator) -> np.ndarray:

@@ -10,9 +10,9 @@ from typing import Any, ClassVar
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..errors import GyrocalError
-from ..stage import Stage
-from .spec import DrawContext, EffectSpec
+from calib.effects.spec import DrawContext, EffectSpec
+from calib.errors import GyrocalError
+from calib.stages.stage import Stage
 
 
 class SimulationConfigError(GyrocalError, ValueError):
@@ -135,7 +135,7 @@ class Effect:
     @classmethod
     def from_text(cls, value: str) -> Effect:
         """The effect from a CLI value: comma-separated numbers, passed to the constructor in order."""
-        return cls(*_numbers(value, cls))
+        return cls(*numbers_of(value, cls))
 
 
 EFFECTS: dict[str, type[Effect]] = {}
@@ -147,7 +147,7 @@ def register_effect(cls: type[Effect]) -> type[Effect]:
     return cls
 
 
-def _numbers(value: str, cls: type[Effect]) -> list[float]:
+def numbers_of(value: str, cls: type[Effect]) -> list[float]:
     try:
         return [float(v) for v in value.split(",")] if value.strip() else []
     except ValueError:
@@ -180,7 +180,7 @@ def effect_from_dict(d: dict[str, Any]) -> Effect:
         raise SimulationConfigError(f"effect {cls.name!r}: {exc}") from None
 
 
-def _vec3(value: Any, what: str) -> np.ndarray:
+def vec3(value: Any, what: str) -> np.ndarray:
     arr = np.asarray(value, dtype=float)
     if arr.shape == ():
         arr = np.full(3, float(arr))
@@ -189,18 +189,18 @@ def _vec3(value: Any, what: str) -> np.ndarray:
     return arr
 
 
-def _usage_error(cls: type[Effect], value: str) -> SimulationConfigError:
+def usage_error(cls: type[Effect], value: str) -> SimulationConfigError:
     return SimulationConfigError(f"effect {cls.name!r} needs {cls.usage}; got {value!r}")
 
 
-def _one_or_three(v: list[float], cls: type[Effect], value: str) -> np.ndarray:
+def one_or_three(v: list[float], cls: type[Effect], value: str) -> np.ndarray:
     """One number (for every axis) or three (x, y, z), as an array the effect takes."""
     if len(v) not in (1, 3):
-        raise _usage_error(cls, value)
+        raise usage_error(cls, value)
     return np.asarray(v[0] if len(v) == 1 else v, dtype=float)
 
 
-def _positive(value: Any, what: str, allow_zero: bool = False) -> float:
+def positive(value: Any, what: str, allow_zero: bool = False) -> float:
     try:
         v = float(value)
     except (TypeError, ValueError):

@@ -8,19 +8,19 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from .base import (
+from calib.effects.base import (
     Effect,
     SensorContext,
     SensorOutput,
     SimulationConfigError,
-    _numbers,
-    _one_or_three,
-    _positive,
-    _usage_error,
-    _vec3,
+    numbers_of,
+    one_or_three,
+    positive,
     register_effect,
+    usage_error,
+    vec3,
 )
-from .spec import DrawContext, EffectSpec, MagnitudeRange, log_uniform, spread
+from calib.effects.spec import DrawContext, EffectSpec, MagnitudeRange, log_uniform, spread
 
 TEMP_RESOLUTION_C = 1.0 / 256.0  # temperature channel step (256 LSB/degC, a common IMU temperature sensor)
 
@@ -92,28 +92,28 @@ class BiasDrift(Effect):
         d_temp = warmup_temperature(ctx.duration_s, 0.0, rise, tau)
         return cls(np.zeros(3), change / d_temp, rise, tau, temp0), mag
     def __post_init__(self) -> None:
-        object.__setattr__(self, "rate_dps_per_s", _vec3(self.rate_dps_per_s, "BiasDrift.rate_dps_per_s"))
+        object.__setattr__(self, "rate_dps_per_s", vec3(self.rate_dps_per_s, "BiasDrift.rate_dps_per_s"))
         if self.temp_coeff_dps_per_c is not None:
-            object.__setattr__(self, "temp_coeff_dps_per_c", _vec3(self.temp_coeff_dps_per_c, "BiasDrift.temp_coeff_dps_per_c"))
+            object.__setattr__(self, "temp_coeff_dps_per_c", vec3(self.temp_coeff_dps_per_c, "BiasDrift.temp_coeff_dps_per_c"))
         rise = float(self.temp_rise_c)
         if not np.isfinite(rise):
             raise SimulationConfigError(f"BiasDrift.temp_rise_c must be a finite number of degC; got {self.temp_rise_c!r}")
         object.__setattr__(self, "temp_rise_c", rise)
-        object.__setattr__(self, "temp_tau_s", _positive(self.temp_tau_s, "BiasDrift.temp_tau_s"))
+        object.__setattr__(self, "temp_tau_s", positive(self.temp_tau_s, "BiasDrift.temp_tau_s"))
         object.__setattr__(self, "temp0_c", float(self.temp0_c))
 
     @classmethod
     def from_text(cls, value: str) -> BiasDrift:
         groups = value.split(":")
         if len(groups) not in (1, 3, 4):
-            raise _usage_error(cls, value)
-        d = _one_or_three(_numbers(groups[0], cls), cls, value)
+            raise usage_error(cls, value)
+        d = one_or_three(numbers_of(groups[0], cls), cls, value)
         if len(groups) == 1:
             return cls(d)
-        c = _one_or_three(_numbers(groups[1], cls), cls, value)
-        rest = [_numbers(g, cls) for g in groups[2:]]
+        c = one_or_three(numbers_of(groups[1], cls), cls, value)
+        rest = [numbers_of(g, cls) for g in groups[2:]]
         if any(len(r) != 1 for r in rest):
-            raise _usage_error(cls, value)
+            raise usage_error(cls, value)
         return cls(d, c, rest[0][0], *(r[0] for r in rest[1:]))
 
     @property
@@ -167,7 +167,7 @@ class TemperatureRamp(Effect):
         if not np.isfinite(float(self.rise_c)):
             raise SimulationConfigError(f"TemperatureRamp.rise_c must be a finite number; got {self.rise_c!r}")
         object.__setattr__(self, "rise_c", float(self.rise_c))
-        object.__setattr__(self, "tau_s", _positive(self.tau_s, "TemperatureRamp.tau_s"))
+        object.__setattr__(self, "tau_s", positive(self.tau_s, "TemperatureRamp.tau_s"))
         object.__setattr__(self, "temp0_c", float(self.temp0_c))
 
     def on_output(self, out: SensorOutput, rng: np.random.Generator) -> SensorOutput:
@@ -215,14 +215,14 @@ class BiasInstability(Effect):
         mag = log_uniform(rng, cls.spec.drawn.low, cls.spec.drawn.high)
         return cls(mag, rng.uniform(*TAU_RANGE_S)), mag
     def __post_init__(self) -> None:
-        object.__setattr__(self, "sigma_dps", _positive(self.sigma_dps, "BiasInstability.sigma_dps", allow_zero=True))
-        object.__setattr__(self, "tau_s", _positive(self.tau_s, "BiasInstability.tau_s"))
+        object.__setattr__(self, "sigma_dps", positive(self.sigma_dps, "BiasInstability.sigma_dps", allow_zero=True))
+        object.__setattr__(self, "tau_s", positive(self.tau_s, "BiasInstability.tau_s"))
 
     @classmethod
     def from_text(cls, value: str) -> BiasInstability:
-        v = _numbers(value, cls)
+        v = numbers_of(value, cls)
         if len(v) not in (1, 2):
-            raise _usage_error(cls, value)
+            raise usage_error(cls, value)
         return cls(*v)
 
     def path(self, t: np.ndarray, rng: np.random.Generator) -> np.ndarray:

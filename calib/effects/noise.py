@@ -7,7 +7,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from .base import Effect, SensorContext, SimulationConfigError, _numbers, _one_or_three, _positive, _vec3, register_effect
+from calib.effects.base import Effect, SensorContext, SimulationConfigError, numbers_of, one_or_three, positive, register_effect, vec3
 
 
 @register_effect
@@ -19,7 +19,7 @@ class MotionNoise(Effect):
     noise of variance (``ratio`` - 1) sigma^2 per axis on top of the white noise sigma of every sample, so their
     noise variance is ``ratio`` times the rests' (``ratio`` >= 1, one number or one per axis). The rotation
     integrated over a motion then scatters ``ratio`` times more (in variance) than the rests' noise predicts;
-    ``calib.motion_noise`` measures it in the top of the band. CLI value: ``RATIO`` or ``RX,RY,RZ``, optionally followed by ``,THRESHOLD``.
+    ``calib.noise.motion`` measures it in the top of the band. CLI value: ``RATIO`` or ``RX,RY,RZ``, optionally followed by ``,THRESHOLD``.
     """
 
     name: ClassVar[str] = "motion_noise"
@@ -28,18 +28,18 @@ class MotionNoise(Effect):
     threshold_dps: float = 5.0
 
     def __post_init__(self) -> None:
-        r = _vec3(self.ratio, "MotionNoise.ratio")
+        r = vec3(self.ratio, "MotionNoise.ratio")
         if np.any(r < 1.0):
             raise SimulationConfigError(f"MotionNoise.ratio is a variance ratio of at least 1; got {self.ratio!r}")
         object.__setattr__(self, "ratio", r)
-        object.__setattr__(self, "threshold_dps", _positive(self.threshold_dps, "MotionNoise.threshold_dps", allow_zero=True))
+        object.__setattr__(self, "threshold_dps", positive(self.threshold_dps, "MotionNoise.threshold_dps", allow_zero=True))
 
     @classmethod
     def from_text(cls, value: str) -> MotionNoise:
-        v = _numbers(value, cls)
+        v = numbers_of(value, cls)
         if len(v) in (2, 4):
-            return cls(_one_or_three(v[:-1], cls, value), v[-1])
-        return cls(_one_or_three(v, cls, value))
+            return cls(one_or_three(v[:-1], cls, value), v[-1])
+        return cls(one_or_three(v, cls, value))
 
     def on_sensor(self, m: np.ndarray, ctx: SensorContext, rng: np.random.Generator) -> np.ndarray:
         moving = np.linalg.norm(ctx.rate, axis=1) > self.threshold_dps

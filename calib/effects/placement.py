@@ -8,8 +8,8 @@ from typing import ClassVar
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .base import Effect, SimulationConfigError, Trajectory, _numbers, _positive, _usage_error, register_effect
-from .spec import DrawContext, EffectSpec, MagnitudeRange, log_uniform
+from calib.effects.base import Effect, SimulationConfigError, Trajectory, numbers_of, positive, register_effect, usage_error
+from calib.effects.spec import DrawContext, EffectSpec, MagnitudeRange, log_uniform
 
 _UP = np.array([0.0, 0.0, 1.0])  # specific force at rest in the start frame, g
 
@@ -67,10 +67,10 @@ class PlacementError(Effect):
         effect = cls(mag)
         return replace(effect, errors_deg=effect.draw_errors(ctx.turns, rng)), mag
     def __post_init__(self) -> None:
-        object.__setattr__(self, "std_deg", _positive(self.std_deg, "PlacementError.std_deg", allow_zero=True))
+        object.__setattr__(self, "std_deg", positive(self.std_deg, "PlacementError.std_deg", allow_zero=True))
         if self.heading_std_deg is not None:
             object.__setattr__(
-                self, "heading_std_deg", _positive(self.heading_std_deg, "PlacementError.heading_std_deg", allow_zero=True)
+                self, "heading_std_deg", positive(self.heading_std_deg, "PlacementError.heading_std_deg", allow_zero=True)
             )
         if self.errors_deg is not None:
             e = np.asarray(self.errors_deg, dtype=float)
@@ -87,9 +87,9 @@ class PlacementError(Effect):
 
     @classmethod
     def from_text(cls, value: str) -> PlacementError:
-        v = _numbers(value, cls)
+        v = numbers_of(value, cls)
         if len(v) not in (1, 2):
-            raise _usage_error(cls, value)
+            raise usage_error(cls, value)
         return cls(std_deg=v[0], heading_std_deg=v[1] if len(v) == 2 else None)
 
     @property

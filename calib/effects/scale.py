@@ -7,19 +7,19 @@ from typing import ClassVar
 
 import numpy as np
 
-from .base import (
+from calib.effects.base import (
     Effect,
     SensorContext,
     SensorOutput,
     SimulationConfigError,
-    _numbers,
-    _one_or_three,
-    _positive,
-    _usage_error,
-    _vec3,
+    numbers_of,
+    one_or_three,
+    positive,
     register_effect,
+    usage_error,
+    vec3,
 )
-from .spec import DrawContext, EffectSpec, MagnitudeRange, log_uniform, spread
+from calib.effects.spec import DrawContext, EffectSpec, MagnitudeRange, log_uniform, spread
 
 STANDARD_FULL_SCALES_DPS = (125.0, 245.0, 250.0, 500.0, 1000.0)  # gyro ranges of consumer parts
 
@@ -60,14 +60,14 @@ class ScaleAsymmetry(Effect):
         mag = log_uniform(rng, cls.spec.drawn.low, cls.spec.drawn.high)
         return cls(spread(rng, mag)), mag
     def __post_init__(self) -> None:
-        s = _vec3(self.asymmetry, "ScaleAsymmetry.asymmetry")
+        s = vec3(self.asymmetry, "ScaleAsymmetry.asymmetry")
         if np.any(np.abs(s) >= 0.5):
             raise SimulationConfigError(f"ScaleAsymmetry.asymmetry must be smaller than 0.5 in size; got {self.asymmetry!r}")
         object.__setattr__(self, "asymmetry", s)
 
     @classmethod
     def from_text(cls, value: str) -> ScaleAsymmetry:
-        return cls(_one_or_three(_numbers(value, cls), cls, value))
+        return cls(one_or_three(numbers_of(value, cls), cls, value))
 
     def on_sensor(self, m: np.ndarray, ctx: SensorContext, rng: np.random.Generator) -> np.ndarray:
         g = m * ctx.k + ctx.b
@@ -113,20 +113,20 @@ class ScaleNonlinearity(Effect):
         mag = log_uniform(rng, cls.spec.drawn.low, cls.spec.drawn.high)
         return cls(spread(rng, mag)), mag
     def __post_init__(self) -> None:
-        object.__setattr__(self, "coeff", _vec3(self.coeff, "ScaleNonlinearity.coeff"))
-        object.__setattr__(self, "ref_rate_dps", _positive(self.ref_rate_dps, "ScaleNonlinearity.ref_rate_dps"))
+        object.__setattr__(self, "coeff", vec3(self.coeff, "ScaleNonlinearity.coeff"))
+        object.__setattr__(self, "ref_rate_dps", positive(self.ref_rate_dps, "ScaleNonlinearity.ref_rate_dps"))
 
     @classmethod
     def from_text(cls, value: str) -> ScaleNonlinearity:
         groups = value.split(":")
         if len(groups) not in (1, 2):
-            raise _usage_error(cls, value)
-        n = _one_or_three(_numbers(groups[0], cls), cls, value)
+            raise usage_error(cls, value)
+        n = one_or_three(numbers_of(groups[0], cls), cls, value)
         if len(groups) == 1:
             return cls(n)
-        r0 = _numbers(groups[1], cls)
+        r0 = numbers_of(groups[1], cls)
         if len(r0) != 1:
-            raise _usage_error(cls, value)
+            raise usage_error(cls, value)
         return cls(n, r0[0])
 
     def on_sensor(self, m: np.ndarray, ctx: SensorContext, rng: np.random.Generator) -> np.ndarray:

@@ -6,7 +6,7 @@
 
 from __future__ import annotations
 
-from .base import EFFECTS, catalogue_specs, registered
+from calib.effects.base import EFFECTS, catalogue_specs, registered
 
 
 def _cell(text: str) -> str:

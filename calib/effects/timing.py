@@ -7,8 +7,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from .base import Effect, SensorOutput, SimulationConfigError, Trajectory, _numbers, register_effect
-from .spec import DrawContext, EffectSpec, MagnitudeRange, log_uniform
+from calib.effects.base import Effect, SensorOutput, SimulationConfigError, Trajectory, numbers_of, register_effect
+from calib.effects.spec import DrawContext, EffectSpec, MagnitudeRange, log_uniform
 
 LOSS_BURST = (1, 12)  # samples lost together: one BLE packet carries 1-12 samples
 
@@ -69,7 +69,7 @@ class SampleLoss(Effect):
 
     @classmethod
     def from_text(cls, value: str) -> SampleLoss:
-        v = _numbers(value, cls)
+        v = numbers_of(value, cls)
         if len(v) not in (1, 2) or (len(v) == 2 and v[1] != int(v[1])):
             raise SimulationConfigError(f"effect 'sample_loss' needs {cls.usage}; got {value!r}")
         return cls(prob=v[0], burst=int(v[1]) if len(v) == 2 else 1)

@@ -8,14 +8,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..effects import (
-    SimulationConfigError,
-)
-from ..stage import AXES
-from .protocol import ProtocolScript, Segment, Still, Turn, _draw_turn_params, _float, _turn_angles
-from .ranges import _N_PROFILE, B_RANGE_DPS, K_RANGE, STILL_S
-from .simulate import SensorParams, _check_seed
-from .trajectory import _n_samples, _segment_motion
+from calib.effects import SimulationConfigError
+from calib.simulator.protocol import ProtocolScript, Segment, Still, Turn, as_float, draw_turn_params, turn_angles
+from calib.simulator.ranges import B_RANGE_DPS, K_RANGE, N_PROFILE, STILL_S
+from calib.simulator.simulate import SensorParams, check_seed
+from calib.simulator.trajectory import n_samples_of, segment_motion
+from calib.stages.stage import AXES
 
 
 @dataclass(frozen=True, eq=False)
@@ -111,20 +109,20 @@ def simulate_batch(
     (k, b) with shapes (3,) or (n_runs, 3) fixes the sensor parameters, None draws them per run.
     ``noise`` is the reading white-noise std (deg/s). Deterministic by seed.
     """
-    seed = _check_seed(seed)
+    seed = check_seed(seed)
     if isinstance(n_runs, bool) or not isinstance(n_runs, (int, np.integer)) or n_runs < 1:
         raise SimulationConfigError(f"n_runs must be a whole number >= 1; got {n_runs!r}")
-    noise = _float(noise, "noise", positive=False)
+    noise = as_float(noise, "noise", positive=False)
     if noise < 0:
         raise SimulationConfigError("noise is a standard deviation and must be >= 0")
-    fs = _float(fs, "fs")
-    angles = _turn_angles(angle_deg)
+    fs = as_float(fs, "fs")
+    angles = turn_angles(angle_deg)
     dt = 1.0 / fs
     R = int(n_runs)
     ss_params, ss_motion, ss_noise = np.random.SeedSequence(seed).spawn(3)
     k, b = _batch_params(params, R, np.random.default_rng(ss_params))
 
-    drawn = _draw_turn_params(np.random.default_rng(ss_motion), 3 * R)
+    drawn = draw_turn_params(np.random.default_rng(ss_motion), 3 * R)
     n_turn = np.maximum(2, np.round(drawn["duration_s"] * fs).astype(np.int64)).reshape(R, 3)
     tilt = drawn["tilt"].reshape(R, 3, 2)
     axes = np.empty((R, 3, 3))
@@ -134,12 +132,12 @@ def simulate_batch(
         axes[:, i, other] = tilt[:, i]
     axes /= np.linalg.norm(axes, axis=2, keepdims=True)
 
-    n0 = _n_samples(still_s, fs, "still_s", 1)
+    n0 = n_samples_of(still_s, fs, "still_s", 1)
     starts = n0 + np.concatenate([np.zeros((R, 1), np.int64), np.cumsum(n_turn + n0, axis=1)[:, :2]], axis=1)
     ends = starts + n_turn
     n = int(ends[:, 2].max()) + n0
 
-    rates_flat, _ = _segment_motion(
+    rates_flat, _ = segment_motion(
         n_turn.ravel(),
         axes.reshape(-1, 3),
         np.tile(np.radians(angles), R),
@@ -180,5 +178,5 @@ def simulate_batch(
         angle_deg=angles,
         tilt=tilt,
         wobble_deg=drawn["wobble_deg"].reshape(R, 3, 2, 2),
-        profile=drawn["profile"].reshape(R, 3, _N_PROFILE),
+        profile=drawn["profile"].reshape(R, 3, N_PROFILE),
     )

@@ -18,9 +18,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..recording import Recording
-from .protocol import Motion, ProtocolScript, Segment, Still, Turn
-from .ranges import STILL_S
+from calib.recording import Recording
+from calib.simulator.protocol import Motion, ProtocolScript, Segment, Still, Turn
+from calib.simulator.ranges import STILL_S
 
 LINEAR = (0.25, 0.5, 0.75)  # evenly spread speed-profile controls: a steady run between a smooth start and stop
 
@@ -88,8 +88,8 @@ def rate_table_script(rates_dps: Sequence[float], run_s: float, rest_s: float = 
 
 def with_accelerometer_error(rec: Recording, rng: np.random.Generator) -> tuple[Recording, np.ndarray]:
     """``rec`` with its accelerometer read through a random scale (0.97-1.03), offset (+-50 mg) and
-    misalignment (+-0.01 rad) in ``calib.accel``'s model; and the true (scale, offset)."""
-    from ..accel import AccelCalibration
+    misalignment (+-0.01 rad) in ``calib.estimators.accel``'s model; and the true (scale, offset)."""
+    from calib.estimators.accel import AccelCalibration
 
     if rec.accel is None:
         return rec, np.full(6, np.nan)

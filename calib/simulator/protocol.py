@@ -9,14 +9,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..effects import (
-    SimulationConfigError,
-)
-from ..stage import AXES
-from .ranges import _N_PROFILE, _WOBBLE_HARMONIC_SCALE, STILL_S, TILT_RANGE, TURN_DURATION_S, WOBBLE_DEG
+from calib.effects import SimulationConfigError
+from calib.simulator.ranges import N_PROFILE, STILL_S, TILT_RANGE, TURN_DURATION_S, WOBBLE_DEG, WOBBLE_HARMONIC_SCALE
+from calib.stages.stage import AXES
 
 
-def _float(value: Any, what: str, positive: bool = True) -> float:
+def as_float(value: Any, what: str, positive: bool = True) -> float:
     try:
         v = float(value)
     except (TypeError, ValueError):
@@ -30,9 +28,9 @@ def _profile(value: Any, what: str) -> np.ndarray | None:
     if value is None:
         return None
     p = np.asarray(value, dtype=float)
-    if p.shape != (_N_PROFILE,) or np.any(p < 0) or np.any(p > 1) or np.any(np.diff(p) < 0):
+    if p.shape != (N_PROFILE,) or np.any(p < 0) or np.any(p > 1) or np.any(np.diff(p) < 0):
         raise SimulationConfigError(
-            f"{what}.profile must be {_N_PROFILE} increasing numbers in [0, 1] (inner Bezier control points); got {value!r}"
+            f"{what}.profile must be {N_PROFILE} increasing numbers in [0, 1] (inner Bezier control points); got {value!r}"
         )
     return p
 
@@ -44,7 +42,7 @@ class Still:
     duration_s: float = STILL_S
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "duration_s", _float(self.duration_s, "Still.duration_s"))
+        object.__setattr__(self, "duration_s", as_float(self.duration_s, "Still.duration_s"))
 
 
 @dataclass(frozen=True, eq=False)
@@ -77,12 +75,12 @@ class Turn:
             if a.shape != (3,) or not np.all(np.isfinite(a)) or np.linalg.norm(a) < 1e-9:
                 raise SimulationConfigError(f"Turn.axis must be 'x', 'y', 'z' or a nonzero 3-vector; got {self.axis!r}")
             object.__setattr__(self, "axis", a / np.linalg.norm(a))
-        angle = _float(self.angle_deg, "Turn.angle_deg", positive=False)
+        angle = as_float(self.angle_deg, "Turn.angle_deg", positive=False)
         if angle == 0:
             raise SimulationConfigError("Turn.angle_deg must be nonzero (use Still for no motion)")
         object.__setattr__(self, "angle_deg", angle)
         if self.duration_s is not None:
-            object.__setattr__(self, "duration_s", _float(self.duration_s, "Turn.duration_s"))
+            object.__setattr__(self, "duration_s", as_float(self.duration_s, "Turn.duration_s"))
         if self.tilt is not None:
             t = np.asarray(self.tilt, dtype=float)
             if t.shape == () and t == 0:
@@ -119,7 +117,7 @@ class Motion:
         if r.shape != (3,) or not np.all(np.isfinite(r)):
             raise SimulationConfigError(f"Motion.rotvec_deg must be 3 finite numbers in deg; got {self.rotvec_deg!r}")
         object.__setattr__(self, "rotvec_deg", r)
-        object.__setattr__(self, "duration_s", _float(self.duration_s, "Motion.duration_s"))
+        object.__setattr__(self, "duration_s", as_float(self.duration_s, "Motion.duration_s"))
         object.__setattr__(self, "profile", _profile(self.profile, "Motion"))
 
 
@@ -150,18 +148,18 @@ EXTENDED_SLOW_S = (6.0, 8.0)  # slow turn duration, s: mean rate 45-60 deg/s
 EXTENDED_FAST_S = (1.2, 1.8)  # fast turn duration, s: mean rate 200-300 deg/s, peaks near 500 deg/s
 
 
-def _draw_turn_params(rng: np.random.Generator, m: int) -> dict[str, np.ndarray]:
+def draw_turn_params(rng: np.random.Generator, m: int) -> dict[str, np.ndarray]:
     """Random hand-turn parameters for m turns (paper Section 3 and Section 2.3)."""
     amp = rng.uniform(*WOBBLE_DEG, m)
     return {
         "duration_s": rng.uniform(*TURN_DURATION_S, m),
         "tilt": rng.uniform(-TILT_RANGE, TILT_RANGE, (m, 2)),
-        "wobble_deg": amp[:, None, None] * rng.uniform(-1.0, 1.0, (m, 2, 2)) * _WOBBLE_HARMONIC_SCALE[None, :, None],
-        "profile": np.sort(rng.uniform(0.0, 1.0, (m, _N_PROFILE)), axis=1),
+        "wobble_deg": amp[:, None, None] * rng.uniform(-1.0, 1.0, (m, 2, 2)) * WOBBLE_HARMONIC_SCALE[None, :, None],
+        "profile": np.sort(rng.uniform(0.0, 1.0, (m, N_PROFILE)), axis=1),
     }
 
 
-def _turn_angles(angle_deg: float | ArrayLike) -> np.ndarray:
+def turn_angles(angle_deg: float | ArrayLike) -> np.ndarray:
     angles = np.asarray(angle_deg, dtype=float)
     if angles.ndim == 0:
         angles = np.full(3, float(angles))
@@ -182,8 +180,8 @@ def paper_protocol_script(
     random choice of the turns (duration, tilt, wobble, speed profile) is drawn now and fixed in the
     script; without, ``simulate`` draws them.
     """
-    angles = _turn_angles(angle_deg)
-    drawn = _draw_turn_params(rng, 3) if rng is not None else None
+    angles = turn_angles(angle_deg)
+    drawn = draw_turn_params(rng, 3) if rng is not None else None
     segs: list[Segment] = [Still(still_s)]
     for i, axis in enumerate(AXES):
         if drawn is None:
@@ -222,7 +220,7 @@ def extended_protocol_script(
             raise SimulationConfigError(f"{what} must be a range (low, high) of positive durations in s; got {(lo, hi)!r}")
     kinds = [(sign, rng_range) for rng_range in (slow_s, fast_s) for sign in (1.0, -1.0)]
     n = 3 * len(kinds)
-    drawn = _draw_turn_params(rng, n) if rng is not None else None
+    drawn = draw_turn_params(rng, n) if rng is not None else None
     segs: list[Segment] = [Still(still_s)]
     j = 0
     for axis in AXES:

@@ -14,5 +14,5 @@ STILL_S = 3.0  # rest before, between and after the turns
 ACCEL_NOISE_G = 0.002
 GRAVITY_UP = np.array([0.0, 0.0, 1.0])  # specific force at rest, start frame, g
 _BEZIER_DEGREE = 6  # control points 0, 0, p1, p2, p3, 1, 1: zero rate at both ends
-_N_PROFILE = _BEZIER_DEGREE - 3
-_WOBBLE_HARMONIC_SCALE = np.array([1.0, 0.5])  # amplitude of sin(pi s), sin(2 pi s)
+N_PROFILE = _BEZIER_DEGREE - 3
+WOBBLE_HARMONIC_SCALE = np.array([1.0, 0.5])  # amplitude of sin(pi s), sin(2 pi s)

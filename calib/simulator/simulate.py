@@ -8,20 +8,12 @@ from typing import Any
 
 import numpy as np
 
-from ..effects import (
-    Effect,
-    Saturation,
-    SensorContext,
-    SensorOutput,
-    SimulationConfigError,
-    Trajectory,
-    check_effects,
-)
-from ..recording import Recording, RecordingMeta
-from ..stage import AXES, Stage
-from .protocol import ProtocolScript, _float, paper_protocol_script
-from .ranges import ACCEL_NOISE_G, B_RANGE_DPS, K_RANGE
-from .trajectory import build_trajectory
+from calib.effects import Effect, Saturation, SensorContext, SensorOutput, SimulationConfigError, Trajectory, check_effects
+from calib.recording import Recording, RecordingMeta
+from calib.simulator.protocol import ProtocolScript, as_float, paper_protocol_script
+from calib.simulator.ranges import ACCEL_NOISE_G, B_RANGE_DPS, K_RANGE
+from calib.simulator.trajectory import build_trajectory
+from calib.stages.stage import AXES, Stage
 
 
 @dataclass(frozen=True, eq=False)
@@ -108,7 +100,7 @@ class Truth:
         }
 
 
-def _check_seed(seed: Any) -> int:
+def check_seed(seed: Any) -> int:
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise SimulationConfigError(f"seed must be a whole number >= 0; got {seed!r}")
     return int(seed)
@@ -134,9 +126,9 @@ def simulate(
     Returns the recording (t = i / fs, seq = i, both with gaps if samples are lost) and the truth.
     Same seed and arguments give the same result.
     """
-    seed = _check_seed(seed)
-    noise = _float(noise, "noise", positive=False)
-    accel_noise_g = _float(accel_noise_g, "accel_noise_g", positive=False)
+    seed = check_seed(seed)
+    noise = as_float(noise, "noise", positive=False)
+    accel_noise_g = as_float(accel_noise_g, "accel_noise_g", positive=False)
     if noise < 0 or accel_noise_g < 0:
         raise SimulationConfigError("noise and accel_noise_g are standard deviations and must be >= 0")
     if params is not None and not isinstance(params, SensorParams):

@@ -8,13 +8,10 @@ from typing import Literal, cast
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..effects import (
-    SimulationConfigError,
-    Trajectory,
-)
-from ..stage import AXES, Axis, Stage
-from .protocol import Motion, ProtocolScript, Segment, Still, _draw_turn_params, _float
-from .ranges import GRAVITY_UP
+from calib.effects import SimulationConfigError, Trajectory
+from calib.simulator.protocol import Motion, ProtocolScript, Segment, Still, as_float, draw_turn_params
+from calib.simulator.ranges import GRAVITY_UP
+from calib.stages.stage import AXES, Axis, Stage
 
 
 def _nd_rotations_supported() -> bool:
@@ -76,7 +73,7 @@ def _bezier_progress(tau: np.ndarray, inner: np.ndarray) -> np.ndarray:
     )
 
 
-def _segment_motion(
+def segment_motion(
     lengths: np.ndarray,
     axes: np.ndarray,
     angles_rad: np.ndarray,
@@ -142,7 +139,7 @@ class _Resolved:
     wobble_deg: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
 
 
-def _n_samples(duration_s: float, fs: float, what: str, minimum: int) -> int:
+def n_samples_of(duration_s: float, fs: float, what: str, minimum: int) -> int:
     n = int(round(duration_s * fs))
     if n < minimum:
         raise SimulationConfigError(f"{what} of {duration_s} s is under {minimum} samples at {fs} Hz; make it longer")
@@ -151,15 +148,15 @@ def _n_samples(duration_s: float, fs: float, what: str, minimum: int) -> int:
 
 def _resolve(seg: Segment, fs: float, rng: np.random.Generator) -> _Resolved:
     if isinstance(seg, Still):
-        return _Resolved("still", _n_samples(seg.duration_s, fs, "Still", 1))
+        return _Resolved("still", n_samples_of(seg.duration_s, fs, "Still", 1))
     if isinstance(seg, Motion):
         rotvec = np.asarray(seg.rotvec_deg, dtype=float)
         angle = float(np.linalg.norm(rotvec))
         axis = rotvec / angle if angle > 0 else np.array([1.0, 0.0, 0.0])
-        profile = np.asarray(seg.profile if seg.profile is not None else _draw_turn_params(rng, 1)["profile"][0], dtype=float)
-        return _Resolved("motion", _n_samples(seg.duration_s, fs, "Motion", 2), axis, None, angle, profile)
+        profile = np.asarray(seg.profile if seg.profile is not None else draw_turn_params(rng, 1)["profile"][0], dtype=float)
+        return _Resolved("motion", n_samples_of(seg.duration_s, fs, "Motion", 2), axis, None, angle, profile)
     need = seg.duration_s is None or seg.tilt is None or seg.profile is None or not isinstance(seg.wobble_deg, np.ndarray)
-    drawn = {k: v[0] for k, v in _draw_turn_params(rng, 1).items()} if need else {}
+    drawn = {k: v[0] for k, v in draw_turn_params(rng, 1).items()} if need else {}
     duration = seg.duration_s if seg.duration_s is not None else float(drawn["duration_s"])
     named: str | np.ndarray = seg.axis if isinstance(seg.axis, str) else np.asarray(seg.axis, dtype=float)
     label: Axis
@@ -177,7 +174,7 @@ def _resolve(seg: Segment, fs: float, rng: np.random.Generator) -> _Resolved:
             wobble = wobble * (seg.wobble_deg / np.max(np.abs(wobble))) if np.any(wobble) else wobble
     return _Resolved(
         "turn",
-        _n_samples(duration, fs, "Turn", 2),
+        n_samples_of(duration, fs, "Turn", 2),
         tilted_axis(named, tilt),
         label,
         seg.angle_deg,
@@ -193,13 +190,13 @@ def build_trajectory(script: ProtocolScript, fs: float, rng: np.random.Generator
     """
     if not isinstance(script, ProtocolScript):
         raise SimulationConfigError(f"script must be a ProtocolScript; got {type(script).__name__}")
-    fs = _float(fs, "fs")
+    fs = as_float(fs, "fs")
     dt = 1.0 / fs
     res = [_resolve(seg, fs, rng) for seg in script.segments]
     moving = [r for r in res if r.kind != "still"]
     rates_flat, quats_flat = np.empty((0, 3)), np.empty((0, 4))
     if moving:
-        rates_flat, poses_flat = _segment_motion(
+        rates_flat, poses_flat = segment_motion(
             np.array([r.n for r in moving]),
             np.array([r.axis for r in moving]),
             np.radians([r.angle_deg for r in moving]),

@@ -7,9 +7,9 @@ from typing import Literal
 
 import numpy as np
 
-from ..errors import GyrocalError
-from ..stage import Stage
-from ..units import FULL_TURN_DEG
+from calib.errors import GyrocalError
+from calib.stages.stage import Stage
+from calib.units import FULL_TURN_DEG
 
 
 class StageConfigError(GyrocalError, ValueError):

@@ -8,11 +8,11 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..errors import GyrocalError, RecordingError
-from ..recording import Recording
-from ..stage import AXES, FLAG_COUNTER_GAP, FLAG_SATURATED, Axis, Stage, StageKind
-from .config import LiveState, StageConfig, StageEvent, clip_run_needed
-from .prefix_sums import _D1, _D2, _DT, _GAP, _MDT, _NCOL, _S1, _S2, _SAT, _TDT, _Store
+from calib.errors import GyrocalError, RecordingError
+from calib.recording import Recording
+from calib.stages.config import LiveState, StageConfig, StageEvent, clip_run_needed
+from calib.stages.prefix_sums import D1, D2, DT, GAP, MDT, NCOL, S1, S2, SAT, TDT, PrefixStore
+from calib.stages.stage import AXES, FLAG_COUNTER_GAP, FLAG_SATURATED, Axis, Stage, StageKind
 
 
 def _positive(value: object) -> bool:
@@ -48,7 +48,7 @@ class StageTracker:
         self._rank = int(cfg.floor_rank)
         self._batch = max(1, int(round(cfg.update_interval_s * fs)))
         self._keep_back = 2 * (self._m + self._min_still + self._w) + 8
-        self._store = _Store(4 * self._keep_back + 4 * self._batch)
+        self._store = PrefixStore(4 * self._keep_back + 4 * self._batch)
         # Input not yet processed.
         self._pending: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]] = []
         self._npending = 0
@@ -110,9 +110,9 @@ class StageTracker:
         if self._gap_start is not None:
             s = self._store.p[d - self._store.base] - self._gap_row
             if self._bias_before is None:
-                angle = s[_MDT] + self._x0 * s[_DT]
+                angle = s[MDT] + self._x0 * s[DT]
             else:
-                angle = s[_MDT] - self._bias_before * s[_DT]
+                angle = s[MDT] - self._bias_before * s[DT]
         return LiveState(
             still_for_s=(d - self._run_start) / self.fs if still else 0.0,
             moving=not still,
@@ -220,21 +220,21 @@ class StageTracker:
         xr = x - self._x0
         assert self._last_x is not None  # set with the first sample
         d = np.diff(x, axis=0, prepend=self._last_x[None, :])
-        values = np.empty((k, _NCOL))
-        values[:, _S1] = xr
-        values[:, _S2] = xr * xr
-        values[:, _D1] = d
-        values[:, _D2] = d * d
-        values[:, _DT] = dt
-        values[:, _MDT] = xr * dt[:, None]
-        values[:, _TDT] = (t - self._t0) * dt
-        values[:, _SAT] = self._saturated(x)
+        values = np.empty((k, NCOL))
+        values[:, S1] = xr
+        values[:, S2] = xr * xr
+        values[:, D1] = d
+        values[:, D2] = d * d
+        values[:, DT] = dt
+        values[:, MDT] = xr * dt[:, None]
+        values[:, TDT] = (t - self._t0) * dt
+        values[:, SAT] = self._saturated(x)
         if seq is None:
-            values[:, _GAP] = 0.0
+            values[:, GAP] = 0.0
         else:
             seq = seq.astype(np.int64)
             step = np.diff(seq, prepend=seq[0] - 1 if self._last_seq is None else self._last_seq)
-            values[:, _GAP] = step != 1
+            values[:, GAP] = step != 1
             self._last_seq = int(seq[-1])
         keep_from = min(self._next, self._blocks * self._nb) - self._keep_back
         self._store.append(x, t, values, keep_from)
@@ -271,7 +271,7 @@ class StageTracker:
         starts = np.arange(self._blocks, done) * nb
         s = st.p[starts + nb - st.base] - st.p[starts + 1 - st.base]
         m = nb - 1
-        var = np.maximum(s[:, _D2] / m - (s[:, _D1] / m) ** 2, 0.0)
+        var = np.maximum(s[:, D2] / m - (s[:, D1] / m) ** 2, 0.0)
         sigma = np.sqrt(var.mean(axis=1) / 2.0)
         if self._floor_after.size <= done:
             self._floor_after = np.concatenate([self._floor_after, np.full(self._floor_after.size + done, np.nan)])
@@ -292,7 +292,7 @@ class StageTracker:
         if n - a >= 3:
             s = st.sums(a + 1, n)
             m = n - a - 1
-            var = np.maximum(s[_D2] / m - (s[_D1] / m) ** 2, 0.0)
+            var = np.maximum(s[D2] / m - (s[D1] / m) ** 2, 0.0)
             sig.append(float(np.sqrt(var.mean() / 2.0)))
         if not sig:
             return self.config.min_noise_dps
@@ -317,8 +317,8 @@ class StageTracker:
         hi = np.minimum(lo + w, n)
         length = (hi - lo)[:, None]
         s = st.p[hi - st.base] - st.p[lo - st.base]
-        level = s[:, _S1] / length  # window mean - x0
-        var = np.maximum(s[:, _S2] / length - level**2, 0.0)
+        level = s[:, S1] / length  # window mean - x0
+        var = np.maximum(s[:, S2] / length - level**2, 0.0)
         noise = np.sqrt(var.mean(axis=1))
         if self._blocks >= self._rank:
             floor = self._floor_after[np.maximum(hi // self._nb, self._rank)]
@@ -397,7 +397,7 @@ class StageTracker:
     def _qualify(self, start: int) -> None:
         """A still run has become long enough: close the motion before it and open the still."""
         if self._gap_start is not None:
-            self._close_gap(start, self._store.sums(start, start + self._min_still)[_S1] / self._min_still)
+            self._close_gap(start, self._store.sums(start, start + self._min_still)[S1] / self._min_still)
         self._still_start = start
         self._still_row = self._store.row(start).copy()
         self._still_t = self._store.time(start)
@@ -407,7 +407,7 @@ class StageTracker:
         start, row = self._still_start, self._still_row
         assert start is not None and row is not None  # only an open still is closed
         span = min(self._min_still, end - start)
-        self._bias_before = self._store.sums(end - span, end)[_S1] / span
+        self._bias_before = self._store.sums(end - span, end)[S1] / span
         self._bias_before_t = 0.5 * (self._store.time(end - span) + self._store.time(end - 1))
         self._emit(Stage("still", start, end, self._still_t, self._end_time(end),
                          flags=self._flags(row, end)))
@@ -427,8 +427,8 @@ class StageTracker:
             duration = t_end - self._gap_t
             b0 = self._bias_before
             # sum_j u_j dt_j with u_j = (t_j - t_start) / (t_end - t_start), the interpolation weight.
-            u_dt = (s[_TDT] - (self._gap_t - self._t0) * s[_DT]) / duration
-            theta = s[_MDT] - b0 * s[_DT] - (bias_after - b0) * u_dt
+            u_dt = (s[TDT] - (self._gap_t - self._t0) * s[DT]) / duration
+            theta = s[MDT] - b0 * s[DT] - (bias_after - b0) * u_dt
             k = int(np.argmax(np.abs(theta)))
             main = float(theta[k])
             off = float(np.hypot(*np.delete(theta, k)))
@@ -446,9 +446,9 @@ class StageTracker:
     def _flags(self, row0: np.ndarray, end: int) -> tuple[str, ...]:
         s = self._store.row(end) - row0
         flags = []
-        if s[_SAT] > 0:
+        if s[SAT] > 0:
             flags.append(FLAG_SATURATED)
-        if s[_GAP] > 0:
+        if s[GAP] > 0:
             flags.append(FLAG_COUNTER_GAP)
         return tuple(flags)
 

@@ -7,13 +7,13 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..errors import ProtocolError
-from ..recording import Recording
-from ..stage import Stage
-from ..turn_checks import angle_between_deg
-from ..units import FULL_TURN_DEG
-from .detector import detect_stages
-from .protocol import ProtocolStages, find_protocol
+from calib.errors import ProtocolError
+from calib.recording import Recording
+from calib.stages.detector import detect_stages
+from calib.stages.protocol import ProtocolStages, find_protocol
+from calib.stages.stage import Stage
+from calib.stages.turn_checks import angle_between_deg
+from calib.units import FULL_TURN_DEG
 
 # Output data rates of common MEMS IMUs (ST LSM6/LSM9DS1, TDK InvenSense, Bosch BMI): where a wrong rate
 # is looked for, Hz

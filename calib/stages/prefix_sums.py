@@ -5,19 +5,19 @@ from __future__ import annotations
 import numpy as np
 
 # Columns of the running (prefix) sums kept per sample, relative to the first reading x0.
-_S1 = slice(0, 3)  # x - x0
-_S2 = slice(3, 6)  # (x - x0)^2
-_D1 = slice(6, 9)  # d = x_i - x_{i-1}
-_D2 = slice(9, 12)  # d^2
-_DT = 12  # dt_i = t_i - t_{i-1}
-_MDT = slice(13, 16)  # (x - x0) dt
-_TDT = 16  # (t - t0) dt
-_SAT = 17  # saturated samples
-_GAP = 18  # counter jumps
-_NCOL = 19
+S1 = slice(0, 3)  # x - x0
+S2 = slice(3, 6)  # (x - x0)^2
+D1 = slice(6, 9)  # d = x_i - x_{i-1}
+D2 = slice(9, 12)  # d^2
+DT = 12  # dt_i = t_i - t_{i-1}
+MDT = slice(13, 16)  # (x - x0) dt
+TDT = 16  # (t - t0) dt
+SAT = 17  # saturated samples
+GAP = 18  # counter jumps
+NCOL = 19
 
 
-class _Store:
+class PrefixStore:
     """Recent samples and their running sums, addressed by global sample index."""
 
     def __init__(self, cap: int) -> None:
@@ -25,7 +25,7 @@ class _Store:
         self.n = 0  # samples received
         self.x = np.empty((cap, 3))
         self.t = np.empty(cap)
-        self.p = np.zeros((cap + 1, _NCOL))  # p[r] = sums over samples before global index base + r
+        self.p = np.zeros((cap + 1, NCOL))  # p[r] = sums over samples before global index base + r
 
     def append(self, x: np.ndarray, t: np.ndarray, values: np.ndarray, keep_from: int) -> None:
         k = t.size
@@ -43,7 +43,7 @@ class _Store:
                 cap = max(2 * self.t.size, used + k)
                 self.x = np.concatenate([self.x[:used], np.empty((cap - used, 3))])
                 self.t = np.concatenate([self.t[:used], np.empty(cap - used)])
-                self.p = np.concatenate([self.p[: used + 1], np.zeros((cap - used, _NCOL))])
+                self.p = np.concatenate([self.p[: used + 1], np.zeros((cap - used, NCOL))])
         self.x[used : used + k] = x
         self.t[used : used + k] = t
         # Running sums carry over exactly (cumsum adds in sample order), so any batching gives the same bits.

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from ..errors import ProtocolError
-from ..stage import AXES, Stage
-from .config import StageConfig
+from calib.errors import ProtocolError
+from calib.stages.config import StageConfig
+from calib.stages.stage import AXES, Stage
 
 
 @dataclass(frozen=True)

@@ -6,12 +6,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from ..errors import ProtocolError
-from ..recording import Recording
-from ..stage import Stage
-from .detector import detect_stages
-from .hints import find_protocol_in
-from .protocol import ProtocolStages
+from calib.errors import ProtocolError
+from calib.recording import Recording
+from calib.stages.detector import detect_stages
+from calib.stages.hints import find_protocol_in
+from calib.stages.protocol import ProtocolStages
+from calib.stages.stage import Stage
 
 
 @dataclass(frozen=True)

@@ -17,12 +17,12 @@ from .names import (
 )
 
 
-def _device_path(address: str) -> str:
+def device_path(address: str) -> str:
     return f"{ADAPTER_PATH}/dev_{address.upper().replace(':', '_')}"
 
 
 @dataclass
-class _Char:
+class Char:
     path: str
     uuid: str
     spec: CharacteristicSpec
@@ -30,35 +30,35 @@ class _Char:
 
 
 @dataclass
-class _Device:
+class Device:
     peripheral: GattPeripheral
     path: str
     connected: bool = False
     connecting: bool = False
     cancel_connect: bool = False
     announced: bool = False
-    chars: dict[str, _Char] = field(default_factory=dict)  # path -> char
-    by_uuid: dict[str, _Char] = field(default_factory=dict)
-    descs: dict[str, tuple[_Char, str]] = field(default_factory=dict)  # path -> (char, descriptor uuid)
+    chars: dict[str, Char] = field(default_factory=dict)  # path -> char
+    by_uuid: dict[str, Char] = field(default_factory=dict)
+    descs: dict[str, tuple[Char, str]] = field(default_factory=dict)  # path -> (char, descriptor uuid)
     gatt_paths: list[str] = field(default_factory=list)  # in creation order
 
 
-def _v(sig: str, value: Any) -> Variant:
+def variant(sig: str, value: Any) -> Variant:
     return Variant(sig, value)
 
 
 class _Bus(Protocol):
     """What a connected peripheral's callbacks reach of the simulated BlueZ."""
 
-    def _notify(self, dev: _Device, char_uuid: str, value: bytes) -> None: ...
+    def _notify(self, dev: Device, char_uuid: str, value: bytes) -> None: ...
 
-    def _link_lost(self, dev: _Device) -> None: ...
+    def _link_lost(self, dev: Device) -> None: ...
 
 
-class _DeviceCentral:
+class DeviceCentral:
     """The Central callbacks a peripheral gets while connected through the simulated BlueZ."""
 
-    def __init__(self, bluez: _Bus, dev: _Device) -> None:
+    def __init__(self, bluez: _Bus, dev: Device) -> None:
         self._bluez = bluez
         self._dev = dev
 

@@ -25,7 +25,7 @@ from wearable_protocol import (
 
 from . import names as N
 from .bus import BusUnavailable
-from .objects import _Char, _Device, _device_path, _DeviceCentral, _v
+from .objects import Char, Device, DeviceCentral, device_path, variant
 
 log = logging.getLogger(__name__)
 
@@ -49,12 +49,12 @@ class SimulatedBlueZ:
         connect_fail_s: float = 0.3,
         seed: int = 0,
     ) -> None:
-        self.devices: dict[str, _Device] = {}
+        self.devices: dict[str, Device] = {}
         for p in peripherals:
-            path = _device_path(p.address)
+            path = device_path(p.address)
             if path in self.devices:
                 raise ValueError(f"two peripherals have the address {p.address}")
-            self.devices[path] = _Device(p, path)
+            self.devices[path] = Device(p, path)
         self.hide_services = {u.lower() for u in hide_services}
         self.adapter_address = adapter_address
         self.advert_interval_s = advert_interval_s
@@ -118,23 +118,23 @@ class SimulatedBlueZ:
 
     def _adapter_props(self) -> dict[str, Variant]:
         return {
-            "Address": _v("s", self.adapter_address), "AddressType": _v("s", "public"),
-            "Name": _v("s", "gyrocal-sim"), "Alias": _v("s", "gyrocal-sim"), "Class": _v("u", 0),
-            "Powered": _v("b", True), "PowerState": _v("s", "on"), "Discoverable": _v("b", False),
-            "DiscoverableTimeout": _v("u", 180), "Pairable": _v("b", True), "PairableTimeout": _v("u", 0),
-            "Discovering": _v("b", False), "UUIDs": _v("as", []), "Modalias": _v("s", "usb:v1D6Bp0246d0548"),
-            "Roles": _v("as", ["central", "peripheral"]),
+            "Address": variant("s", self.adapter_address), "AddressType": variant("s", "public"),
+            "Name": variant("s", "gyrocal-sim"), "Alias": variant("s", "gyrocal-sim"), "Class": variant("u", 0),
+            "Powered": variant("b", True), "PowerState": variant("s", "on"), "Discoverable": variant("b", False),
+            "DiscoverableTimeout": variant("u", 180), "Pairable": variant("b", True), "PairableTimeout": variant("u", 0),
+            "Discovering": variant("b", False), "UUIDs": variant("as", []), "Modalias": variant("s", "usb:v1D6Bp0246d0548"),
+            "Roles": variant("as", ["central", "peripheral"]),
         }
 
-    def _device_props(self, dev: _Device) -> dict[str, Variant]:
+    def _device_props(self, dev: Device) -> dict[str, Variant]:
         p = dev.peripheral
         return {
-            "Address": _v("s", p.address), "AddressType": _v("s", "random"), "Name": _v("s", p.name),
-            "Alias": _v("s", p.name), "Adapter": _v("o", N.ADAPTER_PATH), "Paired": _v("b", False),
-            "Bonded": _v("b", False), "Trusted": _v("b", False), "Blocked": _v("b", False),
-            "LegacyPairing": _v("b", False), "Connected": _v("b", False), "ServicesResolved": _v("b", False),
-            "UUIDs": _v("as", list(p.advertised_services)), "RSSI": _v("n", self._rssi()), "TxPower": _v("n", 0),
-            "ManufacturerData": _v("a{qv}", {0xFFFF: _v("ay", b"gyrocal")}), "ServiceData": _v("a{sv}", {}),
+            "Address": variant("s", p.address), "AddressType": variant("s", "random"), "Name": variant("s", p.name),
+            "Alias": variant("s", p.name), "Adapter": variant("o", N.ADAPTER_PATH), "Paired": variant("b", False),
+            "Bonded": variant("b", False), "Trusted": variant("b", False), "Blocked": variant("b", False),
+            "LegacyPairing": variant("b", False), "Connected": variant("b", False), "ServicesResolved": variant("b", False),
+            "UUIDs": variant("as", list(p.advertised_services)), "RSSI": variant("n", self._rssi()), "TxPower": variant("n", 0),
+            "ManufacturerData": variant("a{qv}", {0xFFFF: variant("ay", b"gyrocal")}), "ServiceData": variant("a{sv}", {}),
         }
 
     def _rssi(self) -> int:
@@ -167,7 +167,7 @@ class SimulatedBlueZ:
     def _discovering(self) -> bool:
         return bool(self._discovery)
 
-    def _wanted(self, dev: _Device) -> bool:
+    def _wanted(self, dev: Device) -> bool:
         uuids = {u.lower() for u in dev.peripheral.advertised_services}
         for flt in self._discovery.values():
             wanted = flt.get("UUIDs")
@@ -184,7 +184,7 @@ class SimulatedBlueZ:
                     if dev.path not in self._objects:
                         self._add_object(dev.path, {N.DEVICE: self._device_props(dev)})
                     else:
-                        self._set(dev.path, N.DEVICE, RSSI=_v("n", self._rssi()))
+                        self._set(dev.path, N.DEVICE, RSSI=variant("n", self._rssi()))
             await asyncio.sleep(self.advert_interval_s)
 
     def _set_discovering(self, sender: str, flt: dict[str, Any] | None) -> None:
@@ -194,11 +194,11 @@ class SimulatedBlueZ:
         else:
             self._discovery[sender] = flt
         if before != self._discovering():
-            self._set(N.ADAPTER_PATH, N.ADAPTER, Discovering=_v("b", self._discovering()))
+            self._set(N.ADAPTER_PATH, N.ADAPTER, Discovering=variant("b", self._discovering()))
 
     # ------------------------------------------------------------------ GATT database
 
-    def _export_gatt(self, dev: _Device) -> None:
+    def _export_gatt(self, dev: Device) -> None:
         handle = 0x000A
         dev.chars.clear()
         dev.by_uuid.clear()
@@ -210,20 +210,21 @@ class SimulatedBlueZ:
             spath = f"{dev.path}/service{handle:04x}"
             handle += 1
             self._add_object(spath, {N.SERVICE: {
-                "UUID": _v("s", svc.uuid), "Primary": _v("b", True), "Device": _v("o", dev.path), "Includes": _v("ao", []),
+                "UUID": variant("s", svc.uuid), "Primary": variant("b", True), "Device": variant("o", dev.path),
+                "Includes": variant("ao", []),
             }})
             dev.gatt_paths.append(spath)
             for spec in svc.characteristics:
                 cpath = f"{spath}/char{handle:04x}"
                 handle += 2  # declaration and value handles
                 props = {
-                    "UUID": _v("s", spec.uuid), "Service": _v("o", spath), "Value": _v("ay", b""),
-                    "Flags": _v("as", list(spec.flags)), "MTU": _v("q", getattr(dev.peripheral, "mtu", 247)),
+                    "UUID": variant("s", spec.uuid), "Service": variant("o", spath), "Value": variant("ay", b""),
+                    "Flags": variant("as", list(spec.flags)), "MTU": variant("q", getattr(dev.peripheral, "mtu", 247)),
                 }
                 if "notify" in spec.flags or "indicate" in spec.flags:
-                    props["Notifying"] = _v("b", False)
+                    props["Notifying"] = variant("b", False)
                 self._add_object(cpath, {N.CHARACTERISTIC: props})
-                char = _Char(cpath, spec.uuid, spec)
+                char = Char(cpath, spec.uuid, spec)
                 dev.chars[cpath] = char
                 dev.by_uuid[spec.uuid] = char
                 dev.gatt_paths.append(cpath)
@@ -236,13 +237,13 @@ class SimulatedBlueZ:
                     dpath = f"{cpath}/desc{handle:04x}"
                     handle += 1
                     self._add_object(dpath, {N.DESCRIPTOR: {
-                        "UUID": _v("s", duuid), "Characteristic": _v("o", cpath), "Value": _v("ay", b""),
-                        "Flags": _v("as", dflags),
+                        "UUID": variant("s", duuid), "Characteristic": variant("o", cpath), "Value": variant("ay", b""),
+                        "Flags": variant("as", dflags),
                     }})
                     dev.descs[dpath] = (char, duuid)
                     dev.gatt_paths.append(dpath)
 
-    def _teardown(self, dev: _Device) -> None:
+    def _teardown(self, dev: Device) -> None:
         """The link is gone: remove the GATT objects, then lower ServicesResolved and Connected."""
         dev.connected = False
         for path in reversed(dev.gatt_paths):
@@ -251,20 +252,20 @@ class SimulatedBlueZ:
         dev.chars.clear()
         dev.by_uuid.clear()
         dev.descs.clear()
-        self._set(dev.path, N.DEVICE, ServicesResolved=_v("b", False))
-        self._set(dev.path, N.DEVICE, Connected=_v("b", False))
+        self._set(dev.path, N.DEVICE, ServicesResolved=variant("b", False))
+        self._set(dev.path, N.DEVICE, Connected=variant("b", False))
 
-    def _notify(self, dev: _Device, char_uuid: str, value: bytes) -> None:
+    def _notify(self, dev: Device, char_uuid: str, value: bytes) -> None:
         char = dev.by_uuid.get(char_uuid)
         if char is None or not dev.connected:
             return
         props = self._objects[char.path][N.CHARACTERISTIC]
-        props["Value"] = _v("ay", value)
+        props["Value"] = variant("ay", value)
         if char.notifying:
             self._send(Message.new_signal(char.path, N.PROPERTIES, "PropertiesChanged", "sa{sv}as",
                                           [N.CHARACTERISTIC, {"Value": props["Value"]}, []]))
 
-    def _link_lost(self, dev: _Device) -> None:
+    def _link_lost(self, dev: Device) -> None:
         if dev.connected:
             log.debug("link lost: %s", dev.path)
             self._teardown(dev)
@@ -377,7 +378,7 @@ class SimulatedBlueZ:
         self._remove_object(path)
         return Message.new_method_return(msg)
 
-    def _dev(self, msg: Message) -> _Device:
+    def _dev(self, msg: Message) -> Device:
         return self.devices[msg.path or ""]
 
     def _connect(self, msg: Message) -> Message | bool:
@@ -391,34 +392,34 @@ class SimulatedBlueZ:
         self._spawn(self._connect_later(msg, dev))
         return True
 
-    async def _connect_later(self, msg: Message, dev: _Device) -> None:
+    async def _connect_later(self, msg: Message, dev: Device) -> None:
         try:
             await asyncio.sleep(self.connect_latency_s)
             if dev.cancel_connect:
                 self._send(Message.new_error(msg, N.ERR_FAILED, "Operation was cancelled"))
                 return
             try:
-                dev.peripheral.connect(_DeviceCentral(self, dev))
+                dev.peripheral.connect(DeviceCentral(self, dev))
             except ConnectionDropped:
-                self._set(dev.path, N.DEVICE, Connected=_v("b", True))
+                self._set(dev.path, N.DEVICE, Connected=variant("b", True))
                 await asyncio.sleep(0.02)
                 self._send(Message.new_method_return(msg))
                 await asyncio.sleep(0.03)
-                self._set(dev.path, N.DEVICE, Connected=_v("b", False))
+                self._set(dev.path, N.DEVICE, Connected=variant("b", False))
                 return
             except PeripheralUnavailable:
                 await asyncio.sleep(self.connect_fail_s)
                 self._send(Message.new_error(msg, N.ERR_FAILED, "Software caused connection abort"))
                 return
             dev.connected = True
-            self._set(dev.path, N.DEVICE, Connected=_v("b", True))
+            self._set(dev.path, N.DEVICE, Connected=variant("b", True))
             # let the Connected signal reach every listener before the reply, as bluetoothd's latency does
             await asyncio.sleep(0.02)
             self._send(Message.new_method_return(msg))
             await asyncio.sleep(0.005)
             if dev.connected:
                 self._export_gatt(dev)
-                self._set(dev.path, N.DEVICE, ServicesResolved=_v("b", True))
+                self._set(dev.path, N.DEVICE, ServicesResolved=variant("b", True))
         finally:
             dev.connecting = False
 
@@ -432,10 +433,10 @@ class SimulatedBlueZ:
         return Message.new_method_return(msg)
 
     def _pair(self, msg: Message) -> Message:
-        self._set(msg.path or "", N.DEVICE, Paired=_v("b", True), Bonded=_v("b", True))
+        self._set(msg.path or "", N.DEVICE, Paired=variant("b", True), Bonded=variant("b", True))
         return Message.new_method_return(msg)
 
-    def _char(self, msg: Message) -> tuple[_Device, _Char]:
+    def _char(self, msg: Message) -> tuple[Device, Char]:
         path = msg.path or ""
         dev = self.devices[path[: path.rfind("/service")]]
         return dev, dev.chars[path]
@@ -446,7 +447,7 @@ class SimulatedBlueZ:
             return Message.new_error(msg, N.ERR_NOT_PERMITTED, "Read not permitted")
         value = bytes(dev.peripheral.read(char.uuid))
         if self._objects[char.path][N.CHARACTERISTIC]["Value"].value != value:
-            self._set(char.path, N.CHARACTERISTIC, Value=_v("ay", value))
+            self._set(char.path, N.CHARACTERISTIC, Value=variant("ay", value))
         return Message.new_method_return(msg, "ay", [value])
 
     def _write_char(self, msg: Message) -> Message:
@@ -463,7 +464,7 @@ class SimulatedBlueZ:
         if not char.notifying:
             char.notifying = True
             dev.peripheral.set_notify(char.uuid, True)
-            self._set(char.path, N.CHARACTERISTIC, Notifying=_v("b", True))
+            self._set(char.path, N.CHARACTERISTIC, Notifying=variant("b", True))
         return Message.new_method_return(msg)
 
     def _stop_notify(self, msg: Message) -> Message:
@@ -472,7 +473,7 @@ class SimulatedBlueZ:
             return Message.new_error(msg, N.ERR_FAILED, "No notify session started")
         char.notifying = False
         dev.peripheral.set_notify(char.uuid, False)
-        self._set(char.path, N.CHARACTERISTIC, Notifying=_v("b", False))
+        self._set(char.path, N.CHARACTERISTIC, Notifying=variant("b", False))
         return Message.new_method_return(msg)
 
     def _read_desc(self, msg: Message) -> Message:

@@ -12,7 +12,7 @@ from wearable_protocol.models import METAWEAR
 from wearable_protocol.vendors import metawear as mw
 
 from ..sources import SampleSource
-from ..wearable import Wearable, _Session
+from ..wearable import Wearable, WearableSession
 
 PACKED = 3  # samples per packed notification
 
@@ -73,7 +73,7 @@ class MetaWearWearable(Wearable):
         else:
             self.accel_range_g = full
 
-    def _send(self, s: _Session, j: int) -> None:
+    def _send(self, s: WearableSession, j: int) -> None:
         i0, i1 = j * s.n, (j + 1) * s.n
         blk = self.source.block(i0, i1)
         assert self._central is not None

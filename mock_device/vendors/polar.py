@@ -13,7 +13,7 @@ from wearable_protocol.models import POLAR_PMD
 from wearable_protocol.vendors import polar_pmd as pmd
 
 from ..sources import SampleSource
-from ..wearable import Wearable, _Session
+from ..wearable import Wearable, WearableSession
 
 # PMD time stamps count ns from 2000-01-01; the device clock's zero is put at 2026-01-01 00:00 UTC.
 EPOCH_OFFSET_NS = 820_454_400 * 1_000_000_000
@@ -118,10 +118,10 @@ class PolarWearable(Wearable):
             self._central.notify(pmd.PMD_CONTROL_CHAR, bytes([pmd.MEASUREMENT_STOPPED, int(G), int(A)]))
         self._measuring.clear()
 
-    def _time_ns(self, s: _Session, i: int) -> int:
+    def _time_ns(self, s: WearableSession, i: int) -> int:
         return self._sample_times_us(s, i, i + 1) * 1000 + EPOCH_OFFSET_NS
 
-    def _send(self, s: _Session, j: int) -> None:
+    def _send(self, s: WearableSession, j: int) -> None:
         i0, i1 = j * s.n, (j + 1) * s.n
         blk = self.source.block(i0, i1)
         assert self._central is not None

@@ -10,7 +10,7 @@ from wearable_protocol.models import THINGY52
 from wearable_protocol.vendors import thingy52 as th
 
 from ..sources import SampleSource
-from ..wearable import Wearable, _Session
+from ..wearable import Wearable, WearableSession
 
 
 class Thingy52Wearable(Wearable):
@@ -59,7 +59,7 @@ class Thingy52Wearable(Wearable):
         else:
             self._end_session("raw data notifications disabled")
 
-    def _send(self, s: _Session, j: int) -> None:
+    def _send(self, s: WearableSession, j: int) -> None:
         blk = self.source.block(j, j + 1)
         assert self._central is not None
         note = th.encode_raw(blk.accel[0], blk.gyro[0])

@@ -8,7 +8,7 @@ from typing import Annotated
 
 from fastapi import Depends, Query
 
-from calib.identity import SensorIdentity
+from calib.apply.identity import SensorIdentity
 
 from .. import schemas as M
 

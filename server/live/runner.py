@@ -17,7 +17,7 @@ from dataclasses import replace
 from datetime import datetime
 from typing import Any
 
-from calib.identity import SensorIdentity
+from calib.apply.identity import SensorIdentity
 from calib.result import CalibrationResult
 
 from ..config import Settings
@@ -52,7 +52,7 @@ def compute_result(session: GuidedSession) -> CalibrationResult:
 
 def spool_rows(buf: SampleBuffer, start: int, end: int) -> tuple[str, bytes]:
     """Samples [start, end) of a session's buffer as native CSV rows (no header) and that header."""
-    from calib.io import write_native_csv
+    from calib.io.readers import write_native_csv
     from calib.recording import Recording, RecordingMeta
 
     accel = buf.accel[start:end] if buf.accel is not None and buf.has_accel else None

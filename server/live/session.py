@@ -24,11 +24,11 @@ from typing import Any
 
 import numpy as np
 
-from calib.acceptance import evaluate
-from calib.departure import departures
+from calib.judge.acceptance import evaluate
+from calib.judge.departure import departures
 from calib.recording import Recording, RecordingMeta
 from calib.result import CalibrationResult
-from calib.stage import AXES, Stage
+from calib.stages.stage import AXES, Stage
 
 from ..config import Settings
 from . import guidance as say

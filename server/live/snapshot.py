@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from typing import Any, Protocol
 
-from calib.acceptance import turn_accuracy
+from calib.judge.acceptance import turn_accuracy
 from calib.result import CalibrationResult
-from calib.stage import AXES
+from calib.stages.stage import AXES
 
 from .buffer import SampleBuffer
 from .codes import STEPS, EndReason, Phase, State

@@ -2,7 +2,7 @@
 
 ``SessionStream`` keeps every sample received (``SampleBuffer``), a strictly increasing device time
 across reconnections, the detector (one per link connection), the stills it closed, and the turn
-physics measured on the raw readings (``calib.turn_checks``). It knows nothing of the protocol's
+physics measured on the raw readings (``calib.stages.turn_checks``). It knows nothing of the protocol's
 states: the session (server.live.session) asks it questions and decides.
 """
 
@@ -15,8 +15,8 @@ from typing import Any, cast
 import numpy as np
 
 from calib.recording import Recording, RecordingMeta
-from calib.stage import AXES, Axis, Stage
-from calib.turn_checks import gravity_change_deg, rest_after_full_turn, swept_angles
+from calib.stages.stage import AXES, Axis, Stage
+from calib.stages.turn_checks import gravity_change_deg, rest_after_full_turn, swept_angles
 
 from .buffer import SampleBuffer
 from .turn_watch import recent_rate_dps
@@ -27,7 +27,7 @@ TrackerFactory = Callable[[float, float | None], Any]
 
 def default_tracker(fs: float, full_scale_dps: float | None) -> Any:
     """The streaming stage detector of calib, at fs Hz for a gyro range of ``full_scale_dps``."""
-    from calib.stages import StageTracker
+    from calib.stages.detector import StageTracker
 
     return StageTracker(fs, full_scale_dps=full_scale_dps)
 

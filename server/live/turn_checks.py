@@ -12,8 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from calib.acceptance import Tolerances
-from calib.stage import AXES, Stage
+from calib.judge.acceptance import Tolerances
+from calib.stages.stage import AXES, Stage
 
 from ..config import ProtocolTimings
 from . import guidance as say

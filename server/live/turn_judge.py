@@ -10,8 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib.acceptance import Tolerances
-from calib.stage import AXES
+from calib.judge.acceptance import Tolerances
+from calib.stages.stage import AXES
 from calib.units import FULL_TURN_DEG
 
 from . import guidance as say

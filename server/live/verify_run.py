@@ -1,5 +1,5 @@
 """A live verification turn: the wearable streams until it has rested, turned once all the way round about any axis
-and rested again (calib.verification), then the turn is measured with the calibration and kept with it
+and rested again (calib.judge.verification), then the turn is measured with the calibration and kept with it
 (docs/lifecycle.md, "Verified in the field"). The page follows it by polling GET /verifications/{id}."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from calib import __version__
-from calib.verification import find_turn
+from calib.judge.verification import find_turn
 
 from ..devices import Device
 from ..link import RecordingBuilder

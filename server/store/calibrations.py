@@ -9,8 +9,8 @@ from typing import Any
 
 from sqlalchemy import func, select
 
-from calib.correction import Correction
-from calib.identity import SensorIdentity
+from calib.apply.correction import Correction
+from calib.apply.identity import SensorIdentity
 from calib.result import CalibrationResult
 
 from . import chain

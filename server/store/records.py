@@ -10,7 +10,7 @@ from typing import Any, Literal, cast
 
 from pydantic import BaseModel, ConfigDict, Field, field_serializer
 
-from calib.identity import SensorIdentity
+from calib.apply.identity import SensorIdentity
 from calib.result import CalibrationResult
 
 from .tables import CalibrationRow, Device, SessionRow, aware, utcnow

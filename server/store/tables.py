@@ -159,7 +159,7 @@ class CalibrationRow(Chained, Base):
     recording_sha256: Mapped[str | None] = mapped_column(String(64))
     computed_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
     accepted_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
-    # the sensor, power-up and temperature it was measured at (calib.identity.SensorIdentity's JSON); None before v5
+    # the sensor, power-up and temperature it was measured at (calib.apply.identity.SensorIdentity's JSON); None before v5
     identity: Mapped[dict[str, Any] | None] = mapped_column(JSON)
 
 

@@ -18,9 +18,9 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from calib.io.section import Section
     from calib.recording import Recording
     from calib.result import CalibrationResult
-    from calib.section import Section
 
 log = logging.getLogger(__name__)
 
@@ -53,17 +53,17 @@ def confine_worker(memory_mb: int | None) -> None:
 
 # -- what the workers run (module level, so that they can be pickled) ------------------------------
 def _warm_up() -> int:
-    import calib.api  # noqa: F401
-    import calib.closure  # noqa: F401
-    import calib.io  # noqa: F401
-    import calib.paper  # noqa: F401
+    import calib.estimators.closure.estimator  # noqa: F401
+    import calib.estimators.paper  # noqa: F401
+    import calib.io.readers  # noqa: F401
+    import calib.pipeline  # noqa: F401
 
     return os.getpid()
 
 
 def recording_csv(rec: Any) -> bytes:
     """A Recording as gyrocal's native CSV (exact round trip), UTF-8."""
-    from calib.io import write_native_csv
+    from calib.io.readers import write_native_csv
 
     buf = io.StringIO()
     write_native_csv(rec, buf)
@@ -72,8 +72,8 @@ def recording_csv(rec: Any) -> bytes:
 
 def calibrate_recording(rec: Recording, method: str, stages: Any) -> tuple[CalibrationResult | None, str | None, bytes]:
     """(result, None, csv) or (None, error message, csv) for a session's recording."""
-    from calib.api import calibrate
     from calib.errors import GyrocalError
+    from calib.pipeline import calibrate
 
     csv = recording_csv(rec)
     try:
@@ -99,7 +99,7 @@ def parse_upload(body: bytes, fs: float | None, layout: str, source: str, max_sa
                  options: UploadOptions | None = None) -> Recording:
     """An uploaded CSV (or imu_tk's two files) as a Recording; raises RecordingError, or TooManySamples above
     ``max_samples``."""
-    from calib.io import parse_recording_text
+    from calib.io.readers import parse_recording_text
 
     opts = options or UploadOptions()
     if layout == "imu_tk":
@@ -117,7 +117,7 @@ def parse_upload(body: bytes, fs: float | None, layout: str, source: str, max_sa
 def _parse_imu_tk_upload(gyro: bytes, source: str, opts: UploadOptions) -> Recording:
     """imu_tk's gyroscope and accelerometer files, with the sensitivities given (else the Xsens test data's)."""
     from calib.errors import RecordingError
-    from calib.imu_tk_io import XSENS_ACCEL_COUNTS_PER_G, XSENS_GYRO_COUNTS_PER_RAD_S, parse_imu_tk
+    from calib.io.imu_tk import XSENS_ACCEL_COUNTS_PER_G, XSENS_GYRO_COUNTS_PER_RAD_S, parse_imu_tk
     from calib.units import DEG
 
     if opts.accel_file is None:
@@ -139,7 +139,7 @@ def _text(data: bytes, what: str) -> str:
 
 def upload_sections(opts: UploadOptions, rec: Recording) -> tuple[Section, ...] | None:
     """The upload's labelled sections (its ``sections`` parameter), checked against the recording; None without."""
-    from calib.sections import parse_sections
+    from calib.io.sections import parse_sections
 
     return parse_sections(opts.sections, len(rec), "the sections parameter") if opts.sections else None
 
@@ -148,7 +148,7 @@ def calibrate_upload(
     body: bytes, fs: float | None, layout: str, method: str, source: str, max_samples: int, options: UploadOptions | None = None
 ) -> tuple[CalibrationResult, str, bytes, int]:
     """Parse and calibrate an uploaded CSV: (result, protocol used, CSV, samples); raises calib's errors."""
-    from calib.api import calibrate_protocol
+    from calib.pipeline import calibrate_protocol
 
     opts = options or UploadOptions()
     rec = parse_upload(body, fs, layout, source, max_samples, opts)
@@ -208,14 +208,14 @@ def apply_upload(body: bytes, fs: float | None, layout: str, source: str, max_sa
     """An uploaded CSV corrected by a calibration (its JSON form): (native CSV, whether the accelerometer was corrected
     too, the recording's mean temperature in degC when it has a temp column, and with ``orientation`` the summary of
     its orientation before and after); raises calib's errors."""
-    from calib.correction import Correction, corrected
+    from calib.apply.correction import Correction, corrected
 
     rec = parse_upload(body, fs, layout, source, max_samples, options)
     correction = Correction.from_json(calibration)
     fixed = corrected(rec, correction)
     summary = None
     if orientation:
-        from calib.orientation import orientation as estimate
+        from calib.apply.orientation import orientation as estimate
 
         summary = estimate(rec, fixed).summary()
     return recording_csv(fixed), correction.A is not None and rec.accel is not None, rec.mean_temperature_c, summary
@@ -223,8 +223,8 @@ def apply_upload(body: bytes, fs: float | None, layout: str, source: str, max_sa
 
 def verify_recording(rec: Any, calibration: dict[str, Any]) -> dict[str, Any]:
     """The verification turn of a recording measured with a calibration (its JSON form); raises NoVerificationTurn."""
-    from calib.correction import Correction
-    from calib.verification import verify_turn
+    from calib.apply.correction import Correction
+    from calib.judge.verification import verify_turn
 
     return verify_turn(rec, Correction.from_json(calibration), calibration.get("uncertainty")).to_json()
 

@@ -61,7 +61,7 @@ def diagnose_csv(csv: bytes, fs: float | None, layout: str, source: str, max_sam
     Raises calib's errors (RecordingError, ProtocolError, ...) and server.compute.TooManySamples.
     """
     from calib.diagnosis import diagnose
-    from calib.stage import Stage
+    from calib.stages.stage import Stage
 
     from .compute import parse_upload, upload_sections
 

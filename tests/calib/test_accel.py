@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib.accel import AccelCalibration, AccelCalibrationError, fit_accelerometer
-from calib.imu_tk_io import read_imu_tk
+from calib.estimators.accel import AccelCalibration, AccelCalibrationError, fit_accelerometer
+from calib.io.imu_tk import read_imu_tk
 
 
 def _rests(rng: np.random.Generator, n: int, scale, offset, mis, sd_g: float, planar: bool = False) -> np.ndarray:
@@ -63,8 +63,8 @@ def test_rests_that_never_turn_an_axis_vertical_cannot_give_its_scale():
 
 
 def test_imu_tk_xsens_session_accelerometer_to_a_tenth_of_a_milli_g(real_data: Path):
-    from calib.accel import calibrate_accelerometer
-    from calib.stages import detect_stages
+    from calib.estimators.accel import calibrate_accelerometer
+    from calib.stages.detector import detect_stages
 
     rec = read_imu_tk(real_data / "imu_tk" / "xsens_gyro.mat", real_data / "imu_tk" / "xsens_acc.mat")
     assert len(rec) == 51175 and rec.fs == pytest.approx(100.01, abs=1e-3)  # the Xsens's own rate

@@ -1,4 +1,4 @@
-"""The accelerometer's noise floor (``calib.accel_floor``): found where rest means scatter beyond white noise,
+"""The accelerometer's noise floor (``calib.noise.accel_floor``): found where rest means scatter beyond white noise,
 not where they do not, and counted in imu_tk's rests."""
 
 from __future__ import annotations
@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import calib.multi_position as mp
-from calib.accel_floor import FLOOR_ALPHA, NO_FLOOR, accel_floor
-from calib.multi_position import calibrate_multi_position
+import calib.estimators.multi_position.estimator as mp
+from calib.estimators.multi_position.estimator import calibrate_multi_position
+from calib.noise.accel_floor import FLOOR_ALPHA, NO_FLOOR, accel_floor
 
 FS = 100.0
 SPANS = [(0, 5000)] + [(5000 + 1000 * i, 5000 + 1000 * i + 700) for i in range(30)]  # a 50 s rest, then 7 s rests
@@ -51,7 +51,7 @@ def test_imu_tk_accelerometer_floor_makes_its_magnitudes_agree(real_data: Path, 
     """Xsens' accelerometer levels off at ~0.06-0.08 mg on y and z over 8 s (the Allan deviation of its 52 s rest):
     counted, |a| = 1 g is within a few times its noise instead of 11 times, and the gyro's uncertainties are no
     longer inflated by the accelerometer's misfit."""
-    from calib.imu_tk_io import read_imu_tk
+    from calib.io.imu_tk import read_imu_tk
 
     rec = read_imu_tk(real_data / "imu_tk" / "xsens_gyro.mat", real_data / "imu_tk" / "xsens_acc.mat")
     res = calibrate_multi_position(rec)

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calib.acceptance import NEAR_LIMIT_USED, Tolerances, evaluate, turn_accuracy
-from calib.api import calibrate
+from calib.judge.acceptance import NEAR_LIMIT_USED, Tolerances, evaluate, turn_accuracy
+from calib.pipeline import calibrate
 from calib.result import CalibrationResult
 from calib.simulator import simulate
 

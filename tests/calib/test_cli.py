@@ -18,7 +18,7 @@ IMUCAL_K = np.array([0.97284, 1.01788, 1.00169])
 
 def gyrocal(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
     exe = Path(sys.executable).with_name("gyrocal")
-    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "calib.cli"]
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "calib.cli.main"]
     env = {k: v for k, v in os.environ.items() if k != "GYROCAL_DEBUG"}
     return subprocess.run([*cmd, *args], capture_output=True, text=True, cwd=cwd, env=env, timeout=300)
 

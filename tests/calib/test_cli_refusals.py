@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib.cli import EXIT_PROTOCOL, main
+from calib.cli.main import EXIT_PROTOCOL, main
 from calib.errors import REFUSAL_CODES, CalibrationError, GyrocalError
-from calib.io import write_native_csv
+from calib.io.readers import write_native_csv
 from calib.simulator import simulate
 from calib.simulator.lab_scripts import multi_position_script
 from calib.simulator.protocol import Motion, ProtocolScript, Still, Turn
@@ -110,7 +110,7 @@ def test_an_estimator_refusal_prints_its_code_as_json_and_exits_3(code: str, tmp
     def refuse(*_args, **_kwargs):  # noqa: ANN002, ANN003, ANN202
         raise FROM_THE_ESTIMATOR[code]
 
-    monkeypatch.setattr("calib.api.calibrate_protocol", refuse)
+    monkeypatch.setattr("calib.pipeline.calibrate_protocol", refuse)
     error = _refusal([str(path)], capsys)
     assert error["code"] == code
     assert [s["kind"] for s in error["stages"] if s["kind"] == "turn"] == ["turn"] * 3  # the stages found are shown

@@ -1,4 +1,4 @@
-"""The closure estimator (calib.closure): model, fit, uncertainty, bound, extended model, real data."""
+"""The closure estimator (calib.estimators.closure.estimator): model, fit, uncertainty, bound, extended model, real data."""
 
 from __future__ import annotations
 
@@ -9,13 +9,13 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from calib import CalibrationError, ProtocolError, RecordingError
-from calib.api import calibrate
-from calib.bounds import protocol_bound
-from calib.closure import calibrate_closure
-from calib.closure_batch import closure_batch, closure_fit_batch
-from calib.closure_model import closure_terms, left_jacobian, left_jacobian_inv, prefix_products, total_products
 from calib.effects import AxisMisalignment
-from calib.io import read_recording
+from calib.estimators.bounds import protocol_bound
+from calib.estimators.closure.batch import closure_batch, closure_fit_batch
+from calib.estimators.closure.estimator import calibrate_closure
+from calib.estimators.closure.model import closure_terms, left_jacobian, left_jacobian_inv, prefix_products, total_products
+from calib.io.readers import read_recording
+from calib.pipeline import calibrate
 from calib.recording import Recording
 from calib.simulator import ProtocolScript, SensorParams, Still, Turn, simulate, simulate_batch
 
@@ -160,7 +160,7 @@ def test_batch_and_single_recording_estimators_agree():
     for r in range(3):
         run = slice(batch.stills[r, 0, 0], batch.stills[r, -1, 1])
         rec = Recording(batch.t[run], batch.gyro[r, run])
-        from calib.stage import Stage
+        from calib.stages.stage import Stage
 
         stages = [Stage("still", int(s), int(e), float(s / FS), float(e / FS)) for s, e in batch.stills[r]]
         stages += [Stage("turn", int(s), int(e), float(s / FS), float(e / FS), "xyz"[j], 360.0) for j, (s, e) in enumerate(batch.turns[r])]
@@ -357,7 +357,7 @@ def test_imucal_session_matches_imucal_with_stages_found_automatically(ferraris_
 
 
 def test_paper_sim_shows_closure_beside_the_paper_and_the_bound():
-    from calib.bench import paper_sim
+    from calib.studies.paper_sim import paper_sim
 
     report = paper_sim(sets=1, runs_per_set=60, noise_levels=(0.15,), methods=("paper", "closure"), workers=1, progress=False)
     closure = report.stats("closure", 0.15)["params"]
@@ -371,7 +371,7 @@ def test_paper_sim_shows_closure_beside_the_paper_and_the_bound():
 
 
 def test_still_statistics_pool_each_still_about_its_own_mean():
-    from calib.closure_fit import still_statistics
+    from calib.estimators.closure.fit import still_statistics
 
     rng = np.random.default_rng(12)
     gyro = rng.normal(0.0, 0.1, (3, 200, 3)) + np.array([2.0, -1.0, 0.5])
@@ -399,7 +399,7 @@ def test_saturated_turns_are_left_out_and_said_so():
 
 def test_a_turn_that_ends_in_another_pose_is_refused():
     from calib.simulator import Motion
-    from calib.stage import Stage
+    from calib.stages.stage import Stage
 
     proto = ProtocolScript((Still(3.0), Turn("x", 360.0), Still(3.0), Turn("y", 360.0), Motion((60.0, 0.0, 0.0), 1.5),
                             Still(3.0), Turn("z", 360.0), Still(3.0)))
@@ -412,7 +412,7 @@ def test_a_turn_that_ends_in_another_pose_is_refused():
 
 
 def test_a_result_round_trips_through_its_dict() -> None:
-    from calib.api import calibrate
+    from calib.pipeline import calibrate
     from calib.result import CalibrationResult
     from calib.simulator import simulate
 

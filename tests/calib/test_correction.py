@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib.api import calibrate
-from calib.correction import G0, Correction, CorrectionFileError, corrected
+from calib.apply.correction import G0, Correction, CorrectionFileError, corrected
+from calib.pipeline import calibrate
 from calib.simulator import simulate
 
 

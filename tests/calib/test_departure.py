@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.api import calibrate
-from calib.departure import departures
+from calib.judge.departure import departures
+from calib.pipeline import calibrate
 from calib.simulator import SensorParams, simulate
 
 SENSOR = SensorParams(k=np.array([1.08, 0.93, 1.12]), b=np.array([1.5, -2.0, 0.7]))

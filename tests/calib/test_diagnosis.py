@@ -9,8 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from calib.cli import main
-from calib.concealed import EFFECT_NAMES, draw_concealed
+from calib.cli.main import main
 from calib.diagnosis import Diagnosis, diagnose
 from calib.diagnosis.data import Inputs
 from calib.diagnosis.models import Model
@@ -23,10 +22,11 @@ from calib.effects import (
     ScaleNonlinearity,
 )
 from calib.errors import RecordingError
-from calib.io import read_recording, write_native_csv
+from calib.io.readers import read_recording, write_native_csv
 from calib.recording import Recording
 from calib.simulator import simulate
-from calib.stages import detect_stages
+from calib.simulator.concealed import EFFECT_NAMES, draw_concealed
+from calib.stages.detector import detect_stages
 
 N_BOOT = 100  # replicates per diagnosis in the tests (the default is 200)
 

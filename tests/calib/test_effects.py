@@ -1,4 +1,4 @@
-"""Tests of the effect catalogue (calib.effects) and the concealed-effect generator (calib.concealed).
+"""Tests of the effect catalogue (calib.effects) and the concealed-effect generator (calib.simulator.concealed).
 
 Each effect is checked against its own model equation on noise-free recordings, then the CLI and
 the generator's determinism, ranges and concealment.
@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from calib.concealed import EFFECT_NAMES, PROTOCOLS, RANGES, draw_concealed, protocol_script
 from calib.effects import (
     CATALOGUE,
     EFFECTS,
@@ -36,6 +35,7 @@ from calib.effects import (
 )
 from calib.errors import GyrocalError
 from calib.simulator import ProtocolScript, SensorParams, Still, Turn, extended_protocol_script, simulate
+from calib.simulator.concealed import EFFECT_NAMES, PROTOCOLS, RANGES, draw_concealed, protocol_script
 
 FS = 104.0
 PARAMS = SensorParams([0.9, 1.1, 1.05], [2.0, -3.0, 0.5])
@@ -298,12 +298,12 @@ def test_parse_effect_values_mean_what_the_help_says():
 
 def _gyrocal(*args: str, cwd: Path) -> subprocess.Popen[str]:
     exe = Path(sys.executable).with_name("gyrocal")
-    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "calib.cli"]
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "calib.cli.main"]
     return subprocess.Popen([*cmd, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=cwd)
 
 
 def test_cli_simulates_every_effect(tmp_path):
-    from calib.io import read_recording
+    from calib.io.readers import read_recording
 
     runs = {
         name: _gyrocal("simulate", "--seed", "3", "--effect", f"{name}={CLI_VALUES[name]}", "-o", f"{name}.csv", "--truth", cwd=tmp_path)
@@ -328,8 +328,8 @@ def test_cli_simulates_every_effect(tmp_path):
 def test_cli_simulates_the_extended_protocol_that_reveals_a_nonlinearity(tmp_path):
     """The same scale nonlinearity, simulated with one turn per axis and with the extended protocol: the diagnosis
     says the first cannot show it and names it in the second, with the --effect value that reproduces it."""
-    from calib.io import read_recording
-    from calib.stages import detect_stages
+    from calib.io.readers import read_recording
+    from calib.stages.detector import detect_stages
 
     effect = "scale_nonlinearity=0.01"
     sims = {p: _gyrocal("simulate", "--seed", "5", "--protocol", p, "--effect", effect, "-o", f"{p}.csv", cwd=tmp_path)

@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib.concealed import RANGES
 from calib.diagnosis.models import Model
 from calib.diagnosis.select import ADVICE, TYPICAL
 from calib.effects import CATALOGUE, EFFECTS, DrawContext, catalogue_specs
+from calib.simulator.concealed import RANGES
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -65,8 +65,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from .base import Effect, register_effect
-from .spec import EffectSpec, MagnitudeRange, log_uniform
+from calib.effects.base import Effect, register_effect
+from calib.effects.spec import EffectSpec, MagnitudeRange, log_uniform
 
 
 @register_effect
@@ -93,8 +93,8 @@ class OffsetStep(Effect):
 
 PROBE = '''
 import json
-from calib.cli import build_parser
-from calib.concealed import EFFECT_NAMES, RANGES, draw_concealed
+from calib.cli.main import build_parser
+from calib.simulator.concealed import EFFECT_NAMES, RANGES, draw_concealed
 from calib.diagnosis.select import ADVICE
 from calib.effects.tables import models_table
 
@@ -113,9 +113,9 @@ def test_an_effect_added_in_one_place_reaches_the_generator_the_diagnosis_the_cl
     (tmp_path / "calib" / "effects" / "offset.py").write_text(ADDED_MODULE)
     init = tmp_path / "calib" / "effects" / "__init__.py"
     text = init.read_text()
-    anchor = "from .placement import"
+    anchor = "from calib.effects.placement import"
     assert anchor in text
-    init.write_text(text.replace(anchor, "from .offset import OffsetStep\n" + anchor))
+    init.write_text(text.replace(anchor, "from calib.effects.offset import OffsetStep\n" + anchor))
     env = {**os.environ, "PYTHONPATH": str(tmp_path)}
     out = subprocess.run([sys.executable, "-c", PROBE], cwd=tmp_path, env=env, capture_output=True, text=True)
     assert out.returncode == 0, out.stderr

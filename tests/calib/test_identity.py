@@ -7,7 +7,7 @@ from datetime import UTC, datetime, timedelta
 
 import pytest
 
-from calib.identity import IdentityError, SensorIdentity, WrongSensor, check_identity, same_power_up
+from calib.apply.identity import IdentityError, SensorIdentity, WrongSensor, check_identity, same_power_up
 
 T0 = datetime(2026, 11, 20, 8, 0, tzinfo=UTC)
 CAL = SensorIdentity(device_id="ward-3", sensor_model="ICM-20948", serial="A1", firmware="1.2.0", boot_count=7,

@@ -1,4 +1,4 @@
-"""Reading, writing and validating recordings (calib.io, calib.validation)."""
+"""Reading, writing and validating recordings (calib.io.readers, calib.io.validation)."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from calib.errors import RecordingError
-from calib.io import parse_recording_text, read_recording, validate_recording, write_native_csv
+from calib.io.readers import parse_recording_text, read_recording, validate_recording, write_native_csv
 from calib.recording import STANDARD_GRAVITY, Recording, RecordingMeta
 
 REAL = Path("/work/shared/data/real/imucal")
@@ -528,7 +528,7 @@ def test_host_time_channel_round_trips_and_is_checked(tmp_path) -> None:
     import pytest
 
     from calib.errors import RecordingError
-    from calib.io import parse_recording_text, write_native_csv
+    from calib.io.readers import parse_recording_text, write_native_csv
     from calib.recording import Recording
 
     t = np.arange(50) / 100.0
@@ -560,7 +560,7 @@ def test_time_stamps_of_another_clock_are_put_on_the_sampling_grid() -> None:
 
 
 def test_imu_tk_xsens_session_is_read_on_its_sampling_grid(real_data: Path) -> None:
-    from calib.imu_tk_io import read_imu_tk
+    from calib.io.imu_tk import read_imu_tk
 
     rec = read_imu_tk(real_data / "imu_tk" / "xsens_gyro.mat", real_data / "imu_tk" / "xsens_acc.mat")
     raw = np.loadtxt(real_data / "imu_tk" / "xsens_gyro.mat", usecols=0)
@@ -571,7 +571,7 @@ def test_imu_tk_xsens_session_is_read_on_its_sampling_grid(real_data: Path) -> N
 
 
 def test_imu_tk_files_read_from_their_text_as_from_their_paths(real_data: Path) -> None:
-    from calib.imu_tk_io import parse_imu_tk, read_imu_tk
+    from calib.io.imu_tk import parse_imu_tk, read_imu_tk
 
     folder = real_data / "imu_tk"
     by_path = read_imu_tk(folder / "xsens_gyro.mat", folder / "xsens_acc.mat")

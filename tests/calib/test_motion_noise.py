@@ -1,4 +1,4 @@
-"""The gyroscope's noise while moving (``calib.motion_noise``): measured in the top of the band against the rests',
+"""The gyroscope's noise while moving (``calib.noise.motion``): measured in the top of the band against the rests',
 counted where beyond chance, shown on a concealed simulated effect and on imu_tk's Xsens."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from calib.effects import MotionNoise, SimulationConfigError, parse_effect
-from calib.motion_noise import MOTION_NOISE_ALPHA, motion_noise, no_motion_noise
-from calib.multi_position import calibrate_multi_position
+from calib.estimators.multi_position.estimator import calibrate_multi_position
+from calib.noise.motion import MOTION_NOISE_ALPHA, motion_noise, no_motion_noise
 from calib.simulator import simulate
 from calib.simulator.lab_scripts import multi_position_script
 
@@ -90,7 +90,7 @@ def test_a_concealed_motion_noise_is_found_and_counted():
 def test_imu_tk_gyro_is_noisier_while_moving(real_data: Path):
     """Xsens' gyro carries 1.2-2.1 times its rest noise variance at 45-50 Hz while the hand turns it; counted, the
     re-orientations' gravity residuals are at their noise (chi-square ratio ~1), where they were 1.5 times it."""
-    from calib.imu_tk_io import read_imu_tk
+    from calib.io.imu_tk import read_imu_tk
 
     rec = read_imu_tk(real_data / "imu_tk" / "xsens_gyro.mat", real_data / "imu_tk" / "xsens_acc.mat")
     res = calibrate_multi_position(rec)

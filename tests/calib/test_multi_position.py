@@ -1,4 +1,4 @@
-"""Gyroscope calibration from re-orientations between rests (calib.multi_position): simulation and imu_tk's session."""
+"""Gyroscope calibration from re-orientations between rests (calib.estimators.multi_position.estimator): simulation and imu_tk's session."""
 
 from __future__ import annotations
 
@@ -7,11 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib.accel import AccelCalibration, AccelCalibrationError
-from calib.api import calibrate_protocol
 from calib.effects.axes import GSensitivity
 from calib.errors import CalibrationError, ProtocolError
-from calib.multi_position import calibrate_multi_position, noise_colour
+from calib.estimators.accel import AccelCalibration, AccelCalibrationError
+from calib.estimators.multi_position.estimator import calibrate_multi_position, noise_colour
+from calib.pipeline import calibrate_protocol
 from calib.recording import Recording
 from calib.result import CalibrationResult
 from calib.simulator import simulate
@@ -103,7 +103,7 @@ def test_auto_keeps_the_paper_protocol_for_paper_recordings_and_falls_back_for_r
 
 
 def test_imu_tk_xsens_session_is_calibrated_from_its_37_re_orientations(real_data: Path):
-    from calib.imu_tk_io import read_imu_tk
+    from calib.io.imu_tk import read_imu_tk
 
     rec = read_imu_tk(real_data / "imu_tk" / "xsens_gyro.mat", real_data / "imu_tk" / "xsens_acc.mat")
     res, protocol = calibrate_protocol(rec)
@@ -172,9 +172,9 @@ def test_g_sensitivity_is_kept_and_applied_by_the_result():
 
 
 def test_the_fit_jacobian_matches_finite_differences_with_the_g_sensitivity(monkeypatch: pytest.MonkeyPatch):
-    import calib.multi_position_model as model
-    from calib.multi_position import _data, motions_between_rests
-    from calib.stages import detect_stages
+    import calib.estimators.multi_position.model as model
+    from calib.estimators.multi_position.estimator import _data, motions_between_rests
+    from calib.stages.detector import detect_stages
 
     rng = np.random.default_rng(902)
     rec, truth = simulate(2, noise=0.05, fs=100.0, script=multi_position_script(rng, n=8, first_rest_s=10.0),
@@ -207,8 +207,8 @@ def test_long_motions_far_from_the_starting_scale_factors_still_converge(real_da
     ones of 12-16 s that end tens of degrees off at the starting K = I: an undamped Gauss-Newton step overshot
     there and diverged (reported as 'the re-orientations do not determine K'); the damped fit converges to the
     same calibration."""
-    from calib.imu_tk_io import read_imu_tk
-    from calib.stages import detect_stages
+    from calib.io.imu_tk import read_imu_tk
+    from calib.stages.detector import detect_stages
 
     rec = read_imu_tk(real_data / "imu_tk" / "xsens_gyro.mat", real_data / "imu_tk" / "xsens_acc.mat")
     stages = detect_stages(rec)
@@ -222,7 +222,7 @@ def test_long_motions_far_from_the_starting_scale_factors_still_converge(real_da
 def test_re_orientations_no_calibration_explains_are_refused_with_what_to_check(ferraris_csv: Path):
     """imucal's session read at 10 Hz instead of 102.4: its stages then hold motions no gyro calibration makes
     agree with the accelerometer. The fit converges, 9 deg rms off, and that is refused rather than reported."""
-    from calib.io import read_recording
+    from calib.io.readers import read_recording
 
     with pytest.raises(CalibrationError, match=r"gravity is still \d+\.\d deg rms off.*Check the sample rate"):
         calibrate_protocol(read_recording(ferraris_csv, fs=10.0), "multi-position")

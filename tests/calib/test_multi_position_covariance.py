@@ -1,5 +1,5 @@
 """The re-orientations' joint noise: two motions that meet at a rest share that rest's gravity direction, so their
-misfits are correlated; the fit whitens them together (``calib.multi_position_model.GravityTerms.covariance``)."""
+misfits are correlated; the fit whitens them together (``calib.estimators.multi_position.model.GravityTerms.covariance``)."""
 
 from __future__ import annotations
 
@@ -8,11 +8,11 @@ from dataclasses import replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calib.multi_position import _data, motions_between_rests
-from calib.multi_position_model import Params, _gravity_terms, residual_layout, system
+from calib.estimators.multi_position.estimator import _data, motions_between_rests
+from calib.estimators.multi_position.model import Params, _gravity_terms, residual_layout, system
 from calib.simulator import simulate
 from calib.simulator.lab_scripts import multi_position_script
-from calib.stages import detect_stages
+from calib.stages.detector import detect_stages
 
 
 def test_the_covariance_is_the_scatter_of_the_noise_it_describes():

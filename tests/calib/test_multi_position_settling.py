@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import calib.multi_position_model as model
-from calib.multi_position import calibrate_multi_position
+import calib.estimators.multi_position.model as model
+from calib.estimators.multi_position.estimator import calibrate_multi_position
 from calib.simulator import simulate
 from calib.simulator.lab_scripts import multi_position_script
 from calib.simulator.protocol import Motion, ProtocolScript, Still
@@ -61,7 +61,7 @@ def test_settling_rests_are_found_counted_and_the_fit_stays_honest(monkeypatch: 
 
 
 def test_imu_tk_rests_that_settle_are_named_and_counted(real_data: Path):
-    from calib.imu_tk_io import read_imu_tk
+    from calib.io.imu_tk import read_imu_tk
 
     rec = read_imu_tk(real_data / "imu_tk" / "xsens_gyro.mat", real_data / "imu_tk" / "xsens_acc.mat")
     res = calibrate_multi_position(rec)

@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calib import orientation as orient
-from calib.correction import Correction, corrected
+from calib.apply import orientation as orient
+from calib.apply.correction import Correction, corrected
 from calib.errors import GyrocalError
 from calib.recording import Recording
 from calib.simulator import simulate

@@ -1,4 +1,4 @@
-"""The paper's Algorithm 1 (calib.paper) and its simulation study (calib.bench)."""
+"""The paper's Algorithm 1 (calib.estimators.paper) and its simulation study (calib.studies.paper_sim)."""
 
 from __future__ import annotations
 
@@ -8,13 +8,15 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from calib import GyrocalError, ProtocolError, RecordingError, Stage, bench
-from calib.bench import paper_sim, register_batch_method
-from calib.paper import _rotvec_to_quat, algorithm1, algorithm1_batch, calibrate_paper
-from calib.quaternion import prefix_products
+from calib import GyrocalError, ProtocolError, RecordingError, Stage
+from calib.estimators.paper import _rotvec_to_quat, algorithm1, algorithm1_batch, calibrate_paper
+from calib.numerics.quaternion import prefix_products
 from calib.recording import Recording, RecordingMeta
 from calib.simulator import Motion, ProtocolScript, SensorParams, Still, Turn, simulate, simulate_batch
-from calib.stages import ProtocolStages, detect_stages
+from calib.stages.detector import detect_stages
+from calib.stages.protocol import ProtocolStages
+from calib.studies import paper_sim as bench
+from calib.studies.paper_sim import paper_sim, register_batch_method
 
 FS = 104.0
 

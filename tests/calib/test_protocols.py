@@ -10,15 +10,15 @@ import numpy as np
 import pytest
 from test_cli import IMUCAL_K, assert_user_error, gyrocal
 
-from calib.api import calibrate, calibrate_protocol
 from calib.errors import GyrocalError, ProtocolError, RecordingError
-from calib.ferraris import calibrate_ferraris, find_poses
-from calib.io import read_recording
-from calib.recognise import recognise
-from calib.sections import parse_sections, read_sections, sections_from_labels, stages_from_sections
+from calib.estimators.ferraris import calibrate_ferraris, find_poses
+from calib.io.readers import read_recording
+from calib.io.sections import parse_sections, read_sections, sections_from_labels, stages_from_sections
+from calib.pipeline import calibrate, calibrate_protocol
 from calib.simulator import SensorParams, simulate
 from calib.simulator.lab_scripts import ferraris_script, inclined_script, rate_table_script
-from calib.stages import detect_stages
+from calib.stages.detector import detect_stages
+from calib.stages.recognise import recognise
 
 # imucal's Ferraris result for annotated_session.csv (counts; ../shared/data/real/README.md)
 ANNOTATED_K_G = np.array([16.6777, 16.1879, 16.2534])  # counts per deg/s
@@ -161,8 +161,8 @@ def test_ferraris_method_refuses_without_the_six_poses() -> None:
 
 
 def test_the_rate_table_recovers_k_and_b_from_known_runs() -> None:
-    from calib.bench_methods import FS, _table_runs
-    from calib.rate_table import calibrate_rate_table
+    from calib.estimators.rate_table import calibrate_rate_table
+    from calib.studies.methods import FS, _table_runs
 
     params = SensorParams(np.array([1.05, 0.97, 1.1]), np.array([0.5, -1.0, 2.0]))
     rec, truth = simulate(8, 0.05, FS, params, rate_table_script((20.0, 50.0, 100.0), 10.0))

@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calib.closure import calibrate_closure
-from calib.correction import Correction
+from calib.apply.correction import Correction
+from calib.estimators.closure.estimator import calibrate_closure
+from calib.judge.verification import FULL_TURN_DEG, NoVerificationTurn, find_turn, verify_turn
 from calib.recording import Recording
 from calib.simulator import simulate
-from calib.verification import FULL_TURN_DEG, NoVerificationTurn, find_turn, verify_turn
 
 
 @pytest.fixture(scope="module")

@@ -25,7 +25,7 @@ SPEED = 20.0
 
 def _calibrate(rec) -> CalibrationResult:
     """The library's default estimator when it is installed, else the paper's method."""
-    from calib.api import calibrate
+    from calib.pipeline import calibrate
 
     try:
         return calibrate(rec)
@@ -67,7 +67,7 @@ async def test_cli_wearable_streams_the_protocol_through_bleak_and_calibrates(db
     """gyrocal mock-device --ble on its own bus; scan, connect, read, stream at 20x, decode, calibrate."""
     seed = 21
     proc = subprocess.Popen(
-        [sys.executable, "-m", "calib.cli", "mock-device", "--ble", "--seed", str(seed), "--speed", str(SPEED), "--boot-count", "41",
+        [sys.executable, "-m", "calib.cli.main", "mock-device", "--ble", "--seed", str(seed), "--speed", str(SPEED), "--boot-count", "41",
          "--temperature", "19.5"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
@@ -195,7 +195,7 @@ async def test_device_information_and_battery_are_optional(simulated_bluez):
 
 
 def test_mock_device_cli_refuses_bad_arguments_with_a_message(capsys):
-    from calib.cli import main
+    from calib.cli.main import main
 
     assert main(["mock-device"]) == 2
     assert "add --ble" in capsys.readouterr().err

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import wearable_protocol as wp
-from calib.io import write_native_csv
+from calib.io.readers import write_native_csv
 from calib.simulator import simulate
 from mock_device.sources import ReplaySource, ScriptedSource
 from mock_device.wearable import Wearable
@@ -167,7 +167,7 @@ async def test_inprocess_link_streams_the_protocol_and_it_calibrates():
     assert rec.fs == pytest.approx(w.true_rate_hz, rel=1e-6)
     assert np.all(np.diff(rec.t) > 0) and np.all(np.diff(rec.seq) == 1)
 
-    from calib.paper import calibrate_paper
+    from calib.estimators.paper import calibrate_paper
 
     res = calibrate_paper(rec)
     # The paper reports errors within +-5.5e-3 at this noise (0.03 deg/s); these bounds are twice that.
@@ -344,7 +344,7 @@ async def test_too_fast_turns_arrive_saturated_and_flagged():
 
 def _stage_axes(gyro: np.ndarray, fs: float) -> list:
     from calib.recording import Recording, RecordingMeta
-    from calib.stages import detect_stages
+    from calib.stages.detector import detect_stages
 
     n = gyro.shape[0]
     rec = Recording(np.arange(n) / fs, gyro, seq=np.arange(n), meta=RecordingMeta(sample_rate_hz=fs))

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from test_link_inprocess import _collect, _session
 
-from calib.api import calibrate
+from calib.pipeline import calibrate
 from mock_device.sources import ScriptedSource
 from mock_device.vendors import WEARABLES
 from server.link import CommandError, InProcessLink, ReconnectPolicy, RecordingBuilder

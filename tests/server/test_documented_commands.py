@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from calib.cli import build_parser
+from calib.cli.main import build_parser
 
 ROOT = Path(__file__).resolve().parents[2]
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from calib.cli import main
+from calib.cli.main import main
 
 ROOT = Path(__file__).resolve().parents[2]
 RUN_PACKAGES = ("calib", "server", "mock_device", "wearable_protocol", "webui")
@@ -95,8 +95,8 @@ def test_a_command_whose_part_cannot_be_imported_says_what_to_install(
 
 
 def test_an_unknown_bench_method_and_one_whose_dependency_is_missing_are_told_apart(monkeypatch: pytest.MonkeyPatch) -> None:
-    from calib.bench import _resolve
     from calib.errors import GyrocalError
+    from calib.studies.paper_sim import _resolve
 
     with pytest.raises(GyrocalError, match="unknown bench method 'no_such_method'"):
         _resolve("no_such_method")
@@ -104,7 +104,7 @@ def test_an_unknown_bench_method_and_one_whose_dependency_is_missing_are_told_ap
     def import_needing_httpx(name: str) -> None:
         raise ModuleNotFoundError("No module named 'httpx'", name="httpx")
 
-    monkeypatch.setattr("calib.bench.import_module", import_needing_httpx)
+    monkeypatch.setattr("calib.studies.paper_sim.import_module", import_needing_httpx)
     with pytest.raises(GyrocalError, match="bench method 'watched' cannot be loaded: the module 'httpx' could not be imported"):
         _resolve("watched")
 
@@ -114,7 +114,7 @@ def test_a_command_whose_entry_point_cannot_be_loaded_is_listed_and_says_what_to
     from importlib.metadata import EntryPoint
 
     broken = EntryPoint(name="serve", value="fastapi_missing_here.cli:register", group="gyrocal.commands")
-    monkeypatch.setattr("calib.cli.entry_points", lambda group: [broken])
+    monkeypatch.setattr("calib.cli.main.entry_points", lambda group: [broken])
     assert main(["serve", "--mock", "2"]) == 2
     err = capsys.readouterr().err
     assert "'gyrocal serve' cannot be loaded: the module 'fastapi_missing_here' could not be imported" in err

@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 from server_fixtures import GYROCAL, ROOT, RunningService, follow_events
 
-from calib.correction import Correction
-from calib.io import read_recording, write_native_csv
+from calib.apply.correction import Correction
+from calib.io.readers import read_recording, write_native_csv
 from calib.simulator import simulate
 
 DEVICE = "ward-3-unit-12"

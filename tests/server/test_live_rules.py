@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calib.acceptance import Tolerances
+from calib.judge.acceptance import Tolerances
 from server.config import ProtocolTimings
 from server.live.codes import EndReason, Phase, State
 from server.live.time_limits import overdue

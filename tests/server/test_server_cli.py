@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 from server_fixtures import API_TOKEN, RunningService, follow_events
 
-from calib.cli import main
+from calib.cli.main import main
 from server.auth import Authenticator
 from server.store import Store
 

@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 from server_fixtures import API_TOKEN, RunningService, bad_csv_uploads, follow_events
 
-from calib.cli import main as gyrocal_main
-from calib.concealed import draw_concealed
-from calib.io import write_native_csv
+from calib.cli.main import main as gyrocal_main
+from calib.io.readers import write_native_csv
 from calib.simulator import simulate
+from calib.simulator.concealed import draw_concealed
 
 END = {"done", "failed", "cancelled"}
 CSV = {"Content-Type": "text/csv"}

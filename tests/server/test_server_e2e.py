@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 from server_fixtures import GYROCAL, ROOT, RunningService, bad_csv_uploads, follow_events, store_outage
 
-from calib.api import calibrate
-from calib.io import parse_recording_text, write_native_csv
+from calib.io.readers import parse_recording_text, write_native_csv
+from calib.pipeline import calibrate
 from calib.simulator import simulate
-from calib.stage import Stage
+from calib.stages.stage import Stage
 
 END = {"done", "failed", "cancelled"}
 # mock-N performs SCENARIOS[N-1] in every session (seeded, so every run is the same)
@@ -319,8 +319,8 @@ def test_imu_tk_s_two_files_are_uploaded_and_calibrated_from_their_re_orientatio
                                                                                     real_data: Path) -> None:
     """imu_tk's Xsens session as its two files, in one multipart body: the same calibration as from the command line;
     a part missing, a file that is not imu_tk's, or two files where one CSV was meant, each refused with a reason."""
-    from calib.imu_tk_io import read_imu_tk
-    from calib.multi_position import calibrate_multi_position
+    from calib.estimators.multi_position.estimator import calibrate_multi_position
+    from calib.io.imu_tk import read_imu_tk
 
     folder = real_data / "imu_tk"
     gyro, accel = (folder / "xsens_gyro.mat").read_bytes(), (folder / "xsens_acc.mat").read_bytes()

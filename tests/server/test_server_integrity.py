@@ -15,7 +15,7 @@ import pytest
 from server_fixtures import API_TOKEN, RunningService, at_once, follow_events, store_outage
 from sqlalchemy import create_engine, text
 
-from calib.io import write_native_csv
+from calib.io.readers import write_native_csv
 from calib.simulator import simulate
 from server.store import Store
 
@@ -158,7 +158,7 @@ def test_kill_9_mid_turn_leaves_the_recording_for_the_audit(service_store: tuple
             assert row["state"] == "failed" and row["reason_code"] == "service_restarted"
             r = c.get(f"/sessions/{sid}/recording")
             assert r.status_code == 200, r.text
-        from calib.io import parse_recording_text
+        from calib.io.readers import parse_recording_text
 
         rec = parse_recording_text(r.content, None, "native", "recovered")
         assert len(rec) > 104 * 4 and rec.t[-1] - rec.t[0] > 4.0  # the initial rest and part of the turn

@@ -14,7 +14,7 @@ import httpx
 import pytest
 from server_fixtures import API_TOKEN, RunningService
 
-from calib.io import write_native_csv
+from calib.io.readers import write_native_csv
 from calib.simulator import simulate
 
 CSV = {"Content-Type": "text/csv"}

@@ -21,7 +21,7 @@ from schemathesis.specs.openapi.checks import (
 )
 from server_fixtures import API_TOKEN, RunningService, follow_events
 
-from calib.io import write_native_csv
+from calib.io.readers import write_native_csv
 from calib.simulator import simulate
 
 HEADERS = {"Authorization": f"Bearer {API_TOKEN}"}

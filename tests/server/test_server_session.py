@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from calib.acceptance import evaluate as evaluate_result
+from calib.judge.acceptance import evaluate as evaluate_result
 from calib.result import CalibrationResult
 from calib.simulator import Motion, ProtocolScript, SensorParams, Still, Turn, paper_protocol_script, simulate
 from mock_device.scenarios import get_scenario

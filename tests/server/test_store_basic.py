@@ -195,7 +195,7 @@ def test_expired_tokens_are_refused(store_url: str) -> None:
 
 
 def test_a_calibration_result_goes_into_the_store_and_comes_back_the_same(store_url: str) -> None:
-    from calib.api import calibrate
+    from calib.pipeline import calibrate
     from calib.simulator import simulate
 
     rec, _ = simulate(4, noise=0.05)

@@ -26,8 +26,8 @@ from webui_fixtures import (
     watched_page,
 )
 
-from calib.correction import Correction
-from calib.io import read_recording, write_native_csv
+from calib.apply.correction import Correction
+from calib.io.readers import read_recording, write_native_csv
 from calib.simulator import simulate
 
 VIEWS = {"1280x800": {"width": 1280, "height": 800}, "820x1180": {"width": 820, "height": 1180}}

@@ -10,8 +10,8 @@ from typing import Any
 import pytest
 from webui_fixtures import Watch, Wizard, api, assert_clean, running_service
 
-from calib.concealed import draw_concealed
-from calib.io import write_native_csv
+from calib.io.readers import write_native_csv
+from calib.simulator.concealed import draw_concealed
 
 pytestmark = pytest.mark.timeout(120)
 

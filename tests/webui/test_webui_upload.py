@@ -48,7 +48,7 @@ def test_a_multi_position_upload_shows_the_g_sensitivity_it_found(wizard: Wizard
     import numpy as np
 
     from calib.effects.axes import GSensitivity
-    from calib.io import write_native_csv
+    from calib.io.readers import write_native_csv
     from calib.simulator import simulate
     from calib.simulator.lab_scripts import multi_position_script
 

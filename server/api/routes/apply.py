@@ -13,8 +13,8 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Path, Query, Request, Response
 
 from calib import __version__
-from calib.correction import Correction, CorrectionFileError
-from calib.identity import SensorIdentity
+from calib.apply.correction import Correction, CorrectionFileError
+from calib.apply.identity import SensorIdentity
 from calib.json_safe import finite
 
 from ... import schemas as M

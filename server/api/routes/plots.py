@@ -45,7 +45,7 @@ async def session_plot(
     """Rate magnitude and orientation (angle from the start pose) before and after calibration,
     the angle swept in each turn, and the turn intervals; times in s from the recording's start."""
     from calib.errors import GyrocalError
-    from calib.io import parse_recording_text
+    from calib.io.readers import parse_recording_text
 
     check_session_id(session_id)
     svc = service_of(request)

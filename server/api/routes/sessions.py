@@ -16,10 +16,10 @@ from pydantic import ValidationError
 from sqlalchemy.exc import SQLAlchemyError
 
 from calib import __version__
-from calib.acceptance import evaluate, turn_accuracy
-from calib.departure import departures
-from calib.identity import SensorIdentity
+from calib.apply.identity import SensorIdentity
 from calib.json_safe import finite
+from calib.judge.acceptance import evaluate, turn_accuracy
+from calib.judge.departure import departures
 
 from ... import schemas as M
 from ...deps import (
@@ -321,7 +321,7 @@ async def live_angle_of(svc: Service, device_id: str) -> LiveAngle:
 
 
 async def start_live(svc: Service, device_id: str, operator: str, method: str | None, max_attempts: int | None) -> LiveSession:
-    from calib.api import available_methods
+    from calib.pipeline import available_methods
 
     if method is not None and method not in available_methods():
         raise problem(422, f"unknown method {method!r}: choose one of {', '.join(available_methods())}")
@@ -368,7 +368,7 @@ async def calibrate_uploaded(
     boot_count: int | None = None,
     options: UploadOptions | None = None,
 ) -> JSONResponse:
-    from calib.api import DEFAULT_METHOD, available_methods
+    from calib.pipeline import DEFAULT_METHOD, available_methods
 
     method = method or DEFAULT_METHOD
     if method not in available_methods():

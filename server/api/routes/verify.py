@@ -11,7 +11,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Path, Query, Request, Response
 
 from calib import __version__
-from calib.verification import NoVerificationTurn
+from calib.judge.verification import NoVerificationTurn
 
 from ... import schemas as M
 from ...deps import CSV_TYPES, R404, R409, Operator, Reader, Svc, check_device_id, check_upload, problem, recording_problem

@@ -10,7 +10,7 @@ from typing import Any
 from fastapi import APIRouter
 from sqlalchemy.exc import SQLAlchemyError
 
-from calib.identity import check_identity
+from calib.apply.identity import check_identity
 from wearable_protocol import HeldCalibration
 from wearable_protocol.models import CANNOT_HOLD
 

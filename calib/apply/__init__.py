@@ -1,0 +1,1 @@
+"""Using a calibration: correcting recordings, their orientation, which sensor it belongs to."""

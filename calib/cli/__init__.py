@@ -1,0 +1,1 @@
+"""The ``gyrocal`` command line."""

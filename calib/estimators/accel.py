@@ -1,0 +1,194 @@
+"""Accelerometer calibration from rests: the 9-parameter model fitted to |a| = 1 g over every rest.
+
+Model (Tedaldi, Pretto, Menegatti, ICRA 2014 — imu_tk's; readings r and calibrated a in g):
+
+    a = T S (r - o),   S = diag(s),   T = [[1, -a_yz, a_zy], [0, 1, -a_zx], [0, 0, 1]]
+
+with scale factors s (dimensionless), offsets o (g, in reading units) and the three small
+non-orthogonality angles (rad) of T. At rest the calibrated specific force has magnitude 1 g, so each
+rest gives one equation |a_i| = 1; the fit is a nonlinear least squares over the rests' mean readings.
+Nine parameters need rests in enough different orientations: with too few (or too alike) the
+misalignment, then the scale factors are held at their nominal values (0, 1) and the result says so.
+Uncertainties are the least-squares covariance scaled by the residual variance (the rests' spread
+about 1 g includes any hand tremor, so the noise level is measured, not assumed).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from calib.errors import CalibrationError
+from calib.recording import Recording
+from calib.stages.stage import Stage
+
+PARAMS = ("s_x", "s_y", "s_z", "o_x", "o_y", "o_z", "a_yz", "a_zy", "a_zx")
+MIN_RESTS = {9: 12, 6: 9, 3: 4}  # rests needed for each model: at least a few more than its parameters
+CONDITION_MAX = 1e6  # a worse-conditioned fit does not identify every parameter of its model
+MIN_REST_SAMPLES = 10
+REST_TRIM_S = 0.25  # each rest's first and last quarter second left out (the hand lets go, the device settles)
+
+
+class AccelCalibrationError(CalibrationError, ValueError):
+    """The rests cannot calibrate the accelerometer; the message says what is missing."""
+
+    default_code = "accelerometer_not_determined"
+
+
+@dataclass(frozen=True)
+class AccelCalibration:
+    """A calibrated accelerometer: ``a = T S (r - o)`` (see the module docstring), with its uncertainty."""
+
+    scale: np.ndarray  # (3,) s
+    offset: np.ndarray  # (3,) o, g
+    misalignment: np.ndarray  # (3,) a_yz, a_zy, a_zx, rad
+    scale_std: np.ndarray | None = None
+    offset_std: np.ndarray | None = None
+    misalignment_std: np.ndarray | None = None
+    n_rests: int = 0
+    residual_rms_g: float = 0.0  # rms of |a_i| - 1 over the rests after calibration
+    residuals_g: np.ndarray = field(default_factory=lambda: np.zeros(0))  # |a_i| - 1 per rest
+    identified: tuple[str, ...] = PARAMS
+    note: str = ""
+
+    @classmethod
+    def from_fit(cls, x: np.ndarray, std: np.ndarray, free: np.ndarray, residuals: np.ndarray, note: str) -> AccelCalibration:
+        """The calibration from a fitted parameter vector ``x`` (9, in ``PARAMS`` order), the std of its ``free`` entries
+        (the others held at nominal) and the rests' residuals |a_i| - 1."""
+        return cls(
+            scale=x[0:3].copy(), offset=x[3:6].copy(), misalignment=x[6:9].copy(),
+            scale_std=std[0:3].copy() if free[0:3].any() else None, offset_std=std[3:6].copy(),
+            misalignment_std=std[6:9].copy() if free[6:9].all() else None,
+            n_rests=int(residuals.size), residual_rms_g=float(np.sqrt(np.mean(residuals**2))), residuals_g=residuals.copy(),
+            identified=tuple(p for p, f in zip(PARAMS, free, strict=True) if f), note=note,
+        )
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> AccelCalibration:
+        """The calibration's model parameters from its ``to_dict`` form (a result's ``quality["accelerometer"]``)."""
+        return cls(scale=np.asarray(d["scale"], float), offset=np.asarray(d["bias"], float),
+                   misalignment=np.asarray(d["misalignment"], float))
+
+    @property
+    def vector(self) -> np.ndarray:
+        """The parameters (9,) in ``PARAMS`` order."""
+        return np.concatenate([self.scale, self.offset, self.misalignment])
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """T S (3, 3)."""
+        return _t_matrix(self.misalignment) @ np.diag(self.scale)
+
+    def apply(self, readings: np.ndarray) -> np.ndarray:
+        """Calibrated specific force (g) of raw readings (..., 3) in g."""
+        return apply_model(self.vector, np.asarray(readings, dtype=float))
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: scale, bias (the offset o, g), misalignment (rad), uncertainty, fit quality."""
+
+        def lst(a: np.ndarray | None) -> list[float] | None:
+            return None if a is None else [float(v) for v in a]
+
+        return {
+            "model": "a = T S (r - o)",
+            "scale": lst(self.scale),
+            "bias": lst(self.offset),
+            "misalignment": lst(self.misalignment),
+            "uncertainty": {"scale": lst(self.scale_std), "bias": lst(self.offset_std), "misalignment": lst(self.misalignment_std)},
+            "n_rests": self.n_rests,
+            "residual_rms_mg": 1e3 * self.residual_rms_g,
+            "identified": list(self.identified),
+            "note": self.note,
+        }
+
+
+def _t_matrix(mis: np.ndarray) -> np.ndarray:
+    a_yz, a_zy, a_zx = mis
+    return np.array([[1.0, -a_yz, a_zy], [0.0, 1.0, -a_zx], [0.0, 0.0, 1.0]])
+
+
+def apply_model(x: np.ndarray, raw: np.ndarray) -> np.ndarray:
+    """T S (raw - o) for the parameters ``x`` (9, in ``PARAMS`` order) and raw readings (..., 3) in g."""
+    return ((raw - x[3:6]) * x[0:3]) @ _t_matrix(x[6:9]).T
+
+
+NOMINAL = np.array([1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+SCALE_SPAN = 1.0  # an axis's scale needs rests with it pointing well up and well down (span of its gravity share)
+OFFSET_SPAN = 0.5  # its offset, rests with it tilted clearly different ways
+
+
+def _residuals(x: np.ndarray, free: np.ndarray, means: np.ndarray) -> np.ndarray:
+    full = NOMINAL.copy()
+    full[free] = x
+    return np.linalg.norm(apply_model(full, means), axis=1) - 1.0
+
+
+def _plans(means: np.ndarray) -> list[tuple[np.ndarray, str]]:
+    """The parameter sets to try, largest first, each with what it leaves out: what the rests' orientations allow."""
+    u = means / np.linalg.norm(means, axis=1, keepdims=True)
+    span = u.max(axis=0) - u.min(axis=0)
+    scale_ok, offset_ok = span >= SCALE_SPAN, span >= OFFSET_SPAN
+    N = means.shape[0]
+    held = [f"{ax}'s scale (the {ax} axis never pointed well up and well down)" for ax, ok in zip("xyz", scale_ok, strict=True) if not ok]
+    held += [f"{ax}'s offset (the {ax} axis hardly changed its tilt)" for ax, ok in zip("xyz", offset_ok, strict=True) if not ok]
+    base = np.concatenate([scale_ok, offset_ok, np.zeros(3, dtype=bool)])
+    plans = []
+    if scale_ok.all() and N >= MIN_RESTS[9]:
+        plans.append((np.concatenate([base[:6], np.ones(3, dtype=bool)]), held))
+    plans.append((base, [*held, "the misalignment" + ("" if N >= MIN_RESTS[9] else f" ({MIN_RESTS[9]} rests needed, {N} given)")]))
+    plans.append((np.concatenate([np.zeros(3, dtype=bool), offset_ok, np.zeros(3, dtype=bool)]), [*held, "the scale factors"]))
+    return [(free, "held at nominal: " + "; ".join(h) if h else "") for free, h in plans if free.sum() and N >= free.sum() + 1]
+
+
+def fit_accelerometer(means: np.ndarray) -> AccelCalibration:
+    """Calibrate from the mean readings (N, 3) in g of N rests in different orientations."""
+    means = np.asarray(means, dtype=float).reshape(-1, 3)
+    means = means[np.all(np.isfinite(means), axis=1) & (np.linalg.norm(means, axis=1) > 0.1)]
+    N = means.shape[0]
+    if N < MIN_RESTS[3]:
+        raise AccelCalibrationError(
+            f"the recording has {N} rests with the accelerometer; calibrating it needs at least {MIN_RESTS[3]} rests in "
+            "different orientations (put the device down on each face and edge, a few seconds each)")
+    tried = []
+    for free, note in _plans(means):
+        sol = least_squares(_residuals, NOMINAL[free], args=(free, means), method="lm", x_scale="jac")
+        sv = np.linalg.svd(sol.jac, compute_uv=False)
+        if sv[-1] <= 0 or sv[0] / sv[-1] > CONDITION_MAX:
+            tried.append(f"{int(free.sum())} parameters are not separated by the rests' orientations")
+            continue
+        s2 = float(sol.fun @ sol.fun) / max(N - int(free.sum()), 1)
+        std_free = np.sqrt(np.diag(np.linalg.inv(sol.jac.T @ sol.jac) * s2))
+        full, std = NOMINAL.copy(), np.full(9, np.nan)
+        full[free], std[free] = sol.x, std_free
+        return AccelCalibration.from_fit(full, std, free, sol.fun, "; ".join([*tried, note] if note else tried))
+    raise AccelCalibrationError(
+        "the rests cannot calibrate the accelerometer: their orientations are too alike"
+        + (f" ({'; '.join(tried)})" if tried else "")
+        + ". Rest the device in more orientations (each face and edge down, a few seconds each)")
+
+
+def rest_spans(stills: list[Stage], fs: float) -> list[tuple[int, int]]:
+    """The samples [i, j) of each still that its accelerometer mean is taken over: ``REST_TRIM_S`` left out at
+    each end, less for a still too short for that (always at least one sample, inside the still)."""
+    trim = int(round(REST_TRIM_S * fs))
+    out = []
+    for st in stills:
+        t = min(trim, max(0, (st.end - st.start - 1) // 2))
+        out.append((st.start + t, st.end - t))
+    return out
+
+
+def rest_means(rec: Recording, stills: list[Stage]) -> np.ndarray:
+    """Mean accelerometer reading (g) of each still long enough to be trusted (``rest_spans``, ``MIN_REST_SAMPLES``)."""
+    if rec.accel is None:
+        raise AccelCalibrationError("the recording has no accelerometer channel")
+    out = [rec.accel[i:j].mean(axis=0) for i, j in rest_spans(stills, rec.fs) if j - i >= MIN_REST_SAMPLES]
+    return np.array(out).reshape(-1, 3)
+
+
+def calibrate_accelerometer(rec: Recording, stills: list[Stage]) -> AccelCalibration:
+    """The accelerometer's calibration from a recording's stills (as ``calib.stages`` finds them)."""
+    return fit_accelerometer(rest_means(rec, [s for s in stills if s.kind == "still"]))

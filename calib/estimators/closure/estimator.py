@@ -1,0 +1,400 @@
+"""The closure estimator (method "closure", gyrocal's default): maximum likelihood over K and b.
+
+Physics: after a full hand turn the device is back in the pose it started from, so the product of
+the calibrated incremental rotations over the turn is the identity, with a swept angle of 360 deg per
+revolution. Each turn gives the 3-D closing rotation r_j = Log(prod_t Exp((K m_t + b) dt_t)), which
+must be 0; each still segment gives its mean reading, which must be -K^-1 b. Both are weighted by the
+covariance white reading noise gives them (the noise level comes from the stills), and the weighted
+sum of squares is minimised by scipy.optimize.least_squares with the analytic Jacobian
+(calib.estimators.closure.model, calib.estimators.closure.fit). Any number of turns, in either direction, about any axis.
+
+Uncertainty: the inverse of J^T J (whitened Jacobian at the solution) is the Cramer-Rao bound for the
+recording; the reported standard errors are that bound scaled by the Birge ratio sqrt(chi2/dof) when
+the residuals are larger than the noise explains (never scaled down).
+
+Extended model (``extended=True``): K upper-triangular, adding the three non-orthogonality terms
+K_xy, K_xz, K_yz. They are observable only when the turns are not all about fixed axes (hand wobble)
+or when some turns are about axes between the sensor axes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.stats import chi2 as chi2_dist
+
+from calib.errors import CalibrationError, ProtocolError
+from calib.estimators.closure.fit import ClosureData, calibration_matrix, param_names, start_values, still_statistics, system, windows
+from calib.io.validation import check_calibration_input
+from calib.recording import Recording, sample_intervals
+from calib.result import CalibrationResult
+from calib.stages.stage import AXES, FLAG_COUNTER_GAP, FLAG_SATURATED, Stage
+
+METHOD = "closure"
+MIN_STILL_SAMPLES = 2
+MIN_STILL_S = 1.0  # less rest than this in all gives a noisy bias
+P_VALUE_WARN = 1e-3  # chi-square this improbable: the model does not explain the data
+MAX_CLOSURE_DEG = 45.0  # a turn that still misses its start by this much after the fit was not a full turn
+CLOSURE_WARN_SIGMA = 5.0  # a turn whose closure is this many standard errors off did not come back
+OFFDIAG_WARN = 5e-3  # extended model: off-diagonal terms known worse than this are weakly identified
+EXTENDED_ALPHA = 0.01  # the extended model is chosen when its likelihood-ratio test is below this
+EXTENDED_FIT_MIN = 1e-3  # ... and when it explains the recording itself (its chi-square's p-value above this)
+OFFDIAG_FAIL = 0.05  # ... and worse than this, not identified at all
+_LSQ = {"method": "lm", "xtol": 1e-10, "ftol": 1e-12, "gtol": 1e-10, "x_scale": "jac"}
+
+
+@dataclass
+class _Fit:
+    theta: np.ndarray
+    res: np.ndarray
+    fisher: np.ndarray
+    terms_r: np.ndarray  # (J, 3) closing rotation vectors at the solution, rad
+    swept: np.ndarray  # (J, 3) integrated calibrated rate per turn, deg
+    chol: np.ndarray  # (J, 3, 3)
+    nfev: int
+    converged: bool
+
+
+def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None = None) -> CalibrationResult:
+    """Calibrate one recording with the closure maximum-likelihood estimator (method "closure").
+
+    stages: a list of Stage, a ProtocolStages, or None to detect them. Every full turn and every
+    still segment is used. ``extended`` True adds the three non-orthogonality terms of an upper-triangular K,
+    False keeps K diagonal; None (default) adds them where the recording identifies them (each known to
+    ``OFFDIAG_WARN``) and the likelihood-ratio test finds them (p < ``EXTENDED_ALPHA``), and says which in
+    ``quality["model_choice"]``. Raises RecordingError for bad input, ProtocolError when a stage is missing,
+    CalibrationError when the recording does not determine the parameters (or the terms asked for).
+    """
+    check_calibration_input(rec)
+    stage_list, turns, stills, warnings = _select_stages(rec, stages)
+    dt_all = sample_intervals(rec.t)
+
+    gyro = rec.gyro[None]
+    m, d = windows(gyro, np.array([[[s.start, s.end] for s in turns]]), dt_all[None])
+    mean, count, sigma = still_statistics(gyro, np.array([[[s.start, s.end] for s in stills]]))
+    data = ClosureData(m, d, mean, count, sigma)
+
+    theta0, n_rev, rank = start_values(data, extended=False)
+    if rank[0] < 3 or not np.all(np.isfinite(theta0)):
+        turned = ", ".join(sorted({s.axis or "?" for s in turns}))
+        dropped = [w for w in warnings if "full scale" in w]
+        raise ProtocolError(
+            f"the usable turns (about {turned}) do not rotate the device about all three of its axes: "
+            "turn it a full 360 degrees about each of x, y and z, pausing about 3 s between turns"
+            + (f" ({'; '.join(dropped)})" if dropped else "")
+        )
+    fit = _solve(data, theta0[0], extended=False)
+    choice: dict[str, Any] = {"asked": extended}
+    if extended:
+        start = np.concatenate((fit.theta, np.zeros(3)))
+        _check_identified(data, start)
+        fit = _solve(data, start, extended=True)
+        choice["reason"] = "asked for"
+    elif extended is None:
+        fit, extended, choice = _choose_model(data, fit)
+    else:
+        choice["reason"] = "not asked for"
+    _check_closed(turns, fit)
+    result = _result(rec, stage_list, turns, stills, data, fit, n_rev[0], bool(extended), warnings, dt_all)
+    result.quality["model_choice"] = choice
+    return result
+
+
+def _choose_model(data: ClosureData, diagonal: _Fit) -> tuple[_Fit, bool, dict[str, Any]]:
+    """The diagonal fit, or the extended one where the recording identifies its terms and needs them."""
+    choice: dict[str, Any] = {"asked": None}
+    start = np.concatenate((diagonal.theta, np.zeros(3)))
+    bound = offdiag_bounds(data, start)
+    choice["offdiag_bound"] = [float(v) for v in bound]
+    if np.any(bound > OFFDIAG_WARN):
+        choice["reason"] = (f"the non-orthogonality terms are not identified (standard errors up to {bound.max():.2g}, "
+                            f"needs {OFFDIAG_WARN:g}): turns about the sensor axes leave them free")
+        return diagonal, False, choice
+    ext = _solve(data, start, extended=True)
+    chi2_ext, dof_ext = float(ext.res @ ext.res), int(data.dof(True)[0])
+    lr = float(diagonal.res @ diagonal.res) - chi2_ext
+    p = float(chi2_dist.sf(max(lr, 0.0), 3))
+    fits = float(chi2_dist.sf(chi2_ext, dof_ext)) if dof_ext > 0 else 1.0
+    choice.update(likelihood_ratio=lr, p_value=p, extended_fit_p_value=fits)
+    if fits < EXTENDED_FIT_MIN:
+        # a misfit the terms only partly absorb (a turn that did not come back, ...) is not non-orthogonality
+        choice["reason"] = (f"the extended model does not explain the recording either (chi2/dof = {chi2_ext / dof_ext:.1f}): "
+                            "the misfit is something else, see the warnings")
+        return diagonal, False, choice
+    if p < EXTENDED_ALPHA:
+        choice["reason"] = f"identified and significant (p = {p:.2g} < {EXTENDED_ALPHA:g})"
+        return ext, True, choice
+    choice["reason"] = f"identified but not significant (p = {p:.2g} >= {EXTENDED_ALPHA:g})"
+    return diagonal, False, choice
+
+
+# --------------------------------------------------------------------------- fitting
+
+
+def _solve(data: ClosureData, theta0: np.ndarray, extended: bool) -> _Fit:
+    """least_squares with the turn weights held fixed, re-weighted at its solution until they settle.
+
+    Residual-only evaluations use the cheap closure product; each Jacobian costs one full pass, and
+    the pass that sets the weights doubles as the first Jacobian and as the final one.
+    """
+    theta = theta0
+    nfev = 0
+    converged = False
+    current = system(data, theta[None], extended, jacobian=True)  # weights at theta
+    for _ in range(4):
+        chol = current.chol
+        jac_cache = {theta.tobytes(): current.J[0]}
+        res_cache = {theta.tobytes(): current.res[0]}
+
+        def fun(th: np.ndarray, chol=chol, res_cache=res_cache) -> np.ndarray:
+            key = th.tobytes()
+            if key not in res_cache:
+                res_cache.clear()
+                res_cache[key] = system(data, th[None], extended, chol=chol, jacobian=False).res[0]
+            return res_cache[key]
+
+        def jac(th: np.ndarray, chol=chol, jac_cache=jac_cache) -> np.ndarray:
+            key = th.tobytes()
+            if key not in jac_cache:
+                jac_cache.clear()
+                jac_cache[key] = system(data, th[None], extended, chol=chol, jacobian=True).J[0]
+            return jac_cache[key]
+
+        sol = least_squares(fun, theta, jac=jac, **_LSQ)
+        nfev += int(sol.nfev)
+        if not np.all(np.isfinite(sol.x)):
+            raise CalibrationError("the closure fit diverged: check that each turn is one full turn that ends where it began",
+                                   code="not_closed")
+        theta = sol.x
+        converged = bool(sol.success)
+        current = system(data, theta[None], extended, jacobian=True)
+        # the weights have settled when no closure covariance factor moved by 1 % of its size
+        change = np.max(np.abs(current.chol - chol) / np.abs(chol).max(axis=(-2, -1), keepdims=True))
+        if change < 1e-2:
+            break
+    jacobian = current.J[0]
+    return _Fit(
+        theta=theta,
+        res=current.res[0],
+        fisher=jacobian.T @ jacobian,
+        terms_r=current.terms.r,
+        swept=current.terms.swept,
+        chol=current.chol[0],
+        nfev=nfev,
+        converged=converged,
+    )
+
+
+def _check_closed(turns: list[Stage], fit: _Fit) -> None:
+    """Raise CalibrationError when a turn is so far from closing that its residual means nothing."""
+    angle = np.degrees(np.linalg.norm(fit.terms_r, axis=1))
+    worst = int(np.argmax(angle))
+    if angle[worst] > MAX_CLOSURE_DEG:
+        st = turns[worst]
+        raise CalibrationError(
+            f"the turn about {st.axis} at {st.start_s:.1f}-{st.end_s:.1f} s ends {angle[worst]:.0f} deg from where it "
+            "began even after calibration: it is not a full turn back to the starting pose. Repeat it, turning "
+            "exactly 360 degrees and putting the device back in its starting position",
+            code="not_closed",
+        )
+
+
+def offdiag_bounds(data: ClosureData, theta: np.ndarray) -> np.ndarray:
+    """Cramér-Rao standard errors (3,) of the non-orthogonality terms at ``theta`` (9,); inf where not identified."""
+    s = system(data, theta[None], True, jacobian=True)
+    F = s.J[0].T @ s.J[0]
+    scale = np.sqrt(np.diag(F))
+    if np.any(scale <= 0):
+        return np.full(3, np.inf)
+    Fn = F / np.outer(scale, scale)
+    ev = np.linalg.eigvalsh(Fn)
+    return np.full(3, np.inf) if ev[0] < 1e-12 * ev[-1] else np.sqrt(np.diag(np.linalg.inv(Fn)))[6:] / scale[6:]
+
+
+def _check_identified(data: ClosureData, theta: np.ndarray) -> None:
+    """Raise CalibrationError when the recording cannot tell the non-orthogonality terms apart."""
+    bound = offdiag_bounds(data, theta)
+    if np.any(bound > OFFDIAG_FAIL):
+        raise CalibrationError(
+            "this recording does not determine the non-orthogonality terms of the extended model "
+            f"(their standard errors would be {', '.join(f'{v:.2g}' for v in bound)}): turns about fixed "
+            "sensor axes leave them free. Add turns about axes between the sensor axes, or use the diagonal model."
+        )
+
+
+# --------------------------------------------------------------------------- result
+
+
+def _result(
+    rec: Recording,
+    stage_list: list[Stage],
+    turns: list[Stage],
+    stills: list[Stage],
+    data: ClosureData,
+    fit: _Fit,
+    n_rev: np.ndarray,
+    extended: bool,
+    warnings: list[str],
+    dt_all: np.ndarray,
+) -> CalibrationResult:
+    theta = fit.theta
+    names = param_names(extended)
+    try:
+        cov = np.linalg.inv(fit.fisher)
+    except np.linalg.LinAlgError:
+        raise CalibrationError("the recording does not determine all parameters: turn the device about each axis") from None
+    bound = np.sqrt(np.abs(np.diag(cov)))
+    chi2 = float(fit.res @ fit.res)
+    dof = int(data.dof(extended)[0])
+    birge = float(np.sqrt(max(1.0, chi2 / dof))) if dof > 0 else 1.0
+    p_value = float(chi2_dist.sf(chi2, dof)) if dof > 0 else float("nan")
+    std = bound * birge
+    K = calibration_matrix(theta[None])[0]
+
+    index = {id(s): i for i, s in enumerate(stage_list)}
+    J = len(turns)
+    whitened = fit.res[: 3 * J].reshape(J, 3)
+    turn_rows = []
+    for j, st in enumerate(turns):
+        r_deg = np.degrees(fit.terms_r[j])
+        swept = fit.swept[j]
+        axis = AXES.index(st.axis) if st.axis in AXES else int(np.argmax(np.abs(swept)))
+        z = float(np.linalg.norm(whitened[j]))
+        turn_rows.append(
+            {
+                "stage": index.get(id(st)),
+                "axis": st.axis,
+                "start_s": st.start_s,
+                "end_s": st.end_s,
+                "samples": st.n,
+                "revolutions": int(n_rev[j]),
+                "angle_deg": float(swept[axis]),  # calibrated rate integrated on the turn's axis
+                # the raw readings' angle on that axis (bias from the stills removed): what the sensor said before
+                "raw_angle_deg": None if st.angle_deg is None else float(st.angle_deg),
+                "closure_deg": [float(v) for v in r_deg],  # net rotation over the turn: 0 when it came back
+                "closure_norm_deg": float(np.linalg.norm(r_deg)),
+                "closure_std_deg": float(np.degrees(np.sqrt(np.trace(fit.chol[j] @ fit.chol[j].T) / 3.0))),
+                "z": z,
+            }
+        )
+        if z > CLOSURE_WARN_SIGMA * np.sqrt(3.0):
+            warnings.append(
+                f"the turn about {st.axis} at {st.start_s:.1f} s ends {np.linalg.norm(r_deg):.2f} deg from where it began "
+                f"({z / np.sqrt(3.0):.0f} times what noise explains): put the device back exactly in its starting pose after each turn"
+            )
+    still_rows = []
+    rate = data.still_mean[0] @ K.T + theta[3:6]
+    zs = fit.res[3 * J :].reshape(-1, 3)
+    for s, st in enumerate(stills):
+        still_rows.append(
+            {
+                "stage": index.get(id(st)),
+                "start_s": st.start_s,
+                "end_s": st.end_s,
+                "samples": st.n,
+                "rate_dps": [float(v) for v in rate[s]],  # calibrated mean rate: 0 at rest
+                "z": [float(v) for v in zs[s]],
+            }
+        )
+    if p_value < P_VALUE_WARN:
+        warnings.append(
+            f"the data fit the model worse than the noise explains (chi2/dof = {chi2 / dof:.1f}): the device may not "
+            "have come back exactly to its starting pose, or its offset moved between stills; "
+            f"the standard errors are scaled up by {birge:.1f}"
+        )
+    still_s = float(sum(dt_all[s.start : s.end].sum() for s in stills))
+    if still_s < MIN_STILL_S:
+        warnings.append(f"the device rested only {still_s:.1f} s in all: rest about 3 s before, between and after the turns")
+    if not fit.converged:
+        warnings.append("the least-squares fit stopped before converging; the result may be inaccurate")
+
+    K_std = None
+    if extended:
+        K_std = np.zeros((3, 3))
+        K_std[[0, 1, 2], [0, 1, 2]] = std[:3]
+        K_std[[0, 0, 1], [1, 2, 2]] = std[6:9]
+        offdiag_bound = bound[6:9]
+        if np.any(offdiag_bound > OFFDIAG_WARN):
+            warnings.append(
+                "the non-orthogonality terms are only weakly determined by this recording (standard errors "
+                f"{', '.join(f'{v:.1e}' for v in offdiag_bound)}); turns about axes between the sensor axes determine them better"
+            )
+    quality = {
+        "model": "upper-triangular" if extended else "diagonal",
+        "parameters": list(names),
+        "chi2": chi2,
+        "dof": dof,
+        "birge_ratio": birge,
+        "p_value": p_value,
+        "turns": J,
+        "stills": len(stills),
+        "still_s": still_s,
+        "turn_s": [float(dt_all[s.start : s.end].sum()) for s in turns],
+        "stages_used": sorted(i for i in (index.get(id(s)) for s in (*turns, *stills)) if i is not None),
+        "function_evaluations": fit.nfev,
+        "converged": fit.converged,
+        "correlation": _correlation(cov).tolist(),
+    }
+    return CalibrationResult(
+        k=theta[:3].copy(),
+        b=theta[3:6].copy(),
+        method=METHOD,
+        stages=stage_list,
+        quality=quality,
+        k_std=std[:3],
+        b_std=std[3:6],
+        k_bound=bound[:3],
+        b_bound=bound[3:6],
+        K=K if extended else None,
+        K_std=K_std,
+        noise_dps=data.sigma[0].copy(),
+        residuals={"turns": turn_rows, "stills": still_rows, "chi2": chi2, "dof": dof},
+        warnings=warnings,
+        iterations=fit.nfev,
+    )
+
+
+def _correlation(cov: np.ndarray) -> np.ndarray:
+    s = np.sqrt(np.abs(np.diag(cov)))
+    return np.round(cov / np.outer(s, s), 6)
+
+
+# --------------------------------------------------------------------------- input
+
+
+
+def _select_stages(rec: Recording, stages: Any) -> tuple[list[Stage], list[Stage], list[Stage], list[str]]:
+    """(all stages, turns used, stills used, warnings). Every full turn and still is used."""
+    from calib.stages.resolve import resolve_stages
+
+    stage_list = resolve_stages(rec, stages).stages
+    warnings: list[str] = []
+    turns = []
+    for s in stage_list:
+        if s.kind != "turn":
+            continue
+        if FLAG_SATURATED in s.flags:
+            warnings.append(
+                f"the turn about {s.axis} at {s.start_s:.1f} s reached the gyro's full scale and is not used: turn more slowly"
+            )
+            continue
+        if s.n < 2:
+            continue
+        if FLAG_COUNTER_GAP in s.flags:
+            warnings.append(f"samples were lost during the turn about {s.axis} at {s.start_s:.1f} s; its closure is approximate")
+        turns.append(s)
+    stills = [s for s in stage_list if s.kind == "still" and s.n >= MIN_STILL_SAMPLES]
+    if not turns:
+        dropped = [w for w in warnings if "full scale" in w]
+        raise ProtocolError(
+            "no usable full turn was found: turn the device 360 degrees about each of its axes"
+            + (f" ({'; '.join(dropped)})" if dropped else "")
+        )
+    if not stills:
+        raise ProtocolError("no still segment was found: let the device rest about 3 s before, between and after the turns")
+    return stage_list, turns, stills, warnings
+
+

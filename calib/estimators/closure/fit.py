@@ -1,0 +1,359 @@
+"""Weighted least squares over the closure model, shared by the single-recording and batch estimators.
+
+Parameters theta of one recording: (k_x, k_y, k_z, b_x, b_y, b_z) for K = diag(k), and in the extended
+model three more, (K_xy, K_xz, K_yz), the upper off-diagonal entries of K. The lower ones are fixed at
+0: any K is a rotation times an upper-triangular matrix, and the rotation (the sensor frame's
+orientation) is not observable without an external reference.
+
+The residual vector of a recording stacks, each whitened to unit covariance:
+
+- per turn j, the closing rotation vector r_j (closure_model), with the covariance that white reading
+  noise gives it (linearised, so the sum of squares is the Gauss-Helmert approximation of the
+  likelihood with the unknown hand trajectory profiled out);
+- per still segment s of N_s samples, the mean reading against its model value:
+  sqrt(N_s) (mean(m_s) + K^-1 b) / sigma, per axis (sigma: reading noise, from the stills).
+
+Minimising the sum of squares is maximum likelihood; J^T J of the whitened Jacobian is the Fisher
+information, whose inverse is the Cramer-Rao bound for the recording.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib.estimators.closure.model import ClosureTerms, closure_terms
+
+TURN_DEG = 360.0
+OFF_DIAGONAL: tuple[tuple[int, int], ...] = ((0, 1), (0, 2), (1, 2))
+MIN_SIGMA_DPS = 1e-6  # floor for noise-free data, so that the weights stay finite
+
+
+def n_params(extended: bool) -> int:
+    """Number of parameters: 6 (diagonal K) or 9 (upper-triangular K)."""
+    return 9 if extended else 6
+
+
+def param_names(extended: bool) -> tuple[str, ...]:
+    """Names of the entries of theta, in order."""
+    names = ("k_x", "k_y", "k_z", "b_x", "b_y", "b_z")
+    return names + ("K_xy", "K_xz", "K_yz") if extended else names
+
+
+def calibration_matrix(theta: np.ndarray) -> np.ndarray:
+    """K (R, 3, 3) from parameters theta (R, 6 or 9)."""
+    R = theta.shape[0]
+    K = np.zeros((R, 3, 3))
+    K[:, [0, 1, 2], [0, 1, 2]] = theta[:, :3]
+    if theta.shape[1] == 9:
+        for p, (i, j) in enumerate(OFF_DIAGONAL):
+            K[:, i, j] = theta[:, 6 + p]
+    return K
+
+
+@dataclass
+class ClosureData:
+    """The data of R recordings with J turns and S still segments each.
+
+    ``m`` (n, R*J, 3): readings (deg/s) of each turn, time-first, turn j of recording r in column
+    r*J + j, zero past the turn's end; ``dt`` (n, R*J) the interval each sample is held (s), 0 past
+    the end. ``still_mean`` (R, S, 3) mean reading of each still (deg/s), ``still_n`` (R, S) its
+    number of samples (0: absent). ``sigma`` (R, 3) reading noise std per axis (deg/s).
+    """
+
+    m: np.ndarray
+    dt: np.ndarray
+    still_mean: np.ndarray
+    still_n: np.ndarray
+    sigma: np.ndarray
+
+    @property
+    def R(self) -> int:
+        return int(self.still_mean.shape[0])
+
+    @property
+    def J(self) -> int:
+        return int(self.m.shape[1] // self.R)
+
+    @property
+    def S(self) -> int:
+        return int(self.still_mean.shape[1])
+
+    def runs(self, idx: np.ndarray) -> ClosureData:
+        """The data of a subset of the recordings."""
+        seq = (np.asarray(idx)[:, None] * self.J + np.arange(self.J)).ravel()
+        return ClosureData(self.m[:, seq], self.dt[:, seq], self.still_mean[idx], self.still_n[idx], self.sigma[idx])
+
+    def dof(self, extended: bool) -> np.ndarray:
+        """Degrees of freedom of the fit per recording: residuals minus parameters."""
+        return 3 * self.J + 3 * (self.still_n > 0).sum(axis=1) - n_params(extended)
+
+
+def windows(gyro: np.ndarray, bounds: np.ndarray, dt: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Stack the turn windows [start, end) of R recordings time-first.
+
+    gyro (R, n, 3); bounds (R, J, 2); dt a scalar or (R, n) per-sample intervals (s).
+    Returns m (L, R*J, 3) and dt (L, R*J), zero past each window's end, L the longest window.
+    """
+    R, n, _ = gyro.shape
+    J = bounds.shape[1]
+    lengths = bounds[..., 1] - bounds[..., 0]
+    L = int(lengths.max())
+    offs = np.arange(L)
+    idx = np.minimum(bounds[..., 0, None] + offs, n - 1)  # (R, J, L)
+    inside = offs < lengths[..., None]
+    rows = np.arange(R)[:, None, None]
+    m = np.where(inside[..., None], gyro[rows, idx], 0.0)  # (R, J, L, 3)
+    if np.ndim(dt) == 0:
+        d = np.where(inside, float(dt), 0.0)
+    else:
+        d = np.where(inside, np.asarray(dt)[rows, idx], 0.0)
+    m = np.ascontiguousarray(m.reshape(R * J, L, 3).transpose(1, 0, 2))
+    d = np.ascontiguousarray(d.reshape(R * J, L).T)
+    return m, d
+
+
+def still_statistics(gyro: np.ndarray, bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mean (R, S, 3), sample count (R, S) and pooled within-still std (R, 3) of still windows (R, S, 2).
+
+    Windows with end <= start count as absent. The std pools every still's deviations from its own
+    mean, so offsets that differ between stills do not inflate it.
+    """
+    R, n, _ = gyro.shape
+    S = bounds.shape[1]
+    s0 = bounds[..., 0]
+    s1 = np.maximum(bounds[..., 1], s0)
+    count = (s1 - s0).astype(float)
+    ref = gyro[:, :1, :]  # subtracting a reference keeps the sums of squares well conditioned
+    x = (gyro - ref).reshape(R * n, 3)
+    starts = s0 + (np.arange(R) * n)[:, None]
+    ends = s1 + (np.arange(R) * n)[:, None]
+    edges = np.stack((starts, ends), axis=-1).reshape(-1)
+    if np.all(np.diff(edges) >= 0):
+        # one pass: sums over [start, end) of each still (the segments in between are dropped)
+        x = np.concatenate((x, np.zeros((1, 3))))
+        sum1 = np.add.reduceat(x, edges, axis=0)[0::2].reshape(R, S, 3)
+        sum2 = np.add.reduceat(x * x, edges, axis=0)[0::2].reshape(R, S, 3)
+    else:  # overlapping or unordered windows: running sums
+        c1 = np.concatenate((np.zeros((1, 3)), np.cumsum(x, axis=0)))
+        c2 = np.concatenate((np.zeros((1, 3)), np.cumsum(x * x, axis=0)))
+        sum1 = c1[ends] - c1[starts]
+        sum2 = c2[ends] - c2[starts]
+    empty = count == 0
+    sum1[empty] = 0.0
+    sum2[empty] = 0.0
+    safe = np.maximum(count, 1.0)[..., None]
+    mean = sum1 / safe
+    ss = np.maximum(sum2 - sum1 * mean, 0.0)  # sum of squared deviations per still
+    pooled_dof = np.maximum(count - 1.0, 0.0).sum(axis=1)
+    sigma = np.sqrt(ss.sum(axis=1) / np.maximum(pooled_dof, 1.0)[:, None])
+    sigma = np.maximum(sigma, MIN_SIGMA_DPS)
+    return mean + ref, count, sigma
+
+
+# --------------------------------------------------------------------------- start values
+
+
+def start_values(data: ClosureData, extended: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Starting parameters from the stills and the per-turn integrated angles.
+
+    With the raw offset beta = pooled still mean (m at rest = -K^-1 b), each turn's bias-compensated
+    integrated reading a_j = sum (m_t - beta) dt_t is about K^-1 times its rotation vector, so
+    sum_i k_i^2 a_ji^2 = (360 n_j)^2, with n_j = round(|a_j| / 360) >= 1 full turns: linear in k^2.
+    Returns theta0 (R, P), the turn counts n_j (R, J) and the rank of the k^2 system per recording
+    (3 when every axis is turned about).
+    """
+    R, J = data.R, data.J
+    w = data.still_n[..., None]
+    beta = (data.still_mean * w).sum(axis=1) / np.maximum(w.sum(axis=1), 1.0)
+    integ = np.einsum("tsi,ts->si", data.m, data.dt).reshape(R, J, 3)
+    dur = data.dt.sum(axis=0).reshape(R, J)
+    a = integ - beta[:, None, :] * dur[..., None]
+    turns = np.maximum(1.0, np.round(np.linalg.norm(a, axis=2) / TURN_DEG))
+    A = a * a  # (R, J, 3)
+    y = (TURN_DEG * turns) ** 2
+    # scale the columns so that the rank test is about directions, not about magnitudes
+    AtA = np.einsum("rji,rjk->rik", A, A)
+    Aty = np.einsum("rji,rj->ri", A, y)
+    scale = np.sqrt(np.maximum(np.einsum("rii->ri", AtA), 1e-300))
+    N = AtA / (scale[:, :, None] * scale[:, None, :])
+    ev = np.linalg.eigvalsh(N)
+    rank = (ev > 1e-6 * np.maximum(ev[:, -1:], 1e-300)).sum(axis=1)
+    k2 = np.full((R, 3), np.nan)
+    ok = rank == 3
+    if ok.any():
+        k2[ok] = np.linalg.solve(N[ok], (Aty / scale)[ok][..., None])[..., 0] / scale[ok]
+    k = np.sqrt(np.where(k2 > 0, k2, np.nan))
+    theta = np.zeros((R, n_params(extended)))
+    theta[:, :3] = k
+    theta[:, 3:6] = -k * beta
+    return theta, turns, rank
+
+
+# --------------------------------------------------------------------------- whitened system
+
+
+@dataclass
+class System:
+    """Whitened residuals (R, M) and Jacobian (R, M, P) of R recordings at theta, with the turn weights."""
+
+    res: np.ndarray
+    jac: np.ndarray | None
+    chol: np.ndarray  # (R, J, 3, 3) lower Cholesky factors of the closure covariances (rad^2)
+    terms: ClosureTerms
+
+    @property
+    def J(self) -> np.ndarray:
+        """The Jacobian (the system must have been built with jacobian=True)."""
+        if self.jac is None:
+            raise ValueError("this system was built without its Jacobian (jacobian=False)")
+        return self.jac
+
+
+def solve_lower(Lc: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """L^-1 x for batched lower-triangular L (..., 3, 3) and x (..., 3, k), by forward substitution."""
+    y = np.empty_like(x)
+    y[..., 0, :] = x[..., 0, :] / Lc[..., 0, 0, None]
+    y[..., 1, :] = (x[..., 1, :] - Lc[..., 1, 0, None] * y[..., 0, :]) / Lc[..., 1, 1, None]
+    y[..., 2, :] = (x[..., 2, :] - Lc[..., 2, 0, None] * y[..., 0, :] - Lc[..., 2, 1, None] * y[..., 1, :]) / Lc[..., 2, 2, None]
+    return y
+
+
+def system(
+    data: ClosureData,
+    theta: np.ndarray,
+    extended: bool,
+    chol: np.ndarray | None = None,
+    jacobian: bool = True,
+) -> System:
+    """Residuals (and Jacobian) at theta (R, P). Turn weights come from ``chol`` or are computed at theta."""
+    R, J, S = data.R, data.J, data.S
+    P = n_params(extended)
+    K = calibration_matrix(theta)
+    b = theta[:, 3:6]
+    need_cov = chol is None
+    terms = closure_terms(
+        data.m,
+        data.dt,
+        np.repeat(K, J, axis=0),
+        np.repeat(b, J, axis=0),
+        sigma=np.repeat(data.sigma, J, axis=0) if need_cov else None,
+        jacobian=jacobian or need_cov,
+    )
+    if chol is None:
+        assert terms.noise is not None  # asked for with sigma
+        chol = np.linalg.cholesky(terms.noise).reshape(R, J, 3, 3)
+    r = terms.r.reshape(R, J, 3)
+    res_turn = solve_lower(chol, r[..., None])[..., 0]
+
+    Kinv = np.linalg.inv(K)
+    beta = np.einsum("rij,rj->ri", Kinv, b)  # the reading at rest is -beta
+    wstill = np.sqrt(data.still_n)[..., None] / data.sigma[:, None, :]  # (R, S, 3)
+    res_still = wstill * (data.still_mean + beta[:, None, :])
+    res = np.concatenate((res_turn.reshape(R, 3 * J), res_still.reshape(R, 3 * S)), axis=1)
+    if not jacobian:
+        return System(res, None, chol, terms)
+
+    assert terms.dK is not None and terms.db is not None  # asked for with jacobian
+    dK = terms.dK.reshape(R, J, 3, 3, 3)
+    jt = np.empty((R, J, 3, P))
+    jt[..., 0:3] = np.stack([dK[..., i, i] for i in range(3)], axis=-1)
+    jt[..., 3:6] = terms.db.reshape(R, J, 3, 3)
+    # d beta / d theta: d(K^-1 b)/db = K^-1, d(K^-1 b)/dK_ij = -K^-1[:, i] beta_j
+    dbeta = np.empty((R, 3, P))
+    for i in range(3):
+        dbeta[:, :, i] = -Kinv[:, :, i] * beta[:, i, None]
+    dbeta[:, :, 3:6] = Kinv
+    if extended:
+        for p, (i, j) in enumerate(OFF_DIAGONAL):
+            jt[..., 6 + p] = dK[..., i, j]
+            dbeta[:, :, 6 + p] = -Kinv[:, :, i] * beta[:, j, None]
+    jac_turn = solve_lower(chol, jt)
+    jac_still = wstill[..., None] * dbeta[:, None, :, :]  # (R, S, 3, P)
+    jac = np.concatenate((jac_turn.reshape(R, 3 * J, P), jac_still.reshape(R, 3 * S, P)), axis=1)
+    return System(res, jac, chol, terms)
+
+
+# --------------------------------------------------------------------------- batched Gauss-Newton
+
+
+@dataclass
+class BatchFit:
+    """Solutions of R recordings: theta (R, P), Fisher information (R, P, P), chi-square, iterations."""
+
+    theta: np.ndarray
+    fisher: np.ndarray
+    chi2: np.ndarray
+    dof: np.ndarray
+    iterations: np.ndarray
+    converged: np.ndarray
+    closure: np.ndarray  # (R, J, 3) closing rotation vectors at the solution (rad)
+
+
+def gauss_newton(
+    data: ClosureData,
+    theta0: np.ndarray,
+    extended: bool,
+    max_iter: int = 8,
+    tol: float = 1e-4,
+) -> BatchFit:
+    """Gauss-Newton for R recordings at once, each with its own normal equations.
+
+    The weights are recomputed at each iterate. A recording stops when every step is below ``tol``
+    times that parameter's standard error; its chi-square and closure are then extrapolated linearly
+    to the final step, which is negligible by then.
+    """
+    R = data.R
+    P = n_params(extended)
+    theta = theta0.copy()
+    fisher = np.full((R, P, P), np.nan)
+    chi2 = np.full(R, np.nan)
+    closure = np.full((R, data.J, 3), np.nan)
+    iterations = np.zeros(R, dtype=np.int64)
+    converged = np.zeros(R, dtype=bool)
+    active = np.flatnonzero(np.all(np.isfinite(theta), axis=1))
+    for it in range(1, max_iter + 1):
+        if active.size == 0:
+            break
+        sub = data.runs(active)
+        sys_ = system(sub, theta[active], extended)
+        A = np.einsum("rmp,rmq->rpq", sys_.J, sys_.J)
+        g = np.einsum("rmp,rm->rp", sys_.J, sys_.res)
+        try:
+            step = -np.linalg.solve(A, g[..., None])[..., 0]
+            cov = np.linalg.inv(A)
+        except np.linalg.LinAlgError:
+            step = np.full_like(g, np.nan)
+            cov = np.full_like(A, np.nan)
+            for i in range(active.size):
+                try:
+                    step[i] = -np.linalg.solve(A[i], g[i])
+                    cov[i] = np.linalg.inv(A[i])
+                except np.linalg.LinAlgError:
+                    pass
+        theta[active] += step
+        iterations[active] = it
+        std = np.sqrt(np.abs(np.einsum("rpp->rp", cov)))
+        done = np.all(np.abs(step) <= tol * std, axis=1) | ~np.all(np.isfinite(step), axis=1)
+        if it == max_iter:
+            done[:] = True
+        fin = active[done]
+        if fin.size:
+            lin = sys_.res[done] + np.einsum("rmp,rp->rm", sys_.J[done], step[done])
+            fisher[fin] = A[done]
+            chi2[fin] = np.einsum("rm,rm->r", lin, lin)
+            converged[fin] = np.all(np.abs(step[done]) <= tol * std[done], axis=1)
+            r_lin = sys_.terms.r.reshape(-1, data.J, 3)[done]
+            jt = _unwhiten_turn_jac(sys_, done, data.J)
+            closure[fin] = r_lin + np.einsum("rjap,rp->rja", jt, step[done])
+        active = active[~done]
+    bad = ~np.all(np.isfinite(theta), axis=1)
+    theta[bad] = np.nan
+    return BatchFit(theta, fisher, chi2, data.dof(extended), iterations, converged & ~bad, closure)
+
+
+def _unwhiten_turn_jac(sys_: System, rows: np.ndarray, J: int) -> np.ndarray:
+    """dr/dtheta (R', J, 3, P) of the selected recordings, from the whitened Jacobian."""
+    jac = sys_.J[rows][:, : 3 * J].reshape(-1, J, 3, sys_.J.shape[2])
+    return np.einsum("rjab,rjbp->rjap", sys_.chol[rows], jac)

@@ -1,0 +1,1 @@
+"""The multi-position estimator: re-orientations between rests, the accelerometer as reference."""

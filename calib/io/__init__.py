@@ -1,0 +1,1 @@
+"""Reading recordings: CSV layouts, imu_tk's files, labelled sections, plausibility checks."""

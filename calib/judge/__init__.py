@@ -1,0 +1,1 @@
+"""Judging a calibration: the tolerances, the device's history, a verification turn."""

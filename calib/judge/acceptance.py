@@ -1,0 +1,111 @@
+"""Whether a calibration may be used: the tolerances a recording's turns and its result must meet, and
+each check of a result against them (what the service shows the operator before Accept).
+
+A full turn reads 360/k degrees raw, so the turn-angle limits are a full turn for scale factors
+k_max..k_min with a margin; the result limits are those of a working low-cost MEMS gyroscope.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from calib.result import CalibrationResult
+from calib.stages.stage import AXES
+
+
+@dataclass(frozen=True)
+class Tolerances:
+    """What a turn and a result must satisfy to pass (docs/service.md, "Tolerances")."""
+
+    # raw integrated angle of a turn about the expected axis: a full turn reads 360/k, so these are a
+    # full turn for scale factors k_max..k_min
+    turn_angle_min_deg: float = 290.0  # k up to 1.24
+    turn_angle_max_deg: float = 460.0  # k down to 0.78
+    off_axis_max_fraction: float = 0.35  # rotation about the other two axes, as a fraction of the turn
+    gravity_closure_max_deg: float = 15.0  # gravity before vs after a turn: the device is put back in place
+    k_min: float = 0.8  # scale factors outside 0.8..1.2 mean a faulty sensor or a protocol error
+    k_max: float = 1.2
+    b_max_dps: float = 10.0  # |bias| above this is outside every low-cost MEMS gyroscope's spec
+    k_std_max: float = 0.01  # 1-sigma uncertainty of each scale factor
+    b_std_max_dps: float = 0.1  # 1-sigma uncertainty of each bias (deg/s)
+    # misclosure of each calibrated turn (closure estimator): a turn that was not a full one, or a device
+    # not put back in place, leaves the other turns unable to close too
+    closure_max_deg: float = 0.25
+
+
+# a check that passes having used this much of its allowance is shown as close to its limit
+NEAR_LIMIT_USED = 0.8
+
+
+def _used(value: float, limit: Any) -> float:
+    """How much of its allowance a value uses: 0 at the ideal (k = 1, everything else 0), 1 at the limit."""
+    if isinstance(limit, (list, tuple)):
+        lo, hi = float(limit[0]), float(limit[1])
+        return (value - 1.0) / (hi - 1.0) if value >= 1.0 else (1.0 - value) / (1.0 - lo)
+    return abs(value) / float(limit)
+
+
+def _check(name: str, axis: str | None, value: float, limit: Any, ok: bool, text: str) -> dict[str, Any]:
+    used = _used(value, limit)
+    return {"name": name, "axis": axis, "value": value, "limit": limit, "ok": ok, "text": text,
+            "used": used, "near_limit": bool(ok and used >= NEAR_LIMIT_USED)}
+
+
+def evaluate(result: CalibrationResult | dict[str, Any], tol: Tolerances) -> list[dict[str, Any]]:
+    """Each tolerance check of a result: {name, axis, value, limit, ok, text}. A value that is not finite fails its
+    check. ``result`` may also be a result's ``to_dict()`` form, as stored."""
+    if isinstance(result, CalibrationResult):
+        result = result.to_dict()
+    checks: list[dict[str, Any]] = []
+    k = result.get("k") or [float("nan")] * 3
+    b = result.get("b") or [float("nan")] * 3
+    unc = result.get("uncertainty") or {}
+    for i, a in enumerate(AXES):
+        kv = float(k[i])
+        checks.append(_check("k", a, kv, [tol.k_min, tol.k_max], tol.k_min <= kv <= tol.k_max,
+                             f"k_{a} = {kv:.4f} (allowed {tol.k_min:g} to {tol.k_max:g})"))
+    for i, a in enumerate(AXES):
+        bv = float(b[i])
+        checks.append(_check("b", a, bv, tol.b_max_dps, abs(bv) <= tol.b_max_dps,
+                             f"b_{a} = {bv:.3f} °/s (allowed ±{tol.b_max_dps:g} °/s)"))
+    if unc.get("k") is not None:
+        for i, a in enumerate(AXES):
+            v = float(unc["k"][i])
+            checks.append(_check("k_std", a, v, tol.k_std_max, v <= tol.k_std_max,
+                                 f"uncertainty of k_{a} = {v:.2g} (allowed {tol.k_std_max:g})"))
+    if unc.get("b") is not None:
+        for i, a in enumerate(AXES):
+            v = float(unc["b"][i])
+            checks.append(_check("b_std", a, v, tol.b_std_max_dps, v <= tol.b_std_max_dps,
+                                 f"uncertainty of b_{a} = {v:.2g} °/s (allowed {tol.b_std_max_dps:g} °/s)"))
+    # after calibration each full turn must bring the device back to its starting pose
+    for turn in (result.get("residuals") or {}).get("turns") or []:
+        if isinstance(turn, dict) and turn.get("closure_norm_deg") is not None:
+            v = float(turn["closure_norm_deg"])
+            axis = turn.get("axis")
+            checks.append(_check("closure", axis, v, tol.closure_max_deg, v <= tol.closure_max_deg,
+                                 f"the calibrated turn about {axis} ends {v:.2f}° from where it began "
+                                 f"(allowed {tol.closure_max_deg:g}°)"))
+    for c in checks:
+        if not np.isfinite(c["value"]):
+            c["ok"] = False
+            c["near_limit"] = False
+            c["used"] = None
+    return checks
+
+
+def turn_accuracy(result: CalibrationResult | dict[str, Any]) -> dict[str, float] | None:
+    """How far a full turn read from 360° before calibration and after it, the worst turn of each:
+    {"before_deg", "after_deg"}; None for a result without the closure estimator's turn rows."""
+    if isinstance(result, CalibrationResult):
+        result = result.to_dict()
+    rows = [t for t in (result.get("residuals") or {}).get("turns") or []
+            if isinstance(t, dict) and t.get("raw_angle_deg") is not None and t.get("closure_norm_deg") is not None]
+    if not rows:
+        return None
+    before = max(abs(abs(float(t["raw_angle_deg"])) - 360.0 * max(abs(int(t.get("revolutions") or 1)), 1)) for t in rows)
+    after = max(float(t["closure_norm_deg"]) for t in rows)
+    return {"before_deg": before, "after_deg": after}

@@ -1,0 +1,1 @@
+"""Rotation numerics shared by the estimators: quaternion products and attitude from rates."""

@@ -1,0 +1,1 @@
+"""The paper's studies in simulation: its Monte Carlo study and its comparison of methods."""
