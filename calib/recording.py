@@ -19,8 +19,6 @@ import numpy as np
 
 from calib.io.section import Section
 
-STANDARD_GRAVITY = 9.80665  # m/s^2 per g
-
 
 @dataclass(frozen=True)
 class RecordingMeta:

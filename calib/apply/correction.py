@@ -26,10 +26,10 @@ from calib.errors import GyrocalError
 from calib.estimators.accel import AccelCalibration
 from calib.recording import Recording
 from calib.result import CalibrationResult
+from calib.units import STANDARD_GRAVITY
 
-G0 = 9.80665  # m/s^2 per g
 IMUCAL_FORMAT = "2.0.0"  # imucal's calibration-file format version this module reads and writes
-IMUCAL_ACC_UNITS = {"g": 1.0, "m/s^2": G0}
+IMUCAL_ACC_UNITS = {"g": 1.0, "m/s^2": STANDARD_GRAVITY}
 
 
 class CorrectionFileError(GyrocalError, ValueError):

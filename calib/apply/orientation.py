@@ -20,9 +20,9 @@ from scipy.spatial.transform import Rotation
 
 from calib.errors import GyrocalError
 from calib.recording import Recording
+from calib.units import STANDARD_GRAVITY
 
 MADGWICK_GAIN = 0.033  # ahrs' default for gyroscope + accelerometer (Madgwick 2010)
-G0 = 9.80665
 
 
 @dataclass(frozen=True, eq=False)
@@ -98,7 +98,7 @@ def _estimate(gyro_dps: np.ndarray, accel_g: np.ndarray | None, fs: float, progr
     from ahrs.filters import AngularRate, Madgwick
 
     gyr = np.radians(np.asarray(gyro_dps, float))
-    acc = None if accel_g is None else np.asarray(accel_g, float) * G0
+    acc = None if accel_g is None else np.asarray(accel_g, float) * STANDARD_GRAVITY
     q = np.array([1.0, 0.0, 0.0, 0.0])
     if acc is not None:
         q = acc2q(acc[0])

@@ -18,7 +18,7 @@ The residual vector of a recording stacks, each whitened to unit variance under 
 - ``prior`` rows of an effect (the heading of a placement error, the height of a clipped plateau).
 
 The calibrated rate w_t and its Jacobian come from ``Model.rate``; the closing rotations and their
-Jacobians from one vectorised pass per turn (same algebra as calib.estimators.closure.model, with an arbitrary
+Jacobians from one vectorised pass per turn (same algebra as calib.numerics.rotation, with an arbitrary
 design). Minimising the sum of squares (plus the log-determinant of a variance model) is maximum
 likelihood; its value is the fit statistic ("deviance"; lower is better).
 """
@@ -33,9 +33,9 @@ from scipy.spatial.transform import Rotation
 
 from calib.diagnosis.data import Problem
 from calib.diagnosis.models import Model
-from calib.estimators.closure.fit import solve_lower
-from calib.estimators.closure.model import left_jacobian, left_jacobian_inv, prefix_products
 from calib.numerics.quaternion import hamilton
+from calib.numerics.rotation import left_jacobian, left_jacobian_inv, prefix_products
+from calib.numerics.windows import solve_lower
 from calib.units import DEG
 
 _IDENTITY_Q = np.array([0.0, 0.0, 0.0, 1.0])

@@ -1,13 +1,11 @@
-"""Nominal fits of one recording or of many replicates, and the score statistics of every effect at once."""
+"""Nominal fits of one recording or of many replicates."""
 
 from __future__ import annotations
-
-from typing import Any
 
 import numpy as np
 
 from calib.diagnosis.data import Problem
-from calib.diagnosis.engine import Fit, gauss_newton, score_statistic, system
+from calib.diagnosis.engine import Fit, gauss_newton
 from calib.diagnosis.models import Model
 from calib.errors import CalibrationError, ProtocolError
 from calib.estimators.closure.fit import ClosureData, start_values
@@ -53,20 +51,3 @@ def fit_nominal(prob: Problem, psi0: np.ndarray | None = None, max_iter: int = 8
     return fit
 
 
-def scores(prob: Problem, psi_nom: np.ndarray, effects: dict[str, Model]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """Score statistic and identified dimension of each effect at the nominal solution psi_nom (R, 6).
-
-    ``effects`` maps a name to the nominal model extended by that effect alone.
-    """
-    out: dict[str, Any] = {}
-    if not effects:
-        return out
-    union = Model(tuple(sorted({e for m in effects.values() for e in m.effects})), prob.J,
-                  next(iter(effects.values())).cap_axis)
-    psi = union.zeros(psi_nom)
-    sys_ = system(prob, union, psi)
-    base = np.arange(6)
-    for name, m in effects.items():
-        idx = np.concatenate([np.arange(union.P)[union.slices[e]] for e in m.effects])
-        out[name] = score_statistic(sys_, base, idx)
-    return out

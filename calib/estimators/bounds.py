@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-TURN_DEG = 360.0
+from calib.units import FULL_TURN_DEG
 
 
 def protocol_bound(
@@ -45,13 +45,10 @@ def protocol_bound(
         raise ValueError("fs, turn_s and still_s must be positive")
     var_angle = sigma**2 * T / fs  # of the raw integrated turn angle, deg^2
     var_offset = sigma**2 / (fs * still_s)  # of the mean reading at rest, (deg/s)^2
-    sigma_k = (k**2 / TURN_DEG) * np.sqrt(var_angle + T**2 * var_offset)
-    sigma_b = np.sqrt((b * k / TURN_DEG) ** 2 * var_angle + k**2 * (1.0 - b * T / TURN_DEG) ** 2 * var_offset)
+    sigma_k = (k**2 / FULL_TURN_DEG) * np.sqrt(var_angle + T**2 * var_offset)
+    sigma_b = np.sqrt((b * k / FULL_TURN_DEG) ** 2 * var_angle + k**2 * (1.0 - b * T / FULL_TURN_DEG) ** 2 * var_offset)
     return np.broadcast_to(sigma_k, np.broadcast(sigma_k, sigma_b).shape).copy(), np.broadcast_to(
         sigma_b, np.broadcast(sigma_k, sigma_b).shape
     ).copy()
 
 
-def standard_errors(fisher: np.ndarray) -> np.ndarray:
-    """Square roots of the diagonal of the inverse Fisher information (..., P, P) -> (..., P)."""
-    return np.sqrt(np.abs(np.einsum("...pp->...p", np.linalg.inv(fisher))))

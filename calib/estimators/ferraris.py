@@ -26,45 +26,15 @@ from typing import Any
 import numpy as np
 
 from calib.errors import ProtocolError
-from calib.io.section import POSES
 from calib.io.validation import check_calibration_input
 from calib.recording import Recording, sample_intervals
 from calib.result import CalibrationResult
+from calib.stages.poses import ferraris_turns, find_poses
 from calib.stages.resolve import resolve_stages
-from calib.stages.stage import AXES, Stage
+from calib.stages.stage import AXES, POSES, Stage
+from calib.units import FULL_TURN_DEG
 
 METHOD = "ferraris"
-MIN_POSE_COS = np.cos(np.radians(30.0))  # a still counts as a pose when gravity is within 30 deg of that axis
-
-
-def find_poses(rec: Recording, stills: list[Stage]) -> dict[str, Stage]:
-    """Ferraris' six poses among the stills, from the accelerometer: for each of +x, -x, +y, ... up, the
-    longest still whose gravity lies within 30 deg of that axis. Poses not found are left out."""
-    if rec.accel is None:
-        return {}
-    found: dict[str, Stage] = {}
-    for s in stills:
-        a = rec.accel[s.start:s.end].mean(axis=0)
-        norm = float(np.linalg.norm(a))
-        if not np.isfinite(norm) or norm == 0:
-            continue
-        u = a / norm
-        i = int(np.argmax(np.abs(u)))
-        if abs(u[i]) < MIN_POSE_COS:
-            continue
-        pose = f"{AXES[i]}_{'p' if u[i] > 0 else 'a'}"
-        if pose not in found or s.n > found[pose].n:
-            found[pose] = s
-    return {p: found[p] for p in POSES if p in found}
-
-
-def ferraris_turns(stages: list[Stage]) -> dict[str, Stage]:
-    """The longest full turn about each axis."""
-    turns: dict[str, Stage] = {}
-    for s in stages:
-        if s.kind == "turn" and s.axis is not None and (s.axis not in turns or s.n > turns[s.axis].n):
-            turns[s.axis] = s
-    return turns
 
 
 def ferraris_stages(rec: Recording, stages: list[Stage]) -> tuple[dict[str, Stage], dict[str, Stage]]:
@@ -116,7 +86,7 @@ def calibrate_ferraris(rec: Recording, stages: Any = None) -> CalibrationResult:
         acc = (rec.accel[s.start:s.end] - b_a) @ to_g.T
         rate = rec.gyro[s.start:s.end] - b_g - acc @ k_ga.T
         w[:, j] = (rate * dt[s.start:s.end, None]).sum(axis=0)
-        expected[j] = 360.0 * max(1, round(abs(w[j, j]) / 360.0)) * np.sign(w[j, j])
+        expected[j] = FULL_TURN_DEG * max(1, round(abs(w[j, j]) / FULL_TURN_DEG)) * np.sign(w[j, j])
     m = w / expected[None, :]
     k_g = np.sqrt(np.diag(m @ m.T))
     r_g = m / k_g[:, None]

@@ -40,10 +40,9 @@ from calib.numerics.quaternion import prefix_products
 from calib.recording import Recording, sample_intervals
 from calib.result import CalibrationResult
 from calib.stages.stage import AXES, FLAG_COUNTER_GAP, FLAG_SATURATED, Stage
-from calib.units import DEG
+from calib.units import DEG, FULL_TURN_DEG
 
 METHOD = "paper"
-THETA_TOTALDEG = 360.0  # the known angle of one turn (Section 2.3)
 TOL = 1e-5  # Algorithm 1, step 4
 MAX_ITER = 50
 CLOSURE_WARNDEG = 5.0  # a turn whose calibrated attitude does not come back within this is suspicious
@@ -201,7 +200,7 @@ def _algorithm1_chunk(gyro, dt, still0, turns, tol, max_iter):
         win = (gyro[rows[:, None], idx] - mean0[:, None, :]) * inside[..., None]  # (R, L, 3)
         m_win[:, :, j * R : (j + 1) * R] = win.transpose(2, 1, 0)
     n_seq = lengths.T.reshape(-1).astype(float)  # (3R,)
-    rate2 = (THETA_TOTALDEG / (lengths * dt)) ** 2  # (R, 3): (theta_total / T_j)^2
+    rate2 = (FULL_TURN_DEG / (lengths * dt)) ** 2  # (R, 3): (theta_total / T_j)^2
 
     k = np.ones((R, 3))
     iters = np.zeros(R, dtype=np.int64)
@@ -277,7 +276,7 @@ def algorithm1(
     mean0 = gyro[s0:e0].mean(axis=0)
     m_hat = gyro - mean0
     windows = [(m_hat[s:e], dt_all[s:e]) for s, e in turns]
-    rate2 = np.array([(THETA_TOTALDEG / d.sum()) ** 2 for _, d in windows])
+    rate2 = np.array([(FULL_TURN_DEG / d.sum()) ** 2 for _, d in windows])
     k = np.ones(3)
     history = [k]
     converged = False

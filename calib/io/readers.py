@@ -28,7 +28,8 @@ from calib.errors import RecordingError, SampleRateUnknownError
 from calib.io.section import Section
 from calib.io.sections import sections_from_labels
 from calib.io.validation import Locator, check_finite, check_increasing, check_recording, check_sample_rate, validate_recording
-from calib.recording import STANDARD_GRAVITY, Recording, RecordingMeta
+from calib.recording import Recording, RecordingMeta
+from calib.units import STANDARD_GRAVITY
 
 __all__ = ["LAYOUTS", "parse_recording_text", "read_recording", "validate_recording", "write_native_csv"]
 

@@ -6,9 +6,8 @@ import re
 from dataclasses import dataclass
 
 from calib.errors import RecordingError
-from calib.stages.stage import Axis, StageKind
+from calib.stages.stage import POSES, Axis, StageKind
 
-POSES = ("x_p", "x_a", "y_p", "y_a", "z_p", "z_a")  # Ferraris' static poses: +x up, -x up, ...
 _STILL = re.compile(r"^(?:still|rest|static)(?:[_-].*)?$")
 _TURN = re.compile(r"^([xyz])_rot(?:[_-].*)?$")
 _MOTION = re.compile(r"^motion(?:[_-].*)?$")

@@ -14,6 +14,7 @@ import numpy as np
 
 from calib.result import CalibrationResult
 from calib.stages.stage import AXES
+from calib.units import FULL_TURN_DEG
 
 
 @dataclass(frozen=True)
@@ -106,6 +107,6 @@ def turn_accuracy(result: CalibrationResult | dict[str, Any]) -> dict[str, float
             if isinstance(t, dict) and t.get("raw_angle_deg") is not None and t.get("closure_norm_deg") is not None]
     if not rows:
         return None
-    before = max(abs(abs(float(t["raw_angle_deg"])) - 360.0 * max(abs(int(t.get("revolutions") or 1)), 1)) for t in rows)
+    before = max(abs(abs(float(t["raw_angle_deg"])) - FULL_TURN_DEG * max(abs(int(t.get("revolutions") or 1)), 1)) for t in rows)
     after = max(float(t["closure_norm_deg"]) for t in rows)
     return {"before_deg": before, "after_deg": after}

@@ -20,8 +20,8 @@ from calib.errors import GyrocalError
 from calib.recording import Recording, sample_intervals
 from calib.stages.detector import detect_stages
 from calib.stages.stage import Stage
+from calib.units import FULL_TURN_DEG
 
-FULL_TURN_DEG = 360.0
 PLACEMENT_DEG = 0.5  # how closely a hand puts the device back against the block
 MIN_REST_S = 0.8  # the rests before and after the turn
 MIN_TURN_DEG = 270.0  # a motion smaller than this is not the verification turn

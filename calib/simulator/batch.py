@@ -14,6 +14,7 @@ from calib.simulator.ranges import B_RANGE_DPS, K_RANGE, N_PROFILE, STILL_S
 from calib.simulator.simulate import SensorParams, check_seed
 from calib.simulator.trajectory import n_samples_of, segment_motion
 from calib.stages.stage import AXES
+from calib.units import FULL_TURN_DEG
 
 
 @dataclass(frozen=True, eq=False)
@@ -100,7 +101,7 @@ def simulate_batch(
     fs: float = 104.0,
     params: tuple[ArrayLike, ArrayLike] | SensorParams | None = None,
     *,
-    angle_deg: float | ArrayLike = 360.0,
+    angle_deg: float | ArrayLike = FULL_TURN_DEG,
     still_s: float = STILL_S,
 ) -> SimBatch:
     """``n_runs`` independent paper-protocol runs, vectorised (same construction as ``simulate``).

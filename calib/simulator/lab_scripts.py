@@ -21,6 +21,7 @@ import numpy as np
 from calib.recording import Recording
 from calib.simulator.protocol import Motion, ProtocolScript, Segment, Still, Turn
 from calib.simulator.ranges import STILL_S
+from calib.units import FULL_TURN_DEG
 
 LINEAR = (0.25, 0.5, 0.75)  # evenly spread speed-profile controls: a steady run between a smooth start and stop
 
@@ -65,7 +66,7 @@ def ferraris_script(rng: np.random.Generator, rest_s: float = 5.0) -> ProtocolSc
     for move in _FERRARIS_MOVES:
         segs += [Motion(move, duration_s=float(rng.uniform(1.5, 2.5))), Still(rest_s)]
     for axis in ("x", "y", "z"):
-        segs += [Turn(axis, 360.0, duration_s=float(rng.uniform(2.5, 5.0)), tilt=rng.uniform(-0.1, 0.1, 2)),
+        segs += [Turn(axis, FULL_TURN_DEG, duration_s=float(rng.uniform(2.5, 5.0)), tilt=rng.uniform(-0.1, 0.1, 2)),
                  Still(STILL_S)]
     return ProtocolScript(tuple(segs))
 

@@ -12,6 +12,7 @@ from numpy.typing import ArrayLike
 from calib.effects import SimulationConfigError
 from calib.simulator.ranges import N_PROFILE, STILL_S, TILT_RANGE, TURN_DURATION_S, WOBBLE_DEG, WOBBLE_HARMONIC_SCALE
 from calib.stages.stage import AXES
+from calib.units import FULL_TURN_DEG
 
 
 def as_float(value: Any, what: str, positive: bool = True) -> float:
@@ -60,7 +61,7 @@ class Turn:
     """
 
     axis: str | ArrayLike = "x"
-    angle_deg: float = 360.0
+    angle_deg: float = FULL_TURN_DEG
     duration_s: float | None = None
     wobble_deg: float | ArrayLike | None = None
     tilt: float | ArrayLike | None = None
@@ -170,7 +171,7 @@ def turn_angles(angle_deg: float | ArrayLike) -> np.ndarray:
 
 def paper_protocol_script(
     rng: np.random.Generator | None = None,
-    angle_deg: float | ArrayLike = 360.0,
+    angle_deg: float | ArrayLike = FULL_TURN_DEG,
     still_s: float = STILL_S,
     final_still_s: float = STILL_S,
 ) -> ProtocolScript:
@@ -226,12 +227,12 @@ def extended_protocol_script(
     for axis in AXES:
         for sign, (lo, hi) in kinds:
             if drawn is None or rng is None:
-                segs.append(Turn(axis, sign * 360.0, duration_s=0.5 * (lo + hi)))
+                segs.append(Turn(axis, sign * FULL_TURN_DEG, duration_s=0.5 * (lo + hi)))
             else:
                 segs.append(
                     Turn(
                         axis,
-                        sign * 360.0,
+                        sign * FULL_TURN_DEG,
                         duration_s=float(rng.uniform(lo, hi)),
                         wobble_deg=drawn["wobble_deg"][j],
                         tilt=drawn["tilt"][j],

@@ -17,14 +17,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib.estimators.ferraris import ferraris_turns, find_poses
-from calib.estimators.multi_position.estimator import MIN_MOTIONS
 from calib.recording import Recording
 from calib.stages.hints import never_at_rest
+from calib.stages.poses import ferraris_turns, find_poses
 from calib.stages.stage import AXES, Stage
 
+MIN_MOTIONS = 6  # re-orientations needed before the three scale factors can be separated
 MIN_TILT_DEG = 10.0  # a motion between rests counts as a re-orientation when gravity moves this much in the body
-PROTOCOL_NAMES = ("ferraris", "paper", "multi-position", "mixed", "hand-held", "unrecognised")
 
 
 @dataclass(frozen=True)

@@ -8,6 +8,7 @@ from typing import Literal
 StageKind = Literal["still", "turn", "motion"]
 Axis = Literal["x", "y", "z"]
 AXES: tuple[Axis, Axis, Axis] = ("x", "y", "z")
+POSES = ("x_p", "x_a", "y_p", "y_a", "z_p", "z_a")  # Ferraris' static poses: +x up, -x up, ...
 
 # Quality flags a stage may carry.
 FLAG_SATURATED = "saturated"  # some samples at the gyro's full scale

@@ -226,4 +226,3 @@ class LeaseRow(Base):
     expires_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), index=True)
 
 
-FLEET_TABLES = ("gateways", "device_sightings", "device_leases")

@@ -13,8 +13,8 @@ from calib.effects import AxisMisalignment
 from calib.estimators.bounds import protocol_bound
 from calib.estimators.closure.batch import closure_batch, closure_fit_batch
 from calib.estimators.closure.estimator import calibrate_closure
-from calib.estimators.closure.model import closure_terms, left_jacobian, left_jacobian_inv, prefix_products, total_products
 from calib.io.readers import read_recording
+from calib.numerics.rotation import closure_terms, left_jacobian, left_jacobian_inv, prefix_products, total_products
 from calib.pipeline import calibrate
 from calib.recording import Recording
 from calib.simulator import ProtocolScript, SensorParams, Still, Turn, simulate, simulate_batch
@@ -371,7 +371,7 @@ def test_paper_sim_shows_closure_beside_the_paper_and_the_bound():
 
 
 def test_still_statistics_pool_each_still_about_its_own_mean():
-    from calib.estimators.closure.fit import still_statistics
+    from calib.noise.rests import still_statistics
 
     rng = np.random.default_rng(12)
     gyro = rng.normal(0.0, 0.1, (3, 200, 3)) + np.array([2.0, -1.0, 0.5])

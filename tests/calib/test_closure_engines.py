@@ -1,4 +1,4 @@
-"""The estimator's closure engine (calib.estimators.closure.model) and the diagnosis's (calib.diagnosis.engine) are two
+"""The estimator's closure engine (calib.numerics.rotation) and the diagnosis's (calib.diagnosis.engine) are two
 implementations of one algebra: the diagnosis generalises the rate model w = K m + b to effect terms over a
 batch of replicated recordings, the estimator keeps the full 3x3 K for the extended model. On the nominal
 model, on the same turns, they must give the same closing rotations, Jacobians and noise covariances."""
@@ -11,7 +11,7 @@ import pytest
 from calib.diagnosis.data import build_problem, make_layout
 from calib.diagnosis.engine import closure_pass
 from calib.diagnosis.models import Model
-from calib.estimators.closure.model import closure_terms
+from calib.numerics.rotation import closure_terms
 from calib.simulator import simulate
 from calib.stages.detector import detect_stages
 from calib.units import DEG

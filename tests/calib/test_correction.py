@@ -10,9 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib.apply.correction import G0, Correction, CorrectionFileError, corrected
+from calib.apply.correction import Correction, CorrectionFileError, corrected
 from calib.pipeline import calibrate
 from calib.simulator import simulate
+from calib.units import STANDARD_GRAVITY as G0
 
 
 @pytest.fixture(scope="module")

@@ -16,7 +16,8 @@ from hypothesis import strategies as st
 
 from calib.errors import RecordingError
 from calib.io.readers import parse_recording_text, read_recording, validate_recording, write_native_csv
-from calib.recording import STANDARD_GRAVITY, Recording, RecordingMeta
+from calib.recording import Recording, RecordingMeta
+from calib.units import STANDARD_GRAVITY
 
 REAL = Path("/work/shared/data/real/imucal")
 FERRARIS = REAL / "example_ferraris_session.csv"

@@ -9,12 +9,13 @@ import pytest
 
 from calib.effects import BiasDrift, SampleLoss
 from calib.errors import ProtocolError, RecordingError
-from calib.recording import STANDARD_GRAVITY, Recording, RecordingMeta
+from calib.recording import Recording, RecordingMeta
 from calib.simulator import Motion, ProtocolScript, Still, Turn, simulate
 from calib.stages.config import StageConfig, StageConfigError
 from calib.stages.detector import StageTracker, detect_stages
 from calib.stages.protocol import find_protocol
 from calib.stages.stage import AXES, Stage
+from calib.units import STANDARD_GRAVITY
 
 FS_IMUCAL = 102.4
 # README: integrating (reading - static mean) over the labelled turns.

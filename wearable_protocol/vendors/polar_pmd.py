@@ -42,7 +42,6 @@ RESPONSE_CODE = 0xF0  # first byte of every control-point reply
 FEATURES_CODE = 0x0F  # first byte of the control point's read value
 MEASUREMENT_STOPPED = 0x01  # unsolicited: the device stopped the listed measurements
 HEADER_SIZE = 10  # type, u64 time stamp, frame type
-NS = 1e-9
 
 
 class MeasurementType(IntEnum):

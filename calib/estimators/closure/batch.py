@@ -11,7 +11,9 @@ from typing import Any
 import numpy as np
 
 from calib.errors import RecordingError
-from calib.estimators.closure.fit import ClosureData, gauss_newton, start_values, still_statistics, windows
+from calib.estimators.closure.fit import ClosureData, gauss_newton, start_values
+from calib.noise.rests import still_statistics
+from calib.numerics.windows import windows
 
 # Runs are fitted in groups of about this many turn samples, to bound memory.
 _GROUP_SAMPLES = 600_000

@@ -6,7 +6,7 @@ revolution. Each turn gives the 3-D closing rotation r_j = Log(prod_t Exp((K m_t
 must be 0; each still segment gives its mean reading, which must be -K^-1 b. Both are weighted by the
 covariance white reading noise gives them (the noise level comes from the stills), and the weighted
 sum of squares is minimised by scipy.optimize.least_squares with the analytic Jacobian
-(calib.estimators.closure.model, calib.estimators.closure.fit). Any number of turns, in either direction, about any axis.
+(calib.numerics.rotation, calib.estimators.closure.fit). Any number of turns, in either direction, about any axis.
 
 Uncertainty: the inverse of J^T J (whitened Jacobian at the solution) is the Cramer-Rao bound for the
 recording; the reported standard errors are that bound scaled by the Birge ratio sqrt(chi2/dof) when
@@ -27,8 +27,10 @@ from scipy.optimize import least_squares
 from scipy.stats import chi2 as chi2_dist
 
 from calib.errors import CalibrationError, ProtocolError
-from calib.estimators.closure.fit import ClosureData, calibration_matrix, param_names, start_values, still_statistics, system, windows
+from calib.estimators.closure.fit import ClosureData, calibration_matrix, param_names, start_values, system
 from calib.io.validation import check_calibration_input
+from calib.noise.rests import still_statistics
+from calib.numerics.windows import windows
 from calib.recording import Recording, sample_intervals
 from calib.result import CalibrationResult
 from calib.stages.stage import AXES, FLAG_COUNTER_GAP, FLAG_SATURATED, Stage

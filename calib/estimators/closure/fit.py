@@ -23,11 +23,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib.estimators.closure.model import ClosureTerms, closure_terms
+from calib.numerics.rotation import ClosureTerms, closure_terms
+from calib.numerics.windows import solve_lower
+from calib.units import FULL_TURN_DEG
 
-TURN_DEG = 360.0
 OFF_DIAGONAL: tuple[tuple[int, int], ...] = ((0, 1), (0, 2), (1, 2))
-MIN_SIGMA_DPS = 1e-6  # floor for noise-free data, so that the weights stay finite
 
 
 def n_params(extended: bool) -> int:
@@ -90,68 +90,6 @@ class ClosureData:
         return 3 * self.J + 3 * (self.still_n > 0).sum(axis=1) - n_params(extended)
 
 
-def windows(gyro: np.ndarray, bounds: np.ndarray, dt: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Stack the turn windows [start, end) of R recordings time-first.
-
-    gyro (R, n, 3); bounds (R, J, 2); dt a scalar or (R, n) per-sample intervals (s).
-    Returns m (L, R*J, 3) and dt (L, R*J), zero past each window's end, L the longest window.
-    """
-    R, n, _ = gyro.shape
-    J = bounds.shape[1]
-    lengths = bounds[..., 1] - bounds[..., 0]
-    L = int(lengths.max())
-    offs = np.arange(L)
-    idx = np.minimum(bounds[..., 0, None] + offs, n - 1)  # (R, J, L)
-    inside = offs < lengths[..., None]
-    rows = np.arange(R)[:, None, None]
-    m = np.where(inside[..., None], gyro[rows, idx], 0.0)  # (R, J, L, 3)
-    if np.ndim(dt) == 0:
-        d = np.where(inside, float(dt), 0.0)
-    else:
-        d = np.where(inside, np.asarray(dt)[rows, idx], 0.0)
-    m = np.ascontiguousarray(m.reshape(R * J, L, 3).transpose(1, 0, 2))
-    d = np.ascontiguousarray(d.reshape(R * J, L).T)
-    return m, d
-
-
-def still_statistics(gyro: np.ndarray, bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Mean (R, S, 3), sample count (R, S) and pooled within-still std (R, 3) of still windows (R, S, 2).
-
-    Windows with end <= start count as absent. The std pools every still's deviations from its own
-    mean, so offsets that differ between stills do not inflate it.
-    """
-    R, n, _ = gyro.shape
-    S = bounds.shape[1]
-    s0 = bounds[..., 0]
-    s1 = np.maximum(bounds[..., 1], s0)
-    count = (s1 - s0).astype(float)
-    ref = gyro[:, :1, :]  # subtracting a reference keeps the sums of squares well conditioned
-    x = (gyro - ref).reshape(R * n, 3)
-    starts = s0 + (np.arange(R) * n)[:, None]
-    ends = s1 + (np.arange(R) * n)[:, None]
-    edges = np.stack((starts, ends), axis=-1).reshape(-1)
-    if np.all(np.diff(edges) >= 0):
-        # one pass: sums over [start, end) of each still (the segments in between are dropped)
-        x = np.concatenate((x, np.zeros((1, 3))))
-        sum1 = np.add.reduceat(x, edges, axis=0)[0::2].reshape(R, S, 3)
-        sum2 = np.add.reduceat(x * x, edges, axis=0)[0::2].reshape(R, S, 3)
-    else:  # overlapping or unordered windows: running sums
-        c1 = np.concatenate((np.zeros((1, 3)), np.cumsum(x, axis=0)))
-        c2 = np.concatenate((np.zeros((1, 3)), np.cumsum(x * x, axis=0)))
-        sum1 = c1[ends] - c1[starts]
-        sum2 = c2[ends] - c2[starts]
-    empty = count == 0
-    sum1[empty] = 0.0
-    sum2[empty] = 0.0
-    safe = np.maximum(count, 1.0)[..., None]
-    mean = sum1 / safe
-    ss = np.maximum(sum2 - sum1 * mean, 0.0)  # sum of squared deviations per still
-    pooled_dof = np.maximum(count - 1.0, 0.0).sum(axis=1)
-    sigma = np.sqrt(ss.sum(axis=1) / np.maximum(pooled_dof, 1.0)[:, None])
-    sigma = np.maximum(sigma, MIN_SIGMA_DPS)
-    return mean + ref, count, sigma
-
-
 # --------------------------------------------------------------------------- start values
 
 
@@ -170,9 +108,9 @@ def start_values(data: ClosureData, extended: bool = False) -> tuple[np.ndarray,
     integ = np.einsum("tsi,ts->si", data.m, data.dt).reshape(R, J, 3)
     dur = data.dt.sum(axis=0).reshape(R, J)
     a = integ - beta[:, None, :] * dur[..., None]
-    turns = np.maximum(1.0, np.round(np.linalg.norm(a, axis=2) / TURN_DEG))
+    turns = np.maximum(1.0, np.round(np.linalg.norm(a, axis=2) / FULL_TURN_DEG))
     A = a * a  # (R, J, 3)
-    y = (TURN_DEG * turns) ** 2
+    y = (FULL_TURN_DEG * turns) ** 2
     # scale the columns so that the rank test is about directions, not about magnitudes
     AtA = np.einsum("rji,rjk->rik", A, A)
     Aty = np.einsum("rji,rj->ri", A, y)
@@ -209,15 +147,6 @@ class System:
         if self.jac is None:
             raise ValueError("this system was built without its Jacobian (jacobian=False)")
         return self.jac
-
-
-def solve_lower(Lc: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """L^-1 x for batched lower-triangular L (..., 3, 3) and x (..., 3, k), by forward substitution."""
-    y = np.empty_like(x)
-    y[..., 0, :] = x[..., 0, :] / Lc[..., 0, 0, None]
-    y[..., 1, :] = (x[..., 1, :] - Lc[..., 1, 0, None] * y[..., 0, :]) / Lc[..., 1, 1, None]
-    y[..., 2, :] = (x[..., 2, :] - Lc[..., 2, 0, None] * y[..., 0, :] - Lc[..., 2, 1, None] * y[..., 1, :]) / Lc[..., 2, 2, None]
-    return y
 
 
 def system(

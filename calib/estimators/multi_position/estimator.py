@@ -7,7 +7,7 @@ constraints see both, where the closure of a full turn sees neither):
 
 - each rest: zero true rate, so its mean reading is -K^-1 b (the bias);
 - each motion between two rests: the calibrated rotation C (body at the end to body at the start,
-  ``calib.estimators.closure.model.rotation_terms``) must carry the end rest's gravity direction u_e onto the
+  ``calib.numerics.rotation.rotation_terms``) must carry the end rest's gravity direction u_e onto the
   start rest's u_s. Two constraints per motion: rho = B_s^T (C u_e - u_s), with B_s an orthonormal
   basis perpendicular to u_s (rad). The rotation about gravity is unobservable from the accelerometer
   and is left free; a motion that only turns about the vertical gives (almost) nothing;
@@ -39,7 +39,6 @@ from scipy.stats import f as f_dist
 
 from calib.errors import CalibrationError, ProtocolError
 from calib.estimators.accel import PARAMS, AccelCalibration, apply_model, calibrate_accelerometer, rest_spans
-from calib.estimators.closure.fit import still_statistics, windows
 from calib.estimators.multi_position.model import (
     AccelRests,
     Data,
@@ -55,12 +54,14 @@ from calib.estimators.multi_position.model import (
 from calib.io.validation import check_calibration_input
 from calib.noise.accel_floor import accel_floor
 from calib.noise.motion import motion_noise, no_motion_noise
+from calib.noise.rests import still_statistics
+from calib.numerics.windows import windows
 from calib.recording import Recording, sample_intervals
 from calib.result import CalibrationResult
 from calib.stages.detector import detect_stages
+from calib.stages.recognise import MIN_MOTIONS
 from calib.stages.stage import Stage
 
-MIN_MOTIONS = 6  # re-orientations needed before the three scale factors can be separated
 MAX_GRAVITY_RMS_DEG = 2.0  # gravity residuals (rms) beyond which the re-orientations fit no calibration
 MAX_ITERATIONS = 50  # steps tried, the damped ones counted
 G_ALPHA = 1e-3  # false-positive rate of the g-sensitivity's F test on a sensor that has none

@@ -12,9 +12,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib.estimators.accel import apply_model
-from calib.estimators.closure.model import closure_terms, rotation_terms
 from calib.noise.accel_floor import AccelFloor
 from calib.noise.motion import MotionNoise
+from calib.numerics.rotation import closure_terms, rotation_terms
 
 FD_STEP = 1e-6  # central-difference step of the accelerometer parameters
 SETTLE_SHARE = 0.5625  # (1/2 / (2/3))^2: a steady drift's edge-to-mean part over its thirds-to-thirds part, squared
@@ -203,7 +203,7 @@ def _tiled(p: Params, B: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def motion_rotations(p: Params, data: Data, noise: bool = False):
-    """The calibrated rotation of each gravity motion (``calib.estimators.closure.model.RotationTerms``)."""
+    """The calibrated rotation of each gravity motion (``calib.numerics.rotation.RotationTerms``)."""
     w = data.gravity
     assert w is not None
     B = w.dt.shape[1]
