@@ -66,5 +66,9 @@ class RecordingTooLong(RecordingError):
     """The work a recording asks for (its samples, once lost ones are put back) is beyond the limit set."""
 
 
+class SectionsError(RecordingError):
+    """The labelled sections given with a recording cannot be read or do not fit it."""
+
+
 class SampleRateUnknownError(RecordingError):
     """The file has no time column and no sample rate was given."""

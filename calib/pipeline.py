@@ -8,6 +8,7 @@ from importlib import import_module
 from typing import TYPE_CHECKING
 
 from calib.errors import GyrocalError, ProtocolError
+from calib.io.inputs import PROTOCOLS
 from calib.io.section import Section
 from calib.recording import Recording
 from calib.result import CalibrationResult
@@ -47,11 +48,9 @@ def calibrate(rec: Recording, method: str = DEFAULT_METHOD, stages: list[Stage] 
     return replace(result, sample_rate_hz=rec.fs, n_samples=len(rec))
 
 
-PROTOCOLS = ("auto", "paper", "ferraris", "multi-position")
-
-
 def calibrate_protocol(
-    rec: Recording, protocol: str = "auto", method: str = DEFAULT_METHOD, sections: tuple[Section, ...] | None = None
+    rec: Recording, protocol: str = "auto", method: str = DEFAULT_METHOD, sections: tuple[Section, ...] | None = None,
+    stages: list[Stage] | None = None,
 ) -> tuple[CalibrationResult, str]:
     """Calibrate a recording of ``protocol`` and say which protocol was used.
 
@@ -60,12 +59,14 @@ def calibrate_protocol(
     "multi-position": rests in many orientations with re-orientations between them, the accelerometer as
     reference (``calib.estimators.multi_position.estimator``). "auto": what ``calib.stages.recognise`` finds; when nothing fits, the
     paper protocol's refusal. ``sections`` (or the recording's own, ``rec.meta.sections``) replace stage
-    detection. The result's ``quality["protocol"]`` holds what was found and what was used.
+    detection; ``stages`` already found (a live session's) replace both. The result's ``quality["protocol"]`` holds
+    what was found and what was used. This is the one calibration entry point of every door (the command line, an
+    upload, a live session); it raises GyrocalError (a Refusal for a recording read and refused).
     """
     check_protocol(protocol)
     _estimator(method)  # an unknown method is refused before any work
     sections = sections if sections is not None else rec.meta.sections
-    stages, found, used = protocol_stages(rec, protocol, sections)
+    stages, found, used = protocol_stages(rec, protocol, sections, stages)
     try:
         result = _calibrate_as(rec, used, method, stages, sections, found)
     except GyrocalError as exc:

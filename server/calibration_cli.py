@@ -167,7 +167,7 @@ def cmd_apply(args: argparse.Namespace) -> int:
 
     from .lifecycle import none_in_force
 
-    rec = read_recording_args(args)
+    rec = read_recording_args(args).recording
     used: dict[str, Any]
     if args.calibration is not None:
         correction = _read_calibration_file(args.calibration)

@@ -114,7 +114,7 @@ def cmd_verify(args: argparse.Namespace) -> int:
         raise ServiceError(f"no calibration {'#' + str(args.id) if args.id is not None else 'of ' + repr(args.device)} in "
                            f"{store.display_url}; `gyrocal history DEVICE` lists them")
     require_active_operator(store, args.operator)
-    rec = read_recording_args(args)
+    rec = read_recording_args(args).recording
     try:
         found = verify_turn(rec, Correction.from_json(cal.model_dump(mode="json")), cal.uncertainty).to_json()
     except NoVerificationTurn as exc:

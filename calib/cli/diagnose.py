@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from calib import __version__
-from calib.cli.options import add_recording_arguments, read_recording_args, read_sections_arg
+from calib.cli.options import add_recording_arguments, read_recording_args
 
 
 def add_diagnose_parser(sub: Any) -> None:
@@ -30,15 +30,15 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
     from calib.diagnosis import diagnose
 
-    rec = read_recording_args(args)
-    sections = read_sections_arg(args, rec)
+    read = read_recording_args(args)
     with tqdm(total=100, desc="diagnose", unit="%", file=sys.stderr, disable=args.json and not sys.stderr.isatty()) as bar:
 
         def progress(fraction: float, stage: str) -> None:
             bar.set_postfix_str(stage, refresh=False)
             bar.update(round(100 * fraction) - bar.n)
 
-        diag = diagnose(rec, progress=progress, max_samples=args.max_samples, protocol=args.protocol, sections=sections)
+        diag = diagnose(read.recording, progress=progress, max_samples=args.max_samples, protocol=read.protocol,
+                        sections=read.sections)
     if args.report:
         from calib.diagnosis.report import write_report
 

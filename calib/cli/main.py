@@ -158,27 +158,22 @@ def _writable(path: Path, what: str) -> Path:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    from calib.cli.options import error_json, read_recording_args, read_sections_arg
-    from calib.errors import CalibrationError, GyrocalError, Refusal
+    from calib.cli.options import error_json, read_recording_args
+    from calib.errors import CalibrationError, GyrocalError, Refusal, SectionsError
     from calib.pipeline import calibrate_protocol
 
     if args.plot:
         _writable(args.plot, "plot")
     try:
-        rec = read_recording_args(args)
+        read = read_recording_args(args)
     except GyrocalError as exc:
         if args.json:
-            print(error_json(exc, "bad_recording", []))
+            print(error_json(exc, "bad_sections" if isinstance(exc, SectionsError) else "bad_recording", []))
         raise
-    try:
-        sections = read_sections_arg(args, rec)
-    except GyrocalError as exc:
-        if args.json:
-            print(error_json(exc, "bad_sections", []))
-        raise
+    rec = read.recording
     try:
         try:
-            result, protocol = calibrate_protocol(rec, args.protocol, args.method, sections)
+            result, protocol = calibrate_protocol(rec, read.protocol, args.method, read.sections)
         except Refusal:
             raise
         except GyrocalError as exc:  # the file was read: whatever else stops the calibration refuses this recording

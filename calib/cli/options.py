@@ -1,22 +1,22 @@
-"""The command line's recording options, shared by ``gyrocal calibrate`` and ``gyrocal diagnose``: how to read
-the file (layout, sample rate, raw-count sensitivities), which protocol to take it as, and labelled sections."""
+"""The command line's recording options, shared by ``gyrocal calibrate``, ``diagnose``, ``apply`` and ``verify``: the
+file, how to read it (layout, sample rate, raw-count sensitivities), which protocol to take it as, and labelled
+sections. They become one ``calib.io.inputs.RecordingInput``, read as every other door reads it."""
 
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 from typing import Any
 
-from calib.io.section import Section
-from calib.pipeline import PROTOCOLS
-from calib.recording import Recording
+from calib.io.inputs import LAYOUTS, PROTOCOLS, ReadOptions, ReadRecording, RecordingInput
 
 
 def add_reading_arguments(p: argparse.ArgumentParser) -> None:
     """``file`` and the options that say how to read it (layout, sample rate, raw-count sensitivities)."""
     p.add_argument("file", type=Path, help="native CSV (t,gx,gy,gz,...) or imucal layout (gyr_x,...)")
     p.add_argument("--fs", type=float, default=None, help="sample rate in Hz (required when the file has no time column)")
-    p.add_argument("--layout", choices=["auto", "native", "imucal", "imu_tk"], default="auto",
+    p.add_argument("--layout", choices=LAYOUTS, default="auto",
                    help="CSV layout (default: detect from header); imu_tk: FILE is imu_tk's gyroscope file, --accel its "
                         "accelerometer file")
     p.add_argument("--accel", type=Path, default=None, help="with --layout imu_tk: the accelerometer file")
@@ -29,7 +29,7 @@ def add_reading_arguments(p: argparse.ArgumentParser) -> None:
 def add_recording_arguments(p: argparse.ArgumentParser) -> None:
     """``file``, how to read it, and what protocol it holds."""
     add_reading_arguments(p)
-    p.add_argument("--protocol", choices=list(PROTOCOLS), default="auto",
+    p.add_argument("--protocol", choices=PROTOCOLS, default="auto",
                    help="auto (default): the protocol recognised in the recording; paper: rests and full turns about x, y, z; "
                         "ferraris: six static poses and three turns; multi-position: re-orientations between rests, with the "
                         "accelerometer")
@@ -38,42 +38,36 @@ def add_recording_arguments(p: argparse.ArgumentParser) -> None:
                         "exclusive) used instead of stage detection; a file's own 'part' column is used without it")
 
 
-def read_recording_args(args: argparse.Namespace) -> Recording:
-    """The recording named on the command line (``file``, ``--fs``, ``--layout``, ``--accel``, the sensitivities)."""
-    from calib.errors import RecordingError, SampleRateUnknownError
-    from calib.io.readers import read_recording
+def recording_input(args: argparse.Namespace) -> RecordingInput:
+    """The recording named on the command line as one input (its file, ``--accel``, ``--sections`` read from disk)."""
+    from calib.errors import RecordingError
+    from calib.io.inputs import file_input
 
     layout = getattr(args, "layout", "auto")
-    if getattr(args, "accel", None) is not None and layout != "imu_tk":
+    accel = getattr(args, "accel", None)
+    if accel is not None and layout != "imu_tk":
         raise RecordingError("--accel FILE names imu_tk's separate accelerometer file: give it with --layout imu_tk, or "
                              "leave it out when FILE holds the accelerometer's columns")
-    if layout == "imu_tk":
-        from calib.io.imu_tk import read_imu_tk
+    if layout == "imu_tk" and accel is None:
+        raise RecordingError("--layout imu_tk reads the gyroscope FILE and the accelerometer from --accel FILE; give both")
+    options = ReadOptions(layout=layout, fs=args.fs, gyro_counts_per_dps=getattr(args, "gyro_counts_per_dps", None),
+                          accel_counts_per_g=getattr(args, "accel_counts_per_g", None),
+                          protocol=getattr(args, "protocol", "auto"))
+    return file_input(args.file, options, accel, getattr(args, "sections", None))
 
-        if getattr(args, "accel", None) is None:
-            raise RecordingError("--layout imu_tk reads the gyroscope FILE and the accelerometer from --accel FILE; give both")
-        return read_imu_tk(args.file, args.accel)
-    gyro_sens, accel_sens = getattr(args, "gyro_counts_per_dps", None), getattr(args, "accel_counts_per_g", None)
-    if gyro_sens is not None or accel_sens is not None:
-        layout = "imucal_counts" if layout in ("auto", "imucal") else layout
+
+def read_recording_args(args: argparse.Namespace) -> ReadRecording:
+    """The recording named on the command line, read (``file``, ``--fs``, ``--layout``, ``--accel``, the
+    sensitivities, ``--protocol``, ``--sections``)."""
+    from calib.errors import SampleRateUnknownError
+    from calib.io.inputs import read_input
+
     try:
-        return read_recording(args.file, fs=args.fs, layout=layout, gyro_counts_per_dps=gyro_sens,
-                              accel_counts_per_g=accel_sens)
+        return read_input(recording_input(args))
     except SampleRateUnknownError as exc:
         raise SampleRateUnknownError(f"{exc}; on the command line: --fs HZ") from None
 
 
-def read_sections_arg(args: argparse.Namespace, rec: Recording) -> tuple[Section, ...] | None:
-    """The section list of ``--sections FILE`` (None without it)."""
-    if getattr(args, "sections", None) is None:
-        return None
-    from calib.io.sections import read_sections
-
-    return read_sections(args.sections, len(rec))
-
-
 def error_json(exc: Exception, code: str, stages: list[Any]) -> str:
     """The one JSON object a failed command prints with ``--json``."""
-    import json
-
     return json.dumps({"error": {"code": code, "message": str(exc), "stages": [s.to_dict() for s in stages]}})

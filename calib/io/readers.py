@@ -56,15 +56,10 @@ def read_recording(
     accel_counts_per_g: float | np.ndarray | None = None,
 ) -> Recording:
     """Read a recording from a CSV file; raises RecordingError saying what is wrong and how to fix it."""
+    from calib.io.inputs import read_file_bytes
+
     p = Path(path)
-    if p.is_dir():
-        raise RecordingError(f"{p} is a directory, not a recording; give the path of a CSV file")
-    try:
-        data = p.read_bytes()
-    except FileNotFoundError:
-        raise RecordingError(f"{p} does not exist; check the path of the recording") from None
-    except OSError as exc:
-        raise RecordingError(f"{p} cannot be read ({exc.strerror or exc}); check the path and its permissions") from None
+    data = read_file_bytes(p)
     return parse_recording_text(
         _decode(data, p.name), fs, layout, source=p.name,
         gyro_counts_per_dps=gyro_counts_per_dps, accel_counts_per_g=accel_counts_per_g,

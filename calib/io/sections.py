@@ -42,14 +42,18 @@ def sections_from_labels(labels: np.ndarray) -> tuple[Section, ...]:
 
 def read_sections(path: str | os.PathLike[str], n_samples: int) -> tuple[Section, ...]:
     """Sections from an imucal-style section list file (JSON); checked against a recording of ``n_samples``."""
+    return parse_sections(section_list_text(path), n_samples, f"the section list {path}")
+
+
+def section_list_text(path: str | os.PathLike[str]) -> str:
+    """The text of a section list file; RecordingError saying why it cannot be read."""
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        return p.read_text(encoding="utf-8")
     except OSError as exc:
         raise RecordingError(f"cannot read the section list {p}: {exc.strerror or exc}") from None
     except UnicodeDecodeError:
         raise RecordingError(f"the section list {p} is not UTF-8 text; save it as a JSON file") from None
-    return parse_sections(text, n_samples, f"the section list {p}")
 
 
 _EXAMPLE = '{"x_p": {"start": 540, "end": 1271}, ...} or [{"label": "x_p", "start": 540, "end": 1271}, ...]'

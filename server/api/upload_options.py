@@ -1,19 +1,22 @@
-"""The query parameters that say how to read an uploaded recording beyond its layout, shared by the upload
-routes that calibrate it and those that diagnose it: the protocol, labelled sections, raw-count sensitivities."""
+"""The query parameters that say how to read an uploaded recording beyond its layout and rate, shared by the upload
+routes that calibrate, apply, verify and diagnose it: the protocol, labelled sections, raw-count sensitivities. They
+are calib's ``ReadOptions``, the same the command line builds; ``upload_input`` makes the one ``RecordingInput`` every
+door reads through."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Annotated, Literal
 
 from fastapi import Depends, Query
 
-from ..workers.compute import UploadOptions
+from calib.io.inputs import PROTOCOLS, ReadOptions, RecordingInput
 
 MAX_SECTIONS_TEXT = 4000
 
 
 def upload_options(
-    protocol: Annotated[Literal["auto", "paper", "ferraris", "multi-position"], Query(
+    protocol: Annotated[Literal[PROTOCOLS], Query(  # type: ignore[valid-type]
         description="what the uploaded recording holds: auto (default: the protocol recognised in it), paper (rests and "
                     "full turns about x, y, z), ferraris (six static poses and three turns) or multi-position "
                     "(re-orientations between rests, with the accelerometer)")] = "auto",
@@ -24,9 +27,17 @@ def upload_options(
                                                        "sensitivity in counts per deg/s")] = None,
     accel_counts_per_g: Annotated[float | None, Query(gt=0, le=1e9, description="the CSV holds raw counts: the "
                                                       "accelerometer's sensitivity in counts per g")] = None,
-) -> UploadOptions:
-    """The upload's options from its query parameters."""
-    return UploadOptions(protocol, sections, gyro_counts_per_dps, accel_counts_per_g)
+) -> ReadOptions:
+    """The upload's options from its query parameters (a blank ``sections`` is none)."""
+    return ReadOptions(protocol=protocol, sections=sections if sections and sections.strip() else None,
+                       gyro_counts_per_dps=gyro_counts_per_dps, accel_counts_per_g=accel_counts_per_g)
 
 
-Upload = Annotated[UploadOptions, Depends(upload_options)]
+Upload = Annotated[ReadOptions, Depends(upload_options)]
+
+
+def upload_input(body: bytes, source: str, upload: ReadOptions, fs: float | None, layout: str,
+                 accel: bytes | None = None) -> RecordingInput:
+    """An uploaded recording as calib's one input: the body (imu_tk: the gyroscope's part, ``accel`` the
+    accelerometer's), its rate and layout, and the upload's options."""
+    return RecordingInput(body, source, replace(upload, fs=fs, layout=layout), accel, "the sections parameter")

@@ -23,7 +23,7 @@ from calib.result import CalibrationResult
 from ..config import Settings
 from ..devices import Device, model_facts, sensor_identity
 from ..store import SessionEnd, Store, utcnow
-from ..workers.compute import ComputePool, calibrate_recording, off_loop
+from ..workers.compute import ComputePool, calibrate_live, off_loop
 from . import guidance as say
 from .buffer import SampleBuffer
 from .codes import EndReason
@@ -41,13 +41,12 @@ SPOOL_MAX_SAMPLES = 600_000  # beyond this (15 min at 562.5 Hz, the longest sess
 
 def compute_result(session: GuidedSession) -> CalibrationResult:
     """Run the estimator on a session's recording and stages, in this process (tests, tools)."""
-    result, error, _ = calibrate_recording(session.recording(), session.method, session.protocol_stages())
-    if error is not None:
+    outcome = calibrate_live(session.recording(), session.method, session.protocol_stages())
+    if outcome.result is None:
         from calib.errors import CalibrationError
 
-        raise CalibrationError(error)
-    assert result is not None
-    return result
+        raise CalibrationError(str(outcome.refusal), code=outcome.code)
+    return outcome.result
 
 
 def spool_rows(buf: SampleBuffer, start: int, end: int) -> tuple[str, bytes]:
@@ -305,17 +304,17 @@ class LiveSession(Persistence):
     async def _compute(self) -> None:
         m = self.machine
         rec, stages = m.recording(), m.protocol_stages()
-        job = off_loop(self.pool, calibrate_recording, rec, m.method, stages)
+        job = off_loop(self.pool, calibrate_live, rec, m.method, stages)
         try:
-            result, error, csv = await asyncio.wait_for(job, timeout=self.settings.compute_timeout_s)
+            outcome = await asyncio.wait_for(job, timeout=self.settings.compute_timeout_s)
         except TimeoutError:
             m.fail("calibration_failed", say.compute_timeout(self.settings.compute_timeout_s))
             return
-        self._csv = csv
-        if error is not None:
-            m.fail("calibration_failed", f"{error} Start a new calibration.")
+        self._csv = outcome.csv
+        if outcome.result is None:
+            m.fail("calibration_failed", f"{outcome.refusal} Start a new calibration.")
             return
-        assert result is not None
+        result = outcome.result
         try:
             history = [c.model_dump() for c in await asyncio.to_thread(self.store.calibrations, m.device_id)]
         except Exception:  # the store's history only adds a caution: a result stands without it

@@ -18,9 +18,10 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from calib.io.section import Section
+    from calib.io.inputs import ReadRecording, RecordingInput
     from calib.recording import Recording
     from calib.result import CalibrationResult
+    from calib.stages.stage import Stage
 
 log = logging.getLogger(__name__)
 
@@ -70,90 +71,50 @@ def recording_csv(rec: Any) -> bytes:
     return buf.getvalue().encode()
 
 
-def calibrate_recording(rec: Recording, method: str, stages: Any) -> tuple[CalibrationResult | None, str | None, bytes]:
-    """(result, None, csv) or (None, error message, csv) for a session's recording."""
-    from calib.errors import GyrocalError
-    from calib.pipeline import calibrate
+@dataclass(frozen=True)
+class LiveOutcome:
+    """A live session's calibration as the worker hands it back: the result, or the refusal's message and code (an
+    exception would lose the recording, which the session keeps either way), and the recording as native CSV."""
+
+    result: CalibrationResult | None
+    refusal: str | None
+    code: str | None
+    csv: bytes
+
+
+def calibrate_live(rec: Recording, method: str, stages: list[Stage]) -> LiveOutcome:
+    """A live session's recording calibrated through the one entry point (``calib.pipeline.calibrate_protocol``, the
+    paper protocol, with the stages the session followed)."""
+    from calib.errors import GyrocalError, Refusal
+    from calib.pipeline import calibrate_protocol
 
     csv = recording_csv(rec)
     try:
-        return calibrate(rec, method=method, stages=stages), None, csv
+        result, _ = calibrate_protocol(rec, "paper", method, stages=stages)
     except GyrocalError as exc:
-        return None, str(exc), csv
+        return LiveOutcome(None, str(exc), exc.code if isinstance(exc, Refusal) else None, csv)
+    return LiveOutcome(result, None, None, csv)
 
 
-@dataclass(frozen=True)
-class UploadOptions:
-    """How to read and calibrate an uploaded CSV beyond its layout: the protocol, labelled sections (imucal's
-    section-list JSON text), for raw counts the sensitivities, and for imu_tk's layout its accelerometer file (the
-    upload's body then being its gyroscope file)."""
+def parse_upload(inp: RecordingInput, max_samples: int) -> ReadRecording:
+    """An uploaded recording read through the one door (``calib.io.inputs.read_input``); raises RecordingError, or
+    TooManySamples above ``max_samples``."""
+    from calib.io.inputs import read_input
 
-    protocol: str = "auto"
-    sections: str | None = None
-    gyro_counts_per_dps: float | None = None
-    accel_counts_per_g: float | None = None
-    accel_file: bytes | None = None
-
-
-def parse_upload(body: bytes, fs: float | None, layout: str, source: str, max_samples: int,
-                 options: UploadOptions | None = None) -> Recording:
-    """An uploaded CSV (or imu_tk's two files) as a Recording; raises RecordingError, or TooManySamples above
-    ``max_samples``."""
-    from calib.io.readers import parse_recording_text
-
-    opts = options or UploadOptions()
-    if layout == "imu_tk":
-        rec = _parse_imu_tk_upload(body, source, opts)
-    else:
-        if opts.gyro_counts_per_dps is not None or opts.accel_counts_per_g is not None:
-            layout = "imucal_counts" if layout in ("auto", "imucal") else layout
-        rec = parse_recording_text(body, fs, layout, source, gyro_counts_per_dps=opts.gyro_counts_per_dps,
-                                   accel_counts_per_g=opts.accel_counts_per_g)
-    if len(rec) > max_samples:
-        raise TooManySamples(f"the recording has {len(rec)} samples; at most {max_samples} are accepted, send a shorter one")
-    return rec
+    read = read_input(inp)
+    if len(read.recording) > max_samples:
+        raise TooManySamples(f"the recording has {len(read.recording)} samples; at most {max_samples} are accepted, send a "
+                             "shorter one")
+    return read
 
 
-def _parse_imu_tk_upload(gyro: bytes, source: str, opts: UploadOptions) -> Recording:
-    """imu_tk's gyroscope and accelerometer files, with the sensitivities given (else the Xsens test data's)."""
-    from calib.errors import RecordingError
-    from calib.io.imu_tk import XSENS_ACCEL_COUNTS_PER_G, XSENS_GYRO_COUNTS_PER_RAD_S, parse_imu_tk
-    from calib.units import DEG
-
-    if opts.accel_file is None:
-        raise RecordingError("imu_tk's layout is two files: send the gyroscope's and the accelerometer's as the parts "
-                             "'gyro' and 'accel' of a multipart/form-data body")
-    counts_per_rad_s = XSENS_GYRO_COUNTS_PER_RAD_S if opts.gyro_counts_per_dps is None else opts.gyro_counts_per_dps / DEG
-    return parse_imu_tk(_text(gyro, "gyroscope"), _text(opts.accel_file, "accelerometer"), source, counts_per_rad_s,
-                        opts.accel_counts_per_g or XSENS_ACCEL_COUNTS_PER_G)
-
-
-def _text(data: bytes, what: str) -> str:
-    from calib.errors import RecordingError
-
-    try:
-        return data.decode("utf-8")
-    except UnicodeDecodeError:
-        raise RecordingError(f"the {what} file is not text: imu_tk's files are rows 't x y z' of numbers") from None
-
-
-def upload_sections(opts: UploadOptions, rec: Recording) -> tuple[Section, ...] | None:
-    """The upload's labelled sections (its ``sections`` parameter), checked against the recording; None without."""
-    from calib.io.sections import parse_sections
-
-    return parse_sections(opts.sections, len(rec), "the sections parameter") if opts.sections else None
-
-
-def calibrate_upload(
-    body: bytes, fs: float | None, layout: str, method: str, source: str, max_samples: int, options: UploadOptions | None = None
-) -> tuple[CalibrationResult, str, bytes, int]:
-    """Parse and calibrate an uploaded CSV: (result, protocol used, CSV, samples); raises calib's errors."""
+def calibrate_upload(inp: RecordingInput, method: str, max_samples: int) -> tuple[CalibrationResult, str, bytes, int]:
+    """Read and calibrate an uploaded recording: (result, protocol used, CSV, samples); raises calib's errors."""
     from calib.pipeline import calibrate_protocol
 
-    opts = options or UploadOptions()
-    rec = parse_upload(body, fs, layout, source, max_samples, opts)
-    result, used = calibrate_protocol(rec, opts.protocol, method, upload_sections(opts, rec))
-    return result, used, recording_csv(rec), len(rec)
+    read = parse_upload(inp, max_samples)
+    result, used = calibrate_protocol(read.recording, read.protocol, method, read.sections)
+    return result, used, recording_csv(read.recording), len(read.recording)
 
 
 def off_loop(pool: ComputePool | None, fn: Callable[..., Any], *args: Any) -> Awaitable[Any]:
@@ -203,14 +164,14 @@ class ComputePool:
             self._pool = None
 
 
-def apply_upload(body: bytes, fs: float | None, layout: str, source: str, max_samples: int, options: UploadOptions | None,
-                 calibration: dict[str, Any], orientation: bool = False) -> tuple[bytes, bool, float | None, dict[str, Any] | None]:
+def apply_upload(inp: RecordingInput, max_samples: int, calibration: dict[str, Any],
+                 orientation: bool = False) -> tuple[bytes, bool, float | None, dict[str, Any] | None]:
     """An uploaded CSV corrected by a calibration (its JSON form): (native CSV, whether the accelerometer was corrected
     too, the recording's mean temperature in degC when it has a temp column, and with ``orientation`` the summary of
     its orientation before and after); raises calib's errors."""
     from calib.apply.correction import Correction, corrected
 
-    rec = parse_upload(body, fs, layout, source, max_samples, options)
+    rec = parse_upload(inp, max_samples).recording
     correction = Correction.from_json(calibration)
     fixed = corrected(rec, correction)
     summary = None
@@ -229,8 +190,7 @@ def verify_recording(rec: Any, calibration: dict[str, Any]) -> dict[str, Any]:
     return verify_turn(rec, Correction.from_json(calibration), calibration.get("uncertainty")).to_json()
 
 
-def verify_upload(body: bytes, fs: float | None, layout: str, source: str, max_samples: int, options: UploadOptions | None,
-                  calibration: dict[str, Any]) -> tuple[dict[str, Any], bytes, int]:
+def verify_upload(inp: RecordingInput, max_samples: int, calibration: dict[str, Any]) -> tuple[dict[str, Any], bytes, int]:
     """An uploaded recording of a verification turn measured with a calibration: (verification, CSV, samples)."""
-    rec = parse_upload(body, fs, layout, source, max_samples, options)
+    rec = parse_upload(inp, max_samples).recording
     return verify_recording(rec, calibration), recording_csv(rec), len(rec)

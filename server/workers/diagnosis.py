@@ -26,9 +26,10 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from .compute import UploadOptions
+if TYPE_CHECKING:
+    from calib.io.inputs import RecordingInput
 
 log = logging.getLogger(__name__)
 
@@ -50,28 +51,27 @@ class WorkerDied(Exception):
 
 
 # -- what the workers run (module level, so that spawned processes can import it) ------------------
-def diagnose_csv(csv: bytes, fs: float | None, layout: str, source: str, max_samples: int,
-                 stages: list[dict[str, Any]] | None, full_scale_dps: float | None, options: UploadOptions | None,
+def diagnose_csv(inp: RecordingInput, max_samples: int, stages: list[dict[str, Any]] | None, full_scale_dps: float | None,
                  report_title: str | None, progress: Progress | None = None) -> tuple[dict[str, Any], str | None]:
-    """Parse a CSV recording and diagnose it: (Diagnosis.to_dict(), the HTML report or None).
+    """Read a recording (through calib's one door, as for a calibration) and diagnose it: (Diagnosis.to_dict(), the
+    HTML report or None).
 
     ``stages`` (Stage.to_dict() form) are used instead of detecting them, as a session accepted them;
-    ``full_scale_dps`` is the gyro range the wearable stated (a CSV does not carry it); ``options`` the
-    upload's protocol, sections and raw-count sensitivities, as for a calibration.
+    ``full_scale_dps`` is the gyro range the wearable stated (a CSV does not carry it).
     Raises calib's errors (RecordingError, ProtocolError, ...) and server.compute.TooManySamples.
     """
     from calib.diagnosis import diagnose
     from calib.stages.stage import Stage
 
-    from .compute import parse_upload, upload_sections
+    from .compute import parse_upload
 
-    opts = options or UploadOptions()
-    rec = parse_upload(csv, fs, layout, source, max_samples, opts)
+    read = parse_upload(inp, max_samples)
+    rec = read.recording
     if full_scale_dps:
         rec = rec.with_meta(gyro_full_scale_dps=float(full_scale_dps))
     found = [Stage.from_dict(s) for s in stages] if stages else None
-    diag = diagnose(rec, progress=progress, stages=found, max_samples=max_samples, protocol=opts.protocol,
-                    sections=upload_sections(opts, rec))
+    diag = diagnose(rec, progress=progress, stages=found, max_samples=max_samples, protocol=read.protocol,
+                    sections=read.sections)
     html = None
     if report_title is not None:
         from calib.diagnosis.report import write_report

@@ -15,6 +15,7 @@ from fastapi import APIRouter, Path, Query, Request, Response
 from calib import __version__
 from calib.apply.correction import Correction, CorrectionFileError
 from calib.apply.identity import SensorIdentity
+from calib.io.inputs import ReadOptions
 from calib.json_safe import finite
 
 from ... import schemas as M
@@ -23,9 +24,9 @@ from ...export import export_text
 from ...lifecycle import CalibrationInForce, in_force_async, judged, none_in_force
 from ...service import Service
 from ...store import sha256_hex
-from ...workers.compute import TooManySamples, UploadOptions, apply_upload
+from ...workers.compute import TooManySamples, apply_upload
 from ..identity_query import RecordingIdentity
-from ..upload_options import Upload
+from ..upload_options import Upload, upload_input
 from ..views import calibration_or_404
 
 router = APIRouter()
@@ -68,7 +69,7 @@ async def apply_calibration(
     })
 
 
-async def _corrected(svc: Service, device_id: str, request: Request, upload: UploadOptions, recording: SensorIdentity,
+async def _corrected(svc: Service, device_id: str, request: Request, upload: ReadOptions, recording: SensorIdentity,
                      at: datetime | None, fs: float | None, layout: str, *, orientation: bool) -> tuple[CalibrationInForce, Any]:
     """The calibration in force for an uploaded recording (judged against the recording's temp column too) and what the
     worker made of the recording with it: (corrected CSV, accelerometer corrected too, orientation summary or None)."""
@@ -80,8 +81,8 @@ async def _corrected(svc: Service, device_id: str, request: Request, upload: Upl
         raise problem(404, f"{none_in_force(device_id, None if at is None else at.isoformat())}: calibrate it before applying one")
     try:
         csv, accel_too, temperature_c, summary = await asyncio.wait_for(
-            svc.pool.run(apply_upload, body, fs, layout, f"recording for {device_id}", svc.settings.max_upload_samples, upload,
-                         cal.model_dump(mode="json"), orientation),
+            svc.pool.run(apply_upload, upload_input(body, f"recording for {device_id}", upload, fs, layout),
+                         svc.settings.max_upload_samples, cal.model_dump(mode="json"), orientation),
             timeout=svc.settings.compute_timeout_s,
         )
     except TimeoutError:

@@ -18,6 +18,7 @@ from fastapi.responses import HTMLResponse, JSONResponse
 from pydantic import BaseModel, ConfigDict, Field
 
 from calib.errors import RecordingTooLong
+from calib.io.inputs import ReadOptions, RecordingInput
 from calib.json_safe import finite
 
 from ...deps import (
@@ -33,7 +34,7 @@ from ...deps import (
 from ...schemas import Problem
 from ...service import Service
 from ...store import sha256_hex
-from ...workers.compute import TooManySamples, UploadOptions
+from ...workers.compute import TooManySamples
 from ...workers.diagnosis import (
     REPORTS_KEPT,
     Busy,
@@ -43,7 +44,7 @@ from ...workers.diagnosis import (
     diagnose_csv,
     digest,
 )
-from ..upload_options import Upload
+from ..upload_options import Upload, upload_input
 
 log = logging.getLogger(__name__)
 
@@ -162,12 +163,12 @@ class Diagnoser:
         self.queue.shutdown()
 
 
-def _upload_args(body: bytes, fs: float | None, layout: str, max_samples: int, upload: UploadOptions) -> tuple[str, tuple[Any, ...]]:
+def _upload_args(body: bytes, fs: float | None, layout: str, max_samples: int, upload: ReadOptions) -> tuple[str, tuple[Any, ...]]:
     """The cache key and the worker's arguments of an uploaded recording's model check."""
     check_upload(body, layout)
     key = digest("upload", sha256_hex(body), fs, layout, upload.protocol, upload.sections, upload.gyro_counts_per_dps,
                  upload.accel_counts_per_g)
-    return key, (body, fs, layout, "uploaded recording", max_samples, None, None, upload, "uploaded recording")
+    return key, (upload_input(body, "uploaded recording", upload, fs, layout), max_samples, None, None, "uploaded recording")
 
 
 async def _session_source(svc: Service, sid: str) -> tuple[str, dict[str, Any] | None, str | None]:
@@ -209,8 +210,8 @@ async def _session_args(svc: Service, sid: str, row: dict[str, Any] | None, repo
     device = (row or {}).get("device_id") or (live.device.id if live is not None else "")
     info = (row or {}).get("info") or {}
     full_scale = info.get("gyro_full_scale_dps") or (live.machine.full_scale if live is not None else None)
-    return (csv, None, "native", f"session {sid}", svc.settings.max_diagnose_samples, stages,
-            full_scale, None, f"session {sid} ({device})" if report else None)
+    return (RecordingInput(csv, f"session {sid}", ReadOptions(layout="native")), svc.settings.max_diagnose_samples, stages,
+            full_scale, f"session {sid} ({device})" if report else None)
 
 
 def _json(d: dict[str, Any], kept: bool, sha: str | None = None) -> JSONResponse:

@@ -7,7 +7,6 @@ import asyncio
 import logging
 import uuid
 from collections.abc import AsyncIterator
-from dataclasses import replace
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request, Response
@@ -17,6 +16,7 @@ from sqlalchemy.exc import SQLAlchemyError
 
 from calib import __version__
 from calib.apply.identity import SensorIdentity
+from calib.io.inputs import ReadOptions
 from calib.json_safe import finite
 from calib.judge.acceptance import evaluate, turn_accuracy
 from calib.judge.departure import departures
@@ -47,8 +47,8 @@ from ...live.snapshot import stored_snapshot
 from ...live.turn_watch import LiveAngle
 from ...service import Service
 from ...store import DecisionConflict, NotAcceptable, NotFound, SessionEnd, StoreError, sha256_hex
-from ...workers.compute import TooManySamples, UploadOptions, calibrate_upload
-from ..upload_options import Upload
+from ...workers.compute import TooManySamples, calibrate_upload
+from ..upload_options import Upload, upload_input
 from ..views import claim_device, reachable_device, remote_gateway, runs_elsewhere, session_snapshot
 
 # The section list travels in the URL: 4000 characters (about 80 sections) stay under what the HTTP server reads
@@ -111,11 +111,9 @@ async def calibrate(svc: Svc,
     check_device_id(device_id)
     ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
     if ctype == "multipart/form-data":
-        gyro, accel = await read_imu_tk_parts(request, layout)
-        upload = replace(upload, accel_file=accel)
-        body = gyro
+        body, accel = await read_imu_tk_parts(request, layout)
     else:
-        body = await request.body()
+        body, accel = await request.body(), None
     if ctype in CSV_TYPES or ctype == "multipart/form-data":
         return await calibrate_uploaded(
             svc,
@@ -128,6 +126,7 @@ async def calibrate(svc: Svc,
             {"sensor_model": sensor_model, "firmware": firmware, "serial": serial},
             boot_count,
             upload,
+            accel,
         )
     if ctype and ctype != "application/json" and body:
         raise problem(
@@ -366,7 +365,8 @@ async def calibrate_uploaded(
     layout: str,
     sensor: dict[str, str | None],
     boot_count: int | None = None,
-    options: UploadOptions | None = None,
+    options: ReadOptions | None = None,
+    accel: bytes | None = None,
 ) -> JSONResponse:
     from calib.pipeline import DEFAULT_METHOD, available_methods
 
@@ -374,11 +374,13 @@ async def calibrate_uploaded(
     if method not in available_methods():
         raise problem(422, f"unknown method {method!r}: choose one of {', '.join(available_methods())}")
     check_upload(body, layout, (*CSV_LAYOUTS, "imu_tk"))
-    source = f"upload for {device_id}"
+    if layout == "imu_tk" and accel is None:
+        raise problem(400, "imu_tk's layout is two files: send the gyroscope's and the accelerometer's as the parts 'gyro' and "
+                           "'accel' of a multipart/form-data body")
+    inp = upload_input(body, f"upload for {device_id}", options or ReadOptions(), fs, layout, accel)
     try:
         result, used, csv, n_samples = await asyncio.wait_for(
-            svc.pool.run(calibrate_upload, body, fs, layout, method, source, svc.settings.max_upload_samples,
-                         options or UploadOptions()),
+            svc.pool.run(calibrate_upload, inp, method, svc.settings.max_upload_samples),
             timeout=svc.settings.compute_timeout_s,
         )
     except TimeoutError:

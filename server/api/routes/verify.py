@@ -17,7 +17,7 @@ from ... import schemas as M
 from ...deps import CSV_TYPES, R404, R409, Operator, Reader, Svc, check_device_id, check_upload, problem, recording_problem
 from ...live.verify_run import VerifyRun
 from ...workers.compute import TooManySamples, verify_upload
-from ..upload_options import Upload
+from ..upload_options import Upload, upload_input
 from ..views import calibration_or_404, claim_device, reachable_device
 
 router = APIRouter()
@@ -52,8 +52,8 @@ async def verify(
         check_upload(body, layout)
         try:
             found, csv, n = await asyncio.wait_for(
-                svc.pool.run(verify_upload, body, fs, layout, f"verification of #{calibration_id}", svc.settings.max_upload_samples,
-                             upload, cal.model_dump(mode="json")),
+                svc.pool.run(verify_upload, upload_input(body, f"verification of #{calibration_id}", upload, fs, layout),
+                             svc.settings.max_upload_samples, cal.model_dump(mode="json")),
                 timeout=svc.settings.compute_timeout_s)
         except NoVerificationTurn as exc:
             raise problem(400, str(exc)) from None
