@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from calib.apply.correction import Correction
 from calib.numerics.attitude import cumulative_attitude
 from calib.recording import Recording
 from calib.result import CalibrationResult
@@ -36,7 +37,7 @@ def calibration_traces(rec: Recording, result: CalibrationResult, max_points: in
     """
     dt = np.diff(rec.t, append=rec.t[-1] + 1.0 / rec.fs)
     before = rec.gyro
-    after = result.apply(rec.gyro)
+    after, _ = Correction.from_result(result).apply(rec.gyro)
     pose_before = np.rad2deg(cumulative_attitude(before, dt).magnitude())
     pose_after = np.rad2deg(cumulative_attitude(after, dt).magnitude())
     swept_before = np.full(len(rec), np.nan)

@@ -50,14 +50,6 @@ class CalibrationResult:
         """The 3x3 calibration matrix K of g = K m + b."""
         return np.diag(self.k) if self.K is None else self.K
 
-    def apply(self, gyro: np.ndarray, accel: np.ndarray | None = None) -> np.ndarray:
-        """Calibrated rates g = K m + b (deg/s) for raw readings m of shape (..., 3); with the g-sensitivity,
-        g = K (m - G a) + b for the specific force ``accel`` a (g, same shape; without it the G term is left out)."""
-        m = np.asarray(gyro, dtype=float)
-        if self.G is not None and accel is not None:
-            m = m - np.asarray(accel, dtype=float) @ self.G.T
-        return m @ self.matrix.T + self.b
-
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> CalibrationResult:
         """The result back from its ``to_dict()`` form (as the store keeps it): ``from_dict(r.to_dict())`` gives the

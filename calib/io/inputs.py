@@ -110,24 +110,13 @@ def _text(data: bytes, what: str) -> str:
         raise RecordingError(f"the {what} file is not text: imu_tk's files are rows 't x y z' of numbers") from None
 
 
-def read_file_bytes(path: str | os.PathLike[str], what: str = "recording") -> bytes:
-    """A file's bytes; RecordingError saying why it cannot be read (a folder, missing, not permitted)."""
-    p = Path(path)
-    if p.is_dir():
-        raise RecordingError(f"{p} is a directory, not a {what}; give the path of a file")
-    try:
-        return p.read_bytes()
-    except FileNotFoundError:
-        raise RecordingError(f"{p} does not exist; check the path of the {what}") from None
-    except OSError as exc:
-        raise RecordingError(f"{p} cannot be read ({exc.strerror or exc}); check the path and its permissions") from None
-
-
 def file_input(path: str | os.PathLike[str], options: ReadOptions = ReadOptions(),
                accel_path: str | os.PathLike[str] | None = None,
                sections_path: str | os.PathLike[str] | None = None) -> RecordingInput:
     """The input of a recording on disk (imu_tk: ``path`` the gyroscope's file, ``accel_path`` the accelerometer's),
     with an imucal section list file."""
+    from calib.io.readers import read_file_bytes
+
     p = Path(path)
     source = p.name if accel_path is None else f"{p.name} + {Path(accel_path).name}"
     accel = None if accel_path is None else read_file_bytes(accel_path, "accelerometer file")

@@ -56,8 +56,6 @@ def read_recording(
     accel_counts_per_g: float | np.ndarray | None = None,
 ) -> Recording:
     """Read a recording from a CSV file; raises RecordingError saying what is wrong and how to fix it."""
-    from calib.io.inputs import read_file_bytes
-
     p = Path(path)
     data = read_file_bytes(p)
     return parse_recording_text(
@@ -437,3 +435,16 @@ def _labels(table: _Table) -> np.ndarray:
     c = table.index(LABEL_COLUMN)
     cells = [line.split(table.delimiter) for line in table.lines]
     return np.array([row[c].strip().strip("\"'") if c < len(row) else "" for row in cells])
+
+
+def read_file_bytes(path: str | os.PathLike[str], what: str = "recording") -> bytes:
+    """A file's bytes; RecordingError saying why it cannot be read (a folder, missing, not permitted)."""
+    p = Path(path)
+    if p.is_dir():
+        raise RecordingError(f"{p} is a directory, not a {what}; give the path of a file")
+    try:
+        return p.read_bytes()
+    except FileNotFoundError:
+        raise RecordingError(f"{p} does not exist; check the path of the {what}") from None
+    except OSError as exc:
+        raise RecordingError(f"{p} cannot be read ({exc.strerror or exc}); check the path and its permissions") from None

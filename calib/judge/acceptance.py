@@ -41,60 +41,74 @@ class Tolerances:
 NEAR_LIMIT_USED = 0.8
 
 
-def _used(value: float, limit: Any) -> float:
+def _used(value: float, limit: float | tuple[float, float]) -> float:
     """How much of its allowance a value uses: 0 at the ideal (k = 1, everything else 0), 1 at the limit."""
-    if isinstance(limit, (list, tuple)):
+    if isinstance(limit, tuple):
         lo, hi = float(limit[0]), float(limit[1])
         return (value - 1.0) / (hi - 1.0) if value >= 1.0 else (1.0 - value) / (1.0 - lo)
     return abs(value) / float(limit)
 
 
-def _check(name: str, axis: str | None, value: float, limit: Any, ok: bool, text: str) -> dict[str, Any]:
+@dataclass(frozen=True)
+class Check:
+    """One tolerance check of a result: the value, its limit (a bound on |value|, or the range [low, high] of a scale
+    factor), whether it passed, the sentence that says so, how much of its allowance it used (None when the value
+    is not finite) and whether a pass came close to the limit."""
+
+    name: str  # k | b | k_std | b_std | closure
+    axis: str | None
+    value: float
+    limit: float | tuple[float, float]
+    ok: bool
+    text: str
+    used: float | None
+    near_limit: bool
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready form (the limit range as a list)."""
+        return {"name": self.name, "axis": self.axis, "value": self.value,
+                "limit": list(self.limit) if isinstance(self.limit, tuple) else self.limit, "ok": self.ok, "text": self.text,
+                "used": self.used, "near_limit": self.near_limit}
+
+
+def _check(name: str, axis: str | None, value: float, limit: float | tuple[float, float], ok: bool, text: str) -> Check:
+    if not np.isfinite(value):  # a value that is not finite fails its check
+        return Check(name, axis, value, limit, False, text, None, False)
     used = _used(value, limit)
-    return {"name": name, "axis": axis, "value": value, "limit": limit, "ok": ok, "text": text,
-            "used": used, "near_limit": bool(ok and used >= NEAR_LIMIT_USED)}
+    return Check(name, axis, value, limit, ok, text, used, bool(ok and used >= NEAR_LIMIT_USED))
 
 
-def evaluate(result: CalibrationResult | dict[str, Any], tol: Tolerances) -> list[dict[str, Any]]:
-    """Each tolerance check of a result: {name, axis, value, limit, ok, text}. A value that is not finite fails its
-    check. ``result`` may also be a result's ``to_dict()`` form, as stored."""
-    if isinstance(result, CalibrationResult):
-        result = result.to_dict()
-    checks: list[dict[str, Any]] = []
-    k = result.get("k") or [float("nan")] * 3
-    b = result.get("b") or [float("nan")] * 3
-    unc = result.get("uncertainty") or {}
+def evaluate(result: CalibrationResult, tol: Tolerances) -> list[Check]:
+    """Each tolerance check of a result. A value that is not finite fails its check."""
+    checks: list[Check] = []
+    k = result.k if result.k is not None else np.full(3, np.nan)
+    b = result.b if result.b is not None else np.full(3, np.nan)
     for i, a in enumerate(AXES):
         kv = float(k[i])
-        checks.append(_check("k", a, kv, [tol.k_min, tol.k_max], tol.k_min <= kv <= tol.k_max,
+        checks.append(_check("k", a, kv, (tol.k_min, tol.k_max), tol.k_min <= kv <= tol.k_max,
                              f"k_{a} = {kv:.4f} (allowed {tol.k_min:g} to {tol.k_max:g})"))
     for i, a in enumerate(AXES):
         bv = float(b[i])
         checks.append(_check("b", a, bv, tol.b_max_dps, abs(bv) <= tol.b_max_dps,
                              f"b_{a} = {bv:.3f} °/s (allowed ±{tol.b_max_dps:g} °/s)"))
-    if unc.get("k") is not None:
+    if result.k_std is not None:
         for i, a in enumerate(AXES):
-            v = float(unc["k"][i])
+            v = float(result.k_std[i])
             checks.append(_check("k_std", a, v, tol.k_std_max, v <= tol.k_std_max,
                                  f"uncertainty of k_{a} = {v:.2g} (allowed {tol.k_std_max:g})"))
-    if unc.get("b") is not None:
+    if result.b_std is not None:
         for i, a in enumerate(AXES):
-            v = float(unc["b"][i])
+            v = float(result.b_std[i])
             checks.append(_check("b_std", a, v, tol.b_std_max_dps, v <= tol.b_std_max_dps,
                                  f"uncertainty of b_{a} = {v:.2g} °/s (allowed {tol.b_std_max_dps:g} °/s)"))
     # after calibration each full turn must bring the device back to its starting pose
-    for turn in (result.get("residuals") or {}).get("turns") or []:
+    for turn in result.residuals.get("turns") or []:
         if isinstance(turn, dict) and turn.get("closure_norm_deg") is not None:
             v = float(turn["closure_norm_deg"])
             axis = turn.get("axis")
             checks.append(_check("closure", axis, v, tol.closure_max_deg, v <= tol.closure_max_deg,
                                  f"the calibrated turn about {axis} ends {v:.2f}° from where it began "
                                  f"(allowed {tol.closure_max_deg:g}°)"))
-    for c in checks:
-        if not np.isfinite(c["value"]):
-            c["ok"] = False
-            c["near_limit"] = False
-            c["used"] = None
     return checks
 
 

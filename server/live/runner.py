@@ -337,7 +337,8 @@ class LiveSession(Persistence):
             state=m.state, reason_code=m.reason_code, reason=m.reason, result=m.result, passed=m.passed, ended_at=ended,
             info={"lost_samples": m.lost_samples, "service_late_s": round(m.service_late_s, 3), "warnings": m.warnings,
                   "turns": {a: t.to_dict() for a, t in m.turns.items()},
-                  "checks": m.checks, "departures": m.departures, "samples": m.buf.n, "sample_rate_hz": m.fs,
+                  "checks": [] if m.judgement is None else m.judgement.checks_json(),
+                  "departures": [] if m.judgement is None else m.judgement.departures_json(), "samples": m.buf.n, "sample_rate_hz": m.fs,
                   "gyro_full_scale_dps": m.full_scale, "identity": self.identity.to_json() if self.identity else None,
                   "temperatures_c": self.temperatures_c},
         )

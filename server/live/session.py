@@ -24,8 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from calib.judge.acceptance import evaluate
-from calib.judge.departure import departures
+from calib.judge.judgement import Judgement, judge
 from calib.recording import Recording, RecordingMeta
 from calib.result import CalibrationResult
 from calib.stages.stage import AXES, Stage
@@ -87,8 +86,7 @@ class GuidedSession(TurnChecks, Lateness):
         self.warnings: list[dict[str, Any]] = []
         self.result: CalibrationResult | None = None
         self.passed: bool | None = None
-        self.checks: list[dict[str, Any]] = []
-        self.departures: list[dict[str, Any]] = []  # parameters the device's own history does not explain
+        self.judgement: Judgement | None = None  # the result's checks, departures and accuracy (calib.judge)
         self.decision: str | None = None
         self.calibration_id: int | None = None
         self.attempt = 1
@@ -287,12 +285,10 @@ class GuidedSession(TurnChecks, Lateness):
         if self.finished:
             return
         self.result = result
-        self.checks = evaluate(result, self.tol)
-        self.departures = [d.to_dict() for d in departures(result.to_dict(), history or [])]
-        failures = [c["text"] for c in self.checks if not c["ok"]]
-        self.passed = not failures
-        if failures:
-            self.fail(EndReason.OUT_OF_TOLERANCE, say.out_of_tolerance(failures))
+        self.judgement = judge(result, self.tol, history or [])
+        self.passed = self.judgement.passed
+        if not self.passed:
+            self.fail(EndReason.OUT_OF_TOLERANCE, say.out_of_tolerance(self.judgement.failures))
             return
         self._end(State.DONE, say.done_prompt(True))
 

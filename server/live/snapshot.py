@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any, Protocol
 
 from calib.judge.acceptance import turn_accuracy
+from calib.judge.judgement import Judgement
 from calib.result import CalibrationResult
 from calib.stages.stage import AXES
 
@@ -32,8 +33,7 @@ class SessionView(Protocol):
     reason: str | None
     result: CalibrationResult | None
     passed: bool | None
-    checks: list[dict[str, Any]]
-    departures: list[dict[str, Any]]
+    judgement: Judgement | None
     decision: str | None
     calibration_id: int | None
     method: str
@@ -98,9 +98,9 @@ def session_snapshot(s: SessionView, event: str) -> dict[str, Any]:
         "reason": s.reason,
         "result": None if s.result is None else s.result.to_json(),
         "passed": s.passed,
-        "checks": s.checks,
-        "departures": s.departures,
-        "accuracy": None if s.result is None else turn_accuracy(s.result),
+        "checks": [] if s.judgement is None else s.judgement.checks_json(),
+        "departures": [] if s.judgement is None else s.judgement.departures_json(),
+        "accuracy": None if s.judgement is None else s.judgement.accuracy,
         "decision": s.decision,
         "calibration_id": s.calibration_id,
         "method": s.method,

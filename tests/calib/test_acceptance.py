@@ -21,22 +21,22 @@ def _result(k: list[float], b: list[float]) -> CalibrationResult:
     [(1.0, 0.0), (1.19, 0.95), (1.02, 0.1), (0.81, 0.95), (0.9, 0.5)],
 )
 def test_a_scale_factor_uses_its_allowance_from_one_towards_either_limit(k: float, used: float) -> None:
-    check = next(c for c in evaluate(_result([k, 1.0, 1.0], [0.0, 0.0, 0.0]), Tolerances()) if c["name"] == "k")
-    assert check["ok"]
-    assert check["used"] == pytest.approx(used)
-    assert check["near_limit"] is (used >= NEAR_LIMIT_USED)
+    check = next(c for c in evaluate(_result([k, 1.0, 1.0], [0.0, 0.0, 0.0]), Tolerances()) if c.name == "k")
+    assert check.ok
+    assert check.used == pytest.approx(used)
+    assert check.near_limit is (used >= NEAR_LIMIT_USED)
 
 
 def test_a_bias_near_its_limit_is_marked_and_one_beyond_is_not_near_but_failed() -> None:
-    checks = {c["axis"]: c for c in evaluate(_result([1, 1, 1], [9.1, -2.0, 10.5]), Tolerances()) if c["name"] == "b"}
-    assert checks["x"]["ok"] and checks["x"]["near_limit"]
-    assert checks["y"]["ok"] and not checks["y"]["near_limit"]
-    assert not checks["z"]["ok"] and not checks["z"]["near_limit"]
+    checks = {c.axis: c for c in evaluate(_result([1, 1, 1], [9.1, -2.0, 10.5]), Tolerances()) if c.name == "b"}
+    assert checks["x"].ok and checks["x"].near_limit
+    assert checks["y"].ok and not checks["y"].near_limit
+    assert not checks["z"].ok and not checks["z"].near_limit
 
 
 def test_a_value_that_is_not_finite_uses_no_allowance_and_fails() -> None:
-    check = next(c for c in evaluate(_result([float("nan"), 1, 1], [0, 0, 0]), Tolerances()) if c["name"] == "k")
-    assert check["ok"] is False and check["near_limit"] is False and check["used"] is None
+    check = next(c for c in evaluate(_result([float("nan"), 1, 1], [0, 0, 0]), Tolerances()) if c.name == "k")
+    assert check.ok is False and check.near_limit is False and check.used is None
 
 
 def test_turn_accuracy_reads_the_raw_full_turn_before_and_the_closure_after() -> None:

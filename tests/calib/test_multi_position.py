@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from calib.apply.correction import Correction
 from calib.effects.axes import GSensitivity
 from calib.errors import CalibrationError, ProtocolError
 from calib.estimators.accel import AccelCalibration, AccelCalibrationError
@@ -167,8 +168,10 @@ def test_g_sensitivity_is_kept_and_applied_by_the_result():
     back = CalibrationResult.from_dict(res.to_dict())
     assert back.to_dict() == res.to_dict() and back.G is not None
     m, a = rec.gyro[:5], rec.accel[:5]
-    assert np.allclose(res.apply(m, a), (m - a @ res.G.T) @ res.matrix.T + res.b)
-    assert np.allclose(res.apply(m), m @ res.matrix.T + res.b)
+    corr = Correction.from_result(res)
+    a_cal = (a - corr.o) @ corr.A.T  # the G term takes the calibrated specific force
+    assert np.allclose(corr.apply(m, a)[0], (m - a_cal @ res.G.T) @ res.matrix.T + res.b)
+    assert np.allclose(corr.apply(m)[0], m @ res.matrix.T + res.b)
 
 
 def test_the_fit_jacobian_matches_finite_differences_with_the_g_sensitivity(monkeypatch: pytest.MonkeyPatch):

@@ -9,6 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from calib import GyrocalError, ProtocolError, RecordingError, Stage
+from calib.apply.correction import Correction
 from calib.estimators.paper import _rotvec_to_quat, algorithm1, algorithm1_batch, calibrate_paper
 from calib.numerics.quaternion import prefix_products
 from calib.recording import Recording, RecordingMeta
@@ -70,7 +71,7 @@ def test_noise_free_recording_gives_the_parameters_and_the_bias_of_eq1():
     np.testing.assert_allclose(res.b, params.b, atol=1e-9)
     # eq. 1: at rest g = k m + b = 0, so b = -k * mean(m) (not the -mean(m) of eq. 2 read literally)
     still = rec.gyro[truth.stages[0].start : truth.stages[0].end]
-    np.testing.assert_allclose(res.apply(still), 0.0, atol=1e-9)
+    np.testing.assert_allclose(Correction.from_result(res).apply(still)[0], 0.0, atol=1e-9)
     assert np.all(np.abs(res.b - (-still.mean(axis=0))) > 0.1)
 
 

@@ -102,7 +102,7 @@ def test_the_protocol_walks_every_step_and_computes_the_truth() -> None:
     np.testing.assert_allclose(result.b, truth.b, atol=2e-2)
     run.s.set_result(result)
     assert run.s.state == "done" and run.s.passed
-    assert all(c["ok"] for c in run.s.checks)
+    assert run.s.judgement is not None and run.s.judgement.passed
 
 
 def test_a_turn_started_before_the_countdown_is_accepted_and_a_fidget_restarts_the_count() -> None:
@@ -247,12 +247,16 @@ def test_cancel_and_results_out_of_tolerance() -> None:
     assert not run.s.cancel("again")
     tol = Settings(db_url="sqlite://").tolerances
     good = {"k": [1.0, 1.0, 1.0], "b": [0.0, 0.0, 0.0], "uncertainty": {"k": [1e-4] * 3, "b": [1e-3] * 3}}
-    assert all(c["ok"] for c in evaluate_result(good, tol))
+
+    def checks(d: dict) -> list:
+        return evaluate_result(CalibrationResult.from_dict({**d, "method": "closure"}), tol)
+
+    assert all(c.ok for c in checks(good))
     bad = {**good, "k": [1.0, 1.3, 1.0], "uncertainty": {"k": [1e-4, 1e-4, 0.05], "b": [1e-3] * 3}}
-    failed = [(c["name"], c["axis"]) for c in evaluate_result(bad, tol) if not c["ok"]]
+    failed = [(c.name, c.axis) for c in checks(bad) if not c.ok]
     assert failed == [("k", "y"), ("k_std", "z")]
     nan = {**good, "b": [float("nan"), 0.0, 0.0]}
-    assert [c["axis"] for c in evaluate_result(nan, tol) if not c["ok"]] == ["x"]
+    assert [c.axis for c in checks(nan) if not c.ok] == ["x"]
     run = Run()
     run.s.state = "computing"
     run.s.set_result(CalibrationResult.from_dict({**bad, "method": "closure"}))

@@ -18,8 +18,7 @@ from calib import __version__
 from calib.apply.identity import SensorIdentity
 from calib.io.inputs import ReadOptions
 from calib.json_safe import finite
-from calib.judge.acceptance import evaluate, turn_accuracy
-from calib.judge.departure import departures
+from calib.judge.judgement import judge
 
 from ... import schemas as M
 from ...deps import (
@@ -396,15 +395,14 @@ async def calibrate_uploaded(
     except Exception as exc:  # calib's errors and whatever else the parser or estimator trips on
         raise recording_problem(exc, "calibrated", upload=True) from None
     res = result.to_json()
-    checks = evaluate(result, svc.settings.tolerances)
-    failures = [c["text"] for c in checks if not c["ok"]]
-    passed = not failures
     history = [c.model_dump() for c in await asyncio.to_thread(svc.store.calibrations, device_id)]
-    departed = [d.to_dict() for d in departures(result.to_dict(), history)]
+    judgement = judge(result, svc.settings.tolerances, history)
+    passed = judgement.passed
+    checks, departed = judgement.checks_json(), judgement.departures_json()
     sid = uuid.uuid4().hex
     from ...live import guidance as say
 
-    reason = None if passed else say.out_of_tolerance(failures)
+    reason = None if passed else say.out_of_tolerance(judgement.failures)
     await asyncio.to_thread(svc.store.upsert_device, device_id)
     await asyncio.to_thread(
         svc.store.create_session,
@@ -441,7 +439,7 @@ async def calibrate_uploaded(
         "passed": passed,
         "checks": checks,
         "departures": departed,
-        "accuracy": turn_accuracy(result),
+        "accuracy": judgement.accuracy,
         "reason": reason,
         "recording_sha256": digest,
     }
