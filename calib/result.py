@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from calib.json_safe import finite
+from calib.result_schema import FORMAT_VERSION, ResultDoc
 from calib.stages.stage import Stage
 
 
@@ -52,8 +53,8 @@ class CalibrationResult:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> CalibrationResult:
-        """The result back from its ``to_dict()`` form (as the store keeps it): ``from_dict(r.to_dict())`` gives the
-        same ``to_dict()``. Unknown keys are ignored."""
+        """The result back from its ``to_dict()`` form (as the store keeps it), of this format version or any older one
+        (``calib.result_schema``): ``from_dict(r.to_dict())`` gives the same ``to_dict()``. Unknown keys are ignored."""
 
         def arr(v: Any) -> np.ndarray | None:
             return None if v is None else np.asarray(v, dtype=float)
@@ -85,6 +86,7 @@ class CalibrationResult:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form with keys k, b, method, stages, quality, uncertainty, bound, ..."""
         out: dict[str, Any] = {
+            "format_version": FORMAT_VERSION,
             "k": _list(self.k),
             "b": _list(self.b),
             "method": self.method,
@@ -114,3 +116,7 @@ class CalibrationResult:
     def to_json(self) -> dict[str, Any]:
         """``to_dict()`` made JSON-safe (NaN and infinities as null): the form the service shows and stores."""
         return finite(self.to_dict())
+
+    def to_doc(self) -> ResultDoc:
+        """The JSON form as its typed schema (``calib.result_schema.ResultDoc``)."""
+        return ResultDoc.model_validate(self.to_json())

@@ -23,9 +23,8 @@ def export_text(cal: CalibrationRecord, fmt: str) -> tuple[str, str, str]:
         out = io.StringIO()
         w = csv.writer(out, lineterminator="\n")
         w.writerow(["parameter", "axis", "value", "std", "unit"])
-        unc = cal.uncertainty or {}
         for name, unit in (("k", ""), ("b", "deg/s")):
-            stds = unc.get(name) or [None] * 3
+            stds = (getattr(cal.uncertainty, name) if cal.uncertainty is not None else None) or [None] * 3
             for axis, v, sd in zip("xyz", getattr(cal, name), stds, strict=True):
                 w.writerow([name, axis, repr(float(v)), "" if sd is None else repr(float(sd)), unit])
         for name, matrix, unit in (("K", cal.K, ""), ("G", cal.G, "(deg/s)/g")):

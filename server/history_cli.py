@@ -31,7 +31,7 @@ def register_history(sub: Any) -> None:
 
 
 def _row(cal: Any, departed: list[Any], verified: dict[str, Any] | None) -> dict[str, Any]:
-    unc = cal.uncertainty or {}
+    unc = cal.uncertainty.model_dump() if cal.uncertainty is not None else {}
     ident = cal.identity.to_json() if cal.identity else {}
     return {"id": cal.id, "accepted_at": cal.accepted_at.isoformat(timespec="seconds"), "source": cal.source, "operator": cal.operator,
             "k": cal.k, "k_std": unc.get("k"), "b": cal.b, "b_std": unc.get("b"), "serial": ident.get("serial"),
@@ -116,7 +116,8 @@ def cmd_verify(args: argparse.Namespace) -> int:
     require_active_operator(store, args.operator)
     rec = read_recording_args(args).recording
     try:
-        found = verify_turn(rec, Correction.from_json(cal.model_dump(mode="json")), cal.uncertainty).to_json()
+        found = verify_turn(rec, Correction.from_json(cal.model_dump(mode="json")),
+                            None if cal.uncertainty is None else cal.uncertainty.model_dump()).to_json()
     except NoVerificationTurn as exc:
         raise ServiceError(f"{args.file}: {exc}") from None
     kept = store.add_verification(cal.id, args.operator, __version__, found, source="upload",

@@ -7,7 +7,10 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from calib.judge.acceptance import Check
+from calib.judge.departure import Departure
 from calib.pipeline import available_methods
+from calib.result_schema import AccelerometerDoc, ResultDoc
 
 from .lifecycle import CalibrationDue
 from .live.codes import EndReason, Phase, State
@@ -199,11 +202,11 @@ class SessionOut(BaseModel):
     prompt: str | None = None
     reason_code: EndReason | None = Field(None, description="why the session ended, if not done")
     reason: str | None = None
-    result: dict[str, Any] | None = None
+    result: ResultDoc | None = Field(None, description="the estimator's result (its form numbered by format_version)")
     passed: bool | None = None
-    checks: list[dict[str, Any]] = Field(default_factory=list, description=CHECKS_TEXT)
+    checks: list[Check] = Field(default_factory=list, description=CHECKS_TEXT)
     accuracy: TurnAccuracy | None = Field(None, description="a full turn before and after the calibration (closure estimator)")
-    departures: list[dict[str, Any]] = Field(default_factory=list, description=DEPARTURES_TEXT)
+    departures: list[Departure] = Field(default_factory=list, description=DEPARTURES_TEXT)
     decision: Literal["accepted", "discarded"] | None = None
     calibration_id: int | None = None
     started_at: str | None = None
@@ -250,28 +253,21 @@ class AcceptOut(BaseModel):
     calibration: CalibrationRecord
 
 
-class OfflineResult(BaseModel):
-    """An uploaded recording's calibration: the estimator's result, judged against the tolerances."""
+class OfflineResult(ResultDoc):
+    """An uploaded recording's calibration: the estimator's result (its fields as in a session's ``result``), judged
+    against the tolerances."""
 
-    model_config = ConfigDict(extra="allow")
     session_id: str
     device_id: str
     state: Literal["done", "failed"]
+    protocol: str = Field(description="the protocol the recording was calibrated as")
+    accelerometer: AccelerometerDoc | None = Field(None, description="as quality.accelerometer")
     passed: bool
-    checks: list[dict[str, Any]] = Field(description=CHECKS_TEXT)
+    checks: list[Check] = Field(description=CHECKS_TEXT)
     accuracy: TurnAccuracy | None = None
-    departures: list[dict[str, Any]] = Field(default_factory=list, description="as a session's departures")
+    departures: list[Departure] = Field(default_factory=list, description="as a session's departures")
     reason: str | None = None
-    k: Vec3
-    b: Vec3
-    method: str
-    uncertainty: dict[str, Any] | None = None
-    stages: list[dict[str, Any]]
-    quality: dict[str, Any]
-    warnings: list[str] = Field(default_factory=list)
     recording_sha256: str
-    n_samples: int
-    sample_rate_hz: float
 
 
 class AuditEntry(BaseModel):

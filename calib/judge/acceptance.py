@@ -8,10 +8,12 @@ k_max..k_min with a margin; the result limits are those of a working low-cost ME
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
 
+from calib.json_safe import finite
 from calib.result import CalibrationResult
 from calib.stages.stage import AXES
 from calib.units import FULL_TURN_DEG
@@ -49,33 +51,32 @@ def _used(value: float, limit: float | tuple[float, float]) -> float:
     return abs(value) / float(limit)
 
 
-@dataclass(frozen=True)
-class Check:
+class Check(BaseModel):
     """One tolerance check of a result: the value, its limit (a bound on |value|, or the range [low, high] of a scale
     factor), whether it passed, the sentence that says so, how much of its allowance it used (None when the value
     is not finite) and whether a pass came close to the limit."""
 
-    name: str  # k | b | k_std | b_std | closure
+    model_config = ConfigDict(frozen=True)
+    name: Literal["k", "b", "k_std", "b_std", "closure"]
     axis: str | None
-    value: float
-    limit: float | tuple[float, float]
+    value: float | None = Field(description="the value checked (null when it is not finite)")
+    limit: float | tuple[float, float] = Field(description="a bound on |value|, or a scale factor's range [low, high]")
     ok: bool
     text: str
-    used: float | None
-    near_limit: bool
+    used: float | None = Field(description="the share of the allowance the value uses: 0 ideal, 1 at the limit")
+    near_limit: bool = Field(description=f"passed having used at least {NEAR_LIMIT_USED:g} of the allowance")
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready form (the limit range as a list)."""
-        return {"name": self.name, "axis": self.axis, "value": self.value,
-                "limit": list(self.limit) if isinstance(self.limit, tuple) else self.limit, "ok": self.ok, "text": self.text,
-                "used": self.used, "near_limit": self.near_limit}
+        """JSON-ready form (the limit range as a list, a value that is not finite as null)."""
+        return finite(self.model_dump(mode="json"))
 
 
 def _check(name: str, axis: str | None, value: float, limit: float | tuple[float, float], ok: bool, text: str) -> Check:
     if not np.isfinite(value):  # a value that is not finite fails its check
-        return Check(name, axis, value, limit, False, text, None, False)
+        return Check(name=name, axis=axis, value=value, limit=limit, ok=False, text=text, used=None, near_limit=False)
     used = _used(value, limit)
-    return Check(name, axis, value, limit, ok, text, used, bool(ok and used >= NEAR_LIMIT_USED))
+    return Check(name=name, axis=axis, value=value, limit=limit, ok=ok, text=text, used=used,
+                 near_limit=bool(ok and used >= NEAR_LIMIT_USED))
 
 
 def evaluate(result: CalibrationResult, tol: Tolerances) -> list[Check]:

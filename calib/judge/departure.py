@@ -10,10 +10,10 @@ standard deviation give z = (new - mean) / sqrt(spread^2 + std_new^2 + spread^2 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, computed_field
 
 from calib.stages.stage import AXES
 
@@ -22,24 +22,29 @@ MIN_HISTORY = 2
 POWER_UP_SPREAD = {"k": 0.005, "b": 0.5}  # between power-ups, at least: scale (fraction), bias (deg/s)
 
 
-@dataclass(frozen=True)
-class Departure:
+class Departure(BaseModel):
     """One parameter of a new calibration that its device's history does not explain."""
 
-    name: str  # k | b
+    model_config = ConfigDict(frozen=True)
+    name: Literal["k", "b"]
     axis: str
     value: float
     history_mean: float
     history_spread: float
-    z: float
-    n_history: int
+    z: float = Field(description="standard deviations away from the history")
+    n_history: int = Field(description="the device's earlier calibrations compared with")
+
+    @computed_field  # type: ignore[prop-decorator]
+    @property
+    def text(self) -> str:
+        """The departure in one sentence."""
+        unit = "" if self.name == "k" else " °/s"
+        return (f"{self.name}_{self.axis} = {self.value:.4f}{unit}, where this device's {self.n_history} earlier calibrations "
+                f"gave {self.history_mean:.4f}{unit} ± {self.history_spread:.4f} ({abs(self.z):.0f} standard deviations away)")
 
     def to_dict(self) -> dict[str, Any]:
-        unit = "" if self.name == "k" else " °/s"
-        text = (f"{self.name}_{self.axis} = {self.value:.4f}{unit}, where this device's {self.n_history} earlier calibrations "
-                f"gave {self.history_mean:.4f}{unit} ± {self.history_spread:.4f} ({abs(self.z):.0f} standard deviations away)")
-        return {"name": self.name, "axis": self.axis, "value": self.value, "history_mean": self.history_mean,
-                "history_spread": self.history_spread, "z": self.z, "n_history": self.n_history, "text": text}
+        """JSON-ready form, with its sentence."""
+        return self.model_dump(mode="json")
 
 
 def departures(new: dict[str, Any], history: Sequence[dict[str, Any]]) -> list[Departure]:
@@ -58,5 +63,6 @@ def departures(new: dict[str, Any], history: Sequence[dict[str, Any]]) -> list[D
         z = (value - past.mean(axis=0)) / np.sqrt(spread**2 + std_new**2 + spread**2 / n)
         for i, axis in enumerate(AXES):
             if abs(z[i]) > DEPARTURE_Z:
-                out.append(Departure(name, axis, float(value[i]), float(past[:, i].mean()), float(spread[i]), float(z[i]), n))
+                out.append(Departure(name=name, axis=axis, value=float(value[i]), history_mean=float(past[:, i].mean()),
+                                     history_spread=float(spread[i]), z=float(z[i]), n_history=n))
     return out

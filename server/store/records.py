@@ -8,10 +8,11 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any, Literal, cast
 
-from pydantic import BaseModel, ConfigDict, Field, field_serializer
+from pydantic import ConfigDict, Field, field_serializer
 
 from calib.apply.identity import SensorIdentity
 from calib.result import CalibrationResult
+from calib.result_schema import CalibrationParameters, Quality
 
 from .tables import CalibrationRow, Device, SessionRow, aware, utcnow
 
@@ -20,21 +21,16 @@ def sha256_hex(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
-class CalibrationRecord(BaseModel):
-    """One accepted calibration (a row of the append-only history): what the store hands out and the API returns."""
+class CalibrationRecord(CalibrationParameters):
+    """One accepted calibration (a row of the append-only history): what the store hands out and the API returns. Its
+    parameters are those of the result it was accepted from (``calib.result_schema.CalibrationParameters``)."""
 
     model_config = ConfigDict(frozen=True)
 
     id: int
     device_id: str
     session_id: str
-    k: list[float] = Field(description="scale factors k_x, k_y, k_z of g = K m + b")
-    b: list[float] = Field(description="biases b_x, b_y, b_z in deg/s of true rate")
-    K: list[list[float]] | None = Field(None, description="the full 3x3 K of the extended model; None: K = diag(k)")
-    G: list[list[float]] | None = Field(None, description="the g-sensitivity of g = K (m - G a) + b, (deg/s)/g; None: not modelled")
-    uncertainty: dict[str, Any] | None
-    quality: dict[str, Any] | None
-    method: str
+    quality: Quality | None
     software_version: str
     sensor_model: str | None
     firmware: str | None

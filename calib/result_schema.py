@@ -1,0 +1,149 @@
+"""The JSON form of a CalibrationResult, declared once as pydantic models: what ``CalibrationResult.to_json`` writes,
+the store keeps, the API publishes in its OpenAPI document and ``CalibrationResult.from_dict`` reads back.
+
+``FORMAT_VERSION`` numbers the form. 1: results stored before the number was written (no ``format_version`` key; read
+as they are). 2: ``format_version`` added; fields unchanged. A reader takes every older form.
+
+The quality blocks shared by the estimators are typed (``Quality``); each estimator adds diagnostics of its own
+(its fit's correlation, the re-orientations' residuals, Ferraris' matrices), kept as further keys of the same object.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field
+
+FORMAT_VERSION = 2
+
+Number = float | None  # JSON has no NaN: a value that is not finite is written as null
+Vector = list[Number]
+Matrix = list[list[Number]]
+
+
+class _Open(BaseModel):
+    """A block whose named fields are typed and which may carry further diagnostics."""
+
+    model_config = ConfigDict(extra="allow")
+
+
+class StageDoc(BaseModel):
+    """One stage of the recording (``calib.stages.stage.Stage``)."""
+
+    kind: str = Field(description="still, turn or motion")
+    start_s: float
+    end_s: float
+    axis: str | None = None
+    angle_deg: float | None = Field(None, description="a turn's angle about its axis (deg)")
+    start: int = Field(description="first sample")
+    end: int = Field(description="one past the last sample")
+    flags: list[str] = Field(default_factory=list)
+
+
+class Spread(BaseModel):
+    """Per-axis standard deviations (1 sigma) of k and b."""
+
+    k: Vector | None = None
+    b: Vector | None = None
+
+
+class RecognitionDoc(_Open):
+    """Which protocol the recording holds (``calib.stages.recognise.Recognition``)."""
+
+    name: str
+    summary: str
+    rests: int
+    full_turns: list[str] = Field(default_factory=list)
+    poses: list[str] = Field(default_factory=list)
+    reorientations: int = 0
+
+
+class ProtocolUsed(_Open):
+    """The protocol found in the recording, the one used, and how many labelled sections cut it."""
+
+    found: RecognitionDoc
+    used: str
+    sections: int = 0
+
+
+class AccelerometerDoc(_Open):
+    """The accelerometer's calibration from the rests (``calib.estimators.accel.AccelCalibration``)."""
+
+    model: str | None = None
+    scale: Vector | None = None
+    bias: Vector | None = None
+    misalignment: Vector | None = None
+    n_rests: int | None = None
+    residual_rms_mg: float | None = None
+
+
+class ModelChoice(_Open):
+    """Why the closure estimator fitted the diagonal or the extended K."""
+
+    asked: bool | None = None
+    reason: str | None = None
+
+
+class Quality(_Open):
+    """How well the calibration is determined and what it was made from."""
+
+    model: str | None = Field(None, description="diagonal, extended, ...: the model of K fitted")
+    parameters: list[str] | None = None
+    chi2: Number = None
+    dof: int | None = None
+    birge_ratio: Number = Field(None, description="sqrt(chi2/dof), at least 1: the factor the uncertainties were scaled by")
+    p_value: Number = None
+    converged: bool | None = None
+    protocol: ProtocolUsed | None = None
+    temperature_c: Number = Field(None, description="the sensor's mean temperature during the recording, degC")
+    accelerometer: AccelerometerDoc | None = None
+    model_choice: ModelChoice | None = None
+
+
+class TurnResidual(_Open):
+    """How one calibrated turn closes (closure estimator)."""
+
+    axis: str | None = None
+    angle_deg: Number = None
+    raw_angle_deg: Number = None
+    revolutions: int | None = None
+    closure_norm_deg: Number = None
+
+
+class Residuals(_Open):
+    """The fit's residuals: each turn's closure, each rest's mean rate."""
+
+    turns: list[TurnResidual] = Field(default_factory=list)
+    stills: list[dict[str, Any]] = Field(default_factory=list)
+    chi2: Number = None
+    dof: int | None = None
+
+
+class CalibrationParameters(BaseModel):
+    """The parameters of g = K (m - G a) + b and their uncertainty: what a calibration is, wherever it is kept."""
+
+    k: list[float] = Field(description="scale factors k_x, k_y, k_z of g = K m + b")
+    b: list[float] = Field(description="biases b_x, b_y, b_z in deg/s of true rate")
+    K: list[list[float]] | None = Field(None, description="the full 3x3 K of the extended model; None: K = diag(k)")
+    G: list[list[float]] | None = Field(None, description="the g-sensitivity of g = K (m - G a) + b, (deg/s)/g; None: not "
+                                                          "modelled")
+    uncertainty: Spread | None = Field(None, description="1-sigma standard errors of k and b")
+    method: str = Field(description="the estimator: closure, paper, ferraris, multi-position, ...")
+
+
+class ResultDoc(CalibrationParameters):
+    """One calibration result in full (``calib.result.CalibrationResult``)."""
+
+    format_version: int = Field(1, description=f"the form of this object; {FORMAT_VERSION} today (1: stored before it was "
+                                               "numbered)")
+    stages: list[StageDoc] = Field(default_factory=list)
+    quality: Quality = Field(default_factory=Quality)
+    bound: Spread | None = Field(None, description="the Cramer-Rao bound of k and b for the recorded protocol")
+    K_std: Matrix | None = None
+    G_std: Matrix | None = None
+    noise_dps: Vector | None = Field(None, description="per-axis white-noise std at rest, deg/s")
+    residuals: Residuals = Field(default_factory=Residuals)
+    warnings: list[str] = Field(default_factory=list)
+    iterations: int | None = None
+    sample_rate_hz: float | None = None
+    n_samples: int | None = None
