@@ -96,3 +96,26 @@ def test_no_input_makes_the_service_fail(api: RunningService, known_ids: dict[st
     assert not failures, "\n\n".join(failures)
     with api.client() as c:
         assert c.get("/health").json()["status"] == "ok"
+
+
+def test_a_result_is_a_typed_object_in_the_published_schema(api: RunningService) -> None:
+    """The session's result, an upload's result and an accepted calibration are calib.result_schema's models, with
+    their fields, in the OpenAPI document (not free objects)."""
+    import httpx
+
+    doc = httpx.get(f"{api.base}/openapi.json", timeout=10).json()
+    parts = doc["components"]["schemas"]
+
+    def target(prop: dict) -> str:
+        refs = [p.get("$ref") for p in prop.get("anyOf", [prop])]
+        return next(r for r in refs if r).rsplit("/", 1)[1]
+
+    assert target(parts["SessionOut"]["properties"]["result"]) == "ResultDoc"
+    assert target(parts["SessionOut"]["properties"]["checks"]["items"]) == "Check"
+    assert target(parts["SessionOut"]["properties"]["departures"]["items"]) == "Departure"
+    result = parts["ResultDoc"]["properties"]
+    assert {"k", "b", "K", "G", "uncertainty", "stages", "quality", "residuals", "format_version"} <= set(result)
+    assert target(result["quality"]) == "Quality" and "protocol" in parts["Quality"]["properties"]
+    assert {"k", "b", "quality", "recording_sha256", "checks"} <= set(parts["OfflineResult"]["properties"])
+    record = parts["CalibrationRecord"]["properties"]
+    assert target(record["quality"]) == "Quality" and target(record["uncertainty"]) == "Spread"

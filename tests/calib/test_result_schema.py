@@ -1,0 +1,36 @@
+"""The result's JSON form, declared once (calib.result_schema): every form gyrocal has written reads back."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from calib.result import CalibrationResult
+from calib.result_schema import FORMAT_VERSION, ResultDoc
+
+# CalibrationResult.to_json() of each estimator as gyrocal wrote it at 4e49e98, before the form was numbered
+OLD = json.loads((Path(__file__).parent / "data" / "results_4e49e98.json").read_text())
+
+
+@pytest.mark.parametrize("name", sorted(OLD))
+def test_a_result_stored_before_the_form_was_numbered_reads_back_whole(name: str) -> None:
+    old = OLD[name]
+    assert "format_version" not in old
+    assert ResultDoc.model_validate(old).format_version == 1
+    back = CalibrationResult.from_dict(old)
+    assert back.to_json() == {"format_version": FORMAT_VERSION, **old}
+    assert back.to_doc().model_dump(mode="json", exclude_unset=True) == back.to_json()
+
+
+def test_the_quality_blocks_every_estimator_shares_are_typed() -> None:
+    doc = ResultDoc.model_validate(OLD["multi-position"])
+    assert doc.quality.protocol is not None and doc.quality.protocol.used == "multi-position"
+    assert doc.quality.protocol.found.name == "multi-position" and doc.quality.accelerometer is not None
+    closure = ResultDoc.model_validate(OLD["paper-closure"])
+    assert closure.quality.model_choice is not None and closure.quality.model == "diagonal"
+    assert closure.residuals.turns and all(t.closure_norm_deg is not None for t in closure.residuals.turns)
+    schema = ResultDoc.model_json_schema()
+    assert {"k", "b", "K", "G", "uncertainty", "quality", "format_version"} <= set(schema["properties"])
+    assert {"protocol", "accelerometer", "temperature_c", "birge_ratio"} <= set(schema["$defs"]["Quality"]["properties"])
