@@ -48,6 +48,18 @@ class ProtocolError(Refusal):
     default_code = "protocol_not_found"
 
 
+def error_code(exc: GyrocalError) -> str:
+    """The one word every door gives for a recording it could not read or calibrate: ``bad_sections`` or
+    ``bad_recording`` for one that cannot be read, a Refusal's ``code``, else ``not_calibrated``."""
+    if isinstance(exc, SectionsError):
+        return "bad_sections"
+    if isinstance(exc, RecordingError):
+        return "bad_recording"
+    if isinstance(exc, Refusal):
+        return exc.code
+    return "not_calibrated"
+
+
 class OutputError(GyrocalError):
     """A result cannot be written where asked (a missing folder, no permission)."""
 

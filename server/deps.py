@@ -33,18 +33,29 @@ def problem(status: int, detail: str, headers: dict[str, str] | None = None) -> 
     return HTTPException(status_code=status, detail=detail, headers=headers)
 
 
+class RecordingProblem(HTTPException):
+    """A recording the service could not read or calibrate: the problem carries the same ``code`` as the command
+    line's ``{"error": {"code"}}`` (``calib.errors.error_code``)."""
+
+    def __init__(self, status: int, detail: str, code: str) -> None:
+        super().__init__(status_code=status, detail=detail)
+        self.code = code
+
+
 def recording_problem(exc: Exception, doing: str, upload: bool) -> HTTPException:
     """calib's errors (and anything else a recording trips the work on) as 4xx: the recording is at fault,
     never the service. ``doing``: "calibrated" or "diagnosed". A stored session's recording that cannot be
     read is a conflict (409), an uploaded one a bad request (400)."""
-    from calib.errors import GyrocalError, ProtocolError, RecordingError
+    from calib.errors import GyrocalError, ProtocolError, RecordingError, error_code
 
     if isinstance(exc, ProtocolError):
-        return problem(422, str(exc))
+        return RecordingProblem(422, str(exc), error_code(exc))
     if isinstance(exc, RecordingError):
-        return problem(400, str(exc)) if upload else problem(409, f"the archived recording cannot be read: {exc}")
+        if upload:
+            return RecordingProblem(400, str(exc), error_code(exc))
+        return problem(409, f"the archived recording cannot be read: {exc}")
     if isinstance(exc, GyrocalError):
-        return problem(422, str(exc))
+        return RecordingProblem(422, str(exc), error_code(exc))
     log.warning("a recording could not be %s: %r", doing, exc, exc_info=not upload)
     if upload:
         return problem(400, f"the recording cannot be {doing} ({type(exc).__name__}: {exc}); send a native or imucal CSV of the protocol")

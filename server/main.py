@@ -20,6 +20,7 @@ from . import schemas as M
 from .api import page
 from .api.routes import apply, audit, auth, devices, diagnosis, fleet, health, plots, sessions, verify, write_back
 from .config import Settings
+from .deps import RecordingProblem
 from .middleware import BodyLimit
 from .security import HostCheck, SecurityHeaders, add_docs
 from .service import Service
@@ -95,6 +96,10 @@ def _error_answers(app: FastAPI) -> None:
     @app.exception_handler(NotFound)
     async def _not_found(request: Request, exc: NotFound) -> JSONResponse:
         return JSONResponse({"detail": str(exc)}, status_code=404)
+
+    @app.exception_handler(RecordingProblem)
+    async def _recording(request: Request, exc: RecordingProblem) -> JSONResponse:
+        return JSONResponse({"detail": exc.detail, "code": exc.code}, status_code=exc.status_code)
 
 
     @app.exception_handler(SQLAlchemyError)

@@ -26,6 +26,8 @@ class Problem(BaseModel):
     """An error: what is wrong and how to fix it."""
 
     detail: str | list[Any]
+    code: str | None = Field(None, description="a recording that could not be read or calibrated: why, in a word (as the "
+                                               "command line's error code: bad_recording, bad_sections, turn_missing, ...)")
 
 
 class BrokenLink(BaseModel):

@@ -159,7 +159,7 @@ def _writable(path: Path, what: str) -> Path:
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from calib.cli.options import error_json, read_recording_args
-    from calib.errors import CalibrationError, GyrocalError, Refusal, SectionsError
+    from calib.errors import CalibrationError, GyrocalError, RecordingError, Refusal, error_code
     from calib.pipeline import calibrate_protocol
 
     if args.plot:
@@ -168,7 +168,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         read = read_recording_args(args)
     except GyrocalError as exc:
         if args.json:
-            print(error_json(exc, "bad_sections" if isinstance(exc, SectionsError) else "bad_recording", []))
+            print(error_json(exc, error_code(exc) if isinstance(exc, RecordingError) else "bad_recording", []))
         raise
     rec = read.recording
     try:

@@ -14,7 +14,7 @@ import os
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from calib.errors import GyrocalError, RecordingError, SectionsError
+from calib.errors import RecordingError, SectionsError
 from calib.io.section import Section
 from calib.recording import Recording
 from calib.units import DEG
@@ -36,11 +36,11 @@ class ReadOptions:
     sections: str | None = None
 
     def check(self) -> None:
-        """GyrocalError naming the choices when the layout or the protocol is not one gyrocal knows."""
+        """RecordingError naming the choices when the layout or the protocol is not one gyrocal knows."""
         if self.layout not in LAYOUTS:
-            raise GyrocalError(f"unknown layout {self.layout!r}: choose one of {', '.join(LAYOUTS)}")
+            raise RecordingError(f"unknown layout {self.layout!r}: choose one of {', '.join(LAYOUTS)}")
         if self.protocol not in PROTOCOLS:
-            raise GyrocalError(f"unknown protocol {self.protocol!r}: choose one of {', '.join(PROTOCOLS)}")
+            raise RecordingError(f"unknown protocol {self.protocol!r}: choose one of {', '.join(PROTOCOLS)}")
 
     @property
     def counts(self) -> bool:
