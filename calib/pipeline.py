@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import replace
-from importlib import import_module
 from typing import TYPE_CHECKING
 
 from calib.errors import GyrocalError, ProtocolError
+from calib.estimators.registry import DEFAULT_METHOD, estimator
 from calib.io.inputs import PROTOCOLS
 from calib.io.section import Section
 from calib.recording import Recording
@@ -17,34 +16,13 @@ from calib.stages.stage import Stage
 if TYPE_CHECKING:
     from calib.stages.recognise import Recognition
 
-# method name -> (module, function); imported on first use so each estimator stays independent.
-_METHODS: dict[str, tuple[str, str]] = {
-    "closure": ("calib.estimators.closure.estimator", "calibrate_closure"),
-    "paper": ("calib.estimators.paper", "calibrate_paper"),
-    "ferraris": ("calib.estimators.ferraris", "calibrate_ferraris"),
-}
-DEFAULT_METHOD = "closure"
-
-
-def available_methods() -> list[str]:
-    """Names accepted by ``calibrate(method=...)``."""
-    return list(_METHODS)
-
-
-def _estimator(method: str) -> Callable[..., CalibrationResult]:
-    if method not in _METHODS:
-        raise GyrocalError(f"unknown method {method!r}: choose one of {', '.join(_METHODS)}")
-    module, name = _METHODS[method]
-    return getattr(import_module(module), name)
-
-
 def calibrate(rec: Recording, method: str = DEFAULT_METHOD, stages: list[Stage] | None = None) -> CalibrationResult:
     """Calibrate one recording of the protocol (still, then full turns about x, y, z).
 
     Stages are detected from the data when not given. Raises RecordingError for bad input and
     ProtocolError when a stage of the protocol is missing.
     """
-    result = _estimator(method)(rec, stages=stages)
+    result = estimator(method)(rec, stages=stages)
     return replace(result, sample_rate_hz=rec.fs, n_samples=len(rec))
 
 
@@ -64,7 +42,7 @@ def calibrate_protocol(
     upload, a live session); it raises GyrocalError (a Refusal for a recording read and refused).
     """
     check_protocol(protocol)
-    _estimator(method)  # an unknown method is refused before any work
+    estimator(method)  # an unknown method is refused before any work
     sections = sections if sections is not None else rec.meta.sections
     stages, found, used = protocol_stages(rec, protocol, sections, stages)
     try:

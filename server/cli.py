@@ -298,7 +298,7 @@ def pin_networks(given: list[str]) -> list[str]:
 
 def build_service(args: argparse.Namespace) -> Any:
     """Settings, store and devices from the command line (no event loop needed)."""
-    from calib.pipeline import available_methods
+    from calib.estimators.registry import method_names
 
     from .config import CalibrationLimits, Settings, default_db_url
     from .devices import DeviceManager, SimulatorsUnavailable, load_simulators
@@ -326,8 +326,8 @@ def build_service(args: argparse.Namespace) -> Any:
         offered = simulators.rates_instead(args.mock_model, args.mock_rate)
         if offered is not None:
             raise ServiceError(f"--mock-rate must be {offered} for a {args.mock_model} wearable")
-    if args.method not in available_methods():
-        raise ServiceError(f"--method must be one of {', '.join(available_methods())}")
+    if args.method not in method_names():
+        raise ServiceError(f"--method must be one of {', '.join(method_names())}")
     loopback = args.host in ("127.0.0.1", "::1", "localhost")
     if not loopback and not args.auth_reads and not args.open_reads:
         raise ServiceError(

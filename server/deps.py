@@ -11,6 +11,8 @@ from typing import Annotated, Any
 from fastapi import Depends, HTTPException, Query, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
+from calib.io.inputs import LAYOUTS
+
 from . import schemas as M
 from .devices import DEVICE_ID_RE
 from .service import Service
@@ -62,7 +64,7 @@ def recording_problem(exc: Exception, doing: str, upload: bool) -> HTTPException
     return problem(422, f"this session's recording cannot be {doing} ({type(exc).__name__}: {exc})")
 
 
-CSV_LAYOUTS = ("auto", "native", "imucal")
+CSV_LAYOUTS = tuple(layout for layout in LAYOUTS if layout != "imu_tk")  # one CSV file (imu_tk's layout is two)
 
 
 def check_upload(body: bytes, layout: str, layouts: tuple[str, ...] = CSV_LAYOUTS) -> None:

@@ -7,16 +7,16 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from calib.estimators.registry import method_names
 from calib.judge.acceptance import Check
 from calib.judge.departure import Departure
-from calib.pipeline import available_methods
 from calib.result_schema import AccelerometerDoc, ResultDoc
 
 from .lifecycle import CalibrationDue
 from .live.codes import EndReason, Phase, State
 from .store.records import CalibrationRecord
 
-Method = Enum("Method", {m: m for m in available_methods()}, type=str)  # type: ignore[misc]
+Method = Enum("Method", {m: m for m in method_names()}, type=str)  # type: ignore[misc]
 Method.__doc__ = "An estimator: closure (the default, at the noise floor) or paper (the paper's Algorithm 1)."
 
 Vec3 = list[float]

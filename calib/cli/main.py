@@ -326,11 +326,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     from calib.cli.diagnose import add_diagnose_parser
     from calib.cli.options import add_recording_arguments
-    from calib.pipeline import DEFAULT_METHOD, available_methods
+    from calib.estimators.registry import DEFAULT_METHOD, method_names
 
     p = sub.add_parser("calibrate", help="calibrate a recording (CSV) of the protocol")
     add_recording_arguments(p)
-    p.add_argument("--method", choices=available_methods(), default=DEFAULT_METHOD, help=f"estimator (default {DEFAULT_METHOD})")
+    p.add_argument("--method", choices=method_names(), default=DEFAULT_METHOD, help=f"estimator (default {DEFAULT_METHOD})")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the summary")
     p.add_argument("--plot", type=Path, default=None, help="save a PNG of the rate magnitude and angles before/after calibration")
     p.set_defaults(func=cmd_calibrate)

@@ -402,3 +402,9 @@ def calibrate_paper(rec: Recording, stages: Any = None) -> CalibrationResult:
         warnings=warnings,
         iterations=fit.iterations,
     )
+
+
+def paper_batch(batch: Any) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """Algorithm 1 on a simulated batch (``calib.simulator.SimBatch``), with the simulator's stage bounds."""
+    k, b, iters = algorithm1_batch(batch.gyro, batch.dt, batch.still0, batch.turns)
+    return k, b, {"iterations": iters}

@@ -6,8 +6,7 @@ estimators get the simulator's known stage bounds: the bench measures the estima
 detection is tested on its own.
 
 Estimators are plugged in as batch functions ``fn(batch) -> (k (R, 3), b (R, 3))`` (optionally a
-third item, a dict of per-run arrays such as {"iterations": ...}) with ``register_batch_method``.
-A name that is not registered is looked up by importing ``calib.<name>``, which may register it.
+third item, a dict of per-run arrays such as {"iterations": ...}) with ``calib.estimators.registry.register_batch_method``.
 """
 
 from __future__ import annotations
@@ -16,7 +15,6 @@ import multiprocessing
 import os
 import sys
 import time
-from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from importlib import import_module
@@ -26,64 +24,12 @@ from typing import Any
 import numpy as np
 
 from calib.errors import GyrocalError
+from calib.estimators.registry import batch_estimator
 from calib.simulator.ranges import B_RANGE_DPS, K_RANGE
 
 PARAMS = ("kx", "ky", "kz", "bx", "by", "bz")
 # The paper's Fig. 7 statement: "the majority of the estimation error" lies within these bounds.
 PAPER_BOUNDS = {0.03: 5.5e-3, 0.15: 2.5e-2}
-
-BatchFn = Callable[[Any], tuple]
-_BATCH_METHODS: dict[str, BatchFn] = {}
-
-
-def register_batch_method(name: str, fn: BatchFn) -> None:
-    """Make ``fn(batch) -> (k, b[, info])`` available to paper_sim under ``name``.
-
-    With several workers the processes are forked, so functions registered before paper_sim runs
-    are available in them.
-    """
-    _BATCH_METHODS[name] = fn
-
-
-def batch_methods() -> list[str]:
-    """Names of the registered batch estimators."""
-    return list(_BATCH_METHODS)
-
-
-def _resolve(name: str) -> BatchFn:
-    if name not in _BATCH_METHODS:
-        try:
-            import_module(f"calib.{name}")
-        except ImportError as exc:
-            if exc.name != f"calib.{name}":  # the module is there, but something it needs is not
-                from calib.extras import install_hint
-
-                raise GyrocalError(f"bench method {name!r} cannot be loaded: {install_hint(exc)}") from None
-    if name not in _BATCH_METHODS:
-        raise GyrocalError(f"unknown bench method {name!r}: registered methods are {', '.join(_BATCH_METHODS) or 'none'}")
-    return _BATCH_METHODS[name]
-
-
-def paper_batch(batch: Any) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
-    """Algorithm 1 on a SimBatch, with the simulator's stage bounds."""
-    from calib.estimators.paper import algorithm1_batch
-
-    k, b, iters = algorithm1_batch(batch.gyro, batch.dt, batch.still0, batch.turns)
-    return k, b, {"iterations": iters}
-
-
-register_batch_method("paper", paper_batch)
-
-
-def closure_batch(batch: Any) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
-    """The closure estimator on a SimBatch: (k, b, {iterations, std, bound}) with the simulator's stage bounds."""
-    from calib.estimators.closure.batch import closure_batch as fit
-
-    return fit(batch)
-
-
-register_batch_method("closure", closure_batch)
-
 
 def _abs_quantile(scales: np.ndarray, q: float = 0.95) -> float:
     """The q-quantile of |e| when each run's error e is N(0, scale^2): the bound's counterpart of |err| p95."""
@@ -297,7 +243,7 @@ def _run_set(task: dict[str, Any]) -> dict[str, Any]:
     truth = np.concatenate((np.asarray(batch.k_true), np.asarray(batch.b_true)), axis=1)
     for name in task["methods"]:
         t1, c1 = time.perf_counter(), time.process_time()
-        res = _resolve(name)(batch)
+        res = batch_estimator(name)(batch)
         elapsed, cpu = time.perf_counter() - t1, time.process_time() - c1
         k, b = np.asarray(res[0], dtype=float), np.asarray(res[1], dtype=float)
         info = res[2] if len(res) > 2 and res[2] is not None else {}
@@ -340,7 +286,7 @@ def paper_sim(
     if not methods or not noise_levels:
         raise GyrocalError("give at least one method and one noise level")
     for name in methods:
-        _resolve(name)
+        batch_estimator(name)
     import_module("calib.simulator")  # fail early, in this process, if the simulator is missing
     workers = max(1, int(workers if workers is not None else (os.cpu_count() or 1)))
 

@@ -10,14 +10,15 @@ from scipy.spatial.transform import Rotation
 
 from calib import GyrocalError, ProtocolError, RecordingError, Stage
 from calib.apply.correction import Correction
+from calib.estimators import registry
 from calib.estimators.paper import _rotvec_to_quat, algorithm1, algorithm1_batch, calibrate_paper
+from calib.estimators.registry import register_batch_method
 from calib.numerics.quaternion import prefix_products
 from calib.recording import Recording, RecordingMeta
 from calib.simulator import Motion, ProtocolScript, SensorParams, Still, Turn, simulate, simulate_batch
 from calib.stages.detector import detect_stages
 from calib.stages.protocol import ProtocolStages
-from calib.studies import paper_sim as bench
-from calib.studies.paper_sim import paper_sim, register_batch_method
+from calib.studies.paper_sim import paper_sim
 
 FS = 104.0
 
@@ -226,7 +227,7 @@ def offset_estimator(batch):
 
 
 def test_registered_methods_run_in_worker_processes_with_the_same_results(monkeypatch):
-    monkeypatch.setitem(bench._BATCH_METHODS, "offset", offset_estimator)
+    monkeypatch.setitem(registry._BATCH_ADDED, "offset", offset_estimator)
     kwargs = dict(sets=2, runs_per_set=10, noise_levels=(0.03,), methods=("paper", "offset"), seed=3, progress=False)
     one = paper_sim(workers=1, **kwargs)
     two = paper_sim(workers=2, **kwargs)
@@ -236,8 +237,8 @@ def test_registered_methods_run_in_worker_processes_with_the_same_results(monkey
 
 
 def test_register_batch_method_and_unknown_methods(monkeypatch):
-    monkeypatch.setattr(bench, "_BATCH_METHODS", dict(bench._BATCH_METHODS))
+    monkeypatch.setattr(registry, "_BATCH_ADDED", {})
     register_batch_method("offset2", offset_estimator)
-    assert "offset2" in bench.batch_methods()
+    assert "offset2" in registry.batch_methods() and {"paper", "closure"} <= set(registry.batch_methods())
     with pytest.raises(GyrocalError, match="unknown bench method 'nope'"):
         paper_sim(sets=1, runs_per_set=2, methods=("nope",), progress=False)

@@ -16,13 +16,12 @@ from sqlalchemy.exc import SQLAlchemyError
 
 from calib import __version__
 from calib.apply.identity import SensorIdentity
-from calib.io.inputs import ReadOptions
+from calib.io.inputs import LAYOUTS, ReadOptions
 from calib.json_safe import finite
 from calib.judge.judgement import judge
 
 from ... import schemas as M
 from ...deps import (
-    CSV_LAYOUTS,
     CSV_TYPES,
     R401,
     R404,
@@ -319,10 +318,10 @@ async def live_angle_of(svc: Service, device_id: str) -> LiveAngle:
 
 
 async def start_live(svc: Service, device_id: str, operator: str, method: str | None, max_attempts: int | None) -> LiveSession:
-    from calib.pipeline import available_methods
+    from calib.estimators.registry import method_names
 
-    if method is not None and method not in available_methods():
-        raise problem(422, f"unknown method {method!r}: choose one of {', '.join(available_methods())}")
+    if method is not None and method not in method_names():
+        raise problem(422, f"unknown method {method!r}: choose one of {', '.join(method_names())}")
     if (cannot_keep := svc.storage_problem()) is not None:
         raise problem(503, f"no calibration can be started: {cannot_keep}")
     dev = await reachable_device(svc, device_id)
@@ -367,12 +366,12 @@ async def calibrate_uploaded(
     options: ReadOptions | None = None,
     accel: bytes | None = None,
 ) -> JSONResponse:
-    from calib.pipeline import DEFAULT_METHOD, available_methods
+    from calib.estimators.registry import DEFAULT_METHOD, method_names
 
     method = method or DEFAULT_METHOD
-    if method not in available_methods():
-        raise problem(422, f"unknown method {method!r}: choose one of {', '.join(available_methods())}")
-    check_upload(body, layout, (*CSV_LAYOUTS, "imu_tk"))
+    if method not in method_names():
+        raise problem(422, f"unknown method {method!r}: choose one of {', '.join(method_names())}")
+    check_upload(body, layout, LAYOUTS)
     if layout == "imu_tk" and accel is None:
         raise problem(400, "imu_tk's layout is two files: send the gyroscope's and the accelerometer's as the parts 'gyro' and "
                            "'accel' of a multipart/form-data body")
