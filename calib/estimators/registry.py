@@ -26,7 +26,7 @@ class Estimator:
 
 ESTIMATORS: dict[str, Estimator] = {
     "closure": Estimator("calib.estimators.closure.estimator:calibrate_closure", "calib.estimators.closure.batch:closure_batch"),
-    "paper": Estimator("calib.estimators.paper:calibrate_paper", "calib.estimators.paper:paper_batch"),
+    "paper": Estimator("calib.estimators.paper:calibrate_paper", "calib.estimators.paper_batch:paper_batch"),
     "ferraris": Estimator("calib.estimators.ferraris:calibrate_ferraris"),
 }
 DEFAULT_METHOD = "closure"

@@ -14,11 +14,7 @@ Layouts (chosen from the header when ``layout="auto"``):
 
 from __future__ import annotations
 
-import io
 import os
-import re
-import warnings
-from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
 
@@ -27,6 +23,7 @@ import numpy as np
 from calib.errors import RecordingError, SampleRateUnknownError
 from calib.io.section import Section
 from calib.io.sections import sections_from_labels
+from calib.io.table import NATIVE_HEADER, Table, column_indices, decode_text, has_group, parse_numbers, split_table
 from calib.io.validation import Locator, check_finite, check_increasing, check_recording, check_sample_rate, validate_recording
 from calib.recording import Recording, RecordingMeta
 from calib.units import STANDARD_GRAVITY
@@ -36,16 +33,12 @@ __all__ = ["LAYOUTS", "parse_recording_text", "read_recording", "validate_record
 LAYOUTS = ("auto", "native", "imucal", "imucal_counts")
 NATIVE_REQUIRED = ("t", "gx", "gy", "gz")
 NATIVE_ACCEL = ("ax", "ay", "az")
-NATIVE_HEADER = "t,gx,gy,gz[,ax,ay,az][,seq][,temp][,host_t]"
 IMUCAL_GYRO = ("gyr_x", "gyr_y", "gyr_z")
 IMUCAL_ACCEL = ("acc_x", "acc_y", "acc_z")
 IMUCAL_HEADER = "[n_samples,]gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z"
 INDEX_NAMES = ("n_samples", "samples", "sample", "index", "unnamed: 0")
 LABEL_COLUMN = "part"
 MAX_COUNTER = 2.0**53  # larger counters cannot be held exactly as floats
-
-_NUMBER = re.compile(r"\s*[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|nan|inf|infinity)\s*", re.ASCII | re.IGNORECASE)
-
 
 def read_recording(
     path: str | os.PathLike[str],
@@ -59,7 +52,7 @@ def read_recording(
     p = Path(path)
     data = read_file_bytes(p)
     return parse_recording_text(
-        _decode(data, p.name), fs, layout, source=p.name,
+        decode_text(data, p.name), fs, layout, source=p.name,
         gyro_counts_per_dps=gyro_counts_per_dps, accel_counts_per_g=accel_counts_per_g,
     )
 
@@ -75,7 +68,7 @@ def parse_recording_text(
 ) -> Recording:
     """Parse CSV text (e.g. an uploaded file) into a validated Recording; ``source`` names it in messages."""
     if isinstance(text, (bytes, bytearray, memoryview)):
-        text = _decode(bytes(text), source)
+        text = decode_text(bytes(text), source)
     if not isinstance(text, str):
         raise RecordingError(f"expected CSV text, got {type(text).__name__}")
     where = f"{source}: " if source else ""
@@ -83,7 +76,7 @@ def parse_recording_text(
         raise RecordingError(f"unknown layout {layout!r}; use one of {', '.join(LAYOUTS)}")
     if fs is not None:
         fs = check_sample_rate(fs, where)
-    table = _split_table(text, where)
+    table = split_table(text, where)
     counts = gyro_counts_per_dps is not None or accel_counts_per_g is not None
     layout = _resolve_layout(table, layout, counts, where)
     if layout == "native":
@@ -132,73 +125,7 @@ def write_native_csv(rec: Recording, path_or_file: str | os.PathLike[str] | IO[s
         raise RecordingError(f"cannot write {path_or_file} ({exc.strerror or exc}); check the folder exists and is writable") from None
 
 
-@dataclass
-class _Table:
-    """The header and the non-blank data lines of a CSV, with their 1-based file line numbers."""
-
-    names: list[str]  # normalised (stripped, unquoted, lower case)
-    raw_names: list[str]
-    lines: list[str]
-    line_no: np.ndarray
-    delimiter: str
-    where: str
-
-    def index(self, name: str) -> int:
-        return self.names.index(name)
-
-
-def _decode(data: bytes, source: str | None) -> str:
-    name = source or "the upload"
-    if b"\x00" in data:
-        raise RecordingError(f"{name} is a binary file, not CSV text; export the recording as CSV")
-    try:
-        return data.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise RecordingError(
-            f"{name} is not UTF-8 text (byte 0x{data[exc.start]:02x} at offset {exc.start}); "
-            "export the recording as a UTF-8 CSV file"
-        ) from None
-
-
-def _split_table(text: str, where: str) -> _Table:
-    if "\x00" in text:
-        raise RecordingError(f"{where}the content is binary, not CSV text; export the recording as CSV")
-    text = text.removeprefix("\ufeff").replace("\r\n", "\n").replace("\r", "\n")
-    raw = text.split("\n")
-    header_at = next((i for i, line in enumerate(raw) if line.strip() and not line.lstrip().startswith("#")), None)
-    if header_at is None:
-        raise RecordingError(f"{where}the file is empty; expected a CSV with a header line such as {NATIVE_HEADER}")
-    header = raw[header_at]
-    if any(ord(c) < 32 and c != "\t" for c in header):
-        raise RecordingError(f"{where}line {header_at + 1} holds control characters; this is not CSV text")
-    delimiter = next((d for d in (",", "\t", ";") if d in header), ",")
-    raw_names = [h.strip() for h in header.split(delimiter)]
-    names = [h.strip("\"'").strip().lower() for h in raw_names]
-    if all(_NUMBER.fullmatch(h) for h in names):
-        raise RecordingError(
-            f"{where}line {header_at + 1} holds numbers, not column names; the first line must be a header "
-            f"such as {NATIVE_HEADER} (a header commented out with '#' is not read)"
-        )
-    numbered = [(i, line) for i, line in enumerate(raw[header_at + 1 :], header_at + 2) if line.strip()]
-    if not numbered:
-        if not any(n in names for n in ("t", "gx", "gyr_x", "gyro_x")):
-            raise RecordingError(f"{where}this is not a recording: one line of text ({header[:40]!r}) and no samples. A "
-                                 f"recording is a CSV with a header such as {NATIVE_HEADER} and one row per sample")
-        raise RecordingError(f"{where}the file has a header but no data rows; it holds no samples")
-    line_no = np.fromiter((i for i, _ in numbered), dtype=np.int64, count=len(numbered))
-    lines = [line for _, line in numbered]
-    fields = np.fromiter((line.count(delimiter) for line in lines), dtype=np.int64, count=len(lines))
-    ragged = np.flatnonzero(fields != len(names) - 1)
-    if ragged.size:
-        k = int(ragged[0])
-        raise RecordingError(
-            f"{where}line {line_no[k]} has {fields[k] + 1} field{'s' if fields[k] else ''} but the header has {len(names)} "
-            f"({delimiter.join(raw_names)}); every row needs exactly one value per column"
-        )
-    return _Table(names, raw_names, lines, line_no, delimiter, where)
-
-
-def _resolve_layout(table: _Table, layout: str, counts: bool, where: str) -> str:
+def _resolve_layout(table: Table, layout: str, counts: bool, where: str) -> str:
     present = set(table.names)
     has_native = all(c in present for c in NATIVE_REQUIRED)
     has_imucal = all(c in present for c in IMUCAL_GYRO)
@@ -224,60 +151,6 @@ def _resolve_layout(table: _Table, layout: str, counts: bool, where: str) -> str
             f"but must be {expected} (other columns are ignored)"
         )
     return layout
-
-
-def _columns(table: _Table, wanted: list[str]) -> list[int]:
-    """Header positions of the wanted columns; each must appear once."""
-    for name in wanted:
-        if table.names.count(name) > 1:
-            raise RecordingError(f"{table.where}column {name} appears more than once in the header; keep one")
-    return [table.index(name) for name in wanted]
-
-
-def _optional_group(table: _Table, group: tuple[str, ...]) -> bool:
-    """True if all columns of the group are present, False if none; an error if only some are."""
-    found = [c for c in group if c in table.names]
-    if found and len(found) < len(group):
-        missing = [c for c in group if c not in found]
-        raise RecordingError(
-            f"{table.where}the header has {', '.join(found)} but not {', '.join(missing)}; "
-            f"{', '.join(group)} go together: add the missing column(s) or remove the others"
-        )
-    return bool(found)
-
-
-def _parse_numbers(table: _Table, cols: list[int]) -> np.ndarray:
-    """The given columns as an (n, len(cols)) float array; on bad content the error names line and column."""
-    n = len(table.lines)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            values = np.loadtxt(
-                io.StringIO("\n".join(table.lines)), dtype=float, delimiter=table.delimiter,
-                usecols=cols, ndmin=2, comments=None, encoding=None,
-            )
-        if values.shape == (n, len(cols)):
-            return values
-    except (ValueError, TypeError, IndexError, OverflowError):
-        pass
-    return _parse_numbers_slowly(table, cols)
-
-
-def _parse_numbers_slowly(table: _Table, cols: list[int]) -> np.ndarray:
-    values = np.empty((len(table.lines), len(cols)))
-    for k, line in enumerate(table.lines):
-        cells = line.split(table.delimiter)
-        for j, c in enumerate(cols):
-            cell = cells[c]
-            if not _NUMBER.fullmatch(cell):
-                shown = cell.strip() if len(cell) <= 40 else cell.strip()[:40] + "..."
-                what = "is empty" if not cell.strip() else f"holds {shown!r}, which is not a number"
-                raise RecordingError(
-                    f"{table.where}line {table.line_no[k]}, column {table.raw_names[c]}: the cell {what}; "
-                    "use plain decimal numbers with '.' as the decimal point"
-                )
-            values[k, j] = float(cell)
-    return values
 
 
 def _counter(values: np.ndarray, name: str, where: Locator) -> np.ndarray:
@@ -309,17 +182,17 @@ def _unwrap_counter(seq: np.ndarray) -> np.ndarray:
     return seq
 
 
-def _read_native(table: _Table, fs: float | None, source: str | None) -> Recording:
+def _read_native(table: Table, fs: float | None, source: str | None) -> Recording:
     names = list(NATIVE_REQUIRED)
-    has_accel = _optional_group(table, NATIVE_ACCEL)
+    has_accel = has_group(table, NATIVE_ACCEL)
     if has_accel:
         names += NATIVE_ACCEL
     has_seq = "seq" in table.names
     has_temp = "temp" in table.names
     has_host_t = "host_t" in table.names
     names += ["seq"] * has_seq + ["temp"] * has_temp + ["host_t"] * has_host_t
-    cols = _columns(table, names)
-    values = _parse_numbers(table, cols)
+    cols = column_indices(table, names)
+    values = parse_numbers(table, cols)
     header = {name: table.raw_names[c] for name, c in zip(names, cols, strict=False)}
     where = Locator(
         source=source,
@@ -348,7 +221,7 @@ def _read_native(table: _Table, fs: float | None, source: str | None) -> Recordi
     return rec
 
 
-def _sensitivities(table: _Table, gyro: object, accel: object, where: str) -> tuple[np.ndarray, np.ndarray | None]:
+def _sensitivities(table: Table, gyro: object, accel: object, where: str) -> tuple[np.ndarray, np.ndarray | None]:
     has_accel = any(c in table.names for c in IMUCAL_ACCEL)
     if gyro is None or (has_accel and accel is None):
         raise RecordingError(
@@ -376,7 +249,7 @@ def _sensitivities(table: _Table, gyro: object, accel: object, where: str) -> tu
 
 
 def _read_imucal(
-    table: _Table, fs: float | None, source: str | None, sens: tuple[np.ndarray, np.ndarray | None] | None
+    table: Table, fs: float | None, source: str | None, sens: tuple[np.ndarray, np.ndarray | None] | None
 ) -> Recording:
     where_text = table.where
     index_name = next((n for n in INDEX_NAMES if n in table.names), None)
@@ -388,13 +261,13 @@ def _read_imucal(
             "pass it as fs in Hz (e.g. fs=102.4)"
         )
     names = list(IMUCAL_GYRO)
-    has_accel = _optional_group(table, IMUCAL_ACCEL)
+    has_accel = has_group(table, IMUCAL_ACCEL)
     if has_accel:
         names += IMUCAL_ACCEL
-    cols = _columns(table, names)
+    cols = column_indices(table, names)
     if index_name is not None:
-        cols.append(_columns(table, [index_name])[0] if index_name else 0)
-    values = _parse_numbers(table, cols)
+        cols.append(column_indices(table, [index_name])[0] if index_name else 0)
+    values = parse_numbers(table, cols)
     lines = table.line_no
     header = [table.raw_names[c] or "(unnamed index)" for c in cols]
     columns = {
@@ -430,7 +303,7 @@ def _read_imucal(
     return rec
 
 
-def _labels(table: _Table) -> np.ndarray:
+def _labels(table: Table) -> np.ndarray:
     """The section label column, one string per data line."""
     c = table.index(LABEL_COLUMN)
     cells = [line.split(table.delimiter) for line in table.lines]

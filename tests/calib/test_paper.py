@@ -11,7 +11,8 @@ from scipy.spatial.transform import Rotation
 from calib import GyrocalError, ProtocolError, RecordingError, Stage
 from calib.apply.correction import Correction
 from calib.estimators import registry
-from calib.estimators.paper import _rotvec_to_quat, algorithm1, algorithm1_batch, calibrate_paper
+from calib.estimators.paper import algorithm1, calibrate_paper
+from calib.estimators.paper_batch import algorithm1_batch, rotvec_to_quat
 from calib.estimators.registry import register_batch_method
 from calib.numerics.quaternion import prefix_products
 from calib.recording import Recording, RecordingMeta
@@ -55,7 +56,7 @@ def with_turns(stages, bounds):
 def test_rodrigues_prefix_product_matches_scipy_composition():
     rng = np.random.default_rng(3)
     phi = rng.normal(0.0, 0.05, (57, 4, 3))  # (samples, sequences, 3) rad
-    P = prefix_products(_rotvec_to_quat(phi.transpose(2, 0, 1)))  # (4, samples, sequences)
+    P = prefix_products(rotvec_to_quat(phi.transpose(2, 0, 1)))  # (4, samples, sequences)
     for s in range(4):
         expected = Rotation.identity()
         for i in range(phi.shape[0]):

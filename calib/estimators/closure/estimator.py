@@ -19,7 +19,6 @@ or when some turns are about axes between the sensor axes.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -27,37 +26,21 @@ from scipy.optimize import least_squares
 from scipy.stats import chi2 as chi2_dist
 
 from calib.errors import CalibrationError, ProtocolError
-from calib.estimators.closure.fit import ClosureData, calibration_matrix, param_names, start_values, system
+from calib.estimators.closure.fit import ClosureData, ClosureFit, start_values, system
+from calib.estimators.closure.report import OFFDIAG_WARN, closure_result
 from calib.io.validation import check_calibration_input
 from calib.noise.rests import still_statistics
 from calib.numerics.windows import windows
 from calib.recording import Recording, sample_intervals
 from calib.result import CalibrationResult
-from calib.stages.stage import AXES, FLAG_COUNTER_GAP, FLAG_SATURATED, Stage
+from calib.stages.stage import FLAG_COUNTER_GAP, FLAG_SATURATED, Stage
 
-METHOD = "closure"
 MIN_STILL_SAMPLES = 2
-MIN_STILL_S = 1.0  # less rest than this in all gives a noisy bias
-P_VALUE_WARN = 1e-3  # chi-square this improbable: the model does not explain the data
 MAX_CLOSURE_DEG = 45.0  # a turn that still misses its start by this much after the fit was not a full turn
-CLOSURE_WARN_SIGMA = 5.0  # a turn whose closure is this many standard errors off did not come back
-OFFDIAG_WARN = 5e-3  # extended model: off-diagonal terms known worse than this are weakly identified
 EXTENDED_ALPHA = 0.01  # the extended model is chosen when its likelihood-ratio test is below this
 EXTENDED_FIT_MIN = 1e-3  # ... and when it explains the recording itself (its chi-square's p-value above this)
 OFFDIAG_FAIL = 0.05  # ... and worse than this, not identified at all
 _LSQ = {"method": "lm", "xtol": 1e-10, "ftol": 1e-12, "gtol": 1e-10, "x_scale": "jac"}
-
-
-@dataclass
-class _Fit:
-    theta: np.ndarray
-    res: np.ndarray
-    fisher: np.ndarray
-    terms_r: np.ndarray  # (J, 3) closing rotation vectors at the solution, rad
-    swept: np.ndarray  # (J, 3) integrated calibrated rate per turn, deg
-    chol: np.ndarray  # (J, 3, 3)
-    nfev: int
-    converged: bool
 
 
 def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None = None) -> CalibrationResult:
@@ -100,12 +83,12 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None 
     else:
         choice["reason"] = "not asked for"
     _check_closed(turns, fit)
-    result = _result(rec, stage_list, turns, stills, data, fit, n_rev[0], bool(extended), warnings, dt_all)
+    result = closure_result(rec, stage_list, turns, stills, data, fit, n_rev[0], bool(extended), warnings, dt_all)
     result.quality["model_choice"] = choice
     return result
 
 
-def _choose_model(data: ClosureData, diagonal: _Fit) -> tuple[_Fit, bool, dict[str, Any]]:
+def _choose_model(data: ClosureData, diagonal: ClosureFit) -> tuple[ClosureFit, bool, dict[str, Any]]:
     """The diagonal fit, or the extended one where the recording identifies its terms and needs them."""
     choice: dict[str, Any] = {"asked": None}
     start = np.concatenate((diagonal.theta, np.zeros(3)))
@@ -136,7 +119,7 @@ def _choose_model(data: ClosureData, diagonal: _Fit) -> tuple[_Fit, bool, dict[s
 # --------------------------------------------------------------------------- fitting
 
 
-def _solve(data: ClosureData, theta0: np.ndarray, extended: bool) -> _Fit:
+def _solve(data: ClosureData, theta0: np.ndarray, extended: bool) -> ClosureFit:
     """least_squares with the turn weights held fixed, re-weighted at its solution until they settle.
 
     Residual-only evaluations use the cheap closure product; each Jacobian costs one full pass, and
@@ -178,7 +161,7 @@ def _solve(data: ClosureData, theta0: np.ndarray, extended: bool) -> _Fit:
         if change < 1e-2:
             break
     jacobian = current.J[0]
-    return _Fit(
+    return ClosureFit(
         theta=theta,
         res=current.res[0],
         fisher=jacobian.T @ jacobian,
@@ -190,7 +173,7 @@ def _solve(data: ClosureData, theta0: np.ndarray, extended: bool) -> _Fit:
     )
 
 
-def _check_closed(turns: list[Stage], fit: _Fit) -> None:
+def _check_closed(turns: list[Stage], fit: ClosureFit) -> None:
     """Raise CalibrationError when a turn is so far from closing that its residual means nothing."""
     angle = np.degrees(np.linalg.norm(fit.terms_r, axis=1))
     worst = int(np.argmax(angle))
@@ -228,140 +211,6 @@ def _check_identified(data: ClosureData, theta: np.ndarray) -> None:
 
 
 # --------------------------------------------------------------------------- result
-
-
-def _result(
-    rec: Recording,
-    stage_list: list[Stage],
-    turns: list[Stage],
-    stills: list[Stage],
-    data: ClosureData,
-    fit: _Fit,
-    n_rev: np.ndarray,
-    extended: bool,
-    warnings: list[str],
-    dt_all: np.ndarray,
-) -> CalibrationResult:
-    theta = fit.theta
-    names = param_names(extended)
-    try:
-        cov = np.linalg.inv(fit.fisher)
-    except np.linalg.LinAlgError:
-        raise CalibrationError("the recording does not determine all parameters: turn the device about each axis") from None
-    bound = np.sqrt(np.abs(np.diag(cov)))
-    chi2 = float(fit.res @ fit.res)
-    dof = int(data.dof(extended)[0])
-    birge = float(np.sqrt(max(1.0, chi2 / dof))) if dof > 0 else 1.0
-    p_value = float(chi2_dist.sf(chi2, dof)) if dof > 0 else float("nan")
-    std = bound * birge
-    K = calibration_matrix(theta[None])[0]
-
-    index = {id(s): i for i, s in enumerate(stage_list)}
-    J = len(turns)
-    whitened = fit.res[: 3 * J].reshape(J, 3)
-    turn_rows = []
-    for j, st in enumerate(turns):
-        r_deg = np.degrees(fit.terms_r[j])
-        swept = fit.swept[j]
-        axis = AXES.index(st.axis) if st.axis in AXES else int(np.argmax(np.abs(swept)))
-        z = float(np.linalg.norm(whitened[j]))
-        turn_rows.append(
-            {
-                "stage": index.get(id(st)),
-                "axis": st.axis,
-                "start_s": st.start_s,
-                "end_s": st.end_s,
-                "samples": st.n,
-                "revolutions": int(n_rev[j]),
-                "angle_deg": float(swept[axis]),  # calibrated rate integrated on the turn's axis
-                # the raw readings' angle on that axis (bias from the stills removed): what the sensor said before
-                "raw_angle_deg": None if st.angle_deg is None else float(st.angle_deg),
-                "closure_deg": [float(v) for v in r_deg],  # net rotation over the turn: 0 when it came back
-                "closure_norm_deg": float(np.linalg.norm(r_deg)),
-                "closure_std_deg": float(np.degrees(np.sqrt(np.trace(fit.chol[j] @ fit.chol[j].T) / 3.0))),
-                "z": z,
-            }
-        )
-        if z > CLOSURE_WARN_SIGMA * np.sqrt(3.0):
-            warnings.append(
-                f"the turn about {st.axis} at {st.start_s:.1f} s ends {np.linalg.norm(r_deg):.2f} deg from where it began "
-                f"({z / np.sqrt(3.0):.0f} times what noise explains): put the device back exactly in its starting pose after each turn"
-            )
-    still_rows = []
-    rate = data.still_mean[0] @ K.T + theta[3:6]
-    zs = fit.res[3 * J :].reshape(-1, 3)
-    for s, st in enumerate(stills):
-        still_rows.append(
-            {
-                "stage": index.get(id(st)),
-                "start_s": st.start_s,
-                "end_s": st.end_s,
-                "samples": st.n,
-                "rate_dps": [float(v) for v in rate[s]],  # calibrated mean rate: 0 at rest
-                "z": [float(v) for v in zs[s]],
-            }
-        )
-    if p_value < P_VALUE_WARN:
-        warnings.append(
-            f"the data fit the model worse than the noise explains (chi2/dof = {chi2 / dof:.1f}): the device may not "
-            "have come back exactly to its starting pose, or its offset moved between stills; "
-            f"the standard errors are scaled up by {birge:.1f}"
-        )
-    still_s = float(sum(dt_all[s.start : s.end].sum() for s in stills))
-    if still_s < MIN_STILL_S:
-        warnings.append(f"the device rested only {still_s:.1f} s in all: rest about 3 s before, between and after the turns")
-    if not fit.converged:
-        warnings.append("the least-squares fit stopped before converging; the result may be inaccurate")
-
-    K_std = None
-    if extended:
-        K_std = np.zeros((3, 3))
-        K_std[[0, 1, 2], [0, 1, 2]] = std[:3]
-        K_std[[0, 0, 1], [1, 2, 2]] = std[6:9]
-        offdiag_bound = bound[6:9]
-        if np.any(offdiag_bound > OFFDIAG_WARN):
-            warnings.append(
-                "the non-orthogonality terms are only weakly determined by this recording (standard errors "
-                f"{', '.join(f'{v:.1e}' for v in offdiag_bound)}); turns about axes between the sensor axes determine them better"
-            )
-    quality = {
-        "model": "upper-triangular" if extended else "diagonal",
-        "parameters": list(names),
-        "chi2": chi2,
-        "dof": dof,
-        "birge_ratio": birge,
-        "p_value": p_value,
-        "turns": J,
-        "stills": len(stills),
-        "still_s": still_s,
-        "turn_s": [float(dt_all[s.start : s.end].sum()) for s in turns],
-        "stages_used": sorted(i for i in (index.get(id(s)) for s in (*turns, *stills)) if i is not None),
-        "function_evaluations": fit.nfev,
-        "converged": fit.converged,
-        "correlation": _correlation(cov).tolist(),
-    }
-    return CalibrationResult(
-        k=theta[:3].copy(),
-        b=theta[3:6].copy(),
-        method=METHOD,
-        stages=stage_list,
-        quality=quality,
-        k_std=std[:3],
-        b_std=std[3:6],
-        k_bound=bound[:3],
-        b_bound=bound[3:6],
-        K=K if extended else None,
-        K_std=K_std,
-        noise_dps=data.sigma[0].copy(),
-        residuals={"turns": turn_rows, "stills": still_rows, "chi2": chi2, "dof": dof},
-        warnings=warnings,
-        iterations=fit.nfev,
-    )
-
-
-def _correlation(cov: np.ndarray) -> np.ndarray:
-    s = np.sqrt(np.abs(np.diag(cov)))
-    return np.round(cov / np.outer(s, s), 6)
 
 
 # --------------------------------------------------------------------------- input

@@ -286,3 +286,17 @@ def _unwhiten_turn_jac(sys_: System, rows: np.ndarray, J: int) -> np.ndarray:
     """dr/dtheta (R', J, 3, P) of the selected recordings, from the whitened Jacobian."""
     jac = sys_.J[rows][:, : 3 * J].reshape(-1, J, 3, sys_.J.shape[2])
     return np.einsum("rjab,rjbp->rjap", sys_.chol[rows], jac)
+
+
+@dataclass
+class ClosureFit:
+    """A solved closure fit: parameters, whitened residuals, Fisher information and what the turns did at the solution."""
+
+    theta: np.ndarray
+    res: np.ndarray
+    fisher: np.ndarray
+    terms_r: np.ndarray  # (J, 3) closing rotation vectors at the solution, rad
+    swept: np.ndarray  # (J, 3) integrated calibrated rate per turn, deg
+    chol: np.ndarray  # (J, 3, 3)
+    nfev: int
+    converged: bool
