@@ -39,8 +39,9 @@ def visibility(case, d) -> float:
     the nominal fit (Fisher information with k and b profiled out; for a bias instability the expected
     likelihood-ratio gain of its covariance). inf for the effects read directly from
     the data (clipping, counter, host clock, measured tilt); nan where no such number exists."""
-    from calib.diagnosis.engine import profile_information, system
+    from calib.diagnosis.engine import system
     from calib.diagnosis.models import Model
+    from calib.diagnosis.scores import profile_information
 
     name, e = case.effect_name, case.effect
     if name in ("saturation", "sample_loss", "clock_error") or (name == "placement_error" and case.with_accel):

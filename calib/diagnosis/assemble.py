@@ -91,7 +91,8 @@ def _raw_deviance(raw: Recording | None) -> float:
 def assemble_diagnosis(rec, raw, host_t, prob, layout, tb, plateaus, fit0, base, base_fit, cap_fit, steps, ambiguities, final, feats,
               boot_feats,
               boot_feats_after, p_before, p_after, tests, not_ident, specs, alpha, n_boot, duration) -> Diagnosis:
-    from calib.diagnosis.describe import describe_ambiguity, describe_effect, describe_unexplained, mismatch_rows, recalibration
+    from calib.diagnosis.describe import describe_effect
+    from calib.diagnosis.mismatch import describe_ambiguity, describe_unexplained, mismatch_rows, recalibration
 
     effects: list[dict] = []
     # deterministic evidence first: the time base and the gyro range

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 
 from calib.diagnosis.data import Layout, Problem
-from calib.diagnosis.engine import Fit, covariance
-from calib.diagnosis.features import Features, window_label
-from calib.diagnosis.models import R0_DPS, Model
+from calib.diagnosis.extended_fits import ModelState
+from calib.diagnosis.gauss_newton import Fit, covariance
+from calib.diagnosis.models import R0_DPS
 from calib.diagnosis.saturation import Plateau
-from calib.diagnosis.select import DISTINGUISH, ModelState, Step
+from calib.diagnosis.select import Step
 from calib.diagnosis.timebase import TimeBase
 from calib.stages.stage import AXES
 
@@ -21,7 +21,7 @@ def std_of(fit: Fit) -> np.ndarray:
     return np.sqrt(np.abs(np.diag(cov))) * birge
 
 
-def _vec(v) -> list[float]:
+def as_floats(v) -> list[float]:
     return [float(x) for x in np.ravel(v)]
 
 
@@ -57,24 +57,24 @@ def describe_effect(name: str, prob: Problem, layout: Layout, **kw) -> dict:
     duration = kw.get("duration", 1.0)
     if step.key == "bias_drift":
         s = sl["bias_drift"]
-        params = {"rate_dps_per_s": _vec(psi[s]), "change_dps": _vec(psi[s] * duration)}
-        unc = {"rate_dps_per_s": _vec(std[s]), "change_dps": _vec(std[s] * duration)}
+        params = {"rate_dps_per_s": as_floats(psi[s]), "change_dps": as_floats(psi[s] * duration)}
+        unc = {"rate_dps_per_s": as_floats(std[s]), "change_dps": as_floats(std[s] * duration)}
         i = _strongest(psi[s], std[s])
         summary = (f"the zero-rate output moves steadily over the recording, by {psi[s][i] * duration:+.3f} deg/s on "
                    f"{AXES[i]} in {duration:.0f} s (the still means line up in time)")
         simulate = f"bias_drift={_fmt(psi[s])}"
     elif step.key == "bias_drift_temp":
         s = sl["bias_drift_temp"]
-        params = {"temp_coeff_dps_per_c": _vec(psi[s])}
-        unc = {"temp_coeff_dps_per_c": _vec(std[s])}
+        params = {"temp_coeff_dps_per_c": as_floats(psi[s])}
+        unc = {"temp_coeff_dps_per_c": as_floats(std[s])}
         i = _strongest(psi[s], std[s])
         summary = (f"the zero-rate output follows the sensor temperature: {psi[s][i]:+.4f} (deg/s)/degC on {AXES[i]}")
         rise = float(np.ptp(prob.block.temp[0])) if prob.block.temp is not None else 0.0
         simulate = f"bias_drift=0:{_fmt(psi[s])}:{rise:.3g}"
     elif step.key == "axis_misalignment":
         s = sl["axis_misalignment"]
-        params = {"off_diagonal": _vec(psi[s])}
-        unc = {"off_diagonal": _vec(std[s])}
+        params = {"off_diagonal": as_floats(psi[s])}
+        unc = {"off_diagonal": as_floats(std[s])}
         i = _strongest(psi[s], std[s])
         summary = (f"the sensor axes are not orthogonal: K_{['xy', 'xz', 'yz'][i]} = {psi[s][i]:+.4f} (a turn about one "
                    "axis leaks into another's reading)")
@@ -94,16 +94,16 @@ def describe_effect(name: str, prob: Problem, layout: Layout, **kw) -> dict:
         simulate = f"g_sensitivity={_fmt(G)}"
     elif step.key == "scale_asymmetry":
         s = sl["scale_asymmetry"]
-        params = {"asymmetry": _vec(psi[s])}
-        unc = {"asymmetry": _vec(std[s])}
+        params = {"asymmetry": as_floats(psi[s])}
+        unc = {"asymmetry": as_floats(std[s])}
         i = _strongest(psi[s], std[s])
         summary = (f"the scale factor differs between directions: {2 * psi[s][i] * 100:+.2f} % between positive and "
                    f"negative turns about {AXES[i]}")
         simulate = f"scale_asymmetry={_fmt(psi[s])}"
     elif step.key == "scale_nonlinearity":
         s = sl["scale_nonlinearity"]
-        params = {"coeff": _vec(psi[s]), "ref_rate_dps": R0_DPS}
-        unc = {"coeff": _vec(std[s])}
+        params = {"coeff": as_floats(psi[s]), "ref_rate_dps": R0_DPS}
+        unc = {"coeff": as_floats(std[s])}
         i = _strongest(psi[s], std[s])
         summary = (f"the scale factor changes with speed: {psi[s][i] * 100:+.2f} % at {R0_DPS:.0f} deg/s about "
                    f"{AXES[i]} (fast and slow turns disagree)")
@@ -143,12 +143,12 @@ def describe_effect(name: str, prob: Problem, layout: Layout, **kw) -> dict:
         "simulate": simulate,
     }
     if step.rivals:
-        evidence["rivals"] = [_rival_evidence(name_out, t) for t in step.rivals]
+        evidence["rivals"] = [rival_evidence(name_out, t) for t in step.rivals]
     return {"name": name_out, "parameters": params, "uncertainty": unc,
             "fit": {"before": float(step.before.deviance[0]), "after": float(step.after.deviance[0])}, "evidence": evidence}
 
 
-def _rival_evidence(name: str, t: dict) -> dict:
+def rival_evidence(name: str, t: dict) -> dict:
     """Cox's test against a rival explanation, with a sentence saying what the simulations showed."""
     d = t["criterion_difference"]
     rival = t["rival"]
@@ -164,7 +164,7 @@ def _rival_evidence(name: str, t: dict) -> dict:
 
 def _profile_sd(prob: Problem, state: ModelState, which: str) -> float:
     """Standard error of a variance parameter from the curvature of the profile deviance (log scale)."""
-    from calib.diagnosis.select import refit
+    from calib.diagnosis.extended_fits import refit
 
     base = dict(state.variance)
     v = base[which]
@@ -250,168 +250,3 @@ def _clock(tb: TimeBase) -> dict:
 # --------------------------------------------------------------------------- mismatches and what is left
 
 
-def _range(b: np.ndarray) -> list[float]:
-    b = b[np.isfinite(b)]
-    if b.size == 0:
-        return [float("nan"), float("nan")]
-    return [float(np.quantile(b, 0.025)), float(np.quantile(b, 0.975))]
-
-
-def mismatch_rows(feats: Features, boot: np.ndarray, p: np.ndarray, alpha: float, tb: TimeBase, plateaus, rec) -> list[dict]:
-    rows = []
-    for i in np.argsort(p):
-        if p[i] >= alpha:
-            break
-        rows.append({"where": feats.where[i], "statistic": feats.names[i], "observed": float(feats.values[0, i]),
-                     "simulated_range": _range(boot[:, i]), "p_value": float(p[i])})
-    if plateaus:
-        rows.insert(0, {"where": ", ".join(sorted({f"{AXES[q.axis]} axis" for q in plateaus})),
-                        "statistic": "samples_at_full_scale", "observed": int(sum(q.n for q in plateaus)),
-                        "simulated_range": [0, 0], "p_value": 0.0})
-    if tb.lost:
-        rows.insert(0, {"where": f"{len(tb.gaps)} gaps, first at {tb.gaps[0][2]:.2f} s", "statistic": "lost_samples",
-                        "observed": tb.lost, "simulated_range": [0, 0], "p_value": 0.0})
-    if tb.clock_e is not None and tb.clock_std:
-        from scipy.stats import norm
-
-        z = tb.clock_e / tb.clock_std
-        pz = float(2 * norm.sf(abs(z)))
-        if pz < alpha and abs(tb.clock_e) > 5e-4:
-            rows.insert(0, {"where": "whole recording: device clock against host receive times",
-                            "statistic": "clock_rate_error", "observed": tb.clock_e,
-                            "simulated_range": [-1.96 * tb.clock_std, 1.96 * tb.clock_std], "p_value": pz})
-    return rows
-
-
-def describe_unexplained(prob: Problem, layout: Layout, final: ModelState, feats: Features, boot: np.ndarray,
-                         p: np.ndarray, alpha: float, have_effects: bool, ambiguous: bool = False) -> list[dict]:
-    """Features still outside what the (extended) simulation produces, grouped and described by shape."""
-    out: list[dict] = []
-    off = np.flatnonzero(p < alpha)
-    if off.size == 0:
-        return out
-    groups: dict[str, list[int]] = {}
-    for i in off:
-        groups.setdefault(feats.groups[i], []).append(int(i))
-    values = feats.values[0]
-    for group, idx in groups.items():
-        worst = min(idx, key=lambda i: p[i])
-        entry = {"where": [feats.where[i] for i in idx], "statistic": group, "observed": [float(values[i]) for i in idx],
-                 "simulated_range": [_range(boot[:, i]) for i in idx], "p_value": float(p[worst])}
-        entry["description"] = _shape(group, idx, feats, layout, values, have_effects, ambiguous)
-        out.append(entry)
-    return out
-
-
-def describe_ambiguity(a: dict) -> dict:
-    """A mismatch that two or more catalogued effects explain about equally well."""
-    names = a["candidates"]
-    advice = "; ".join(f"{DISTINGUISH[n]} ({n})" for n in names if n in DISTINGUISH)
-    base = f" on top of {', '.join(a['base'])}" if a["base"] else ""
-    tests = [_rival_evidence(names[0], t) for t in a.get("rival_tests", []) if t["rival"] in names]
-    simulated = (" Simulations of each could not set either aside: " + "; ".join(t["summary"] for t in tests) + "."
-                 if tests else "")
-    out = {
-        "where": "the recording as a whole",
-        "statistic": "ambiguous",
-        "candidates": names,
-        "information_criterion": a["ic"],
-        "description": (f"a mismatch{base} that {' and '.join(names)} explain about equally well (information criteria "
-                        f"within {4:g} of each other): this recording cannot tell which; to tell them apart: {advice}."
-                        f"{simulated}"),
-    }
-    if tests:
-        out["rival_tests"] = tests
-    return out
-
-
-def _shape(group: str, idx: list[int], feats: Features, layout: Layout, values: np.ndarray, have_effects: bool,
-           ambiguous: bool = False) -> str:
-    if ambiguous:
-        prefix = "not resolved (see the ambiguity above): "
-    else:
-        prefix = "after the named effects are modelled, " if have_effects else "no catalogued effect explains it: "
-    if group == "still_rate":
-        # per axis, the still means against time: steady trend or wander?
-        names = [feats.names[i] for i in idx]
-        axes = sorted({n[-1] for n in names})
-        parts = []
-        for a in axes:
-            sel = [i for i, n in enumerate(feats.names) if n.startswith("still_rate_") and n.endswith(a)]
-            y = values[sel]
-            tmid = np.array([0.5 * (layout.stills[int(feats.names[i].split("_")[2])].start_s +
-                                    layout.stills[int(feats.names[i].split("_")[2])].end_s) for i in sel])
-            if y.size >= 3:
-                A = np.column_stack((np.ones_like(tmid), tmid))
-                coef, *_ = np.linalg.lstsq(A, y, rcond=None)
-                resid = y - A @ coef
-                linear = float(np.sum(resid**2)) < 0.25 * float(np.sum((y - y.mean()) ** 2))
-                shape = (f"a steady trend of {coef[1]:+.2g} deg/s per s" if linear else
-                         f"changes from still to still without a steady trend (spread {np.ptp(y):.3f} deg/s)")
-            else:
-                shape = f"differs between stills by {np.ptp(y):.3f} deg/s"
-            parts.append(f"axis {a}: {shape}")
-        return prefix + "the zero-rate output at rest " + "; ".join(parts)
-    if group == "closure":
-        turns = sorted({int(feats.names[i].split("_")[1]) for i in idx})
-        parts = []
-        for j in turns:
-            v = np.array([values[feats.names.index(f"closure_{j}_{a}")] for a in AXES])
-            i = int(np.argmax(np.abs(v)))
-            parts.append(f"the {window_label(layout, j)} ends "
-                         f"{np.linalg.norm(v):.3f} deg from where it began, mostly about {AXES[i]}")
-        return prefix + "; ".join(parts)
-    if group == "whiteness":
-        parts = [f"{feats.where[i]}: the readings vary {values[i]:.1f} times more over 0.5 s blocks than white noise"
-                 for i in idx]
-        return prefix + "; ".join(parts) + " (slow wander or vibration during the rest)"
-    if group == "tilt":
-        parts = [f"{feats.where[i]}: {values[i]:.3f} deg" for i in idx]
-        return prefix + "the device came back tilted: " + "; ".join(parts)
-    if group == "gravity":
-        parts = [f"{window_label(layout, int(feats.names[i].split('_')[1]))}: {values[i]:.3f} deg" for i in idx]
-        return prefix + ("the gravity the calibrated gyro carries across these re-orientations misses the accelerometer's: "
-                         + "; ".join(parts))
-    return prefix + group
-
-
-def recalibration(prob: Problem, fit0: Fit, final: ModelState, effects: list[dict], tb: TimeBase, plateaus,
-                  base: Model, cap_fit) -> dict | None:
-    """The calibration with the found effects modelled, and how far it moved from the nominal one."""
-    if not effects:
-        return None
-    k0, b0 = fit0.psi[0, :3], fit0.psi[0, 3:6]
-    s0 = std_of(fit0)
-    psi = final.fit.psi[0]
-    s1 = std_of(final.fit)
-    k, b = psi[:3].copy(), psi[3:6].copy()
-    sk, sb = s1[:3].copy(), s1[3:6].copy()
-    notes = []
-    names = [e["name"] for e in effects]
-    if "clock_error" in names and tb.device_stamps:
-        e = float(tb.clock_e or 0.0)
-        k, b = k * (1 + e), b * (1 + e)
-        notes.append(f"the device's time stamps run {e * 100:+.2f} % off true time: k and b are corrected by (1 + e)")
-    if "sample_loss" in names:
-        notes.append("lost samples are put back by cubic interpolation at their sample numbers (counter or timestamps)")
-    if base.clipped:
-        for ax in range(3):
-            turns_ax = [j for j, s in enumerate(prob.layout.turns) if s.axis == AXES[ax]]
-            clipped = [j for j in base.clipped if prob.layout.turns[j].axis == AXES[ax]]
-            if not clipped:
-                continue
-            if set(turns_ax) <= set(clipped):
-                notes.append(f"every turn about {AXES[ax]} was clipped at the gyro's full scale: k_{AXES[ax]} = {k[ax]:.4f} "
-                             f"comes from plateaus rebuilt from their edges (+-{sk[ax]:.2g}); repeat the turn about "
-                             f"{AXES[ax]} more slowly for a trustworthy value")
-            else:
-                notes.append(f"{len(clipped)} clipped turn(s) about {AXES[ax]} are left out; the unclipped ones fix k_{AXES[ax]}")
-    out = {
-        "k": _vec(k), "b": _vec(b), "k_std": _vec(sk), "b_std": _vec(sb),
-        "nominal": {"k": _vec(k0), "b": _vec(b0), "k_std": _vec(s0[:3]), "b_std": _vec(s0[3:6])},
-        "shift": {"k": _vec(k - k0), "b": _vec(b - b0)},
-        "shift_sigma": {"k": _vec((k - k0) / np.maximum(s0[:3], 1e-12)), "b": _vec((b - b0) / np.maximum(s0[3:6], 1e-12))},
-        "model": list(final.model.effects) + list(final.variance),
-        "notes": notes,
-    }
-    return out

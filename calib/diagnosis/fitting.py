@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from calib.diagnosis.data import Problem
-from calib.diagnosis.engine import Fit, gauss_newton
+from calib.diagnosis.gauss_newton import Fit, gauss_newton
 from calib.diagnosis.models import Model
 from calib.errors import CalibrationError, ProtocolError
 from calib.estimators.closure.fit import ClosureData, start_values

@@ -16,9 +16,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib.diagnosis.engine import Priors, gauss_newton
+from calib.diagnosis.engine import Priors
+from calib.diagnosis.extended_fits import ModelState, criterion, effective_params, fit_state, gm_of, try_fit
+from calib.diagnosis.gauss_newton import gauss_newton
 from calib.diagnosis.null import Replay, replicate_problems, with_effects
-from calib.diagnosis.select import ModelState, criterion, effective_params, fit_state, gm_of, try_fit
 
 RIVAL_BOOT = 40  # simulations of each rival's world
 RIVAL_ALPHA = 0.025  # a world giving the observed difference less often than this is rejected (none of 40)

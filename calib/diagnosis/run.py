@@ -11,15 +11,17 @@ from scipy.stats import norm
 
 from calib.diagnosis.assemble import Diagnosis, assemble_diagnosis
 from calib.diagnosis.data import Problem, build_problem, gravity_proxy, make_layout, sample_intervals, set_design_accel
-from calib.diagnosis.engine import Fit, Priors, gauss_newton, system
+from calib.diagnosis.engine import Priors, system
+from calib.diagnosis.extended_fits import ModelState, gm_of, informative_count
 from calib.diagnosis.features import SIGNED, compute_features
 from calib.diagnosis.fitting import fit_nominal
+from calib.diagnosis.gauss_newton import Fit, gauss_newton
 from calib.diagnosis.models import Model
 from calib.diagnosis.null import Replay, make_replay, replicate_problems, with_effects
 from calib.diagnosis.reorientation import prepare as prepare_reorientations
 from calib.diagnosis.rivals import Worlds
 from calib.diagnosis.saturation import Plateau, find_plateaus, plateau_caps
-from calib.diagnosis.select import ALPHA, Candidate, ModelState, gm_of, informative_count, null_fit, p_value, plan_tests, statistics
+from calib.diagnosis.select import ALPHA, Candidate, null_fit, p_value, plan_tests, statistics
 from calib.diagnosis.stepwise import select_effects
 from calib.diagnosis.timebase import TimeBase, analyse_timebase, bridge
 from calib.effects import CATALOGUE
@@ -310,7 +312,7 @@ def _plateau_priors(plateaus: list[Plateau], model: Model) -> Priors:
 
 def _one_step(prob: Problem, model: Model, psi: np.ndarray, priors: Priors | None) -> np.ndarray:
     """One Gauss-Newton step from psi (the replicates start at their true parameters)."""
-    from calib.diagnosis.engine import pinv_solve
+    from calib.diagnosis.gauss_newton import pinv_solve
 
     sys_ = system(prob, model, psi, priors)
     A = np.einsum("rmp,rmq->rpq", sys_.J, sys_.J)

@@ -6,8 +6,9 @@ from __future__ import annotations
 from scipy.stats import chi2 as chi2_dist
 
 from calib.diagnosis.data import Problem
+from calib.diagnosis.extended_fits import ModelState, criterion, press, try_fit
 from calib.diagnosis.rivals import Worlds, rival_test
-from calib.diagnosis.select import Candidate, ModelState, Step, criterion, press, try_fit
+from calib.diagnosis.select import Candidate, Step
 
 AMBIGUOUS_IC = 4.0  # a rival this close in the information criterion needs Cox's test to be set aside
 

@@ -18,7 +18,8 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from calib.diagnosis.data import Problem
-from calib.diagnosis.engine import Fit, System, Variance, Wander
+from calib.diagnosis.engine import System, Variance, Wander
+from calib.diagnosis.gauss_newton import Fit
 from calib.diagnosis.models import Model
 
 TAU_GRID_S = (3.0, 10.0, 30.0, 100.0)

@@ -83,10 +83,6 @@ def solve_scale_factors(A: np.ndarray, rate2: np.ndarray, k0: np.ndarray, steps:
 
 
 # ---------------------------------------------------------------------------------------------
-# Batch path: numpy quaternions, vectorised across runs
-
-
-# ---------------------------------------------------------------------------------------------
 # Single-recording path: scipy Rotation objects
 
 

@@ -210,11 +210,7 @@ def _check_identified(data: ClosureData, theta: np.ndarray) -> None:
         )
 
 
-# --------------------------------------------------------------------------- result
-
-
 # --------------------------------------------------------------------------- input
-
 
 
 def _select_stages(rec: Recording, stages: Any) -> tuple[list[Stage], list[Stage], list[Stage], list[str]]:
@@ -247,5 +243,3 @@ def _select_stages(rec: Recording, stages: Any) -> tuple[list[Stage], list[Stage
     if not stills:
         raise ProtocolError("no still segment was found: let the device rest about 3 s before, between and after the turns")
     return stage_list, turns, stills, warnings
-
-
