@@ -1,0 +1,153 @@
+"""The protocol's steps as a guided session takes them: the live reading of each moment, a rest long enough to go
+on, a stage the detector closed, a motion that starts a turn (or only a fidget), and the protocol's time limits."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from calib.stages.stage import AXES
+
+from ..config import Settings
+from . import guidance as say
+from .codes import TURN_STATES, Phase, State
+from .time_limits import overdue
+from .turn_checks import TurnChecks
+
+
+class ProtocolSteps(TurnChecks):
+    """What moves a guided session from one step of the protocol to the next (``GuidedSession`` holds the state)."""
+
+    settings: Settings
+    clock: Callable[[], float]
+    t_now: float
+    _last_live_emit: float
+    _phase_since_t: float
+    _hinted: bool
+
+    @property
+    def finished(self) -> bool:
+        raise NotImplementedError
+
+    def _emit(self, event: str) -> None: ...
+
+    def still_target(self) -> float | None:
+        """How long the device must rest in the current state or phase (s), None when no rest is asked for."""
+        if self.state == State.STILL:
+            return self.timings.initial_still_s
+        if self.phase in (Phase.PAUSE, Phase.PLACING):
+            return self.timings.pause_s
+        if self.phase == Phase.SETTLE:
+            return self.timings.settle_s
+        return None
+
+    def _update_live(self) -> None:
+        still_s, moving, raw = self.stream.live()
+        angle = self.live_angle.of(raw)
+        self.live_reading = {"still_s": still_s, "moving": moving, "angle_deg": angle.tolist(), "raw_angle_deg": raw.tolist()}
+        if self.phase in (Phase.TURNING, Phase.PLACING):
+            if self._watch_turn(still_s, moving, raw, angle):
+                return
+        elif self.phase == Phase.PAUSE and self._watch_pause(moving, angle):
+            return
+
+        target = self.still_target()
+        if target is not None and still_s >= target:
+            self._still_reached()
+            return
+        now = self.clock()
+        if now - self._last_live_emit >= 1.0 / self.settings.sse_rate_hz:
+            if self.phase in (Phase.TURNING, Phase.PLACING):
+                self._last_live_emit = now
+                self._emit("angle")
+            elif target is not None:
+                self._last_live_emit = now
+                self._emit("progress")
+
+    def _still_reached(self) -> None:
+        if self.state == State.STILL:
+            self._axis_i = 0
+            self._set_state(State.TURN_X, Phase.READY, say.turn_prompt("x"))
+            return
+        axis = AXES[self._axis_i]
+        if self.phase == Phase.SETTLE:
+            resume = self._resume_phase
+            self._resume_phase = Phase.READY
+            if resume == Phase.PAUSE:
+                self._set_phase(Phase.PAUSE, say.pause_prompt(axis, AXES[self._axis_i + 1] if self._axis_i < 2 else None))
+            else:
+                self._set_phase(Phase.READY, say.turn_prompt(axis))
+            return
+        if self.phase == Phase.PAUSE and self._turn_confirmed and self._early is None:
+            if self._axis_i < 2:
+                self._axis_i += 1
+                self.attempt = 1
+                nxt = AXES[self._axis_i]
+                self._set_state(TURN_STATES[nxt], Phase.READY, say.turn_prompt(nxt))
+            else:
+                self._set_state(State.COMPUTING, None, say.PROMPTS["computing"])
+
+    def _on_event(self, ev: Any) -> None:
+        kind = getattr(ev, "kind", None)
+        if kind == "stage_closed":
+            st = self.stream.globalise(ev.stage)
+            if st.kind == "still":
+                self.stream.closed_still(st)
+            elif self.phase in (Phase.TURNING, Phase.PLACING):
+                self._check_turn(st)
+            elif self.phase == Phase.PAUSE and not self._turn_confirmed:
+                self._confirm_turn(st)
+            elif self.phase == Phase.PAUSE and self._early is not None:
+                self._early = None  # a bump that never became a turn: the pause's count starts again
+                self._warn("moved", say.MOVED_RESTART)
+            return
+        if kind == "motion_started":
+            self._on_motion(float(getattr(ev, "t", self.t_now)))
+
+    def _begin_turn(self, rest_before_s: float, provisional: str | None) -> None:
+        self._provisional = provisional
+        self._rest_before_s = rest_before_s
+        self._turn_lost = 0
+        self._rested_after_turn = False
+
+    def _on_motion(self, t_motion: float) -> None:
+        self._motion_t = t_motion
+        still_s = self.stream.rest_before(t_motion)
+        if self.state == State.STILL:
+            if still_s >= self.timings.min_rest_before_turn_s:
+                # Started before the countdown ended but after enough rest: take it as the x turn if
+                # it proves to be one; a mere fidget just restarts the count.
+                self._begin_turn(still_s, "initial")
+                self._axis_i = 0
+                self._set_state(State.TURN_X, Phase.TURNING, say.turning_prompt("x"))
+                return
+            if still_s > 0.2 * self.timings.initial_still_s:
+                self._warn("moved", say.MOVED_RESTART)
+            self.live_reading["still_s"] = 0.0
+            return
+        if self.state not in TURN_STATES.values():
+            return
+        axis = AXES[self._axis_i]
+        if self.phase == Phase.READY:
+            self._begin_turn(still_s, None)
+            self._set_phase(Phase.TURNING, say.turning_prompt(axis))
+        elif self.phase == Phase.PAUSE:
+            # a bump (the count starts again) or the next turn started before the count ended: told apart
+            # by how far it turns (_watch_pause)
+            self._early = still_s
+
+    def _check_time_limits(self) -> None:
+        """Protocol time limits, in device time (so they scale with a simulated device's speed)."""
+        if self.finished:
+            return
+        axis = AXES[self._axis_i] if self.state in TURN_STATES.values() else None
+        late = overdue(self.state, self.phase, axis, self.t_now - self._phase_since_t, self._hinted, self.timings, self.retry_allowed)
+        if late is None:
+            return
+        if late.action == "hint":
+            self._hinted = True
+            self._warn("hint", late.message)
+        elif late.action == "retry" and late.code is not None:
+            self._turn_failed(late.code, late.message)
+        elif late.code is not None:
+            self.fail(late.code, late.message)
