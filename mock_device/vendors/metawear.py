@@ -12,7 +12,8 @@ from wearable_protocol.models import METAWEAR
 from wearable_protocol.vendors import metawear as mw
 
 from ..sources import SampleSource
-from ..wearable import Wearable, WearableSession
+from ..streaming import WearableSession
+from ..wearable import Wearable
 
 PACKED = 3  # samples per packed notification
 

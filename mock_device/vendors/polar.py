@@ -13,7 +13,8 @@ from wearable_protocol.models import POLAR_PMD
 from wearable_protocol.vendors import polar_pmd as pmd
 
 from ..sources import SampleSource
-from ..wearable import Wearable, WearableSession
+from ..streaming import WearableSession
+from ..wearable import Wearable
 
 # PMD time stamps count ns from 2000-01-01; the device clock's zero is put at 2026-01-01 00:00 UTC.
 EPOCH_OFFSET_NS = 820_454_400 * 1_000_000_000

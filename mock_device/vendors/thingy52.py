@@ -10,7 +10,8 @@ from wearable_protocol.models import THINGY52
 from wearable_protocol.vendors import thingy52 as th
 
 from ..sources import SampleSource
-from ..wearable import Wearable, WearableSession
+from ..streaming import WearableSession
+from ..wearable import Wearable
 
 
 class Thingy52Wearable(Wearable):

@@ -10,6 +10,7 @@ simulated one) and ``server.link.inprocess.InProcessLink`` (a peripheral object 
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import AsyncIterator, Iterable
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
@@ -327,3 +328,16 @@ class RecordingBuilder:
         )
         rec = Recording(b.t_device_s, b.gyro_dps, b.accel_g, b.seq, None, meta)
         return rec.timed_by_counter(b.fs_hz) if b.arrival_times else rec
+
+
+def merge_queued(first: SampleBatch, queue: deque[object], most: int) -> SampleBatch:
+    """``first`` and the batches queued after it that follow it without a gap (at most ``most`` in all), taken off
+    ``queue`` and merged into one: a consumer that fell behind gets them at once."""
+    merged = [first]
+    while queue and len(merged) < most:
+        nxt = queue[0]
+        if not isinstance(nxt, SampleBatch) or nxt.lost_before:
+            break
+        merged.append(nxt)
+        queue.popleft()
+    return SampleBatch.concat(merged)

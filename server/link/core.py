@@ -31,6 +31,7 @@ from .base import (
     SampleBatch,
     WriteBackError,
     connect_gave_up,
+    merge_queued,
 )
 
 log = logging.getLogger(__name__)
@@ -315,14 +316,7 @@ class LinkCore(ABC):
             if item is _END:
                 return
             if isinstance(item, SampleBatch):
-                merged = [item]
-                while self._feed and len(merged) < MAX_MERGE:
-                    nxt = self._feed[0]
-                    if not isinstance(nxt, SampleBatch) or nxt.lost_before:
-                        break
-                    merged.append(nxt)
-                    self._feed.popleft()
-                yield SampleBatch.concat(merged)
+                yield merge_queued(item, self._feed, MAX_MERGE)
             else:
                 assert isinstance(item, LinkEvent)
                 yield item
