@@ -1,7 +1,8 @@
 """The house's structure, measured: import cycles between gyrocal's modules, the layering rules
 (calib imports no other package of ours; the server never imports mock_device; the mock device only the
 protocol and calib), no module importing another's private (underscore) names, and every module's size,
-largest first. Exit 1 on a cycle, a layering breach, a borrowed private name or a module over MAX_LINES.
+largest first, and that docs/architecture.md names every module. Exit 1 on a cycle, a layering breach, a borrowed
+private name, a module over MAX_LINES or one the architecture does not name.
 
 Run: python scripts/check_structure.py [--sizes N]   (make test runs it)
 """
@@ -80,6 +81,16 @@ def borrowed_private_names(name: str, path: Path, known: dict[str, Path]) -> lis
     return out
 
 
+def unnamed_in_architecture(known: dict[str, Path]) -> list[str]:
+    """The modules docs/architecture.md does not name (package __init__ files and migrations aside)."""
+    import re
+
+    doc = (ROOT / "docs" / "architecture.md").read_text(encoding="utf-8")
+    return sorted(name for name, path in known.items()
+                  if path.name != "__init__.py" and "migrations" not in path.parts
+                  and not re.search(rf"\b{re.escape(path.stem)}\b", doc))
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", type=int, default=15, help="list this many of the largest modules")
@@ -100,6 +111,7 @@ def main() -> int:
             failures.append(f"layering: {a} imports {b} ({pa} may import only {', '.join(sorted(ALLOWED[pa])) or 'none of ours'})")
     for name, path in known.items():
         failures += [f"private name borrowed: {b}" for b in borrowed_private_names(name, path, known)]
+    failures += [f"docs/architecture.md does not name the module {name}" for name in unnamed_in_architecture(known)]
     sizes = sorted(((sum(1 for _ in p.open()), n) for n, p in known.items()), reverse=True)
     failures += [f"{name} has {lines} lines (at most {MAX_LINES})" for lines, name in sizes if lines > MAX_LINES]
     print(f"{len(known)} modules, {graph.number_of_edges()} imports between them, {len(cycles)} cycles")
