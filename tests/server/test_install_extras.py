@@ -96,17 +96,21 @@ def test_a_command_whose_part_cannot_be_imported_says_what_to_install(
 
 def test_an_unknown_bench_method_and_one_whose_dependency_is_missing_are_told_apart(monkeypatch: pytest.MonkeyPatch) -> None:
     from calib.errors import GyrocalError
-    from calib.studies.paper_sim import _resolve
+    from calib.estimators import registry
 
     with pytest.raises(GyrocalError, match="unknown bench method 'no_such_method'"):
-        _resolve("no_such_method")
+        registry.batch_estimator("no_such_method")
 
     def import_needing_httpx(name: str) -> None:
         raise ModuleNotFoundError("No module named 'httpx'", name="httpx")
 
-    monkeypatch.setattr("calib.studies.paper_sim.import_module", import_needing_httpx)
-    with pytest.raises(GyrocalError, match="bench method 'watched' cannot be loaded: the module 'httpx' could not be imported"):
-        _resolve("watched")
+    watched = registry.Estimator("calib.estimators.watched:calibrate_watched", "calib.estimators.watched:watched_batch")
+    monkeypatch.setitem(registry.ESTIMATORS, "watched", watched)
+    monkeypatch.setattr(registry, "import_module", import_needing_httpx)
+    for load in (registry.batch_estimator, registry.estimator):
+        with pytest.raises(GyrocalError, match="the estimator calib.estimators.watched:.* cannot be loaded: the module 'httpx' "
+                                               "could not be imported"):
+            load("watched")
 
 
 def test_a_command_whose_entry_point_cannot_be_loaded_is_listed_and_says_what_to_install(
