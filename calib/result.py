@@ -3,17 +3,22 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from calib.json_safe import finite
-from calib.result_schema import FORMAT_VERSION, ResultDoc
 from calib.stages.stage import Stage
+
+if TYPE_CHECKING:
+    from calib.result_schema import ResultDoc
 
 
 def _list(a: np.ndarray | None, digits: int = 9) -> list[float] | None:
     return None if a is None else [round(float(v), digits) for v in np.ravel(a)]
+
+
+FORMAT_VERSION = 2  # the form of to_dict(): calib.result_schema.ResultDoc says what each number meant
 
 
 @dataclass
@@ -119,4 +124,6 @@ class CalibrationResult:
 
     def to_doc(self) -> ResultDoc:
         """The JSON form as its typed schema (``calib.result_schema.ResultDoc``)."""
+        from calib.result_schema import ResultDoc
+
         return ResultDoc.model_validate(self.to_json())

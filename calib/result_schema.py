@@ -1,7 +1,7 @@
 """The JSON form of a CalibrationResult, declared once as pydantic models: what ``CalibrationResult.to_json`` writes,
 the store keeps, the API publishes in its OpenAPI document and ``CalibrationResult.from_dict`` reads back.
 
-``FORMAT_VERSION`` numbers the form. 1: results stored before the number was written (no ``format_version`` key; read
+``calib.result.FORMAT_VERSION`` numbers the form. 1: results stored before the number was written (no ``format_version`` key; read
 as they are). 2: ``format_version`` added; fields unchanged. A reader takes every older form.
 
 The quality blocks shared by the estimators are typed (``Quality``); each estimator adds diagnostics of its own
@@ -13,8 +13,6 @@ from __future__ import annotations
 from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
-
-FORMAT_VERSION = 2
 
 Number = float | None  # JSON has no NaN: a value that is not finite is written as null
 Vector = list[Number]
@@ -137,8 +135,8 @@ class ResultDoc(CalibrationParameters):
 
     model_config = ConfigDict(extra="allow")
 
-    format_version: int = Field(1, description=f"the form of this object; {FORMAT_VERSION} today (1: stored before it was "
-                                               "numbered)")
+    format_version: int = Field(1, description="the form of this object (calib.result.FORMAT_VERSION; 1: stored before "
+                                               "it was numbered)")
     stages: list[StageDoc] = Field(default_factory=list)
     quality: Quality = Field(default_factory=Quality)
     bound: Spread | None = Field(None, description="the Cramer-Rao bound of k and b for the recorded protocol")

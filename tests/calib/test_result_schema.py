@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from calib.result import CalibrationResult
-from calib.result_schema import FORMAT_VERSION, ResultDoc
+from calib.result import FORMAT_VERSION, CalibrationResult
+from calib.result_schema import ResultDoc
 
 # CalibrationResult.to_json() of each estimator as gyrocal wrote it at 4e49e98, before the form was numbered
 OLD = json.loads((Path(__file__).parent / "data" / "results_4e49e98.json").read_text())
