@@ -15,7 +15,6 @@ $(VENV)/.installed: pyproject.toml
 # the test extras in one pass (one resolution, not two): a fresh clone's `make test` installs the run extras with them
 $(VENV)/.installed-test: pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PIP) install -q --upgrade pip
 	$(PIP) install -q -e '.[server,ble,test]'
 	touch $(VENV)/.installed $@
 
