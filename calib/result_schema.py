@@ -148,20 +148,3 @@ class ResultDoc(CalibrationParameters):
     iterations: int | None = None
     sample_rate_hz: float | None = None
     n_samples: int | None = None
-
-
-
-class VerificationDoc(BaseModel):
-    """One verification turn measured with a calibration (``calib.judge.verification.TurnVerification``): the result
-    a verification session holds."""
-
-    axis: list[float] = Field(description="unit vector of the turn's axis, sensor frame")
-    dominant_axis: str
-    start_s: float
-    end_s: float
-    raw_deg: float
-    calibrated_deg: float
-    uncertainty_deg: float
-    error_deg: float = Field(description="calibrated angle minus 360°")
-    confirmed: bool = Field(description="within 3 standard uncertainties plus the placement allowance")
-    placement_allowance_deg: float

@@ -10,7 +10,8 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from calib.estimators.registry import method_names
 from calib.judge.acceptance import Check
 from calib.judge.departure import Departure
-from calib.result_schema import AccelerometerDoc, ResultDoc, VerificationDoc
+from calib.judge.verification import TurnVerification
+from calib.result_schema import AccelerometerDoc, ResultDoc
 
 from .lifecycle import CalibrationDue
 from .live.codes import EndReason, Phase, State
@@ -204,7 +205,7 @@ class SessionOut(BaseModel):
     prompt: str | None = None
     reason_code: EndReason | None = Field(None, description="why the session ended, if not done")
     reason: str | None = None
-    result: ResultDoc | VerificationDoc | None = Field(None, description="the estimator's result (its form numbered by "
+    result: ResultDoc | TurnVerification | None = Field(None, description="the estimator's result (its form numbered by "
                                                        "format_version); a verification session's turn")
     passed: bool | None = None
     checks: list[Check] = Field(default_factory=list, description=CHECKS_TEXT)

@@ -10,10 +10,10 @@ calibrated angle is within three of those uncertainties and the block's placemen
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, computed_field
 
 from calib.apply.correction import Correction
 from calib.errors import GyrocalError
@@ -31,12 +31,12 @@ class NoVerificationTurn(GyrocalError):
     """The recording holds no rest, full turn, rest; the message says what was found instead."""
 
 
-@dataclass(frozen=True)
-class TurnVerification:
+class TurnVerification(BaseModel):
     """One verification turn: its axis and times, its angle raw and calibrated (deg), and the calibrated angle's
-    standard uncertainty."""
+    standard uncertainty; the result a verification session holds."""
 
-    axis: list[float]  # unit vector of the turn's axis, sensor frame
+    model_config = ConfigDict(frozen=True)
+    axis: list[float] = Field(description="unit vector of the turn's axis, sensor frame")
     dominant_axis: str
     start_s: float
     end_s: float
@@ -44,18 +44,27 @@ class TurnVerification:
     calibrated_deg: float
     uncertainty_deg: float
 
+    @computed_field  # type: ignore[prop-decorator]
     @property
     def error_deg(self) -> float:
+        """The calibrated angle minus 360°."""
         return self.calibrated_deg - FULL_TURN_DEG
 
+    @computed_field  # type: ignore[prop-decorator]
     @property
     def confirmed(self) -> bool:
+        """Within 3 standard uncertainties plus the placement allowance."""
         return abs(self.error_deg) <= 3.0 * self.uncertainty_deg + PLACEMENT_DEG
 
+    @computed_field  # type: ignore[prop-decorator]
+    @property
+    def placement_allowance_deg(self) -> float:
+        """How closely a hand puts the device back against the block."""
+        return PLACEMENT_DEG
+
     def to_json(self) -> dict[str, Any]:
-        return {"axis": self.axis, "dominant_axis": self.dominant_axis, "start_s": self.start_s, "end_s": self.end_s,
-                "raw_deg": self.raw_deg, "calibrated_deg": self.calibrated_deg, "uncertainty_deg": self.uncertainty_deg,
-                "error_deg": self.error_deg, "confirmed": self.confirmed, "placement_allowance_deg": PLACEMENT_DEG}
+        """JSON-ready form, with its error, verdict and allowance."""
+        return self.model_dump(mode="json")
 
 
 def find_turn(rec: Recording) -> tuple[Stage, Stage, Stage] | None:
