@@ -35,6 +35,17 @@ def problem(status: int, detail: str, headers: dict[str, str] | None = None) -> 
     return HTTPException(status_code=status, detail=detail, headers=headers)
 
 
+def check_method(method: str) -> None:
+    """422 naming the estimators when none is named ``method`` (calib.estimators.registry says which there are)."""
+    from calib.errors import GyrocalError
+    from calib.estimators.registry import check_method as check
+
+    try:
+        check(method)
+    except GyrocalError as exc:
+        raise problem(422, str(exc)) from None
+
+
 class RecordingProblem(HTTPException):
     """A recording the service could not read or calibrate: the problem carries the same ``code`` as the command
     line's ``{"error": {"code"}}`` (``calib.errors.error_code``)."""

@@ -48,10 +48,15 @@ def method_names() -> list[str]:
     return list(ESTIMATORS)
 
 
-def estimator(method: str) -> Callable[..., Any]:
-    """The estimator named ``method``; GyrocalError naming the choices for an unknown one."""
+def check_method(method: str) -> None:
+    """GyrocalError naming the choices when no estimator is named ``method``."""
     if method not in ESTIMATORS:
         raise GyrocalError(f"unknown method {method!r}: choose one of {', '.join(ESTIMATORS)}")
+
+
+def estimator(method: str) -> Callable[..., Any]:
+    """The estimator named ``method``; GyrocalError naming the choices for an unknown one."""
+    check_method(method)
     return _load(ESTIMATORS[method].one)
 
 

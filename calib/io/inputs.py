@@ -14,7 +14,7 @@ import os
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from calib.errors import RecordingError, SectionsError
+from calib.errors import RecordingError
 from calib.io.section import Section
 from calib.recording import Recording
 from calib.units import DEG
@@ -84,10 +84,7 @@ def read_input(inp: RecordingInput) -> ReadRecording:
         layout = "imucal_counts" if opts.counts and opts.layout in ("auto", "imucal") else opts.layout
         rec = parse_recording_text(inp.data, opts.fs, layout, inp.source, gyro_counts_per_dps=opts.gyro_counts_per_dps,
                                    accel_counts_per_g=opts.accel_counts_per_g)
-    try:
-        sections = None if opts.sections is None else parse_sections(opts.sections, len(rec), inp.sections_where)
-    except RecordingError as exc:
-        raise SectionsError(str(exc)) from None
+    sections = None if opts.sections is None else parse_sections(opts.sections, len(rec), inp.sections_where)
     return ReadRecording(rec, sections, opts.protocol)
 
 
@@ -125,8 +122,5 @@ def file_input(path: str | os.PathLike[str], options: ReadOptions = ReadOptions(
         from calib.io.sections import section_list_text
 
         where = f"the section list {sections_path}"
-        try:
-            options = replace(options, sections=section_list_text(sections_path))
-        except RecordingError as exc:
-            raise SectionsError(str(exc)) from None
+        options = replace(options, sections=section_list_text(sections_path))
     return RecordingInput(read_file_bytes(p), source, options, accel, where)

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.errors import RecordingError
+from calib.errors import RecordingError, SectionsError
 from calib.io.section import LABELS_HELP, Section, label_kind
 from calib.recording import Recording, sample_intervals
 from calib.stages.stage import Stage
@@ -46,25 +46,25 @@ def read_sections(path: str | os.PathLike[str], n_samples: int) -> tuple[Section
 
 
 def section_list_text(path: str | os.PathLike[str]) -> str:
-    """The text of a section list file; RecordingError saying why it cannot be read."""
+    """The text of a section list file; SectionsError saying why it cannot be read."""
     p = Path(path)
     try:
         return p.read_text(encoding="utf-8")
     except OSError as exc:
-        raise RecordingError(f"cannot read the section list {p}: {exc.strerror or exc}") from None
+        raise SectionsError(f"cannot read the section list {p}: {exc.strerror or exc}") from None
     except UnicodeDecodeError:
-        raise RecordingError(f"the section list {p} is not UTF-8 text; save it as a JSON file") from None
+        raise SectionsError(f"the section list {p} is not UTF-8 text; save it as a JSON file") from None
 
 
 _EXAMPLE = '{"x_p": {"start": 540, "end": 1271}, ...} or [{"label": "x_p", "start": 540, "end": 1271}, ...]'
 
 
 def parse_sections(text: str, n_samples: int, where: str = "the section list") -> tuple[Section, ...]:
-    """Sections from the JSON text of a section list; RecordingError naming the section at fault."""
+    """Sections from the JSON text of a section list; SectionsError naming the section at fault."""
     try:
         raw = json.loads(text)
     except json.JSONDecodeError as exc:
-        raise RecordingError(f"{where} is not valid JSON ({exc}); expected {_EXAMPLE}") from None
+        raise SectionsError(f"{where} is not valid JSON ({exc}); expected {_EXAMPLE}") from None
     if isinstance(raw, dict):
         items = list(raw.items())
     elif isinstance(raw, list):
@@ -72,24 +72,27 @@ def parse_sections(text: str, n_samples: int, where: str = "the section list") -
     else:
         items = []
     if not items:
-        raise RecordingError(f"{where} holds no sections; expected {_EXAMPLE}")
+        raise SectionsError(f"{where} holds no sections; expected {_EXAMPLE}")
     out = []
     for label, v in items:
         if not isinstance(label, str) or not label.strip():
-            raise RecordingError(f"{where}: every section needs a label ({LABELS_HELP})")
+            raise SectionsError(f"{where}: every section needs a label ({LABELS_HELP})")
         at = f"{where}, section {label!r}"
         if not isinstance(v, dict) or not all(isinstance(v.get(k), int) and not isinstance(v.get(k), bool) for k in ("start", "end")):
-            raise RecordingError(f"{at}: give start and end as whole sample positions, e.g. {{\"start\": 540, \"end\": 1271}}")
+            raise SectionsError(f"{at}: give start and end as whole sample positions, e.g. {{\"start\": 540, \"end\": 1271}}")
         start, end = int(v["start"]), int(v["end"])
         if not 0 <= start < end <= n_samples:
-            raise RecordingError(f"{at}: samples {start} to {end} are not inside the recording's {n_samples} samples "
+            raise SectionsError(f"{at}: samples {start} to {end} are not inside the recording's {n_samples} samples "
                                  "(positions count from 0, end exclusive)")
-        label_kind(label.strip())
+        try:
+            label_kind(label.strip())
+        except RecordingError as exc:
+            raise SectionsError(str(exc)) from None
         out.append(Section(label.strip(), start, end))
     out.sort(key=lambda s: s.start)
     for a, b in zip(out, out[1:], strict=False):
         if b.start < a.end:
-            raise RecordingError(f"{where}: sections {a.label!r} and {b.label!r} overlap "
+            raise SectionsError(f"{where}: sections {a.label!r} and {b.label!r} overlap "
                                  f"(samples {b.start} to {min(a.end, b.end)}); each sample belongs to one section at most")
     return tuple(out)
 

@@ -82,14 +82,12 @@ def _check(name: str, axis: str | None, value: float, limit: float | tuple[float
 def evaluate(result: CalibrationResult, tol: Tolerances) -> list[Check]:
     """Each tolerance check of a result. A value that is not finite fails its check."""
     checks: list[Check] = []
-    k = result.k if result.k is not None else np.full(3, np.nan)
-    b = result.b if result.b is not None else np.full(3, np.nan)
     for i, a in enumerate(AXES):
-        kv = float(k[i])
+        kv = float(result.k[i])
         checks.append(_check("k", a, kv, (tol.k_min, tol.k_max), tol.k_min <= kv <= tol.k_max,
                              f"k_{a} = {kv:.4f} (allowed {tol.k_min:g} to {tol.k_max:g})"))
     for i, a in enumerate(AXES):
-        bv = float(b[i])
+        bv = float(result.b[i])
         checks.append(_check("b", a, bv, tol.b_max_dps, abs(bv) <= tol.b_max_dps,
                              f"b_{a} = {bv:.3f} °/s (allowed ±{tol.b_max_dps:g} °/s)"))
     if result.k_std is not None:

@@ -42,4 +42,5 @@ class Judgement:
 
 def judge(result: CalibrationResult, tolerances: Tolerances, history: Sequence[dict[str, Any]] = ()) -> Judgement:
     """``result`` judged against ``tolerances`` and the device's earlier calibrations ``history`` (their JSON form)."""
-    return Judgement(tuple(evaluate(result, tolerances)), tuple(departures(result.to_dict(), history)), turn_accuracy(result))
+    doc = result.to_dict()  # departures and the turns' accuracy read the same JSON form: made once
+    return Judgement(tuple(evaluate(result, tolerances)), tuple(departures(doc, history)), turn_accuracy(doc))

@@ -14,7 +14,7 @@ from calib.io.inputs import LAYOUTS, ReadOptions
 from calib.json_safe import finite
 from calib.judge.judgement import judge
 
-from ..deps import check_upload, problem, recording_problem
+from ..deps import check_method, check_upload, problem, recording_problem
 from ..service import Service
 from ..store import SessionEnd
 from ..workers.compute import TooManySamples, calibrate_upload
@@ -34,11 +34,10 @@ async def calibrate_uploaded(
     options: ReadOptions | None = None,
     accel: bytes | None = None,
 ) -> JSONResponse:
-    from calib.estimators.registry import DEFAULT_METHOD, method_names
+    from calib.estimators.registry import DEFAULT_METHOD
 
     method = method or DEFAULT_METHOD
-    if method not in method_names():
-        raise problem(422, f"unknown method {method!r}: choose one of {', '.join(method_names())}")
+    check_method(method)
     check_upload(body, layout, LAYOUTS)
     if layout == "imu_tk" and accel is None:
         raise problem(400, "imu_tk's layout is two files: send the gyroscope's and the accelerometer's as the parts 'gyro' and "

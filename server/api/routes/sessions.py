@@ -28,6 +28,7 @@ from ...deps import (
     Reader,
     Svc,
     check_device_id,
+    check_method,
     check_session_id,
     problem,
     read_imu_tk_parts,
@@ -313,10 +314,8 @@ async def live_angle_of(svc: Service, device_id: str) -> LiveAngle:
 
 
 async def start_live(svc: Service, device_id: str, operator: str, method: str | None, max_attempts: int | None) -> LiveSession:
-    from calib.estimators.registry import method_names
-
-    if method is not None and method not in method_names():
-        raise problem(422, f"unknown method {method!r}: choose one of {', '.join(method_names())}")
+    if method is not None:
+        check_method(method)
     if (cannot_keep := svc.storage_problem()) is not None:
         raise problem(503, f"no calibration can be started: {cannot_keep}")
     dev = await reachable_device(svc, device_id)
