@@ -23,7 +23,6 @@ import argparse
 import multiprocessing
 import sys
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -33,6 +32,7 @@ from mock_device.prompted import PromptedSource
 from server.config import Settings
 from server.live.runner import compute_result
 from server.live.session import GuidedSession
+from server.live.snapshot_schema import SessionOut
 from server.live.turn_watch import LiveAngle
 
 FS = 104.0
@@ -70,7 +70,8 @@ def run_session(hand: str, seed: int, calibrated_gauge: bool) -> Outcome:
     placing: list[float] = []
     computing_at: list[float] = []
 
-    def listen(kind: str, snap: dict[str, Any]) -> None:
+    def listen(kind: str, snapshot: SessionOut) -> None:
+        snap = snapshot.model_dump(mode="json", exclude_unset=True)  # as the page receives it
         src.hand.observe(snap)
         if snap["phase"] == "placing" and kind in ("prompt", "state"):
             placing.append(float(snap["live"]["t_device_s"]))
@@ -94,7 +95,7 @@ def run_session(hand: str, seed: int, calibrated_gauge: bool) -> Outcome:
         result = compute_result(session)
         session.set_result(result)
         k_error = float(np.max(np.abs(np.asarray(result.k) / k_true - 1.0)))
-    retried = any(str(w["code"]) in RETRY_CODES for w in session.warnings)
+    retried = any(w.code in RETRY_CODES for w in session.warnings)
     passed = session.state == "done" and bool(session.passed)
     return Outcome(hand, seed, calibrated_gauge, passed, passed and not retried, str(session.state), session.reason_code,
                    computing_at[0] if computing_at else None, k_error if passed else None, _stop_latencies(src, placing))

@@ -9,6 +9,7 @@ from calib.errors import GyrocalError, ProtocolError
 from calib.estimators.registry import DEFAULT_METHOD, estimator
 from calib.io.inputs import PROTOCOLS
 from calib.io.section import Section
+from calib.quality import AccelerometerQuality
 from calib.recording import Recording
 from calib.result import CalibrationResult
 from calib.stages.stage import Stage
@@ -121,7 +122,7 @@ def _calibrate_as(
     return calibrate(rec, method=method, stages=stages)
 
 
-def _accelerometer(rec: Recording, stages: list[Stage]) -> dict[str, object] | None:
+def _accelerometer(rec: Recording, stages: list[Stage]) -> AccelerometerQuality | None:
     """The accelerometer's calibration from the recording's rests, reported beside the gyroscope's; None when the
     rests cannot give one."""
     from calib.estimators.accel import calibrate_accelerometer

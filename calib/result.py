@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
 from calib.json_safe import finite
+from calib.quality import Quality
 from calib.stages.stage import Stage
 
 if TYPE_CHECKING:
@@ -35,7 +36,7 @@ class CalibrationResult:
     b: np.ndarray
     method: str
     stages: list[Stage]
-    quality: dict[str, Any] = field(default_factory=dict)
+    quality: Quality = field(default_factory=lambda: Quality())
     k_std: np.ndarray | None = None
     b_std: np.ndarray | None = None
     k_bound: np.ndarray | None = None
@@ -71,7 +72,7 @@ class CalibrationResult:
             b=np.asarray(d["b"], dtype=float),
             method=str(d.get("method") or ""),
             stages=[Stage.from_dict(s) for s in d.get("stages") or []],
-            quality=dict(d.get("quality") or {}),
+            quality=cast(Quality, dict(d.get("quality") or {})),  # as stored: every key optional, further keys kept
             k_std=arr(unc.get("k")),
             b_std=arr(unc.get("b")),
             k_bound=arr(bound.get("k")),

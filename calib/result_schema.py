@@ -4,19 +4,16 @@ the store keeps, the API publishes in its OpenAPI document and ``CalibrationResu
 ``calib.result.FORMAT_VERSION`` numbers the form. 1: results stored before the number was written (no ``format_version`` key; read
 as they are). 2: ``format_version`` added; fields unchanged. A reader takes every older form.
 
-The quality blocks shared by the estimators are typed (``Quality``); each estimator adds diagnostics of its own
-(its fit's correlation, the re-orientations' residuals, Ferraris' matrices), kept as further keys of the same object.
+The quality blocks are declared in ``calib.quality`` (TypedDicts, so that a calibration needs no pydantic): the keys
+shared by the estimators and each estimator's own diagnostics (its fit's correlation, the re-orientations' residuals,
+Ferraris' matrices).
 """
 
 from __future__ import annotations
 
-from typing import Any
-
 from pydantic import BaseModel, ConfigDict, Field
 
-Number = float | None  # JSON has no NaN: a value that is not finite is written as null
-Vector = list[Number]
-Matrix = list[list[Number]]
+from calib.quality import Matrix, Number, Quality, Vector
 
 
 class _Open(BaseModel):
@@ -45,59 +42,6 @@ class Spread(BaseModel):
     b: Vector | None = None
 
 
-class RecognitionDoc(_Open):
-    """Which protocol the recording holds (``calib.stages.recognise.Recognition``)."""
-
-    name: str
-    summary: str
-    rests: int
-    full_turns: list[str] = Field(default_factory=list)
-    poses: list[str] = Field(default_factory=list)
-    reorientations: int = 0
-
-
-class ProtocolUsed(_Open):
-    """The protocol found in the recording, the one used, and how many labelled sections cut it."""
-
-    found: RecognitionDoc
-    used: str
-    sections: int = 0
-
-
-class AccelerometerDoc(_Open):
-    """The accelerometer's calibration from the rests (``calib.estimators.accel.AccelCalibration``)."""
-
-    model: str | None = None
-    scale: Vector | None = None
-    bias: Vector | None = None
-    misalignment: Vector | None = None
-    n_rests: int | None = None
-    residual_rms_mg: float | None = None
-
-
-class ModelChoice(_Open):
-    """Why the closure estimator fitted the diagonal or the extended K."""
-
-    asked: bool | None = None
-    reason: str | None = None
-
-
-class Quality(_Open):
-    """How well the calibration is determined and what it was made from."""
-
-    model: str | None = Field(None, description="diagonal, extended, ...: the model of K fitted")
-    parameters: list[str] | None = None
-    chi2: Number = None
-    dof: int | None = None
-    birge_ratio: Number = Field(None, description="sqrt(chi2/dof), at least 1: the factor the uncertainties were scaled by")
-    p_value: Number = None
-    converged: bool | None = None
-    protocol: ProtocolUsed | None = None
-    temperature_c: Number = Field(None, description="the sensor's mean temperature during the recording, degC")
-    accelerometer: AccelerometerDoc | None = None
-    model_choice: ModelChoice | None = None
-
-
 class TurnResidual(_Open):
     """How one calibrated turn closes (closure estimator)."""
 
@@ -108,11 +52,22 @@ class TurnResidual(_Open):
     closure_norm_deg: Number = None
 
 
+class StillResidual(_Open):
+    """How one rest sits under the calibration (closure estimator): its calibrated mean rate, 0 when all is well."""
+
+    stage: int | None = Field(None, description="its index in stages")
+    start_s: Number = None
+    end_s: Number = None
+    samples: int | None = None
+    rate_dps: list[Number] = Field(default_factory=list, description="the calibrated mean rate about x, y, z, deg/s")
+    z: list[Number] = Field(default_factory=list, description="the same in standard errors")
+
+
 class Residuals(_Open):
     """The fit's residuals: each turn's closure, each rest's mean rate."""
 
     turns: list[TurnResidual] = Field(default_factory=list)
-    stills: list[dict[str, Any]] = Field(default_factory=list)
+    stills: list[StillResidual] = Field(default_factory=list)
     chi2: Number = None
     dof: int | None = None
 
@@ -138,7 +93,8 @@ class ResultDoc(CalibrationParameters):
     format_version: int = Field(1, description="the form of this object (calib.result.FORMAT_VERSION; 1: stored before "
                                                "it was numbered)")
     stages: list[StageDoc] = Field(default_factory=list)
-    quality: Quality = Field(default_factory=Quality)
+    quality: Quality = Field(default_factory=lambda: Quality(), description="how well the calibration is determined "
+                             "and what it was made from (calib.quality: every key optional; each estimator adds its own)")
     bound: Spread | None = Field(None, description="the Cramer-Rao bound of k and b for the recorded protocol")
     K_std: Matrix | None = None
     G_std: Matrix | None = None

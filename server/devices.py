@@ -14,13 +14,13 @@ import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
-from typing import Any, Protocol
+from typing import Any, Protocol, TypedDict
 
 from calib.apply.identity import SensorIdentity
 from calib.extras import install_hint
-from wearable_protocol.models import MODELS
+from wearable_protocol.models import MODELS, LossDetection, TimeStamps
 
-from .link.base import DeviceInfo
+from .link.base import DeviceInfo, DiscoveredDevice
 from .link.slots import AdapterSlots
 
 log = logging.getLogger(__name__)
@@ -63,7 +63,21 @@ def load_simulators() -> Simulators:
     raise SimulatorsUnavailable("; ".join(failures))
 
 
-def model_facts(key: str | None, info: dict[str, Any] | None = None) -> dict[str, Any]:
+class ModelFacts(TypedDict):
+    """What the page and the estimator need to know about a wearable model (the fields of the same names of GET
+    /devices)."""
+
+    model: str | None
+    model_label: str | None
+    sample_rate_hz: float | None
+    gyro_full_scale_dps: int | None
+    time_stamps: TimeStamps | None
+    loss_detection: LossDetection | None
+    limitations: list[str]
+    write_back: bool
+
+
+def model_facts(key: str | None, info: dict[str, Any] | None = None) -> ModelFacts:
     """What the page and the estimator need to know about a wearable model (see wearable_protocol.models)."""
     info = info or {}
     m = MODELS.get(key) if key else None
@@ -105,13 +119,13 @@ class Device:
     def connected(self) -> bool:
         return bool(self.link is not None and getattr(self.link, "connected", False))
 
-    def model_facts(self) -> dict[str, Any]:
+    def model_facts(self) -> ModelFacts:
         """The device's model, the rate and range it streams at (read from it once connected, else the model's
         choice) and what its protocol cannot tell."""
         return model_facts(self.info.get("model") or self.model, self.info)
 
     @property
-    def simulated_truth(self) -> dict[str, Any] | None:
+    def simulated_truth(self) -> dict[str, list[float]] | None:
         """The simulated sensor's true {k, b} (None for real hardware)."""
         if self.peripheral is None:
             return None
@@ -254,7 +268,7 @@ class DeviceManager:
                 found.append(known)
         return found
 
-    async def _scan_adapters(self, timeout_s: float) -> list[Any]:
+    async def _scan_adapters(self, timeout_s: float) -> list[DiscoveredDevice]:
         """What every adapter sees, each wearable once (at its strongest signal); an adapter that fails is skipped
         while another one answers."""
         from .link.base import by_signal
@@ -267,7 +281,7 @@ class DeviceManager:
         for adapter, r in zip(self.ble_adapters, results, strict=True):
             if isinstance(r, BaseException):
                 log.warning("Bluetooth adapter %s could not scan: %s", adapter, r)
-        best: dict[str, Any] = {}
+        best: dict[str, DiscoveredDevice] = {}
         for disc in by_signal(d for r in results if not isinstance(r, BaseException) for d in r):
             best.setdefault(disc.address, disc)  # the strongest sighting of each wearable
         return list(best.values())

@@ -30,10 +30,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import psycopg
+from pydantic import ValidationError
 from sqlalchemy.engine import make_url
 
 from .live.codes import END_STATES
 from .live.events import Broadcaster, Event
+from .live.snapshot_schema import RemoteGateway, SessionOut
 
 log = logging.getLogger(__name__)
 
@@ -45,7 +47,7 @@ IDLE_S = 60.0  # a followed session nobody watches (or that ended) is dropped af
 PING_S = 30.0  # the listening connection is checked this often when nothing arrives
 DEBOUNCE_S = 0.2  # a fleet page refreshes at most this often
 
-SessionReader = Callable[[str], "dict[str, Any] | None"]  # the stored snapshot of a session, or None
+SessionReader = Callable[[str], SessionOut | None]  # the stored snapshot of a session, or None
 
 
 def conninfo(db_url: str) -> str | None:
@@ -61,7 +63,7 @@ class _Followed:
     """A session another gateway runs, followed by pages of this one."""
 
     broadcaster: Broadcaster
-    remote: dict[str, Any]  # {"gateway", "url"}: where it runs
+    remote: RemoteGateway  # where it runs
     last_client: float = field(default_factory=time.monotonic)
     ended: float | None = None
 
@@ -71,7 +73,7 @@ class FleetEvents:
     fleet pages (here and on every gateway) when the fleet changed."""
 
     def __init__(self, db_url: str, stored_snapshot: SessionReader,
-                 on_decided: Callable[[str, dict[str, Any]], None]) -> None:
+                 on_decided: Callable[[str, SessionOut], None]) -> None:
         self.origin = uuid.uuid4().hex[:12]  # tells this process's notifications from others'
         self._conninfo = conninfo(db_url)
         self._stored = stored_snapshot
@@ -171,7 +173,7 @@ class FleetEvents:
         self._wanted.pop(session_id, None)
 
     # -- sessions running elsewhere -------------------------------------------------------------------
-    def follow(self, session_id: str, snapshot: dict[str, Any], remote: dict[str, Any]) -> Broadcaster:
+    def follow(self, session_id: str, snapshot: SessionOut, remote: RemoteGateway) -> Broadcaster:
         """The stream of a session another gateway runs, starting from its stored ``snapshot``."""
         followed = self._followed.get(session_id)
         if followed is None or followed.broadcaster.closed:
@@ -182,24 +184,24 @@ class FleetEvents:
         followed.last_client = time.monotonic()
         return followed.broadcaster
 
-    def followed(self, session_id: str) -> dict[str, Any] | None:
+    def followed(self, session_id: str) -> SessionOut | None:
         """The latest snapshot of a session followed here (None: not followed)."""
         followed = self._followed.get(session_id)
         latest = None if followed is None else followed.broadcaster.latest
-        return None if latest is None else dict(json.loads(latest.data))
+        return None if latest is None else SessionOut.model_validate_json(latest.data)
 
     def _want(self, session_id: str) -> None:
         self._queue(FOLLOW, json.dumps({"o": self.origin, "s": session_id}))
 
-    def _publish_followed(self, session_id: str, followed: _Followed, name: str, snapshot: dict[str, Any]) -> None:
+    def _publish_followed(self, session_id: str, followed: _Followed, name: str, snapshot: SessionOut) -> None:
         if followed.broadcaster.closed:
             return
-        if followed.ended is not None and snapshot.get("state") not in END_STATES:
+        if followed.ended is not None and snapshot.state not in END_STATES:
             return  # a late relayed snapshot after the stored end state
-        followed.broadcaster.publish(name, {**snapshot, "remote": followed.remote})
-        if snapshot.get("state") in END_STATES and followed.ended is None:
+        followed.broadcaster.publish(name, snapshot.model_copy(update={"remote": followed.remote}))
+        if snapshot.state in END_STATES and followed.ended is None:
             followed.ended = time.monotonic()
-        if snapshot.get("decision"):
+        if snapshot.decision:
             followed.broadcaster.close()
 
     def _spawn(self, read: Coroutine[Any, Any, None]) -> None:
@@ -255,10 +257,10 @@ class FleetEvents:
             return
         if snapshot is None:
             return
-        if decided and snapshot.get("decision") and session_id in self._latest:
+        if decided and snapshot.decision and session_id in self._latest:
             self._on_decided(session_id, snapshot)
         followed = self._followed.get(session_id)
-        if followed is not None and snapshot.get("state") in END_STATES and (followed.ended is None or decided):
+        if followed is not None and snapshot.state in END_STATES and (followed.ended is None or decided):
             self._publish_followed(session_id, followed, "decision" if decided else "state", snapshot)
 
     async def _follow_loop(self) -> None:
@@ -357,10 +359,14 @@ def session_payload(origin: str, session_id: str, event: Event) -> str:
     return json.dumps(msg, separators=(",", ":"))
 
 
-def relayed_snapshot(msg: dict[str, Any]) -> dict[str, Any] | None:
-    """The snapshot a session notification carries (None: it was too large to travel)."""
-    if "d" in msg:
-        return dict(json.loads(msg["d"]))
-    if "z" in msg:
-        return dict(json.loads(zlib.decompress(base64.b64decode(msg["z"])).decode()))
+def relayed_snapshot(msg: dict[str, Any]) -> SessionOut | None:
+    """The snapshot a session notification carries (None: it was too large to travel, or is not one this gateway
+    reads, e.g. from another version: the follower then reads the store)."""
+    try:
+        if "d" in msg:
+            return SessionOut.model_validate_json(msg["d"])
+        if "z" in msg:
+            return SessionOut.model_validate_json(zlib.decompress(base64.b64decode(msg["z"])))
+    except (ValidationError, ValueError, zlib.error):
+        log.warning("a relayed snapshot of session %s could not be read; reading the store instead", msg.get("s"))
     return None

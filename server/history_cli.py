@@ -7,10 +7,17 @@ from __future__ import annotations
 import argparse
 import json
 from datetime import datetime
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+from calib.apply.identity import SensorIdentity
 
 from .cli import EXIT_OK, ServiceError, open_store, require_active_operator
 from .config import DB_URL_HELP, DEFAULT_MAX_AGE_DAYS
+
+if TYPE_CHECKING:
+    from calib.judge.departure import Departure
+
+    from .store import CalibrationRecord, StoredVerification
 
 
 def register_history(sub: Any) -> None:
@@ -30,13 +37,15 @@ def register_history(sub: Any) -> None:
     p.set_defaults(func=cmd_history)
 
 
-def _row(cal: Any, departed: list[Any], verified: dict[str, Any] | None) -> dict[str, Any]:
+def _row(cal: CalibrationRecord, departed: list[Departure], verified: StoredVerification | None) -> dict[str, Any]:
+    """A calibration as `gyrocal history --json` lists it."""
     unc = cal.uncertainty.model_dump() if cal.uncertainty is not None else {}
-    ident = cal.identity.to_json() if cal.identity else {}
+    ident = cal.identity or SensorIdentity()
     return {"id": cal.id, "accepted_at": cal.accepted_at.isoformat(timespec="seconds"), "source": cal.source, "operator": cal.operator,
-            "k": cal.k, "k_std": unc.get("k"), "b": cal.b, "b_std": unc.get("b"), "serial": ident.get("serial"),
-            "boot_count": ident.get("boot_count"), "temperature_c": ident.get("temperature_c"),
-            "departures": [d.to_dict() for d in departed], "verification": verified}
+            "k": cal.k, "k_std": unc.get("k"), "b": cal.b, "b_std": unc.get("b"), "serial": ident.serial,
+            "boot_count": ident.boot_count, "temperature_c": ident.temperature_c,
+            "departures": [d.to_dict() for d in departed],
+            "verification": None if verified is None else verified.model_dump(mode="json")}
 
 
 def cmd_history(args: argparse.Namespace) -> int:
@@ -53,12 +62,12 @@ def cmd_history(args: argparse.Namespace) -> int:
     rows = []
     for i, cal in enumerate(cals):
         before = [c.model_dump() for c in cals[:i]]
-        latest = next((v for v in verifications if v["calibration_id"] == cal.id), None)
+        latest = next((v for v in verifications if v.calibration_id == cal.id), None)
         rows.append(_row(cal, departures(cal.model_dump(), before), latest))
     current = cals[-1] if cals else None
     due = calibration_due(None if current is None else current.accepted_at, args.max_age_days,
-                          calibration_identity=None if current is None or current.identity is None else current.identity.to_json(),
-                          device_power_up=(device or {}).get("power_up"))
+                          calibration_identity=None if current is None else current.identity,
+                          device_power_up=None if device is None else device["power_up"])
     if args.json:
         print(json.dumps({"device_id": args.device, "calibrations": rows, "calibration_due": due.model_dump()}, indent=2))
         return EXIT_OK
@@ -117,14 +126,14 @@ def cmd_verify(args: argparse.Namespace) -> int:
     rec = read_recording_args(args).recording
     try:
         found = verify_turn(rec, Correction.from_json(cal.model_dump(mode="json")),
-                            None if cal.uncertainty is None else cal.uncertainty.model_dump()).to_json()
+                            None if cal.uncertainty is None else cal.uncertainty.model_dump())
     except NoVerificationTurn as exc:
         raise ServiceError(f"{args.file}: {exc}") from None
     kept = store.add_verification(cal.id, args.operator, __version__, found, source="upload",
                                   recording_csv=recording_csv(rec), n_samples=len(rec))
-    verdict = "confirmed: the calibration holds" if found["confirmed"] else "NOT confirmed: calibrate again, or check the turn"
-    print(f"calibration #{cal.id}: the turn about {found['dominant_axis']} measured {found['calibrated_deg']:.2f} ± "
-          f"{found['uncertainty_deg']:.2f} deg calibrated, {found['raw_deg']:.2f} raw; {verdict} (kept as {kept['session_id']}, "
-          f"{datetime.fromisoformat(kept['at']).isoformat(timespec='seconds')})")
+    verdict = "confirmed: the calibration holds" if found.confirmed else "NOT confirmed: calibrate again, or check the turn"
+    at = "" if kept.at is None else ", " + datetime.fromisoformat(kept.at).isoformat(timespec="seconds")
+    print(f"calibration #{cal.id}: the turn about {found.dominant_axis} measured {found.calibrated_deg:.2f} ± "
+          f"{found.uncertainty_deg:.2f} deg calibrated, {found.raw_deg:.2f} raw; {verdict} (kept as {kept.session_id}{at})")
     return EXIT_OK
 

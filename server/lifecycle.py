@@ -16,7 +16,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
-from calib.apply.identity import SensorIdentity, WrongSensor, check_identity, same_power_up
+from calib.apply.identity import IdentityCheckJson, SensorIdentity, WrongSensor, check_identity, same_power_up
 
 from .config import CalibrationLimits
 from .store import Store
@@ -32,7 +32,7 @@ class InForce(BaseModel):
     age_days: float = Field(description="days from its acceptance to that moment (negative: accepted later in the same power-up)")
     chosen_by: Literal["same_power_up", "latest_before"] = Field(
         "latest_before", description="same_power_up: measured in the recording's power-up; latest_before: the latest accepted by then")
-    identity_check: dict[str, Any] | None = Field(
+    identity_check: IdentityCheckJson | None = Field(
         None, description="sensor, power_up, temperature: same | different | unknown; temperature_change_c (calib.apply.identity)")
     warnings: list[str] = Field(default_factory=list, description="plain sentences: what makes it doubtful for that moment")
 
@@ -103,7 +103,7 @@ class CalibrationDue(BaseModel):
 
 
 def calibration_due(current_accepted_at: datetime | None, max_age_days: float, now: datetime | None = None, *,
-                    calibration_identity: dict[str, Any] | None = None,
+                    calibration_identity: SensorIdentity | None = None,
                     device_power_up: dict[str, Any] | None = None) -> CalibrationDue:
     """Due when never calibrated, when the device was switched on again since its current calibration (the power-up
     it last reported, ``device_power_up``, is not the one in ``calibration_identity``), or when that calibration is
@@ -119,12 +119,12 @@ def calibration_due(current_accepted_at: datetime | None, max_age_days: float, n
     return CalibrationDue(due=False, reason=f"its calibration is {age:.0f} days old, within the {max_age_days:g} days allowed")
 
 
-def _powered_up_since(calibration_identity: dict[str, Any] | None, device_power_up: dict[str, Any] | None) -> bool:
+def _powered_up_since(calibration_identity: SensorIdentity | None, device_power_up: dict[str, Any] | None) -> bool:
     """Whether the power-up a device last reported is another than the one its calibration was measured in."""
     if not calibration_identity or not device_power_up:
         return False
     now = SensorIdentity.from_json({k: device_power_up.get(k) for k in ("boot_count", "booted_at")})
-    return same_power_up(SensorIdentity.from_json(calibration_identity), now) is False
+    return same_power_up(calibration_identity, now) is False
 
 
 async def in_force_async(store: Store, device_id: str, at: datetime | None, limits: CalibrationLimits,

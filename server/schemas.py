@@ -7,14 +7,17 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from calib.apply.identity import IdentityCheckJson
 from calib.estimators.registry import method_names
 from calib.judge.acceptance import Check
 from calib.judge.departure import Departure
-from calib.judge.verification import TurnVerification
-from calib.result_schema import AccelerometerDoc, ResultDoc
+from calib.quality import AccelerometerQuality
+from calib.result_schema import ResultDoc
 
 from .lifecycle import CalibrationDue
-from .live.codes import EndReason, Phase, State
+from .live.codes import EndReason, State
+from .live.snapshot_schema import CHECKS_TEXT, TurnAccuracy
+from .store.chain import BrokenLink
 from .store.records import CalibrationRecord
 
 Method = Enum("Method", {m: m for m in method_names()}, type=str)  # type: ignore[misc]
@@ -31,19 +34,14 @@ class Problem(BaseModel):
                                                "command line's error code: bad_recording, bad_sections, turn_missing, ...)")
 
 
-class BrokenLink(BaseModel):
-    chain: str = Field(description="calibrations, recordings or audit_log")
-    seq: int | None = Field(description="the row's place in its chain (1 = first)")
-    row_id: int | None
-    problem: str
-
-
 class Integrity(BaseModel):
     """The last verification of the hash chains over the store's history."""
 
     ok: bool
     rows: dict[str, int] = Field(description="rows verified per chain")
-    first_broken_link: BrokenLink | None
+    first_broken_link: BrokenLink | None = Field(description="the first place a chain does not hold: chain (calibrations, "
+                                                             "recordings or audit_log), seq (the row's place in its chain, 1 = "
+                                                             "first), row_id, problem")
     checked_at: str
 
 
@@ -152,10 +150,24 @@ class DeviceOut(BaseModel):
     last_seen: str | None = None
 
 
+class SessionSummary(BaseModel):
+    """A session in a device's list: what it was and how it ended."""
+
+    id: str
+    kind: str
+    state: State
+    reason_code: EndReason | None = None
+    passed: bool | None = None
+    decision: Literal["accepted", "discarded"] | None = None
+    started_at: str | None = None
+    ended_at: str | None = None
+
+
 class DeviceDetail(DeviceOut):
     simulated_truth: Truth | None = Field(None, description="the simulated sensor's true parameters (simulated devices only)")
-    info: dict[str, Any] = Field(default_factory=dict)
-    recent_sessions: list[dict[str, Any]] = Field(default_factory=list)
+    info: dict[str, Any] = Field(default_factory=dict, description="what the device told the service about itself "
+                                                                   "(free-form: each model tells different things)")
+    recent_sessions: list[SessionSummary] = Field(default_factory=list, description="its last 10 sessions, newest first")
 
 
 class ScanOut(BaseModel):
@@ -176,48 +188,6 @@ class SessionStarted(BaseModel):
     state: State
     url: str
     events: str
-
-
-class TurnAccuracy(BaseModel):
-    """How well a full turn measures, the worst of the session's turns, before and after the calibration."""
-
-    before_deg: float = Field(description="how far the raw readings (bias removed) of a full turn were from 360°")
-    after_deg: float = Field(description="how far from where it began a turn ends, measured with the calibration")
-
-
-CHECKS_TEXT = ("each tolerance check: name, axis, value, limit, ok, text, used (the share of the allowance the value "
-               "uses: 0 ideal, 1 at the limit) and near_limit (passed with used >= 0.8)")
-
-
-DEPARTURES_TEXT = ("the result's parameters that the device's own earlier calibrations (two at least) do not explain: "
-                   "name, axis, value, history_mean, history_spread, z, n_history, text (a dropped or damaged sensor)")
-
-
-class SessionOut(BaseModel):
-    """A full snapshot of a session: what every SSE event carries too."""
-
-    model_config = ConfigDict(extra="allow")
-    session_id: str
-    device_id: str
-    kind: Literal["live", "upload", "import", "verify"] = "live"
-    state: State = Field(description="where the session is (protocol order, then reconnecting, computing and the end states)")
-    phase: Phase | None = None
-    prompt: str | None = None
-    reason_code: EndReason | None = Field(None, description="why the session ended, if not done")
-    reason: str | None = None
-    result: ResultDoc | TurnVerification | None = Field(None, description="the estimator's result (its form numbered by "
-                                                       "format_version); a verification session's turn")
-    passed: bool | None = None
-    checks: list[Check] = Field(default_factory=list, description=CHECKS_TEXT)
-    accuracy: TurnAccuracy | None = Field(None, description="a full turn before and after the calibration (closure estimator)")
-    departures: list[Departure] = Field(default_factory=list, description=DEPARTURES_TEXT)
-    decision: Literal["accepted", "discarded"] | None = None
-    calibration_id: int | None = None
-    started_at: str | None = None
-    ended_at: str | None = None
-    stored: bool | None = Field(None, description="a live session that ended: whether the store has its outcome and "
-                                                  "recording yet (false: kept by the service and written when it can)")
-    store_error: str | None = Field(None, description="why the store could not take them yet (its disk full, ...)")
 
 
 SENSOR_TEXT = r"^[^\x00-\x1f\x7f]*$"  # printable text: no NUL or other control characters
@@ -265,7 +235,7 @@ class OfflineResult(ResultDoc):
     device_id: str
     state: Literal["done", "failed"]
     protocol: str = Field(description="the protocol the recording was calibrated as")
-    accelerometer: AccelerometerDoc | None = Field(None, description="as quality.accelerometer")
+    accelerometer: AccelerometerQuality | None = Field(None, description="as quality.accelerometer")
     passed: bool
     checks: list[Check] = Field(description=CHECKS_TEXT)
     accuracy: TurnAccuracy | None = None
@@ -274,11 +244,91 @@ class OfflineResult(ResultDoc):
     recording_sha256: str
 
 
-class AuditEntry(BaseModel):
-    id: int
-    at: str
-    operator: str | None
-    action: str
-    device_id: str | None
-    session_id: str | None
-    detail: dict[str, Any] | None
+class GatewayOut(BaseModel):
+    name: str
+    url: str | None = Field(None, description="where its pages are")
+    version: str | None = None
+    started_at: str | None = None
+    heartbeat_at: str | None = Field(None, description="when it last said it is alive")
+    alive: bool = Field(description="it said so within the fleet's silence limit")
+    this: bool = Field(description="the gateway that answered this request")
+
+
+class SightingOut(BaseModel):
+    gateway: str
+    last_seen: str | None = None
+    rssi_dbm: int | None = Field(None, description="signal strength at that gateway, dBm (null: the radio does not say)")
+
+
+class CalibrationStatus(BaseModel):
+    status: Literal["never", "due", "current"]
+    reason: str
+    calibration_id: int | None = None
+
+
+class FleetDevice(BaseModel):
+    id: str
+    name: str | None = None
+    gateway: str | None = Field(None, description="the gateway that holds it, or saw it last")
+    last_seen: str | None = None
+    seen_by: list[SightingOut] = Field(description="every gateway that sees it, the latest first")
+    in_session: bool
+    session: str | None = Field(None, description="what holds it: a session or verification id")
+    activity: Literal["calibration", "verification", "write"] | None = None
+    lease_expires_at: str | None = None
+    calibration: CalibrationStatus
+    wizard_url: str = Field(description="the page that calibrates it, on the gateway that can reach it")
+
+
+class FleetOut(BaseModel):
+    """Every gateway sharing the store and every wearable they see."""
+
+    this_gateway: str | None
+    gateways: list[GatewayOut]
+    devices: list[FleetDevice]
+    at: str = Field(description="when this view was read (ISO 8601, UTC)")
+
+
+class TurnSpan(BaseModel):
+    axis: str | None
+    start_s: float = Field(description="from the recording's start, s")
+    end_s: float
+
+
+class SessionPlot(BaseModel):
+    """A session's calibration drawn: each trace before (raw readings) and after (K m + b), decimated (calib.plots)."""
+
+    t: list[float | None] = Field(description="from the recording's start, s")
+    rate_before: list[float | None] = Field(description="rate magnitude, deg/s")
+    rate_after: list[float | None]
+    pose_error_before: list[float | None] = Field(description="angle from the start pose, deg: 0 after each full turn "
+                                                              "when calibrated")
+    pose_error_after: list[float | None]
+    swept_before: list[float | None] = Field(description="angle swept within each turn about its axis, deg (null "
+                                                         "outside turns)")
+    swept_after: list[float | None]
+    turns: list[TurnSpan]
+    k: Vec3
+    b: Vec3 = Field(description="deg/s of true rate")
+    method: str
+
+
+class RollPitchYaw(BaseModel):
+    roll: list[float]
+    pitch: list[float]
+    yaw: list[float]
+
+
+class OrientationOut(BaseModel):
+    """An uploaded recording's orientation before and after the calibration in force for it (deg, unwrapped)."""
+
+    calibration_id: int
+    warnings: list[str] = Field(description="what makes the calibration doubtful for this recording")
+    identity_check: IdentityCheckJson | None = None
+    method: str = Field(description="how the orientation was estimated (Madgwick with the accelerometer, or the gyro "
+                                    "integrated)")
+    t: list[float] = Field(description="s")
+    before: RollPitchYaw
+    after: RollPitchYaw
+    difference_deg: list[float] = Field(description="the angle between the two orientations")
+    final_difference_deg: float

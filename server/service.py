@@ -8,7 +8,6 @@ import contextlib
 import logging
 import time
 from datetime import UTC, datetime
-from typing import Any
 
 from .auth import Authenticator, SignIns
 from .clock import ClockWatch
@@ -18,8 +17,10 @@ from .fleet_events import FleetEvents
 from .gateway import WRITE_HOLDER, GatewayAgent
 from .live.runner import LiveSession
 from .live.snapshot import stored_snapshot
+from .live.snapshot_schema import SessionOut
 from .live.verify_run import VerifyRun
 from .memory import TRIM_PERIOD_S, release_free_memory
+from .schemas import Integrity
 from .store import Store
 from .throttle import TokenBucket
 from .workers.compute import ComputePool
@@ -52,15 +53,16 @@ class Service:
                                      changed=self.events.fleet_changed, clock=self.clock)
                         if settings.gateway is not None else None)
         self.started = time.time()
-        self.integrity: dict[str, Any] | None = None  # the last verification of the store's hash chains
+        self.integrity: Integrity | None = None  # the last verification of the store's hash chains
         self._integrity_task: asyncio.Task[None] | None = None
         self._trim_task: asyncio.Task[None] | None = None
         self._freed = False  # sessions ended since the allocator last gave memory back
 
-    async def verify_store(self) -> dict[str, Any]:
+    async def verify_store(self) -> Integrity:
         """Verify the store's hash chains now (in a thread); the result is what /health reports."""
         report = await asyncio.to_thread(self.store.verify)
-        self.integrity = {**report.to_dict(), "checked_at": datetime.now(UTC).isoformat()}
+        self.integrity = Integrity(ok=report.ok, rows=report.rows, first_broken_link=report.broken,
+                                   checked_at=datetime.now(UTC).isoformat())
         if not report.ok:
             log.error("the store's history was tampered with: %s", report.broken)
         return self.integrity
@@ -111,15 +113,15 @@ class Service:
         """What this service runs on which device now: a session's or verification's id, or a write."""
         return {**{d: WRITE_HOLDER for d in self.writing}, **self.active}
 
-    def _stored_snapshot(self, session_id: str) -> dict[str, Any] | None:
+    def _stored_snapshot(self, session_id: str) -> SessionOut | None:
         row = self.store.session(session_id)
         return None if row is None else stored_snapshot(row)
 
-    def _decided_elsewhere(self, session_id: str, stored: dict[str, Any]) -> None:
+    def _decided_elsewhere(self, session_id: str, stored: SessionOut) -> None:
         """A session running here was accepted or discarded on another gateway: its pages here show the decision."""
         live = self.sessions.get(session_id)
-        if live is not None and live.machine.decision is None:
-            live.machine.decide(stored["decision"], None)
+        if live is not None and live.machine.decision is None and stored.decision is not None:
+            live.machine.decide(stored.decision, None)
             live.broadcaster.close()
 
     def release_device(self, device_id: str, holder: str | None) -> None:

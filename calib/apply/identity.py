@@ -16,6 +16,8 @@ from dataclasses import dataclass, fields, replace
 from datetime import UTC, datetime
 from typing import Any, Literal
 
+from typing_extensions import TypedDict  # on Python 3.11 pydantic reads a TypedDict only from typing_extensions
+
 from calib.errors import GyrocalError
 
 DEFAULT_MAX_TEMPERATURE_CHANGE_C = 3.0
@@ -32,6 +34,18 @@ class WrongSensor(GyrocalError):
     """A calibration was about to be applied to another sensor than the one it was measured on."""
 
 
+class SensorIdentityJson(TypedDict):
+    """A sensor identity's JSON form (booted_at in ISO 8601, UTC)."""
+
+    device_id: str | None
+    sensor_model: str | None
+    serial: str | None
+    firmware: str | None
+    boot_count: int | None
+    booted_at: str | None
+    temperature_c: float | None
+
+
 @dataclass(frozen=True)
 class SensorIdentity:
     """A sensor and the power-up and temperature a calibration or a recording comes from; None: not known."""
@@ -44,10 +58,11 @@ class SensorIdentity:
     booted_at: datetime | None = None  # UTC
     temperature_c: float | None = None
 
-    def to_json(self) -> dict[str, Any]:
-        d: dict[str, Any] = {f.name: getattr(self, f.name) for f in fields(self)}
-        d["booted_at"] = None if self.booted_at is None else self.booted_at.isoformat()
-        return d
+    def to_json(self) -> SensorIdentityJson:
+        return SensorIdentityJson(device_id=self.device_id, sensor_model=self.sensor_model, serial=self.serial,
+                                  firmware=self.firmware, boot_count=self.boot_count,
+                                  booted_at=None if self.booted_at is None else self.booted_at.isoformat(),
+                                  temperature_c=self.temperature_c)
 
     @classmethod
     def from_json(cls, d: Any) -> SensorIdentity:
@@ -80,6 +95,17 @@ class SensorIdentity:
         return "an unknown power-up"
 
 
+class IdentityCheckJson(TypedDict):
+    """An identity check's JSON form."""
+
+    sensor: Verdict
+    power_up: Verdict
+    temperature: Verdict
+    temperature_change_c: float | None
+    warnings: list[str]
+    refusal: str | None
+
+
 @dataclass(frozen=True)
 class IdentityCheck:
     """The comparison of a calibration's identity with a recording's: what was checked, the warnings, and the
@@ -92,9 +118,10 @@ class IdentityCheck:
     warnings: tuple[str, ...]
     refusal: str | None
 
-    def to_json(self) -> dict[str, Any]:
-        return {"sensor": self.sensor, "power_up": self.power_up, "temperature": self.temperature,
-                "temperature_change_c": self.temperature_change_c, "warnings": list(self.warnings), "refusal": self.refusal}
+    def to_json(self) -> IdentityCheckJson:
+        return IdentityCheckJson(sensor=self.sensor, power_up=self.power_up, temperature=self.temperature,
+                                 temperature_change_c=self.temperature_change_c, warnings=list(self.warnings),
+                                 refusal=self.refusal)
 
     def raise_if_refused(self) -> None:
         if self.refusal is not None:

@@ -59,7 +59,7 @@ def prepare(rec: Recording, stages: list[Stage]) -> Reorientations:
     """Calibrate accelerometer and gyroscope from the re-orientations (calib.estimators.multi_position.estimator) and lay the recording
     out as rests and the windows between them. Raises the calibration's ProtocolError or CalibrationError."""
     result = calibrate_multi_position(rec, stages)
-    acc = AccelCalibration.from_dict(result.quality["accelerometer"])
+    acc = AccelCalibration.from_dict(result.quality["accelerometer"] or {})
     assert rec.accel is not None  # calibrate_multi_position refuses a recording without one
     cal = replace(rec, accel=acc.apply(rec.accel))
     stills, motions = motions_between_rests(stages)

@@ -15,6 +15,7 @@ about 1 g includes any hand tremor, so the noise level is measured, not assumed)
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -22,6 +23,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from calib.errors import CalibrationError
+from calib.quality import AccelerometerQuality
 from calib.recording import Recording
 from calib.stages.stage import Stage
 
@@ -67,7 +69,7 @@ class AccelCalibration:
         )
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> AccelCalibration:
+    def from_dict(cls, d: Mapping[str, Any]) -> AccelCalibration:
         """The calibration's model parameters from its ``to_dict`` form (a result's ``quality["accelerometer"]``)."""
         return cls(scale=np.asarray(d["scale"], float), offset=np.asarray(d["bias"], float),
                    misalignment=np.asarray(d["misalignment"], float))
@@ -86,7 +88,7 @@ class AccelCalibration:
         """Calibrated specific force (g) of raw readings (..., 3) in g."""
         return apply_model(self.vector, np.asarray(readings, dtype=float))
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> AccelerometerQuality:
         """JSON-ready: scale, bias (the offset o, g), misalignment (rad), uncertainty, fit quality."""
 
         def lst(a: np.ndarray | None) -> list[float] | None:

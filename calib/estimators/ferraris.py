@@ -27,6 +27,7 @@ import numpy as np
 
 from calib.errors import ProtocolError
 from calib.io.validation import check_calibration_input
+from calib.quality import Quality
 from calib.recording import Recording, sample_intervals
 from calib.result import CalibrationResult
 from calib.stages.poses import ferraris_turns, find_poses
@@ -94,7 +95,7 @@ def calibrate_ferraris(rec: Recording, stages: Any = None) -> CalibrationResult:
     b = -k * b_g
     used = [turns[a] for a in AXES] + [poses[p] for p in POSES]
     index = {id(s): i for i, s in enumerate(stage_list)}
-    quality = {
+    quality: Quality = {
         "model": "diagonal",
         "turns": 3,
         "stills": 6,

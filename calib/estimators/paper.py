@@ -36,6 +36,7 @@ from scipy.spatial.transform import Rotation
 
 from calib.errors import CalibrationError, ProtocolError
 from calib.io.validation import check_calibration_input
+from calib.quality import Quality
 from calib.recording import Recording, sample_intervals
 from calib.result import CalibrationResult
 from calib.stages.stage import AXES, FLAG_COUNTER_GAP, FLAG_SATURATED, Stage
@@ -239,7 +240,7 @@ def calibrate_paper(rec: Recording, stages: Any = None) -> CalibrationResult:
     if not fit.converged:
         warnings.append(f"Algorithm 1 did not converge within {MAX_ITER} iterations (tolerance {TOL:g})")
 
-    quality = {
+    quality: Quality = {
         "still0_samples": still0.end - still0.start,
         "still0_s": still_s,
         "turn_samples": {a: st.end - st.start for a, st in zip(AXES, turns, strict=False)},

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from calib.quality import Recognition as RecognitionJson
 from calib.recording import Recording
 from calib.stages.hints import never_at_rest
 from calib.stages.poses import ferraris_turns, find_poses
@@ -51,7 +52,7 @@ class Recognition:
         }
         return parts[self.name]
 
-    def to_dict(self) -> dict[str, object]:
+    def to_dict(self) -> RecognitionJson:
         """JSON-ready form."""
         return {"name": self.name, "summary": self.summary, "rests": self.rests, "full_turns": list(self.full_turns),
                 "poses": list(self.poses), "reorientations": self.reorientations}

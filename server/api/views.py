@@ -4,30 +4,27 @@
 from __future__ import annotations
 
 import asyncio
-from datetime import datetime
 from typing import Any
 
 from calib.json_safe import finite
 
+from .. import schemas as M
 from ..deps import problem
 from ..devices import Device, model_facts
 from ..lifecycle import calibration_due
 from ..live.codes import END_STATES
 from ..live.snapshot import stored_snapshot
+from ..live.snapshot_schema import RemoteGateway, SessionOut
 from ..service import Service
-from ..store import CalibrationRecord
+from ..store import CalibrationRecord, StoredDevice, StoredSession
 
 
-async def current_calibration_of(svc: Service, device_id: str) -> dict[str, Any] | None:
-    rec = await asyncio.to_thread(svc.store.current_calibration, device_id)
-    return None if rec is None else rec.to_dict()
-
-
-def held_facts(row: dict[str, Any], current: dict[str, Any] | None) -> dict[str, Any]:
-    """What the device last said it holds, and whether that is its current calibration."""
-    held, reported = row.get("held_calibration_id"), row.get("held_reported_at")
+def held_facts(row: StoredDevice | None, current: CalibrationRecord | None) -> dict[str, Any]:
+    """What the device last said it holds, and whether that is its current calibration (DeviceOut's held_* fields)."""
+    held = None if row is None else row["held_calibration_id"]
+    reported = None if row is None else row["held_reported_at"]
     state = None if reported is None else "none" if held is None else (
-        "current" if current is not None and current["id"] == held else "other")
+        "current" if current is not None and current.id == held else "other")
     return {"held_calibration_id": held, "held_reported_at": reported, "held_state": state}
 
 
@@ -85,71 +82,79 @@ async def calibration_or_404(svc: Service, calibration_id: int) -> CalibrationRe
     return cal
 
 
-async def device_out(svc: Service, dev: Device | None, row: dict[str, Any] | None, detail: bool = False) -> dict[str, Any]:
-    device_id = dev.id if dev else row["id"]  # type: ignore[index]
-    row = row or {}
-    info = dev.info if dev else {}
-    out: dict[str, Any] = {
+async def device_out(svc: Service, dev: Device | None, row: StoredDevice | None, detail: bool = False) -> M.DeviceOut:
+    """A device as GET /devices shows it (``detail``: as GET /devices/{id} does): what this service knows of it live,
+    what the store keeps, and its current calibration."""
+    device_id = dev.id if dev is not None else row["id"] if row is not None else ""
+    info = dev.info if dev is not None else {}
+    current = await asyncio.to_thread(svc.store.current_calibration, device_id)
+    power_up = None if row is None else row["power_up"]
+    stored: dict[str, object] = dict(row) if row is not None else {}
+    fields: dict[str, Any] = {
         "id": device_id,
-        "name": (dev.name if dev else None) or row.get("name"),
-        "transport": dev.transport if dev else row.get("transport"),
-        "address": (dev.address if dev else None) or row.get("address"),
+        "name": (dev.name if dev else None) or stored.get("name"),
+        "transport": dev.transport if dev else stored.get("transport"),
+        "address": (dev.address if dev else None) or stored.get("address"),
         "connected": bool(dev and dev.connected),
         "available": dev is not None,
         "simulated": bool(dev and dev.simulated),
         "scenario": dev.scenario if dev else None,
-        "sensor_model": info.get("sensor_model") or row.get("sensor_model"),
-        "firmware": info.get("firmware") or row.get("firmware"),
-        "serial": info.get("serial") or row.get("serial"),
+        "sensor_model": info.get("sensor_model") or stored.get("sensor_model"),
+        "firmware": info.get("firmware") or stored.get("firmware"),
+        "serial": info.get("serial") or stored.get("serial"),
         "battery_pct": info.get("battery_pct"),
         **(dev.model_facts() if dev else model_facts(None)),
         "active_session": svc.active.get(device_id),
-        "current_calibration": (current := await current_calibration_of(svc, device_id)),
+        "current_calibration": current,
         **held_facts(row, current),
         "calibration_due": calibration_due(
-            None if current is None else datetime.fromisoformat(current["accepted_at"]), svc.settings.limits.max_age_days,
-            calibration_identity=None if current is None else current.get("identity"), device_power_up=row.get("power_up"),
-        ).model_dump(),
-        "power_up": row.get("power_up"),
-        "last_seen": row.get("last_seen"),
+            None if current is None else current.accepted_at, svc.settings.limits.max_age_days,
+            calibration_identity=None if current is None else current.identity,
+            device_power_up=power_up,
+        ),
+        "power_up": power_up,
+        "last_seen": stored.get("last_seen"),
     }
-    if detail:
-        out["simulated_truth"] = dev.simulated_truth if dev else None
-        out["info"] = finite(dict(info))
-        out["recent_sessions"] = [
-            {k: s[k] for k in ("id", "kind", "state", "reason_code", "passed", "decision", "started_at", "ended_at")}
-            for s in await asyncio.to_thread(svc.store.sessions, device_id, 10)
-        ]
-    return out
+    if not detail:
+        return M.DeviceOut.model_validate(fields)
+    recent = await asyncio.to_thread(svc.store.sessions, device_id, 10)
+    return M.DeviceDetail.model_validate({
+        **fields,
+        "simulated_truth": dev.simulated_truth if dev else None,
+        "info": finite(dict(info)),
+        "recent_sessions": [M.SessionSummary.model_validate(r) for r in recent],
+    })
 
 
-async def session_snapshot(svc: Service, sid: str) -> dict[str, Any]:
+async def session_snapshot(svc: Service, sid: str) -> SessionOut:
     live = svc.sessions.get(sid)
     if live is not None:
-        snap = live.machine.snapshot("state")
-        snap["kind"] = "live"
-        snap["operator"] = live.operator
+        update: dict[str, object] = {"kind": "live", "operator": live.operator}
         if live.machine.finished:
-            snap["stored"], snap["store_error"] = live.persisted, live.persist_error
-        return snap
+            update |= {"stored": live.persisted, "store_error": live.persist_error}
+        return live.machine.snapshot("state").model_copy(update=update)
     row = await asyncio.to_thread(svc.store.session, sid)
     if row is None:
         raise problem(404, f"no session {sid}")
-    if runs_elsewhere(svc, row):
+    if (gateway := runs_elsewhere(svc, row)) is not None:
         followed = svc.events.followed(sid)  # followed here: its latest relayed state, unless the store says it ended
-        if followed is not None and (row["ended_at"] is None or followed["state"] in END_STATES):
+        if followed is not None and (row["ended_at"] is None or followed.state in END_STATES):
             return followed
-        return {**stored_snapshot(row), "remote": await remote_gateway(svc, row["gateway"])}
+        return stored_snapshot(row).model_copy(update={"remote": await remote_gateway(svc, gateway)})
     return stored_snapshot(row)
 
 
-def runs_elsewhere(svc: Service, row: dict[str, Any]) -> bool:
-    """Whether a stored session runs (or awaits its decision) on another gateway, whose events reach this one."""
-    return (svc.events.shared and bool(row.get("gateway")) and row["gateway"] != svc.gateway_name
-            and row["decision"] is None and (row["ended_at"] is None or row["state"] == "done"))
+def runs_elsewhere(svc: Service, row: StoredSession) -> str | None:
+    """The other gateway a stored session runs (or awaits its decision) on, whose events reach this one (None: it
+    does not)."""
+    gateway = row["gateway"]
+    if (svc.events.shared and gateway and gateway != svc.gateway_name
+            and row["decision"] is None and (row["ended_at"] is None or row["state"] == "done")):
+        return gateway
+    return None
 
 
-async def remote_gateway(svc: Service, name: str) -> dict[str, Any]:
+async def remote_gateway(svc: Service, name: str) -> RemoteGateway:
     """Where a session of another gateway runs: its name and the URL its pages are at (None if not known)."""
     gateways = await asyncio.to_thread(svc.store.gateways)
-    return {"gateway": name, "url": next((g["url"] for g in gateways if g["name"] == name), None)}
+    return RemoteGateway(gateway=name, url=next((g["url"] for g in gateways if g["name"] == name), None))

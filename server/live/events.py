@@ -18,6 +18,8 @@ import numpy as np
 
 from calib.json_safe import finite
 
+from .snapshot_schema import SessionOut
+
 KEEPALIVE_S = 15.0
 RETRY_MS = 1000
 CLOSED_RETRY_MS = 3_600_000
@@ -66,11 +68,10 @@ class Broadcaster:
     def clients(self) -> int:
         return len(self._queues)
 
-    def publish(self, name: str, snapshot: dict[str, Any]) -> Event:
+    def publish(self, name: str, snapshot: SessionOut) -> Event:
         """Number a snapshot, keep it, and queue it for every client (call from the event loop)."""
-        snapshot = dict(snapshot)
-        snapshot["event_id"] = self._next_id
-        ev = Event(self._next_id, name, _safe_dumps(snapshot))
+        numbered = snapshot.model_copy(update={"event_id": self._next_id})
+        ev = Event(self._next_id, name, _safe_dumps(numbered.model_dump(mode="json", exclude_unset=True)))
         self._next_id += 1
         self._history.append(ev)
         for q in list(self._queues):

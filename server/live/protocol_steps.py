@@ -11,6 +11,7 @@ from calib.stages.stage import AXES
 from ..config import Settings
 from . import guidance as say
 from .codes import TURN_STATES, Phase, State
+from .snapshot_schema import LiveReading
 from .time_limits import overdue
 from .turn_checks import TurnChecks
 
@@ -44,7 +45,7 @@ class ProtocolSteps(TurnChecks):
     def _update_live(self) -> None:
         still_s, moving, raw = self.stream.live()
         angle = self.live_angle.of(raw)
-        self.live_reading = {"still_s": still_s, "moving": moving, "angle_deg": angle.tolist(), "raw_angle_deg": raw.tolist()}
+        self.live_reading = LiveReading(still_s, moving, angle.tolist(), raw.tolist())
         if self.phase in (Phase.TURNING, Phase.PLACING):
             if self._watch_turn(still_s, moving, raw, angle):
                 return
@@ -123,7 +124,7 @@ class ProtocolSteps(TurnChecks):
                 return
             if still_s > 0.2 * self.timings.initial_still_s:
                 self._warn("moved", say.MOVED_RESTART)
-            self.live_reading["still_s"] = 0.0
+            self.live_reading.still_s = 0.0
             return
         if self.state not in TURN_STATES.values():
             return

@@ -30,6 +30,7 @@ from .codes import EndReason
 from .events import Broadcaster, Event
 from .persistence import Persistence
 from .session import GuidedSession
+from .snapshot_schema import SessionOut
 
 log = logging.getLogger(__name__)
 
@@ -109,7 +110,7 @@ class LiveSession(Persistence):
     def id(self) -> str:
         return self.machine.id
 
-    def _on_snapshot(self, event: str, snapshot: dict[str, Any]) -> None:
+    def _on_snapshot(self, event: str, snapshot: SessionOut) -> None:
         published = self.broadcaster.publish(event, snapshot)
         if self.relay is not None:
             self.relay(self.id, published)
@@ -335,7 +336,8 @@ class LiveSession(Persistence):
         ended = datetime.fromisoformat(m.ended_at) if m.ended_at else utcnow()
         return SessionEnd(
             state=m.state, reason_code=m.reason_code, reason=m.reason, result=m.result, passed=m.passed, ended_at=ended,
-            info={"lost_samples": m.lost_samples, "service_late_s": round(m.service_late_s, 3), "warnings": m.warnings,
+            info={"lost_samples": m.lost_samples, "service_late_s": round(m.service_late_s, 3),
+                  "warnings": [w.model_dump() for w in m.warnings],
                   "turns": {a: t.to_dict() for a, t in m.turns.items()},
                   "checks": [] if m.judgement is None else m.judgement.checks_json(),
                   "departures": [] if m.judgement is None else m.judgement.departures_json(), "samples": m.buf.n, "sample_rate_hz": m.fs,

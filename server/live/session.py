@@ -37,11 +37,12 @@ from .lateness import Lateness
 from .protocol_steps import ProtocolSteps
 from .sensor_faults import SensorFaultWatch
 from .snapshot import session_snapshot
+from .snapshot_schema import CausedBy, LiveReading, SessionOut, SessionWarning
 from .stream import SessionStream, TrackerFactory
 from .turn_watch import LiveAngle
 from .turns import TurnRecord
 
-Listener = Callable[[str, dict[str, Any]], None]
+Listener = Callable[[str, SessionOut], None]
 
 
 def _utc() -> str:
@@ -82,7 +83,7 @@ class GuidedSession(ProtocolSteps, Lateness):
         self.ended_at: str | None = None
         self.reason_code: EndReason | None = None
         self.reason: str | None = None
-        self.warnings: list[dict[str, Any]] = []
+        self.warnings: list[SessionWarning] = []
         self.result: CalibrationResult | None = None
         self.passed: bool | None = None
         self.judgement: Judgement | None = None  # the result's checks, departures and accuracy (calib.judge)
@@ -114,10 +115,9 @@ class GuidedSession(ProtocolSteps, Lateness):
         self._silent_since: float | None = None  # the watchdog's clock when the data stopped (the link still up)
         self.service_late_s = 0.0  # how long the service itself did not run during this session (its own lateness)
         self._late_said_at = -1e9  # device time of the last service_late warning
-        self.live_reading: dict[str, Any] = {"still_s": 0.0, "moving": False, "angle_deg": [0.0, 0.0, 0.0],
-                                             "raw_angle_deg": [0.0, 0.0, 0.0]}
+        self.live_reading = LiveReading()
         self.t_now = 0.0
-        self.caused_by: dict[str, Any] | None = None
+        self.caused_by: CausedBy | None = None
         self._last_live_emit = -1e9
         self.snapshot_count = 0
         self._emitted_state: str | None = None
@@ -178,7 +178,7 @@ class GuidedSession(ProtocolSteps, Lateness):
         if self.still_target() is not None and (fault := self._faults.check(self.full_scale)):
             self.fail(EndReason.SENSOR_FAULT, say.sensor_fault(fault))  # a sensor no rest can satisfy: not the hands
             return
-        self.caused_by = {"t_device_s": float(t[-1]), "received_at": received_at if received_at is not None else time.time()}
+        self.caused_by = CausedBy(t_device_s=float(t[-1]), received_at=received_at if received_at is not None else time.time())
         if first:
             # samples missing before the first are not part of this session's recording (e.g. the time
             # between two sessions on one link)
@@ -292,7 +292,7 @@ class GuidedSession(ProtocolSteps, Lateness):
         self._end(State.DONE, say.done_prompt(True))
 
     # -- snapshots --------------------------------------------------------------------------------
-    def snapshot(self, event: str = "state") -> dict[str, Any]:
+    def snapshot(self, event: str = "state") -> SessionOut:
         """The full state of the session, as every SSE event and GET /sessions/{id} carry it."""
         return session_snapshot(self, event)
 
@@ -330,7 +330,7 @@ class GuidedSession(ProtocolSteps, Lateness):
         self._emit(event)
 
     def _warn(self, code: str, message: str, emit: bool = True) -> None:
-        self.warnings.append({"code": code, "message": message, "t_device_s": round(self.t_now, 3), "at": _utc()})
+        self.warnings.append(SessionWarning(code=code, message=message, t_device_s=round(self.t_now, 3), at=_utc()))
         if emit:
             self._emit("warning")
 

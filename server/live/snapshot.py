@@ -1,16 +1,19 @@
-"""A guided session's full state as one JSON-ready dict: what every SSE event and GET /sessions/{id} carry."""
+"""A guided session's full state as one typed snapshot: what every SSE event and GET /sessions/{id} carry."""
 
 from __future__ import annotations
 
-from typing import Any, Protocol
+from typing import Protocol
 
+from calib.json_safe import finite
 from calib.judge.acceptance import turn_accuracy
 from calib.judge.judgement import Judgement
 from calib.result import CalibrationResult
 from calib.stages.stage import AXES
 
+from ..store import StoredSession
 from .buffer import SampleBuffer
 from .codes import STEPS, EndReason, Phase, State
+from .snapshot_schema import CausedBy, LiveReading, SessionOut, SessionWarning
 from .turn_watch import LiveAngle
 from .turns import TurnRecord
 
@@ -25,10 +28,10 @@ class SessionView(Protocol):
     attempt: int
     max_attempts: int
     prompt: str
-    live_reading: dict[str, Any]
+    live_reading: LiveReading
     t_now: float
     turns: dict[str, TurnRecord]
-    warnings: list[dict[str, Any]]
+    warnings: list[SessionWarning]
     reason_code: EndReason | None
     reason: str | None
     result: CalibrationResult | None
@@ -41,7 +44,7 @@ class SessionView(Protocol):
     service_late_s: float
     started_at: str
     ended_at: str | None
-    caused_by: dict[str, Any] | None
+    caused_by: CausedBy | None
 
     @property
     def buf(self) -> SampleBuffer: ...
@@ -58,18 +61,18 @@ class SessionView(Protocol):
     def live_angle(self) -> LiveAngle: ...
 
 
-def session_snapshot(s: SessionView, event: str) -> dict[str, Any]:
+def session_snapshot(s: SessionView, event: str) -> SessionOut:
     """The snapshot of ``s``, sent as event ``event``."""
     progress = None
     target = s.still_target()
     live = s.live_reading
     if target is not None:
-        still_s = float(live["still_s"])
+        still_s = float(live.still_s)
         progress = {"still_s": round(still_s, 3), "target_s": target, "fraction": round(min(1.0, still_s / target), 3)}
     axis = s.axis
-    angle = live["angle_deg"]
-    raw = live["raw_angle_deg"]
-    return {
+    angle = live.angle_deg
+    raw = live.raw_angle_deg
+    return SessionOut.model_validate(finite({
         "session_id": s.id,
         "device_id": s.device_id,
         "event": event,
@@ -83,8 +86,8 @@ def session_snapshot(s: SessionView, event: str) -> dict[str, Any]:
         "prompt": s.prompt,
         "progress": progress,
         "live": {
-            "moving": bool(live["moving"]),
-            "still_s": round(float(live["still_s"]), 3),
+            "moving": bool(live.moving),
+            "still_s": round(float(live.still_s), 3),
             "angle_deg": [round(float(a), 2) for a in angle],
             "turn_angle_deg": None if axis is None else round(float(angle[AXES.index(axis)]), 2),
             "raw_turn_angle_deg": None if axis is None else round(float(raw[AXES.index(axis)]), 2),
@@ -93,7 +96,7 @@ def session_snapshot(s: SessionView, event: str) -> dict[str, Any]:
             "t_device_s": round(s.t_now, 4),
         },
         "turns": {a: tr.to_dict() for a, tr in s.turns.items()},
-        "warnings": list(s.warnings),
+        "warnings": [w.model_dump() for w in s.warnings],
         "reason_code": s.reason_code,
         "reason": s.reason,
         "result": None if s.result is None else s.result.to_json(),
@@ -110,14 +113,14 @@ def session_snapshot(s: SessionView, event: str) -> dict[str, Any]:
         "sample_rate_hz": s.fs,
         "started_at": s.started_at,
         "ended_at": s.ended_at,
-        "caused_by": s.caused_by,
-    }
+        "caused_by": None if s.caused_by is None else s.caused_by.model_dump(),
+    }))
 
 
-def stored_snapshot(row: dict[str, Any]) -> dict[str, Any]:
+def stored_snapshot(row: StoredSession) -> SessionOut:
     """The snapshot of a session as the store keeps it (a session that ended, or runs on another gateway)."""
     info = row.get("info") or {}
-    return {
+    return SessionOut.model_validate(finite({
         "session_id": row["id"],
         "device_id": row["device_id"],
         "kind": row["kind"],
@@ -140,4 +143,4 @@ def stored_snapshot(row: dict[str, Any]) -> dict[str, Any]:
         "operator": row["operator"],
         "started_at": row["started_at"],
         "ended_at": row["ended_at"],
-    }
+    }))

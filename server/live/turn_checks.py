@@ -8,7 +8,6 @@ outcome; the fields and methods declared here without a body are the session's.
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Any
 
 import numpy as np
 
@@ -18,6 +17,7 @@ from calib.stages.stage import AXES, Stage
 from ..config import ProtocolTimings
 from . import guidance as say
 from .codes import TURN_STATES, EndReason, Phase, State
+from .snapshot_schema import LiveReading
 from .stream import SessionStream
 from .turn_judge import TurnMeasure, is_no_turn, judge_turn
 from .turn_watch import EARLY_TURN_DEG, RESUME_DPS, STOP_DPS, STOP_WINDOW_S, LiveAngle
@@ -35,7 +35,7 @@ class TurnChecks:
     tol: Tolerances
     timings: ProtocolTimings
     live_angle: LiveAngle
-    live_reading: dict[str, Any]
+    live_reading: LiveReading
     _axis_i: int
     _provisional: str | None
     _turn_confirmed: bool

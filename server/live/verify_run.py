@@ -9,19 +9,22 @@ import contextlib
 import logging
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
+from pydantic import BaseModel, Field
 
 from calib import __version__
 from calib.judge.verification import find_turn
 
 from ..devices import Device
 from ..link import RecordingBuilder
-from ..store import CalibrationRecord, Store
+from ..store import CalibrationRecord, Store, StoredVerification
 from ..workers.compute import ComputePool, off_loop, recording_csv, verify_recording
 
 log = logging.getLogger(__name__)
+
+VerifyState = Literal["connecting", "still", "turn", "settle", "computing", "done", "failed"]
 
 TIME_LIMIT_S = 90.0  # wall-clock seconds for the whole turn, rests included
 CHECK_EVERY_S = 0.5  # device seconds of new samples between looks for the turn
@@ -36,6 +39,18 @@ PROMPTS = {
 }
 
 
+class VerificationRunOut(BaseModel):
+    """A live verification as it runs (GET /verifications/{id})."""
+
+    verification_id: str
+    calibration_id: int
+    device_id: str
+    state: VerifyState
+    prompt: str | None = Field(None, description="what the clinician should do now")
+    reason: str | None = Field(None, description="why it failed")
+    result: StoredVerification | None = Field(None, description="the verification kept, once done")
+
+
 class VerifyRun:
     """One verification turn of one accepted calibration, on its device."""
 
@@ -48,16 +63,16 @@ class VerifyRun:
         self.pool = pool
         self.operator = operator
         self.on_end = on_end
-        self.state = "connecting"
+        self.state: VerifyState = "connecting"
         self.reason: str | None = None
-        self.result: dict[str, Any] | None = None
+        self.result: StoredVerification | None = None
         self.started = time.monotonic()
         self._task: asyncio.Task[None] | None = None
         self._moved = False
 
-    def snapshot(self) -> dict[str, Any]:
-        return {"verification_id": self.id, "calibration_id": self.calibration.id, "device_id": self.device.id,
-                "state": self.state, "prompt": PROMPTS.get(self.state), "reason": self.reason, "result": self.result}
+    def snapshot(self) -> VerificationRunOut:
+        return VerificationRunOut(verification_id=self.id, calibration_id=self.calibration.id, device_id=self.device.id,
+                                  state=self.state, prompt=PROMPTS.get(self.state), reason=self.reason, result=self.result)
 
     def start(self) -> None:
         self._task = asyncio.get_running_loop().create_task(self._run())

@@ -10,7 +10,7 @@ and the devices).
 from .chain import BrokenLink, ChainReport
 from .errors import DecisionConflict, NotAcceptable, NotFound, StoreError, StoreFull
 from .fleet import Lease
-from .records import CalibrationRecord, SessionEnd, sha256_hex
+from .records import CalibrationRecord, SessionEnd, StoredDevice, StoredSession, StoredVerification, sha256_hex
 from .repository import Store
 from .schema import SCHEMA_VERSION
 from .tables import utcnow
@@ -28,6 +28,9 @@ __all__ = [
     "Store",
     "StoreError",
     "StoreFull",
+    "StoredDevice",
+    "StoredSession",
+    "StoredVerification",
     "sha256_hex",
     "utcnow",
 ]

@@ -18,7 +18,7 @@ from sqlalchemy.orm import Session, sessionmaker
 from . import chain
 from .engine import engine_for, writer
 from .errors import StoreError, StoreFull, is_disk_full
-from .records import iso_utc
+from .records import AuditEntry, iso_utc
 from .schema import migrate
 from .tables import AuditRow, SchemaInfo, aware, utcnow
 
@@ -141,14 +141,14 @@ class StoreBase:
         with self._tx("audit_log") as s:
             self._audit(s, operator, action, device_id, session_id, detail)
 
-    def audit_log(self, device_id: str | None = None, limit: int = 200) -> list[dict[str, Any]]:
+    def audit_log(self, device_id: str | None = None, limit: int = 200) -> list[AuditEntry]:
         """The newest audit entries first."""
         with self._read() as s:
             q = select(AuditRow).order_by(AuditRow.chain_seq.desc()).limit(limit)
             if device_id is not None:
                 q = q.where(AuditRow.device_id == device_id)
             return [
-                {"id": r.id, "at": iso_utc(r.at), "operator": r.operator, "action": r.action, "device_id": r.device_id,
-                 "session_id": r.session_id, "detail": r.detail}
+                AuditEntry(id=r.id, at=iso_utc(r.at), operator=r.operator, action=r.action, device_id=r.device_id,
+                           session_id=r.session_id, detail=r.detail)
                 for r in s.execute(q).scalars()
             ]

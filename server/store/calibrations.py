@@ -5,18 +5,18 @@ from __future__ import annotations
 import uuid
 from dataclasses import replace
 from datetime import UTC, datetime
-from typing import Any
 
 from sqlalchemy import func, select
 
 from calib.apply.correction import Correction
 from calib.apply.identity import SensorIdentity
+from calib.judge.verification import TurnVerification
 from calib.result import CalibrationResult
 
 from . import chain
 from .base import ALL_CHAINS
 from .errors import NotAcceptable, NotFound
-from .records import CalibrationRecord, SessionEnd, calibration_record, iso_utc
+from .records import CalibrationRecord, SessionEnd, StoredVerification, calibration_record, iso_utc
 from .sessions import SessionStore
 from .tables import CalibrationRow, RecordingRow, SessionRow, aware, utcnow
 
@@ -119,8 +119,8 @@ class CalibrationStore(SessionStore):
             self._audit(s, operator, "calibration.import", device_id, sid, {"calibration_id": cal.id, **info})
             return calibration_record(cal)
 
-    def add_verification(self, calibration_id: int, operator: str, software_version: str, verification: dict[str, Any], *,
-                         source: str, recording_csv: bytes | None = None, n_samples: int = 0) -> dict[str, Any]:
+    def add_verification(self, calibration_id: int, operator: str, software_version: str, verification: TurnVerification, *,
+                         source: str, recording_csv: bytes | None = None, n_samples: int = 0) -> StoredVerification:
         """Keep a verification turn of an accepted calibration: a session of kind ``verify`` (done; passed when the turn
         confirmed the calibration) holding it, its recording archived, and an audit entry. Returns it as listed."""
         with self._tx(*ALL_CHAINS) as s:
@@ -130,25 +130,25 @@ class CalibrationStore(SessionStore):
             now = utcnow()
             sid = uuid.uuid4().hex
             row = SessionRow(id=sid, device_id=cal.device_id, kind="verify", state="done", method="verify", operator=operator,
-                             started_at=now, ended_at=now, result=verification, passed=bool(verification.get("confirmed")),
+                             started_at=now, ended_at=now, result=verification.to_json(), passed=verification.confirmed,
                              software_version=software_version, info={"calibration_id": calibration_id, "source": source})
             s.add(row)
             s.flush()
             if recording_csv is not None:
                 self._archive(s, sid, recording_csv, n_samples)
             self._audit(s, operator, "calibration.verify", cal.device_id, sid,
-                        {"calibration_id": calibration_id, "calibrated_deg": verification.get("calibrated_deg"),
-                         "confirmed": verification.get("confirmed")})
+                        {"calibration_id": calibration_id, "calibrated_deg": verification.calibrated_deg,
+                         "confirmed": verification.confirmed})
             return _verification(row)
 
-    def verifications(self, device_id: str | None = None, calibration_id: int | None = None) -> list[dict[str, Any]]:
+    def verifications(self, device_id: str | None = None, calibration_id: int | None = None) -> list[StoredVerification]:
         """Verification turns, newest first: of a device's calibrations, or of one calibration."""
         with self._read() as s:
             q = select(SessionRow).where(SessionRow.kind == "verify").order_by(SessionRow.started_at.desc())
             if device_id is not None:
                 q = q.where(SessionRow.device_id == device_id)
             rows = [_verification(r) for r in s.execute(q).scalars()]
-        return [v for v in rows if calibration_id is None or v["calibration_id"] == calibration_id]
+        return [v for v in rows if calibration_id is None or v.calibration_id == calibration_id]
 
     def current_calibration(self, device_id: str, at: datetime | None = None) -> CalibrationRecord | None:
         """The device's latest accepted calibration; with ``at``, the latest one accepted at or before that time."""
@@ -187,6 +187,8 @@ class CalibrationStore(SessionStore):
             return int(s.execute(select(func.count()).select_from(CalibrationRow)).scalar_one())
 
 
-def _verification(row: SessionRow) -> dict[str, Any]:
-    return {"session_id": row.id, "calibration_id": (row.info or {}).get("calibration_id"), "device_id": row.device_id,
-            "at": iso_utc(row.started_at), "operator": row.operator, "source": (row.info or {}).get("source"), **(row.result or {})}
+def _verification(row: SessionRow) -> StoredVerification:
+    info = row.info or {}
+    return StoredVerification.model_validate({**(row.result or {}), "session_id": row.id, "calibration_id": info.get("calibration_id"),
+                                              "device_id": row.device_id, "at": iso_utc(row.started_at), "operator": row.operator,
+                                              "source": info.get("source")})

@@ -15,7 +15,7 @@ from typing import Any, cast
 
 from sqlalchemy import CursorResult, delete, select, update
 
-from .records import iso_utc
+from .records import StoredGateway, StoredSighting, iso_utc
 from .sessions import SessionStore
 from .tables import GatewayRow, LeaseRow, SessionRow, SightingRow, aware
 
@@ -65,16 +65,16 @@ class FleetStore(SessionStore):
                 renewed += cast(CursorResult[Any], done).rowcount
             return renewed
 
-    def gateways(self) -> list[dict[str, Any]]:
+    def gateways(self) -> list[StoredGateway]:
         with self._read() as s:
-            return [{"name": r.name, "url": r.url, "version": r.version, "started_at": iso_utc(r.started_at),
-                     "heartbeat_at": iso_utc(r.heartbeat_at)}
+            return [StoredGateway(name=r.name, url=r.url, version=r.version, started_at=iso_utc(r.started_at),
+                                  heartbeat_at=iso_utc(r.heartbeat_at))
                     for r in s.execute(select(GatewayRow).order_by(GatewayRow.name)).scalars()]
 
-    def sightings(self) -> list[dict[str, Any]]:
+    def sightings(self) -> list[StoredSighting]:
         with self._read() as s:
             q = select(SightingRow).order_by(SightingRow.device_id, SightingRow.last_seen.desc())
-            return [{"device_id": r.device_id, "gateway": r.gateway, "last_seen": iso_utc(r.last_seen), "rssi_dbm": r.rssi_dbm}
+            return [StoredSighting(device_id=r.device_id, gateway=r.gateway, last_seen=iso_utc(r.last_seen), rssi_dbm=r.rssi_dbm)
                     for r in s.execute(q).scalars()]
 
     def known_sessions(self, ids: list[str]) -> set[str]:

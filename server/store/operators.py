@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Any
 
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from .base import StoreBase
 from .errors import NotFound, StoreError
-from .records import iso_utc
+from .records import StoredOperator, iso_utc
 from .tables import AuthToken, Operator, aware, utcnow
 
 
@@ -54,10 +53,10 @@ class OperatorStore(StoreBase):
         for tok in s.execute(select(AuthToken).where(AuthToken.operator_id == operator_id, AuthToken.revoked_at.is_(None))).scalars():
             tok.revoked_at = utcnow()
 
-    def operators(self) -> list[dict[str, Any]]:
+    def operators(self) -> list[StoredOperator]:
         with self._read() as s:
             rows = s.execute(select(Operator).order_by(Operator.name)).scalars().all()
-            return [{"name": r.name, "created_at": iso_utc(r.created_at), "active": r.disabled_at is None} for r in rows]
+            return [StoredOperator(name=r.name, created_at=iso_utc(r.created_at), active=r.disabled_at is None) for r in rows]
 
     def operator_secret_hash(self, name: str) -> str | None:
         """The stored hash of an active operator's secret, or None."""

@@ -9,10 +9,13 @@ from datetime import datetime
 from typing import Any, Literal, cast
 
 from pydantic import ConfigDict, Field, field_serializer
+from typing_extensions import TypedDict  # on Python 3.11 pydantic reads a TypedDict only from typing_extensions
 
-from calib.apply.identity import SensorIdentity
+from calib.apply.identity import SensorIdentity, SensorIdentityJson
+from calib.judge.verification import TurnVerification
+from calib.quality import Quality
 from calib.result import CalibrationResult
-from calib.result_schema import CalibrationParameters, Quality
+from calib.result_schema import CalibrationParameters
 
 from .tables import CalibrationRow, Device, SessionRow, aware, utcnow
 
@@ -48,7 +51,7 @@ class CalibrationRecord(CalibrationParameters):
         return value.isoformat()
 
     @field_serializer("identity")
-    def _identity(self, value: SensorIdentity | None) -> dict[str, Any] | None:
+    def _identity(self, value: SensorIdentity | None) -> SensorIdentityJson | None:
         return None if value is None else value.to_json()
 
     def to_dict(self) -> dict[str, Any]:
@@ -97,7 +100,95 @@ def iso_utc(dt: datetime | None) -> str | None:
     return None if dt is None else aware(dt).isoformat()
 
 
-def session_dict(row: SessionRow) -> dict[str, Any]:
+class StoredSession(TypedDict):
+    """A session as the store keeps it (times in ISO 8601 UTC)."""
+
+    id: str
+    device_id: str
+    kind: str  # live | upload | import | verify
+    state: str
+    reason_code: str | None
+    reason: str | None
+    method: str
+    operator: str | None
+    started_at: str | None
+    ended_at: str | None
+    result: dict[str, Any] | None  # the result's JSON form as computed (ResultDoc or TurnVerification)
+    passed: bool | None
+    decision: str | None
+    decided_at: str | None
+    decided_by: str | None
+    software_version: str
+    info: dict[str, Any] | None  # free-form facts of the run: device info, sample rate, turns, warnings, checks
+    gateway: str | None
+
+
+class StoredVerification(TurnVerification):
+    """A verification turn kept with its calibration (a session of kind ``verify``)."""
+
+    session_id: str
+    calibration_id: int | None
+    device_id: str
+    at: str | None = Field(description="when it was measured (ISO 8601, UTC)")
+    operator: str | None
+    source: Literal["live", "upload"] | None = Field(description="live: turned on the device; upload: a recording")
+
+
+class AuditEntry(TypedDict):
+    """One line of the audit log: who did what, when, on which device."""
+
+    id: int
+    at: str | None
+    operator: str | None
+    action: str
+    device_id: str | None
+    session_id: str | None
+    detail: dict[str, Any] | None  # free-form: what each action records
+
+
+class StoredOperator(TypedDict):
+    name: str
+    created_at: str | None
+    active: bool
+
+
+class StoredGateway(TypedDict):
+    """A gateway sharing the store, as it last announced itself."""
+
+    name: str
+    url: str | None
+    version: str | None
+    started_at: str | None
+    heartbeat_at: str | None
+
+
+class StoredSighting(TypedDict):
+    """A wearable as one gateway last saw it."""
+
+    device_id: str
+    gateway: str
+    last_seen: str | None
+    rssi_dbm: int | None
+
+
+class StoredDevice(TypedDict):
+    """A device as the store keeps it (times in ISO 8601 UTC)."""
+
+    id: str
+    name: str | None
+    address: str | None
+    transport: str | None
+    sensor_model: str | None
+    firmware: str | None
+    serial: str | None
+    held_calibration_id: int | None
+    held_reported_at: str | None
+    power_up: dict[str, Any] | None  # {boot_count, booted_at, temperature_c, read_at} as the device last reported it
+    first_seen: str | None
+    last_seen: str | None
+
+
+def session_dict(row: SessionRow) -> StoredSession:
     return {
         "id": row.id,
         "device_id": row.device_id,
@@ -120,7 +211,7 @@ def session_dict(row: SessionRow) -> dict[str, Any]:
     }
 
 
-def device_dict(r: Device) -> dict[str, Any]:
+def device_dict(r: Device) -> StoredDevice:
     return {
         "id": r.id,
         "name": r.name,

@@ -18,7 +18,7 @@ from sqlalchemy.orm import Session
 from .calibrations import CalibrationStore
 from .fleet import FleetStore
 from .operators import OperatorStore
-from .records import device_dict
+from .records import StoredDevice, device_dict
 from .tables import Device, utcnow
 
 
@@ -57,11 +57,11 @@ class Store(OperatorStore, CalibrationStore, FleetStore):
                   .on_conflict_do_nothing(index_elements=[Device.id]))
         return s.get_one(Device, device_id)
 
-    def devices(self) -> list[dict[str, Any]]:
+    def devices(self) -> list[StoredDevice]:
         with self._read() as s:
             return [device_dict(r) for r in s.execute(select(Device).order_by(Device.id)).scalars()]
 
-    def device(self, device_id: str) -> dict[str, Any] | None:
+    def device(self, device_id: str) -> StoredDevice | None:
         with self._read() as s:
             row = s.get(Device, device_id)
             return None if row is None else device_dict(row)

@@ -14,7 +14,7 @@ from sqlalchemy.orm import Session
 from . import chain
 from .base import StoreBase
 from .errors import DecisionConflict, NotFound, StoreError
-from .records import SessionEnd, session_dict, sha256_hex
+from .records import SessionEnd, StoredSession, session_dict, sha256_hex
 from .tables import RecordingRow, SessionRow, SpooledSamples, aware, utcnow
 
 
@@ -41,7 +41,7 @@ class SessionStore(StoreBase):
         self._audit(s, operator, f"session.{end.state}", row.device_id, row.id,
                     {"reason_code": end.reason_code} if end.reason_code else None)
 
-    def finish_session(self, session_id: str, end: SessionEnd, operator: str | None = None) -> dict[str, Any] | None:
+    def finish_session(self, session_id: str, end: SessionEnd, operator: str | None = None) -> StoredSession | None:
         """Record a session's end (done, failed, cancelled): state, result and what it saw. Written once: a
         session whose end is stored already is left as it is, and returned (None when this end was written)."""
         with self._tx("audit_log") as s:
@@ -53,12 +53,12 @@ class SessionStore(StoreBase):
                 return None
             return session_dict(row)
 
-    def session(self, session_id: str) -> dict[str, Any] | None:
+    def session(self, session_id: str) -> StoredSession | None:
         with self._read() as s:
             row = s.get(SessionRow, session_id)
             return None if row is None else session_dict(row)
 
-    def sessions(self, device_id: str | None = None, limit: int = 100) -> list[dict[str, Any]]:
+    def sessions(self, device_id: str | None = None, limit: int = 100) -> list[StoredSession]:
         with self._read() as s:
             q = select(SessionRow).order_by(SessionRow.started_at.desc()).limit(limit)
             if device_id is not None:

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from calib.io.inputs import ReadRecording, RecordingInput
+    from calib.judge.verification import TurnVerification
     from calib.recording import Recording
     from calib.result import CalibrationResult
     from calib.stages.stage import Stage
@@ -182,15 +183,15 @@ def apply_upload(inp: RecordingInput, max_samples: int, calibration: dict[str, A
     return recording_csv(fixed), correction.A is not None and rec.accel is not None, rec.mean_temperature_c, summary
 
 
-def verify_recording(rec: Any, calibration: dict[str, Any]) -> dict[str, Any]:
+def verify_recording(rec: Recording, calibration: dict[str, Any]) -> TurnVerification:
     """The verification turn of a recording measured with a calibration (its JSON form); raises NoVerificationTurn."""
     from calib.apply.correction import Correction
     from calib.judge.verification import verify_turn
 
-    return verify_turn(rec, Correction.from_json(calibration), calibration.get("uncertainty")).to_json()
+    return verify_turn(rec, Correction.from_json(calibration), calibration.get("uncertainty"))
 
 
-def verify_upload(inp: RecordingInput, max_samples: int, calibration: dict[str, Any]) -> tuple[dict[str, Any], bytes, int]:
+def verify_upload(inp: RecordingInput, max_samples: int, calibration: dict[str, Any]) -> tuple[TurnVerification, bytes, int]:
     """An uploaded recording of a verification turn measured with a calibration: (verification, CSV, samples)."""
     rec = parse_upload(inp, max_samples).recording
     return verify_recording(rec, calibration), recording_csv(rec), len(rec)

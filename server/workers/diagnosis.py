@@ -26,7 +26,7 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 if TYPE_CHECKING:
     from calib.io.inputs import RecordingInput
@@ -218,17 +218,16 @@ class Job:
     """A diagnosis under way: queued, then running with the worker's last progress report."""
 
     key: str
-    state: str = "queued"  # queued | running
+    state: Literal["queued", "running"] = "queued"
     fraction: float = 0.0
     stage: str = "waiting for a free worker"
     created: float = field(default_factory=time.monotonic)
     started: float | None = None
     task: asyncio.Task[Any] | None = None
 
-    def progress(self) -> dict[str, Any]:
-        now = time.monotonic()
-        return {"state": self.state, "fraction": round(self.fraction, 3), "stage": self.stage,
-                "elapsed_s": round(now - self.created, 2)}
+    @property
+    def elapsed_s(self) -> float:
+        return time.monotonic() - self.created
 
 
 Runner = Callable[[Job, Callable[..., Any], tuple[Any, ...], float], Awaitable[Any]]

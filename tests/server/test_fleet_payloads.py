@@ -9,24 +9,30 @@ import os
 
 from server.fleet_events import PAYLOAD_MAX, FleetEvents, conninfo, relayed_snapshot, session_payload
 from server.live.events import Event, dumps
+from server.live.snapshot_schema import SessionOut
 
 
-def _event(snapshot: dict[str, object]) -> Event:
-    return Event(7, "state", dumps(snapshot))
+def _event(snapshot: SessionOut) -> Event:
+    return Event(7, "state", dumps(snapshot.model_dump(mode="json", exclude_unset=True)))
+
+
+def _snapshot(**fields: object) -> SessionOut:
+    return SessionOut.model_validate({"session_id": "s" * 32, "device_id": "mock-1", **fields})
 
 
 def test_a_small_snapshot_travels_as_it_is() -> None:
-    snap = {"session_id": "s" * 32, "state": "turn_x", "live": {"angle_deg": [1.5, 0.0, -2.0]}}
+    snap = _snapshot(state="turn_x", live={"moving": True, "still_s": 0.0, "angle_deg": [1.5, 0.0, -2.0],
+                                           "angle_calibrated": False, "t_device_s": 3.25})
     payload = session_payload("gw", "s" * 32, _event(snap))
     msg = json.loads(payload)
     assert "d" in msg and relayed_snapshot(msg) == snap and msg["n"] == "state"
 
 
 def test_a_snapshot_with_a_result_travels_compressed_and_comes_back_whole() -> None:
-    checks = [{"name": f"check {i}", "axis": "xyz"[i % 3], "value": i * 0.001, "text": "within the tolerance " * 3}
-              for i in range(200)]
-    snap = {"session_id": "s" * 32, "state": "done", "checks": checks}
-    assert len(dumps(snap)) > PAYLOAD_MAX
+    checks = [{"name": "k", "axis": "xyz"[i % 3], "value": i * 0.001, "limit": 0.2, "ok": True, "used": 0.1, "near_limit": False,
+               "text": f"check {i} within the tolerance " * 3} for i in range(200)]
+    snap = _snapshot(state="done", checks=checks)
+    assert len(_event(snap).data) > PAYLOAD_MAX
     payload = session_payload("gw", "s" * 32, _event(snap))
     msg = json.loads(payload)
     assert len(payload.encode()) <= PAYLOAD_MAX and "z" in msg and "d" not in msg
@@ -34,10 +40,15 @@ def test_a_snapshot_with_a_result_travels_compressed_and_comes_back_whole() -> N
 
 
 def test_a_snapshot_too_large_even_compressed_is_read_from_the_store() -> None:
-    snap = {"session_id": "s" * 32, "state": "done", "noise": os.urandom(12_000).hex()}  # does not compress
+    snap = _snapshot(state="done", reason=os.urandom(12_000).hex())  # does not compress
     payload = session_payload("gw", "s" * 32, _event(snap))
     msg = json.loads(payload)
     assert len(payload.encode()) <= PAYLOAD_MAX and relayed_snapshot(msg) is None and msg["s"] == "s" * 32
+
+
+def test_a_snapshot_this_gateway_cannot_read_is_read_from_the_store() -> None:
+    msg = {"o": "gw", "s": "s" * 32, "n": "state", "d": dumps({"session_id": "s" * 32, "state": "no such state"})}
+    assert relayed_snapshot(msg) is None
 
 
 def test_only_postgresql_stores_share_events() -> None:

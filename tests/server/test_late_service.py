@@ -45,7 +45,7 @@ def test_late_complete_data_keeps_the_turn_in_progress() -> None:
     run.feed(rec, i)
     assert run.s.state == "computing", run.s.reason
     assert run.warnings() == ["no_data", "data_resumed"]
-    assert "nothing was lost" in run.s.warnings[-1]["message"]
+    assert "nothing was lost" in run.s.warnings[-1].message
     assert run.s.attempt == 1 and run.s.lost_samples == 0
 
 
@@ -58,7 +58,7 @@ def test_data_missing_after_a_silence_is_a_lost_link_and_the_turn_is_done_again(
     run.s.data_resumed(lost=40)
     assert run.warnings() == ["no_data", "link_lost", "link_restored"]
     assert run.s.state == "turn_y" and run.s.phase == "settle"
-    assert "The turn about Y will be done again" in run.s.warnings[-1]["message"]
+    assert "The turn about Y will be done again" in run.s.warnings[-1].message
 
 
 def test_the_service_s_own_lateness_is_said_and_not_counted_against_the_limits() -> None:
@@ -72,10 +72,10 @@ def test_the_service_s_own_lateness_is_said_and_not_counted_against_the_limits()
     run.s.service_was_late(70.0)
     run.s.tick()
     assert not run.s.finished
-    assert run.warnings() == ["service_late"] and "fell 70.0 s behind" in run.s.warnings[-1]["message"]
+    assert run.warnings() == ["service_late"] and "fell 70.0 s behind" in run.s.warnings[-1].message
     run.feed(rec, i)
     assert run.s.state == "computing", run.s.reason
-    assert run.s.snapshot()["service_late_s"] == 70.0
+    assert run.s.snapshot().service_late_s == 70.0
 
 
 def test_a_service_late_beyond_its_limit_ends_with_a_reason_of_its_own() -> None:

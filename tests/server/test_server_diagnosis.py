@@ -294,7 +294,7 @@ async def test_the_queue_keeps_results_joins_equal_requests_and_refuses_beyond_i
         await asyncio.sleep(0)
     with pytest.raises(Busy, match="try again"):
         await q.get("c", print)
-    assert set(q.jobs) == {"a", "b"} and q.jobs["a"].progress()["state"] == "running"
+    assert set(q.jobs) == {"a", "b"} and q.jobs["a"].state == "running"
     gate.set()
     assert await a1 == ("value of a", False) and await a2 == ("value of a", False) and await b == ("value of b", False)
     assert calls == ["a", "b"] and q.jobs == {}

@@ -119,3 +119,66 @@ def test_a_result_is_a_typed_object_in_the_published_schema(api: RunningService)
     assert {"k", "b", "quality", "recording_sha256", "checks"} <= set(parts["OfflineResult"]["properties"])
     record = parts["CalibrationRecord"]["properties"]
     assert target(record["quality"]) == "Quality" and target(record["uncertainty"]) == "Spread"
+
+
+# The API's only free-form maps: what each one holds depends on the device, the audited action, the effect or the
+# estimator that wrote it (docs/service.md). Every other object an answer carries is typed, field by field.
+FREE_FORM = {
+    "DeviceDetail.info",  # what the wearable said about itself: each model tells different things
+    "AuditEntry.detail",  # what each audited action records
+    "Effect.parameters", "Effect.uncertainty", "Effect.evidence",  # each physical effect has its own parameters
+    "DiagnosisInfo.timebase",  # how the time base was read: depends on the clock the recording carries
+    "Quality.ferraris", "Quality.g_sensitivity", "Quality.settling", "Quality.accelerometer_floor",
+    "Quality.gyro_motion_noise", "Quality.constraint_fit",  # one estimator's own diagnostic blocks
+}
+
+
+def free_form_maps(doc: dict) -> set[str]:
+    """Every object without declared fields that a 2xx JSON answer of ``doc`` can carry, as Component.field."""
+    parts = doc["components"]["schemas"]
+    found: set[str] = set()
+    seen: set[str] = set()
+
+    def walk(schema: dict, where: str) -> None:
+        if "$ref" in schema:
+            name = schema["$ref"].rsplit("/", 1)[1]
+            if name not in seen:
+                seen.add(name)
+                walk(parts[name], name)
+            return
+        for key in ("anyOf", "oneOf", "allOf"):
+            for sub in schema.get(key, []):
+                walk(sub, where)
+        if "items" in schema:
+            walk(schema["items"], where)
+        extra = schema.get("additionalProperties")
+        if schema.get("type") == "object" and "properties" not in schema and extra in (None, True, {}):
+            found.add(where)
+        if isinstance(extra, dict):
+            walk(extra, where)
+        for field, sub in schema.get("properties", {}).items():
+            walk(sub, f"{where.split('.')[0]}.{field}")
+
+    for path, ops in doc["paths"].items():
+        for method, op in ops.items():
+            for code, answer in op.get("responses", {}).items():
+                body = answer.get("content", {}).get("application/json")
+                if code.startswith("2") and body is not None:
+                    assert body.get("schema"), f"{method.upper()} {path} {code} publishes no schema"
+                    walk(body["schema"], f"{method.upper()} {path}")
+    return found
+
+
+def test_every_answer_is_typed_but_the_documented_free_form_maps(api: RunningService) -> None:
+    """A session's snapshot (live reading, turns, warnings), a device, the fleet, a verification, a plot: each a typed
+    object in the OpenAPI document, down to the free-form maps listed above."""
+    import httpx
+
+    doc = httpx.get(f"{api.base}/openapi.json", timeout=10).json()
+    assert free_form_maps(doc) == FREE_FORM
+    parts = doc["components"]["schemas"]
+    snapshot = parts["SessionOut"]["properties"]
+    assert snapshot["live"]["anyOf"][0]["$ref"].endswith("/LiveOut")
+    assert snapshot["warnings"]["items"]["$ref"].endswith("/SessionWarning")
+    assert snapshot["turns"]["additionalProperties"]["$ref"].endswith("/TurnOut")
+    assert parts["SessionOut"].get("additionalProperties") is False  # nothing a snapshot carries goes undeclared

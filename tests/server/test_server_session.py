@@ -15,6 +15,7 @@ from mock_device.scenarios import get_scenario
 from server.config import ProtocolTimings, Settings
 from server.live.runner import compute_result
 from server.live.session import GuidedSession
+from server.live.snapshot_schema import SessionOut
 
 FS = 104.0
 PARAMS = SensorParams(k=np.array([1.03, 0.97, 1.05]), b=np.array([1.5, -2.0, 0.7]))
@@ -44,8 +45,8 @@ class Run:
                                max_attempts=max_attempts, **kw)
         self.s.connected(FS, {"sensor_model": "simulated"}, 500.0)
 
-    def _listen(self, kind: str, snap: dict[str, Any]) -> None:
-        self.events.append((kind, snap))
+    def _listen(self, kind: str, snap: SessionOut) -> None:
+        self.events.append((kind, snap.model_dump(mode="json", exclude_unset=True)))  # as an SSE event carries it
 
     def feed(self, rec: Any, start: int = 0, end: int | None = None, batch: int = 3, lost_at: dict[int, int] | None = None) -> None:
         end = len(rec) if end is None else end
@@ -64,7 +65,7 @@ class Run:
         return out
 
     def warnings(self) -> list[str]:
-        return [w["code"] for w in self.s.warnings]
+        return [w.code for w in self.s.warnings]
 
 
 def sim(sc: ProtocolScript, seed: int = 1, tail_s: float = 0.0, **kw: Any) -> Any:
@@ -216,7 +217,7 @@ def test_retries_ask_for_the_turn_again() -> None:
     run.feed(rec)
     assert run.s.state == "computing", run.s.reason
     assert run.warnings() == ["wrong_axis"]
-    assert "Put the device back against the block" in run.s.warnings[0]["message"]
+    assert "Put the device back against the block" in run.s.warnings[0].message
     run = Run(max_attempts=1)
     run.feed(rec)
     assert (run.s.state, run.s.reason_code) == ("failed", "wrong_axis")
@@ -312,7 +313,7 @@ def test_time_limits_count_from_the_sessions_first_sample(t0: float) -> None:
     run.feed(idle.__class__(idle.t + t0, idle.gyro, idle.accel, idle.seq, meta=idle.meta))
     assert (run.s.state, run.s.reason_code) == ("failed", "no_motion")
     assert run.warnings() == ["hint"]
-    assert run.s.warnings[0]["t_device_s"] == pytest.approx(t0 + 3.0 + t.hint_after_s, abs=1.0)
+    assert run.s.warnings[0].t_device_s == pytest.approx(t0 + 3.0 + t.hint_after_s, abs=1.0)
 
 
 def test_a_second_session_after_the_first_on_one_device_clock() -> None:
@@ -345,7 +346,7 @@ def test_moving_in_the_pause_says_what_happens_next(rest_s: float, recorded: boo
     assert run.s.state == "computing", run.s.reason
     i = next(i for i, (_, snap) in enumerate(run.events) if snap["warnings"])  # the warning's snapshot
     after = [(snap["state"], snap["phase"]) for kind, snap in run.events[i + 1:] if kind in ("state", "prompt")]
-    message = run.s.warnings[0]["message"]
+    message = run.s.warnings[0].message
     if recorded:
         assert run.warnings() == ["moved"] and "count starts again" in message
         assert (run.events[i][1]["state"], run.events[i][1]["phase"]) == ("turn_x", "pause") and after[0] == ("turn_y", "ready")

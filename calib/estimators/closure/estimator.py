@@ -31,6 +31,7 @@ from calib.estimators.closure.report import OFFDIAG_WARN, closure_result
 from calib.io.validation import check_calibration_input
 from calib.noise.rests import still_statistics
 from calib.numerics.windows import windows
+from calib.quality import ModelChoice
 from calib.recording import Recording, sample_intervals
 from calib.result import CalibrationResult
 from calib.stages.stage import FLAG_COUNTER_GAP, FLAG_SATURATED, Stage
@@ -72,7 +73,7 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None 
             + (f" ({'; '.join(dropped)})" if dropped else "")
         )
     fit = _solve(data, theta0[0], extended=False)
-    choice: dict[str, Any] = {"asked": extended}
+    choice: ModelChoice = {"asked": extended}
     if extended:
         start = np.concatenate((fit.theta, np.zeros(3)))
         _check_identified(data, start)
@@ -88,9 +89,9 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None 
     return result
 
 
-def _choose_model(data: ClosureData, diagonal: ClosureFit) -> tuple[ClosureFit, bool, dict[str, Any]]:
+def _choose_model(data: ClosureData, diagonal: ClosureFit) -> tuple[ClosureFit, bool, ModelChoice]:
     """The diagonal fit, or the extended one where the recording identifies its terms and needs them."""
-    choice: dict[str, Any] = {"asked": None}
+    choice: ModelChoice = {"asked": None}
     start = np.concatenate((diagonal.theta, np.zeros(3)))
     bound = offdiag_bounds(data, start)
     choice["offdiag_bound"] = [float(v) for v in bound]
@@ -103,7 +104,7 @@ def _choose_model(data: ClosureData, diagonal: ClosureFit) -> tuple[ClosureFit, 
     lr = float(diagonal.res @ diagonal.res) - chi2_ext
     p = float(chi2_dist.sf(max(lr, 0.0), 3))
     fits = float(chi2_dist.sf(chi2_ext, dof_ext)) if dof_ext > 0 else 1.0
-    choice.update(likelihood_ratio=lr, p_value=p, extended_fit_p_value=fits)
+    choice.update({"likelihood_ratio": lr, "p_value": p, "extended_fit_p_value": fits})
     if fits < EXTENDED_FIT_MIN:
         # a misfit the terms only partly absorb (a turn that did not come back, ...) is not non-orthogonality
         choice["reason"] = (f"the extended model does not explain the recording either (chi2/dof = {chi2_ext / dof_ext:.1f}): "

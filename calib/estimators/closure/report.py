@@ -8,6 +8,7 @@ from scipy.stats import chi2 as chi2_dist
 
 from calib.errors import CalibrationError
 from calib.estimators.closure.fit import ClosureData, ClosureFit, calibration_matrix, param_names
+from calib.quality import Quality
 from calib.recording import Recording
 from calib.result import CalibrationResult
 from calib.stages.stage import AXES, Stage
@@ -113,7 +114,7 @@ def closure_result(
                 "the non-orthogonality terms are only weakly determined by this recording (standard errors "
                 f"{', '.join(f'{v:.1e}' for v in offdiag_bound)}); turns about axes between the sensor axes determine them better"
             )
-    quality = {
+    quality: Quality = {
         "model": "upper-triangular" if extended else "diagonal",
         "parameters": list(names),
         "chi2": chi2,

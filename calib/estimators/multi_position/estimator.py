@@ -56,6 +56,7 @@ from calib.noise.accel_floor import accel_floor
 from calib.noise.motion import motion_noise, no_motion_noise
 from calib.noise.rests import still_statistics
 from calib.numerics.windows import windows
+from calib.quality import Quality
 from calib.recording import Recording, sample_intervals
 from calib.result import CalibrationResult
 from calib.stages.detector import detect_stages
@@ -354,7 +355,7 @@ def _result(fit: _Fit, g_test: dict[str, Any], base: _Fit, data: Data, accel: Ac
         mag = np.linalg.norm(apply_model(p.xa, data.rests.mean), axis=1) - 1.0
         note = (accel.note + "; " if accel.note else "") + "fitted with the gyroscope (rests and re-orientations together)"
         accel = AccelCalibration.from_fit(p.xa, a_std, data.free_a, mag, note)
-    quality = {
+    quality: Quality = {
         "constraints": {"rests": data.mean.shape[0], "gravity_motions": n_grav,
                         "full_turns": 0 if data.turns is None else data.turns.dt.shape[1]},
         "chi2": fit.chi2, "dof": fit.dof, "birge_ratio": fit.birge,

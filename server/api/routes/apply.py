@@ -100,8 +100,9 @@ async def _corrected(svc: Service, device_id: str, request: Request, upload: Rea
 @router.post(
     "/devices/{device_id}/orientation",
     responses={
-        200: {"description": "t (s), roll/pitch/yaw before and after correction (deg, unwrapped), difference_deg between the "
-              "two orientations, at most max_points samples; the calibration used, its warnings and identity check"},
+        200: {"model": M.OrientationOut, "description": "t (s), roll/pitch/yaw before and after correction (deg, unwrapped), "
+              "difference_deg between the two orientations, at most max_points samples; the calibration used, its warnings "
+              "and identity check"},
         400: {"model": M.Problem, "description": "the recording cannot be read"},
         413: {"model": M.Problem, "description": "the recording is too large"},
         415: {"model": M.Problem, "description": "not a CSV body"},
@@ -115,13 +116,13 @@ async def orientation_of(
     at: Annotated[datetime | None, Query(description="when the recording was made (ISO 8601); default now")] = None,
     fs: Annotated[float | None, Query(gt=0, le=100000, description="sample rate, Hz (CSV without a time column)")] = None,
     layout: Annotated[str, Query(max_length=16, description="CSV layout: auto, native, imucal")] = "auto",
-) -> dict[str, Any]:
+) -> M.OrientationOut:
     """The orientation an uploaded recording implies before and after the device's calibration in force for it
     (Madgwick's filter of the ahrs package; gyroscope integration without an accelerometer): the paper's Figs. 2 and 10
     for the user's own data. Nothing is stored."""
     cal, (_, _, summary) = await _corrected(svc, device_id, request, upload, recording, at, fs, layout, orientation=True)
-    return finite({"calibration_id": cal.id, "warnings": cal.in_force.warnings, "identity_check": cal.in_force.identity_check,
-                   **summary})
+    return M.OrientationOut.model_validate(finite({"calibration_id": cal.id, "warnings": cal.in_force.warnings,
+                                                   "identity_check": cal.in_force.identity_check, **summary}))
 
 
 EXPORT_FORMATS = ("gyrocal", "imucal", "csv")
@@ -130,7 +131,7 @@ EXPORT_FORMATS = ("gyrocal", "imucal", "csv")
 @router.get(
     "/calibrations/{calibration_id}",
     response_class=Response,
-    responses={200: {"content": {"application/json": {}, "text/csv": {}},
+    responses={200: {"model": M.CalibrationRecord, "content": {"application/json": {}, "text/csv": {}},
                      "description": "gyrocal: the stored calibration (JSON); imucal: a Ferraris calibration file imucal's "
                      "load_calibration_info loads; csv: one row per parameter"}, **R404},
     tags=["calibrations"],
@@ -165,7 +166,7 @@ async def import_calibration(
     svc: Svc, device_id: str, request: Request, operator: Operator, sensor: RecordingIdentity,
     name: Annotated[str | None, Query(min_length=1, max_length=200, pattern=M.SENSOR_TEXT,
                                       description="the file's name, kept with the import")] = None,
-) -> dict[str, Any]:
+) -> M.AcceptOut:
     """Add a calibration made elsewhere to the device's history, marked ``import``: it is in force from now. The query's
     serial, sensor_model, boot_count and temperature_c fill what the file does not say about its sensor."""
     check_device_id(device_id)
@@ -186,4 +187,4 @@ async def import_calibration(
     rec = await asyncio.to_thread(svc.store.import_calibration, device_id, correction, operator, __version__,
                                   file_name=name or "upload.json", file_sha256=sha256_hex(raw))
     svc.events.fleet_changed("calibration", device_id)
-    return {"session_id": rec.session_id, "calibration": rec.to_dict()}
+    return M.AcceptOut(session_id=rec.session_id, calibration=rec)

@@ -30,7 +30,7 @@ router = APIRouter()
     403: {"model": M.Problem, "description": "a PIN from an address the service does not trust with PINs (--pin-from)"},
     429: {"model": M.Problem, "description": "too many failed sign-ins for this operator or from this address (Retry-After)"},
 })
-async def login(svc: Svc, body: M.LoginIn, request: Request) -> dict[str, Any]:
+async def login(svc: Svc, body: M.LoginIn, request: Request) -> M.LoginOut:
     """Sign an operator in: name and secret (or PIN) in, bearer token out. After 5 failures for a name (3 with a
     PIN; 20 from one address) each attempt waits 1, 2, 4, ... s (at most 5 min) after the last failure."""
     client = request.client.host if request.client else "unknown"
@@ -45,7 +45,7 @@ async def login(svc: Svc, body: M.LoginIn, request: Request) -> dict[str, Any]:
         raise problem(403, str(exc)) from None
     except AuthError as exc:
         raise problem(401, str(exc)) from None
-    return {"token": token, "token_type": "bearer", "operator": body.operator, "expires_at": expires.isoformat()}
+    return M.LoginOut(token=token, token_type="bearer", operator=body.operator, expires_at=expires.isoformat())
 
 
 @router.post("/auth/logout", status_code=204, responses=R401, tags=["auth"])

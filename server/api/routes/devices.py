@@ -5,11 +5,9 @@ from __future__ import annotations
 import asyncio
 import logging
 from datetime import datetime
-from typing import Annotated, Any
+from typing import Annotated
 
 from fastapi import APIRouter, Query
-
-from calib.json_safe import finite
 
 from ... import schemas as M
 from ...deps import (
@@ -24,6 +22,7 @@ from ...deps import (
 )
 from ...lifecycle import CalibrationInForce, in_force_async, none_in_force
 from ...live.snapshot import stored_snapshot
+from ...live.snapshot_schema import SessionOut
 from ..identity_query import RecordingIdentity
 from ..views import device_out, session_snapshot
 
@@ -32,7 +31,7 @@ router = APIRouter()
 
 
 @router.get("/devices", response_model=list[M.DeviceOut], tags=["devices"])
-async def list_devices(svc: Svc, _: Reader) -> list[dict[str, Any]]:
+async def list_devices(svc: Svc, _: Reader) -> list[M.DeviceOut]:
     """Known devices: the connectable ones (simulated, scanned) and those in the store's history."""
     rows = {r["id"]: r for r in await asyncio.to_thread(svc.store.devices)}
     ids = list(svc.devices.devices) + [i for i in rows if i not in svc.devices.devices]
@@ -42,7 +41,7 @@ async def list_devices(svc: Svc, _: Reader) -> list[dict[str, Any]]:
 @router.post("/devices/scan", response_model=M.ScanOut, responses=R401, tags=["devices"])
 async def scan(
     svc: Svc, operator: Operator, timeout: Annotated[float, Query(gt=0, le=30, description="scan time, s")] = 5.0
-) -> dict[str, Any]:
+) -> M.ScanOut:
     """Scan for wearables (BLE when the service runs with --ble); returns those found, each with its id."""
     try:
         found = await svc.devices.scan(timeout)
@@ -52,11 +51,11 @@ async def scan(
         await asyncio.to_thread(svc.store.upsert_device, dev.id, name=dev.name, address=dev.address, transport=dev.transport)
     await asyncio.to_thread(svc.store.audit, operator, "devices.scan", None, None, {"found": [d.id for d in found]})
     rows = {r["id"]: r for r in await asyncio.to_thread(svc.store.devices)}
-    return {"devices": [await device_out(svc, d, rows.get(d.id)) for d in found]}
+    return M.ScanOut(devices=[await device_out(svc, d, rows.get(d.id)) for d in found])
 
 
 @router.get("/devices/{device_id}", response_model=M.DeviceDetail, responses=R404, tags=["devices"])
-async def get_device(svc: Svc, device_id: str, _: Reader) -> dict[str, Any]:
+async def get_device(svc: Svc, device_id: str, _: Reader) -> M.DeviceOut:
     """One device: connection, current calibration, recent sessions; simulated ones show their truth."""
     check_device_id(device_id)
     dev = svc.devices.get(device_id)
@@ -71,7 +70,7 @@ async def current_calibration(
     svc: Svc, device_id: str, _: Reader,
     recording: RecordingIdentity,
     at: Annotated[datetime | None, Query(description="ISO 8601 time (UTC unless it carries an offset); default now")] = None,
-) -> dict[str, Any]:
+) -> CalibrationInForce:
     """The calibration in force: a calibration of the recording's power-up when ``boot_count`` (or ``booted_at``) names
     one, else the device's latest accepted one at or before ``at`` (default now); never one of another sensor (409).
     ``in_force`` says why it was taken, how old it was then, and warns past the service's age and temperature limits
@@ -80,20 +79,20 @@ async def current_calibration(
     cur = await in_force_async(svc.store, device_id, at, svc.settings.limits, recording)
     if cur is None:
         raise problem(404, none_in_force(device_id, None if at is None else at.isoformat()))
-    return cur.model_dump(mode="json")
+    return cur
 
 
 @router.get("/devices/{device_id}/calibrations", response_model=list[M.CalibrationRecord], responses=R404, tags=["calibrations"])
-async def calibrations(svc: Svc, device_id: str, _: Reader) -> list[dict[str, Any]]:
+async def calibrations(svc: Svc, device_id: str, _: Reader) -> list[M.CalibrationRecord]:
     """Every accepted calibration of the device, newest first (nothing is ever overwritten)."""
     check_device_id(device_id)
     if svc.devices.get(device_id) is None and await asyncio.to_thread(svc.store.device, device_id) is None:
         raise problem(404, f"no device {device_id!r}")
-    return [r.to_dict() for r in await asyncio.to_thread(svc.store.calibrations, device_id)]
+    return await asyncio.to_thread(svc.store.calibrations, device_id)
 
 
-@router.get("/devices/{device_id}/sessions", response_model=list[M.SessionOut], responses=R404, tags=["sessions"])
-async def device_sessions(svc: Svc, device_id: str, _: Reader, limit: Annotated[int, Query(ge=1, le=500)] = 50) -> list[dict[str, Any]]:
+@router.get("/devices/{device_id}/sessions", response_model=list[SessionOut], responses=R404, tags=["sessions"])
+async def device_sessions(svc: Svc, device_id: str, _: Reader, limit: Annotated[int, Query(ge=1, le=500)] = 50) -> list[SessionOut]:
     """A device's sessions, newest first, whatever their outcome (kept for audit)."""
     check_device_id(device_id)
     rows = await asyncio.to_thread(svc.store.sessions, device_id, limit)
@@ -101,5 +100,5 @@ async def device_sessions(svc: Svc, device_id: str, _: Reader, limit: Annotated[
     for r in rows:
         live = svc.sessions.get(r["id"])
         # a running session's row is written at its start and end: show its live state instead
-        out.append(finite(await session_snapshot(svc, r["id"]) if live is not None else stored_snapshot(r)))
+        out.append(await session_snapshot(svc, r["id"]) if live is not None else stored_snapshot(r))
     return out

@@ -11,11 +11,10 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.responses import HTMLResponse, JSONResponse
-from pydantic import BaseModel, ConfigDict, Field
 
 from calib.errors import RecordingTooLong
 from calib.io.inputs import ReadOptions, RecordingInput
@@ -31,9 +30,10 @@ from ...deps import (
     read_csv_body,
     recording_problem,
 )
+from ...live.runner import LiveSession
 from ...schemas import Problem
 from ...service import Service
-from ...store import sha256_hex
+from ...store import StoredSession, sha256_hex
 from ...workers.compute import TooManySamples
 from ...workers.diagnosis import (
     REPORTS_KEPT,
@@ -44,6 +44,7 @@ from ...workers.diagnosis import (
     diagnose_csv,
     digest,
 )
+from ..diagnosis_schema import DiagnosisOut, DiagnosisProgress
 from ..upload_options import Upload, upload_input
 
 log = logging.getLogger(__name__)
@@ -53,74 +54,6 @@ RETRY_AFTER_S = 5
 
 Fs = Annotated[float | None, Query(gt=0, le=100000, description="sample rate, Hz (CSV without a time column)")]
 Layout = Annotated[str, Query(max_length=16, description="CSV layout: auto, native, imucal")]
-
-
-# -- the published shapes --------------------------------------------------------------------------
-class Mismatch(BaseModel):
-    """A residual feature of the recording outside what its simulations produce."""
-
-    model_config = ConfigDict(extra="allow")
-    where: str = Field(description="stage, axis and time, e.g. 'still 2 (6.8-9.3 s), axis x'")
-    statistic: str
-    observed: float | None
-    simulated_range: list[float | None] = Field(description="the simulations' 95 % range [low, high]")
-    p_value: float | None
-
-
-class EffectFit(BaseModel):
-    before: float | None = Field(description="deviance without the effect (lower is better)")
-    after: float | None = Field(description="deviance with the effect modelled")
-
-
-class Effect(BaseModel):
-    """A physical effect the recording shows, fitted."""
-
-    model_config = ConfigDict(extra="allow")
-    name: str = Field(description="bias_drift, axis_misalignment, g_sensitivity, scale_asymmetry, scale_nonlinearity, "
-                                  "saturation, sample_loss, placement_error, clock_error or bias_instability")
-    parameters: dict[str, Any]
-    uncertainty: dict[str, Any] | None = None
-    fit: EffectFit
-    evidence: dict[str, Any] = Field(description="summary (one line), statistic, p_value, information_criterion, held_out, "
-                                                 "simulate (the gyrocal simulate --effect value that reproduces it), ...")
-
-
-class Unexplained(BaseModel):
-    """A clear departure no catalogued effect explains (or that several explain equally well)."""
-
-    model_config = ConfigDict(extra="allow")
-    where: str | list[str] | None = None
-    statistic: str | None = None
-    description: str
-
-
-class NotIdentifiable(BaseModel):
-    name: str
-    reason: str = Field(description="why this recording cannot show the effect, and which motion or channel would")
-
-
-class DiagnosisOut(BaseModel):
-    """`gyrocal diagnose --json`: the recording against its simulation (docs/diagnosis.md)."""
-
-    model_config = ConfigDict(extra="allow")
-    mismatches: list[Mismatch]
-    effects: list[Effect] = Field(description="named effects, the largest fit improvement first; empty when the nominal "
-                                              "model g = K m + b explains the recording")
-    unexplained: list[Unexplained]
-    not_identifiable: list[NotIdentifiable]
-    recalibration: dict[str, Any] | None
-    nominal: dict[str, Any]
-    simulation_check: dict[str, Any]
-    info: dict[str, Any]
-
-
-class DiagnosisProgress(BaseModel):
-    """Where a session's model check is: not started, waiting for a worker, running, or done (kept)."""
-
-    state: Literal["idle", "queued", "running", "done"]
-    fraction: float | None = Field(None, description="0-1 while running")
-    stage: str | None = None
-    elapsed_s: float | None = None
 
 
 # -- the work --------------------------------------------------------------------------------------
@@ -171,7 +104,7 @@ def _upload_args(body: bytes, fs: float | None, layout: str, max_samples: int, u
     return key, (upload_input(body, "uploaded recording", upload, fs, layout), max_samples, None, None, "uploaded recording")
 
 
-async def _session_source(svc: Service, sid: str) -> tuple[str, dict[str, Any] | None, str | None]:
+async def _session_source(svc: Service, sid: str) -> tuple[str, StoredSession | None, str | None]:
     """(cache key, stored session row, recording SHA-256) of an ended session with a recording; 404/409 otherwise."""
     check_session_id(sid)
     live = svc.sessions.get(sid)
@@ -185,30 +118,30 @@ async def _session_source(svc: Service, sid: str) -> tuple[str, dict[str, Any] |
     if digest_ is None and live is not None and live.csv_bytes:
         digest_ = sha256_hex(live.csv_bytes)  # the store could not be written: the session still holds it
     if digest_ is None:
-        state = live.machine.state if live is not None else row["state"]  # type: ignore[index]
+        state = live.machine.state if live is not None else row["state"] if row is not None else "unknown"
         raise problem(409, f"session {sid} has no recording to check (it is {state}, with no samples archived)")
     stages = _result_stages(row, live)
     return digest("session", digest_, stages), row, digest_
 
 
-def _result_stages(row: dict[str, Any] | None, live: Any) -> list[dict[str, Any]] | None:
+def _result_stages(row: StoredSession | None, live: LiveSession | None) -> list[dict[str, Any]] | None:
     """The stages a session's result was computed on (as stored, or from the live session), None without a result."""
-    if row is not None and row.get("result"):
+    if row is not None and row["result"]:
         return row["result"].get("stages") or None
     if live is not None and live.machine.result is not None:
         return [s.to_dict() for s in live.machine.result.stages] or None
     return None
 
 
-async def _session_args(svc: Service, sid: str, row: dict[str, Any] | None, report: bool) -> tuple[Any, ...]:
+async def _session_args(svc: Service, sid: str, row: StoredSession | None, report: bool) -> tuple[Any, ...]:
     got = await asyncio.to_thread(svc.store.recording, sid)
     live = svc.sessions.get(sid)
     csv = got[0] if got is not None else (live.csv_bytes if live is not None else None)
     if csv is None:
         raise problem(409, f"session {sid} has no recording to check")
     stages = _result_stages(row, live)
-    device = (row or {}).get("device_id") or (live.device.id if live is not None else "")
-    info = (row or {}).get("info") or {}
+    device = row["device_id"] if row is not None else live.device.id if live is not None else ""
+    info = (row["info"] if row is not None else None) or {}
     full_scale = info.get("gyro_full_scale_dps") or (live.machine.full_scale if live is not None else None)
     return (RecordingInput(csv, f"session {sid}", ReadOptions(layout="native")), svc.settings.max_diagnose_samples, stages,
             full_scale, f"session {sid} ({device})" if report else None)
@@ -317,12 +250,13 @@ async def diagnose_session_report(svc: Svc, diag: Diag, session_id: str, _: Read
     responses={k: v for k, v in session_responses.items() if k != 422 and k != 503},
     tags=["diagnosis"],
 )
-async def diagnosis_progress(svc: Svc, diag: Diag, session_id: str, _: Reader) -> dict[str, Any]:
+async def diagnosis_progress(svc: Svc, diag: Diag, session_id: str, _: Reader) -> DiagnosisProgress:
     """Where the session's model check is, for a page to show while GET .../diagnosis runs."""
     key, _row, _sha = await _session_source(svc, session_id)
     if f"json:{key}" in diag.queue.results:
-        return {"state": "done", "fraction": 1.0, "stage": "done"}
+        return DiagnosisProgress(state="done", fraction=1.0, stage="done")
     job = diag.queue.jobs.get(f"json:{key}") or diag.queue.jobs.get(f"html:{key}")
     if job is None:
-        return {"state": "idle"}
-    return job.progress()
+        return DiagnosisProgress(state="idle")
+    return DiagnosisProgress(state=job.state, fraction=round(job.fraction, 3), stage=job.stage,
+                             elapsed_s=round(job.elapsed_s, 2))

@@ -17,14 +17,15 @@ from calib.recording import Recording
 from calib.result import CalibrationResult
 
 from ...deps import Reader, check_session_id, problem, service_of
+from ...schemas import SessionPlot
 
 
-def session_traces(rec: Recording, res: CalibrationResult, max_points: int) -> dict[str, Any]:
+def session_traces(rec: Recording, res: CalibrationResult, max_points: int) -> SessionPlot:
     """The JSON body of GET /sessions/{id}/plot for a recording and its result."""
     from calib.plots import calibration_traces
 
     traces = calibration_traces(rec, res, max_points=max_points)
-    return finite({**traces, "k": res.k, "b": res.b, "method": res.method})
+    return SessionPlot.model_validate(finite({**traces, "k": res.k, "b": res.b, "method": res.method}))
 
 
 router = APIRouter()
@@ -35,13 +36,13 @@ RESPONSES: dict[int | str, dict[str, Any]] = {
     409: {"description": "the session has no result (yet)"},
 }
 
-@router.get("/sessions/{session_id}/plot", responses=RESPONSES, tags=["sessions"])
+@router.get("/sessions/{session_id}/plot", response_model=SessionPlot, responses=RESPONSES, tags=["sessions"])
 async def session_plot(
     session_id: str,
     request: Request,
     _: Reader,
     max_points: Annotated[int, Query(ge=50, le=5000, description="at most this many points per trace")] = 800,
-) -> dict[str, Any]:
+) -> SessionPlot:
     """Rate magnitude and orientation (angle from the start pose) before and after calibration,
     the angle swept in each turn, and the turn intervals; times in s from the recording's start."""
     from calib.errors import GyrocalError

@@ -15,7 +15,6 @@ from pydantic import ValidationError
 from sqlalchemy.exc import SQLAlchemyError
 
 from calib import __version__
-from calib.json_safe import finite
 
 from ... import schemas as M
 from ...deps import (
@@ -38,6 +37,7 @@ from ...live.events import Event, dumps
 from ...live.runner import LiveSession
 from ...live.session import GuidedSession
 from ...live.snapshot import stored_snapshot
+from ...live.snapshot_schema import SessionOut
 from ...live.turn_watch import LiveAngle
 from ...service import Service
 from ...store import DecisionConflict, NotAcceptable, NotFound, StoreError, sha256_hex
@@ -141,11 +141,11 @@ async def calibrate(svc: Svc,
     return {"session_id": live.id, "device_id": device_id, "state": live.machine.state, "url": url, "events": f"{url}/events"}
 
 
-@router.get("/sessions/{session_id}", response_model=M.SessionOut, responses=R404, tags=["sessions"])
-async def get_session(svc: Svc, session_id: str, _: Reader) -> dict[str, Any]:
+@router.get("/sessions/{session_id}", response_model=SessionOut, responses=R404, tags=["sessions"])
+async def get_session(svc: Svc, session_id: str, _: Reader) -> SessionOut:
     """A session's full state; `result` once computed."""
     check_session_id(session_id)
-    return finite(await session_snapshot(svc, session_id))
+    return await session_snapshot(svc, session_id)
 
 
 @router.get(
@@ -179,14 +179,14 @@ async def session_events(
     row = await asyncio.to_thread(svc.store.session, session_id)
     if row is None:
         raise problem(404, f"no session {session_id}")
-    snap = finite(stored_snapshot(row))
-    if runs_elsewhere(svc, row):
-        remote = await remote_gateway(svc, row["gateway"])
+    snap = stored_snapshot(row)
+    if (gateway := runs_elsewhere(svc, row)) is not None:
+        remote = await remote_gateway(svc, gateway)
         return StreamingResponse(svc.events.follow(session_id, snap, remote).stream(last_event_id),
                                  media_type="text/event-stream", headers=headers)
 
     async def once() -> AsyncIterator[bytes]:
-        yield Event(0, "state", dumps(snap)).encode()
+        yield Event(0, "state", dumps(snap.model_dump(mode="json", exclude_unset=True))).encode()
 
     return StreamingResponse(once(), media_type="text/event-stream", headers=headers)
 
@@ -215,33 +215,33 @@ async def session_recording(svc: Svc, session_id: str, _: Reader) -> Response:
     )
 
 
-@router.post("/sessions/{session_id}/cancel", response_model=M.SessionOut, responses={**R401, **R404, **R409}, tags=["sessions"])
-async def cancel(svc: Svc, session_id: str, operator: Operator) -> dict[str, Any]:
+@router.post("/sessions/{session_id}/cancel", response_model=SessionOut, responses={**R401, **R404, **R409}, tags=["sessions"])
+async def cancel(svc: Svc, session_id: str, operator: Operator) -> SessionOut:
     """Stop a running session; it ends `cancelled` and nothing is stored as a calibration."""
     check_session_id(session_id)
     live = svc.sessions.get(session_id)
     if live is None:
         snap = await session_snapshot(svc, session_id)  # 404 if unknown
-        if snap.get("remote") and snap["state"] not in END_STATES:
-            raise problem(409, f"this session runs on gateway {snap['remote']['gateway']!r}, where the wearable is: cancel it there")
+        if snap.remote is not None and snap.state not in END_STATES:
+            raise problem(409, f"this session runs on gateway {snap.remote.gateway!r}, where the wearable is: cancel it there")
         raise problem(409, "the session has ended already; nothing to cancel")
     if not live.cancel(f"Cancelled by {operator}."):
         raise problem(409, f"the session has ended already ({live.machine.state}); nothing to cancel")
     await asyncio.to_thread(svc.store.audit, operator, "session.cancel", live.device.id, session_id)
     await live.wait()
-    return finite(await session_snapshot(svc, session_id))
+    return await session_snapshot(svc, session_id)
 
 
 @router.post("/sessions/{session_id}/accept", response_model=M.AcceptOut, responses={**R401, **R404, **R409, **R503}, tags=["sessions"])
-async def accept(svc: Svc, session_id: str, operator: Operator, body: M.DecisionIn | None = None) -> dict[str, Any]:
+async def accept(svc: Svc, session_id: str, operator: Operator, body: M.DecisionIn | None = None) -> M.AcceptOut:
     """Store the session's result as the device's current calibration (a new row in its history)."""
     check_session_id(session_id)
     live = svc.sessions.get(session_id)
     snap = await session_snapshot(svc, session_id)
-    if snap["state"] != "done":
-        why = snap.get("reason") or f"it is {snap['state']}"
-        raise problem(409, f"only a finished session within tolerances can be accepted; this one is {snap['state']}: {why}")
-    if not snap.get("passed"):
+    if snap.state != "done":
+        why = snap.reason or f"it is {snap.state}"
+        raise problem(409, f"only a finished session within tolerances can be accepted; this one is {snap.state}: {why}")
+    if not snap.passed:
         raise problem(409, "the result is outside the tolerances and cannot become the device's calibration")
     if live is not None:
         await live.wait()
@@ -273,16 +273,16 @@ async def accept(svc: Svc, session_id: str, operator: Operator, body: M.Decision
         live.broadcaster.close()
     svc.events.fleet_changed("calibration", rec.device_id)
     svc.events.decided(session_id)
-    return {"session_id": session_id, "calibration": rec.to_dict()}
+    return M.AcceptOut(session_id=session_id, calibration=rec)
 
 
-@router.post("/sessions/{session_id}/discard", response_model=M.SessionOut, responses={**R401, **R404, **R409, **R503}, tags=["sessions"])
-async def discard(svc: Svc, session_id: str, operator: Operator, body: M.DecisionIn | None = None) -> dict[str, Any]:
+@router.post("/sessions/{session_id}/discard", response_model=SessionOut, responses={**R401, **R404, **R409, **R503}, tags=["sessions"])
+async def discard(svc: Svc, session_id: str, operator: Operator, body: M.DecisionIn | None = None) -> SessionOut:
     """Discard a finished session's result; it stays in the store for audit and never becomes current."""
     check_session_id(session_id)
     live = svc.sessions.get(session_id)
     snap = await session_snapshot(svc, session_id)
-    if snap["state"] not in END_STATES:
+    if snap.state not in END_STATES:
         raise problem(409, "the session is still running: cancel it first")
     if live is not None:
         await live.wait()
@@ -294,12 +294,12 @@ async def discard(svc: Svc, session_id: str, operator: Operator, body: M.Decisio
         log.warning("discard of %s failed: %s", session_id, exc)
         raise problem(503, f"the decision could not be stored ({type(exc).__name__}); try again") from None
     if body is not None and body.note:
-        await asyncio.to_thread(svc.store.audit, operator, "session.note", snap["device_id"], session_id, {"note": body.note})
+        await asyncio.to_thread(svc.store.audit, operator, "session.note", snap.device_id, session_id, {"note": body.note})
     if live is not None:
         live.machine.decide("discarded", None)
         live.broadcaster.close()
     svc.events.decided(session_id)
-    return finite(await session_snapshot(svc, session_id))
+    return await session_snapshot(svc, session_id)
 
 
 async def live_angle_of(svc: Service, device_id: str) -> LiveAngle:

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import uuid
-from typing import Annotated, Any
+from typing import Annotated
 
 from fastapi import APIRouter, Path, Query, Request, Response
 
@@ -15,7 +15,8 @@ from calib.judge.verification import NoVerificationTurn
 
 from ... import schemas as M
 from ...deps import CSV_TYPES, R404, R409, Operator, Reader, Svc, check_device_id, check_upload, problem, recording_problem
-from ...live.verify_run import VerifyRun
+from ...live.verify_run import VerificationRunOut, VerifyRun
+from ...store import StoredVerification
 from ...workers.compute import TooManySamples, verify_upload
 from ..upload_options import Upload, upload_input
 from ..views import calibration_or_404, claim_device, reachable_device
@@ -27,8 +28,9 @@ CalibrationId = Annotated[int, Path(ge=1, le=2**31 - 1)]
 @router.post(
     "/calibrations/{calibration_id}/verify",
     status_code=201,
-    responses={201: {"description": "an uploaded recording's verification turn, measured and kept"},
-               202: {"description": "a live verification started on the device: follow it at GET /verifications/{id}"},
+    responses={201: {"model": StoredVerification, "description": "an uploaded recording's verification turn, measured and kept"},
+               202: {"model": VerificationRunOut,
+                     "description": "a live verification started on the device: follow it at GET /verifications/{id}"},
                400: {"model": M.Problem, "description": "the recording cannot be read, or holds no full turn between rests"},
                401: {"model": M.Problem}, 413: {"model": M.Problem, "description": "the recording is too large"},
                415: {"model": M.Problem, "description": "neither a CSV recording nor JSON"},
@@ -42,7 +44,7 @@ async def verify(
     svc: Svc, calibration_id: CalibrationId, request: Request, response: Response, operator: Operator, upload: Upload,
     fs: Annotated[float | None, Query(gt=0, le=100000, description="sample rate, Hz (CSV without a time column)")] = None,
     layout: Annotated[str, Query(max_length=16, description="CSV layout: auto, native, imucal")] = "auto",
-) -> dict[str, Any]:
+) -> StoredVerification | VerificationRunOut:
     """One more full turn, about any axis, measured with the calibration: the calibrated angle (360° ± its uncertainty
     when the calibration holds) against the raw one, kept with the calibration."""
     cal = await calibration_or_404(svc, calibration_id)
@@ -78,8 +80,8 @@ async def verify(
     return run.snapshot()
 
 
-@router.get("/verifications/{verification_id}", responses=R404, tags=["calibrations"])
-async def verification(svc: Svc, verification_id: Annotated[str, Path(pattern=r"^[0-9a-f]{32}$")], _: Reader) -> dict[str, Any]:
+@router.get("/verifications/{verification_id}", response_model=VerificationRunOut, responses=R404, tags=["calibrations"])
+async def verification(svc: Svc, verification_id: Annotated[str, Path(pattern=r"^[0-9a-f]{32}$")], _: Reader) -> VerificationRunOut:
     """A live verification as it runs: state (connecting, still, turn, settle, computing, done, failed), the prompt for
     the clinician, and once done the verification kept."""
     run = svc.verify_runs.get(verification_id)
@@ -88,15 +90,16 @@ async def verification(svc: Svc, verification_id: Annotated[str, Path(pattern=r"
     return run.snapshot()
 
 
-@router.get("/calibrations/{calibration_id}/verifications", responses=R404, tags=["calibrations"])
-async def calibration_verifications(svc: Svc, calibration_id: CalibrationId, _: Reader) -> list[dict[str, Any]]:
+@router.get("/calibrations/{calibration_id}/verifications", response_model=list[StoredVerification], responses=R404,
+            tags=["calibrations"])
+async def calibration_verifications(svc: Svc, calibration_id: CalibrationId, _: Reader) -> list[StoredVerification]:
     """The verification turns kept with a calibration, newest first."""
     cal = await calibration_or_404(svc, calibration_id)
     return await asyncio.to_thread(svc.store.verifications, cal.device_id, calibration_id)
 
 
-@router.get("/devices/{device_id}/verifications", responses=R404, tags=["calibrations"])
-async def device_verifications(svc: Svc, device_id: str, _: Reader) -> list[dict[str, Any]]:
+@router.get("/devices/{device_id}/verifications", response_model=list[StoredVerification], responses=R404, tags=["calibrations"])
+async def device_verifications(svc: Svc, device_id: str, _: Reader) -> list[StoredVerification]:
     """The verification turns of all of a device's calibrations, newest first."""
     check_device_id(device_id)
     return await asyncio.to_thread(svc.store.verifications, device_id)

@@ -45,7 +45,7 @@ async def _chosen(svc: Svc, device_id: str, calibration_id: int | None) -> Calib
 
 @router.post("/devices/{device_id}/calibration/write", response_model=M.WriteBackOut,
              responses={**R401, **R404, **R409, **R502, **R503}, tags=["calibrations"])
-async def write_to_device(svc: Svc, device_id: str, operator: Operator, body: M.WriteBackIn | None = None) -> dict[str, Any]:
+async def write_to_device(svc: Svc, device_id: str, operator: Operator, body: M.WriteBackIn | None = None) -> M.WriteBackOut:
     """Write a calibration (default: the current one) to the wearable with its id and CRC-32, read it back, verify
     it bit for bit and record that the device holds it. The wearable keeps streaming raw readings."""
     check_device_id(device_id)
@@ -64,8 +64,10 @@ async def write_to_device(svc: Svc, device_id: str, operator: Operator, body: M.
         current = await asyncio.to_thread(svc.store.current_calibration, device_id)
     finally:
         svc.release_device(device_id, None)
-    return {"device_id": device_id, "calibration_id": back.calibration_id, "verified": True, "held": back.to_dict(),
-            "held_state": "current" if current is not None and current.id == back.calibration_id else "other", "warnings": warnings}
+    return M.WriteBackOut(device_id=device_id, calibration_id=back.calibration_id, verified=True,
+                          held=M.HeldOut.model_validate(back.to_dict()),
+                          held_state="current" if current is not None and current.id == back.calibration_id else "other",
+                          warnings=warnings)
 
 
 async def _write(svc: Svc, dev: Any, held: HeldCalibration, rec: CalibrationRecord) -> tuple[HeldCalibration, list[str]]:

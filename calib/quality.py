@@ -1,0 +1,114 @@
+"""What a calibration result says about how well it is determined: ``CalibrationResult.quality`` and its blocks.
+
+Declared once, as TypedDicts: the estimators build them, mypy checks their keys, and ``calib.result_schema`` publishes
+them as the JSON schema of a result's ``quality`` (pydantic reads a TypedDict as it reads a model; these import no
+pydantic, so a calibration does not load it). Every key is optional: each estimator fills the blocks it measures.
+A block that carries diagnostics beyond its named keys allows them (``__pydantic_config__``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from typing_extensions import TypedDict  # on Python 3.11 pydantic reads a TypedDict only from typing_extensions
+
+Number = float | None  # JSON has no NaN: a value that is not finite is written as null
+Vector = list[Number]
+Matrix = list[list[Number]]
+
+
+class AccelerometerQuality(TypedDict, total=False):
+    """The accelerometer's calibration from the rests, a = T S (r - o) (``calib.estimators.accel.AccelCalibration``)."""
+
+    __pydantic_config__ = {"extra": "allow"}  # type: ignore[misc]
+    model: str
+    scale: list[float] | None
+    bias: list[float] | None  # the offset o, g
+    misalignment: list[float] | None  # rad
+    uncertainty: dict[str, list[float] | None]  # scale, bias, misalignment: 1-sigma
+    n_rests: int
+    residual_rms_mg: Number
+    identified: list[str]
+    note: str | None
+
+
+class Recognition(TypedDict, total=False):
+    """Which protocol the recording holds (``calib.stages.recognise.Recognition``)."""
+
+    name: str
+    summary: str
+    rests: int
+    full_turns: list[str]
+    poses: list[str]
+    reorientations: int
+
+
+class ProtocolUsed(TypedDict, total=False):
+    """The protocol found in the recording, the one used, and how many labelled sections cut it."""
+
+    found: Recognition
+    used: str
+    sections: int
+
+
+class ModelChoice(TypedDict, total=False):
+    """Why the closure estimator fitted the diagonal or the extended K."""
+
+    asked: bool | None
+    reason: str
+    offdiag_bound: list[float]  # the standard errors the non-orthogonality terms would have
+    likelihood_ratio: float
+    p_value: float  # of the likelihood ratio: the extended terms significant below 0.05
+    extended_fit_p_value: float  # whether the extended model explains the recording
+
+
+class Quality(TypedDict, total=False):
+    """How well the calibration is determined and what it was made from. The first keys are shared by the estimators;
+    the later ones are one estimator's own diagnostics (closure, paper, ferraris, multi-position)."""
+
+    __pydantic_config__ = {"extra": "allow"}  # type: ignore[misc]
+    model: str  # diagonal, upper-triangular, ...: the model of K fitted
+    parameters: list[str]
+    chi2: Number
+    dof: int | float | None
+    birge_ratio: Number  # sqrt(chi2/dof), at least 1: the factor the uncertainties were scaled by
+    p_value: Number
+    converged: bool
+    protocol: ProtocolUsed
+    temperature_c: Number  # the sensor's mean temperature during the recording, degC
+    accelerometer: AccelerometerQuality | None
+    model_choice: ModelChoice
+    # closure
+    turns: int
+    stills: int
+    still_s: Number
+    turn_s: list[float] | dict[str, float]  # closure: each turn's duration; paper: each axis' turn
+    stages_used: list[int]
+    function_evaluations: int
+    correlation: Matrix
+    # paper (Algorithm 1)
+    still0_samples: int
+    still0_s: float
+    turn_samples: dict[str, int]
+    iterations: int
+    tolerance: float
+    k_history: list[list[float]]
+    stage_notes: list[str]
+    # ferraris
+    ferraris: dict[str, Any]  # its matrices, as Ferraris et al. write them
+    b_g: Vector
+    b_a: Vector
+    turn_angle_deg: Number
+    # multi-position
+    constraints: dict[str, int]  # rests, gravity_motions, full_turns
+    gravity_residual_deg: list[float]
+    gravity_motions_s: list[list[float]]
+    gravity_residual_rms_deg: Number
+    gravity_z: list[float]
+    g_sensitivity: dict[str, Any]  # whether G was fitted, and the fit without it
+    settling: dict[str, Any]
+    accelerometer_floor: dict[str, Any]
+    gyro_motion_noise: dict[str, Any]
+    constraint_fit: dict[str, Any]
+    # rate table
+    runs: int

@@ -1,0 +1,146 @@
+"""A session's snapshot as a typed object: what every SSE event, GET /sessions/{id} and the gateways' relay carry."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from calib.judge.acceptance import Check
+from calib.judge.departure import Departure
+from calib.judge.verification import TurnVerification
+from calib.result_schema import ResultDoc
+
+from .codes import EndReason, Phase, State
+
+Vec3 = list[float]
+
+
+@dataclass
+class LiveReading:
+    """What the device reads now: how long it has rested (s), whether it moves, the turn's angles about x, y, z (deg,
+    with the live calibration if any, and raw)."""
+
+    still_s: float = 0.0
+    moving: bool = False
+    angle_deg: Vec3 = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    raw_angle_deg: Vec3 = field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+
+class SessionWarning(BaseModel):
+    """Something the clinician should know that did not end the session."""
+
+    code: str = Field(description="what happened, for a program (e.g. bumped, too_fast, service_late)")
+    message: str = Field(description="what happened, in the clinician's words")
+    t_device_s: float = Field(description="the device's time when it happened, s")
+    at: str = Field(description="when it happened (ISO 8601, UTC)")
+
+
+class StillProgress(BaseModel):
+    """How far a rest the session waits for has come."""
+
+    still_s: float
+    target_s: float
+    fraction: float = Field(description="still_s / target_s, at most 1")
+
+
+class LiveOut(BaseModel):
+    """The device's live reading as the page shows it."""
+
+    moving: bool
+    still_s: float = Field(description="how long the device has rested, s")
+    angle_deg: Vec3 = Field(description="the turn's angle about x, y, z so far, deg")
+    turn_angle_deg: float | None = Field(None, description="the angle about the axis being turned, deg")
+    raw_turn_angle_deg: float | None = Field(None, description="the same from the raw readings (no calibration), deg")
+    angle_calibrated: bool = Field(description="the angle uses the device's accepted calibration")
+    target_deg: float | None = Field(None, description="a full turn, when the angle is calibrated (else no target)")
+    t_device_s: float = Field(description="the device's time of the last reading, s")
+
+
+class TurnOut(BaseModel):
+    """A turn that passed its checks."""
+
+    axis: Literal["x", "y", "z"]
+    angle_deg: Vec3 = Field(description="the bias-compensated raw angle turned about x, y, z, deg")
+    duration_s: float
+    start_s: float
+    end_s: float
+    rest_before_s: float = Field(description="how long the device rested before the turn, s")
+    gravity_change_deg: float | None = Field(None, description="gravity before vs after the turn: 0 when put back in place")
+
+
+class CausedBy(BaseModel):
+    """The batch of readings a snapshot answers: for measuring how late the page is."""
+
+    t_device_s: float
+    received_at: float = Field(description="when the service received it (Unix time, s)")
+
+
+class RemoteGateway(BaseModel):
+    """Where a session of another gateway runs."""
+
+    gateway: str
+    url: str | None = Field(None, description="the address its pages are at (null: not known)")
+
+
+class TurnAccuracy(BaseModel):
+    """How well a full turn measures, the worst of the session's turns, before and after the calibration."""
+
+    before_deg: float = Field(description="how far the raw readings (bias removed) of a full turn were from 360°")
+    after_deg: float = Field(description="how far from where it began a turn ends, measured with the calibration")
+
+
+CHECKS_TEXT = ("each tolerance check: name, axis, value, limit, ok, text, used (the share of the allowance the value "
+               "uses: 0 ideal, 1 at the limit) and near_limit (passed with used >= 0.8)")
+
+
+DEPARTURES_TEXT = ("the result's parameters that the device's own earlier calibrations (two at least) do not explain: "
+                   "name, axis, value, history_mean, history_spread, z, n_history, text (a dropped or damaged sensor)")
+
+
+class SessionOut(BaseModel):
+    """A full snapshot of a session: what every SSE event carries too."""
+
+    model_config = ConfigDict(extra="forbid")
+    session_id: str
+    device_id: str
+    kind: Literal["live", "upload", "import", "verify"] = "live"
+    event: str = Field("state", description="the SSE event this snapshot was sent as (state, prompt, live, warning, "
+                                            "result, decision)")
+    event_id: int | None = Field(None, description="its number in the session's event stream")
+    state: State = Field(description="where the session is (protocol order, then reconnecting, computing and the end states)")
+    phase: Phase | None = None
+    step: int | None = Field(None, description="the index of state in steps (null: not a protocol step)")
+    steps: list[State] = Field(default_factory=list, description="the protocol's steps, in order")
+    axis: Literal["x", "y", "z"] | None = Field(None, description="the axis being turned")
+    attempt: int | None = Field(None, description="the try of the current turn, from 1")
+    max_attempts: int | None = None
+    prompt: str | None = None
+    progress: StillProgress | None = Field(None, description="the rest being waited for, if any")
+    live: LiveOut | None = None
+    turns: dict[str, TurnOut] = Field(default_factory=dict, description="the turns recorded, by axis")
+    warnings: list[SessionWarning] = Field(default_factory=list)
+    reason_code: EndReason | None = Field(None, description="why the session ended, if not done")
+    reason: str | None = None
+    result: ResultDoc | TurnVerification | None = Field(None, description="the estimator's result (its form numbered by "
+                                                       "format_version); a verification session's turn")
+    passed: bool | None = None
+    checks: list[Check] = Field(default_factory=list, description=CHECKS_TEXT)
+    accuracy: TurnAccuracy | None = Field(None, description="a full turn before and after the calibration (closure estimator)")
+    departures: list[Departure] = Field(default_factory=list, description=DEPARTURES_TEXT)
+    decision: Literal["accepted", "discarded"] | None = None
+    calibration_id: int | None = None
+    method: str | None = None
+    operator: str | None = None
+    samples: int | None = Field(None, description="readings recorded so far")
+    lost_samples: int | None = Field(None, description="readings the link lost")
+    service_late_s: float | None = Field(None, description="how long the service itself did not run (a starved process), s")
+    sample_rate_hz: float | None = None
+    started_at: str | None = None
+    ended_at: str | None = None
+    caused_by: CausedBy | None = None
+    remote: RemoteGateway | None = Field(None, description="the gateway the session runs on, when not this one")
+    stored: bool | None = Field(None, description="a live session that ended: whether the store has its outcome and "
+                                                  "recording yet (false: kept by the service and written when it can)")
+    store_error: str | None = Field(None, description="why the store could not take them yet (its disk full, ...)")
