@@ -8,6 +8,7 @@ A block that carries diagnostics beyond its named keys allows them (``__pydantic
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from typing_extensions import TypedDict  # on Python 3.11 pydantic reads a TypedDict only from typing_extensions
@@ -15,6 +16,7 @@ from typing_extensions import TypedDict  # on Python 3.11 pydantic reads a Typed
 Number = float | None  # JSON has no NaN: a value that is not finite is written as null
 Vector = list[Number]
 Matrix = list[list[Number]]
+Numbers = Sequence[Number]  # what an estimator writes as a list of floats: any of them may be NaN, read back as null
 
 
 class AccelerometerQuality(TypedDict, total=False):
@@ -22,10 +24,10 @@ class AccelerometerQuality(TypedDict, total=False):
 
     __pydantic_config__ = {"extra": "allow"}  # type: ignore[misc]
     model: str
-    scale: list[float] | None
-    bias: list[float] | None  # the offset o, g
-    misalignment: list[float] | None  # rad
-    uncertainty: dict[str, list[float] | None]  # scale, bias, misalignment: 1-sigma
+    scale: Numbers | None
+    bias: Numbers | None  # the offset o, g
+    misalignment: Numbers | None  # rad
+    uncertainty: Mapping[str, Numbers | None]  # scale, bias, misalignment: 1-sigma (null: not identified)
     n_rests: int
     residual_rms_mg: Number
     identified: list[str]
@@ -56,10 +58,10 @@ class ModelChoice(TypedDict, total=False):
 
     asked: bool | None
     reason: str
-    offdiag_bound: list[float]  # the standard errors the non-orthogonality terms would have
-    likelihood_ratio: float
-    p_value: float  # of the likelihood ratio: the extended terms significant below 0.05
-    extended_fit_p_value: float  # whether the extended model explains the recording
+    offdiag_bound: Numbers  # the standard errors the non-orthogonality terms would have
+    likelihood_ratio: Number
+    p_value: Number  # of the likelihood ratio: the extended terms significant below 0.05
+    extended_fit_p_value: Number  # whether the extended model explains the recording
 
 
 class Quality(TypedDict, total=False):
@@ -82,17 +84,17 @@ class Quality(TypedDict, total=False):
     turns: int
     stills: int
     still_s: Number
-    turn_s: list[float] | dict[str, float]  # closure: each turn's duration; paper: each axis' turn
+    turn_s: Numbers | Mapping[str, Number]  # closure: each turn's duration; paper: each axis' turn
     stages_used: list[int]
     function_evaluations: int
     correlation: Matrix
     # paper (Algorithm 1)
     still0_samples: int
-    still0_s: float
+    still0_s: Number
     turn_samples: dict[str, int]
     iterations: int
-    tolerance: float
-    k_history: list[list[float]]
+    tolerance: Number
+    k_history: Sequence[Numbers]
     stage_notes: list[str]
     # ferraris
     ferraris: dict[str, Any]  # its matrices, as Ferraris et al. write them
@@ -101,10 +103,10 @@ class Quality(TypedDict, total=False):
     turn_angle_deg: Number
     # multi-position
     constraints: dict[str, int]  # rests, gravity_motions, full_turns
-    gravity_residual_deg: list[float]
-    gravity_motions_s: list[list[float]]
+    gravity_residual_deg: Numbers
+    gravity_motions_s: Sequence[Numbers]
     gravity_residual_rms_deg: Number
-    gravity_z: list[float]
+    gravity_z: Numbers
     g_sensitivity: dict[str, Any]  # whether G was fitted, and the fit without it
     settling: dict[str, Any]
     accelerometer_floor: dict[str, Any]

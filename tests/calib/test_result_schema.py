@@ -40,3 +40,22 @@ def test_the_quality_blocks_every_estimator_shares_are_typed() -> None:
     schema = ResultDoc.model_json_schema()
     assert {"k", "b", "K", "G", "uncertainty", "quality", "format_version"} <= set(schema["properties"])
     assert {"protocol", "accelerometer", "temperature_c", "birge_ratio"} <= set(schema["$defs"]["Quality"]["properties"])
+
+
+def _floats_as_null(x: object) -> object:
+    if isinstance(x, float):
+        return None
+    if isinstance(x, dict):
+        return {k: _floats_as_null(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_floats_as_null(v) for v in x]
+    return x
+
+
+@pytest.mark.parametrize("name", sorted(OLD))
+def test_a_value_that_is_not_finite_anywhere_in_quality_reads_back(name: str) -> None:
+    """An estimator's float may be NaN (an accelerometer parameter the rests do not identify, a fit that did not
+    converge): JSON writes it as null, and every quality block still reads back."""
+    stored = {**OLD[name], "quality": _floats_as_null(OLD[name]["quality"])}
+    assert ResultDoc.model_validate(stored).quality == stored["quality"]
+
