@@ -141,6 +141,8 @@ class DeviceOut(BaseModel):
         None, description="current: it holds the current calibration; other: it holds another one (write the current one "
                           "to it); none: it holds none; null: not known")
     active_session: str | None = None
+    unsaved_session: str | None = Field(None, description="its latest session ended in a PASS nobody has accepted or "
+                                                          "discarded yet: the result waiting to be saved")
     current_calibration: CalibrationRecord | None = None
     calibration_due: CalibrationDue | None = Field(None, description="whether the device should be calibrated again before "
                                                    "a study: never calibrated, switched on again since its calibration, or "

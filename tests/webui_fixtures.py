@@ -89,8 +89,9 @@ def metawear_service() -> Iterator[RunningService]:
 
 @pytest.fixture(scope="module")
 def retry_service() -> Iterator[RunningService]:
-    """A service that asks for a turn again after a fault (two tries per turn); mock-1 is bumped in a pause."""
-    with running_service(["moved_during_still"], "--max-attempts", "2") as svc:
+    """A service that asks for a turn again after a fault (two tries per turn); mock-1 is bumped in a pause, mock-2
+    turns too fast."""
+    with running_service(["moved_during_still", "too_fast"], "--max-attempts", "2") as svc:
         yield svc
 
 
@@ -179,8 +180,10 @@ class Wizard:
         shots.mkdir(parents=True, exist_ok=True)
 
     def shot(self, name: str) -> Path:
+        """A screenshot of the screen as it is, which must also pass axe-core's accessibility rules."""
         path = self.shots / f"{name}.png"
         self.page.screenshot(path=str(path))
+        assert_accessible(self.page, name)
         return path
 
     def sign_in(self, shot: str | None = None) -> None:
@@ -216,15 +219,19 @@ class Wizard:
         """Start recording, in the page, what passes too quickly to wait for: the largest angle the gauge
         showed in each turn and its target, every text the gauge showed, every headline and every state:phase
         in order (taken at each change of the page, so none that lasts a single event is missed), whether the
-        stillness ring showed the device moving, every notice."""
+        stillness ring showed the device moving, every notice, and the notice beside each state:phase
+        ("turn_x:ready|<notice>")."""
         self.page.evaluate("""() => {
-          window.seen = { gauge: {}, gaugeText: {}, targets: {}, headlines: [], phases: [], ringMoving: false, notices: [] };
+          window.seen = { gauge: {}, gaugeText: {}, targets: {}, headlines: [], phases: [], ringMoving: false, notices: [],
+                          phaseNotices: [] };
           const last = (list) => list[list.length - 1];
           new MutationObserver(() => {
             const w = document.querySelector('.wizard'), hl = document.querySelector('.instruction');
             if (hl && last(window.seen.headlines) !== hl.textContent) window.seen.headlines.push(hl.textContent);
             const sp = w ? `${w.dataset.state}:${w.dataset.phase || ''}` : null;
             if (sp && last(window.seen.phases) !== sp) window.seen.phases.push(sp);
+            const box = document.querySelector('.notice-box'), said = `${sp}|${box ? box.textContent.trim() : ''}`;
+            if (sp && last(window.seen.phaseNotices) !== said) window.seen.phaseNotices.push(said);
           }).observe(document.body, { subtree: true, childList: true, characterData: true, attributes: true });
           setInterval(() => {
             const w = document.querySelector('.wizard'), g = document.querySelector('.gauge-text');
@@ -254,6 +261,17 @@ class Wizard:
           .filter(([el, r]) => r.width > 0 && (r.width < 44 || r.height < 44))
           .map(([el, r]) =>
             `${el.tagName.toLowerCase()} "${el.textContent.trim().slice(0, 30)}" ${Math.round(r.width)}x${Math.round(r.height)}`)""")
+
+
+def assert_accessible(page: Any, where: str) -> None:
+    """axe-core (the engine browsers' accessibility audits use) finds no violation of its WCAG 2.x A/AA rules and best
+    practices on the page as it is now."""
+    from axe_playwright_python.sync_playwright import Axe
+
+    found = Axe().run(page).response.get("violations", [])
+    lines = [f"{v['id']} ({v['impact']}): {v['help']} -- " + "; ".join(n["target"][0] if n["target"] else "?" for n in v["nodes"][:4])
+             for v in found]
+    assert not lines, f"accessibility violations on {where!r}:\n" + "\n".join(lines)
 
 
 def assert_turns_end_with_hold_still(headlines: list[str]) -> None:

@@ -111,15 +111,35 @@ def evaluate(result: CalibrationResult, tol: Tolerances) -> list[Check]:
     return checks
 
 
-def turn_accuracy(result: CalibrationResult | dict[str, Any]) -> dict[str, float] | None:
-    """How far a full turn read from 360° before calibration and after it, the worst turn of each:
-    {"before_deg", "after_deg"}; None for a result without the closure estimator's turn rows."""
-    if isinstance(result, CalibrationResult):
-        result = result.to_dict()
-    rows = [t for t in (result.get("residuals") or {}).get("turns") or []
+def turn_accuracy(result: CalibrationResult | dict[str, Any], in_force: dict[str, Any] | None = None) -> dict[str, Any] | None:
+    """How far a full turn read from 360° before this calibration and after it, the worst turn of each:
+    {"before_deg", "after_deg", "before_with", "before_calibration_id"}. "Before" is what the device used until now:
+    its calibration in force (``in_force``, a stored calibration's JSON form: k, or K, and id), else the raw readings
+    ("before_with": "calibration" or "raw"). A true full turn about axis a, which this calibration reads as 360°,
+    reads 360 s_a / k_a through scale factors s (1 for the raw readings); "after" is how far each calibrated turn
+    ends from where it began. None for a result without the closure estimator's turn rows."""
+    doc = result.to_dict() if isinstance(result, CalibrationResult) else result
+    rows = [t for t in (doc.get("residuals") or {}).get("turns") or []
             if isinstance(t, dict) and t.get("raw_angle_deg") is not None and t.get("closure_norm_deg") is not None]
-    if not rows:
+    new = _scale_factors(doc)
+    if not rows or new is None:
         return None
-    before = max(abs(abs(float(t["raw_angle_deg"])) - FULL_TURN_DEG * max(abs(int(t.get("revolutions") or 1)), 1)) for t in rows)
+    old = _scale_factors(in_force)
+    axes = {AXES.index(t["axis"]) for t in rows if t.get("axis") in AXES} or set(range(3))
+    before = max(FULL_TURN_DEG * abs((1.0 if old is None else old[i]) / new[i] - 1.0) for i in axes)
     after = max(float(t["closure_norm_deg"]) for t in rows)
-    return {"before_deg": before, "after_deg": after}
+    return {"before_deg": before, "after_deg": after, "before_with": "raw" if old is None else "calibration",
+            "before_calibration_id": None if old is None or in_force is None else in_force.get("id")}
+
+
+def _scale_factors(calibration: dict[str, Any] | None) -> list[float] | None:
+    """A stored calibration's scale factors about x, y, z (the diagonal of K), None when it has none usable."""
+    if not calibration:
+        return None
+    full = calibration.get("K")
+    k = [full[i][i] for i in range(3)] if full else calibration.get("k")
+    try:
+        values = [float(v) for v in k or []]
+    except (TypeError, ValueError):
+        return None
+    return values if len(values) == 3 and all(np.isfinite(v) and v > 0 for v in values) else None

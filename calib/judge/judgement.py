@@ -19,12 +19,17 @@ class Judgement:
 
     checks: tuple[Check, ...]
     departures: tuple[Departure, ...]
-    accuracy: dict[str, float] | None  # {"before_deg", "after_deg"}: the worst turn's distance from 360°
+    accuracy: dict[str, Any] | None  # the worst turn's distance from 360° before and after (acceptance.turn_accuracy)
 
     @property
     def failures(self) -> list[str]:
         """The sentences of the checks that failed."""
         return [c.text for c in self.checks if not c.ok]
+
+    @property
+    def failed_checks(self) -> list[Check]:
+        """The checks that failed."""
+        return [c for c in self.checks if not c.ok]
 
     @property
     def passed(self) -> bool:
@@ -41,6 +46,8 @@ class Judgement:
 
 
 def judge(result: CalibrationResult, tolerances: Tolerances, history: Sequence[dict[str, Any]] = ()) -> Judgement:
-    """``result`` judged against ``tolerances`` and the device's earlier calibrations ``history`` (their JSON form)."""
+    """``result`` judged against ``tolerances`` and the device's earlier calibrations ``history`` (their JSON form,
+    newest first: the first is the one in force until now, which the turns' accuracy compares with)."""
     doc = result.to_dict()  # departures and the turns' accuracy read the same JSON form: made once
-    return Judgement(tuple(evaluate(result, tolerances)), tuple(departures(doc, history)), turn_accuracy(doc))
+    in_force = history[0] if history else None
+    return Judgement(tuple(evaluate(result, tolerances)), tuple(departures(doc, history)), turn_accuracy(doc, in_force))

@@ -15,6 +15,7 @@ from calib.json_safe import finite
 from calib.judge.judgement import judge
 
 from ..deps import check_method, check_upload, problem, recording_problem
+from ..live.history import calibration_history, failed_last_time
 from ..service import Service
 from ..store import SessionEnd
 from ..workers.compute import TooManySamples, calibrate_upload
@@ -61,14 +62,15 @@ async def calibrate_uploaded(
     except Exception as exc:  # calib's errors and whatever else the parser or estimator trips on
         raise recording_problem(exc, "calibrated", upload=True) from None
     res = result.to_json()
-    history = [c.model_dump() for c in await asyncio.to_thread(svc.store.calibrations, device_id)]
+    history = await asyncio.to_thread(calibration_history, svc.store, device_id)
     judgement = judge(result, svc.settings.tolerances, history)
     passed = judgement.passed
     checks, departed = judgement.checks_json(), judgement.departures_json()
     sid = uuid.uuid4().hex
     from ..live import guidance as say
 
-    reason = None if passed else say.out_of_tolerance(judgement.failures)
+    failed_before = set() if passed else await asyncio.to_thread(failed_last_time, svc.store, device_id)
+    reason = None if passed else say.out_of_tolerance(judgement.failed_checks, failed_before, hand_turns=used == "paper")
     await asyncio.to_thread(svc.store.upsert_device, device_id)
     await asyncio.to_thread(
         svc.store.create_session,
@@ -92,7 +94,7 @@ async def calibrate_uploaded(
         reason,
         result,
         passed,
-        {"checks": checks, "departures": departed, "samples": n_samples},
+        {"checks": checks, "departures": departed, "accuracy": judgement.accuracy, "samples": n_samples},
     )
     await asyncio.to_thread(svc.store.finish_session, sid, end)
     out = {

@@ -88,6 +88,8 @@ async def device_out(svc: Service, dev: Device | None, row: StoredDevice | None,
     device_id = dev.id if dev is not None else row["id"] if row is not None else ""
     info = dev.info if dev is not None else {}
     current = await asyncio.to_thread(svc.store.current_calibration, device_id)
+    latest = await asyncio.to_thread(svc.store.sessions, device_id, 1)
+    unsaved = next((r["id"] for r in latest if r["state"] == "done" and r["passed"] and r["decision"] is None), None)
     power_up = None if row is None else row["power_up"]
     stored: dict[str, object] = dict(row) if row is not None else {}
     fields: dict[str, Any] = {
@@ -105,6 +107,7 @@ async def device_out(svc: Service, dev: Device | None, row: StoredDevice | None,
         "battery_pct": info.get("battery_pct"),
         **(dev.model_facts() if dev else model_facts(None)),
         "active_session": svc.active.get(device_id),
+        "unsaved_session": None if svc.active.get(device_id) else unsaved,
         "current_calibration": current,
         **held_facts(row, current),
         "calibration_due": calibration_due(

@@ -5,6 +5,11 @@ Every failure names what happened and how to fix it, in words a clinician unders
 
 from __future__ import annotations
 
+from collections.abc import Collection, Sequence
+
+from calib.judge.acceptance import Check
+from calib.units import FULL_TURN_DEG
+
 from .codes import EndReason
 
 AXIS_NAMES = {"x": "X", "y": "Y", "z": "Z"}
@@ -123,10 +128,11 @@ def wrong_axis(expected: str, got: str, retry: bool) -> str:
             f"Turn about the {ax(expected)} axis marked on the case.")
 
 
-def too_fast(axis: str, full_scale: float | None, retry: bool) -> str:
+def too_fast(axis: str, full_scale: float | None, retry: bool, duration_s: float | None = None) -> str:
     fs = f" (±{full_scale:g} °/s)" if full_scale else ""
-    return (f"The turn about {ax(axis)} was too fast: the sensor reached its limit{fs}. {again(retry, axis)} "
-            "Turn more slowly, taking 2–4 s for the full turn.")
+    took = f"took {duration_s:.1f} s: " if duration_s else "was "
+    return (f"That turn about {ax(axis)} {took}too fast, the sensor reached its limit{fs}. {again(retry, axis)} "
+            "Turn more slowly, taking 2–4 s for the whole turn.")
 
 
 def turn_incomplete(axis: str, angle: float, retry: bool) -> str:
@@ -235,12 +241,37 @@ def service_overloaded(late_s: float) -> str:
             "calibration; if it happens again, tell the administrator.")
 
 
-def out_of_tolerance(failures: list[str]) -> str:
-    return (
-        "The calibration is outside the tolerances: " + "; ".join(failures) + ". "
-        "Check that the device rested against the block and that each turn was one full turn about the asked axis, "
-        "then start a new calibration. If it fails again the sensor may be faulty."
-    )
+def out_of_tolerance(failed: Sequence[Check], failed_before: Collection[tuple[str, str | None]] = (),
+                     hand_turns: bool = True) -> str:
+    """Why a result failed, and what to redo. From full turns made by hand (``hand_turns``: a guided session, or a
+    recording of the paper's protocol) a scale factor out of range most likely comes from the hand: its turn was not a
+    full one (a working sensor reads a full turn as 360°/k, within the range's readings), so that turn is named with
+    what to do; "the sensor may be faulty" is said only when the device failed the same check the time before
+    (``failed_before``: (name, axis) of its last failed result)."""
+    said, todo = [], []
+    for c in failed:
+        if hand_turns and c.name == "k" and isinstance(c.limit, tuple) and c.value is not None and c.value > 0:
+            low, high = FULL_TURN_DEG / c.limit[1], FULL_TURN_DEG / c.limit[0]
+            reads = FULL_TURN_DEG / c.value
+            said.append(f"the turn about {ax(c.axis or '')} read {reads:.0f}°, where a working sensor reads a full turn "
+                        f"as {low:.0f}° to {high:.0f}°")
+            todo.append(f"turn {ax(c.axis or '')} all the way round, until the device is back against the block"
+                        if reads < low else f"turn {ax(c.axis or '')} exactly once, stopping when the device is back "
+                        "against the block")
+        else:
+            said.append(c.text)
+    why = "The calibration is outside the tolerances: " + "; ".join(said) + ". "
+    if todo:
+        why += "Most likely that turn was not a full one: start a new calibration and " + "; ".join(todo) + "."
+    elif hand_turns:
+        why += ("Check that the device rested against the block and that each turn was one full turn about the asked "
+                "axis, then start a new calibration.")
+    else:
+        why += ("Check the recording's units (raw counts need their sensitivities) and that the device rested in each "
+                "pose, then record it again.")
+    if any((c.name, c.axis) in failed_before for c in failed):
+        why += " It failed the same way the time before: the sensor may be faulty; have the device checked."
+    return why
 
 
 def connect_failed(detail: str) -> str:

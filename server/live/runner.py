@@ -28,6 +28,7 @@ from . import guidance as say
 from .buffer import SampleBuffer
 from .codes import EndReason
 from .events import Broadcaster, Event
+from .history import calibration_history, failed_last_time
 from .persistence import Persistence
 from .session import GuidedSession
 from .snapshot_schema import SessionOut
@@ -317,11 +318,12 @@ class LiveSession(Persistence):
             return
         result = outcome.result
         try:
-            history = [c.model_dump() for c in await asyncio.to_thread(self.store.calibrations, m.device_id)]
+            history = await asyncio.to_thread(calibration_history, self.store, m.device_id)
+            failed_before = await asyncio.to_thread(failed_last_time, self.store, m.device_id)
         except Exception:  # the store's history only adds a caution: a result stands without it
             log.warning("the history of %s could not be read to compare the new calibration with", m.device_id, exc_info=True)
-            history = []
-        m.set_result(result, history)
+            history, failed_before = [], set()
+        m.set_result(result, history, failed_before)
 
     async def _stop_link(self) -> None:
         link = self.device.link
@@ -340,7 +342,8 @@ class LiveSession(Persistence):
                   "warnings": [w.model_dump() for w in m.warnings],
                   "turns": {a: t.to_dict() for a, t in m.turns.items()},
                   "checks": [] if m.judgement is None else m.judgement.checks_json(),
-                  "departures": [] if m.judgement is None else m.judgement.departures_json(), "samples": m.buf.n, "sample_rate_hz": m.fs,
+                  "departures": [] if m.judgement is None else m.judgement.departures_json(),
+                  "accuracy": None if m.judgement is None else m.judgement.accuracy, "samples": m.buf.n, "sample_rate_hz": m.fs,
                   "gyro_full_scale_dps": m.full_scale, "identity": self.identity.to_json() if self.identity else None,
                   "temperatures_c": self.temperatures_c},
         )

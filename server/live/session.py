@@ -33,6 +33,7 @@ from ..config import Settings
 from . import guidance as say
 from .buffer import SampleBuffer
 from .codes import END_STATES, TURN_STATES, EndReason, Phase, State
+from .history import FailedChecks
 from .lateness import Lateness
 from .protocol_steps import ProtocolSteps
 from .sensor_faults import SensorFaultWatch
@@ -278,16 +279,17 @@ class GuidedSession(ProtocolSteps, Lateness):
         """The stages the estimator gets: every still, and the turns that passed their checks."""
         return self.stream.protocol_stages(list(self.turns.values()))
 
-    def set_result(self, result: CalibrationResult, history: list[dict[str, Any]] | None = None) -> None:
+    def set_result(self, result: CalibrationResult, history: list[dict[str, Any]] | None = None,
+                   failed_before: FailedChecks = frozenset()) -> None:
         """The estimator's result: judge it against the tolerances (and the device's earlier calibrations,
-        ``history``), then done or failed."""
+        ``history``), then done or failed (``failed_before``: the checks its last judged result failed)."""
         if self.finished:
             return
         self.result = result
         self.judgement = judge(result, self.tol, history or [])
         self.passed = self.judgement.passed
         if not self.passed:
-            self.fail(EndReason.OUT_OF_TOLERANCE, say.out_of_tolerance(self.judgement.failures))
+            self.fail(EndReason.OUT_OF_TOLERANCE, say.out_of_tolerance(self.judgement.failed_checks, failed_before))
             return
         self._end(State.DONE, say.done_prompt(True))
 

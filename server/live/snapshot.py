@@ -134,7 +134,8 @@ def stored_snapshot(row: StoredSession) -> SessionOut:
         "passed": row["passed"],
         "checks": info.get("checks") or [],
         "departures": info.get("departures") or [],
-        "accuracy": turn_accuracy(row["result"]) if row["result"] else None,
+        # as judged when it ended (against the calibration in force then); sessions stored before: from the result
+        "accuracy": info.get("accuracy") or (turn_accuracy(row["result"]) if row["result"] else None),
         "warnings": info.get("warnings") or [],
         "turns": info.get("turns") or {},
         "decision": row["decision"],

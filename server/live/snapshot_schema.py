@@ -87,8 +87,11 @@ class RemoteGateway(BaseModel):
 class TurnAccuracy(BaseModel):
     """How well a full turn measures, the worst of the session's turns, before and after the calibration."""
 
-    before_deg: float = Field(description="how far the raw readings (bias removed) of a full turn were from 360°")
-    after_deg: float = Field(description="how far from where it began a turn ends, measured with the calibration")
+    before_deg: float = Field(description="how far from 360° a full turn read with what the device used until now: its "
+                                          "calibration in force, or the raw readings (bias removed) when it had none")
+    after_deg: float = Field(description="how far from where it began a turn ends, measured with this calibration")
+    before_with: Literal["calibration", "raw"] = Field("raw", description="what before_deg was measured with")
+    before_calibration_id: int | None = Field(None, description="the calibration in force it was measured with")
 
 
 CHECKS_TEXT = ("each tolerance check: name, axis, value, limit, ok, text, used (the share of the allowance the value "

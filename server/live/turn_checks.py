@@ -105,7 +105,8 @@ class TurnChecks:
         true_angle = None
         if self.live_angle.calibrated and self.live_angle.checks_turns:
             true_angle = float(self.live_angle.of(angles)[AXES.index(axis)])
-        return TurnMeasure(angles, self.stream.saturated(st), lost, self.stream.gravity_change_deg(st), true_angle)
+        return TurnMeasure(angles, self.stream.saturated(st), lost, self.stream.gravity_change_deg(st), true_angle,
+                           duration_s=st.end_s - st.start_s)
 
     def _record_turn(self, axis: str, st: Stage, angles: np.ndarray, gravity_deg: float | None, confirmed: bool) -> None:
         self.turns[axis] = TurnRecord(axis, st.start, st.end, st.start_s, st.end_s, angles,

@@ -27,6 +27,7 @@ class TurnMeasure:
     lost: int  # samples lost on the link during the motion
     gravity_deg: float | None  # gravity's direction change from the rest before to the rest after (None without accelerometer)
     true_angle_deg: float | None = None  # the angle about the asked axis through the device's accepted calibration, if any
+    duration_s: float | None = None  # how long the motion took
 
 
 # With an accepted calibration the angle is known in true degrees, up to the power-up change of k since (about
@@ -50,7 +51,7 @@ def judge_turn(axis: str, m: TurnMeasure, tol: Tolerances, full_scale_dps: float
     if m.lost:
         return EndReason.SAMPLE_LOSS, say.sample_loss(axis, m.lost, retry)
     if m.saturated:
-        return EndReason.TOO_FAST, say.too_fast(axis, full_scale_dps, retry)
+        return EndReason.TOO_FAST, say.too_fast(axis, full_scale_dps, retry, m.duration_s)
     if got != axis and abs(angles[k_got]) >= 0.5 * tol.turn_angle_min_deg:
         return EndReason.WRONG_AXIS, say.wrong_axis(axis, got, retry)
     if abs(a) < tol.turn_angle_min_deg:

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from calib.judge.acceptance import NEAR_LIMIT_USED, Tolerances, evaluate, turn_accuracy
+from calib.judge.judgement import judge
 from calib.pipeline import calibrate
 from calib.result import CalibrationResult
 from calib.simulator import simulate
@@ -42,11 +43,27 @@ def test_a_value_that_is_not_finite_uses_no_allowance_and_fails() -> None:
 def test_turn_accuracy_reads_the_raw_full_turn_before_and_the_closure_after() -> None:
     rec, truth = simulate(3, noise=0.03)
     acc = turn_accuracy(calibrate(rec))
-    assert acc is not None
+    assert acc is not None and acc["before_with"] == "raw"
     # a full turn reads 360/k raw: the worst axis is the one whose k is furthest from 1
     expected = max(abs(360.0 / k - 360.0) for k in truth.k)
-    assert acc["before_deg"] == pytest.approx(expected, abs=3.0)
+    assert acc["before_deg"] == pytest.approx(expected, abs=0.05)
     assert acc["after_deg"] < 0.1
+
+
+def test_turn_accuracy_compares_with_the_calibration_in_force_when_the_device_has_one() -> None:
+    """"Before" is what the device used until now: through the calibration in force a full turn reads k_old/k_new of
+    360° (about 360° when the sensor has not changed), and the judgement takes the newest stored calibration."""
+    rec, truth = simulate(3, noise=0.03)
+    res = calibrate(rec)
+    b = [float(v) for v in truth.b]
+    same = {"id": 7, "k": [float(v) for v in truth.k], "K": None, "b": b}
+    acc = turn_accuracy(res, same)
+    assert acc is not None and acc["before_with"] == "calibration" and acc["before_calibration_id"] == 7
+    assert acc["before_deg"] < 0.05  # the sensor is the one that calibration was made on
+    shifted = {"id": 8, "k": [float(truth.k[0]) * 1.01, float(truth.k[1]), float(truth.k[2])], "b": b}
+    assert turn_accuracy(res, shifted)["before_deg"] == pytest.approx(3.6, abs=0.5)  # a 1 % change of k_x: 3.6°
+    assert judge(res, Tolerances(), [shifted, same]).accuracy["before_calibration_id"] == 8
+    assert judge(res, Tolerances(), []).accuracy["before_with"] == "raw"
 
 
 def test_turn_accuracy_is_none_without_the_closure_turn_rows() -> None:

@@ -123,6 +123,17 @@ def test_fault_scenarios_end_failed_with_nothing_stored(service: RunningService,
     assert [(s["session_id"], s["state"], s["decision"]) for s in kept] == [(sid, "failed", "discarded")]
 
 
+def test_a_second_failure_of_the_same_check_says_the_sensor_may_be_faulty(service: RunningService) -> None:
+    """The z turn stopped short, once and again: the failure names the turn to redo; the sensor is suspected only
+    when the device failed the same check the time before (read from its stored sessions)."""
+    for _ in range(2):
+        sid, events = run_to_end(service, "mock-6")
+        with service.client() as c:
+            c.post(f"/sessions/{sid}/discard")
+    final = events[-1]
+    assert final["reason_code"] == "out_of_tolerance" and "the time before: the sensor may be faulty" in final["reason"]
+
+
 def test_link_drop_mid_turn_pauses_redoes_the_turn_and_ends_done(service: RunningService) -> None:
     """The link drops halfway through the y turn: the session pauses, reconnects, asks for y again,
     and the simulated clinician, following that, redoes it; the gap is reported and left out."""

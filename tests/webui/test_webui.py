@@ -127,7 +127,7 @@ def test_happy_path_to_a_saved_calibration(wizard: Wizard, page: Any, webui_serv
     page.goto(webui_service.base + "/#/devices")
     held = page.locator(f".device-card[data-device='{dev}'] .held")
     page.wait_for_selector(f".device-card[data-device='{dev}'] .held.held-other")
-    assert held.inner_text().strip() == f"#{cur['id']}, not the current #{newer['id']}"
+    assert held.inner_text().strip() == f"an older calibration (#{cur['id']}), not the latest (#{newer['id']})"
     wizard.shot("11-holds-another")
     assert wizard.small_targets() == []
     page.click(f".device-card[data-device='{dev}'] button.write-back")
@@ -188,7 +188,9 @@ def test_after_a_calibration_the_gauge_reads_true_degrees_to_360(page: Any, webu
         deadline = time.monotonic() + 120
         while c.get(f"/sessions/{sid}").json()["state"] not in ("done", "failed", "cancelled") and time.monotonic() < deadline:
             time.sleep(0.5)
-        assert c.post(f"/sessions/{sid}/accept").status_code == 200
+        accepted = c.post(f"/sessions/{sid}/accept")
+        assert accepted.status_code == 200
+        c_first = accepted.json()["calibration"]["id"]
     page.set_viewport_size(viewport)
     wizard = Wizard(page, webui_service, artifacts / "webui" / f"test_true_degrees_{viewport['width']}")
     wizard.sign_in()
@@ -201,6 +203,11 @@ def test_after_a_calibration_the_gauge_reads_true_degrees_to_360(page: Any, webu
     wizard.wait_state("done", "failed", "cancelled")
     snap = session(webui_service, sid)
     assert snap["state"] == "done", (snap["reason_code"], snap["reason"], snap["warnings"])
+    # "before" is what she used until now, the accepted calibration, not the raw readings (tens of degrees off)
+    acc, first = snap["accuracy"], c_first
+    assert acc["before_with"] == "calibration" and acc["before_calibration_id"] == first and acc["before_deg"] < 5, acc
+    line = wizard.text(".accuracy")
+    assert f"with the calibration it used until now (#{first}), it was up to" in line, line
     seen = wizard.seen()
     assert all(f"turn_{a}:pause" in seen["phases"] for a in "xyz"), seen["phases"]
     assert seen["targets"] == {"x": "360", "y": "360", "z": "360"}, seen["targets"]
@@ -232,6 +239,29 @@ def test_moving_in_a_pause_resets_the_ring_with_a_gentle_warning(page: Any, retr
     moved = [w["message"] for w in snap["warnings"] if w["code"] == "moved_during_pause"]
     assert moved and "pause starts again" not in moved[0]
     wizard.shot("after-retry")
+    assert_clean(page_watch)
+
+
+def test_a_turn_done_wrong_says_why_until_it_is_turned_again(page: Any, retry_service: Any, artifacts: Path,
+                                                           page_watch: Watch) -> None:
+    """A turn too fast for the sensor is asked again: from the moment the service says so, through the rest and the
+    prompt to turn again, the page says why in her words (how long the turn took, how long it should) and which try
+    comes, until she turns."""
+    wizard = Wizard(page, retry_service, artifacts / "webui" / "test_a_turn_done_wrong")
+    wizard.sign_in()
+    wizard.choose("mock-2")
+    sid = wizard.start()
+    wizard.record()
+    wizard.wait_state("failed", timeout_ms=60_000)
+    snap = session(retry_service, sid)
+    assert [w["code"] for w in snap["warnings"]][:1] == ["too_fast"], snap["warnings"]
+    said = [p.split("|", 1) for p in wizard.seen()["phaseNotices"]]
+    retry = [(phase, text) for phase, text in said if phase in ("turn_x:settle", "turn_x:ready")]
+    assert {"turn_x:settle", "turn_x:ready"} <= {phase for phase, _ in retry}, said
+    for _, text in retry:
+        took = re.search(r"That turn about X took (\d\.\d) s: too fast", text)
+        assert text.startswith("Attempt 2 of 2:") and took and float(took.group(1)) < 2.0, said  # 0.6 s turns
+        assert "2–4 s for the whole turn" in text, text
     assert_clean(page_watch)
 
 
@@ -349,12 +379,33 @@ def test_closing_an_unsaved_pass_asks_first_and_the_list_shows_date_and_time(wiz
 
 def test_leaving_an_unsaved_pass_on_purpose_keeps_the_previous_calibration(wizard: Wizard, page: Any, webui_service: Any,
                                                                            page_watch: Watch) -> None:
+    """Left on purpose, the PASS is still not lost: the list marks the device "result not saved" with the way back to
+    it, and from then on the brand link, Back and closing the tab ask before leaving it too."""
     dev = device_for("normal", 8)
     sid = _close_a_fresh_pass(wizard, page, dev)
     page.click("dialog.ask button:has-text('Leave without saving')")
-    page.wait_for_selector(f".device-card[data-device='{dev}']")
-    assert "never calibrated" in page.locator(f".device-card[data-device='{dev}']").inner_text()
+    card = page.locator(f".device-card[data-device='{dev}']")
+    card.wait_for()
+    assert "never calibrated" in card.inner_text()
     assert session(webui_service, sid)["decision"] is None
+    assert card.locator(".unsaved").inner_text().startswith("Result not saved")
+    wizard.shot("list-result-not-saved")
+    card.locator(".unsaved a").click()
+    page.wait_for_selector(".verdict h1:has-text('PASS')")
+    assert page.url.endswith(f"#/session/{sid}")
+    for leave in (lambda: page.click("a.brand"), lambda: page.go_back(wait_until="commit")):
+        leave()
+        dialog = page.wait_for_selector("dialog.ask[open]")
+        assert "Leave without saving?" in dialog.inner_text()
+        page.keyboard.press("Escape")
+        page.wait_for_selector("dialog.ask", state="detached")
+        assert wizard.text(".verdict h1") == "PASS" and page.url.endswith(f"#/session/{sid}")
+    asked: list[str] = []
+    page.once("dialog", lambda d: (asked.append(d.type), d.dismiss()))
+    page.close(run_before_unload=True)  # closing the tab, or a reload: the browser's own question
+    page.wait_for_timeout(500)
+    assert asked == ["beforeunload"] and not page.is_closed()
+    assert wizard.text(".verdict h1") == "PASS"
     assert_clean(page_watch)
 
 

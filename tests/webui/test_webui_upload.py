@@ -88,6 +88,34 @@ def test_a_multi_position_upload_shows_the_g_sensitivity_it_found(wizard: Wizard
     assert_clean(page_watch)
 
 
+def test_a_scale_factor_near_its_limit_is_said_in_the_sensors_own_terms_either_way(wizard: Wizard, page: Any,
+                                                                                     page_watch: Watch, tmp_path: Path) -> None:
+    """g = K m: k_x = 1.19 makes a full turn read 302.5°, 16 % low; k_z = 0.82 makes it read 439°, 22 % high. The caution
+    says what the sensor reads, in the right direction, never "over-reads" for a sensor that reads low."""
+    from calib.io.readers import write_native_csv
+    from calib.simulator import SensorParams, simulate
+
+    rec, _ = simulate(11, noise=0.03, params=SensorParams(k=np.array([1.19, 1.0, 0.82]), b=np.array([0.5, -0.3, 0.2])))
+    path = tmp_path / "near-limits.csv"
+    write_native_csv(rec, path)
+    wizard.sign_in()
+    page.click("#upload-link")
+    page.wait_for_selector("form.upload-form")
+    page.fill("#up-device", "near-limits")
+    page.set_input_files("#up-file", str(path))
+    page.click("form.upload-form button[type=submit]")
+    page.wait_for_url("**/#/session/*")
+    page.wait_for_selector(".verdict h1:has-text('PASS')")
+    assert wizard.text(".verdict .ready") == "Ready for the study, with a caution"
+    x = wizard.text(".near-limits li[data-check='k:x']")
+    z = wizard.text(".near-limits li[data-check='k:z']")
+    assert x == "The X axis reads 16 % low: a full turn shows as 303° instead of 360° (from 300° to 450° is allowed).", x
+    assert z == "The Z axis reads 22 % high: a full turn shows as 439° instead of 360° (from 300° to 450° is allowed).", z
+    assert "over-reads" not in page.inner_text("main") and "under-reads" not in page.inner_text("main")
+    wizard.shot("caution-either-way")
+    assert_clean(page_watch)
+
+
 def test_imu_tk_s_two_files_are_uploaded_from_the_page(wizard: Wizard, page: Any, page_watch: Watch, real_data: Path) -> None:
     """imu_tk's Xsens session, its gyroscope and accelerometer files chosen on the form: calibrated from its 37
     re-orientations and shown, with why it cannot be accepted (imu_tk's example sensitivities read it 31 % low)."""

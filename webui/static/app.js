@@ -18,6 +18,8 @@ const who = document.getElementById("who");
 const banner = document.getElementById("banner");
 let cleanup = null;
 let afterSignIn = null;
+let leaveGuard = null; // the view's question before it is left (an unsaved PASS): async () => true to leave
+let shownHash = null; // the route on screen
 
 const ROUTES = [
   [/^#\/devices$/, () => devicesView(ctx)],
@@ -39,6 +41,12 @@ const ctx = {
       history.replaceState(null, "", hash);
       route();
     } else location.hash = hash;
+  },
+  /** Ask ``question`` (async, true: leave) before this view is left: a link, Back, a reload or closing the tab.
+   * Back is caught by an extra history entry of this view's own: going back to the entry beneath asks. */
+  guardLeave(question) {
+    leaveGuard = question;
+    if (question && !(history.state && history.state.guard)) history.pushState({ guard: true }, "", location.hash);
   },
   title(text) {
     document.title = text ? `${text} · gyrocal` : "gyrocal";
@@ -111,11 +119,37 @@ function showSignIn(message) {
   });
 }
 
+/** Back from a guarded view (to the entry beneath its own): ask; staying puts the guard entry back. */
+async function onPopState() {
+  if (!leaveGuard || location.hash !== shownHash || (history.state && history.state.guard)) return;
+  const question = leaveGuard;
+  if (await question()) {
+    if (leaveGuard === question) leaveGuard = null;
+    history.back();
+  } else history.pushState({ guard: true }, "", shownHash);
+}
+
+/** A new hash: ask the view's question first, showing the view until it is answered. */
+async function onHashChange() {
+  if (location.hash === shownHash) return; // back onto the view on screen (a question answered "stay")
+  if (leaveGuard) {
+    const question = leaveGuard;
+    if (!(await question())) {
+      history.back(); // to the view's own entry: the link or Forward that was followed is undone
+      return;
+    }
+    if (leaveGuard === question) leaveGuard = null;
+  }
+  route();
+}
+
 function route() {
   if (cleanup) {
     cleanup();
     cleanup = null;
   }
+  leaveGuard = null;
+  shownHash = location.hash;
   ctx.banner(null);
   if (!api.signedIn) {
     afterSignIn = location.hash && location.hash !== "#/signin" ? location.hash : "#/devices";
@@ -136,7 +170,13 @@ function route() {
 
 async function start() {
   api.onUnauthorized = (err) => signOutAndAsk(err.detail);
-  window.addEventListener("hashchange", route);
+  window.addEventListener("hashchange", onHashChange);
+  window.addEventListener("popstate", onPopState);
+  window.addEventListener("beforeunload", (ev) => {
+    if (!leaveGuard) return;
+    ev.preventDefault();
+    ev.returnValue = ""; // the browser asks; what it says is its own
+  });
   try {
     await api.health();
   } catch (err) {

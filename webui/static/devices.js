@@ -55,11 +55,16 @@ function deviceCard(ctx, dev, refresh) {
         h("dd", { class: cur ? (due ? "calibrated due" : "calibrated") : "never" }, icon(cur ? (due ? "warn" : "check") : "info"),
           h("span", null, cur ? `${fmtDateTime(cur.accepted_at)} by ${cur.operator}` : "never calibrated",
             due && cur ? h("span", { class: "due-note" }, ` · due: ${dev.calibration_due.reason}`) : null))),
-      held ? h("div", null, h("dt", null, "Device holds"),
+      held ? h("div", null, h("dt", null, "Stored on the wearable"),
         h("dd", { class: `held ${held.cls}` }, icon(held.icon), h("span", null, held.text))) : null),
     dev.limitations && dev.limitations.length
       ? h("ul", { class: "dev-limits", "aria-label": "What this device cannot tell" },
         dev.limitations.map((text) => h("li", null, icon("info"), h("span", null, text))))
+      : null,
+    dev.unsaved_session && !dev.active_session
+      ? h("p", { class: "unsaved", role: "note" }, icon("warn"),
+        h("span", null, "Result not saved: the last calibration passed but nobody accepted it. "),
+        h("a", { href: `#/session/${dev.unsaved_session}` }, "Open it to save or discard"))
       : null,
     h("div", { class: "dev-actions" }, actions),
     write ? write.line : null);

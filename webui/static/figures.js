@@ -39,8 +39,9 @@ export function icon(name, { label, cls } = {}) {
 }
 
 /** A notice box: an icon and a sentence; kind warn, info or error (an error is announced at once). */
-export function notice(kind, iconName, text) {
-  return h("div", { class: `notice ${kind}`, role: kind === "error" ? "alert" : "status" }, icon(iconName), h("span", null, text));
+export function notice(kind, iconName, text, label = null) {
+  return h("div", { class: `notice ${kind}`, role: kind === "error" ? "alert" : "status" }, icon(iconName),
+    h("span", null, label ? h("strong", { class: "notice-label" }, label) : null, label ? " " : null, text));
 }
 
 // -- the device and its printed axes -----------------------------------------------------------
@@ -181,7 +182,7 @@ export function angleGauge(axis) {
       dot.setAttribute("cy", y.toFixed(2));
       text.textContent = a < 5 ? "ready" : "turning";
       sub.textContent = "back to the block";
-      el.removeAttribute("aria-valuenow");
+      el.setAttribute("aria-valuenow", String(Math.min(360, Math.round(a)))); // a meter needs a value; its text says more
       el.setAttribute("aria-valuetext", a < 5 ? "not turning yet" : "turning; no angle target: stop when the device is back against the block");
       return;
     }

@@ -67,7 +67,8 @@ export function fleetView(ctx) {
     gateways, stamp,
     h("div", { class: "table-wrap" },
       h("table", { class: "fleet-table" },
-        h("thead", null, h("tr", null, ["Wearable", "Gateway", "Last seen", "Session", "Calibration", ""].map((t) => h("th", { scope: "col" }, t)))),
+        h("thead", null, h("tr", null, ["Wearable", "Gateway", "Last seen", "Session", "Calibration"].map((t) => h("th", { scope: "col" }, t)),
+          h("th", { scope: "col" }, h("span", { class: "visually-hidden" }, "Open")))),
         body))));
   ctx.focusMain();
   const stop = ctx.api.followFleet(show, (link) => {

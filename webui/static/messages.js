@@ -68,7 +68,7 @@ export const REASONS = {
   link_lost: { title: "The connection was lost", fix: "Check the device is switched on, charged and close to the receiver, then try again.", icon: "link" },
   unreadable_data: { title: "The device sends data this version cannot read", fix: "Not your turns, not the radio: start again. If it happens again, the device's firmware and this service do not match: tell the administrator.", icon: "fail" },
   sensor_fault: { title: "The device's sensor is faulty", fix: "Not your turns: switch the device off and on and start again. If it happens again, the device needs repair.", icon: "fail" },
-  out_of_tolerance: { title: "The result is outside the tolerances", fix: "Redo the calibration. If it fails again, the sensor may be faulty.", icon: "fail" },
+  out_of_tolerance: { title: "The result is outside the tolerances", fix: "Press Redo and calibrate again, doing what is said above.", icon: "fail" },
   calibration_failed: { title: "The calibration could not be computed", fix: "Start again, following each step on the screen.", icon: "fail" },
   timeout: { title: "The calibration took too long", fix: "Start again; the whole calibration takes about a minute.", icon: "clock" },
   service_overloaded: { title: "The service was too busy to follow", fix: "Not the device, nor your turns: start again. If it happens again, tell the administrator the service is overloaded.", icon: "clock" },

@@ -14,20 +14,32 @@ function degrees(v) {
   return `${num(v, 0)}°`;
 }
 
-/** "within 0.01° per full turn; before this calibration a full turn read up to 59° wrong" */
+/** How much better a full turn measures, against what the device used until now: its calibration in force, or
+ * its raw readings when it had none. */
 export function accuracySentence(acc, dev) {
   if (!acc) return null;
-  return `${dev} now measures a full turn to within ${degrees(acc.after_deg)}; before this calibration it was up to ${degrees(acc.before_deg)} off.`;
+  const before = acc.before_with === "calibration"
+    ? `with the calibration it used until now${acc.before_calibration_id ? ` (#${acc.before_calibration_id})` : ""}, it was up to ${degrees(acc.before_deg)} off`
+    : `uncalibrated, it was up to ${degrees(acc.before_deg)} off`;
+  return `${dev} now measures a full turn to within ${degrees(acc.after_deg)}; ${before}.`;
+}
+
+/** What a scale factor means in the sensor's own terms. g = K m: the true rate is k times the reading, so a true full
+ * turn reads 360°/k, low when k > 1 and high when k < 1; ``limit`` is the scale factors' allowed range [low, high]. */
+export function readsSentence(axis, k, limit) {
+  const reads = 360 / k;
+  const percent = Math.round(Math.abs(reads / 360 - 1) * 100);
+  const direction = percent === 0 ? "true" : reads < 360 ? `${percent} % low` : `${percent} % high`;
+  const allowed = Array.isArray(limit) ? ` (from ${Math.round(360 / limit[1])}° to ${Math.round(360 / limit[0])}° is allowed)` : "";
+  return `The ${axis} axis reads ${direction}: a full turn shows as ${Math.round(reads)}° instead of 360°${allowed}.`;
 }
 
 /** A few words for a check that passed close to its limit. */
 function nearLimitText(c) {
   const a = ax(c.axis);
   switch (c.name) {
-    case "k": {
-      const limit = Math.round(Math.max(Math.abs(c.limit[0] - 1), Math.abs(c.limit[1] - 1)) * 100);
-      return `The ${a} axis ${c.value >= 1 ? "over" : "under"}-reads by ${Math.round(Math.abs(c.value - 1) * 100)} % (at most ${limit} % is allowed).`;
-    }
+    case "k":
+      return readsSentence(a, c.value, c.limit);
     case "b":
       return `The ${a} axis reads ${num(Math.abs(c.value), 1)} °/s while still (at most ${num(c.limit, 0)} °/s is allowed).`;
     case "k_std":

@@ -150,6 +150,7 @@ export function sessionView(ctx, sid) {
   let seenWarnings = null;
   let warningTimer = null;
   let shownWarning = null;
+  let seenAttempt = null; // the try of the current turn, as the last snapshot said
   let lastStep = null; // the step this page saw the session at, before it ended
   let lastAxis = null; // the turn a lost connection interrupted
 
@@ -275,22 +276,33 @@ export function sessionView(ctx, sid) {
 
   const updateNotice = (s) => {
     const warnings = s.warnings || [];
+    const attemptBefore = seenAttempt;
+    seenAttempt = s.attempt;
     if (seenWarnings === null) seenWarnings = warnings.length; // on (re)load, old warnings are history
     if (warnings.length > seenWarnings) {
       const w = warnings[warnings.length - 1];
       seenWarnings = warnings.length;
       const kind = ["link_restored", "hint", "data_resumed", "service_late"].includes(w.code) ? "info" : "warn";
-      shownWarning = { until: Date.now() + WARNING_SHOW_MS, message: w.message, axis: s.axis };
+      // a turn that will be asked again (the warning came with the next attempt): why, until that try starts
+      const retry = s.state.startsWith("turn_") && attemptBefore !== null && s.attempt > attemptBefore;
+      shownWarning = { until: retry ? Infinity : Date.now() + WARNING_SHOW_MS, message: w.message, axis: s.axis,
+        state: s.state, retry, rested: false };
       ui.noticeBox.dataset.key = `warning-${seenWarnings}`;
-      fill(ui.noticeBox, notice(kind, WARNING_ICON[w.code] || "warn", w.message));
+      ui.noticeBox.dataset.warning = w.code;
+      fill(ui.noticeBox, notice(kind, WARNING_ICON[w.code] || "warn", w.message,
+        retry ? `Attempt ${s.attempt} of ${s.max_attempts}:` : null));
       clearTimeout(warningTimer);
       warningTimer = setTimeout(() => alive && snap && ui && updateNotice(snap), WARNING_SHOW_MS + 50);
     }
     if (shownWarning) {
       // a warning stays a while, unless the instruction itself now says the same or the session has moved on
-      // to the step it asked for (a new turn started, or another state): then it would contradict the screen
-      const movedOn = ["turning", "placing"].includes(s.phase) || s.state === "computing"
-        || Boolean(shownWarning.axis && s.axis && s.axis !== shownWarning.axis);
+      // to the step it asked for (a new turn started, or another state): then it would contradict the screen.
+      // A retried turn's reason stays through the rest and the prompt to turn again, until that turn starts.
+      if (shownWarning.retry && ["settle", "ready", "pause"].includes(s.phase)) shownWarning.rested = true;
+      const movedOn = shownWarning.retry
+        ? (s.phase === "turning" && shownWarning.rested) || s.state !== shownWarning.state
+        : ["turning", "placing"].includes(s.phase) || s.state === "computing"
+          || Boolean(shownWarning.axis && s.axis && s.axis !== shownWarning.axis);
       if (shownWarning.message !== s.prompt && Date.now() < shownWarning.until && !movedOn) return;
       shownWarning = null;
     }
@@ -298,6 +310,7 @@ export function sessionView(ctx, sid) {
     const key = resting && s.live && s.live.moving ? "moving" : "";
     if (ui.noticeBox.dataset.key === key) return;
     ui.noticeBox.dataset.key = key;
+    delete ui.noticeBox.dataset.warning;
     fill(ui.noticeBox, key ? notice("warn", "hand", "The device is moving. Hold it still against the block: the ring fills again once it is still.") : null);
   };
 
@@ -334,6 +347,7 @@ export function sessionView(ctx, sid) {
   // -- ended ------------------------------------------------------------------------------------
   const renderEnded = (s) => {
     clearTimeout(warningTimer);
+    if (s.decision) ctx.guardLeave(null); // decided here or on another page
     if (s.decision === "accepted") return savedView(s);
     if (s.decision === "discarded") return discardedView(s);
     if (s.state === "done") return resultView(s, true);
@@ -357,6 +371,7 @@ export function sessionView(ctx, sid) {
   const discard = async () => {
     if (snap && snap.decision) return snap;
     const out = await api.post(`/sessions/${sid}/discard`, {});
+    ctx.guardLeave(null);
     return out;
   };
 
@@ -392,6 +407,7 @@ export function sessionView(ctx, sid) {
         accept.replaceChildren(icon("clock"), "Saving…");
         try {
           const out = await api.post(`/sessions/${sid}/accept`, {});
+          ctx.guardLeave(null);
           endedKey = `${s.state}:accepted`;
           snap = { ...s, decision: "accepted", calibration_id: out.calibration.id };
           savedView(snap, out.calibration);
@@ -404,22 +420,24 @@ export function sessionView(ctx, sid) {
     }
     const failures = (s.checks || []).filter((c) => !c.ok).map((c) => c.text);
     const summary = readiness(s, dev, pass);
+    // a FAIL says what the service found and which turn to redo, in its words (server.live.guidance)
     const sentence = pass
       ? `The gyroscope of ${dev} is calibrated within the tolerances.`
-      : `The result is outside the tolerances: ${failures.join("; ") || s.reason}.`;
+      : s.reason || `The result is outside the tolerances: ${failures.join("; ")}.`;
     const next = pass
       ? "Press “Accept & save” to make it the device's calibration, or Redo if anything went wrong during the turns."
       : reasonFor("out_of_tolerance").fix;
     ctx.title(pass ? "PASS" : "FAIL");
-    // leaving a PASS nobody accepted loses it from the device: ask first, with staying as the safe answer
-    const close = cancelButton(async () => {
-      if (pass && !(snap && snap.decision) && !(await ask({
+    // leaving a PASS nobody accepted loses it from the device: ask first (Close, a link, Back, a reload, closing
+    // the tab), with staying as the safe answer
+    if (pass && !(snap && snap.decision)) {
+      ctx.guardLeave(() => ask({
         title: "Leave without saving?",
         text: `This PASS is not saved: ${dev} keeps its previous calibration until you press “Accept & save”.`,
         stay: "Stay and save", leave: "Leave without saving",
-      }))) return;
-      ctx.go("#/devices");
-    }, "Close");
+      }));
+    }
+    const close = cancelButton(() => ctx.go("#/devices"), "Close");
     const kind = pass ? (summary.near.length || summary.departed.length ? "pass near-limit" : "pass") : "fail";
     endLayout(s, 6, verdictEl(kind, pass ? "pass" : "fail", pass ? "PASS" : "FAIL", null, summary.ready), [
       ...summary.parts,

@@ -11,24 +11,24 @@ export function heldFact(dev) {
   const cur = dev.current_calibration;
   switch (dev.held_state) {
     case "current":
-      return { cls: "held-current", icon: "check", text: `the current calibration (#${dev.held_calibration_id})` };
+      return { cls: "held-current", icon: "check", text: `its latest calibration (#${dev.held_calibration_id})` };
     case "other":
-      return { cls: "held-other", icon: "warn", text: cur ? `#${dev.held_calibration_id}, not the current #${cur.id}` : `#${dev.held_calibration_id}, unknown here` };
+      return { cls: "held-other", icon: "warn", text: cur ? `an older calibration (#${dev.held_calibration_id}), not the latest (#${cur.id})` : `calibration #${dev.held_calibration_id}, not known here` };
     case "none":
-      return { cls: "held-none", icon: "info", text: "no calibration" };
+      return { cls: "held-none", icon: "info", text: "none yet: the calibration is applied here, not on the wearable" };
     default:
-      return { cls: "held-unknown", icon: "info", text: "not asked yet" };
+      return { cls: "held-unknown", icon: "info", text: "not checked yet" };
   }
 }
 
-/** A "Write to device" button and its status line; ``done(out)`` runs after a verified write. */
+/** A "Store on the wearable" button and its status line; ``done(out)`` runs after a verified write. */
 export function writeBack(api, deviceId, calibrationId, done) {
-  const label = calibrationId ? `Write #${calibrationId} to device` : "Write to device";
+  const label = "Store on the wearable";
   const line = h("p", { class: "writeback-status", role: "status" });
   const button = h("button", { class: "button write-back", type: "button" }, icon("save"), label);
   button.addEventListener("click", async () => {
     button.disabled = true;
-    button.replaceChildren(icon("clock"), "Writing…");
+    button.replaceChildren(icon("clock"), "Storing…");
     line.className = "writeback-status";
     line.textContent = "Sending the calibration and reading it back…";
     try {
@@ -36,7 +36,7 @@ export function writeBack(api, deviceId, calibrationId, done) {
       const out = await api.post(`/devices/${encodeURIComponent(deviceId)}/calibration/write`, body);
       line.classList.add("ok");
       line.replaceChildren(icon("check"), h("span", null, `Written and verified: the device holds calibration #${out.calibration_id}.`));
-      button.replaceChildren(icon("save"), "Write again");
+      button.replaceChildren(icon("save"), "Store again");
       if (done) done(out);
     } catch (err) {
       line.classList.add("error");
