@@ -1,7 +1,8 @@
 """Screenshots of every state of the clinician's page, for docs/webui.md.
 
 Starts `gyrocal serve` with simulated wearables on a fresh store, drives Chromium through each state with
-Playwright at a landscape (1280x800) and a portrait (820x1180) tablet, and writes docs/img/webui/<state>-<view>.jpg.
+Playwright at a landscape (1280x800) and a portrait (820x1180) tablet and a phone (390x844, a phone's browser), and
+writes docs/img/webui/<state>-<view>.jpg.
 
     .venv/bin/python scripts/webui_screenshots.py [--out docs/img/webui]
 """
@@ -29,7 +30,8 @@ ROOT = Path(__file__).resolve().parents[1]
 CHROMIUM = "/usr/bin/chromium"
 OPERATOR, SECRET, PIN = "alice", "correct horse battery staple", "4831"
 TOKEN = "screenshots-token"
-VIEWS = {"landscape": {"width": 1280, "height": 800}, "portrait": {"width": 820, "height": 1180}}
+VIEWS = {"landscape": {"width": 1280, "height": 800}, "portrait": {"width": 820, "height": 1180},
+         "phone": {"width": 390, "height": 844}}
 # mock-N performs SCENARIOS[N-1]; the careful hand follows the page's prompts
 SCENARIOS = ["hand:careful", "hand:careful", "wrong_axis", "moved_during_still", "link_drop", "hand:careful", "hand:bumps"]
 
@@ -70,7 +72,9 @@ class Shots:
 
     def __init__(self, browser: Any, base: str, out: Path, view: str) -> None:
         self.base, self.out, self.view = base, out, view
-        self.ctx = browser.new_context(viewport=VIEWS[view], has_touch=True, base_url=base, locale="en-GB", timezone_id="Europe/Vienna")
+        phone = {"is_mobile": True, "device_scale_factor": 2} if view == "phone" else {}
+        self.ctx = browser.new_context(viewport=VIEWS[view], has_touch=True, base_url=base, locale="en-GB", timezone_id="Europe/Vienna",
+                                       **phone)
         self.page = self.ctx.new_page()
         self.page.set_default_timeout(60_000)
 

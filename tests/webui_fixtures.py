@@ -135,11 +135,13 @@ def page_watch() -> Watch:
 
 @contextlib.contextmanager
 def watched_page(browser: Any, service: RunningService, watch: Watch, viewport: dict[str, int] | None = None,
-                 timeout_ms: float = 30_000) -> Iterator[Any]:
-    """A fresh page on ``service`` (tablet-sized unless ``viewport``); requests to anywhere but this computer are
-    refused, and every request, refusal and console error goes to ``watch``."""
+                 timeout_ms: float = 30_000, phone: bool = False) -> Iterator[Any]:
+    """A fresh page on ``service`` (tablet-sized unless ``viewport``; ``phone``: a phone's browser, touch only, at its
+    pixel density); requests to anywhere but this computer are refused, and every request, refusal and console error
+    goes to ``watch``."""
+    mobile = {"is_mobile": True, "device_scale_factor": 3} if phone else {}
     context = browser.new_context(viewport=viewport or TABLET, has_touch=True, base_url=service.base, locale="en-GB",
-                                  timezone_id="Europe/Vienna")
+                                  timezone_id="Europe/Vienna", **mobile)
 
     def refuse(route: Any) -> None:
         watch.blocked.append(route.request.url)

@@ -320,3 +320,50 @@ def test_a_result_unlike_the_devices_history_is_named_before_accept(hand_wizard:
     assert "earlier calibrations" in w.text(".departures") and "dropped or knocked" in w.text(".departures")
     w.shot("departure")
     assert_clean(page_watch)
+
+
+PHONE = {"width": 390, "height": 844}
+
+
+def fits_the_screen(w: Wizard) -> None:
+    """Nothing to scroll sideways, and nothing of the top bar cut off."""
+    wide, shown = w.page.evaluate("() => [document.documentElement.scrollWidth, document.documentElement.clientWidth]")
+    assert wide <= shown, f"the page is {wide} px wide on a {shown} px screen"
+    for b in w.page.locator(".topbar a, .topbar button").all():
+        r = b.bounding_box()
+        assert r is not None and r["x"] >= 0 and r["x"] + r["width"] <= shown, (b.inner_text(), r)
+
+
+def test_a_phone_is_a_first_class_screen(browser: Any, hand_service: Any, page_watch: Watch, artifacts: Path) -> None:
+    """At 390x844 in a phone's browser, touch only: the page is as wide as the screen (nothing cut, nothing to scroll
+    sideways), Start, Details and Discard take a tap, the gauge takes most of the width with the turn's tiles on the
+    first screen below it, not over it; every screen passes axe-core."""
+    with watched_page(browser, hand_service, page_watch, PHONE, timeout_ms=45_000, phone=True) as pg:
+        w = Wizard(pg, hand_service, artifacts / "webui" / "test_a_phone")
+        sign_in_with_pin(w)
+        fits_the_screen(w)
+        w.shot("phone-devices")
+        w.page.tap(".device-card[data-device='mock-5'] a.button.primary")
+        start = ".wizard[data-state='place'] button.primary:not([disabled])"
+        w.page.wait_for_selector(start)
+        fits_the_screen(w)
+        w.shot("phone-place")
+        w.page.tap(start)
+        w.page.wait_for_selector(".wizard[data-state='turn_x'] .gauge-wrap")
+        gauge, tiles = box(w, ".gauge-wrap"), box(w, ".tiles")
+        assert gauge["width"] >= 0.65 * PHONE["width"], gauge
+        assert tiles["y"] >= gauge["y"] + gauge["height"] and on_first_screen(w, ".tiles"), (gauge, tiles)
+        assert on_first_screen(w, ".gauge-wrap") and w.page.locator(".instruction").is_visible()
+        fits_the_screen(w)
+        w.shot("phone-turn")
+        w.page.wait_for_selector(".verdict h1", timeout=90_000)
+        fits_the_screen(w)
+        w.shot("phone-result")
+        w.page.tap("details.details summary")
+        w.page.wait_for_selector(".plot svg path.series.after")
+        fits_the_screen(w)
+        w.shot("phone-details")
+        w.page.tap("button:has-text('Discard')")
+        w.page.wait_for_selector(".verdict.neutral")
+    assert_clean(page_watch, allowed_errors=WRONG_PIN)
+
