@@ -88,6 +88,8 @@ class Shots:
 
     def session_of(self, device: str) -> None:
         self.page.goto(f"{self.base}/#/place/{device}")
+        with contextlib.suppress(Exception):  # leaving a PASS nobody saved asks first: leave it unsaved
+            self.page.click("dialog.ask button:has-text('Leave without saving')", timeout=1500)
         self.page.click(".wizard[data-state='place'] button.primary:not([disabled])")
         self.page.wait_for_url(re.compile(r"#/session/[0-9a-f]{32}$"))
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import asyncio
 from dataclasses import replace
 from datetime import UTC, datetime
-from typing import Any, Literal
+from typing import Literal
 
 from pydantic import BaseModel, Field
 
@@ -20,7 +20,7 @@ from calib.apply.identity import IdentityCheckJson, SensorIdentity, WrongSensor,
 
 from .config import CalibrationLimits
 from .store import Store
-from .store.records import CalibrationRecord
+from .store.records import CalibrationRecord, StoredPowerUp
 
 DAY_S = 86400.0
 
@@ -104,7 +104,7 @@ class CalibrationDue(BaseModel):
 
 def calibration_due(current_accepted_at: datetime | None, max_age_days: float, now: datetime | None = None, *,
                     calibration_identity: SensorIdentity | None = None,
-                    device_power_up: dict[str, Any] | None = None) -> CalibrationDue:
+                    device_power_up: StoredPowerUp | None = None) -> CalibrationDue:
     """Due when never calibrated, when the device was switched on again since its current calibration (the power-up
     it last reported, ``device_power_up``, is not the one in ``calibration_identity``), or when that calibration is
     older than ``max_age_days``."""
@@ -119,7 +119,7 @@ def calibration_due(current_accepted_at: datetime | None, max_age_days: float, n
     return CalibrationDue(due=False, reason=f"its calibration is {age:.0f} days old, within the {max_age_days:g} days allowed")
 
 
-def _powered_up_since(calibration_identity: SensorIdentity | None, device_power_up: dict[str, Any] | None) -> bool:
+def _powered_up_since(calibration_identity: SensorIdentity | None, device_power_up: StoredPowerUp | None) -> bool:
     """Whether the power-up a device last reported is another than the one its calibration was measured in."""
     if not calibration_identity or not device_power_up:
         return False

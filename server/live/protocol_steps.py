@@ -14,6 +14,7 @@ from .codes import TURN_STATES, Phase, State
 from .snapshot_schema import LiveReading
 from .time_limits import overdue
 from .turn_checks import TurnChecks
+from .turn_watch import RESUME_DPS, STOP_DPS, STOP_WINDOW_S
 
 
 class ProtocolSteps(TurnChecks):
@@ -25,12 +26,28 @@ class ProtocolSteps(TurnChecks):
     _last_live_emit: float
     _phase_since_t: float
     _hinted: bool
+    _calm_since: float | None  # device time of the first still sample, by the fast stop reading (turn_watch)
 
     @property
     def finished(self) -> bool:
         raise NotImplementedError
 
     def _emit(self, event: str) -> None: ...
+
+    def _shown_rest(self, still_s: float, moving: bool) -> tuple[float, bool]:
+        """The rest as the page shows it: counted from the first still sample. The stage detector, which decides the
+        protocol's steps, learns of a rest 1-1.4 s late (its window is centred); the ring would stay full, then jump.
+        The fast reading of the last ``STOP_WINDOW_S`` (the one that says "hold it still") starts the count, and
+        stops it as soon as the device moves."""
+        rate = self.stream.recent_rate(STOP_WINDOW_S)
+        if rate > RESUME_DPS:  # moving now, whatever the detector has decided yet
+            self._calm_since = None
+            return 0.0, True
+        if rate < STOP_DPS and self._calm_since is None:
+            self._calm_since = self.t_now - STOP_WINDOW_S
+        if self._calm_since is None:
+            return still_s, moving
+        return max(still_s, self.t_now - self._calm_since), False
 
     def still_target(self) -> float | None:
         """How long the device must rest in the current state or phase (s), None when no rest is asked for."""
@@ -45,7 +62,8 @@ class ProtocolSteps(TurnChecks):
     def _update_live(self) -> None:
         still_s, moving, raw = self.stream.live()
         angle = self.live_angle.of(raw)
-        self.live_reading = LiveReading(still_s, moving, angle.tolist(), raw.tolist())
+        shown_still, shown_moving = self._shown_rest(still_s, moving)
+        self.live_reading = LiveReading(shown_still, shown_moving, angle.tolist(), raw.tolist())
         if self.phase in (Phase.TURNING, Phase.PLACING):
             if self._watch_turn(still_s, moving, raw, angle):
                 return

@@ -117,6 +117,7 @@ class GuidedSession(ProtocolSteps, Lateness):
         self.service_late_s = 0.0  # how long the service itself did not run during this session (its own lateness)
         self._late_said_at = -1e9  # device time of the last service_late warning
         self.live_reading = LiveReading()
+        self._calm_since: float | None = None
         self.t_now = 0.0
         self.caused_by: CausedBy | None = None
         self._last_live_emit = -1e9

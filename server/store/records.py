@@ -171,6 +171,15 @@ class StoredSighting(TypedDict):
     rssi_dbm: int | None
 
 
+class StoredPowerUp(TypedDict, total=False):
+    """The power-up a device last reported, as stored."""
+
+    boot_count: int | None
+    booted_at: str | None  # ISO 8601
+    temperature_c: float | None
+    read_at: str | None  # when the service read it
+
+
 class StoredDevice(TypedDict):
     """A device as the store keeps it (times in ISO 8601 UTC)."""
 
@@ -183,7 +192,7 @@ class StoredDevice(TypedDict):
     serial: str | None
     held_calibration_id: int | None
     held_reported_at: str | None
-    power_up: dict[str, Any] | None  # {boot_count, booted_at, temperature_c, read_at} as the device last reported it
+    power_up: StoredPowerUp | None  # as the device last reported it
     first_seen: str | None
     last_seen: str | None
 
@@ -222,7 +231,7 @@ def device_dict(r: Device) -> StoredDevice:
         "serial": r.serial,
         "held_calibration_id": r.held_calibration_id,
         "held_reported_at": iso_utc(r.held_reported_at),
-        "power_up": r.power_up,
+        "power_up": cast(StoredPowerUp | None, r.power_up),  # the JSON column as the store wrote it
         "first_seen": iso_utc(r.first_seen),
         "last_seen": iso_utc(r.last_seen),
     }

@@ -283,6 +283,26 @@ def test_snapshots_are_complete_and_numbered_in_order() -> None:
         assert snap["caused_by"] is None or snap["caused_by"]["t_device_s"] <= snap["live"]["t_device_s"] + 1e-4
 
 
+def test_the_rest_counts_from_the_first_still_sample_without_a_jump() -> None:
+    """The ring of the first rest and of the pause after each turn counts from the moment the device is still, as the
+    page shows it: it does not stay empty while the stage detector makes up its mind (1-1.4 s) and then jump."""
+    rec, _ = sim(STANDARD)
+    run = Run()
+    run.feed(rec)
+    assert run.s.state == "computing"
+    # the first rest: the device lies still from the first sample on
+    first = [(snap["live"]["t_device_s"] - rec.t[0], snap["progress"]["still_s"]) for _, snap in run.events
+             if snap["state"] == "still" and snap["progress"]]
+    assert first and not [(t, s) for t, s in first if abs(s - t) > 0.25], first[:8]
+    for axis in "xyz":
+        stopped = run.s.turns[axis].end_s
+        shown = [(snap["live"]["t_device_s"] - stopped, snap["progress"]["still_s"]) for _, snap in run.events
+                 if snap["state"] == f"turn_{axis}" and snap["phase"] in ("placing", "pause") and snap["progress"]]
+        assert shown, axis
+        late = [(t, s) for t, s in shown if abs(s - t) > 0.25]
+        assert not late, (axis, late[:5])  # the count is the time since the stop, to a quarter of a second
+
+
 @pytest.mark.parametrize("batch", [3, 400])
 def test_paper_protocol_defaults_pass_for_many_seeds(batch: int) -> None:
     for seed in range(6):

@@ -328,7 +328,12 @@ PHONE = {"width": 390, "height": 844}
 def fits_the_screen(w: Wizard) -> None:
     """Nothing to scroll sideways, and nothing of the top bar cut off."""
     wide, shown = w.page.evaluate("() => [document.documentElement.scrollWidth, document.documentElement.clientWidth]")
-    assert wide <= shown, f"the page is {wide} px wide on a {shown} px screen"
+    if wide > shown:
+        over = w.page.evaluate("""(shown) => [...document.querySelectorAll('main *')]
+          .filter((el) => el.getBoundingClientRect().right > shown + 0.5)
+          .slice(0, 6).map((el) => `${el.tagName.toLowerCase()}.${el.className} ${Math.round(el.getBoundingClientRect().right)}`)""",
+                               shown)
+        raise AssertionError(f"the page is {wide} px wide on a {shown} px screen: {over}")
     for b in w.page.locator(".topbar a, .topbar button").all():
         r = b.bounding_box()
         assert r is not None and r["x"] >= 0 and r["x"] + r["width"] <= shown, (b.inner_text(), r)
@@ -365,5 +370,9 @@ def test_a_phone_is_a_first_class_screen(browser: Any, hand_service: Any, page_w
         w.shot("phone-details")
         w.page.tap("button:has-text('Discard')")
         w.page.wait_for_selector(".verdict.neutral")
+        w.page.goto(f"{hand_service.base}/#/history/mock-5")
+        w.page.wait_for_selector("table.history.sessions")
+        fits_the_screen(w)
+        w.shot("phone-history")
     assert_clean(page_watch, allowed_errors=WRONG_PIN)
 
