@@ -355,7 +355,10 @@ def test_a_phone_is_a_first_class_screen(browser: Any, hand_service: Any, page_w
         w.shot("phone-place")
         w.page.tap(start)
         w.page.wait_for_selector(".wizard[data-state='turn_x'] .gauge-wrap")
-        gauge, tiles = box(w, ".gauge-wrap"), box(w, ".tiles")
+        # both measured at one moment: the headline above them changes from "Turn X: ..." to "Turning about X"
+        gauge, tiles = w.page.evaluate("""() => [".gauge-wrap", ".tiles"].map((sel) => {
+          const r = document.querySelector(sel).getBoundingClientRect();
+          return { x: r.x, y: r.y, width: r.width, height: r.height }; })""")
         assert gauge["width"] >= 0.65 * PHONE["width"], gauge
         assert tiles["y"] >= gauge["y"] + gauge["height"] and on_first_screen(w, ".tiles"), (gauge, tiles)
         assert on_first_screen(w, ".gauge-wrap") and w.page.locator(".instruction").is_visible()
