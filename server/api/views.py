@@ -88,8 +88,8 @@ async def device_out(svc: Service, dev: Device | None, row: StoredDevice | None,
     device_id = dev.id if dev is not None else row["id"] if row is not None else ""
     info = dev.info if dev is not None else {}
     current = await asyncio.to_thread(svc.store.current_calibration, device_id)
-    latest = await asyncio.to_thread(svc.store.sessions, device_id, 1)
-    unsaved = next((r["id"] for r in latest if r["state"] == "done" and r["passed"] and r["decision"] is None), None)
+    recent = await asyncio.to_thread(svc.store.sessions, device_id, 10 if detail else 1)  # newest first
+    unsaved = next((r["id"] for r in recent[:1] if r["state"] == "done" and r["passed"] and r["decision"] is None), None)
     power_up = None if row is None else row["power_up"]
     stored: dict[str, object] = dict(row) if row is not None else {}
     fields: dict[str, Any] = {
@@ -120,7 +120,6 @@ async def device_out(svc: Service, dev: Device | None, row: StoredDevice | None,
     }
     if not detail:
         return M.DeviceOut.model_validate(fields)
-    recent = await asyncio.to_thread(svc.store.sessions, device_id, 10)
     return M.DeviceDetail.model_validate({
         **fields,
         "simulated_truth": dev.simulated_truth if dev else None,

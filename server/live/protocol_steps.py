@@ -34,12 +34,11 @@ class ProtocolSteps(TurnChecks):
 
     def _emit(self, event: str) -> None: ...
 
-    def _shown_rest(self, still_s: float, moving: bool) -> tuple[float, bool]:
+    def _shown_rest(self, still_s: float, moving: bool, rate: float) -> tuple[float, bool]:
         """The rest as the page shows it: counted from the first still sample. The stage detector, which decides the
         protocol's steps, learns of a rest 1-1.4 s late (its window is centred); the ring would stay full, then jump.
-        The fast reading of the last ``STOP_WINDOW_S`` (the one that says "hold it still") starts the count, and
-        stops it as soon as the device moves."""
-        rate = self.stream.recent_rate(STOP_WINDOW_S)
+        The fast reading ``rate`` of the last ``STOP_WINDOW_S`` (the one that says "hold it still") starts the count,
+        and stops it as soon as the device moves."""
         if rate > RESUME_DPS:  # moving now, whatever the detector has decided yet
             self._calm_since = None
             return 0.0, True
@@ -62,10 +61,11 @@ class ProtocolSteps(TurnChecks):
     def _update_live(self) -> None:
         still_s, moving, raw = self.stream.live()
         angle = self.live_angle.of(raw)
-        shown_still, shown_moving = self._shown_rest(still_s, moving)
+        rate = self.stream.recent_rate(STOP_WINDOW_S)  # the fast reading: the ring's count and the turn's stop
+        shown_still, shown_moving = self._shown_rest(still_s, moving, rate)
         self.live_reading = LiveReading(shown_still, shown_moving, angle.tolist(), raw.tolist())
         if self.phase in (Phase.TURNING, Phase.PLACING):
-            if self._watch_turn(still_s, moving, raw, angle):
+            if self._watch_turn(still_s, moving, raw, angle, rate):
                 return
         elif self.phase == Phase.PAUSE and self._watch_pause(moving, angle):
             return

@@ -20,7 +20,7 @@ from .codes import TURN_STATES, EndReason, Phase, State
 from .snapshot_schema import LiveReading
 from .stream import SessionStream
 from .turn_judge import TurnMeasure, is_no_turn, judge_turn
-from .turn_watch import EARLY_TURN_DEG, RESUME_DPS, STOP_DPS, STOP_WINDOW_S, LiveAngle
+from .turn_watch import EARLY_TURN_DEG, RESUME_DPS, STOP_DPS, LiveAngle
 from .turns import TurnRecord
 
 
@@ -64,9 +64,9 @@ class TurnChecks:
 
     def _begin_turn(self, rest_before_s: float, provisional: str | None) -> None: ...
 
-    def _watch_turn(self, still_s: float, moving: bool, raw: np.ndarray, angle: np.ndarray) -> bool:
-        """The turn in progress: say "hold still" the moment it stops, check it once it rests. True when the
-        session moved on."""
+    def _watch_turn(self, still_s: float, moving: bool, raw: np.ndarray, angle: np.ndarray, rate: float) -> bool:
+        """The turn in progress: say "hold still" the moment it stops (``rate``: the largest rate of the last
+        ``STOP_WINDOW_S``), check it once it rests. True when the session moved on."""
         axis = AXES[self._axis_i]
         k = AXES.index(axis)
         if not moving and still_s >= self.timings.rest_seen_s and abs(raw[k]) >= self.tol.turn_angle_min_deg:
@@ -76,7 +76,6 @@ class TurnChecks:
             # close the turn: the turn and that motion cannot be told apart any more
             self._moved_during_pause(axis)
             return True
-        rate = self.stream.recent_rate(STOP_WINDOW_S)
         if self.phase == Phase.TURNING:
             if rate < STOP_DPS and float(np.abs(raw).max()) >= EARLY_TURN_DEG and self.live_angle.near_full(float(angle[k])):
                 self._set_phase(Phase.PLACING, say.placing_prompt(axis, self.live_angle.calibrated), keep_clock=True)

@@ -55,6 +55,19 @@ def test_an_uploaded_counts_file_is_recognised_and_its_result_shown(wizard: Wiza
     assert sum("status of 400" in e for e in page_watch.console_errors) == 1
 
 
+def upload_from_page(wizard: Wizard, page: Any, device: str, path: Path) -> None:
+    """Sign in, calibrate the CSV at ``path`` as ``device`` with the page's upload form (no options), and wait for
+    its result screen."""
+    wizard.sign_in()
+    page.click("#upload-link")
+    page.wait_for_selector("form.upload-form")
+    page.fill("#up-device", device)
+    page.set_input_files("#up-file", str(path))
+    page.click("form.upload-form button[type=submit]")
+    page.wait_for_url("**/#/session/*")
+    page.wait_for_selector(".verdict h1")
+
+
 def test_a_multi_position_upload_shows_the_g_sensitivity_it_found(wizard: Wizard, page: Any, page_watch: Watch,
                                                                   tmp_path: Path) -> None:
     import numpy as np
@@ -69,14 +82,7 @@ def test_a_multi_position_upload_shows_the_g_sensitivity_it_found(wizard: Wizard
                       accel_noise_g=0.005, effects=[GSensitivity(G)])
     path = tmp_path / "re-orientations.csv"
     write_native_csv(rec, path)
-    wizard.sign_in()
-    page.click("#upload-link")
-    page.wait_for_selector("form.upload-form")
-    page.fill("#up-device", "re-oriented")
-    page.set_input_files("#up-file", str(path))
-    page.click("form.upload-form button[type=submit]")
-    page.wait_for_url("**/#/session/*")
-    page.wait_for_selector(".verdict h1")
+    upload_from_page(wizard, page, "re-oriented", path)
     page.click("details.details summary")
     facts = page.locator("dl.facts").inner_text()
     assert "used: multi-position" in facts
@@ -98,14 +104,8 @@ def test_a_scale_factor_near_its_limit_is_said_in_the_sensors_own_terms_either_w
     rec, _ = simulate(11, noise=0.03, params=SensorParams(k=np.array([1.19, 1.0, 0.82]), b=np.array([0.5, -0.3, 0.2])))
     path = tmp_path / "near-limits.csv"
     write_native_csv(rec, path)
-    wizard.sign_in()
-    page.click("#upload-link")
-    page.wait_for_selector("form.upload-form")
-    page.fill("#up-device", "near-limits")
-    page.set_input_files("#up-file", str(path))
-    page.click("form.upload-form button[type=submit]")
-    page.wait_for_url("**/#/session/*")
-    page.wait_for_selector(".verdict h1:has-text('PASS')")
+    upload_from_page(wizard, page, "near-limits", path)
+    assert wizard.text(".verdict h1") == "PASS"
     assert wizard.text(".verdict .ready") == "Ready for the study, with a caution"
     x = wizard.text(".near-limits li[data-check='k:x']")
     z = wizard.text(".near-limits li[data-check='k:z']")
