@@ -16,5 +16,6 @@ class DeviceStats:
     packets_corrupted: int = 0
     packets_injected: int = 0
     link_drops: int = 0
+    identified: int = 0  # IDENTIFY commands obeyed (the LED blinked)
     connects: int = 0
     lost_radio_seqs: list[int] = field(default_factory=list)  # session packet indices of the current session

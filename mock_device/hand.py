@@ -3,9 +3,10 @@
 The hand reads the session's snapshots (the same events the page gets: state, phase, prompt, warnings,
 the live gauge), reacts after a human delay, and says what it does next as motion segments of calib's
 simulator, from a moment of device time on. Its habits are a ``HandStyle``: careful, hurried (starts some
-turns early, some late), sloppy (over- or under-turns some first tries), bumping (knocks the device once in
-a pause) and gauge-watching (stops each turn where the page's gauge reads a full turn, when the gauge shows
-one, then puts it down against the block as the page says; otherwise it turns back to the block like the others).
+turns early, some late), sloppy (over- or under-turns some first tries), short (stops its first z turn where the
+device reads 296 deg), bumping (knocks the device once in the rest after a turn) and gauge-watching (stops each turn
+where the page's gauge reads a full turn, when the gauge shows one, then puts it down against the block as the page
+says; otherwise it turns back to the block like the others).
 
 The hand is pure logic: ``PromptedSource`` (mock_device.prompted) plays what it decides.
 """
@@ -39,6 +40,7 @@ class HandStyle:
     bump: float = 0.0  # per session: knocks the device once, in one of the pauses
     watches_gauge: bool = False  # stops where the gauge reads a full turn, when the gauge shows a target
     old_gauge: bool = False  # reads the raw angle as if 360 deg were its target (the gauge before targets)
+    short_z_reads: float | None = None  # the first turn about z stops where the device reads this (deg): short of full
 
 
 HANDS: dict[str, HandStyle] = {
@@ -51,6 +53,8 @@ HANDS: dict[str, HandStyle] = {
         HandStyle("gauge", "stops each turn where the gauge reads 360 deg, when it shows that target", watches_gauge=True),
         HandStyle("old_gauge", "stops where the raw angle reads 360 deg (the gauge without a calibration, as it was)",
                   watches_gauge=True, old_gauge=True),
+        HandStyle("short", "stops the first z turn where the device reads 296 deg: it passes the live check, not k's range",
+                  short_z_reads=296.0),
     )
 }
 
@@ -82,9 +86,10 @@ class PromptHand:
     tries: dict[str, int] = field(default_factory=dict)  # turns started per axis
     offset: np.ndarray = field(default_factory=lambda: np.zeros(3))  # how far the device rests from its place (rotation vector, deg)
     bumped: bool = False
-    bump_in: str | None = None  # the pause (axis) the bumping hand knocks the device in
+    bump_in: str | None = None  # the rest after a turn (axis) the bumping hand knocks the device in
     last: dict[str, Any] | None = None
     busy_until_s: float = 0.0  # the end of the motion the hand has started
+    device_k: np.ndarray | None = None  # the simulated device's scale factors (a short turn stops where it reads short)
     _key: tuple[Any, ...] | None = None
     _params: list[Turn] = field(default_factory=list)
 
@@ -130,10 +135,13 @@ class PromptHand:
             self.pending.append(_Plan(t + wait, "turn", axis))
         elif phase == "settle" and np.linalg.norm(self.offset) > 0.5:
             self.pending.append(_Plan(t + self._delay(), "put_back"))
-        elif phase == "pause":
+        elif phase in ("checking", "pause"):
+            # the knock comes in the rest after the turn: while it is checked, or in the pause once it is recorded
             if self.bump_in == axis and not self.bumped:
                 self.bumped = True
                 self.pending.append(_Plan(t + float(self.rng.uniform(0.0, 1.2)), "bump"))
+            if phase == "checking":
+                return
             nxt = {"x": "y", "y": "z"}.get(axis)
             if nxt is not None and self.rng.random() < self.style.early:
                 self.pending.append(_Plan(t + float(self.rng.uniform(0.9, 1.5)), "turn", nxt))
@@ -170,7 +178,9 @@ class PromptHand:
             self.pending.append(_Plan(start_s + float(seg.duration_s or 0.0) + GAUGE_LOOK_S, "gauge_finish", axis, first, true_axis))
             return (seg, Still(GAUGE_LOOK_S))
         angle = 360.0
-        if self.tries[axis] == 1 and self.rng.random() < self.style.miss:
+        if axis == "z" and self.tries[axis] == 1 and self.style.short_z_reads is not None and self.device_k is not None:
+            angle = self.style.short_z_reads * float(self.device_k[2])  # g = K m: the true angle that reads that
+        elif self.tries[axis] == 1 and self.rng.random() < self.style.miss:
             angle += float(self.rng.choice([-1.0, 1.0]) * self.rng.uniform(30.0, 70.0))
         self.offset = self.offset + (angle - 360.0) * true_axis
         return (replace(shape, angle_deg=angle), Still(0.05))

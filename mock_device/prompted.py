@@ -52,7 +52,7 @@ class PromptedSource(ScriptedSource):
 
     def prepare(self, fs_hz: float) -> None:
         super().prepare(fs_hz)
-        self.hand = PromptHand(self.style, np.random.default_rng([self.seed, 0x4A4D, self.session]))
+        self.hand = PromptHand(self.style, np.random.default_rng([self.seed, 0x4A4D, self.session]), device_k=self.params.k)
         self.segments = [Still(REST_AHEAD_S)]
         self._delivered = 0
 

@@ -103,6 +103,7 @@ class Wearable(Streaming):
         self.serial = f"GC{self.seed:08d}"
         self.config_id = 1
         self.held: wp.HeldCalibration | None = None  # the calibration written to it (lost at power-off)
+        self.identify_until = 0.0  # time.monotonic() until which the simulated LED blinks (IDENTIFY)
         self.power = power_up or PowerUpState()
         self.stats = DeviceStats()
         self._central: Central | None = None
@@ -289,6 +290,8 @@ class Wearable(Streaming):
             return Status.OK
         if op in (Opcode.WRITE_CALIBRATION, Opcode.CLEAR_CALIBRATION):
             return self._hold(cmd)
+        if op == Opcode.IDENTIFY:
+            return self._identify(int(cmd.value))
         if self._session is not None and self._session.streaming:
             return Status.BUSY
         if op == Opcode.SET_RATE:
@@ -311,6 +314,20 @@ class Wearable(Streaming):
         self._end_session("configuration changed")
         self.config_id = (self.config_id % 255) + 1
         return Status.OK
+
+    def _identify(self, seconds: int) -> Status:
+        """Blink (a simulated LED) for ``seconds``; a streaming session goes on."""
+        if not 1 <= seconds <= wp.IDENTIFY_MAX_S:
+            return Status.INVALID_VALUE
+        self.identify_until = time.monotonic() + seconds
+        self.stats.identified += 1
+        self._log(f"identify: blinking for {seconds} s")
+        return Status.OK
+
+    @property
+    def identifying(self) -> bool:
+        """Whether the simulated LED is blinking now (an IDENTIFY asked for it)."""
+        return time.monotonic() < self.identify_until
 
     def _hold(self, cmd: Command) -> Status:
         """Hold (or forget) a written calibration; the stream stays raw. A corrupt one changes nothing."""

@@ -52,7 +52,7 @@ def register(sub: Any) -> None:
         metavar="NAMES",
         help="what the simulated clinician does, comma-separated, assigned to mock-1, mock-2, ... in turn: "
         "normal, moved_during_still, wrong_axis, too_fast, stops_short, link_drop, packet_loss, dropped (a fixed script), or "
-        "hand:careful, hand:hurried, hand:sloppy, hand:bumps, hand:gauge (a clinician who follows the session's prompts, "
+        "hand:careful, hand:hurried, hand:sloppy, hand:bumps, hand:gauge, hand:short (a clinician who follows the session's prompts, "
         "reading them from the service as the page does) (default normal)",
     )
     p.add_argument(

@@ -75,6 +75,7 @@ class ModelFacts(TypedDict):
     loss_detection: LossDetection | None
     limitations: list[str]
     write_back: bool
+    identify: str | None  # what it does when asked which one it is ("blinks its light"); None: it cannot be asked
 
 
 def model_facts(key: str | None, info: dict[str, Any] | None = None) -> ModelFacts:
@@ -84,11 +85,11 @@ def model_facts(key: str | None, info: dict[str, Any] | None = None) -> ModelFac
     if m is None:
         return {"model": key, "model_label": None, "sample_rate_hz": info.get("sample_rate_hz"),
                 "gyro_full_scale_dps": info.get("gyro_full_scale_dps"), "time_stamps": None, "loss_detection": None,
-                "limitations": [], "write_back": False}
+                "limitations": [], "write_back": False, "identify": None}
     return {"model": m.key, "model_label": m.label, "sample_rate_hz": info.get("sample_rate_hz") or m.stream_rate_hz,
             "gyro_full_scale_dps": info.get("gyro_full_scale_dps") or m.gyro_range_dps, "time_stamps": m.time_stamps,
             "loss_detection": m.loss_detection, "limitations": list(m.limitations()),
-            "write_back": bool(info.get("write_back", m.write_back))}
+            "write_back": bool(info.get("write_back", m.write_back)), "identify": m.identify}
 
 
 def sensor_identity(device_id: str, info: DeviceInfo) -> SensorIdentity:
@@ -123,6 +124,11 @@ class Device:
         """The device's model, the rate and range it streams at (read from it once connected, else the model's
         choice) and what its protocol cannot tell."""
         return model_facts(self.info.get("model") or self.model, self.info)
+
+    @property
+    def simulated_identifying(self) -> bool | None:
+        """Whether a simulated wearable's light blinks now (None for real hardware)."""
+        return None if self.peripheral is None else bool(getattr(self.peripheral, "identifying", False))
 
     @property
     def simulated_truth(self) -> dict[str, list[float]] | None:

@@ -13,6 +13,8 @@ from calib.judge.acceptance import Check
 from calib.judge.departure import Departure
 from calib.quality import AccelerometerQuality
 from calib.result_schema import ResultDoc
+from wearable_protocol import IDENTIFY_MAX_S
+from wearable_protocol.models import IDENTIFY_DEFAULT_S
 
 from .lifecycle import CalibrationDue
 from .live.codes import EndReason, State
@@ -135,6 +137,8 @@ class DeviceOut(BaseModel):
     loss_detection: Literal["counter", "time_stamps", "none"] | None = None
     limitations: list[str] = Field(default_factory=list, description="what this device's protocol cannot tell")
     write_back: bool = Field(False, description="it can hold a calibration written to it (POST /devices/{id}/calibration/write)")
+    identify: str | None = Field(None, description="what it does when asked which one it is (POST /devices/{id}/identify): "
+                                                   "'blinks its light', ...; null: its protocol has no such command")
     held_calibration_id: int | None = Field(None, description="the calibration the device last said it holds")
     held_reported_at: str | None = Field(None, description="when it last said so (null: never asked)")
     held_state: Literal["current", "other", "none"] | None = Field(
@@ -167,6 +171,8 @@ class SessionSummary(BaseModel):
 
 class DeviceDetail(DeviceOut):
     simulated_truth: Truth | None = Field(None, description="the simulated sensor's true parameters (simulated devices only)")
+    simulated_identifying: bool | None = Field(None, description="whether the simulated wearable's light blinks now "
+                                                                 "(simulated devices only)")
     info: dict[str, Any] = Field(default_factory=dict, description="what the device told the service about itself "
                                                                    "(free-form: each model tells different things)")
     recent_sessions: list[SessionSummary] = Field(default_factory=list, description="its last 10 sessions, newest first")
@@ -201,6 +207,18 @@ class DecisionIn(BaseModel):
     sensor_model: str | None = Field(None, min_length=1, max_length=128, pattern=SENSOR_TEXT,
                                      description="the sensor an uploaded recording came from (accept only; kept with the calibration)")
     firmware: str | None = Field(None, min_length=1, max_length=128, pattern=SENSOR_TEXT)
+
+
+class IdentifyIn(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    seconds: int = Field(IDENTIFY_DEFAULT_S, ge=1, le=IDENTIFY_MAX_S, description="how long it blinks, s")
+
+
+class IdentifyOut(BaseModel):
+    device_id: str
+    seconds: int = Field(description="how long it blinks, s")
+    how: str = Field(description="what the wearable does: 'blinks its light', 'breathes its LED green', ...")
+    message: str = Field(description="what the page says: '<name> blinks its light for 5 s.'")
 
 
 class WriteBackIn(BaseModel):

@@ -31,7 +31,7 @@ MOCK_SPEED = 3.0
 SCENARIOS = ["normal", "moved_during_still", "wrong_axis", "link_drop", *["normal"] * 9]
 PIN = "4831"
 # clinicians who follow the page's prompts (mock_device.hand), each on a wearable of its own
-HAND_SCENARIOS = ["hand:careful", "hand:careful", "hand:bumps", "hand:gauge", "hand:careful"]
+HAND_SCENARIOS = ["hand:careful", "hand:careful", "hand:bumps", "hand:gauge", "hand:careful", "hand:short"]
 TABLET = {"width": 1024, "height": 768}
 LOCAL_HOSTS = {"127.0.0.1", "localhost", "[::1]", "::1"}
 
@@ -221,11 +221,12 @@ class Wizard:
         """Start recording, in the page, what passes too quickly to wait for: the largest angle the gauge
         showed in each turn and its target, every text the gauge showed, every headline and every state:phase
         in order (taken at each change of the page, so none that lasts a single event is missed), whether the
-        stillness ring showed the device moving, every notice, and the notice beside each state:phase
-        ("turn_x:ready|<notice>")."""
+        stillness ring showed the device moving, every notice, the notice beside each state:phase
+        ("turn_x:ready|<notice>"), the turns shown done after each change ("xy"), and whether the gauge was ever
+        gone while the device was being put down (placing)."""
         self.page.evaluate("""() => {
           window.seen = { gauge: {}, gaugeText: {}, targets: {}, headlines: [], phases: [], ringMoving: false, notices: [],
-                          phaseNotices: [] };
+                          phaseNotices: [], done: [], placingWithoutGauge: false };
           const last = (list) => list[list.length - 1];
           new MutationObserver(() => {
             const w = document.querySelector('.wizard'), hl = document.querySelector('.instruction');
@@ -234,6 +235,11 @@ class Wizard:
             if (sp && last(window.seen.phases) !== sp) window.seen.phases.push(sp);
             const box = document.querySelector('.notice-box'), said = `${sp}|${box ? box.textContent.trim() : ''}`;
             if (sp && last(window.seen.phaseNotices) !== said) window.seen.phaseNotices.push(said);
+            const done = [...document.querySelectorAll('.tile[data-state="done"] .tile-axis')]
+              .map((t) => t.textContent.slice(-1).toLowerCase()).join('');
+            const tiles = w && w.querySelector('.tiles');
+            if (tiles && !tiles.hidden && last(window.seen.done) !== done) window.seen.done.push(done);
+            if (w && w.dataset.phase === 'placing' && !document.querySelector('.gauge-wrap')) window.seen.placingWithoutGauge = true;
           }).observe(document.body, { subtree: true, childList: true, characterData: true, attributes: true });
           setInterval(() => {
             const w = document.querySelector('.wizard'), g = document.querySelector('.gauge-text');
@@ -281,7 +287,13 @@ def assert_turns_end_with_hold_still(headlines: list[str]) -> None:
     assert not any(h.startswith("Keep turning") for h in headlines), headlines
     for axis in "XYZ":
         i = headlines.index(f"Turning about {axis}")
-        assert headlines[i + 1:i + 3] == ["Hold it still", f"{axis} done — hold still"], headlines
+        assert headlines[i + 1:i + 4] == ["Hold it still", f"Checking turn {axis} — hold still", f"{axis} done — hold still"], headlines
+
+
+def assert_done_never_undone(done: list[str]) -> None:
+    """A turn the tiles showed done stays done: what the page said counted is never taken back."""
+    for before, after in zip(done, done[1:], strict=False):
+        assert set(before) <= set(after), f"a turn shown done was taken back: {done}"
 
 
 def assert_clean(watch: Watch, allowed_errors: tuple[str, ...] = ()) -> None:

@@ -9,6 +9,7 @@ from .codec import (
     CLOCK_MODULUS,
     CONFIG_SIZE,
     HEADER_SIZE,
+    IDENTIFY_MAX_S,
     PROTOCOL_VERSION,
     SAMPLE_SIZE,
     SEQ_MODULUS,

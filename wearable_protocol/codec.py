@@ -174,6 +174,7 @@ class Opcode(IntEnum):
     SET_ACCEL_RANGE = 0x05  # payload u8 g
     WRITE_CALIBRATION = 0x06  # payload: a calibration with its CRC-32 (wearable_protocol.held_calibration)
     CLEAR_CALIBRATION = 0x07  # forget the held calibration
+    IDENTIFY = 0x08  # payload u8 s (1..IDENTIFY_MAX_S): blink the LED or buzz that long; obeyed while streaming too
     STREAM_END = 0x10  # device -> central only: the stream ended by itself (replay finished)
 
 
@@ -190,7 +191,9 @@ class Status(IntEnum):
 
 
 _PAYLOAD = {Opcode.START: "", Opcode.STOP: "", Opcode.SET_RATE: "<f", Opcode.SET_GYRO_RANGE: "<H",
-            Opcode.SET_ACCEL_RANGE: "<B", Opcode.WRITE_CALIBRATION: "<56s", Opcode.CLEAR_CALIBRATION: ""}
+            Opcode.SET_ACCEL_RANGE: "<B", Opcode.WRITE_CALIBRATION: "<56s", Opcode.CLEAR_CALIBRATION: "",
+            Opcode.IDENTIFY: "<B"}
+IDENTIFY_MAX_S = 60  # the longest IDENTIFY a central may ask for (s)
 
 
 @dataclass(frozen=True)

@@ -41,6 +41,8 @@ LossDetection = Literal["counter", "time_stamps", "none"]
 
 
 CANNOT_HOLD = "cannot hold a calibration: apply it to its recordings instead"
+CANNOT_IDENTIFY = "has no command to blink or buzz: tell it from the others by its name or serial number"
+IDENTIFY_DEFAULT_S = 5  # how long a wearable blinks when asked which one it is
 
 
 @dataclass(frozen=True)
@@ -61,6 +63,7 @@ class DeviceModel:
     loss_detection: LossDetection
     write_back: bool  # can hold a calibration written to it
     whole_rates_hz: tuple[int, int] | None = None  # offers every whole rate in this range (rates_hz: typical ones)
+    identify: str | None = None  # what the device does when asked which one it is ("blinks its LED"); None: no command
 
     def offers_rate(self, rate_hz: float) -> bool:
         """Whether the device offers this output data rate."""
@@ -95,6 +98,8 @@ class DeviceModel:
             out.append("Sample times are the times the samples arrived, not the device's clock.")
         if not self.write_back:
             out.append(f"This device {CANNOT_HOLD}.")
+        if self.identify is None:
+            out.append(f"This device {CANNOT_IDENTIFY}.")
         return tuple(out)
 
     def to_dict(self) -> dict[str, Any]:
@@ -102,16 +107,19 @@ class DeviceModel:
             "model": self.key, "label": self.label, "rates_hz": list(self.rates_hz), "stream_rate_hz": self.stream_rate_hz,
             "gyro_ranges_dps": list(self.gyro_ranges_dps), "gyro_range_dps": self.gyro_range_dps,
             "accel_ranges_g": list(self.accel_ranges_g), "time_stamps": self.time_stamps,
-            "loss_detection": self.loss_detection, "write_back": self.write_back, "limitations": list(self.limitations()),
+            "loss_detection": self.loss_detection, "write_back": self.write_back, "identify": self.identify,
+            "limitations": list(self.limitations()),
         }
 
 
 GYROCAL = DeviceModel(
     "gyrocal", "gyrocal protocol wearable", IMU_SERVICE, (IMU_SERVICE,), None, SUPPORTED_RATES_HZ, 104.0,
     tuple(GYRO_SENSITIVITY_LSB_PER_DPS), tuple(ACCEL_SENSITIVITY_LSB_PER_G), None, "device", "counter", True,
+    identify="blinks its light",
 )
 # Polar Verity Sense: gyroscope 52/104/208/416 Hz, +-250..2000 deg/s; accelerometer 52 Hz, +-8 g (Polar BLE SDK,
-# documentation/products/PolarVeritySense.md). Frames carry the device's time stamps, no counter.
+# documentation/products/PolarVeritySense.md). Frames carry the device's time stamps, no counter. Its measurement
+# protocol (PMD) has no command to blink or buzz: it cannot be asked which one it is.
 POLAR_PMD = DeviceModel(
     "polar-pmd", "Polar Verity Sense / OH1 (PMD)", polar_pmd.PMD_SERVICE, (polar_pmd.PMD_SERVICE,), "Polar ",
     (52.0, 104.0, 208.0, 416.0), 208.0, (250, 500, 1000, 2000), (8,), 52.0, "device", "time_stamps", False,
@@ -121,14 +129,14 @@ POLAR_PMD = DeviceModel(
 METAWEAR = DeviceModel(
     "metawear", "MbientLab MetaMotion (MetaWear)", metawear.METAWEAR_SERVICE, (metawear.METAWEAR_SERVICE,), "MetaWear",
     tuple(metawear.GYRO_ODR), 100.0, tuple(sorted(metawear.GYRO_RANGES)), tuple(metawear.ACC_RANGES), None,
-    "arrival", "none", False,
+    "arrival", "none", False, identify="blinks its LED green",
 )
 # Thingy:52: motion processing 1-200 Hz, one notification per sample; gyroscope fixed at +-2000 deg/s and the
 # accelerometer at +-2 g (the InvenSense motion driver's defaults, which the firmware keeps).
 THINGY52 = DeviceModel(
     "thingy52", "Nordic Thingy:52 (Motion service)", thingy52.MOTION_SERVICE, (thingy52.CONFIGURATION_SERVICE,), "Thingy",
     (25.0, 50.0, 100.0, 200.0), 100.0, (thingy52.GYRO_FULL_SCALE_DPS,), (2,), None, "arrival", "none", False,
-    (thingy52.MOTION_FREQ_MIN_HZ, thingy52.MOTION_FREQ_MAX_HZ),
+    (thingy52.MOTION_FREQ_MIN_HZ, thingy52.MOTION_FREQ_MAX_HZ), identify="breathes its LED green",
 )
 
 MODELS: dict[str, DeviceModel] = {m.key: m for m in (GYROCAL, POLAR_PMD, METAWEAR, THINGY52)}

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -31,6 +33,7 @@ class MetaWearWearable(Wearable):
         super().__init__(source, **kwargs)
         self._subscribed: set[tuple[int, int]] = set()
         self._enabled: set[int] = set()
+        self._led_pattern_s = 0.0  # how long the LED pattern written last blinks (s)
 
     def _default_name(self) -> str:
         return "MetaWear"
@@ -50,6 +53,9 @@ class MetaWearWearable(Wearable):
         if len(data) < 3:
             return  # MetaWear ignores what it does not understand; it never replies to commands
         module, register = data[0], data[1]
+        if module == mw.Module.LED:
+            self._led(bytes(data))
+            return
         if module not in (mw.Module.GYROSCOPE, mw.Module.ACCELEROMETER):
             return
         if register == mw.Register.CONFIG:
@@ -63,6 +69,20 @@ class MetaWearWearable(Wearable):
                 self._start()
             else:
                 self._end_session("stopped by the central")
+
+    def _led(self, data: bytes) -> None:
+        """The LED module: a pattern is kept, played (the simulated LED blinks for its repeats), or stopped."""
+        if data[1] == mw.LedRegister.PATTERN:
+            with contextlib.suppress(wp.DecodeError):
+                _, pulse_ms, repeat = mw.parse_led_pattern(data)
+                self._led_pattern_s = pulse_ms * repeat / 1000.0
+        elif data[1] == mw.LedRegister.PLAY and data[2] and self._led_pattern_s:
+            self.identify_until = time.monotonic() + self._led_pattern_s
+            self.stats.identified += 1
+            self._log(f"identify: LED blinking for {self._led_pattern_s:g} s")
+        elif data[1] == mw.LedRegister.STOP:
+            self.identify_until = 0.0
+            self._led_pattern_s = 0.0
 
     def _configure(self, data: bytes) -> None:
         try:

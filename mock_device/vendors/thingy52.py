@@ -13,6 +13,8 @@ from ..sources import SampleSource
 from ..streaming import WearableSession
 from ..wearable import Wearable
 
+IDLE_LED = bytes([1, 0, 0, 8])  # the simulated Thingy's LED at rest: constant, a dim blue
+
 
 class Thingy52Wearable(Wearable):
     """A Thingy:52 streaming one raw sample per notification while the central listens to the raw data."""
@@ -26,6 +28,7 @@ class Thingy52Wearable(Wearable):
         self.gyro_full_scale_dps = th.GYRO_FULL_SCALE_DPS
         self.accel_range_g = THINGY52.accel_range_g
         self.motion = th.MotionConfig(motion_freq_hz=int(self.rate_hz))
+        self.led = IDLE_LED  # the LED characteristic's value
 
     def _default_name(self) -> str:
         return "Thingy"
@@ -36,11 +39,24 @@ class Thingy52Wearable(Wearable):
 
     def _readable(self) -> dict[str, Callable[[], bytes]]:
         # the Thingy has no Device Information service (its GATT table leaves it out); battery comes from the base
-        return {th.CONFIG_CHAR: lambda: self.motion.encode(), th.DEVICE_NAME_CHAR: lambda: self.name.encode()}
+        return {th.CONFIG_CHAR: lambda: self.motion.encode(), th.DEVICE_NAME_CHAR: lambda: self.name.encode(),
+                th.LED_CHAR: lambda: self.led}
+
+    @property
+    def identifying(self) -> bool:
+        """Whether the LED breathes, as a central asks to tell this Thingy from the others."""
+        return self.led[0] == th.LED_MODE_BREATHE
 
     def write(self, char_uuid: str, data: bytes) -> None:
         if char_uuid == th.DEVICE_NAME_CHAR:
             self.name = bytes(data).decode("utf-8", "replace")[:10]
+            return
+        if char_uuid == th.LED_CHAR:
+            try:
+                self.led = th.check_led(bytes(data))
+            except wp.DecodeError as e:
+                raise wp.GattError("invalid_value", str(e)) from e
+            self.stats.identified += int(self.identifying)
             return
         if char_uuid != th.CONFIG_CHAR:
             raise wp.GattError("not_permitted", "Write not permitted")

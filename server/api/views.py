@@ -123,6 +123,7 @@ async def device_out(svc: Service, dev: Device | None, row: StoredDevice | None,
     return M.DeviceDetail.model_validate({
         **fields,
         "simulated_truth": dev.simulated_truth if dev else None,
+        "simulated_identifying": dev.simulated_identifying if dev else None,
         "info": finite(dict(info)),
         "recent_sessions": [M.SessionSummary.model_validate(r) for r in recent],
     })

@@ -291,6 +291,9 @@ class WearableLink(Protocol):
     async def write_calibration(self, held: HeldCalibration) -> HeldCalibration:
         """Write a calibration, read it back and verify it; WriteBackError when the device refuses or differs."""
 
+    async def identify(self, seconds: int) -> None:
+        """Make the wearable blink or buzz for ``seconds``; CommandError when its protocol has no such command."""
+
     def samples(self) -> AsyncIterator[SampleBatch | LinkEvent]:
         """The stream, in order. Ends after stop(), disconnect(), link_failed or stream_ended."""
 

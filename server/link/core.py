@@ -241,9 +241,8 @@ class LinkCore(ABC):
         """Change rate and ranges (refused while streaming); returns the configuration read back."""
         if self._streaming:
             raise CommandError("cannot change the configuration while streaming: stop() first")
-        adapter = self._require()
-        return await adapter.configure(sample_rate_hz=sample_rate_hz, gyro_full_scale_dps=gyro_full_scale_dps,
-                                       accel_range_g=accel_range_g)
+        return await self._require().configure(sample_rate_hz=sample_rate_hz, gyro_full_scale_dps=gyro_full_scale_dps,
+                                               accel_range_g=accel_range_g)
 
     @property
     def holds_calibrations(self) -> bool:
@@ -265,6 +264,10 @@ class LinkCore(ABC):
             raise WriteBackError(f"the wearable accepted calibration {held.calibration_id} but reads back {got}; "
                                  "write it again, and if that fails, update the wearable's firmware")
         return back
+
+    async def identify(self, seconds: int) -> None:
+        """Make the wearable blink or buzz for ``seconds`` (1-60), streaming or not; CommandError if it cannot."""
+        await self._require().identify(seconds)
 
     async def start(self) -> None:
         """Subscribe to data and start (or resume) the device's session. Items of an earlier stream that

@@ -25,13 +25,15 @@ class State(StrEnum):
 class Phase(StrEnum):
     """Within the still and turn states: waiting for rest, settling after a reconnection or retry, asking for
     the turn, turning, placing (the turn's motion has stopped: waiting for the device to rest in its place),
-    and the pause after a checked turn."""
+    checking (it rests after what looks like a full turn: the turn counts once its closing rest is complete),
+    and the pause after a recorded turn."""
 
     WAITING = "waiting"
     SETTLE = "settle"
     READY = "ready"
     TURNING = "turning"
     PLACING = "placing"
+    CHECKING = "checking"
     PAUSE = "pause"
 
 

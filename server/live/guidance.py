@@ -77,6 +77,10 @@ def placing_prompt(axis: str, calibrated: bool) -> str:
             f"if not, finish the turn about {ax(axis)} first.")
 
 
+def checking_prompt(axis: str) -> str:
+    return f"Checking the turn about {ax(axis)}: keep the device still against the block."
+
+
 def pause_prompt(axis: str, next_axis: str | None) -> str:
     then = f" before the turn about {ax(next_axis)}" if next_axis else ""
     return f"Turn about {ax(axis)} recorded. Keep the device still against the block{then}."
@@ -119,7 +123,7 @@ def moved_during_pause(axis: str, pause_s: float, retry: bool, turn_recorded: bo
         fix = "Keep the device still against the block until the countdown ends; the pause starts again."
     else:
         fix = f"{again(True, axis)} After the turn, keep the device still against the block until the countdown ends."
-    what = "" if turn_recorded else ", before that turn could be recorded"
+    what = "" if turn_recorded else ", before that turn could be checked"
     return f"The device moved during the pause after the turn about {ax(axis)}{what}. {fix}"
 
 
@@ -241,6 +245,36 @@ def service_overloaded(late_s: float) -> str:
             "calibration; if it happens again, tell the administrator.")
 
 
+def _turn_reading(c: Check) -> tuple[str, str] | None:
+    """A scale factor out of range as the turn that gave it: what it read, and how to turn it again (None: the check
+    is not a scale factor)."""
+    if c.name != "k" or not isinstance(c.limit, tuple) or c.value is None or c.value <= 0:
+        return None
+    low, high = FULL_TURN_DEG / c.limit[1], FULL_TURN_DEG / c.limit[0]
+    reads = FULL_TURN_DEG / c.value
+    said = f"the turn about {ax(c.axis or '')} read {reads:.0f}°, where a working sensor reads a full turn as {low:.0f}° to {high:.0f}°"
+    todo = (f"turn {ax(c.axis or '')} all the way round, until the device is back against the block" if reads < low
+            else f"turn {ax(c.axis or '')} exactly once, stopping when the device is back against the block")
+    return said, todo
+
+
+def turns_to_redo(failed: Sequence[Check]) -> list[str]:
+    """The turns to ask again: those whose scale factor is out of range (most likely a hand's turn that was not a full
+    one; the other checks it spoils, such as the other turns' closure, are judged again with the new turn), in
+    protocol order."""
+    return sorted({c.axis for c in failed if c.axis is not None and _turn_reading(c) is not None})
+
+
+def redo_turns(failed: Sequence[Check]) -> str:
+    """Why the result asks for a turn again (its scale factors out of range), and how to make it."""
+    readings = [r for r in map(_turn_reading, failed) if r is not None]
+    said = "; ".join(r[0] for r in readings)
+    todo = "; then ".join(r[1] for r in readings)
+    one = len(readings) == 1
+    return (f"{said[:1].upper()}{said[1:]}: most likely {'it was' if one else 'they were'} not a full turn. "
+            f"Once more: {todo}.")
+
+
 def out_of_tolerance(failed: Sequence[Check], failed_before: Collection[tuple[str, str | None]] = (),
                      hand_turns: bool = True) -> str:
     """Why a result failed, and what to redo. From full turns made by hand (``hand_turns``: a guided session, or a
@@ -250,14 +284,10 @@ def out_of_tolerance(failed: Sequence[Check], failed_before: Collection[tuple[st
     (``failed_before``: (name, axis) of its last failed result)."""
     said, todo = [], []
     for c in failed:
-        if hand_turns and c.name == "k" and isinstance(c.limit, tuple) and c.value is not None and c.value > 0:
-            low, high = FULL_TURN_DEG / c.limit[1], FULL_TURN_DEG / c.limit[0]
-            reads = FULL_TURN_DEG / c.value
-            said.append(f"the turn about {ax(c.axis or '')} read {reads:.0f}°, where a working sensor reads a full turn "
-                        f"as {low:.0f}° to {high:.0f}°")
-            todo.append(f"turn {ax(c.axis or '')} all the way round, until the device is back against the block"
-                        if reads < low else f"turn {ax(c.axis or '')} exactly once, stopping when the device is back "
-                        "against the block")
+        turn = _turn_reading(c) if hand_turns else None
+        if turn is not None:
+            said.append(turn[0])
+            todo.append(turn[1])
         else:
             said.append(c.text)
     why = "The calibration is outside the tolerances: " + "; ".join(said) + ". "

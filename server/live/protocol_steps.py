@@ -52,7 +52,7 @@ class ProtocolSteps(TurnChecks):
         """How long the device must rest in the current state or phase (s), None when no rest is asked for."""
         if self.state == State.STILL:
             return self.timings.initial_still_s
-        if self.phase in (Phase.PAUSE, Phase.PLACING):
+        if self.phase in (Phase.PAUSE, Phase.PLACING, Phase.CHECKING):
             return self.timings.pause_s
         if self.phase == Phase.SETTLE:
             return self.timings.settle_s
@@ -64,7 +64,7 @@ class ProtocolSteps(TurnChecks):
         rate = self.stream.recent_rate(STOP_WINDOW_S)  # the fast reading: the ring's count and the turn's stop
         shown_still, shown_moving = self._shown_rest(still_s, moving, rate)
         self.live_reading = LiveReading(shown_still, shown_moving, angle.tolist(), raw.tolist())
-        if self.phase in (Phase.TURNING, Phase.PLACING):
+        if self.phase in (Phase.TURNING, Phase.PLACING, Phase.CHECKING):
             if self._watch_turn(still_s, moving, raw, angle, rate):
                 return
         elif self.phase == Phase.PAUSE and self._watch_pause(moving, angle):
@@ -93,15 +93,17 @@ class ProtocolSteps(TurnChecks):
             resume = self._resume_phase
             self._resume_phase = Phase.READY
             if resume == Phase.PAUSE:
-                self._set_phase(Phase.PAUSE, say.pause_prompt(axis, AXES[self._axis_i + 1] if self._axis_i < 2 else None))
+                self._set_phase(Phase.PAUSE, say.pause_prompt(axis, self._next_axis()))
             else:
                 self._set_phase(Phase.READY, say.turn_prompt(axis))
             return
-        if self.phase == Phase.PAUSE and self._turn_confirmed and self._early is None:
-            if self._axis_i < 2:
-                self._axis_i += 1
+        if self.phase == Phase.PAUSE and self._early is None:
+            nxt = self._next_axis()
+            if self._redo:
+                self._redo.pop(0)
+            if nxt is not None:
+                self._axis_i = AXES.index(nxt)
                 self.attempt = 1
-                nxt = AXES[self._axis_i]
                 self._set_state(TURN_STATES[nxt], Phase.READY, say.turn_prompt(nxt))
             else:
                 self._set_state(State.COMPUTING, None, say.PROMPTS["computing"])
@@ -112,10 +114,8 @@ class ProtocolSteps(TurnChecks):
             st = self.stream.globalise(ev.stage)
             if st.kind == "still":
                 self.stream.closed_still(st)
-            elif self.phase in (Phase.TURNING, Phase.PLACING):
+            elif self.phase in (Phase.TURNING, Phase.PLACING, Phase.CHECKING):
                 self._check_turn(st)
-            elif self.phase == Phase.PAUSE and not self._turn_confirmed:
-                self._confirm_turn(st)
             elif self.phase == Phase.PAUSE and self._early is not None:
                 self._early = None  # a bump that never became a turn: the pause's count starts again
                 self._warn("moved", say.MOVED_RESTART)
@@ -127,7 +127,6 @@ class ProtocolSteps(TurnChecks):
         self._provisional = provisional
         self._rest_before_s = rest_before_s
         self._turn_lost = 0
-        self._rested_after_turn = False
 
     def _on_motion(self, t_motion: float) -> None:
         self._motion_t = t_motion

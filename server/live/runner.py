@@ -95,6 +95,7 @@ class LiveSession(Persistence):
         self._csv: bytes | None = None
         self._task: asyncio.Task[None] | None = None
         self._pump: asyncio.Task[None] | None = None
+        self._changed: asyncio.Future[None] | None = None  # resolved by the next snapshot (the state may have changed)
         self._last_sample_mono = time.monotonic()
         self._link_down = False  # the link said it dropped (a LinkEvent), until it says it is back
         self._silent = False  # the watchdog found no data for link_silence_s, until data comes again
@@ -112,6 +113,8 @@ class LiveSession(Persistence):
         return self.machine.id
 
     def _on_snapshot(self, event: str, snapshot: SessionOut) -> None:
+        if self._changed is not None and not self._changed.done():
+            self._changed.set_result(None)
         published = self.broadcaster.publish(event, snapshot)
         if self.relay is not None:
             self.relay(self.id, published)
@@ -153,12 +156,15 @@ class LiveSession(Persistence):
         spool = asyncio.get_running_loop().create_task(self._spool_loop())
         try:
             self._pump = asyncio.get_running_loop().create_task(self._stream())
+            # the link streams on while the result is computed: a turn the result asks again follows at once
+            while await self._until_computing():
+                await self._compute()
+            if self._pump is not None and not self._pump.done():
+                self._pump.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await self._pump
             await self._stop_link()
             await self._note_end_temperature()
-            if m.state == "computing":
-                await self._compute()
             if not m.finished:
                 # the stream ended without an end state (device stopped streaming)
                 m.fail("link_lost", say.stream_stopped())
@@ -176,6 +182,18 @@ class LiveSession(Persistence):
             asyncio.get_running_loop().call_later(self.settings.sse_linger_s, self.broadcaster.close)
             if self.on_end is not None:
                 self.on_end(self)
+
+    async def _until_computing(self) -> bool:
+        """Wait until the session has a recording to compute (True) or has ended, or its stream has (False)."""
+        m, pump = self.machine, self._pump
+        while not m.finished and m.state != "computing" and pump is not None and not pump.done():
+            # a plain future the next snapshot resolves: no task of its own, so nothing outlives the session
+            self._changed = asyncio.get_running_loop().create_future()
+            try:
+                await asyncio.wait({pump, self._changed}, return_when=asyncio.FIRST_COMPLETED)
+            finally:
+                self._changed = None
+        return m.state == "computing"
 
     async def _stream(self) -> None:
         m = self.machine
@@ -237,7 +255,7 @@ class LiveSession(Persistence):
                     m.data_resumed(int(item.lost_before))
                 m.fs_estimate = float(item.fs_hz) if item.fs_hz else m.fs_estimate
                 m.feed(item.t_device_s, item.gyro_dps, item.accel_g, item.seq, int(item.lost_before), time.time())
-            if m.finished or m.state == "computing":
+            if m.finished:
                 return
 
     async def _note_end_temperature(self) -> None:
@@ -323,7 +341,7 @@ class LiveSession(Persistence):
         except Exception:  # the store's history only adds a caution: a result stands without it
             log.warning("the history of %s could not be read to compare the new calibration with", m.device_id, exc_info=True)
             history, failed_before = [], set()
-        m.set_result(result, history, failed_before)
+        m.set_result(result, history, failed_before, can_redo=self._pump is not None and not self._pump.done())
 
     async def _stop_link(self) -> None:
         link = self.device.link

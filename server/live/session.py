@@ -108,9 +108,9 @@ class GuidedSession(ProtocolSteps, Lateness):
         self._resume_phase = Phase.READY  # what a settle phase leads to: the turn again, or the pause
         self._provisional: str | None = None  # a turn started before the countdown ended: "initial" | "pause"
         self._rest_before_s = 0.0
-        self._rested_after_turn = False
         self._motion_t: float | None = None  # device time at which the current turn's motion began
-        self._turn_confirmed = True  # the detector closed the recorded turn (a still follows it)
+        self._redo: list[str] = []  # turns asked again after the result (the one being redone first)
+        self._redone: set[str] = set()  # turns already asked again after a result: a second failure is the sensor's
         self._early: float | None = None  # a motion in a confirmed pause, with the rest before it: a bump or the next turn
         self._link_lost_mono: float | None = None
         self._silent_since: float | None = None  # the watchdog's clock when the data stopped (the link still up)
@@ -169,7 +169,11 @@ class GuidedSession(ProtocolSteps, Lateness):
         received_at: float | None = None,
     ) -> None:
         """One batch of samples (device time t in s, raw gyro in deg/s, accel in g)."""
-        if self.finished or self.state in (State.COMPUTING, State.RECONNECTING, State.CONNECTING) or self.stream.tracker is None:
+        if self.finished or self.state in (State.RECONNECTING, State.CONNECTING) or self.stream.tracker is None:
+            return
+        if self.state == State.COMPUTING:
+            self._keep(t, gyro, accel, seq)
+            self.lost_samples += int(lost_before)
             return
         first = self.buf.n == 0
         times = self.stream.receive(t, gyro, accel, seq)
@@ -207,13 +211,23 @@ class GuidedSession(ProtocolSteps, Lateness):
             # only what this batch causes carries it; later snapshots (result, decision) do not
             self.caused_by = None
 
+    def _keep(self, t: np.ndarray, gyro: np.ndarray, accel: np.ndarray | None, seq: np.ndarray | None) -> None:
+        """Samples that arrive while the result is computed: recorded and followed by the stage detector (a turn may
+        be asked again), nothing else."""
+        times = self.stream.receive(t, gyro, accel, seq)
+        if times is None:
+            return
+        self.t_now = float(times[-1])
+        for ev in self.stream.detect():
+            if getattr(ev, "kind", None) == "stage_closed" and ev.stage.kind == "still":
+                self.stream.closed_still(self.stream.globalise(ev.stage))
+
     def link_lost(self) -> None:
         """The radio link dropped: pause; the current turn is redone after reconnection."""
         if self.finished or self.state in (State.COMPUTING, State.RECONNECTING, State.CONNECTING):
             return
-        phase = Phase.TURNING if self._drop_unconfirmed_turn() else self.phase  # then the turn is done again
         self._early = None
-        self._resume = (self.state, phase)
+        self._resume = (self.state, self.phase)
         self._link_lost_mono = self.clock()
         self._warn("link_lost", say.PROMPTS["reconnecting"])
         self._set_state(State.RECONNECTING, None, say.PROMPTS["reconnecting"])
@@ -281,18 +295,40 @@ class GuidedSession(ProtocolSteps, Lateness):
         return self.stream.protocol_stages(list(self.turns.values()))
 
     def set_result(self, result: CalibrationResult, history: list[dict[str, Any]] | None = None,
-                   failed_before: FailedChecks = frozenset()) -> None:
+                   failed_before: FailedChecks = frozenset(), can_redo: bool = True) -> None:
         """The estimator's result: judge it against the tolerances (and the device's earlier calibrations,
-        ``history``), then done or failed (``failed_before``: the checks its last judged result failed)."""
+        ``history``), then done, failed, or (``can_redo``: the device still streams) the turns that most likely
+        were not full ones asked again (``failed_before``: the checks its last judged result failed)."""
         if self.finished:
             return
+        judgement = judge(result, self.tol, history or [])
+        failed = judgement.failed_checks
+        redo = say.turns_to_redo(failed)
+        if redo and can_redo and self.max_attempts > 1 and not self._redone.intersection(redo):
+            self._redo_turns(redo, say.redo_turns(failed))
+            return
         self.result = result
-        self.judgement = judge(result, self.tol, history or [])
-        self.passed = self.judgement.passed
+        self.judgement = judgement
+        self.passed = judgement.passed
         if not self.passed:
-            self.fail(EndReason.OUT_OF_TOLERANCE, say.out_of_tolerance(self.judgement.failed_checks, failed_before))
+            # a turn that failed again after it was asked again: the same axis twice, so the sensor is suspect
+            again = failed_before | {("k", a) for a in self._redone}
+            self.fail(EndReason.OUT_OF_TOLERANCE, say.out_of_tolerance(failed, again))
             return
         self._end(State.DONE, say.done_prompt(True))
+
+    def _redo_turns(self, axes: list[str], message: str) -> None:
+        """The result is out of range on scale factors only: most likely those turns were not full ones. Ask them
+        again in this session (the others stand), once each; then compute again."""
+        self._redone.update(axes)
+        self._redo = list(axes)
+        for a in axes:
+            self.turns.pop(a, None)
+        self._axis_i = AXES.index(axes[0])
+        self.attempt += 1
+        self._warn(EndReason.OUT_OF_TOLERANCE, message, emit=False)
+        self._set_state(TURN_STATES[axes[0]], Phase.SETTLE, say.PROMPTS["settle"])
+        self._resume_phase = Phase.READY
 
     # -- snapshots --------------------------------------------------------------------------------
     def snapshot(self, event: str = "state") -> SessionOut:

@@ -8,6 +8,7 @@ states: the session (server.live.session) asks it questions and decides.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable
 from dataclasses import replace
 from typing import Any, cast
@@ -201,7 +202,8 @@ class SessionStream:
         """The stages the estimator gets: every still, and the given turns (those that passed their checks)."""
         stages = list(self.stills)
         if self.tracker is not None:
-            for st in self.tracker.finish():
+            # the open rest, closed on a copy: the session's detector goes on (a turn may be asked again)
+            for st in copy.deepcopy(self.tracker).finish():
                 if getattr(st, "kind", None) == "stage_closed":
                     st = st.stage
                 if isinstance(st, Stage) and st.kind == "still":

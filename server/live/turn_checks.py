@@ -7,8 +7,6 @@ outcome; the fields and methods declared here without a body are the session's.
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 
 from calib.judge.acceptance import Tolerances
@@ -38,10 +36,9 @@ class TurnChecks:
     live_reading: LiveReading
     _axis_i: int
     _provisional: str | None
-    _turn_confirmed: bool
     _early: float | None
+    _redo: list[str]
     _turn_lost: int
-    _rested_after_turn: bool
     _resume_phase: Phase
     _motion_t: float | None
     _rest_before_s: float
@@ -66,38 +63,26 @@ class TurnChecks:
 
     def _watch_turn(self, still_s: float, moving: bool, raw: np.ndarray, angle: np.ndarray, rate: float) -> bool:
         """The turn in progress: say "hold still" the moment it stops (``rate``: the largest rate of the last
-        ``STOP_WINDOW_S``), check it once it rests. True when the session moved on."""
+        ``STOP_WINDOW_S``), "checking" once it rests after what looks like a full turn. True when the session moved
+        on. A turn counts only when the stage detector closes it (its closing rest is complete): until then the page
+        says "checking", and a move spoils the turn, so the clinician is told one thing, once."""
         axis = AXES[self._axis_i]
         k = AXES.index(axis)
-        if not moving and still_s >= self.timings.rest_seen_s and abs(raw[k]) >= self.tol.turn_angle_min_deg:
-            self._rested_after_turn = True
-        elif moving and self._rested_after_turn:
-            # back at rest after a full turn, then moved again before the rest was long enough to
-            # close the turn: the turn and that motion cannot be told apart any more
-            self._moved_during_pause(axis)
-            return True
+        if self.phase == Phase.CHECKING:
+            if moving:
+                # back at rest after a full turn, then moved again before the rest was long enough to
+                # close the turn: the turn and that motion cannot be told apart any more
+                self._moved_during_pause(axis)
+                return True
+            return False
         if self.phase == Phase.TURNING:
             if rate < STOP_DPS and float(np.abs(raw).max()) >= EARLY_TURN_DEG and self.live_angle.near_full(float(angle[k])):
                 self._set_phase(Phase.PLACING, say.placing_prompt(axis, self.live_angle.calibrated), keep_clock=True)
         elif rate > RESUME_DPS:
             self._set_phase(Phase.TURNING, say.turning_prompt(axis), keep_clock=True)
-        elif not moving and still_s >= self.timings.rest_seen_s:
-            return self._check_rested_turn(axis)
+        elif not moving and still_s >= self.timings.rest_seen_s and abs(raw[k]) >= self.tol.turn_angle_min_deg:
+            self._set_phase(Phase.CHECKING, say.checking_prompt(axis), keep_clock=True)
         return False
-
-    def _check_rested_turn(self, axis: str) -> bool:
-        """The device has rested ``rest_seen_s`` after the turn: record it now if it passes its checks (the
-        detector confirms it later); a turn that would not pass waits for the detector's verdict."""
-        st = None if self._motion_t is None else self.stream.turn_so_far(self._motion_t, axis)
-        if st is None:
-            return False
-        angles = self.stream.turn_angles(st)
-        measure = self._measure(axis, st, angles, self._turn_lost)
-        if is_no_turn(angles, self.tol) or judge_turn(axis, measure, self.tol, self.full_scale, self.retry_allowed) is not None:
-            return False
-        self._provisional = None
-        self._record_turn(axis, st, angles, measure.gravity_deg, confirmed=False)
-        return True
 
     def _measure(self, axis: str, st: Stage, angles: np.ndarray, lost: int) -> TurnMeasure:
         """What the checks of a turn about ``axis`` over ``st`` read (``angles``: its raw swept angles)."""
@@ -107,40 +92,23 @@ class TurnChecks:
         return TurnMeasure(angles, self.stream.saturated(st), lost, self.stream.gravity_change_deg(st), true_angle,
                            duration_s=st.end_s - st.start_s)
 
-    def _record_turn(self, axis: str, st: Stage, angles: np.ndarray, gravity_deg: float | None, confirmed: bool) -> None:
+    def _record_turn(self, axis: str, st: Stage, angles: np.ndarray, gravity_deg: float | None) -> None:
         self.turns[axis] = TurnRecord(axis, st.start, st.end, st.start_s, st.end_s, angles,
                                       tuple(f for f in st.flags if f not in ("saturated", "counter_gap")), self._rest_before_s, gravity_deg)
-        self._turn_confirmed = confirmed
         self._early = None
-        nxt = AXES[self._axis_i + 1] if self._axis_i < 2 else None
-        self._set_phase(Phase.PAUSE, say.pause_prompt(axis, nxt))
+        nxt = self._next_axis()
+        self._set_phase(Phase.PAUSE, say.pause_prompt(axis, nxt), keep_clock=True)
 
-    def _confirm_turn(self, st: Stage) -> None:
-        """The detector closed the turn recorded early: keep its exact bounds."""
-        axis = AXES[self._axis_i]
-        tr = self.turns.get(axis)
-        self._turn_confirmed = True
-        if tr is not None:
-            self.turns[axis] = replace(tr, start=st.start, end=st.end, start_s=st.start_s, end_s=st.end_s,
-                                       angle_deg=self.stream.turn_angles(st))
-
-    def _drop_unconfirmed_turn(self) -> bool:
-        """A turn recorded early whose rest was cut short cannot be closed: forget it (it is asked again).
-        True when there was one."""
-        if self.phase != Phase.PAUSE or self._turn_confirmed:
-            return False
-        self.turns.pop(AXES[self._axis_i], None)
-        self._turn_confirmed = True
-        return True
+    def _next_axis(self) -> str | None:
+        """The turn asked after the current one: the next in protocol order, or the next turn to redo (None: compute)."""
+        if self._redo:
+            return self._redo[1] if len(self._redo) > 1 else None
+        return AXES[self._axis_i + 1] if self._axis_i < 2 else None
 
     def _watch_pause(self, moving: bool, angle: np.ndarray) -> bool:
-        """A motion in the pause: before the turn was confirmed it spoils the turn; after, it is a bump that
-        restarts the count, or the next turn started early once it has turned far enough."""
-        axis = AXES[self._axis_i]
-        if moving and self._drop_unconfirmed_turn():
-            self._moved_during_pause(axis)
-            return True
-        if self._early is not None and self._axis_i < 2 and float(np.abs(angle).max()) >= EARLY_TURN_DEG:
+        """A motion in the pause after a recorded turn: a bump that restarts the count, or the next turn started
+        early once it has turned far enough."""
+        if self._early is not None and not self._redo and self._axis_i < 2 and float(np.abs(angle).max()) >= EARLY_TURN_DEG:
             rest, self._early = self._early, None
             self._begin_turn(rest, "pause")
             self._axis_i += 1
@@ -152,7 +120,7 @@ class TurnChecks:
 
     def _moved_during_pause(self, axis: str) -> None:
         retry = self.retry_allowed
-        recorded = axis in self.turns
+        recorded = self.phase == Phase.PAUSE and axis in self.turns
         msg = say.moved_during_pause(axis, self.timings.pause_s, retry, recorded)
         if retry:
             self.attempt += 1
@@ -176,7 +144,7 @@ class TurnChecks:
             axis = AXES[self._axis_i]
             self.state = TURN_STATES[axis]
             self._warn("moved", say.MOVED_RESTART)
-            self._set_phase(Phase.PAUSE, say.pause_prompt(axis, AXES[self._axis_i + 1] if self._axis_i < 2 else None))
+            self._set_phase(Phase.PAUSE, say.pause_prompt(axis, self._next_axis()))
 
     def _check_turn(self, st: Stage) -> None:
         axis = AXES[self._axis_i]
@@ -196,7 +164,7 @@ class TurnChecks:
         if problem is not None:
             self._turn_failed(*problem)
             return
-        self._record_turn(axis, st, angles, measure.gravity_deg, confirmed=True)
+        self._record_turn(axis, st, angles, measure.gravity_deg)
 
     def _turn_failed(self, code: EndReason, message: str) -> None:
         if self.retry_allowed:

@@ -41,7 +41,7 @@ class Calibration(ctypes.Structure):
 
 class Arg(ctypes.Union):
     _fields_ = [("rate_hz", ctypes.c_float), ("gyro_full_scale_dps", ctypes.c_uint16), ("accel_range_g", ctypes.c_uint8),
-                ("calibration", Calibration)]
+                ("identify_s", ctypes.c_uint8), ("calibration", Calibration)]
 
 
 class CommandC(ctypes.Structure):
@@ -146,6 +146,8 @@ def _python_status(data: bytes) -> Status:
         cmd = Command.decode(data)
     except DecodeError as e:
         return Status.UNKNOWN_OPCODE if e.reason == "opcode" else Status.BAD_LENGTH
+    if cmd.opcode == Opcode.IDENTIFY and not 1 <= int(cmd.value) <= wp.IDENTIFY_MAX_S:  # type: ignore[arg-type]
+        return Status.INVALID_VALUE
     if cmd.opcode == Opcode.WRITE_CALIBRATION:
         try:
             HeldCalibration.from_payload(bytes(cmd.value))  # type: ignore[arg-type]
@@ -174,6 +176,8 @@ def _check_command(lib, data: bytes) -> None:
         assert cmd.arg.gyro_full_scale_dps == py.value
     elif py.opcode == Opcode.SET_ACCEL_RANGE:
         assert cmd.arg.accel_range_g == py.value
+    elif py.opcode == Opcode.IDENTIFY:
+        assert cmd.arg.identify_s == py.value
     elif py.opcode == Opcode.WRITE_CALIBRATION:
         held = HeldCalibration.from_payload(bytes(py.value))  # type: ignore[arg-type]
         c = cmd.arg.calibration
@@ -185,7 +189,8 @@ EDGE_VALUES = [0.0, -0.0, 1.0, 1e6, float(np.nextafter(np.float32(1e6), np.float
 
 
 def test_edge_case_commands(lib):
-    writes = [b"", b"\x00", b"\x10", b"\xff", *[bytes([op]) + bytes(n) for op in range(1, 8) for n in range(0, 60)]]
+    writes = [b"", b"\x00", b"\x10", b"\xff", *[bytes([op]) + bytes(n) for op in range(1, 9) for n in range(0, 60)]]
+    writes += [bytes([Opcode.IDENTIFY, s]) for s in range(256)]  # 1..60 s obeyed, 0 and longer refused
     identity = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.1, -0.2, 0.3]
     for i in range(12):
         for v in EDGE_VALUES:
@@ -206,7 +211,7 @@ def test_edge_case_commands(lib):
     st.binary(max_size=64),
     st.builds(lambda cid, vals: _calibration_write(cid, vals), st.integers(0, 0xFFFFFFFF),
               st.lists(st.floats(width=32), min_size=12, max_size=12)),
-    st.builds(lambda op, rest: bytes([op]) + rest, st.integers(1, 7), st.binary(max_size=8)),
+    st.builds(lambda op, rest: bytes([op]) + rest, st.integers(1, 8), st.binary(max_size=8)),
 ))
 def test_random_commands(lib, data):
     _check_command(lib, data)

@@ -3,6 +3,7 @@ each model, and the stream a model's adapter decodes calibrates to the simulated
 
 from __future__ import annotations
 
+import asyncio
 import time
 
 import numpy as np
@@ -11,8 +12,9 @@ from test_ble_e2e import FAST, _assert_matches_truth, _calibrate, _stream
 
 from mock_device.sources import ScriptedSource
 from mock_device.vendors import WEARABLES
+from mock_device.vendors.thingy52 import IDLE_LED
 from mock_device.wearable import Wearable
-from server.link import RecordingBuilder
+from server.link import CommandError, RecordingBuilder
 from server.link.ble import BleLink
 from wearable_protocol.models import MODELS
 
@@ -57,3 +59,38 @@ async def test_each_vendor_calibrates_through_bleak(simulated_bluez, model):
     assert np.all(np.diff(rec.seq) == 1) and np.all(np.diff(rec.t) > 0)
     assert rec.fs == pytest.approx(w.true_rate_hz, rel=5e-4)
     _assert_matches_truth(_calibrate(rec), w.truth)
+
+
+@pytest.mark.parametrize("model", list(MODELS))
+async def test_identify_blinks_each_wearable_whose_protocol_can_and_names_the_one_that_cannot(simulated_bluez, model):
+    """IDENTIFY through the real bleak client: gyrocal's opcode (while streaming), the MetaWear LED module's blink
+    pattern and the Thingy:52's LED characteristic (put back afterwards); Polar's PMD has no such command."""
+    w: Wearable = WEARABLES[model](ScriptedSource(seed=5), seed=5, speed=SPEED)
+    simulated_bluez([w])
+    link = BleLink(w.address, reconnect=FAST)
+    await link.connect()
+    try:
+        await link.read_info()
+        if MODELS[model].identify is None:
+            with pytest.raises(CommandError, match="no command to blink or buzz"):
+                await link.identify(2)
+            assert not w.identifying
+            return
+        if model == "gyrocal":
+            await link.start()  # a streaming wearable blinks too, and streams on
+        assert not w.identifying
+        await link.identify(1)
+        deadline = time.monotonic() + 2.0
+        while not w.identifying and time.monotonic() < deadline:
+            await asyncio.sleep(0.02)
+        assert w.identifying and w.stats.identified == 1
+        await asyncio.sleep(1.6)
+        assert not w.identifying  # one second asked, one second given (the Thingy's LED put back as it was)
+        if model == "thingy52":
+            assert w.led == IDLE_LED  # type: ignore[attr-defined]
+        if model == "gyrocal":
+            assert link.stats.packets > 0
+            with pytest.raises(CommandError, match="invalid_value"):
+                await link.identify(61)
+    finally:
+        await link.disconnect()

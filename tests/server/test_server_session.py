@@ -84,14 +84,16 @@ def test_the_protocol_walks_every_step_and_computes_the_truth() -> None:
     phases = [(snap["state"], snap["phase"]) for kind, snap in run.events if kind in ("state", "prompt")]
     for axis in "xyz":
         i = phases.index((f"turn_{axis}", "ready"))
-        assert phases[i + 1: i + 4] == [(f"turn_{axis}", "turning"), (f"turn_{axis}", "placing"), (f"turn_{axis}", "pause")]
-    # "hold it still" within 200 ms of the hand stopping; the turn checked well before the detector closes it
+        assert phases[i + 1: i + 5] == [(f"turn_{axis}", p) for p in ("turning", "placing", "checking", "pause")]
+    # "hold it still" within 200 ms of the hand stopping; "checking" once it has rested; the turn counts when its
+    # closing rest is complete (the detector closed it), within the pause
     ends = {st.axis: st.end_s for st in truth.stages if st.kind == "turn"}
     for axis in "xyz":
-        placing = next(snap for kind, snap in run.events if snap["state"] == f"turn_{axis}" and snap["phase"] == "placing")
-        assert -0.3 < placing["live"]["t_device_s"] - ends[axis] <= 0.2
-        pause = next(snap for kind, snap in run.events if snap["state"] == f"turn_{axis}" and snap["phase"] == "pause")
-        assert pause["live"]["t_device_s"] - ends[axis] < 1.0
+        at = {p: next(snap["live"]["t_device_s"] for kind, snap in run.events if snap["state"] == f"turn_{axis}" and snap["phase"] == p)
+              for p in ("placing", "checking", "pause")}
+        assert -0.3 < at["placing"] - ends[axis] <= 0.2
+        assert 0.4 <= at["checking"] - ends[axis] < 1.0
+        assert at["checking"] < at["pause"] and at["pause"] - ends[axis] < 1.8
     # live feedback: stillness progress grows to the 3 s target, the live angle grows during turns
     progress = [snap["progress"]["fraction"] for kind, snap in run.events if kind == "progress" and snap["state"] == "still"]
     assert progress and progress[-1] > 0.8 and progress == sorted(progress)
@@ -408,3 +410,43 @@ def test_a_long_reconnection_does_not_count_against_the_time_limits() -> None:
     assert run.s.state == "computing", run.s.reason
     assert run.warnings() == ["link_lost", "link_restored"]
     assert run.s.lost_samples == gap and run.s.turns["y"].start_s > shifted.t[resume]
+
+
+def _compute_and_go_on(run: Run, rec: Any) -> None:
+    """As the runner does: judge the result once the session is computing, while the device streams on."""
+    while run.s.state == "computing":
+        run.s.set_result(compute_result(run.s))
+        if not run.s.finished:
+            run.feed(rec, start=run.s.buf.n)
+
+
+def test_a_short_turn_that_fails_the_result_is_asked_again_in_the_same_session() -> None:
+    """A turn about Z 50 deg short (read 295 deg, where a working sensor reads 300-450 deg) passes the live check but
+    gives k_z out of range: the session asks that turn again, the others stand, and the result passes."""
+    sc = script(Still(3.5), turn("x"), Still(3.0), turn("y"), Still(3.0), turn("z", 310.0), Still(4.0), turn("z"), Still(3.0))
+    rec, truth = sim(sc)
+    run = Run(max_attempts=None)
+    run.feed(rec)
+    assert run.s.state == "computing"
+    x_turn = run.s.turns["x"]
+    _compute_and_go_on(run, rec)
+    assert run.s.state == "done" and run.s.passed, run.s.reason
+    assert run.states() == ["still", "turn_x", "turn_y", "turn_z", "computing", "turn_z", "computing", "done"]
+    redo = run.s.warnings[-1]
+    assert redo.code == "out_of_tolerance" and re.search(r"turn about Z read 29\d°", redo.message), redo.message
+    assert "all the way round" in redo.message and "faulty" not in redo.message
+    back = next(snap for _, snap in run.events if snap["state"] == "turn_z" and snap["attempt"] == 2)
+    assert back["phase"] == "settle" and "z" not in back["turns"] and back["result"] is None
+    assert run.s.turns["x"] == x_turn and run.s.turns["z"].start_s > 3.5 + 3 * 6.0
+    assert np.max(np.abs(np.asarray(run.s.result.k) / PARAMS.k - 1.0)) < 2e-3
+
+
+def test_a_turn_that_fails_the_result_twice_ends_the_session_naming_the_sensor() -> None:
+    sc = script(Still(3.5), turn("x"), Still(3.0), turn("y"), Still(3.0), turn("z", 310.0), Still(4.0), turn("z", 310.0), Still(3.0))
+    rec, _ = sim(sc)
+    run = Run(max_attempts=None)
+    run.feed(rec)
+    _compute_and_go_on(run, rec)
+    assert run.s.state == "failed" and run.s.reason_code == "out_of_tolerance"
+    assert run.states()[-3:] == ["turn_z", "computing", "failed"]
+    assert "turn about Z read 29" in (run.s.reason or "") and "the sensor may be faulty" in (run.s.reason or "")

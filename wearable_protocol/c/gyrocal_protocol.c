@@ -210,6 +210,7 @@ uint8_t gc_decode_command(const uint8_t *data, size_t len, gc_command *cmd) {
         want = 2;
         break;
     case GC_OP_SET_ACCEL_RANGE:
+    case GC_OP_IDENTIFY:
         want = 1;
         break;
     case GC_OP_WRITE_CALIBRATION:
@@ -231,6 +232,12 @@ uint8_t gc_decode_command(const uint8_t *data, size_t len, gc_command *cmd) {
         break;
     case GC_OP_SET_ACCEL_RANGE:
         cmd->arg.accel_range_g = p[0];
+        break;
+    case GC_OP_IDENTIFY:
+        cmd->arg.identify_s = p[0];
+        if (p[0] == 0 || p[0] > GC_IDENTIFY_MAX_S) {
+            return GC_STATUS_INVALID_VALUE;
+        }
         break;
     case GC_OP_WRITE_CALIBRATION:
         return decode_calibration(p, &cmd->arg.calibration);

@@ -35,6 +35,7 @@ extern "C" {
 #endif
 #define GC_MAX_PACKET_SIZE (GC_HEADER_SIZE + GC_MAX_SAMPLES * GC_SAMPLE_SIZE)
 #define GC_MAX_NOTIFICATIONS_PER_S 40u
+#define GC_IDENTIFY_MAX_S 60u      /* the longest IDENTIFY a central may ask for */
 
 /* Bits of a packet's flags byte. */
 enum gc_flag {
@@ -59,6 +60,7 @@ enum gc_opcode {
     GC_OP_SET_ACCEL_RANGE = 0x05,   /* u8 g */
     GC_OP_WRITE_CALIBRATION = 0x06, /* 56 bytes: gc_calibration with its CRC-32 */
     GC_OP_CLEAR_CALIBRATION = 0x07,
+    GC_OP_IDENTIFY = 0x08,          /* u8 s, 1..60: blink or buzz for that long (allowed while streaming) */
     GC_OP_STREAM_END = 0x10         /* device -> central only */
 };
 
@@ -99,6 +101,7 @@ typedef struct {
         float rate_hz;
         uint16_t gyro_full_scale_dps;
         uint8_t accel_range_g;
+        uint8_t identify_s;      /* IDENTIFY: how long to blink or buzz, s */
         gc_calibration calibration;
     } arg;
 } gc_command;
@@ -133,7 +136,9 @@ void gc_encode_status(uint8_t out[GC_STATUS_SIZE], uint8_t opcode, uint8_t statu
 
 /* Decode a control write. Returns GC_STATUS_OK, or the status to answer with: UNKNOWN_OPCODE, BAD_LENGTH,
  * CHECKSUM (a calibration whose CRC-32 does not match) or INVALID_VALUE (a calibration with a non-finite value,
- * a value beyond 1e6 or a singular K). On an error `cmd->opcode` is still set when the opcode was known. */
+ * a value beyond 1e6 or a singular K; an IDENTIFY of 0 s or over GC_IDENTIFY_MAX_S). On an error `cmd->opcode` is
+ * still set when the opcode was known. IDENTIFY is the one command a device obeys while streaming: it blinks its
+ * LED or buzzes for `arg.identify_s` seconds, so the clinician can tell which wearable on the table is which. */
 uint8_t gc_decode_command(const uint8_t *data, size_t len, gc_command *cmd);
 
 /* The WRITE_CALIBRATION payload for a calibration (GC_CALIBRATION_SIZE bytes, CRC-32 appended). */

@@ -3,7 +3,10 @@
 Sources (protocol facts only; the code is ours): MbientLab's MetaWear C++ SDK (github.com/mbientlab/
 MetaWear-SDK-Cpp): the command and notification bytes in its unit tests ``test/test_gyro_bmi160.py`` and
 ``test/test_accelerometer_bmi160.py`` (which our tests replay, ``tests/link/test_vendor_metawear.py``),
-and the GATT UUIDs of its ``src/metawear/platform/btle_connection.h`` / the SDK documentation.
+and the GATT UUIDs of its ``src/metawear/platform/btle_connection.h`` / the SDK documentation; the LED module's
+commands (module 0x02: play 0x01, stop 0x02, a pattern 0x03) and its 13-byte pattern (intensities, rise, high,
+fall, pulse and delay times in ms, repeat count) from ``src/metawear/peripheral/led.h`` and ``led.cpp``, with the
+"blink" preset's values.
 
 Every message, both ways, is ``module | register | payload``. Commands go to the command characteristic,
 data come back as notifications of the notify characteristic. The gyroscope (module 0x13) is configured
@@ -16,6 +19,7 @@ time stamp and no counter**: sample times are arrival times and lost samples can
 
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass
 from enum import IntEnum
 
@@ -38,8 +42,42 @@ SERVICES = (
 
 
 class Module(IntEnum):
+    LED = 0x02
     ACCELEROMETER = 0x03
     GYROSCOPE = 0x13
+
+
+class LedRegister(IntEnum):
+    PLAY = 0x01  # 01: play the patterns written
+    STOP = 0x02  # 01: stop and clear them
+    PATTERN = 0x03  # color, 02, then the 13-byte pattern
+
+
+class LedColor(IntEnum):
+    GREEN = 0
+    RED = 1
+    BLUE = 2
+
+
+BLINK_PULSE_MS = 500  # the SDK's "blink" preset: full intensity for 50 ms of every 500 ms
+_LED_PATTERN = struct.Struct("<BBBBBBHHHHHB")
+
+
+def led_blink(seconds: int, color: LedColor = LedColor.GREEN) -> tuple[bytes, bytes]:
+    """The commands that blink the LED for ``seconds`` (1-127): the pattern, then play."""
+    repeat = int(seconds) * 1000 // BLINK_PULSE_MS
+    if not 1 <= repeat <= 254:  # 255 repeats forever
+        raise ValueError(f"a MetaWear LED blinks 1 to 127 s; asked {seconds} s")
+    pattern = _LED_PATTERN.pack(Module.LED, LedRegister.PATTERN, color, 2, 31, 0, 0, 50, 0, BLINK_PULSE_MS, 0, repeat)
+    return pattern, bytes([Module.LED, LedRegister.PLAY, 1])
+
+
+def parse_led_pattern(data: bytes) -> tuple[LedColor, int, int]:
+    """A pattern command's color, pulse length (ms) and repeat count; DecodeError if it is not one."""
+    if len(data) != _LED_PATTERN.size or data[0] != Module.LED or data[1] != LedRegister.PATTERN or data[2] > 2:
+        raise DecodeError("length", f"not a MetaWear LED pattern: {data.hex()}")
+    fields = _LED_PATTERN.unpack(data)
+    return LedColor(fields[2]), fields[9], fields[11]
 
 
 class Register(IntEnum):

@@ -6,7 +6,9 @@ structs, the configuration limits) and ``include/drivers/drv_motion.h`` (the raw
 accelerometer Q6.10 in g, gyroscope Q11.5 in deg/s, compass Q12.4 in uT); the Thingy's 128-bit UUID base
 ``EF68xxxx-9B35-4933-9B10-52FFA9740042`` with the Motion service at 0x0400, its configuration at 0x0401 and
 the raw data at 0x0406. Nordic publishes no example bytes for these, so our tests build them from the
-structs' layout.
+structs' layout. The LED: ``include/ble_services/ble_uis.h`` (User Interface service 0x0300, LED characteristic
+0x0301: a mode byte, then for "breathe" (2) a colour mix 1-7 (bits R, G, B), an intensity 1-100 % and a u16 delay
+between breaths, 1-10000 ms).
 
 The central writes the configuration (motion processing frequency 1-200 Hz) and enables notifications of
 the raw data characteristic: one sample per notification, **no time stamp and no counter** (sample times
@@ -35,14 +37,32 @@ DEVICE_NAME_CHAR = _uuid(0x0101)
 MOTION_SERVICE = _uuid(0x0400)
 CONFIG_CHAR = _uuid(0x0401)  # read, write: ble_tms_config_t
 RAW_DATA_CHAR = _uuid(0x0406)  # notify: ble_tms_raw_t
+UI_SERVICE = _uuid(0x0300)
+LED_CHAR = _uuid(0x0301)  # read, write: ble_uis_led_t
+LED_MODE_BREATHE = 2
+LED_GREEN = 2  # colour mix: bit 0 red, bit 1 green, bit 2 blue
 SERVICES = (
     ServiceSpec(CONFIGURATION_SERVICE, (CharacteristicSpec(DEVICE_NAME_CHAR, ("read", "write")),)),
     ServiceSpec(MOTION_SERVICE, (
         CharacteristicSpec(CONFIG_CHAR, ("read", "write")),
         CharacteristicSpec(RAW_DATA_CHAR, ("notify",)),
     )),
+    ServiceSpec(UI_SERVICE, (CharacteristicSpec(LED_CHAR, ("read", "write")),)),
     BATTERY,
 )
+_LED_LENGTHS = {0: 1, 1: 4, 2: 5, 3: 3}  # mode -> length of the LED characteristic's value
+
+
+def led_breathe(color_mix: int = LED_GREEN, intensity_pct: int = 100, delay_ms: int = 100) -> bytes:
+    """The LED characteristic's value that makes it breathe (fade in, on, fade out) every ``delay_ms``."""
+    return struct.pack("<BBBH", LED_MODE_BREATHE, color_mix, intensity_pct, delay_ms)
+
+
+def check_led(data: bytes) -> bytes:
+    """An LED characteristic value as the firmware takes it (mode and length); DecodeError otherwise."""
+    if not data or _LED_LENGTHS.get(data[0]) != len(data):
+        raise DecodeError("length", f"not a Thingy:52 LED value: {bytes(data).hex()}")
+    return bytes(data)
 
 ACCEL_FRACTION_BITS = 10  # Q6.10, g
 GYRO_FRACTION_BITS = 5  # Q11.5, deg/s

@@ -3,6 +3,7 @@
 import { fill, fmtDateTime, h } from "./dom.js";
 import { icon } from "./figures.js";
 import { problemLine } from "./messages.js";
+import { identifyButton } from "./identify.js";
 import { heldFact, writeBack } from "./writeback.js";
 
 function status(dev) {
@@ -41,6 +42,8 @@ function deviceCard(ctx, dev, refresh) {
   const write = cur && held && !dev.active_session && dev.available && dev.held_state !== "current"
     ? writeBack(ctx.api, dev.id, cur.id, refresh) : null;
   if (write) actions.push(write.button);
+  const ident = identifyButton(ctx.api, dev);
+  if (ident) actions.push(ident.button);
   actions.push(h("a", { class: "button", href: `#/history/${encodeURIComponent(dev.id)}`, "aria-label": `History of ${dev.name || dev.id}` }, icon("history"), "History"));
   const card = h("li", { class: "device-card", dataset: { device: dev.id, status: st.key } },
     h("div", { class: "dev-main" },
@@ -67,7 +70,8 @@ function deviceCard(ctx, dev, refresh) {
         h("a", { href: `#/session/${dev.unsaved_session}` }, "Open it to save or discard"))
       : null,
     h("div", { class: "dev-actions" }, actions),
-    write ? write.line : null);
+    write ? write.line : null,
+    ident ? ident.line : null);
   card.setBattery = (pct) => {
     const b = batteryText(pct);
     battery.classList.toggle("low", b.low);

@@ -24,6 +24,8 @@ export function headline(snap, deviceName) {
           return `Turning about ${ax(axis)}`;
         case "placing":
           return "Hold it still";
+        case "checking":
+          return `Checking turn ${ax(axis)} — hold still`;
         case "pause":
           return `${ax(axis)} done — hold still`;
         default:

@@ -4,7 +4,9 @@
 import { AXES, AXIS_LABEL, fill, fmtDateTime, h } from "./dom.js";
 import { ask } from "./confirm.js";
 import { TURN_SUMMARY, turnGuide } from "./guide.js";
+import { cues } from "./cues.js";
 import { angleGauge, icon, notice, placePicture, stillRing, turnAnimation, turnTiles } from "./figures.js";
+import { identifyButton } from "./identify.js";
 import { STEP_LABELS, headline, reasonFor, requestProblem, stepOf, subline } from "./messages.js";
 import { detailsBlock, paramTable } from "./details.js";
 import { readiness } from "./readiness.js";
@@ -79,11 +81,13 @@ export function placeView(ctx, deviceId) {
         h("span", null, h("strong", null, `Turn ${AXIS_LABEL[a]}`), ` ${TURN_SUMMARY[a].toLowerCase()}`)))),
     h("p", { class: "muted" }, "After each turn, back against the block. The screen shows each step as you go."));
   const title = h("h1", { class: "instruction" }, "Place it against the block");
+  const identSlot = h("div", { class: "identify-slot" });
   fill(ctx.main, h("section", { class: "wizard", "aria-labelledby": "place-title", dataset: { state: "place" } },
     stepHeader(1, cancel),
     h("div", { class: "prompt", "aria-live": "polite" }, Object.assign(title, { id: "place-title" }), sub),
     h("div", { class: "stage two" }, placePicture(),
-      h("div", { class: "place-side" }, h("p", { class: "device-name" }, icon("info"), h("span", { class: "dev-label" }, deviceId)), overview, start, message))));
+      h("div", { class: "place-side" }, h("p", { class: "device-name" }, icon("info"), h("span", { class: "dev-label" }, deviceId)),
+        identSlot, overview, cues().controls(), start, message))));
   ctx.focusMain();
 
   let device = null;
@@ -99,6 +103,8 @@ export function placeView(ctx, deviceId) {
       fill(message, notice("error", "offline", `${deviceLabel(dev, deviceId)} cannot be reached by the service. Switch it on, bring it near and scan for it from the device list.`));
       return;
     }
+    const ident = identifyButton(ctx.api, dev);
+    if (ident) fill(identSlot, ident.button, ident.line);
     start.disabled = false;
     start.focus();
   }).catch((err) => alive && err.status !== 401 && ctx.problem(err, `find the device ${deviceId}`));
@@ -153,6 +159,7 @@ export function sessionView(ctx, sid) {
   let seenAttempt = null; // the try of the current turn, as the last snapshot said
   let lastStep = null; // the step this page saw the session at, before it ended
   let lastAxis = null; // the turn a lost connection interrupted
+  const sound = cues(); // tones and spoken prompts, when she has turned them on
 
   const closeStream = () => {
     if (stop) stop();
@@ -171,6 +178,11 @@ export function sessionView(ctx, sid) {
         endedKey = key;
         ui = null;
         renderEnded(s);
+        if (!s.decision) {
+          const verdict = ctx.main.querySelector("#verdict-title");
+          sound.tone(s.state === "done" ? "done" : "warn");
+          sound.say(verdict ? verdict.textContent : "");
+        }
       }
       return;
     }
@@ -217,14 +229,16 @@ export function sessionView(ctx, sid) {
     const stage = h("div", { class: "stage" });
     const tiles = turnTiles();
     const root = h("section", { class: "wizard live", "aria-labelledby": "instruction" },
-      head, where, h("div", { class: "prompt", "aria-live": "polite", "aria-atomic": "true" }, title, sub), noticeBox, stage, tiles);
+      head, where, h("div", { class: "prompt", "aria-live": "polite", "aria-atomic": "true" }, title, sub), noticeBox, stage, tiles,
+      sound.controls());
     fill(ctx.main, root);
     ctx.focusMain();
     ui = { root, head, title, sub, noticeBox, stage, tiles, key: null, ring: null, gauge: null, remote: Boolean(s.remote) };
   };
 
   const stageKey = (s) => {
-    if (s.state.startsWith("turn_")) return ["pause", "settle", "placing"].includes(s.phase) ? `rest:${s.axis}:${s.phase}` : `turn:${s.axis}`;
+    // the gauge stays while the device is put down (placing): the turn view changes only once it rests (checking)
+    if (s.state.startsWith("turn_")) return ["pause", "settle", "checking"].includes(s.phase) ? `rest:${s.axis}:${s.phase}` : `turn:${s.axis}`;
     return s.state;
   };
 
@@ -248,7 +262,7 @@ export function sessionView(ctx, sid) {
       case "rest": {
         ui.ring = stillRing();
         // settling after a lost connection or a moved device: the turn is kept if it was recorded already
-        const recorded = s.phase === "placing"
+        const recorded = s.phase === "checking"
           ? h("p", { class: "recorded checking" }, icon("clock"), `Checking turn ${AXIS_LABEL[s.axis]}…`)
           : s.turns && s.turns[s.axis]
             ? h("p", { class: "recorded" }, icon("check"), `Turn ${AXIS_LABEL[s.axis]} recorded`)
@@ -291,6 +305,8 @@ export function sessionView(ctx, sid) {
       ui.noticeBox.dataset.warning = w.code;
       fill(ui.noticeBox, notice(kind, WARNING_ICON[w.code] || "warn", w.message,
         retry ? `Attempt ${s.attempt} of ${s.max_attempts}:` : null));
+      sound.tone(kind === "warn" ? "warn" : "step");
+      sound.say(w.message);
       clearTimeout(warningTimer);
       warningTimer = setTimeout(() => alive && snap && ui && updateNotice(snap), WARNING_SHOW_MS + 50);
     }
@@ -298,7 +314,7 @@ export function sessionView(ctx, sid) {
       // a warning stays a while, unless the instruction itself now says the same or the session has moved on
       // to the step it asked for (a new turn started, or another state): then it would contradict the screen.
       // A retried turn's reason stays through the rest and the prompt to turn again, until that turn starts.
-      if (shownWarning.retry && ["settle", "ready", "pause"].includes(s.phase)) shownWarning.rested = true;
+      if (shownWarning.retry && ["settle", "ready", "checking", "pause"].includes(s.phase)) shownWarning.rested = true;
       const movedOn = shownWarning.retry
         ? (s.phase === "turning" && shownWarning.rested) || s.state !== shownWarning.state
         : ["turning", "placing"].includes(s.phase) || s.state === "computing"
@@ -306,7 +322,7 @@ export function sessionView(ctx, sid) {
       if (shownWarning.message !== s.prompt && Date.now() < shownWarning.until && !movedOn) return;
       shownWarning = null;
     }
-    const resting = s.state === "still" || s.phase === "pause" || s.phase === "settle";
+    const resting = s.state === "still" || ["checking", "pause", "settle"].includes(s.phase);
     const key = resting && s.live && s.live.moving ? "moving" : "";
     if (ui.noticeBox.dataset.key === key) return;
     ui.noticeBox.dataset.key = key;
@@ -322,6 +338,7 @@ export function sessionView(ctx, sid) {
     lastStep = Number(ui.head.dataset.step);
     const key = stageKey(s);
     if (key !== ui.key) {
+      if (ui.key !== null) sound.tone("step");
       ui.key = key;
       buildStage(s);
     }
@@ -331,13 +348,14 @@ export function sessionView(ctx, sid) {
     if (ui.title.textContent !== t) {
       ui.title.textContent = t;
       ctx.title(t);
+      sound.say(t);
     }
     if (ui.sub.textContent !== sub) ui.sub.textContent = sub;
     if (ui.ring) {
       const p = s.progress || { fraction: 0, still_s: 0, target_s: 0 };
       ui.ring.update(s.live && s.live.moving ? 0 : p.fraction, s.live && s.live.moving, (p.target_s || 0) - (p.still_s || 0));
     }
-    if (ui.gauge) ui.gauge.update(s.phase === "turning" && s.live ? s.live.turn_angle_deg : 0, s.live && s.live.target_deg);
+    if (ui.gauge) ui.gauge.update(["turning", "placing"].includes(s.phase) && s.live ? s.live.turn_angle_deg : 0, s.live && s.live.target_deg);
     if (s.state.startsWith("turn_")) lastAxis = s.axis;
     ui.tiles.update(Object.keys(s.turns || {}), s.state.startsWith("turn_") ? s.axis : s.state === "reconnecting" ? lastAxis : null);
     ui.tiles.hidden = !(s.state.startsWith("turn_") || s.state === "still" || s.state === "reconnecting");

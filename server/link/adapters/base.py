@@ -15,7 +15,7 @@ from collections.abc import Callable, Hashable
 from typing import Any, ClassVar, Protocol
 
 from wearable_protocol import DeviceConfig, DeviceState, HeldCalibration, PowerUp
-from wearable_protocol.models import CANNOT_HOLD, DeviceModel
+from wearable_protocol.models import CANNOT_HOLD, CANNOT_IDENTIFY, DeviceModel
 
 from ..base import CommandError, LinkError, LinkStats, SampleBatch, WriteBackError
 
@@ -107,6 +107,11 @@ class Adapter(ABC):
     async def write_calibration(self, held: HeldCalibration) -> None:
         """Send a calibration to the device (the link reads it back)."""
         raise WriteBackError(f"a {self.model.label} {CANNOT_HOLD}")
+
+    async def identify(self, seconds: int) -> None:
+        """Make the device blink or buzz for ``seconds`` so the clinician can tell it from the others (streaming goes
+        on); CommandError when its protocol has no such command (``model.identify`` is None)."""
+        raise CommandError(f"a {self.model.label} {CANNOT_IDENTIFY}")
 
     async def _exchange(self, key: Hashable, char_uuid: str, data: bytes, what: str) -> Any:
         """Write a command and wait for the reply that ``_answer(key, reply)`` delivers; CommandError when the

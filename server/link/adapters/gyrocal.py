@@ -105,6 +105,9 @@ class GyrocalAdapter(Adapter):
         except CommandError as e:
             raise WriteBackError(str(e)) from e
 
+    async def identify(self, seconds: int) -> None:
+        await self._command(Command(Opcode.IDENTIFY, int(seconds)))
+
     async def start(self, *, resume: bool) -> None:
         cfg = self.config
         assert cfg is not None and self._decoder is not None

@@ -70,6 +70,9 @@ class MetaWearAdapter(Adapter):
         for c in commands:
             await self.io.write(mw.COMMAND_CHAR, c, response=False)
 
+    async def identify(self, seconds: int) -> None:
+        await self._send(*mw.led_blink(seconds))
+
     async def start(self, *, resume: bool) -> None:
         G, A = mw.Module.GYROSCOPE, mw.Module.ACCELEROMETER
         await self._send(

@@ -9,6 +9,9 @@ is fixed at +-2000 deg/s and its resolution is 1/32 deg/s.
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
+
 import numpy as np
 
 from wearable_protocol import DecodeError, DeviceConfig
@@ -32,6 +35,8 @@ class Thingy52Adapter(Adapter):
         self._rate = int(self.model.stream_rate_hz)
         self._motion = th.MotionConfig()
         self._timeline: ArrivalTimeline | None = None
+        self._restore: asyncio.Task[None] | None = None  # puts the LED back after an identify
+        self._led_before = b""
 
     async def open(self) -> DeviceConfig:
         if not self.io.has(th.CONFIG_CHAR):
@@ -60,6 +65,24 @@ class Thingy52Adapter(Adapter):
             raise CommandError(f"the Thingy:52's accelerometer range is fixed at {self.model.accel_range_g} g")
         self._timeline = None
         return self._config()
+
+    async def identify(self, seconds: int) -> None:
+        """Breathe the LED green for ``seconds``, then put back what it showed (read first)."""
+        if not self.io.has(th.LED_CHAR):
+            raise CommandError("this Thingy:52's firmware has no User Interface service: its LED cannot be set")
+        before = await self.io.read(th.LED_CHAR)
+        await self.io.write(th.LED_CHAR, th.led_breathe())
+        if self._restore is not None:
+            self._restore.cancel()  # a second identify: the first one's LED value stays the one to put back
+            before = self._led_before
+        self._led_before = before
+        self._restore = asyncio.get_running_loop().create_task(self._restore_led(seconds))
+
+    async def _restore_led(self, seconds: int) -> None:
+        await asyncio.sleep(seconds)
+        with contextlib.suppress(Exception):  # the link may be gone: the Thingy keeps breathing until told
+            await self.io.write(th.LED_CHAR, self._led_before)
+        self._restore = None
 
     async def start(self, *, resume: bool) -> None:
         self._motion = th.MotionConfig(self._motion.pedometer_interval_ms, self._motion.temperature_interval_ms,

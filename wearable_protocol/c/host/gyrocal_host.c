@@ -24,6 +24,7 @@ typedef struct {
     gc_calibration held;
     int holds;
     int streaming;
+    uint8_t identify_s; /* the last IDENTIFY: how long the LED blinks */
 } device;
 
 static void frame(char kind, const uint8_t *data, size_t len) {
@@ -86,6 +87,10 @@ static uint8_t handle(device *d, const uint8_t *data, size_t len, uint16_t mtu) 
         return GC_STATUS_OK;
     case GC_OP_CLEAR_CALIBRATION:
         d->holds = 0;
+        return GC_STATUS_OK;
+    case GC_OP_IDENTIFY:
+        /* a real firmware starts its LED or buzzer here, for cmd.arg.identify_s seconds, and goes on streaming */
+        d->identify_s = cmd.arg.identify_s;
         return GC_STATUS_OK;
     default:
         break;

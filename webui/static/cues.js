@@ -1,0 +1,73 @@
+// Sound for eyes that are on the device, not the screen: a short tone at each step (a lower one for a warning) and,
+// where the browser can speak, the prompts read aloud. Both off until she turns them on; the choice is remembered.
+
+import { h } from "./dom.js";
+import { icon } from "./figures.js";
+
+const KEYS = { sound: "gyrocal.sound", speech: "gyrocal.speech" };
+const TONES = { step: [880, 0.12], done: [1320, 0.25], warn: [330, 0.3] }; // Hz, s
+
+const remembered = (key) => {
+  try { return localStorage.getItem(key) === "on"; } catch { return false; }
+};
+const remember = (key, on) => {
+  try { localStorage.setItem(key, on ? "on" : "off"); } catch { /* private mode: for this page only */ }
+};
+
+/** The page's cues: ``tone(kind)``, ``say(text)`` and ``controls()`` (the two switches). */
+export function cues() {
+  const on = { sound: remembered(KEYS.sound), speech: remembered(KEYS.speech) };
+  const canSpeak = typeof window.speechSynthesis !== "undefined" && typeof window.SpeechSynthesisUtterance !== "undefined";
+  const canSound = typeof window.AudioContext !== "undefined";
+  let audio = null;
+
+  const tone = (kind) => {
+    if (!on.sound || !canSound) return;
+    audio = audio || new AudioContext();
+    if (audio.state === "suspended") audio.resume();
+    const [hz, s] = TONES[kind] || TONES.step;
+    const osc = audio.createOscillator();
+    const gain = audio.createGain();
+    osc.frequency.value = hz;
+    gain.gain.setValueAtTime(0.2, audio.currentTime);
+    gain.gain.exponentialRampToValueAtTime(0.001, audio.currentTime + s);
+    osc.connect(gain).connect(audio.destination);
+    osc.start();
+    osc.stop(audio.currentTime + s);
+  };
+
+  let said = "";
+  const say = (text) => {
+    if (!on.speech || !canSpeak || !text || text === said) return;
+    said = text;
+    window.speechSynthesis.cancel(); // the newest prompt only: an old one read late would be wrong
+    window.speechSynthesis.speak(new SpeechSynthesisUtterance(text));
+  };
+
+  const toggle = (what, label, glyph, available, why) => {
+    const state = h("span", { class: "cue-state", "aria-hidden": "true" });
+    const b = h("button", { class: `button cue-toggle cue-${what}`, type: "button", "aria-pressed": String(on[what] && available) },
+      icon(glyph), label, state);
+    const show = () => { state.textContent = on[what] && available ? "on" : "off"; };
+    show();
+    if (!available) {
+      b.disabled = true;
+      b.title = why;
+    }
+    b.addEventListener("click", () => {
+      on[what] = !on[what];
+      remember(KEYS[what], on[what]);
+      b.setAttribute("aria-pressed", String(on[what]));
+      show();
+      if (what === "sound") tone("step"); // the click is the gesture a browser asks before it plays sound
+      if (what === "speech") { said = ""; say(on.speech ? "Prompts will be read aloud." : ""); }
+    });
+    return b;
+  };
+
+  const controls = () => h("div", { class: "cue-toggles", role: "group", "aria-label": "Sound" },
+    toggle("sound", "Sound", "bell", canSound, "This browser cannot play sound."),
+    toggle("speech", "Read aloud", "speaker", canSpeak, "This browser cannot read aloud."));
+
+  return { tone, say, controls };
+}
