@@ -82,12 +82,14 @@ export function placeView(ctx, deviceId) {
     h("p", { class: "muted" }, "After each turn, back against the block. The screen shows each step as you go."));
   const title = h("h1", { class: "instruction" }, "Place it against the block");
   const identSlot = h("div", { class: "identify-slot" });
+  const identLine = h("div", { class: "identify-line" });
   fill(ctx.main, h("section", { class: "wizard", "aria-labelledby": "place-title", dataset: { state: "place" } },
     stepHeader(1, cancel),
     h("div", { class: "prompt", "aria-live": "polite" }, Object.assign(title, { id: "place-title" }), sub),
     h("div", { class: "stage two" }, placePicture(),
-      h("div", { class: "place-side" }, h("p", { class: "device-name" }, icon("info"), h("span", { class: "dev-label" }, deviceId)),
-        identSlot, overview, cues().controls(), start, message))));
+      h("div", { class: "place-side" },
+        h("p", { class: "device-name" }, icon("info"), h("span", { class: "dev-label" }, deviceId)),
+        overview, h("div", { class: "place-actions" }, start, identSlot, cues().controls()), identLine, message))));
   ctx.focusMain();
 
   let device = null;
@@ -104,7 +106,10 @@ export function placeView(ctx, deviceId) {
       return;
     }
     const ident = identifyButton(ctx.api, dev);
-    if (ident) fill(identSlot, ident.button, ident.line);
+    if (ident) {
+      fill(identSlot, ident.button);
+      fill(identLine, ident.line);
+    }
     start.disabled = false;
     start.focus();
   }).catch((err) => alive && err.status !== 401 && ctx.problem(err, `find the device ${deviceId}`));
@@ -229,8 +234,7 @@ export function sessionView(ctx, sid) {
     const stage = h("div", { class: "stage" });
     const tiles = turnTiles();
     const root = h("section", { class: "wizard live", "aria-labelledby": "instruction" },
-      head, where, h("div", { class: "prompt", "aria-live": "polite", "aria-atomic": "true" }, title, sub), noticeBox, stage, tiles,
-      sound.controls());
+      head, where, h("div", { class: "prompt", "aria-live": "polite", "aria-atomic": "true" }, title, sub), noticeBox, stage, tiles);
     fill(ctx.main, root);
     ctx.focusMain();
     ui = { root, head, title, sub, noticeBox, stage, tiles, key: null, ring: null, gauge: null, remote: Boolean(s.remote) };
