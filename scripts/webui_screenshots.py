@@ -33,7 +33,8 @@ TOKEN = "screenshots-token"
 VIEWS = {"landscape": {"width": 1280, "height": 800}, "portrait": {"width": 820, "height": 1180},
          "phone": {"width": 390, "height": 844}}
 # mock-N performs SCENARIOS[N-1]; the careful hand follows the page's prompts
-SCENARIOS = ["hand:careful", "hand:careful", "wrong_axis", "moved_during_still", "link_drop", "hand:careful", "hand:bumps"]
+SCENARIOS = ["hand:careful", "hand:careful", "wrong_axis", "moved_during_still", "link_drop", "hand:careful", "hand:bumps",
+             "hand:short"]
 
 
 @contextlib.contextmanager
@@ -122,6 +123,8 @@ def walk(sh: Shots, nth: int) -> None:
     time.sleep(0.5)
     sh.take("turning")
     sh.wait(".wizard[data-state='turn_x'][data-phase='placing']")
+    sh.take("stopping")
+    sh.wait(".wizard[data-state='turn_x'][data-phase='checking']")
     sh.take("checking-turn")
     sh.wait(".wizard[data-state='turn_x'][data-phase='pause']")
     time.sleep(0.3)
@@ -152,6 +155,21 @@ def walk(sh: Shots, nth: int) -> None:
 
 def faults(sh: Shots, nth: int) -> None:
     """The warnings and the ways a session stops, once (landscape only)."""
+    sh.page.goto(f"{sh.base}/#/devices")
+    sh.wait(".device-card[data-device='mock-8'] button.identify")
+    sh.page.click(".device-card[data-device='mock-8'] button.identify")
+    sh.wait(".device-card[data-device='mock-8'] .identify-status.ok")
+    sh.page.query_selector(".device-card[data-device='mock-8']").scroll_into_view_if_needed()
+    sh.take("identify")
+    # stops its first z turn short: the result asks that turn again (this service gives one try per turn; this
+    # session three, as the service's default does)
+    started = httpx.post(f"{sh.base}/devices/mock-8/calibrate", json={"max_attempts": 3},
+                         headers={"Authorization": f"Bearer {TOKEN}"}, timeout=30).json()
+    sh.page.goto(f"{sh.base}/#/session/{started['session_id']}")
+    sh.page.wait_for_function("""() => { const n = document.querySelector(".wizard[data-state='turn_z'] .notice.warn");
+      return n && n.textContent.includes("Attempt 2"); }""", polling=20, timeout=90_000)
+    sh.take("turn-asked-again")
+    sh.wait(".verdict h1")
     sh.session_of("mock-7")  # a hand that knocks the device in one of the pauses
     sh.wait(".notice.warn")
     sh.take("moved-warning")

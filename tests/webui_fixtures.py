@@ -226,13 +226,15 @@ class Wizard:
         gone while the device was being put down (placing)."""
         self.page.evaluate("""() => {
           window.seen = { gauge: {}, gaugeText: {}, targets: {}, headlines: [], phases: [], ringMoving: false, notices: [],
-                          phaseNotices: [], done: [], placingWithoutGauge: false };
+                          phaseNotices: [], done: [], placingWithoutGauge: false, screens: {} };
           const last = (list) => list[list.length - 1];
           new MutationObserver(() => {
             const w = document.querySelector('.wizard'), hl = document.querySelector('.instruction');
             if (hl && last(window.seen.headlines) !== hl.textContent) window.seen.headlines.push(hl.textContent);
             const sp = w ? `${w.dataset.state}:${w.dataset.phase || ''}` : null;
             if (sp && last(window.seen.phases) !== sp) window.seen.phases.push(sp);
+            // each screen as first shown, for axe-core afterwards (a screen may last a fraction of a second)
+            if (sp && !(sp in window.seen.screens)) window.seen.screens[sp] = document.documentElement.outerHTML;
             const box = document.querySelector('.notice-box'), said = `${sp}|${box ? box.textContent.trim() : ''}`;
             if (sp && last(window.seen.phaseNotices) !== said) window.seen.phaseNotices.push(said);
             const done = [...document.querySelectorAll('.tile[data-state="done"] .tile-axis')]
@@ -260,6 +262,20 @@ class Wizard:
 
     def seen(self) -> dict[str, Any]:
         return self.page.evaluate("() => window.seen")
+
+    def assert_screens_accessible(self) -> list[str]:
+        """axe-core on every screen ``record`` saw (state:phase), each as it was first shown, rendered again in a page
+        of its own without its scripts (a screen that lasts 0.3 s cannot wait for the audit); returns their names."""
+        screens: dict[str, str] = self.page.evaluate("() => window.seen.screens")
+        page = self.page.context.new_page()
+        try:
+            for name, html in screens.items():
+                static = re.sub(r"<script\b.*?</script>", "", html, flags=re.S | re.I)
+                page.set_content(static.replace("<head>", f'<head><base href="{self.service.base}/">', 1), wait_until="load")
+                assert_accessible(page, f"screen {name}")
+        finally:
+            page.close()
+        return list(screens)
 
     def small_targets(self) -> list[str]:
         """Visible links, buttons, inputs and summaries smaller than 44 x 44 CSS px."""

@@ -71,6 +71,9 @@ def test_happy_path_to_a_saved_calibration(wizard: Wizard, page: Any, webui_serv
             assert page.locator(f".tile[data-state='done']:has-text('Turn {d}')").count() == 1
 
     wizard.wait_state("done")
+    # axe-core finds nothing on any screen of the session, however briefly it was shown
+    audited = wizard.assert_screens_accessible()
+    assert {"still:waiting", "turn_x:turning", "turn_x:placing", "turn_x:checking", "turn_x:pause", "computing:"} <= set(audited), audited
     # a device never calibrated: its raw angle can be 20 % off a full turn, so the gauge shows neither degrees nor
     # a target, and the page says "hold it still" when each turn stops, never "keep turning"
     seen = wizard.seen()
@@ -78,6 +81,7 @@ def test_happy_path_to_a_saved_calibration(wizard: Wizard, page: Any, webui_serv
     assert all(set(texts) <= {"ready", "turning"} for texts in seen["gaugeText"].values()), seen["gaugeText"]
     assert all(t == "" for t in seen["targets"].values()), seen["targets"]
     assert_turns_end_with_hold_still(seen["headlines"])
+    assert not seen["placingWithoutGauge"], "the gauge went away before the device was still"
     assert wizard.text(".verdict h1") == "PASS"
     assert dev in wizard.text(".sentence") and "within the tolerances" in wizard.text(".sentence")
     wizard.shot("07-pass")

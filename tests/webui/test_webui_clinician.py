@@ -168,6 +168,9 @@ def test_a_careful_clinician_following_the_page_reaches_a_result_that_says_what_
 def test_portrait_gives_the_gauge_and_ring_the_height(hand_wizard: Wizard, page_watch: Watch) -> None:
     w = hand_wizard
     sign_in_with_pin(w)
+    # the cards' buttons wrap beside the name; a name never breaks ("mock-/1")
+    heights = w.page.eval_on_selector_all(".device-card h2", "(hs) => hs.map((e) => e.getBoundingClientRect().height)")
+    assert heights and max(heights) < 40, heights
     w.page.click(".device-card[data-device='mock-5'] a.button.primary")
     w.page.click(".wizard[data-state='place'] button.primary:not([disabled])")
     w.page.wait_for_selector(".wizard[data-state='still'] .ring-wrap")

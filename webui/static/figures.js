@@ -172,7 +172,7 @@ export function angleGauge(axis) {
     }),
     arc, goal, dot, text, sub);
   const el = h("div", { class: "gauge-wrap", role: "meter", "aria-label": `Measured turn about ${AXIS_LABEL[axis]}`, "aria-valuemin": "0", "aria-valuemax": "360", "aria-valuenow": "0" }, svg);
-  el.update = (angle, target) => {
+  el.update = (angle, target, stopped = false) => {
     const a = Math.abs(Number(angle) || 0);
     const targeted = Boolean(target);
     el.classList.toggle("no-target", !targeted);
@@ -183,10 +183,12 @@ export function angleGauge(axis) {
       arc.setAttribute("d", "");
       dot.setAttribute("cx", x.toFixed(2));
       dot.setAttribute("cy", y.toFixed(2));
-      text.textContent = a < 5 ? "ready" : "turning";
-      sub.textContent = "back to the block";
+      // stopped: the motion has stopped and the device is being put down (the stillness ring follows once it rests)
+      text.textContent = stopped ? "stopped" : a < 5 ? "ready" : "turning";
+      sub.textContent = stopped ? "hold it still" : "back to the block";
       el.setAttribute("aria-valuenow", String(Math.min(360, Math.round(a)))); // a meter needs a value; its text says more
-      el.setAttribute("aria-valuetext", a < 5 ? "not turning yet" : "turning; no angle target: stop when the device is back against the block");
+      el.setAttribute("aria-valuetext", stopped ? "stopped; hold it still" : a < 5 ? "not turning yet"
+        : "turning; no angle target: stop when the device is back against the block");
       return;
     }
     const shown = Math.min(a, 359.9);

@@ -359,7 +359,10 @@ export function sessionView(ctx, sid) {
       const p = s.progress || { fraction: 0, still_s: 0, target_s: 0 };
       ui.ring.update(s.live && s.live.moving ? 0 : p.fraction, s.live && s.live.moving, (p.target_s || 0) - (p.still_s || 0));
     }
-    if (ui.gauge) ui.gauge.update(["turning", "placing"].includes(s.phase) && s.live ? s.live.turn_angle_deg : 0, s.live && s.live.target_deg);
+    if (ui.gauge) {
+      ui.gauge.update(["turning", "placing"].includes(s.phase) && s.live ? s.live.turn_angle_deg : 0, s.live && s.live.target_deg,
+        s.phase === "placing");
+    }
     if (s.state.startsWith("turn_")) lastAxis = s.axis;
     ui.tiles.update(Object.keys(s.turns || {}), s.state.startsWith("turn_") ? s.axis : s.state === "reconnecting" ? lastAxis : null);
     ui.tiles.hidden = !(s.state.startsWith("turn_") || s.state === "still" || s.state === "reconnecting");
