@@ -64,6 +64,24 @@ class ModelChoice(TypedDict, total=False):
     extended_fit_p_value: Number  # whether the extended model explains the recording
 
 
+class TurnPlacement(TypedDict):
+    """Where the hand put the device back after one turn: the tilt the accelerometer saw (null: no rest on a side)."""
+
+    axis: str | None
+    start_s: Number
+    tilt_deg: Number  # the size of the tilt, deg
+    tilt_std_deg: Number  # the standard deviation of each of its two components, deg
+    rotation_deg: Numbers | None  # the tilt as a rotation from the pose before to the pose after (body axes), deg
+
+
+class Placement(TypedDict):
+    """What the hand did at each turn (``calib.stages.placement``)."""
+
+    measured_by: str | None  # "accelerometer", or null: not measured
+    note: str
+    turns: list[TurnPlacement]
+
+
 class Quality(TypedDict, total=False):
     """How well the calibration is determined and what it was made from. The first keys are shared by the estimators;
     the later ones are one estimator's own diagnostics (closure, paper, ferraris, multi-position)."""
@@ -80,6 +98,7 @@ class Quality(TypedDict, total=False):
     temperature_c: Number  # the sensor's mean temperature during the recording, degC
     accelerometer: AccelerometerQuality | None
     model_choice: ModelChoice
+    placement: Placement  # closure: the tilt each turn was put back with
     # closure
     turns: int
     stills: int

@@ -58,6 +58,7 @@ def result_summary(result: Any, source: str) -> str:
         lines.extend("  " + fmt_vec(row, 4) for row in d["G"])
     q = d.get("quality") or {}
     lines.extend(_g_sensitivity_lines(q.get("g_sensitivity")))
+    lines.extend(_placement_lines(q.get("placement")))
     lines.extend(_constraint_lines(q))
     if d.get("noise_dps"):
         lines.append(f"Noise (from the stills): {fmt_vec(d['noise_dps'], 4)} deg/s")
@@ -67,6 +68,19 @@ def result_summary(result: Any, source: str) -> str:
     for w in d.get("warnings") or []:
         lines.append(f"warning: {w}")
     return "\n".join(lines)
+
+
+def _placement_lines(placement: dict[str, Any] | None) -> list[str]:
+    """Where the hand put the device back after each turn (closure)."""
+    if not placement:
+        return []
+    if not placement.get("measured_by"):
+        return [f"Placement after each turn: {placement.get('note')}"]
+    each = [f"{t['axis'] or '?'} {t['tilt_deg']:.2f} ± {t['tilt_std_deg']:.2f} deg" for t in placement.get("turns") or []
+            if t.get("tilt_deg") is not None]
+    if not each:
+        return []
+    return [f"Placement after each turn (tilt, from the accelerometer): {', '.join(each)}; {placement.get('note')}"]
 
 
 def _g_sensitivity_lines(test: dict[str, Any] | None) -> list[str]:

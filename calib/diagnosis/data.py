@@ -25,9 +25,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from calib.numerics.tilt import tilt_across
 from calib.recording import Recording, sample_intervals
 from calib.stages.stage import AXES, Stage
-from calib.units import DEG
 
 BLOCK_S = 0.5  # still block length, s
 REORIENTATION = "reorientation"  # the flag of a motion between two rests that ends in a new pose
@@ -334,12 +334,8 @@ def _add_tilt(prob: Problem, accel: np.ndarray) -> None:
         a0, a1 = still_mean[:, i0], still_mean[:, i1]
         if ref is not None:
             a0 = ref[j].inv().apply(a0)  # the pose before, carried into the pose after by the reference rotation
-        u0 = a0 / np.linalg.norm(a0, axis=1, keepdims=True)
-        u1 = a1 / np.linalg.norm(a1, axis=1, keepdims=True)
-        u = u0 + u1
-        u /= np.linalg.norm(u, axis=1, keepdims=True)
-        # the pose after is the pose before rotated by rho: u0 = u1 + rho x u1, so rho_perp = u x (u0 - u1)
-        rho = np.cross(u, u0 - u1) / DEG
+        across = tilt_across(a0, a1, still_n[i0], still_n[i1], prob.accel_sigma)
+        rho, u = across.rho_deg, across.up
         e1 = np.cross(u, np.eye(3)[np.argmin(np.abs(u), axis=1)])
         e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
         e2 = np.cross(u, e1)
@@ -347,6 +343,5 @@ def _add_tilt(prob: Problem, accel: np.ndarray) -> None:
         tilt[:, j, 0] = np.einsum("ri,ri->r", rho, e1)
         tilt[:, j, 1] = np.einsum("ri,ri->r", rho, e2)
         up[:, j] = u
-        g = 0.5 * (np.linalg.norm(a0, axis=1) + np.linalg.norm(a1, axis=1))
-        sd[:, j] = prob.accel_sigma * np.sqrt(1.0 / still_n[i0] + 1.0 / still_n[i1]) / g / DEG
+        sd[:, j] = across.sd_deg
     prob.tilt, prob.tilt_basis, prob.up, prob.tilt_sd = tilt, basis, up, sd

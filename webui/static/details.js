@@ -59,6 +59,15 @@ function turnsTable(rows) {
         h("td", null, r.rest != null ? `${num(r.rest, 1)} s` : "—"))))));
 }
 
+/** Where the hand put the device back after each turn: the tilt the accelerometer saw (the heading it cannot see). */
+function placementText(p) {
+  if (!p) return null;
+  if (!p.measured_by) return "not measured (no accelerometer)";
+  const each = (p.turns || []).filter((t) => t.tilt_deg != null)
+    .map((t) => `${(t.axis || "?").toUpperCase()} ${num(t.tilt_deg, 2)}° ± ${num(t.tilt_std_deg, 2)}°`);
+  return each.length ? `tilted ${each.join(", ")} (the turn on the table is not measured)` : null;
+}
+
 export function detailsBlock(ctx, s) {
   const res = s.result || {};
   const plots = h("div", { class: "plots", "aria-live": "polite" }, h("p", { class: "muted" }, "Open to load the plots…"));
@@ -76,6 +85,7 @@ export function detailsBlock(ctx, s) {
     ["Gravity after each re-orientation", q.gravity_residual_rms_deg != null
       ? `${num(q.gravity_residual_rms_deg, 2)}° rms over ${(q.gravity_residual_deg || []).length} motions` : null],
     ["g-sensitivity", gSensitivityText(q.g_sensitivity, res.G)],
+    ["Put back after each turn", placementText(q.placement)],
   ].filter(([, v]) => v !== null && v !== undefined);
   const det = h("details", { class: "details" },
     h("summary", null, "Details: values, checks, plots and model check"),

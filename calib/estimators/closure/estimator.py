@@ -34,6 +34,7 @@ from calib.numerics.windows import windows
 from calib.quality import ModelChoice
 from calib.recording import Recording, sample_intervals
 from calib.result import CalibrationResult
+from calib.stages.placement import measure_placement
 from calib.stages.stage import FLAG_COUNTER_GAP, FLAG_SATURATED, Stage
 
 MIN_STILL_SAMPLES = 2
@@ -86,6 +87,7 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None 
     _check_closed(turns, fit)
     result = closure_result(rec, stage_list, turns, stills, data, fit, n_rev[0], bool(extended), warnings, dt_all)
     result.quality["model_choice"] = choice
+    result.quality["placement"] = measure_placement(rec, turns, stills)
     return result
 
 
