@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import json
 import re
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -79,7 +79,7 @@ def session_snapshot(w: Wizard, sid: str) -> dict[str, Any]:
         return c.get(f"/sessions/{sid}").json()
 
 
-def run_to_result(w: Wizard, device: str, check_turns: bool = True) -> str:
+def run_to_result(w: Wizard, device: str, check_turns: bool = True, before_start: Callable[[], None] | None = None) -> str:
     """Choose ``device``, check the overview, press Start and follow the session to its end; returns its id."""
     w.page.click(f".device-card[data-device='{device}'] a.button.primary")
     w.page.wait_for_selector(".wizard[data-state='place'] button.primary:not([disabled])")
@@ -88,6 +88,8 @@ def run_to_result(w: Wizard, device: str, check_turns: bool = True) -> str:
     assert w.page.locator(".overview .turn-guide").count() == 3
     assert on_first_screen(w, ".wizard[data-state='place'] button.primary"), "Start is below the fold"
     w.shot("place")
+    if before_start is not None:
+        before_start()
     w.page.click(".wizard[data-state='place'] button.primary")
     w.page.wait_for_url(re.compile(r"#/session/[0-9a-f]{32}$"))
     sid = w.page.url.rsplit("/", 1)[1]
@@ -114,11 +116,16 @@ def test_a_careful_clinician_following_the_page_reaches_a_result_that_says_what_
     hand_wizard: Wizard, page_watch: Watch, request: pytest.FixtureRequest
 ) -> None:
     w = hand_wizard
-    device = "mock-1" if "1280" in request.node.name else "mock-2"
+    landscape = "1280" in request.node.name
+    device = "mock-1" if landscape else "mock-2"
+    if landscape:
+        w.page.add_init_script(LISTEN)
     sign_in_with_pin(w, wrong_first=True)
     sub = w.text(f".device-card[data-device='{device}'] .dev-sub")
     assert sub.count("wearable") <= 1 and "simulated" in sub, sub  # each fact once
-    sid = run_to_result(w, device)
+    sid = run_to_result(w, device, before_start=(lambda: identify_and_turn_sound_on(w, device)) if landscape else None)
+    if landscape:
+        assert_heard_each_step(w)
     seen = w.seen()
     assert any(h.startswith("Turn X: ") for h in seen["headlines"]), seen["headlines"]
     assert_turns_end_with_hold_still(seen["headlines"])
@@ -223,19 +230,20 @@ def test_a_short_turn_that_spoils_the_result_is_asked_again_not_blamed_on_the_se
     w.page.click(".wizard[data-state='place'] button.primary:not([disabled])")
     w.page.wait_for_url(re.compile(r"#/session/[0-9a-f]{32}$"))
     w.record()
-    w.page.wait_for_selector(".wizard[data-state='turn_z'] .notice.warn:has-text('Attempt 2 of 3')", timeout=60_000)
-    phases = w.seen()["phases"]
-    assert phases[phases.index("computing:") + 1] == "turn_z:settle", phases  # computed, then that turn asked again
-    said = w.text(".notice-box")
-    assert re.search(r"The turn about Z read 29\d°", said) and "all the way round" in said, said
-    assert w.page.locator(".tile[data-state='done']").count() == 2 and "Turn Z" in w.text(".tile[data-state='active']")
-    w.shot("turn-asked-again")
     w.page.wait_for_selector(".verdict h1", timeout=90_000)
     assert w.text(".verdict h1") == "PASS", w.text(".wizard")
-    seen = w.seen()
+    seen = w.seen()  # what the page showed, change by change (the retry's notice may last under a second)
+    phases = seen["phases"]
+    assert phases[phases.index("computing:") + 1].startswith("turn_z:"), phases  # computed, then that turn again
+    asked = [n for n in seen["phaseNotices"] if n.startswith("turn_z:") and "Attempt 2 of 3" in n]
+    assert asked, seen["phaseNotices"]
+    assert re.search(r"The turn about Z read 29\d°", asked[0]) and "all the way round" in asked[0], asked[0]
     assert not any("faulty" in n for n in seen["notices"]), seen["notices"]
     # the Z tile went back to "now" only because the result asked that turn again; X and Y never did
-    assert all(set("xy") <= set(d) for d in seen["done"][seen["done"].index("xy"):]), seen["done"]
+    done = seen["done"]
+    assert "xyz" in done and "xy" in done[done.index("xyz"):], done
+    assert all(set("xy") <= set(d) for d in done[done.index("xy"):]), done
+    assert "turn_z:settle" in w.assert_screens_accessible()  # the screen that asks the turn again, audited too
     assert_clean(page_watch)
 
 
@@ -255,41 +263,33 @@ LISTEN = """
 """
 
 
-def test_she_can_make_a_wearable_blink_and_hear_each_step_without_looking(hand_wizard: Wizard, page_watch: Watch) -> None:
-    """Her eyes are on the device: Identify makes the chosen wearable blink (the simulated one's light goes on); Sound
-    and Read aloud are off until she turns them on, remembered after a reload; then every step has a tone, a warning a
-    lower one, the result a higher one, and the prompts are read aloud as the page shows them."""
-    w = hand_wizard
-    w.page.add_init_script(LISTEN)
-    sign_in_with_pin(w)
-    card = w.page.locator(".device-card[data-device='mock-5']")
-    card.locator("button.identify").click()
-    w.page.wait_for_selector(".device-card[data-device='mock-5'] .identify-status.ok")
-    assert "blinks its light for 5 s" in card.locator(".identify-status").inner_text()
+def identify_and_turn_sound_on(w: Wizard, device: str) -> None:
+    """Her eyes are on the device: Identify (beside Start) makes the chosen wearable blink (the simulated one's light
+    goes on); Sound and Read aloud are off until she turns them on, and remembered after a reload."""
+    w.page.click(".wizard[data-state='place'] .identify-slot button.identify")
+    w.page.wait_for_selector(".wizard[data-state='place'] .identify-status.ok")
+    assert "blinks its light for 5 s" in w.text(".identify-status")
     with api(w.service) as c:
-        assert c.get("/devices/mock-5").json()["simulated_identifying"] is True
-    w.shot("identify")
-    card.locator("a.button.primary").click()
-    w.page.wait_for_selector(".wizard[data-state='place'] button.primary:not([disabled])")
-    assert w.page.locator(".wizard[data-state='place'] .identify-slot button.identify").count() == 1
-    toggles = {t: w.page.locator(f".wizard[data-state='place'] .cue-{t}") for t in ("sound", "speech")}
-    assert all(t.get_attribute("aria-pressed") == "false" for t in toggles.values())
-    for t in toggles.values():
-        t.click()
+        assert c.get(f"/devices/{device}").json()["simulated_identifying"] is True
+    toggles = [f".wizard[data-state='place'] .cue-{t}" for t in ("sound", "speech")]
+    assert all(w.page.get_attribute(t, "aria-pressed") == "false" for t in toggles)
+    for t in toggles:
+        w.page.click(t)
     w.page.reload()
     w.page.wait_for_selector(".wizard[data-state='place'] button.primary:not([disabled])")
-    assert all(w.page.get_attribute(f".wizard[data-state='place'] .cue-{t}", "aria-pressed") == "true" for t in toggles)
+    assert all(w.page.get_attribute(t, "aria-pressed") == "true" for t in toggles)
     w.shot("sound-on")
-    w.page.click(".wizard[data-state='place'] button.primary")
-    w.page.wait_for_url(re.compile(r"#/session/[0-9a-f]{32}$"))
-    w.page.wait_for_selector(".verdict h1", timeout=90_000)
+    w.record()  # the reload cleared the recorder
+
+
+def assert_heard_each_step(w: Wizard) -> None:
+    """Every step had a tone and the result a higher one; the prompts were read aloud as the page showed them."""
     heard = w.page.evaluate("() => window.heard")
     said = heard["said"]
     for axis in "XYZ":
         assert f"Turning about {axis}" in said and f"Checking turn {axis} — hold still" in said, said
     assert said[-1] == "PASS" and "Hold still" in said, said
     assert heard["tones"].count(880) >= 10 and heard["tones"][-1] == 1320, heard["tones"]
-    assert_clean(page_watch)
 
 
 def test_a_clinician_who_watches_the_gauge_stops_at_360_degrees(hand_wizard: Wizard, page_watch: Watch) -> None:
