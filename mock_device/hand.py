@@ -4,7 +4,7 @@ The hand reads the session's snapshots (the same events the page gets: state, ph
 the live gauge), reacts after a human delay, and says what it does next as motion segments of calib's
 simulator, from a moment of device time on. Its habits are a ``HandStyle``: careful, hurried (starts some
 turns early, some late), sloppy (over- or under-turns some first tries), short (stops its first z turn where the
-device reads 296 deg), bumping (knocks the device once in the rest after a turn) and gauge-watching (stops each turn
+device reads 296 deg), ends_off (puts the device down 3 deg tilted after its first y turn), bumping (knocks the device once in the rest after a turn) and gauge-watching (stops each turn
 where the page's gauge reads a full turn, when the gauge shows one, then puts it down against the block as the page
 says; otherwise it turns back to the block like the others).
 
@@ -41,6 +41,7 @@ class HandStyle:
     watches_gauge: bool = False  # stops where the gauge reads a full turn, when the gauge shows a target
     old_gauge: bool = False  # reads the raw angle as if 360 deg were its target (the gauge before targets)
     short_z_reads: float | None = None  # the first turn about z stops where the device reads this (deg): short of full
+    ends_off_deg: float | None = None  # the first turn about y is put down tilted this much about x (deg)
 
 
 HANDS: dict[str, HandStyle] = {
@@ -55,6 +56,7 @@ HANDS: dict[str, HandStyle] = {
                   watches_gauge=True, old_gauge=True),
         HandStyle("short", "stops the first z turn where the device reads 296 deg: it passes the live check, not k's range",
                   short_z_reads=296.0),
+        HandStyle("ends_off", "puts the device down 3 deg tilted after its first y turn", ends_off_deg=3.0),
     )
 }
 
@@ -183,6 +185,10 @@ class PromptHand:
         elif self.tries[axis] == 1 and self.rng.random() < self.style.miss:
             angle += float(self.rng.choice([-1.0, 1.0]) * self.rng.uniform(30.0, 70.0))
         self.offset = self.offset + (angle - 360.0) * true_axis
+        if axis == "y" and self.tries[axis] == 1 and self.style.ends_off_deg:
+            tilt = np.array([self.style.ends_off_deg, 0.0, 0.0])  # put down on an edge of the block
+            self.offset = self.offset + tilt
+            return (replace(shape, angle_deg=angle), Motion(tilt, 0.3), Still(0.05))
         return (replace(shape, angle_deg=angle), Still(0.05))
 
     def _gauge_finish(self, p: _Plan) -> tuple[Segment, ...]:

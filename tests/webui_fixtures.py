@@ -31,7 +31,7 @@ MOCK_SPEED = 3.0
 SCENARIOS = ["normal", "moved_during_still", "wrong_axis", "link_drop", *["normal"] * 9]
 PIN = "4831"
 # clinicians who follow the page's prompts (mock_device.hand), each on a wearable of its own
-HAND_SCENARIOS = ["hand:careful", "hand:careful", "hand:bumps", "hand:gauge", "hand:careful", "hand:short"]
+HAND_SCENARIOS = ["hand:careful", "hand:careful", "hand:bumps", "hand:gauge", "hand:careful", "hand:short", "hand:ends_off"]
 TABLET = {"width": 1024, "height": 768}
 LOCAL_HOSTS = {"127.0.0.1", "localhost", "[::1]", "::1"}
 

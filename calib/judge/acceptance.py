@@ -29,6 +29,9 @@ class Tolerances:
     turn_angle_max_deg: float = 460.0  # k down to 0.78
     off_axis_max_fraction: float = 0.35  # rotation about the other two axes, as a fraction of the turn
     gravity_closure_max_deg: float = 15.0  # gravity before vs after a turn: the device is put back in place
+    # ... and put back where it was: a hand puts a device back by eye 0.3-2 deg off; beyond 1 deg of tilt the turns'
+    # calibrated closure (closure_max_deg below) cannot pass, so the turn is asked again at once
+    placement_max_deg: float = 1.0
     k_min: float = 0.8  # scale factors outside 0.8..1.2 mean a faulty sensor or a protocol error
     k_max: float = 1.2
     b_max_dps: float = 10.0  # |bias| above this is outside every low-cost MEMS gyroscope's spec

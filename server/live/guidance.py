@@ -160,6 +160,14 @@ def not_one_axis(axis: str, off_deg: float, retry: bool) -> str:
     )
 
 
+def ended_off(axis: str, tilt_deg: float, retry: bool) -> str:
+    """A turn that ended tilted from where it began (more than a hand's usual placement): put down off its place, or
+    not a full turn about a slightly tilted axis."""
+    return (f"Turn {ax(axis)} ended {tilt_deg:.1f}° off where it began: the device was not put back flat where it "
+            f"started, or the turn was not a full one. {again(retry, axis)} Put it down flat, against the block, exactly "
+            "where it started.")
+
+
 def not_back(axis: str, tilt_deg: float, retry: bool) -> str:
     return (
         f"After the turn about {ax(axis)} the device rests {tilt_deg:.0f}° away from its starting position, so the turn "

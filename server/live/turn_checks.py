@@ -149,8 +149,12 @@ class TurnChecks:
     def _check_turn(self, st: Stage) -> None:
         axis = AXES[self._axis_i]
         angles = self.stream.turn_angles(st)
-        if self._provisional is not None and is_no_turn(angles, self.tol):
-            self._undo_early_motion()
+        if is_no_turn(angles, self.tol):
+            if self._provisional is not None:
+                self._undo_early_motion()
+            else:
+                # the device pushed back against the block, not a turn: no try is used, the same turn is still asked
+                self._set_phase(Phase.READY, say.turn_prompt(axis), keep_clock=True)
             return
         self._provisional = None
         if self.stream.rest_after_full_turn(st, AXES.index(axis), self.timings.rest_seen_s, self.tol.turn_angle_min_deg):

@@ -66,4 +66,6 @@ def judge_turn(axis: str, m: TurnMeasure, tol: Tolerances, full_scale_dps: float
         return EndReason.WRONG_AXIS, say.not_one_axis(axis, off_axis, retry)
     if m.gravity_deg is not None and m.gravity_deg > tol.gravity_closure_max_deg:
         return EndReason.TURN_INCOMPLETE, say.not_back(axis, m.gravity_deg, retry)
+    if m.gravity_deg is not None and m.gravity_deg > tol.placement_max_deg:
+        return EndReason.TURN_INCOMPLETE, say.ended_off(axis, m.gravity_deg, retry)
     return None

@@ -412,6 +412,10 @@ def test_a_long_reconnection_does_not_count_against_the_time_limits() -> None:
     assert run.s.lost_samples == gap and run.s.turns["y"].start_s > shifted.t[resume]
 
 
+# 50 deg short about the vertical itself: it ends turned on the table, not tilted, so only its reading tells
+flat_short_z = Turn("z", 310.0, duration_s=3.0, wobble_deg=0.0, tilt=(0.0, 0.0))
+
+
 def _compute_and_go_on(run: Run, rec: Any) -> None:
     """As the runner does: judge the result once the session is computing, while the device streams on."""
     while run.s.state == "computing":
@@ -423,7 +427,7 @@ def _compute_and_go_on(run: Run, rec: Any) -> None:
 def test_a_short_turn_that_fails_the_result_is_asked_again_in_the_same_session() -> None:
     """A turn about Z 50 deg short (read 295 deg, where a working sensor reads 300-450 deg) passes the live check but
     gives k_z out of range: the session asks that turn again, the others stand, and the result passes."""
-    sc = script(Still(3.5), turn("x"), Still(3.0), turn("y"), Still(3.0), turn("z", 310.0), Still(4.0), turn("z"), Still(3.0))
+    sc = script(Still(3.5), turn("x"), Still(3.0), turn("y"), Still(3.0), flat_short_z, Still(4.0), turn("z"), Still(3.0))
     rec, truth = sim(sc)
     run = Run(max_attempts=None)
     run.feed(rec)
@@ -442,7 +446,7 @@ def test_a_short_turn_that_fails_the_result_is_asked_again_in_the_same_session()
 
 
 def test_a_turn_that_fails_the_result_twice_ends_the_session_naming_the_sensor() -> None:
-    sc = script(Still(3.5), turn("x"), Still(3.0), turn("y"), Still(3.0), turn("z", 310.0), Still(4.0), turn("z", 310.0), Still(3.0))
+    sc = script(Still(3.5), turn("x"), Still(3.0), turn("y"), Still(3.0), flat_short_z, Still(4.0), flat_short_z, Still(3.0))
     rec, _ = sim(sc)
     run = Run(max_attempts=None)
     run.feed(rec)
@@ -450,3 +454,21 @@ def test_a_turn_that_fails_the_result_twice_ends_the_session_naming_the_sensor()
     assert run.s.state == "failed" and run.s.reason_code == "out_of_tolerance"
     assert run.states()[-3:] == ["turn_z", "computing", "failed"]
     assert "turn about Z read 29" in (run.s.reason or "") and "the sensor may be faulty" in (run.s.reason or "")
+
+
+def test_a_turn_put_down_tilted_is_asked_again_at_once_saying_how_far_off() -> None:
+    """After the y turn the device is put down 3 deg tilted (on the block's edge): beyond the 1 deg a device put back
+    against the block is off, the calibrated closures cannot pass, so the turn is asked again at once, saying so."""
+    tilt = np.array([3.0, 0.0, 0.0])
+    sc = script(Still(3.5), turn("x"), Still(3.0), turn("y"), Motion(tilt, 0.3), Still(3.0), Motion(-tilt, 0.5), Still(2.0),
+                turn("y"), Still(3.0), turn("z"), Still(3.0))
+    rec, _ = sim(sc)
+    run = Run(max_attempts=None)
+    run.feed(rec)
+    assert run.s.state == "computing", (run.s.state, run.s.reason)
+    off = [w for w in run.s.warnings if w.code == "turn_incomplete"]
+    assert len(off) == 1 and re.search(r"Turn Y ended 3\.\d° off where it began", off[0].message), off
+    assert "against the block" in off[0].message
+    one_try = Run(max_attempts=1)
+    one_try.feed(rec)
+    assert one_try.s.reason_code == "turn_incomplete" and "ended 3." in (one_try.s.reason or "")

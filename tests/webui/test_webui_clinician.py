@@ -263,6 +263,25 @@ LISTEN = """
 """
 
 
+def test_a_turn_put_down_tilted_is_asked_again_at_once_saying_how_far_off(hand_wizard: Wizard, page_watch: Watch) -> None:
+    """mock-7's clinician puts the device down 3 deg tilted after the first Y turn: the page says so as soon as the turn
+    is checked ("Turn Y ended 3.0° off where it began"), asks that turn again with the attempt, never shows Y done
+    before, and the session passes once it is put back and turned again."""
+    w = hand_wizard
+    sign_in_with_pin(w)
+    w.page.click(".device-card[data-device='mock-7'] a.button.primary")
+    w.page.click(".wizard[data-state='place'] button.primary:not([disabled])")
+    w.page.wait_for_url(re.compile(r"#/session/[0-9a-f]{32}$"))
+    w.record()
+    w.page.wait_for_selector(".verdict h1", timeout=90_000)
+    assert w.text(".verdict h1") == "PASS", w.text(".wizard")
+    seen = w.seen()
+    said = [n for n in seen["phaseNotices"] if n.startswith("turn_y:") and "Attempt 2 of 3" in n]
+    assert said and re.search(r"Turn Y ended 3\.\d° off where it began", said[0]) and "against the block" in said[0], said
+    assert_done_never_undone(seen["done"])
+    assert_clean(page_watch)
+
+
 def identify_and_turn_sound_on(w: Wizard, device: str) -> None:
     """Her eyes are on the device: Identify (beside Start) makes the chosen wearable blink (the simulated one's light
     goes on); Sound and Read aloud are off until she turns them on, and remembered after a reload."""
