@@ -4,9 +4,10 @@ The hand reads the session's snapshots (the same events the page gets: state, ph
 the live gauge), reacts after a human delay, and says what it does next as motion segments of calib's
 simulator, from a moment of device time on. Its habits are a ``HandStyle``: careful, hurried (starts some
 turns early, some late), sloppy (over- or under-turns some first tries), short (stops its first z turn where the
-device reads 296 deg), ends_off (puts the device down 3 deg tilted after its first y turn), bumping (knocks the device once in the rest after a turn) and gauge-watching (stops each turn
-where the page's gauge reads a full turn, when the gauge shows one, then puts it down against the block as the page
-says; otherwise it turns back to the block like the others).
+device reads 296 deg), ends_off (puts the device down 3 deg tilted after its first y turn), bumping
+(knocks the device once in the rest after a turn) and gauge-watching (stops each turn where the page's gauge reads a
+full turn, when the gauge shows one, then puts it down against the block as the page says; otherwise it turns back to
+the block like the others).
 
 The hand is pure logic: ``PromptedSource`` (mock_device.prompted) plays what it decides.
 """
@@ -133,6 +134,9 @@ class PromptHand:
         if not (isinstance(state, str) and state.startswith("turn_")) or axis is None:
             return
         if phase == "ready":
+            if np.linalg.norm(self.offset) > 0.5:
+                # asked again before it was put back (the settle was over at once): back against the block first
+                self.pending.append(_Plan(t + self._delay(), "put_back"))
             wait = self._delay() + (float(self.rng.uniform(2.0, 5.0)) if self.rng.random() < self.style.late else 0.0)
             self.pending.append(_Plan(t + wait, "turn", axis))
         elif phase == "settle" and np.linalg.norm(self.offset) > 0.5:
@@ -162,7 +166,7 @@ class PromptHand:
         if p.what == "put_back":
             back = -self.offset
             self.offset = np.zeros(3)
-            return (Motion(back, 1.0), Still(0.05))
+            return (Motion(back, 1.0), Still(1.6))  # and hands off a moment before the turn: a rest of its own
         if p.what == "gauge_finish":
             return self._gauge_finish(p)
         assert p.axis is not None
@@ -182,6 +186,9 @@ class PromptHand:
         angle = 360.0
         if axis == "z" and self.tries[axis] == 1 and self.style.short_z_reads is not None and self.device_k is not None:
             angle = self.style.short_z_reads * float(self.device_k[2])  # g = K m: the true angle that reads that
+            # spun flat on the table, about the vertical itself: short, it ends turned on the table, not tilted
+            shape = replace(shape, tilt=(0.0, 0.0), wobble_deg=0.0)
+            true_axis = tilted_axis(axis, np.zeros(2))
         elif self.tries[axis] == 1 and self.rng.random() < self.style.miss:
             angle += float(self.rng.choice([-1.0, 1.0]) * self.rng.uniform(30.0, 70.0))
         self.offset = self.offset + (angle - 360.0) * true_axis

@@ -61,36 +61,35 @@ async def test_each_vendor_calibrates_through_bleak(simulated_bluez, model):
     _assert_matches_truth(_calibrate(rec), w.truth)
 
 
-@pytest.mark.parametrize("model", list(MODELS))
-async def test_identify_blinks_each_wearable_whose_protocol_can_and_names_the_one_that_cannot(simulated_bluez, model):
-    """IDENTIFY through the real bleak client: gyrocal's opcode (while streaming), the MetaWear LED module's blink
-    pattern and the Thingy:52's LED characteristic (put back afterwards); Polar's PMD has no such command."""
-    w: Wearable = WEARABLES[model](ScriptedSource(seed=5), seed=5, speed=SPEED)
-    simulated_bluez([w])
-    link = BleLink(w.address, reconnect=FAST)
-    await link.connect()
+async def test_identify_blinks_each_wearable_whose_protocol_can_and_names_the_one_that_cannot(simulated_bluez):
+    """IDENTIFY through the real bleak client, one wearable of each model on one adapter: gyrocal's opcode (while
+    streaming), the MetaWear LED module's blink pattern and the Thingy:52's LED characteristic (put back afterwards);
+    Polar's PMD has no such command."""
+    wearables = {m: WEARABLES[m](ScriptedSource(seed=5 + i), seed=5 + i, speed=SPEED) for i, m in enumerate(MODELS)}
+    simulated_bluez(list(wearables.values()))
+    links = {m: BleLink(w.address, reconnect=FAST) for m, w in wearables.items()}
     try:
-        await link.read_info()
-        if MODELS[model].identify is None:
-            with pytest.raises(CommandError, match="no command to blink or buzz"):
-                await link.identify(2)
-            assert not w.identifying
-            return
-        if model == "gyrocal":
-            await link.start()  # a streaming wearable blinks too, and streams on
-        assert not w.identifying
-        await link.identify(1)
+        for link in links.values():
+            await link.connect()
+            await link.read_info()
+        with pytest.raises(CommandError, match="no command to blink or buzz"):
+            await links["polar-pmd"].identify(2)
+        await links["gyrocal"].start()  # a streaming wearable blinks too, and streams on
+        blinking = [m for m in MODELS if MODELS[m].identify is not None]
+        assert blinking == ["gyrocal", "metawear", "thingy52"] and not any(w.identifying for w in wearables.values())
+        for m in blinking:
+            await links[m].identify(1)
         deadline = time.monotonic() + 2.0
-        while not w.identifying and time.monotonic() < deadline:
+        while not all(wearables[m].identifying for m in blinking) and time.monotonic() < deadline:
             await asyncio.sleep(0.02)
-        assert w.identifying and w.stats.identified == 1
+        assert [m for m in MODELS if wearables[m].identifying] == blinking
+        assert all(wearables[m].stats.identified == 1 for m in blinking)
         await asyncio.sleep(1.6)
-        assert not w.identifying  # one second asked, one second given (the Thingy's LED put back as it was)
-        if model == "thingy52":
-            assert w.led == IDLE_LED  # type: ignore[attr-defined]
-        if model == "gyrocal":
-            assert link.stats.packets > 0
-            with pytest.raises(CommandError, match="invalid_value"):
-                await link.identify(61)
+        assert not any(w.identifying for w in wearables.values())  # one second asked, one given
+        assert wearables["thingy52"].led == IDLE_LED  # type: ignore[attr-defined]  # put back as it was
+        assert links["gyrocal"].stats.packets > 0
+        with pytest.raises(CommandError, match="invalid_value"):
+            await links["gyrocal"].identify(61)
     finally:
-        await link.disconnect()
+        for link in links.values():
+            await link.disconnect()

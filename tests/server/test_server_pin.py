@@ -4,6 +4,7 @@ addresses the service trusts with PINs, throttled sooner than a secret, and swit
 from __future__ import annotations
 
 import asyncio
+import shutil
 import subprocess
 from collections.abc import Iterator
 from pathlib import Path
@@ -21,14 +22,23 @@ def _cli(db: str, *args: str, stdin: str = "") -> subprocess.CompletedProcess[st
     return subprocess.run([*GYROCAL, "operator", "--db", db, *args], input=stdin, cwd=ROOT, capture_output=True, text=True, timeout=60)
 
 
-@pytest.fixture
-def pin_service(tmp_path: Path) -> Iterator[RunningService]:
-    db = f"sqlite:///{tmp_path / 'store.sqlite3'}"
+@pytest.fixture(scope="module")
+def pin_store(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A store with alice (who has a PIN) and bob, made once through the CLI; each test gets a copy of its own."""
+    path = tmp_path_factory.mktemp("pin") / "store.sqlite3"
+    db = f"sqlite:///{path}"
     for name in ("alice", "bob"):
         assert _cli(db, "add", name, "--secret-stdin", stdin=SECRET + "\n").returncode == 0
     r = _cli(db, "pin", "alice", "--pin-stdin", stdin="4831\n")
     assert r.returncode == 0 and "has a new PIN" in r.stdout, r.stderr
-    svc = RunningService([], db).start()
+    return path
+
+
+@pytest.fixture
+def pin_service(pin_store: Path, tmp_path: Path) -> Iterator[RunningService]:
+    copy = tmp_path / "store.sqlite3"
+    shutil.copyfile(pin_store, copy)
+    svc = RunningService([], f"sqlite:///{copy}").start()
     yield svc
     svc.stop()
 
