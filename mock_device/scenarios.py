@@ -83,7 +83,12 @@ def _too_fast(rng: np.random.Generator) -> ProtocolScript:
 
 
 def _stops_short(rng: np.random.Generator) -> ProtocolScript:
-    return paper_protocol_script(rng, angle_deg=(360.0, 360.0, 320.0))
+    segs = list(paper_protocol_script(rng, angle_deg=(360.0, 360.0, 320.0)).segments)
+    z = segs[5]
+    # spun flat on the table, about the vertical itself: short, it ends turned on the table, not tilted, so only its
+    # reading can tell (a short turn about a tilted axis ends tilted, and the session asks it again at once)
+    segs[5] = replace_turn(z, tilt=(0.0, 0.0), wobble_deg=0.0)
+    return ProtocolScript(tuple(segs))
 
 
 def replace_turn(turn: Turn, **changes: object) -> Turn:

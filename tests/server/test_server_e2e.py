@@ -144,7 +144,9 @@ def test_link_drop_mid_turn_pauses_redoes_the_turn_and_ends_done(service: Runnin
     # back on the interrupted turn: rest first, then the turn is asked for and made again
     i = next(i for i, e in enumerate(events) if e["state"] == "reconnecting")
     back = [(e["state"], e["phase"]) for e in events[i + 1:] if e["_sse_event"] in ("state", "prompt")]
-    assert back[:5] == [("turn_y", p) for p in ("settle", "ready", "turning", "placing", "checking")], back
+    # "checking" may pass between two snapshots at 40x: the turn is recorded ("pause") once its closing rest is complete
+    assert back[:4] == [("turn_y", p) for p in ("settle", "ready", "turning", "placing")], back
+    assert back[4] in (("turn_y", "checking"), ("turn_y", "pause")), back
     assert [w["code"] for w in final["warnings"]] == ["link_lost", "link_restored"]
     assert "turn about Y will be done again" in final["warnings"][1]["message"]
     assert final["passed"] is True and all(c["ok"] for c in final["checks"])
