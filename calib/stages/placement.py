@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from calib.noise.rests import still_statistics
 from calib.numerics.tilt import tilt_across
 from calib.quality import Placement, TurnPlacement
 from calib.recording import Recording
@@ -32,18 +33,15 @@ def measure_placement(rec: Recording, turns: list[Stage], stills: list[Stage]) -
     if rec.accel is None:
         return {"measured_by": None, "note": "no accelerometer: the pose the device was put back in is not measured",
                 "turns": []}
-    accel = np.asarray(rec.accel, dtype=float)
-    sizes = np.array([s.end - s.start for s in stills], dtype=float)
-    means = np.array([accel[s.start:s.end].mean(axis=0) for s in stills])
-    deviations = sum(float(((accel[s.start:s.end] - means[i]) ** 2).sum()) for i, s in enumerate(stills))
-    sigma_g = float(np.sqrt(deviations / max(1.0, 3.0 * float((sizes - 1).sum()))))
+    mean, count, sigma = still_statistics(np.asarray(rec.accel, dtype=float)[None], np.array([[[s.start, s.end] for s in stills]]))
+    means, sizes = mean[0], count[0]
+    sigma_g = float(np.sqrt(np.mean(sigma[0] ** 2)))  # pooled over the rests and the three axes
     index = {id(s): i for i, s in enumerate(stills)}
-    motions = sorted(turns, key=lambda s: s.start)
     rows: list[TurnPlacement] = []
     for st in turns:
         before, after = _neighbour_rests(st, stills)
         between = before is not None and after is not None and any(
-            m is not st and before.end <= m.start and m.end <= after.start for m in motions)
+            m is not st and before.end <= m.start and m.end <= after.start for m in turns)
         if before is None or after is None or between:
             rows.append({"axis": st.axis, "start_s": st.start_s, "tilt_deg": None, "tilt_std_deg": None, "rotation_deg": None})
             continue

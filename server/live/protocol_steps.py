@@ -129,7 +129,6 @@ class ProtocolSteps(TurnChecks):
         self._turn_lost = 0
 
     def _on_motion(self, t_motion: float) -> None:
-        self._motion_t = t_motion
         still_s = self.stream.rest_before(t_motion)
         if self.state == State.STILL:
             if still_s >= self.timings.min_rest_before_turn_s:

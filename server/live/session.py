@@ -108,7 +108,6 @@ class GuidedSession(ProtocolSteps, Lateness):
         self._resume_phase = Phase.READY  # what a settle phase leads to: the turn again, or the pause
         self._provisional: str | None = None  # a turn started before the countdown ended: "initial" | "pause"
         self._rest_before_s = 0.0
-        self._motion_t: float | None = None  # device time at which the current turn's motion began
         self._redo: list[str] = []  # turns asked again after the result (the one being redone first)
         self._redone: set[str] = set()  # turns already asked again after a result: a second failure is the sensor's
         self._early: float | None = None  # a motion in a confirmed pause, with the rest before it: a bump or the next turn
@@ -219,8 +218,7 @@ class GuidedSession(ProtocolSteps, Lateness):
             return
         self.t_now = float(times[-1])
         for ev in self.stream.detect():
-            if getattr(ev, "kind", None) == "stage_closed" and ev.stage.kind == "still":
-                self.stream.closed_still(self.stream.globalise(ev.stage))
+            self._on_event(ev)  # in computing only the rests are kept
 
     def link_lost(self) -> None:
         """The radio link dropped: pause; the current turn is redone after reconnection."""

@@ -122,33 +122,11 @@ class SessionStream:
             angle = np.zeros(3)
         return still_s, moving, angle
 
-    def rest_started_s(self) -> float | None:
-        """Device time at which the current rest began (None while moving or before the detector decided)."""
-        live = self.tracker.live
-        if getattr(live, "moving", True) or getattr(live, "t", None) is None:
-            return None
-        return float(live.t) - float(live.still_for_s)
-
     def recent_rate(self, window_s: float) -> float:
         """The largest rate (deg/s, rest reading removed) over the last ``window_s`` of readings."""
         k = max(1, int(round(window_s * self.fs))) if self.fs else 1
         n = self.buf.n
         return recent_rate_dps(self.buf.gyro[max(0, n - k):n], self.rest_reading(), k)
-
-    def turn_so_far(self, t_motion: float, axis: str) -> Stage | None:
-        """The motion that began at ``t_motion`` and ended where the current rest began, as a turn about
-        ``axis`` (session indices; the still's margin left out as the detector does), before the detector has
-        seen enough rest to close it; None while the device moves."""
-        rest = self.rest_started_s()
-        if rest is None:
-            return None
-        t = self.buf.t[: self.buf.n]
-        margin = float(getattr(getattr(self.tracker, "config", None), "margin_s", 0.1))
-        i = int(np.searchsorted(t, t_motion))
-        j = int(np.searchsorted(t, rest + margin))
-        if j - i < 2 or j >= self.buf.n:
-            return None
-        return Stage("turn", i, j, float(t[i]), float(t[j]), cast(Axis, axis), None, ())
 
     def rest_before(self, t_motion: float) -> float:
         """How long the device rested before a motion that began at t_motion (s of device time).

@@ -40,7 +40,6 @@ class TurnChecks:
     _redo: list[str]
     _turn_lost: int
     _resume_phase: Phase
-    _motion_t: float | None
     _rest_before_s: float
 
     @property
@@ -97,7 +96,7 @@ class TurnChecks:
                                       tuple(f for f in st.flags if f not in ("saturated", "counter_gap")), self._rest_before_s, gravity_deg)
         self._early = None
         nxt = self._next_axis()
-        self._set_phase(Phase.PAUSE, say.pause_prompt(axis, nxt), keep_clock=True)
+        self._set_phase(Phase.PAUSE, say.pause_prompt(axis, nxt))
 
     def _next_axis(self) -> str | None:
         """The turn asked after the current one: the next in protocol order, or the next turn to redo (None: compute)."""

@@ -28,17 +28,16 @@ async def identify_device(svc: Svc, device_id: str, operator: Operator, body: M.
     check_device_id(device_id)
     dev = await reachable_device(svc, device_id)
     seconds = body.seconds if body else IDENTIFY_DEFAULT_S
-    facts = dev.model_facts()
-    label = facts.get("model_label") or "this wearable"
     link = dev.get_link()
     was_connected = bool(getattr(link, "connected", False))
     try:
         if not was_connected:
             await link.connect()
+        model = link.model  # the connected model: what its protocol can do
+        if model is None or model.identify is None:
+            raise problem(409, f"{model.label if model else 'this wearable'} {CANNOT_IDENTIFY}")
         await link.identify(seconds)
     except CommandError as exc:
-        if not getattr(link, "protocol", None) or CANNOT_IDENTIFY in str(exc):
-            raise problem(409, f"{label} {CANNOT_IDENTIFY}") from None
         raise problem(502, f"{dev.name or device_id} did not blink: {exc}") from None
     except LinkError as exc:
         raise problem(502, f"could not reach {dev.name or device_id} to make it blink: {exc}; check that it is on and "
@@ -49,9 +48,8 @@ async def identify_device(svc: Svc, device_id: str, operator: Operator, body: M.
             task = asyncio.get_running_loop().create_task(_disconnect_later(svc, device_id, link, seconds))
             _LATER.add(task)
             task.add_done_callback(_LATER.discard)
-    how = facts.get("identify") or "blinks"
-    return M.IdentifyOut(device_id=device_id, seconds=seconds, how=how,
-                         message=f"{dev.name or device_id} {how} for {seconds} s.")
+    return M.IdentifyOut(device_id=device_id, seconds=seconds, how=model.identify,
+                         message=f"{dev.name or device_id} {model.identify} for {seconds} s.")
 
 
 _LATER: set[asyncio.Task[None]] = set()
