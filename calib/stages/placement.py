@@ -27,9 +27,9 @@ def _neighbour_rests(turn: Stage, stills: list[Stage]) -> tuple[Stage | None, St
     return before, after
 
 
-def measure_placement(rec: Recording, turns: list[Stage], stills: list[Stage]) -> Placement:
+def measure_placement(rec: Recording, turns: list[Stage], stills: list[Stage], stages: list[Stage]) -> Placement:
     """Each turn's placement tilt, from the rests right before and after it (none without an accelerometer, or for a
-    turn with another motion between it and a rest)."""
+    turn with another motion of ``stages`` between it and a rest: a re-orientation, a turn left out)."""
     if rec.accel is None:
         return {"measured_by": None, "note": "no accelerometer: the pose the device was put back in is not measured",
                 "turns": []}
@@ -41,7 +41,7 @@ def measure_placement(rec: Recording, turns: list[Stage], stills: list[Stage]) -
     for st in turns:
         before, after = _neighbour_rests(st, stills)
         between = before is not None and after is not None and any(
-            m is not st and before.end <= m.start and m.end <= after.start for m in turns)
+            m.kind != "still" and m.start != st.start and before.end <= m.start and m.end <= after.start for m in stages)
         if before is None or after is None or between:
             rows.append({"axis": st.axis, "start_s": st.start_s, "tilt_deg": None, "tilt_std_deg": None, "rotation_deg": None})
             continue

@@ -46,3 +46,24 @@ def test_without_an_accelerometer_the_placement_is_not_claimed() -> None:
     placement = calibrate(rec, method="closure").quality["placement"]
     assert placement == {"measured_by": None, "turns": [],
                          "note": "no accelerometer: the pose the device was put back in is not measured"}
+
+
+def test_a_turn_with_another_motion_between_it_and_a_rest_has_no_placement_claimed() -> None:
+    """The rest before a turn must be the pose the turn began from: a motion between them (a re-orientation, a turn
+    left out) leaves that turn's placement unmeasured, the others measured."""
+    from dataclasses import replace
+
+    from calib.stages.detector import detect_stages
+    from calib.stages.placement import measure_placement
+
+    rec, _ = simulate(2, noise=0.05)
+    stages = detect_stages(rec)
+    stills = [s for s in stages if s.kind == "still"]
+    turns = [s for s in stages if s.kind == "turn"]
+    first = stills[0]
+    cut = first.end - 20  # the rest's last 20 samples become a motion of their own
+    shorter = replace(first, end=cut, end_s=float(rec.t[cut]))
+    nudge = replace(first, kind="motion", start=cut, start_s=float(rec.t[cut]), axis=None, angle_deg=None, flags=())
+    rows = measure_placement(rec, turns, [shorter, *stills[1:]], [shorter, nudge, *stages[1:]])["turns"]
+    assert [r["tilt_deg"] is None for r in rows] == [True, False, False], rows
+    assert all(r["tilt_std_deg"] is not None for r in rows[1:])

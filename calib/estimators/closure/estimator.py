@@ -87,7 +87,7 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None 
     _check_closed(turns, fit)
     result = closure_result(rec, stage_list, turns, stills, data, fit, n_rev[0], bool(extended), warnings, dt_all)
     result.quality["model_choice"] = choice
-    result.quality["placement"] = measure_placement(rec, turns, stills)
+    result.quality["placement"] = measure_placement(rec, turns, stills, stage_list)
     return result
 
 
