@@ -17,19 +17,33 @@ from calib.stages.stage import Stage
 if TYPE_CHECKING:
     from calib.stages.recognise import Recognition
 
-def calibrate(rec: Recording, method: str = DEFAULT_METHOD, stages: list[Stage] | None = None) -> CalibrationResult:
+def calibrate(rec: Recording, method: str = DEFAULT_METHOD, stages: list[Stage] | None = None,
+              heading_prior_deg: float | None = None) -> CalibrationResult:
     """Calibrate one recording of the protocol (still, then full turns about x, y, z).
 
-    Stages are detected from the data when not given. Raises RecordingError for bad input and
-    ProtocolError when a stage of the protocol is missing.
+    Stages are detected from the data when not given. ``heading_prior_deg``: the repeatability of the heading the
+    device is put back with after each turn (closure method; None: its default). Raises RecordingError for bad input
+    and ProtocolError when a stage of the protocol is missing.
     """
-    result = estimator(method)(rec, stages=stages)
+    result = estimator(method)(rec, stages=stages, **method_options(method, heading_prior_deg))
     return replace(result, sample_rate_hz=rec.fs, n_samples=len(rec))
+
+
+def method_options(method: str, heading_prior_deg: float | None) -> dict[str, float]:
+    """The estimator's keyword options; GyrocalError saying what to change for an option it does not take or a bad value."""
+    if heading_prior_deg is None:
+        return {}
+    if method != "closure":
+        raise GyrocalError(f"a heading prior is carried by the closure method only, not by {method!r}: leave it out, "
+                           "or calibrate with --method closure")
+    from calib.estimators.closure.placement import check_heading_prior
+
+    return {"heading_prior_deg": check_heading_prior(heading_prior_deg)}
 
 
 def calibrate_protocol(
     rec: Recording, protocol: str = "auto", method: str = DEFAULT_METHOD, sections: tuple[Section, ...] | None = None,
-    stages: list[Stage] | None = None,
+    stages: list[Stage] | None = None, heading_prior_deg: float | None = None,
 ) -> tuple[CalibrationResult, str]:
     """Calibrate a recording of ``protocol`` and say which protocol was used.
 
@@ -39,19 +53,20 @@ def calibrate_protocol(
     reference (``calib.estimators.multi_position.estimator``). "auto": what ``calib.stages.recognise`` finds; when nothing fits, the
     paper protocol's refusal. ``sections`` (or the recording's own, ``rec.meta.sections``) replace stage
     detection; ``stages`` already found (a live session's) replace both. The result's ``quality["protocol"]`` holds
-    what was found and what was used. This is the one calibration entry point of every door (the command line, an
-    upload, a live session); it raises GyrocalError (a Refusal for a recording read and refused).
+    what was found and what was used. ``heading_prior_deg`` as for ``calibrate``. This is the one calibration entry
+    point of every door (the command line, an upload, a live session); it raises GyrocalError (a Refusal for a recording read and refused).
     """
     check_protocol(protocol)
-    estimator(method)  # an unknown method is refused before any work
+    estimator(method)  # an unknown method or option is refused before any work
+    method_options(method, heading_prior_deg)
     sections = sections if sections is not None else rec.meta.sections
     stages, found, used = protocol_stages(rec, protocol, sections, stages)
     try:
-        result = _calibrate_as(rec, used, method, stages, sections, found)
+        result = _calibrate_as(rec, used, method, stages, sections, found, heading_prior_deg)
     except GyrocalError as exc:
         if protocol == "auto" and used == "multi-position":
             # too little in the re-orientations too: the paper protocol's refusal says what to do (a wrong rate, ...)
-            result = _calibrate_as(rec, "paper", method, stages, sections, found)
+            result = _calibrate_as(rec, "paper", method, stages, sections, found, heading_prior_deg)
             used = "paper"
         elif not isinstance(exc, ProtocolError):
             raise
@@ -104,7 +119,8 @@ def pointing_to(exc: ProtocolError, used: str, found: Recognition, doing: str = 
 
 
 def _calibrate_as(
-    rec: Recording, used: str, method: str, stages: list[Stage], sections: tuple[Section, ...], found: Recognition
+    rec: Recording, used: str, method: str, stages: list[Stage], sections: tuple[Section, ...], found: Recognition,
+    heading_prior_deg: float | None = None,
 ) -> CalibrationResult:
     if used == "multi-position":
         if sections and any(b.start != a.end or a.kind == b.kind == "still" for a, b in zip(sections, sections[1:], strict=False)):
@@ -119,7 +135,7 @@ def _calibrate_as(
         from calib.estimators.ferraris import ferraris_stages
 
         ferraris_stages(rec, stages)  # raises, naming the poses and turns that are missing
-    return calibrate(rec, method=method, stages=stages)
+    return calibrate(rec, method=method, stages=stages, heading_prior_deg=heading_prior_deg)
 
 
 def _accelerometer(rec: Recording, stages: list[Stage]) -> AccelerometerQuality | None:

@@ -9,9 +9,12 @@ A block that carries diagnostics beyond its named keys allows them (``__pydantic
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import (
+    Any,
+    NotRequired,  # on Python 3.11 pydantic reads a TypedDict only from typing_extensions
+)
 
-from typing_extensions import TypedDict  # on Python 3.11 pydantic reads a TypedDict only from typing_extensions
+from typing_extensions import TypedDict
 
 Number = float | None  # JSON has no NaN: a value that is not finite is written as null
 Vector = list[Number]
@@ -80,6 +83,8 @@ class Placement(TypedDict):
     measured_by: str | None  # "accelerometer", or null: not measured
     note: str
     turns: list[TurnPlacement]
+    tilt_prior_deg: NotRequired[Number]  # the spread of the hand's tilts beyond the accelerometer's noise (closure)
+    heading_prior_deg: NotRequired[Number]  # the heading prior the calibration carried (closure)
 
 
 class Quality(TypedDict, total=False):
@@ -99,6 +104,7 @@ class Quality(TypedDict, total=False):
     accelerometer: AccelerometerQuality | None
     model_choice: ModelChoice
     placement: Placement  # closure: the tilt each turn was put back with
+    undetermined_axes: list[str]  # closure: the axes no turn was about, whose k and b are not determined (null)
     # closure
     turns: int
     stills: int

@@ -50,6 +50,7 @@ class TurnResidual(_Open):
     raw_angle_deg: Number = None
     revolutions: int | None = None
     closure_norm_deg: Number = None
+    misclosure_norm_deg: Number = Field(None, description="the closure less the placement tilt measured, deg")
 
 
 class StillResidual(_Open):
@@ -90,6 +91,11 @@ class ResultDoc(CalibrationParameters):
 
     model_config = ConfigDict(extra="allow")
 
+    # a result may leave axes undetermined (quality.undetermined_axes: no turn about them); a calibration kept never does
+    k: list[Number] = Field(  # type: ignore[assignment]
+        description="scale factors k_x, k_y, k_z of g = K m + b; null for an axis not determined")
+    b: list[Number] = Field(  # type: ignore[assignment]
+        description="biases b_x, b_y, b_z in deg/s of true rate; null for an axis not determined")
     format_version: int = Field(1, description="the form of this object (calib.result.FORMAT_VERSION; 1: stored before "
                                                "it was numbered)")
     stages: list[StageDoc] = Field(default_factory=list)

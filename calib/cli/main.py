@@ -47,10 +47,11 @@ def _writable(path: Path, what: str) -> Path:
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from calib.cli.options import error_json, read_recording_args
     from calib.errors import CalibrationError, GyrocalError, RecordingError, Refusal, error_code
-    from calib.pipeline import calibrate_protocol
+    from calib.pipeline import calibrate_protocol, method_options
 
     if args.plot:
         _writable(args.plot, "plot")
+    method_options(args.method, args.heading_prior_deg)
     try:
         read = read_recording_args(args)
     except GyrocalError as exc:
@@ -60,7 +61,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     rec = read.recording
     try:
         try:
-            result, protocol = calibrate_protocol(rec, read.protocol, args.method, read.sections)
+            result, protocol = calibrate_protocol(rec, read.protocol, args.method, read.sections,
+                                                  heading_prior_deg=args.heading_prior_deg)
         except Refusal:
             raise
         except GyrocalError as exc:  # the file was read: whatever else stops the calibration refuses this recording
@@ -82,7 +84,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
         plot_calibration(rec, result, args.plot)
     if args.json:
-        print(json.dumps({**result.to_dict(), "protocol": protocol, "accelerometer": result.quality.get("accelerometer")}))
+        print(json.dumps({**result.to_json(), "protocol": protocol, "accelerometer": result.quality.get("accelerometer")}))
     else:
         print(result_summary(result, str(args.file)))
         if args.plot:
@@ -213,11 +215,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     from calib.cli.diagnose import add_diagnose_parser
     from calib.cli.options import add_recording_arguments
+    from calib.estimators.closure.placement import HEADING_PRIOR_DEG
     from calib.estimators.registry import DEFAULT_METHOD, method_names
 
     p = sub.add_parser("calibrate", help="calibrate a recording (CSV) of the protocol")
     add_recording_arguments(p)
     p.add_argument("--method", choices=method_names(), default=DEFAULT_METHOD, help=f"estimator (default {DEFAULT_METHOD})")
+    p.add_argument("--heading-prior-deg", type=float, default=None, metavar="DEG",
+                   help="how far (1 sigma, deg) the device's heading may be off after each turn when put back against the "
+                        f"block; the accelerometer cannot see it (closure method; default {HEADING_PRIOR_DEG:g})")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the summary")
     p.add_argument("--plot", type=Path, default=None, help="save a PNG of the rate magnitude and angles before/after calibration")
     p.set_defaults(func=cmd_calibrate)

@@ -38,6 +38,11 @@ def result_summary(result: Any, source: str) -> str:
     lines.append("")
     unc = d.get("uncertainty") or {}
     bound = d.get("bound") or {}
+    undetermined = (d.get("quality") or {}).get("undetermined_axes") or []
+    if undetermined:
+        lines += [f"INCOMPLETE: no usable full turn about {' and '.join(undetermined)}, so "
+                  f"{'its' if len(undetermined) == 1 else 'their'} k and b are not determined; the other axes are "
+                  "calibrated below", ""]
     lines.append("Model g = K m + b  (g true rate, m reading, deg/s)")
     lines.append(f"{'':4}{'value':>12}{'std':>12}{'bound':>12}")
     for name, key, digits in (("k", "k", 6), ("b", "b", 4)):
@@ -45,6 +50,9 @@ def result_summary(result: Any, source: str) -> str:
             std = unc.get(key)
             bnd = bound.get(key)
             unit = "" if key == "k" else " deg/s"
+            if axis in undetermined:
+                lines.append(f"{name}_{axis:<2}{'not determined':>14}")
+                continue
             lines.append(
                 f"{name}_{axis:<2}{d[key][i]:>12.{digits}f}"
                 f"{(f'{std[i]:.2g}' if std else '-'):>12}"
@@ -80,7 +88,8 @@ def _placement_lines(placement: dict[str, Any] | None) -> list[str]:
             if t.get("tilt_deg") is not None]
     if not each:
         return []
-    return [f"Placement after each turn (tilt, from the accelerometer): {', '.join(each)}; {placement.get('note')}"]
+    return [f"Placement after each turn (tilt, from the accelerometer, taken into account): {', '.join(each)}; "
+            f"{placement.get('note')}"]
 
 
 def _g_sensitivity_lines(test: dict[str, Any] | None) -> list[str]:

@@ -66,6 +66,7 @@ from calib.effects.base import (
     register_effect,
 )
 from calib.effects.drift import TAU_RANGE_S, TEMP_RESOLUTION_C, BiasDrift, BiasInstability, TemperatureRamp, warmup_temperature
+from calib.effects.impacts import Impacts
 from calib.effects.noise import MotionNoise
 from calib.effects.placement import PlacementError
 from calib.effects.scale import STANDARD_FULL_SCALES_DPS, Saturation, ScaleAsymmetry, ScaleNonlinearity

@@ -83,33 +83,41 @@ def _check(name: str, axis: str | None, value: float, limit: float | tuple[float
 
 
 def evaluate(result: CalibrationResult, tol: Tolerances) -> list[Check]:
-    """Each tolerance check of a result. A value that is not finite fails its check."""
+    """Each tolerance check of a result. A value that is not finite fails its check; an axis the recording did not
+    turn about fails one check that says so (its k, and so its b, are not determined)."""
     checks: list[Check] = []
+    undetermined = set(result.quality.get("undetermined_axes") or [])
     for i, a in enumerate(AXES):
         kv = float(result.k[i])
+        if a in undetermined:
+            checks.append(_check("k", a, kv, (tol.k_min, tol.k_max), False,
+                                 f"k_{a} is not determined: no usable full turn about {a}; turn the device a full 360° "
+                                 f"about {a} too"))
+            continue
         checks.append(_check("k", a, kv, (tol.k_min, tol.k_max), tol.k_min <= kv <= tol.k_max,
                              f"k_{a} = {kv:.4f} (allowed {tol.k_min:g} to {tol.k_max:g})"))
-    for i, a in enumerate(AXES):
+    determined = [(i, a) for i, a in enumerate(AXES) if a not in undetermined]
+    for i, a in determined:
         bv = float(result.b[i])
         checks.append(_check("b", a, bv, tol.b_max_dps, abs(bv) <= tol.b_max_dps,
                              f"b_{a} = {bv:.3f} °/s (allowed ±{tol.b_max_dps:g} °/s)"))
     if result.k_std is not None:
-        for i, a in enumerate(AXES):
+        for i, a in determined:
             v = float(result.k_std[i])
             checks.append(_check("k_std", a, v, tol.k_std_max, v <= tol.k_std_max,
                                  f"uncertainty of k_{a} = {v:.2g} (allowed {tol.k_std_max:g})"))
     if result.b_std is not None:
-        for i, a in enumerate(AXES):
+        for i, a in determined:
             v = float(result.b_std[i])
             checks.append(_check("b_std", a, v, tol.b_std_max_dps, v <= tol.b_std_max_dps,
                                  f"uncertainty of b_{a} = {v:.2g} °/s (allowed {tol.b_std_max_dps:g} °/s)"))
-    # after calibration each full turn must bring the device back to its starting pose
+    # after calibration each full turn must bring the device back to the pose it was put back in
     for turn in result.residuals.get("turns") or []:
-        if isinstance(turn, dict) and turn.get("closure_norm_deg") is not None:
-            v = float(turn["closure_norm_deg"])
+        if isinstance(turn, dict) and _misclosure(turn) is not None:
+            v = float(_misclosure(turn))
             axis = turn.get("axis")
             checks.append(_check("closure", axis, v, tol.closure_max_deg, v <= tol.closure_max_deg,
-                                 f"the calibrated turn about {axis} ends {v:.2f}° from where it began "
+                                 f"the calibrated turn about {axis} ends {v:.2f}° from the pose it was put back in "
                                  f"(allowed {tol.closure_max_deg:g}°)"))
     return checks
 
@@ -123,16 +131,23 @@ def turn_accuracy(result: CalibrationResult | dict[str, Any], in_force: dict[str
     ends from where it began. None for a result without the closure estimator's turn rows."""
     doc = result.to_dict() if isinstance(result, CalibrationResult) else result
     rows = [t for t in (doc.get("residuals") or {}).get("turns") or []
-            if isinstance(t, dict) and t.get("raw_angle_deg") is not None and t.get("closure_norm_deg") is not None]
+            if isinstance(t, dict) and t.get("raw_angle_deg") is not None and _misclosure(t) is not None]
     new = _scale_factors(doc)
     if not rows or new is None:
         return None
     old = _scale_factors(in_force)
     axes = {AXES.index(t["axis"]) for t in rows if t.get("axis") in AXES} or set(range(3))
     before = max(FULL_TURN_DEG * abs((1.0 if old is None else old[i]) / new[i] - 1.0) for i in axes)
-    after = max(float(t["closure_norm_deg"]) for t in rows)
+    after = max(float(_misclosure(t)) for t in rows)
     return {"before_deg": before, "after_deg": after, "before_with": "raw" if old is None else "calibration",
             "before_calibration_id": None if old is None or in_force is None else in_force.get("id")}
+
+
+def _misclosure(turn: dict[str, Any]) -> Any:
+    """How far a calibrated turn ends from the pose the device was measured to be put back in (deg); a result from
+    before the placement was modelled has only its closure."""
+    value = turn.get("misclosure_norm_deg")
+    return turn.get("closure_norm_deg") if value is None else value
 
 
 def _scale_factors(calibration: dict[str, Any] | None) -> list[float] | None:

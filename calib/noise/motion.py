@@ -6,7 +6,8 @@ Below a few tens of hertz the motion itself hides the noise, but the top of the 
 motion: there, the readings' power during the motions over their power during the rests is the noise's variance
 ratio, if the noise is white. Measured axis by axis in the top tenth of the band (``BAND``, a fraction of the
 Nyquist frequency), with an F test at ``MOTION_NOISE_ALPHA``; counted (each motion's noise scaled by it) only
-where it is beyond chance. A knock that reaches the top band counts as noise: the ratio is an upper bound. A sensor
+where it is beyond chance. A knock (the device put down) reaches the top band as a burst far above the noise: its
+samples are left out of the power (``KNOCK_SIGMA``), which is otherwise an upper bound of the noise's. A sensor
 whose own low-pass filter empties the top of the band (its rests' power there far below white noise's share) leaves
 the ratio unmeasured: what is left there is not the noise that is integrated. So does a sample rate whose top band
 starts below ``MIN_BAND_HZ``: a hand's motion still has power there (on imu_tk's Xsens, 20 times the noise's at
@@ -28,6 +29,8 @@ FILTER_ORDER = 8
 EDGE_SAMPLES = 16  # samples the high-pass filter's response takes to die away: left out at each span's ends
 MIN_BAND_HZ = 40.0  # the band's lower edge must be at least this high (a sample rate of about 89 Hz or more)
 MIN_WHITE_SHARE = 0.25  # the rests' power in the band, over white noise's share of their variance, needed to measure
+KNOCK_SIGMA = 5.0  # a band sample this many robust standard deviations out is a knock, not noise
+KNOCK_RING = 3 * EDGE_SAMPLES  # samples on either side of a knock the high-pass filter still rings in
 MIN_SAMPLES = 1000  # samples the rests and the motions must each hold for the ratio to be measured (to ~15 %)
 
 
@@ -92,11 +95,18 @@ def _rest_variance(gyro: np.ndarray, rests: list[tuple[int, int]]) -> np.ndarray
 
 
 def _band_power(top: np.ndarray, spans: list[tuple[int, int]]) -> tuple[np.ndarray, int]:
-    """Mean power per axis of ``top`` over the spans (their filter edges left out) and the samples it is taken over."""
-    total, count = np.zeros(3), 0
-    for i, j in spans:
-        i, j = i + EDGE_SAMPLES, j - EDGE_SAMPLES
-        if j > i:
-            total += np.sum(top[i:j] ** 2, axis=0)
-            count += j - i
-    return total / max(count, 1), count
+    """Mean power per axis of ``top`` over the spans (their filter edges left out) and the samples it is taken over.
+
+    A knock (the device put down, ``calib.effects.impacts``) is a burst far above the band's noise: samples beyond
+    ``KNOCK_SIGMA`` robust standard deviations (from the median absolute value), and the filter's ring around them,
+    are left out, so that one knock does not read as every motion's noise."""
+    parts = [(i + EDGE_SAMPLES, j - EDGE_SAMPLES) for i, j in spans if j - i > 2 * EDGE_SAMPLES]
+    if not parts:
+        return np.zeros(3), 0
+    x = np.concatenate([top[i:j] for i, j in parts])
+    scale = 1.4826 * np.median(np.abs(x), axis=0)
+    burst = np.any(np.abs(x) > KNOCK_SIGMA * np.maximum(scale, 1e-300), axis=1)
+    if burst.any():  # widened by the filter's response on either side
+        burst = np.convolve(burst.astype(float), np.ones(2 * KNOCK_RING + 1), mode="same") > 0
+    keep = x[~burst]
+    return np.mean(keep**2, axis=0) if keep.size else np.zeros(3), int(keep.shape[0])

@@ -1,10 +1,17 @@
-"""The rests' statistics: each rest's mean and length, and the reading noise pooled over the rests."""
+"""The rests' statistics: each rest's mean and length, and the reading noise pooled over the rests.
+
+A rest that begins as the device is put down can hold the knock of it (``calib.effects.impacts``): a short burst
+far above the noise. Samples beyond ``KNOCK_SIGMA`` robust standard deviations (from the median absolute deviation)
+of their rest's mean, and ``KNOCK_RING`` samples on either side, are left out of that rest, so that one knock does
+not widen the noise of every rest and every turn."""
 
 from __future__ import annotations
 
 import numpy as np
 
 MIN_SIGMA_DPS = 1e-6  # floor for noise-free data, so that the weights stay finite
+KNOCK_SIGMA = 5.0  # a rest's sample this many robust standard deviations from its mean is a knock, not noise
+KNOCK_RING = 5  # samples on either side of a knock's that still ring
 
 
 def still_statistics(gyro: np.ndarray, bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -42,4 +49,32 @@ def still_statistics(gyro: np.ndarray, bounds: np.ndarray) -> tuple[np.ndarray, 
     pooled_dof = np.maximum(count - 1.0, 0.0).sum(axis=1)
     sigma = np.sqrt(ss.sum(axis=1) / np.maximum(pooled_dof, 1.0)[:, None])
     sigma = np.maximum(sigma, MIN_SIGMA_DPS)
-    return mean + ref, count, sigma
+    mean = mean + ref
+    for r in range(R):
+        _leave_out_knocks(gyro[r], bounds[r], mean[r], count[r], sigma[r])
+    return mean, count, sigma
+
+
+def _leave_out_knocks(gyro: np.ndarray, bounds: np.ndarray, mean: np.ndarray, count: np.ndarray, sigma: np.ndarray) -> None:
+    """One recording's rest statistics (``mean`` (S, 3), ``count`` (S,), ``sigma`` (3,)) recomputed in place without
+    its knocks, where it has any."""
+    spans = [(s, int(a), int(b)) for s, (a, b) in enumerate(bounds) if b > a]
+    if not spans:
+        return
+    devs = [gyro[a:b] - mean[s] for s, a, b in spans]
+    if not any(np.any(np.abs(d) > KNOCK_SIGMA * sigma) for d in devs):
+        return  # the common case: nothing beyond the noise
+    scale = np.maximum(1.4826 * np.median(np.abs(np.concatenate(devs)), axis=0), MIN_SIGMA_DPS)
+    ss, dof = np.zeros(3), 0.0
+    for (s, a, b), d in zip(spans, devs, strict=True):
+        burst = np.any(np.abs(d) > KNOCK_SIGMA * scale, axis=1)
+        if burst.any():
+            burst = np.convolve(burst.astype(float), np.ones(2 * KNOCK_RING + 1), mode="same") > 0
+        kept = gyro[a:b][~burst]
+        if kept.shape[0] == 0:
+            kept = gyro[a:b]
+        mean[s] = kept.mean(axis=0)
+        count[s] = kept.shape[0]
+        ss += np.sum((kept - mean[s]) ** 2, axis=0)
+        dof += kept.shape[0] - 1
+    sigma[:] = np.maximum(np.sqrt(ss / max(dof, 1.0)), MIN_SIGMA_DPS)

@@ -9,6 +9,8 @@ unchanged, so no accelerometer can measure it.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from calib.noise.rests import still_statistics
@@ -19,6 +21,22 @@ from calib.stages.stage import Stage
 
 HEADING_NOTE = ("the heading (a turn about the vertical, as when the device is spun flat and put back a little turned) "
                 "leaves gravity unchanged: no accelerometer measures it")
+NO_ACCEL_NOTE = "no accelerometer: the pose the device was put back in is not measured"
+
+
+@dataclass(frozen=True)
+class TurnTilts:
+    """Each turn's measured placement tilt; NaN rows for a turn not measured."""
+
+    rotation_deg: np.ndarray  # (J, 3) the tilt as a rotation from the pose before to the pose after (body axes), deg
+    up: np.ndarray  # (J, 3) the unit gravity direction (body axes) about which the heading is unmeasured
+    sd_deg: np.ndarray  # (J,) standard deviation of each of the tilt's two components, deg
+    has_accel: bool
+
+    @property
+    def measured(self) -> np.ndarray:
+        """(J,) whether each turn's tilt was measured."""
+        return np.isfinite(self.sd_deg)
 
 
 def _neighbour_rests(turn: Stage, stills: list[Stage]) -> tuple[Stage | None, Stage | None]:
@@ -27,26 +45,58 @@ def _neighbour_rests(turn: Stage, stills: list[Stage]) -> tuple[Stage | None, St
     return before, after
 
 
-def measure_placement(rec: Recording, turns: list[Stage], stills: list[Stage], stages: list[Stage]) -> Placement:
+def measure_tilts(rec: Recording, turns: list[Stage], stills: list[Stage], stages: list[Stage]) -> TurnTilts:
     """Each turn's placement tilt, from the rests right before and after it (none without an accelerometer, or for a
     turn with another motion of ``stages`` between it and a rest: a re-orientation, a turn left out)."""
-    if rec.accel is None:
-        return {"measured_by": None, "note": "no accelerometer: the pose the device was put back in is not measured",
-                "turns": []}
+    J = len(turns)
+    rotation, up, sd = np.full((J, 3), np.nan), np.full((J, 3), np.nan), np.full(J, np.nan)
+    if rec.accel is None or not stills:
+        return TurnTilts(rotation, up, sd, rec.accel is not None)
     mean, count, sigma = still_statistics(np.asarray(rec.accel, dtype=float)[None], np.array([[[s.start, s.end] for s in stills]]))
     means, sizes = mean[0], count[0]
     sigma_g = float(np.sqrt(np.mean(sigma[0] ** 2)))  # pooled over the rests and the three axes
     index = {id(s): i for i, s in enumerate(stills)}
-    rows: list[TurnPlacement] = []
-    for st in turns:
+    for j, st in enumerate(turns):
         before, after = _neighbour_rests(st, stills)
         between = before is not None and after is not None and any(
             m.kind != "still" and m.start != st.start and before.end <= m.start and m.end <= after.start for m in stages)
         if before is None or after is None or between:
-            rows.append({"axis": st.axis, "start_s": st.start_s, "tilt_deg": None, "tilt_std_deg": None, "rotation_deg": None})
             continue
         i0, i1 = index[id(before)], index[id(after)]
         across = tilt_across(means[i0], means[i1], sizes[i0], sizes[i1], sigma_g)
-        rows.append({"axis": st.axis, "start_s": st.start_s, "tilt_deg": float(np.linalg.norm(across.rho_deg)),
-                     "tilt_std_deg": float(across.sd_deg), "rotation_deg": [float(v) for v in across.rho_deg]})
-    return {"measured_by": "accelerometer", "note": HEADING_NOTE, "turns": rows}
+        rotation[j], up[j], sd[j] = across.rho_deg, across.up, float(across.sd_deg)
+    return TurnTilts(rotation, up, sd, True)
+
+
+def placement_report(turns: list[Stage], tilts: TurnTilts, priors: tuple[float, float] | None = None) -> Placement:
+    """The ``quality["placement"]`` of a result: each turn's measured tilt (null where not measured), and with
+    ``priors`` (tilt prior, heading prior, deg) those the calibration carried."""
+    if not tilts.has_accel:
+        note = NO_ACCEL_NOTE if priors is None else (
+            f"{NO_ACCEL_NOTE}: the calibration carries each turn's placement (tilt and heading) as a prior of "
+            f"{max(priors):.2g} deg, so its uncertainty includes it")
+        return _with_priors(Placement(measured_by=None, note=note, turns=[]), priors)
+    rows: list[TurnPlacement] = []
+    for j, st in enumerate(turns):
+        if not tilts.measured[j]:
+            rows.append({"axis": st.axis, "start_s": st.start_s, "tilt_deg": None, "tilt_std_deg": None, "rotation_deg": None})
+            continue
+        rho = tilts.rotation_deg[j]
+        rows.append({"axis": st.axis, "start_s": st.start_s, "tilt_deg": float(np.linalg.norm(rho)),
+                     "tilt_std_deg": float(tilts.sd_deg[j]), "rotation_deg": [float(v) for v in rho]})
+    note = HEADING_NOTE if priors is None else (
+        f"{HEADING_NOTE}: the calibration carries it as a prior of {priors[1]:.2g} deg per turn, so its uncertainty "
+        "includes it")
+    return _with_priors(Placement(measured_by="accelerometer", note=note, turns=rows), priors)
+
+
+def _with_priors(report: Placement, priors: tuple[float, float] | None) -> Placement:
+    if priors is not None:
+        report["tilt_prior_deg"] = float(priors[0])
+        report["heading_prior_deg"] = float(priors[1])
+    return report
+
+
+def measure_placement(rec: Recording, turns: list[Stage], stills: list[Stage], stages: list[Stage]) -> Placement:
+    """Each turn's placement tilt as ``quality["placement"]`` reports it (``measure_tilts``, ``placement_report``)."""
+    return placement_report(turns, measure_tilts(rec, turns, stills, stages))

@@ -42,8 +42,13 @@ def resolve_stages(rec: Recording, stages: ProtocolStages | Sequence[Stage] | No
                     raise ProtocolError(f"stages must be Stage objects (from calib.stages.detect_stages); got {type(s).__name__}")
             stage_list.sort(key=lambda s: s.start)
         proto = find_protocol_in(rec, stage_list)
+    check_stages_inside(rec, stage_list)
+    return ResolvedStages(stage_list, proto)
+
+
+def check_stages_inside(rec: Recording, stages: Sequence[Stage]) -> None:
+    """ProtocolError when a stage lies outside the recording's samples."""
     n = len(rec)
-    for s in stage_list:
+    for s in stages:
         if not 0 <= s.start < s.end <= n:
             raise ProtocolError(f"{s.kind} stage [{s.start}, {s.end}) lies outside the recording's {n} samples")
-    return ResolvedStages(stage_list, proto)

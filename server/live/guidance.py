@@ -5,6 +5,7 @@ Every failure names what happened and how to fix it, in words a clinician unders
 
 from __future__ import annotations
 
+import math
 from collections.abc import Collection, Sequence
 
 from calib.judge.acceptance import Check
@@ -256,8 +257,8 @@ def service_overloaded(late_s: float) -> str:
 def _turn_reading(c: Check) -> tuple[str, str] | None:
     """A scale factor out of range as the turn that gave it: what it read, and how to turn it again (None: the check
     is not a scale factor)."""
-    if c.name != "k" or not isinstance(c.limit, tuple) or c.value is None or c.value <= 0:
-        return None
+    if c.name != "k" or not isinstance(c.limit, tuple) or c.value is None or not math.isfinite(c.value) or c.value <= 0:
+        return None  # not a scale factor, or one not determined (its axis was not turned): its check says so
     low, high = FULL_TURN_DEG / c.limit[1], FULL_TURN_DEG / c.limit[0]
     reads = FULL_TURN_DEG / c.value
     said = f"the turn about {ax(c.axis or '')} read {reads:.0f}°, where a working sensor reads a full turn as {low:.0f}° to {high:.0f}°"
@@ -298,6 +299,12 @@ def out_of_tolerance(failed: Sequence[Check], failed_before: Collection[tuple[st
             todo.append(turn[1])
         else:
             said.append(c.text)
+    undetermined = [c for c in failed if c.name == "k" and (c.value is None or not math.isfinite(c.value))]
+    if undetermined and len(undetermined) == len(failed):
+        axes = " and ".join(ax(c.axis or "") for c in undetermined)
+        return (f"The calibration is incomplete: there was no usable full turn about {axes}, so "
+                f"{'its scale factor is' if len(undetermined) == 1 else 'their scale factors are'} not determined. "
+                f"Record the protocol again with a full 360° turn about each axis, {axes} included.")
     why = "The calibration is outside the tolerances: " + "; ".join(said) + ". "
     if todo:
         why += "Most likely that turn was not a full one: start a new calibration and " + "; ".join(todo) + "."

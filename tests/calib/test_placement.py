@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from calib.effects.placement import PlacementError
+from calib.estimators.closure.placement import HEADING_PRIOR_DEG
 from calib.pipeline import calibrate
 from calib.simulator import simulate
 
@@ -40,12 +41,19 @@ def test_a_device_put_back_exactly_reads_no_tilt_beyond_its_noise() -> None:
     assert 0.6 < np.sqrt(np.mean(np.square(z))) < 1.4, z  # about 1 when the standard deviation is honest
 
 
-def test_without_an_accelerometer_the_placement_is_not_claimed() -> None:
+def test_without_an_accelerometer_the_placement_is_carried_as_a_prior_and_said() -> None:
     rec, _ = simulate(1, noise=0.05)
-    rec = rec.__class__(t=rec.t, gyro=rec.gyro, accel=None, seq=rec.seq, meta=rec.meta)
-    placement = calibrate(rec, method="closure").quality["placement"]
-    assert placement == {"measured_by": None, "turns": [],
-                         "note": "no accelerometer: the pose the device was put back in is not measured"}
+    blind = rec.__class__(t=rec.t, gyro=rec.gyro, accel=None, seq=rec.seq, meta=rec.meta)
+    result = calibrate(blind, method="closure")
+    placement = result.quality["placement"]
+    assert placement["measured_by"] is None and placement["turns"] == []
+    assert placement["note"].startswith("no accelerometer: the pose the device was put back in is not measured: the "
+                                        "calibration carries each turn's placement (tilt and heading) as a prior of 0.1 deg")
+    assert placement["heading_prior_deg"] == placement["tilt_prior_deg"] == HEADING_PRIOR_DEG
+    # both parts of every turn are a prior: k_x and k_y are as uncertain as k_z, each at least the prior's worth
+    seen = calibrate(rec, method="closure")
+    assert np.all(result.k_std > 0.5 * np.radians(HEADING_PRIOR_DEG) / (2 * np.pi))
+    assert np.all(result.k_std[:2] > 5 * seen.k_std[:2])
 
 
 def test_a_turn_with_another_motion_between_it_and_a_rest_has_no_placement_claimed() -> None:

@@ -274,6 +274,38 @@ def test_uploaded_recordings_calibrate(service: RunningService, ferraris_csv: Pa
         assert c.get("/devices/imu-7").json()["transport"] is None
 
 
+def test_a_recording_turned_about_some_axes_is_shown_incomplete_and_never_becomes_the_calibration(service: RunningService) -> None:
+    """Turned about y only: y is calibrated, x and z are named as not determined; the result cannot be accepted and
+    the device keeps the calibration it had."""
+    from calib.simulator import ProtocolScript, Still, Turn
+
+    full, _ = simulate(12, noise=0.03)
+    partial, truth = simulate(13, noise=0.03, script=ProtocolScript((Still(3.0), Turn("y", 360.0), Still(3.0),
+                                                                     Turn("y", 360.0), Still(3.0))))
+    bodies = []
+    for rec in (full, partial):
+        buf = io.StringIO()
+        write_native_csv(rec, buf)
+        bodies.append(buf.getvalue())
+    with service.client() as c:
+        first = c.post("/devices/upload-part/calibrate", content=bodies[0], headers={"Content-Type": "text/csv"}).json()
+        assert c.post(f"/sessions/{first['session_id']}/accept", json={"sensor_model": "LSM9DS1"}).status_code == 200
+        before = c.get("/devices/upload-part/calibration").json()
+        r = c.post("/devices/upload-part/calibrate", content=bodies[1], headers={"Content-Type": "text/csv"})
+        assert r.status_code == 200, r.text
+        res = r.json()
+        assert res["k"][0] is None and res["k"][2] is None and res["b"][0] is None and res["b"][2] is None
+        assert abs(res["k"][1] - truth.k[1]) < 5 * res["uncertainty"]["k"][1]
+        assert res["quality"]["undetermined_axes"] == ["x", "z"] and not res["passed"]
+        assert res["reason"].startswith("The calibration is incomplete: there was no usable full turn about X and Z")
+        failed = [ch for ch in c.get(f"/sessions/{res['session_id']}").json()["checks"] if not ch["ok"]]
+        assert [(ch["name"], ch["axis"]) for ch in failed] == [("k", "x"), ("k", "z")]
+        r = c.post(f"/sessions/{res['session_id']}/accept", json={"sensor_model": "LSM9DS1"})
+        assert r.status_code == 409
+        after = c.get("/devices/upload-part/calibration").json()
+        assert (after["id"], after["k"], after["b"]) == (before["id"], before["k"], before["b"])
+
+
 def test_an_uploaded_multi_position_recording_is_calibrated_from_its_re_orientations(service: RunningService) -> None:
     from calib.simulator.lab_scripts import multi_position_script
 

@@ -14,8 +14,8 @@ export function paramTable(k, b, unc) {
     h("thead", null, h("tr", null, h("th", { scope: "col" }, "Axis"), h("th", { scope: "col" }, "Scale factor k"), h("th", { scope: "col" }, "Bias b (°/s)"))),
     h("tbody", null, AXES.map((a, i) => h("tr", null,
       h("th", { scope: "row" }, AXIS_LABEL[a]),
-      h("td", null, num(k[i], 5), ku[i] != null ? h("span", { class: "pm" }, ` ± ${sig(ku[i])}`) : null),
-      h("td", null, num(b[i], 3), bu[i] != null ? h("span", { class: "pm" }, ` ± ${sig(bu[i])}`) : null)))));
+      k[i] == null ? h("td", null, "not determined") : h("td", null, num(k[i], 5), ku[i] != null ? h("span", { class: "pm" }, ` ± ${sig(ku[i])}`) : null),
+      b[i] == null ? h("td", null, "not determined") : h("td", null, num(b[i], 3), bu[i] != null ? h("span", { class: "pm" }, ` ± ${sig(bu[i])}`) : null)))));
 }
 
 // What the multi-position fit found about the gyro's sensitivity to acceleration, and the fit without it.
@@ -62,10 +62,11 @@ function turnsTable(rows) {
 /** Where the hand put the device back after each turn: the tilt the accelerometer saw (the heading it cannot see). */
 function placementText(p) {
   if (!p) return null;
-  if (!p.measured_by) return "not measured (no accelerometer)";
+  const prior = p.heading_prior_deg != null ? `; allowed for: ${num(p.heading_prior_deg, 2)}° per turn` : "";
+  if (!p.measured_by) return `not measured (no accelerometer)${prior}`;
   const each = (p.turns || []).filter((t) => t.tilt_deg != null)
     .map((t) => `${(t.axis || "?").toUpperCase()} ${num(t.tilt_deg, 2)}° ± ${num(t.tilt_std_deg, 2)}°`);
-  return each.length ? `tilted ${each.join(", ")} (the turn on the table is not measured)` : null;
+  return each.length ? `tilted ${each.join(", ")}, taken into account (the turn on the table is not measured${prior})` : null;
 }
 
 export function detailsBlock(ctx, s) {

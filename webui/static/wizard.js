@@ -445,14 +445,23 @@ export function sessionView(ctx, sid) {
     }
     const failures = (s.checks || []).filter((c) => !c.ok).map((c) => c.text);
     const summary = readiness(s, dev, pass);
+    // a recording turned about some axes only calibrates those: incomplete, never the device's calibration
+    const missing = (((s.result || {}).quality || {}).undetermined_axes || []).map((a) => a.toUpperCase());
+    const incomplete = !pass && missing.length > 0;
+    const verdict = pass ? "PASS" : incomplete ? "INCOMPLETE" : "FAIL";
     // a FAIL says what the service found and which turn to redo, in its words (server.live.guidance)
     const sentence = pass
       ? `The gyroscope of ${dev} is calibrated within the tolerances.`
-      : s.reason || `The result is outside the tolerances: ${failures.join("; ")}.`;
+      : incomplete
+        ? `Only part of the gyroscope of ${dev} is calibrated: there was no usable full turn about ${missing.join(" and ")}, `
+          + `so ${missing.length === 1 ? "its scale factor is" : "their scale factors are"} not determined.`
+        : s.reason || `The result is outside the tolerances: ${failures.join("; ")}.`;
     const next = pass
       ? "Press “Accept & save” to make it the device's calibration, or Redo if anything went wrong during the turns."
-      : reasonFor("out_of_tolerance").fix;
-    ctx.title(pass ? "PASS" : "FAIL");
+      : incomplete
+        ? `It cannot become the device's calibration: record the protocol again, turning the device a full 360° about ${missing.join(" and ")} too.`
+        : reasonFor("out_of_tolerance").fix;
+    ctx.title(verdict);
     // leaving a PASS nobody accepted loses it from the device: ask first (Close, a link, Back, a reload, closing
     // the tab), with staying as the safe answer
     if (pass && !(snap && snap.decision)) {
@@ -464,7 +473,7 @@ export function sessionView(ctx, sid) {
     }
     const close = cancelButton(() => ctx.go("#/devices"), "Close");
     const kind = pass ? (summary.near.length || summary.departed.length ? "pass near-limit" : "pass") : "fail";
-    endLayout(s, 6, verdictEl(kind, pass ? "pass" : "fail", pass ? "PASS" : "FAIL", null, summary.ready), [
+    endLayout(s, 6, verdictEl(kind, pass ? "pass" : "fail", verdict, null, summary.ready), [
       ...summary.parts,
       // on a PASS the decision comes first, with what it means under it; a FAIL says why before what to do
       pass ? null : h("p", { class: "sentence" }, sentence),

@@ -27,6 +27,8 @@ from scipy.stats import chi2 as chi2_dist
 
 from calib.errors import CalibrationError, ProtocolError
 from calib.estimators.closure.fit import ClosureData, ClosureFit, start_values, system
+from calib.estimators.closure.partial import not_turned_text, partial_start, turned_axes
+from calib.estimators.closure.placement import check_heading_prior, placement_model
 from calib.estimators.closure.report import OFFDIAG_WARN, closure_result
 from calib.io.validation import check_calibration_input
 from calib.noise.rests import still_statistics
@@ -34,25 +36,31 @@ from calib.numerics.windows import windows
 from calib.quality import ModelChoice
 from calib.recording import Recording, sample_intervals
 from calib.result import CalibrationResult
-from calib.stages.placement import measure_placement
+from calib.stages.placement import measure_tilts, placement_report
 from calib.stages.stage import FLAG_COUNTER_GAP, FLAG_SATURATED, Stage
+from calib.units import FULL_TURN_DEG
 
 MIN_STILL_SAMPLES = 2
 MAX_CLOSURE_DEG = 45.0  # a turn that still misses its start by this much after the fit was not a full turn
+NOT_TURNED_K_SD = 0.1  # an axis not turned: its scale factor's prior, a working MEMS gyroscope's 0.8-1.2 at 2 sigma
+MAX_SWEPT_ERROR = 0.25  # ... nor is one the fit calibrates to sweep a quarter more or less than its full turns
 EXTENDED_ALPHA = 0.01  # the extended model is chosen when its likelihood-ratio test is below this
 EXTENDED_FIT_MIN = 1e-3  # ... and when it explains the recording itself (its chi-square's p-value above this)
 OFFDIAG_FAIL = 0.05  # ... and worse than this, not identified at all
 _LSQ = {"method": "lm", "xtol": 1e-10, "ftol": 1e-12, "gtol": 1e-10, "x_scale": "jac"}
 
 
-def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None = None) -> CalibrationResult:
+def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None = None,
+                      heading_prior_deg: float | None = None) -> CalibrationResult:
     """Calibrate one recording with the closure maximum-likelihood estimator (method "closure").
 
     stages: a list of Stage, a ProtocolStages, or None to detect them. Every full turn and every
     still segment is used. ``extended`` True adds the three non-orthogonality terms of an upper-triangular K,
     False keeps K diagonal; None (default) adds them where the recording identifies them (each known to
     ``OFFDIAG_WARN``) and the likelihood-ratio test finds them (p < ``EXTENDED_ALPHA``), and says which in
-    ``quality["model_choice"]``. Raises RecordingError for bad input, ProtocolError when a stage is missing,
+    ``quality["model_choice"]``. Each turn closes onto the pose the accelerometer saw it put back in, with the
+    heading it cannot see carried as a prior of ``heading_prior_deg`` (None: ``HEADING_PRIOR_DEG``;
+    ``calib.estimators.closure.placement``). Raises RecordingError for bad input, ProtocolError when a stage is missing,
     CalibrationError when the recording does not determine the parameters (or the terms asked for).
     """
     check_calibration_input(rec)
@@ -62,20 +70,30 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None 
     gyro = rec.gyro[None]
     m, d = windows(gyro, np.array([[[s.start, s.end] for s in turns]]), dt_all[None])
     mean, count, sigma = still_statistics(gyro, np.array([[[s.start, s.end] for s in stills]]))
-    data = ClosureData(m, d, mean, count, sigma)
+    tilts = measure_tilts(rec, turns, stills, stage_list)
+    place = placement_model(tilts, check_heading_prior(heading_prior_deg))
+    data = ClosureData(m, d, mean, count, sigma, place.target[None], place.cov[None])
 
     theta0, n_rev, rank = start_values(data, extended=False)
+    theta, revolutions = theta0[0], n_rev[0]
+    turned = np.ones(3, dtype=bool)
     if rank[0] < 3 or not np.all(np.isfinite(theta0)):
-        turned = ", ".join(sorted({s.axis or "?" for s in turns}))
-        dropped = [w for w in warnings if "full scale" in w]
-        raise ProtocolError(
-            f"the usable turns (about {turned}) do not rotate the device about all three of its axes: "
-            "turn it a full 360 degrees about each of x, y and z, pausing about 3 s between turns"
-            + (f" ({'; '.join(dropped)})" if dropped else "")
-        )
-    fit = _solve(data, theta0[0], extended=False)
+        turned = turned_axes(data)
+        if not turned.any():
+            raise ProtocolError(
+                "no usable turn rotates the device mostly about one of its axes: turn it a full 360 degrees about each "
+                "of x, y and z, pausing about 3 s between turns", code="turn_missing", stages=stage_list)
+        theta, revolutions = partial_start(data, turned)
+        warnings.append(f"{not_turned_text(turned)}: turn the device a full 360 degrees about each axis to calibrate them")
+    fit = _solve(data, theta, extended=False, not_turned=~turned)
+    _check_closed(turns, fit, revolutions)  # before the extended terms, which could fold a turn that is not one away
     choice: ModelChoice = {"asked": extended}
-    if extended:
+    if not turned.all():
+        if extended:
+            raise CalibrationError(f"the extended model needs turns about every axis; {not_turned_text(turned)}")
+        extended = False
+        choice["reason"] = "not every axis was turned"
+    elif extended:
         start = np.concatenate((fit.theta, np.zeros(3)))
         _check_identified(data, start)
         fit = _solve(data, start, extended=True)
@@ -84,10 +102,10 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None 
         fit, extended, choice = _choose_model(data, fit)
     else:
         choice["reason"] = "not asked for"
-    _check_closed(turns, fit)
-    result = closure_result(rec, stage_list, turns, stills, data, fit, n_rev[0], bool(extended), warnings, dt_all)
+    _check_closed(turns, fit, revolutions)
+    result = closure_result(rec, stage_list, turns, stills, data, fit, revolutions, bool(extended), warnings, dt_all)
     result.quality["model_choice"] = choice
-    result.quality["placement"] = measure_placement(rec, turns, stills, stage_list)
+    result.quality["placement"] = placement_report(turns, tilts, (place.tilt_prior_deg, place.heading_prior_deg))
     return result
 
 
@@ -122,12 +140,21 @@ def _choose_model(data: ClosureData, diagonal: ClosureFit) -> tuple[ClosureFit, 
 # --------------------------------------------------------------------------- fitting
 
 
-def _solve(data: ClosureData, theta0: np.ndarray, extended: bool) -> ClosureFit:
+def _solve(data: ClosureData, theta0: np.ndarray, extended: bool, not_turned: np.ndarray | None = None) -> ClosureFit:
     """least_squares with the turn weights held fixed, re-weighted at its solution until they settle.
 
     Residual-only evaluations use the cheap closure product; each Jacobian costs one full pass, and
-    the pass that sets the weights doubles as the first Jacobian and as the final one.
+    the pass that sets the weights doubles as the first Jacobian and as the final one. ``not_turned`` (3,): axes no
+    turn was about, whose scale factors only the hand's wobble informs: each gets the prior N(1, ``NOT_TURNED_K_SD``),
+    a working sensor's range, so the turned axes' uncertainty includes what the others could be.
     """
+    held = np.zeros(3, dtype=bool) if not_turned is None else np.asarray(not_turned, dtype=bool)
+    prior_rows = np.zeros((int(held.sum()), theta0.shape[0]))
+    prior_rows[np.arange(int(held.sum())), np.flatnonzero(held)] = 1.0 / NOT_TURNED_K_SD
+
+    def with_prior(res: np.ndarray, th: np.ndarray) -> np.ndarray:
+        return np.concatenate((res, (th[:3][held] - 1.0) / NOT_TURNED_K_SD))
+
     theta = theta0
     nfev = 0
     converged = False
@@ -142,14 +169,14 @@ def _solve(data: ClosureData, theta0: np.ndarray, extended: bool) -> ClosureFit:
             if key not in res_cache:
                 res_cache.clear()
                 res_cache[key] = system(data, th[None], extended, chol=chol, jacobian=False).res[0]
-            return res_cache[key]
+            return with_prior(res_cache[key], th)
 
         def jac(th: np.ndarray, chol=chol, jac_cache=jac_cache) -> np.ndarray:
             key = th.tobytes()
             if key not in jac_cache:
                 jac_cache.clear()
                 jac_cache[key] = system(data, th[None], extended, chol=chol, jacobian=True).J[0]
-            return jac_cache[key]
+            return np.vstack((jac_cache[key], prior_rows))
 
         sol = least_squares(fun, theta, jac=jac, **_LSQ)
         nfev += int(sol.nfev)
@@ -163,31 +190,40 @@ def _solve(data: ClosureData, theta0: np.ndarray, extended: bool) -> ClosureFit:
         change = np.max(np.abs(current.chol - chol) / np.abs(chol).max(axis=(-2, -1), keepdims=True))
         if change < 1e-2:
             break
-    jacobian = current.J[0]
+    jacobian = np.vstack((current.J[0], prior_rows))
     return ClosureFit(
         theta=theta,
-        res=current.res[0],
+        res=with_prior(current.res[0], theta),
         fisher=jacobian.T @ jacobian,
         terms_r=current.terms.r,
         swept=current.terms.swept,
         chol=current.chol[0],
         nfev=nfev,
         converged=converged,
+        not_turned=held,
     )
 
 
-def _check_closed(turns: list[Stage], fit: ClosureFit) -> None:
-    """Raise CalibrationError when a turn is so far from closing that its residual means nothing."""
+def _check_closed(turns: list[Stage], fit: ClosureFit, n_rev: np.ndarray) -> None:
+    """Raise CalibrationError when a turn is so far from closing that its residual means nothing, or when the fit
+    calibrated a turn's rotation away (a full turn sweeps 360 degrees per revolution)."""
     angle = np.degrees(np.linalg.norm(fit.terms_r, axis=1))
+    swept = np.linalg.norm(fit.swept, axis=1) / (FULL_TURN_DEG * n_rev)
     worst = int(np.argmax(angle))
+    off = int(np.argmax(np.abs(swept - 1.0)))
     if angle[worst] > MAX_CLOSURE_DEG:
         st = turns[worst]
-        raise CalibrationError(
-            f"the turn about {st.axis} at {st.start_s:.1f}-{st.end_s:.1f} s ends {angle[worst]:.0f} deg from where it "
-            "began even after calibration: it is not a full turn back to the starting pose. Repeat it, turning "
-            "exactly 360 degrees and putting the device back in its starting position",
-            code="not_closed",
-        )
+        what = f"ends {angle[worst]:.0f} deg from where it began even after calibration"
+    elif abs(swept[off] - 1.0) > MAX_SWEPT_ERROR:
+        st = turns[off]
+        what = f"would sweep {swept[off] * FULL_TURN_DEG * n_rev[off]:.0f} deg, not {FULL_TURN_DEG * n_rev[off]:.0f}, to close"
+    else:
+        return
+    raise CalibrationError(
+        f"the turn about {st.axis} at {st.start_s:.1f}-{st.end_s:.1f} s {what}: it is not a full turn back to the "
+        "starting pose. Repeat it, turning exactly 360 degrees and putting the device back in its starting position",
+        code="not_closed",
+    )
 
 
 def offdiag_bounds(data: ClosureData, theta: np.ndarray) -> np.ndarray:
@@ -218,9 +254,16 @@ def _check_identified(data: ClosureData, theta: np.ndarray) -> None:
 
 def _select_stages(rec: Recording, stages: Any) -> tuple[list[Stage], list[Stage], list[Stage], list[str]]:
     """(all stages, turns used, stills used, warnings). Every full turn and still is used."""
-    from calib.stages.resolve import resolve_stages
+    from calib.stages.resolve import check_stages_inside, resolve_stages
 
-    stage_list = resolve_stages(rec, stages).stages
+    try:
+        stage_list = resolve_stages(rec, stages).stages
+    except ProtocolError as exc:
+        # turns about some axes only: those axes are calibrated, the others said to be undetermined
+        if exc.code != "turn_missing" or not any(s.kind == "turn" for s in exc.stages):
+            raise
+        stage_list = sorted(exc.stages, key=lambda s: s.start)
+        check_stages_inside(rec, stage_list)
     warnings: list[str] = []
     turns = []
     for s in stage_list:

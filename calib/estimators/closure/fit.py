@@ -59,7 +59,9 @@ class ClosureData:
     ``m`` (n, R*J, 3): readings (deg/s) of each turn, time-first, turn j of recording r in column
     r*J + j, zero past the turn's end; ``dt`` (n, R*J) the interval each sample is held (s), 0 past
     the end. ``still_mean`` (R, S, 3) mean reading of each still (deg/s), ``still_n`` (R, S) its
-    number of samples (0: absent). ``sigma`` (R, 3) reading noise std per axis (deg/s).
+    number of samples (0: absent). ``sigma`` (R, 3) reading noise std per axis (deg/s). ``place_target``
+    (R, J, 3) rad and ``place_cov`` (R, J, 3, 3) rad^2: what each turn's closure is expected to be and the covariance
+    the hand's placement adds to it (``calib.estimators.closure.placement``); None: put back exactly.
     """
 
     m: np.ndarray
@@ -67,6 +69,8 @@ class ClosureData:
     still_mean: np.ndarray
     still_n: np.ndarray
     sigma: np.ndarray
+    place_target: np.ndarray | None = None
+    place_cov: np.ndarray | None = None
 
     @property
     def R(self) -> int:
@@ -83,7 +87,9 @@ class ClosureData:
     def runs(self, idx: np.ndarray) -> ClosureData:
         """The data of a subset of the recordings."""
         seq = (np.asarray(idx)[:, None] * self.J + np.arange(self.J)).ravel()
-        return ClosureData(self.m[:, seq], self.dt[:, seq], self.still_mean[idx], self.still_n[idx], self.sigma[idx])
+        return ClosureData(self.m[:, seq], self.dt[:, seq], self.still_mean[idx], self.still_n[idx], self.sigma[idx],
+                           None if self.place_target is None else self.place_target[idx],
+                           None if self.place_cov is None else self.place_cov[idx])
 
     def dof(self, extended: bool) -> np.ndarray:
         """Degrees of freedom of the fit per recording: residuals minus parameters."""
@@ -172,8 +178,11 @@ def system(
     )
     if chol is None:
         assert terms.noise is not None  # asked for with sigma
-        chol = np.linalg.cholesky(terms.noise).reshape(R, J, 3, 3)
+        cov = terms.noise.reshape(R, J, 3, 3)
+        chol = np.linalg.cholesky(cov if data.place_cov is None else cov + data.place_cov)
     r = terms.r.reshape(R, J, 3)
+    if data.place_target is not None:
+        r = r - data.place_target
     res_turn = solve_lower(chol, r[..., None])[..., 0]
 
     Kinv = np.linalg.inv(K)
@@ -300,3 +309,4 @@ class ClosureFit:
     chol: np.ndarray  # (J, 3, 3)
     nfev: int
     converged: bool
+    not_turned: np.ndarray | None = None  # (3,) axes no turn was about: their k had a prior, and is not determined

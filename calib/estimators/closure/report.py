@@ -32,26 +32,35 @@ def closure_result(
     warnings: list[str],
     dt_all: np.ndarray,
 ) -> CalibrationResult:
-    theta = fit.theta
+    theta = fit.theta.copy()
     names = param_names(extended)
+    held = np.zeros(3, dtype=bool) if fit.not_turned is None else fit.not_turned
     try:
         cov = np.linalg.inv(fit.fisher)
     except np.linalg.LinAlgError:
         raise CalibrationError("the recording does not determine all parameters: turn the device about each axis") from None
     bound = np.sqrt(np.abs(np.diag(cov)))
     chi2 = float(fit.res @ fit.res)
-    dof = int(data.dof(extended)[0])
+    dof = int(data.dof(extended)[0]) + int(held.sum())  # each prior is one more observation
     birge = float(np.sqrt(max(1.0, chi2 / dof))) if dof > 0 else 1.0
     p_value = float(chi2_dist.sf(chi2, dof)) if dof > 0 else float("nan")
     std = bound * birge
     K = calibration_matrix(theta[None])[0]
+    # an axis not turned: its k only had its prior, and neither it nor its bias (the rest's reading times k) is determined
+    theta[:3][held] = np.nan
+    theta[3:6][held] = np.nan
+    std[:6][np.concatenate((held, held))] = np.nan
+    bound[:6][np.concatenate((held, held))] = np.nan
 
     index = {id(s): i for i, s in enumerate(stage_list)}
     J = len(turns)
     whitened = fit.res[: 3 * J].reshape(J, 3)
+    zs_still = fit.res[3 * J : 3 * J + 3 * len(stills)].reshape(-1, 3)
     turn_rows = []
+    target = np.zeros((J, 3)) if data.place_target is None else data.place_target[0]
     for j, st in enumerate(turns):
         r_deg = np.degrees(fit.terms_r[j])
+        miss_deg = np.degrees(fit.terms_r[j] - target[j])
         swept = fit.swept[j]
         axis = AXES.index(st.axis) if st.axis in AXES else int(np.argmax(np.abs(swept)))
         z = float(np.linalg.norm(whitened[j]))
@@ -68,18 +77,23 @@ def closure_result(
                 "raw_angle_deg": None if st.angle_deg is None else float(st.angle_deg),
                 "closure_deg": [float(v) for v in r_deg],  # net rotation over the turn: 0 when it came back
                 "closure_norm_deg": float(np.linalg.norm(r_deg)),
+                # the closure less the tilt the accelerometer saw the device put back with: what the turn got wrong
+                "placement_deg": [float(v) for v in np.degrees(target[j])],
+                "misclosure_deg": [float(v) for v in miss_deg],
+                "misclosure_norm_deg": float(np.linalg.norm(miss_deg)),
                 "closure_std_deg": float(np.degrees(np.sqrt(np.trace(fit.chol[j] @ fit.chol[j].T) / 3.0))),
                 "z": z,
             }
         )
         if z > CLOSURE_WARN_SIGMA * np.sqrt(3.0):
             warnings.append(
-                f"the turn about {st.axis} at {st.start_s:.1f} s ends {np.linalg.norm(r_deg):.2f} deg from where it began "
-                f"({z / np.sqrt(3.0):.0f} times what noise explains): put the device back exactly in its starting pose after each turn"
+                f"the turn about {st.axis} at {st.start_s:.1f} s ends {np.linalg.norm(miss_deg):.2f} deg from where it was put "
+                f"back ({z / np.sqrt(3.0):.0f} times what noise and the hand explain): it may not have been one full turn, "
+                "or the device was put back turned; put it back against the block after each turn"
             )
     still_rows = []
     rate = data.still_mean[0] @ K.T + theta[3:6]
-    zs = fit.res[3 * J :].reshape(-1, 3)
+    zs = zs_still
     for s, st in enumerate(stills):
         still_rows.append(
             {
@@ -130,6 +144,8 @@ def closure_result(
         "converged": fit.converged,
         "correlation": correlation(cov).tolist(),
     }
+    if held.any():
+        quality["undetermined_axes"] = [a for a, h in zip(AXES, held, strict=True) if h]
     return CalibrationResult(
         k=theta[:3].copy(),
         b=theta[3:6].copy(),
