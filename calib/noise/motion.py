@@ -29,7 +29,7 @@ FILTER_ORDER = 8
 EDGE_SAMPLES = 16  # samples the high-pass filter's response takes to die away: left out at each span's ends
 MIN_BAND_HZ = 40.0  # the band's lower edge must be at least this high (a sample rate of about 89 Hz or more)
 MIN_WHITE_SHARE = 0.25  # the rests' power in the band, over white noise's share of their variance, needed to measure
-KNOCK_SIGMA = 5.0  # a band sample this many robust standard deviations out is a knock, not noise
+KNOCK_SIGMA = 7.0  # a band sample this many robust standard deviations out is a knock, not noise
 KNOCK_RING = 3 * EDGE_SAMPLES  # samples on either side of a knock the high-pass filter still rings in
 MIN_SAMPLES = 1000  # samples the rests and the motions must each hold for the ratio to be measured (to ~15 %)
 

@@ -284,6 +284,12 @@ def redo_turns(failed: Sequence[Check]) -> str:
             f"Once more: {todo}.")
 
 
+def _failure(name: str, axis: str | None) -> tuple[str, str | None]:
+    """A failed check as a way of failing: a scale factor or bias per axis; turns that do not close, whichever turn
+    shows it (one turn that is not a full one spoils the others' closure, and which shows most varies)."""
+    return (name, None) if name == "closure" else (name, axis)
+
+
 def out_of_tolerance(failed: Sequence[Check], failed_before: Collection[tuple[str, str | None]] = (),
                      hand_turns: bool = True) -> str:
     """Why a result failed, and what to redo. From full turns made by hand (``hand_turns``: a guided session, or a
@@ -314,7 +320,7 @@ def out_of_tolerance(failed: Sequence[Check], failed_before: Collection[tuple[st
     else:
         why += ("Check the recording's units (raw counts need their sensitivities) and that the device rested in each "
                 "pose, then record it again.")
-    if any((c.name, c.axis) in failed_before for c in failed):
+    if {_failure(c.name, c.axis) for c in failed} & {_failure(n, a) for n, a in failed_before}:
         why += " It failed the same way the time before: the sensor may be faulty; have the device checked."
     return why
 

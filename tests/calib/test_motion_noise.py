@@ -88,16 +88,16 @@ def test_a_concealed_motion_noise_is_found_and_counted():
 
 
 def test_imu_tk_gyro_is_noisier_while_moving(real_data: Path):
-    """Xsens' gyro carries 1.2-1.7 times its rest noise variance at 45-50 Hz while the hand turns it (its knocks left
-    out: with them, 1.3-2.1); counted, the re-orientations' gravity residuals are at their noise (chi-square ratio
-    1.1), where they were 1.5 times it."""
+    """Xsens' gyro carries 1.2-1.8 times its rest noise variance at 45-50 Hz while the hand turns it (its knocks left
+    out: with them, 1.2-2.1); counted, the re-orientations' gravity residuals are at their noise (chi-square ratio
+    1.07), where they were 1.5 times it."""
     from calib.io.imu_tk import read_imu_tk
 
     rec = read_imu_tk(real_data / "imu_tk" / "xsens_gyro.mat", real_data / "imu_tk" / "xsens_acc.mat")
     res = calibrate_multi_position(rec)
     moving = res.quality["gyro_motion_noise"]
-    assert moving["measured"] and moving["variance_ratio"] == pytest.approx([1.18, 1.72, 1.23], abs=0.02)
-    assert max(moving["p_value"]) < 1e-4
+    assert moving["measured"] and moving["variance_ratio"] == pytest.approx([1.26, 1.84, 1.24], abs=0.02)
+    assert max(moving["p_value"]) < 1e-6
     motions = res.quality["constraint_fit"]["motions"]
     assert 0.85 < motions["ratio"] < 1.15 and motions["p_value"] > 0.1
     plain = calibrate_multi_position(rec, motion_noise=False).quality["constraint_fit"]["motions"]

