@@ -37,10 +37,15 @@ lint: $(VENV)/.installed-test
 	$(PY) scripts/effects_tables.py --check
 
 ## test: install everything the tests need, then run them all (TEST_WORKERS parallel workers, one a core: the tests that
-## follow a hand at real speed must not be starved by their neighbours)
+## follow a hand at real speed must not be starved by their neighbours), with the lint checks beside them (a single
+## core for under 20 s, while the first tests are numerics); either failing fails the target
 TEST_WORKERS ?= 2
-test: $(VENV)/.installed-test system-deps lint
-	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist worksteal
+test: $(VENV)/.installed-test system-deps
+	@$(MAKE) --no-print-directory lint > .lint.log 2>&1 & lint=$$!; \
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist worksteal; tests=$$?; \
+	wait $$lint; linted=$$?; cat .lint.log; rm -f .lint.log; \
+	if [ $$linted -ne 0 ]; then echo "make test: the lint checks failed (above)" >&2; fi; \
+	[ $$tests -eq 0 ] && [ $$linted -eq 0 ]
 
 bench: $(VENV)/.installed
 	$(VENV)/bin/gyrocal bench paper-sim

@@ -74,7 +74,7 @@ def test_no_input_makes_the_service_fail(api: RunningService, known_ids: dict[st
         sessions = [known_ids["upload"]] if op.label.endswith("/events") else list(known_ids.values())
         for mode in (GenerationMode.POSITIVE, GenerationMode.NEGATIVE):
 
-            @settings(max_examples=8, deadline=None, suppress_health_check=list(HealthCheck), database=None)
+            @settings(max_examples=4, deadline=None, suppress_health_check=list(HealthCheck), database=None)
             @given(case=op.as_strategy(generation_mode=mode), device=st.sampled_from([None, "mock-1", "upload-1"]),
                    session=st.sampled_from([None, *sessions]))
             def run(case: schemathesis.Case, device: str | None, session: str | None) -> None:
