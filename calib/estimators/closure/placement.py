@@ -32,7 +32,7 @@ from calib.units import DEG
 # motion-capture recording of a hand-turned IMU came back 0.45 deg off; by eye without a block, 0.3-2 deg
 # (docs/method.md, "The hand's placement").
 HEADING_PRIOR_DEG = 0.1
-TILT_TEST_ALPHA = 0.05  # tilts beyond the accelerometer's noise at this level are the hand's, and are modelled
+TILT_TEST_ALPHA = 0.001  # tilts beyond the accelerometer's noise at this level are the hand's, and are modelled
 MAX_HEADING_PRIOR_DEG = 10.0  # beyond this a turn's closure says nothing of its scale factor
 
 
