@@ -267,16 +267,38 @@ def _turn_reading(c: Check) -> tuple[str, str] | None:
     return said, todo
 
 
+def _worst_closure(failed: Sequence[Check]) -> Check | None:
+    """The turn that came back furthest from where it was put (a closure check that failed), if any."""
+    closures = [c for c in failed if c.name == "closure" and c.axis in AXIS_NAMES and c.value is not None
+                and math.isfinite(c.value)]
+    return max(closures, key=lambda c: float(c.value or 0.0)) if closures else None
+
+
+def _closure_reading(c: Check) -> tuple[str, str]:
+    said = (f"the turn about {ax(c.axis or '')} ends {c.value:.1f}° from where the device was put back, where a full "
+            f"turn comes back within {c.limit:g}°")
+    return said, f"turn {ax(c.axis or '')} all the way round, until the device is back against the block"
+
+
 def turns_to_redo(failed: Sequence[Check]) -> list[str]:
     """The turns to ask again: those whose scale factor is out of range (most likely a hand's turn that was not a full
     one; the other checks it spoils, such as the other turns' closure, are judged again with the new turn), in
-    protocol order."""
-    return sorted({c.axis for c in failed if c.axis is not None and _turn_reading(c) is not None})
+    protocol order; without one, the turn that came back furthest from where it was put (a turn about the vertical
+    that stopped short leaves its k in range and every turn unable to close, that one most)."""
+    short = sorted({c.axis for c in failed if c.axis is not None and _turn_reading(c) is not None})
+    if short:
+        return short
+    worst = _worst_closure(failed)
+    return [worst.axis] if worst is not None and worst.axis is not None else []
 
 
 def redo_turns(failed: Sequence[Check]) -> str:
-    """Why the result asks for a turn again (its scale factors out of range), and how to make it."""
+    """Why the result asks for a turn again (its scale factors out of range, or the turn furthest from closing), and
+    how to make it."""
     readings = [r for r in map(_turn_reading, failed) if r is not None]
+    worst = _worst_closure(failed)
+    if not readings and worst is not None:
+        readings = [_closure_reading(worst)]
     said = "; ".join(r[0] for r in readings)
     todo = "; then ".join(r[1] for r in readings)
     one = len(readings) == 1

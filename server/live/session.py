@@ -110,6 +110,7 @@ class GuidedSession(ProtocolSteps, Lateness):
         self._rest_before_s = 0.0
         self._redo: list[str] = []  # turns asked again after the result (the one being redone first)
         self._redone: set[str] = set()  # turns already asked again after a result: a second failure is the sensor's
+        self._redone_for: set[tuple[str, str | None]] = set()  # ... and the failed checks they were asked again for
         self._early: float | None = None  # a motion in a confirmed pause, with the rest before it: a bump or the next turn
         self._link_lost_mono: float | None = None
         self._silent_since: float | None = None  # the watchdog's clock when the data stopped (the link still up)
@@ -303,6 +304,7 @@ class GuidedSession(ProtocolSteps, Lateness):
         failed = judgement.failed_checks
         redo = say.turns_to_redo(failed)
         if redo and can_redo and self.max_attempts > 1 and not self._redone.intersection(redo):
+            self._redone_for.update((c.name, c.axis) for c in failed if c.axis in redo)
             self._redo_turns(redo, say.redo_turns(failed))
             return
         self.result = result
@@ -310,7 +312,7 @@ class GuidedSession(ProtocolSteps, Lateness):
         self.passed = judgement.passed
         if not self.passed:
             # a turn that failed again after it was asked again: the same axis twice, so the sensor is suspect
-            again = failed_before | {("k", a) for a in self._redone}
+            again = failed_before | self._redone_for
             self.fail(EndReason.OUT_OF_TOLERANCE, say.out_of_tolerance(failed, again))
             return
         self._end(State.DONE, say.done_prompt(True))

@@ -472,3 +472,24 @@ def test_a_turn_put_down_tilted_is_asked_again_at_once_saying_how_far_off() -> N
     one_try = Run(max_attempts=1)
     one_try.feed(rec)
     assert one_try.s.reason_code == "turn_incomplete" and "ended 3." in (one_try.s.reason or "")
+
+
+def test_a_result_whose_turns_do_not_close_asks_again_the_turn_furthest_from_where_it_was_put() -> None:
+    """A turn about the vertical that stopped short (or went on too far) leaves its k in range, since the heading prior
+    lets the fit spread the miss: every turn then misses, that one most. It is the turn asked again; a scale factor
+    out of range still comes first."""
+    from calib.judge.acceptance import Check
+    from server.live import guidance
+
+    def closure(axis: str, value: float) -> Check:
+        return Check(name="closure", axis=axis, value=value, limit=0.25, ok=False, text=f"{axis} {value}", used=value / 0.25,
+                     near_limit=False)
+
+    failed = [closure("x", 1.3), closure("y", 1.4), closure("z", 9.1)]
+    assert guidance.turns_to_redo(failed) == ["z"]
+    said = guidance.redo_turns(failed)
+    assert said.startswith("The turn about Z ends 9.1° from where the device was put back, where a full turn comes back "
+                           "within 0.25°: most likely it was not a full turn. Once more: turn Z all the way round"), said
+    k_out = Check(name="k", axis="y", value=1.25, limit=(0.8, 1.2), ok=False, text="k_y", used=1.25, near_limit=False)
+    assert guidance.turns_to_redo([*failed, k_out]) == ["y"]
+    assert guidance.turns_to_redo([]) == []
