@@ -20,7 +20,7 @@ DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 PLACEHOLDERS = {
     "N": "3", "X": "2", "S": "1", "HZ": "100", "R": "gyrocal_service", "URL": "sqlite:///gyrocal.sqlite3",
     "NAME": "alice", "FILE": "recording.csv", "ID": "mock-1", "DEVICE": "mock-1", "TIME": "2026-01-01T00:00:00",
-    "NAME=VALUE": "bias_drift=0.01", "C": "25", "M": "ICM-20948",
+    "NAME=VALUE": "bias_drift=0.01", "C": "25", "M": "ICM-20948", "DEG": "0.3",
 }
 # where an option takes one of a few names, a placeholder after it is the first of them
 AFTER_OPTION = {"--model": "gyrocal"}
