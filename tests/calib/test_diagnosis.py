@@ -69,7 +69,7 @@ def test_the_diagnosis_can_tell_how_to_reveal_every_catalogued_effect():
 
 
 @pytest.mark.parametrize("effect", sorted(REVEALING))
-@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("seed", [0])  # one draw each here; bench/diagnosis_confusion.py draws 10-25 per effect
 def test_concealed_effect_is_named_and_the_fit_improves(effect, seed):
     protocol, accel, seq = REVEALING[effect]
     case, d = _diagnose_case(effect, seed, protocol, accel, seq)
