@@ -35,16 +35,3 @@ def artifacts() -> Path:
     """A folder for test artifacts (screenshots, plots) that CI keeps."""
     ARTIFACTS.mkdir(exist_ok=True)
     return ARTIFACTS
-
-
-# The page and service tests are the long ones (a hand at real speed, a browser, a timeout); run first, they leave the
-# many short numerics tests to fill the workers' last minutes, instead of a long test running on alone at the end.
-_RUN_ORDER = ("webui", "server", "link", "calib")
-
-
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    def rank(item: pytest.Item) -> int:
-        parts = Path(str(item.fspath)).parts
-        return next((i for i, name in enumerate(_RUN_ORDER) if name in parts), len(_RUN_ORDER))
-
-    items.sort(key=rank)  # stable: each module's tests keep their order
