@@ -36,11 +36,11 @@ lint: $(VENV)/.installed-test
 	$(PY) scripts/check_structure.py
 	$(PY) scripts/effects_tables.py --check
 
-## test: install everything the tests need, then run them all (TEST_WORKERS parallel workers: three on two cores, as
-## a third of the tests' time is spent waiting on a hand at real speed, a browser or a timeout, so a third worker fills
-## the cores where a second leaves them idle), with the lint checks beside them (a single core for under 20 s, while
-## the first tests are numerics); either failing fails the target
-TEST_WORKERS ?= 3
+## test: install everything the tests need, then run them all (TEST_WORKERS parallel workers, one a core: the tests that
+## follow a hand at real speed, or time a wearable by when its packets arrive, must not be starved by their
+## neighbours; a third worker on two cores made two of those fail in one run of three), with the lint checks beside
+## them (a single core for under 20 s, while the first tests are numerics); either failing fails the target
+TEST_WORKERS ?= 2
 test: $(VENV)/.installed-test system-deps
 	@$(MAKE) --no-print-directory lint > .lint.log 2>&1 & lint=$$!; \
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist worksteal; tests=$$?; \
