@@ -113,8 +113,8 @@ def evaluate(result: CalibrationResult, tol: Tolerances) -> list[Check]:
                                  f"uncertainty of b_{a} = {v:.2g} °/s (allowed {tol.b_std_max_dps:g} °/s)"))
     # after calibration each full turn must bring the device back to the pose it was put back in
     for turn in result.residuals.get("turns") or []:
-        if isinstance(turn, dict) and _misclosure(turn) is not None:
-            v = float(_misclosure(turn))
+        if isinstance(turn, dict) and (miss := _misclosure(turn)) is not None:
+            v = float(miss)
             axis = turn.get("axis")
             checks.append(_check("closure", axis, v, tol.closure_max_deg, v <= tol.closure_max_deg,
                                  f"the calibrated turn about {axis} ends {v:.2f}° from the pose it was put back in "

@@ -35,11 +35,16 @@ def still_statistics(gyro: np.ndarray, bounds: np.ndarray) -> tuple[np.ndarray, 
         x = np.concatenate((x, np.zeros((1, 3))))
         sum1 = np.add.reduceat(x, edges, axis=0)[0::2].reshape(R, S, 3)
         sum2 = np.add.reduceat(x * x, edges, axis=0)[0::2].reshape(R, S, 3)
+        hi = np.maximum.reduceat(x, edges, axis=0)[0::2].reshape(R, S, 3)
+        lo = np.minimum.reduceat(x, edges, axis=0)[0::2].reshape(R, S, 3)
     else:  # overlapping or unordered windows: running sums
         c1 = np.concatenate((np.zeros((1, 3)), np.cumsum(x, axis=0)))
         c2 = np.concatenate((np.zeros((1, 3)), np.cumsum(x * x, axis=0)))
         sum1 = c1[ends] - c1[starts]
         sum2 = c2[ends] - c2[starts]
+        window = [[x[a:b] if b > a else np.zeros((1, 3)) for a, b in zip(sa, sb, strict=True)] for sa, sb in zip(starts, ends, strict=True)]
+        hi = np.array([[w.max(axis=0) for w in row] for row in window]).reshape(R, S, 3)
+        lo = np.array([[w.min(axis=0) for w in row] for row in window]).reshape(R, S, 3)
     empty = count == 0
     sum1[empty] = 0.0
     sum2[empty] = 0.0
@@ -49,21 +54,20 @@ def still_statistics(gyro: np.ndarray, bounds: np.ndarray) -> tuple[np.ndarray, 
     pooled_dof = np.maximum(count - 1.0, 0.0).sum(axis=1)
     sigma = np.sqrt(ss.sum(axis=1) / np.maximum(pooled_dof, 1.0)[:, None])
     sigma = np.maximum(sigma, MIN_SIGMA_DPS)
+    # a recording has a knock where some rest's sample lies beyond KNOCK_SIGMA of its mean (the common case: none)
+    farthest = np.where(empty[..., None], 0.0, np.maximum(hi - mean, mean - lo))
+    knocked = np.any(farthest > KNOCK_SIGMA * sigma[:, None, :], axis=(1, 2))
     mean = mean + ref
-    for r in range(R):
+    for r in np.flatnonzero(knocked):
         _leave_out_knocks(gyro[r], bounds[r], mean[r], count[r], sigma[r])
     return mean, count, sigma
 
 
 def _leave_out_knocks(gyro: np.ndarray, bounds: np.ndarray, mean: np.ndarray, count: np.ndarray, sigma: np.ndarray) -> None:
     """One recording's rest statistics (``mean`` (S, 3), ``count`` (S,), ``sigma`` (3,)) recomputed in place without
-    its knocks, where it has any."""
+    its knocks."""
     spans = [(s, int(a), int(b)) for s, (a, b) in enumerate(bounds) if b > a]
-    if not spans:
-        return
     devs = [gyro[a:b] - mean[s] for s, a, b in spans]
-    if not any(np.any(np.abs(d) > KNOCK_SIGMA * sigma) for d in devs):
-        return  # the common case: nothing beyond the noise
     scale = np.maximum(1.4826 * np.median(np.abs(np.concatenate(devs)), axis=0), MIN_SIGMA_DPS)
     ss, dof = np.zeros(3), 0.0
     for (s, a, b), d in zip(spans, devs, strict=True):

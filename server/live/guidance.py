@@ -319,6 +319,12 @@ def out_of_tolerance(failed: Sequence[Check], failed_before: Collection[tuple[st
     full one (a working sensor reads a full turn as 360°/k, within the range's readings), so that turn is named with
     what to do; "the sensor may be faulty" is said only when the device failed the same check the time before
     (``failed_before``: (name, axis) of its last failed result)."""
+    undetermined = [c for c in failed if c.name == "k" and (c.value is None or not math.isfinite(c.value))]
+    if undetermined and len(undetermined) == len(failed):
+        axes = " and ".join(ax(c.axis or "") for c in undetermined)
+        return (f"The calibration is incomplete: there was no usable full turn about {axes}, so "
+                f"{'its scale factor is' if len(undetermined) == 1 else 'their scale factors are'} not determined. "
+                f"Record the protocol again with a full 360° turn about each axis, {axes} included.")
     said, todo = [], []
     for c in failed:
         turn = _turn_reading(c) if hand_turns else None
@@ -327,12 +333,6 @@ def out_of_tolerance(failed: Sequence[Check], failed_before: Collection[tuple[st
             todo.append(turn[1])
         else:
             said.append(c.text)
-    undetermined = [c for c in failed if c.name == "k" and (c.value is None or not math.isfinite(c.value))]
-    if undetermined and len(undetermined) == len(failed):
-        axes = " and ".join(ax(c.axis or "") for c in undetermined)
-        return (f"The calibration is incomplete: there was no usable full turn about {axes}, so "
-                f"{'its scale factor is' if len(undetermined) == 1 else 'their scale factors are'} not determined. "
-                f"Record the protocol again with a full 360° turn about each axis, {axes} included.")
     why = "The calibration is outside the tolerances: " + "; ".join(said) + ". "
     if todo:
         why += "Most likely that turn was not a full one: start a new calibration and " + "; ".join(todo) + "."

@@ -85,7 +85,7 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None 
                 "of x, y and z, pausing about 3 s between turns", code="turn_missing", stages=stage_list)
         theta, revolutions = partial_start(data, turned)
         warnings.append(f"{not_turned_text(turned)}: turn the device a full 360 degrees about each axis to calibrate them")
-    fit = _solve(data, theta, extended=False, not_turned=~turned)
+    fit = diagonal = _solve(data, theta, extended=False, not_turned=~turned)
     _check_closed(turns, fit, revolutions)  # before the extended terms, which could fold a turn that is not one away
     choice: ModelChoice = {"asked": extended}
     if not turned.all():
@@ -102,7 +102,8 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None 
         fit, extended, choice = _choose_model(data, fit)
     else:
         choice["reason"] = "not asked for"
-    _check_closed(turns, fit, revolutions)
+    if fit is not diagonal:
+        _check_closed(turns, fit, revolutions)
     result = closure_result(rec, stage_list, turns, stills, data, fit, revolutions, bool(extended), warnings, dt_all)
     result.quality["model_choice"] = choice
     result.quality["placement"] = placement_report(turns, tilts, (place.tilt_prior_deg, place.heading_prior_deg))

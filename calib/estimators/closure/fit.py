@@ -99,6 +99,16 @@ class ClosureData:
 # --------------------------------------------------------------------------- start values
 
 
+def bias_free_angles(data: ClosureData) -> tuple[np.ndarray, np.ndarray]:
+    """Each turn's integrated reading less the rests' pooled mean reading beta, (R, J, 3) deg, and beta (R, 3) deg/s."""
+    R, J = data.R, data.J
+    w = data.still_n[..., None]
+    beta = (data.still_mean * w).sum(axis=1) / np.maximum(w.sum(axis=1), 1.0)
+    integ = np.einsum("tsi,ts->si", data.m, data.dt).reshape(R, J, 3)
+    dur = data.dt.sum(axis=0).reshape(R, J)
+    return integ - beta[:, None, :] * dur[..., None], beta
+
+
 def start_values(data: ClosureData, extended: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Starting parameters from the stills and the per-turn integrated angles.
 
@@ -108,12 +118,8 @@ def start_values(data: ClosureData, extended: bool = False) -> tuple[np.ndarray,
     Returns theta0 (R, P), the turn counts n_j (R, J) and the rank of the k^2 system per recording
     (3 when every axis is turned about).
     """
-    R, J = data.R, data.J
-    w = data.still_n[..., None]
-    beta = (data.still_mean * w).sum(axis=1) / np.maximum(w.sum(axis=1), 1.0)
-    integ = np.einsum("tsi,ts->si", data.m, data.dt).reshape(R, J, 3)
-    dur = data.dt.sum(axis=0).reshape(R, J)
-    a = integ - beta[:, None, :] * dur[..., None]
+    R = data.R
+    a, beta = bias_free_angles(data)
     turns = np.maximum(1.0, np.round(np.linalg.norm(a, axis=2) / FULL_TURN_DEG))
     A = a * a  # (R, J, 3)
     y = (FULL_TURN_DEG * turns) ** 2

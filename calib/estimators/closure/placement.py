@@ -45,11 +45,6 @@ class PlacementModel:
     tilt_prior_deg: float  # tau_t, from the measured tilts (the heading prior where none was measured)
     heading_prior_deg: float  # tau_h, as stated
 
-    @staticmethod
-    def none(n_turns: int) -> PlacementModel:
-        """The model of a device put back exactly: every turn closes onto its start."""
-        return PlacementModel(np.zeros((n_turns, 3)), np.zeros((n_turns, 3, 3)), 0.0, 0.0)
-
 
 def check_heading_prior(value: float | None) -> float:
     """The heading prior in deg: ``HEADING_PRIOR_DEG`` for None; GyrocalError for a value that is not one."""

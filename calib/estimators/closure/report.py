@@ -55,7 +55,6 @@ def closure_result(
     index = {id(s): i for i, s in enumerate(stage_list)}
     J = len(turns)
     whitened = fit.res[: 3 * J].reshape(J, 3)
-    zs_still = fit.res[3 * J : 3 * J + 3 * len(stills)].reshape(-1, 3)
     turn_rows = []
     target = np.zeros((J, 3)) if data.place_target is None else data.place_target[0]
     for j, st in enumerate(turns):
@@ -93,7 +92,7 @@ def closure_result(
             )
     still_rows = []
     rate = data.still_mean[0] @ K.T + theta[3:6]
-    zs = zs_still
+    zs = fit.res[3 * J : 3 * J + 3 * len(stills)].reshape(-1, 3)  # the priors of axes not turned come after
     for s, st in enumerate(stills):
         still_rows.append(
             {
