@@ -87,6 +87,19 @@ class Placement(TypedDict):
     heading_prior_deg: NotRequired[Number]  # the heading prior the calibration carried (closure)
 
 
+class KitQuality(TypedDict, total=False):
+    """A wearable calibrated with its kit (``calib.kit``): the kit's size, the wearable whose frame and clock it was
+    solved in, this one's clock and mounting against it, and how it followed the kit (its departure)."""
+
+    __pydantic_config__ = {"extra": "allow"}  # type: ignore[misc]
+    devices: int
+    reference: str | None
+    clock: Mapping[str, Number]
+    mount_deg: Number
+    consistency: Mapping[str, Any]
+    departed: bool
+
+
 class Quality(TypedDict, total=False):
     """How well the calibration is determined and what it was made from. The first keys are shared by the estimators;
     the later ones are one estimator's own diagnostics (closure, paper, ferraris, multi-position)."""
@@ -105,6 +118,7 @@ class Quality(TypedDict, total=False):
     model_choice: ModelChoice
     placement: Placement  # closure: the tilt each turn was put back with
     undetermined_axes: list[str]  # closure: the axes no turn was about, whose k and b are not determined (null)
+    kit: KitQuality  # calibrated with its kit: calib.kit
     # closure
     turns: int
     stills: int

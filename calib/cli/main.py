@@ -214,6 +214,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
     from calib.cli.diagnose import add_diagnose_parser
+    from calib.cli.kit import add_kit_parsers
     from calib.cli.options import add_recording_arguments
     from calib.estimators.closure.placement import HEADING_PRIOR_DEG
     from calib.estimators.registry import DEFAULT_METHOD, method_names
@@ -282,6 +283,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.set_defaults(func=cmd_bench_methods)
 
     add_diagnose_parser(sub)
+    add_kit_parsers(sub)
 
     p = sub.add_parser("demo", help="simulate a recording, calibrate it and compare with the truth")
     p.add_argument("--seed", type=int, default=1)

@@ -1,0 +1,142 @@
+"""A whole kit in one protocol: accuracy, honesty and the loose-wearable check of ``calib.kit.estimator.calibrate_kit``.
+
+Run: .venv/bin/python bench/kit.py [--sessions 200] [--kits 2,4,6] [--workers 2] [--json out.json]
+
+For each kit size, ``--sessions`` simulated kits (``calib.simulator.kit.simulate_kit``: the paper's sensor errors, noise
+0.03 deg/s, mounting rotations up to 2 deg, clocks within +-1 %, starts 0.5 s apart; seeds 0..sessions-1) are
+calibrated together, and every wearable alone from the same motion (the closure estimator on its own recording).
+Both state the heading prior as 0.001 deg (the simulated tray is put back exactly). Reported per parameter, pooled over
+every wearable of every session: the 95th percentile of |error| for the kit and alone, that of the kit over 1.96 times
+its rms bound, the gain (alone's p95 over the kit's), sd(error / reported std), and the ceiling of the gain: what a
+wearable's k could be known to if the true motion were known exactly (its own readings' noise against sum m^2 of its
+turn), over what its own turns' closure tells.
+
+Loose wearables: ``--sessions`` kits where one wearable (drawn) slips by 1-3 deg during a drawn turn: the share where
+exactly that wearable is flagged; and the share of the kits above (nothing slipped) where any wearable is flagged.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from concurrent.futures import ProcessPoolExecutor
+
+import numpy as np
+
+from calib.errors import GyrocalError
+from calib.kit.estimator import calibrate_kit
+from calib.pipeline import calibrate_protocol
+from calib.simulator.kit import Slip, simulate_kit
+
+HEADING_PRIOR_DEG = 0.001
+NAMES = ("k_x", "k_y", "k_z", "b_x", "b_y", "b_z")
+
+
+def _session(args: tuple[int, int]) -> dict:
+    n, seed = args
+    recs, truth = simulate_kit(seed, n)
+    t0 = time.perf_counter()
+    try:
+        kit = calibrate_kit(recs, heading_prior_deg=HEADING_PRIOR_DEG)
+    except GyrocalError as exc:
+        return {"failed": str(exc)}
+    elapsed = time.perf_counter() - t0
+    rows = []
+    for member, dev, rec in zip(kit.members, truth.devices, recs, strict=True):
+        r = member.result
+        alone = calibrate_protocol(rec, method="closure", heading_prior_deg=HEADING_PRIOR_DEG)[0]
+        truth_v = np.concatenate([dev.k_own, dev.b_own])
+        kit_v = np.concatenate([r.k, r.b]) if r is not None else np.full(6, np.nan)
+        rows.append({
+            "kit_err": (kit_v - truth_v).tolist(),
+            "kit_std": np.concatenate([r.k_std, r.b_std]).tolist() if r is not None else [np.nan] * 6,
+            "kit_bound": np.concatenate([r.k_bound, r.b_bound]).tolist() if r is not None else [np.nan] * 6,
+            "alone_err": (np.concatenate([alone.k, alone.b]) - truth_v).tolist(),
+            "ceiling": _ceiling(rec, truth, dev).tolist(),
+        })
+    return {"rows": rows, "departed": kit.departed, "seconds": elapsed,
+            "protocol_s": float(truth.tray.t[-1])}
+
+
+def _ceiling(rec, truth, dev) -> np.ndarray:
+    """Per axis: sqrt(n sum m^2 / (sum m)^2) over the turn about it, the most knowing the true motion could gain on k."""
+    out = np.full(3, np.nan)
+    for st in truth.tray.stages:
+        if st.kind == "turn" and st.axis in ("x", "y", "z"):
+            a = "xyz".index(st.axis)
+            m = truth.tray.rate[st.start:st.end, a]
+            out[a] = np.sqrt(m.size * np.sum(m**2) / np.sum(m) ** 2)
+    return out
+
+
+def _loose(args: tuple[int, int]) -> dict:
+    n, seed = args
+    rng = np.random.default_rng([seed, 7])
+    device, angle, turn = int(rng.integers(n)), float(rng.uniform(1.0, 3.0)), int(rng.integers(3))
+    recs, _ = simulate_kit(seed, n, slip=Slip(device, angle, turn))
+    try:
+        kit = calibrate_kit(recs, heading_prior_deg=HEADING_PRIOR_DEG)
+    except GyrocalError as exc:
+        return {"failed": str(exc)}
+    names = [m.name for m in kit.members]
+    return {"found": kit.departed == [names[device]], "departed": kit.departed, "angle": angle}
+
+
+def _table(n: int, sessions: list[dict]) -> dict:
+    ok = [s for s in sessions if "rows" in s]
+    rows = [r for s in ok for r in s["rows"]]
+    kit_err = np.abs(np.array([r["kit_err"] for r in rows]))
+    alone_err = np.abs(np.array([r["alone_err"] for r in rows]))
+    kit_std = np.array([r["kit_std"] for r in rows])
+    bound = np.array([r["kit_bound"] for r in rows])
+    z = np.array([r["kit_err"] for r in rows]) / kit_std
+    p95_kit, p95_alone = np.nanpercentile(kit_err, 95, axis=0), np.nanpercentile(alone_err, 95, axis=0)
+    return {
+        "kit": n, "sessions": len(sessions), "failed": len(sessions) - len(ok),
+        "p95_kit": p95_kit.tolist(), "p95_alone": p95_alone.tolist(),
+        "p95_over_bound": (p95_kit / (1.96 * np.sqrt(np.nanmean(bound**2, axis=0)))).tolist(),
+        "gain": (p95_alone / p95_kit).tolist(), "sd_z": np.nanstd(z, axis=0).tolist(),
+        "ceiling_k": np.nanmedian(np.array([r["ceiling"] for r in rows]), axis=0).tolist(),
+        "false_flags": float(np.mean([bool(s["departed"]) for s in ok])),
+        "seconds_median": float(np.median([s["seconds"] for s in ok])),
+        "protocol_s_per_wearable": float(np.median([s["protocol_s"] for s in ok]) / n),
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--sessions", type=int, default=200)
+    ap.add_argument("--kits", default="2,4,6")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--json", default=None)
+    args = ap.parse_args()
+    sizes = [int(v) for v in args.kits.split(",")]
+    out = {"accuracy": [], "loose": []}
+    with ProcessPoolExecutor(args.workers) as pool:
+        for n in sizes:
+            sessions = list(pool.map(_session, [(n, s) for s in range(args.sessions)], chunksize=4))
+            table = _table(n, sessions)
+            loose = list(pool.map(_loose, [(n, s) for s in range(args.sessions)], chunksize=4))
+            found = [s["found"] for s in loose if "found" in s]
+            table_loose = {"kit": n, "sessions": len(loose), "flagged_right": float(np.mean(found)),
+                           "failed": len(loose) - len(found)}
+            out["accuracy"].append(table)
+            out["loose"].append(table_loose)
+            print(f"kit of {n}: {table['sessions']} sessions ({table['failed']} failed), "
+                  f"{table['seconds_median']:.2f} s per kit, protocol {table['protocol_s_per_wearable']:.1f} s per wearable")
+            print("  param   p95 kit    p95 alone  gain   kit/(1.96 bound)  sd(err/std)")
+            for j, name in enumerate(NAMES):
+                print(f"  {name:5} {table['p95_kit'][j]:10.2e} {table['p95_alone'][j]:10.2e} {table['gain'][j]:6.2f}"
+                      f" {table['p95_over_bound'][j]:10.2f} {table['sd_z'][j]:14.2f}")
+            print(f"  ceiling of the k gain (median, x/y/z): {np.round(table['ceiling_k'], 2).tolist()}")
+            print(f"  nothing slipped: flagged in {100 * table['false_flags']:.1f} %;"
+                  f" one slipped 1-3 deg: that one flagged in {100 * table_loose['flagged_right']:.1f} %"
+                  f" ({table_loose['failed']} failed)")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(out, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,125 @@
+"""The rigid coupling of two wearables in one tray: one's readings as a linear map of the other's, at every sample.
+
+Turned together, wearable i and the reference measure one angular velocity in two frames. With g = K m + b (eq. 1)
+for each and g_i = R g_ref, the readings satisfy m_i = A m_ref + c with A = K_i^-1 R K_ref and
+c = K_i^-1 (R b_ref - b_i): twelve numbers that every sample of the motion constrains. ``couple`` resamples
+wearable i onto the reference's clock and fits them, refining the clock map from the same residuals (a sample put
+at the wrong time leaves a residual along the rate's derivative).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+
+from calib.errors import GyrocalError
+from calib.kit.clocks import ClockMap, activity
+from calib.recording import Recording
+
+REFINE_PASSES = 3
+REST_SHARE = 0.3  # the share of samples with the least motion, where a residual is the readings' noise alone
+
+
+@dataclass(frozen=True, eq=False)
+class LinearMap:
+    """One wearable's readings against a reference signal: m = A x + c (deg/s).
+
+    ``cov`` (3, 4, 4): per output axis, the covariance of (A[a, 0], A[a, 1], A[a, 2], c[a]) from the residuals;
+    ``bound_cov`` the same from the readings' noise alone (the Cramér-Rao bound of the linear model).
+    """
+
+    A: np.ndarray
+    c: np.ndarray
+    cov: np.ndarray
+    bound_cov: np.ndarray
+    residual_sd: np.ndarray
+    noise_sd: np.ndarray
+
+    def invert(self, m: np.ndarray) -> np.ndarray:
+        """Readings m as the reference signal: A^-1 (m - c)."""
+        return np.linalg.solve(self.A, (np.asarray(m) - self.c).T).T
+
+
+IDENTITY_MAP = LinearMap(np.eye(3), np.zeros(3), np.zeros((3, 4, 4)), np.zeros((3, 4, 4)), np.zeros(3), np.zeros(3))
+
+
+@dataclass(frozen=True, eq=False)
+class Coupling:
+    """Wearable i against the reference wearable: its clock map, its readings at the reference's sample times (NaN
+    where it did not record) and its readings' map from the reference's."""
+
+    clock: ClockMap
+    readings: np.ndarray
+    map: LinearMap
+
+
+def fit_map(x: np.ndarray, y: np.ndarray, x_noise: np.ndarray, rest: np.ndarray) -> LinearMap:
+    """y = A x + c by least squares over rows of both, the regressors' noise std ``x_noise`` (per axis) taken out of
+    the normal matrix (errors in variables); ``rest``: rows where the residual is the noise alone."""
+    A, c, normal = _fit(x, y, x_noise)
+    resid = y - x @ A.T - c
+    resid_ms = resid.var(axis=0)
+    noise_ms = resid[rest].var(axis=0) if rest.sum() > 20 else resid_ms
+    inv = np.linalg.inv(normal)
+    return LinearMap(A, c, resid_ms[:, None, None] * inv, noise_ms[:, None, None] * inv, np.sqrt(resid_ms), np.sqrt(noise_ms))
+
+
+def reading_noise(rec: Recording) -> np.ndarray:
+    """Each axis' white-noise std (deg/s) from the second differences of the samples with the least motion."""
+    still = resting(rec)
+    d2 = rec.gyro[2:] - 2 * rec.gyro[1:-1] + rec.gyro[:-2]
+    d2 = d2[still[1:-1]]
+    mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
+    return 1.4826 * mad / np.sqrt(6.0)
+
+
+def resting(rec: Recording) -> np.ndarray:
+    """The samples in the quietest share of the recording, judged on the motion smoothed over a quarter second (so
+    that no sample is chosen for its own noise being small)."""
+    width = max(3, int(round(0.25 * rec.fs)))
+    smooth = np.convolve(activity(rec), np.ones(width) / width, mode="same")
+    return np.asarray(smooth <= np.quantile(smooth, REST_SHARE))
+
+
+def resample(rec: Recording, clock: ClockMap, t_ref: np.ndarray) -> np.ndarray:
+    """``rec``'s readings at reference times ``t_ref`` (cubic spline through its samples; NaN outside them)."""
+    t = clock.to_reference(rec.t)
+    out = CubicSpline(t, rec.gyro, axis=0, extrapolate=False)(t_ref)
+    return np.asarray(out, dtype=float)
+
+
+def couple(ref: Recording, rec: Recording, clock: ClockMap, ref_noise: np.ndarray) -> Coupling:
+    """Fit ``rec`` = A ``ref`` + c over every sample both hold, refining ``clock`` as it goes.
+
+    ``ref_noise``: the reference's noise std per axis (deg/s), which biases a plain least-squares fit of A towards
+    zero by noise^2 / rate^2 and is taken out (errors in variables)."""
+    for _ in range(REFINE_PASSES):
+        y = resample(rec, clock, ref.t)
+        keep = np.all(np.isfinite(y), axis=1)
+        if keep.sum() < 50:
+            raise GyrocalError(f"{rec.meta.source or 'a recording'} shares too few samples with the reference to be coupled")
+        x, yk, tk = ref.gyro[keep], y[keep], ref.t[keep]
+        A, c, _ = _fit(x, yk, ref_noise)
+        fitted = x @ A.T + c
+        slope = np.gradient(fitted, tk, axis=0)
+        resid = yk - fitted
+        design = np.stack([slope.ravel(), (slope * tk[:, None]).ravel()], axis=1)
+        shift, *_ = np.linalg.lstsq(design, resid.ravel(), rcond=None)
+        clock = clock.corrected(float(shift[0]), float(shift[1]))
+    rest = np.interp(tk, clock.to_reference(rec.t), resting(rec).astype(float)) > 0.99
+    shift_cov = np.linalg.inv(design.T @ design) * float(resid.var())
+    clock = ClockMap(clock.offset_s, clock.rate, float(np.sqrt(shift_cov[0, 0])), float(clock.rate * np.sqrt(shift_cov[1, 1])))
+    out = np.full_like(y, np.nan)
+    out[keep] = yk
+    return Coupling(clock, out, fit_map(x, yk, ref_noise, rest))
+
+
+def _fit(x: np.ndarray, y: np.ndarray, x_noise: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A, c of y = A x + c by least squares with the regressors' noise taken out of the normal matrix."""
+    X = np.column_stack([x, np.ones(len(x))])
+    normal = X.T @ X
+    normal[:3, :3] -= len(x) * np.diag(np.asarray(x_noise, dtype=float) ** 2)
+    theta = np.linalg.solve(normal, X.T @ y)  # (4, 3)
+    return theta[:3].T, theta[3], normal

@@ -1,0 +1,246 @@
+"""Calibrate a kit: every wearable of one tray from the tray's one rest and three full turns.
+
+1. Clocks: each wearable's stamps are mapped onto the reference's (``calib.kit.clocks``, refined in the coupling).
+2. Coupling: each wearable's readings are fitted as A m_ref + c over every sample (``calib.kit.coupling``).
+3. The kit's mean: every wearable's readings, mapped into the reference's, averaged with weights 1 / noise^2. Its
+   stages are the kit's (a rest is when all rest), and the closure estimator calibrates it with the noise of N
+   wearables averaged: the full turns fix the common scale √N times better than any one wearable's.
+4. Each wearable's K and b follow from the mean's through its coupling (``calib.kit.members``).
+5. Departure: a wearable whose attitude came apart from the others' (``calib.kit.departure``) is left out and the kit
+   solved again without it; it gets its calibration alone, marked departed. Of two wearables that came apart, the
+   one whose own turns close worse departed.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from calib.errors import GyrocalError
+from calib.kit.clocks import IDENTITY, ClockMap, coarse_clock
+from calib.kit.coupling import IDENTITY_MAP, Coupling, LinearMap, couple, fit_map, reading_noise, resting
+from calib.kit.departure import NO_DEPARTURE, departures
+from calib.kit.members import MemberParams, member_params, rest_bias
+from calib.kit.result import Coherence, KitMember, KitResult
+from calib.kit.turns import member_turn_rows
+from calib.numerics.attitude import cumulative_attitude
+from calib.pipeline import calibrate_protocol
+from calib.recording import Recording
+from calib.result import CalibrationResult
+from calib.stages.stage import Stage
+
+METHOD = "kit-closure"
+CONSENSUS_PASSES = 2
+ONE_MOTION_SHARE = 0.99  # the least share of a wearable's motion the coupling must explain for one kit's recordings
+Progress = Callable[[float, str], None]
+
+
+def calibrate_kit(recordings: Sequence[Recording], names: Sequence[str] | None = None, *, protocol: str = "auto",
+                  heading_prior_deg: float | None = None, progress: Progress | None = None) -> KitResult:
+    """Calibrate every wearable of a kit from one recording each of one motion of the tray.
+
+    ``names``: one per recording (default: the recordings' device ids or sources). ``protocol``, ``heading_prior_deg``
+    as for ``calib.pipeline.calibrate_protocol``. Raises GyrocalError when the recordings are not one kit's (fewer than
+    two, names repeated, too little shared motion) or the kit's mean recording holds no protocol."""
+    names = _names(recordings, names)
+    say = progress or (lambda fraction, stage: None)
+    members = list(range(len(recordings)))
+    left_out: list[int] = []
+    alone: dict[int, CalibrationResult | GyrocalError] = {}
+    seen: dict[int, tuple[ClockMap, Coherence]] = {}  # a departed wearable's clock and departure, when it was found
+    while True:
+        say(min(0.1 + 0.3 * len(left_out), 0.8), "aligning the clocks and fitting the coupling")
+        solved = _solve(recordings, members, protocol, heading_prior_deg)
+        flagged = [members[j] for j, d in enumerate(solved.departures) if d.departed]
+        if not flagged:
+            break
+        if len(flagged) >= len(members) - 1:  # two that came apart (or all): the one whose own turns close worse
+            for i in flagged:
+                alone.setdefault(i, _alone(recordings[i], protocol, heading_prior_deg))
+            blamed = max(flagged, key=lambda i: _worst_closure(alone[i]))
+        else:
+            blamed = max(flagged, key=lambda i: solved.departures[members.index(i)].angle_deg)
+        j = members.index(blamed)
+        seen[blamed] = (solved.clocks[blamed], Coherence(solved.maps[blamed].residual_sd, solved.maps[blamed].noise_sd,
+                                                         solved.departures[j]))
+        left_out.append(blamed)
+        members.remove(blamed)
+    say(0.9, "each wearable's calibration")
+    out = _members(recordings, names, solved, members)
+    for i in left_out:
+        alone.setdefault(i, _alone(recordings[i], protocol, heading_prior_deg))
+        out[i] = _departed_member(names[i], alone[i], len(recordings), *seen[i])
+    warnings = [f"{names[i]} came apart from the kit: it moved in its slot, or its readings do not follow the tray's "
+                "motion; it was calibrated alone from its own turns; seat it firmly and calibrate it again"
+                for i in left_out]
+    say(1.0, "done")
+    return KitResult(out, names[solved.ref], solved.mean, warnings)
+
+
+class _Solved:
+    """The kit solved with the wearables ``members`` (the first the reference): clocks, each wearable's map from the
+    kit's mean, the mean's calibration, the times ``span`` of the mean's samples, and each wearable's departure."""
+
+    def __init__(self, members: list[int], clocks: dict[int, ClockMap], maps: dict[int, LinearMap], span: np.ndarray,
+                 mean: CalibrationResult, rates: np.ndarray, noise: np.ndarray) -> None:
+        self.ref, self.members, self.clocks, self.maps, self.span, self.mean = members[0], members, clocks, maps, span, mean
+        rests = [(s.start, s.end) for s in mean.stages if s.kind == "still"]
+        self.departures = departures(rates, span, rests, noise) if len(members) >= 2 else [NO_DEPARTURE]
+
+
+def _solve(recordings: Sequence[Recording], members: list[int], protocol: str, heading_prior_deg: float | None) -> _Solved:
+    ref_i = members[0]
+    ref = recordings[ref_i]
+    ref_noise = reading_noise(ref)
+    clocks: dict[int, ClockMap] = {ref_i: IDENTITY}
+    readings = {ref_i: ref.gyro}
+    maps: dict[int, LinearMap] = {ref_i: IDENTITY_MAP}
+    for i in members[1:]:
+        coupling = couple(ref, recordings[i], coarse_clock(ref, recordings[i]), ref_noise)
+        _check_one_motion(coupling, recordings[i], ref)
+        clocks[i], readings[i], maps[i] = coupling.clock, coupling.readings, coupling.map
+    keep = np.ones(len(ref), dtype=bool)
+    for values in readings.values():
+        keep &= np.all(np.isfinite(values), axis=1)
+    rows = np.nonzero(keep)[0]
+    rows = np.arange(rows[0], rows[-1] + 1)
+    y = {i: readings[i][rows] for i in members}
+    noise = {i: reading_noise(recordings[i]) for i in members}
+    if len(members) >= 2:
+        rest = resting(ref)[rows]
+        for _ in range(CONSENSUS_PASSES):  # each wearable against the mean of the others, not the reference alone
+            mapped = {i: maps[i].invert(y[i]) for i in members}
+            variance = {i: _mapped_variance(maps[i], noise[i]) for i in members}
+            maps = {i: _against_others(i, members, y, mapped, variance, rest) for i in members}
+    mapped = {i: maps[i].invert(y[i]) for i in members}
+    variance = {i: _mapped_variance(maps[i], noise[i]) for i in members}
+    weights = np.array([1.0 / variance[i] for i in members])  # (N, 3)
+    mean_m = np.einsum("da,dna->na", weights, np.array([mapped[i] for i in members])) / weights.sum(axis=0)
+    mean_rec = Recording(ref.t[rows], mean_m, None if ref.accel is None else ref.accel[rows],
+                         None if ref.seq is None else ref.seq[rows],
+                         meta=replace(ref.meta, source=f"the kit's {len(members)} wearables, in {_label(ref)}'s frame"))
+    mean, _ = calibrate_protocol(mean_rec, protocol, "closure", heading_prior_deg=heading_prior_deg)
+    if mean.quality.get("undetermined_axes"):
+        raise GyrocalError("the kit was not turned about every axis: " + "; ".join(mean.warnings[:1]))
+    k_ref, b_ref = np.asarray(mean.k), np.asarray(mean.b)
+    rates = np.array([mapped[i] * k_ref + b_ref for i in members])  # calibrated, in the reference's frame
+    rate_noise = np.array([np.sqrt(variance[i]) * k_ref for i in members])
+    return _Solved(members, clocks, maps, ref.t[rows], mean, rates, rate_noise)
+
+
+def _check_one_motion(coupling: Coupling, rec: Recording, ref: Recording) -> None:
+    """GyrocalError when ``rec`` does not follow ``ref``'s motion at all (another session's recording): a wearable
+    that slipped in its slot still follows it, to a fraction of a percent of the motion."""
+    y = coupling.readings[np.all(np.isfinite(coupling.readings), axis=1)]
+    explained = 1.0 - float(np.sum(coupling.map.residual_sd**2) / np.sum(y.var(axis=0)))
+    if explained < ONE_MOTION_SHARE:
+        raise GyrocalError(f"{_label(rec)} does not follow {_label(ref)}'s motion (the rigid coupling explains "
+                           f"{max(explained, 0.0):.0%} of it): the recordings are not of one kit turned together; give "
+                           "one recording per wearable of the same session")
+
+
+def _against_others(i: int, members: list[int], y: dict[int, np.ndarray], mapped: dict[int, np.ndarray],
+                    variance: dict[int, np.ndarray], rest: np.ndarray) -> LinearMap:
+    others = [j for j in members if j != i]
+    w = np.array([1.0 / variance[j] for j in others])
+    consensus = np.einsum("da,dna->na", w, np.array([mapped[j] for j in others])) / w.sum(axis=0)
+    return fit_map(consensus, y[i], np.sqrt(1.0 / w.sum(axis=0)), rest)
+
+
+def _mapped_variance(linear: LinearMap, noise: np.ndarray) -> np.ndarray:
+    """The noise variance per axis of a wearable's readings mapped into the mean's space."""
+    return (np.linalg.inv(linear.A) ** 2) @ (noise**2)
+
+
+def _members(recordings: Sequence[Recording], names: list[str], solved: _Solved, members: list[int]) -> list[KitMember]:
+    mean = solved.mean
+    k_ref, b_ref = np.asarray(mean.k), np.asarray(mean.b)
+    ref_std = (_or_nan(mean.k_std), _or_nan(mean.b_std))
+    ref_bound = (_or_nan(mean.k_bound), _or_nan(mean.b_bound))
+    out: list[KitMember] = [None] * len(recordings)  # type: ignore[list-item]
+    for j, i in enumerate(members):
+        rec, linear, clock = recordings[i], solved.maps[i], solved.clocks[i]
+        params = member_params(k_ref, b_ref, ref_std, ref_bound, linear, clock)
+        stages = [_own_stage(s, solved.span, rec, clock) for s in mean.stages]
+        at_rest = np.concatenate([np.arange(s.start, s.end) for s in stages if s.kind == "still"])
+        params = rest_bias(params, rec.gyro[at_rest].mean(axis=0), at_rest.size, reading_noise(rec))
+        result = _result(rec, params, clock, solved, names, j, stages)
+        out[i] = KitMember(names[i], result, clock, params.mount_deg,
+                           Coherence(linear.residual_sd, linear.noise_sd, solved.departures[j]))
+    return out
+
+
+def _result(rec: Recording, params: MemberParams, clock: ClockMap, solved: _Solved, names: list[str], j: int,
+            stages: list[Stage]) -> CalibrationResult:
+    """One wearable's calibration as an ordinary result: the mean's stages on its own samples, its own turns'
+    closures with its own calibration, the mean's quality with the kit's block beside it."""
+    mean = solved.mean
+    quality: Any = copy.deepcopy(mean.quality)
+    quality["kit"] = {"devices": len(solved.members), "reference": names[solved.ref], "clock": clock.to_dict(),
+                      "mount_deg": params.mount_deg, "consistency": solved.departures[j].to_dict()}
+    residuals = copy.deepcopy(mean.residuals)
+    g = rec.gyro * params.k + params.b
+    attitude = cumulative_attitude(g, np.diff(rec.t, append=rec.t[-1] + np.median(np.diff(rec.t))))
+    residuals["turns"] = member_turn_rows(residuals.get("turns") or [], stages, attitude, params.mount)
+    return CalibrationResult(
+        k=params.k, b=params.b, method=METHOD, stages=stages, quality=quality, k_std=params.k_std, b_std=params.b_std,
+        k_bound=params.k_bound, b_bound=params.b_bound, noise_dps=reading_noise(rec), residuals=residuals,
+        warnings=list(mean.warnings), iterations=mean.iterations, sample_rate_hz=rec.fs, n_samples=len(rec),
+    )
+
+
+def _own_stage(stage: Stage, span: np.ndarray, rec: Recording, clock: ClockMap) -> Stage:
+    start_s, end_s = float(clock.to_own(span[stage.start])), float(clock.to_own(span[min(stage.end, span.size - 1)]))
+    start, end = (int(v) for v in np.searchsorted(rec.t, [start_s, end_s]))
+    return replace(stage, start=start, end=max(end, start + 1), start_s=start_s, end_s=end_s)
+
+
+def _departed_member(name: str, alone: CalibrationResult | GyrocalError, n_devices: int, clock: ClockMap,
+                     coherence: Coherence) -> KitMember:
+    if isinstance(alone, GyrocalError):
+        return KitMember(name, None, clock, float("nan"), coherence, departed=True, error=str(alone))
+    alone.quality["kit"] = {"devices": n_devices, "reference": None, "clock": clock.to_dict(), "departed": True,
+                            "consistency": coherence.departure.to_dict()}
+    alone.warnings.insert(0, f"{name} came apart from the kit; this is its calibration from its own turns alone")
+    return KitMember(name, alone, clock, float("nan"), coherence, departed=True)
+
+
+def _alone(rec: Recording, protocol: str, heading_prior_deg: float | None) -> CalibrationResult | GyrocalError:
+    try:
+        return calibrate_protocol(rec, protocol, "closure", heading_prior_deg=heading_prior_deg)[0]
+    except GyrocalError as exc:
+        return exc
+
+
+def _worst_closure(result: CalibrationResult | GyrocalError) -> float:
+    if isinstance(result, GyrocalError):
+        return float("inf")
+    rows = result.residuals.get("turns") or []
+    values = [r.get("misclosure_norm_deg", r.get("closure_norm_deg")) for r in rows]
+    return max((float(v) for v in values if v is not None), default=float("inf"))
+
+
+def _or_nan(v: np.ndarray | None) -> np.ndarray:
+    return np.full(3, np.nan) if v is None else np.asarray(v, dtype=float)
+
+
+def _label(rec: Recording) -> str:
+    return rec.meta.device_id or rec.meta.source or "the first wearable"
+
+
+def _names(recordings: Sequence[Recording], names: Sequence[str] | None) -> list[str]:
+    if len(recordings) < 2:
+        raise GyrocalError("a kit needs at least two recordings, one per wearable, of one motion of the tray; to "
+                           "calibrate one wearable use gyrocal calibrate")
+    if names is None:
+        names = [r.meta.device_id or r.meta.source or f"wearable {i + 1}" for i, r in enumerate(recordings)]
+    names = [str(n) for n in names]
+    if len(names) != len(recordings):
+        raise GyrocalError(f"{len(names)} names for {len(recordings)} recordings: give one name per recording")
+    if len(set(names)) != len(names):
+        raise GyrocalError(f"the kit's wearables must have different names; got {', '.join(names)}")
+    return names

@@ -1,0 +1,171 @@
+"""A kit of wearables in one rigid tray, turned together by one hand.
+
+Each wearable sits in its slot with its own small mounting rotation, has its own sensor errors (eq. 1), noise and
+clock, and starts and stops recording at its own moment. The tray follows one protocol script; every wearable samples
+the tray's motion at its own instants. One wearable may slip in its slot during a turn (``Slip``): from then on its
+mounting is another, which no rigid coupling explains.
+
+Clocks follow ``calib.effects.timing.ClockError``: wearable d stamps its samples j / fs on its own clock, which runs
+at (1 + e_d) times true time, so a calibration fitted on its own stamps returns k / (1 + e_d) and b / (1 + e_d)
+(``KitDeviceTruth.k_own``, ``b_own``): the calibration that device should use.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from calib.effects import SimulationConfigError, Trajectory
+from calib.recording import Recording, RecordingMeta
+from calib.simulator.protocol import ProtocolScript, as_float, paper_protocol_script
+from calib.simulator.ranges import ACCEL_NOISE_G, GRAVITY_UP
+from calib.simulator.simulate import SensorParams, check_seed
+from calib.simulator.trajectory import build_trajectory
+
+MOUNT_DEG = 2.0  # largest mounting rotation of a wearable in its slot, deg (drawn uniform in 0..this)
+CLOCK_ERROR = 0.01  # largest clock error of a wearable, fraction (drawn uniform in -this..this)
+START_SPREAD_S = 0.5  # wearables start (and stop) recording up to this long apart, s
+SLIP_S = 0.2  # how long a slip in the slot takes, s
+OVERSAMPLE = 4  # the tray's motion is generated at this many times the wearables' rate
+
+
+@dataclass(frozen=True)
+class Slip:
+    """Wearable ``device`` (0-based) turns by ``angle_deg`` in its slot during turn ``turn`` (0-based) of the script."""
+
+    device: int
+    angle_deg: float
+    turn: int = 1
+
+    def __post_init__(self) -> None:
+        if self.device < 0 or self.turn < 0:
+            raise SimulationConfigError(f"Slip needs a device and a turn index >= 0; got {self.device}, {self.turn}")
+        as_float(self.angle_deg, "Slip.angle_deg", positive=False)
+
+
+@dataclass(frozen=True, eq=False)
+class KitDeviceTruth:
+    """What really happened to one wearable of a simulated kit."""
+
+    k: np.ndarray  # (3,) eq. (1) scale factors against true time
+    b: np.ndarray  # (3,) biases, deg/s of true rate
+    clock_error: float  # e: the wearable's clock runs at (1 + e) times true time
+    start_s: float  # true time of its first sample, s
+    mount: np.ndarray  # (3, 3) device-from-tray rotation before any slip
+    slip_deg: float  # how far it slipped in its slot (0: it did not)
+    slip_t: float | None  # its own stamp (s) when the slip was half done, None without a slip
+
+    @property
+    def k_own(self) -> np.ndarray:
+        """The scale factors a calibration on the wearable's own stamps should find."""
+        return self.k / (1.0 + self.clock_error)
+
+    @property
+    def b_own(self) -> np.ndarray:
+        """The biases a calibration on the wearable's own stamps should find (deg/s)."""
+        return self.b / (1.0 + self.clock_error)
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "k": [float(v) for v in self.k_own], "b": [float(v) for v in self.b_own],
+            "clock_error": self.clock_error, "start_s": self.start_s,
+            "mount_deg": float(np.degrees(Rotation.from_matrix(self.mount).magnitude())),
+            "slip_deg": self.slip_deg, "slip_t": self.slip_t,
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class KitTruth:
+    """The tray's motion and every wearable's truth."""
+
+    devices: tuple[KitDeviceTruth, ...]
+    tray: Trajectory
+    noise_dps: float
+    fs: float
+    seed: int
+
+
+def simulate_kit(
+    seed: int,
+    n_devices: int,
+    *,
+    noise: float = 0.03,
+    fs: float = 104.0,
+    script: ProtocolScript | None = None,
+    params: list[SensorParams] | None = None,
+    mount_deg: float = MOUNT_DEG,
+    clock_error: float = CLOCK_ERROR,
+    start_spread_s: float = START_SPREAD_S,
+    slip: Slip | None = None,
+) -> tuple[list[Recording], KitTruth]:
+    """Simulate ``n_devices`` wearables in one tray following ``script`` (default: the paper protocol, drawn per seed).
+
+    ``params``: each wearable's sensor (default: the paper's ranges, drawn). ``noise``: white-noise std of every
+    gyroscope (deg/s). ``mount_deg``, ``clock_error``, ``start_spread_s``: the largest mounting rotation (deg), clock
+    error (fraction) and difference in start and stop (s) drawn. Returns one recording per wearable (its own stamps
+    t = j / fs, its sample counter) and the truth. Same seed and arguments give the same kit.
+    """
+    seed = check_seed(seed)
+    if not isinstance(n_devices, int) or n_devices < 1:
+        raise SimulationConfigError(f"a kit needs a whole number of wearables >= 1; got {n_devices!r}")
+    fs = as_float(fs, "fs")
+    if params is not None and len(params) != n_devices:
+        raise SimulationConfigError(f"params holds {len(params)} sensors for {n_devices} wearables")
+    if slip is not None and slip.device >= n_devices:
+        raise SimulationConfigError(f"the slipping wearable {slip.device} is not one of the {n_devices} (0-based)")
+    ss_script, ss_traj, *ss_dev = np.random.SeedSequence(seed).spawn(2 + n_devices)
+    if script is None:
+        script = paper_protocol_script(np.random.default_rng(ss_script))
+    tray = build_trajectory(script, fs * OVERSAMPLE, np.random.default_rng(ss_traj))
+    tray_t = np.arange(tray.n + 1) / tray.fs
+    tray_pose = Slerp(tray_t, tray.attitude)
+    slip_window = _slip_window(tray, slip) if slip is not None else None
+
+    recordings, truths = [], []
+    for d in range(n_devices):
+        rng = np.random.default_rng(ss_dev[d])
+        sensor = params[d] if params is not None else SensorParams.paper_random(rng)
+        e = float(rng.uniform(-clock_error, clock_error))
+        start = float(rng.uniform(0.0, start_spread_s))
+        end = tray_t[-1] - float(rng.uniform(0.0, start_spread_s))
+        n = int(np.floor((end - start) * fs * (1.0 + e)))
+        tau = start + np.arange(n + 1) / (fs * (1.0 + e))  # true instants of its samples (and the end of the last)
+        mount = Rotation.from_rotvec(_unit(rng) * np.radians(rng.uniform(0.0, mount_deg)))
+        in_tray = mount.inv()  # the device's axes in tray axes
+        slip_deg, slip_t = 0.0, None
+        if slip_window is not None and slip is not None and slip.device == d:
+            t0, t1 = slip_window
+            progress = np.clip((tau - t0) / (t1 - t0), 0.0, 1.0)
+            progress = progress * progress * (3.0 - 2.0 * progress)  # a smooth step
+            in_tray = Rotation.from_rotvec(np.outer(progress, _unit(rng)) * np.radians(slip.angle_deg)) * in_tray
+            slip_deg, slip_t = float(slip.angle_deg), float((0.5 * (t0 + t1) - start) * (1.0 + e))
+        pose = tray_pose(tau) * in_tray
+        rate = np.degrees((pose[:-1].inv() * pose[1:]).as_rotvec()) * (fs * (1.0 + e))
+        accel = pose[:-1].inv().apply(GRAVITY_UP)
+        gyro = sensor.reading(rate) + noise * rng.standard_normal(rate.shape)
+        accel = accel + ACCEL_NOISE_G * rng.standard_normal(accel.shape)
+        seq = np.arange(n, dtype=np.int64)
+        recordings.append(Recording(
+            seq / fs, gyro, accel, seq,
+            meta=RecordingMeta(sample_rate_hz=fs, device_id=f"kit-{seed}-{d + 1}", sensor_model="simulated",
+                               source=f"simulate_kit(seed={seed}) wearable {d + 1}"),
+        ))
+        truths.append(KitDeviceTruth(sensor.k.copy(), sensor.b.copy(), e, start, mount.as_matrix(), slip_deg, slip_t))
+    return recordings, KitTruth(tuple(truths), tray, float(noise), fs, seed)
+
+
+def _unit(rng: np.random.Generator) -> np.ndarray:
+    v = rng.standard_normal(3)
+    return v / np.linalg.norm(v)
+
+
+def _slip_window(tray: Trajectory, slip: Slip) -> tuple[float, float]:
+    """When the slip happens (true time, s): in the middle of the turn it is asked for."""
+    turns = [s for s in tray.stages if s.kind == "turn"]
+    if slip.turn >= len(turns):
+        raise SimulationConfigError(f"the script has {len(turns)} turns; a slip in turn {slip.turn} (0-based) cannot happen")
+    turn = turns[slip.turn]
+    middle = 0.5 * (turn.start_s + turn.end_s)
+    return middle - 0.5 * SLIP_S, middle + 0.5 * SLIP_S

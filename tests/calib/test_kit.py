@@ -1,0 +1,119 @@
+"""A whole kit in one protocol (calib.kit): wearables in one tray, each with its own clock, mounting and errors, turned
+together; every one calibrated from the kit's motion, and one that slipped in its slot named."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from calib.cli.main import main
+from calib.errors import GyrocalError
+from calib.kit.clocks import coarse_clock
+from calib.kit.coupling import couple, reading_noise
+from calib.kit.estimator import calibrate_kit
+from calib.pipeline import calibrate_protocol
+from calib.simulator.kit import Slip, simulate_kit
+
+PRIOR_DEG = 0.001  # the simulated tray is put back exactly
+
+
+def _true_clock(truth, i: int) -> tuple[float, float]:
+    d0, d = truth.devices[0], truth.devices[i]
+    return (1 + d0.clock_error) * (d.start_s - d0.start_s), (1 + d0.clock_error) / (1 + d.clock_error)
+
+
+def test_a_simulated_kit_gives_each_wearable_its_own_clock_mounting_and_errors() -> None:
+    recs, truth = simulate_kit(5, 3)
+    assert len(recs) == len(truth.devices) == 3
+    assert len({r.meta.device_id for r in recs}) == 3
+    assert len({round(d.clock_error, 9) for d in truth.devices}) == 3
+    assert all(0 < np.degrees(np.arccos((np.trace(d.mount) - 1) / 2)) <= 2.0 for d in truth.devices)
+    for rec, d in zip(recs, truth.devices, strict=True):  # each wearable alone finds its own-clock calibration
+        result = calibrate_protocol(rec, method="closure", heading_prior_deg=PRIOR_DEG)[0]
+        assert np.all(np.abs(result.k - d.k_own) < 5 * result.k_std)
+    with pytest.raises(GyrocalError, match="slipping wearable 3"):
+        simulate_kit(1, 3, slip=Slip(3, 1.0))
+
+
+def test_the_motion_aligns_the_clocks_to_a_fraction_of_a_sample_and_a_few_ppm() -> None:
+    recs, truth = simulate_kit(8, 3)
+    for i in (1, 2):
+        coupling = couple(recs[0], recs[i], coarse_clock(recs[0], recs[i]), reading_noise(recs[0]))
+        offset, rate = _true_clock(truth, i)
+        assert abs(coupling.clock.offset_s - offset) < 1e-3  # a tenth of a sample at 104 Hz
+        assert abs(coupling.clock.rate - rate) < 1e-5
+        assert abs(coupling.clock.rate - rate) < 5 * coupling.clock.rate_std + 2e-6
+
+
+def test_every_wearable_of_a_kit_is_calibrated_within_its_uncertainty_on_its_own_clock() -> None:
+    recs, truth = simulate_kit(11, 4)
+    kit = calibrate_kit(recs, heading_prior_deg=PRIOR_DEG)
+    assert kit.departed == [] and kit.warnings == []
+    assert [m.name for m in kit.members] == [r.meta.device_id for r in recs]
+    for member, d in zip(kit.members, truth.devices, strict=True):
+        r = member.result
+        assert r is not None and r.method == "kit-closure"
+        assert np.all(np.abs(r.k - d.k_own) < 4.5 * r.k_std), (r.k - d.k_own) / r.k_std
+        assert np.all(np.abs(r.b - d.b_own) < 4.5 * r.b_std), (r.b - d.b_own) / r.b_std
+        assert np.all(r.k_std < 1e-4) and np.all(r.b_std < 3e-3)
+        assert member.coherence is not None and 0.7 < member.coherence.ratio < 1.5
+        assert r.quality["kit"]["devices"] == 4
+        r.to_doc()  # an ordinary result: it validates against the published schema
+        turns = r.residuals["turns"]
+        assert len(turns) == 3 and all(t["misclosure_norm_deg"] < 0.1 for t in turns)
+        assert [s.kind for s in r.stages].count("turn") == 3 and r.stages[-1].end <= r.n_samples
+    # the mounting rotation found is the simulated one, within a hundredth of a degree
+    for member, d in zip(kit.members[1:], truth.devices[1:], strict=True):
+        rel = d.mount @ truth.devices[0].mount.T
+        assert abs(member.mount_deg - np.degrees(np.arccos((np.trace(rel) - 1) / 2))) < 0.02
+
+
+@pytest.mark.parametrize(("n", "device", "turn"), [(3, 1, 0), (2, 0, 2), (4, 3, 1)])
+def test_a_wearable_that_slips_in_its_slot_is_named_and_the_rest_of_the_kit_is_calibrated_without_it(n, device, turn) -> None:
+    recs, truth = simulate_kit(21 + n, n, slip=Slip(device, 1.2, turn))
+    kit = calibrate_kit(recs, heading_prior_deg=PRIOR_DEG)
+    name = recs[device].meta.device_id
+    assert kit.departed == [name]
+    assert any(name in w and "came apart" in w for w in kit.warnings)
+    slipped = kit.members[device]
+    assert slipped.departed and slipped.result is not None and slipped.result.quality["kit"]["departed"] is True
+    assert slipped.coherence is not None and slipped.coherence.departure.angle_deg > 0.2
+    for i, (member, d) in enumerate(zip(kit.members, truth.devices, strict=True)):
+        if i == device:
+            continue
+        assert not member.departed
+        assert np.all(np.abs(member.result.k - d.k_own) < 4.5 * member.result.k_std)
+    data = kit.to_json()
+    json.dumps(data, allow_nan=False)
+    assert data["kit"]["departed"] == [name]
+    assert data["devices"][device]["departed"] is True
+
+
+def test_recordings_that_are_not_one_kit_are_refused_with_what_to_do() -> None:
+    a, _ = simulate_kit(1, 2)
+    b, _ = simulate_kit(2, 2)
+    with pytest.raises(GyrocalError, match="does not follow .* same session"):
+        calibrate_kit([a[0], b[1]])
+    with pytest.raises(GyrocalError, match="at least two recordings"):
+        calibrate_kit(a[:1])
+    with pytest.raises(GyrocalError, match="different names"):
+        calibrate_kit(a, ["left", "left"])
+
+
+def test_the_command_line_calibrates_a_kit_of_files_and_says_who_departed(tmp_path, capsys) -> None:
+    assert main(["simulate-kit", "--seed", "4", "--devices", "3", "--loose", "2", "--slip-deg", "1.5", "-o", str(tmp_path)]) == 0
+    files = sorted(str(p) for p in tmp_path.glob("wearable-*.csv"))
+    assert len(files) == 3
+    capsys.readouterr()
+    assert main(["calibrate-kit", *files, "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert [d["device_id"] for d in data["devices"]] == ["wearable-1", "wearable-2", "wearable-3"]
+    assert data["kit"]["departed"] == ["wearable-2"]
+    assert data["devices"][0]["result"]["method"] == "kit-closure"
+    assert main(["calibrate-kit", *files, "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    assert "wearable-2: DEPARTED" in text and "Departed: wearable-2" in text
+    assert main(["calibrate-kit", files[0]]) == 2
+    assert "at least two recordings" in capsys.readouterr().err
