@@ -41,3 +41,15 @@ def wearable(*, seed: int, scenario: str, speed: float, name: str, rate_hz: floa
     else:
         source = ScriptedSource(seed=seed, scenario=scenario, noise_dps=noise_dps)
     return WEARABLES[model](source, seed=seed, speed=speed, name=name, rate_hz=rate_hz)
+
+
+def kit(*, seed: int, n: int, speed: float, names: list[str], rate_hz: float | None, noise_dps: float,
+        model: str = "gyrocal", loose: int | None = None, drop: int | None = None) -> list[Wearable]:
+    """``n`` simulated wearables speaking ``model``'s protocol, riding in one tray that one scripted clinician turns
+    through the protocol whenever their streams start (``mock_device.kit``); ``loose`` (0-based) slips in its slot
+    during the second turn, ``drop`` loses its link for a moment in the first."""
+    from .kit import KitSource, Tray
+
+    tray = Tray(seed, n, noise_dps=noise_dps, loose=loose, drop=drop)
+    return [WEARABLES[model](KitSource(tray, i), seed=seed * 1000 + i + 1, speed=speed, name=names[i], rate_hz=rate_hz)
+            for i in range(n)]

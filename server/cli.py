@@ -63,6 +63,13 @@ def register(sub: Any) -> None:
         "--mock-model", default="gyrocal", metavar="NAME",
         help="the protocol the simulated wearables speak: gyrocal, polar-pmd, metawear or thingy52 (default gyrocal)"
     )
+    p.add_argument("--mock-kit", action="store_true",
+                   help="the N simulated wearables ride in one tray that one clinician turns through the protocol: a kit to "
+                        "calibrate together (POST /kits/calibrate)")
+    p.add_argument("--mock-kit-loose", type=int, default=None, metavar="I",
+                   help="with --mock-kit: the I-th simulated wearable (from 1) slips in its slot during the second turn")
+    p.add_argument("--mock-kit-drop", type=int, default=None, metavar="I",
+                   help="with --mock-kit: the I-th simulated wearable (from 1) goes out of range for 1.5 s in the first turn")
     p.add_argument(
         "--ble",
         action="store_true",
@@ -194,6 +201,11 @@ def build_service(args: argparse.Namespace) -> Any:
         raise ServiceError("--mock-first takes the first simulated wearable's number, from 1 to 100000")
     if not (args.mock_speed > 0):
         raise ServiceError("--mock-speed must be a positive number (1 = real time)")
+    if args.mock_kit and args.mock < 2:
+        raise ServiceError("--mock-kit puts the simulated wearables in one tray: give at least two with --mock N")
+    for flag, value in (("--mock-kit-loose", args.mock_kit_loose), ("--mock-kit-drop", args.mock_kit_drop)):
+        if value is not None and not (args.mock_kit and 1 <= value <= args.mock):
+            raise ServiceError(f"{flag} names one of the kit's simulated wearables, from 1 to {args.mock}, with --mock-kit")
     if not (0.5 <= args.header_timeout_s <= 600):
         raise ServiceError("--header-timeout-s must be between 0.5 and 600 seconds")
     if not (16 <= args.max_connections <= 1_000_000):
@@ -266,8 +278,9 @@ def build_service(args: argparse.Namespace) -> Any:
     devices = DeviceManager(ble=args.ble, ble_adapters=adapters, ble_slots=args.ble_slots)
     if simulators is not None:
         devices.add_mocks(simulators, args.mock, speed=args.mock_speed, seed=args.mock_seed, scenarios=scenarios, rate_hz=args.mock_rate,
-                          first=args.mock_first,
-                          model=args.mock_model)
+                          first=args.mock_first, model=args.mock_model, kit=args.mock_kit,
+                          loose=None if args.mock_kit_loose is None else args.mock_kit_loose - 1,
+                          drop=None if args.mock_kit_drop is None else args.mock_kit_drop - 1)
     return Service(settings, store=store, devices=devices)
 
 

@@ -43,6 +43,9 @@ class Simulators(Protocol):
     def wearable(self, *, seed: int, scenario: str, speed: float, name: str, rate_hz: float | None, noise_dps: float,
                  model: str, service_url: Callable[[], str | None]) -> Any: ...
 
+    def kit(self, *, seed: int, n: int, speed: float, names: list[str], rate_hz: float | None, noise_dps: float,
+            model: str, loose: int | None, drop: int | None) -> list[Any]: ...
+
 
 class SimulatorsUnavailable(Exception):
     """No package of simulated wearables could be loaded; the message says which module failed and what installs it."""
@@ -211,10 +214,15 @@ class DeviceManager:
         noise_dps: float = 0.03,
         model: str = "gyrocal",
         first: int = 1,
+        kit: bool = False,
+        loose: int | None = None,
+        drop: int | None = None,
     ) -> list[Device]:
         """N simulated wearables mock-``first`` … mock-(first+N-1) speaking ``model``'s protocol, each performing its
         scenario when streaming starts. ``rate_hz`` None: the model's streaming rate. A wearable's number alone sets
-        its sensor, so two gateways simulating mock-8 simulate the same wearable."""
+        its sensor, so two gateways simulating mock-8 simulate the same wearable. ``kit``: the N ride in one tray that one
+        scripted clinician turns (``loose``: the one, 0-based, that slips in its slot; ``drop``: the one that loses its link
+        for a moment), instead of each its scenario."""
         import time
 
         from .link import InProcessLink, ReconnectPolicy
@@ -223,12 +231,18 @@ class DeviceManager:
             return time.monotonic() * speed
 
         scenarios = scenarios or ["normal"]
+        ids = [f"mock-{i}" for i in range(first, first + n)]
+        tray: list[Any] = []
+        if kit:
+            tray = simulators.kit(seed=seed * 1000 + first, n=n, speed=speed, names=ids, rate_hz=rate_hz, noise_dps=noise_dps,
+                                  model=model, loose=loose, drop=drop)
         out = []
-        for i in range(first, first + n):
-            scenario = scenarios[(i - 1) % len(scenarios)]
+        for j, i in enumerate(range(first, first + n)):
+            scenario = "kit" if kit else scenarios[(i - 1) % len(scenarios)]
             dev_seed = seed * 1000 + i
-            wearable = simulators.wearable(seed=dev_seed, scenario=scenario, speed=speed, name=f"mock-{i}", rate_hz=rate_hz,
-                                           noise_dps=noise_dps, model=model, service_url=lambda: self.service_url)
+            wearable = tray[j] if kit else simulators.wearable(
+                seed=dev_seed, scenario=scenario, speed=speed, name=f"mock-{i}", rate_hz=rate_hz, noise_dps=noise_dps,
+                model=model, service_url=lambda: self.service_url)
             # the reconnection backoff runs on wall time: scale it with the simulated clock
             policy = ReconnectPolicy(initial_delay_s=0.25 / speed, max_delay_s=max(0.05, 5.0 / speed), timeout_s=60.0)
             dev = Device(

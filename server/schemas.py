@@ -198,6 +198,33 @@ class SessionStarted(BaseModel):
     events: str
 
 
+class KitStart(BaseModel):
+    """The wearables of one tray to calibrate together (each once)."""
+
+    model_config = ConfigDict(extra="forbid")
+    devices: list[str] = Field(min_length=2, max_length=20, description="the wearables' ids, at least two")
+    max_attempts: int | None = Field(None, ge=1, le=5, strict=True, description="tries per turn before a wearable's "
+                                     "session fails (default 3)")
+
+
+class KitMemberStarted(BaseModel):
+    device_id: str
+    session_id: str = Field(description="the wearable's own session (GET /sessions/{session_id})")
+
+
+class KitStarted(BaseModel):
+    session_id: str = Field(description="the kit's session: GET /sessions/{session_id} shows it with every wearable")
+    devices: list[KitMemberStarted]
+    state: State
+    url: str
+
+
+class KitAcceptOut(BaseModel):
+    session_id: str
+    calibrations: list[CalibrationRecord] = Field(description="one per wearable that passed: each its device's calibration now")
+    not_accepted: dict[str, str] = Field(default_factory=dict, description="the wearables that did not pass, and why")
+
+
 SENSOR_TEXT = r"^[^\x00-\x1f\x7f]*$"  # printable text: no NUL or other control characters
 
 

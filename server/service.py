@@ -15,6 +15,7 @@ from .config import Settings
 from .devices import DeviceManager
 from .fleet_events import FleetEvents
 from .gateway import WRITE_HOLDER, GatewayAgent
+from .live.kit_session import KitSession
 from .live.runner import LiveSession
 from .live.snapshot import stored_snapshot
 from .live.snapshot_schema import SessionOut
@@ -44,6 +45,7 @@ class Service:
         self.devices = devices or DeviceManager()
         self.pool = ComputePool(memory_mb=settings.worker_memory_mb)
         self.sessions: dict[str, LiveSession] = {}
+        self.kits: dict[str, KitSession[LiveSession]] = {}  # kit sessions, by id: their wearables' sessions are in ``sessions``
         self.active: dict[str, str] = {}  # device id -> running session id
         self.writing: set[str] = set()  # devices a calibration is being written to
         self.verify_runs: dict[str, VerifyRun] = {}  # live verification turns, by id (kept after they end, for the page)

@@ -19,6 +19,7 @@ from calib.kit.clocks import ClockMap, activity
 from calib.recording import Recording
 
 REFINE_PASSES = 3
+GAP_STEPS = 1.5  # an interval this many times the usual one is samples lost
 REST_SHARE = 0.3  # the share of samples with the least motion, where a residual is the readings' noise alone
 
 
@@ -57,7 +58,10 @@ class Coupling:
 
 def fit_map(x: np.ndarray, y: np.ndarray, x_noise: np.ndarray, rest: np.ndarray) -> LinearMap:
     """y = A x + c by least squares over rows of both, the regressors' noise std ``x_noise`` (per axis) taken out of
-    the normal matrix (errors in variables); ``rest``: rows where the residual is the noise alone."""
+    the normal matrix (errors in variables); ``rest``: rows where the residual is the noise alone. Rows either lacks
+    (NaN: samples lost) are left out."""
+    both = np.all(np.isfinite(x), axis=1) & np.all(np.isfinite(y), axis=1)
+    x, y, rest = x[both], y[both], rest[both]
     A, c, normal = _fit(x, y, x_noise)
     resid = y - x @ A.T - c
     resid_ms = resid.var(axis=0)
@@ -84,10 +88,14 @@ def resting(rec: Recording) -> np.ndarray:
 
 
 def resample(rec: Recording, clock: ClockMap, t_ref: np.ndarray) -> np.ndarray:
-    """``rec``'s readings at reference times ``t_ref`` (cubic spline through its samples; NaN outside them)."""
+    """``rec``'s readings at reference times ``t_ref`` (cubic spline through its samples; NaN outside them and across
+    samples it lost, where no reading says how it turned)."""
     t = clock.to_reference(rec.t)
-    out = CubicSpline(t, rec.gyro, axis=0, extrapolate=False)(t_ref)
-    return np.asarray(out, dtype=float)
+    out = np.asarray(CubicSpline(t, rec.gyro, axis=0, extrapolate=False)(t_ref), dtype=float)
+    step = np.diff(t)
+    for j in np.nonzero(step > GAP_STEPS * np.median(step))[0]:
+        out[(t_ref > t[j]) & (t_ref < t[j + 1])] = np.nan
+    return out
 
 
 def couple(ref: Recording, rec: Recording, clock: ClockMap, ref_noise: np.ndarray) -> Coupling:

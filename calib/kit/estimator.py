@@ -118,8 +118,7 @@ def _solve(recordings: Sequence[Recording], members: list[int], protocol: str, h
             maps = {i: _against_others(i, members, y, mapped, variance, rest) for i in members}
     mapped = {i: maps[i].invert(y[i]) for i in members}
     variance = {i: _mapped_variance(maps[i], noise[i]) for i in members}
-    weights = np.array([1.0 / variance[i] for i in members])  # (N, 3)
-    mean_m = np.einsum("da,dna->na", weights, np.array([mapped[i] for i in members])) / weights.sum(axis=0)
+    mean_m = _weighted_mean([mapped[i] for i in members], [variance[i] for i in members])
     mean_rec = Recording(ref.t[rows], mean_m, None if ref.accel is None else ref.accel[rows],
                          None if ref.seq is None else ref.seq[rows],
                          meta=replace(ref.meta, source=f"the kit's {len(members)} wearables, in {_label(ref)}'s frame"))
@@ -127,7 +126,8 @@ def _solve(recordings: Sequence[Recording], members: list[int], protocol: str, h
     if mean.quality.get("undetermined_axes"):
         raise GyrocalError("the kit was not turned about every axis: " + "; ".join(mean.warnings[:1]))
     k_ref, b_ref = np.asarray(mean.k), np.asarray(mean.b)
-    rates = np.array([mapped[i] * k_ref + b_ref for i in members])  # calibrated, in the reference's frame
+    # calibrated, in the reference's frame; where a wearable lost samples, the kit's mean stands in (no departure)
+    rates = np.array([np.where(np.isfinite(mapped[i]), mapped[i], mean_m) * k_ref + b_ref for i in members])
     rate_noise = np.array([np.sqrt(variance[i]) * k_ref for i in members])
     return _Solved(members, clocks, maps, ref.t[rows], mean, rates, rate_noise)
 
@@ -146,9 +146,16 @@ def _check_one_motion(coupling: Coupling, rec: Recording, ref: Recording) -> Non
 def _against_others(i: int, members: list[int], y: dict[int, np.ndarray], mapped: dict[int, np.ndarray],
                     variance: dict[int, np.ndarray], rest: np.ndarray) -> LinearMap:
     others = [j for j in members if j != i]
-    w = np.array([1.0 / variance[j] for j in others])
-    consensus = np.einsum("da,dna->na", w, np.array([mapped[j] for j in others])) / w.sum(axis=0)
-    return fit_map(consensus, y[i], np.sqrt(1.0 / w.sum(axis=0)), rest)
+    consensus = _weighted_mean([mapped[j] for j in others], [variance[j] for j in others])
+    return fit_map(consensus, y[i], np.sqrt(1.0 / sum(1.0 / variance[j] for j in others)), rest)
+
+
+def _weighted_mean(signals: list[np.ndarray], variances: list[np.ndarray]) -> np.ndarray:
+    """The inverse-variance weighted mean of signals (n, 3), each row over the signals that hold it (NaN: lost)."""
+    stack = np.array(signals)
+    weights = np.where(np.isfinite(stack), 1.0 / np.array(variances)[:, None, :], 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.nansum(stack * weights, axis=0) / weights.sum(axis=0)
 
 
 def _mapped_variance(linear: LinearMap, noise: np.ndarray) -> np.ndarray:
@@ -185,7 +192,7 @@ def _result(rec: Recording, params: MemberParams, clock: ClockMap, solved: _Solv
     residuals = copy.deepcopy(mean.residuals)
     g = rec.gyro * params.k + params.b
     attitude = cumulative_attitude(g, np.diff(rec.t, append=rec.t[-1] + np.median(np.diff(rec.t))))
-    residuals["turns"] = member_turn_rows(residuals.get("turns") or [], stages, attitude, params.mount)
+    residuals["turns"] = member_turn_rows(residuals.get("turns") or [], stages, attitude, params.mount, rec.t)
     return CalibrationResult(
         k=params.k, b=params.b, method=METHOD, stages=stages, quality=quality, k_std=params.k_std, b_std=params.b_std,
         k_bound=params.k_bound, b_bound=params.b_bound, noise_dps=reading_noise(rec), residuals=residuals,

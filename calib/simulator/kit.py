@@ -87,6 +87,63 @@ class KitTruth:
     seed: int
 
 
+class KitTray:
+    """One performance of the tray: its motion, drawn once, and each wearable in it, drawn on demand at its own rate
+    (the draws of one wearable depend on the seed and its place only, so wearables of one tray may be asked for at
+    different moments and rates)."""
+
+    def __init__(self, seed: int, n_devices: int, *, noise: float = 0.03, script: ProtocolScript | None = None,
+                 params: list[SensorParams] | None = None, mount_deg: float = MOUNT_DEG,
+                 clock_error: float = CLOCK_ERROR, start_spread_s: float = START_SPREAD_S, slip: Slip | None = None,
+                 motion_fs: float = 104.0) -> None:
+        self.seed = check_seed(seed)
+        if not isinstance(n_devices, int) or n_devices < 1:
+            raise SimulationConfigError(f"a kit needs a whole number of wearables >= 1; got {n_devices!r}")
+        if params is not None and len(params) != n_devices:
+            raise SimulationConfigError(f"params holds {len(params)} sensors for {n_devices} wearables")
+        if slip is not None and slip.device >= n_devices:
+            raise SimulationConfigError(f"the slipping wearable {slip.device} is not one of the {n_devices} (0-based)")
+        self.n_devices, self.noise, self.params, self.slip = n_devices, float(noise), params, slip
+        self.mount_deg, self.clock_error, self.start_spread_s = mount_deg, clock_error, start_spread_s
+        ss_script, ss_traj, *self._ss_dev = np.random.SeedSequence(self.seed).spawn(2 + n_devices)
+        if script is None:
+            script = paper_protocol_script(np.random.default_rng(ss_script))
+        self.tray = build_trajectory(script, as_float(motion_fs, "fs") * OVERSAMPLE, np.random.default_rng(ss_traj))
+        self._tray_t = np.arange(self.tray.n + 1) / self.tray.fs
+        self._pose = Slerp(self._tray_t, self.tray.attitude)
+        self._slip_window = _slip_window(self.tray, slip) if slip is not None else None
+
+    def wearable(self, d: int, fs: float) -> tuple[Recording, KitDeviceTruth]:
+        """Wearable ``d`` (0-based) of the tray sampled at ``fs`` Hz on its own clock: its recording and truth."""
+        fs = as_float(fs, "fs")
+        rng = np.random.default_rng(self._ss_dev[d])
+        sensor = self.params[d] if self.params is not None else SensorParams.paper_random(rng)
+        e = float(rng.uniform(-self.clock_error, self.clock_error))
+        start = float(rng.uniform(0.0, self.start_spread_s))
+        end = self._tray_t[-1] - float(rng.uniform(0.0, self.start_spread_s))
+        n = int(np.floor((end - start) * fs * (1.0 + e)))
+        tau = start + np.arange(n + 1) / (fs * (1.0 + e))  # true instants of its samples (and the end of the last)
+        mount = Rotation.from_rotvec(_unit(rng) * np.radians(rng.uniform(0.0, self.mount_deg)))
+        in_tray = mount.inv()  # the device's axes in tray axes
+        slip_deg, slip_t = 0.0, None
+        if self._slip_window is not None and self.slip is not None and self.slip.device == d:
+            t0, t1 = self._slip_window
+            progress = np.clip((tau - t0) / (t1 - t0), 0.0, 1.0)
+            progress = progress * progress * (3.0 - 2.0 * progress)  # a smooth step
+            in_tray = Rotation.from_rotvec(np.outer(progress, _unit(rng)) * np.radians(self.slip.angle_deg)) * in_tray
+            slip_deg, slip_t = float(self.slip.angle_deg), float((0.5 * (t0 + t1) - start) * (1.0 + e))
+        pose = self._pose(tau) * in_tray
+        rate = np.degrees((pose[:-1].inv() * pose[1:]).as_rotvec()) * (fs * (1.0 + e))
+        accel = pose[:-1].inv().apply(GRAVITY_UP)
+        gyro = sensor.reading(rate) + self.noise * rng.standard_normal(rate.shape)
+        accel = accel + ACCEL_NOISE_G * rng.standard_normal(accel.shape)
+        seq = np.arange(n, dtype=np.int64)
+        rec = Recording(seq / fs, gyro, accel, seq,
+                        meta=RecordingMeta(sample_rate_hz=fs, device_id=f"kit-{self.seed}-{d + 1}", sensor_model="simulated",
+                                           source=f"simulate_kit(seed={self.seed}) wearable {d + 1}"))
+        return rec, KitDeviceTruth(sensor.k.copy(), sensor.b.copy(), e, start, mount.as_matrix(), slip_deg, slip_t)
+
+
 def simulate_kit(
     seed: int,
     n_devices: int,
@@ -107,53 +164,10 @@ def simulate_kit(
     error (fraction) and difference in start and stop (s) drawn. Returns one recording per wearable (its own stamps
     t = j / fs, its sample counter) and the truth. Same seed and arguments give the same kit.
     """
-    seed = check_seed(seed)
-    if not isinstance(n_devices, int) or n_devices < 1:
-        raise SimulationConfigError(f"a kit needs a whole number of wearables >= 1; got {n_devices!r}")
-    fs = as_float(fs, "fs")
-    if params is not None and len(params) != n_devices:
-        raise SimulationConfigError(f"params holds {len(params)} sensors for {n_devices} wearables")
-    if slip is not None and slip.device >= n_devices:
-        raise SimulationConfigError(f"the slipping wearable {slip.device} is not one of the {n_devices} (0-based)")
-    ss_script, ss_traj, *ss_dev = np.random.SeedSequence(seed).spawn(2 + n_devices)
-    if script is None:
-        script = paper_protocol_script(np.random.default_rng(ss_script))
-    tray = build_trajectory(script, fs * OVERSAMPLE, np.random.default_rng(ss_traj))
-    tray_t = np.arange(tray.n + 1) / tray.fs
-    tray_pose = Slerp(tray_t, tray.attitude)
-    slip_window = _slip_window(tray, slip) if slip is not None else None
-
-    recordings, truths = [], []
-    for d in range(n_devices):
-        rng = np.random.default_rng(ss_dev[d])
-        sensor = params[d] if params is not None else SensorParams.paper_random(rng)
-        e = float(rng.uniform(-clock_error, clock_error))
-        start = float(rng.uniform(0.0, start_spread_s))
-        end = tray_t[-1] - float(rng.uniform(0.0, start_spread_s))
-        n = int(np.floor((end - start) * fs * (1.0 + e)))
-        tau = start + np.arange(n + 1) / (fs * (1.0 + e))  # true instants of its samples (and the end of the last)
-        mount = Rotation.from_rotvec(_unit(rng) * np.radians(rng.uniform(0.0, mount_deg)))
-        in_tray = mount.inv()  # the device's axes in tray axes
-        slip_deg, slip_t = 0.0, None
-        if slip_window is not None and slip is not None and slip.device == d:
-            t0, t1 = slip_window
-            progress = np.clip((tau - t0) / (t1 - t0), 0.0, 1.0)
-            progress = progress * progress * (3.0 - 2.0 * progress)  # a smooth step
-            in_tray = Rotation.from_rotvec(np.outer(progress, _unit(rng)) * np.radians(slip.angle_deg)) * in_tray
-            slip_deg, slip_t = float(slip.angle_deg), float((0.5 * (t0 + t1) - start) * (1.0 + e))
-        pose = tray_pose(tau) * in_tray
-        rate = np.degrees((pose[:-1].inv() * pose[1:]).as_rotvec()) * (fs * (1.0 + e))
-        accel = pose[:-1].inv().apply(GRAVITY_UP)
-        gyro = sensor.reading(rate) + noise * rng.standard_normal(rate.shape)
-        accel = accel + ACCEL_NOISE_G * rng.standard_normal(accel.shape)
-        seq = np.arange(n, dtype=np.int64)
-        recordings.append(Recording(
-            seq / fs, gyro, accel, seq,
-            meta=RecordingMeta(sample_rate_hz=fs, device_id=f"kit-{seed}-{d + 1}", sensor_model="simulated",
-                               source=f"simulate_kit(seed={seed}) wearable {d + 1}"),
-        ))
-        truths.append(KitDeviceTruth(sensor.k.copy(), sensor.b.copy(), e, start, mount.as_matrix(), slip_deg, slip_t))
-    return recordings, KitTruth(tuple(truths), tray, float(noise), fs, seed)
+    tray = KitTray(seed, n_devices, noise=noise, script=script, params=params, mount_deg=mount_deg,
+                   clock_error=clock_error, start_spread_s=start_spread_s, slip=slip, motion_fs=fs)
+    drawn = [tray.wearable(d, fs) for d in range(n_devices)]
+    return [r for r, _ in drawn], KitTruth(tuple(t for _, t in drawn), tray.tray, float(noise), float(fs), tray.seed)
 
 
 def _unit(rng: np.random.Generator) -> np.ndarray:

@@ -130,6 +130,8 @@ async def device_out(svc: Service, dev: Device | None, row: StoredDevice | None,
 
 
 async def session_snapshot(svc: Service, sid: str) -> SessionOut:
+    if (kit := svc.kits.get(sid)) is not None:
+        return kit.snapshot()
     live = svc.sessions.get(sid)
     if live is not None:
         update: dict[str, object] = {"kind": "live", "operator": live.operator}

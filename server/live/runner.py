@@ -1,8 +1,8 @@
 """Runs one guided session: the device's link in, the state machine, the estimator, the store out.
 
-The runner owns three tasks: the sample pump (link -> state machine), the watchdog (reconnection
-limit, silence, overall time limit) and the final step (estimator in a worker thread, then the
-recording and the outcome written to the store). Whatever happens, the session reaches an end state.
+The runner owns three tasks: the sample pump (link -> state machine), the watchdog (reconnection limit, silence,
+overall time limit) and the final step (estimator in a worker, or the kit's calibration together (server.live.kit_session),
+then the recording and the outcome written to the store). Whatever happens, the session reaches an end state.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import time
 from collections.abc import Callable
 from dataclasses import replace
 from datetime import datetime
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from calib.apply.identity import SensorIdentity
 from calib.result import CalibrationResult
@@ -32,6 +32,9 @@ from .history import calibration_history, failed_last_time
 from .persistence import Persistence
 from .session import GuidedSession
 from .snapshot_schema import SessionOut
+
+if TYPE_CHECKING:
+    from .kit_session import KitSession
 
 log = logging.getLogger(__name__)
 
@@ -107,6 +110,7 @@ class LiveSession(Persistence):
         self.temperatures_c: tuple[float, float] | None = None  # at the session's start and end
         self._spooled = 0  # samples of the buffer made durable in the store's spool
         self._spool_chunk = 0
+        self.kit: KitSession | None = None  # the kit this wearable is calibrated with (server.live.kit_session)
 
     @property
     def id(self) -> str:
@@ -133,10 +137,11 @@ class LiveSession(Persistence):
         ok = self.machine.cancel(reason)
         if ok and self._pump is not None:
             self._pump.cancel()
+        if ok and self.kit is not None:
+            self.kit.left(self)  # no longer waits for the kit's calibration
         return ok
 
-    async def shutdown(self) -> None:
-        """Service shutdown: end the session (cancelled) and wait for it to be written."""
+    async def shutdown(self) -> None:  # the service stops: end the session (cancelled) and wait for it to be written
         self.cancel("The service was stopped during the calibration.")
         await self.wait()
         self.broadcaster.close()
@@ -324,12 +329,15 @@ class LiveSession(Persistence):
     async def _compute(self) -> None:
         m = self.machine
         rec, stages = m.recording(), m.protocol_stages()
-        job = off_loop(self.pool, calibrate_live, rec, m.method, stages)
-        try:
-            outcome = await asyncio.wait_for(job, timeout=self.settings.compute_timeout_s)
-        except TimeoutError:
-            m.fail("calibration_failed", say.compute_timeout(self.settings.compute_timeout_s))
-            return
+        if self.kit is not None:  # calibrated with the rest of its kit, once every wearable's recording is in
+            outcome = await self.kit.outcome_for(self, rec, stages)
+        else:
+            job = off_loop(self.pool, calibrate_live, rec, m.method, stages)
+            try:
+                outcome = await asyncio.wait_for(job, timeout=self.settings.compute_timeout_s)
+            except TimeoutError:
+                m.fail("calibration_failed", say.compute_timeout(self.settings.compute_timeout_s))
+                return
         self._csv = outcome.csv
         if outcome.result is None:
             m.fail("calibration_failed", f"{outcome.refusal} Start a new calibration.")
@@ -341,11 +349,11 @@ class LiveSession(Persistence):
         except Exception:  # the store's history only adds a caution: a result stands without it
             log.warning("the history of %s could not be read to compare the new calibration with", m.device_id, exc_info=True)
             history, failed_before = [], set()
-        m.set_result(result, history, failed_before, can_redo=self._pump is not None and not self._pump.done())
+        m.set_result(result, history, failed_before,  # a kit's tray is not turned again for one wearable
+                     can_redo=self.kit is None and self._pump is not None and not self._pump.done())
 
     async def _stop_link(self) -> None:
-        link = self.device.link
-        if link is None:
+        if (link := self.device.link) is None:
             return
         with contextlib.suppress(Exception):
             await asyncio.wait_for(link.stop(), timeout=5.0)

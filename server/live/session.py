@@ -289,6 +289,15 @@ class GuidedSession(ProtocolSteps, Lateness):
             return rec.timed_by_counter(self.fs_estimate)  # the live times followed an improving rate estimate
         return rec
 
+    def take_recording(self, message: str) -> bool:
+        """Its kit's tray has been turned through the protocol: the recording so far is calibrated with the kit's,
+        whatever step this wearable's own guidance is in (False when it has ended, or has no recording to give)."""
+        if self.finished or self.state in (State.COMPUTING, State.CONNECTING, State.RECONNECTING):
+            return False
+        self._warn("kit_ahead", message)
+        self._set_state(State.COMPUTING, None, say.PROMPTS["computing"])
+        return True
+
     def protocol_stages(self) -> list[Stage]:
         """The stages the estimator gets: every still, and the turns that passed their checks."""
         return self.stream.protocol_stages(list(self.turns.values()))

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -102,13 +102,42 @@ DEPARTURES_TEXT = ("the result's parameters that the device's own earlier calibr
                    "name, axis, value, history_mean, history_spread, z, n_history, text (a dropped or damaged sensor)")
 
 
+class KitDeviceOut(BaseModel):
+    """One wearable of a kit session: its own session's state and result (GET /sessions/{its session_id} has the rest)."""
+
+    device_id: str
+    session_id: str
+    state: State
+    phase: Phase | None = None
+    prompt: str | None = None
+    reason_code: EndReason | None = None
+    reason: str | None = None
+    result: ResultDoc | TurnVerification | None = None
+    passed: bool | None = None
+    checks: list[Check] = Field(default_factory=list, description=CHECKS_TEXT)
+    decision: Literal["accepted", "discarded"] | None = None
+    calibration_id: int | None = None
+    samples: int | None = None
+    lost_samples: int | None = None
+    departed: bool = Field(False, description="it came apart from the kit (moved in its slot): no result; redo it")
+
+
+class KitOut(BaseModel):
+    """A kit session's consistency: how each wearable followed the tray (calib.kit), and which departed."""
+
+    consistency: dict[str, Any] | None = Field(None, description="per wearable: the coupling's residual against its "
+                                               "noise and its departure (angle_deg, std_deg, p_value, at_s, departed)")
+    departed: list[str] = Field(default_factory=list, description="the wearables that came apart from the kit")
+    refusal: str | None = Field(None, description="why the kit could not be calibrated together, if it could not")
+
+
 class SessionOut(BaseModel):
     """A full snapshot of a session: what every SSE event carries too."""
 
     model_config = ConfigDict(extra="forbid")
     session_id: str
     device_id: str
-    kind: Literal["live", "upload", "import", "verify"] = "live"
+    kind: Literal["live", "upload", "import", "verify", "kit"] = "live"
     event: str = Field("state", description="the SSE event this snapshot was sent as (state, prompt, live, warning, "
                                             "result, decision)")
     event_id: int | None = Field(None, description="its number in the session's event stream")
@@ -147,3 +176,5 @@ class SessionOut(BaseModel):
     stored: bool | None = Field(None, description="a live session that ended: whether the store has its outcome and "
                                                   "recording yet (false: kept by the service and written when it can)")
     store_error: str | None = Field(None, description="why the store could not take them yet (its disk full, ...)")
+    devices: list[KitDeviceOut] = Field(default_factory=list, description="a kit session: each wearable's own session")
+    kit: KitOut | None = Field(None, description="a kit session: the kit's consistency and who departed")

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import uuid
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 
 from sqlalchemy import func, select
+from sqlalchemy.orm import Session
 
 from calib.apply.correction import Correction
 from calib.apply.identity import SensorIdentity
@@ -19,6 +20,20 @@ from .errors import NotAcceptable, NotFound
 from .records import CalibrationRecord, SessionEnd, StoredVerification, calibration_record, iso_utc
 from .sessions import SessionStore
 from .tables import CalibrationRow, RecordingRow, SessionRow, aware, utcnow
+
+
+@dataclass(frozen=True)
+class Acceptance:
+    """One session's result to accept, with what ``CalibrationStore.accept`` takes beside it."""
+
+    session_id: str
+    result: CalibrationResult | None = None
+    end: SessionEnd | None = None
+    sensor_model: str | None = None
+    firmware: str | None = None
+    identity: SensorIdentity | None = None
+    recording_csv: bytes | None = None
+    n_samples: int = 0
 
 
 class CalibrationStore(SessionStore):
@@ -46,46 +61,63 @@ class CalibrationStore(SessionStore):
         recorded fills the fields it leaves unknown).
         """
         with self._tx(*ALL_CHAINS) as s:
-            now = utcnow()
-            row = self._decide(s, session_id, "accepted", operator, now)
-            if row.ended_at is None:
-                if end is None:
-                    end = SessionEnd("done", result=result, passed=result is not None)
-                self._apply_end(s, row, end, None)
-            if row.state != "done" or row.result is None:
-                why = f" ({row.reason_code}: {row.reason})" if row.reason else ""
-                raise NotAcceptable(f"session {session_id} ended {row.state} in the store{why}: only a finished session "
-                                    "within tolerances can become a calibration")
-            if not row.passed:
-                raise NotAcceptable(f"session {session_id} is outside the tolerances: only a finished session within "
-                                    "tolerances can become a calibration")
-            info = row.info or {}
-            sensor_model = sensor_model or info.get("sensor_model")
-            firmware = firmware or info.get("firmware")
-            if row.kind == "upload" and not sensor_model:
-                raise NotAcceptable("this result comes from an uploaded recording that names no sensor: upload it again with "
-                                    "?sensor_model=...&firmware=... (or give sensor_model when accepting) so the calibration "
-                                    "is tied to the sensor it was measured on")
-            known = (identity or SensorIdentity()).completed(SensorIdentity.from_json(info.get("identity")))
-            known = replace(known.completed(SensorIdentity(sensor_model=sensor_model, firmware=firmware, serial=info.get("serial"))),
-                            device_id=row.device_id)
-            digest = s.execute(select(RecordingRow.sha256).where(RecordingRow.session_id == session_id)).scalar_one_or_none()
-            if digest is None and recording_csv is not None:
-                digest = self._archive(s, session_id, recording_csv, n_samples)
-            stored = CalibrationResult.from_dict(row.result)  # the result as the session's end recorded it
-            shown = stored.to_json()
-            cal = CalibrationRow(
-                device_id=row.device_id, session_id=session_id,
-                k_x=float(stored.k[0]), k_y=float(stored.k[1]), k_z=float(stored.k[2]),
-                b_x=float(stored.b[0]), b_y=float(stored.b[1]), b_z=float(stored.b[2]),
-                uncertainty=shown["uncertainty"], quality=shown["quality"], result=row.result,
-                method=stored.method or row.method, software_version=row.software_version,
-                sensor_model=sensor_model, firmware=firmware, source=row.kind, operator=operator, recording_sha256=digest,
-                computed_at=aware(row.ended_at) if row.ended_at else now, accepted_at=now, identity=known.to_json(),
-            )
-            chain.append(s, cal)
-            self._audit(s, operator, "calibration.accept", row.device_id, session_id, {"calibration_id": cal.id})
-            return calibration_record(cal)
+            return self._accept_in(s, session_id, operator, result, end=end, sensor_model=sensor_model, firmware=firmware,
+                                   identity=identity, recording_csv=recording_csv, n_samples=n_samples)
+
+    def accept_many(self, accepts: list[Acceptance], operator: str) -> list[CalibrationRecord]:
+        """Accept several sessions' results in one transaction (a kit's wearables): every one becomes its device's
+        calibration, with its own audit entry, or none does (the first refusal or conflict raises and nothing is kept)."""
+        with self._tx(*ALL_CHAINS) as s:
+            return [self._accept_in(s, a.session_id, operator, a.result, end=a.end, sensor_model=a.sensor_model,
+                                    firmware=a.firmware, identity=a.identity, recording_csv=a.recording_csv,
+                                    n_samples=a.n_samples) for a in accepts]
+
+    def _accept_in(
+        self, s: Session, session_id: str, operator: str, result: CalibrationResult | None, *, end: SessionEnd | None,
+        sensor_model: str | None, firmware: str | None, identity: SensorIdentity | None, recording_csv: bytes | None,
+        n_samples: int,
+    ) -> CalibrationRecord:
+        """A session's result made its device's calibration inside the transaction ``s`` (see ``accept``)."""
+        now = utcnow()
+        row = self._decide(s, session_id, "accepted", operator, now)
+        if row.ended_at is None:
+            if end is None:
+                end = SessionEnd("done", result=result, passed=result is not None)
+            self._apply_end(s, row, end, None)
+        if row.state != "done" or row.result is None:
+            why = f" ({row.reason_code}: {row.reason})" if row.reason else ""
+            raise NotAcceptable(f"session {session_id} ended {row.state} in the store{why}: only a finished session "
+                                "within tolerances can become a calibration")
+        if not row.passed:
+            raise NotAcceptable(f"session {session_id} is outside the tolerances: only a finished session within "
+                                "tolerances can become a calibration")
+        info = row.info or {}
+        sensor_model = sensor_model or info.get("sensor_model")
+        firmware = firmware or info.get("firmware")
+        if row.kind == "upload" and not sensor_model:
+            raise NotAcceptable("this result comes from an uploaded recording that names no sensor: upload it again with "
+                                "?sensor_model=...&firmware=... (or give sensor_model when accepting) so the calibration "
+                                "is tied to the sensor it was measured on")
+        known = (identity or SensorIdentity()).completed(SensorIdentity.from_json(info.get("identity")))
+        known = replace(known.completed(SensorIdentity(sensor_model=sensor_model, firmware=firmware, serial=info.get("serial"))),
+                        device_id=row.device_id)
+        digest = s.execute(select(RecordingRow.sha256).where(RecordingRow.session_id == session_id)).scalar_one_or_none()
+        if digest is None and recording_csv is not None:
+            digest = self._archive(s, session_id, recording_csv, n_samples)
+        stored = CalibrationResult.from_dict(row.result)  # the result as the session's end recorded it
+        shown = stored.to_json()
+        cal = CalibrationRow(
+            device_id=row.device_id, session_id=session_id,
+            k_x=float(stored.k[0]), k_y=float(stored.k[1]), k_z=float(stored.k[2]),
+            b_x=float(stored.b[0]), b_y=float(stored.b[1]), b_z=float(stored.b[2]),
+            uncertainty=shown["uncertainty"], quality=shown["quality"], result=row.result,
+            method=stored.method or row.method, software_version=row.software_version,
+            sensor_model=sensor_model, firmware=firmware, source=row.kind, operator=operator, recording_sha256=digest,
+            computed_at=aware(row.ended_at) if row.ended_at else now, accepted_at=now, identity=known.to_json(),
+        )
+        chain.append(s, cal)
+        self._audit(s, operator, "calibration.accept", row.device_id, session_id, {"calibration_id": cal.id})
+        return calibration_record(cal)
 
     def import_calibration(self, device_id: str, correction: Correction, operator: str, software_version: str, *,
                            file_name: str, file_sha256: str) -> CalibrationRecord:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import uuid
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request, Response
@@ -32,6 +32,7 @@ from ...deps import (
     problem,
     read_imu_tk_parts,
 )
+from ...devices import Device
 from ...live.codes import END_STATES
 from ...live.events import Event, dumps
 from ...live.runner import LiveSession
@@ -236,6 +237,8 @@ async def cancel(svc: Svc, session_id: str, operator: Operator) -> SessionOut:
 async def accept(svc: Svc, session_id: str, operator: Operator, body: M.DecisionIn | None = None) -> M.AcceptOut:
     """Store the session's result as the device's current calibration (a new row in its history)."""
     check_session_id(session_id)
+    if session_id in svc.kits:
+        raise problem(409, f"this is a kit's session: accept its wearables together with POST /kits/{session_id}/accept")
     live = svc.sessions.get(session_id)
     snap = await session_snapshot(svc, session_id)
     if snap.state != "done":
@@ -321,29 +324,25 @@ async def start_live(svc: Service, device_id: str, operator: str, method: str | 
     dev = await reachable_device(svc, device_id)
     sid = uuid.uuid4().hex
     await claim_device(svc, device_id, sid, "one at a time", announce=False)
-    try:
-        machine = GuidedSession(sid, device_id, svc.settings, max_attempts=max_attempts, method=method,
-                                live_angle=await live_angle_of(svc, device_id))
-        await asyncio.to_thread(
-            svc.store.create_session,
-            sid,
-            device_id,
-            "live",
-            "connecting",
-            machine.method,
-            operator,
-            __version__,
-            {"transport": dev.transport, "scenario": dev.scenario},
-            svc.gateway_name,
-        )
-    except Exception:
-        svc.release_device(device_id, sid)
-        raise
-    svc.events.fleet_changed("session", device_id)
-    live = LiveSession(machine, dev, svc.store, svc.settings, __version__, operator, on_end=svc._session_ended, pool=svc.pool,
-                       relay=svc.events.relay)
-    svc.sessions[sid] = live
+    live = await new_live(svc, dev, sid, operator, method, max_attempts, svc._session_ended)
     live.start()
     return live
 
 
+async def new_live(svc: Service, dev: Device, sid: str, operator: str, method: str | None, max_attempts: int | None,
+                   on_end: Callable[[LiveSession], None]) -> LiveSession:
+    """A guided session ``sid`` on the claimed device ``dev``, its row stored, registered, not yet started; the device
+    is released if it cannot be made."""
+    try:
+        machine = GuidedSession(sid, dev.id, svc.settings, max_attempts=max_attempts, method=method,
+                                live_angle=await live_angle_of(svc, dev.id))
+        await asyncio.to_thread(svc.store.create_session, sid, dev.id, "live", "connecting", machine.method, operator,
+                                __version__, {"transport": dev.transport, "scenario": dev.scenario}, svc.gateway_name)
+    except Exception:
+        svc.release_device(dev.id, sid)
+        raise
+    svc.events.fleet_changed("session", dev.id)
+    live = LiveSession(machine, dev, svc.store, svc.settings, __version__, operator, on_end=on_end, pool=svc.pool,
+                       relay=svc.events.relay)
+    svc.sessions[sid] = live
+    return live

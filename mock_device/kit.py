@@ -1,0 +1,109 @@
+"""Simulated wearables riding in one tray (`gyrocal serve --mock N --mock-kit`): one clinician turns the tray through
+the protocol, and every wearable in it records that one motion with its own mounting, sensor errors and clock.
+
+Each streaming session of a wearable is one performance of the tray: the wearables whose streams start within
+``JOIN_S`` of the first play the same performance, each from the moment its own stream starts (the estimator aligns
+their clocks from the motion, as it does for wearables that start recording at different moments). The clinician is
+scripted: the paper's protocol with rests long enough for the service's prompts (``KIT_REST_S``); it does not redo a
+step after a link loss. ``loose`` (0-based) slips in its slot
+during the second turn of every performance; ``drop`` (0-based) goes out of range for ``DROP_S`` in the middle of the
+first turn.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from calib.simulator import SensorParams
+from calib.simulator.kit import KitTray, Slip
+from calib.simulator.protocol import paper_protocol_script
+
+from .scenarios import LinkFaults
+from .sources import Block
+
+KIT_REST_S = 5.0  # the tray's rests: the first rest and the pauses between turns, s
+SLIP_DEG = 2.0  # how far a loose wearable slips, deg
+PERFORMANCES_KEPT = 4
+DROP_S = 1.5  # how long the dropping wearable is out of range, s
+JOIN_S = 3.0  # streams starting this close (wall time, s) to a performance's first join it
+
+
+class Tray:
+    """The tray the kit's simulated wearables ride in, and its performances (one per streaming session)."""
+
+    def __init__(self, seed: int, n: int, noise_dps: float = 0.03, loose: int | None = None, drop: int | None = None) -> None:
+        self.seed, self.n, self.noise_dps, self.loose, self.drop = int(seed), int(n), float(noise_dps), loose, drop
+        rng = np.random.default_rng([self.seed, 0x7A4])
+        self.params = [SensorParams.paper_random(rng) for _ in range(self.n)]  # the same sensors every performance
+        self._performances: dict[int, KitTray] = {}
+        self._number = 0
+        self._started: float | None = None
+
+    def performance_now(self) -> KitTray:
+        """The performance a stream starting now plays: the current one when it began under ``JOIN_S`` ago, else a new one."""
+        now = time.monotonic()
+        if self._started is None or now - self._started > JOIN_S:
+            self._started = now
+            self._number += 1
+        return self.performance(self._number)
+
+    def performance(self, number: int) -> KitTray:
+        """The tray's ``number``-th performance (from 1): the same for every wearable that asks for it."""
+        if number not in self._performances:
+            if len(self._performances) >= PERFORMANCES_KEPT:
+                self._performances.pop(min(self._performances))
+            rng = np.random.default_rng([self.seed, number, 0x5C])
+            script = paper_protocol_script(rng, still_s=KIT_REST_S, final_still_s=KIT_REST_S)
+            slip = Slip(self.loose, SLIP_DEG, 1) if self.loose is not None else None
+            self._performances[number] = KitTray(self.seed * 1000 + number, self.n, noise=self.noise_dps, script=script,
+                                                 params=self.params, clock_error=0.0, slip=slip)
+        return self._performances[number]
+
+
+class KitSource:
+    """Wearable ``index`` (0-based) of a ``Tray``: its readings in each performance, then rest."""
+
+    fixed_rate_hz = None
+    length = None
+
+    def __init__(self, tray: Tray, index: int) -> None:
+        self.tray, self.index = tray, int(index)
+        self.session = 0
+        self.faults = LinkFaults()
+        self._gyro = np.zeros((0, 3))
+        self._accel = np.zeros((0, 3))
+        self._rest = np.zeros(3)
+        self._rest_accel = np.array([0.0, 0.0, 1.0])
+        params = tray.params[self.index]
+        self.truth: dict[str, object] = {"k": params.k.tolist(), "b": params.b.tolist()}
+        self._rng = np.random.default_rng([tray.seed, self.index, 0x7A11])
+
+    def prepare(self, fs_hz: float) -> None:
+        self.session += 1
+        performance = self.tray.performance_now()
+        rec, truth = performance.wearable(self.index, fs_hz)
+        if self.tray.drop == self.index:
+            first = next(st for st in performance.tray.stages if st.kind == "turn")
+            self.faults = LinkFaults(drop_at_s=0.5 * (first.start_s + first.end_s), drop_for_s=DROP_S)
+        self._gyro, self._accel = rec.gyro, rec.accel if rec.accel is not None else np.zeros_like(rec.gyro)
+        self._rest = self.tray.params[self.index].reading(np.zeros(3))
+        self._rest_accel = self._accel[-max(1, int(fs_hz * 0.5)):].mean(axis=0)
+        self.truth = {"k": truth.k.tolist(), "b": truth.b.tolist(), "slip_deg": truth.slip_deg}
+
+    def resumed(self, lost_at: int, at: int) -> None:
+        return None  # the tray's clinician goes on with the protocol; the samples while out of range are lost
+
+    def block(self, start: int, end: int) -> Block:
+        n = self._gyro.shape[0]
+        gyro = self._gyro[min(start, n):min(end, n)]
+        accel = self._accel[min(start, n):min(end, n)]
+        more = end - max(start, n)
+        if more > 0:  # the tray rests after the protocol
+            gyro = np.concatenate([gyro, self._rest + self.tray.noise_dps * self._rng.standard_normal((more, 3))])
+            accel = np.concatenate([accel, self._rest_accel + 0.002 * self._rng.standard_normal((more, 3))])
+        return Block(gyro, accel)
+
+    def times_s(self, start: int, end: int) -> np.ndarray | None:
+        return None

@@ -1,0 +1,157 @@
+"""A kit: the wearables of one tray calibrated together in one guided session (server.live.kit_session)."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import uuid
+
+from fastapi import APIRouter, Response
+from sqlalchemy.exc import SQLAlchemyError
+
+from ... import schemas as M
+from ...deps import R401, R404, R409, R503, Operator, Reader, Svc, check_device_id, check_session_id, problem
+from ...live.kit_session import KitSession
+from ...live.runner import LiveSession
+from ...live.snapshot_schema import SessionOut
+from ...service import Service
+from ...store import DecisionConflict, NotAcceptable, NotFound, StoreError
+from ...store.calibrations import Acceptance
+from ..views import claim_device, reachable_device
+from .sessions import new_live
+
+log = logging.getLogger(__name__)
+router = APIRouter()
+KEEP_FINISHED_KITS = 50
+
+
+@router.post("/kits/calibrate", status_code=202, response_model=M.KitStarted,
+             responses={**R401, **R404, **R409, **R503}, tags=["kits"])
+async def calibrate_kit(svc: Svc, body: M.KitStart, response: Response, operator: Operator) -> M.KitStarted:
+    """Start one guided session over every wearable of a tray, turned together (202). Each wearable is held by the kit
+    until its own session ends (409 for a wearable another session holds: then none is taken). GET /sessions/{id}
+    shows the kit: the step of the wearable furthest behind, and ``devices``, each wearable's own state and result."""
+    ids = list(body.devices)
+    for device_id in ids:
+        check_device_id(device_id)
+    if len(set(ids)) != len(ids):
+        raise problem(422, f"a wearable is named twice in the kit: {', '.join(ids)}; name each once")
+    if (cannot_keep := svc.storage_problem()) is not None:
+        raise problem(503, f"no calibration can be started: {cannot_keep}")
+    devices = [await reachable_device(svc, device_id) for device_id in ids]
+    kit_id = uuid.uuid4().hex
+    sids = {device_id: uuid.uuid4().hex for device_id in ids}
+    claimed: list[str] = []
+    members: list[LiveSession] = []
+    kit: KitSession[LiveSession] | None = None
+
+    def member_ended(live: LiveSession) -> None:
+        svc._session_ended(live)
+        if kit is not None:
+            kit.member_ended(live)
+
+    try:
+        for device_id in ids:
+            await claim_device(svc, device_id, sids[device_id], "calibrate it once it is free, or leave it out of the kit",
+                               announce=False)
+            claimed.append(device_id)
+        for dev in devices:
+            members.append(await new_live(svc, dev, sids[dev.id], operator, None, body.max_attempts, member_ended))
+    except BaseException:
+        for live in members:
+            live.cancel("The kit could not be started.")
+            svc.sessions.pop(live.id, None)
+        for device_id in claimed:
+            svc.release_device(device_id, sids[device_id])
+        raise
+    kit = KitSession(kit_id, members, svc.pool, svc.settings.compute_timeout_s, operator, on_end=lambda k: _forget_old(svc))
+    svc.kits[kit_id] = kit
+    for live in members:
+        live.start()
+    await asyncio.to_thread(svc.store.audit, operator, "kit.start", None, kit_id, {"devices": ids, "sessions": sids})
+    url = f"/sessions/{kit_id}"
+    response.headers["Location"] = url
+    return M.KitStarted(session_id=kit_id, state=kit.snapshot().state, url=url,
+                        devices=[M.KitMemberStarted(device_id=i, session_id=sids[i]) for i in ids])
+
+
+@router.get("/kits/{kit_id}", response_model=SessionOut, responses=R404, tags=["kits"])
+async def get_kit(svc: Svc, kit_id: str, _: Reader) -> SessionOut:
+    """A kit session, as GET /sessions/{id} shows it."""
+    return _kit(svc, kit_id).snapshot()
+
+
+@router.post("/kits/{kit_id}/cancel", response_model=SessionOut, responses={**R401, **R404, **R409}, tags=["kits"])
+async def cancel_kit(svc: Svc, kit_id: str, operator: Operator) -> SessionOut:
+    """Cancel every wearable's session of the kit that still runs."""
+    kit = _kit(svc, kit_id)
+    if not kit.cancel():
+        raise problem(409, "the kit's sessions have ended already; nothing to cancel")
+    await asyncio.to_thread(svc.store.audit, operator, "kit.cancel", None, kit_id)
+    for live in kit.members:
+        await live.wait()
+    return kit.snapshot()
+
+
+@router.post("/kits/{kit_id}/accept", response_model=M.KitAcceptOut, responses={**R401, **R404, **R409, **R503}, tags=["kits"])
+async def accept_kit(svc: Svc, kit_id: str, operator: Operator) -> M.KitAcceptOut:
+    """Make the result of every wearable of the kit that passed its device's calibration, all in one transaction (all or
+    none, one audit entry per device). The others are named with the reason; each can be calibrated again alone."""
+    kit = _kit(svc, kit_id)
+    if not kit.finished:
+        raise problem(409, "the kit is still being calibrated: accept it once every wearable's session has ended")
+    for live in kit.members:
+        await live.wait()
+    snap = kit.snapshot()
+    passed = [live for live, d in zip(kit.members, snap.devices, strict=True)
+              if d.state == "done" and d.passed and d.decision is None and not d.departed]
+    not_accepted = {d.device_id: _why_not(d) for d in snap.devices if d.device_id not in {p.device.id for p in passed}}
+    if not passed:
+        raise problem(409, "no wearable of the kit passed, or all were decided already: " +
+                      "; ".join(f"{k}: {v}" for k, v in not_accepted.items()))
+    try:
+        records = await asyncio.to_thread(svc.store.accept_many, [_acceptance(live) for live in passed], operator)
+    except (DecisionConflict, NotAcceptable, NotFound):
+        raise  # 409 / 404 with the store's own sentence (server.main)
+    except (StoreError, SQLAlchemyError) as exc:
+        log.warning("accept of kit %s failed: %s", kit_id, exc)
+        raise problem(503, f"the kit's calibrations could not be stored ({type(exc).__name__}); no wearable's calibration "
+                           "changed. Try accepting again.") from None
+    for live, rec in zip(passed, records, strict=True):
+        live.machine.decide("accepted", rec.id)
+        live.broadcaster.close()
+        svc.events.fleet_changed("calibration", rec.device_id)
+        svc.events.decided(live.id)
+    kit.decision = "accepted"
+    return M.KitAcceptOut(session_id=kit_id, calibrations=records, not_accepted=not_accepted)
+
+
+def _acceptance(live: LiveSession) -> Acceptance:
+    return Acceptance(live.id, live.machine.result, end=live.session_end(), identity=live.identity,
+                      sensor_model=live.device.info.get("sensor_model"), firmware=live.device.info.get("firmware"),
+                      recording_csv=live.csv_bytes, n_samples=live.machine.buf.n)
+
+
+def _why_not(d: object) -> str:
+    state, reason = getattr(d, "state", ""), getattr(d, "reason", None)
+    if getattr(d, "departed", False):
+        return reason or "it came apart from the kit"
+    if getattr(d, "decision", None):
+        return f"decided already ({d.decision})"  # type: ignore[attr-defined]
+    if state == "done":
+        return "its result is outside the tolerances"
+    return reason or f"its session ended {state}"
+
+
+def _kit(svc: Service, kit_id: str) -> KitSession[LiveSession]:
+    check_session_id(kit_id)
+    kit = svc.kits.get(kit_id)
+    if kit is None:
+        raise problem(404, f"no kit session {kit_id}")
+    return kit
+
+
+def _forget_old(svc: Service) -> None:
+    finished = [k for k in svc.kits.values() if k.finished]
+    for old in finished[: max(0, len(finished) - KEEP_FINISHED_KITS)]:
+        svc.kits.pop(old.id, None)

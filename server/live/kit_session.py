@@ -1,0 +1,193 @@
+"""A kit session: the wearables of one tray calibrated together (``POST /kits/calibrate``).
+
+Each wearable runs its own guided session (its link, its stream, its stage detector, its spool and its stored row,
+as alone). Turned together they move through the protocol together; the kit's snapshot follows the one furthest
+behind (the tray is ready for the next step when every wearable is). When a wearable's session has its recording, it
+waits here instead of calibrating alone; once every wearable has its recording or has ended, the kit's recordings are
+calibrated together (``calib.kit``) in a worker, and each wearable's session goes on with its own result: judged,
+shown and accepted as alone. A wearable that came apart from the kit (moved in its slot) gets no result and says so;
+a wearable whose link was lost for good ends as alone, and the kit is calibrated without it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import Callable
+from datetime import UTC, datetime
+from typing import TYPE_CHECKING, Generic, Protocol, TypeVar
+
+from calib.recording import Recording
+
+from ..workers.compute import ComputePool, LiveOutcome, calibrate_live, off_loop
+from ..workers.kit import KitOutcome, calibrate_kit_live
+from .codes import END_STATES, STEPS, State
+from .snapshot_schema import KitDeviceOut, KitOut, SessionOut
+
+if TYPE_CHECKING:
+    from calib.stages.stage import Stage
+
+    from ..devices import Device
+    from .session import GuidedSession
+
+
+class Member(Protocol):
+    """What the kit uses of a wearable's session (server.live.runner.LiveSession)."""
+
+    device: Device
+    machine: GuidedSession
+    kit: KitSession | None
+
+    def cancel(self, reason: str = ...) -> bool: ...
+
+
+M = TypeVar("M", bound=Member)
+
+log = logging.getLogger(__name__)
+KIT_LAG_S = 4.0  # after the first wearable's recording is in, how long another may stay in a protocol step, s
+
+
+class KitSession(Generic[M]):
+    """The wearables' guided sessions of one kit, and their calibration together."""
+
+    def __init__(self, kit_id: str, members: list[M], pool: ComputePool | None, compute_timeout_s: float,
+                 operator: str, on_end: Callable[[KitSession[M]], None] | None = None) -> None:
+        self.id = kit_id
+        self.members = members
+        self.pool = pool
+        self.compute_timeout_s = compute_timeout_s
+        self.operator = operator
+        self.on_end = on_end
+        self.started_at = datetime.now(UTC).isoformat()
+        self.outcome: KitOutcome | None = None
+        self.cancelled = False
+        self.decision: str | None = None
+        self._arrived: dict[str, tuple[Recording, list[Stage], str]] = {}
+        self._waiting: dict[str, asyncio.Future[LiveOutcome]] = {}
+        self._task: asyncio.Task[None] | None = None
+        self._lagging: asyncio.TimerHandle | None = None
+        self.lag_s = KIT_LAG_S
+        for m in members:
+            m.kit = self
+
+    @property
+    def device_ids(self) -> list[str]:
+        return [m.device.id for m in self.members]
+
+    @property
+    def finished(self) -> bool:
+        return all(m.machine.finished for m in self.members)
+
+    async def outcome_for(self, live: Member, rec: Recording, stages: list[Stage]) -> LiveOutcome:
+        """A member's recording is in: wait for the kit's calibration and return this member's outcome."""
+        loop = asyncio.get_running_loop()
+        future: asyncio.Future[LiveOutcome] = loop.create_future()
+        self._waiting[live.device.id] = future
+        self._arrived[live.device.id] = (rec, stages, live.machine.method)
+        self._maybe_compute()
+        if self._task is None and self._lagging is None:
+            self._lagging = loop.call_later(self.lag_s, self._take_lagging)
+        return await future
+
+    def _take_lagging(self) -> None:
+        """The kit's other wearables have their recordings: one whose own guidance still waits for a step (it asked a
+        turn again, which the tray will not be turned for) gives its recording as it is."""
+        self._lagging = None
+        arrived = ", ".join(self._arrived)
+        for m in self.members:
+            if m.device.id not in self._arrived:
+                m.machine.take_recording(f"The rest of the kit ({arrived}) has been turned through the protocol: this "
+                                         "wearable's recording is calibrated with theirs as it is.")
+
+    def member_ended(self, live: Member) -> None:
+        """A member's session ended (perhaps without a recording: its link lost for good, cancelled)."""
+        self._maybe_compute()
+        if self.finished and self.on_end is not None:
+            self.on_end(self)
+
+    def left(self, live: Member) -> None:
+        """A member was cancelled while it waited for the kit's calibration: it waits no longer."""
+        future = self._waiting.get(live.device.id)
+        if future is not None and not future.done():
+            future.set_result(LiveOutcome(None, "Cancelled.", "cancelled", b""))
+
+    def cancel(self, reason: str = "Cancelled by the operator.") -> bool:
+        done = [m.cancel(reason) for m in self.members if not m.machine.finished]
+        self.cancelled = self.cancelled or any(done)
+        return any(done)
+
+    def _maybe_compute(self) -> None:
+        if self._task is not None:
+            return
+        if all(m.device.id in self._arrived or m.machine.finished for m in self.members):
+            if self._lagging is not None:
+                self._lagging.cancel()
+                self._lagging = None
+            self._task = asyncio.get_running_loop().create_task(self._compute(), name=f"kit-{self.id}")
+
+    async def _compute(self) -> None:
+        names = [n for n in self.device_ids if n in self._arrived]
+        try:
+            if len(names) == 1:  # the others ended without a recording: this one is calibrated alone
+                rec, stages, method = self._arrived[names[0]]
+                alone = await asyncio.wait_for(off_loop(self.pool, calibrate_live, rec, method, stages), self.compute_timeout_s)
+                self.outcome = KitOutcome({names[0]: alone}, refusal=None)
+            elif names:
+                recs = [self._arrived[n][0] for n in names]
+                self.outcome = await asyncio.wait_for(off_loop(self.pool, calibrate_kit_live, recs, names),
+                                                      self.compute_timeout_s)
+        except TimeoutError:
+            why = (f"The kit was not calibrated within {self.compute_timeout_s:g} s: the service is overloaded, not the "
+                   "recording. Start a new calibration.")
+            self.outcome = KitOutcome({n: LiveOutcome(None, why, "service_overloaded", b"") for n in names}, refusal=why)
+        except Exception as exc:  # the last line of defence: every waiting member gets an answer
+            log.exception("kit %s could not be calibrated", self.id)
+            why = f"The kit could not be calibrated ({type(exc).__name__}). Start a new calibration."
+            self.outcome = KitOutcome({n: LiveOutcome(None, why, "internal_error", b"") for n in names}, refusal=why)
+        assert self.outcome is not None
+        for name, future in self._waiting.items():
+            if not future.done():
+                future.set_result(self.outcome.outcomes[name])
+
+    # -- what the page and the API see ---------------------------------------------------------
+    def snapshot(self) -> SessionOut:
+        """The kit's state: the step of the wearable furthest behind, its prompt, and every wearable's own state."""
+        snaps = [m.machine.snapshot("state") for m in self.members]
+        state, lead = self._state(snaps)
+        devices = [KitDeviceOut(
+            device_id=s.device_id, session_id=s.session_id, state=s.state, phase=s.phase, prompt=s.prompt,
+            reason_code=s.reason_code, reason=s.reason, result=s.result, passed=s.passed, checks=s.checks,
+            decision=s.decision, calibration_id=s.calibration_id, samples=s.samples, lost_samples=s.lost_samples,
+            departed=self.outcome is not None and s.device_id in self.outcome.departed,
+        ) for s in snaps]
+        kit = KitOut(consistency=None if self.outcome is None else self.outcome.consistency,
+                     departed=[] if self.outcome is None else self.outcome.departed,
+                     refusal=None if self.outcome is None else self.outcome.refusal)
+        return lead.model_copy(update={
+            "session_id": self.id, "device_id": ",".join(self.device_ids), "kind": "kit", "state": state,
+            "devices": devices, "kit": kit, "operator": self.operator, "started_at": self.started_at,
+            "result": None, "passed": any(d.passed for d in devices) if state == State.DONE else None,
+            "checks": [], "departures": [], "accuracy": None, "decision": self.decision, "calibration_id": None,
+            "reason_code": None if state != State.FAILED else lead.reason_code,
+            "reason": self._reason(state, snaps),
+        })
+
+    def _state(self, snaps: list[SessionOut]) -> tuple[State, SessionOut]:
+        if all(s.state in END_STATES for s in snaps):
+            if self.cancelled and not any(s.state == State.DONE for s in snaps):
+                return State.CANCELLED, snaps[0]
+            done = [s for s in snaps if s.state == State.DONE]
+            return (State.DONE, done[0]) if done else (State.FAILED, snaps[0])
+        running = [s for s in snaps if s.state not in END_STATES]
+        lost = [s for s in running if s.state == State.RECONNECTING]
+        if lost:
+            return State.RECONNECTING, lost[0]
+        behind = min(running, key=lambda s: STEPS.index(s.state) if s.state in STEPS else 0)
+        return State(behind.state), behind
+
+    def _reason(self, state: State, snaps: list[SessionOut]) -> str | None:
+        if state == State.RECONNECTING:
+            lost = [s.device_id for s in snaps if s.state == State.RECONNECTING]
+            return f"The link to {', '.join(lost)} was lost; reconnecting. Keep the tray still."
+        ended = [f"{s.device_id}: {s.reason}" for s in snaps if s.state in (State.FAILED, State.CANCELLED) and s.reason]
+        return " ".join(ended) or None

@@ -1,0 +1,47 @@
+"""A kit's recordings calibrated together in a worker process (``calib.kit.estimator.calibrate_kit``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from calib.recording import Recording
+
+from .compute import LiveOutcome, recording_csv
+
+
+@dataclass(frozen=True)
+class KitOutcome:
+    """Each wearable's outcome (a result, or why it has none), the kit's consistency, who departed, and the refusal of
+    the whole kit when it could not be calibrated together."""
+
+    outcomes: dict[str, LiveOutcome]
+    consistency: dict[str, Any] | None = None
+    departed: list[str] = field(default_factory=list)
+    refusal: str | None = None
+
+
+def calibrate_kit_live(recordings: list[Recording], names: list[str]) -> KitOutcome:
+    """Calibrate a kit session's recordings (one per wearable, in ``names``' order) together. A wearable that departed
+    from the kit gets no result: the reason says what happened and what to do."""
+    from calib.errors import GyrocalError, Refusal
+    from calib.kit.estimator import calibrate_kit
+
+    csvs = {name: recording_csv(rec) for name, rec in zip(names, recordings, strict=True)}
+    try:
+        kit = calibrate_kit(recordings, names, protocol="paper")
+    except GyrocalError as exc:
+        why = f"The kit could not be calibrated together: {exc} Start a new calibration."
+        code = exc.code if isinstance(exc, Refusal) else "kit_refused"
+        return KitOutcome({n: LiveOutcome(None, why, code, csvs[n]) for n in names}, refusal=why)
+    outcomes = {}
+    for member in kit.members:
+        if member.departed:
+            d = member.coherence.departure if member.coherence is not None else None
+            moved = f" (it turned {d.angle_deg:.1f}° against the others)" if d is not None and d.angle_deg == d.angle_deg else ""
+            outcomes[member.name] = LiveOutcome(
+                None, f"{member.name} came apart from the kit{moved}: it moved in its slot, or its readings do not follow "
+                "the tray. Seat it firmly and calibrate it again, alone or with the kit.", "departed", csvs[member.name])
+        else:
+            outcomes[member.name] = LiveOutcome(member.result, None, None, csvs[member.name])
+    return KitOutcome(outcomes, kit.consistency(), kit.departed)
