@@ -126,6 +126,9 @@ def _window_lags(grid: np.ndarray, s_ref: np.ndarray, own: np.ndarray, t_rec: np
     """Lags of ``rec`` (as currently mapped) against ``ref`` in windows that hold motion: centres (s), lags (s), weights."""
     size = int(round(WINDOW_S / dt))
     mapped = np.interp(own, t_rec, s_rec, left=np.nan, right=np.nan)
+    step = np.diff(t_rec)
+    for j in np.nonzero(step > 1.5 * np.median(step))[0]:  # samples lost: no activity to match there
+        mapped[(own > t_rec[j]) & (own < t_rec[j + 1])] = np.nan
     max_lag = int(np.ceil(search_s / dt))
     floor = 0.1 * float(np.max(s_ref))
     centres, lags, weights = [], [], []

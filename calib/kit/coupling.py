@@ -19,6 +19,7 @@ from calib.kit.clocks import ClockMap, activity
 from calib.recording import Recording
 
 REFINE_PASSES = 3
+RUN_SHIFT_FROM = 2  # passes with one clock for the whole recording before each run after a gap gets its own offset
 GAP_STEPS = 1.5  # an interval this many times the usual one is samples lost
 REST_SHARE = 0.3  # the share of samples with the least motion, where a residual is the readings' noise alone
 
@@ -87,24 +88,42 @@ def resting(rec: Recording) -> np.ndarray:
     return np.asarray(smooth <= np.quantile(smooth, REST_SHARE))
 
 
-def resample(rec: Recording, clock: ClockMap, t_ref: np.ndarray) -> np.ndarray:
-    """``rec``'s readings at reference times ``t_ref`` (cubic spline through its samples; NaN outside them and across
-    samples it lost, where no reading says how it turned)."""
+def runs(rec: Recording) -> np.ndarray:
+    """Which run of samples without a gap each sample of ``rec`` belongs to (0, 1, ...: a new run after each gap)."""
+    step = np.diff(rec.t)
+    return np.concatenate([[0], np.cumsum(step > GAP_STEPS * np.median(step))])
+
+
+def resample(rec: Recording, clock: ClockMap, t_ref: np.ndarray, run_shift: np.ndarray | None = None) -> np.ndarray:
+    """``rec``'s readings at reference times ``t_ref`` (NaN outside them and across samples it lost, where no reading
+    says how it turned): a cubic spline through each run of samples without a gap (one spline across a gap would bend
+    the readings beside it). ``run_shift``: a further shift (s) of each run's times (a wearable may stamp anew after
+    its link came back)."""
     t = clock.to_reference(rec.t)
-    out = np.asarray(CubicSpline(t, rec.gyro, axis=0, extrapolate=False)(t_ref), dtype=float)
-    step = np.diff(t)
-    for j in np.nonzero(step > GAP_STEPS * np.median(step))[0]:
-        out[(t_ref > t[j]) & (t_ref < t[j + 1])] = np.nan
+    run = runs(rec)
+    if run_shift is not None:
+        t = t + run_shift[run]
+    out = np.full((t_ref.size, 3), np.nan)
+    for r in range(int(run[-1]) + 1):
+        seg = np.nonzero(run == r)[0]
+        if seg.size < 4:
+            continue
+        inside = (t_ref >= t[seg[0]]) & (t_ref <= t[seg[-1]])
+        out[inside] = CubicSpline(t[seg], rec.gyro[seg], axis=0, extrapolate=False)(t_ref[inside])
     return out
 
 
 def couple(ref: Recording, rec: Recording, clock: ClockMap, ref_noise: np.ndarray) -> Coupling:
-    """Fit ``rec`` = A ``ref`` + c over every sample both hold, refining ``clock`` as it goes.
+    """Fit ``rec`` = A ``ref`` + c over every sample both hold, refining ``clock`` as it goes (and, after a gap in
+    ``rec``, each later run's own offset).
 
     ``ref_noise``: the reference's noise std per axis (deg/s), which biases a plain least-squares fit of A towards
     zero by noise^2 / rate^2 and is taken out (errors in variables)."""
-    for _ in range(REFINE_PASSES):
-        y = resample(rec, clock, ref.t)
+    run = runs(rec)
+    n_runs = int(run[-1]) + 1
+    run_shift = np.zeros(n_runs)
+    for pass_ in range(REFINE_PASSES + (RUN_SHIFT_FROM if n_runs > 1 else 0)):
+        y = resample(rec, clock, ref.t, run_shift)
         keep = np.all(np.isfinite(y), axis=1)
         if keep.sum() < 50:
             raise GyrocalError(f"{rec.meta.source or 'a recording'} shares too few samples with the reference to be coupled")
@@ -113,9 +132,15 @@ def couple(ref: Recording, rec: Recording, clock: ClockMap, ref_noise: np.ndarra
         fitted = x @ A.T + c
         slope = np.gradient(fitted, tk, axis=0)
         resid = yk - fitted
-        design = np.stack([slope.ravel(), (slope * tk[:, None]).ravel()], axis=1)
+        columns = [slope, slope * tk[:, None]]
+        if n_runs > 1 and pass_ >= RUN_SHIFT_FROM:  # which run each reference time falls in
+            starts = clock.to_reference(rec.t[np.searchsorted(run, np.arange(n_runs))]) + run_shift
+            row_run = np.searchsorted(starts, tk, side="right") - 1
+            columns += [slope * (row_run == r)[:, None] for r in range(1, n_runs)]
+        design = np.stack([col.ravel() for col in columns], axis=1)
         shift, *_ = np.linalg.lstsq(design, resid.ravel(), rcond=None)
         clock = clock.corrected(float(shift[0]), float(shift[1]))
+        run_shift[1:] += shift[2:] if shift.size > 2 else 0.0
     rest = np.interp(tk, clock.to_reference(rec.t), resting(rec).astype(float)) > 0.99
     shift_cov = np.linalg.inv(design.T @ design) * float(resid.var())
     clock = ClockMap(clock.offset_s, clock.rate, float(np.sqrt(shift_cov[0, 0])), float(clock.rate * np.sqrt(shift_cov[1, 1])))

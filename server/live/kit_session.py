@@ -2,7 +2,8 @@
 
 Each wearable runs its own guided session (its link, its stream, its stage detector, its spool and its stored row,
 as alone). Turned together they move through the protocol together; the kit's snapshot follows the one furthest
-behind (the tray is ready for the next step when every wearable is). When a wearable's session has its recording, it
+along (the tray has been turned that far). One behind (it missed a turn, or asked one again) shows its own step in its
+row, and once the others have their recordings it gives its recording as it is (``KIT_LAG_S``). When a wearable's session has its recording, it
 waits here instead of calibrating alone; once every wearable has its recording or has ended, the kit's recordings are
 calibrated together (``calib.kit``) in a worker, and each wearable's session goes on with its own result: judged,
 shown and accepted as alone. A wearable that came apart from the kit (moved in its slot) gets no result and says so;
@@ -151,7 +152,7 @@ class KitSession(Generic[M]):
 
     # -- what the page and the API see ---------------------------------------------------------
     def snapshot(self) -> SessionOut:
-        """The kit's state: the step of the wearable furthest behind, its prompt, and every wearable's own state."""
+        """The kit's state: the step of the wearable furthest along, its prompt, and every wearable's own state."""
         snaps = [m.machine.snapshot("state") for m in self.members]
         state, lead = self._state(snaps)
         devices = [KitDeviceOut(
@@ -182,8 +183,8 @@ class KitSession(Generic[M]):
         lost = [s for s in running if s.state == State.RECONNECTING]
         if lost:
             return State.RECONNECTING, lost[0]
-        behind = min(running, key=lambda s: STEPS.index(s.state) if s.state in STEPS else 0)
-        return State(behind.state), behind
+        along = max(running, key=lambda s: STEPS.index(s.state) if s.state in STEPS else 0)
+        return State(along.state), along
 
     def _reason(self, state: State, snaps: list[SessionOut]) -> str | None:
         if state == State.RECONNECTING:

@@ -117,3 +117,21 @@ def test_the_command_line_calibrates_a_kit_of_files_and_says_who_departed(tmp_pa
     assert "wearable-2: DEPARTED" in text and "Departed: wearable-2" in text
     assert main(["calibrate-kit", files[0]]) == 2
     assert "at least two recordings" in capsys.readouterr().err
+
+
+def test_a_wearable_that_lost_samples_mid_turn_and_stamps_anew_after_is_calibrated_from_the_kit() -> None:
+    from calib.recording import Recording
+
+    recs, truth = simulate_kit(3, 3)
+    r = recs[1]
+    keep = np.ones(len(r), dtype=bool)
+    keep[int(4.0 * 104):int(5.8 * 104)] = False  # 1.8 s of the turn about x lost
+    t = r.t.copy()
+    t[int(5.8 * 104):] += 6e-4  # and stamped 0.6 ms late once the link is back
+    lossy = Recording(t[keep], r.gyro[keep], r.accel[keep], r.seq[keep], meta=r.meta)
+    kit = calibrate_kit([recs[0], lossy, recs[2]], heading_prior_deg=PRIOR_DEG)
+    assert kit.departed == []
+    member, d = kit.members[1], truth.devices[1]
+    assert np.all(np.abs(member.result.k - d.k_own) < 4.5 * member.result.k_std), (member.result.k - d.k_own) / member.result.k_std
+    bridged = [row for row in member.result.residuals["turns"] if row.get("bridged_by_kit")]
+    assert [row["axis"] for row in bridged] == ["x"]

@@ -211,3 +211,26 @@ def test_a_calibration_result_goes_into_the_store_and_comes_back_the_same(store_
     assert cal.k == [float(v) for v in back.k] and cal.b == [float(v) for v in back.b]
     assert cal.uncertainty is not None and cal.uncertainty.model_dump() == result.to_json()["uncertainty"]
     assert cal.method == result.method
+
+
+def test_a_kits_wearables_are_accepted_all_in_one_transaction_or_none(store_url: str) -> None:
+    from server.store.calibrations import Acceptance
+
+    s = Store(store_url)
+    for sid, dev in (("k1" * 16, "dev-1"), ("k2" * 16, "dev-2"), ("k3" * 16, "dev-3")):
+        _done_session(s, sid, dev)
+    _done_session(s, "k4" * 16, "dev-4", state="failed")
+    # one of them cannot be accepted: none is, and nothing of the others' is kept
+    with pytest.raises(StoreError, match="ended failed"):
+        s.accept_many([Acceptance("k1" * 16, RESULT), Acceptance("k4" * 16, RESULT)], "alice")
+    assert s.current_calibration("dev-1") is None and s.session("k1" * 16)["decision"] is None
+    records = s.accept_many([Acceptance(sid, RESULT) for sid in ("k1" * 16, "k2" * 16, "k3" * 16)], "alice")
+    assert [r.device_id for r in records] == ["dev-1", "dev-2", "dev-3"]
+    assert len({r.id for r in records}) == 3
+    assert all(s.current_calibration(d).session_id == r.session_id for d, r in zip(("dev-1", "dev-2", "dev-3"), records,
+                                                                                   strict=True))
+    accepts = [e for e in s.audit_log(limit=50) if e["action"] == "calibration.accept"]
+    assert sorted(e["device_id"] for e in accepts) == ["dev-1", "dev-2", "dev-3"]
+    assert s.verify().ok  # the three rows chained one after the other in one transaction
+    with pytest.raises(StoreError, match="accepted already"):
+        s.accept_many([Acceptance("k2" * 16, RESULT)], "alice")

@@ -30,7 +30,7 @@ KEEP_FINISHED_KITS = 50
 async def calibrate_kit(svc: Svc, body: M.KitStart, response: Response, operator: Operator) -> M.KitStarted:
     """Start one guided session over every wearable of a tray, turned together (202). Each wearable is held by the kit
     until its own session ends (409 for a wearable another session holds: then none is taken). GET /sessions/{id}
-    shows the kit: the step of the wearable furthest behind, and ``devices``, each wearable's own state and result."""
+    shows the kit: the step of the wearable furthest along, and ``devices``, each wearable's own state and result."""
     ids = list(body.devices)
     for device_id in ids:
         check_device_id(device_id)

@@ -1,0 +1,120 @@
+"""A whole kit in one guided session, through the real service (`gyrocal serve --mock N --mock-kit`): the simulated
+wearables ride in one tray that one clinician turns; the kit holds every wearable, names the one that slipped in its
+slot, bridges the one whose link dropped, and stores every wearable that passed in one transaction."""
+
+from __future__ import annotations
+
+import time
+
+import httpx
+import numpy as np
+
+from tests.server_fixtures import RunningService, at_once
+
+SPEED = "6"
+
+
+def _until_ended(c: httpx.Client, kit_id: str, timeout_s: float = 90.0) -> dict:
+    deadline = time.monotonic() + timeout_s
+    seen: list[str] = []
+    while time.monotonic() < deadline:
+        snap = c.get(f"/sessions/{kit_id}").json()
+        if not seen or seen[-1] != snap["state"]:
+            seen.append(snap["state"])
+        if snap["state"] in ("done", "failed", "cancelled"):
+            snap["seen"] = seen
+            return snap
+        time.sleep(0.25)
+    raise AssertionError(f"the kit did not end within {timeout_s} s; it went through {seen}")
+
+
+def _truth(c: httpx.Client, device_id: str) -> np.ndarray:
+    return np.array(c.get(f"/devices/{device_id}").json()["simulated_truth"]["k"])
+
+
+def test_a_kit_is_guided_as_one_the_loose_wearable_is_named_and_the_rest_are_accepted_at_once(service_store) -> None:
+    svc = RunningService(["--mock", "4", "--mock-kit", "--mock-kit-loose", "3", "--mock-speed", SPEED], service_store[1]).start(60)
+    try:
+        with svc.client() as c:
+            kit_a = {"devices": ["mock-1", "mock-2", "mock-3"]}
+            kit_b = {"devices": ["mock-3", "mock-4"]}  # shares mock-3: of the two asked for at once, one is refused
+            first, second = at_once([lambda: c.post("/kits/calibrate", json=kit_a), lambda: c.post("/kits/calibrate", json=kit_b)])
+            assert sorted([first.status_code, second.status_code]) == [202, 409], (first.text, second.text)
+            started, refused = (first, second) if first.status_code == 202 else (second, first)
+            assert "mock-3" in refused.json()["detail"] and "leave it out of the kit" in refused.json()["detail"]
+            if started is second:  # kit B won the race: let it end, then start kit A
+                assert c.post(f"/kits/{started.json()['session_id']}/cancel").status_code == 200
+                started = c.post("/kits/calibrate", json=kit_a)
+                assert started.status_code == 202, started.text
+            kit_id = started.json()["session_id"]
+            assert started.headers["location"] == f"/sessions/{kit_id}"
+            members = {d["device_id"]: d["session_id"] for d in started.json()["devices"]}
+            assert list(members) == ["mock-1", "mock-2", "mock-3"]
+            # while the kit runs, each of its wearables is held
+            assert c.post("/devices/mock-2/calibrate", json={}).status_code == 409
+            assert c.post(f"/sessions/{kit_id}/accept").status_code == 409
+            snap = _until_ended(c, kit_id)
+            assert snap["kind"] == "kit" and snap["state"] == "done"
+            assert {"still", "turn_x", "turn_y", "turn_z", "computing"} <= set(snap["seen"])
+            devices = {d["device_id"]: d for d in snap["devices"]}
+            assert snap["kit"]["departed"] == ["mock-3"]
+            assert devices["mock-3"]["state"] == "failed" and devices["mock-3"]["departed"]
+            assert "came apart from the kit" in devices["mock-3"]["reason"]
+            consistency = snap["kit"]["consistency"]["devices"]
+            assert consistency["mock-3"]["departed"] and consistency["mock-3"]["angle_deg"] > 0.2
+            for name in ("mock-1", "mock-2"):
+                d = devices[name]
+                assert d["state"] == "done" and d["passed"], d["reason"]
+                result = d["result"]
+                assert result["method"] == "kit-closure" and result["quality"]["kit"]["devices"] == 2
+                k, std = np.array(result["k"]), np.array(result["uncertainty"]["k"])
+                assert np.all(np.abs(k - _truth(c, name)) < 5 * std + 2e-5), (k - _truth(c, name)) / std
+                own = c.get(f"/sessions/{members[name]}").json()  # each wearable's own session holds its result too
+                assert own["state"] == "done" and own["result"]["k"] == result["k"]
+            accepted = c.post(f"/kits/{kit_id}/accept")
+            assert accepted.status_code == 200, accepted.text
+            body = accepted.json()
+            assert [r["device_id"] for r in body["calibrations"]] == ["mock-1", "mock-2"]
+            assert "came apart" in body["not_accepted"]["mock-3"]
+            for r in body["calibrations"]:
+                current = c.get(f"/devices/{r['device_id']}/calibration").json()
+                assert current["id"] == r["id"] and current["method"] == "kit-closure"
+            audit = c.get("/audit", params={"limit": 50}).json()
+            accepts = [e for e in audit if e["action"] == "calibration.accept"]
+            assert sorted(e["device_id"] for e in accepts) == ["mock-1", "mock-2"]
+            assert c.post(f"/kits/{kit_id}/accept").status_code == 409  # decided already
+            assert c.get("/devices/mock-3/calibration").status_code == 404  # the loose one keeps what it had: nothing
+            # the loose wearable is free again: it can be redone alone
+            alone = c.post("/devices/mock-3/calibrate", json={})
+            assert alone.status_code == 202, alone.text
+            assert c.post(f"/sessions/{alone.json()['session_id']}/cancel").status_code == 200
+    finally:
+        svc.stop()
+
+
+def test_a_wearable_whose_link_drops_mid_turn_is_bridged_by_the_kit(tmp_path) -> None:
+    svc = RunningService(["--mock", "3", "--mock-kit", "--mock-kit-drop", "2", "--mock-speed", SPEED],
+                         f"sqlite:///{tmp_path / 'store.sqlite3'}").start(60)
+    try:
+        with svc.client() as c:
+            for body, status, words in (({"devices": ["mock-1", "mock-1"]}, 422, "named twice"),
+                                        ({"devices": ["mock-1"]}, 422, "at least 2"),
+                                        ({"devices": ["mock-1", "nope"]}, 404, "no device 'nope'"),
+                                        ({"devices": ["mock-1", "mock-2"], "extra": 1}, 422, "extra")):
+                bad = c.post("/kits/calibrate", json=body)
+                assert bad.status_code == status and words in bad.text.lower(), bad.text
+            assert c.get("/devices/mock-1").json()["simulated_truth"] is not None
+            started = c.post("/kits/calibrate", json={"devices": ["mock-1", "mock-2", "mock-3"]})
+            assert started.status_code == 202, started.text
+            snap = _until_ended(c, started.json()["session_id"])
+            assert "reconnecting" in snap["seen"], snap["seen"]
+            devices = {d["device_id"]: d for d in snap["devices"]}
+            assert devices["mock-2"]["lost_samples"] > 0
+            for name, d in devices.items():
+                assert d["state"] == "done" and d["passed"], (name, d["reason"])
+            bridged = [t for t in devices["mock-2"]["result"]["residuals"]["turns"] if t.get("bridged_by_kit")]
+            assert len(bridged) == 1 and bridged[0]["axis"] == "x"
+            k, std = np.array(devices["mock-2"]["result"]["k"]), np.array(devices["mock-2"]["result"]["uncertainty"]["k"])
+            assert np.all(np.abs(k - _truth(c, "mock-2")) < 5 * std + 2e-5)
+    finally:
+        svc.stop()
