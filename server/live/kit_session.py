@@ -2,12 +2,14 @@
 
 Each wearable runs its own guided session (its link, its stream, its stage detector, its spool and its stored row,
 as alone). Turned together they move through the protocol together; the kit's snapshot follows the one furthest
-along (the tray has been turned that far). One behind (it missed a turn, or asked one again) shows its own step in its
-row, and once the others have their recordings it gives its recording as it is (``KIT_LAG_S``). When a wearable's session has its recording, it
-waits here instead of calibrating alone; once every wearable has its recording or has ended, the kit's recordings are
-calibrated together (``calib.kit``) in a worker, and each wearable's session goes on with its own result: judged,
-shown and accepted as alone. A wearable that came apart from the kit (moved in its slot) gets no result and says so;
-a wearable whose link was lost for good ends as alone, and the kit is calibrated without it.
+along (the tray has been turned that far). One behind (it missed a turn, or asked one again) shows its own step in
+its row, and once the others have their recordings it gives its recording as it is (``KIT_LAG_S``).
+
+A wearable's session with its recording waits here instead of calibrating alone. Once every wearable has its
+recording or has ended, the kit's recordings are calibrated together (``calib.kit``) in a worker, and each wearable's
+session goes on with its own result: judged, shown and accepted as alone. A wearable that came apart from the kit
+(moved in its slot) gets no result and says so; one whose link was lost for good ends as alone, and the kit is
+calibrated without it.
 """
 
 from __future__ import annotations
