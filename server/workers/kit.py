@@ -41,7 +41,7 @@ def calibrate_kit_live(recordings: list[Recording], names: list[str]) -> KitOutc
             moved = f" (it turned {d.angle_deg:.1f}° against the others)" if d is not None and d.angle_deg == d.angle_deg else ""
             outcomes[member.name] = LiveOutcome(
                 None, f"{member.name} came apart from the kit{moved}: it moved in its slot, or its readings do not follow "
-                "the tray. Seat it firmly and calibrate it again, alone or with the kit.", "departed", csvs[member.name])
+                "the tray. Seat it firmly in its slot, then calibrate it alone or with the kit.", "departed", csvs[member.name])
         else:
             outcomes[member.name] = LiveOutcome(member.result, None, None, csvs[member.name])
     return KitOutcome(outcomes, kit.consistency(), kit.departed)

@@ -8,6 +8,7 @@ import { requestProblem } from "./messages.js";
 import { devicesView } from "./devices.js";
 import { fleetView } from "./fleet.js";
 import { historyView } from "./history.js";
+import { kitView } from "./kit.js";
 import { pinView, signInView } from "./signin.js";
 import { uploadView } from "./upload.js";
 import { placeView, sessionView } from "./wizard.js";
@@ -25,6 +26,7 @@ const ROUTES = [
   [/^#\/devices$/, () => devicesView(ctx)],
   [/^#\/place\/([^/]+)$/, (m) => placeView(ctx, decodeURIComponent(m[1]))],
   [/^#\/session\/([0-9a-f]{32})$/, (m) => sessionView(ctx, m[1])],
+  [/^#\/kit\/([0-9a-f]{32})$/, (m) => kitView(ctx, m[1])],
   [/^#\/history\/([^/]+)$/, (m) => historyView(ctx, decodeURIComponent(m[1]))],
   [/^#\/upload$/, () => uploadView(ctx)],
   [/^#\/fleet$/, () => fleetView(ctx)],

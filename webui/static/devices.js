@@ -5,6 +5,7 @@ import { icon } from "./figures.js";
 import { problemLine } from "./messages.js";
 import { identifyButton } from "./identify.js";
 import { heldFact, writeBack } from "./writeback.js";
+import { startKit } from "./kit.js";
 
 function status(dev) {
   if (dev.active_session) return { key: "busy", text: "In a calibration", icon: "busy" };
@@ -69,7 +70,11 @@ function deviceCard(ctx, dev, refresh) {
         h("span", null, "Result not saved: the last calibration passed but nobody accepted it. "),
         h("a", { href: `#/session/${dev.unsaved_session}` }, "Open it to save or discard"))
       : null,
-    h("div", { class: "dev-actions" }, actions),
+    h("div", { class: "dev-actions" }, actions,
+      dev.available && !dev.active_session
+        ? h("label", { class: "kit-pick" }, h("input", { type: "checkbox", value: dev.id, "aria-label": `Put ${dev.name || dev.id} in the kit` }),
+          h("span", null, "In the kit"))
+        : null),
     write ? write.line : null,
     ident ? ident.line : null);
   card.setBattery = (pct) => {
@@ -86,6 +91,14 @@ export function devicesView(ctx) {
   const list = h("ul", { class: "device-list", "aria-live": "polite", "aria-busy": "true" }, h("li", { class: "loading" }, "Looking for devices…"));
   const scanBtn = h("button", { class: "button", type: "button" }, icon("search"), "Scan for devices");
   const note = h("p", { class: "scan-note", role: "status" });
+  const kitBtn = h("button", { class: "button", type: "button", id: "kit-start", disabled: true }, icon("play"), "Calibrate together");
+  const picked = () => [...list.querySelectorAll(".kit-pick input:checked")].map((el) => el.value);
+  list.addEventListener("change", () => {
+    const n = picked().length;
+    kitBtn.disabled = n < 2;
+    kitBtn.lastChild.textContent = n >= 2 ? `Calibrate ${n} together` : "Calibrate together";
+  });
+  kitBtn.addEventListener("click", () => startKit(ctx, picked(), note));
 
   const render = (devices) => {
     if (!alive) return;
@@ -127,8 +140,8 @@ export function devicesView(ctx) {
   fill(ctx.main, h("section", { class: "panel", "aria-labelledby": "devices-title" },
     h("div", { class: "panel-head" },
       h("div", null, h("h1", { id: "devices-title" }, "Choose a device"),
-        h("p", { class: "lead" }, "Pick the wearable to calibrate.")),
-      h("div", { class: "panel-actions" }, scanBtn,
+        h("p", { class: "lead" }, "Pick the wearable to calibrate, or tick “In the kit” on the wearables of one tray to turn them together.")),
+      h("div", { class: "panel-actions" }, scanBtn, kitBtn,
         h("a", { class: "button", href: "#/upload", id: "upload-link" }, icon("info"), "Calibrate a recording file"),
         h("a", { class: "button", href: "#/fleet", id: "fleet-link" }, icon("search"), "Fleet"))),
     note, list));

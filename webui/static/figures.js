@@ -229,3 +229,34 @@ export function turnTiles() {
   };
   return list;
 }
+
+/** The kit's tray seen from above, against the block: its wearables in their slots, and the axis the whole tray is to
+ * be turned about (none: it rests). */
+export function trayPicture(names, axis) {
+  const n = Math.max(names.length, 1);
+  const cols = Math.min(n, 3);
+  const rows = Math.ceil(n / cols);
+  const w = 300, tray = 28 + rows * 70, hgt = tray + 50;
+  const say = axis
+    ? `The tray with its ${n} wearables, to be turned one full turn about its ${AXIS_LABEL[axis]} axis, then put back against the block.`
+    : `The tray with its ${n} wearables, lying flat against the block: keep it still.`;
+  const slot = 240 / cols;
+  const slots = names.map((name, i) => {
+    const x = 30 + (i % cols) * slot, y = 24 + Math.floor(i / cols) * 70;
+    return s("g", null,
+      s("rect", { x, y, width: slot - 16, height: 54, rx: 8, class: "case" }),
+      s("text", { x: x + (slot - 16) / 2, y: y + 32, class: "slot-label" }, name));
+  });
+  const mid = 10 + tray / 2;
+  const guide = axis === "x" ? [s("line", { x1: 2, y1: mid, x2: w - 22, y2: mid, class: `guide-line ${AXIS_CLASS.x}` }),
+    s("text", { x: w - 14, y: mid + 6, class: `axis-letter ${AXIS_CLASS.x}` }, "X")]
+    : axis === "y" ? [s("line", { x1: w / 2, y1: tray + 18, x2: w / 2, y2: 20, class: `guide-line ${AXIS_CLASS.y}` }),
+      s("text", { x: w / 2 + 8, y: 18, class: `axis-letter ${AXIS_CLASS.y}` }, "Y")]
+      : axis === "z" ? [s("circle", { cx: w / 2, cy: mid, r: 20, class: `guide-turn ${AXIS_CLASS.z}` }),
+        s("text", { x: w / 2 + 24, y: mid - 16, class: `axis-letter ${AXIS_CLASS.z}` }, "Z")] : [];
+  return s("svg", { viewBox: `0 0 ${w} ${hgt}`, class: "tray-picture", role: "img", "aria-label": say, "data-axis": axis || "" },
+    s("rect", { x: 14, y: 10, width: w - 28, height: tray, rx: 14, class: "tray" }),
+    s("rect", { x: 14, y: tray + 14, width: w - 28, height: 26, rx: 5, class: "block" }),
+    s("text", { x: w / 2, y: tray + 32, class: "block-label" }, "block"),
+    ...slots, ...guide);
+}

@@ -1,0 +1,86 @@
+"""A whole kit from the page, in Debian's Chromium against the real service with three simulated wearables in one
+tray (`--mock-kit`, the third slipping in its slot): the operator ticks them, calibrates them together, follows one
+set of prompts for the tray, sees each wearable's state as a row, and accepts every one that passed at once; on a
+phone the rows stack and nothing runs off the screen."""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+from webui_fixtures import Watch, Wizard, api, assert_clean, running_service, watched_page
+
+pytestmark = pytest.mark.timeout(180)
+PHONE = {"width": 390, "height": 844}
+
+
+@pytest.fixture(scope="module")
+def kit_service() -> Iterator[Any]:
+    with running_service(["normal"] * 3, "--mock-kit", "--mock-kit-loose", "3") as svc:
+        yield svc
+
+
+def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_passed_accepted_at_once(
+        browser: Any, kit_service: Any, page_watch: Watch, artifacts: Any) -> None:
+    with watched_page(browser, kit_service, page_watch) as page:
+        wizard = Wizard(page, kit_service, artifacts / "webui" / "kit")
+        wizard.sign_in()
+        start = page.locator("#kit-start")
+        assert start.is_disabled()
+        for device in ("mock-1", "mock-2"):
+            page.check(f".device-card[data-device='{device}'] .kit-pick input")
+        assert start.inner_text().strip() == "Calibrate 2 together" and start.is_enabled()
+        page.check(".device-card[data-device='mock-3'] .kit-pick input")
+        assert start.inner_text().strip() == "Calibrate 3 together"
+        wizard.shot("kit-chosen")
+        start.click()
+        page.wait_for_url(re.compile(r"#/kit/[0-9a-f]{32}$"))
+        kit_id = page.url.rsplit("/", 1)[1]
+        # one set of prompts, for the tray, with the axis drawn on the tray's picture and the step marked
+        page.wait_for_selector(".kit[data-state='still']")
+        for axis in ("x", "y", "z"):
+            page.wait_for_selector(f".kit[data-state='turn_{axis}']", timeout=40_000)
+            headline = page.inner_text(".kit-prompt")
+            assert "the device" not in headline, headline
+            if "Turn the tray" in headline:
+                assert f"{axis.upper()} axis" in headline, headline
+            assert page.get_attribute(".tray-picture", "data-axis") == axis
+            assert page.get_attribute(f".kit-steps li[data-step='turn_{axis}']", "aria-current") == "step"
+            assert page.locator(".kit-device").count() == 3
+            if axis == "x":
+                wizard.shot("kit-turn-x")
+        page.wait_for_selector(".kit[data-state='done']", timeout=60_000)
+        assert page.inner_text(".kit-prompt") == "Kit calibrated: 2 of 3 passed"
+        assert "mock-3 came apart from the kit" in page.inner_text(".kit-sub")
+        for device in ("mock-1", "mock-2"):
+            row = page.locator(f".kit-device[data-device='{device}']")
+            assert row.get_attribute("data-passed") == "true"
+            assert row.locator(".kit-state").inner_text().strip() == "PASS"
+            assert re.search(r"k X \d\.\d{4} · Y \d\.\d{4} · Z \d\.\d{4}", row.locator(".kit-k").inner_text())
+        loose = page.locator(".kit-device[data-device='mock-3']")
+        assert loose.get_attribute("data-departed") == "true"
+        assert loose.locator(".kit-state").inner_text().strip() == "Came apart from the kit"
+        assert "Seat it firmly" in loose.locator(".kit-reason").inner_text()
+        assert loose.locator("a.kit-redo").get_attribute("href") == "#/place/mock-3"
+        wizard.shot("kit-result")
+        page.click("#kit-accept")
+        page.wait_for_selector("#kit-saved:has-text('Saved as the current calibration of mock-1, mock-2. Not saved: mock-3.')")
+        page.wait_for_selector(".kit-device[data-device='mock-1'] .kit-state:has-text('PASS, saved')")
+        assert page.locator("#kit-accept").count() == 0  # nothing left to accept
+        with api(kit_service) as c:
+            for device in ("mock-1", "mock-2"):
+                assert c.get(f"/devices/{device}/calibration").json()["method"] == "kit-closure"
+            assert c.get("/devices/mock-3/calibration").status_code == 404
+    # the same result on a phone: the rows stack, and nothing is wider than the screen
+    with watched_page(browser, kit_service, page_watch, viewport=PHONE, phone=True) as phone:
+        wizard = Wizard(phone, kit_service, artifacts / "webui" / "kit-phone")
+        wizard.sign_in()
+        phone.goto(f"{kit_service.base}/#/kit/{kit_id}")
+        phone.wait_for_selector(".kit[data-state='done'] .kit-device[data-device='mock-3']")
+        assert phone.evaluate("document.scrollingElement.scrollWidth <= window.innerWidth")
+        columns = phone.evaluate("getComputedStyle(document.querySelector('.kit-device')).gridTemplateColumns")
+        assert len(columns.split()) == 1, columns
+        wizard.shot("kit-result-phone")
+    assert_clean(page_watch)

@@ -1,0 +1,150 @@
+// A whole kit: the wearables of one tray, turned together through one set of prompts, each one's state as a row,
+// its result, and every one that passed accepted at once. The page reads the kit's session every half second.
+
+import { AXES, fill, h, num } from "./dom.js";
+import { icon, trayPicture } from "./figures.js";
+import { problemLine } from "./messages.js";
+
+const POLL_MS = 500;
+const ENDED = new Set(["done", "failed", "cancelled"]);
+const STEPS = [["still", "Hold still"], ["turn_x", "Turn X"], ["turn_y", "Turn Y"], ["turn_z", "Turn Z"], ["computing", "Result"]];
+
+/** The operator's choice of wearables to calibrate together: POST /kits/calibrate, then the kit's page. */
+export async function startKit(ctx, devices, note) {
+  try {
+    const out = await ctx.api.request("POST", "/kits/calibrate", { json: { devices } });
+    ctx.go(`#/kit/${out.session_id}`);
+  } catch (err) {
+    if (err.status !== 401) note.textContent = problemLine(err);
+  }
+}
+
+function axisOf(state) {
+  return state && state.startsWith("turn_") ? state.slice(5) : null;
+}
+
+// the wearables' own prompts speak of "the device": the clinician holds the tray
+function forTray(text) {
+  return (text || "").replaceAll("the device", "the tray").replaceAll("The device", "The tray");
+}
+
+function stateText(d) {
+  if (d.departed) return "Came apart from the kit";
+  switch (d.state) {
+    case "connecting": return "Connecting…";
+    case "still": return "Resting";
+    case "turn_x": case "turn_y": case "turn_z": return `Turn about ${axisOf(d.state).toUpperCase()}`;
+    case "reconnecting": return "Link lost: reconnecting";
+    case "computing": return "Computing";
+    case "done": return d.decision === "accepted" ? "PASS, saved" : d.passed ? "PASS" : "FAIL";
+    case "cancelled": return "Cancelled";
+    default: return "Failed";
+  }
+}
+
+function deviceRow(d) {
+  const ended = ENDED.has(d.state);
+  const good = d.state === "done" && d.passed;
+  const k = d.result && Array.isArray(d.result.k) ? d.result.k : null;
+  return h("li", { class: "kit-device", dataset: { device: d.device_id, state: d.state, passed: String(Boolean(d.passed)), departed: String(Boolean(d.departed)) } },
+    h("span", { class: "kit-name" }, d.device_id),
+    h("span", { class: `kit-state ${ended ? (good ? "pass" : "fail") : ""}` },
+      icon(ended ? (good ? "pass" : "fail") : d.state === "reconnecting" ? "warn" : "busy"), h("span", null, stateText(d))),
+    k ? h("span", { class: "kit-k" }, `k ${AXES.map((a, i) => `${a.toUpperCase()} ${num(k[i], 4)}`).join(" · ")}`) : null,
+    ended && !good && d.reason ? h("span", { class: "kit-reason" }, d.reason) : null,
+    ended && !good ? h("a", { class: "button small kit-redo", href: `#/place/${encodeURIComponent(d.device_id)}` }, icon("redo"), "Redo alone") : null);
+}
+
+/** One kit session, as the service has it. */
+export function kitView(ctx, kitId) {
+  ctx.title("Calibrate the kit");
+  let alive = true;
+  let timer = null;
+  const headline = h("h1", { id: "kit-title", class: "kit-prompt" }, "Connecting to the wearables…");
+  const sub = h("p", { class: "lead kit-sub" });
+  const picture = h("div", { class: "kit-picture" });
+  const steps = h("ol", { class: "kit-steps" }, STEPS.map(([key, label]) => h("li", { dataset: { step: key } }, label)));
+  const rows = h("ul", { class: "kit-devices", "aria-label": "Every wearable of the kit", "aria-live": "polite" });
+  const saved = h("p", { id: "kit-saved", role: "status" });
+  const actions = h("div", { class: "actions" });
+  const root = h("section", { class: "panel kit", "aria-labelledby": "kit-title", dataset: { state: "connecting" } },
+    headline, sub, picture, steps, rows, saved, actions);
+  fill(ctx.main, root);
+  ctx.focusMain();
+
+  const render = (snap) => {
+    root.dataset.state = snap.state;
+    const running = !ENDED.has(snap.state);
+    const names = snap.devices.map((d) => d.device_id);
+    const axis = axisOf(snap.state);
+    fill(picture, trayPicture(names, axis));
+    const at = STEPS.findIndex(([key]) => key === snap.state);
+    for (const [i, li] of [...steps.children].entries()) {
+      li.classList.toggle("done", !running || (at >= 0 && i < at));
+      if (i === at) li.setAttribute("aria-current", "step");
+      else li.removeAttribute("aria-current");
+    }
+    fill(rows, snap.devices.map(deviceRow));
+    if (running) {
+      headline.textContent = snap.state === "reconnecting" ? "Keep the tray still: a wearable's link was lost" : forTray(snap.prompt) || "…";
+      sub.textContent = snap.state === "reconnecting" ? snap.reason || "" : `All ${names.length} wearables are turned together, in their tray.`;
+      fill(actions, h("button", { class: "button", type: "button", id: "kit-cancel", onclick: cancel }, icon("stop"), "Cancel"));
+      return;
+    }
+    const passed = snap.devices.filter((d) => d.state === "done" && d.passed && !d.departed);
+    const open = passed.filter((d) => !d.decision);
+    headline.textContent = snap.state === "cancelled" ? "The kit's calibration was cancelled"
+      : passed.length ? `Kit calibrated: ${passed.length} of ${names.length} passed` : "No wearable of the kit passed";
+    sub.textContent = snap.kit && snap.kit.departed.length
+      ? `${snap.kit.departed.join(", ")} came apart from the kit (moved in its slot): redo it alone, or seat it firmly and redo the kit.`
+      : snap.kit && snap.kit.refusal ? snap.kit.refusal : "";
+    fill(actions,
+      open.length ? h("button", { class: "button primary", type: "button", id: "kit-accept", onclick: accept }, icon("save"),
+        `Accept all that passed (${open.length})`) : null,
+      h("a", { class: "button", href: "#/devices" }, icon("back"), "Device list"));
+  };
+
+  async function poll() {
+    if (!alive) return;
+    try {
+      const snap = await ctx.api.get(`/sessions/${kitId}`);
+      if (!alive) return;
+      render(snap);
+      if (ENDED.has(snap.state)) return;
+    } catch (err) {
+      if (!alive) return;
+      if (err.status === 404) return ctx.problem(err, "show the kit");
+      sub.textContent = problemLine(err);
+    }
+    timer = setTimeout(poll, POLL_MS);
+  }
+
+  async function cancel() {
+    try {
+      render(await ctx.api.request("POST", `/kits/${kitId}/cancel`));
+    } catch (err) {
+      saved.textContent = problemLine(err);
+    }
+  }
+
+  async function accept() {
+    const btn = document.getElementById("kit-accept");
+    if (btn) btn.disabled = true;
+    try {
+      const out = await ctx.api.request("POST", `/kits/${kitId}/accept`);
+      const kept = out.calibrations.map((c) => c.device_id).join(", ");
+      const not = Object.keys(out.not_accepted);
+      saved.textContent = `Saved as the current calibration of ${kept}.${not.length ? ` Not saved: ${not.join(", ")}.` : ""}`;
+      render(await ctx.api.get(`/sessions/${kitId}`));
+    } catch (err) {
+      saved.textContent = problemLine(err);
+      if (btn) btn.disabled = false;
+    }
+  }
+
+  poll();
+  return () => {
+    alive = false;
+    if (timer) clearTimeout(timer);
+  };
+}
