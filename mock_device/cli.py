@@ -4,7 +4,8 @@
 
 starts a private dbus-daemon, serves the wearable on it as ``org.bluez`` and prints one JSON line:
 {"dbus_address": ..., "address": ..., "name": ..., "model": ..., "simulated_truth": {"k": [...], "b": [...]}}.
-``--model`` picks the protocol it speaks: gyrocal (default), polar-pmd, metawear or thingy52.
+``--model`` picks the protocol it speaks: gyrocal (default), polar-pmd, metawear or thingy52. ``--kit MODEL,MODEL,...``
+serves one wearable of each model named, riding in one tray that one clinician turns (a kit to calibrate together).
 It runs until SIGTERM or SIGINT, then stops its daemon. Run a bleak program with
 DBUS_SYSTEM_BUS_ADDRESS set to ``dbus_address`` and it sees the wearable.
 """
@@ -46,6 +47,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--boot-count", type=int, default=1,
                    help="the power-up count the gyrocal wearable reports (default 1; each simulated power cycle adds one)")
     p.add_argument("--temperature", type=float, default=24.0, help="the IMU's temperature at power-up in degC (default 24)")
+    p.add_argument("--kit", metavar="MODEL[,MODEL...]", default=None,
+                   help="wearables of these models (one each, in this order; repeat a name for more) in one tray that one "
+                        "clinician turns through the protocol: a kit to calibrate together")
     p.add_argument("--hide-optional-services", action="store_true",
                    help="hide Device Information and Battery, as some BlueZ versions do")
     p.set_defaults(func=run)
@@ -63,6 +67,13 @@ def run(args: argparse.Namespace) -> int:
         raise GyrocalError(f"--temperature must be within an IMU's operating range, -40 to 85 degC; got {args.temperature:g}")
     if not 1 <= args.count <= 64:
         raise GyrocalError(f"--count must be between 1 and 64, got {args.count}")
+    if args.kit is not None:
+        unknown = [m for m in args.kit.split(",") if m not in MODELS]
+        if unknown or len(args.kit.split(",")) < 2:
+            raise GyrocalError(f"--kit names the models of two or more wearables, comma-separated, from {', '.join(MODELS)}; "
+                               f"got {args.kit!r}")
+        if args.replay:
+            raise GyrocalError("--kit simulates the tray's wearables: leave out --replay")
     if args.replay and args.scenario not in ("normal", "packet_loss"):
         raise GyrocalError(f"--scenario {args.scenario} scripts the simulated clinician; with --replay only "
                            "'normal' or 'packet_loss' (link faults) apply")
@@ -74,6 +85,13 @@ def _wearables(args: argparse.Namespace) -> list[Any]:
     from .sources import ReplaySource, ScriptedSource
     from .vendors import WEARABLES
 
+    if args.kit is not None:
+        from .kit import KitSource, Tray
+
+        models = args.kit.split(",")
+        tray = Tray(args.seed, len(models))
+        return [WEARABLES[m](KitSource(tray, i), seed=args.seed + i, speed=args.speed,
+                             power_up=PowerUpState(args.boot_count, args.temperature)) for i, m in enumerate(models)]
     model = MODELS[args.model]
     out = []
     for i in range(args.count):
