@@ -13,6 +13,10 @@ turn), over what its own turns' closure tells.
 
 Loose wearables: ``--sessions`` kits where one wearable (drawn) slips by 1-3 deg during a drawn turn: the share where
 exactly that wearable is flagged; and the share of the kits above (nothing slipped) where any wearable is flagged.
+
+``--guided K``: instead, K guided kit sessions of ``--kits``' first size through the real service (`gyrocal serve --mock N
+--mock-kit --mock-speed 8`, its scripted tray clinician with 5 s rests): the clinician's time per wearable, the
+device time from the start to the kit's result over N, and how many wearables passed.
 """
 
 from __future__ import annotations
@@ -104,14 +108,70 @@ def _table(n: int, sessions: list[dict]) -> dict:
     }
 
 
+def _guided(n: int, sessions: int, speed: float = 8.0) -> dict:
+    """``sessions`` guided kit sessions of ``n`` simulated wearables through `gyrocal serve --mock-kit`."""
+    import os
+    import signal
+    import socket
+    import subprocess
+    import sys
+    import tempfile
+    from pathlib import Path
+
+    import httpx
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    tmp = Path(tempfile.mkdtemp(prefix="gyrocal-kit-guided-"))
+    env = {**os.environ, "GYROCAL_API_TOKEN": "bench"}
+    proc = subprocess.Popen([sys.executable, "-m", "calib.cli.main", "serve", "--port", str(port), "--db",
+                             f"sqlite:///{tmp / 'store.sqlite3'}", "--mock", str(n), "--mock-kit", "--mock-speed", str(speed),
+                             "--log-level", "warning"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
+    c = httpx.Client(base_url=f"http://127.0.0.1:{port}", headers={"Authorization": "Bearer bench"}, timeout=60)
+    per_device, passed = [], []
+    try:
+        for _ in range(300):
+            try:
+                if c.get("/health").status_code == 200:
+                    break
+            except httpx.HTTPError:
+                time.sleep(0.1)
+        for _ in range(sessions):
+            t0 = time.monotonic()
+            kit_id = c.post("/kits/calibrate", json={"devices": [f"mock-{i + 1}" for i in range(n)]}).json()["session_id"]
+            computed = None
+            while True:
+                snap = c.get(f"/sessions/{kit_id}").json()
+                if computed is None and snap["state"] in ("computing", "done", "failed"):
+                    computed = time.monotonic() - t0
+                if snap["state"] in ("done", "failed", "cancelled"):
+                    break
+                time.sleep(0.1)
+            per_device.append(computed * speed / n)
+            passed.append(sum(bool(d["passed"]) for d in snap["devices"]))
+            time.sleep(1.0)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=20)
+    return {"kit": n, "sessions": sessions, "seconds_per_wearable_median": float(np.median(per_device)),
+            "passed_median": float(np.median(passed))}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--sessions", type=int, default=200)
     ap.add_argument("--kits", default="2,4,6")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--guided", type=int, default=0, metavar="K")
     ap.add_argument("--json", default=None)
     args = ap.parse_args()
     sizes = [int(v) for v in args.kits.split(",")]
+    if args.guided:
+        out = _guided(sizes[0], args.guided)
+        print(f"guided kits of {out['kit']}: clinician time {out['seconds_per_wearable_median']:.1f} s per wearable (median of "
+              f"{out['sessions']}); {out['passed_median']:.0f} of {out['kit']} passed (median)")
+        return
     out = {"accuracy": [], "loose": []}
     with ProcessPoolExecutor(args.workers) as pool:
         for n in sizes:

@@ -87,6 +87,16 @@ class Placement(TypedDict):
     heading_prior_deg: NotRequired[Number]  # the heading prior the calibration carried (closure)
 
 
+class KitDeparture(TypedDict, total=False):
+    """How far a wearable's attitude came apart from the rest of its kit's (``calib.kit.departure.Departure``)."""
+
+    angle_deg: Number
+    std_deg: Number
+    p_value: Number
+    at_s: Number  # reference clock, s; null when it did not come apart
+    departed: bool
+
+
 class KitQuality(TypedDict, total=False):
     """A wearable calibrated with its kit (``calib.kit``): the kit's size, the wearable whose frame and clock it was
     solved in, this one's clock and mounting against it, and how it followed the kit (its departure)."""
@@ -96,7 +106,7 @@ class KitQuality(TypedDict, total=False):
     reference: str | None
     clock: Mapping[str, Number]
     mount_deg: Number
-    consistency: Mapping[str, Any]
+    consistency: KitDeparture
     departed: bool
 
 

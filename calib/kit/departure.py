@@ -15,6 +15,7 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from calib.numerics.attitude import cumulative_attitude
+from calib.quality import KitDeparture
 
 DEPARTURE_DEG = 0.2  # a wearable whose attitude comes this far apart from the kit's, beyond the noise, departed
 DEPARTURE_ALPHA = 1e-3  # ... and whose angle has under this chance from noise and calibration error alone
@@ -32,9 +33,9 @@ class Departure:
     at_s: float | None
     departed: bool
 
-    def to_dict(self) -> dict[str, float | bool | None]:
-        return {"angle_deg": self.angle_deg, "std_deg": self.std_deg, "p_value": self.p_value, "at_s": self.at_s,
-                "departed": self.departed}
+    def to_dict(self) -> KitDeparture:
+        return KitDeparture(angle_deg=self.angle_deg, std_deg=self.std_deg, p_value=self.p_value, at_s=self.at_s,
+                            departed=self.departed)
 
 
 NO_DEPARTURE = Departure(float("nan"), float("nan"), float("nan"), None, False)  # one wearable left: nothing to depart from

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -122,11 +122,33 @@ class KitDeviceOut(BaseModel):
     departed: bool = Field(False, description="it came apart from the kit (moved in its slot): no result; redo it")
 
 
+class KitMemberConsistency(BaseModel):
+    """How one wearable followed its kit: the coupling's residual against its noise (deg/s, per axis) and how far its
+    attitude came apart from the others' (``calib.kit.departure``)."""
+
+    residual_dps: list[float | None]
+    noise_dps: list[float | None]
+    residual_ratio: float | None = Field(None, description="the coupling's rms residual over the noise's: about 1")
+    angle_deg: float | None = Field(None, description="the largest angle its attitude came apart from the others', deg")
+    std_deg: float | None = Field(None, description="what the noise allows of that angle (1 sigma), deg")
+    p_value: float | None = Field(None, description="the chance of an angle this large from the noise alone")
+    at_s: float | None = Field(None, description="when it came apart (the reference's clock, s)")
+    departed: bool = False
+
+
+class KitConsistency(BaseModel):
+    """The kit's consistency: the reference wearable, each wearable's, and who departed."""
+
+    reference: str
+    devices: dict[str, KitMemberConsistency | None]
+    departed: list[str]
+
+
 class KitOut(BaseModel):
     """A kit session's consistency: how each wearable followed the tray (calib.kit), and which departed."""
 
-    consistency: dict[str, Any] | None = Field(None, description="per wearable: the coupling's residual against its "
-                                               "noise and its departure (angle_deg, std_deg, p_value, at_s, departed)")
+    consistency: KitConsistency | None = Field(None, description="per wearable: the coupling's residual against its "
+                                               "noise and its departure")
     departed: list[str] = Field(default_factory=list, description="the wearables that came apart from the kit")
     refusal: str | None = Field(None, description="why the kit could not be calibrated together, if it could not")
 

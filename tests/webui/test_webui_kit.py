@@ -34,6 +34,7 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
         assert start.inner_text().strip() == "Calibrate 2 together" and start.is_enabled()
         page.check(".device-card[data-device='mock-3'] .kit-pick input")
         assert start.inner_text().strip() == "Calibrate 3 together"
+        assert wizard.small_targets() == []
         wizard.shot("kit-chosen")
         start.click()
         page.wait_for_url(re.compile(r"#/kit/[0-9a-f]{32}$"))
@@ -64,6 +65,7 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
         assert loose.locator(".kit-state").inner_text().strip() == "Came apart from the kit"
         assert "Seat it firmly" in loose.locator(".kit-reason").inner_text()
         assert loose.locator("a.kit-redo").get_attribute("href") == "#/place/mock-3"
+        assert wizard.small_targets() == []
         wizard.shot("kit-result")
         page.click("#kit-accept")
         page.wait_for_selector("#kit-saved:has-text('Saved as the current calibration of mock-1, mock-2. Not saved: mock-3.')")
@@ -82,5 +84,6 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
         assert phone.evaluate("document.scrollingElement.scrollWidth <= window.innerWidth")
         columns = phone.evaluate("getComputedStyle(document.querySelector('.kit-device')).gridTemplateColumns")
         assert len(columns.split()) == 1, columns
+        assert wizard.small_targets() == []
         wizard.shot("kit-result-phone")
     assert_clean(page_watch)
