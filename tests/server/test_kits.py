@@ -32,8 +32,10 @@ def _truth(c: httpx.Client, device_id: str) -> np.ndarray:
     return np.array(c.get(f"/devices/{device_id}").json()["simulated_truth"]["k"])
 
 
-def test_a_kit_is_guided_as_one_the_loose_wearable_is_named_and_the_rest_are_accepted_at_once(service_store) -> None:
-    svc = RunningService(["--mock", "4", "--mock-kit", "--mock-kit-loose", "3", "--mock-speed", SPEED], service_store[1]).start(60)
+def test_a_kit_is_guided_as_one_the_loose_wearable_is_named_and_the_rest_are_accepted_at_once(postgres) -> None:
+    """On PostgreSQL (the store's own test holds the accept's one transaction on SQLite too)."""
+    url = postgres.service_url(postgres.create_database())
+    svc = RunningService(["--mock", "4", "--mock-kit", "--mock-kit-loose", "3", "--mock-speed", SPEED], url).start(60)
     try:
         with svc.client() as c:
             kit_a = {"devices": ["mock-1", "mock-2", "mock-3"]}

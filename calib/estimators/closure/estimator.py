@@ -120,7 +120,11 @@ def _choose_model(data: ClosureData, diagonal: ClosureFit) -> tuple[ClosureFit, 
         choice["reason"] = (f"the non-orthogonality terms are not identified (standard errors up to {bound.max():.2g}, "
                             f"needs {OFFDIAG_WARN:g}): turns about the sensor axes leave them free")
         return diagonal, False, choice
-    ext = _solve(data, start, extended=True)
+    try:
+        ext = _solve(data, start, extended=True)
+    except np.linalg.LinAlgError:  # the extended model's steps left the noise covariance of its rates: it explains nothing
+        choice["reason"] = "the extended model could not be fitted (its noise covariance lost its meaning on the way)"
+        return diagonal, False, choice
     chi2_ext, dof_ext = float(ext.res @ ext.res), int(data.dof(True)[0])
     lr = float(diagonal.res @ diagonal.res) - chi2_ext
     p = float(chi2_dist.sf(max(lr, 0.0), 3))
