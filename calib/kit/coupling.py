@@ -57,10 +57,15 @@ class Coupling:
     map: LinearMap
 
 
-def fit_map(x: np.ndarray, y: np.ndarray, x_noise: np.ndarray, rest: np.ndarray) -> LinearMap:
+def fit_map(x: np.ndarray, y: np.ndarray, x_noise: np.ndarray, rest: np.ndarray, y_noise: np.ndarray | None = None) -> LinearMap:
     """y = A x + c by least squares over rows of both, the regressors' noise std ``x_noise`` (per axis) taken out of
     the normal matrix (errors in variables); ``rest``: rows where the residual is the noise alone. Rows either lacks
-    (NaN: samples lost) are left out."""
+    (NaN: samples lost) are left out.
+
+    ``y_noise``: y's own noise std per axis. When x is the kit's mean of the other wearables, their noise is in the
+    kit's mean too, and it moves the mean's calibration and this map together, in opposite ways, so the wearable's
+    calibration carries only its own noise: the map's covariance is then y's own noise (scaled by how far the
+    residual exceeds what the noise of both explains), not the residual's."""
     both = np.all(np.isfinite(x), axis=1) & np.all(np.isfinite(y), axis=1)
     x, y, rest = x[both], y[both], rest[both]
     A, c, normal = _fit(x, y, x_noise)
@@ -68,7 +73,12 @@ def fit_map(x: np.ndarray, y: np.ndarray, x_noise: np.ndarray, rest: np.ndarray)
     resid_ms = resid.var(axis=0)
     noise_ms = resid[rest].var(axis=0) if rest.sum() > 20 else resid_ms
     inv = np.linalg.inv(normal)
-    return LinearMap(A, c, resid_ms[:, None, None] * inv, noise_ms[:, None, None] * inv, np.sqrt(resid_ms), np.sqrt(noise_ms))
+    if y_noise is None:
+        return LinearMap(A, c, resid_ms[:, None, None] * inv, noise_ms[:, None, None] * inv, np.sqrt(resid_ms), np.sqrt(noise_ms))
+    own = np.asarray(y_noise, dtype=float) ** 2
+    expected = own + (A**2) @ (np.asarray(x_noise, dtype=float) ** 2)
+    excess = np.maximum(1.0, resid_ms / expected)
+    return LinearMap(A, c, (own * excess)[:, None, None] * inv, own[:, None, None] * inv, np.sqrt(resid_ms), np.sqrt(expected))
 
 
 def reading_noise(rec: Recording) -> np.ndarray:

@@ -115,7 +115,7 @@ def _solve(recordings: Sequence[Recording], members: list[int], protocol: str, h
         for _ in range(CONSENSUS_PASSES):  # each wearable against the mean of the others, not the reference alone
             mapped = {i: maps[i].invert(y[i]) for i in members}
             variance = {i: _mapped_variance(maps[i], noise[i]) for i in members}
-            maps = {i: _against_others(i, members, y, mapped, variance, rest) for i in members}
+            maps = {i: _against_others(i, members, y, mapped, variance, rest, noise[i]) for i in members}
     mapped = {i: maps[i].invert(y[i]) for i in members}
     variance = {i: _mapped_variance(maps[i], noise[i]) for i in members}
     mean_m = _weighted_mean([mapped[i] for i in members], [variance[i] for i in members])
@@ -144,10 +144,10 @@ def _check_one_motion(coupling: Coupling, rec: Recording, ref: Recording) -> Non
 
 
 def _against_others(i: int, members: list[int], y: dict[int, np.ndarray], mapped: dict[int, np.ndarray],
-                    variance: dict[int, np.ndarray], rest: np.ndarray) -> LinearMap:
+                    variance: dict[int, np.ndarray], rest: np.ndarray, own_noise: np.ndarray) -> LinearMap:
     others = [j for j in members if j != i]
     consensus = _weighted_mean([mapped[j] for j in others], [variance[j] for j in others])
-    return fit_map(consensus, y[i], np.sqrt(1.0 / sum(1.0 / variance[j] for j in others)), rest)
+    return fit_map(consensus, y[i], np.sqrt(1.0 / sum(1.0 / variance[j] for j in others)), rest, own_noise)
 
 
 def _weighted_mean(signals: list[np.ndarray], variances: list[np.ndarray]) -> np.ndarray:
@@ -173,6 +173,10 @@ def _members(recordings: Sequence[Recording], names: list[str], solved: _Solved,
         rec, linear, clock = recordings[i], solved.maps[i], solved.clocks[i]
         params = member_params(k_ref, b_ref, ref_std, ref_bound, linear, clock)
         stages = [_own_stage(s, solved.span, rec, clock) for s in mean.stages]
+        if stages and stages[0].kind == "still":  # the first and last rests reach the wearable's own first and last samples
+            stages[0] = replace(stages[0], start=0, start_s=float(rec.t[0]))
+        if stages and stages[-1].kind == "still":
+            stages[-1] = replace(stages[-1], end=len(rec), end_s=float(rec.t[-1]))
         at_rest = np.concatenate([np.arange(s.start, s.end) for s in stages if s.kind == "still"])
         params = rest_bias(params, rec.gyro[at_rest].mean(axis=0), at_rest.size, reading_noise(rec))
         result = _result(rec, params, clock, solved, names, j, stages)
