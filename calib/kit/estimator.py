@@ -58,12 +58,13 @@ def calibrate_kit(recordings: Sequence[Recording], names: Sequence[str] | None =
         flagged = [members[j] for j, d in enumerate(solved.departures) if d.departed]
         if not flagged:
             break
-        if len(flagged) >= len(members) - 1:  # two that came apart (or all): the one whose own turns close worse
+        angle = {i: solved.departures[members.index(i)].angle_deg for i in flagged}
+        if len(members) == 2:  # two that came apart from each other: the one whose own turns close worse
             for i in flagged:
                 alone.setdefault(i, _alone(recordings[i], protocol, heading_prior_deg))
-            blamed = max(flagged, key=lambda i: _worst_closure(alone[i]))
-        else:
-            blamed = max(flagged, key=lambda i: solved.departures[members.index(i)].angle_deg)
+            blamed = max(flagged, key=lambda i: (_worst_closure(alone[i]), angle[i]))
+        else:  # the others carry a share of its slip in their comparison with the rest: it came apart the most
+            blamed = max(flagged, key=lambda i: angle[i])
         j = members.index(blamed)
         seen[blamed] = (solved.clocks[blamed], Coherence(solved.maps[blamed].residual_sd, solved.maps[blamed].noise_sd,
                                                          solved.departures[j]))
