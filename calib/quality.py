@@ -95,6 +95,7 @@ class KitDeparture(TypedDict, total=False):
     p_value: Number
     at_s: Number  # reference clock, s; null when it did not come apart
     departed: bool
+    burst_dps: Number  # the largest rms of its rate against the others' over a quarter second, deg/s
 
 
 class KitQuality(TypedDict, total=False):

@@ -1,5 +1,9 @@
 """A wearable that departs from its kit: one that moved in its slot, read a wrong range, or lost an axis.
 
+Two signs, either enough: its attitude came apart from the others' at the rests, or its rate came apart from theirs
+in a burst (a slip about the axis being turned, during that turn, leaves no angle its own k does not absorb, but
+its rate jumps against the others' while it slips).
+
 Rigidly held, every wearable's calibrated rates, turned into the reference's frame, follow one rotation: the attitude
 each integrates stays the same as the others', up to the noise's random walk. A wearable that slipped by an angle
 ends every later rest turned by that angle against the rest of the kit. ``departures`` measures, for each wearable,
@@ -20,6 +24,9 @@ from calib.quality import KitDeparture
 DEPARTURE_DEG = 0.2  # a wearable whose attitude comes this far apart from the kit's, beyond the noise, departed
 DEPARTURE_ALPHA = 1e-3  # ... and whose angle has under this chance from noise and calibration error alone
 MODEL_FLOOR_DEG = 0.02  # what a rigid tray's coupling leaves unexplained beyond the noise (per rest), deg
+BURST_WINDOW_S = 0.25  # a wearable moving in its slot shows as a burst of rate against the others' over this long
+BURST_DPS = 1.0  # ... departed when its rms is over this (deg/s) and ``BURST_NOISE`` times what the noise gives
+BURST_NOISE = 25.0
 
 
 @dataclass(frozen=True)
@@ -32,10 +39,11 @@ class Departure:
     p_value: float
     at_s: float | None
     departed: bool
+    burst_dps: float = float("nan")  # the largest rms rate against the others' over BURST_WINDOW_S, deg/s
 
     def to_dict(self) -> KitDeparture:
         return KitDeparture(angle_deg=self.angle_deg, std_deg=self.std_deg, p_value=self.p_value, at_s=self.at_s,
-                            departed=self.departed)
+                            departed=self.departed, burst_dps=self.burst_dps)
 
 
 NO_DEPARTURE = Departure(float("nan"), float("nan"), float("nan"), None, False)  # one wearable left: nothing to depart from
@@ -77,4 +85,11 @@ def _departure(own: np.ndarray, others: np.ndarray, t: np.ndarray, dt: float, re
         along = np.degrees(np.linalg.norm((first.inv() * apart).as_rotvec(), axis=1))
         crossed = np.nonzero(along[rests[0][1]:] > 0.5 * angle)[0]
         at_s = float(t[rests[0][1] + crossed[0]]) if crossed.size else None
-    return Departure(angle, std, p, at_s, bool(angle >= DEPARTURE_DEG and p < DEPARTURE_ALPHA))
+    width = max(3, int(round(BURST_WINDOW_S / dt)))
+    power = np.convolve(np.sum((own - others) ** 2, axis=1), np.ones(width) / width, mode="same")
+    peak = int(np.argmax(power))
+    burst = float(np.sqrt(power[peak]))
+    burst_out = burst > max(BURST_DPS, BURST_NOISE * float(np.sqrt(np.sum(diff_var))))
+    if burst_out and at_s is None:
+        at_s = float(t[peak])
+    return Departure(angle, std, p, at_s, bool((angle >= DEPARTURE_DEG and p < DEPARTURE_ALPHA) or burst_out), burst)

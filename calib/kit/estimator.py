@@ -23,7 +23,7 @@ import numpy as np
 from calib.errors import GyrocalError
 from calib.kit.clocks import IDENTITY, ClockMap, coarse_clock
 from calib.kit.coupling import IDENTITY_MAP, Coupling, LinearMap, couple, fit_map, reading_noise, resting
-from calib.kit.departure import NO_DEPARTURE, departures
+from calib.kit.departure import BURST_DPS, DEPARTURE_DEG, NO_DEPARTURE, departures
 from calib.kit.members import MemberParams, member_params, rest_bias
 from calib.kit.result import Coherence, KitMember, KitResult
 from calib.kit.turns import member_turn_rows
@@ -58,7 +58,9 @@ def calibrate_kit(recordings: Sequence[Recording], names: Sequence[str] | None =
         flagged = [members[j] for j, d in enumerate(solved.departures) if d.departed]
         if not flagged:
             break
-        angle = {i: solved.departures[members.index(i)].angle_deg for i in flagged}
+        # how far each came apart, by either sign, in units of what makes a departure
+        angle = {i: max(solved.departures[members.index(i)].angle_deg / DEPARTURE_DEG,
+                        solved.departures[members.index(i)].burst_dps / BURST_DPS) for i in flagged}
         if len(members) == 2:  # two that came apart from each other: the one whose own turns close worse
             for i in flagged:
                 alone.setdefault(i, _alone(recordings[i], protocol, heading_prior_deg))

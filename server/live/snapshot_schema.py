@@ -134,6 +134,8 @@ class KitMemberConsistency(BaseModel):
     p_value: float | None = Field(None, description="the chance of an angle this large from the noise alone")
     at_s: float | None = Field(None, description="when it came apart (the reference's clock, s)")
     departed: bool = False
+    burst_dps: float | None = Field(None, description="the largest rms of its rate against the others' over a quarter "
+                                    "second, deg/s (a wearable moving in its slot)")
 
 
 class KitConsistency(BaseModel):
