@@ -135,3 +135,13 @@ def test_a_wearable_that_lost_samples_mid_turn_and_stamps_anew_after_is_calibrat
     assert np.all(np.abs(member.result.k - d.k_own) < 4.5 * member.result.k_std), (member.result.k - d.k_own) / member.result.k_std
     bridged = [row for row in member.result.residuals["turns"] if row.get("bridged_by_kit")]
     assert [row["axis"] for row in bridged] == ["x"]
+
+
+def test_a_slip_about_the_axis_being_turned_is_found_by_its_burst_though_the_attitude_hides_it() -> None:
+    # the wearable turns 362.1 deg where the tray turns 360: its own k absorbs the angle, not the rate's jump
+    recs, _ = simulate_kit(121, 6, slip=Slip(3, 2.1175, 0))
+    kit = calibrate_kit(recs, heading_prior_deg=PRIOR_DEG)
+    assert kit.departed == ["kit-121-4"]
+    slipped = kit.members[3].coherence.departure
+    assert slipped.angle_deg < 0.2 and slipped.burst_dps > 5.0
+    assert all(m.coherence.departure.burst_dps < 0.2 for m in kit.members if not m.departed)
