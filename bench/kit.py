@@ -114,17 +114,15 @@ def _guided(n: int, sessions: int, speed: float = 8.0) -> dict:
     """``sessions`` guided kit sessions of ``n`` simulated wearables through `gyrocal serve --mock-kit`."""
     import os
     import signal
-    import socket
     import subprocess
     import sys
     import tempfile
     from pathlib import Path
 
     import httpx
+    from local_service import free_port, wait_until_up
 
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port = sock.getsockname()[1]
+    port = free_port()
     tmp = Path(tempfile.mkdtemp(prefix="gyrocal-kit-guided-"))
     env = {**os.environ, "GYROCAL_API_TOKEN": "bench"}
     proc = subprocess.Popen([sys.executable, "-m", "calib.cli.main", "serve", "--port", str(port), "--db",
@@ -133,12 +131,7 @@ def _guided(n: int, sessions: int, speed: float = 8.0) -> dict:
     c = httpx.Client(base_url=f"http://127.0.0.1:{port}", headers={"Authorization": "Bearer bench"}, timeout=60)
     per_device, passed = [], []
     try:
-        for _ in range(300):
-            try:
-                if c.get("/health").status_code == 200:
-                    break
-            except httpx.HTTPError:
-                time.sleep(0.1)
+        wait_until_up(c)
         for _ in range(sessions):
             t0 = time.monotonic()
             kit_id = c.post("/kits/calibrate", json={"devices": [f"mock-{i + 1}" for i in range(n)]}).json()["session_id"]

@@ -23,18 +23,11 @@ from pathlib import Path
 
 import httpx
 import numpy as np
+from local_service import free_port, wait_until_up
 
 ROOT = Path(__file__).resolve().parents[1]
 GYROCAL = [sys.executable, "-m", "calib.cli.main"]
 TOKEN = "bench-kit-ble"
-
-
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def main() -> None:
@@ -46,7 +39,7 @@ def main() -> None:
     device = subprocess.Popen([*GYROCAL, "mock-device", "--ble", "--kit", args.models, "--seed", str(args.seed)],
                               cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     tmp = Path(tempfile.mkdtemp(prefix="gyrocal-kit-ble-"))
-    port = _free_port()
+    port = free_port()
     try:
         line = json.loads(device.stdout.readline())
         env = {**os.environ, "DBUS_SYSTEM_BUS_ADDRESS": line["dbus_address"], "GYROCAL_API_TOKEN": TOKEN}
@@ -54,12 +47,7 @@ def main() -> None:
                                 "--log-level", "warning"], cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
         try:
             c = httpx.Client(base_url=f"http://127.0.0.1:{port}", headers={"Authorization": f"Bearer {TOKEN}"}, timeout=60)
-            for _ in range(300):
-                try:
-                    if c.get("/health").status_code == 200:
-                        break
-                except httpx.HTTPError:
-                    time.sleep(0.1)
+            wait_until_up(c)
             found = c.post("/devices/scan", params={"timeout": 3}).json()["devices"]
             truth = {d["address"]: d for d in line["devices"]}
             ids = [d["address"] for d in line["devices"]]

@@ -113,7 +113,7 @@ def evaluate(result: CalibrationResult, tol: Tolerances) -> list[Check]:
                                  f"uncertainty of b_{a} = {v:.2g} °/s (allowed {tol.b_std_max_dps:g} °/s)"))
     # after calibration each full turn must bring the device back to the pose it was put back in
     for turn in result.residuals.get("turns") or []:
-        if isinstance(turn, dict) and (miss := _misclosure(turn)) is not None:
+        if isinstance(turn, dict) and (miss := misclosure(turn)) is not None:
             v = float(miss)
             axis = turn.get("axis")
             checks.append(_check("closure", axis, v, tol.closure_max_deg, v <= tol.closure_max_deg,
@@ -131,19 +131,19 @@ def turn_accuracy(result: CalibrationResult | dict[str, Any], in_force: dict[str
     ends from where it began. None for a result without the closure estimator's turn rows."""
     doc = result.to_dict() if isinstance(result, CalibrationResult) else result
     rows = [t for t in (doc.get("residuals") or {}).get("turns") or []
-            if isinstance(t, dict) and t.get("raw_angle_deg") is not None and _misclosure(t) is not None]
+            if isinstance(t, dict) and t.get("raw_angle_deg") is not None and misclosure(t) is not None]
     new = _scale_factors(doc)
     if not rows or new is None:
         return None
     old = _scale_factors(in_force)
     axes = {AXES.index(t["axis"]) for t in rows if t.get("axis") in AXES} or set(range(3))
     before = max(FULL_TURN_DEG * abs((1.0 if old is None else old[i]) / new[i] - 1.0) for i in axes)
-    after = max(float(_misclosure(t)) for t in rows)
+    after = max(float(misclosure(t)) for t in rows)
     return {"before_deg": before, "after_deg": after, "before_with": "raw" if old is None else "calibration",
             "before_calibration_id": None if old is None or in_force is None else in_force.get("id")}
 
 
-def _misclosure(turn: dict[str, Any]) -> Any:
+def misclosure(turn: dict[str, Any]) -> Any:
     """How far a calibrated turn ends from the pose the device was measured to be put back in (deg); a result from
     before the placement was modelled has only its closure."""
     value = turn.get("misclosure_norm_deg")

@@ -16,6 +16,7 @@ from scipy.signal import correlate, correlation_lags
 from calib.errors import GyrocalError
 from calib.recording import Recording
 
+GAP_STEPS = 1.5  # an interval this many times the usual one is samples lost
 WINDOW_S = 4.0  # windows whose lags give the clock rate
 MIN_OVERLAP_S = 10.0  # recordings that share less of the motion cannot be a kit's
 
@@ -51,6 +52,12 @@ class ClockMap:
 
 
 IDENTITY = ClockMap(0.0, 1.0, 0.0, 0.0)
+
+
+def gaps(t: np.ndarray) -> np.ndarray:
+    """Which intervals of stamps ``t`` (n - 1 of them) span samples lost."""
+    step = np.diff(t)
+    return np.asarray(step > GAP_STEPS * np.median(step))
 
 
 def activity(rec: Recording) -> np.ndarray:
@@ -126,8 +133,7 @@ def _window_lags(grid: np.ndarray, s_ref: np.ndarray, own: np.ndarray, t_rec: np
     """Lags of ``rec`` (as currently mapped) against ``ref`` in windows that hold motion: centres (s), lags (s), weights."""
     size = int(round(WINDOW_S / dt))
     mapped = np.interp(own, t_rec, s_rec, left=np.nan, right=np.nan)
-    step = np.diff(t_rec)
-    for j in np.nonzero(step > 1.5 * np.median(step))[0]:  # samples lost: no activity to match there
+    for j in np.nonzero(gaps(t_rec))[0]:  # samples lost: no activity to match there
         mapped[(own > t_rec[j]) & (own < t_rec[j + 1])] = np.nan
     max_lag = int(np.ceil(search_s / dt))
     floor = 0.1 * float(np.max(s_ref))

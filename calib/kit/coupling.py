@@ -15,12 +15,11 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from calib.errors import GyrocalError
-from calib.kit.clocks import ClockMap, activity
+from calib.kit.clocks import ClockMap, activity, gaps
 from calib.recording import Recording
 
 REFINE_PASSES = 3
 RUN_SHIFT_FROM = 2  # passes with one clock for the whole recording before each run after a gap gets its own offset
-GAP_STEPS = 1.5  # an interval this many times the usual one is samples lost
 REST_SHARE = 0.3  # the share of samples with the least motion, where a residual is the readings' noise alone
 
 
@@ -100,8 +99,7 @@ def resting(rec: Recording) -> np.ndarray:
 
 def runs(rec: Recording) -> np.ndarray:
     """Which run of samples without a gap each sample of ``rec`` belongs to (0, 1, ...: a new run after each gap)."""
-    step = np.diff(rec.t)
-    return np.concatenate([[0], np.cumsum(step > GAP_STEPS * np.median(step))])
+    return np.concatenate([[0], np.cumsum(gaps(rec.t))])
 
 
 def resample(rec: Recording, clock: ClockMap, t_ref: np.ndarray, run_shift: np.ndarray | None = None) -> np.ndarray:

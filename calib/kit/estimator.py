@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from calib.errors import GyrocalError
+from calib.judge.acceptance import misclosure
 from calib.kit.clocks import IDENTITY, ClockMap, coarse_clock
 from calib.kit.coupling import IDENTITY_MAP, Coupling, LinearMap, couple, fit_map, reading_noise, resting
 from calib.kit.departure import BURST_DPS, DEPARTURE_DEG, NO_DEPARTURE, departures
@@ -89,8 +90,9 @@ class _Solved:
     kit's mean, the mean's calibration, the times ``span`` of the mean's samples, and each wearable's departure."""
 
     def __init__(self, members: list[int], clocks: dict[int, ClockMap], maps: dict[int, LinearMap], span: np.ndarray,
-                 mean: CalibrationResult, rates: np.ndarray, noise: np.ndarray) -> None:
+                 mean: CalibrationResult, rates: np.ndarray, noise: np.ndarray, reading: dict[int, np.ndarray]) -> None:
         self.ref, self.members, self.clocks, self.maps, self.span, self.mean = members[0], members, clocks, maps, span, mean
+        self.reading_noise = reading  # each wearable's readings' noise std per axis, deg/s
         rests = [(s.start, s.end) for s in mean.stages if s.kind == "still"]
         self.departures = departures(rates, span, rests, noise) if len(members) >= 2 else [NO_DEPARTURE]
 
@@ -98,7 +100,8 @@ class _Solved:
 def _solve(recordings: Sequence[Recording], members: list[int], protocol: str, heading_prior_deg: float | None) -> _Solved:
     ref_i = members[0]
     ref = recordings[ref_i]
-    ref_noise = reading_noise(ref)
+    noise = {i: reading_noise(recordings[i]) for i in members}
+    ref_noise = noise[ref_i]
     clocks: dict[int, ClockMap] = {ref_i: IDENTITY}
     readings = {ref_i: ref.gyro}
     maps: dict[int, LinearMap] = {ref_i: IDENTITY_MAP}
@@ -112,7 +115,6 @@ def _solve(recordings: Sequence[Recording], members: list[int], protocol: str, h
     rows = np.nonzero(keep)[0]
     rows = np.arange(rows[0], rows[-1] + 1)
     y = {i: readings[i][rows] for i in members}
-    noise = {i: reading_noise(recordings[i]) for i in members}
     if len(members) >= 2:
         rest = resting(ref)[rows]
         for _ in range(CONSENSUS_PASSES):  # each wearable against the mean of the others, not the reference alone
@@ -132,7 +134,7 @@ def _solve(recordings: Sequence[Recording], members: list[int], protocol: str, h
     # calibrated, in the reference's frame; where a wearable lost samples, the kit's mean stands in (no departure)
     rates = np.array([np.where(np.isfinite(mapped[i]), mapped[i], mean_m) * k_ref + b_ref for i in members])
     rate_noise = np.array([np.sqrt(variance[i]) * k_ref for i in members])
-    return _Solved(members, clocks, maps, ref.t[rows], mean, rates, rate_noise)
+    return _Solved(members, clocks, maps, ref.t[rows], mean, rates, rate_noise, noise)
 
 
 def _check_one_motion(coupling: Coupling, rec: Recording, ref: Recording) -> None:
@@ -181,15 +183,15 @@ def _members(recordings: Sequence[Recording], names: list[str], solved: _Solved,
         if stages and stages[-1].kind == "still":
             stages[-1] = replace(stages[-1], end=len(rec), end_s=float(rec.t[-1]))
         at_rest = np.concatenate([np.arange(s.start, s.end) for s in stages if s.kind == "still"])
-        params = rest_bias(params, rec.gyro[at_rest].mean(axis=0), at_rest.size, reading_noise(rec))
-        result = _result(rec, params, clock, solved, names, j, stages)
+        params = rest_bias(params, rec.gyro[at_rest].mean(axis=0), at_rest.size, solved.reading_noise[i])
+        result = _result(rec, params, clock, solved, names, j, stages, solved.reading_noise[i])
         out[i] = KitMember(names[i], result, clock, params.mount_deg,
                            Coherence(linear.residual_sd, linear.noise_sd, solved.departures[j]))
     return out
 
 
 def _result(rec: Recording, params: MemberParams, clock: ClockMap, solved: _Solved, names: list[str], j: int,
-            stages: list[Stage]) -> CalibrationResult:
+            stages: list[Stage], noise: np.ndarray) -> CalibrationResult:
     """One wearable's calibration as an ordinary result: the mean's stages on its own samples, its own turns'
     closures with its own calibration, the mean's quality with the kit's block beside it."""
     mean = solved.mean
@@ -202,7 +204,7 @@ def _result(rec: Recording, params: MemberParams, clock: ClockMap, solved: _Solv
     residuals["turns"] = member_turn_rows(residuals.get("turns") or [], stages, attitude, params.mount, rec.t)
     return CalibrationResult(
         k=params.k, b=params.b, method=METHOD, stages=stages, quality=quality, k_std=params.k_std, b_std=params.b_std,
-        k_bound=params.k_bound, b_bound=params.b_bound, noise_dps=reading_noise(rec), residuals=residuals,
+        k_bound=params.k_bound, b_bound=params.b_bound, noise_dps=noise, residuals=residuals,
         warnings=list(mean.warnings), iterations=mean.iterations, sample_rate_hz=rec.fs, n_samples=len(rec),
     )
 
@@ -233,8 +235,7 @@ def _alone(rec: Recording, protocol: str, heading_prior_deg: float | None) -> Ca
 def _worst_closure(result: CalibrationResult | GyrocalError) -> float:
     if isinstance(result, GyrocalError):
         return float("inf")
-    rows = result.residuals.get("turns") or []
-    values = [r.get("misclosure_norm_deg", r.get("closure_norm_deg")) for r in rows]
+    values = [misclosure(r) for r in result.residuals.get("turns") or []]
     return max((float(v) for v in values if v is not None), default=float("inf"))
 
 

@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calib.kit.coupling import GAP_STEPS
+from calib.kit.clocks import gaps
 from calib.stages.stage import Stage
 
 
@@ -17,8 +17,7 @@ def member_turn_rows(rows: list[dict[str, Any]], stages: list[Stage], attitude: 
     its samples ``t`` (s), ``attitude`` its calibrated attitude after each sample, ``mount`` its axes from the
     reference's (which carries the tray's placement, measured in the reference's axes, into its own). A turn in which
     the wearable lost samples cannot be closed on its own: the kit's closure, in its axes, stands (``bridged_by_kit``)."""
-    step = np.diff(t)
-    lost = np.append(step > GAP_STEPS * np.median(step), False)
+    lost = np.append(gaps(t), False)
     out = []
     for row in rows:
         row = dict(row)
