@@ -13,7 +13,7 @@ from ... import schemas as M
 from ...deps import R401, R404, R409, R503, Operator, Reader, Svc, check_device_id, check_session_id, problem
 from ...live.kit_session import KitSession
 from ...live.runner import LiveSession
-from ...live.snapshot_schema import SessionOut
+from ...live.snapshot_schema import KitDeviceOut, SessionOut
 from ...service import Service
 from ...store import DecisionConflict, NotAcceptable, NotFound, StoreError
 from ...store.calibrations import Acceptance
@@ -132,15 +132,14 @@ def _acceptance(live: LiveSession) -> Acceptance:
                       recording_csv=live.csv_bytes, n_samples=live.machine.buf.n)
 
 
-def _why_not(d: object) -> str:
-    state, reason = getattr(d, "state", ""), getattr(d, "reason", None)
-    if getattr(d, "departed", False):
-        return reason or "it came apart from the kit"
-    if getattr(d, "decision", None):
-        return f"decided already ({d.decision})"  # type: ignore[attr-defined]
-    if state == "done":
+def _why_not(d: KitDeviceOut) -> str:
+    if d.departed:
+        return d.reason or "it came apart from the kit"
+    if d.decision:
+        return f"decided already ({d.decision})"
+    if d.state == "done":
         return "its result is outside the tolerances"
-    return reason or f"its session ended {state}"
+    return d.reason or f"its session ended {d.state}"
 
 
 def _kit(svc: Service, kit_id: str) -> KitSession[LiveSession]:
