@@ -23,7 +23,7 @@ from calib.diagnosis.rivals import Worlds
 from calib.diagnosis.saturation import Plateau, find_plateaus, plateau_caps
 from calib.diagnosis.select import ALPHA, Candidate, null_fit, p_value, plan_tests, statistics
 from calib.diagnosis.stepwise import select_effects
-from calib.diagnosis.timebase import TimeBase, analyse_timebase, bridge
+from calib.diagnosis.timebase import TimeBase, analyse_timebase, bridge, on_bridged_rows
 from calib.effects import CATALOGUE
 from calib.errors import GyrocalError, ProtocolError, RecordingError, RecordingTooLong
 from calib.io.section import Section
@@ -79,6 +79,9 @@ def diagnose(
     say(0.0, "stages")
     tb = analyse_timebase(rec, host_t)
     _check_size(rec, tb, max_samples)
+    # the stages are those calibrate finds, on the delivered rows: a gap is a gap to the detector, where samples put
+    # back would be noiseless and lower its noise floor, and a motion the link lost is not a turn to use
+    stages, found, used = protocol_stages(rec, protocol, sections, stages)
     raw = None
     if tb.lost > 0 and tb.index_source is not None:
         # lost samples are put back at their sample numbers; the analysis runs on the bridged recording
@@ -87,10 +90,8 @@ def diagnose(
         raw = rec
         rec = bridge(rec, tb)
         host_t = rec.host_t
-        if stages is not None:
-            stages = None  # stage indices refer to the delivered rows: detect them again
+        stages = [on_bridged_rows(s, tb) for s in stages]
     plateaus = find_plateaus(rec)
-    stages, found, used = protocol_stages(rec, protocol, sections, stages)
     moving = None
     if used == "multi-position":
         moving = prepare_reorientations(rec, stages)

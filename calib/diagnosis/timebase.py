@@ -16,11 +16,12 @@ in units of the timestamps' own jitter (estimated from the data, at least 1e-3 o
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from calib.recording import Recording
+from calib.stages.stage import Stage
 
 JITTER_FLOOR = 0.01  # of a period: timestamps are never trusted beyond this
 DEVICE_LIKE = 0.02  # timestamps whose intervals scatter less than this (of a period) are the device's own
@@ -156,8 +157,6 @@ def bridge(rec: Recording, tb: TimeBase) -> Recording:
     few samples, so holding the last reading over a gap would add a turn-dependent error); the other
     channels are interpolated linearly; times and counter follow the sample numbers.
     """
-    from dataclasses import replace
-
     from scipy.interpolate import CubicSpline
 
     idx = tb.index.astype(float)
@@ -171,3 +170,8 @@ def bridge(rec: Recording, tb: TimeBase) -> Recording:
     return replace(rec, t=np.interp(full, idx, rec.t), gyro=gyro, accel=accel, seq=seq, temp=lin(rec.temp),
                    host_t=lin(getattr(rec, "host_t", None)))
 
+
+def on_bridged_rows(stage: Stage, tb: TimeBase) -> Stage:
+    """``stage`` of the delivered rows, at its rows of the recording ``bridge`` gives (times are unchanged)."""
+    first = int(tb.index[0])
+    return replace(stage, start=int(tb.index[stage.start]) - first, end=int(tb.index[stage.end - 1]) - first + 1)

@@ -23,8 +23,9 @@ from calib.effects import (
 )
 from calib.errors import RecordingError
 from calib.io.readers import read_recording, write_native_csv
+from calib.pipeline import calibrate
 from calib.recording import Recording
-from calib.simulator import simulate
+from calib.simulator import ProtocolScript, Still, paper_protocol_script, simulate
 from calib.simulator.concealed import EFFECT_NAMES, draw_concealed
 from calib.stages.detector import detect_stages
 
@@ -93,6 +94,22 @@ def test_effects_named_without_accelerometer_and_counter(effect):
     case, d = _diagnose_case(effect, 2, "paper", accel=False, seq=False)
     assert d.names and d.names[0] == effect, f"{effect} (magnitude {case.magnitude:.3g}) named as {d.names}"
     assert d.effects[0]["fit"]["after"] < d.effects[0]["fit"]["before"]
+
+
+def test_a_turn_the_link_lost_for_seconds_and_done_again_is_diagnosed_on_the_stages_calibrate_uses():
+    """Seconds of samples lost from halfway through the y turn, the turn done again: the motion the link cut is no
+    turn to the detector, as calibrate reads it, and the samples put back for the model check (noiseless) do not
+    hide the rests that follow."""
+    base = paper_protocol_script(np.random.default_rng(8)).segments  # rest, x, rest, y, rest, z, rest
+    rec, _ = simulate(8, script=ProtocolScript((*base[:4], Still(8.0), *base[3:])))
+    cut = sum(s.duration_s for s in base[:3]) + base[3].duration_s / 2
+    keep = np.flatnonzero((rec.t < cut) | (rec.t >= cut + 5.0))
+    lossy = replace(rec, t=rec.t[keep], gyro=rec.gyro[keep], accel=rec.accel[keep], seq=rec.seq[keep])
+    used = [(s.kind, s.axis, round(s.start_s, 6)) for s in calibrate(lossy).stages if s.kind == "turn"]
+    d = diagnose(lossy, n_boot=N_BOOT)
+    assert [a for _, a, _ in used] == ["x", "y", "z"]
+    assert "sample_loss" in d.names
+    assert [m["observed"] for m in d.mismatches if m["statistic"] == "lost_samples"] == [len(rec) - len(lossy)]
 
 
 @pytest.mark.parametrize(
