@@ -222,28 +222,16 @@ class Wizard:
         showed in each turn and its target, every text the gauge showed, every headline and every state:phase
         in order (taken at each change of the page, so none that lasts a single event is missed), whether the
         stillness ring showed the device moving, every notice, the notice beside each state:phase
-        ("turn_x:ready|<notice>"), the turns shown done after each change ("xy"), and whether the gauge was ever
-        gone while the device was being put down (placing)."""
+        ("turn_x:ready|<notice>"), the turns shown done after each change ("xy"), whether the gauge was ever
+        gone while the device was being put down (placing), and in ``shown`` what each screen said as it changed
+        (state:phase, headline, the line under it, the recorded-turn line and the notices with their classes), so that
+        a test on a busy machine waits only for the end and reads back what passed on the way."""
         self.page.evaluate("""() => {
           window.seen = { gauge: {}, gaugeText: {}, targets: {}, headlines: [], phases: [], ringMoving: false, notices: [],
-                          phaseNotices: [], done: [], placingWithoutGauge: false, screens: {} };
+                          phaseNotices: [], done: [], placingWithoutGauge: false, screens: {}, shown: [] };
           const last = (list) => list[list.length - 1];
-          new MutationObserver(() => {
-            const w = document.querySelector('.wizard'), hl = document.querySelector('.instruction');
-            if (hl && last(window.seen.headlines) !== hl.textContent) window.seen.headlines.push(hl.textContent);
-            const sp = w ? `${w.dataset.state}:${w.dataset.phase || ''}` : null;
-            if (sp && last(window.seen.phases) !== sp) window.seen.phases.push(sp);
-            // each screen as first shown, for axe-core afterwards (a screen may last a fraction of a second)
-            if (sp && !(sp in window.seen.screens)) window.seen.screens[sp] = document.documentElement.outerHTML;
-            const box = document.querySelector('.notice-box'), said = `${sp}|${box ? box.textContent.trim() : ''}`;
-            if (sp && last(window.seen.phaseNotices) !== said) window.seen.phaseNotices.push(said);
-            const done = [...document.querySelectorAll('.tile[data-state="done"] .tile-axis')]
-              .map((t) => t.textContent.slice(-1).toLowerCase()).join('');
-            const tiles = w && w.querySelector('.tiles');
-            if (tiles && !tiles.hidden && last(window.seen.done) !== done) window.seen.done.push(done);
-            if (w && w.dataset.phase === 'placing' && !document.querySelector('.gauge-wrap')) window.seen.placingWithoutGauge = true;
-          }).observe(document.body, { subtree: true, childList: true, characterData: true, attributes: true });
-          setInterval(() => {
+          const text = (sel) => { const el = document.querySelector(sel); return el ? el.textContent.trim() : ''; };
+          const look = () => {
             const w = document.querySelector('.wizard'), g = document.querySelector('.gauge-text');
             if (w && g && w.dataset.phase === 'turning') {
               const axis = w.dataset.state.slice(5), n = parseInt(g.textContent, 10);
@@ -257,11 +245,39 @@ class Wizard:
               const t = n.textContent.trim();
               if (!window.seen.notices.includes(t)) window.seen.notices.push(t);
             }
-          }, 20);
+          };
+          new MutationObserver(() => {
+            look();
+            const w = document.querySelector('.wizard'), hl = document.querySelector('.instruction');
+            if (hl && last(window.seen.headlines) !== hl.textContent) window.seen.headlines.push(hl.textContent);
+            const sp = w ? `${w.dataset.state}:${w.dataset.phase || ''}` : null;
+            if (sp && last(window.seen.phases) !== sp) window.seen.phases.push(sp);
+            // each screen as first shown, for axe-core afterwards (a screen may last a fraction of a second)
+            if (sp && !(sp in window.seen.screens)) window.seen.screens[sp] = document.documentElement.outerHTML;
+            const box = document.querySelector('.notice-box'), said = `${sp}|${box ? box.textContent.trim() : ''}`;
+            if (sp && last(window.seen.phaseNotices) !== said) window.seen.phaseNotices.push(said);
+            const done = [...document.querySelectorAll('.tile[data-state="done"] .tile-axis')]
+              .map((t) => t.textContent.slice(-1).toLowerCase()).join('');
+            const tiles = w && w.querySelector('.tiles');
+            if (tiles && !tiles.hidden && last(window.seen.done) !== done) window.seen.done.push(done);
+            if (w && w.dataset.phase === 'placing' && !document.querySelector('.gauge-wrap')) window.seen.placingWithoutGauge = true;
+            if (sp) {
+              const notices = [...document.querySelectorAll('.notice')].map((n) => `${n.className}|${n.textContent.trim()}`);
+              const now = { sp, instruction: text('.instruction'), sub: text('.sub'), recorded: text('.recorded'),
+                            recordedClass: (document.querySelector('.recorded') || {}).className || '', notices };
+              const before = last(window.seen.shown);
+              if (!before || JSON.stringify(before) !== JSON.stringify(now)) window.seen.shown.push(now);
+            }
+          }).observe(document.body, { subtree: true, childList: true, characterData: true, attributes: true });
+          setInterval(look, 20);
         }""")
 
     def seen(self) -> dict[str, Any]:
         return self.page.evaluate("() => window.seen")
+
+    def shown(self, sp: str) -> list[dict[str, Any]]:
+        """What the page said while it showed ``sp`` ("state:phase"), each change in order (``record`` first)."""
+        return [s for s in self.seen()["shown"] if s["sp"] == sp]
 
     def assert_screens_accessible(self) -> list[str]:
         """axe-core on every screen ``record`` saw (state:phase), each as it was first shown, rendered again in a page

@@ -7,12 +7,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
 
 from calib.diagnosis.data import build_problem, make_layout
 from calib.diagnosis.features import Features
 from calib.diagnosis.fitting import fit_nominal
 from calib.diagnosis.select import ADVICE, ALPHA
+from calib.distributions import chi2_sf
 from calib.errors import GyrocalError
 from calib.recording import Recording
 from calib.stages.detector import detect_stages
@@ -127,7 +127,7 @@ def assemble_diagnosis(rec, raw, host_t, prob, layout, tb, plateaus, fit0, base,
     recal = recalibration(prob, fit0, final, effects, tb, plateaus, base, cap_fit)
     d0 = float(fit0.deviance[0])
     nominal = {"k": fit0.psi[0, :3], "b": fit0.psi[0, 3:6], "deviance": d0, "dof": float(fit0.dof[0]),
-               "p_value": float(chi2_dist.sf(d0, max(fit0.dof[0], 1.0))), "turns": layout.J, "stills": layout.S}
+               "p_value": float(chi2_sf(d0, max(fit0.dof[0], 1.0))), "turns": layout.J, "stills": layout.S}
     worst_before = float(np.min(p_before)) if p_before.size else 1.0
     sim = {
         "features": int(p_before.size),

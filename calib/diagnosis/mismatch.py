@@ -39,10 +39,10 @@ def mismatch_rows(feats: Features, boot: np.ndarray, p: np.ndarray, alpha: float
         rows.insert(0, {"where": f"{len(tb.gaps)} gaps, first at {tb.gaps[0][2]:.2f} s", "statistic": "lost_samples",
                         "observed": tb.lost, "simulated_range": [0, 0], "p_value": 0.0})
     if tb.clock_e is not None and tb.clock_std:
-        from scipy.stats import norm
+        from calib.distributions import norm_sf
 
         z = tb.clock_e / tb.clock_std
-        pz = float(2 * norm.sf(abs(z)))
+        pz = float(2 * norm_sf(abs(z)))
         if pz < alpha and abs(tb.clock_e) > 5e-4:
             rows.insert(0, {"where": "whole recording: device clock against host receive times",
                             "statistic": "clock_rate_error", "observed": tb.clock_e,

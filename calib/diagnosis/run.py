@@ -7,7 +7,6 @@ from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
-from scipy.stats import norm
 
 from calib.diagnosis.assemble import Diagnosis, assemble_diagnosis
 from calib.diagnosis.data import Problem, build_problem, gravity_proxy, make_layout, sample_intervals, set_design_accel
@@ -24,6 +23,7 @@ from calib.diagnosis.saturation import Plateau, find_plateaus, plateau_caps
 from calib.diagnosis.select import ALPHA, Candidate, null_fit, p_value, plan_tests, statistics
 from calib.diagnosis.stepwise import select_effects
 from calib.diagnosis.timebase import TimeBase, analyse_timebase, bridge, on_bridged_rows
+from calib.distributions import norm_sf
 from calib.effects import CATALOGUE
 from calib.errors import GyrocalError, ProtocolError, RecordingError, RecordingTooLong
 from calib.io.section import Section
@@ -355,7 +355,7 @@ def _feature_p(obs: np.ndarray, boot: np.ndarray, kinds: list[str]) -> np.ndarra
         if kinds[i] == SIGNED:
             sd = float(b.std(ddof=1))
             z = (obs[i] - float(b.mean())) / max(sd, 1e-300)
-            p[i] = float(2.0 * norm.sf(abs(z)))
+            p[i] = float(2.0 * norm_sf(abs(z)))
         else:
             p[i] = p_value(float(obs[i]), null_fit(b))
     return p

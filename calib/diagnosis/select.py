@@ -22,7 +22,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
 
 from calib.diagnosis.data import Problem
 from calib.diagnosis.engine import Priors, System, system
@@ -30,6 +29,7 @@ from calib.diagnosis.gauss_newton import Fit
 from calib.diagnosis.models import Model
 from calib.diagnosis.scores import profile_information, score_statistic
 from calib.diagnosis.variance import instability_noncentrality, instability_score, placement_score
+from calib.distributions import chi2_sf
 from calib.effects import catalogue_specs
 
 ALPHA = 0.05  # family-wise false-positive rate on recordings the nominal model explains
@@ -220,7 +220,7 @@ def null_fit(values: np.ndarray) -> tuple[float, float]:
 
 def p_value(stat: float, null: tuple[float, float]) -> float:
     c, nu = null
-    return float(chi2_dist.sf(stat / c, nu))
+    return float(chi2_sf(stat / c, nu))
 
 
 # --------------------------------------------------------------------------- fits of extended models

@@ -3,12 +3,11 @@ set aside or named against its close rivals by Cox's test (calib.diagnosis.rival
 
 from __future__ import annotations
 
-from scipy.stats import chi2 as chi2_dist
-
 from calib.diagnosis.data import Problem
 from calib.diagnosis.extended_fits import ModelState, criterion, press, try_fit
 from calib.diagnosis.rivals import Worlds, rival_test
 from calib.diagnosis.select import Candidate, Step
+from calib.distributions import chi2_sf
 
 AMBIGUOUS_IC = 4.0  # a rival this close in the information criterion needs Cox's test to be set aside
 
@@ -135,8 +134,8 @@ def _conditional_p(lr: float, c: Candidate) -> float:
     """
     lr = max(lr, 0.0)
     if c.key == "bias_instability":
-        return float(chi2_dist.sf(lr, 2))
+        return float(chi2_sf(lr, 2))
     if c.key == "placement_var":
-        return float(chi2_dist.sf(lr, 1))
+        return float(chi2_sf(lr, 1))
     scale = max(1.0, c.null[0] * c.null[1] / max(c.dof, 1))
-    return float(chi2_dist.sf(lr / scale, max(c.dof, 1)))
+    return float(chi2_sf(lr / scale, max(c.dof, 1)))

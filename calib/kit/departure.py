@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation
-from scipy.stats import chi2
 
+from calib.distributions import chi2_sf
 from calib.numerics.attitude import cumulative_attitude
 from calib.quality import KitDeparture
 
@@ -79,7 +79,7 @@ def _departure(own: np.ndarray, others: np.ndarray, t: np.ndarray, dt: float, re
     elapsed = t[rests[worst + 1][0]] - t[rests[0][1] - 1]
     std = float(np.sqrt(np.mean(diff_var) * elapsed * dt + MODEL_FLOOR_DEG**2))
     angle = float(angles[worst])
-    p = float(chi2.sf((angle / std) ** 2, 3))
+    p = float(chi2_sf((angle / std) ** 2, 3))
     at_s = None
     if angle >= DEPARTURE_DEG:
         along = np.degrees(np.linalg.norm((first.inv() * apart).as_rotvec(), axis=1))

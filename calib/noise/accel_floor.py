@@ -13,7 +13,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
+
+from calib.distributions import chi2_isf
 
 FLOOR_ALPHA = 0.01  # chance that white noise alone shows a floor on an axis
 MIN_SPANS = 4  # the longest rest must hold this many spans of a typical rest's length
@@ -60,6 +61,6 @@ def accel_floor(accel: np.ndarray, spans: list[tuple[int, int]], colour: np.ndar
     means = spans_of.mean(axis=1)
     white = spans_of.var(axis=1).mean(axis=0) * np.asarray(colour) / n  # a span mean's white part
     ratio = np.var(means, axis=0, ddof=1) / np.maximum(white, 1e-300)
-    beyond = ratio > chi2_dist.ppf(1.0 - FLOOR_ALPHA, M - 1) / (M - 1)
+    beyond = ratio > chi2_isf(FLOOR_ALPHA, M - 1) / (M - 1)
     sd = np.where(beyond, np.sqrt(np.maximum(ratio - 1.0, 0.0) * white), 0.0)
     return AccelFloor(sd, n / fs, ratio, longest)

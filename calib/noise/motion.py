@@ -21,7 +21,8 @@ from typing import Any
 
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
-from scipy.stats import f as f_dist
+
+from calib.distributions import f_sf
 
 BAND = (0.9, 1.0)  # the band the power is compared in, as fractions of the Nyquist frequency
 MOTION_NOISE_ALPHA = 0.01  # chance that white noise of one level shows a ratio on an axis
@@ -77,7 +78,7 @@ def motion_noise(gyro: np.ndarray, rests: list[tuple[int, int]], motions: list[t
     ratio = power_m / np.maximum(power_r, 1e-300)
     width = BAND[1] - BAND[0]  # a band this wide holds this share of the samples' independent values
     dof_m, dof_r = max(width * n_m, 1.0), max(width * n_r, 1.0)
-    p_value = f_dist.sf(ratio, dof_m, dof_r)
+    p_value = f_sf(ratio, dof_m, dof_r)
     counted = np.where((p_value < MOTION_NOISE_ALPHA) & (ratio > 1.0), ratio, 1.0)
     return MotionNoise(ratio, counted, p_value, (BAND[0] * fs / 2, BAND[1] * fs / 2))
 

@@ -100,8 +100,9 @@ async def test_a_link_drop_is_bridged_and_its_gap_measured(model):
     truth = w.stats.packets_lost_link * w.samples_per_packet
     if MODELS[model].time_stamps == "device":  # from the time stamps: exact
         assert restored.gap_samples == truth
-    else:  # from arrival times: the wall-clock gap, to within 10 ms of scheduling jitter (in device time)
-        assert restored.gap_samples == pytest.approx(truth, abs=3 + 0.010 * speed * w.true_rate_hz)
+    else:  # from arrival times: the wall-clock gap, to within the event loop's scheduling jitter (in device time): a
+        # few ms on an idle machine, 15 ms seen on a busy two-core one; 40 ms allowed
+        assert restored.gap_samples == pytest.approx(truth, abs=3 + 0.040 * speed * w.true_rate_hz)
     after = next(b for b in batches if b.lost_before)
     assert after.lost_before == restored.gap_samples and restored.gap_s >= w.faults.drop_for_s * 0.95
     seq = np.concatenate([b.seq for b in batches])

@@ -23,8 +23,8 @@ from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.stats import chi2 as chi2_dist
 
+from calib.distributions import chi2_sf
 from calib.errors import CalibrationError, ProtocolError
 from calib.estimators.closure.fit import ClosureData, ClosureFit, start_values, system
 from calib.estimators.closure.partial import not_turned_text, partial_start, turned_axes
@@ -127,8 +127,8 @@ def _choose_model(data: ClosureData, diagonal: ClosureFit) -> tuple[ClosureFit, 
         return diagonal, False, choice
     chi2_ext, dof_ext = float(ext.res @ ext.res), int(data.dof(True)[0])
     lr = float(diagonal.res @ diagonal.res) - chi2_ext
-    p = float(chi2_dist.sf(max(lr, 0.0), 3))
-    fits = float(chi2_dist.sf(chi2_ext, dof_ext)) if dof_ext > 0 else 1.0
+    p = float(chi2_sf(max(lr, 0.0), 3))
+    fits = float(chi2_sf(chi2_ext, dof_ext)) if dof_ext > 0 else 1.0
     choice.update({"likelihood_ratio": lr, "p_value": p, "extended_fit_p_value": fits})
     if fits < EXTENDED_FIT_MIN:
         # a misfit the terms only partly absorb (a turn that did not come back, ...) is not non-orthogonality

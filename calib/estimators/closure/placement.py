@@ -21,8 +21,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
 
+from calib.distributions import chi2_isf
 from calib.errors import GyrocalError
 from calib.stages.placement import TurnTilts
 from calib.units import DEG
@@ -69,7 +69,7 @@ def tilt_prior_deg(tilts: TurnTilts) -> float:
         return float("nan")
     square = np.sum(tilts.rotation_deg[m] ** 2, axis=1)
     sd2 = tilts.sd_deg[m] ** 2
-    if float(np.sum(square / sd2)) < float(chi2.isf(TILT_TEST_ALPHA, 2 * int(m.sum()))):
+    if float(np.sum(square / sd2)) < float(chi2_isf(TILT_TEST_ALPHA, 2 * int(m.sum()))):
         return 0.0
     return float(np.sqrt(max(0.0, float(np.mean(square / 2.0 - sd2)))))
 

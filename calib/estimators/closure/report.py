@@ -4,8 +4,8 @@ rest's residuals, the fit's quality and the warnings a reader needs."""
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
 
+from calib.distributions import chi2_sf
 from calib.errors import CalibrationError
 from calib.estimators.closure.fit import ClosureData, ClosureFit, calibration_matrix, param_names
 from calib.quality import Quality
@@ -43,7 +43,7 @@ def closure_result(
     chi2 = float(fit.res @ fit.res)
     dof = int(data.dof(extended)[0]) + int(held.sum())  # each prior is one more observation
     birge = float(np.sqrt(max(1.0, chi2 / dof))) if dof > 0 else 1.0
-    p_value = float(chi2_dist.sf(chi2, dof)) if dof > 0 else float("nan")
+    p_value = float(chi2_sf(chi2, dof)) if dof > 0 else float("nan")
     std = bound * birge
     K = calibration_matrix(theta[None])[0]
     # an axis not turned: its k only had its prior, and neither it nor its bias (the rest's reading times k) is determined

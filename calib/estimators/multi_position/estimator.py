@@ -34,9 +34,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
-from scipy.stats import f as f_dist
 
+from calib.distributions import chi2_sf, f_sf
 from calib.errors import CalibrationError, ProtocolError
 from calib.estimators.accel import PARAMS, AccelCalibration, apply_model, calibrate_accelerometer, rest_spans
 from calib.estimators.multi_position.model import (
@@ -271,7 +270,7 @@ def _g_sensitivity_choice(base: _Fit, data: Data, asked: bool | None) -> tuple[_
         return base, test
     with_g = _fit(Params(base.p.K, base.p.b, np.zeros((3, 3)), base.p.xa.copy()), data)
     F = (base.chi2 - with_g.chi2) / 9.0 / (with_g.chi2 / with_g.dof)
-    p_value = float(f_dist.sf(F, 9, with_g.dof))
+    p_value = float(f_sf(F, 9, with_g.dof))
     test.update(F=float(F), p_value=p_value)
     if asked or p_value < G_ALPHA:
         test.update(fitted=True, reason="asked for" if asked else f"significant (p = {p_value:.2g} < {G_ALPHA:g})")
@@ -324,7 +323,7 @@ def _constraint_fit(fit: _Fit, cov: np.ndarray, data: Data) -> dict[str, dict[st
         chi2 = float(fit.res[rows] @ fit.res[rows])
         expected = float(size - leverage[rows].sum())
         out[kind] = {"equations": size, "chi2": chi2, "expected": expected, "ratio": chi2 / expected if expected > 0 else None,
-                     "p_value": float(chi2_dist.sf(chi2, expected)) if expected > 0 else None}
+                     "p_value": float(chi2_sf(chi2, expected)) if expected > 0 else None}
     return out
 
 
