@@ -8,6 +8,10 @@ from pathlib import Path
 
 import pytest
 
+from calib.blas import single_threaded_blas
+
+single_threaded_blas()  # as every gyrocal process runs (calib.cli.main): tests that compute in this process too
+
 pytest_plugins = ["server_fixtures", "ble_fixtures", "webui_fixtures"]
 
 ROOT = Path(__file__).resolve().parents[1]

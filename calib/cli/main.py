@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from calib import __version__
+from calib.blas import single_threaded_blas
 from calib.cli.summary import fmt_vec, result_summary
 from calib.errors import GyrocalError
 from calib.extras import missing_module, register_unavailable
@@ -302,6 +303,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the CLI; returns the exit code. Errors are printed as plain messages, never tracebacks."""
+    single_threaded_blas()
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
