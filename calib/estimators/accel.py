@@ -20,7 +20,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from calib.errors import CalibrationError
 from calib.quality import AccelerometerQuality
@@ -154,6 +153,8 @@ def fit_accelerometer(means: np.ndarray) -> AccelCalibration:
         raise AccelCalibrationError(
             f"the recording has {N} rests with the accelerometer; calibrating it needs at least {MIN_RESTS[3]} rests in "
             "different orientations (put the device down on each face and edge, a few seconds each)")
+    from scipy.optimize import least_squares  # here, not above: importing scipy.optimize costs 0.4 s of a service's start
+
     tried = []
     for free, note in _plans(means):
         sol = least_squares(_residuals, NOMINAL[free], args=(free, means), method="lm", x_scale="jac")
