@@ -105,9 +105,10 @@ def test_a_turn_the_link_lost_for_seconds_and_done_again_is_diagnosed_on_the_sta
     cut = sum(s.duration_s for s in base[:3]) + base[3].duration_s / 2
     keep = np.flatnonzero((rec.t < cut) | (rec.t >= cut + 5.0))
     lossy = replace(rec, t=rec.t[keep], gyro=rec.gyro[keep], accel=rec.accel[keep], seq=rec.seq[keep])
-    used = [(s.kind, s.axis, round(s.start_s, 6)) for s in calibrate(lossy).stages if s.kind == "turn"]
+    used = [(s.axis, s.start_s, s.end_s) for s in calibrate(lossy).stages if s.kind == "turn"]
     d = diagnose(lossy, n_boot=N_BOOT)
-    assert [a for _, a, _ in used] == ["x", "y", "z"]
+    assert [axis for axis, _, _ in used] == ["x", "y", "z"]
+    assert [(s.axis, s.start_s, s.end_s) for s in d.details["layout"].turns] == used
     assert "sample_loss" in d.names
     assert [m["observed"] for m in d.mismatches if m["statistic"] == "lost_samples"] == [len(rec) - len(lossy)]
 
