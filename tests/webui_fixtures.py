@@ -269,7 +269,6 @@ class Wizard:
               if (!before || JSON.stringify(before) !== JSON.stringify(now)) window.seen.shown.push(now);
             }
           }).observe(document.body, { subtree: true, childList: true, characterData: true, attributes: true });
-          setInterval(look, 20);
         }""")
 
     def seen(self) -> dict[str, Any]:

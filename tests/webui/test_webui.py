@@ -297,28 +297,28 @@ def test_link_drop_shows_the_lost_connection_resumes_and_reaches_a_result(wizard
     # back once the session ends
     wizard.wait_state("done", "failed", "cancelled", timeout_ms=90_000)
     assert wizard.text(".verdict h1") == "PASS"
-    phases = wizard.seen()["phases"]
+    seen = wizard.seen()
+    phases, shown = seen["phases"], seen["shown"]
     lost = phases.index("reconnecting:")
     # back on the interrupted turn: the device must rest again before the turn is asked again, then Z
     assert phases[lost - 1:lost + 4] == ["turn_y:turning", "reconnecting:", "turn_y:settle", "turn_y:ready", "turn_y:turning"], phases
     assert phases.index("turn_z:turning") > lost + 4 and phases[-1] == "done:", phases
-    reconnecting = wizard.shown("reconnecting:")[0]
+    reconnecting = next(s for s in shown if s["sp"] == "reconnecting:")
     assert reconnecting["instruction"] == "Connection lost" and "reconnects" in reconnecting["sub"], reconnecting
-    settle = wizard.shown("turn_y:settle")
+    settle = [s for s in shown if s["sp"] == "turn_y:settle"]
     assert any(n.startswith("notice info") and "Reconnected" in n for n in settle[-1]["notices"]), settle
     assert "asked again" in settle[-1]["recorded"], settle
-    ready = wizard.shown("turn_y:ready")[-1]  # the turn asked again
-    assert re.search(r"\bY\b", ready["instruction"]), ready
+    asked = max(i for i, s in enumerate(shown) if s["sp"] == "turn_y:ready")  # the turn asked again
+    assert re.search(r"\bY\b", shown[asked]["instruction"]), shown[asked]
     # once the turn is made again the notice that asked for it goes: it would contradict the screen
-    turning_again = [s for s in wizard.seen()["shown"][wizard.seen()["shown"].index(ready):] if s["sp"] == "turn_y:turning"]
+    turning_again = [s for s in shown[asked:] if s["sp"] == "turn_y:turning"]
     assert turning_again and not any("Reconnected" in n for n in turning_again[-1]["notices"]), turning_again
-    done = wizard.seen()["done"]  # the turns the tiles showed done, after each change: Y once, as soon as it was redone
-    assert "xy" in done and all(d.count("y") <= 1 for d in done), done
+    # the turns the tiles showed done, after each change: Y once, as soon as it was redone
+    assert "xy" in seen["done"] and all(d.count("y") <= 1 for d in seen["done"]), seen["done"]
     snap = session(webui_service, sid)
     assert (snap["state"], snap["passed"]) == ("done", True)
     assert [w["code"] for w in snap["warnings"]] == ["link_lost", "link_restored"]
     assert snap["lost_samples"] > 0  # the gap is reported, and left out of the turns used
-    seen = wizard.seen()
     assert any("Reconnected" in n for n in seen["notices"]), seen["notices"]
     assert set(seen["gaugeText"]) == {"x", "y", "z"}, seen["gaugeText"]  # a gauge in every turn, the redone one too
     assert {"reconnecting:", "turn_y:settle"} <= set(wizard.assert_screens_accessible())
