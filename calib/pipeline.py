@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from calib.errors import GyrocalError, ProtocolError
 from calib.estimators.registry import DEFAULT_METHOD, estimator
 from calib.io.inputs import PROTOCOLS
@@ -26,7 +28,18 @@ def calibrate(rec: Recording, method: str = DEFAULT_METHOD, stages: list[Stage] 
     and ProtocolError when a stage of the protocol is missing.
     """
     result = estimator(method)(rec, stages=stages, **method_options(method, heading_prior_deg))
-    return replace(result, sample_rate_hz=rec.fs, n_samples=len(rec))
+    return with_rate_uncertainty(replace(result, sample_rate_hz=rec.fs, n_samples=len(rec)), rec.meta.sample_rate_rel_std)
+
+
+def with_rate_uncertainty(result: CalibrationResult, rel_std: float | None) -> CalibrationResult:
+    """``result`` with the uncertainty of an estimated sample rate in its scale factors': the times were placed at a
+    rate known to ``rel_std`` (relative), so every angle, and with it every element of K, is off by that fraction."""
+    if not rel_std:
+        return result
+    widen = lambda std, value: None if std is None else np.hypot(std, np.abs(value) * rel_std)  # noqa: E731
+    result.quality["sample_rate_rel_std"] = float(rel_std)
+    return replace(result, k_std=widen(result.k_std, result.k),
+                   K_std=None if result.K is None else widen(result.K_std, result.K))
 
 
 def method_options(method: str, heading_prior_deg: float | None) -> dict[str, float]:

@@ -125,6 +125,7 @@ class Quality(TypedDict, total=False):
     converged: bool
     protocol: ProtocolUsed
     temperature_c: Number  # the sensor's mean temperature during the recording, degC
+    sample_rate_rel_std: Number  # the times were placed at an estimated rate with this relative std, in k_std (K_std)
     accelerometer: AccelerometerQuality | None
     model_choice: ModelChoice
     placement: Placement  # closure: the tilt each turn was put back with

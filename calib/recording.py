@@ -30,6 +30,9 @@ class RecordingMeta:
     gyro_full_scale_dps: float | None = None  # readings at +-this value are clipped
     source: str | None = None  # file name or stream name, for messages
     sections: tuple[Section, ...] = ()  # labelled sections the file carries (imucal's ``part`` column)
+    # relative standard error of the rate the times were placed at, when it was estimated (from arrival times): every
+    # angle, so every scale factor, shares it
+    sample_rate_rel_std: float | None = None
 
 
 def fixed_rate_instants(t: np.ndarray, tolerance: float = 0.6) -> np.ndarray | None:
@@ -112,14 +115,15 @@ class Recording:
             pick(self.host_t),
         )
 
-    def timed_by_counter(self, fs_hz: float) -> Recording:
+    def timed_by_counter(self, fs_hz: float, rel_std: float | None = None) -> Recording:
         """A copy whose times are the sample counter over ``fs_hz`` (from the first sample's time): for
         devices that send no time stamps, whose sample times were placed live from arrival times with a rate
-        estimate that improved as the session went on. Needs ``seq``."""
+        estimate that improved as the session went on. ``rel_std``: that estimate's relative standard error,
+        kept in the metadata. Needs ``seq``."""
         if self.seq is None or not fs_hz > 0:
             raise ValueError("timing by the sample counter needs a counter and a positive rate")
         t = self.t[0] + (self.seq - self.seq[0]) / fs_hz if len(self) else self.t
-        return replace(self, t=t, meta=replace(self.meta, sample_rate_hz=float(fs_hz)))
+        return replace(self, t=t, meta=replace(self.meta, sample_rate_hz=float(fs_hz), sample_rate_rel_std=rel_std))
 
     def with_meta(self, **changes: Any) -> Recording:
         """A copy with some metadata fields replaced."""

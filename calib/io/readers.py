@@ -3,7 +3,9 @@
 Layouts (chosen from the header when ``layout="auto"``):
 - ``native``: ``t,gx,gy,gz[,ax,ay,az][,seq][,temp][,host_t]`` with t in s, gyro in deg/s, accel in g,
   temp in C, host_t the host's receive time in s.
-  Column order is free and other columns are ignored.
+  Column order is free and other columns are ignored. A comment line ``# sample_rate_rel_std: <value>`` above the
+  header says the times were placed at an estimated rate with that relative standard error (a wearable that sends
+  no time stamps); the scale factors' uncertainty then includes it.
 - ``imucal``: ``gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z`` (accelerometer in m/s^2) with an optional sample
   index column (``n_samples``, ``samples``, ``index`` or an unnamed first column). There is no time
   column: ``fs`` must be given and t = index / fs.
@@ -39,6 +41,7 @@ IMUCAL_HEADER = "[n_samples,]gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z"
 INDEX_NAMES = ("n_samples", "samples", "sample", "index", "unnamed: 0")
 LABEL_COLUMN = "part"
 MAX_COUNTER = 2.0**53  # larger counters cannot be held exactly as floats
+RATE_REL_STD = "sample_rate_rel_std"  # the comment line above a native header that carries it
 
 def read_recording(
     path: str | os.PathLike[str],
@@ -114,7 +117,8 @@ def write_native_csv(rec: Recording, path_or_file: str | os.PathLike[str] | IO[s
     if rec.host_t is not None:
         names.append("host_t")
         cells.append(list(map(repr, rec.host_t.tolist())))
-    text = ",".join(names) + "\n" + "".join(",".join(row) + "\n" for row in zip(*cells, strict=False))
+    rate = "" if rec.meta.sample_rate_rel_std is None else f"# {RATE_REL_STD}: {float(rec.meta.sample_rate_rel_std)!r}\n"
+    text = rate + ",".join(names) + "\n" + "".join(",".join(row) + "\n" for row in zip(*cells, strict=False))
     if hasattr(path_or_file, "write"):
         path_or_file.write(text)
         return
@@ -214,11 +218,27 @@ def _read_native(table: Table, fs: float | None, source: str | None) -> Recordin
         accel=values[:, 4:7] if has_accel else None,
         seq=seq,
         temp=col["temp"] if has_temp else None,
-        meta=RecordingMeta(sample_rate_hz=fs, source=source),
+        meta=RecordingMeta(sample_rate_hz=fs, source=source, sample_rate_rel_std=_rate_rel_std(table)),
         host_t=col["host_t"] if has_host_t else None,
     )
     check_recording(rec, where=where)
     return rec
+
+
+def _rate_rel_std(table: Table) -> float | None:
+    """The ``# sample_rate_rel_std: <value>`` comment's value; None without one, RecordingError for a bad one."""
+    for line in table.comments:
+        name, sep, value = line.partition(":")
+        if sep and name.strip() == RATE_REL_STD:
+            try:
+                rel = float(value)
+            except ValueError:
+                rel = float("nan")
+            if not (np.isfinite(rel) and 0.0 <= rel < 1.0):
+                raise RecordingError(f"{table.where}the comment '# {line}' needs a relative standard error from 0 to 1, "
+                                     f"such as '# {RATE_REL_STD}: 2e-05'; correct it or delete the line")
+            return rel
+    return None
 
 
 def _sensitivities(table: Table, gyro: object, accel: object, where: str) -> tuple[np.ndarray, np.ndarray | None]:

@@ -27,6 +27,7 @@ class Table:
     line_no: np.ndarray
     delimiter: str
     where: str
+    comments: tuple[str, ...] = ()  # the '#' lines above the header, without the '#'
 
     def index(self, name: str) -> int:
         return self.names.index(name)
@@ -80,7 +81,8 @@ def split_table(text: str, where: str) -> Table:
             f"{where}line {line_no[k]} has {fields[k] + 1} field{'s' if fields[k] else ''} but the header has {len(names)} "
             f"({delimiter.join(raw_names)}); every row needs exactly one value per column"
         )
-    return Table(names, raw_names, lines, line_no, delimiter, where)
+    comments = tuple(line.lstrip()[1:].strip() for line in raw[:header_at] if line.lstrip().startswith("#"))
+    return Table(names, raw_names, lines, line_no, delimiter, where, comments)
 
 
 def column_indices(table: Table, wanted: list[str]) -> list[int]:

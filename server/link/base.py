@@ -130,6 +130,7 @@ class SampleBatch:
     this one (0 when contiguous). ``fs_hz``: the current estimate of the true sample rate from device
     time. ``saturated`` (n,): gyro at the int16 limit on some axis. ``arrival_times``: the device sends no
     time stamps, so the times were placed from arrival times (evenly, at the rate estimated so far).
+    ``fs_rel_std``: the relative standard error of ``fs_hz`` when it comes from arrival times, else None.
     """
 
     t_device_s: np.ndarray
@@ -140,6 +141,7 @@ class SampleBatch:
     fs_hz: float
     saturated: np.ndarray
     arrival_times: bool = False
+    fs_rel_std: float | None = None
 
     def __len__(self) -> int:
         return int(self.t_device_s.size)
@@ -158,6 +160,7 @@ class SampleBatch:
             batches[-1].fs_hz,
             np.concatenate([b.saturated for b in batches]),
             any(b.arrival_times for b in batches),
+            batches[-1].fs_rel_std,
         )
 
 
@@ -330,7 +333,7 @@ class RecordingBuilder:
             source=self.source or (f"wearable {self.info.address}" if self.info else "wearable"),
         )
         rec = Recording(b.t_device_s, b.gyro_dps, b.accel_g, b.seq, None, meta)
-        return rec.timed_by_counter(b.fs_hz) if b.arrival_times else rec
+        return rec.timed_by_counter(b.fs_hz, b.fs_rel_std) if b.arrival_times else rec
 
 
 def merge_queued(first: SampleBatch, queue: deque[object], most: int) -> SampleBatch:

@@ -96,6 +96,7 @@ class GuidedSession(ProtocolSteps, Lateness):
         self.stream = SessionStream(tracker_factory)
         self._faults = SensorFaultWatch()  # readings no working sensor gives at rest
         self.fs_estimate: float | None = None  # the link's estimate of the true rate from device time
+        self.fs_rel_std: float | None = None  # ... its relative standard error, when it comes from arrival times
         self._clock_from_next = True  # the current phase's time limit counts from the next sample received
         self.lost_samples = 0
 
@@ -286,7 +287,7 @@ class GuidedSession(ProtocolSteps, Lateness):
                              sensor_model=self.device_info.get("sensor_model"), source=f"session {self.id}")
         rec = self.stream.recording(meta)
         if self.device_info.get("time_stamps") == "arrival" and rec.seq is not None and self.fs_estimate:
-            return rec.timed_by_counter(self.fs_estimate)  # the live times followed an improving rate estimate
+            return rec.timed_by_counter(self.fs_estimate, self.fs_rel_std)  # the live times followed an improving rate estimate
         return rec
 
     def take_recording(self, message: str) -> bool:

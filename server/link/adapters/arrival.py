@@ -5,10 +5,13 @@ A notification's arrival time is its sending time plus a delay that is never neg
 sample times. The true rate is the slope of the lower envelope of arrival time against sample count: in
 every second of samples the earliest arrival relative to the nominal rate is kept, and a straight line
 is fitted through those minima (the least-squares slope over all arrivals until three seconds are in, the
-nominal rate before 0.5 s). Delays only ever push arrivals later, so the minima sit on the sending times
-and a stalled central does not bend the estimate. Samples are spaced by the estimated rate. Without a counter, lost
-samples cannot be detected while the link holds; after a reconnection the gap is estimated from the
-arrival times (rounded to whole samples) and reported like any other loss.
+nominal rate before 0.5 s). Delays only ever push arrivals later, so the minima sit on the sending times;
+a second the central stalled through as a whole (its minimum far above the line) is left out, so a stall
+does not bend the estimate. The minima's scatter about the line gives the rate's relative standard error,
+which the calibrated scale factors share (every angle is a sum of readings over the rate). Samples are
+spaced by the estimated rate. Without a counter, lost samples cannot be detected while the link holds;
+after a reconnection the gap is estimated from the arrival times (rounded to whole samples) and reported
+like any other loss.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from ..rate_fit import RateFit
 
 ENVELOPE_BIN_S = 1.0  # seconds of samples per bin of the lower envelope
 ENVELOPE_MIN_BINS = 3
+OUTLIER_SPREADS = 5.0  # a bin's minimum this many robust spreads above the line was delayed as a whole: dropped
 
 
 class EnvelopeFit:
@@ -31,6 +35,7 @@ class EnvelopeFit:
         self.bin = max(1, int(round(ENVELOPE_BIN_S * nominal_rate_hz)))
         self._minima: dict[int, tuple[int, float]] = {}  # bin -> (counter, arrival - counter / nominal)
         self._rate: float | None = None
+        self._rel_std: float | None = None
         self._fitted_bins = 0
 
     def add(self, counter: int, arrival_s: float) -> None:
@@ -49,10 +54,40 @@ class EnvelopeFit:
             keys = sorted(self._minima)[:-1]
             c = np.array([self._minima[k][0] for k in keys], dtype=float)
             a = np.array([self._minima[k][1] + self._minima[k][0] / self.nominal for k in keys])
-            slope = np.polyfit(c - c[0], a - a[0], 1)[0]
+            slope, slope_std = _robust_slope(c, a)
             self._rate = 1.0 / slope if slope > 0 else None
+            self._rel_std = slope_std / slope if slope > 0 else None
             self._fitted_bins = whole
         return self._rate
+
+    def rate_rel_std(self) -> float | None:
+        """The relative standard error of ``rate()`` from the scatter of the bins' minima about their line; None
+        while the rate is not fitted."""
+        return self._rel_std if self.rate() is not None else None
+
+
+def _robust_slope(c: np.ndarray, a: np.ndarray) -> tuple[float, float]:
+    """Least-squares slope of ``a`` against ``c`` and its standard error, without the bins a stalled central delayed
+    as a whole (a minimum far above the line: delays only ever push arrivals later, so only those are dropped)."""
+
+    def fit(keep: np.ndarray) -> tuple[float, np.ndarray]:
+        x = c[keep] - c[keep].mean()
+        slope = float(x @ (a[keep] - a[keep].mean()) / (x @ x))
+        return slope, a - a[keep].mean() - slope * (c - c[keep].mean())
+
+    keep = np.ones(c.size, dtype=bool)
+    slope, residual = fit(keep)
+    for _ in range(3):
+        centre = float(np.median(residual[keep]))
+        spread = 1.4826 * float(np.median(np.abs(residual[keep] - centre)))
+        late = residual > centre + OUTLIER_SPREADS * max(spread, 1e-4)
+        if np.array_equal(~late, keep) or (~late).sum() < ENVELOPE_MIN_BINS:
+            break
+        keep = ~late
+        slope, residual = fit(keep)
+    x = c[keep] - c[keep].mean()
+    r = residual[keep]
+    return slope, float(np.sqrt(r @ r / max(1, int(keep.sum()) - 2) / (x @ x)))
 
 
 class ArrivalTimeline:
@@ -73,6 +108,12 @@ class ArrivalTimeline:
     @property
     def fs_hz(self) -> float:
         return self._envelope.rate() or self._fit.rate(self.nominal_rate_hz)
+
+    @property
+    def fs_rel_std(self) -> float | None:
+        """The relative standard error of ``fs_hz``: None until the envelope gives the rate (the least-squares
+        rate of the first seconds is only a start)."""
+        return self._envelope.rate_rel_std()
 
     def begin(self, resume: bool) -> None:
         """Streaming (re)starts; ``resume``: after a reconnection, so the next arrival follows a gap."""
@@ -106,4 +147,5 @@ class ArrivalTimeline:
         if lost:
             st.lost_samples += lost
             st.lost_packets += max(1, lost // n)
-        return SampleBatch(t, gyro, accel, np.arange(counter0, counter0 + n, dtype=np.int64), lost, fs, saturated, True)
+        return SampleBatch(t, gyro, accel, np.arange(counter0, counter0 + n, dtype=np.int64), lost, fs, saturated, True,
+                           self.fs_rel_std)
