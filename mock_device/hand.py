@@ -23,6 +23,9 @@ from calib.simulator import Motion, Segment, Still, Turn, paper_protocol_script,
 
 HUMAN_DELAY_S = (0.3, 1.5)  # from a new prompt on the screen to the hand acting on it
 GAUGE_LOOK_S = 0.25  # the gauge-watcher's pause to read the gauge before the last part of a turn
+GAUGE_WAIT_S = 0.15  # ... longer while the gauge has not yet settled on her stop (a late page); the service takes a
+#                      rest of 0.5 s as the turn put down (server.config.Timings.rest_seen_s), so the pause stays below it
+GAUGE_STEADY_S = 0.2  # the gauge has settled once the page has shown the device still this long
 GAUGE_RATE_DPS = 45.0  # ... and the speed of that last part
 GAUGE_OVERSHOOT_DEG = (0.0, 5.0)  # how far past the gauge's 360 deg the hand's reaction carries it
 BLOCK_CATCH_DEG = 15.0  # a device put down this close to its place is pushed flush against the block
@@ -115,6 +118,8 @@ class PromptHand:
         """The motions to start before device time ``until_s`` (each once the motion before it has ended)."""
         out: list[Act] = []
         for p in sorted((p for p in self.pending if p.at_s < until_s), key=lambda p: p.at_s):
+            if p.what == "gauge_finish" and self._gauge_behind() and until_s < p.at_s + GAUGE_WAIT_S:
+                continue  # the gauge has not settled, though the hand has stopped: she waits for it to catch up
             self.pending.remove(p)
             start = max(p.at_s, self.busy_until_s)
             segs = self._segments(p, start)
@@ -122,6 +127,12 @@ class PromptHand:
                 out.append(Act(start, segs))
                 self.busy_until_s = start + sum(float(getattr(sg, "duration_s", 0.0) or 0.0) for sg in segs)
         return out
+
+    def _gauge_behind(self) -> bool:
+        """The last snapshot does not yet show the device still for GAUGE_STEADY_S: the gauge may still be
+        moving up to where the hand stopped (the page is late with the stop)."""
+        live = (self.last or {}).get("live") or {}
+        return bool(live.get("moving", False)) or float(live.get("still_s") or 0.0) < GAUGE_STEADY_S
 
     # -- decisions ---------------------------------------------------------------------------------
     def _delay(self) -> float:
