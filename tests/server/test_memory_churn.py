@@ -48,13 +48,35 @@ def test_forgotten_sessions_are_freed_without_the_garbage_collector(tmp_path: Pa
                     await asyncio.sleep(0.5)
                     kept = len(svc.sessions)
                     gc.collect()
-                    cyclic = sum(isinstance(o, GuidedSession | LiveSession) for o in gc.garbage)
+                    cyclic = [o for o in gc.garbage if isinstance(o, GuidedSession | LiveSession)]
+                    held_by = _held_by(cyclic[0], gc.garbage) if cyclic else ""
                 finally:
                     gc.set_debug(0)
                     gc.garbage.clear()
                     gc.enable()
-                return kept, cyclic
+                return kept, len(cyclic), held_by
 
-    kept, cyclic = asyncio.run(churn())
+    kept, cyclic, held_by = asyncio.run(churn())
     assert kept <= 5 + 2  # the finished sessions kept, and any still ending
-    assert cyclic == 0, f"{cyclic} forgotten sessions were only freeable by the garbage collector"
+    assert cyclic == 0, f"{cyclic} forgotten sessions were only freeable by the garbage collector; the first held by: {held_by}"
+
+
+def _held_by(obj: object, garbage: list[object], depth: int = 6) -> str:
+    """What holds ``obj`` among the garbage, breadth first (types, and each frame's function and line): the cycle to
+    break, named in the failure."""
+    import types
+
+    ids = {id(o) for o in garbage}
+    seen, frontier, lines = {id(obj)}, [obj], []
+    for level in range(depth):
+        nxt = []
+        for o in frontier:
+            for r in gc.get_referrers(o):
+                if id(r) in ids and id(r) not in seen:
+                    seen.add(id(r))
+                    nxt.append(r)
+                    what = (f"frame {r.f_code.co_name} ({r.f_code.co_filename.rsplit('/', 1)[-1]}:{r.f_lineno})"
+                            if isinstance(r, types.FrameType) else type(r).__name__)
+                    lines.append(f"{'  ' * level}{what}")
+        frontier = nxt[:12]
+    return "\n".join(lines[:60]) or "nothing in the garbage"
