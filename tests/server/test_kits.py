@@ -4,12 +4,15 @@ slot, bridges the one whose link dropped, and stores every wearable that passed 
 
 from __future__ import annotations
 
+import json
+import subprocess
 import time
+from pathlib import Path
 
 import httpx
 import numpy as np
 
-from tests.server_fixtures import RunningService, at_once
+from tests.server_fixtures import GYROCAL, ROOT, RunningService, at_once
 
 SPEED = "6"
 
@@ -32,8 +35,9 @@ def _truth(c: httpx.Client, device_id: str) -> np.ndarray:
     return np.array(c.get(f"/devices/{device_id}").json()["simulated_truth"]["k"])
 
 
-def test_a_kit_is_guided_as_one_the_loose_wearable_is_named_and_the_rest_are_accepted_at_once(postgres) -> None:
-    """On PostgreSQL (the store's own test holds the accept's one transaction on SQLite too)."""
+def test_a_kit_is_guided_as_one_the_loose_wearable_is_named_and_the_rest_are_accepted_at_once(postgres, tmp_path) -> None:
+    """On PostgreSQL (the store's own test holds the accept's one transaction on SQLite too). The recordings the
+    service kept give the same calibration through `gyrocal calibrate-kit`."""
     url = postgres.service_url(postgres.create_database())
     svc = RunningService(["--mock", "4", "--mock-kit", "--mock-kit-loose", "3", "--mock-speed", SPEED], url).start(60)
     try:
@@ -73,6 +77,7 @@ def test_a_kit_is_guided_as_one_the_loose_wearable_is_named_and_the_rest_are_acc
                 assert np.all(np.abs(k - _truth(c, name)) < 5 * std + 2e-5), (k - _truth(c, name)) / std
                 own = c.get(f"/sessions/{members[name]}").json()  # each wearable's own session holds its result too
                 assert own["state"] == "done" and own["result"]["k"] == result["k"]
+            _same_through_the_command_line(c, members, devices, tmp_path)
             accepted = c.post(f"/kits/{kit_id}/accept")
             assert accepted.status_code == 200, accepted.text
             body = accepted.json()
@@ -92,6 +97,26 @@ def test_a_kit_is_guided_as_one_the_loose_wearable_is_named_and_the_rest_are_acc
             assert c.post(f"/sessions/{alone.json()['session_id']}/cancel").status_code == 200
     finally:
         svc.stop()
+
+
+def _same_through_the_command_line(c: httpx.Client, members: dict[str, str], devices: dict[str, dict], folder: Path) -> None:
+    """One door: the recordings each wearable's session kept, given to `gyrocal calibrate-kit`, give every wearable
+    the calibration the service gave it, and name the same wearable as departed."""
+    files = []
+    for name, sid in members.items():
+        r = c.get(f"/sessions/{sid}/recording")
+        assert r.status_code == 200, r.text
+        files.append(folder / f"{name}.csv")
+        files[-1].write_bytes(r.content)
+    out = subprocess.run([*GYROCAL, "calibrate-kit", *map(str, files), "--json"], cwd=ROOT, capture_output=True,
+                         text=True, timeout=120, check=False)
+    assert out.returncode == 0, out.stderr
+    cli = json.loads(out.stdout)
+    assert cli["kit"]["departed"] == ["mock-3"], cli["kit"]
+    by_name = {d["device_id"]: d for d in cli["devices"]}
+    for name in ("mock-1", "mock-2"):
+        assert by_name[name]["result"]["k"] == devices[name]["result"]["k"], name
+        assert by_name[name]["result"]["b"] == devices[name]["result"]["b"], name
 
 
 def test_a_wearable_whose_link_drops_mid_turn_is_bridged_by_the_kit(tmp_path) -> None:
