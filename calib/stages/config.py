@@ -92,10 +92,11 @@ class StageEvent:
 
 @dataclass(frozen=True)
 class LiveState:
-    """The tracker's view of the latest decided sample (about window_s / 2 behind the input)."""
+    """The tracker's view of the latest decided sample (about window_s / 2 behind the input); the open motion's angle
+    runs on to the newest sample in."""
 
     still_for_s: float  # how long the device has been still (0 while moving)
     moving: bool
-    live_angle_deg: np.ndarray  # (3,) bias-compensated angle since the current motion began, else zeros
+    live_angle_deg: np.ndarray  # (3,) bias-compensated angle since the current motion began, to the newest sample, else zeros
     noise_floor: float | None  # deg/s, None until the first blocks are in
     t: float | None  # time of the latest decided sample

@@ -102,14 +102,17 @@ class StageTracker(StageBook):
 
     @property
     def live(self) -> LiveState:
-        """Stillness, time still and the angle of the current motion at the latest decided sample."""
+        """Stillness and time still at the latest decided sample; the angle of the current motion through the newest
+        sample in."""
         d = self._next
         if self._state is None or d == 0:
             return LiveState(0.0, False, np.zeros(3), self.noise_floor, None)
         still = bool(self._state)
         angle = np.zeros(3)
         if self._gap_start is not None:
-            s = self._store.p[d - self._store.base] - self._gap_row
+            # through the newest sample in, not only the decided ones: the gauge follows the hand without the
+            # decision's look-ahead (rest samples after the turn add only their noise about the rest reading)
+            s = self._store.p[self._store.n - self._store.base] - self._gap_row
             if self._bias_before is None:
                 angle = s[MDT] + self._x0 * s[DT]
             else:
