@@ -143,7 +143,7 @@ def _calibrate_as(
                                 code="sections_incomplete")
         from calib.estimators.multi_position.estimator import calibrate_multi_position
 
-        return calibrate_multi_position(rec, stages)
+        return with_rate_uncertainty(calibrate_multi_position(rec, stages), rec.meta.sample_rate_rel_std)
     if used == "ferraris" and len(found.poses) < 6:
         from calib.estimators.ferraris import ferraris_stages
 

@@ -83,3 +83,16 @@ def test_a_bad_rate_uncertainty_comment_says_what_to_write(value: str) -> None:
     with pytest.raises(RecordingError, match=r"session.csv: the comment '# sample_rate_rel_std: .*' needs a relative "
                                              r"standard error from 0 to 1, such as '# sample_rate_rel_std: 2e-05'"):
         parse_recording_text(f"# sample_rate_rel_std: {value}\n" + buf.getvalue(), source="session.csv")
+
+
+def test_a_multi_position_calibration_carries_the_rate_uncertainty_too() -> None:
+    from calib.pipeline import calibrate_protocol
+    from calib.simulator.lab_scripts import multi_position_script
+
+    rec, _ = simulate(4, noise=0.05, fs=100.0, script=multi_position_script(np.random.default_rng(4)), accel_noise_g=0.005)
+    rel = 2e-4
+    exact, _ = calibrate_protocol(rec, "multi-position")
+    placed, _ = calibrate_protocol(rec.with_meta(sample_rate_rel_std=rel), "multi-position")
+    assert exact.k_std is not None and placed.k_std is not None
+    np.testing.assert_allclose(placed.k_std, np.hypot(exact.k_std, placed.k * rel))
+    assert placed.quality["sample_rate_rel_std"] == rel
