@@ -314,11 +314,16 @@ def assert_accessible(page: Any, where: str) -> None:
 
 
 def assert_turns_end_with_hold_still(headlines: list[str]) -> None:
-    """Every turn's headline went from turning to "Hold it still" to done, and never told her to keep turning."""
+    """Every turn's headline went from turning to "Hold it still" to done, and never told her to keep turning.
+
+    "Checking" may be missing: when the readings of the turn's closing rest reach a busy service together, the
+    stage detector closes the turn in the same step that would have said "checking", and the page goes straight to
+    done, which is then the truth."""
     assert not any(h.startswith("Keep turning") for h in headlines), headlines
     for axis in "XYZ":
         i = headlines.index(f"Turning about {axis}")
-        assert headlines[i + 1:i + 4] == ["Hold it still", f"Checking turn {axis} — hold still", f"{axis} done — hold still"], headlines
+        after = [h for h in headlines[i + 1:i + 4] if h != f"Checking turn {axis} — hold still"]
+        assert after[:2] == ["Hold it still", f"{axis} done — hold still"], headlines
 
 
 def assert_done_never_undone(done: list[str]) -> None:
