@@ -4,7 +4,8 @@
 (``GET /devices/{id}``), follows that session's Server-Sent Events (``GET /sessions/{sid}/events``) and hands
 every snapshot to a callback, until the session ends; then it waits for the next one. A verification turn
 (``GET /verifications/{id}``) is polled instead, and its request for the turn handed on as a prompt to turn. The service's address
-comes from a callable because a service learns its port only once it listens.
+comes from a callable because a service learns its port only once it listens. ``KitFollower`` is the eyes of the clinician
+who turns a tray of wearables: it polls the kit session that holds one of them, as the kit page does.
 """
 
 from __future__ import annotations
@@ -95,3 +96,33 @@ class SessionFollower:
                 self.on_snapshot(snap)
                 if snap.get("state") in END_STATES:
                     return
+
+
+KIT_POLL_S = 0.5  # between looks at a kit session, as the kit page polls it (webui/static/kit.js)
+
+
+class KitFollower(SessionFollower):
+    """Follows the kit sessions that hold ``device_id`` (``active_kit`` of ``GET /devices/{id}``), polling
+    ``GET /sessions/{kit}`` as the kit page does, and calls ``on_snapshot`` with each snapshot until the kit ends.
+    ``speed``: how many times faster than real time the simulated wearables run (the page's poll, in their time)."""
+
+    def __init__(self, device_id: str, on_snapshot: Callable[[dict[str, Any]], None], base_url: Callable[[], str | None],
+                 speed: float = 1.0) -> None:
+        super().__init__(device_id, on_snapshot, base_url)
+        self.poll_s = KIT_POLL_S / max(1.0, float(speed))
+
+    def _active_session(self, base: str) -> str | None:
+        r = httpx.get(f"{base}/devices/{self.device_id}", headers=self.headers, timeout=5.0)
+        return r.json().get("active_kit") if r.status_code == 200 else None
+
+    def _follow(self, base: str, sid: str) -> None:
+        deadline = time.monotonic() + 3600.0
+        while not self._stop.is_set() and time.monotonic() < deadline:
+            r = httpx.get(f"{base}/sessions/{sid}", headers=self.headers, timeout=5.0)
+            if r.status_code != 200:
+                return
+            snap = r.json()
+            self.on_snapshot(snap)
+            if snap.get("state") in END_STATES:
+                return
+            self._stop.wait(self.poll_s)

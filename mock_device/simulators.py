@@ -8,7 +8,7 @@ from collections.abc import Callable
 
 from wearable_protocol.models import model as device_model
 
-from .follower import SessionFollower
+from .follower import KitFollower, SessionFollower
 from .hand import HANDS
 from .prompted import PromptedSource
 from .scenarios import SCENARIOS
@@ -44,12 +44,23 @@ def wearable(*, seed: int, scenario: str, speed: float, name: str, rate_hz: floa
 
 
 def kit(*, seed: int, n: int, speed: float, names: list[str], rate_hz: float | None, noise_dps: float,
-        model: str = "gyrocal", loose: int | None = None, drop: int | None = None) -> list[Wearable]:
-    """``n`` simulated wearables speaking ``model``'s protocol, riding in one tray that one scripted clinician turns
-    through the protocol whenever their streams start (``mock_device.kit``); ``loose`` (0-based) slips in its slot
-    during the second turn, ``drop`` loses its link for a moment in the first."""
+        model: str = "gyrocal", loose: int | None = None, drop: int | None = None, hand: str | None = None,
+        service_url: Callable[[], str | None] | None = None) -> list[Wearable]:
+    """``n`` simulated wearables speaking ``model``'s protocol, riding in one tray that one clinician turns through the
+    protocol whenever their streams start: a scripted one (``mock_device.kit``), or with ``hand`` a ``hand:<style>``
+    clinician who follows the prompts of the kit session that holds the first wearable on the service at
+    ``service_url()`` (``mock_device.prompted_kit``). ``loose`` (0-based) slips in its slot during the second turn;
+    ``drop`` (scripted clinician only) loses its link for a moment in the first."""
     from .kit import KitSource, Tray
+    from .prompted_kit import PromptedKitSource, PromptedTray
 
-    tray = Tray(seed, n, noise_dps=noise_dps, loose=loose, drop=drop)
-    return [WEARABLES[model](KitSource(tray, i), seed=seed * 1000 + i + 1, speed=speed, name=names[i], rate_hz=rate_hz)
-            for i in range(n)]
+    sources: list[SampleSource]
+    if hand is not None:
+        prompted = PromptedTray(seed, n, hand.removeprefix(HAND_PREFIX), noise_dps=noise_dps, loose=loose)
+        KitFollower(names[0], prompted.observe, service_url or (lambda: None), speed=speed).start()
+        sources = [PromptedKitSource(prompted, i) for i in range(n)]
+    else:
+        tray = Tray(seed, n, noise_dps=noise_dps, loose=loose, drop=drop)
+        sources = [KitSource(tray, i) for i in range(n)]
+    return [WEARABLES[model](source, seed=seed * 1000 + i + 1, speed=speed, name=names[i], rate_hz=rate_hz)
+            for i, source in enumerate(sources)]

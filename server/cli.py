@@ -65,7 +65,8 @@ def register(sub: Any) -> None:
     )
     p.add_argument("--mock-kit", action="store_true",
                    help="the N simulated wearables ride in one tray that one clinician turns through the protocol: a kit to "
-                        "calibrate together (POST /kits/calibrate)")
+                        "calibrate together (POST /kits/calibrate); a scripted clinician, or with --mock-scenario hand:STYLE "
+                        "one who follows the kit's prompts")
     p.add_argument("--mock-kit-loose", type=int, default=None, metavar="I",
                    help="with --mock-kit: the I-th simulated wearable (from 1) slips in its slot during the second turn")
     p.add_argument("--mock-kit-drop", type=int, default=None, metavar="I",
@@ -243,6 +244,7 @@ def build_service(args: argparse.Namespace) -> Any:
     unknown = [s for s in scenarios if simulators is not None and s not in simulators.scenarios]
     if simulators is not None and unknown:
         raise ServiceError(f"unknown --mock-scenario {', '.join(unknown)}: choose from {', '.join(simulators.scenarios)}")
+    _check_kit_scenario(args, scenarios)
     settings = Settings(
         db_url=args.db or default_db_url(),
         host=args.host,
@@ -283,6 +285,17 @@ def build_service(args: argparse.Namespace) -> Any:
                           drop=None if args.mock_kit_drop is None else args.mock_kit_drop - 1)
     return Service(settings, store=store, devices=devices)
 
+
+
+def _check_kit_scenario(args: argparse.Namespace, scenarios: list[str]) -> None:
+    """A kit's tray is turned by one clinician: the scripted one, or one hand:STYLE who follows the kit's prompts."""
+    if not args.mock_kit:
+        return
+    if set(scenarios) - {"normal"} and not (len(set(scenarios)) == 1 and scenarios[0].startswith("hand:")):
+        raise ServiceError("--mock-kit's tray is turned by one clinician: leave out --mock-scenario for the scripted one, or "
+                           "give one hand:STYLE (such as hand:careful) for one who follows the kit's prompts")
+    if args.mock_kit_drop is not None and scenarios and scenarios[0].startswith("hand:"):
+        raise ServiceError("--mock-kit-drop plays with the scripted tray clinician: leave out --mock-scenario hand:STYLE")
 
 def gateway_settings(args: argparse.Namespace) -> GatewaySettings | None:
     """--gateway and its options, checked; None for a service on its own."""

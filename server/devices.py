@@ -44,7 +44,8 @@ class Simulators(Protocol):
                  model: str, service_url: Callable[[], str | None]) -> Any: ...
 
     def kit(self, *, seed: int, n: int, speed: float, names: list[str], rate_hz: float | None, noise_dps: float,
-            model: str, loose: int | None, drop: int | None) -> list[Any]: ...
+            model: str, loose: int | None, drop: int | None, hand: str | None,
+            service_url: Callable[[], str | None]) -> list[Any]: ...
 
 
 class SimulatorsUnavailable(Exception):
@@ -221,8 +222,9 @@ class DeviceManager:
         """N simulated wearables mock-``first`` … mock-(first+N-1) speaking ``model``'s protocol, each performing its
         scenario when streaming starts. ``rate_hz`` None: the model's streaming rate. A wearable's number alone sets
         its sensor, so two gateways simulating mock-8 simulate the same wearable. ``kit``: the N ride in one tray that one
-        scripted clinician turns (``loose``: the one, 0-based, that slips in its slot; ``drop``: the one that loses its link
-        for a moment), instead of each its scenario."""
+        clinician turns (``loose``: the one, 0-based, that slips in its slot; ``drop``: the one that loses its link
+        for a moment), instead of each its scenario: a scripted one, or the ``hand:<style>`` clinician of ``scenarios``
+        who follows the kit's prompts."""
         import time
 
         from .link import InProcessLink, ReconnectPolicy
@@ -233,12 +235,13 @@ class DeviceManager:
         scenarios = scenarios or ["normal"]
         ids = [f"mock-{i}" for i in range(first, first + n)]
         tray: list[Any] = []
+        hand = next((s for s in scenarios if s.startswith("hand:")), None) if kit else None
         if kit:
             tray = simulators.kit(seed=seed * 1000 + first, n=n, speed=speed, names=ids, rate_hz=rate_hz, noise_dps=noise_dps,
-                                  model=model, loose=loose, drop=drop)
+                                  model=model, loose=loose, drop=drop, hand=hand, service_url=lambda: self.service_url)
         out = []
         for j, i in enumerate(range(first, first + n)):
-            scenario = "kit" if kit else scenarios[(i - 1) % len(scenarios)]
+            scenario = (f"kit:{hand}" if hand else "kit") if kit else scenarios[(i - 1) % len(scenarios)]
             dev_seed = seed * 1000 + i
             wearable = tray[j] if kit else simulators.wearable(
                 seed=dev_seed, scenario=scenario, speed=speed, name=f"mock-{i}", rate_hz=rate_hz, noise_dps=noise_dps,

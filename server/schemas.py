@@ -145,6 +145,8 @@ class DeviceOut(BaseModel):
         None, description="current: it holds the current calibration; other: it holds another one (write the current one "
                           "to it); none: it holds none; null: not known")
     active_session: str | None = None
+    active_kit: str | None = Field(None, description="the kit session that holds it, when it is calibrated with others in "
+                                                     "one tray (GET /sessions/{active_kit} shows the kit)")
     unsaved_session: str | None = Field(None, description="its latest session ended in a PASS nobody has accepted or "
                                                           "discarded yet: the result waiting to be saved")
     current_calibration: CalibrationRecord | None = None

@@ -74,6 +74,12 @@ def test_operator_db_after_the_action(tmp_path: Path, capsys: pytest.CaptureFixt
         (["--mock", "1", "--mock-first", "0"], "--mock-first takes the first simulated wearable's number"),
         (["--header-timeout-s", "0"], "--header-timeout-s must be between 0.5 and 600 seconds"),
         (["--max-connections", "3"], "--max-connections must be between 16 and 1000000"),
+        (["--mock", "1", "--mock-kit"], "give at least two with --mock N"),
+        (["--mock", "3", "--mock-kit-loose", "2"], "--mock-kit-loose names one of the kit's simulated wearables"),
+        (["--mock", "3", "--mock-kit", "--mock-scenario", "hand:careful,hand:bumps"], "turned by one clinician"),
+        (["--mock", "3", "--mock-kit", "--mock-scenario", "wrong_axis"], "give one hand:STYLE"),
+        (["--mock", "3", "--mock-kit", "--mock-kit-drop", "2", "--mock-scenario", "hand:careful"],
+         "--mock-kit-drop plays with the scripted tray clinician"),
     ],
 )
 def test_serve_refuses_bad_options_with_a_message(

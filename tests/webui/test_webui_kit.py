@@ -1,6 +1,7 @@
 """A whole kit from the page, in Debian's Chromium against the real service with three simulated wearables in one
-tray (`--mock-kit`, the third slipping in its slot): the operator ticks them, calibrates them together, follows one
-set of prompts for the tray, sees each wearable's state as a row, and accepts every one that passed at once; on a
+tray (`--mock-kit`, the third slipping in its slot), turned by a clinician who follows the kit's prompts as the page
+shows them (`--mock-scenario hand:careful`): the operator ticks them, calibrates them together, follows one set of
+prompts for the tray, sees each wearable's state as a row, and accepts every one that passed at once; on a
 phone the rows stack and nothing runs off the screen."""
 
 from __future__ import annotations
@@ -9,6 +10,7 @@ import re
 from collections.abc import Iterator
 from typing import Any
 
+import numpy as np
 import pytest
 from webui_fixtures import Watch, Wizard, api, assert_clean, running_service, watched_page
 
@@ -18,7 +20,7 @@ PHONE = {"width": 390, "height": 844}
 
 @pytest.fixture(scope="module")
 def kit_service() -> Iterator[Any]:
-    with running_service(["normal"] * 3, "--mock-kit", "--mock-kit-loose", "3") as svc:
+    with running_service(["hand:careful"] * 3, "--mock-kit", "--mock-kit-loose", "3") as svc:
         yield svc
 
 
@@ -73,7 +75,11 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
         assert page.locator("#kit-accept").count() == 0  # nothing left to accept
         with api(kit_service) as c:
             for device in ("mock-1", "mock-2"):
-                assert c.get(f"/devices/{device}/calibration").json()["method"] == "kit-closure"
+                saved = c.get(f"/devices/{device}/calibration").json()
+                assert saved["method"] == "kit-closure"
+                truth = c.get(f"/devices/{device}").json()["simulated_truth"]["k"]
+                error = np.abs(np.array(saved["k"]) - truth)
+                assert np.all(error < 3e-3), error  # the tray turned by hand as prompted gives the wearables' k
             assert c.get("/devices/mock-3/calibration").status_code == 404
     # the same result on a phone: the rows stack, and nothing is wider than the screen
     with watched_page(browser, kit_service, page_watch, viewport=PHONE, phone=True) as phone:
