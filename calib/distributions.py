@@ -7,26 +7,35 @@ Each takes numbers or arrays and returns an array (0-d for numbers).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy import special
 
 
 def chi2_sf(x: ArrayLike, df: ArrayLike) -> np.ndarray:
     """P(X > x) for X ~ chi-square with ``df`` degrees of freedom."""
-    return np.asarray(special.chdtrc(df, x))
+    return np.asarray(_special().chdtrc(df, x))
 
 
 def chi2_isf(q: ArrayLike, df: ArrayLike) -> np.ndarray:
     """The x with P(X > x) = q, for X ~ chi-square with ``df`` degrees of freedom."""
-    return np.asarray(special.chdtri(df, q))
+    return np.asarray(_special().chdtri(df, q))
 
 
 def f_sf(x: ArrayLike, dfn: ArrayLike, dfd: ArrayLike) -> np.ndarray:
     """P(X > x) for X ~ F(dfn, dfd)."""
-    return np.asarray(special.fdtrc(dfn, dfd, x))
+    return np.asarray(_special().fdtrc(dfn, dfd, x))
 
 
 def norm_sf(z: ArrayLike) -> np.ndarray:
     """P(Z > z) for Z standard normal."""
-    return np.asarray(special.ndtr(-np.asarray(z, dtype=float)))
+    return np.asarray(_special().ndtr(-np.asarray(z, dtype=float)))
+
+
+def _special() -> Any:
+    """scipy.special, imported when first needed: importing it costs a third of a second, which a command that
+    computes nothing (``gyrocal --help``, ``gyrocal operator add``) need not pay."""
+    from scipy import special
+
+    return special

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 from calib.errors import GyrocalError
 
-from .http_guard import DEFAULT_HEADER_TIMEOUT_S, DEFAULT_MAX_CONNECTIONS
+from .config import DEFAULT_HEADER_TIMEOUT_S, DEFAULT_MAX_CONNECTIONS
 
 if TYPE_CHECKING:
     from .config import GatewaySettings

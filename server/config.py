@@ -21,6 +21,9 @@ def default_db_path() -> Path:
     return Path(user_data_dir("gyrocal", appauthor=False)) / "gyrocal.sqlite3"
 
 
+DEFAULT_HEADER_TIMEOUT_S = 10.0  # a browser sends its headers in one packet; 10 s covers a very slow mobile link
+DEFAULT_MAX_CONNECTIONS = 1000  # event streams of every page in a ward, with room to spare (server.http_guard)
+
 DB_URL_HELP = "the store's URL (default as for `gyrocal serve`: GYROCAL_DB, else an SQLite file in the user's data folder)"
 
 

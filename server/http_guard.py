@@ -27,8 +27,6 @@ from uvicorn.protocols.http.h11_impl import H11Protocol
 
 log = logging.getLogger(__name__)
 
-DEFAULT_HEADER_TIMEOUT_S = 10.0  # a browser sends its headers in one packet; 10 s covers a very slow mobile link
-DEFAULT_MAX_CONNECTIONS = 1000  # event streams of every page in a ward, with room to spare
 ACCEPT_BURST = 128  # connections asyncio accepts in one go before any is seen, and the kernel queues (uvicorn's backlog=)
 # descriptors kept for the store, the wearables' links, workers and logs (some 20-60), and for one accept burst twice:
 # the connections it brings and those they evict, whose descriptors are freed on the loop's next turn

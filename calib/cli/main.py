@@ -205,6 +205,22 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+EFFECT_VALUES = "{effect values}"  # in a help text: every registered effect's NAME=VALUE, filled in when help is shown
+
+
+class _EffectsHelpFormatter(argparse.HelpFormatter):
+    """Fills in ``EFFECT_VALUES`` when the help is shown: listing the effects imports every one of them, which a
+    command that shows no help need not pay for."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = super()._get_help_string(action)
+        if text is None or EFFECT_VALUES not in text:
+            return text
+        from calib.effects.tables import effect_value_help
+
+        return text.replace(EFFECT_VALUES, effect_value_help().replace("%", "%%"))
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The full argument parser, with the subcommands other gyrocal packages register."""
     parser = argparse.ArgumentParser(
@@ -230,9 +246,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", type=Path, default=None, help="save a PNG of the rate magnitude and angles before/after calibration")
     p.set_defaults(func=cmd_calibrate)
 
-    from calib.effects.tables import effect_value_help
-
-    p = sub.add_parser("simulate", help="simulate a recording of the protocol")
+    p = sub.add_parser("simulate", help="simulate a recording of the protocol", formatter_class=_EffectsHelpFormatter)
     p.add_argument("--seed", type=int, required=True)
     p.add_argument("--noise", type=float, default=0.03, help="white noise std on the readings, deg/s (default 0.03)")
     p.add_argument("--fs", type=float, default=104.0, help="sample rate, Hz (default 104)")
@@ -247,7 +261,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="NAME=VALUE",
         help=(
             "add a physical effect (repeatable; `gyrocal effects` lists them); one number applies to all axes. "
-            + effect_value_help().replace("%", "%%")
+            + EFFECT_VALUES
         ),
     )
     p.add_argument("-o", "--output", type=Path, required=True, help="native CSV to write")

@@ -13,7 +13,8 @@ from pathlib import Path
 import httpx
 from server_fixtures import RunningService
 
-from server.http_guard import DEFAULT_MAX_CONNECTIONS, connection_bound
+from server.config import DEFAULT_MAX_CONNECTIONS
+from server.http_guard import connection_bound
 from server.log_repeats import RepeatFilter
 
 FILE_LIMIT = ["prlimit", "--nofile=1024:1024"]  # soft and hard: the service cannot raise it
