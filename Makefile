@@ -41,6 +41,9 @@ lint: $(VENV)/.installed-test
 ## neighbours; a third worker on two cores made two of those fail in one run of three), with the lint checks beside
 ## them (a single core for under 20 s, while the first tests are numerics); either failing fails the target
 TEST_WORKERS ?= 2
+# the tests start some 400 Python processes (services, their compute workers, commands): each reads gyrocal's compiled
+# modules from __pycache__ instead of compiling them again, even where the environment asks Python to write no bytecode
+test: export PYTHONDONTWRITEBYTECODE =
 test: $(VENV)/.installed-test system-deps
 	@$(MAKE) --no-print-directory lint > .lint.log 2>&1 & lint=$$!; \
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist worksteal; tests=$$?; \
