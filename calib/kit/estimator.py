@@ -29,7 +29,7 @@ from calib.kit.members import MemberParams, member_params, rest_bias
 from calib.kit.result import Coherence, KitMember, KitResult
 from calib.kit.turns import member_turn_rows
 from calib.numerics.attitude import cumulative_attitude
-from calib.pipeline import calibrate_protocol
+from calib.pipeline import calibrate_protocol, with_rate_uncertainty
 from calib.recording import Recording
 from calib.result import CalibrationResult
 from calib.stages.stage import Stage
@@ -126,7 +126,8 @@ def _solve(recordings: Sequence[Recording], members: list[int], protocol: str, h
     mean_m = _weighted_mean([mapped[i] for i in members], [variance[i] for i in members])
     mean_rec = Recording(ref.t[rows], mean_m, None if ref.accel is None else ref.accel[rows],
                          None if ref.seq is None else ref.seq[rows],
-                         meta=replace(ref.meta, source=f"the kit's {len(members)} wearables, in {_label(ref)}'s frame"))
+                         meta=replace(ref.meta, source=f"the kit's {len(members)} wearables, in {_label(ref)}'s frame",
+                                      sample_rate_rel_std=None))  # each wearable's own rate's uncertainty is its own
     mean, _ = calibrate_protocol(mean_rec, protocol, "closure", heading_prior_deg=heading_prior_deg)
     if mean.quality.get("undetermined_axes"):
         raise GyrocalError("the kit was not turned about every axis: " + "; ".join(mean.warnings[:1]))
@@ -202,11 +203,13 @@ def _result(rec: Recording, params: MemberParams, clock: ClockMap, solved: _Solv
     g = rec.gyro * params.k + params.b
     attitude = cumulative_attitude(g, np.diff(rec.t, append=rec.t[-1] + np.median(np.diff(rec.t))))
     residuals["turns"] = member_turn_rows(residuals.get("turns") or [], stages, attitude, params.mount, rec.t)
-    return CalibrationResult(
+    result = CalibrationResult(
         k=params.k, b=params.b, method=METHOD, stages=stages, quality=quality, k_std=params.k_std, b_std=params.b_std,
         k_bound=params.k_bound, b_bound=params.b_bound, noise_dps=noise, residuals=residuals,
         warnings=list(mean.warnings), iterations=mean.iterations, sample_rate_hz=rec.fs, n_samples=len(rec),
     )
+    # its k is on its own stamps: a rate estimated from when its packets arrived carries its error into every k
+    return with_rate_uncertainty(result, rec.meta.sample_rate_rel_std)
 
 
 def _own_stage(stage: Stage, span: np.ndarray, rec: Recording, clock: ClockMap) -> Stage:

@@ -70,6 +70,23 @@ def test_every_wearable_of_a_kit_is_calibrated_within_its_uncertainty_on_its_own
         assert abs(member.mount_deg - np.degrees(np.arccos((np.trace(rel) - 1) / 2))) < 0.02
 
 
+def test_a_wearable_timed_by_arrival_carries_its_own_rates_uncertainty_and_no_other_wearables() -> None:
+    """A wearable without time stamps (MetaWear, Thingy:52) has its rate estimated from when its packets arrived: that
+    rate's error is in its k (on its own stamps), not in its neighbours' -- even when it is the kit's reference."""
+    recs, _ = simulate_kit(11, 3)
+    plain = calibrate_kit(recs, heading_prior_deg=PRIOR_DEG)
+    rel = {0: 4e-4, 2: 1e-3}
+    timed = [r.with_meta(sample_rate_rel_std=rel[i]) if i in rel else r for i, r in enumerate(recs)]
+    kit = calibrate_kit(timed, heading_prior_deg=PRIOR_DEG)
+    for i, (before, after) in enumerate(zip(plain.members, kit.members, strict=True)):
+        assert before.result is not None and after.result is not None
+        np.testing.assert_array_equal(after.result.k, before.result.k)
+        want = np.hypot(before.result.k_std, np.abs(before.result.k) * rel.get(i, 0.0))
+        np.testing.assert_allclose(after.result.k_std, want, rtol=1e-12)
+        np.testing.assert_array_equal(after.result.b_std, before.result.b_std)
+        assert after.result.quality.get("sample_rate_rel_std") == rel.get(i), i
+
+
 @pytest.mark.parametrize(("n", "device", "turn"), [(3, 1, 0), (2, 0, 2), (4, 3, 1)])
 def test_a_wearable_that_slips_in_its_slot_is_named_and_the_rest_of_the_kit_is_calibrated_without_it(n, device, turn) -> None:
     recs, truth = simulate_kit(21 + n, n, slip=Slip(device, 1.2, turn))
