@@ -22,8 +22,6 @@ from typing import Any
 from calib.errors import GyrocalError
 from wearable_protocol.models import MODELS
 
-
-
 SCENARIO_NAMES = "{scenario names}"  # in a help text: filled in when the help is shown
 
 
@@ -101,6 +99,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _wearables(args: argparse.Namespace) -> list[Any]:
     from .power import PowerUpState
+    from .scenarios import SCENARIOS
     from .sources import ReplaySource, ScriptedSource
     from .vendors import WEARABLES
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import gc
 import logging
 import re
 import signal
@@ -374,6 +375,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
     # uvicorn stops gracefully on SIGTERM, then raises the signal again for the handler it found: this one makes a
     # stop asked for (systemd, docker, make run's terminal) an ordinary end, exit 0, as Ctrl-C already is
     signal.signal(signal.SIGTERM, lambda _sig, _frame: None)
+    # what is loaded by now lives as long as the process: the collector need not walk it again at every full
+    # collection while sessions stream, nor at exit
+    gc.freeze()
     try:
         server.run(sockets=[sock])
     except KeyboardInterrupt:

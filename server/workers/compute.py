@@ -7,6 +7,7 @@ every other session) responsive while a session's result is computed.
 from __future__ import annotations
 
 import asyncio
+import gc
 import io
 import logging
 import multiprocessing
@@ -60,6 +61,7 @@ def _warm_up() -> int:
     import calib.io.readers  # noqa: F401
     import calib.pipeline  # noqa: F401
 
+    gc.freeze()  # the numerics stay loaded for the worker's life: no full collection walks them again, nor its exit
     return os.getpid()
 
 
