@@ -7,6 +7,9 @@ reading a session as undecided and both writing. Reads start a plain deferred tr
 
 from __future__ import annotations
 
+import atexit
+import contextlib
+import weakref
 from pathlib import Path
 from typing import Any
 
@@ -54,7 +57,21 @@ def engine_for(url: str) -> Engine:
         raise StoreError(f"cannot use the database {parsed.render_as_string(hide_password=True)}: {install_hint(exc)}") from exc
     if backend == "sqlite":
         _sqlite_transactions(engine)
+    _ENGINES.add(engine)
     return engine
+
+
+_ENGINES: weakref.WeakSet[Engine] = weakref.WeakSet()  # this process's engines not yet collected
+
+
+@atexit.register
+def _close_at_exit() -> None:
+    """Close every engine's connections as the process ends, whatever the garbage collector does then (a command
+    may end with its store's objects never collected): SQLite folds its write-ahead log into the database file when
+    its last connection closes, so once a command has ended the file alone holds what it wrote."""
+    for engine in list(_ENGINES):
+        with contextlib.suppress(Exception):
+            engine.dispose()
 
 
 def _sqlite_transactions(engine: Engine) -> None:

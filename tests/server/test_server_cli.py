@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import io
+import shutil
+import subprocess
 from pathlib import Path
 
 import pytest
-from server_fixtures import API_TOKEN, RunningService, follow_events
+from server_fixtures import API_TOKEN, GYROCAL, ROOT, RunningService, follow_events
 
 from calib.cli.main import main
 from server.auth import Authenticator
@@ -51,6 +53,25 @@ def test_operator_db_after_the_action(tmp_path: Path, capsys: pytest.CaptureFixt
     listing = capsys.readouterr().out
     assert "carol" in listing and "dave" in listing
     assert {o["name"] for o in Store(db).operators()} == {"carol", "dave"}
+
+
+
+def test_once_a_command_has_ended_the_sqlite_file_alone_holds_what_it_wrote(tmp_path: Path) -> None:
+    """The gyrocal command, as a shell runs it: its store's write-ahead log is folded into the file as it exits, so a
+    copy of the file (a backup, a store moved to another computer) is whole."""
+    db = tmp_path / "store.sqlite3"
+    r = subprocess.run([*GYROCAL, "operator", "--db", f"sqlite:///{db}", "add", "carol", "--secret-stdin"], cwd=ROOT,
+                       input="a long enough secret\n", capture_output=True, text=True, timeout=60, check=False)
+    assert r.returncode == 0, r.stderr
+    assert not (tmp_path / "store.sqlite3-wal").exists()
+    copy = tmp_path / "copy" / "store.sqlite3"
+    copy.parent.mkdir()
+    shutil.copyfile(db, copy)
+    store = Store(f"sqlite:///{copy}")
+    try:
+        assert [o["name"] for o in store.operators()] == ["carol"]
+    finally:
+        store.close()
 
 
 @pytest.mark.parametrize(
