@@ -5,6 +5,7 @@ Registered as a plugin by tests/conftest.py: the fixtures need no import; the he
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import glob
 import json
@@ -30,6 +31,9 @@ ROOT = Path(__file__).resolve().parents[1]
 T = TypeVar("T")
 GYROCAL = [sys.executable, "-m", "calib.cli.main"]
 API_TOKEN = "test-token-" + uuid.uuid4().hex
+# the logs of the services this test process starts (read by tests after a service stopped), removed as it ends
+SERVICE_LOGS = tempfile.mkdtemp(prefix="gyrocal-serve-logs-")
+atexit.register(shutil.rmtree, SERVICE_LOGS, True)
 
 
 def free_port() -> int:
@@ -219,7 +223,7 @@ class RunningService:
         self.args = args
         self.env = {**os.environ, "GYROCAL_API_TOKEN": API_TOKEN, **(env or {})}
         self.proc: subprocess.Popen[str] | None = None
-        self.log = tempfile.NamedTemporaryFile("w+", prefix="gyrocal-serve-", suffix=".log", delete=False)
+        self.log = tempfile.NamedTemporaryFile("w+", prefix="gyrocal-serve-", suffix=".log", dir=SERVICE_LOGS, delete=False)
 
     def start(self, timeout_s: float = 30.0) -> RunningService:
         cmd = [*self.prefix, *GYROCAL, "serve", "--port", str(self.port), "--db", self.db_url, "--log-level", "warning", *self.args]
