@@ -19,23 +19,17 @@ import signal
 import sys
 from typing import Any
 
+from calib.cli.lazy_help import lazy_help
 from calib.errors import GyrocalError
 from wearable_protocol.models import MODELS
 
 SCENARIO_NAMES = "{scenario names}"  # in a help text: filled in when the help is shown
 
 
-class _ScenariosHelpFormatter(argparse.RawDescriptionHelpFormatter):
-    """Fills in ``SCENARIO_NAMES`` when the help is shown: the scenarios import calib's simulator, which every other
-    gyrocal command would otherwise pay for at its start."""
+def _scenario_names() -> str:
+    from .scenarios import SCENARIOS  # calib's simulator: imported when the help is shown, not by every command
 
-    def _get_help_string(self, action: argparse.Action) -> str | None:
-        text = super()._get_help_string(action)
-        if text is None or SCENARIO_NAMES not in text:
-            return text
-        from .scenarios import SCENARIOS
-
-        return text.replace(SCENARIO_NAMES, ", ".join(SCENARIOS))
+    return ", ".join(SCENARIOS)
 
 
 def register(subparsers: Any) -> None:
@@ -44,7 +38,7 @@ def register(subparsers: Any) -> None:
         "mock-device",
         help="run a simulated wearable on a simulated BlueZ (private D-Bus) for bleak clients",
         description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
-        formatter_class=_ScenariosHelpFormatter,
+        formatter_class=lazy_help(SCENARIO_NAMES, _scenario_names, argparse.RawDescriptionHelpFormatter),
     )
     p.add_argument("--ble", action="store_true", help="serve the wearable over the simulated BlueZ (required)")
     p.add_argument("--seed", type=int, default=0, help="seed of the simulated sensor and clinician (default 0)")

@@ -21,6 +21,7 @@ import numpy as np
 
 from calib import __version__
 from calib.blas import single_threaded_blas
+from calib.cli.lazy_help import lazy_help
 from calib.cli.summary import fmt_vec, result_summary
 from calib.errors import GyrocalError
 from calib.extras import missing_module, register_unavailable
@@ -209,17 +210,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
 EFFECT_VALUES = "{effect values}"  # in a help text: every registered effect's NAME=VALUE, filled in when help is shown
 
 
-class _EffectsHelpFormatter(argparse.HelpFormatter):
-    """Fills in ``EFFECT_VALUES`` when the help is shown: listing the effects imports every one of them, which a
-    command that shows no help need not pay for."""
+def _effect_values() -> str:
+    from calib.effects.tables import effect_value_help
 
-    def _get_help_string(self, action: argparse.Action) -> str | None:
-        text = super()._get_help_string(action)
-        if text is None or EFFECT_VALUES not in text:
-            return text
-        from calib.effects.tables import effect_value_help
-
-        return text.replace(EFFECT_VALUES, effect_value_help().replace("%", "%%"))
+    return effect_value_help()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -247,7 +241,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", type=Path, default=None, help="save a PNG of the rate magnitude and angles before/after calibration")
     p.set_defaults(func=cmd_calibrate)
 
-    p = sub.add_parser("simulate", help="simulate a recording of the protocol", formatter_class=_EffectsHelpFormatter)
+    p = sub.add_parser("simulate", help="simulate a recording of the protocol",
+                       formatter_class=lazy_help(EFFECT_VALUES, _effect_values))
     p.add_argument("--seed", type=int, required=True)
     p.add_argument("--noise", type=float, default=0.03, help="white noise std on the readings, deg/s (default 0.03)")
     p.add_argument("--fs", type=float, default=104.0, help="sample rate, Hz (default 104)")
