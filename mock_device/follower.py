@@ -102,18 +102,24 @@ KIT_POLL_S = 0.5  # between looks at a kit session, as the kit page polls it (we
 
 
 class KitFollower(SessionFollower):
-    """Follows the kit sessions that hold ``device_id`` (``active_kit`` of ``GET /devices/{id}``), polling
-    ``GET /sessions/{kit}`` as the kit page does, and calls ``on_snapshot`` with each snapshot until the kit ends.
-    ``speed``: how many times faster than real time the simulated wearables run (the page's poll, in their time)."""
+    """Follows the kit sessions that hold any of ``device_ids`` (the wearables in the tray: ``active_kit`` of ``GET
+    /devices/{id}``; a kit may leave some of the tray's out), polling ``GET /sessions/{kit}`` as the kit page does, and
+    calls ``on_snapshot`` with each snapshot until the kit ends. ``speed``: how many times faster than real time the
+    simulated wearables run (the page's poll, in their time)."""
 
-    def __init__(self, device_id: str, on_snapshot: Callable[[dict[str, Any]], None], base_url: Callable[[], str | None],
-                 speed: float = 1.0) -> None:
-        super().__init__(device_id, on_snapshot, base_url)
+    def __init__(self, device_ids: list[str], on_snapshot: Callable[[dict[str, Any]], None],
+                 base_url: Callable[[], str | None], speed: float = 1.0) -> None:
+        super().__init__(device_ids[0], on_snapshot, base_url)
+        self.device_ids = list(device_ids)
         self.poll_s = KIT_POLL_S / max(1.0, float(speed))
 
     def _active_session(self, base: str) -> str | None:
-        r = httpx.get(f"{base}/devices/{self.device_id}", headers=self.headers, timeout=5.0)
-        return r.json().get("active_kit") if r.status_code == 200 else None
+        for device_id in self.device_ids:
+            r = httpx.get(f"{base}/devices/{device_id}", headers=self.headers, timeout=5.0)
+            kit = r.json().get("active_kit") if r.status_code == 200 else None
+            if kit:
+                return str(kit)
+        return None
 
     def _follow(self, base: str, sid: str) -> None:
         deadline = time.monotonic() + 3600.0

@@ -48,7 +48,7 @@ def kit(*, seed: int, n: int, speed: float, names: list[str], rate_hz: float | N
         service_url: Callable[[], str | None] | None = None) -> list[Wearable]:
     """``n`` simulated wearables speaking ``model``'s protocol, riding in one tray that one clinician turns through the
     protocol whenever their streams start: a scripted one (``mock_device.kit``), or with ``hand`` a ``hand:<style>``
-    clinician who follows the prompts of the kit session that holds the first wearable on the service at
+    clinician who follows the prompts of the kit session that holds wearables of the tray on the service at
     ``service_url()`` (``mock_device.prompted_kit``). ``loose`` (0-based) slips in its slot during the second turn;
     ``drop`` (scripted clinician only) loses its link for a moment in the first."""
     from .kit import KitSource, Tray
@@ -57,7 +57,7 @@ def kit(*, seed: int, n: int, speed: float, names: list[str], rate_hz: float | N
     sources: list[SampleSource]
     if hand is not None:
         prompted = PromptedTray(seed, n, hand.removeprefix(HAND_PREFIX), noise_dps=noise_dps, loose=loose)
-        KitFollower(names[0], prompted.observe, service_url or (lambda: None), speed=speed).start()
+        KitFollower(names, prompted.observe, service_url or (lambda: None), speed=speed).start()
         sources = [PromptedKitSource(prompted, i) for i in range(n)]
     else:
         tray = Tray(seed, n, noise_dps=noise_dps, loose=loose, drop=drop)

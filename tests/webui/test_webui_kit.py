@@ -1,8 +1,9 @@
-"""A whole kit from the page, in Debian's Chromium against the real service with three simulated wearables in one
-tray (`--mock-kit`, the third slipping in its slot), turned by a clinician who follows the kit's prompts as the page
-shows them (`--mock-scenario hand:careful`): the operator ticks them, calibrates them together, follows one set of
-prompts for the tray, sees each wearable's state as a row, and accepts every one that passed at once; on a
-phone the rows stack and nothing runs off the screen."""
+"""A whole kit from the page, in Debian's Chromium against the real service with four simulated wearables in one tray
+(`--mock-kit`, the fourth slipping in its slot), turned by a clinician who follows the kit's prompts as the page
+shows them (`--mock-scenario hand:careful`): the operator ticks three of them (mock-1 stays out of the kit, so the
+clinician finds the kit by the others), calibrates them together, follows one set of prompts for the tray, sees each
+wearable's state as a row, and accepts every one that passed at once; on a phone the rows stack and nothing runs off
+the screen."""
 
 from __future__ import annotations
 
@@ -20,7 +21,7 @@ PHONE = {"width": 390, "height": 844}
 
 @pytest.fixture(scope="module")
 def kit_service() -> Iterator[Any]:
-    with running_service(["hand:careful"] * 3, "--mock-kit", "--mock-kit-loose", "3") as svc:
+    with running_service(["hand:careful"] * 4, "--mock-kit", "--mock-kit-loose", "4") as svc:
         yield svc
 
 
@@ -31,10 +32,10 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
         wizard.sign_in()
         start = page.locator("#kit-start")
         assert start.is_disabled()
-        for device in ("mock-1", "mock-2"):
+        for device in ("mock-2", "mock-3"):
             page.check(f".device-card[data-device='{device}'] .kit-pick input")
         assert start.inner_text().strip() == "Calibrate 2 together" and start.is_enabled()
-        page.check(".device-card[data-device='mock-3'] .kit-pick input")
+        page.check(".device-card[data-device='mock-4'] .kit-pick input")
         assert start.inner_text().strip() == "Calibrate 3 together"
         assert wizard.small_targets() == []
         wizard.shot("kit-chosen")
@@ -56,37 +57,37 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
                 wizard.shot("kit-turn-x")
         page.wait_for_selector(".kit[data-state='done']", timeout=60_000)
         assert page.inner_text(".kit-prompt") == "Kit calibrated: 2 of 3 passed"
-        assert "mock-3 came apart from the kit" in page.inner_text(".kit-sub")
-        for device in ("mock-1", "mock-2"):
+        assert "mock-4 came apart from the kit" in page.inner_text(".kit-sub")
+        for device in ("mock-2", "mock-3"):
             row = page.locator(f".kit-device[data-device='{device}']")
             assert row.get_attribute("data-passed") == "true"
             assert row.locator(".kit-state").inner_text().strip() == "PASS"
             assert re.search(r"k X \d\.\d{4} · Y \d\.\d{4} · Z \d\.\d{4}", row.locator(".kit-k").inner_text())
-        loose = page.locator(".kit-device[data-device='mock-3']")
+        loose = page.locator(".kit-device[data-device='mock-4']")
         assert loose.get_attribute("data-departed") == "true"
         assert loose.locator(".kit-state").inner_text().strip() == "Came apart from the kit"
         assert "Seat it firmly" in loose.locator(".kit-reason").inner_text()
-        assert loose.locator("a.kit-redo").get_attribute("href") == "#/place/mock-3"
+        assert loose.locator("a.kit-redo").get_attribute("href") == "#/place/mock-4"
         assert wizard.small_targets() == []
         wizard.shot("kit-result")
         page.click("#kit-accept")
-        page.wait_for_selector("#kit-saved:has-text('Saved as the current calibration of mock-1, mock-2. Not saved: mock-3.')")
-        page.wait_for_selector(".kit-device[data-device='mock-1'] .kit-state:has-text('PASS, saved')")
+        page.wait_for_selector("#kit-saved:has-text('Saved as the current calibration of mock-2, mock-3. Not saved: mock-4.')")
+        page.wait_for_selector(".kit-device[data-device='mock-2'] .kit-state:has-text('PASS, saved')")
         assert page.locator("#kit-accept").count() == 0  # nothing left to accept
         with api(kit_service) as c:
-            for device in ("mock-1", "mock-2"):
+            for device in ("mock-2", "mock-3"):
                 saved = c.get(f"/devices/{device}/calibration").json()
                 assert saved["method"] == "kit-closure"
                 truth = c.get(f"/devices/{device}").json()["simulated_truth"]["k"]
                 error = np.abs(np.array(saved["k"]) - truth)
                 assert np.all(error < 3e-3), error  # the tray turned by hand as prompted gives the wearables' k
-            assert c.get("/devices/mock-3/calibration").status_code == 404
+            assert c.get("/devices/mock-4/calibration").status_code == 404
     # the same result on a phone: the rows stack, and nothing is wider than the screen
     with watched_page(browser, kit_service, page_watch, viewport=PHONE, phone=True) as phone:
         wizard = Wizard(phone, kit_service, artifacts / "webui" / "kit-phone")
         wizard.sign_in()
         phone.goto(f"{kit_service.base}/#/kit/{kit_id}")
-        phone.wait_for_selector(".kit[data-state='done'] .kit-device[data-device='mock-3']")
+        phone.wait_for_selector(".kit[data-state='done'] .kit-device[data-device='mock-4']")
         assert phone.evaluate("document.scrollingElement.scrollWidth <= window.innerWidth")
         columns = phone.evaluate("getComputedStyle(document.querySelector('.kit-device')).gridTemplateColumns")
         assert len(columns.split()) == 1, columns
