@@ -96,14 +96,20 @@ class KitSource:
         return None  # the tray's clinician goes on with the protocol; the samples while out of range are lost
 
     def block(self, start: int, end: int) -> Block:
-        n = self._gyro.shape[0]
-        gyro = self._gyro[min(start, n):min(end, n)]
-        accel = self._accel[min(start, n):min(end, n)]
-        more = end - max(start, n)
-        if more > 0:  # the tray rests after the protocol
-            gyro = np.concatenate([gyro, self._rest + self.tray.noise_dps * self._rng.standard_normal((more, 3))])
-            accel = np.concatenate([accel, self._rest_accel + 0.002 * self._rng.standard_normal((more, 3))])
-        return Block(gyro, accel)
+        return resting_after(self._gyro, self._accel, self._rest, self._rest_accel, self.tray.noise_dps, start, end, self._rng)
 
     def times_s(self, start: int, end: int) -> np.ndarray | None:
         return None
+
+
+def resting_after(gyro: np.ndarray, accel: np.ndarray, rest: np.ndarray, rest_accel: np.ndarray, noise_dps: float,
+                  start: int, end: int, rng: np.random.Generator) -> Block:
+    """Readings start..end-1 of a wearable in the tray: its simulated ``gyro`` and ``accel`` rows, then, past their
+    end, the tray at rest (``rest`` and ``rest_accel`` with the reading noise)."""
+    n = gyro.shape[0]
+    out_gyro, out_accel = gyro[min(start, n):min(end, n)], accel[min(start, n):min(end, n)]
+    more = end - max(start, n)
+    if more > 0:
+        out_gyro = np.concatenate([out_gyro, rest + noise_dps * rng.standard_normal((more, 3))])
+        out_accel = np.concatenate([out_accel, rest_accel + 0.002 * rng.standard_normal((more, 3))])
+    return Block(out_gyro, out_accel)

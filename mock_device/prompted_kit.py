@@ -26,7 +26,7 @@ from calib.simulator import ProtocolScript, Segment, SensorParams, Still, Turn
 from calib.simulator.kit import KitDeviceTruth, KitTray, Slip
 
 from .hand import HANDS, Act, PromptHand
-from .kit import JOIN_S, SLIP_DEG
+from .kit import JOIN_S, SLIP_DEG, resting_after
 from .scenarios import LinkFaults
 from .sources import Block
 
@@ -156,11 +156,6 @@ def _with_rest(rec: Recording, params: SensorParams, noise_dps: float, start: in
                rng: np.random.Generator) -> Block:
     """Samples start..end-1 of ``rec``, and rest readings past its end (the tray waits for the hand's next act)."""
     n = len(rec)
-    accel_all = rec.accel if rec.accel is not None else np.zeros_like(rec.gyro)
-    gyro, accel = rec.gyro[min(start, n):min(end, n)], accel_all[min(start, n):min(end, n)]
-    more = end - max(start, n)
-    if more > 0:
-        rest_accel = accel_all[-max(1, min(n, 50)):].mean(axis=0) if n else np.array([0.0, 0.0, 1.0])
-        gyro = np.concatenate([gyro, params.reading(np.zeros(3)) + noise_dps * rng.standard_normal((more, 3))])
-        accel = np.concatenate([accel, rest_accel + 0.002 * rng.standard_normal((more, 3))])
-    return Block(gyro, accel)
+    accel = rec.accel if rec.accel is not None else np.zeros_like(rec.gyro)
+    rest_accel = accel[-max(1, min(n, 50)):].mean(axis=0) if n else np.array([0.0, 0.0, 1.0])
+    return resting_after(rec.gyro, accel, params.reading(np.zeros(3)), rest_accel, noise_dps, start, end, rng)

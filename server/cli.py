@@ -287,7 +287,6 @@ def build_service(args: argparse.Namespace) -> Any:
     return Service(settings, store=store, devices=devices)
 
 
-
 def _check_kit_scenario(args: argparse.Namespace, scenarios: list[str]) -> None:
     """A kit's tray is turned by one clinician: the scripted one, or one hand:STYLE who follows the kit's prompts."""
     if not args.mock_kit:
@@ -297,6 +296,7 @@ def _check_kit_scenario(args: argparse.Namespace, scenarios: list[str]) -> None:
                            "give one hand:STYLE (such as hand:careful) for one who follows the kit's prompts")
     if args.mock_kit_drop is not None and scenarios and scenarios[0].startswith("hand:"):
         raise ServiceError("--mock-kit-drop plays with the scripted tray clinician: leave out --mock-scenario hand:STYLE")
+
 
 def gateway_settings(args: argparse.Namespace) -> GatewaySettings | None:
     """--gateway and its options, checked; None for a service on its own."""
