@@ -13,6 +13,7 @@ from ..deps import problem
 from ..devices import Device, model_facts
 from ..lifecycle import calibration_due
 from ..live.codes import END_STATES
+from ..live.kit_snapshot import stored_kit_snapshot
 from ..live.snapshot import stored_snapshot
 from ..live.snapshot_schema import RemoteGateway, SessionOut
 from ..service import Service
@@ -141,7 +142,10 @@ async def session_snapshot(svc: Service, sid: str) -> SessionOut:
         return live.machine.snapshot("state").model_copy(update=update)
     row = await asyncio.to_thread(svc.store.session, sid)
     if row is None:
-        raise problem(404, f"no session {sid}")
+        stored_kit = await asyncio.to_thread(svc.store.kit, sid)  # a kit of an earlier run of the service
+        if stored_kit is None:
+            raise problem(404, f"no session {sid}")
+        return stored_kit_snapshot(*stored_kit)
     if (gateway := runs_elsewhere(svc, row)) is not None:
         followed = svc.events.followed(sid)  # followed here: its latest relayed state, unless the store says it ended
         if followed is not None and (row["ended_at"] is None or followed.state in END_STATES):

@@ -24,8 +24,8 @@ from calib.recording import Recording
 
 from ..workers.compute import ComputePool, LiveOutcome, calibrate_live, off_loop
 from ..workers.kit import KitOutcome, calibrate_kit_live
-from .codes import END_STATES, STEPS, State
-from .snapshot_schema import KitDeviceOut, KitOut, SessionOut
+from .kit_snapshot import kit_snapshot
+from .snapshot_schema import KitOut, SessionOut
 
 if TYPE_CHECKING:
     from calib.stages.stage import Stage
@@ -54,17 +54,19 @@ class KitSession(Generic[M]):
     """The wearables' guided sessions of one kit, and their calibration together."""
 
     def __init__(self, kit_id: str, members: list[M], pool: ComputePool | None, compute_timeout_s: float,
-                 operator: str, on_end: Callable[[KitSession[M]], None] | None = None) -> None:
+                 operator: str, on_end: Callable[[KitSession[M]], None] | None = None,
+                 keep_outcome: Callable[[str, KitOutcome], None] | None = None) -> None:
+        """``keep_outcome(kit_id, outcome)``: stores how the wearables followed the tray (run in a thread)."""
         self.id = kit_id
         self.members = members
         self.pool = pool
         self.compute_timeout_s = compute_timeout_s
         self.operator = operator
         self.on_end = on_end
+        self.keep_outcome = keep_outcome
         self.started_at = datetime.now(UTC).isoformat()
         self.outcome: KitOutcome | None = None
         self.cancelled = False
-        self.decision: str | None = None
         self._arrived: dict[str, tuple[Recording, list[Stage], str]] = {}
         self._waiting: dict[str, asyncio.Future[LiveOutcome]] = {}
         self._task: asyncio.Task[None] | None = None
@@ -148,49 +150,20 @@ class KitSession(Generic[M]):
             why = f"The kit could not be calibrated ({type(exc).__name__}). Start a new calibration."
             self.outcome = KitOutcome({n: LiveOutcome(None, why, "internal_error", b"") for n in names}, refusal=why)
         assert self.outcome is not None
+        if self.keep_outcome is not None:
+            try:
+                await asyncio.to_thread(self.keep_outcome, self.id, self.outcome)
+            except Exception as exc:  # each wearable's own session keeps its result whatever this says
+                log.warning("kit %s: how its wearables followed the tray could not be stored: %s", self.id, exc)
         for name, future in self._waiting.items():
             if not future.done():
                 future.set_result(self.outcome.outcomes[name])
 
     # -- what the page and the API see ---------------------------------------------------------
     def snapshot(self) -> SessionOut:
-        """The kit's state: the step of the wearable furthest along, its prompt, and every wearable's own state."""
-        snaps = [m.machine.snapshot("state") for m in self.members]
-        state, lead = self._state(snaps)
-        devices = [KitDeviceOut(
-            device_id=s.device_id, session_id=s.session_id, state=s.state, phase=s.phase, prompt=s.prompt,
-            reason_code=s.reason_code, reason=s.reason, result=s.result, passed=s.passed, checks=s.checks,
-            decision=s.decision, calibration_id=s.calibration_id, samples=s.samples, lost_samples=s.lost_samples,
-            departed=self.outcome is not None and s.device_id in self.outcome.departed,
-        ) for s in snaps]
-        kit = KitOut(consistency=None if self.outcome is None else self.outcome.consistency,
-                     departed=[] if self.outcome is None else self.outcome.departed,
-                     refusal=None if self.outcome is None else self.outcome.refusal)
-        return lead.model_copy(update={
-            "session_id": self.id, "device_id": ",".join(self.device_ids), "kind": "kit", "state": state,
-            "devices": devices, "kit": kit, "operator": self.operator, "started_at": self.started_at,
-            "result": None, "passed": any(d.passed for d in devices) if state == State.DONE else None,
-            "checks": [], "departures": [], "accuracy": None, "decision": self.decision, "calibration_id": None,
-            "reason_code": None if state != State.FAILED else lead.reason_code,
-            "reason": self._reason(state, snaps),
-        })
-
-    def _state(self, snaps: list[SessionOut]) -> tuple[State, SessionOut]:
-        if all(s.state in END_STATES for s in snaps):
-            if self.cancelled and not any(s.state == State.DONE for s in snaps):
-                return State.CANCELLED, snaps[0]
-            done = [s for s in snaps if s.state == State.DONE]
-            return (State.DONE, done[0]) if done else (State.FAILED, snaps[0])
-        running = [s for s in snaps if s.state not in END_STATES]
-        lost = [s for s in running if s.state == State.RECONNECTING]
-        if lost:
-            return State.RECONNECTING, lost[0]
-        along = max(running, key=lambda s: STEPS.index(s.state) if s.state in STEPS else 0)
-        return State(along.state), along
-
-    def _reason(self, state: State, snaps: list[SessionOut]) -> str | None:
-        if state == State.RECONNECTING:
-            lost = [s.device_id for s in snaps if s.state == State.RECONNECTING]
-            return f"The link to {', '.join(lost)} was lost; reconnecting. Keep the tray still."
-        ended = [f"{s.device_id}: {s.reason}" for s in snaps if s.state in (State.FAILED, State.CANCELLED) and s.reason]
-        return " ".join(ended) or None
+        """The kit's state (server.live.kit_snapshot), from its wearables' live snapshots."""
+        out = self.outcome
+        kit = KitOut(consistency=None if out is None else out.consistency, departed=[] if out is None else out.departed,
+                     refusal=None if out is None else out.refusal)
+        return kit_snapshot(self.id, [m.machine.snapshot("state") for m in self.members], kit, operator=self.operator,
+                            started_at=self.started_at, cancelled=self.cancelled)

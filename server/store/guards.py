@@ -75,7 +75,7 @@ def remove(conn: Any) -> None:
 
 # -- PostgreSQL: the service's role ------------------------------------------------------------------
 APPEND_ONLY_GRANTS = "SELECT, INSERT"
-READ_WRITE_TABLES = ("devices", "operators", "auth_tokens", "sessions", "chain_heads")
+READ_WRITE_TABLES = ("devices", "operators", "auth_tokens", "sessions", "kits", "chain_heads")
 SPOOL_TABLES = ("session_samples", "gateways", "device_sightings", "device_leases")  # rows come and go
 
 

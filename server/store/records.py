@@ -123,6 +123,25 @@ class StoredSession(TypedDict):
     gateway: str | None
 
 
+class StoredKitMember(TypedDict):
+    device_id: str
+    session_id: str
+
+
+class StoredKit(TypedDict):
+    """A kit session as the store keeps it: its wearables' sessions (each a StoredSession of its own) and, once they
+    were calibrated together, how each followed the tray."""
+
+    id: str
+    operator: str | None
+    gateway: str | None
+    started_at: str | None
+    members: list[StoredKitMember]
+    consistency: dict[str, Any] | None
+    departed: list[str]
+    refusal: str | None
+
+
 class StoredVerification(TurnVerification):
     """A verification turn kept with its calibration (a session of kind ``verify``)."""
 

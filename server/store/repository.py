@@ -17,12 +17,13 @@ from sqlalchemy.orm import Session
 
 from .calibrations import CalibrationStore
 from .fleet import FleetStore
+from .kits import KitStore
 from .operators import OperatorStore
 from .records import StoredDevice, device_dict
 from .tables import Device, utcnow
 
 
-class Store(OperatorStore, CalibrationStore, FleetStore):
+class Store(OperatorStore, CalibrationStore, FleetStore, KitStore):
     """All persistent state of the service. Thread-safe; every method is one transaction."""
 
     # -- devices --------------------------------------------------------------------------------

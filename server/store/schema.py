@@ -2,7 +2,7 @@
 
 The revisions are in ``server/store/migrations/versions``: 0001 the first store, 0002 hash chains on the
 history, 0003 what each wearable holds, 0004 operators' PINs, 0005 identities, 0006 the fleet (gateways,
-sightings, leases). An empty database gets the newest schema at once (``create_all``, stamped with the head);
+sightings, leases), 0007 kits. An empty database gets the newest schema at once (``create_all``, stamped with the head);
 a store made before gyrocal used Alembic is stamped with the revision its ``schema_info.version`` names, then
 upgraded. ``schema_info.version`` keeps following the head's number, so a gyrocal from before Alembic still
 refuses a newer store.

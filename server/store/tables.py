@@ -106,6 +106,21 @@ class SessionRow(Base):
     info: Mapped[dict[str, Any] | None] = mapped_column(JSON)  # device info, sample rate, source
 
 
+class KitRow(Base):
+    """A kit session: the wearables of one tray calibrated together, each in its own session (``sessions``)."""
+
+    __tablename__ = "kits"
+    id: Mapped[str] = mapped_column(String(64), primary_key=True)
+    operator: Mapped[str | None] = mapped_column(String(128))
+    gateway: Mapped[str | None] = mapped_column(String(64))  # the gateway that runs it (None: a service on its own)
+    started_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
+    members: Mapped[list[Any]] = mapped_column(JSON)  # [{"device_id", "session_id"}], in the kit's order
+    # once calibrated together: each wearable's coupling residual and departure (server.live.snapshot_schema.KitConsistency)
+    consistency: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    departed: Mapped[list[Any] | None] = mapped_column(JSON)  # the device ids that came apart from the kit
+    refusal: Mapped[str | None] = mapped_column(Text)  # why the kit could not be calibrated together
+
+
 class ChainHead(Base):
     """The last link of one hash chain (one row per append-only table); locked while a row is appended."""
 

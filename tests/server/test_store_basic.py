@@ -48,7 +48,7 @@ def test_newer_schema_is_refused(store_url: str) -> None:
     with s.engine.begin() as conn:
         conn.execute(text("UPDATE alembic_version SET version_num = '0099'"))
     s.close()
-    with pytest.raises(StoreError, match=r"schema revision 0099, newer than this gyrocal .*knows up to 0006.*upgrade gyrocal"):
+    with pytest.raises(StoreError, match=r"schema revision 0099, newer than this gyrocal .*knows up to 0007.*upgrade gyrocal"):
         Store(store_url)
     eng = create_engine(store_url.replace("postgresql://", "postgresql+psycopg://"))
     with eng.begin() as conn:
@@ -234,3 +234,24 @@ def test_a_kits_wearables_are_accepted_all_in_one_transaction_or_none(store_url:
     assert s.verify().ok  # the three rows chained one after the other in one transaction
     with pytest.raises(StoreError, match="accepted already"):
         s.accept_many([Acceptance("k2" * 16, RESULT)], "alice")
+
+
+def test_a_kit_is_kept_with_its_wearables_sessions_and_how_they_followed_the_tray(store_url: str) -> None:
+    """What a restarted service shows of a kit: its wearables' sessions in the kit's order (one never stored is left
+    out), and once calibrated together, each wearable's consistency and who departed."""
+    s = Store(store_url)
+    members = {"dev-2": "m2" * 16, "dev-1": "m1" * 16, "dev-3": "m3" * 16}
+    for dev in ("dev-2", "dev-1"):
+        _done_session(s, members[dev], dev)
+    s.create_kit("kit1" * 8, "alice", members, gateway="ward-3")
+    assert s.kit("kit2" * 8) is None
+    kit, sessions = s.kit("kit1" * 8)
+    assert [m["device_id"] for m in kit["members"]] == ["dev-2", "dev-1", "dev-3"]
+    assert [r["id"] for r in sessions] == [members["dev-2"], members["dev-1"]]
+    assert kit["consistency"] is None and kit["departed"] == [] and kit["gateway"] == "ward-3" and kit["operator"] == "alice"
+    s.record_kit_outcome("kit1" * 8, {"devices": {"dev-1": {"departed": True}}}, ["dev-1"], None)
+    kit, _ = Store(store_url).kit("kit1" * 8)  # as another process reads it
+    assert kit["departed"] == ["dev-1"] and kit["consistency"] == {"devices": {"dev-1": {"departed": True}}}
+    start = [e for e in s.audit_log() if e["action"] == "kit.start"]
+    assert len(start) == 1 and start[0]["session_id"] == "kit1" * 8 and start[0]["detail"]["sessions"] == members
+    assert s.verify().ok

@@ -261,10 +261,11 @@ def test_a_crashed_sessions_spooled_samples_are_archived_at_restart(store_url: s
 def test_a_v1_store_is_migrated_and_its_history_chained(store_url: str) -> None:
     make_v1_store(store_url)
     store = Store(store_url)
-    assert store.schema_version() == SCHEMA_VERSION == 6
+    assert store.schema_version() == SCHEMA_VERSION == 7
     with store.engine.connect() as conn:  # stamped with its old version, then upgraded by Alembic to the head
-        assert conn.execute(text("SELECT version_num FROM alembic_version")).scalar_one() == "0006"
+        assert conn.execute(text("SELECT version_num FROM alembic_version")).scalar_one() == "0007"
         assert conn.execute(text("SELECT COUNT(*) FROM device_leases")).scalar_one() == 0
+        assert conn.execute(text("SELECT COUNT(*) FROM kits")).scalar_one() == 0
     report = store.verify()
     assert report.ok and report.rows == {"recordings": 0, "calibrations": 2, "audit_log": 5}
     assert [c.source for c in store.calibrations("dev-1")] == ["upload", "live"]
@@ -289,7 +290,7 @@ def test_gateways_starting_at_once_on_an_old_store_upgrade_it_once(store_url: st
     report = stores[0].verify()
     assert report.ok and report.rows == {"recordings": 0, "calibrations": 2, "audit_log": 5}
     with stores[0].engine.connect() as conn:
-        assert conn.execute(text("SELECT version_num FROM alembic_version")).scalar_one() == "0006"
+        assert conn.execute(text("SELECT version_num FROM alembic_version")).scalar_one() == "0007"
     for st in stores:
         st.close()
 
@@ -345,3 +346,21 @@ def test_store_verify_command_reports_the_first_broken_link(tmp_path: Path) -> N
     report = json.loads(bad.stdout)
     assert report["ok"] is False and report["first_broken_link"]["chain"] == "calibrations"
     assert report["first_broken_link"]["seq"] == 1
+
+
+def test_a_service_role_keeps_keeping_kits_once_a_store_from_before_kits_is_upgraded(postgres) -> None:  # noqa: F811
+    """A store set up for a service role at revision 0006 (before kits): the owner's upgrade grants the role the new
+    table, so the service, restarted as that role, keeps kits."""
+    owner = postgres.create_database()
+    service = postgres.service_url(owner)
+    Store(service).close()
+    with Store(owner).engine.begin() as conn:  # back to revision 0006: no kits table yet
+        conn.execute(text("DROP TABLE kits"))
+        conn.execute(text("UPDATE alembic_version SET version_num = '0006'"))
+        conn.execute(text("UPDATE schema_info SET version = 6"))
+    Store(owner).close()  # the owner upgrades it (as `gyrocal store setup` or a service started as the owner would)
+    store = Store(service)
+    _done(store, "p" * 32)
+    store.create_kit("q" * 32, "alice", {"dev-1": "p" * 32})
+    store.record_kit_outcome("q" * 32, None, [], None)
+    assert store.kit("q" * 32)[0]["members"] == [{"device_id": "dev-1", "session_id": "p" * 32}]

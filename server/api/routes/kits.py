@@ -11,7 +11,9 @@ from sqlalchemy.exc import SQLAlchemyError
 
 from ... import schemas as M
 from ...deps import R401, R404, R409, R503, Operator, Reader, Svc, check_device_id, check_session_id, problem
+from ...live.codes import END_STATES
 from ...live.kit_session import KitSession
+from ...live.kit_snapshot import stored_kit_snapshot
 from ...live.runner import LiveSession
 from ...live.snapshot_schema import KitDeviceOut, SessionOut
 from ...service import Service
@@ -57,6 +59,7 @@ async def calibrate_kit(svc: Svc, body: M.KitStart, response: Response, operator
             claimed.append(device_id)
         for dev in devices:
             members.append(await new_live(svc, dev, sids[dev.id], operator, None, body.max_attempts, member_ended))
+        await asyncio.to_thread(svc.store.create_kit, kit_id, operator, sids, svc.gateway_name)
     except BaseException:
         for live in members:
             live.cancel("The kit could not be started.")
@@ -64,11 +67,11 @@ async def calibrate_kit(svc: Svc, body: M.KitStart, response: Response, operator
         for device_id in claimed:
             svc.release_device(device_id, sids[device_id])
         raise
-    kit = KitSession(kit_id, members, svc.pool, svc.settings.compute_timeout_s, operator, on_end=lambda k: _forget_old(svc))
+    kit = KitSession(kit_id, members, svc.pool, svc.settings.compute_timeout_s, operator, on_end=lambda k: _forget_old(svc),
+                     keep_outcome=lambda kid, out: svc.store.record_kit_outcome(kid, out.consistency, out.departed, out.refusal))
     svc.kits[kit_id] = kit
     for live in members:
         live.start()
-    await asyncio.to_thread(svc.store.audit, operator, "kit.start", None, kit_id, {"devices": ids, "sessions": sids})
     url = f"/sessions/{kit_id}"
     response.headers["Location"] = url
     return M.KitStarted(session_id=kit_id, state=kit.snapshot().state, url=url,
@@ -77,14 +80,19 @@ async def calibrate_kit(svc: Svc, body: M.KitStart, response: Response, operator
 
 @router.get("/kits/{kit_id}", response_model=SessionOut, responses=R404, tags=["kits"])
 async def get_kit(svc: Svc, kit_id: str, _: Reader) -> SessionOut:
-    """A kit session, as GET /sessions/{id} shows it."""
-    return _kit(svc, kit_id).snapshot()
+    """A kit session, as GET /sessions/{id} shows it (a kit of an earlier run of the service, as the store keeps it)."""
+    return await _kit_snapshot(svc, kit_id)
 
 
 @router.post("/kits/{kit_id}/cancel", response_model=SessionOut, responses={**R401, **R404, **R409}, tags=["kits"])
 async def cancel_kit(svc: Svc, kit_id: str, operator: Operator) -> SessionOut:
     """Cancel every wearable's session of the kit that still runs."""
-    kit = _kit(svc, kit_id)
+    kit = svc.kits.get(kit_id)
+    if kit is None:
+        snap = await _kit_snapshot(svc, kit_id)  # 404 if unknown
+        if snap.state not in END_STATES:
+            raise problem(409, "this kit runs on another gateway, where its wearables are: cancel it there")
+        raise problem(409, "the kit's sessions have ended already; nothing to cancel")
     if not kit.cancel():
         raise problem(409, "the kit's sessions have ended already; nothing to cancel")
     await asyncio.to_thread(svc.store.audit, operator, "kit.cancel", None, kit_id)
@@ -96,33 +104,37 @@ async def cancel_kit(svc: Svc, kit_id: str, operator: Operator) -> SessionOut:
 @router.post("/kits/{kit_id}/accept", response_model=M.KitAcceptOut, responses={**R401, **R404, **R409, **R503}, tags=["kits"])
 async def accept_kit(svc: Svc, kit_id: str, operator: Operator) -> M.KitAcceptOut:
     """Make the result of every wearable of the kit that passed its device's calibration, all in one transaction (all or
-    none, one audit entry per device). The others are named with the reason; each can be calibrated again alone."""
-    kit = _kit(svc, kit_id)
-    if not kit.finished:
+    none, one audit entry per device). The others are named with the reason; each can be calibrated again alone. A kit
+    of an earlier run of the service is accepted from what the store kept of it."""
+    kit = svc.kits.get(kit_id)
+    if kit is not None and not kit.finished:
         raise problem(409, "the kit is still being calibrated: accept it once every wearable's session has ended")
-    for live in kit.members:
+    for live in kit.members if kit is not None else []:
         await live.wait()
-    snap = kit.snapshot()
-    passed = [live for live, d in zip(kit.members, snap.devices, strict=True)
-              if d.state == "done" and d.passed and d.decision is None and not d.departed]
-    not_accepted = {d.device_id: _why_not(d) for d in snap.devices if d.device_id not in {p.device.id for p in passed}}
+    snap = await _kit_snapshot(svc, kit_id)
+    if snap.state not in END_STATES:
+        raise problem(409, "the kit is still being calibrated: accept it once every wearable's session has ended")
+    running = {live.device.id: live for live in (kit.members if kit is not None else [])}
+    passed = [d for d in snap.devices if d.state == "done" and d.passed and d.decision is None and not d.departed]
+    not_accepted = {d.device_id: _why_not(d) for d in snap.devices if d not in passed}
     if not passed:
         raise problem(409, "no wearable of the kit passed, or all were decided already: " +
                       "; ".join(f"{k}: {v}" for k, v in not_accepted.items()))
+    accepts = [_acceptance(running[d.device_id]) if d.device_id in running else Acceptance(d.session_id) for d in passed]
     try:
-        records = await asyncio.to_thread(svc.store.accept_many, [_acceptance(live) for live in passed], operator)
+        records = await asyncio.to_thread(svc.store.accept_many, accepts, operator)
     except (DecisionConflict, NotAcceptable, NotFound):
         raise  # 409 / 404 with the store's own sentence (server.main)
     except (StoreError, SQLAlchemyError) as exc:
         log.warning("accept of kit %s failed: %s", kit_id, exc)
         raise problem(503, f"the kit's calibrations could not be stored ({type(exc).__name__}); no wearable's calibration "
                            "changed. Try accepting again.") from None
-    for live, rec in zip(passed, records, strict=True):
-        live.machine.decide("accepted", rec.id)
-        live.broadcaster.close()
+    for d, rec in zip(passed, records, strict=True):
+        if (member := running.get(d.device_id)) is not None:
+            member.machine.decide("accepted", rec.id)
+            member.broadcaster.close()
         svc.events.fleet_changed("calibration", rec.device_id)
-        svc.events.decided(live.id)
-    kit.decision = "accepted"
+        svc.events.decided(d.session_id)
     return M.KitAcceptOut(session_id=kit_id, calibrations=records, not_accepted=not_accepted)
 
 
@@ -142,12 +154,15 @@ def _why_not(d: KitDeviceOut) -> str:
     return d.reason or f"its session ended {d.state}"
 
 
-def _kit(svc: Service, kit_id: str) -> KitSession[LiveSession]:
+async def _kit_snapshot(svc: Service, kit_id: str) -> SessionOut:
+    """The kit running here, or as the store keeps it (404: no kit session has that id)."""
     check_session_id(kit_id)
-    kit = svc.kits.get(kit_id)
-    if kit is None:
+    if (kit := svc.kits.get(kit_id)) is not None:
+        return kit.snapshot()
+    stored = await asyncio.to_thread(svc.store.kit, kit_id)
+    if stored is None:
         raise problem(404, f"no kit session {kit_id}")
-    return kit
+    return stored_kit_snapshot(*stored)
 
 
 def _forget_old(svc: Service) -> None:

@@ -1,0 +1,66 @@
+"""A kit session's snapshot, composed from its wearables' own snapshots: the one rule for a running kit
+(server.live.kit_session) and for a kit as the store keeps it (after the service restarted)."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from .codes import END_STATES, STEPS, State
+from .snapshot import stored_snapshot
+from .snapshot_schema import KitDeviceOut, KitOut, SessionOut
+
+if TYPE_CHECKING:
+    from ..store.records import StoredKit, StoredSession
+
+
+def kit_snapshot(kit_id: str, snaps: list[SessionOut], kit: KitOut, *, operator: str | None, started_at: str | None,
+                 cancelled: bool) -> SessionOut:
+    """The kit's state: the step of the wearable furthest along, its prompt, and every wearable's own state.
+    ``snaps``: the wearables' own snapshots, in the kit's order; ``cancelled``: the kit was cancelled."""
+    state, lead = _state(snaps, cancelled)
+    devices = [KitDeviceOut(
+        device_id=s.device_id, session_id=s.session_id, state=s.state, phase=s.phase, prompt=s.prompt,
+        reason_code=s.reason_code, reason=s.reason, result=s.result, passed=s.passed, checks=s.checks,
+        decision=s.decision, calibration_id=s.calibration_id, samples=s.samples, lost_samples=s.lost_samples,
+        departed=s.device_id in kit.departed,
+    ) for s in snaps]
+    decision = "accepted" if any(d.decision == "accepted" for d in devices) else None
+    return lead.model_copy(update={
+        "session_id": kit_id, "device_id": ",".join(s.device_id for s in snaps), "kind": "kit", "state": state,
+        "devices": devices, "kit": kit, "operator": operator, "started_at": started_at,
+        "result": None, "passed": any(d.passed for d in devices) if state == State.DONE else None,
+        "checks": [], "departures": [], "accuracy": None, "decision": decision, "calibration_id": None,
+        "reason_code": None if state != State.FAILED else lead.reason_code,
+        "reason": _reason(state, snaps),
+    })
+
+
+def stored_kit_snapshot(kit: StoredKit, sessions: list[StoredSession]) -> SessionOut:
+    """A kit as the store keeps it: its wearables' stored sessions, and how they followed the tray."""
+    snaps = [stored_snapshot(row) for row in sessions]
+    out = KitOut(consistency=kit["consistency"], departed=kit["departed"], refusal=kit["refusal"])
+    cancelled = any(s.state == State.CANCELLED for s in snaps)
+    return kit_snapshot(kit["id"], snaps, out, operator=kit["operator"], started_at=kit["started_at"], cancelled=cancelled)
+
+
+def _state(snaps: list[SessionOut], cancelled: bool) -> tuple[State, SessionOut]:
+    if all(s.state in END_STATES for s in snaps):
+        if cancelled and not any(s.state == State.DONE for s in snaps):
+            return State.CANCELLED, snaps[0]
+        done = [s for s in snaps if s.state == State.DONE]
+        return (State.DONE, done[0]) if done else (State.FAILED, snaps[0])
+    running = [s for s in snaps if s.state not in END_STATES]
+    lost = [s for s in running if s.state == State.RECONNECTING]
+    if lost:
+        return State.RECONNECTING, lost[0]
+    along = max(running, key=lambda s: STEPS.index(s.state) if s.state in STEPS else 0)
+    return State(along.state), along
+
+
+def _reason(state: State, snaps: list[SessionOut]) -> str | None:
+    if state == State.RECONNECTING:
+        lost = [s.device_id for s in snaps if s.state == State.RECONNECTING]
+        return f"The link to {', '.join(lost)} was lost; reconnecting. Keep the tray still."
+    ended = [f"{s.device_id}: {s.reason}" for s in snaps if s.state in (State.FAILED, State.CANCELLED) and s.reason]
+    return " ".join(ended) or None
+
