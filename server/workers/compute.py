@@ -142,8 +142,12 @@ class ComputePool:
             )
         return self._pool
 
-    async def start(self) -> None:
-        """Start the workers and import the numerics in them, so that the first result is quick."""
+    def warm(self) -> None:
+        """Start the workers and import the numerics in them, once, without waiting: called as a session starts, whose
+        protocol outlasts the import, so that its result is quick. A service that only serves pages and the store
+        never starts them (an upload's first calibration starts them itself)."""
+        if self._pool is not None:
+            return
         loop = asyncio.get_running_loop()
         pool = self._executor()
         for _ in range(self.workers):
