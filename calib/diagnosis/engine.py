@@ -64,14 +64,16 @@ def closure_pass(model: Model, psi_cols: np.ndarray, prob: Problem, sigma_cols: 
     parts = []
     for s in range(0, B, step):
         cols = slice(s, min(B, s + step))
-        parts.append(_pass_chunk(model, psi_cols[cols], prob.turn.take(cols), prob.dt[:, cols], sigma_cols[cols], jacobian,
+        parts.append(_pass_chunk(model, psi_cols[cols], prob.turn.turn_first(cols), prob.dt[:, cols], sigma_cols[cols], jacobian,
                                  None if ref is None else ref[cols]))
     return Closure(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("r", "jac", "noise", "swept")))
 
 
 def _pass_chunk(model, psi, inp, dt, sigma, jacobian, ref_inv=None) -> Closure:
+    """``inp`` turn first (B, L); ``dt`` time first (L, B)."""
     L, B = dt.shape
-    w, dw = model.rate(psi[None], inp, jacobian=True)  # (L, B, 3), (L, B, 3, Pr)
+    w, dw = model.rate(psi[:, None], inp, jacobian=True)  # (B, L, 3), (B, L, 3, Pr)
+    w = w.transpose(1, 0, 2)
     wdt = dt * DEG
     u = w * wdt[..., None]
     swept = u.sum(axis=0) / DEG
@@ -92,7 +94,7 @@ def _pass_chunk(model, psi, inp, dt, sigma, jacobian, ref_inv=None) -> Closure:
     jinv = left_jacobian_inv(r)
     # sums over samples as batched matrix products: (B, 3, 3L) @ (B, 3L, P)
     Hb = np.ascontiguousarray(Hw.transpose(1, 2, 0, 3)).reshape(B, 3, 3 * L)
-    Db = np.ascontiguousarray(dw.transpose(1, 0, 2, 3)).reshape(B, 3 * L, -1)
+    Db = dw.reshape(B, 3 * L, -1)  # turn first already: a view when the model made it contiguous
     jac = np.matmul(jinv, np.matmul(Hb, Db)) / DEG
     # reading noise enters the rate through dw/dm ~ K: cov of the rate noise is K diag(sigma^2) K^T
     k = psi[:, 0:3]

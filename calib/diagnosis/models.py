@@ -148,29 +148,24 @@ class Model:
         ridx = self.rate_params
         col = {int(p): i for i, p in enumerate(ridx)}
         k = psi[..., 0:3]
-        dm: list[tuple[int, np.ndarray]] = []  # (param index, d m / d param (..., 3)) of the corrected reading
+        # (param index, axis, d m_axis / d param (...)): each of these parameters moves one axis of the corrected reading
+        dm: list[tuple[int, int, np.ndarray]] = []
         if "plateau" in sl and inp.cap is not None:
             s = sl["plateau"]
             h = psi[..., s]
             m = m.copy() if m.shape == lead + (3,) else np.broadcast_to(m, lead + (3,)).copy()
             for c, ax in enumerate(self.cap_axis):
                 m[..., ax] += h[..., c] * inp.cap[..., c]
-                if jacobian:
-                    d = np.zeros(lead + (3,))
-                    d[..., ax] = inp.cap[..., c]
-                    dm.append((s.start + c, d))
+                dm.append((s.start + c, ax, inp.cap[..., c]))
         if "g_sensitivity" in sl:
             if inp.a is None:
                 raise ValueError("g_sensitivity needs the specific force")
             G = psi[..., sl["g_sensitivity"]].reshape(psi.shape[:-1] + (3, 3))
-            m = m - np.einsum("...ij,...j->...i", G, inp.a)
+            a = inp.a
+            m = m - (G[..., 0] * a[..., 0, None] + G[..., 1] * a[..., 1, None] + G[..., 2] * a[..., 2, None])
             if jacobian:
                 base = sl["g_sensitivity"].start
-                for i in range(3):
-                    for j in range(3):
-                        d = np.zeros(lead + (3,))
-                        d[..., i] = -inp.a[..., j]
-                        dm.append((base + 3 * i + j, d))
+                dm.extend((base + 3 * i + j, i, -a[..., j]) for i in range(3) for j in range(3))
         g0 = k * m + psi[..., 3:6]
         U = None
         if "axis_misalignment" in sl:
@@ -200,13 +195,13 @@ class Model:
                     s = sl[name].start
                     for i in range(3):
                         dg0[..., i, col[s + i]] = x
-            for p, d in dm:
-                Kd = k * d
-                if U is not None:
-                    Kd = Kd.copy()
-                    Kd[..., 0] += U[..., 0] * d[..., 1] + U[..., 1] * d[..., 2]
-                    Kd[..., 1] += U[..., 2] * d[..., 2]
-                dg0[..., :, col[p]] = Kd
+            for p, ax, d in dm:  # d g0 / d p = (K + U) d m / d p, with d m / d p on one axis
+                dg0[..., ax, col[p]] = k[..., ax] * d
+                if U is not None and ax == 1:
+                    dg0[..., 0, col[p]] = U[..., 0] * d
+                elif U is not None and ax == 2:
+                    dg0[..., 0, col[p]] = U[..., 1] * d
+                    dg0[..., 1, col[p]] = U[..., 2] * d
         if inp.offset is not None:
             g0 = g0 + inp.offset
             if jacobian and inp.doffset is not None:
@@ -231,7 +226,8 @@ class Model:
                 nterm = psi[..., sl["scale_nonlinearity"]] * a0 / R0_DPS if "scale_nonlinearity" in sl else np.zeros(np.shape(g0))
                 fn = 1.0 + nterm
                 dfac = fa * (fn + nterm)  # d g / d g0, per axis
-                dg = dg0 * dfac[..., None]
+                dg = dg0  # made by this call (zeros, or the sum with doffset): scaled in place
+                dg *= dfac[..., None]
                 if "scale_asymmetry" in sl:
                     s = sl["scale_asymmetry"].start
                     for i in range(3):
