@@ -5,7 +5,7 @@
 every snapshot to a callback, until the session ends; then it waits for the next one. A verification turn
 (``GET /verifications/{id}``) is polled instead, and its request for the turn handed on as a prompt to turn. The service's address
 comes from a callable because a service learns its port only once it listens. ``KitFollower`` is the eyes of the clinician
-who turns a tray of wearables: it polls the kit session that holds one of them, as the kit page does.
+who turns a tray of wearables: it follows the events of the kit session that holds one of them, as the kit page does.
 """
 
 from __future__ import annotations
@@ -98,20 +98,15 @@ class SessionFollower:
                     return
 
 
-KIT_POLL_S = 0.5  # between looks at a kit session, as the kit page polls it (webui/static/kit.js)
-
-
 class KitFollower(SessionFollower):
     """Follows the kit sessions that hold any of ``device_ids`` (the wearables in the tray: ``active_kit`` of ``GET
-    /devices/{id}``; a kit may leave some of the tray's out), polling ``GET /sessions/{kit}`` as the kit page does, and
-    calls ``on_snapshot`` with each snapshot until the kit ends. ``speed``: how many times faster than real time the
-    simulated wearables run (the page's poll, in their time)."""
+    /devices/{id}``; a kit may leave some of the tray's out) through their event streams, as the kit page does, and
+    calls ``on_snapshot`` with each snapshot until the kit ends."""
 
     def __init__(self, device_ids: list[str], on_snapshot: Callable[[dict[str, Any]], None],
-                 base_url: Callable[[], str | None], speed: float = 1.0) -> None:
+                 base_url: Callable[[], str | None]) -> None:
         super().__init__(device_ids[0], on_snapshot, base_url)
         self.device_ids = list(device_ids)
-        self.poll_s = KIT_POLL_S / max(1.0, float(speed))
 
     def _active_session(self, base: str) -> str | None:
         for device_id in self.device_ids:
@@ -120,15 +115,3 @@ class KitFollower(SessionFollower):
             if kit:
                 return str(kit)
         return None
-
-    def _follow(self, base: str, sid: str) -> None:
-        deadline = time.monotonic() + 3600.0
-        while not self._stop.is_set() and time.monotonic() < deadline:
-            r = httpx.get(f"{base}/sessions/{sid}", headers=self.headers, timeout=5.0)
-            if r.status_code != 200:
-                return
-            snap = r.json()
-            self.on_snapshot(snap)
-            if snap.get("state") in END_STATES:
-                return
-            self._stop.wait(self.poll_s)

@@ -57,7 +57,7 @@ def kit(*, seed: int, n: int, speed: float, names: list[str], rate_hz: float | N
     sources: list[SampleSource]
     if hand is not None:
         prompted = PromptedTray(seed, n, hand.removeprefix(HAND_PREFIX), noise_dps=noise_dps, loose=loose)
-        KitFollower(names, prompted.observe, service_url or (lambda: None), speed=speed).start()
+        KitFollower(names, prompted.observe, service_url or (lambda: None)).start()
         sources = [PromptedKitSource(prompted, i) for i in range(n)]
     else:
         tray = Tray(seed, n, noise_dps=noise_dps, loose=loose, drop=drop)

@@ -24,6 +24,7 @@ from calib.recording import Recording
 
 from ..workers.compute import ComputePool, LiveOutcome, calibrate_live, off_loop
 from ..workers.kit import KitOutcome, calibrate_kit_live
+from .events import Broadcaster
 from .kit_snapshot import kit_snapshot
 from .snapshot_schema import KitOut, SessionOut
 
@@ -48,6 +49,7 @@ M = TypeVar("M", bound=Member)
 
 log = logging.getLogger(__name__)
 KIT_LAG_S = 4.0  # after the first wearable's recording is in, how long another may stay in a protocol step, s
+KIT_EVENT_S = 0.05  # a wearable's snapshot reaches the kit's event stream this late at most (its neighbours' join it)
 
 
 class KitSession(Generic[M]):
@@ -72,6 +74,8 @@ class KitSession(Generic[M]):
         self._task: asyncio.Task[None] | None = None
         self._lagging: asyncio.TimerHandle | None = None
         self.lag_s = KIT_LAG_S
+        self.broadcaster = Broadcaster()
+        self._publishing: asyncio.TimerHandle | None = None
         for m in members:
             m.kit = self
 
@@ -160,6 +164,24 @@ class KitSession(Generic[M]):
                 future.set_result(self.outcome.outcomes[name])
 
     # -- what the page and the API see ---------------------------------------------------------
+    def member_changed(self) -> None:
+        """A wearable published a snapshot: the kit's follows within KIT_EVENT_S, one for all that changed meanwhile."""
+        if self._publishing is None and not self.broadcaster.closed:
+            self._publishing = asyncio.get_running_loop().call_later(KIT_EVENT_S, self.publish)
+
+    def publish(self) -> None:
+        """Send the kit's snapshot to its event stream now."""
+        if self._publishing is not None:
+            self._publishing.cancel()
+            self._publishing = None
+        if not self.broadcaster.closed:
+            self.broadcaster.publish("state", self.snapshot())
+
+    def close_stream(self) -> None:
+        """The kit is decided (or forgotten): its last snapshot out, its stream's clients let go."""
+        self.publish()
+        self.broadcaster.close()
+
     def snapshot(self) -> SessionOut:
         """The kit's state (server.live.kit_snapshot), from its wearables' live snapshots."""
         out = self.outcome

@@ -1,4 +1,5 @@
-"""Writing a finished session to the store, and keeping it until the store can take it.
+"""Writing a session to the store: its samples as they arrive (the spool), and once finished its outcome, kept until
+the store can take it.
 
 ``Persistence`` is a part of ``LiveSession`` (server.live.runner); the fields and methods declared here without a
 body are the session's.
@@ -8,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import io
 import logging
 from typing import TYPE_CHECKING
 
@@ -15,15 +17,33 @@ from ..store import SessionEnd, Store, StoreFull
 from ..workers.compute import ComputePool, off_loop, recording_csv
 
 if TYPE_CHECKING:
+    from .buffer import SampleBuffer
     from .session import GuidedSession
 
 log = logging.getLogger(__name__)
 
 PERSIST_RETRY_S = 5.0  # a session's outcome the store could not take is written again this often
+SPOOL_PERIOD_S = 1.0  # a running session's new samples are made durable this often
+SPOOL_MAX_SAMPLES = 600_000  # beyond this (15 min at 562.5 Hz, the longest session) nothing more is spooled
+
+
+def spool_rows(buf: SampleBuffer, start: int, end: int) -> tuple[str, bytes]:
+    """Samples [start, end) of a session's buffer as native CSV rows (no header) and that header."""
+    from calib.io.readers import write_native_csv
+    from calib.recording import Recording, RecordingMeta
+
+    accel = buf.accel[start:end] if buf.accel is not None and buf.has_accel else None
+    rec = Recording(t=buf.t[start:end], gyro=buf.gyro[start:end], accel=accel,
+                    seq=buf.seq[start:end] if buf.has_seq else None, meta=RecordingMeta())
+    out = io.StringIO()
+    write_native_csv(rec, out)
+    header, _, rows = out.getvalue().partition("\n")
+    return header, rows.encode()
 
 
 class Persistence:
-    """The outcome and recording of a finished session, written to the store until it takes them."""
+    """A session's samples spooled as they arrive, and its outcome and recording once finished, written to the store
+    until it takes them."""
 
     machine: GuidedSession
     store: Store
@@ -34,6 +54,8 @@ class Persistence:
     persist_error: str | None
     _csv: bytes | None
     _retry: asyncio.Task[None] | None
+    _spooled: int  # samples of the buffer made durable in the store's spool
+    _spool_chunk: int
 
     @property
     def id(self) -> str:
@@ -88,3 +110,22 @@ class Persistence:
             log.error("session %s (%s) could not be written to the store before the service stopped: %s", self.id,
                       self.machine.state, self.persist_error)
 
+    async def _spool_loop(self) -> None:
+        """Append the samples received since the last round to the store's spool, once a second."""
+        while True:
+            await asyncio.sleep(SPOOL_PERIOD_S)
+            await self._spool()
+
+    async def _spool(self) -> None:
+        buf = self.machine.buf
+        end = min(buf.n, SPOOL_MAX_SAMPLES)
+        if end <= self._spooled:
+            return
+        columns, rows = spool_rows(buf, self._spooled, end)
+        try:
+            await asyncio.to_thread(self.store.spool_samples, self.id, self._spool_chunk, columns, rows, end - self._spooled)
+        except Exception as exc:  # the store is down: these samples are spooled with the next round
+            log.warning("could not spool the samples of session %s: %s", self.id, exc)
+            return
+        self._spool_chunk += 1
+        self._spooled = end

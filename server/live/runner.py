@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import io
 import logging
 import time
 from collections.abc import Callable
@@ -25,7 +24,6 @@ from ..devices import Device, model_facts, sensor_identity
 from ..store import SessionEnd, Store, utcnow
 from ..workers.compute import ComputePool, calibrate_live, off_loop
 from . import guidance as say
-from .buffer import SampleBuffer
 from .codes import EndReason
 from .events import Broadcaster, Event
 from .history import calibration_history, failed_last_time
@@ -40,8 +38,6 @@ log = logging.getLogger(__name__)
 
 WATCHDOG_PERIOD_S = 0.25
 SERVICE_LATE_S = 0.75  # the watchdog woke this much later than it asked: the service itself was not running
-SPOOL_PERIOD_S = 1.0  # a running session's new samples are made durable this often
-SPOOL_MAX_SAMPLES = 600_000  # beyond this (15 min at 562.5 Hz, the longest session) nothing more is spooled
 
 
 def compute_result(session: GuidedSession) -> CalibrationResult:
@@ -52,20 +48,6 @@ def compute_result(session: GuidedSession) -> CalibrationResult:
 
         raise CalibrationError(str(outcome.refusal), code=outcome.code)
     return outcome.result
-
-
-def spool_rows(buf: SampleBuffer, start: int, end: int) -> tuple[str, bytes]:
-    """Samples [start, end) of a session's buffer as native CSV rows (no header) and that header."""
-    from calib.io.readers import write_native_csv
-    from calib.recording import Recording, RecordingMeta
-
-    accel = buf.accel[start:end] if buf.accel is not None and buf.has_accel else None
-    rec = Recording(t=buf.t[start:end], gyro=buf.gyro[start:end], accel=accel,
-                    seq=buf.seq[start:end] if buf.has_seq else None, meta=RecordingMeta())
-    out = io.StringIO()
-    write_native_csv(rec, out)
-    header, _, rows = out.getvalue().partition("\n")
-    return header, rows.encode()
 
 
 class LiveSession(Persistence):
@@ -122,6 +104,8 @@ class LiveSession(Persistence):
         published = self.broadcaster.publish(event, snapshot)
         if self.relay is not None:
             self.relay(self.id, published)
+        if self.kit is not None:
+            self.kit.member_changed()
 
     def start(self) -> None:
         # publish the first snapshot (connecting) before anyone can subscribe to the stream
@@ -373,26 +357,6 @@ class LiveSession(Persistence):
                   "gyro_full_scale_dps": m.full_scale, "identity": self.identity.to_json() if self.identity else None,
                   "temperatures_c": self.temperatures_c},
         )
-
-    async def _spool_loop(self) -> None:
-        """Append the samples received since the last round to the store's spool, once a second."""
-        while True:
-            await asyncio.sleep(SPOOL_PERIOD_S)
-            await self._spool()
-
-    async def _spool(self) -> None:
-        buf = self.machine.buf
-        end = min(buf.n, SPOOL_MAX_SAMPLES)
-        if end <= self._spooled:
-            return
-        columns, rows = spool_rows(buf, self._spooled, end)
-        try:
-            await asyncio.to_thread(self.store.spool_samples, self.id, self._spool_chunk, columns, rows, end - self._spooled)
-        except Exception as exc:  # the store is down: these samples are spooled with the next round
-            log.warning("could not spool the samples of session %s: %s", self.id, exc)
-            return
-        self._spool_chunk += 1
-        self._spooled = end
 
     @property
     def csv_bytes(self) -> bytes | None:

@@ -12,7 +12,7 @@ from pathlib import Path
 import httpx
 import numpy as np
 
-from tests.server_fixtures import GYROCAL, ROOT, RunningService, at_once
+from tests.server_fixtures import GYROCAL, ROOT, RunningService, at_once, follow_events
 
 SPEED = "6"
 
@@ -147,8 +147,17 @@ def test_a_wearable_whose_link_drops_mid_turn_is_bridged_by_the_kit(tmp_path) ->
             assert c.get("/devices/mock-1").json()["simulated_truth"] is not None
             started = c.post("/kits/calibrate", json={"devices": ["mock-1", "mock-2", "mock-3"]})
             assert started.status_code == 202, started.text
-            snap = _until_ended(c, started.json()["session_id"])
-            assert "reconnecting" in snap["seen"], snap["seen"]
+            kit_id = started.json()["session_id"]
+            # the kit's event stream carries every state it went through, the lost link included, to its end
+            events = follow_events(svc.base, kit_id, {"done", "failed", "cancelled"}, timeout_s=90)
+            seen = [e["state"] for e in events]
+            assert all(e["kind"] == "kit" and e["session_id"] == kit_id for e in events)
+            assert [e["_sse_id"] for e in events] == sorted({e["_sse_id"] for e in events})
+            assert "reconnecting" in seen and {"still", "turn_x", "turn_y", "turn_z", "computing"} <= set(seen), seen
+            snap = c.get(f"/sessions/{kit_id}").json()
+            assert snap["state"] == events[-1]["state"] == "done"
+            resumed = follow_events(svc.base, kit_id, {"done"}, last_event_id=events[-3]["_sse_id"])
+            assert [e["_sse_id"] for e in resumed] == [e["_sse_id"] for e in events[-2:]]  # Last-Event-ID resumes
             devices = {d["device_id"]: d for d in snap["devices"]}
             assert devices["mock-2"]["lost_samples"] > 0
             for name, d in devices.items():

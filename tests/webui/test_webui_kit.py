@@ -74,6 +74,9 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
         page.wait_for_selector("#kit-saved:has-text('Saved as the current calibration of mock-2, mock-3. Not saved: mock-4.')")
         page.wait_for_selector(".kit-device[data-device='mock-2'] .kit-state:has-text('PASS, saved')")
         assert page.locator("#kit-accept").count() == 0  # nothing left to accept
+        # the page followed the kit's event stream: it read the kit whole only on opening it and after the accept
+        reads = [u for u in page_watch.requests if u.split("?")[0].endswith(f"/sessions/{kit_id}")]
+        assert any(f"/sessions/{kit_id}/events" in u for u in page_watch.requests) and len(reads) <= 2, reads
         with api(kit_service) as c:
             for device in ("mock-2", "mock-3"):
                 saved = c.get(f"/devices/{device}/calibration").json()

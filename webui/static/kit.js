@@ -1,11 +1,11 @@
 // A whole kit: the wearables of one tray, turned together through one set of prompts, each one's state as a row,
-// its result, and every one that passed accepted at once. The page reads the kit's session every half second.
+// its result, and every one that passed accepted at once. The page follows the kit's event stream (a snapshot each
+// time a wearable's state changes).
 
 import { AXES, fill, h, num } from "./dom.js";
 import { icon, trayPicture } from "./figures.js";
 import { problemLine } from "./messages.js";
 
-const POLL_MS = 500;
 const ENDED = new Set(["done", "failed", "cancelled"]);
 const STEPS = [["still", "Hold still"], ["turn_x", "Turn X"], ["turn_y", "Turn Y"], ["turn_z", "Turn Z"], ["computing", "Result"]];
 
@@ -59,7 +59,7 @@ function deviceRow(d) {
 export function kitView(ctx, kitId) {
   ctx.title("Calibrate the kit");
   let alive = true;
-  let timer = null;
+  let stop = null;
   const headline = h("h1", { id: "kit-title", class: "kit-prompt" }, "Connecting to the wearables…");
   const sub = h("p", { class: "lead kit-sub" });
   const picture = h("div", { class: "kit-picture" });
@@ -104,19 +104,33 @@ export function kitView(ctx, kitId) {
       h("a", { class: "button", href: "#/devices" }, icon("back"), "Device list"));
   };
 
-  async function poll() {
-    if (!alive) return;
+  const follow = () => {
+    stop = ctx.api.follow(kitId, (snap) => {
+      if (!alive) return;
+      render(snap);
+      if (ENDED.has(snap.state)) halt();
+    }, (link) => {
+      if (!alive) return;
+      if (link === "retrying") ctx.banner("warn", "The connection to the service was interrupted. Reconnecting…");
+      else if (link === "open") ctx.banner(null);
+    });
+  };
+
+  const halt = () => {
+    if (stop) stop();
+    stop = null;
+    ctx.banner(null);
+  };
+
+  async function load() {
     try {
       const snap = await ctx.api.get(`/sessions/${kitId}`);
       if (!alive) return;
       render(snap);
-      if (ENDED.has(snap.state)) return;
+      if (!ENDED.has(snap.state)) follow();
     } catch (err) {
-      if (!alive) return;
-      if (err.status === 404) return ctx.problem(err, "show the kit");
-      sub.textContent = problemLine(err);
+      if (alive && err.status !== 401) ctx.problem(err, "show the kit");
     }
-    timer = setTimeout(poll, POLL_MS);
   }
 
   async function cancel() {
@@ -142,9 +156,9 @@ export function kitView(ctx, kitId) {
     }
   }
 
-  poll();
+  load();
   return () => {
     alive = false;
-    if (timer) clearTimeout(timer);
+    halt();
   };
 }

@@ -72,6 +72,7 @@ async def calibrate_kit(svc: Svc, body: M.KitStart, response: Response, operator
     svc.kits[kit_id] = kit
     for live in members:
         live.start()
+    kit.publish()
     url = f"/sessions/{kit_id}"
     response.headers["Location"] = url
     return M.KitStarted(session_id=kit_id, state=kit.snapshot().state, url=url,
@@ -135,6 +136,8 @@ async def accept_kit(svc: Svc, kit_id: str, operator: Operator) -> M.KitAcceptOu
             member.broadcaster.close()
         svc.events.fleet_changed("calibration", rec.device_id)
         svc.events.decided(d.session_id)
+    if kit is not None:
+        kit.close_stream()
     return M.KitAcceptOut(session_id=kit_id, calibrations=records, not_accepted=not_accepted)
 
 
@@ -169,3 +172,4 @@ def _forget_old(svc: Service) -> None:
     finished = [k for k in svc.kits.values() if k.finished]
     for old in finished[: max(0, len(finished) - KEEP_FINISHED_KITS)]:
         svc.kits.pop(old.id, None)
+        old.close_stream()

@@ -177,14 +177,18 @@ async def session_events(
     headers = {"Cache-Control": "no-cache", "X-Accel-Buffering": "no"}
     if live is not None:
         return StreamingResponse(live.broadcaster.stream(last_event_id), media_type="text/event-stream", headers=headers)
+    if (kit := svc.kits.get(session_id)) is not None:
+        return StreamingResponse(kit.broadcaster.stream(last_event_id), media_type="text/event-stream", headers=headers)
     row = await asyncio.to_thread(svc.store.session, session_id)
     if row is None:
-        raise problem(404, f"no session {session_id}")
-    snap = stored_snapshot(row)
-    if (gateway := runs_elsewhere(svc, row)) is not None:
+        snap = await session_snapshot(svc, session_id)  # a kit of an earlier run of the service, or 404
+    elif (gateway := runs_elsewhere(svc, row)) is not None:
+        snap = stored_snapshot(row)
         remote = await remote_gateway(svc, gateway)
         return StreamingResponse(svc.events.follow(session_id, snap, remote).stream(last_event_id),
                                  media_type="text/event-stream", headers=headers)
+    else:
+        snap = stored_snapshot(row)
 
     async def once() -> AsyncIterator[bytes]:
         yield Event(0, "state", dumps(snap.model_dump(mode="json", exclude_unset=True))).encode()
