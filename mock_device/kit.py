@@ -30,6 +30,24 @@ DROP_S = 1.5  # how long the dropping wearable is out of range, s
 JOIN_S = 3.0  # streams starting this close (wall time, s) to a performance's first join it
 
 
+class Joins:
+    """Which performance a stream starting now plays: the current one when it began under ``JOIN_S`` ago, else the
+    next (numbered from 1)."""
+
+    def __init__(self) -> None:
+        self.number = 0
+        self._started: float | None = None
+
+    def now(self) -> tuple[int, bool]:
+        """(the performance's number, whether it is a new one)."""
+        now = time.monotonic()
+        if self._started is None or now - self._started > JOIN_S:
+            self._started = now
+            self.number += 1
+            return self.number, True
+        return self.number, False
+
+
 class Tray:
     """The tray the kit's simulated wearables ride in, and its performances (one per streaming session)."""
 
@@ -38,16 +56,11 @@ class Tray:
         rng = np.random.default_rng([self.seed, 0x7A4])
         self.params = [SensorParams.paper_random(rng) for _ in range(self.n)]  # the same sensors every performance
         self._performances: dict[int, KitTray] = {}
-        self._number = 0
-        self._started: float | None = None
+        self._joins = Joins()
 
     def performance_now(self) -> KitTray:
-        """The performance a stream starting now plays: the current one when it began under ``JOIN_S`` ago, else a new one."""
-        now = time.monotonic()
-        if self._started is None or now - self._started > JOIN_S:
-            self._started = now
-            self._number += 1
-        return self.performance(self._number)
+        """The performance a stream starting now plays (``Joins``)."""
+        return self.performance(self._joins.now()[0])
 
     def performance(self, number: int) -> KitTray:
         """The tray's ``number``-th performance (from 1): the same for every wearable that asks for it."""

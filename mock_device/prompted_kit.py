@@ -16,7 +16,6 @@ Each streaming session of a wearable joins a performance of the tray, as with th
 from __future__ import annotations
 
 import threading
-import time
 from typing import Any
 
 import numpy as np
@@ -26,7 +25,7 @@ from calib.simulator import ProtocolScript, Segment, SensorParams, Still, Turn
 from calib.simulator.kit import KitDeviceTruth, KitTray, Slip
 
 from .hand import HANDS, Act, PromptHand
-from .kit import JOIN_S, SLIP_DEG, resting_after
+from .kit import SLIP_DEG, Joins, resting_after
 from .scenarios import LinkFaults
 from .sources import Block
 
@@ -98,17 +97,14 @@ class PromptedTray:
         rng = np.random.default_rng([self.seed, 0x7A4])
         self.params = [SensorParams.paper_random(rng) for _ in range(self.n)]  # the same sensors every performance
         self.performance: TrayPerformance | None = None
-        self._number = 0
-        self._started: float | None = None
+        self._joins = Joins()
 
     def performance_now(self) -> TrayPerformance:
-        """The performance a stream starting now plays: the current one when it began under ``JOIN_S`` ago, else a new one."""
-        now = time.monotonic()
-        if self.performance is None or self._started is None or now - self._started > JOIN_S:
-            self._started = now
-            self._number += 1
-            hand = PromptHand(self.style, np.random.default_rng([self.seed, self._number, 0x4A4D]))
-            self.performance = TrayPerformance(self.seed * 1000 + self._number, self.params, hand, self.noise_dps, self.loose)
+        """The performance a stream starting now plays (``mock_device.kit.Joins``)."""
+        number, new = self._joins.now()
+        if new or self.performance is None:
+            hand = PromptHand(self.style, np.random.default_rng([self.seed, number, 0x4A4D]))
+            self.performance = TrayPerformance(self.seed * 1000 + number, self.params, hand, self.noise_dps, self.loose)
         return self.performance
 
     def observe(self, snap: dict[str, Any]) -> None:
