@@ -148,8 +148,8 @@ def test_a_wearable_whose_link_drops_mid_turn_is_bridged_by_the_kit(tmp_path) ->
             started = c.post("/kits/calibrate", json={"devices": ["mock-1", "mock-2", "mock-3"]})
             assert started.status_code == 202, started.text
             kit_id = started.json()["session_id"]
-            # the kit's event stream carries every state it went through, the lost link included, to its end
-            events = follow_events(svc.base, kit_id, {"done", "failed", "cancelled"}, timeout_s=90)
+            # the kit's event stream carries every state it went through (replayed from its first), the lost link included
+            events = follow_events(svc.base, kit_id, {"done", "failed", "cancelled"}, timeout_s=90, last_event_id=0)
             seen = [e["state"] for e in events]
             assert all(e["kind"] == "kit" and e["session_id"] == kit_id for e in events)
             assert [e["_sse_id"] for e in events] == sorted({e["_sse_id"] for e in events})
