@@ -83,6 +83,7 @@ class Service:
             await asyncio.sleep(self.settings.integrity_check_s)
 
     async def startup(self) -> None:
+        await self.pool.start()
         n = await asyncio.to_thread(
             self.store.fail_unfinished_sessions,
             "The service was restarted while this calibration ran. Start a new calibration.",

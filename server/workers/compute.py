@@ -142,12 +142,8 @@ class ComputePool:
             )
         return self._pool
 
-    def warm(self) -> None:
-        """Start the workers and import the numerics in them, once, without waiting: called as a session starts, whose
-        protocol outlasts the import, so that its result is quick. A service that only serves pages and the store
-        never starts them (an upload's first calibration starts them itself)."""
-        if self._pool is not None:
-            return
+    async def start(self) -> None:
+        """Start the workers and import the numerics in them, so that the first result is quick."""
         loop = asyncio.get_running_loop()
         pool = self._executor()
         for _ in range(self.workers):

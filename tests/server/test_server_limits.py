@@ -105,8 +105,6 @@ def _alive(pid: int) -> bool:
 def test_no_worker_outlives_a_kill_9_of_the_service(tmp_path: Path) -> None:
     svc = RunningService([], f"sqlite:///{tmp_path / 'store.sqlite3'}").start()
     try:
-        assert svc.proc is not None
-        assert _children(svc.proc.pid) == []  # a service at rest holds no worker: they start with the first job
         with svc.client() as c:  # start the model-check workers as well as the estimator's
             assert c.post("/diagnose", content=_csv(seed=5), headers=CSV).status_code == 200
         assert svc.proc is not None

@@ -349,5 +349,4 @@ async def new_live(svc: Service, dev: Device, sid: str, operator: str, method: s
     live = LiveSession(machine, dev, svc.store, svc.settings, __version__, operator, on_end=on_end, pool=svc.pool,
                        relay=svc.events.relay)
     svc.sessions[sid] = live
-    svc.pool.warm()  # its workers import the numerics while the clinician turns the wearable
     return live

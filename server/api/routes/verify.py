@@ -74,7 +74,6 @@ async def verify(
     await claim_device(svc, cal.device_id, run_id, "verify when that is done")
     run = VerifyRun(run_id, dev, cal, svc.store, svc.pool, operator, on_end=svc.verification_ended)
     svc.verify_runs[run.id] = run
-    svc.pool.warm()
     run.start()
     response.status_code = 202
     response.headers["Location"] = f"/verifications/{run.id}"
