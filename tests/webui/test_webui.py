@@ -73,7 +73,10 @@ def test_happy_path_to_a_saved_calibration(wizard: Wizard, page: Any, webui_serv
     wizard.wait_state("done")
     # axe-core finds nothing on any screen of the session, however briefly it was shown
     audited = wizard.assert_screens_accessible()
-    assert {"still:waiting", "turn_x:turning", "turn_x:placing", "turn_x:checking", "turn_x:pause", "computing:"} <= set(audited), audited
+    assert {"still:waiting", "turn_x:turning", "turn_x:placing", "turn_x:pause", "computing:"} <= set(audited), audited
+    # "checking" is shown while the closing rest is still coming in; on a busy machine a turn's whole rest can arrive at
+    # once and its check end in the same step, so one turn may go from placing straight to its pause
+    assert any(f"turn_{axis}:checking" in audited for axis in "xyz"), audited
     # a device never calibrated: its raw angle can be 20 % off a full turn, so the gauge shows neither degrees nor
     # a target, and the page says "hold it still" when each turn stops, never "keep turning"
     seen = wizard.seen()
