@@ -96,6 +96,16 @@ def grant_service_role(conn: Any, role: str) -> None:
     conn.execute(text(f"GRANT USAGE, SELECT ON ALL SEQUENCES IN SCHEMA public TO {r}"))
 
 
+def service_roles(conn: Any) -> list[str]:
+    """The service roles `gyrocal store setup` made on this PostgreSQL database (those that may add sessions, other
+    than the connected owner), quoted for SQL: an upgrade grants them its new tables so that they keep working."""
+    q = conn.dialect.identifier_preparer.quote
+    return [q(role) for role in conn.execute(text(
+        "SELECT DISTINCT grantee FROM information_schema.role_table_grants WHERE table_schema = 'public' "
+        "AND table_name = 'sessions' AND privilege_type = 'INSERT' AND grantee <> current_user"
+    )).scalars()]
+
+
 def role_may_rewrite_history(conn: Any) -> bool:
     """Whether the connected PostgreSQL role could get round the guards (superuser, or owner of the tables)."""
     row = conn.execute(text(

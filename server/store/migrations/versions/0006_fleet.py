@@ -10,6 +10,7 @@ from __future__ import annotations
 from alembic import op
 from sqlalchemy import text
 
+from server.store.guards import service_roles
 from server.store.tables import Base, GatewayRow, LeaseRow, SightingRow
 
 revision = "0006"
@@ -23,11 +24,6 @@ def upgrade() -> None:
     Base.metadata.create_all(conn, tables=[GatewayRow.__table__, SightingRow.__table__, LeaseRow.__table__])  # type: ignore[list-item]
     conn.execute(text("ALTER TABLE sessions ADD COLUMN gateway VARCHAR(64)"))
     if conn.dialect.name == "postgresql":
-        q = conn.dialect.identifier_preparer.quote
-        roles = conn.execute(text(
-            "SELECT DISTINCT grantee FROM information_schema.role_table_grants WHERE table_schema = 'public' "
-            "AND table_name = 'sessions' AND privilege_type = 'INSERT' AND grantee <> current_user"
-        )).scalars().all()
-        for role in roles:  # the service roles `gyrocal store setup` made: they keep working after the upgrade
-            conn.execute(text(f"GRANT SELECT, INSERT, UPDATE, DELETE ON gateways, device_sightings, device_leases TO {q(role)}"))
-            conn.execute(text(f"GRANT SELECT ON alembic_version TO {q(role)}"))
+        for role in service_roles(conn):
+            conn.execute(text(f"GRANT SELECT, INSERT, UPDATE, DELETE ON gateways, device_sightings, device_leases TO {role}"))
+            conn.execute(text(f"GRANT SELECT ON alembic_version TO {role}"))

@@ -10,6 +10,7 @@ from __future__ import annotations
 from alembic import op
 from sqlalchemy import text
 
+from server.store.guards import service_roles
 from server.store.tables import Base, KitRow
 
 revision = "0007"
@@ -22,10 +23,5 @@ def upgrade() -> None:
     conn = op.get_bind()
     Base.metadata.create_all(conn, tables=[KitRow.__table__])  # type: ignore[list-item]
     if conn.dialect.name == "postgresql":
-        q = conn.dialect.identifier_preparer.quote
-        roles = conn.execute(text(
-            "SELECT DISTINCT grantee FROM information_schema.role_table_grants WHERE table_schema = 'public' "
-            "AND table_name = 'sessions' AND privilege_type = 'INSERT' AND grantee <> current_user"
-        )).scalars().all()
-        for role in roles:  # the service roles `gyrocal store setup` made: they keep working after the upgrade
-            conn.execute(text(f"GRANT SELECT, INSERT, UPDATE ON kits TO {q(role)}"))
+        for role in service_roles(conn):
+            conn.execute(text(f"GRANT SELECT, INSERT, UPDATE ON kits TO {role}"))
