@@ -32,10 +32,11 @@ class TooManySamples(Exception):
     """An upload with more samples than the service accepts."""
 
 
-def confine_worker(memory_mb: int | None) -> None:
+def confine_worker(memory_mb: int | None, service_pid: int) -> None:
     """Run at a worker process's start: cap its address space at ``memory_mb`` (an allocation beyond it raises
-    MemoryError instead of taking the machine's memory), and end it when the service's process is gone (even
-    after kill -9), so no worker outlives the service."""
+    MemoryError instead of taking the machine's memory), and end it when the service's process (``service_pid``, which
+    spawned it) is gone, even after kill -9 and even when it went while this worker was still starting, so no worker
+    outlives the service."""
     import resource
     import threading
     import time
@@ -43,13 +44,10 @@ def confine_worker(memory_mb: int | None) -> None:
     if memory_mb:
         limit = int(memory_mb) * 1024 * 1024
         resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
-    parent = os.getppid()
-
     def watch() -> None:
-        while True:
+        while os.getppid() == service_pid:  # an orphan is adopted by another process: its parent id changes
             time.sleep(0.5)
-            if os.getppid() != parent:
-                os._exit(0)
+        os._exit(0)
 
     threading.Thread(target=watch, name="gyrocal-parent-watch", daemon=True).start()
 
@@ -138,7 +136,8 @@ class ComputePool:
     def _executor(self) -> ProcessPoolExecutor:
         if self._pool is None:
             self._pool = ProcessPoolExecutor(
-                self.workers, mp_context=multiprocessing.get_context("spawn"), initializer=confine_worker, initargs=(self.memory_mb,)
+                self.workers, mp_context=multiprocessing.get_context("spawn"), initializer=confine_worker,
+                initargs=(self.memory_mb, os.getpid())
             )
         return self._pool
 

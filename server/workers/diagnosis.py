@@ -94,12 +94,12 @@ class _Reporter:
             self.conn.send(("progress", float(fraction), str(stage)))
 
 
-def _serve(conn: Connection, memory_mb: int | None = None) -> None:
+def _serve(conn: Connection, service_pid: int, memory_mb: int | None = None) -> None:
     """A worker's loop: (function, args) in; progress messages, then ("ok", value) or ("error", exc) out."""
     from .compute import confine_worker
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the service stops its workers itself
-    confine_worker(memory_mb)
+    confine_worker(memory_mb, service_pid)
     while True:
         try:
             fn, args = conn.recv()
@@ -130,7 +130,7 @@ class Worker:
             self.stop()
             ctx = multiprocessing.get_context("spawn")
             parent, child = ctx.Pipe()
-            proc = ctx.Process(target=_serve, args=(child, self.memory_mb), name="gyrocal-diagnosis", daemon=True)
+            proc = ctx.Process(target=_serve, args=(child, os.getpid(), self.memory_mb), name="gyrocal-diagnosis", daemon=True)
             proc.start()
             child.close()
             self._proc, self._conn = proc, parent

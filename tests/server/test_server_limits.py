@@ -120,6 +120,46 @@ def test_no_worker_outlives_a_kill_9_of_the_service(tmp_path: Path) -> None:
         svc.stop()
 
 
+def _confined_then_asleep(service_pid: int) -> None:
+    from server.workers.compute import confine_worker
+
+    confine_worker(None, service_pid)
+    time.sleep(30)
+
+
+def test_a_worker_whose_service_is_gone_before_it_started_ends_at_once() -> None:
+    """A worker that starts after its service died (killed while the workers were still starting) has already been
+    adopted by another process: it ends at once instead of living on as an orphan. One whose service lives stays."""
+    import multiprocessing
+
+    ctx = multiprocessing.get_context("spawn")
+    orphan = ctx.Process(target=_confined_then_asleep, args=(os.getpid() + 1_000_000,), daemon=True)  # not its parent
+    kept = ctx.Process(target=_confined_then_asleep, args=(os.getpid(),), daemon=True)
+    orphan.start()
+    kept.start()
+    try:
+        orphan.join(10)
+        assert orphan.exitcode == 0
+        assert kept.is_alive()
+    finally:
+        kept.kill()
+        kept.join(5)
+
+
+def test_a_service_killed_as_it_starts_leaves_no_worker(tmp_path: Path) -> None:
+    """kill -9 the moment the service answers: its workers may not have started watching it yet, and still end."""
+    svc = RunningService(["--mock", "1"], f"sqlite:///{tmp_path / 'store.sqlite3'}").start()
+    assert svc.proc is not None
+    kids = _children(svc.proc.pid)
+    os.kill(svc.proc.pid, signal.SIGKILL)
+    svc.proc.wait(10)
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline and any(_alive(k) for k in kids):
+        time.sleep(0.2)
+    assert kids and not [k for k in kids if _alive(k)]
+    svc.stop()
+
+
 def test_sigterm_stops_cleanly_without_leaked_semaphores(tmp_path: Path) -> None:
     svc = RunningService([], f"sqlite:///{tmp_path / 'store.sqlite3'}").start()
     with svc.client() as c:
