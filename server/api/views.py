@@ -142,16 +142,21 @@ async def session_snapshot(svc: Service, sid: str) -> SessionOut:
         return live.machine.snapshot("state").model_copy(update=update)
     row = await asyncio.to_thread(svc.store.session, sid)
     if row is None:
-        stored_kit = await asyncio.to_thread(svc.store.kit, sid)  # a kit of an earlier run of the service
-        if stored_kit is None:
-            raise problem(404, f"no session {sid}")
-        return stored_kit_snapshot(*stored_kit)
+        return await stored_kit(svc, sid, f"no session {sid}")
     if (gateway := runs_elsewhere(svc, row)) is not None:
         followed = svc.events.followed(sid)  # followed here: its latest relayed state, unless the store says it ended
         if followed is not None and (row["ended_at"] is None or followed.state in END_STATES):
             return followed
         return stored_snapshot(row).model_copy(update={"remote": await remote_gateway(svc, gateway)})
     return stored_snapshot(row)
+
+
+async def stored_kit(svc: Service, kit_id: str, not_found: str) -> SessionOut:
+    """A kit of an earlier run of the service, as the store keeps it; 404 saying ``not_found`` when it has no such kit."""
+    stored = await asyncio.to_thread(svc.store.kit, kit_id)
+    if stored is None:
+        raise problem(404, not_found)
+    return stored_kit_snapshot(*stored)
 
 
 def runs_elsewhere(svc: Service, row: StoredSession) -> str | None:

@@ -44,6 +44,7 @@ def confine_worker(memory_mb: int | None, service_pid: int) -> None:
     if memory_mb:
         limit = int(memory_mb) * 1024 * 1024
         resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+
     def watch() -> None:
         while os.getppid() == service_pid:  # an orphan is adopted by another process: its parent id changes
             time.sleep(0.5)

@@ -13,13 +13,12 @@ from ... import schemas as M
 from ...deps import R401, R404, R409, R503, Operator, Reader, Svc, check_device_id, check_session_id, problem
 from ...live.codes import END_STATES
 from ...live.kit_session import KitSession
-from ...live.kit_snapshot import stored_kit_snapshot
 from ...live.runner import LiveSession
 from ...live.snapshot_schema import KitDeviceOut, SessionOut
 from ...service import Service
 from ...store import DecisionConflict, NotAcceptable, NotFound, StoreError
 from ...store.calibrations import Acceptance
-from ..views import claim_device, reachable_device
+from ..views import claim_device, reachable_device, stored_kit
 from .sessions import new_live
 
 log = logging.getLogger(__name__)
@@ -108,14 +107,12 @@ async def accept_kit(svc: Svc, kit_id: str, operator: Operator) -> M.KitAcceptOu
     none, one audit entry per device). The others are named with the reason; each can be calibrated again alone. A kit
     of an earlier run of the service is accepted from what the store kept of it."""
     kit = svc.kits.get(kit_id)
-    if kit is not None and not kit.finished:
-        raise problem(409, "the kit is still being calibrated: accept it once every wearable's session has ended")
-    for live in kit.members if kit is not None else []:
-        await live.wait()
     snap = await _kit_snapshot(svc, kit_id)
     if snap.state not in END_STATES:
         raise problem(409, "the kit is still being calibrated: accept it once every wearable's session has ended")
     running = {live.device.id: live for live in (kit.members if kit is not None else [])}
+    for live in running.values():  # each one's outcome written first
+        await live.wait()
     passed = [d for d in snap.devices if d.state == "done" and d.passed and d.decision is None and not d.departed]
     not_accepted = {d.device_id: _why_not(d) for d in snap.devices if d not in passed}
     if not passed:
@@ -162,10 +159,7 @@ async def _kit_snapshot(svc: Service, kit_id: str) -> SessionOut:
     check_session_id(kit_id)
     if (kit := svc.kits.get(kit_id)) is not None:
         return kit.snapshot()
-    stored = await asyncio.to_thread(svc.store.kit, kit_id)
-    if stored is None:
-        raise problem(404, f"no kit session {kit_id}")
-    return stored_kit_snapshot(*stored)
+    return await stored_kit(svc, kit_id, f"no kit session {kit_id}")
 
 
 def _forget_old(svc: Service) -> None:

@@ -44,7 +44,7 @@ from ...service import Service
 from ...store import DecisionConflict, NotAcceptable, NotFound, StoreError, sha256_hex
 from ..upload_options import Upload
 from ..upload_result import calibrate_uploaded
-from ..views import claim_device, reachable_device, remote_gateway, runs_elsewhere, session_snapshot
+from ..views import claim_device, reachable_device, remote_gateway, runs_elsewhere, session_snapshot, stored_kit
 
 # The section list travels in the URL: 4000 characters (about 80 sections) stay under what the HTTP server reads
 # as one request line even percent-encoded at 12 bytes a character; a longer one gets a 422, not a dropped connection.
@@ -181,7 +181,7 @@ async def session_events(
         return StreamingResponse(kit.broadcaster.stream(last_event_id), media_type="text/event-stream", headers=headers)
     row = await asyncio.to_thread(svc.store.session, session_id)
     if row is None:
-        snap = await session_snapshot(svc, session_id)  # a kit of an earlier run of the service, or 404
+        snap = await stored_kit(svc, session_id, f"no session {session_id}")
     elif (gateway := runs_elsewhere(svc, row)) is not None:
         snap = stored_snapshot(row)
         remote = await remote_gateway(svc, gateway)
