@@ -53,6 +53,11 @@ const ctx = {
   title(text) {
     document.title = text ? `${text} · gyrocal` : "gyrocal";
   },
+  /** What an event stream's link (api.stream's onLink) shows: a banner while it reconnects, none once it is open. */
+  streamLink(link) {
+    if (link === "retrying") ctx.banner("warn", "The connection to the service was interrupted. Reconnecting…");
+    else if (link === "open") ctx.banner(null);
+  },
   /** A banner above the page (the link to the service); null hides it. */
   banner(kind, text) {
     if (!text) {

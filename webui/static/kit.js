@@ -110,9 +110,7 @@ export function kitView(ctx, kitId) {
       render(snap);
       if (ENDED.has(snap.state)) halt();
     }, (link) => {
-      if (!alive) return;
-      if (link === "retrying") ctx.banner("warn", "The connection to the service was interrupted. Reconnecting…");
-      else if (link === "open") ctx.banner(null);
+      if (alive) ctx.streamLink(link);
     });
   };
 

@@ -196,9 +196,7 @@ export function sessionView(ctx, sid) {
 
   const follow = () => {
     stop = api.follow(sid, apply, (link) => {
-      if (!alive) return;
-      if (link === "retrying") ctx.banner("warn", "The connection to the service was interrupted. Reconnecting…");
-      else if (link === "open") ctx.banner(null);
+      if (alive) ctx.streamLink(link);
     });
   };
 
