@@ -185,7 +185,10 @@ def test_two_sessions_in_a_row_on_one_wearable_both_end_done(service: RunningSer
     assert start_2 - first[-1]["live"]["t_device_s"] > 60.0
     for events in finals:
         assert states(events) == ["connecting", "still", "turn_x", "turn_y", "turn_z", "computing", "done"], events[-1]["reason"]
-        assert events[-1]["passed"] is True and events[-1]["warnings"] == [] and events[-1]["lost_samples"] == 0
+        # no warning about the session; "service_late" is the service saying the busy computer held it up, which it
+        # must say whenever that happens (tests/server/test_late_service.py)
+        about_session = [w for w in events[-1]["warnings"] if w["code"] != "service_late"]
+        assert events[-1]["passed"] is True and about_session == [] and events[-1]["lost_samples"] == 0
     assert first[-1]["result"]["k"] != last["result"]["k"]  # a new recording, not the first one again
     with service.client() as c:
         truth = c.get("/devices/mock-10").json()["simulated_truth"]
