@@ -98,6 +98,17 @@ class KitDeparture(TypedDict, total=False):
     burst_dps: Number  # the largest rms of its rate against the others' over a quarter second, deg/s
 
 
+class KitAxesQuality(TypedDict, total=False):
+    """The kit's sensor axes (``calib.kit.axes``): the model of every wearable's K and why."""
+
+    model: str  # upper-triangular or diagonal
+    chi2: Number
+    dof: int
+    p_value: Number
+    tilt_spread: Number
+    reason: str
+
+
 class KitQuality(TypedDict, total=False):
     """A wearable calibrated with its kit (``calib.kit``): the kit's size, the wearable whose frame and clock it was
     solved in, this one's clock and mounting against it, and how it followed the kit (its departure)."""
@@ -109,6 +120,7 @@ class KitQuality(TypedDict, total=False):
     mount_deg: Number
     consistency: KitDeparture
     departed: bool
+    axes: KitAxesQuality
 
 
 class Quality(TypedDict, total=False):

@@ -43,6 +43,8 @@ def add_kit_parsers(sub: Any) -> None:
     p.add_argument("--loose", type=int, default=None, metavar="I",
                    help="wearable I (1-based) slips in its slot during the second turn, by --slip-deg")
     p.add_argument("--slip-deg", type=float, default=2.0, help="how far the loose wearable slips, deg (default 2)")
+    p.add_argument("--misalignment", type=float, default=0.0, metavar="M", help="each sensor's axes are not orthogonal: "
+                   "the off-diagonal entries of its K drawn in +-M (default 0)")
     p.add_argument("-o", "--output", type=Path, required=True, help="folder to write wearable-1.csv, wearable-2.csv, ... in")
     p.add_argument("--truth", action="store_true", help="print the simulated truth as JSON")
     p.set_defaults(func=cmd_simulate_kit)
@@ -97,6 +99,9 @@ def kit_summary(kit: Any) -> str:
             continue
         lines.append(head + f"k = {fmt_vec(r.k, 6)} ± {fmt_vec(r.k_std, 6)}")
         lines.append(" " * len(head) + f"b = {fmt_vec(r.b, 4)} ± {fmt_vec(r.b_std, 4)} deg/s")
+        if r.K is not None and r.K_std is not None:
+            upper = ([0, 0, 1], [1, 2, 2])
+            lines.append(" " * len(head) + f"K_xy, K_xz, K_yz = {fmt_vec(r.K[upper], 5)} ± {fmt_vec(r.K_std[upper], 5)}")
         clock = m.clock.to_dict()
         extra = [f"clock {clock['rate_ppm']:+.0f} ppm" if clock["rate_ppm"] is not None else "clock unknown"]
         if np.isfinite(m.mount_deg):
@@ -107,6 +112,8 @@ def kit_summary(kit: Any) -> str:
             extra.append(f"coupling residual {m.coherence.ratio:.2f}x the noise")
         lines.append(" " * len(head) + "; ".join(extra))
     lines.append("")
+    if kit.axes is not None:
+        lines.append(f"Axes: {kit.axes['reason']}")
     lines.append("Departed: " + (", ".join(kit.departed) if kit.departed else "none: every wearable followed the tray"))
     for w in kit.warnings:
         lines.append(f"WARNING: {w}")
@@ -135,7 +142,7 @@ def cmd_simulate_kit(args: argparse.Namespace) -> int:
         if not 1 <= args.loose <= args.devices:
             raise GyrocalError(f"--loose names a wearable from 1 to {args.devices}; got {args.loose}")
         slip = Slip(args.loose - 1, args.slip_deg)
-    recordings, truth = simulate_kit(args.seed, args.devices, noise=args.noise, slip=slip)
+    recordings, truth = simulate_kit(args.seed, args.devices, noise=args.noise, slip=slip, misalignment=args.misalignment)
     args.output.mkdir(parents=True, exist_ok=True)
     for i, rec in enumerate(recordings):
         write_native_csv(rec, args.output / f"wearable-{i + 1}.csv")

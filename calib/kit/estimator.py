@@ -22,10 +22,11 @@ import numpy as np
 
 from calib.errors import GyrocalError
 from calib.judge.acceptance import misclosure
+from calib.kit.axes import KitAxes, kit_axes, turn_weights
 from calib.kit.clocks import IDENTITY, ClockMap, coarse_clock
 from calib.kit.coupling import IDENTITY_MAP, Coupling, LinearMap, couple, fit_map, reading_noise, resting
 from calib.kit.departure import BURST_DPS, DEPARTURE_DEG, NO_DEPARTURE, departures
-from calib.kit.members import MemberParams, member_params, rest_bias
+from calib.kit.members import PARAMETERS, MemberParams, member_params, rest_bias
 from calib.kit.result import Coherence, KitMember, KitResult
 from calib.kit.turns import member_turn_rows
 from calib.numerics.attitude import cumulative_attitude
@@ -74,7 +75,9 @@ def calibrate_kit(recordings: Sequence[Recording], names: Sequence[str] | None =
         left_out.append(blamed)
         members.remove(blamed)
     say(0.9, "each wearable's calibration")
-    out = _members(recordings, names, solved, members)
+    weights = turn_weights(solved.kit_rate, solved.mean.stages)
+    axes = kit_axes(solved.mean, [(solved.maps[i], solved.clocks[i]) for i in members], weights)
+    out = _members(recordings, names, solved, members, axes)
     for i in left_out:
         alone.setdefault(i, _alone(recordings[i], protocol, heading_prior_deg))
         out[i] = _departed_member(names[i], alone[i], len(recordings), *seen[i])
@@ -82,17 +85,19 @@ def calibrate_kit(recordings: Sequence[Recording], names: Sequence[str] | None =
                 "motion; it was calibrated alone from its own turns; seat it firmly and calibrate it again"
                 for i in left_out]
     say(1.0, "done")
-    return KitResult(out, names[solved.ref], solved.mean, warnings)
+    return KitResult(out, names[solved.ref], solved.mean, warnings, axes.to_dict())
 
 
 class _Solved:
     """The kit solved with the wearables ``members`` (the first the reference): clocks, each wearable's map from the
-    kit's mean, the mean's calibration, the times ``span`` of the mean's samples, and each wearable's departure."""
+    kit's mean, the mean's calibration, the times ``span`` of the mean's samples, the kit's calibrated rate and each
+    wearable's departure."""
 
     def __init__(self, members: list[int], clocks: dict[int, ClockMap], maps: dict[int, LinearMap], span: np.ndarray,
                  mean: CalibrationResult, rates: np.ndarray, noise: np.ndarray, reading: dict[int, np.ndarray]) -> None:
         self.ref, self.members, self.clocks, self.maps, self.span, self.mean = members[0], members, clocks, maps, span, mean
         self.reading_noise = reading  # each wearable's readings' noise std per axis, deg/s
+        self.kit_rate = rates.mean(axis=0)  # the kit's calibrated rate in the reference's frame, deg/s
         rests = [(s.start, s.end) for s in mean.stages if s.kind == "still"]
         self.departures = departures(rates, span, rests, noise) if len(members) >= 2 else [NO_DEPARTURE]
 
@@ -169,15 +174,13 @@ def _mapped_variance(linear: LinearMap, noise: np.ndarray) -> np.ndarray:
     return (np.linalg.inv(linear.A) ** 2) @ (noise**2)
 
 
-def _members(recordings: Sequence[Recording], names: list[str], solved: _Solved, members: list[int]) -> list[KitMember]:
+def _members(recordings: Sequence[Recording], names: list[str], solved: _Solved, members: list[int],
+             axes: KitAxes) -> list[KitMember]:
     mean = solved.mean
-    k_ref, b_ref = np.asarray(mean.k), np.asarray(mean.b)
-    ref_std = (_or_nan(mean.k_std), _or_nan(mean.b_std))
-    ref_bound = (_or_nan(mean.k_bound), _or_nan(mean.b_bound))
     out: list[KitMember] = [None] * len(recordings)  # type: ignore[list-item]
     for j, i in enumerate(members):
         rec, linear, clock = recordings[i], solved.maps[i], solved.clocks[i]
-        params = member_params(k_ref, b_ref, ref_std, ref_bound, linear, clock)
+        params = member_params(axes.ref, linear, clock, axes.full)
         stages = [_own_stage(s, solved.span, rec, clock) for s in mean.stages]
         if stages and stages[0].kind == "still":  # the first and last rests reach the wearable's own first and last samples
             stages[0] = replace(stages[0], start=0, start_s=float(rec.t[0]))
@@ -185,27 +188,33 @@ def _members(recordings: Sequence[Recording], names: list[str], solved: _Solved,
             stages[-1] = replace(stages[-1], end=len(rec), end_s=float(rec.t[-1]))
         at_rest = np.concatenate([np.arange(s.start, s.end) for s in stages if s.kind == "still"])
         params = rest_bias(params, rec.gyro[at_rest].mean(axis=0), at_rest.size, solved.reading_noise[i])
-        result = _result(rec, params, clock, solved, names, j, stages, solved.reading_noise[i])
+        result = _result(rec, params, clock, solved, names, j, stages, solved.reading_noise[i], axes)
         out[i] = KitMember(names[i], result, clock, params.mount_deg,
                            Coherence(linear.residual_sd, linear.noise_sd, solved.departures[j]))
     return out
 
 
 def _result(rec: Recording, params: MemberParams, clock: ClockMap, solved: _Solved, names: list[str], j: int,
-            stages: list[Stage], noise: np.ndarray) -> CalibrationResult:
+            stages: list[Stage], noise: np.ndarray, axes: KitAxes) -> CalibrationResult:
     """One wearable's calibration as an ordinary result: the mean's stages on its own samples, its own turns'
     closures with its own calibration, the mean's quality with the kit's block beside it."""
     mean = solved.mean
     quality: Any = copy.deepcopy(mean.quality)
     quality["kit"] = {"devices": len(solved.members), "reference": names[solved.ref], "clock": clock.to_dict(),
-                      "mount_deg": params.mount_deg, "consistency": solved.departures[j].to_dict()}
+                      "mount_deg": params.mount_deg, "consistency": solved.departures[j].to_dict(),
+                      "axes": axes.to_dict()}
+    if params.tilt is not None:
+        quality["model"], quality["parameters"] = "upper-triangular", list(PARAMETERS)
+        if mean.K is None:  # the kit, not the turns, told the wearables' axes apart
+            quality["model_choice"] = {"asked": None, "reason": axes.reason}
     residuals = copy.deepcopy(mean.residuals)
-    g = rec.gyro * params.k + params.b
+    g = rec.gyro @ params.K.T + params.b
     attitude = cumulative_attitude(g, np.diff(rec.t, append=rec.t[-1] + np.median(np.diff(rec.t))))
     residuals["turns"] = member_turn_rows(residuals.get("turns") or [], stages, attitude, params.mount, rec.t)
     result = CalibrationResult(
         k=params.k, b=params.b, method=METHOD, stages=stages, quality=quality, k_std=params.k_std, b_std=params.b_std,
         k_bound=params.k_bound, b_bound=params.b_bound, noise_dps=noise, residuals=residuals,
+        K=None if params.tilt is None else params.K, K_std=params.K_spread("std"),
         warnings=list(mean.warnings), iterations=mean.iterations, sample_rate_hz=rec.fs, n_samples=len(rec),
     )
     # its k is on its own stamps: a rate estimated from when its packets arrived carries its error into every k
@@ -240,10 +249,6 @@ def _worst_closure(result: CalibrationResult | GyrocalError) -> float:
         return float("inf")
     values = [misclosure(r) for r in result.residuals.get("turns") or []]
     return max((float(v) for v in values if v is not None), default=float("inf"))
-
-
-def _or_nan(v: np.ndarray | None) -> np.ndarray:
-    return np.full(3, np.nan) if v is None else np.asarray(v, dtype=float)
 
 
 def _label(rec: Recording) -> str:

@@ -68,6 +68,7 @@ class KitResult:
     reference: str
     mean: CalibrationResult
     warnings: list[str] = field(default_factory=list)
+    axes: dict[str, Any] | None = None  # the kit's axes model (calib.kit.axes.KitAxes.to_dict())
 
     @property
     def departed(self) -> list[str]:
@@ -79,6 +80,7 @@ class KitResult:
             "reference": self.reference,
             "devices": {m.name: None if m.coherence is None else m.coherence.to_dict() for m in self.members},
             "departed": self.departed,
+            "axes": self.axes,
         })
 
     def to_json(self) -> dict[str, Any]:

@@ -12,12 +12,12 @@ at (1 + e_d) times true time, so a calibration fitted on its own stamps returns 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from calib.effects import SimulationConfigError, Trajectory
+from calib.effects import AxisMisalignment, SimulationConfigError, Trajectory
 from calib.recording import Recording, RecordingMeta
 from calib.simulator.protocol import ProtocolScript, as_float, paper_protocol_script
 from calib.simulator.ranges import ACCEL_NOISE_G, GRAVITY_UP
@@ -56,6 +56,17 @@ class KitDeviceTruth:
     mount: np.ndarray  # (3, 3) device-from-tray rotation before any slip
     slip_deg: float  # how far it slipped in its slot (0: it did not)
     slip_t: float | None  # its own stamp (s) when the slip was half done, None without a slip
+    off_diagonal: np.ndarray = field(default_factory=lambda: np.zeros(3))  # (K_xy, K_xz, K_yz) of its K, true time
+
+    @property
+    def K(self) -> np.ndarray:
+        """Its full K (upper-triangular, ``calib.effects.AxisMisalignment``) against true time."""
+        return AxisMisalignment(self.off_diagonal).matrix(self.k)
+
+    @property
+    def K_own(self) -> np.ndarray:
+        """The full K a calibration on the wearable's own stamps should find."""
+        return self.K / (1.0 + self.clock_error)
 
     @property
     def k_own(self) -> np.ndarray:
@@ -70,6 +81,7 @@ class KitDeviceTruth:
     def to_dict(self) -> dict[str, object]:
         return {
             "k": [float(v) for v in self.k_own], "b": [float(v) for v in self.b_own],
+            "K": [[float(v) for v in row] for row in self.K_own],
             "clock_error": self.clock_error, "start_s": self.start_s,
             "mount_deg": float(np.degrees(Rotation.from_matrix(self.mount).magnitude())),
             "slip_deg": self.slip_deg, "slip_t": self.slip_t,
@@ -95,7 +107,7 @@ class KitTray:
     def __init__(self, seed: int, n_devices: int, *, noise: float = 0.03, script: ProtocolScript | None = None,
                  params: list[SensorParams] | None = None, mount_deg: float = MOUNT_DEG,
                  clock_error: float = CLOCK_ERROR, start_spread_s: float = START_SPREAD_S, slip: Slip | None = None,
-                 motion_fs: float = 104.0) -> None:
+                 motion_fs: float = 104.0, misalignment: float = 0.0) -> None:
         self.seed = check_seed(seed)
         if not isinstance(n_devices, int) or n_devices < 1:
             raise SimulationConfigError(f"a kit needs a whole number of wearables >= 1; got {n_devices!r}")
@@ -105,6 +117,9 @@ class KitTray:
             raise SimulationConfigError(f"the slipping wearable {slip.device} is not one of the {n_devices} (0-based)")
         self.n_devices, self.noise, self.params, self.slip = n_devices, float(noise), params, slip
         self.mount_deg, self.clock_error, self.start_spread_s = mount_deg, clock_error, start_spread_s
+        self.misalignment = as_float(misalignment, "misalignment", positive=False)
+        if not 0.0 <= self.misalignment < 0.5:
+            raise SimulationConfigError(f"misalignment is the largest off-diagonal entry of K, 0 to 0.5; got {misalignment!r}")
         ss_script, ss_traj, *self._ss_dev = np.random.SeedSequence(self.seed).spawn(2 + n_devices)
         if script is None:
             script = paper_protocol_script(np.random.default_rng(ss_script))
@@ -135,13 +150,17 @@ class KitTray:
         pose = self._pose(tau) * in_tray
         rate = np.degrees((pose[:-1].inv() * pose[1:]).as_rotvec()) * (fs * (1.0 + e))
         accel = pose[:-1].inv().apply(GRAVITY_UP)
-        gyro = sensor.reading(rate) + self.noise * rng.standard_normal(rate.shape)
+        # each sensor's own non-orthogonal axes, drawn apart from the rest so a kit without them stays as it was
+        off = np.random.default_rng([self.seed, d, 1]).uniform(-1.0, 1.0, 3) * self.misalignment
+        K = AxisMisalignment(off).matrix(sensor.k)
+        ideal = sensor.reading(rate) if not np.any(off) else np.linalg.solve(K, (rate - sensor.b).T).T
+        gyro = ideal + self.noise * rng.standard_normal(rate.shape)
         accel = accel + ACCEL_NOISE_G * rng.standard_normal(accel.shape)
         seq = np.arange(n, dtype=np.int64)
         rec = Recording(seq / fs, gyro, accel, seq,
                         meta=RecordingMeta(sample_rate_hz=fs, device_id=f"kit-{self.seed}-{d + 1}", sensor_model="simulated",
                                            source=f"simulate_kit(seed={self.seed}) wearable {d + 1}"))
-        return rec, KitDeviceTruth(sensor.k.copy(), sensor.b.copy(), e, start, mount.as_matrix(), slip_deg, slip_t)
+        return rec, KitDeviceTruth(sensor.k.copy(), sensor.b.copy(), e, start, mount.as_matrix(), slip_deg, slip_t, off)
 
 
 def simulate_kit(
@@ -156,16 +175,20 @@ def simulate_kit(
     clock_error: float = CLOCK_ERROR,
     start_spread_s: float = START_SPREAD_S,
     slip: Slip | None = None,
+    misalignment: float = 0.0,
 ) -> tuple[list[Recording], KitTruth]:
     """Simulate ``n_devices`` wearables in one tray following ``script`` (default: the paper protocol, drawn per seed).
 
     ``params``: each wearable's sensor (default: the paper's ranges, drawn). ``noise``: white-noise std of every
     gyroscope (deg/s). ``mount_deg``, ``clock_error``, ``start_spread_s``: the largest mounting rotation (deg), clock
-    error (fraction) and difference in start and stop (s) drawn. Returns one recording per wearable (its own stamps
-    t = j / fs, its sample counter) and the truth. Same seed and arguments give the same kit.
+    error (fraction) and difference in start and stop (s) drawn; ``misalignment``: the largest off-diagonal entry of
+    each sensor's (upper-triangular) K, drawn uniform in +-this per entry (``calib.effects.AxisMisalignment``).
+    Returns one recording per wearable (its own stamps t = j / fs, its sample counter) and the truth. Same seed and
+    arguments give the same kit.
     """
     tray = KitTray(seed, n_devices, noise=noise, script=script, params=params, mount_deg=mount_deg,
-                   clock_error=clock_error, start_spread_s=start_spread_s, slip=slip, motion_fs=fs)
+                   clock_error=clock_error, start_spread_s=start_spread_s, slip=slip, motion_fs=fs,
+                   misalignment=misalignment)
     drawn = [tray.wearable(d, fs) for d in range(n_devices)]
     return [r for r, _ in drawn], KitTruth(tuple(t for _, t in drawn), tray.tray, float(noise), float(fs), tray.seed)
 

@@ -138,12 +138,24 @@ class KitMemberConsistency(BaseModel):
                                     "second, deg/s (a wearable moving in its slot)")
 
 
+class KitAxesOut(BaseModel):
+    """The kit's sensor axes (``calib.kit.axes``): a full (upper-triangular) K for every wearable, or diagonal."""
+
+    model: str = Field(description="upper-triangular: the wearables' axes are not orthogonal alike; diagonal otherwise")
+    chi2: float | None = Field(None, description="the wearables' tilts about their mean against their noise")
+    dof: int = Field(0, description="its degrees of freedom, 3 (N - 1)")
+    p_value: float | None = Field(None, description="the chance of tilts this different from the noise alone")
+    tilt_spread: float | None = Field(None, description="the spread (sd) of the wearables' tilts")
+    reason: str = Field(description="why this model, and how the kit's common tilt was fixed")
+
+
 class KitConsistency(BaseModel):
-    """The kit's consistency: the reference wearable, each wearable's, and who departed."""
+    """The kit's consistency: the reference wearable, each wearable's, who departed, and the kit's axes."""
 
     reference: str
     devices: dict[str, KitMemberConsistency | None]
     departed: list[str]
+    axes: KitAxesOut | None = None
 
 
 class KitOut(BaseModel):

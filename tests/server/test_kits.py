@@ -72,6 +72,8 @@ def test_a_kit_is_guided_as_one_the_loose_wearable_is_named_and_the_rest_are_acc
             assert "came apart from the kit" in devices["mock-3"]["reason"]
             consistency = snap["kit"]["consistency"]["devices"]
             assert consistency["mock-3"]["departed"] and consistency["mock-3"]["angle_deg"] > 0.2
+            axes = snap["kit"]["consistency"]["axes"]  # the simulated sensors' axes are orthogonal: a diagonal K each
+            assert axes["model"] == "diagonal" and axes["dof"] == 3 and "agree" in axes["reason"], axes
             for name in ("mock-1", "mock-2"):
                 d = devices[name]
                 assert d["state"] == "done" and d["passed"], d["reason"]
