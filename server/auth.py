@@ -274,4 +274,7 @@ class SignIns:
         self._pool.shutdown(wait=False, cancel_futures=True)
 
 
-_DUMMY_HASH = hash_secret(secrets.token_urlsafe(16))
+# a decoy in hash_secret's form: an unknown name costs the same scrypt as a known one, and no secret matches random bytes
+_DUMMY_HASH = "$".join(["scrypt", *(str(_SCRYPT[key]) for key in ("n", "r", "p")),
+                        base64.b64encode(secrets.token_bytes(16)).decode(),
+                        base64.b64encode(secrets.token_bytes(_SCRYPT["dklen"])).decode()])

@@ -40,6 +40,23 @@ def test_schema_is_created_and_reopening_keeps_it(store_url: str) -> None:
     again.close()
 
 
+def test_the_revisions_read_from_their_file_names_are_alembics(store_url: str) -> None:
+    """A new or up-to-date store is opened without Alembic, from the revision files' names: Alembic's own reading of
+    the same files must agree, and a new store must be one Alembic sees at the head and would not upgrade."""
+    from alembic.runtime.migration import MigrationContext
+    from alembic.script import ScriptDirectory
+
+    from server.store.schema import MIGRATIONS, head_revision, revisions
+
+    scripts = ScriptDirectory(str(MIGRATIONS))
+    assert [r.revision for r in reversed(list(scripts.walk_revisions()))] == revisions()
+    assert scripts.get_current_head() == head_revision() == f"{SCHEMA_VERSION:04d}"
+    s = Store(store_url)
+    with s.engine.connect() as conn:
+        assert MigrationContext.configure(conn).get_current_revision() == head_revision()
+    s.close()
+
+
 def test_newer_schema_is_refused(store_url: str) -> None:
     """A store a newer gyrocal upgraded (a revision this one does not know) is refused with what to do; so is one
     whose pre-Alembic schema version is newer. Nothing in it is changed."""
