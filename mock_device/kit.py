@@ -13,11 +13,12 @@ first turn.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
 from calib.simulator import SensorParams
-from calib.simulator.kit import KitTray, Slip
+from calib.simulator.kit import KitTray, Slip, misaligned
 from calib.simulator.protocol import paper_protocol_script
 
 from .scenarios import LinkFaults
@@ -48,13 +49,24 @@ class Joins:
         return self.number, False
 
 
+def tray_sensors(seed: int, n: int, misalignment: float = 0.0) -> list[SensorParams]:
+    """The sensors of a simulated tray's ``n`` wearables: the paper's errors, and with ``misalignment`` axes that are
+    not orthogonal (K's entries above the diagonal drawn in +-misalignment, ``calib.simulator.kit.misaligned``)."""
+    rng = np.random.default_rng([seed, 0x7A4])
+    sensors = [SensorParams.paper_random(rng) for _ in range(n)]
+    if misalignment > 0:  # drawn apart: a tray without it keeps its sensors
+        tilt = np.random.default_rng([seed, 0x0FF])
+        sensors = [replace(s, off_diagonal=misaligned(tilt, misalignment)) for s in sensors]
+    return sensors
+
+
 class Tray:
     """The tray the kit's simulated wearables ride in, and its performances (one per streaming session)."""
 
-    def __init__(self, seed: int, n: int, noise_dps: float = 0.03, loose: int | None = None, drop: int | None = None) -> None:
+    def __init__(self, seed: int, n: int, noise_dps: float = 0.03, loose: int | None = None, drop: int | None = None,
+                 misalignment: float = 0.0) -> None:
         self.seed, self.n, self.noise_dps, self.loose, self.drop = int(seed), int(n), float(noise_dps), loose, drop
-        rng = np.random.default_rng([self.seed, 0x7A4])
-        self.params = [SensorParams.paper_random(rng) for _ in range(self.n)]  # the same sensors every performance
+        self.params = tray_sensors(self.seed, self.n, misalignment)  # the same sensors every performance
         self._performances: dict[int, KitTray] = {}
         self._joins = Joins()
 
@@ -90,7 +102,7 @@ class KitSource:
         self._rest = np.zeros(3)
         self._rest_accel = np.array([0.0, 0.0, 1.0])
         params = tray.params[self.index]
-        self.truth: dict[str, object] = {"k": params.k.tolist(), "b": params.b.tolist()}
+        self.truth: dict[str, object] = {"k": params.k.tolist(), "b": params.b.tolist(), "K": params.K.tolist()}
         self._rng = np.random.default_rng([tray.seed, self.index, 0x7A11])
 
     def prepare(self, fs_hz: float) -> None:
@@ -103,7 +115,7 @@ class KitSource:
         self._gyro, self._accel = rec.gyro, rec.accel if rec.accel is not None else np.zeros_like(rec.gyro)
         self._rest = self.tray.params[self.index].reading(np.zeros(3))
         self._rest_accel = self._accel[-max(1, int(fs_hz * 0.5)):].mean(axis=0)
-        self.truth = {"k": truth.k.tolist(), "b": truth.b.tolist(), "slip_deg": truth.slip_deg}
+        self.truth = {"k": truth.k.tolist(), "b": truth.b.tolist(), "K": truth.K.tolist(), "slip_deg": truth.slip_deg}
 
     def resumed(self, lost_at: int, at: int) -> None:
         return None  # the tray's clinician goes on with the protocol; the samples while out of range are lost

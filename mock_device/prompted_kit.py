@@ -25,7 +25,7 @@ from calib.simulator import ProtocolScript, Segment, SensorParams, Still, Turn
 from calib.simulator.kit import KitDeviceTruth, KitTray, Slip
 
 from .hand import HANDS, Act, PromptHand
-from .kit import SLIP_DEG, Joins, resting_after
+from .kit import SLIP_DEG, Joins, resting_after, tray_sensors
 from .scenarios import LinkFaults
 from .sources import Block
 
@@ -92,10 +92,10 @@ class TrayPerformance:
 class PromptedTray:
     """The tray the kit's simulated wearables ride in, turned by one prompt-following hand of style ``hand``."""
 
-    def __init__(self, seed: int, n: int, hand: str, noise_dps: float = 0.03, loose: int | None = None) -> None:
+    def __init__(self, seed: int, n: int, hand: str, noise_dps: float = 0.03, loose: int | None = None,
+                 misalignment: float = 0.0) -> None:
         self.seed, self.n, self.style, self.noise_dps, self.loose = int(seed), int(n), HANDS[hand], float(noise_dps), loose
-        rng = np.random.default_rng([self.seed, 0x7A4])
-        self.params = [SensorParams.paper_random(rng) for _ in range(self.n)]  # the same sensors every performance
+        self.params = tray_sensors(self.seed, self.n, misalignment)  # the same sensors every performance
         self.performance: TrayPerformance | None = None
         self._joins = Joins()
 
@@ -132,7 +132,7 @@ class PromptedKitSource:
         self.session += 1
         self._performance, self._fs = self.tray.performance_now(), float(fs_hz)
         params = self.tray.params[self.index]
-        self.truth = {"k": params.k.tolist(), "b": params.b.tolist(), "slip_deg": 0.0}
+        self.truth = {"k": params.k.tolist(), "b": params.b.tolist(), "K": params.K.tolist(), "slip_deg": 0.0}
 
     def block(self, start: int, end: int) -> Block:
         assert self._performance is not None, "prepare() first"

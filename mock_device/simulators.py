@@ -45,22 +45,24 @@ def wearable(*, seed: int, scenario: str, speed: float, name: str, rate_hz: floa
 
 def kit(*, seed: int, n: int, speed: float, names: list[str], rate_hz: float | None, noise_dps: float,
         model: str = "gyrocal", loose: int | None = None, drop: int | None = None, hand: str | None = None,
-        service_url: Callable[[], str | None] | None = None) -> list[Wearable]:
+        service_url: Callable[[], str | None] | None = None, misalignment: float = 0.0) -> list[Wearable]:
     """``n`` simulated wearables speaking ``model``'s protocol, riding in one tray that one clinician turns through the
     protocol whenever their streams start: a scripted one (``mock_device.kit``), or with ``hand`` a ``hand:<style>``
     clinician who follows the prompts of the kit session that holds wearables of the tray on the service at
     ``service_url()`` (``mock_device.prompted_kit``). ``loose`` (0-based) slips in its slot during the second turn;
-    ``drop`` (scripted clinician only) loses its link for a moment in the first."""
+    ``drop`` (scripted clinician only) loses its link for a moment in the first. ``misalignment``: the sensors' axes
+    are not orthogonal (``mock_device.kit.tray_sensors``)."""
     from .kit import KitSource, Tray
     from .prompted_kit import PromptedKitSource, PromptedTray
 
     sources: list[SampleSource]
     if hand is not None:
-        prompted = PromptedTray(seed, n, hand.removeprefix(HAND_PREFIX), noise_dps=noise_dps, loose=loose)
+        prompted = PromptedTray(seed, n, hand.removeprefix(HAND_PREFIX), noise_dps=noise_dps, loose=loose,
+                                misalignment=misalignment)
         KitFollower(names, prompted.observe, service_url or (lambda: None)).start()
         sources = [PromptedKitSource(prompted, i) for i in range(n)]
     else:
-        tray = Tray(seed, n, noise_dps=noise_dps, loose=loose, drop=drop)
+        tray = Tray(seed, n, noise_dps=noise_dps, loose=loose, drop=drop, misalignment=misalignment)
         sources = [KitSource(tray, i) for i in range(n)]
     return [WEARABLES[model](source, seed=seed * 1000 + i + 1, speed=speed, name=names[i], rate_hz=rate_hz)
             for i, source in enumerate(sources)]

@@ -72,6 +72,9 @@ def register(sub: Any) -> None:
                    help="with --mock-kit: the I-th simulated wearable (from 1) slips in its slot during the second turn")
     p.add_argument("--mock-kit-drop", type=int, default=None, metavar="I",
                    help="with --mock-kit: the I-th simulated wearable (from 1) goes out of range for 1.5 s in the first turn")
+    p.add_argument("--mock-kit-misalignment", type=float, default=0.0, metavar="M",
+                   help="with --mock-kit: the simulated sensors' axes are not orthogonal, the entries above each one's "
+                        "K's diagonal drawn in +-M (e.g. 0.01: 1 %% cross-axis sensitivity)")
     p.add_argument(
         "--ble",
         action="store_true",
@@ -208,6 +211,9 @@ def build_service(args: argparse.Namespace) -> Any:
     for flag, value in (("--mock-kit-loose", args.mock_kit_loose), ("--mock-kit-drop", args.mock_kit_drop)):
         if value is not None and not (args.mock_kit and 1 <= value <= args.mock):
             raise ServiceError(f"{flag} names one of the kit's simulated wearables, from 1 to {args.mock}, with --mock-kit")
+    if args.mock_kit_misalignment and not (args.mock_kit and 0.0 < args.mock_kit_misalignment < 0.5):
+        raise ServiceError("--mock-kit-misalignment is the largest cross-axis entry of each simulated sensor's K, between 0 "
+                           "and 0.5 (e.g. 0.01), with --mock-kit")
     if not (0.5 <= args.header_timeout_s <= 600):
         raise ServiceError("--header-timeout-s must be between 0.5 and 600 seconds")
     if not (16 <= args.max_connections <= 1_000_000):
@@ -283,7 +289,8 @@ def build_service(args: argparse.Namespace) -> Any:
         devices.add_mocks(simulators, args.mock, speed=args.mock_speed, seed=args.mock_seed, scenarios=scenarios, rate_hz=args.mock_rate,
                           first=args.mock_first, model=args.mock_model, kit=args.mock_kit,
                           loose=None if args.mock_kit_loose is None else args.mock_kit_loose - 1,
-                          drop=None if args.mock_kit_drop is None else args.mock_kit_drop - 1)
+                          drop=None if args.mock_kit_drop is None else args.mock_kit_drop - 1,
+                          misalignment=args.mock_kit_misalignment)
     return Service(settings, store=store, devices=devices)
 
 

@@ -45,7 +45,7 @@ class Simulators(Protocol):
 
     def kit(self, *, seed: int, n: int, speed: float, names: list[str], rate_hz: float | None, noise_dps: float,
             model: str, loose: int | None, drop: int | None, hand: str | None,
-            service_url: Callable[[], str | None]) -> list[Any]: ...
+            service_url: Callable[[], str | None], misalignment: float = 0.0) -> list[Any]: ...
 
 
 class SimulatorsUnavailable(Exception):
@@ -135,14 +135,17 @@ class Device:
         return None if self.peripheral is None else bool(getattr(self.peripheral, "identifying", False))
 
     @property
-    def simulated_truth(self) -> dict[str, list[float]] | None:
-        """The simulated sensor's true {k, b} (None for real hardware)."""
+    def simulated_truth(self) -> dict[str, Any] | None:
+        """The simulated sensor's true {k, b} and, where the simulation has one, its full K (None for real hardware)."""
         if self.peripheral is None:
             return None
         truth = getattr(self.peripheral, "truth", None)
         if not truth:
             return None
-        return {"k": [float(v) for v in truth["k"]], "b": [float(v) for v in truth["b"]]}
+        out: dict[str, Any] = {"k": [float(v) for v in truth["k"]], "b": [float(v) for v in truth["b"]]}
+        if truth.get("K") is not None:
+            out["K"] = [[float(v) for v in row] for row in truth["K"]]
+        return out
 
     def read_local_battery(self) -> None:
         """Note the battery level of a wearable simulated in this process: it answers the read at once,
@@ -218,13 +221,14 @@ class DeviceManager:
         kit: bool = False,
         loose: int | None = None,
         drop: int | None = None,
+        misalignment: float = 0.0,
     ) -> list[Device]:
         """N simulated wearables mock-``first`` … mock-(first+N-1) speaking ``model``'s protocol, each performing its
         scenario when streaming starts. ``rate_hz`` None: the model's streaming rate. A wearable's number alone sets
         its sensor, so two gateways simulating mock-8 simulate the same wearable. ``kit``: the N ride in one tray that one
         clinician turns (``loose``: the one, 0-based, that slips in its slot; ``drop``: the one that loses its link
-        for a moment), instead of each its scenario: a scripted one, or the ``hand:<style>`` clinician of ``scenarios``
-        who follows the kit's prompts."""
+        for a moment; ``misalignment``: their sensors' axes are not orthogonal), instead of each its scenario: a
+        scripted one, or the ``hand:<style>`` clinician of ``scenarios`` who follows the kit's prompts."""
         import time
 
         from .link import InProcessLink, ReconnectPolicy
@@ -238,7 +242,8 @@ class DeviceManager:
         hand = next((s for s in scenarios if s.startswith("hand:")), None) if kit else None
         if kit:
             tray = simulators.kit(seed=seed * 1000 + first, n=n, speed=speed, names=ids, rate_hz=rate_hz, noise_dps=noise_dps,
-                                  model=model, loose=loose, drop=drop, hand=hand, service_url=lambda: self.service_url)
+                                  model=model, loose=loose, drop=drop, hand=hand, service_url=lambda: self.service_url,
+                                  misalignment=misalignment)
         out = []
         for j, i in enumerate(range(first, first + n)):
             scenario = (f"kit:{hand}" if hand else "kit") if kit else scenarios[(i - 1) % len(scenarios)]

@@ -105,6 +105,8 @@ class Me(BaseModel):
 class Truth(BaseModel):
     k: Vec3
     b: Vec3
+    K: list[Vec3] | None = Field(None, description="the full K (rows), where the simulated sensor's axes may not be "
+                                 "orthogonal (a simulated kit)")
 
 
 class PowerUpOut(BaseModel):

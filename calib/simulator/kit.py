@@ -12,7 +12,7 @@ at (1 + e_d) times true time, so a calibration fitted on its own stamps returns 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
@@ -150,17 +150,16 @@ class KitTray:
         pose = self._pose(tau) * in_tray
         rate = np.degrees((pose[:-1].inv() * pose[1:]).as_rotvec()) * (fs * (1.0 + e))
         accel = pose[:-1].inv().apply(GRAVITY_UP)
-        # each sensor's own non-orthogonal axes, drawn apart from the rest so a kit without them stays as it was
-        off = np.random.default_rng([self.seed, d, 1]).uniform(-1.0, 1.0, 3) * self.misalignment
-        K = AxisMisalignment(off).matrix(sensor.k)
-        ideal = sensor.reading(rate) if not np.any(off) else np.linalg.solve(K, (rate - sensor.b).T).T
-        gyro = ideal + self.noise * rng.standard_normal(rate.shape)
+        if self.params is None and self.misalignment > 0:  # drawn apart from the rest: a kit without it stays as it was
+            sensor = replace(sensor, off_diagonal=misaligned(np.random.default_rng([self.seed, d, 1]), self.misalignment))
+        gyro = sensor.reading(rate) + self.noise * rng.standard_normal(rate.shape)
         accel = accel + ACCEL_NOISE_G * rng.standard_normal(accel.shape)
         seq = np.arange(n, dtype=np.int64)
         rec = Recording(seq / fs, gyro, accel, seq,
                         meta=RecordingMeta(sample_rate_hz=fs, device_id=f"kit-{self.seed}-{d + 1}", sensor_model="simulated",
                                            source=f"simulate_kit(seed={self.seed}) wearable {d + 1}"))
-        return rec, KitDeviceTruth(sensor.k.copy(), sensor.b.copy(), e, start, mount.as_matrix(), slip_deg, slip_t, off)
+        return rec, KitDeviceTruth(sensor.k.copy(), sensor.b.copy(), e, start, mount.as_matrix(), slip_deg, slip_t,
+                                   sensor.off_diagonal.copy())
 
 
 def simulate_kit(
@@ -191,6 +190,11 @@ def simulate_kit(
                    misalignment=misalignment)
     drawn = [tray.wearable(d, fs) for d in range(n_devices)]
     return [r for r, _ in drawn], KitTruth(tuple(t for _, t in drawn), tray.tray, float(noise), float(fs), tray.seed)
+
+
+def misaligned(rng: np.random.Generator, largest: float) -> np.ndarray:
+    """A sensor's non-orthogonality: the entries above its K's diagonal (K_xy, K_xz, K_yz), each uniform in +-largest."""
+    return rng.uniform(-1.0, 1.0, 3) * largest
 
 
 def _unit(rng: np.random.Generator) -> np.ndarray:

@@ -3,12 +3,21 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
-from calib.effects import Effect, Saturation, SensorContext, SensorOutput, SimulationConfigError, Trajectory, check_effects
+from calib.effects import (
+    AxisMisalignment,
+    Effect,
+    Saturation,
+    SensorContext,
+    SensorOutput,
+    SimulationConfigError,
+    Trajectory,
+    check_effects,
+)
 from calib.recording import Recording, RecordingMeta
 from calib.simulator.protocol import ProtocolScript, as_float, paper_protocol_script
 from calib.simulator.ranges import ACCEL_NOISE_G, B_RANGE_DPS, K_RANGE
@@ -18,10 +27,13 @@ from calib.stages.stage import AXES, Stage
 
 @dataclass(frozen=True, eq=False)
 class SensorParams:
-    """Parameters of g = K m + b (eq. 1): scale factors ``k`` (3,) and biases ``b`` (3,) in deg/s of true rate."""
+    """Parameters of g = K m + b (eq. 1): scale factors ``k`` (3,), biases ``b`` (3,) in deg/s of true rate, and
+    ``off_diagonal`` (K_xy, K_xz, K_yz): the entries above K's diagonal of a sensor whose axes are not orthogonal
+    (``calib.effects.AxisMisalignment``; zero: K = diag(k))."""
 
     k: np.ndarray
     b: np.ndarray
+    off_diagonal: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     def __post_init__(self) -> None:
         k = np.asarray(self.k, dtype=float)
@@ -32,6 +44,12 @@ class SensorParams:
             raise SimulationConfigError(f"SensorParams.b must be 3 finite biases in deg/s (x, y, z); got {self.b!r}")
         object.__setattr__(self, "k", k)
         object.__setattr__(self, "b", b)
+        object.__setattr__(self, "off_diagonal", AxisMisalignment(self.off_diagonal).off_diagonal)
+
+    @property
+    def K(self) -> np.ndarray:
+        """K (3, 3): diag(k) with ``off_diagonal`` above it."""
+        return AxisMisalignment(self.off_diagonal).matrix(self.k)
 
     @classmethod
     def paper_random(cls, rng: np.random.Generator) -> SensorParams:
@@ -39,12 +57,14 @@ class SensorParams:
         return cls(rng.uniform(*K_RANGE, 3), rng.uniform(*B_RANGE_DPS, 3))
 
     def reading(self, rate_dps: np.ndarray) -> np.ndarray:
-        """Noise-free readings m = (g - b) / k (deg/s) for true rates g (..., 3)."""
-        return (np.asarray(rate_dps) - self.b) / self.k
+        """Noise-free readings m = K^-1 (g - b) (deg/s) for true rates g (..., 3)."""
+        if not np.any(self.off_diagonal):
+            return (np.asarray(rate_dps) - self.b) / self.k
+        return np.linalg.solve(self.K, (np.asarray(rate_dps) - self.b).T).T
 
     def true_rate(self, m: np.ndarray) -> np.ndarray:
         """True rates g = K m + b (deg/s) for readings m (..., 3)."""
-        return np.asarray(m) * self.k + self.b
+        return np.asarray(m) @ self.K.T + self.b
 
 
 

@@ -1,9 +1,9 @@
 """A whole kit from the page, in Debian's Chromium against the real service with four simulated wearables in one tray
-(`--mock-kit`, the fourth slipping in its slot), turned by a clinician who follows the kit's prompts as the page
-shows them (`--mock-scenario hand:careful`): the operator ticks three of them (mock-1 stays out of the kit, so the
-clinician finds the kit by the others), calibrates them together, follows one set of prompts for the tray, sees each
-wearable's state as a row, and accepts every one that passed at once; on a phone the rows stack and nothing runs off
-the screen."""
+(`--mock-kit`, the fourth slipping in its slot, their sensors' axes up to 1 % from square), turned by a clinician who
+follows the kit's prompts as the page shows them (`--mock-scenario hand:careful`): the operator ticks three of them
+(mock-1 stays out of the kit, so the clinician finds the kit by the others), calibrates them together, follows one set
+of prompts for the tray, sees each wearable's state as a row, and accepts every one that passed at once (each with
+its full K); on a phone the rows stack and nothing runs off the screen."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ PHONE = {"width": 390, "height": 844}
 
 @pytest.fixture(scope="module")
 def kit_service() -> Iterator[Any]:
-    with running_service(["hand:careful"] * 4, "--mock-kit", "--mock-kit-loose", "4") as svc:
+    with running_service(["hand:careful"] * 4, "--mock-kit", "--mock-kit-loose", "4", "--mock-kit-misalignment", "0.01") as svc:
         yield svc
 
 
@@ -63,6 +63,10 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
             assert row.get_attribute("data-passed") == "true"
             assert row.locator(".kit-state").inner_text().strip() == "PASS"
             assert re.search(r"k X \d\.\d{4} · Y \d\.\d{4} · Z \d\.\d{4}", row.locator(".kit-k").inner_text())
+        # their sensors' axes are not square (1 % cross-axis): the page says each one's was measured and calibrated
+        axes = page.inner_text("#kit-axes")
+        assert re.fullmatch(r"The wearables' axes are not quite square \(cross-axis errors of about \d\.\d %\): each "
+                            r"one's was measured against the others' and is part of its calibration\.", axes), axes
         loose = page.locator(".kit-device[data-device='mock-4']")
         assert loose.get_attribute("data-departed") == "true"
         assert loose.locator(".kit-state").inner_text().strip() == "Came apart from the kit"
@@ -78,12 +82,19 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
         reads = [u for u in page_watch.requests if u.split("?")[0].endswith(f"/sessions/{kit_id}")]
         assert any(f"/sessions/{kit_id}/events" in u for u in page_watch.requests) and len(reads) <= 2, reads
         with api(kit_service) as c:
+            results = {d["device_id"]: d["result"] for d in c.get(f"/sessions/{kit_id}").json()["devices"]}
             for device in ("mock-2", "mock-3"):
                 saved = c.get(f"/devices/{device}/calibration").json()
                 assert saved["method"] == "kit-closure"
-                truth = c.get(f"/devices/{device}").json()["simulated_truth"]["k"]
-                error = np.abs(np.array(saved["k"]) - truth)
+                truth = c.get(f"/devices/{device}").json()["simulated_truth"]
+                error = np.abs(np.array(saved["k"]) - truth["k"])
                 assert np.all(error < 3e-3), error  # the tray turned by hand as prompted gives the wearables' k
+                # ... and its full K, whose cross-axis entries the kit knows to the mean of its two wearables' (gauge)
+                K, K_std, K_true = (np.array(v) for v in (saved["K"], results[device]["K_std"], truth["K"]))
+                assert saved["quality"]["model"] == "upper-triangular" and np.allclose(np.tril(K, -1), 0.0)
+                assert np.array_equal(K, results[device]["K"])  # the K stored is the K the kit's result showed
+                upper = np.triu_indices(3, 1)
+                assert np.all(np.abs(K - K_true)[upper] < 4.5 * K_std[upper]), (K - K_true, K_std)
             assert c.get("/devices/mock-4/calibration").status_code == 404
     # the same result on a phone: the rows stack, and nothing is wider than the screen
     with watched_page(browser, kit_service, page_watch, viewport=PHONE, phone=True) as phone:

@@ -42,6 +42,14 @@ function stateText(d) {
   }
 }
 
+/** What the kit found of its sensors' axes, once calibrated: said only when they are not square (calib.kit.axes). */
+function axesText(snap) {
+  const axes = snap.kit && snap.kit.consistency && snap.kit.consistency.axes;
+  if (!axes || axes.model !== "upper-triangular") return "";
+  const spread = typeof axes.tilt_spread === "number" ? ` (cross-axis errors of about ${num(100 * axes.tilt_spread, 1)} %)` : "";
+  return `The wearables' axes are not quite square${spread}: each one's was measured against the others' and is part of its calibration.`;
+}
+
 function deviceRow(d) {
   const ended = ENDED.has(d.state);
   const good = d.state === "done" && d.passed;
@@ -65,10 +73,11 @@ export function kitView(ctx, kitId) {
   const picture = h("div", { class: "kit-picture" });
   const steps = h("ol", { class: "kit-steps" }, STEPS.map(([key, label]) => h("li", { dataset: { step: key } }, label)));
   const rows = h("ul", { class: "kit-devices", "aria-label": "Every wearable of the kit", "aria-live": "polite" });
+  const axesNote = h("p", { id: "kit-axes", class: "kit-axes", hidden: true });
   const saved = h("p", { id: "kit-saved", role: "status" });
   const actions = h("div", { class: "actions" });
   const root = h("section", { class: "panel kit", "aria-labelledby": "kit-title", dataset: { state: "connecting" } },
-    headline, sub, picture, steps, rows, saved, actions);
+    headline, sub, picture, steps, rows, axesNote, saved, actions);
   fill(ctx.main, root);
   ctx.focusMain();
 
@@ -85,6 +94,8 @@ export function kitView(ctx, kitId) {
       else li.removeAttribute("aria-current");
     }
     fill(rows, snap.devices.map(deviceRow));
+    axesNote.textContent = running ? "" : axesText(snap);
+    axesNote.hidden = !axesNote.textContent;
     if (running) {
       headline.textContent = snap.state === "reconnecting" ? "Keep the tray still: a wearable's link was lost" : forTray(snap.prompt) || "…";
       sub.textContent = snap.state === "reconnecting" ? snap.reason || "" : `All ${names.length} wearables are turned together, in their tray.`;
