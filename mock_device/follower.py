@@ -1,8 +1,10 @@
 """A simulated clinician's eyes: the session events of one wearable, read over HTTP as the page reads them.
 
-``SessionFollower`` runs in a thread of its own. It asks the service which session its wearable is in
-(``GET /devices/{id}``), follows that session's Server-Sent Events (``GET /sessions/{sid}/events``) and hands
-every snapshot to a callback, until the session ends; then it waits for the next one. A verification turn
+``SessionFollower`` runs in a thread of its own. Woken when its wearable starts streaming (``wake``: a session or a
+verification has connected to it), it asks the service which session its wearable is in (``GET /devices/{id}``),
+follows that session's Server-Sent Events (``GET /sessions/{sid}/events``) and hands every snapshot to a callback,
+until the session ends; then it waits for the next stream. While nothing streams it looks only every few seconds, so
+idle simulated wearables cost the service nothing. A verification turn
 (``GET /verifications/{id}``) is polled instead, and its request for the turn handed on as a prompt to turn. The service's address
 comes from a callable because a service learns its port only once it listens. ``KitFollower`` is the eyes of the clinician
 who turns a tray of wearables: it follows the events of the kit session that holds one of them, as the kit page does.
@@ -21,7 +23,9 @@ from typing import Any
 import httpx
 
 END_STATES = {"done", "failed", "cancelled"}
-POLL_S = 0.2  # between looks for the wearable's next session
+POLL_S = 0.2  # between looks for the session of a wearable that has started streaming, and a verification's polls
+LOOK_S = 3.0  # how long a wearable that started streaming is looked for in a session
+IDLE_LOOK_S = 5.0  # between looks while no wearable streams (a stream the follower was not woken for is found then)
 
 
 class SessionFollower:
@@ -34,6 +38,7 @@ class SessionFollower:
         token = os.environ.get("GYROCAL_API_TOKEN")  # needed only when the service asks a token for reads
         self.headers = {"Authorization": f"Bearer {token}"} if token else {}
         self._stop = threading.Event()
+        self._woken = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"follow-{device_id}", daemon=True)
 
     def start(self) -> SessionFollower:
@@ -44,21 +49,37 @@ class SessionFollower:
 
     def stop(self) -> None:
         self._stop.set()
+        self._woken.set()
+
+    def wake(self) -> None:
+        """The wearable started streaming: look for its session now (from any thread)."""
+        self._woken.set()
 
     def _run(self) -> None:
         done: set[str] = set()
         while not self._stop.is_set():
-            base = self.base_url()
-            sid = None
-            if base:
-                try:
-                    sid = self._active_session(base)
-                    if sid and sid not in done:
-                        self._follow(base, sid)
-                        done.add(sid)
-                except (httpx.HTTPError, ValueError):
-                    pass  # the service is starting or stopping: look again
-            self._stop.wait(POLL_S)
+            woken = self._woken.wait(IDLE_LOOK_S)
+            self._woken.clear()
+            until = time.monotonic() + (LOOK_S if woken else 0.0)
+            while not self._stop.is_set():
+                if self._look(done) or time.monotonic() >= until:
+                    break
+                self._stop.wait(POLL_S)
+
+    def _look(self, done: set[str]) -> bool:
+        """Follow the wearable's session to its end if it is in one not followed yet; whether it was."""
+        base = self.base_url()
+        if not base:
+            return False
+        try:
+            sid = self._active_session(base)
+            if sid and sid not in done:
+                self._follow(base, sid)
+                done.add(sid)
+                return True
+        except (httpx.HTTPError, ValueError):
+            pass  # the service is starting or stopping: look again
+        return False
 
     def _active_session(self, base: str) -> str | None:
         r = httpx.get(f"{base}/devices/{self.device_id}", headers=self.headers, timeout=5.0)

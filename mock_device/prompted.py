@@ -12,6 +12,7 @@ sample already produced is kept as it was.
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -35,6 +36,7 @@ class PromptedSource(ScriptedSource):
         self.segments: list[Segment] = [Still(REST_AHEAD_S)]
         self._delivered = 0  # samples handed out so far: what is past cannot change
         self._lock = threading.Lock()  # the hand sees snapshots on one thread and acts on the streaming one
+        self.streaming: Callable[[], None] | None = None  # told when a stream starts (the hand's eyes look then)
 
     def observe(self, snap: dict[str, Any]) -> None:
         """A snapshot of the session, as the page gets it: the hand reads it (from any thread)."""
@@ -55,6 +57,8 @@ class PromptedSource(ScriptedSource):
         self.hand = PromptHand(self.style, np.random.default_rng([self.seed, 0x4A4D, self.session]), device_k=self.params.k)
         self.segments = [Still(REST_AHEAD_S)]
         self._delivered = 0
+        if self.streaming is not None:
+            self.streaming()
 
     def block(self, start: int, end: int) -> Block:
         if self._fs is not None:

@@ -16,6 +16,7 @@ Each streaming session of a wearable joins a performance of the tray, as with th
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -127,12 +128,15 @@ class PromptedKitSource:
         self._fs = 0.0
         params = tray.params[self.index]
         self.truth: dict[str, object] = {"k": params.k.tolist(), "b": params.b.tolist()}
+        self.streaming: Callable[[], None] | None = None  # told when a stream starts (the hand's eyes look then)
 
     def prepare(self, fs_hz: float) -> None:
         self.session += 1
         self._performance, self._fs = self.tray.performance_now(), float(fs_hz)
         params = self.tray.params[self.index]
         self.truth = {"k": params.k.tolist(), "b": params.b.tolist(), "K": params.K.tolist(), "slip_deg": 0.0}
+        if self.streaming is not None:
+            self.streaming()
 
     def block(self, start: int, end: int) -> Block:
         assert self._performance is not None, "prepare() first"

@@ -36,7 +36,7 @@ def wearable(*, seed: int, scenario: str, speed: float, name: str, rate_hz: floa
     source: SampleSource
     if scenario.startswith(HAND_PREFIX):
         prompted = PromptedSource(seed=seed, hand=scenario[len(HAND_PREFIX):], noise_dps=noise_dps)
-        SessionFollower(name, prompted.observe_now, service_url or (lambda: None)).start()
+        prompted.streaming = SessionFollower(name, prompted.observe_now, service_url or (lambda: None)).start().wake
         source = prompted
     else:
         source = ScriptedSource(seed=seed, scenario=scenario, noise_dps=noise_dps)
@@ -59,8 +59,11 @@ def kit(*, seed: int, n: int, speed: float, names: list[str], rate_hz: float | N
     if hand is not None:
         prompted = PromptedTray(seed, n, hand.removeprefix(HAND_PREFIX), noise_dps=noise_dps, loose=loose,
                                 misalignment=misalignment)
-        KitFollower(names, prompted.observe, service_url or (lambda: None)).start()
-        sources = [PromptedKitSource(prompted, i) for i in range(n)]
+        follower = KitFollower(names, prompted.observe, service_url or (lambda: None)).start()
+        in_tray = [PromptedKitSource(prompted, i) for i in range(n)]
+        for one in in_tray:
+            one.streaming = follower.wake
+        sources = list(in_tray)
     else:
         tray = Tray(seed, n, noise_dps=noise_dps, loose=loose, drop=drop, misalignment=misalignment)
         sources = [KitSource(tray, i) for i in range(n)]
