@@ -132,8 +132,9 @@ def kit_axes(mean: CalibrationResult, maps: Sequence[tuple[LinearMap, ClockMap]]
            (False, True): "the reference's non-orthogonality is the kit's turns' finding",
            (True, True): "the kit's mean non-orthogonality is weighed between zero and the kit's turns' finding"}
     return KitAxes(True, _with_tilt(ref, tilt, tilt_std), chi2, dof, p_value, spread,
-                   f"the wearables' axes are {'not ' if differ else ''}orthogonal alike ({p_text}); "
-                   f"{how[(differ, mean.K is not None)]}, known to {float(np.max(tilt_std)):.1e}")
+                   ("the wearables' axes are not orthogonal alike" if differ else "the wearables' axes agree within their noise")
+                   + f" ({p_text}); "
+                   + f"{how[(differ, mean.K is not None)]}, known to {float(np.max(tilt_std)):.1e}")
 
 
 def _with_tilt(ref: RefCalibration, tilt: np.ndarray, tilt_std: np.ndarray | float = 0.0) -> RefCalibration:
