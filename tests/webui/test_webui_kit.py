@@ -25,6 +25,21 @@ def kit_service() -> Iterator[Any]:
         yield svc
 
 
+def _wait_done(page: Any, service: Any, kit_id: str) -> None:
+    """Wait for the page to show the kit done; if it does not, say where the kit and its wearables stood, and what the
+    service logged, rather than only that the page did not change."""
+    from playwright.sync_api import TimeoutError as PageTimeout
+
+    try:
+        page.wait_for_selector(".kit[data-state='done']", timeout=60_000)
+    except PageTimeout:
+        with api(service) as c:
+            snap = c.get(f"/sessions/{kit_id}").json()
+        where = [(d["device_id"], d["state"], d.get("phase"), d.get("prompt")) for d in snap.get("devices", [])]
+        pytest.fail(f"the page shows {page.get_attribute('.kit', 'data-state')!r}; the kit is {snap.get('state')!r}, "
+                    f"its wearables {where}; the service's log ends:\n{service.output()[-3000:]}")
+
+
 def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_passed_accepted_at_once(
         browser: Any, kit_service: Any, page_watch: Watch, artifacts: Any) -> None:
     with watched_page(browser, kit_service, page_watch) as page:
@@ -55,7 +70,7 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
             assert page.locator(".kit-device").count() == 3
             if axis == "x":
                 wizard.shot("kit-turn-x")
-        page.wait_for_selector(".kit[data-state='done']", timeout=60_000)
+        _wait_done(page, kit_service, kit_id)
         assert page.inner_text(".kit-prompt") == "Kit calibrated: 2 of 3 passed"
         assert "mock-4 came apart from the kit" in page.inner_text(".kit-sub")
         for device in ("mock-2", "mock-3"):
