@@ -100,8 +100,9 @@ def kit_summary(kit: Any) -> str:
         lines.append(head + f"k = {fmt_vec(r.k, 6)} ± {fmt_vec(r.k_std, 6)}")
         lines.append(" " * len(head) + f"b = {fmt_vec(r.b, 4)} ± {fmt_vec(r.b_std, 4)} deg/s")
         if r.K is not None and r.K_std is not None:
-            upper = ([0, 0, 1], [1, 2, 2])
-            lines.append(" " * len(head) + f"K_xy, K_xz, K_yz = {fmt_vec(r.K[upper], 5)} ± {fmt_vec(r.K_std[upper], 5)}")
+            from calib.kit.members import UPPER
+
+            lines.append(" " * len(head) + f"K_xy, K_xz, K_yz = {fmt_vec(r.K[UPPER], 5)} ± {fmt_vec(r.K_std[UPPER], 5)}")
         clock = m.clock.to_dict()
         extra = [f"clock {clock['rate_ppm']:+.0f} ppm" if clock["rate_ppm"] is not None else "clock unknown"]
         if np.isfinite(m.mount_deg):

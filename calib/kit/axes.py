@@ -29,7 +29,7 @@ from calib.estimators.closure.estimator import EXTENDED_ALPHA
 from calib.json_safe import finite
 from calib.kit.clocks import ClockMap
 from calib.kit.coupling import LinearMap
-from calib.kit.members import UPPER, RefCalibration, member_params, member_tilt
+from calib.kit.members import UPPER, RefCalibration, member_params, member_tilt, tilt_of
 from calib.result import CalibrationResult
 from calib.stages.stage import Stage
 
@@ -96,7 +96,7 @@ def kit_axes(mean: CalibrationResult, maps: Sequence[tuple[LinearMap, ClockMap]]
     (none, for a diagonal K), so they are corrected for the common tilt the kit settles on and carry its uncertainty."""
     ref = reference(mean)
     k = np.diag(ref.K)
-    turned = (ref.K / k[None, :])[UPPER]  # the reference's tilt as the kit's turns found it (0: not identified)
+    turned = tilt_of(ref.K)  # the reference's tilt as the kit's turns found it (0: not identified)
     turned_std = ref.K_std[UPPER] / k[UPPER[1]] if mean.K is not None else np.full(3, np.inf)
     if len(maps) < 2:
         return KitAxes(mean.K is not None, ref, float("nan"), 0, float("nan"), float("nan"), "one wearable left")

@@ -94,8 +94,12 @@ def derive(p: np.ndarray, full: bool) -> np.ndarray:
     M = A @ np.linalg.inv(K_ref)
     K, R = _split(M, full)
     b = R @ b_ref - K @ c
-    k = np.diag(K)
-    return np.concatenate([k * rate, b * rate, (K / k[None, :])[UPPER]])
+    return np.concatenate([np.diag(K) * rate, b * rate, tilt_of(K)])
+
+
+def tilt_of(K: np.ndarray) -> np.ndarray:
+    """The tilt of an upper-triangular K: the entries above the diagonal of K D^-1 (D = diag(k))."""
+    return (K / np.diag(K)[None, :])[UPPER]
 
 
 def _split(M: np.ndarray, full: bool) -> tuple[np.ndarray, np.ndarray]:
