@@ -20,10 +20,10 @@ Loose wearables: ``--sessions`` kits where one wearable (drawn) slips by 1-3 deg
 exactly that wearable is flagged; and the share of the kits above (nothing slipped) where any wearable is flagged.
 
 ``--guided K``: instead, K guided kit sessions of ``--kits``' first size through the real service (`gyrocal serve --mock N
---mock-kit --mock-speed 8`): the clinician's time per wearable, the device time from the start to the kit's result
-over N, and how many wearables passed. The tray is turned by its scripted clinician (5 s rests), or with ``--hand
-STYLE`` by a clinician who follows the kit's prompts (mock_device.hand's styles: careful, hurried, ...), reading
-them as the kit page does.
+--mock-kit --mock-speed 8`, with ``--misalignment`` its ``--mock-kit-misalignment``): the clinician's time per
+wearable, the device time from the start to the kit's result over N, and how many wearables passed. The tray is
+turned by its scripted clinician (5 s rests), or with ``--hand STYLE`` by a clinician who follows the kit's prompts
+(mock_device.hand's styles: careful, hurried, ...), reading them as the kit page does.
 """
 
 from __future__ import annotations
@@ -126,9 +126,9 @@ def _table(n: int, sessions: list[dict]) -> dict:
         }
 
 
-def _guided(n: int, sessions: int, hand: str | None = None, speed: float = 8.0) -> dict:
+def _guided(n: int, sessions: int, hand: str | None = None, speed: float = 8.0, misalignment: float = 0.0) -> dict:
     """``sessions`` guided kit sessions of ``n`` simulated wearables through `gyrocal serve --mock-kit` (``hand``: the
-    prompt-following clinician's style; None: the scripted one)."""
+    prompt-following clinician's style; None: the scripted one; ``misalignment``: the tray's sensors' axes)."""
     import os
     import signal
     import subprocess
@@ -144,7 +144,8 @@ def _guided(n: int, sessions: int, hand: str | None = None, speed: float = 8.0) 
     env = {**os.environ, "GYROCAL_API_TOKEN": "bench"}
     proc = subprocess.Popen([sys.executable, "-m", "calib.cli.main", "serve", "--port", str(port), "--db",
                              f"sqlite:///{tmp / 'store.sqlite3'}", "--mock", str(n), "--mock-kit", "--mock-speed", str(speed),
-                             *(["--mock-scenario", f"hand:{hand}"] if hand else []), "--log-level", "warning"],
+                             *(["--mock-scenario", f"hand:{hand}"] if hand else []),
+                             *(["--mock-kit-misalignment", str(misalignment)] if misalignment else []), "--log-level", "warning"],
                             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
     c = httpx.Client(base_url=f"http://127.0.0.1:{port}", headers={"Authorization": "Bearer bench"}, timeout=60)
     per_device, passed = [], []
@@ -167,7 +168,7 @@ def _guided(n: int, sessions: int, hand: str | None = None, speed: float = 8.0) 
     finally:
         proc.send_signal(signal.SIGINT)
         proc.wait(timeout=20)
-    return {"kit": n, "sessions": sessions, "hand": hand or "scripted",
+    return {"kit": n, "sessions": sessions, "hand": hand or "scripted", "misalignment": misalignment,
             "seconds_per_wearable_median": float(np.median(per_device)), "passed_median": float(np.median(passed)),
             "all_passed": float(np.mean([p == n for p in passed]))}
 
@@ -185,7 +186,7 @@ def main() -> None:
     args = ap.parse_args()
     sizes = [int(v) for v in args.kits.split(",")]
     if args.guided:
-        out = _guided(sizes[0], args.guided, args.hand)
+        out = _guided(sizes[0], args.guided, args.hand, misalignment=args.misalignment)
         print(f"guided kits of {out['kit']} ({out['hand']} clinician): clinician time {out['seconds_per_wearable_median']:.1f} s "
               f"per wearable (median of {out['sessions']}); {out['passed_median']:.0f} of {out['kit']} passed (median), all "
               f"passed in {100 * out['all_passed']:.0f} %")

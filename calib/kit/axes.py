@@ -3,22 +3,24 @@
 The coupling fixes A_i = K_i^-1 R_i K_ref for every wearable, so each one's upper-triangular K_i follows from the
 reference's K_ref (``calib.kit.members``). What it cannot fix is K_ref's own non-orthogonality: changing K_ref by a
 small T moves every wearable's tilt (the off-diagonal entries of K D^-1) by one and the same amount, the symmetric part
-of T. Turns about the sensor axes do not fix it either (``calib.estimators.closure``: turns about axes between them
-would). So:
+of T. Turns about the sensor axes show it only through the hand's wobble, often some entries and not others
+(``calib.estimators.closure``). So:
 
-- where the kit's mean recording identified its non-orthogonality (the closure estimator chose the extended model),
-  K_ref is that and every wearable's K follows;
-- otherwise the kit fixes the common part by taking its sensors' tilts to average zero. Sensors made one by one have
+- the wearables get an upper-triangular K only when their tilts differ beyond their noise (the χ² of the tilts with
+  3 (N - 1) degrees of freedom, p below the closure estimator's ``EXTENDED_ALPHA``); otherwise a diagonal K, as alone,
+  or the extended K the kit's mean recording identified on its own;
+- where they differ, the kit takes its sensors' tilts to average zero. Sensors made one by one have
   non-orthogonalities of their own, so each wearable's is then known to the kit's mean of them, sd / √N, against its
   whole sd when calibrated alone (which cannot see it at all). That common part's uncertainty is the kit's own spread
   of tilts over √N (widened as a t-distribution with 3 (N - 1) degrees of freedom would be);
-- the wearables get an upper-triangular K only when their tilts differ beyond their noise (the χ² of the tilts with
-  3 (N - 1) degrees of freedom, p below the closure estimator's ``EXTENDED_ALPHA``); otherwise a diagonal K, as alone.
+- that zero mean is a prior on the reference's tilt: the kit's mean recording is calibrated again with the closure
+  estimator's extended model under it, so what the wobble shows of each entry is weighed in, and K's diagonal is fitted
+  with the tilt (a tilt lengthens a turn whose axis is off the sensor's, and the turns' closure would put that in k).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -26,12 +28,12 @@ import numpy as np
 
 from calib.distributions import chi2_sf
 from calib.estimators.closure.estimator import EXTENDED_ALPHA
+from calib.estimators.closure.fit import OffDiagonalPrior
 from calib.json_safe import finite
 from calib.kit.clocks import ClockMap
 from calib.kit.coupling import LinearMap
 from calib.kit.members import UPPER, RefCalibration, member_params, member_tilt, tilt_of
 from calib.result import CalibrationResult
-from calib.stages.stage import Stage
 
 GAUGE_PASSES = 4  # the common part moves every tilt by the same amount to first order: a few passes settle it
 
@@ -68,32 +70,14 @@ def reference(mean: CalibrationResult) -> RefCalibration:
                           entries(mean.K_std, mean.k_bound), nan3 if mean.b_bound is None else np.asarray(mean.b_bound))
 
 
-def turn_weights(rates: np.ndarray, stages: Sequence[Stage]) -> np.ndarray:
-    """(3 axes, 3 tilt entries): how much each tilt entry lengthens the turns about each axis, per unit tilt.
-
-    A calibrated rate g read with K's tilt left out misses Ñ g (Ñ: the tilt's strictly upper matrix), which lengthens a
-    turn by ∫ ĝ·Ñ g dt / ∫ |g| dt of its angle: sum over the turn of g_p g_q / |g| per entry (p, q), over sum |g|.
-    The turns' closure made up for it in k, so k carries minus that, per axis (the turns about it averaged)."""
-    out, count = np.zeros((3, 3)), np.zeros(3)
-    for stage in stages:
-        if stage.kind != "turn" or stage.axis not in ("x", "y", "z"):
-            continue
-        g = rates[stage.start:stage.end]
-        g = g[np.all(np.isfinite(g), axis=1)]
-        speed = np.linalg.norm(g, axis=1)
-        if not speed.sum() > 0:
-            continue
-        moving = speed > 0
-        a = "xyz".index(stage.axis)
-        out[a] += np.sum(g[moving][:, UPPER[0]] * g[moving][:, UPPER[1]] / speed[moving, None], axis=0) / speed.sum()
-        count[a] += 1
-    return out / np.maximum(count, 1)[:, None]
+Refit = Callable[[OffDiagonalPrior], CalibrationResult]
 
 
-def kit_axes(mean: CalibrationResult, maps: Sequence[tuple[LinearMap, ClockMap]], weights: np.ndarray) -> KitAxes:
+def kit_axes(mean: CalibrationResult, maps: Sequence[tuple[LinearMap, ClockMap]], refit: Refit | None = None) -> KitAxes:
     """The axes model of a kit whose mean calibration is ``mean``, from each wearable's map and clock (the reference's
-    included, as the identity) and the mean's ``turn_weights``: its k were fitted with its tilt as the turns found it
-    (none, for a diagonal K), so they are corrected for the common tilt the kit settles on and carry its uncertainty."""
+    included, as the identity). ``refit`` calibrates the kit's mean recording again with a prior on K's off-diagonal
+    terms (the closure estimator's extended model): where the wearables' tilts differ, the kit's zero mean is that
+    prior, weighed with what the turns' wobble shows of the reference's tilt, and K's diagonal is fitted with it."""
     ref = reference(mean)
     k = np.diag(ref.K)
     turned = tilt_of(ref.K)  # the reference's tilt as the kit's turns found it (0: not identified)
@@ -115,26 +99,25 @@ def kit_axes(mean: CalibrationResult, maps: Sequence[tuple[LinearMap, ClockMap]]
     p_text = f"p = {p_value:.2g}" if p_value >= 1e-12 else "p < 1e-12"
     spread = float(np.sqrt(np.sum((tilts - tilts.mean(axis=0)) ** 2) / dof))
     differ = p_value < EXTENDED_ALPHA
-    if not differ and mean.K is None:
-        return KitAxes(False, ref, chi2, dof, p_value, spread,
-                       f"the wearables' axes agree within their noise ({p_text}): diagonal K")
-    # the kit's mean tilt taken as zero, known to the kit's spread over sqrt(N) (as a t-distribution's sd), and the
-    # turns' finding where they identified it: each weighed by how well it knows the common tilt
-    gauge = spread / np.sqrt(len(maps)) * np.sqrt(dof / (dof - 2)) if differ else np.inf
-    w_turned, w_gauge = 1.0 / turned_std**2, 1.0 / gauge**2
-    tilt = (turned * w_turned + common * w_gauge) / (w_turned + w_gauge)
-    tilt_std = 1.0 / np.sqrt(w_turned + w_gauge)
-    k = k * (1.0 - weights @ (tilt - turned))
-    widen = k * np.sqrt((weights**2) @ np.where(np.isfinite(turned_std), 0.0, tilt_std**2))  # not in the turns' fit
-    ref = RefCalibration(np.diag(k), ref.b, np.diag(np.hypot(np.diag(ref.K_std), widen)), ref.b_std,
-                         np.diag(np.hypot(np.diag(ref.K_bound), widen)), ref.b_bound)
-    how = {(True, False): "the kit's mean non-orthogonality is taken as zero",
-           (False, True): "the reference's non-orthogonality is the kit's turns' finding",
-           (True, True): "the kit's mean non-orthogonality is weighed between zero and the kit's turns' finding"}
+    agree = f"the wearables' axes agree within their noise ({p_text})"
+    if not differ:
+        how = "diagonal K" if mean.K is None else "the reference's non-orthogonality is the kit's turns' finding"
+        return KitAxes(mean.K is not None, ref, chi2, dof, p_value, spread, f"{agree}: {how}")
+    # the kit's mean tilt taken as zero, known to the kit's spread over sqrt(N) (as a t-distribution's sd)
+    gauge = spread / np.sqrt(len(maps)) * np.sqrt(dof / (dof - 2))
+    if refit is not None:
+        scale = k[UPPER[1]]  # K's entry above the diagonal is the tilt times the scale factor of its column
+        ref = reference(refit(OffDiagonalPrior(common * scale, np.full(3, gauge) * scale)))
+        k = np.diag(ref.K)
+        tilt, tilt_std = tilt_of(ref.K), ref.K_std[UPPER] / k[UPPER[1]]
+        how = "the kit's mean non-orthogonality taken as zero, weighed with what the turns' wobble shows of it"
+    else:  # a mean calibrated otherwise (its K fitted whole, or diagonal): the two findings weighed, K's diagonal kept
+        w_turned, w_gauge = 1.0 / turned_std**2, 1.0 / gauge**2
+        tilt = (turned * w_turned + common * w_gauge) / (w_turned + w_gauge)
+        tilt_std = 1.0 / np.sqrt(w_turned + w_gauge)
+        how = "the kit's mean non-orthogonality taken as zero" + ("" if mean.K is None else ", weighed with the turns' finding")
     return KitAxes(True, _with_tilt(ref, tilt, tilt_std), chi2, dof, p_value, spread,
-                   ("the wearables' axes are not orthogonal alike" if differ else "the wearables' axes agree within their noise")
-                   + f" ({p_text}); "
-                   + f"{how[(differ, mean.K is not None)]}, known to {float(np.max(tilt_std)):.1e}")
+                   f"the wearables' axes are not orthogonal alike ({p_text}); {how}: known to {float(np.max(tilt_std)):.1e}")
 
 
 def _with_tilt(ref: RefCalibration, tilt: np.ndarray, tilt_std: np.ndarray | float = 0.0) -> RefCalibration:

@@ -21,8 +21,10 @@ from typing import Any
 import numpy as np
 
 from calib.errors import GyrocalError
+from calib.estimators.closure.estimator import calibrate_closure
+from calib.estimators.closure.fit import OffDiagonalPrior
 from calib.judge.acceptance import misclosure
-from calib.kit.axes import KitAxes, kit_axes, turn_weights
+from calib.kit.axes import KitAxes, kit_axes
 from calib.kit.clocks import IDENTITY, ClockMap, coarse_clock
 from calib.kit.coupling import IDENTITY_MAP, Coupling, LinearMap, couple, fit_map, reading_noise, resting
 from calib.kit.departure import BURST_DPS, DEPARTURE_DEG, NO_DEPARTURE, departures
@@ -75,8 +77,8 @@ def calibrate_kit(recordings: Sequence[Recording], names: Sequence[str] | None =
         left_out.append(blamed)
         members.remove(blamed)
     say(0.9, "each wearable's calibration")
-    weights = turn_weights(solved.kit_rate, solved.mean.stages)
-    axes = kit_axes(solved.mean, [(solved.maps[i], solved.clocks[i]) for i in members], weights)
+    axes = kit_axes(solved.mean, [(solved.maps[i], solved.clocks[i]) for i in members],
+                    _refit(solved, heading_prior_deg))
     out = _members(recordings, names, solved, members, axes)
     for i in left_out:
         alone.setdefault(i, _alone(recordings[i], protocol, heading_prior_deg))
@@ -88,18 +90,27 @@ def calibrate_kit(recordings: Sequence[Recording], names: Sequence[str] | None =
     return KitResult(out, names[solved.ref], solved.mean, warnings, axes.to_dict())
 
 
+def _refit(solved: _Solved, heading_prior_deg: float | None) -> Callable[[OffDiagonalPrior], CalibrationResult] | None:
+    """The kit's mean recording calibrated again, on its stages, with a prior on K's off-diagonal terms; None when the
+    mean was not calibrated by the closure estimator (its K was fitted otherwise)."""
+    if solved.mean.method != "closure":
+        return None
+    return lambda prior: calibrate_closure(solved.mean_rec, stages=solved.mean.stages, heading_prior_deg=heading_prior_deg,
+                                           offdiag_prior=prior)
+
+
 class _Solved:
     """The kit solved with the wearables ``members`` (the first the reference): clocks, each wearable's map from the
-    kit's mean, the mean's calibration, the times ``span`` of the mean's samples, the kit's calibrated rate and each
-    wearable's departure."""
+    kit's mean, the mean's recording and calibration, the times ``span`` of the mean's samples, and each wearable's
+    departure."""
 
-    def __init__(self, members: list[int], clocks: dict[int, ClockMap], maps: dict[int, LinearMap], span: np.ndarray,
+    def __init__(self, members: list[int], clocks: dict[int, ClockMap], maps: dict[int, LinearMap], mean_rec: Recording,
                  mean: CalibrationResult, rates: np.ndarray, noise: np.ndarray, reading: dict[int, np.ndarray]) -> None:
-        self.ref, self.members, self.clocks, self.maps, self.span, self.mean = members[0], members, clocks, maps, span, mean
+        self.ref, self.members, self.clocks, self.maps, self.mean = members[0], members, clocks, maps, mean
+        self.mean_rec, self.span = mean_rec, mean_rec.t
         self.reading_noise = reading  # each wearable's readings' noise std per axis, deg/s
-        self.kit_rate = rates.mean(axis=0)  # the kit's calibrated rate in the reference's frame, deg/s
         rests = [(s.start, s.end) for s in mean.stages if s.kind == "still"]
-        self.departures = departures(rates, span, rests, noise) if len(members) >= 2 else [NO_DEPARTURE]
+        self.departures = departures(rates, self.span, rests, noise) if len(members) >= 2 else [NO_DEPARTURE]
 
 
 def _solve(recordings: Sequence[Recording], members: list[int], protocol: str, heading_prior_deg: float | None) -> _Solved:
@@ -140,7 +151,7 @@ def _solve(recordings: Sequence[Recording], members: list[int], protocol: str, h
     # calibrated, in the reference's frame; where a wearable lost samples, the kit's mean stands in (no departure)
     rates = np.array([np.where(np.isfinite(mapped[i]), mapped[i], mean_m) * k_ref + b_ref for i in members])
     rate_noise = np.array([np.sqrt(variance[i]) * k_ref for i in members])
-    return _Solved(members, clocks, maps, ref.t[rows], mean, rates, rate_noise, noise)
+    return _Solved(members, clocks, maps, mean_rec, mean, rates, rate_noise, noise)
 
 
 def _check_one_motion(coupling: Coupling, rec: Recording, ref: Recording) -> None:

@@ -14,6 +14,7 @@ from calib.effects import AxisMisalignment
 from calib.estimators.bounds import protocol_bound
 from calib.estimators.closure.batch import closure_batch, closure_fit_batch
 from calib.estimators.closure.estimator import calibrate_closure
+from calib.estimators.closure.fit import OffDiagonalPrior
 from calib.io.readers import read_recording
 from calib.numerics.rotation import closure_terms, left_jacobian, left_jacobian_inv, prefix_products, total_products
 from calib.pipeline import calibrate
@@ -295,6 +296,34 @@ def test_extended_model_refuses_when_the_turns_cannot_identify_it():
     rec, truth = simulate(95, noise=0.03, script=proto)
     with pytest.raises(CalibrationError, match="non-orthogonality"):
         calibrate_closure(rec, list(truth.stages), extended=True)
+
+
+def test_a_prior_on_the_non_orthogonality_is_weighed_with_what_the_turns_show_of_it():
+    params = SensorParams(np.array([1.05, 0.95, 1.1]), np.array([1.0, -2.0, 0.5]))
+    effect = AxisMisalignment(np.array([0.01, -0.008, 0.006]))  # K_xy, K_xz, K_yz
+    K_true = effect.matrix(params.k)
+    off = ([0, 0, 1], [1, 2, 2])
+    # turns about fixed sensor axes show nothing of the terms: the prior is all there is, and k is fitted with it
+    rec, truth = simulate(95, noise=0.03, params=params, script=script(*(Turn(a, 360.0, 3.5, wobble_deg=0.0, tilt=0)
+                                                                          for a in "xyz")), effects=(effect,))
+    prior_std = np.full(3, 0.002)
+    res = calibrate_closure(rec, list(truth.stages), heading_prior_deg=EXACT,
+                            offdiag_prior=OffDiagonalPrior(K_true[off] + 0.001, prior_std))
+    assert res.K is not None and res.K_std is not None and res.quality["model"] == "upper-triangular"
+    assert "prior" in res.quality["model_choice"]["reason"]
+    assert np.allclose(res.K[off], K_true[off] + 0.001, atol=3e-4)
+    assert np.allclose(res.K_std[off], prior_std, rtol=0.2)
+    # turns that identify the terms outweigh a loose prior centred on zero
+    diag_axes = [np.array(v, dtype=float) for v in ((1, 1, 0), (0, 1, 1), (1, 0, 1))]
+    rec, truth = simulate(90, noise=0.03, params=params, script=script(*(Turn(a, 360.0, 3.5)
+                                                                          for a in ("x", "y", "z", *diag_axes))),
+                          effects=(effect,))
+    res = calibrate_closure(rec, list(truth.stages), heading_prior_deg=EXACT,
+                            offdiag_prior=OffDiagonalPrior(np.zeros(3), np.full(3, 0.02)))
+    assert res.K is not None and res.K_std is not None
+    z = (res.K - K_true)[off] / res.K_std[off]
+    assert np.all(np.abs(z) < 5.0) and np.all(res.K_std[off] < 1e-4), z
+    assert np.all(np.abs((res.k - params.k) / res.k_std) < 5.0)
 
 
 # ------------------------------------------------------------------------------------------ the result

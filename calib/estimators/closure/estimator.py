@@ -26,7 +26,7 @@ from scipy.optimize import least_squares
 
 from calib.distributions import chi2_sf
 from calib.errors import CalibrationError, ProtocolError
-from calib.estimators.closure.fit import ClosureData, ClosureFit, start_values, system
+from calib.estimators.closure.fit import ClosureData, ClosureFit, OffDiagonalPrior, start_values, system
 from calib.estimators.closure.partial import not_turned_text, partial_start, turned_axes
 from calib.estimators.closure.placement import check_heading_prior, placement_model
 from calib.estimators.closure.report import OFFDIAG_WARN, closure_result
@@ -51,7 +51,8 @@ _LSQ = {"method": "lm", "xtol": 1e-10, "ftol": 1e-12, "gtol": 1e-10, "x_scale": 
 
 
 def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None = None,
-                      heading_prior_deg: float | None = None) -> CalibrationResult:
+                      heading_prior_deg: float | None = None,
+                      offdiag_prior: OffDiagonalPrior | None = None) -> CalibrationResult:
     """Calibrate one recording with the closure maximum-likelihood estimator (method "closure").
 
     stages: a list of Stage, a ProtocolStages, or None to detect them. Every full turn and every
@@ -60,7 +61,9 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None 
     ``OFFDIAG_WARN``) and the likelihood-ratio test finds them (p < ``EXTENDED_ALPHA``), and says which in
     ``quality["model_choice"]``. Each turn closes onto the pose the accelerometer saw it put back in, with the
     heading it cannot see carried as a prior of ``heading_prior_deg`` (None: ``HEADING_PRIOR_DEG``;
-    ``calib.estimators.closure.placement``). Raises RecordingError for bad input, ProtocolError when a stage is missing,
+    ``calib.estimators.closure.placement``). ``offdiag_prior`` fits the extended model with that prior on its terms,
+    weighed with what the recording shows of them (identified or not).
+    Raises RecordingError for bad input, ProtocolError when a stage is missing,
     CalibrationError when the recording does not determine the parameters (or the terms asked for).
     """
     check_calibration_input(rec)
@@ -93,6 +96,11 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None 
             raise CalibrationError(f"the extended model needs turns about every axis; {not_turned_text(turned)}")
         extended = False
         choice["reason"] = "not every axis was turned"
+    elif offdiag_prior is not None:
+        fit = _solve(data, np.concatenate((fit.theta, np.nan_to_num(offdiag_prior.mean))), extended=True,
+                     offdiag_prior=offdiag_prior)
+        extended = True
+        choice["reason"] = "asked for, weighed with a prior on its terms"
     elif extended:
         start = np.concatenate((fit.theta, np.zeros(3)))
         _check_identified(data, start)
@@ -145,20 +153,28 @@ def _choose_model(data: ClosureData, diagonal: ClosureFit) -> tuple[ClosureFit, 
 # --------------------------------------------------------------------------- fitting
 
 
-def _solve(data: ClosureData, theta0: np.ndarray, extended: bool, not_turned: np.ndarray | None = None) -> ClosureFit:
+def _solve(data: ClosureData, theta0: np.ndarray, extended: bool, not_turned: np.ndarray | None = None,
+           offdiag_prior: OffDiagonalPrior | None = None) -> ClosureFit:
     """least_squares with the turn weights held fixed, re-weighted at its solution until they settle.
 
     Residual-only evaluations use the cheap closure product; each Jacobian costs one full pass, and
     the pass that sets the weights doubles as the first Jacobian and as the final one. ``not_turned`` (3,): axes no
     turn was about, whose scale factors only the hand's wobble informs: each gets the prior N(1, ``NOT_TURNED_K_SD``),
-    a working sensor's range, so the turned axes' uncertainty includes what the others could be.
+    a working sensor's range, so the turned axes' uncertainty includes what the others could be. ``offdiag_prior``:
+    the extended model's terms' prior, each one with a finite std.
     """
     held = np.zeros(3, dtype=bool) if not_turned is None else np.asarray(not_turned, dtype=bool)
-    prior_rows = np.zeros((int(held.sum()), theta0.shape[0]))
-    prior_rows[np.arange(int(held.sum())), np.flatnonzero(held)] = 1.0 / NOT_TURNED_K_SD
+    index, centre, spread = np.flatnonzero(held), np.ones(int(held.sum())), np.full(int(held.sum()), NOT_TURNED_K_SD)
+    if offdiag_prior is not None:
+        known = np.isfinite(offdiag_prior.std) & (np.asarray(offdiag_prior.std) > 0)
+        index = np.concatenate((index, 6 + np.flatnonzero(known)))
+        centre = np.concatenate((centre, np.asarray(offdiag_prior.mean, dtype=float)[known]))
+        spread = np.concatenate((spread, np.asarray(offdiag_prior.std, dtype=float)[known]))
+    prior_rows = np.zeros((index.size, theta0.shape[0]))
+    prior_rows[np.arange(index.size), index] = 1.0 / spread
 
     def with_prior(res: np.ndarray, th: np.ndarray) -> np.ndarray:
-        return np.concatenate((res, (th[:3][held] - 1.0) / NOT_TURNED_K_SD))
+        return np.concatenate((res, (th[index] - centre) / spread))
 
     theta = theta0
     nfev = 0
@@ -206,6 +222,7 @@ def _solve(data: ClosureData, theta0: np.ndarray, extended: bool, not_turned: np
         nfev=nfev,
         converged=converged,
         not_turned=held,
+        priors=int(index.size),
     )
 
 

@@ -316,3 +316,13 @@ class ClosureFit:
     nfev: int
     converged: bool
     not_turned: np.ndarray | None = None  # (3,) axes no turn was about: their k had a prior, and is not determined
+    priors: int = 0  # rows of prior knowledge among the residuals: each one observation more
+
+
+@dataclass(frozen=True, eq=False)
+class OffDiagonalPrior:
+    """What is known of the extended model's K_xy, K_xz, K_yz besides the recording: a normal prior of ``mean`` and
+    ``std`` (3,) each (an infinite std: nothing). A kit knows its sensors' non-orthogonalities average zero."""
+
+    mean: np.ndarray
+    std: np.ndarray

@@ -41,7 +41,7 @@ def closure_result(
         raise CalibrationError("the recording does not determine all parameters: turn the device about each axis") from None
     bound = np.sqrt(np.abs(np.diag(cov)))
     chi2 = float(fit.res @ fit.res)
-    dof = int(data.dof(extended)[0]) + int(held.sum())  # each prior is one more observation
+    dof = int(data.dof(extended)[0]) + fit.priors  # each prior is one more observation
     birge = float(np.sqrt(max(1.0, chi2 / dof))) if dof > 0 else 1.0
     p_value = float(chi2_sf(chi2, dof)) if dof > 0 else float("nan")
     std = bound * birge
