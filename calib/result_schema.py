@@ -82,6 +82,8 @@ class CalibrationParameters(BaseModel):
     G: list[list[float]] | None = Field(None, description="the g-sensitivity of g = K (m - G a) + b, (deg/s)/g; None: not "
                                                           "modelled")
     uncertainty: Spread | None = Field(None, description="1-sigma standard errors of k and b")
+    K_std: Matrix | None = Field(None, description="1-sigma standard errors of K's entries, with K")
+    G_std: Matrix | None = Field(None, description="1-sigma standard errors of G's entries, with G")
     method: str = Field(description="the estimator: closure, paper, ferraris, multi-position, ...")
 
 
@@ -102,8 +104,6 @@ class ResultDoc(CalibrationParameters):
     quality: Quality = Field(default_factory=lambda: Quality(), description="how well the calibration is determined "
                              "and what it was made from (calib.quality: every key optional; each estimator adds its own)")
     bound: Spread | None = Field(None, description="the Cramer-Rao bound of k and b for the recorded protocol")
-    K_std: Matrix | None = None
-    G_std: Matrix | None = None
     noise_dps: Vector | None = Field(None, description="per-axis white-noise std at rest, deg/s")
     residuals: Residuals = Field(default_factory=Residuals)
     warnings: list[str] = Field(default_factory=list)

@@ -81,6 +81,8 @@ def calibration_record(row: CalibrationRow) -> CalibrationRecord:
         b=[row.b_x, row.b_y, row.b_z],
         K=(row.result or {}).get("K"),
         G=(row.result or {}).get("G"),
+        K_std=(row.result or {}).get("K_std"),
+        G_std=(row.result or {}).get("G_std"),
         uncertainty=row.uncertainty,
         quality=row.quality,
         method=row.method,

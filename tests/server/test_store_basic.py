@@ -228,6 +228,19 @@ def test_a_calibration_result_goes_into_the_store_and_comes_back_the_same(store_
     assert cal.k == [float(v) for v in back.k] and cal.b == [float(v) for v in back.b]
     assert cal.uncertainty is not None and cal.uncertainty.model_dump() == result.to_json()["uncertainty"]
     assert cal.method == result.method
+    assert cal.K is None and cal.K_std is None
+
+
+def test_a_full_k_is_kept_with_its_uncertainty(store_url: str) -> None:
+    K = [[1.01, 0.004, -0.002], [0.0, 0.99, 0.003], [0.0, 0.0, 1.02]]
+    K_std = [[1e-4, 2e-3, 2e-3], [0.0, 1e-4, 2e-3], [0.0, 0.0, 1e-4]]
+    result = CalibrationResult.from_dict({**RESULT_JSON, "K": K, "K_std": K_std, "quality": {"model": "upper-triangular"}})
+    s = Store(store_url)
+    _done_session(s, "k" * 32, result=result)
+    cal = s.accept("k" * 32, "alice")
+    assert cal.K == K and cal.K_std == K_std
+    current = s.current_calibration("dev-1")
+    assert current is not None and current.K_std == K_std
 
 
 def test_a_kits_wearables_are_accepted_all_in_one_transaction_or_none(store_url: str) -> None:

@@ -105,9 +105,10 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
                 error = np.abs(np.array(saved["k"]) - truth["k"])
                 assert np.all(error < 3e-3), error  # the tray turned by hand as prompted gives the wearables' k
                 # ... and its full K, whose cross-axis entries the kit knows to the mean of its two wearables' (gauge)
-                K, K_std, K_true = (np.array(v) for v in (saved["K"], results[device]["K_std"], truth["K"]))
+                K, K_std, K_true = (np.array(v) for v in (saved["K"], saved["K_std"], truth["K"]))
                 assert saved["quality"]["model"] == "upper-triangular" and np.allclose(np.tril(K, -1), 0.0)
-                assert np.array_equal(K, results[device]["K"])  # the K stored is the K the kit's result showed
+                # the K stored, with its uncertainty, is the K the kit's result showed
+                assert np.array_equal(K, results[device]["K"]) and np.array_equal(K_std, results[device]["K_std"])
                 upper = np.triu_indices(3, 1)
                 assert np.all(np.abs(K - K_true)[upper] < 4.5 * K_std[upper]), (K - K_true, K_std)
             assert c.get("/devices/mock-4/calibration").status_code == 404
