@@ -28,7 +28,7 @@ import numpy as np
 
 from calib.distributions import chi2_sf
 from calib.estimators.closure.estimator import EXTENDED_ALPHA
-from calib.estimators.closure.fit import OffDiagonalPrior
+from calib.estimators.closure.fit import KPrior
 from calib.json_safe import finite
 from calib.kit.clocks import ClockMap
 from calib.kit.coupling import LinearMap
@@ -70,7 +70,7 @@ def reference(mean: CalibrationResult) -> RefCalibration:
                           entries(mean.K_std, mean.k_bound), nan3 if mean.b_bound is None else np.asarray(mean.b_bound))
 
 
-Refit = Callable[[OffDiagonalPrior], CalibrationResult]
+Refit = Callable[[KPrior], CalibrationResult]
 
 
 def kit_axes(mean: CalibrationResult, maps: Sequence[tuple[LinearMap, ClockMap]], refit: Refit | None = None) -> KitAxes:
@@ -107,7 +107,9 @@ def kit_axes(mean: CalibrationResult, maps: Sequence[tuple[LinearMap, ClockMap]]
     gauge = spread / np.sqrt(len(maps)) * np.sqrt(dof / (dof - 2))
     if refit is not None:
         scale = k[UPPER[1]]  # K's entry above the diagonal is the tilt times the scale factor of its column
-        ref = reference(refit(OffDiagonalPrior(common * scale, np.full(3, gauge) * scale)))
+        prior_K, prior_std = np.diag(k), np.full((3, 3), np.inf)  # nothing known of K's diagonal but what the turns show
+        prior_K[UPPER], prior_std[UPPER] = common * scale, gauge * scale
+        ref = reference(refit(KPrior(prior_K, prior_std)))
         k = np.diag(ref.K)
         tilt, tilt_std = tilt_of(ref.K), ref.K_std[UPPER] / k[UPPER[1]]
         how = "the kit's mean non-orthogonality taken as zero, weighed with what the turns' wobble shows of it"

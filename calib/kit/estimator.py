@@ -22,10 +22,10 @@ import numpy as np
 
 from calib.errors import GyrocalError
 from calib.estimators.closure.estimator import calibrate_closure
-from calib.estimators.closure.fit import OffDiagonalPrior
+from calib.estimators.closure.fit import KPrior
 from calib.judge.acceptance import misclosure
 from calib.kit.axes import KitAxes, kit_axes
-from calib.kit.clocks import IDENTITY, ClockMap, coarse_clock
+from calib.kit.clocks import IDENTITY, ClockMap, coarse_clock, gaps
 from calib.kit.coupling import IDENTITY_MAP, Coupling, LinearMap, couple, fit_map, reading_noise, resting
 from calib.kit.departure import BURST_DPS, DEPARTURE_DEG, NO_DEPARTURE, departures
 from calib.kit.members import PARAMETERS, MemberParams, member_params, rest_bias
@@ -79,7 +79,7 @@ def calibrate_kit(recordings: Sequence[Recording], names: Sequence[str] | None =
     say(0.9, "each wearable's calibration")
     axes = kit_axes(solved.mean, [(solved.maps[i], solved.clocks[i]) for i in members],
                     _refit(solved, heading_prior_deg))
-    out = _members(recordings, names, solved, members, axes)
+    out = _members(recordings, names, solved, members, axes, heading_prior_deg)
     for i in left_out:
         alone.setdefault(i, _alone(recordings[i], protocol, heading_prior_deg))
         out[i] = _departed_member(names[i], alone[i], len(recordings), *seen[i])
@@ -90,13 +90,13 @@ def calibrate_kit(recordings: Sequence[Recording], names: Sequence[str] | None =
     return KitResult(out, names[solved.ref], solved.mean, warnings, axes.to_dict())
 
 
-def _refit(solved: _Solved, heading_prior_deg: float | None) -> Callable[[OffDiagonalPrior], CalibrationResult] | None:
+def _refit(solved: _Solved, heading_prior_deg: float | None) -> Callable[[KPrior], CalibrationResult] | None:
     """The kit's mean recording calibrated again, on its stages, with a prior on K's off-diagonal terms; None when the
     mean was not calibrated by the closure estimator (its K was fitted otherwise)."""
     if solved.mean.method != "closure":
         return None
     return lambda prior: calibrate_closure(solved.mean_rec, stages=solved.mean.stages, heading_prior_deg=heading_prior_deg,
-                                           offdiag_prior=prior)
+                                           k_prior=prior)
 
 
 class _Solved:
@@ -186,7 +186,7 @@ def _mapped_variance(linear: LinearMap, noise: np.ndarray) -> np.ndarray:
 
 
 def _members(recordings: Sequence[Recording], names: list[str], solved: _Solved, members: list[int],
-             axes: KitAxes) -> list[KitMember]:
+             axes: KitAxes, heading_prior_deg: float | None) -> list[KitMember]:
     mean = solved.mean
     out: list[KitMember] = [None] * len(recordings)  # type: ignore[list-item]
     for j, i in enumerate(members):
@@ -199,10 +199,32 @@ def _members(recordings: Sequence[Recording], names: list[str], solved: _Solved,
             stages[-1] = replace(stages[-1], end=len(rec), end_s=float(rec.t[-1]))
         at_rest = np.concatenate([np.arange(s.start, s.end) for s in stages if s.kind == "still"])
         params = rest_bias(params, rec.gyro[at_rest].mean(axis=0), at_rest.size, solved.reading_noise[i])
+        params = _own_turns_bias(rec, stages, params, heading_prior_deg)
         result = _result(rec, params, clock, solved, names, j, stages, solved.reading_noise[i], axes)
         out[i] = KitMember(names[i], result, clock, params.mount_deg,
                            Coherence(linear.residual_sd, linear.noise_sd, solved.departures[j]))
     return out
+
+
+def _own_turns_bias(rec: Recording, stages: list[Stage], params: MemberParams,
+                    heading_prior_deg: float | None) -> MemberParams:
+    """``params`` with b from the wearable's own rests and turns, its k known from the kit: the closure fit of its own
+    recording, with the kit's k and its uncertainty as a prior. A turn's closure tells of b as well as the rests do
+    where the wearable is put back where it was. Kept as they are (b from the rests) where a turn lost samples, where
+    the fit cannot be made, and for a full K: b's error is then its tilt's through the rests' reading, which the rests'
+    b carries, and the wobble of its own turns, which the kit's mean already weighed for the tilt, would count twice."""
+    lost = np.append(gaps(rec.t), False)
+    if params.tilt is not None or any(s.kind == "turn" and lost[s.start:s.end].any() for s in stages):
+        return params
+    std = np.full((3, 3), np.inf)
+    std[np.diag_indices(3)] = params.k_std
+    try:
+        own = calibrate_closure(rec, stages=stages, heading_prior_deg=heading_prior_deg, k_prior=KPrior(params.K, std))
+    except GyrocalError:
+        return params
+    if own.b_std is None or own.b_bound is None or not np.all(np.isfinite(own.b)):
+        return params
+    return replace(params, b=np.asarray(own.b), b_std=np.asarray(own.b_std), b_bound=np.asarray(own.b_bound))
 
 
 def _result(rec: Recording, params: MemberParams, clock: ClockMap, solved: _Solved, names: list[str], j: int,

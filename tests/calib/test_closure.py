@@ -14,7 +14,7 @@ from calib.effects import AxisMisalignment
 from calib.estimators.bounds import protocol_bound
 from calib.estimators.closure.batch import closure_batch, closure_fit_batch
 from calib.estimators.closure.estimator import calibrate_closure
-from calib.estimators.closure.fit import OffDiagonalPrior
+from calib.estimators.closure.fit import KPrior
 from calib.io.readers import read_recording
 from calib.numerics.rotation import closure_terms, left_jacobian, left_jacobian_inv, prefix_products, total_products
 from calib.pipeline import calibrate
@@ -307,10 +307,11 @@ def test_a_prior_on_the_non_orthogonality_is_weighed_with_what_the_turns_show_of
     rec, truth = simulate(95, noise=0.03, params=params, script=script(*(Turn(a, 360.0, 3.5, wobble_deg=0.0, tilt=0)
                                                                           for a in "xyz")), effects=(effect,))
     prior_std = np.full(3, 0.002)
-    res = calibrate_closure(rec, list(truth.stages), heading_prior_deg=EXACT,
-                            offdiag_prior=OffDiagonalPrior(K_true[off] + 0.001, prior_std))
+    mean, std = np.diag(params.k), np.full((3, 3), np.inf)
+    mean[off], std[off] = K_true[off] + 0.001, prior_std
+    res = calibrate_closure(rec, list(truth.stages), heading_prior_deg=EXACT, k_prior=KPrior(mean, std))
     assert res.K is not None and res.K_std is not None and res.quality["model"] == "upper-triangular"
-    assert "prior" in res.quality["model_choice"]["reason"]
+    assert "known of K" in res.quality["model_choice"]["reason"]
     assert np.allclose(res.K[off], K_true[off] + 0.001, atol=3e-4)
     assert np.allclose(res.K_std[off], prior_std, rtol=0.2)
     # turns that identify the terms outweigh a loose prior centred on zero
@@ -318,8 +319,9 @@ def test_a_prior_on_the_non_orthogonality_is_weighed_with_what_the_turns_show_of
     rec, truth = simulate(90, noise=0.03, params=params, script=script(*(Turn(a, 360.0, 3.5)
                                                                           for a in ("x", "y", "z", *diag_axes))),
                           effects=(effect,))
-    res = calibrate_closure(rec, list(truth.stages), heading_prior_deg=EXACT,
-                            offdiag_prior=OffDiagonalPrior(np.zeros(3), np.full(3, 0.02)))
+    std = np.full((3, 3), np.inf)
+    std[off] = 0.02
+    res = calibrate_closure(rec, list(truth.stages), heading_prior_deg=EXACT, k_prior=KPrior(np.eye(3), std))
     assert res.K is not None and res.K_std is not None
     z = (res.K - K_true)[off] / res.K_std[off]
     assert np.all(np.abs(z) < 5.0) and np.all(res.K_std[off] < 1e-4), z

@@ -26,7 +26,7 @@ from scipy.optimize import least_squares
 
 from calib.distributions import chi2_sf
 from calib.errors import CalibrationError, ProtocolError
-from calib.estimators.closure.fit import ClosureData, ClosureFit, OffDiagonalPrior, start_values, system
+from calib.estimators.closure.fit import OFF_DIAGONAL, ClosureData, ClosureFit, KPrior, start_values, system
 from calib.estimators.closure.partial import not_turned_text, partial_start, turned_axes
 from calib.estimators.closure.placement import check_heading_prior, placement_model
 from calib.estimators.closure.report import OFFDIAG_WARN, closure_result
@@ -52,7 +52,7 @@ _LSQ = {"method": "lm", "xtol": 1e-10, "ftol": 1e-12, "gtol": 1e-10, "x_scale": 
 
 def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None = None,
                       heading_prior_deg: float | None = None,
-                      offdiag_prior: OffDiagonalPrior | None = None) -> CalibrationResult:
+                      k_prior: KPrior | None = None) -> CalibrationResult:
     """Calibrate one recording with the closure maximum-likelihood estimator (method "closure").
 
     stages: a list of Stage, a ProtocolStages, or None to detect them. Every full turn and every
@@ -61,8 +61,8 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None 
     ``OFFDIAG_WARN``) and the likelihood-ratio test finds them (p < ``EXTENDED_ALPHA``), and says which in
     ``quality["model_choice"]``. Each turn closes onto the pose the accelerometer saw it put back in, with the
     heading it cannot see carried as a prior of ``heading_prior_deg`` (None: ``HEADING_PRIOR_DEG``;
-    ``calib.estimators.closure.placement``). ``offdiag_prior`` fits the extended model with that prior on its terms,
-    weighed with what the recording shows of them (identified or not).
+    ``calib.estimators.closure.placement``). ``k_prior`` weighs what is known of K with what the recording shows of it
+    (identified or not), in the extended model when it knows something of its terms.
     Raises RecordingError for bad input, ProtocolError when a stage is missing,
     CalibrationError when the recording does not determine the parameters (or the terms asked for).
     """
@@ -96,11 +96,11 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None 
             raise CalibrationError(f"the extended model needs turns about every axis; {not_turned_text(turned)}")
         extended = False
         choice["reason"] = "not every axis was turned"
-    elif offdiag_prior is not None:
-        fit = _solve(data, np.concatenate((fit.theta, np.nan_to_num(offdiag_prior.mean))), extended=True,
-                     offdiag_prior=offdiag_prior)
-        extended = True
-        choice["reason"] = "asked for, weighed with a prior on its terms"
+    elif k_prior is not None:
+        extended = k_prior.extended
+        start = np.concatenate((fit.theta, [np.nan_to_num(k_prior.mean[i, j]) for i, j in OFF_DIAGONAL])) if extended else fit.theta
+        fit = _solve(data, start, extended=extended, k_prior=k_prior)
+        choice["reason"] = "weighed with what was known of K" + (", its terms included" if extended else "")
     elif extended:
         start = np.concatenate((fit.theta, np.zeros(3)))
         _check_identified(data, start)
@@ -154,22 +154,20 @@ def _choose_model(data: ClosureData, diagonal: ClosureFit) -> tuple[ClosureFit, 
 
 
 def _solve(data: ClosureData, theta0: np.ndarray, extended: bool, not_turned: np.ndarray | None = None,
-           offdiag_prior: OffDiagonalPrior | None = None) -> ClosureFit:
+           k_prior: KPrior | None = None) -> ClosureFit:
     """least_squares with the turn weights held fixed, re-weighted at its solution until they settle.
 
     Residual-only evaluations use the cheap closure product; each Jacobian costs one full pass, and
     the pass that sets the weights doubles as the first Jacobian and as the final one. ``not_turned`` (3,): axes no
     turn was about, whose scale factors only the hand's wobble informs: each gets the prior N(1, ``NOT_TURNED_K_SD``),
-    a working sensor's range, so the turned axes' uncertainty includes what the others could be. ``offdiag_prior``:
-    the extended model's terms' prior, each one with a finite std.
+    a working sensor's range, so the turned axes' uncertainty includes what the others could be. ``k_prior``: what is
+    known of K's entries (``KPrior``), each known one a prior too.
     """
     held = np.zeros(3, dtype=bool) if not_turned is None else np.asarray(not_turned, dtype=bool)
     index, centre, spread = np.flatnonzero(held), np.ones(int(held.sum())), np.full(int(held.sum()), NOT_TURNED_K_SD)
-    if offdiag_prior is not None:
-        known = np.isfinite(offdiag_prior.std) & (np.asarray(offdiag_prior.std) > 0)
-        index = np.concatenate((index, 6 + np.flatnonzero(known)))
-        centre = np.concatenate((centre, np.asarray(offdiag_prior.mean, dtype=float)[known]))
-        spread = np.concatenate((spread, np.asarray(offdiag_prior.std, dtype=float)[known]))
+    if k_prior is not None:
+        known, means, stds = k_prior.rows(extended)
+        index, centre, spread = np.concatenate((index, known)), np.concatenate((centre, means)), np.concatenate((spread, stds))
     prior_rows = np.zeros((index.size, theta0.shape[0]))
     prior_rows[np.arange(index.size), index] = 1.0 / spread
 

@@ -320,9 +320,22 @@ class ClosureFit:
 
 
 @dataclass(frozen=True, eq=False)
-class OffDiagonalPrior:
-    """What is known of the extended model's K_xy, K_xz, K_yz besides the recording: a normal prior of ``mean`` and
-    ``std`` (3,) each (an infinite std: nothing). A kit knows its sensors' non-orthogonalities average zero."""
+class KPrior:
+    """What is known of K besides the recording: a normal prior on each entry on and above its diagonal, of ``mean``
+    and ``std`` (3, 3) (an infinite std: nothing known of that entry). A kit knows its sensors' non-orthogonalities
+    average zero, and each wearable's K from the others'."""
 
     mean: np.ndarray
     std: np.ndarray
+
+    @property
+    def extended(self) -> bool:
+        """Whether it knows something of an entry above the diagonal (the extended model's terms)."""
+        return any(np.isfinite(self.std[i, j]) for i, j in OFF_DIAGONAL)
+
+    def rows(self, extended: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(indices into theta, means, stds) of the entries it knows, of the diagonal or the ``extended`` model's."""
+        entries = [((i, i), i) for i in range(3)] + ([((i, j), 6 + p) for p, (i, j) in enumerate(OFF_DIAGONAL)] if extended else [])
+        known = [(index, float(self.mean[ij]), float(self.std[ij])) for ij, index in entries
+                 if np.isfinite(self.std[ij]) and self.std[ij] > 0]
+        return (np.array([k[0] for k in known], dtype=int), np.array([k[1] for k in known]), np.array([k[2] for k in known]))
