@@ -229,3 +229,17 @@ def test_re_orientations_no_calibration_explains_are_refused_with_what_to_check(
 
     with pytest.raises(CalibrationError, match=r"gravity is still \d+\.\d deg rms off.*Check the sample rate"):
         calibrate_protocol(read_recording(ferraris_csv, fs=10.0), "multi-position")
+
+
+def test_re_orientations_far_beyond_a_g_sensitivity_are_refused_before_one_is_fitted(ferraris_csv: Path, monkeypatch):
+    """Gravity 7 deg rms off without a g-sensitivity is more than one could take away (a few tenths): the refusal comes
+    without the g-sensitivity's fit, a third of the work."""
+    import calib.estimators.multi_position.estimator as mp
+    from calib.io.readers import read_recording
+
+    def not_to_be_fitted(*_: object) -> None:
+        raise AssertionError("the g-sensitivity was fitted for re-orientations no calibration explains")
+
+    monkeypatch.setattr(mp, "_g_sensitivity_choice", not_to_be_fitted)
+    with pytest.raises(CalibrationError, match=r"gravity is still \d+\.\d deg rms off.*Check the sample rate"):
+        calibrate_protocol(read_recording(ferraris_csv, fs=10.0), "multi-position")

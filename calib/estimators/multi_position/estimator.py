@@ -63,6 +63,9 @@ from calib.stages.recognise import MIN_MOTIONS
 from calib.stages.stage import Stage
 
 MAX_GRAVITY_RMS_DEG = 2.0  # gravity residuals (rms) beyond which the re-orientations fit no calibration
+# ... and this many times that without a g-sensitivity, beyond what one could take away: a MEMS gyro's 0.1 (deg/s)/g
+# (datasheets) moves a few seconds' motion by tenths of a degree
+G_RESCUE = 3.0
 MAX_ITERATIONS = 50  # steps tried, the damped ones counted
 G_ALPHA = 1e-3  # false-positive rate of the g-sensitivity's F test on a sensor that has none
 G_SPREAD_MIN = 0.25  # the rests' gravity directions must spread at least this much (rms, per principal axis)
@@ -143,6 +146,7 @@ def calibrate_multi_position(rec: Recording, stages: Any = None, accel: AccelCal
     data = _data(rec, stills, motions, free_a, motion_noise)
 
     base = _fit(Params(np.eye(3), -data.mean[0], None, accel.vector.copy()), data)
+    _check_agreement(base, data, G_RESCUE)  # so far off that no g-sensitivity could mend it: refused before fitting one
     fit, g_test = _g_sensitivity_choice(base, data, g_sensitivity)
     _check_agreement(fit, data)
     return _result(fit, g_test, base, data, accel, joint, stage_list, rec, _motion_times(rec, motions))
@@ -279,12 +283,12 @@ def _g_sensitivity_choice(base: _Fit, data: Data, asked: bool | None) -> tuple[_
     return base, test
 
 
-def _check_agreement(fit: _Fit, data: Data) -> None:
-    """CalibrationError when, at the best fit, the motions still carry gravity degrees off: no gyro calibration
-    explains them, so the recording is not what the fit takes it for (a wrong sample rate, the accelerometer's
-    axes not the gyro's, motions that are not between rests)."""
+def _check_agreement(fit: _Fit, data: Data, slack: float = 1.0) -> None:
+    """CalibrationError when, at the best fit, the motions still carry gravity degrees off (over ``slack`` times
+    ``MAX_GRAVITY_RMS_DEG``): no gyro calibration explains them, so the recording is not what the fit takes it for (a
+    wrong sample rate, the accelerometer's axes not the gyro's, motions that are not between rests)."""
     rms = _rms(_gravity_deg(fit.p, data))
-    if rms is not None and rms > MAX_GRAVITY_RMS_DEG:
+    if rms is not None and rms > MAX_GRAVITY_RMS_DEG * slack:
         raise CalibrationError(
             f"no calibration makes the re-orientations agree with the accelerometer: at the best fit, gravity is still "
             f"{rms:.1f} deg rms off after them (a calibrated gyro leaves a few tenths at most). Check the sample rate, "
