@@ -24,13 +24,13 @@ from calib.errors import GyrocalError
 from calib.estimators.closure.estimator import calibrate_closure
 from calib.estimators.closure.fit import KPrior
 from calib.judge.acceptance import misclosure
-from calib.kit.axes import KitAxes, kit_axes
-from calib.kit.clocks import IDENTITY, ClockMap, coarse_clock, gaps
+from calib.kit.axes import KitAxes, Refit, kit_axes
+from calib.kit.clocks import IDENTITY, ClockMap, coarse_clock
 from calib.kit.coupling import IDENTITY_MAP, Coupling, LinearMap, couple, fit_map, reading_noise, resting
 from calib.kit.departure import BURST_DPS, DEPARTURE_DEG, NO_DEPARTURE, departures
 from calib.kit.members import PARAMETERS, MemberParams, member_params, rest_bias
 from calib.kit.result import Coherence, KitMember, KitResult
-from calib.kit.turns import member_turn_rows
+from calib.kit.turns import lost_in, member_turn_rows
 from calib.numerics.attitude import cumulative_attitude
 from calib.pipeline import calibrate_protocol, with_rate_uncertainty
 from calib.recording import Recording
@@ -90,7 +90,7 @@ def calibrate_kit(recordings: Sequence[Recording], names: Sequence[str] | None =
     return KitResult(out, names[solved.ref], solved.mean, warnings, axes.to_dict())
 
 
-def _refit(solved: _Solved, heading_prior_deg: float | None) -> Callable[[KPrior], CalibrationResult] | None:
+def _refit(solved: _Solved, heading_prior_deg: float | None) -> Refit | None:
     """The kit's mean recording calibrated again, on its stages, with a prior on K's off-diagonal terms; None when the
     mean was not calibrated by the closure estimator (its K was fitted otherwise)."""
     if solved.mean.method != "closure":
@@ -213,8 +213,7 @@ def _own_turns_bias(rec: Recording, stages: list[Stage], params: MemberParams,
     where the wearable is put back where it was. Kept as they are (b from the rests) where a turn lost samples, where
     the fit cannot be made, and for a full K: b's error is then its tilt's through the rests' reading, which the rests'
     b carries, and the wobble of its own turns, which the kit's mean already weighed for the tilt, would count twice."""
-    lost = np.append(gaps(rec.t), False)
-    if params.tilt is not None or any(s.kind == "turn" and lost[s.start:s.end].any() for s in stages):
+    if params.tilt is not None or any(s.kind == "turn" and lost_in(s, rec.t) for s in stages):
         return params
     std = np.full((3, 3), np.inf)
     std[np.diag_indices(3)] = params.k_std

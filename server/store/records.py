@@ -73,16 +73,17 @@ class SessionEnd:
 
 
 def calibration_record(row: CalibrationRow) -> CalibrationRecord:
+    result = row.result or {}
     return CalibrationRecord(
         id=row.id,
         device_id=row.device_id,
         session_id=row.session_id,
         k=[row.k_x, row.k_y, row.k_z],
         b=[row.b_x, row.b_y, row.b_z],
-        K=(row.result or {}).get("K"),
-        G=(row.result or {}).get("G"),
-        K_std=(row.result or {}).get("K_std"),
-        G_std=(row.result or {}).get("G_std"),
+        K=result.get("K"),
+        G=result.get("G"),
+        K_std=result.get("K_std"),
+        G_std=result.get("G_std"),
         uncertainty=row.uncertainty,
         quality=row.quality,
         method=row.method,
