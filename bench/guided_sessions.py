@@ -58,8 +58,10 @@ class Outcome:
     stop_to_hold_s: tuple[float, ...]
 
 
-def run_session(hand: str, seed: int, calibrated_gauge: bool) -> Outcome:
-    """One guided session of ``hand`` on a fresh simulated device (seed)."""
+def run_session(hand: str, seed: int, calibrated_gauge: bool, late_page_s: float = 0.0) -> Outcome:
+    """One guided session of ``hand`` on a fresh simulated device (seed). With ``late_page_s`` each snapshot reaches
+    the hand up to that much device time late (uniformly at random, in order: a starved page), taken as seen when it arrives,
+    as the hand's eyes over the network take it (``PromptedSource.observe_now``)."""
     src = PromptedSource(seed=seed, hand=hand)
     src.prepare(FS)
     k_true = np.asarray(src.params.k)
@@ -70,10 +72,16 @@ def run_session(hand: str, seed: int, calibrated_gauge: bool) -> Outcome:
     now = [0.0]
     placing: list[float] = []
     computing_at: list[float] = []
+    late = np.random.default_rng([seed, 0x1A7E])
+    in_flight: list[tuple[float, dict]] = []  # (device time it reaches the hand, snapshot)
 
     def listen(kind: str, snapshot: SessionOut) -> None:
         snap = snapshot.model_dump(mode="json", exclude_unset=True)  # as the page receives it
-        src.hand.observe(snap)
+        if late_page_s > 0:  # in order, as one event stream delivers them
+            due = now[0] + float(late.uniform(0.0, late_page_s))
+            in_flight.append((max(due, in_flight[-1][0]) if in_flight else due, snap))
+        else:
+            src.hand.observe(snap)
         if snap["phase"] == "placing" and kind in ("prompt", "state"):
             placing.append(float(snap["live"]["t_device_s"]))
         if snap["state"] == "computing" and kind == "state":  # the last time: a turn asked again comes before it
@@ -87,6 +95,9 @@ def run_session(hand: str, seed: int, calibrated_gauge: bool) -> Outcome:
     i = 0
     k_error = None
     while not session.finished and i < LIMIT_S * FS:
+        for arrived in [f for f in in_flight if f[0] <= now[0]]:
+            in_flight.remove(arrived)
+            src.observe_now(arrived[1])
         blk = src.block(i, i + n)
         t = np.arange(i, i + n) / FS
         now[0] = float(t[-1])
@@ -116,7 +127,7 @@ def _stop_latencies(src: PromptedSource, placing: list[float]) -> tuple[float, .
     return tuple(out)
 
 
-def _one(args: tuple[str, int, bool]) -> Outcome:
+def _one(args: tuple[str, int, bool, float]) -> Outcome:
     return run_session(*args)
 
 
@@ -153,13 +164,15 @@ def main() -> int:
     ap.add_argument("--sessions", type=int, default=200, help="sessions per hand (half with a calibrated gauge)")
     ap.add_argument("--hands", default=",".join(HANDS), help=f"comma-separated, of {', '.join(HANDS)}")
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--late-page", type=float, default=0.0, metavar="S",
+                    help="each snapshot reaches the hand up to S s of device time late (a starved page)")
     args = ap.parse_args()
     hands = [h.strip() for h in args.hands.split(",") if h.strip()]
     unknown = [h for h in hands if h not in HANDS]
     if unknown:
         print(f"unknown hand(s) {', '.join(unknown)}: choose from {', '.join(HANDS)}", file=sys.stderr)
         return 2
-    work = [(h, seed, seed % 2 == 0) for h in hands for seed in range(args.sessions)]
+    work = [(h, seed, seed % 2 == 0, args.late_page) for h in hands for seed in range(args.sessions)]
     outcomes: list[Outcome] = []
     with multiprocessing.Pool(args.jobs) as pool:
         for k, o in enumerate(pool.imap_unordered(_one, work, chunksize=4), start=1):

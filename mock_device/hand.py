@@ -6,8 +6,9 @@ simulator, from a moment of device time on. Its habits are a ``HandStyle``: care
 turns early, some late), sloppy (over- or under-turns some first tries), short (stops its first z turn where the
 device reads 296 deg), ends_off (puts the device down 3 deg tilted after its first y turn), bumping
 (knocks the device once in the rest after a turn) and gauge-watching (stops each turn where the page's gauge reads a
-full turn, when the gauge shows one, then puts it down against the block as the page says; otherwise it turns back to
-the block like the others).
+full turn, when the gauge shows one, then puts it down against the block as the page says; a gauge that has not caught up
+with her stop she does not read, and finishes the turn by feel; otherwise it turns back to the block like the others).
+A device left off its place is put back against the block before the next turn, whatever prompt comes meanwhile.
 
 The hand is pure logic: ``PromptedSource`` (mock_device.prompted) plays what it decides.
 """
@@ -111,7 +112,9 @@ class PromptHand:
         if key == self._key:
             return
         self._key = key
-        self.pending = [p for p in self.pending if p.what in ("bump", "gauge_finish")]  # a new prompt: re-decide
+        # a new prompt: re-decide, but what her hands are already set on (a knock, the end of a turn, putting the
+        # device back against the block) she still does
+        self.pending = [p for p in self.pending if p.what in ("bump", "gauge_finish", "put_back")]
         self._decide(snap, float((snap.get("live") or {}).get("t_device_s") or 0.0))
 
     def due(self, until_s: float) -> list[Act]:
@@ -145,13 +148,14 @@ class PromptHand:
         if not (isinstance(state, str) and state.startswith("turn_")) or axis is None:
             return
         if phase == "ready":
+            start = t
             if np.linalg.norm(self.offset) > 0.5:
                 # asked again before it was put back (the settle was over at once): back against the block first
-                self.pending.append(_Plan(t + self._delay(), "put_back"))
+                start = self._put_back_at(t + self._delay())
             wait = self._delay() + (float(self.rng.uniform(2.0, 5.0)) if self.rng.random() < self.style.late else 0.0)
-            self.pending.append(_Plan(t + wait, "turn", axis))
+            self.pending.append(_Plan(start + wait, "turn", axis))
         elif phase == "settle" and np.linalg.norm(self.offset) > 0.5:
-            self.pending.append(_Plan(t + self._delay(), "put_back"))
+            self._put_back_at(t + self._delay())
         elif phase in ("checking", "pause"):
             # the knock comes in the rest after the turn: while it is checked, or in the pause once it is recorded
             if self.bump_in == axis and not self.bumped:
@@ -162,6 +166,15 @@ class PromptHand:
             nxt = {"x": "y", "y": "z"}.get(axis)
             if nxt is not None and self.rng.random() < self.style.early:
                 self.pending.append(_Plan(t + float(self.rng.uniform(0.9, 1.5)), "turn", nxt))
+
+    def _put_back_at(self, t: float) -> float:
+        """Plans putting the device back against the block at ``t`` unless that is already planned; returns when
+        it is planned (the next turn starts after it)."""
+        planned = [p.at_s for p in self.pending if p.what == "put_back"]
+        if planned:
+            return min(planned)
+        self.pending.append(_Plan(t, "put_back"))
+        return t
 
     # -- motions -----------------------------------------------------------------------------------
     def _turn_shape(self, axis: str) -> Turn:
@@ -175,6 +188,8 @@ class PromptHand:
         if p.what == "bump":
             return (Motion(BUMP_DEG, 0.4), Motion(-BUMP_DEG, 0.4), Still(0.05))
         if p.what == "put_back":
+            if np.linalg.norm(self.offset) <= 0.5:
+                return ()  # already back in its place (the end of a turn set it flush against the block)
             back = -self.offset
             self.offset = np.zeros(3)
             return (Motion(back, 1.0), Still(1.6))  # and hands off a moment before the turn: a rest of its own
@@ -213,15 +228,17 @@ class PromptHand:
         """The last part of a gauge-watcher's turn: on until the gauge reads 360 deg, with a reaction's overshoot."""
         live = (self.last or {}).get("live") or {}
         shown = abs(float(live.get("raw_turn_angle_deg" if self.style.old_gauge else "turn_angle_deg") or 0.0))
-        total = p.angle_deg * 360.0 / shown if shown > 1.0 else 360.0
+        # a gauge that has not caught up with her stop is not read: she finishes the turn by feel, as the others do
+        total = p.angle_deg * 360.0 / shown if shown > 1.0 and not self._gauge_behind() else 360.0
         rest = max(0.0, total - p.angle_deg) + float(self.rng.uniform(*GAUGE_OVERSHOOT_DEG))
+        rest = rest if rest >= 1.0 else 0.0  # too little to be worth a motion of its own
         assert p.true_axis is not None
         self.offset = self.offset + (p.angle_deg + rest - 360.0) * p.true_axis
         # on about the same true axis, so the whole turn is one rotation
         segs: list[Segment] = []
-        if rest >= 1.0:
+        if rest:
             segs.append(Turn(p.true_axis, rest, duration_s=max(0.4, rest / GAUGE_RATE_DPS), wobble_deg=0.0))
-        if 0.5 < np.linalg.norm(self.offset) <= BLOCK_CATCH_DEG:
+        if 0.0 < np.linalg.norm(self.offset) <= BLOCK_CATCH_DEG:
             # then down "back against the block", as the page says: the block's edge sets it flush
             segs.append(Motion(-self.offset, 0.5))
             self.offset = np.zeros(3)

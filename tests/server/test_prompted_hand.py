@@ -12,6 +12,8 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
 from guided_sessions import run_session  # noqa: E402
 
+from mock_device.hand import HANDS, PromptHand  # noqa: E402
+
 SEEDS = range(6)
 
 
@@ -51,3 +53,26 @@ def test_a_short_turn_that_spoils_the_result_is_asked_again_and_passes() -> None
     outcomes = [run_session("short", seed, False) for seed in range(3)]
     assert all(o.passed and not o.first_try for o in outcomes), [(o.seed, o.state, o.reason) for o in outcomes]
     assert all(o.k_error is not None and o.k_error < 2e-3 for o in outcomes), [o.k_error for o in outcomes]
+
+
+def test_a_gauge_watcher_whose_page_is_a_second_late_still_stops_at_a_full_turn() -> None:
+    """A starved page shows the gauge up to 1 s late: a stop read off a gauge still catching up would end the turn
+    tens of degrees long; she finishes it by feel instead, and sets the device back against the block."""
+    outcomes = [run_session("gauge", seed, True, late_page_s=1.0) for seed in SEEDS]
+    assert all(o.passed for o in outcomes), [(o.seed, o.state, o.reason) for o in outcomes]
+
+
+def test_a_device_left_off_its_place_is_put_back_before_the_turn_asked_again() -> None:
+    """Asked to turn again while the device rests 20 deg off its place, the hand puts it back first, and still does
+    when a new prompt comes before she has."""
+    hand = PromptHand(HANDS["careful"], np.random.default_rng(3))
+    hand.offset = np.array([0.0, 0.0, 20.0])
+    hand.observe({"state": "turn_z", "phase": "ready", "axis": "z", "attempt": 2, "live": {"t_device_s": 10.0}})
+    hand.observe({"state": "turn_z", "phase": "ready", "axis": "z", "attempt": 2, "warnings": [{"code": "hint"}],
+                  "live": {"t_device_s": 10.1}})
+    acts = hand.due(60.0)
+    kinds = [type(a.segments[0]).__name__ for a in acts]
+    assert kinds == ["Motion", "Turn"], kinds
+    np.testing.assert_allclose(acts[0].segments[0].rotvec_deg, [0.0, 0.0, -20.0])
+    assert acts[1].at_s >= acts[0].at_s + 2.6  # the turn starts after the put-back and its rest
+    assert np.linalg.norm(hand.offset) == 0.0
