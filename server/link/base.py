@@ -204,7 +204,7 @@ class LinkStats:
     malformed_reasons: dict[str, int] = field(default_factory=dict)
     duplicate_packets: int = 0  # same or older sequence number: dropped
     link_losses: int = 0
-    reconnects: int = 0
+    reconnects: int = 0  # losses the link came back from (streaming again, counted with its link_restored event)
     session_restarts: int = 0  # the device started a new session mid-stream (gap from device time)
     resyncs: int = 0  # the device's clock or sequence jumped and stayed: followed after RESYNC_AFTER packets agreed
     fs_estimate_hz: float | None = None

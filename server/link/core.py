@@ -183,14 +183,12 @@ class LinkCore(ABC):
                 adapter = cls(io, self.stats, _Sink(self), command_timeout_s=self.command_timeout_s, clock=self.clock)
             await adapter.open()
             self.protocol = adapter
-        except LinkError:
+        except Exception as e:
             with contextlib.suppress(Exception):
                 await self._t_disconnect()
-            raise
-        except Exception as e:  # a transport error during setup: the link is not usable
-            with contextlib.suppress(Exception):
-                await self._t_disconnect()
-            raise ConnectError(f"connection to {self.address} failed during setup: {e}") from e
+            if isinstance(e, LinkError):
+                raise
+            raise ConnectError(f"connection to {self.address} failed during setup: {e}") from e  # a transport error
         self._connected = True
 
     def _require(self) -> Adapter:
@@ -335,6 +333,7 @@ class LinkCore(ABC):
         if self._restore is not None:
             attempts, lost_at = self._restore
             self._restore = None
+            self.stats.reconnects += 1  # counted with the event that says so, not after start() returns: data may come first
             gap_s = batch.lost_before / batch.fs_hz if batch.fs_hz else None
             self._push(LinkEvent("link_restored", float(batch.t_device_s[0]), batch.lost_before, gap_s,
                                  attempts, time.monotonic() - lost_at))
@@ -380,7 +379,8 @@ class LinkCore(ABC):
                     assert self.protocol is not None
                     self._restore = (attempts, lost_at)
                     await self.protocol.start(resume=True)
-                self.stats.reconnects += 1
+                else:
+                    self.stats.reconnects += 1
                 log.info("reconnected to %s after %d attempts", self.address, attempts)
                 return
             except asyncio.CancelledError:
