@@ -27,15 +27,17 @@ import uuid
 import zlib
 from collections.abc import AsyncIterator, Callable, Coroutine
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import psycopg
 from pydantic import ValidationError
 from sqlalchemy.engine import make_url
 
 from .live.codes import END_STATES
 from .live.events import Broadcaster, Event
 from .live.snapshot_schema import RemoteGateway, SessionOut
+
+if TYPE_CHECKING:  # loaded where the events run: only a PostgreSQL store has them, an SQLite service never pays for it
+    import psycopg
 
 log = logging.getLogger(__name__)
 
@@ -282,6 +284,8 @@ class FleetEvents:
     async def _send(self) -> None:
         """Send what is queued, in one transaction every ``FLUSH_S`` at most; reconnect when the database went away
         (what was queued meanwhile is sent then: sessions' latest snapshots, fleet changes once each)."""
+        import psycopg
+
         conn: psycopg.AsyncConnection[Any] | None = None
         while True:
             await self._wake.wait()
@@ -310,6 +314,8 @@ class FleetEvents:
             await asyncio.sleep(FLUSH_S)
 
     async def _listen(self) -> None:
+        import psycopg
+
         delay = 0.5
         while True:
             try:
