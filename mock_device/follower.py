@@ -100,23 +100,40 @@ class SessionFollower:
             self._stop.wait(POLL_S)
 
     def _follow(self, base: str, sid: str) -> None:
-        """Hand each snapshot of the session to the callback until it ends (or the stream closes)."""
+        """Hand each snapshot of the session to the callback until it ends. A stream that closes first (the service
+        drops a reader that fell behind; a proxy times out) is opened again at once, as the page's EventSource does,
+        while the session is still the one this follower looks for: each event is a whole snapshot, so the next one
+        tells the hand everything it missed."""
         deadline = time.monotonic() + 3600.0
+        while not self._stop.is_set() and time.monotonic() < deadline:
+            try:
+                if self._follow_stream(base, sid, deadline):
+                    return
+            except httpx.HTTPError:
+                pass  # the stream broke mid-way: as a close
+            if self._active_session(base) != sid:
+                return
+            self._stop.wait(POLL_S)
+
+    def _follow_stream(self, base: str, sid: str, deadline: float) -> bool:
+        """One connection to the session's events; whether the session is over for this follower (it ended, it is a
+        verification followed to its end, it is gone, or the follower stops)."""
         with httpx.stream("GET", f"{base}/sessions/{sid}/events", headers=self.headers, timeout=httpx.Timeout(30.0)) as r:
             if r.status_code == 404:  # not a guided session: a verification turn
                 self._follow_verification(base, sid)
-                return
+                return True
             if r.status_code != 200:
-                return
+                return r.status_code < 500  # a service too busy to answer is asked again
             for line in r.iter_lines():
                 if self._stop.is_set() or time.monotonic() > deadline:
-                    return
+                    return True
                 if not line.startswith("data:"):
                     continue
                 snap = json.loads(line[5:])
                 self.on_snapshot(snap)
                 if snap.get("state") in END_STATES:
-                    return
+                    return True
+        return False
 
 
 class KitFollower(SessionFollower):

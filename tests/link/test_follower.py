@@ -57,3 +57,48 @@ def test_an_idle_wearable_is_looked_for_every_few_seconds_and_at_once_when_it_st
     finally:
         follower.stop()
     assert IDLE_LOOK_S >= 2.0
+
+
+def test_a_session_stream_that_closes_early_is_opened_again_until_the_session_ends() -> None:
+    """The service drops an event reader that fell behind (a busy machine): the eyes open the stream again at once,
+    as the page does, instead of going blind for the rest of the session."""
+    streams: list[float] = []
+    sent = [{"state": "turn_x", "phase": "ready"}, {"state": "turn_y", "phase": "ready"}, {"state": "done"}]
+
+    class Handler(BaseHTTPRequestHandler):
+        protocol_version = "HTTP/1.1"
+
+        def do_GET(self) -> None:  # noqa: N802 (the standard library's name)
+            if self.path.startswith("/devices/"):
+                body = json.dumps({"id": "mock-1", "active_session": "s1" if len(streams) < len(sent) else None}).encode()
+                self.send_response(200)
+                self.send_header("Content-Type", "application/json")
+                self.send_header("Content-Length", str(len(body)))
+                self.end_headers()
+                self.wfile.write(body)
+                return
+            streams.append(time.monotonic())
+            event = f"id: {len(streams)}\ndata: {json.dumps(sent[len(streams) - 1])}\n\n".encode()
+            self.send_response(200)
+            self.send_header("Content-Type", "text/event-stream")
+            self.send_header("Content-Length", str(len(event)))  # one snapshot, then the service closes the stream
+            self.end_headers()
+            self.wfile.write(event)
+
+        def log_message(self, *args: object) -> None:
+            pass
+
+    server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    seen: list[dict] = []
+    follower = SessionFollower("mock-1", seen.append, lambda: f"http://127.0.0.1:{server.server_address[1]}").start()
+    try:
+        follower.wake()
+        deadline = time.monotonic() + 10.0
+        while len(seen) < len(sent) and time.monotonic() < deadline:
+            time.sleep(0.05)
+    finally:
+        follower.stop()
+        server.shutdown()
+    assert [s["state"] for s in seen] == ["turn_x", "turn_y", "done"], seen
+    assert streams[-1] - streams[0] < 2.0, streams  # opened again at once, not at the next idle look
