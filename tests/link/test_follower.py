@@ -15,6 +15,14 @@ import pytest
 from mock_device.follower import IDLE_LOOK_S, LOOK_S, POLL_S, SessionFollower
 
 
+def _send(handler: BaseHTTPRequestHandler, content_type: str, body: bytes) -> None:
+    handler.send_response(200)
+    handler.send_header("Content-Type", content_type)
+    handler.send_header("Content-Length", str(len(body)))  # with a length, an event stream ends after this body
+    handler.end_headers()
+    handler.wfile.write(body)
+
+
 @pytest.fixture
 def service() -> Iterator[tuple[str, list[float]]]:
     """A stand-in for the service's ``GET /devices/{id}`` (the wearable is in no session): the times it was asked."""
@@ -23,12 +31,7 @@ def service() -> Iterator[tuple[str, list[float]]]:
     class Handler(BaseHTTPRequestHandler):
         def do_GET(self) -> None:  # noqa: N802 (the standard library's name)
             asked.append(time.monotonic())
-            body = json.dumps({"id": "mock-1", "active_session": None}).encode()
-            self.send_response(200)
-            self.send_header("Content-Type", "application/json")
-            self.send_header("Content-Length", str(len(body)))
-            self.end_headers()
-            self.wfile.write(body)
+            _send(self, "application/json", json.dumps({"id": "mock-1", "active_session": None}).encode())
 
         def log_message(self, *args: object) -> None:
             pass
@@ -70,20 +73,11 @@ def test_a_session_stream_that_closes_early_is_opened_again_until_the_session_en
 
         def do_GET(self) -> None:  # noqa: N802 (the standard library's name)
             if self.path.startswith("/devices/"):
-                body = json.dumps({"id": "mock-1", "active_session": "s1" if len(streams) < len(sent) else None}).encode()
-                self.send_response(200)
-                self.send_header("Content-Type", "application/json")
-                self.send_header("Content-Length", str(len(body)))
-                self.end_headers()
-                self.wfile.write(body)
+                active = "s1" if len(streams) < len(sent) else None
+                _send(self, "application/json", json.dumps({"id": "mock-1", "active_session": active}).encode())
                 return
-            streams.append(time.monotonic())
-            event = f"id: {len(streams)}\ndata: {json.dumps(sent[len(streams) - 1])}\n\n".encode()
-            self.send_response(200)
-            self.send_header("Content-Type", "text/event-stream")
-            self.send_header("Content-Length", str(len(event)))  # one snapshot, then the service closes the stream
-            self.end_headers()
-            self.wfile.write(event)
+            streams.append(time.monotonic())  # one snapshot on each stream, then the service closes it
+            _send(self, "text/event-stream", f"id: {len(streams)}\ndata: {json.dumps(sent[len(streams) - 1])}\n\n".encode())
 
         def log_message(self, *args: object) -> None:
             pass
