@@ -213,7 +213,7 @@ def _own_turns_bias(rec: Recording, stages: list[Stage], params: MemberParams,
     where the wearable is put back where it was. Kept as they are (b from the rests) where a turn lost samples, where
     the fit cannot be made, and for a full K: b's error is then its tilt's through the rests' reading, which the rests'
     b carries, and the wobble of its own turns, which the kit's mean already weighed for the tilt, would count twice."""
-    if params.tilt is not None or any(s.kind == "turn" and lost_in(s, rec.t) for s in stages):
+    if params.tilt is not None or any(s.kind == "turn" and lost for s, lost in zip(stages, lost_in(stages, rec.t), strict=True)):
         return params
     std = np.full((3, 3), np.inf)
     std[np.diag_indices(3)] = params.k_std

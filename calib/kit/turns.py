@@ -11,9 +11,11 @@ from calib.kit.clocks import gaps
 from calib.stages.stage import Stage
 
 
-def lost_in(stage: Stage, t: np.ndarray) -> bool:
-    """Whether the wearable whose stamps are ``t`` (s) lost samples within ``stage`` or right after its last sample."""
-    return bool(gaps(t)[stage.start:stage.end].any())
+def lost_in(stages: list[Stage], t: np.ndarray) -> list[bool]:
+    """For each stage, whether the wearable whose stamps are ``t`` (s) lost samples within it or right after its last
+    sample."""
+    lost = gaps(t)
+    return [bool(lost[st.start:st.end].any()) for st in stages]
 
 
 def member_turn_rows(rows: list[dict[str, Any]], stages: list[Stage], attitude: Rotation, mount: np.ndarray,
@@ -22,6 +24,7 @@ def member_turn_rows(rows: list[dict[str, Any]], stages: list[Stage], attitude: 
     its samples ``t`` (s), ``attitude`` its calibrated attitude after each sample, ``mount`` its axes from the
     reference's (which carries the tray's placement, measured in the reference's axes, into its own). A turn in which
     the wearable lost samples cannot be closed on its own: the kit's closure, in its axes, stands (``bridged_by_kit``)."""
+    lost = lost_in(stages, t)
     out = []
     for row in rows:
         row = dict(row)
@@ -30,7 +33,7 @@ def member_turn_rows(rows: list[dict[str, Any]], stages: list[Stage], attitude: 
             out.append(row)
             continue
         st = stages[int(index)]
-        if lost_in(st, t):
+        if lost[int(index)]:
             kit_closure = mount @ np.asarray(row.get("closure_deg") or np.zeros(3), dtype=float)
             kit_miss = mount @ np.asarray(row.get("misclosure_deg") or np.zeros(3), dtype=float)
             row.update({"start_s": st.start_s, "end_s": st.end_s, "samples": st.n, "bridged_by_kit": True,
