@@ -29,6 +29,7 @@ GAUGE_WAIT_S = 0.15  # ... longer while the gauge has not yet settled on her sto
 GAUGE_STEADY_S = 0.2  # the gauge has settled once the page has shown the device still this long
 GAUGE_RATE_DPS = 45.0  # ... and the speed of that last part
 GAUGE_OVERSHOOT_DEG = (0.0, 5.0)  # how far past the gauge's 360 deg the hand's reaction carries it
+IN_PLACE_DEG = 0.5  # a device put down this close to its place needs no putting back before the next turn
 BLOCK_CATCH_DEG = 15.0  # a device put down this close to its place is pushed flush against the block
 BUMP_DEG = np.array([4.0, -3.0, 12.0])  # a knock of the device and back (mock_device.scenarios' bump)
 
@@ -149,12 +150,12 @@ class PromptHand:
             return
         if phase == "ready":
             start = t
-            if np.linalg.norm(self.offset) > 0.5:
+            if np.linalg.norm(self.offset) > IN_PLACE_DEG:
                 # asked again before it was put back (the settle was over at once): back against the block first
                 start = self._put_back_at(t + self._delay())
             wait = self._delay() + (float(self.rng.uniform(2.0, 5.0)) if self.rng.random() < self.style.late else 0.0)
             self.pending.append(_Plan(start + wait, "turn", axis))
-        elif phase == "settle" and np.linalg.norm(self.offset) > 0.5:
+        elif phase == "settle" and np.linalg.norm(self.offset) > IN_PLACE_DEG:
             self._put_back_at(t + self._delay())
         elif phase in ("checking", "pause"):
             # the knock comes in the rest after the turn: while it is checked, or in the pause once it is recorded
@@ -188,7 +189,7 @@ class PromptHand:
         if p.what == "bump":
             return (Motion(BUMP_DEG, 0.4), Motion(-BUMP_DEG, 0.4), Still(0.05))
         if p.what == "put_back":
-            if np.linalg.norm(self.offset) <= 0.5:
+            if np.linalg.norm(self.offset) <= IN_PLACE_DEG:
                 return ()  # already back in its place (the end of a turn set it flush against the block)
             back = -self.offset
             self.offset = np.zeros(3)
