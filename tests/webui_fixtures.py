@@ -7,6 +7,7 @@ Registered as a plugin by tests/conftest.py: the fixtures need no import; the he
 from __future__ import annotations
 
 import contextlib
+import functools
 import io
 import re
 import shutil
@@ -280,13 +281,22 @@ class Wizard:
 
     def assert_screens_accessible(self) -> list[str]:
         """axe-core on every screen ``record`` saw (state:phase), each as it was first shown, rendered again in a page
-        of its own without its scripts (a screen that lasts 0.3 s cannot wait for the audit); returns their names."""
+        of its own without its scripts (a screen that lasts 0.3 s cannot wait for the audit); returns their names.
+
+        The screens share one audit page: the first is loaded into it; each next one whose head is the same (the title
+        aside) takes the place of the one before in that document, so axe-core, loaded once, audits them all."""
         screens: dict[str, str] = self.page.evaluate("() => window.seen.screens")
         page = self.page.context.new_page()
+        loaded_head = None
         try:
             for name, html in screens.items():
                 static = re.sub(r"<script\b.*?</script>", "", html, flags=re.S | re.I)
-                page.set_content(static.replace("<head>", f'<head><base href="{self.service.base}/">', 1), wait_until="load")
+                head = re.sub(r"<title>.*?</title>", "", static.split("</head>", 1)[0], flags=re.S)
+                if head == loaded_head:
+                    page.evaluate(_SWAP_DOCUMENT, static)
+                else:
+                    page.set_content(static.replace("<head>", f'<head><base href="{self.service.base}/">', 1), wait_until="load")
+                    loaded_head = head
                 assert_accessible(page, f"screen {name}")
         finally:
             page.close()
@@ -304,13 +314,31 @@ class Wizard:
 
 def assert_accessible(page: Any, where: str) -> None:
     """axe-core (the engine browsers' accessibility audits use) finds no violation of its WCAG 2.x A/AA rules and best
-    practices on the page as it is now."""
-    from axe_playwright_python.sync_playwright import Axe
-
-    found = Axe().run(page).response.get("violations", [])
+    practices on the page as it is now (axe-core is loaded into a document once, for all its audits)."""
+    if not page.evaluate("() => typeof window.axe !== 'undefined'"):
+        page.evaluate(_axe_script())
+    found = page.evaluate("() => axe.run({resultTypes: ['violations']}).then((results) => results.violations)")
     lines = [f"{v['id']} ({v['impact']}): {v['help']} -- " + "; ".join(n["target"][0] if n["target"] else "?" for n in v["nodes"][:4])
              for v in found]
     assert not lines, f"accessibility violations on {where!r}:\n" + "\n".join(lines)
+
+
+@functools.cache
+def _axe_script() -> str:
+    """axe-core's script, as the axe-playwright-python package ships it."""
+    from axe_playwright_python.sync_playwright import Axe
+
+    return Axe().axe_script
+
+
+# one recorded screen in place of another in the same document: the root's attributes, the title and the body
+_SWAP_DOCUMENT = """(html) => {
+  const next = new DOMParser().parseFromString(html, 'text/html'), root = document.documentElement;
+  for (const a of [...root.attributes]) root.removeAttribute(a.name);
+  for (const a of next.documentElement.attributes) root.setAttribute(a.name, a.value);
+  document.title = next.title;
+  document.body.replaceWith(document.adoptNode(next.body));
+}"""
 
 
 def assert_turns_end_with_hold_still(headlines: list[str]) -> None:
