@@ -63,6 +63,19 @@ PROMPTS = {
 }
 
 
+def of_the_tray(text: str) -> str:
+    """A wearable's words said of the tray its kit rides in: the clinician holds and turns the tray, not one device."""
+    return text.replace("the device", "the tray").replace("The device", "The tray")
+
+
+KIT_CONNECTING = "Connecting to the wearables…"
+
+
+def kit_link_lost(lost: Sequence[str]) -> str:
+    return (f"Keep the tray still and close to the receiver: the link to {', '.join(lost)} was lost. "
+            "The kit goes on when it reconnects.")
+
+
 def turn_prompt(axis: str) -> str:
     return f"Turn the device one full turn (360°) about its {ax(axis)} axis, then put it back against the block."
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+from . import guidance as say
 from .codes import END_STATES, STEPS, State
 from .snapshot import stored_snapshot
 from .snapshot_schema import KitDeviceOut, KitOut, SessionOut
@@ -15,7 +16,8 @@ if TYPE_CHECKING:
 
 def kit_snapshot(kit_id: str, snaps: list[SessionOut], kit: KitOut, *, operator: str | None, started_at: str | None,
                  cancelled: bool) -> SessionOut:
-    """The kit's state: the step of the wearable furthest along, its prompt, and every wearable's own state.
+    """The kit's state: the step of the wearable furthest along, its prompt said of the tray and its warnings named as
+    its, and every wearable's own state.
     ``snaps``: the wearables' own snapshots, in the kit's order; ``cancelled``: the kit was cancelled."""
     state, lead = _state(snaps, cancelled)
     devices = [KitDeviceOut(
@@ -27,11 +29,13 @@ def kit_snapshot(kit_id: str, snaps: list[SessionOut], kit: KitOut, *, operator:
     decision = "accepted" if any(d.decision == "accepted" for d in devices) else None
     return lead.model_copy(update={
         "session_id": kit_id, "device_id": ",".join(s.device_id for s in snaps), "kind": "kit", "state": state,
+        "prompt": _prompt(state, lead, snaps),
+        "warnings": [w.model_copy(update={"message": f"{lead.device_id}: {w.message}"}) for w in lead.warnings],
         "devices": devices, "kit": kit, "operator": operator, "started_at": started_at,
         "result": None, "passed": any(d.passed for d in devices) if state == State.DONE else None,
         "checks": [], "departures": [], "accuracy": None, "decision": decision, "calibration_id": None,
         "reason_code": None if state != State.FAILED else lead.reason_code,
-        "reason": _reason(state, snaps),
+        "reason": _reason(snaps),
     })
 
 
@@ -57,10 +61,18 @@ def _state(snaps: list[SessionOut], cancelled: bool) -> tuple[State, SessionOut]
     return State(along.state), along
 
 
-def _reason(state: State, snaps: list[SessionOut]) -> str | None:
+def _prompt(state: State, lead: SessionOut, snaps: list[SessionOut]) -> str | None:
+    """What the clinician holding the tray is asked to do now (an ended kit's outcome is its wearables')."""
+    if state in END_STATES:
+        return None
+    if state == State.CONNECTING:
+        return say.KIT_CONNECTING
     if state == State.RECONNECTING:
-        lost = [s.device_id for s in snaps if s.state == State.RECONNECTING]
-        return f"The link to {', '.join(lost)} was lost; reconnecting. Keep the tray still."
+        return say.kit_link_lost([s.device_id for s in snaps if s.state == State.RECONNECTING])
+    return say.of_the_tray(lead.prompt) if lead.prompt else None
+
+
+def _reason(snaps: list[SessionOut]) -> str | None:
     ended = [f"{s.device_id}: {s.reason}" for s in snaps if s.state in (State.FAILED, State.CANCELLED) and s.reason]
     return " ".join(ended) or None
 

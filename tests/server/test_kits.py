@@ -156,6 +156,16 @@ def test_a_wearable_whose_link_drops_mid_turn_is_bridged_by_the_kit(tmp_path) ->
             assert all(e["kind"] == "kit" and e["session_id"] == kit_id for e in events)
             assert [e["_sse_id"] for e in events] == sorted({e["_sse_id"] for e in events})
             assert "reconnecting" in seen and {"still", "turn_x", "turn_y", "turn_z", "computing"} <= set(seen), seen
+            # one set of prompts, said of the tray the clinician holds; a lost link names its wearable
+            running = [e for e in events if e["state"] not in ("done", "failed", "cancelled")]
+            assert all(e["prompt"] and "device" not in e["prompt"] for e in running), {e["prompt"] for e in running}
+            assert any(e["prompt"].startswith("Turn the tray one full turn") for e in running)
+            lost = {e["prompt"] for e in running if e["state"] == "reconnecting"}
+            assert lost == {"Keep the tray still and close to the receiver: the link to mock-2 was lost. "
+                            "The kit goes on when it reconnects."}, lost
+            assert all(e["prompt"] is None for e in events if e["state"] == "done")
+            said = {w["message"] for e in events for w in e["warnings"] if w["code"] == "link_lost"}
+            assert said and all(m.startswith("mock-2: ") for m in said), said
             snap = c.get(f"/sessions/{kit_id}").json()
             assert snap["state"] == events[-1]["state"] == "done"
             resumed = follow_events(svc.base, kit_id, {"done"}, last_event_id=events[-3]["_sse_id"])

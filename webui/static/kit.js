@@ -23,11 +23,6 @@ function axisOf(state) {
   return state && state.startsWith("turn_") ? state.slice(5) : null;
 }
 
-// the wearables' own prompts speak of "the device": the clinician holds the tray
-function forTray(text) {
-  return (text || "").replaceAll("the device", "the tray").replaceAll("The device", "The tray");
-}
-
 function stateText(d) {
   if (d.departed) return "Came apart from the kit";
   switch (d.state) {
@@ -97,8 +92,8 @@ export function kitView(ctx, kitId) {
     axesNote.textContent = running ? "" : axesText(snap);
     axesNote.hidden = !axesNote.textContent;
     if (running) {
-      headline.textContent = snap.state === "reconnecting" ? "Keep the tray still: a wearable's link was lost" : forTray(snap.prompt) || "…";
-      sub.textContent = snap.state === "reconnecting" ? snap.reason || "" : `All ${names.length} wearables are turned together, in their tray.`;
+      headline.textContent = snap.prompt || "…";
+      sub.textContent = `All ${names.length} wearables are turned together, in their tray.`;
       fill(actions, h("button", { class: "button", type: "button", id: "kit-cancel", onclick: cancel }, icon("stop"), "Cancel"));
       return;
     }
