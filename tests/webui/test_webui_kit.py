@@ -40,6 +40,26 @@ def _wait_done(page: Any, service: Any, kit_id: str) -> None:
                     f"its wearables {where}; the service's log ends:\n{service.output()[-3000:]}")
 
 
+def _record_cues(page: Any) -> None:
+    """Record in the page what passes too quickly to wait for: how far the stillness ring beside the tray filled while
+    the kit rested first (in %, and its label), and the largest angle the gauge showed in each turn."""
+    page.evaluate("""() => {
+      window.cues = { ring: 0, ringLabel: null, gauge: {} };
+      new MutationObserver(() => {
+        const kit = document.querySelector('.kit'), ring = document.querySelector('.kit-cue .ring-wrap'),
+              gauge = document.querySelector('.kit-cue .gauge-wrap');
+        if (kit && ring && kit.dataset.state === 'still') {
+          window.cues.ringLabel = ring.getAttribute('aria-label');
+          window.cues.ring = Math.max(window.cues.ring, Number(ring.getAttribute('aria-valuenow')));
+        }
+        if (kit && gauge && kit.dataset.state.startsWith('turn_')) {
+          const axis = kit.dataset.state.slice(5), n = Number(gauge.getAttribute('aria-valuenow'));
+          window.cues.gauge[axis] = Math.max(window.cues.gauge[axis] || 0, n);
+        }
+      }).observe(document.body, { subtree: true, childList: true, attributes: true });
+    }""")
+
+
 def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_passed_accepted_at_once(
         browser: Any, kit_service: Any, page_watch: Watch, artifacts: Any) -> None:
     with watched_page(browser, kit_service, page_watch) as page:
@@ -57,6 +77,7 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
         start.click()
         page.wait_for_url(re.compile(r"#/kit/[0-9a-f]{32}$"))
         kit_id = page.url.rsplit("/", 1)[1]
+        _record_cues(page)
         # one set of prompts, for the tray, with the axis drawn on the tray's picture and the step marked
         page.wait_for_selector(".kit[data-state='still']")
         for axis in ("x", "y", "z"):
@@ -71,6 +92,11 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
             if axis == "x":
                 wizard.shot("kit-turn-x")
         _wait_done(page, kit_service, kit_id)
+        # beside the tray, as for one wearable: the ring counted the first rest, the gauge followed each turn
+        cues = page.evaluate("() => window.cues")
+        assert cues["ring"] >= 50 and cues["ringLabel"] == "Time the tray has been still", cues
+        assert all(cues["gauge"].get(a, 0) >= 200 for a in "xyz"), cues["gauge"]
+        assert page.locator(".kit-cue .ring-wrap, .kit-cue .gauge-wrap").count() == 0  # an ended kit has neither
         assert page.inner_text(".kit-prompt") == "Kit calibrated: 2 of 3 passed"
         assert "mock-4 came apart from the kit" in page.inner_text(".kit-sub")
         for device in ("mock-2", "mock-3"):

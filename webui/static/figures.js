@@ -126,14 +126,18 @@ export function turnAnimation(axis) {
 const RING_R = 88;
 const RING_C = 2 * Math.PI * RING_R;
 
-/** The stillness ring; update(fraction, moving, seconds left) as progress events arrive. */
-export function stillRing() {
+/** The phases of a turn state in which the device rests (the ring counts its rest); in the others the gauge follows
+ * the turn. */
+export const REST_PHASES = ["pause", "settle", "checking"];
+
+/** The stillness ring; update(fraction, moving, seconds left) as progress events arrive. ``thing``: what rests. */
+export function stillRing(thing = "the device") {
   const arc = s("circle", { cx: 100, cy: 100, r: RING_R, class: "ring-fill", "stroke-dasharray": RING_C.toFixed(2), "stroke-dashoffset": RING_C.toFixed(2), transform: "rotate(-90 100 100)" });
   const big = s("text", { x: 100, y: 104, class: "ring-text" }, "");
   const small = s("text", { x: 100, y: 134, class: "ring-sub" }, "");
   const svg = s("svg", { viewBox: "0 0 200 200", class: "ring", "aria-hidden": "true" },
     s("circle", { cx: 100, cy: 100, r: RING_R, class: "ring-track" }), arc, big, small);
-  const el = h("div", { class: "ring-wrap", role: "progressbar", "aria-label": "Time the device has been still", "aria-valuemin": "0", "aria-valuemax": "100", "aria-valuenow": "0" }, svg);
+  const el = h("div", { class: "ring-wrap", role: "progressbar", "aria-label": `Time ${thing} has been still`, "aria-valuemin": "0", "aria-valuemax": "100", "aria-valuenow": "0" }, svg);
   el.update = (fraction, moving, left) => {
     const f = Math.max(0, Math.min(1, fraction || 0));
     arc.setAttribute("stroke-dashoffset", (RING_C * (1 - f)).toFixed(2));
@@ -156,8 +160,8 @@ function polar(deg, r = GAUGE_R) {
 /** The live angle gauge of the current turn; update(angle, target) with the signed live angle and its target.
  * With a target (the device's accepted calibration makes the angle true degrees) the arc fills towards 360°
  * and the degrees are shown. Without one the raw angle can be 20 % off a full turn, so no number and no
- * end mark are shown: only a marker that goes round as the device turns. */
-export function angleGauge(axis) {
+ * end mark are shown: only a marker that goes round as the device turns. ``thing``: what is turned. */
+export function angleGauge(axis, thing = "the device") {
   const arc = s("path", { class: `gauge-fill ${AXIS_CLASS[axis]}`, d: "" });
   const dot = s("circle", { r: 9, class: `gauge-dot ${AXIS_CLASS[axis]}`, cx: 100, cy: 100 - GAUGE_R });
   const text = s("text", { x: 100, y: 108, class: "gauge-text" }, "0°");
@@ -188,7 +192,7 @@ export function angleGauge(axis) {
       sub.textContent = stopped ? "hold it still" : "back to the block";
       el.setAttribute("aria-valuenow", String(Math.min(360, Math.round(a)))); // a meter needs a value; its text says more
       el.setAttribute("aria-valuetext", stopped ? "stopped; hold it still" : a < 5 ? "not turning yet"
-        : "turning; no angle target: stop when the device is back against the block");
+        : `turning; no angle target: stop when ${thing} is back against the block`);
       return;
     }
     const shown = Math.min(a, 359.9);
@@ -203,6 +207,19 @@ export function angleGauge(axis) {
     el.removeAttribute("aria-valuetext");
   };
   return el;
+}
+
+/** The stillness ring as a snapshot (a session's, or a kit's) has it: its rest's progress, or moving. */
+export function showRest(ring, s) {
+  const p = s.progress || { fraction: 0, still_s: 0, target_s: 0 };
+  const moving = Boolean(s.live && s.live.moving);
+  ring.update(moving ? 0 : p.fraction, moving, (p.target_s || 0) - (p.still_s || 0));
+}
+
+/** The angle gauge as a snapshot has it: the live angle while turning or being put down (placing), else none yet. */
+export function showTurn(gauge, s) {
+  gauge.update(["turning", "placing"].includes(s.phase) && s.live ? s.live.turn_angle_deg : 0, s.live && s.live.target_deg,
+    s.phase === "placing");
 }
 
 /** The three turn tiles: each to do, active (now) or done. */

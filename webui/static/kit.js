@@ -3,7 +3,7 @@
 // time a wearable's state changes).
 
 import { AXES, fill, h, num } from "./dom.js";
-import { icon, trayPicture } from "./figures.js";
+import { REST_PHASES, angleGauge, icon, showRest, showTurn, stillRing, trayPicture } from "./figures.js";
 import { problemLine } from "./messages.js";
 
 const ENDED = new Set(["done", "failed", "cancelled"]);
@@ -21,6 +21,15 @@ export async function startKit(ctx, devices, note) {
 
 function axisOf(state) {
   return state && state.startsWith("turn_") ? state.slice(5) : null;
+}
+
+// beside the tray, as on the one-wearable page: the stillness ring while a rest is counted, the angle gauge through a
+// turn (both the wearable's furthest along, whose state the kit's is)
+function cueKey(snap) {
+  if (snap.state === "still") return "ring";
+  const axis = axisOf(snap.state);
+  if (!axis) return null;
+  return REST_PHASES.includes(snap.phase) ? `ring:${axis}` : `gauge:${axis}`;
 }
 
 function stateText(d) {
@@ -65,7 +74,10 @@ export function kitView(ctx, kitId) {
   let stop = null;
   const headline = h("h1", { id: "kit-title", class: "kit-prompt" }, "Connecting to the wearables…");
   const sub = h("p", { class: "lead kit-sub" });
-  const picture = h("div", { class: "kit-picture" });
+  const tray = h("div", { class: "kit-tray" });
+  const cue = h("div", { class: "kit-cue", hidden: true });
+  const picture = h("div", { class: "kit-picture" }, tray, cue);
+  let live = { key: null, ring: null, gauge: null };
   const steps = h("ol", { class: "kit-steps" }, STEPS.map(([key, label]) => h("li", { dataset: { step: key } }, label)));
   const rows = h("ul", { class: "kit-devices", "aria-label": "Every wearable of the kit", "aria-live": "polite" });
   const axesNote = h("p", { id: "kit-axes", class: "kit-axes", hidden: true });
@@ -81,7 +93,16 @@ export function kitView(ctx, kitId) {
     const running = !ENDED.has(snap.state);
     const names = snap.devices.map((d) => d.device_id);
     const axis = axisOf(snap.state);
-    fill(picture, trayPicture(names, axis));
+    fill(tray, trayPicture(names, axis));
+    const key = running ? cueKey(snap) : null;
+    if (key !== live.key) {
+      live = { key, ring: key && key.startsWith("ring") ? stillRing("the tray") : null,
+               gauge: key && key.startsWith("gauge") ? angleGauge(axis, "the tray") : null };
+      fill(cue, live.ring || live.gauge);
+      cue.hidden = !key;
+    }
+    if (live.ring) showRest(live.ring, snap);
+    if (live.gauge) showTurn(live.gauge, snap);
     const at = STEPS.findIndex(([key]) => key === snap.state);
     for (const [i, li] of [...steps.children].entries()) {
       li.classList.toggle("done", !running || (at >= 0 && i < at));

@@ -5,7 +5,7 @@ import { AXES, AXIS_LABEL, fill, fmtDateTime, h } from "./dom.js";
 import { ask } from "./confirm.js";
 import { TURN_SUMMARY, turnGuide } from "./guide.js";
 import { cues } from "./cues.js";
-import { angleGauge, icon, notice, placePicture, stillRing, turnAnimation, turnTiles } from "./figures.js";
+import { REST_PHASES, angleGauge, icon, notice, placePicture, showRest, showTurn, stillRing, turnAnimation, turnTiles } from "./figures.js";
 import { identifyButton } from "./identify.js";
 import { STEP_LABELS, headline, reasonFor, requestProblem, stepOf, subline } from "./messages.js";
 import { detailsBlock, paramTable } from "./details.js";
@@ -240,7 +240,7 @@ export function sessionView(ctx, sid) {
 
   const stageKey = (s) => {
     // the gauge stays while the device is put down (placing): the turn view changes only once it rests (checking)
-    if (s.state.startsWith("turn_")) return ["pause", "settle", "checking"].includes(s.phase) ? `rest:${s.axis}:${s.phase}` : `turn:${s.axis}`;
+    if (s.state.startsWith("turn_")) return REST_PHASES.includes(s.phase) ? `rest:${s.axis}:${s.phase}` : `turn:${s.axis}`;
     return s.state;
   };
 
@@ -353,14 +353,8 @@ export function sessionView(ctx, sid) {
       sound.say(t);
     }
     if (ui.sub.textContent !== sub) ui.sub.textContent = sub;
-    if (ui.ring) {
-      const p = s.progress || { fraction: 0, still_s: 0, target_s: 0 };
-      ui.ring.update(s.live && s.live.moving ? 0 : p.fraction, s.live && s.live.moving, (p.target_s || 0) - (p.still_s || 0));
-    }
-    if (ui.gauge) {
-      ui.gauge.update(["turning", "placing"].includes(s.phase) && s.live ? s.live.turn_angle_deg : 0, s.live && s.live.target_deg,
-        s.phase === "placing");
-    }
+    if (ui.ring) showRest(ui.ring, s);
+    if (ui.gauge) showTurn(ui.gauge, s);
     if (s.state.startsWith("turn_")) lastAxis = s.axis;
     ui.tiles.update(Object.keys(s.turns || {}), s.state.startsWith("turn_") ? s.axis : s.state === "reconnecting" ? lastAxis : null);
     ui.tiles.hidden = !(s.state.startsWith("turn_") || s.state === "still" || s.state === "reconnecting");
