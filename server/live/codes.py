@@ -55,6 +55,7 @@ class EndReason(StrEnum):
     SENSOR_FAULT = "sensor_fault"
     OUT_OF_TOLERANCE = "out_of_tolerance"
     CALIBRATION_FAILED = "calibration_failed"
+    DEPARTED = "departed"
     TIMEOUT = "timeout"
     SERVICE_OVERLOADED = "service_overloaded"
     SERVICE_RESTARTED = "service_restarted"

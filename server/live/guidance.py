@@ -32,6 +32,7 @@ REASONS: dict[EndReason, str] = {
     EndReason.SENSOR_FAULT: "the sensor read values a working sensor cannot give (a stuck or saturated axis, gravity off)",
     EndReason.OUT_OF_TOLERANCE: "the computed calibration is outside the documented tolerances",
     EndReason.CALIBRATION_FAILED: "the estimator could not compute a calibration from the recording",
+    EndReason.DEPARTED: "the wearable came apart from the rest of its kit (it moved in its slot): no calibration from that kit",
     EndReason.TIMEOUT: "the session did not reach its end within the overall time limit",
     EndReason.SERVICE_OVERLOADED: "the service itself fell too far behind to follow the session (not the device, not the hand)",
     EndReason.SERVICE_RESTARTED: "the service was restarted while the session ran",
@@ -364,9 +365,10 @@ def connect_failed(detail: str) -> str:
     return f"Could not connect to the device ({detail}). Check that it is switched on, charged and in range, then start a new calibration."
 
 
-def compute_timeout(limit_s: float) -> str:
-    return (f"Computing the calibration took longer than {limit_s:g} s and was stopped. "
-            "Start a new calibration; if it happens again, report it.")
+def compute_timeout(limit_s: float, what: str = "the calibration") -> str:
+    """The estimator ran out of time: on a working service it takes a second or two, so the service is overloaded."""
+    return (f"Computing {what} took longer than {limit_s:g} s and was stopped: the service is overloaded, not the device "
+            "nor the way it was turned. Start a new calibration; if it happens again, tell the administrator.")
 
 
 def timeout(limit_s: float) -> str:

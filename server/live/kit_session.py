@@ -24,6 +24,8 @@ from calib.recording import Recording
 
 from ..workers.compute import ComputePool, LiveOutcome, calibrate_live, off_loop
 from ..workers.kit import KitOutcome, calibrate_kit_live
+from . import guidance as say
+from .codes import EndReason
 from .events import Broadcaster
 from .kit_snapshot import kit_snapshot
 from .snapshot_schema import KitOut, SessionOut
@@ -118,7 +120,7 @@ class KitSession(Generic[M]):
         """A member was cancelled while it waited for the kit's calibration: it waits no longer."""
         future = self._waiting.get(live.device.id)
         if future is not None and not future.done():
-            future.set_result(LiveOutcome(None, "Cancelled.", "cancelled", b""))
+            future.set_result(LiveOutcome(None, "Cancelled.", None, b"", EndReason.CANCELLED))
 
     def cancel(self, reason: str = "Cancelled by the operator.") -> bool:
         done = [m.cancel(reason) for m in self.members if not m.machine.finished]
@@ -146,13 +148,12 @@ class KitSession(Generic[M]):
                 self.outcome = await asyncio.wait_for(off_loop(self.pool, calibrate_kit_live, recs, names),
                                                       self.compute_timeout_s)
         except TimeoutError:
-            why = (f"The kit was not calibrated within {self.compute_timeout_s:g} s: the service is overloaded, not the "
-                   "recording. Start a new calibration.")
-            self.outcome = KitOutcome({n: LiveOutcome(None, why, "service_overloaded", b"") for n in names}, refusal=why)
+            why = say.compute_timeout(self.compute_timeout_s, "the kit's calibration")
+            self.outcome = KitOutcome({n: LiveOutcome(None, why, None, b"", EndReason.SERVICE_OVERLOADED) for n in names}, refusal=why)
         except Exception as exc:  # the last line of defence: every waiting member gets an answer
             log.exception("kit %s could not be calibrated", self.id)
-            why = f"The kit could not be calibrated ({type(exc).__name__}). Start a new calibration."
-            self.outcome = KitOutcome({n: LiveOutcome(None, why, "internal_error", b"") for n in names}, refusal=why)
+            why = say.internal_error(f"calibrating the kit: {type(exc).__name__}")
+            self.outcome = KitOutcome({n: LiveOutcome(None, why, None, b"", EndReason.INTERNAL_ERROR) for n in names}, refusal=why)
         assert self.outcome is not None
         if self.keep_outcome is not None:
             try:

@@ -320,11 +320,11 @@ class LiveSession(Persistence):
             try:
                 outcome = await asyncio.wait_for(job, timeout=self.settings.compute_timeout_s)
             except TimeoutError:
-                m.fail("calibration_failed", say.compute_timeout(self.settings.compute_timeout_s))
+                m.fail(EndReason.SERVICE_OVERLOADED, say.compute_timeout(self.settings.compute_timeout_s))
                 return
         self._csv = outcome.csv
         if outcome.result is None:
-            m.fail("calibration_failed", f"{outcome.refusal} Start a new calibration.")
+            m.fail(outcome.end, outcome.refusal or say.internal_error("no result and no reason"))
             return
         result = outcome.result
         try:

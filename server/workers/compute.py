@@ -18,6 +18,8 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from ..live.codes import EndReason
+
 if TYPE_CHECKING:
     from calib.io.inputs import ReadRecording, RecordingInput
     from calib.judge.verification import TurnVerification
@@ -75,13 +77,16 @@ def recording_csv(rec: Any) -> bytes:
 
 @dataclass(frozen=True)
 class LiveOutcome:
-    """A live session's calibration as the worker hands it back: the result, or the refusal's message and code (an
-    exception would lose the recording, which the session keeps either way), and the recording as native CSV."""
+    """A live session's calibration as the worker hands it back: the result, or why there is none (an exception would
+    lose the recording, which the session keeps either way), and the recording as native CSV.
+    ``refusal``: the whole sentence the session ends with, what happened and what to do; ``code``: the estimator's
+    refusal code (calib.errors), if it refused; ``end``: why the session ends, as its ``reason_code`` says it."""
 
     result: CalibrationResult | None
     refusal: str | None
     code: str | None
     csv: bytes
+    end: EndReason = EndReason.CALIBRATION_FAILED
 
 
 def calibrate_live(rec: Recording, method: str, stages: list[Stage]) -> LiveOutcome:
@@ -94,7 +99,7 @@ def calibrate_live(rec: Recording, method: str, stages: list[Stage]) -> LiveOutc
     try:
         result, _ = calibrate_protocol(rec, "paper", method, stages=stages)
     except GyrocalError as exc:
-        return LiveOutcome(None, str(exc), exc.code if isinstance(exc, Refusal) else None, csv)
+        return LiveOutcome(None, f"{exc} Start a new calibration.", exc.code if isinstance(exc, Refusal) else None, csv)
     return LiveOutcome(result, None, None, csv)
 
 

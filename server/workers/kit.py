@@ -7,6 +7,7 @@ from typing import Any
 
 from calib.recording import Recording
 
+from ..live.codes import EndReason
 from .compute import LiveOutcome, recording_csv
 
 
@@ -40,8 +41,9 @@ def calibrate_kit_live(recordings: list[Recording], names: list[str]) -> KitOutc
             d = member.coherence.departure if member.coherence is not None else None
             moved = f" (it turned {d.angle_deg:.1f}° against the others)" if d is not None and d.angle_deg == d.angle_deg else ""
             outcomes[member.name] = LiveOutcome(
-                None, f"{member.name} came apart from the kit{moved}: it moved in its slot, or its readings do not follow "
-                "the tray. Seat it firmly in its slot, then calibrate it alone or with the kit.", "departed", csvs[member.name])
+                None, f"The wearable came apart from the kit{moved}: it moved in its slot, or its readings do not follow "
+                "the tray. Seat it firmly in its slot, then calibrate it alone or with the kit.", None, csvs[member.name],
+                EndReason.DEPARTED)
         else:
             outcomes[member.name] = LiveOutcome(member.result, None, None, csvs[member.name])
     return KitOutcome(outcomes, kit.consistency(), kit.departed)

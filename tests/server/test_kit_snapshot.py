@@ -37,12 +37,12 @@ def test_a_kit_that_ended_shows_who_passed_who_departed_and_the_decision(tmp_pat
     store = _kit(tmp_path)
     for device_id in ("mock-1", "mock-2"):
         store.finish_session(MEMBERS[device_id], SessionEnd("done", result=RESULT, passed=device_id == "mock-1"))
-    store.finish_session(MEMBERS["mock-3"], SessionEnd("failed", "calibration_failed", "mock-3 came apart from the kit."))
+    store.finish_session(MEMBERS["mock-3"], SessionEnd("failed", "departed", "The wearable came apart from the kit."))
     store.record_kit_outcome("k" * 32, None, ["mock-3"], None)
     snap = stored_kit_snapshot(*store.kit("k" * 32))
     assert snap.state == "done" and snap.passed and snap.kit is not None and snap.kit.departed == ["mock-3"]
     assert [(d.state, d.passed, d.departed) for d in snap.devices] == [("done", True, False), ("done", False, False),
                                                                        ("failed", None, True)]
-    assert snap.devices[0].result is not None and snap.reason == "mock-3: mock-3 came apart from the kit."
+    assert snap.devices[0].result is not None and snap.reason == "mock-3: The wearable came apart from the kit."
     store.accept(MEMBERS["mock-1"], "alice")
     assert stored_kit_snapshot(*store.kit("k" * 32)).decision == "accepted"

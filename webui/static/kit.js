@@ -54,6 +54,13 @@ function axesText(snap) {
   return `The wearables' axes are not quite square${spread}: each one's was measured against the others' and is part of its calibration.`;
 }
 
+/** The wearables that came apart, named: what to do with each is in its row, in the service's words. */
+function departedText(departed) {
+  const one = departed.length === 1;
+  return `${departed.join(" and ")} came apart from the kit, so the kit gives ${one ? "it" : "them"} no calibration: ` +
+    `${one ? "its row says" : "their rows say"} what to do.`;
+}
+
 function deviceRow(d) {
   const ended = ENDED.has(d.state);
   const good = d.state === "done" && d.passed;
@@ -122,8 +129,7 @@ export function kitView(ctx, kitId) {
     const open = passed.filter((d) => !d.decision);
     headline.textContent = snap.state === "cancelled" ? "The kit's calibration was cancelled"
       : passed.length ? `Kit calibrated: ${passed.length} of ${names.length} passed` : "No wearable of the kit passed";
-    sub.textContent = snap.kit && snap.kit.departed.length
-      ? `${snap.kit.departed.join(", ")} came apart from the kit (moved in its slot): redo it alone, or seat it firmly and redo the kit.`
+    sub.textContent = snap.kit && snap.kit.departed.length ? departedText(snap.kit.departed)
       : snap.kit && snap.kit.refusal ? snap.kit.refusal : "";
     fill(actions,
       open.length ? h("button", { class: "button primary", type: "button", id: "kit-accept", onclick: accept }, icon("save"),

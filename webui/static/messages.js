@@ -72,6 +72,7 @@ export const REASONS = {
   sensor_fault: { title: "The device's sensor is faulty", fix: "Not your turns: switch the device off and on and start again. If it happens again, the device needs repair.", icon: "fail" },
   out_of_tolerance: { title: "The result is outside the tolerances", fix: "Press Redo and calibrate again, doing what is said above.", icon: "fail" },
   calibration_failed: { title: "The calibration could not be computed", fix: "Start again, following each step on the screen.", icon: "fail" },
+  departed: { title: "The wearable came apart from its kit", fix: "Seat it firmly in its slot, then calibrate it alone or with the kit.", icon: "hand" },
   timeout: { title: "The calibration took too long", fix: "Start again; the whole calibration takes about a minute.", icon: "clock" },
   service_overloaded: { title: "The service was too busy to follow", fix: "Not the device, nor your turns: start again. If it happens again, tell the administrator the service is overloaded.", icon: "clock" },
   service_restarted: { title: "The service was restarted", fix: "Start a new calibration.", icon: "fail" },
