@@ -72,6 +72,11 @@ def of_the_tray(text: str) -> str:
 KIT_CONNECTING = "Connecting to the wearables…"
 
 
+def kit_link_restored(device_id: str) -> str:
+    """A kit's wearable is back: the tray is not turned again for it (the kit bridges what it missed)."""
+    return f"Reconnected to {device_id}: the kit goes on."
+
+
 def kit_link_lost(lost: Sequence[str]) -> str:
     return (f"Keep the tray still and close to the receiver: the link to {', '.join(lost)} was lost. "
             "The kit goes on when it reconnects.")
@@ -259,7 +264,7 @@ def sensor_fault(detail: str) -> str:
 
 def service_late(late_s: float) -> str:
     return (f"The calibration service fell {late_s:.1f} s behind (the computer running it is busy). It is catching up "
-            "with the device's data: nothing was lost, and nothing needs to be done again.")
+            "with the data it received: nothing was lost, and nothing needs to be done again.")
 
 
 def service_overloaded(late_s: float) -> str:

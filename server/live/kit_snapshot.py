@@ -3,15 +3,22 @@
 
 from __future__ import annotations
 
+from datetime import datetime
 from typing import TYPE_CHECKING
 
 from . import guidance as say
-from .codes import END_STATES, STEPS, State
+from .codes import END_STATES, STEPS, EndReason, State
 from .snapshot import stored_snapshot
-from .snapshot_schema import KitDeviceOut, KitOut, SessionOut
+from .snapshot_schema import KitDeviceOut, KitOut, SessionOut, SessionWarning
 
 if TYPE_CHECKING:
     from ..store.records import StoredKit, StoredSession
+
+# a wearable's own warnings (its link, its data, its samples, its result): named by it. Every other warning is the
+# tray's: each wearable sees the same bump, the same turn, the same late service, and the kit says it once, of the tray
+OWN_WARNINGS = frozenset({"link_lost", "link_restored", "no_data", "data_resumed", "kit_ahead", EndReason.SAMPLE_LOSS,
+                          EndReason.UNREADABLE_DATA, EndReason.SENSOR_FAULT, EndReason.OUT_OF_TOLERANCE})
+SAME_EVENT_S = 2.0  # the tray's warnings of one code from two wearables this close together are one event
 
 
 def kit_snapshot(kit_id: str, snaps: list[SessionOut], kit: KitOut, *, operator: str | None, started_at: str | None,
@@ -30,7 +37,7 @@ def kit_snapshot(kit_id: str, snaps: list[SessionOut], kit: KitOut, *, operator:
     return lead.model_copy(update={
         "session_id": kit_id, "device_id": ",".join(s.device_id for s in snaps), "kind": "kit", "state": state,
         "prompt": _prompt(state, lead, snaps),
-        "warnings": [w.model_copy(update={"message": f"{lead.device_id}: {w.message}"}) for w in lead.warnings],
+        "warnings": kit_warnings(snaps),
         "devices": devices, "kit": kit, "operator": operator, "started_at": started_at,
         "result": None, "passed": any(d.passed for d in devices) if state == State.DONE else None,
         "checks": [], "departures": [], "accuracy": None, "decision": decision, "calibration_id": None,
@@ -76,3 +83,22 @@ def _reason(snaps: list[SessionOut]) -> str | None:
     ended = [f"{s.device_id}: {s.reason}" for s in snaps if s.state in (State.FAILED, State.CANCELLED) and s.reason]
     return " ".join(ended) or None
 
+
+
+def kit_warnings(snaps: list[SessionOut]) -> list[SessionWarning]:
+    """The kit's warnings, in the order they came: a wearable's own named by it (one back on its link is told the kit
+    goes on: the tray is not turned again for it); the tray's said once, of the tray (the first wearable to see it
+    says it). Each new warning of any wearable comes last, so the list only grows while the kit runs."""
+    merged = sorted(((datetime.fromisoformat(w.at), s.device_id, w) for s in snaps for w in s.warnings),
+                    key=lambda e: e[0])
+    out: list[SessionWarning] = []
+    said: list[tuple[datetime, str, str]] = []  # the tray's warnings kept: when, which code, by which wearable
+    for at, device_id, w in merged:
+        if w.code in OWN_WARNINGS:
+            message = say.kit_link_restored(device_id) if w.code == "link_restored" else f"{device_id}: {w.message}"
+            out.append(w.model_copy(update={"message": message}))
+        elif not any(code == w.code and by != device_id and abs((at - t).total_seconds()) <= SAME_EVENT_S
+                     for t, code, by in said):
+            said.append((at, w.code, device_id))
+            out.append(w.model_copy(update={"message": say.of_the_tray(w.message)}))
+    return out

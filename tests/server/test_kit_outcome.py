@@ -39,7 +39,7 @@ def test_a_kit_whose_calibration_runs_out_of_time_says_the_service_was_overloade
     recordings = [simulate(seed)[0] for seed in (1, 2)]
 
     async def both() -> list[Any]:
-        return await asyncio.gather(*(kit.outcome_for(m, rec, detect_stages(rec)) for m, rec in zip(members, recordings)))
+        return await asyncio.gather(*(kit.outcome_for(m, rec, detect_stages(rec)) for m, rec in zip(members, recordings, strict=True)))
 
     outcomes = asyncio.run(both())
     said = say.compute_timeout(limit_s, "the kit's calibration")

@@ -3,10 +3,13 @@ rule as a running kit (server.live.kit_snapshot)."""
 
 from __future__ import annotations
 
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 from calib.result import CalibrationResult
-from server.live.kit_snapshot import stored_kit_snapshot
+from server.live import guidance as say
+from server.live.kit_snapshot import kit_warnings, stored_kit_snapshot
+from server.live.snapshot_schema import SessionOut, SessionWarning
 from server.store import SessionEnd, Store
 
 RESULT = CalibrationResult.from_dict({"k": [1.01, 0.99, 1.02], "b": [0.5, -0.25, 0.125], "method": "kit-closure",
@@ -46,3 +49,36 @@ def test_a_kit_that_ended_shows_who_passed_who_departed_and_the_decision(tmp_pat
     assert snap.devices[0].result is not None and snap.reason == "mock-3: The wearable came apart from the kit."
     store.accept(MEMBERS["mock-1"], "alice")
     assert stored_kit_snapshot(*store.kit("k" * 32)).decision == "accepted"
+
+
+def _wearable(device_id: str, *warnings: tuple[str, str, float]) -> SessionOut:
+    """A running wearable's snapshot with its warnings: (code, message, seconds after 12:00)."""
+    at = datetime(2026, 5, 4, 12, 0, tzinfo=UTC)
+    return SessionOut(session_id=device_id * 4, device_id=device_id, state="turn_y", warnings=[
+        SessionWarning(code=c, message=m, t_device_s=s, at=(at + timedelta(seconds=s)).isoformat()) for c, m, s in warnings])
+
+
+def test_the_kit_says_the_trays_warnings_once_and_names_a_wearables_own() -> None:
+    moved, late = say.MOVED_RESTART, say.service_late(1.2)
+    wrong = say.wrong_axis("y", "x", retry=True)
+    snaps = [
+        _wearable("mock-1", ("moved", moved, 1.0), ("wrong_axis", wrong, 9.0), ("moved", moved, 10.5)),
+        _wearable("mock-2", ("moved", moved, 1.02), ("no_data", say.no_data(3.0), 4.0), ("link_restored", say.link_restored("y"), 6.0),
+                  ("wrong_axis", wrong, 9.01), ("service_late", say.service_late(1.3), 12.01)),
+        _wearable("mock-3", ("moved", moved, 1.01), ("wrong_axis", wrong, 9.02), ("service_late", late, 12.0)),
+    ]
+    said = [(w.code, w.message) for w in kit_warnings(snaps)]
+    assert said == [
+        ("moved", "The tray moved: the count starts again. Keep it still against the block."),  # one bump, three wearables
+        ("no_data", "mock-2: No data from the device for 3 s. Keep it still and close to the receiver: the session "
+                    "carries on as soon as its data arrives."),
+        ("link_restored", "Reconnected to mock-2: the kit goes on."),  # the tray is not turned again for one wearable
+        ("wrong_axis", "That turn was about X, not Y. Put the tray back against the block, wait for the prompt and turn "
+                       "again about Y. Turn about the Y axis marked on the case."),
+        ("moved", "The tray moved: the count starts again. Keep it still against the block."),  # a second bump
+        ("service_late", "The calibration service fell 1.2 s behind (the computer running it is busy). It is catching "
+                         "up with the data it received: nothing was lost, and nothing needs to be done again."),
+    ]
+    # a warning that comes later comes last: the page counts what it has seen
+    snaps[2].warnings.append(SessionWarning(code="moved", message=moved, t_device_s=20.0, at="2026-05-04T12:00:20+00:00"))
+    assert [(w.code, w.message) for w in kit_warnings(snaps)] == [*said, said[0]]

@@ -154,3 +154,46 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
         assert wizard.small_targets() == []
         wizard.shot("kit-result-phone")
     assert_clean(page_watch)
+
+
+def test_a_knock_to_the_tray_is_said_of_the_tray_once_and_the_kit_goes_on(
+        browser: Any, page_watch: Watch, artifacts: Any) -> None:
+    """Two wearables in a tray that the clinician knocks once in a pause (`hand:bumps`): every wearable sees the knock,
+    and the kit page says it once, of the tray, under the tray's prompt, as the one-wearable page does (the ring says
+    the tray is moving while it moves); then the kit goes on to its result."""
+    with running_service(["hand:bumps"] * 2, "--mock-kit") as svc, watched_page(browser, svc, page_watch) as page:
+        wizard = Wizard(page, svc, artifacts / "webui" / "kit-bumped")
+        wizard.sign_in()
+        for device in ("mock-1", "mock-2"):
+            page.check(f".device-card[data-device='{device}'] .kit-pick input")
+        page.click("#kit-start")
+        page.wait_for_url(re.compile(r"#/kit/[0-9a-f]{32}$"))
+        kit_id = page.url.rsplit("/", 1)[1]
+        page.evaluate("""() => {
+          window.notices = [];
+          new MutationObserver(() => {
+            const kit = document.querySelector('.kit');
+            for (const n of document.querySelectorAll('.kit-notice .notice')) {
+              const said = `${kit.dataset.state}|${n.textContent.trim()}`;
+              if (!window.notices.includes(said)) window.notices.push(said);
+            }
+          }).observe(document.body, { subtree: true, childList: true, characterData: true, attributes: true });
+        }""")
+        page.wait_for_selector(".kit-notice .notice", timeout=60_000)
+        assert page.inner_text(".kit-sub") == "Both wearables are turned together, in their tray."
+        wizard.shot("kit-knocked")
+        _wait_done(page, svc, kit_id)
+        notices = [n.split("|", 1) for n in page.evaluate("() => window.notices")]
+        with api(svc) as c:
+            kit = c.get(f"/sessions/{kit_id}").json()
+            members = [c.get(f"/sessions/{d['session_id']}").json() for d in kit["devices"]]
+    assert kit["state"] == "done", kit["state"]
+    knocks = [w for w in kit["warnings"] if w["code"] in ("moved", "moved_during_pause")]
+    assert knocks and all("tray" in w["message"] and "device" not in w["message"] for w in knocks), kit["warnings"]
+    # each wearable saw the knock: the kit said it once, and the page showed what the kit said
+    seen = [[w for w in m["warnings"] if w["code"] in ("moved", "moved_during_pause")] for m in members]
+    assert all(len(s) == len(knocks) for s in seen), (seen, knocks)
+    shown = {text for _, text in notices}
+    assert any(w["message"] in text for w in knocks for text in shown), (notices, knocks)
+    assert all("device" not in text for text in shown), notices
+    assert_clean(page_watch)

@@ -5,6 +5,7 @@
 import { AXES, fill, h, num } from "./dom.js";
 import { REST_PHASES, angleGauge, icon, showRest, showTurn, stillRing, trayPicture } from "./figures.js";
 import { problemLine } from "./messages.js";
+import { sessionNotices } from "./notices.js";
 
 const ENDED = new Set(["done", "failed", "cancelled"]);
 const STEPS = [["still", "Hold still"], ["turn_x", "Turn X"], ["turn_y", "Turn Y"], ["turn_z", "Turn Z"], ["computing", "Result"]];
@@ -81,6 +82,9 @@ export function kitView(ctx, kitId) {
   let stop = null;
   const headline = h("h1", { id: "kit-title", class: "kit-prompt" }, "Connecting to the wearables…");
   const sub = h("p", { class: "lead kit-sub" });
+  const noticeBox = h("div", { class: "notice-box kit-notice" });
+  const notices = sessionNotices({ thing: "tray" }); // the kit's warnings (a bump, a turn asked again and why, a late service)
+  notices.attach(noticeBox);
   const tray = h("div", { class: "kit-tray" });
   const cue = h("div", { class: "kit-cue", hidden: true });
   const picture = h("div", { class: "kit-picture" }, tray, cue);
@@ -91,7 +95,7 @@ export function kitView(ctx, kitId) {
   const saved = h("p", { id: "kit-saved", role: "status" });
   const actions = h("div", { class: "actions" });
   const root = h("section", { class: "panel kit", "aria-labelledby": "kit-title", dataset: { state: "connecting" } },
-    headline, sub, picture, steps, rows, axesNote, saved, actions);
+    headline, sub, noticeBox, picture, steps, rows, axesNote, saved, actions);
   fill(ctx.main, root);
   ctx.focusMain();
 
@@ -119,9 +123,14 @@ export function kitView(ctx, kitId) {
     fill(rows, snap.devices.map(deviceRow));
     axesNote.textContent = running ? "" : axesText(snap);
     axesNote.hidden = !axesNote.textContent;
+    if (running) notices.update(snap);
+    else {
+      notices.stop();
+      fill(noticeBox, null);
+    }
     if (running) {
       headline.textContent = snap.prompt || "…";
-      sub.textContent = `All ${names.length} wearables are turned together, in their tray.`;
+      sub.textContent = `${names.length === 2 ? "Both" : `All ${names.length}`} wearables are turned together, in their tray.`;
       fill(actions, h("button", { class: "button", type: "button", id: "kit-cancel", onclick: cancel }, icon("stop"), "Cancel"));
       return;
     }
@@ -190,6 +199,7 @@ export function kitView(ctx, kitId) {
   load();
   return () => {
     alive = false;
+    notices.stop();
     halt();
   };
 }

@@ -6,6 +6,7 @@ import { ask } from "./confirm.js";
 import { TURN_SUMMARY, turnGuide } from "./guide.js";
 import { cues } from "./cues.js";
 import { REST_PHASES, angleGauge, icon, notice, placePicture, showRest, showTurn, stillRing, turnAnimation, turnTiles } from "./figures.js";
+import { sessionNotices } from "./notices.js";
 import { identifyButton } from "./identify.js";
 import { STEP_LABELS, headline, reasonFor, requestProblem, stepOf, subline } from "./messages.js";
 import { detailsBlock, paramTable } from "./details.js";
@@ -14,10 +15,7 @@ import { verifyTurn } from "./verify.js";
 import { writeBack } from "./writeback.js";
 
 const END_STATES = new Set(["done", "failed", "cancelled"]);
-const WARNING_SHOW_MS = 10000;
 const TURN_FAULTS = new Set(["wrong_axis", "too_fast", "turn_incomplete", "turn_too_far", "turn_too_long", "no_motion"]);
-const WARNING_ICON = { moved: "hand", hint: "info", link_lost: "link", link_restored: "link", moved_during_pause: "hand",
-  no_data: "link", data_resumed: "link", service_late: "clock" };
 
 // -- shared pieces -------------------------------------------------------------------------------
 /** "Step n of 7" and the bar of steps; stopped=true marks step n as the one where the calibration stopped. */
@@ -158,13 +156,10 @@ export function sessionView(ctx, sid) {
   let stop = null;
   let ui = null;
   let endedKey = null;
-  let seenWarnings = null;
-  let warningTimer = null;
-  let shownWarning = null;
-  let seenAttempt = null; // the try of the current turn, as the last snapshot said
   let lastStep = null; // the step this page saw the session at, before it ended
   let lastAxis = null; // the turn a lost connection interrupted
   const sound = cues(); // tones and spoken prompts, when she has turned them on
+  const notices = sessionNotices({ sound });
 
   const closeStream = () => {
     if (stop) stop();
@@ -217,7 +212,7 @@ export function sessionView(ctx, sid) {
       if (!alive || err.status === 401) return;
       btn.disabled = false;
       if (err.status === 409) await refresh();
-      else setNotice(notice("error", "warn", `${requestProblem(err, "cancel").title}: ${err.detail}`), true);
+      else notices.show(notice("error", "warn", `${requestProblem(err, "cancel").title}: ${err.detail}`), true);
     }
   };
 
@@ -235,7 +230,8 @@ export function sessionView(ctx, sid) {
       head, where, h("div", { class: "prompt", "aria-live": "polite", "aria-atomic": "true" }, title, sub), noticeBox, stage, tiles);
     fill(ctx.main, root);
     ctx.focusMain();
-    ui = { root, head, title, sub, noticeBox, stage, tiles, key: null, ring: null, gauge: null, remote: Boolean(s.remote) };
+    ui = { root, head, title, sub, stage, tiles, key: null, ring: null, gauge: null, remote: Boolean(s.remote) };
+    notices.attach(noticeBox);
   };
 
   const stageKey = (s) => {
@@ -283,55 +279,6 @@ export function sessionView(ctx, sid) {
     fill(ui.stage, content);
   };
 
-  const setNotice = (el, sticky = false) => {
-    if (!ui) return;
-    ui.noticeBox.dataset.key = "message";
-    fill(ui.noticeBox, el);
-    if (sticky) shownWarning = { until: Date.now() + WARNING_SHOW_MS, message: null };
-  };
-
-  const updateNotice = (s) => {
-    const warnings = s.warnings || [];
-    const attemptBefore = seenAttempt;
-    seenAttempt = s.attempt;
-    if (seenWarnings === null) seenWarnings = warnings.length; // on (re)load, old warnings are history
-    if (warnings.length > seenWarnings) {
-      const w = warnings[warnings.length - 1];
-      seenWarnings = warnings.length;
-      const kind = ["link_restored", "hint", "data_resumed", "service_late"].includes(w.code) ? "info" : "warn";
-      // a turn that will be asked again (the warning came with the next attempt): why, until that try starts
-      const retry = s.state.startsWith("turn_") && attemptBefore !== null && s.attempt > attemptBefore;
-      shownWarning = { until: retry ? Infinity : Date.now() + WARNING_SHOW_MS, message: w.message, axis: s.axis,
-        state: s.state, retry, rested: false };
-      ui.noticeBox.dataset.key = `warning-${seenWarnings}`;
-      ui.noticeBox.dataset.warning = w.code;
-      fill(ui.noticeBox, notice(kind, WARNING_ICON[w.code] || "warn", w.message,
-        retry ? `Attempt ${s.attempt} of ${s.max_attempts}:` : null));
-      sound.tone(kind === "warn" ? "warn" : "step");
-      sound.say(w.message);
-      clearTimeout(warningTimer);
-      warningTimer = setTimeout(() => alive && snap && ui && updateNotice(snap), WARNING_SHOW_MS + 50);
-    }
-    if (shownWarning) {
-      // a warning stays a while, unless the instruction itself now says the same or the session has moved on
-      // to the step it asked for (a new turn started, or another state): then it would contradict the screen.
-      // A retried turn's reason stays through the rest and the prompt to turn again, until that turn starts.
-      if (shownWarning.retry && ["settle", "ready", "checking", "pause"].includes(s.phase)) shownWarning.rested = true;
-      const movedOn = shownWarning.retry
-        ? (s.phase === "turning" && shownWarning.rested) || s.state !== shownWarning.state
-        : ["turning", "placing"].includes(s.phase) || s.state === "computing"
-          || Boolean(shownWarning.axis && s.axis && s.axis !== shownWarning.axis);
-      if (shownWarning.message !== s.prompt && Date.now() < shownWarning.until && !movedOn) return;
-      shownWarning = null;
-    }
-    const resting = s.state === "still" || ["checking", "pause", "settle"].includes(s.phase);
-    const key = resting && s.live && s.live.moving ? "moving" : "";
-    if (ui.noticeBox.dataset.key === key) return;
-    ui.noticeBox.dataset.key = key;
-    delete ui.noticeBox.dataset.warning;
-    fill(ui.noticeBox, key ? notice("warn", "hand", "The device is moving. Hold it still against the block: the ring fills again once it is still.") : null);
-  };
-
   const renderRunning = (s) => {
     if (!ui || ui.remote !== Boolean(s.remote)) buildRunning(s);
     ui.root.dataset.state = s.state;
@@ -358,12 +305,12 @@ export function sessionView(ctx, sid) {
     if (s.state.startsWith("turn_")) lastAxis = s.axis;
     ui.tiles.update(Object.keys(s.turns || {}), s.state.startsWith("turn_") ? s.axis : s.state === "reconnecting" ? lastAxis : null);
     ui.tiles.hidden = !(s.state.startsWith("turn_") || s.state === "still" || s.state === "reconnecting");
-    updateNotice(s);
+    notices.update(s);
   };
 
   // -- ended ------------------------------------------------------------------------------------
   const renderEnded = (s) => {
-    clearTimeout(warningTimer);
+    notices.stop();
     if (s.decision) ctx.guardLeave(null); // decided here or on another page
     if (s.decision === "accepted") return savedView(s);
     if (s.decision === "discarded") return discardedView(s);
@@ -585,7 +532,7 @@ export function sessionView(ctx, sid) {
 
   return () => {
     alive = false;
-    clearTimeout(warningTimer);
+    notices.stop();
     closeStream();
   };
 }
