@@ -360,6 +360,23 @@ def assert_done_never_undone(done: list[str]) -> None:
         assert set(before) <= set(after), f"a turn shown done was taken back: {done}"
 
 
+# what the page played and read aloud (window.heard: said, tones), recorded from the page's first script on
+LISTEN = """
+  window.heard = { said: [], tones: [] };
+  if (window.speechSynthesis) {
+    const speak = window.speechSynthesis.speak.bind(window.speechSynthesis);
+    window.speechSynthesis.speak = (u) => { window.heard.said.push(u.text); try { speak(u); } catch (e) {} };
+  }
+  const osc = AudioContext.prototype.createOscillator;
+  AudioContext.prototype.createOscillator = function () {
+    const o = osc.call(this);
+    const start = o.start.bind(o);
+    o.start = (...a) => { window.heard.tones.push(o.frequency.value); start(...a); };
+    return o;
+  };
+"""
+
+
 def assert_clean(watch: Watch, allowed_errors: tuple[str, ...] = ()) -> None:
     """No request left this computer, none had to be refused, and the console shows no error."""
     assert watch.requests, "the page made no requests at all"

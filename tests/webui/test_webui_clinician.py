@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 import pytest
 from webui_fixtures import (
+    LISTEN,
     OPERATOR,
     PIN,
     Watch,
@@ -255,22 +256,6 @@ def test_a_turn_done_wrong_is_asked_again_saying_why_never_blaming_the_sensor(
         assert all(set("xy") <= set(d) for d in done[done.index("xy"):]), done
         assert "turn_z:settle" in w.assert_screens_accessible()  # the screen that asks the turn again, audited too
     assert_clean(page_watch)
-
-
-LISTEN = """
-  window.heard = { said: [], tones: [] };
-  if (window.speechSynthesis) {
-    const speak = window.speechSynthesis.speak.bind(window.speechSynthesis);
-    window.speechSynthesis.speak = (u) => { window.heard.said.push(u.text); try { speak(u); } catch (e) {} };
-  }
-  const osc = AudioContext.prototype.createOscillator;
-  AudioContext.prototype.createOscillator = function () {
-    const o = osc.call(this);
-    const start = o.start.bind(o);
-    o.start = (...a) => { window.heard.tones.push(o.frequency.value); start(...a); };
-    return o;
-  };
-"""
 
 
 def identify_and_turn_sound_on(w: Wizard, device: str) -> None:

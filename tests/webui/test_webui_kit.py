@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from webui_fixtures import Watch, Wizard, api, assert_clean, running_service, watched_page
+from webui_fixtures import LISTEN, Watch, Wizard, api, assert_clean, running_service, watched_page
 
 pytestmark = pytest.mark.timeout(180)
 PHONE = {"width": 390, "height": 844}
@@ -160,8 +160,10 @@ def test_a_knock_to_the_tray_is_said_of_the_tray_once_and_the_kit_goes_on(
         browser: Any, page_watch: Watch, artifacts: Any) -> None:
     """Two wearables in a tray that the clinician knocks once in a pause (`hand:bumps`): every wearable sees the knock,
     and the kit page says it once, of the tray, under the tray's prompt, as the one-wearable page does (the ring says
-    the tray is moving while it moves); then the kit goes on to its result."""
+    the tray is moving while it moves); then the kit goes on to its result. Her hands are on the tray: with Sound and
+    Read aloud turned on beside Cancel, each prompt comes with a tone and is read aloud, and so is the knock."""
     with running_service(["hand:bumps"] * 2, "--mock-kit") as svc, watched_page(browser, svc, page_watch) as page:
+        page.add_init_script(LISTEN)
         wizard = Wizard(page, svc, artifacts / "webui" / "kit-bumped")
         wizard.sign_in()
         for device in ("mock-1", "mock-2"):
@@ -169,6 +171,9 @@ def test_a_knock_to_the_tray_is_said_of_the_tray_once_and_the_kit_goes_on(
         page.click("#kit-start")
         page.wait_for_url(re.compile(r"#/kit/[0-9a-f]{32}$"))
         kit_id = page.url.rsplit("/", 1)[1]
+        for toggle in (".kit .cue-sound", ".kit .cue-speech"):
+            page.click(toggle)
+            assert page.get_attribute(toggle, "aria-pressed") == "true"
         page.evaluate("""() => {
           window.notices = [];
           new MutationObserver(() => {
@@ -184,6 +189,7 @@ def test_a_knock_to_the_tray_is_said_of_the_tray_once_and_the_kit_goes_on(
         wizard.shot("kit-knocked")
         _wait_done(page, svc, kit_id)
         notices = [n.split("|", 1) for n in page.evaluate("() => window.notices")]
+        heard = page.evaluate("() => window.heard")
         with api(svc) as c:
             kit = c.get(f"/sessions/{kit_id}").json()
             members = [c.get(f"/sessions/{d['session_id']}").json() for d in kit["devices"]]
@@ -196,4 +202,9 @@ def test_a_knock_to_the_tray_is_said_of_the_tray_once_and_the_kit_goes_on(
     shown = {text for _, text in notices}
     assert any(w["message"] in text for w in knocks for text in shown), (notices, knocks)
     assert all("device" not in text for text in shown), notices
+    said, tones = heard["said"], heard["tones"]
+    for axis in "XYZ":
+        assert f"Turn the tray one full turn (360°) about its {axis} axis, then put it back against the block." in said, said
+    assert any(w["message"] in said for w in knocks), (said, knocks)
+    assert said[-1] == "Kit calibrated: 2 of 2 passed" and tones[-1] == 1320 and tones.count(880) >= 6, (said, tones)
     assert_clean(page_watch)

@@ -2,6 +2,7 @@
 // its result, and every one that passed accepted at once. The page follows the kit's event stream (a snapshot each
 // time a wearable's state changes).
 
+import { cues } from "./cues.js";
 import { AXES, fill, h, num } from "./dom.js";
 import { REST_PHASES, angleGauge, icon, showRest, showTurn, stillRing, trayPicture } from "./figures.js";
 import { problemLine } from "./messages.js";
@@ -83,8 +84,13 @@ export function kitView(ctx, kitId) {
   const headline = h("h1", { id: "kit-title", class: "kit-prompt" }, "Connecting to the wearables…");
   const sub = h("p", { class: "lead kit-sub" });
   const noticeBox = h("div", { class: "notice-box kit-notice" });
-  const notices = sessionNotices({ thing: "tray" }); // the kit's warnings (a bump, a turn asked again and why, a late service)
+  const sound = cues(); // her hands are on the tray: a tone at each prompt and the prompts read aloud, when she turns them on
+  const notices = sessionNotices({ thing: "tray", sound }); // the kit's warnings (a knock, a turn asked again and why, ...)
   notices.attach(noticeBox);
+  const runningActions = h("div", { class: "kit-running-actions" },
+    h("button", { class: "button", type: "button", id: "kit-cancel", onclick: () => cancel() }, icon("stop"), "Cancel"),
+    sound.controls());
+  let endedSaid = false;
   const tray = h("div", { class: "kit-tray" });
   const cue = h("div", { class: "kit-cue", hidden: true });
   const picture = h("div", { class: "kit-picture" }, tray, cue);
@@ -129,15 +135,25 @@ export function kitView(ctx, kitId) {
       fill(noticeBox, null);
     }
     if (running) {
-      headline.textContent = snap.prompt || "…";
+      const said = snap.prompt || "…";
+      if (headline.textContent !== said) {
+        headline.textContent = said;
+        sound.tone("step");
+        sound.say(said);
+      }
       sub.textContent = `${names.length === 2 ? "Both" : `All ${names.length}`} wearables are turned together, in their tray.`;
-      fill(actions, h("button", { class: "button", type: "button", id: "kit-cancel", onclick: cancel }, icon("stop"), "Cancel"));
+      if (actions.firstChild !== runningActions) fill(actions, runningActions);
       return;
     }
     const passed = snap.devices.filter((d) => d.state === "done" && d.passed && !d.departed);
     const open = passed.filter((d) => !d.decision);
     headline.textContent = snap.state === "cancelled" ? "The kit's calibration was cancelled"
       : passed.length ? `Kit calibrated: ${passed.length} of ${names.length} passed` : "No wearable of the kit passed";
+    if (!endedSaid) {
+      endedSaid = true;
+      sound.tone(passed.length ? "done" : "warn");
+      sound.say(headline.textContent);
+    }
     sub.textContent = snap.kit && snap.kit.departed.length ? departedText(snap.kit.departed)
       : snap.kit && snap.kit.refusal ? snap.kit.refusal : "";
     fill(actions,
