@@ -12,7 +12,7 @@ from .. import schemas as M
 from ..deps import problem
 from ..devices import Device, model_facts
 from ..lifecycle import calibration_due
-from ..live.codes import END_STATES
+from ..live.codes import END_STATES, known_reason
 from ..live.kit_snapshot import stored_kit_snapshot
 from ..live.snapshot import stored_snapshot
 from ..live.snapshot_schema import RemoteGateway, SessionOut
@@ -127,7 +127,8 @@ async def device_out(svc: Service, dev: Device | None, row: StoredDevice | None,
         "simulated_truth": dev.simulated_truth if dev else None,
         "simulated_identifying": dev.simulated_identifying if dev else None,
         "info": finite(dict(info)),
-        "recent_sessions": [M.SessionSummary.model_validate(r) for r in recent],
+        "recent_sessions": [M.SessionSummary.model_validate({**r, "reason_code": known_reason(r.get("reason_code"))})
+                            for r in recent],
     })
 
 

@@ -64,6 +64,12 @@ class EndReason(StrEnum):
     CANCELLED = "cancelled"
 
 
+def known_reason(code: str | None) -> EndReason | None:
+    """A stored reason code this version knows; one a newer gyrocal on the same store wrote is left out (the reason in
+    words is still shown) rather than making the session unreadable while a fleet's gateways are upgraded one by one."""
+    return EndReason(code) if code is not None and code in {r.value for r in EndReason} else None
+
+
 TURN_STATES = {"x": State.TURN_X, "y": State.TURN_Y, "z": State.TURN_Z}
 STEPS = (State.CONNECTING, State.STILL, State.TURN_X, State.TURN_Y, State.TURN_Z, State.COMPUTING, State.DONE)
 END_STATES = frozenset({State.DONE, State.FAILED, State.CANCELLED})

@@ -12,7 +12,7 @@ from calib.stages.stage import AXES
 
 from ..store import StoredSession
 from .buffer import SampleBuffer
-from .codes import STEPS, EndReason, Phase, State
+from .codes import STEPS, EndReason, Phase, State, known_reason
 from .snapshot_schema import CausedBy, LiveReading, SessionOut, SessionWarning
 from .turn_watch import LiveAngle
 from .turns import TurnRecord
@@ -128,7 +128,7 @@ def stored_snapshot(row: StoredSession) -> SessionOut:
         "state": row["state"],
         "phase": None,
         "prompt": row.get("reason"),
-        "reason_code": row["reason_code"],
+        "reason_code": known_reason(row["reason_code"]),
         "reason": row["reason"],
         "result": row["result"],
         "passed": row["passed"],

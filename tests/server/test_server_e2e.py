@@ -470,3 +470,24 @@ def test_restart_keeps_history_and_a_failed_store_write_changes_nothing(service_
             assert [h["id"] for h in c.get("/devices/mock-1/calibrations").json()] == [second["id"], first["id"]]
     finally:
         svc.stop()
+
+
+def test_a_session_a_newer_gyrocal_ended_for_a_reason_this_one_does_not_know_is_still_shown(service: RunningService) -> None:
+    """The gateways of one fleet share a store and are upgraded one at a time: a session a newer version ended with a
+    reason code this one does not know yet is shown, and its device too, with the reason in words and no code."""
+    from server.store import SessionEnd, Store
+
+    store = Store(service.db_url)
+    sid = hashlib.sha256(b"newer").hexdigest()[:32]
+    store.upsert_device("unit-from-a-newer-room")
+    store.create_session(sid, "unit-from-a-newer-room", "live", "connecting", "closure", "alice", "9.0.0")
+    store.finish_session(sid, SessionEnd("failed", "a_reason_of_a_newer_gyrocal", "What the newer gyrocal said."))
+    store.close()
+    with service.client() as c:
+        shown = c.get(f"/sessions/{sid}")
+        assert shown.status_code == 200, shown.text
+        assert (shown.json()["state"], shown.json()["reason_code"], shown.json()["reason"]) == \
+            ("failed", None, "What the newer gyrocal said.")
+        device = c.get("/devices/unit-from-a-newer-room")
+        assert device.status_code == 200, device.text
+        assert [(r["id"], r["reason_code"]) for r in device.json()["recent_sessions"]] == [(sid, None)]
