@@ -174,6 +174,15 @@ def test_a_knock_to_the_tray_is_said_of_the_tray_once_and_the_kit_goes_on(
         for toggle in (".kit .cue-sound", ".kit .cue-speech"):
             page.click(toggle)
             assert page.get_attribute(toggle, "aria-pressed") == "true"
+        # meanwhile, on another tablet, the device list sends each wearable of the tray back to the kit's page
+        other = page.context.new_page()
+        Wizard(other, svc, artifacts / "webui" / "kit-bumped-list").sign_in()
+        card = other.locator(".device-card[data-device='mock-2']")
+        assert card.locator(".status").inner_text().strip() == "In a kit's calibration"
+        card.locator("a.button.primary").click()
+        other.wait_for_url(f"**/#/kit/{kit_id}")
+        other.wait_for_selector(".kit .kit-device[data-device='mock-2']")
+        other.close()
         page.evaluate("""() => {
           window.notices = [];
           new MutationObserver(() => {

@@ -8,6 +8,7 @@ import { heldFact, writeBack } from "./writeback.js";
 import { startKit } from "./kit.js";
 
 function status(dev) {
+  if (dev.active_kit) return { key: "busy", text: "In a kit's calibration", icon: "busy" };
   if (dev.active_session) return { key: "busy", text: "In a calibration", icon: "busy" };
   if (!dev.available) return { key: "offline", text: "Not reachable", icon: "offline" };
   return { key: "ready", text: "Ready", icon: "ready" };
@@ -34,7 +35,9 @@ function deviceCard(ctx, dev, refresh) {
     : dev.transport === "ble" ? "Bluetooth" : null;
   const kind = [dev.model_label ? `${dev.model_label}${how ? ` (${how})` : ""}` : how, dev.sensor_model].filter(Boolean).join(" · ");
   const actions = [];
-  if (dev.active_session) {
+  if (dev.active_kit) { // turned with the rest of its tray: the kit's page, not this wearable's alone
+    actions.push(h("a", { class: "button primary", href: `#/kit/${dev.active_kit}` }, icon("play"), "Resume the kit"));
+  } else if (dev.active_session) {
     actions.push(h("a", { class: "button primary", href: `#/session/${dev.active_session}` }, icon("play"), "Resume"));
   } else if (dev.available) {
     actions.push(h("a", { class: "button primary", href: `#/place/${encodeURIComponent(dev.id)}`, "aria-label": `Calibrate ${dev.name || dev.id}` }, icon("play"), "Calibrate"));

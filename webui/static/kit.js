@@ -81,7 +81,7 @@ export function kitView(ctx, kitId) {
   ctx.title("Calibrate the kit");
   let alive = true;
   let stop = null;
-  const headline = h("h1", { id: "kit-title", class: "kit-prompt" }, "Connecting to the wearables…");
+  const headline = h("h1", { id: "kit-title", class: "kit-prompt" }, "Loading the kit…");
   const sub = h("p", { class: "lead kit-sub" });
   const noticeBox = h("div", { class: "notice-box kit-notice" });
   const sound = cues(); // her hands are on the tray: a tone at each prompt and the prompts read aloud, when she turns them on
