@@ -209,6 +209,11 @@ export function kitView(ctx, kitId) {
     } catch (err) {
       saved.textContent = problemLine(err);
       if (btn) btn.disabled = false;
+      if (err.status === 409) { // decided meanwhile (another operator): show the kit as it now stands
+        try {
+          render(await ctx.api.get(`/sessions/${kitId}`));
+        } catch { /* the sentence above says enough */ }
+      }
     }
   }
 

@@ -116,8 +116,10 @@ async def accept_kit(svc: Svc, kit_id: str, operator: Operator) -> M.KitAcceptOu
     passed = [d for d in snap.devices if d.state == "done" and d.passed and d.decision is None and not d.departed]
     not_accepted = {d.device_id: _why_not(d) for d in snap.devices if d not in passed}
     if not passed:
-        raise problem(409, "no wearable of the kit passed, or all were decided already: " +
-                      "; ".join(f"{k}: {v}" for k, v in not_accepted.items()))
+        decided = [f"{d.device_id} {d.decision}" for d in snap.devices if d.decision]
+        if decided:
+            raise problem(409, f"the kit was decided already ({', '.join(decided)}): nothing was changed")
+        raise problem(409, "no wearable of the kit passed: " + "; ".join(f"{k}: {v}" for k, v in not_accepted.items()))
     accepts = [_acceptance(running[d.device_id]) if d.device_id in running else Acceptance(d.session_id) for d in passed]
     try:
         records = await asyncio.to_thread(svc.store.accept_many, accepts, operator)
