@@ -77,6 +77,12 @@ def kit_link_restored(device_id: str) -> str:
     return f"Reconnected to {device_id}: the kit goes on."
 
 
+def kit_sample_loss(device_id: str) -> str:
+    """A kit's wearable lost samples in a turn: the tray is not turned again for it (the kit closes that turn)."""
+    return (f"{device_id} lost samples on the radio link during a turn. The kit goes on: that turn of {device_id} is "
+            "closed with the other wearables'.")
+
+
 def kit_link_lost(lost: Sequence[str]) -> str:
     return (f"Keep the tray still and close to the receiver: the link to {', '.join(lost)} was lost. "
             "The kit goes on when it reconnects.")

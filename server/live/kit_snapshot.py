@@ -86,16 +86,19 @@ def _reason(snaps: list[SessionOut]) -> str | None:
 
 
 def kit_warnings(snaps: list[SessionOut]) -> list[SessionWarning]:
-    """The kit's warnings, in the order they came: a wearable's own named by it (one back on its link is told the kit
-    goes on: the tray is not turned again for it); the tray's said once, of the tray (the first wearable to see it
-    says it). Each new warning of any wearable comes last, so the list only grows while the kit runs."""
+    """The kit's warnings, in the order they came: a wearable's own named by it (one back on its link, or that lost
+    samples in a turn, is told the kit goes on: the tray is not turned again for one wearable); the tray's said once,
+    of the tray (the first wearable to see it says it). Each new warning of any wearable comes last, so the list only
+    grows while the kit runs."""
     merged = sorted(((datetime.fromisoformat(w.at), s.device_id, w) for s in snaps for w in s.warnings),
                     key=lambda e: e[0])
     out: list[SessionWarning] = []
     said: list[tuple[datetime, str, str]] = []  # the tray's warnings kept: when, which code, by which wearable
     for at, device_id, w in merged:
         if w.code in OWN_WARNINGS:
-            message = say.kit_link_restored(device_id) if w.code == "link_restored" else f"{device_id}: {w.message}"
+            message = (say.kit_link_restored(device_id) if w.code == "link_restored"
+                       else say.kit_sample_loss(device_id) if w.code == EndReason.SAMPLE_LOSS
+                       else f"{device_id}: {w.message}")
             out.append(w.model_copy(update={"message": message}))
         elif not any(code == w.code and by != device_id and abs((at - t).total_seconds()) <= SAME_EVENT_S
                      for t, code, by in said):

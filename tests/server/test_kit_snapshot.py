@@ -65,7 +65,8 @@ def test_the_kit_says_the_trays_warnings_once_and_names_a_wearables_own() -> Non
         _wearable("mock-1", ("moved", moved, 1.0), ("wrong_axis", wrong, 9.0), ("moved", moved, 10.5)),
         _wearable("mock-2", ("moved", moved, 1.02), ("no_data", say.no_data(3.0), 4.0), ("link_restored", say.link_restored("y"), 6.0),
                   ("wrong_axis", wrong, 9.01), ("service_late", say.service_late(1.3), 12.01)),
-        _wearable("mock-3", ("moved", moved, 1.01), ("wrong_axis", wrong, 9.02), ("service_late", late, 12.0)),
+        _wearable("mock-3", ("moved", moved, 1.01), ("wrong_axis", wrong, 9.02), ("service_late", late, 12.0),
+                  ("sample_loss", say.sample_loss("z", 12, retry=True), 15.0)),
     ]
     said = [(w.code, w.message) for w in kit_warnings(snaps)]
     assert said == [
@@ -78,6 +79,8 @@ def test_the_kit_says_the_trays_warnings_once_and_names_a_wearables_own() -> Non
         ("moved", "The tray moved: the count starts again. Keep it still against the block."),  # a second bump
         ("service_late", "The calibration service fell 1.2 s behind (the computer running it is busy). It is catching "
                          "up with the data it received: nothing was lost, and nothing needs to be done again."),
+        ("sample_loss", "mock-3 lost samples on the radio link during a turn. The kit goes on: that turn of mock-3 is "
+                        "closed with the other wearables'."),  # not "turn again": the tray is not turned for one
     ]
     # a warning that comes later comes last: the page counts what it has seen
     snaps[2].warnings.append(SessionWarning(code="moved", message=moved, t_device_s=20.0, at="2026-05-04T12:00:20+00:00"))
