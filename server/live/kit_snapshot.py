@@ -84,7 +84,6 @@ def _reason(snaps: list[SessionOut]) -> str | None:
     return " ".join(ended) or None
 
 
-
 def kit_warnings(snaps: list[SessionOut]) -> list[SessionWarning]:
     """The kit's warnings, in the order they came: a wearable's own named by it (one back on its link, or that lost
     samples in a turn, is told the kit goes on: the tray is not turned again for one wearable); the tray's said once,
