@@ -80,6 +80,7 @@ class KitSession(Generic[M]):
         self._publishing: asyncio.TimerHandle | None = None
         for m in members:
             m.kit = self
+            m.machine.kit_id = kit_id
 
     @property
     def device_ids(self) -> list[str]:

@@ -35,7 +35,8 @@ def kit_snapshot(kit_id: str, snaps: list[SessionOut], kit: KitOut, *, operator:
     ) for s in snaps]
     decision = "accepted" if any(d.decision == "accepted" for d in devices) else None
     return lead.model_copy(update={
-        "session_id": kit_id, "device_id": ",".join(s.device_id for s in snaps), "kind": "kit", "state": state,
+        "session_id": kit_id, "kit_id": None, "device_id": ",".join(s.device_id for s in snaps), "kind": "kit",
+        "state": state,
         "prompt": _prompt(state, lead, snaps),
         "warnings": kit_warnings(snaps),
         "devices": devices, "kit": kit, "operator": operator, "started_at": started_at,

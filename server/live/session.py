@@ -121,6 +121,7 @@ class GuidedSession(ProtocolSteps, Lateness):
         self._calm_since: float | None = None
         self.t_now = 0.0
         self.caused_by: CausedBy | None = None
+        self.kit_id: str | None = None  # the kit session this wearable is turned in, with the rest of its tray
         self._last_live_emit = -1e9
         self.snapshot_count = 0
         self._emitted_state: str | None = None

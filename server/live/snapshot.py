@@ -45,6 +45,7 @@ class SessionView(Protocol):
     started_at: str
     ended_at: str | None
     caused_by: CausedBy | None
+    kit_id: str | None
 
     @property
     def buf(self) -> SampleBuffer: ...
@@ -75,6 +76,7 @@ def session_snapshot(s: SessionView, event: str) -> SessionOut:
     return SessionOut.model_validate(finite({
         "session_id": s.id,
         "device_id": s.device_id,
+        "kit_id": s.kit_id if s.ended_at is None else None,  # as the store keeps an ended session: without it
         "event": event,
         "state": s.state,
         "phase": s.phase,

@@ -174,6 +174,9 @@ class SessionOut(BaseModel):
     session_id: str
     device_id: str
     kind: Literal["live", "upload", "import", "verify", "kit"] = "live"
+    kit_id: str | None = Field(None, description="while a wearable's live session that is part of a kit runs: that "
+                                                 "kit's session (GET /sessions/{kit_id}), whose prompts, said of the tray, "
+                                                 "are the ones to follow")
     event: str = Field("state", description="the SSE event this snapshot was sent as (state, prompt, live, warning, "
                                             "result, decision)")
     event_id: int | None = Field(None, description="its number in the session's event stream")

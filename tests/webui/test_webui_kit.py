@@ -182,6 +182,13 @@ def test_a_knock_to_the_tray_is_said_of_the_tray_once_and_the_kit_goes_on(
         card.locator("a.button.primary").click()
         other.wait_for_url(f"**/#/kit/{kit_id}")
         other.wait_for_selector(".kit .kit-device[data-device='mock-2']")
+        # ... and so does the wearable's own session, opened by its address: its prompts are the tray's
+        with api(svc) as c:
+            member = next(d["session_id"] for d in c.get(f"/sessions/{kit_id}").json()["devices"] if d["device_id"] == "mock-2")
+            assert c.get(f"/sessions/{member}").json()["kit_id"] == kit_id
+        other.goto(f"{svc.base}/#/session/{member}")
+        other.wait_for_url(f"**/#/kit/{kit_id}")
+        other.wait_for_selector(".kit .kit-device[data-device='mock-2']")
         other.close()
         page.evaluate("""() => {
           window.notices = [];

@@ -186,6 +186,11 @@ export function sessionView(ctx, sid) {
       }
       return;
     }
+    if (s.kit_id) { // turned with the rest of its tray: the kit's page has the tray's prompts
+      closeStream();
+      ctx.go(`#/kit/${s.kit_id}`, true);
+      return;
+    }
     renderRunning(s);
   };
 
