@@ -203,6 +203,7 @@ def test_a_knock_to_the_tray_is_said_of_the_tray_once_and_the_kit_goes_on(
         page.wait_for_selector(".kit-notice .notice", timeout=60_000)
         assert page.inner_text(".kit-sub") == "Both wearables are turned together, in their tray."
         wizard.shot("kit-knocked")
+        assert wizard.small_targets() == []  # Cancel, Sound and Read aloud beside the tray are large enough to touch
         _wait_done(page, svc, kit_id)
         notices = [n.split("|", 1) for n in page.evaluate("() => window.notices")]
         heard = page.evaluate("() => window.heard")
