@@ -7,7 +7,7 @@ from datetime import datetime
 from typing import TYPE_CHECKING
 
 from . import guidance as say
-from .codes import END_STATES, STEPS, EndReason, State
+from .codes import END_STATES, STEPS, EndReason, Phase, State
 from .snapshot import stored_snapshot
 from .snapshot_schema import KitDeviceOut, KitOut, SessionOut, SessionWarning
 
@@ -18,6 +18,7 @@ if TYPE_CHECKING:
 # tray's: each wearable sees the same bump, the same turn, the same late service, and the kit says it once, of the tray
 OWN_WARNINGS = frozenset({"link_lost", "link_restored", "no_data", "data_resumed", "kit_ahead", EndReason.SAMPLE_LOSS,
                           EndReason.UNREADABLE_DATA, EndReason.SENSOR_FAULT, EndReason.OUT_OF_TOLERANCE})
+PHASES = list(Phase)  # in protocol order
 SAME_EVENT_S = 2.0  # the tray's warnings of one code from two wearables this close together are one event
 
 
@@ -65,7 +66,9 @@ def _state(snaps: list[SessionOut], cancelled: bool) -> tuple[State, SessionOut]
     lost = [s for s in running if s.state == State.RECONNECTING]
     if lost:
         return State.RECONNECTING, lost[0]
-    along = max(running, key=lambda s: STEPS.index(s.state) if s.state in STEPS else 0)
+    # furthest along by step, then by phase within it: a wearable that asks a turn again (settle) while the others rest
+    # after it (pause) does not lead the tray, which is not turned again for one wearable
+    along = max(running, key=lambda s: (STEPS.index(s.state) if s.state in STEPS else 0, PHASES.index(s.phase) if s.phase else -1))
     return State(along.state), along
 
 

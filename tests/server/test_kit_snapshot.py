@@ -8,8 +8,8 @@ from pathlib import Path
 
 from calib.result import CalibrationResult
 from server.live import guidance as say
-from server.live.kit_snapshot import kit_warnings, stored_kit_snapshot
-from server.live.snapshot_schema import SessionOut, SessionWarning
+from server.live.kit_snapshot import kit_snapshot, kit_warnings, stored_kit_snapshot
+from server.live.snapshot_schema import KitOut, SessionOut, SessionWarning
 from server.store import SessionEnd, Store
 
 RESULT = CalibrationResult.from_dict({"k": [1.01, 0.99, 1.02], "b": [0.5, -0.25, 0.125], "method": "kit-closure",
@@ -85,3 +85,20 @@ def test_the_kit_says_the_trays_warnings_once_and_names_a_wearables_own() -> Non
     # a warning that comes later comes last: the page counts what it has seen
     snaps[2].warnings.append(SessionWarning(code="moved", message=moved, t_device_s=20.0, at="2026-05-04T12:00:20+00:00"))
     assert [(w.code, w.message) for w in kit_warnings(snaps)] == [*said, said[0]]
+
+
+def test_the_tray_follows_the_wearables_that_went_on_not_one_that_asks_a_turn_again() -> None:
+    """mock-1 asks the turn about X again (its sensor alone saw a fault) while mock-2 rests after it: the tray is not
+    turned again for one wearable, so the kit's prompt is mock-2's. When every wearable asks again, the tray does."""
+    def at(device_id: str, phase: str, attempt: int, prompt: str) -> SessionOut:
+        return SessionOut(session_id=device_id * 4, device_id=device_id, state="turn_x", phase=phase, axis="x",
+                          attempt=attempt, max_attempts=3, prompt=prompt)
+
+    again, rests = say.PROMPTS["settle"], say.pause_prompt("x", "y")
+    kit = kit_snapshot("k" * 32, [at("mock-1", "settle", 2, again), at("mock-2", "pause", 1, rests)], KitOut(),
+                       operator="alice", started_at=None, cancelled=False)
+    assert (kit.state, kit.phase, kit.attempt) == ("turn_x", "pause", 1)
+    assert kit.prompt == "Turn about X recorded. Keep the tray still against the block before the turn about Y."
+    kit = kit_snapshot("k" * 32, [at("mock-1", "settle", 2, again), at("mock-2", "settle", 2, again)], KitOut(),
+                       operator="alice", started_at=None, cancelled=False)
+    assert (kit.phase, kit.attempt, kit.prompt) == ("settle", 2, "Put the tray back against the block and keep it still.")
