@@ -224,6 +224,9 @@ def test_a_knock_to_the_tray_is_said_of_the_tray_once_and_the_kit_goes_on(
     assert all(len(s) == len(knocks) for s in seen), (seen, knocks)
     shown = {text for _, text in notices}
     assert any(w["message"] in text for w in knocks for text in shown), (notices, knocks)
+    # a knock that asks the turn (or its pause) again is shown as the kit's next attempt, as for one wearable
+    again = [w["message"] for w in knocks if w["code"] == "moved_during_pause"]
+    assert again and all(any(text == f"Attempt 2 of 3: {m}" for text in shown) for m in again), (notices, again)
     assert all("device" not in text for text in shown), notices
     said, tones = heard["said"], heard["tones"]
     for axis in "XYZ":
@@ -231,3 +234,37 @@ def test_a_knock_to_the_tray_is_said_of_the_tray_once_and_the_kit_goes_on(
     assert any(w["message"] in said for w in knocks), (said, knocks)
     assert said[-1] == "Kit calibrated: 2 of 2 passed" and tones[-1] == 1320 and tones.count(880) >= 6, (said, tones)
     assert_clean(page_watch, allowed_errors=("status of 409",))  # the accept the other operator's came before
+
+
+def test_a_fault_only_some_wearables_saw_is_not_said_of_the_tray(browser: Any, kit_service: Any, page_watch: Watch) -> None:
+    """The kit page's notices (webui/static/notices.js, in Chromium), fed the kit's snapshots: a fault that asks a turn
+    again is shown once the kit itself asks it again (every wearable did: the kit's attempt went up), as its attempt; one
+    that only some wearables saw is never shown, since the tray goes on without turning again for them."""
+    with watched_page(browser, kit_service, page_watch) as page:
+        page.goto(kit_service.base + "/")
+        shown = page.evaluate("""async () => {
+          const { sessionNotices } = await import('./notices.js');
+          const box = document.createElement('div');
+          document.body.append(box);
+          const notices = sessionNotices({ thing: 'tray' });
+          notices.attach(box);
+          const kit = (state, phase, attempt, warnings) => ({ state, phase, axis: state.slice(5), attempt, max_attempts: 3,
+            prompt: 'the kit prompt', warnings, live: { moving: false } });
+          const said = () => { const n = box.querySelector('.notice > span'); return n ? n.textContent : ''; };
+          const fast = { code: 'too_fast', message: 'That turn about X was too fast.' };
+          const wrong = { code: 'wrong_axis', message: 'That turn was about X, not Y.' };
+          const seen = [];
+          for (const s of [kit('turn_x', 'checking', 1, []), kit('turn_x', 'checking', 1, [fast]),
+                           kit('turn_x', 'pause', 1, [fast]), kit('turn_y', 'ready', 1, [fast]),
+                           kit('turn_y', 'checking', 1, [fast, wrong]), kit('turn_y', 'settle', 2, [fast, wrong]),
+                           kit('turn_y', 'ready', 2, [fast, wrong]), kit('turn_y', 'turning', 2, [fast, wrong])]) {
+            notices.update(s);
+            seen.push(said());
+          }
+          notices.stop();
+          return seen;
+        }""")
+    again = "Attempt 2 of 3: That turn was about X, not Y."
+    # one wearable's fault on X: never shown; every wearable's on Y: shown from the kit's attempt 2 until that try starts
+    assert shown == ["", "", "", "", "", again, again, ""], shown
+    assert_clean(page_watch)
