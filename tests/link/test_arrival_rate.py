@@ -96,3 +96,25 @@ def test_a_multi_position_calibration_carries_the_rate_uncertainty_too() -> None
     assert exact.k_std is not None and placed.k_std is not None
     np.testing.assert_allclose(placed.k_std, np.hypot(exact.k_std, placed.k * rel))
     assert placed.quality["sample_rate_rel_std"] == rel
+
+
+def test_a_gap_is_measured_from_when_the_last_sample_before_it_was_sent_not_from_its_late_arrival() -> None:
+    """A link drops for 2 s after 6 s of streaming, and the central was busy just before: the last notification before
+    the drop arrived 100 ms late. The gap is measured back to when that sample was sent (the lower envelope of
+    arrivals), so it is not 10 samples short."""
+    sent = np.arange(PER_PACKET, int(10.0 * TRUE_RATE_HZ), PER_PACKET) / TRUE_RATE_HZ
+    rng = np.random.default_rng(5)
+    arrival = sent + 0.0075 + rng.exponential(0.002, sent.size)
+    drop = (sent > 6.0) & (sent < 8.0)
+    last = int(np.flatnonzero(sent <= 6.0)[-1])
+    arrival[last] += 0.100  # the central ran late just before the drop
+    line = ArrivalTimeline(LinkStats(), NOMINAL_HZ)
+    zeros = np.zeros((PER_PACKET, 3))
+    gaps = []
+    for i in np.flatnonzero(~drop):
+        if i == last + 1 + int(drop.sum()):
+            line.begin(resume=True)  # the link came back
+        batch = line.place(float(arrival[i]), zeros, zeros, np.zeros(PER_PACKET, dtype=bool))
+        gaps.append(batch.lost_before)
+    truth = int(drop.sum()) * PER_PACKET
+    assert [g for g in gaps if g] == [pytest.approx(truth, abs=2)], (sum(gaps), truth)

@@ -11,7 +11,8 @@ does not bend the estimate. The minima's scatter about the line gives the rate's
 which the calibrated scale factors share (every angle is a sum of readings over the rate). Samples are
 spaced by the estimated rate. Without a counter, lost samples cannot be detected while the link holds;
 after a reconnection the gap is estimated from the arrival times (rounded to whole samples) and reported
-like any other loss.
+like any other loss: from the first arrival after it back to when the last sample before it was sent, which is the
+envelope's line at that sample (its own arrival may have come late, on a busy central) once the line is fitted.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ class EnvelopeFit:
         self._minima: dict[int, tuple[int, float]] = {}  # bin -> (counter, arrival - counter / nominal)
         self._rate: float | None = None
         self._rel_std: float | None = None
+        self._line: tuple[float, float] | None = None  # arrival (s after the first) = intercept + slope x counter
         self._fitted_bins = 0
 
     def add(self, counter: int, arrival_s: float) -> None:
@@ -54,11 +56,20 @@ class EnvelopeFit:
             keys = sorted(self._minima)[:-1]
             c = np.array([self._minima[k][0] for k in keys], dtype=float)
             a = np.array([self._minima[k][1] + self._minima[k][0] / self.nominal for k in keys])
-            slope, slope_std = _robust_slope(c, a)
+            slope, slope_std, intercept = _robust_slope(c, a)
             self._rate = 1.0 / slope if slope > 0 else None
             self._rel_std = slope_std / slope if slope > 0 else None
+            self._line = (intercept, slope) if slope > 0 else None
             self._fitted_bins = whole
         return self._rate
+
+    def sent_at(self, counter: int) -> float | None:
+        """When sample ``counter`` was sent (s after the first arrival), on the envelope's line: its own arrival came
+        at that time or later. None while the line is not fitted."""
+        if self.rate() is None or self._line is None:
+            return None
+        intercept, slope = self._line
+        return intercept + slope * counter
 
     def rate_rel_std(self) -> float | None:
         """The relative standard error of ``rate()`` from the scatter of the bins' minima about their line; None
@@ -66,9 +77,10 @@ class EnvelopeFit:
         return self._rel_std if self.rate() is not None else None
 
 
-def _robust_slope(c: np.ndarray, a: np.ndarray) -> tuple[float, float]:
-    """Least-squares slope of ``a`` against ``c`` and its standard error, without the bins a stalled central delayed
-    as a whole (a minimum far above the line: delays only ever push arrivals later, so only those are dropped)."""
+def _robust_slope(c: np.ndarray, a: np.ndarray) -> tuple[float, float, float]:
+    """Least-squares slope of ``a`` against ``c``, its standard error and the line's intercept, without the bins a
+    stalled central delayed as a whole (a minimum far above the line: delays only ever push arrivals later, so only
+    those are dropped)."""
 
     def fit(keep: np.ndarray) -> tuple[float, np.ndarray]:
         x = c[keep] - c[keep].mean()
@@ -87,7 +99,8 @@ def _robust_slope(c: np.ndarray, a: np.ndarray) -> tuple[float, float]:
         slope, residual = fit(keep)
     x = c[keep] - c[keep].mean()
     r = residual[keep]
-    return slope, float(np.sqrt(r @ r / max(1, int(keep.sum()) - 2) / (x @ x)))
+    intercept = float(a[keep].mean() - slope * c[keep].mean())
+    return slope, float(np.sqrt(r @ r / max(1, int(keep.sum()) - 2) / (x @ x))), intercept
 
 
 class ArrivalTimeline:
@@ -128,7 +141,9 @@ class ArrivalTimeline:
             self._arrival0 = arrival_s - (n - 1) / fs
             self._t_next = 0.0
         elif self._after_gap and self._last_arrival is not None:
-            lost = max(0, int(round((arrival_s - self._last_arrival) * fs)) - n)
+            sent = self._envelope.sent_at(self._counter - 1)
+            before = self._last_arrival if sent is None else min(self._last_arrival, self._arrival0 + sent)
+            lost = max(0, int(round((arrival_s - before) * fs)) - n)
         self._after_gap = False
         self._last_arrival = arrival_s
         assert self._t_next is not None
