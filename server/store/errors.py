@@ -19,7 +19,8 @@ class DecisionConflict(StoreError):
     def __init__(self, session_id: str, decision: str, by: str | None, at: datetime | None) -> None:
         who = f" by {by}" if by else ""
         when = f" at {at.isoformat(timespec='seconds')}" if at else ""
-        super().__init__(f"session {session_id} was {decision} already{who}{when}; nothing was changed")
+        self.decided = f"{decision} already{who}{when}"  # "accepted already by alice at ...", for a sentence of its own
+        super().__init__(f"session {session_id} was {self.decided}; nothing was changed")
         self.session_id = session_id
         self.decision = decision
         self.by = by

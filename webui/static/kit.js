@@ -129,12 +129,8 @@ export function kitView(ctx, kitId) {
     fill(rows, snap.devices.map(deviceRow));
     axesNote.textContent = running ? "" : axesText(snap);
     axesNote.hidden = !axesNote.textContent;
-    if (running) notices.update(snap);
-    else {
-      notices.stop();
-      fill(noticeBox, null);
-    }
     if (running) {
+      notices.update(snap);
       const said = snap.prompt || "…";
       if (headline.textContent !== said) {
         headline.textContent = said;
@@ -145,6 +141,8 @@ export function kitView(ctx, kitId) {
       if (actions.firstChild !== runningActions) fill(actions, runningActions);
       return;
     }
+    notices.stop();
+    fill(noticeBox, null);
     const passed = snap.devices.filter((d) => d.state === "done" && d.passed && !d.departed);
     const open = passed.filter((d) => !d.decision);
     headline.textContent = snap.state === "cancelled" ? "The kit's calibration was cancelled"

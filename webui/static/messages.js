@@ -56,6 +56,9 @@ export function subline(snap) {
 }
 
 // title: what went wrong, in a few words; fix: the one thing to do next; icon: a glyph name (figures.js)
+// the end reasons of a turn done wrong (a warning too, when the turn is asked again)
+export const TURN_FAULTS = new Set(["wrong_axis", "too_fast", "turn_incomplete", "turn_too_far", "turn_too_long", "no_motion"]);
+
 export const REASONS = {
   connect_failed: { title: "The device did not connect", fix: "Switch the device on, check it is charged and near the receiver, then try again.", icon: "link" },
   not_still: { title: "The device did not stay still", fix: "Put it flat against the block and take your hands off it until the ring is full.", icon: "hand" },

@@ -3,14 +3,14 @@
 
 import { fill } from "./dom.js";
 import { notice } from "./figures.js";
+import { TURN_FAULTS } from "./messages.js";
 
-export const WARNING_SHOW_MS = 10000;
+const WARNING_SHOW_MS = 10000;
 const WARNING_ICON = { moved: "hand", hint: "info", link_lost: "link", link_restored: "link", moved_during_pause: "hand",
   no_data: "link", data_resumed: "link", service_late: "clock" };
 const INFO = new Set(["link_restored", "hint", "data_resumed", "service_late"]);
 // the faults that ask a turn (or its pause) again
-const ASKED_AGAIN = new Set(["wrong_axis", "too_fast", "turn_incomplete", "turn_too_far", "turn_too_long", "no_motion",
-  "moved_during_pause"]);
+const ASKED_AGAIN = new Set([...TURN_FAULTS, "moved_during_pause"]);
 
 /**
  * The notices of one running session. ``thing``: what the clinician holds ("device", or "tray" for a kit: a fault that

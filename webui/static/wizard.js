@@ -8,14 +8,13 @@ import { cues } from "./cues.js";
 import { REST_PHASES, angleGauge, icon, notice, placePicture, showRest, showTurn, stillRing, turnAnimation, turnTiles } from "./figures.js";
 import { sessionNotices } from "./notices.js";
 import { identifyButton } from "./identify.js";
-import { STEP_LABELS, headline, reasonFor, requestProblem, stepOf, subline } from "./messages.js";
+import { STEP_LABELS, TURN_FAULTS, headline, reasonFor, requestProblem, stepOf, subline } from "./messages.js";
 import { detailsBlock, paramTable } from "./details.js";
 import { readiness } from "./readiness.js";
 import { verifyTurn } from "./verify.js";
 import { writeBack } from "./writeback.js";
 
 const END_STATES = new Set(["done", "failed", "cancelled"]);
-const TURN_FAULTS = new Set(["wrong_axis", "too_fast", "turn_incomplete", "turn_too_far", "turn_too_long", "no_motion"]);
 
 // -- shared pieces -------------------------------------------------------------------------------
 /** "Step n of 7" and the bar of steps; stopped=true marks step n as the one where the calibration stopped. */

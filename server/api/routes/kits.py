@@ -125,10 +125,8 @@ async def accept_kit(svc: Svc, kit_id: str, operator: Operator) -> M.KitAcceptOu
         records = await asyncio.to_thread(svc.store.accept_many, accepts, operator)
     except DecisionConflict as exc:  # decided meanwhile (another operator's accept of the kit, or of that wearable alone)
         device = next((d.device_id for d in passed if d.session_id == exc.session_id), exc.session_id)
-        who = f" by {exc.by}" if exc.by else ""
-        when = f" at {exc.at.isoformat(timespec='seconds')}" if exc.at else ""
-        raise problem(409, f"{device}'s calibration was {exc.decision} already{who}{when}, so none of the kit's was "
-                           "stored by this request: reload the kit to see what was decided") from None
+        raise problem(409, f"{device}'s calibration was {exc.decided}, so none of the kit's was stored by this request: "
+                           "reload the kit to see what was decided") from None
     except (NotAcceptable, NotFound):
         raise  # 409 / 404 with the store's own sentence (server.main)
     except (StoreError, SQLAlchemyError) as exc:
