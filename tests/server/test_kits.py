@@ -188,5 +188,12 @@ def test_a_wearable_whose_link_drops_mid_turn_is_bridged_by_the_kit(tmp_path) ->
             assert len(bridged) == 1 and bridged[0]["axis"] == "x"
             k, std = np.array(devices["mock-2"]["result"]["k"]), np.array(devices["mock-2"]["result"]["uncertainty"]["k"])
             assert np.all(np.abs(k - _truth(c, "mock-2")) < 5 * std + 2e-5)
+            # on SQLite too, two accepts of the kit at once store it once: one 200, one 409 naming a wearable
+            both = at_once([lambda: c.post(f"/kits/{kit_id}/accept"), lambda: c.post(f"/kits/{kit_id}/accept")])
+            assert sorted(r.status_code for r in both) == [200, 409], [r.text for r in both]
+            refused = next(r for r in both if r.status_code == 409).json()["detail"]
+            assert "mock-1" in refused and "already" in refused and "session " not in refused, refused
+            accepts = [e for e in c.get("/audit", params={"limit": 50}).json() if e["action"] == "calibration.accept"]
+            assert sorted(e["device_id"] for e in accepts) == sorted(devices)  # one entry a wearable, not two
     finally:
         svc.stop()
