@@ -115,6 +115,13 @@ class Recording:
             pick(self.host_t),
         )
 
+    def select(self, rows: np.ndarray) -> Recording:
+        """The samples where ``rows`` (a boolean mask or indices) picks them, as a new Recording with the same
+        metadata; the sample counter keeps its values, so the samples left out show as lost."""
+        pick = lambda a: None if a is None else a[rows]  # noqa: E731
+        return Recording(self.t[rows], self.gyro[rows], pick(self.accel), pick(self.seq), pick(self.temp), self.meta,
+                         pick(self.host_t))
+
     def timed_by_counter(self, fs_hz: float, rel_std: float | None = None) -> Recording:
         """A copy whose times are the sample counter over ``fs_hz`` (from the first sample's time): for
         devices that send no time stamps, whose sample times were placed live from arrival times with a rate

@@ -20,12 +20,13 @@ from typing import Any
 
 import numpy as np
 
+from calib.diagnosis.saturation import find_plateaus
 from calib.errors import GyrocalError
 from calib.estimators.closure.estimator import calibrate_closure
 from calib.estimators.closure.fit import KPrior
 from calib.judge.acceptance import misclosure
 from calib.kit.axes import KitAxes, Refit, kit_axes
-from calib.kit.clocks import IDENTITY, ClockMap, coarse_clock
+from calib.kit.clocks import IDENTITY, ClockMap, coarse_clock, gaps
 from calib.kit.coupling import IDENTITY_MAP, Coupling, LinearMap, couple, fit_map, reading_noise, resting
 from calib.kit.departure import BURST_DPS, DEPARTURE_DEG, NO_DEPARTURE, departures
 from calib.kit.members import PARAMETERS, MemberParams, member_params, rest_bias
@@ -52,7 +53,9 @@ def calibrate_kit(recordings: Sequence[Recording], names: Sequence[str] | None =
     two, names repeated, too little shared motion) or the kit's mean recording holds no protocol."""
     names = _names(recordings, names)
     say = progress or (lambda fraction, stage: None)
-    members = list(range(len(recordings)))
+    clipped = [_clipped(r) for r in recordings]
+    recordings = [r.select(~c) if c.any() else r for r, c in zip(recordings, clipped, strict=True)]
+    members = _most_complete_first(recordings)
     left_out: list[int] = []
     alone: dict[int, CalibrationResult | GyrocalError] = {}
     seen: dict[int, tuple[ClockMap, Coherence]] = {}  # a departed wearable's clock and departure, when it was found
@@ -83,9 +86,11 @@ def calibrate_kit(recordings: Sequence[Recording], names: Sequence[str] | None =
     for i in left_out:
         alone.setdefault(i, _alone(recordings[i], protocol, heading_prior_deg))
         out[i] = _departed_member(names[i], alone[i], len(recordings), *seen[i])
-    warnings = [f"{names[i]} came apart from the kit: it moved in its slot, or its readings do not follow the tray's "
-                "motion; it was calibrated alone from its own turns; seat it firmly and calibrate it again"
-                for i in left_out]
+    warnings = [f"{names[i]}'s readings reached its gyroscope's full scale in {int(c.sum())} samples: the kit bridged "
+                "them from the other wearables' readings of the same motion" for i, c in enumerate(clipped) if c.any()]
+    warnings += [f"{names[i]} came apart from the kit: it moved in its slot, or its readings do not follow the tray's "
+                 "motion; it was calibrated alone from its own turns; seat it firmly and calibrate it again"
+                 for i in left_out]
     say(1.0, "done")
     return KitResult(out, names[solved.ref], solved.mean, warnings, axes.to_dict())
 
@@ -285,6 +290,28 @@ def _worst_closure(result: CalibrationResult | GyrocalError) -> float:
 
 def _label(rec: Recording) -> str:
     return rec.meta.device_id or rec.meta.source or "the first wearable"
+
+
+def _clipped(rec: Recording) -> np.ndarray:
+    """Which of a wearable's readings are clipped at its gyroscope's full scale (the stage detector's rule,
+    ``calib.diagnosis.saturation``). The kit leaves them out as it does samples lost on the link: the other wearables
+    read the same motion, so the turn is bridged, where a wearable alone would have to be turned again."""
+    out = np.zeros(len(rec), dtype=bool)
+    for p in find_plateaus(rec):
+        out[p.start:p.end] = True
+    return out
+
+
+def _most_complete_first(recordings: Sequence[Recording]) -> list[int]:
+    """The wearables' indices, the one that lost the fewest samples first (ties in the given order): the reference,
+    on whose stamps the kit's mean is built. A reference with a gap in a turn would leave the mean's turn without
+    samples every other wearable has."""
+    missing = []
+    for rec in recordings:
+        step = np.diff(rec.t)
+        lost = gaps(rec.t)
+        missing.append(int(np.rint(step[lost] / np.median(step)).sum() - lost.sum()) if lost.any() else 0)
+    return sorted(range(len(recordings)), key=lambda i: missing[i])
 
 
 def _names(recordings: Sequence[Recording], names: Sequence[str] | None) -> list[str]:

@@ -4,6 +4,7 @@ together; every one calibrated from the kit's motion, and one that slipped in it
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -165,6 +166,49 @@ def test_a_wearable_that_lost_samples_mid_turn_and_stamps_anew_after_is_calibrat
     assert np.all(np.abs(member.result.k - d.k_own) < 4.5 * member.result.k_std), (member.result.k - d.k_own) / member.result.k_std
     bridged = [row for row in member.result.residuals["turns"] if row.get("bridged_by_kit")]
     assert [row["axis"] for row in bridged] == ["x"]
+
+
+@pytest.mark.parametrize("seed", [3, 8])
+def test_the_first_wearable_losing_samples_in_a_turn_leaves_the_others_as_the_kits_reference(seed: int) -> None:
+    # the kit's mean is built on its reference's stamps: a reference with a gap in a turn took that turn from every
+    # wearable (the kit refused: "not turned about every axis"), or closed it wrongly for all (k 13 % off, unflagged)
+    recs, truth = simulate_kit(seed, 3)
+    r = recs[0]
+    keep = np.ones(len(r), dtype=bool)
+    keep[int(4.0 * 104):int(5.5 * 104)] = False  # 1.5 s of the turn about x lost on the link
+    kit = calibrate_kit([r.select(keep), *recs[1:]], heading_prior_deg=PRIOR_DEG)
+    assert kit.departed == [] and kit.reference == recs[1].meta.device_id
+    for member, d in zip(kit.members, truth.devices, strict=True):
+        res = member.result
+        assert np.all(np.abs(res.k - d.k_own) < 4.5 * res.k_std), (member.name, (res.k - d.k_own) / res.k_std)
+        assert np.all(np.abs(res.b - d.b_own) < 4.5 * res.b_std), (member.name, (res.b - d.b_own) / res.b_std)
+    assert [row["axis"] for row in kit.members[0].result.residuals["turns"] if row.get("bridged_by_kit")] == ["x"]
+
+
+@pytest.mark.parametrize("stated", [True, False], ids=["range-stated", "range-found-from-the-readings"])
+def test_a_wearable_whose_readings_clip_in_the_turns_is_bridged_by_the_kit_not_blamed(stated: bool) -> None:
+    # a wearable with a smaller range (or a higher gain) than the others clips a fast turn that they read whole;
+    # its clipped readings once made it "come apart from the kit", or the whole kit "not of one motion"
+    recs, truth = simulate_kit(7, 3)
+    r = recs[0]
+    peak = np.abs(r.gyro).max(axis=0)
+    full_scale = float(np.sort(peak)[:2].mean())  # its two faster turns clip, the slowest does not
+    meta = type(r.meta)(**{**r.meta.__dict__, "gyro_full_scale_dps": full_scale}) if stated else r.meta
+    clipped = type(r)(r.t, np.clip(r.gyro, -full_scale, full_scale), r.accel, r.seq, meta=meta)
+    kit = calibrate_kit([clipped, *recs[1:]], heading_prior_deg=PRIOR_DEG)
+    assert kit.departed == [] and kit.reference != r.meta.device_id
+    (warning,) = kit.warnings
+    said = re.fullmatch(rf"{r.meta.device_id}'s readings reached its gyroscope's full scale in (\d+) samples: the kit "
+                        "bridged them from the other wearables' readings of the same motion", warning)
+    assert said, warning
+    at_full_scale = np.abs(clipped.gyro) >= np.array([[full_scale], [0.995 * full_scale]])[:, :, None]
+    assert at_full_scale[0].any(axis=1).sum() <= int(said[1]) <= at_full_scale[1].any(axis=1).sum()
+    for member, d in zip(kit.members, truth.devices, strict=True):
+        res = member.result
+        assert np.all(np.abs(res.k - d.k_own) < 4.5 * res.k_std), (member.name, (res.k - d.k_own) / res.k_std)
+        assert np.all(np.abs(res.b - d.b_own) < 4.5 * res.b_std), (member.name, (res.b - d.b_own) / res.b_std)
+    bridged = [row["axis"] for row in kit.members[0].result.residuals["turns"] if row.get("bridged_by_kit")]
+    assert len(bridged) == 2 and {"x", "y", "z"} - set(bridged) == {["x", "y", "z"][int(np.argmin(peak))]}
 
 
 def test_a_slip_about_the_axis_being_turned_is_found_by_its_burst_though_the_attitude_hides_it() -> None:
