@@ -21,7 +21,7 @@ def add_kit_parsers(sub: Any) -> None:
     p = sub.add_parser("calibrate-kit", help="calibrate every wearable of a kit, turned together in one tray, from one "
                        "recording each of the same session")
     p.add_argument("files", type=Path, nargs="+", metavar="FILE", help="one recording per wearable (any layout "
-                   "`gyrocal calibrate` reads but imu_tk's two files); the first is the reference")
+                   "`gyrocal calibrate` reads but imu_tk's two files); the reference is the one that lost the fewest samples")
     p.add_argument("--fs", type=float, default=None, help="sample rate in Hz (for files with no time column)")
     p.add_argument("--layout", choices=[v for v in LAYOUTS if v != "imu_tk"], default="auto",
                    help="CSV layout of every file (default: detect from each header)")
