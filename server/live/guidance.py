@@ -64,30 +64,6 @@ PROMPTS = {
 }
 
 
-def of_the_tray(text: str) -> str:
-    """A wearable's words said of the tray its kit rides in: the clinician holds and turns the tray, not one device."""
-    return text.replace("the device", "the tray").replace("The device", "The tray")
-
-
-KIT_CONNECTING = "Connecting to the wearables…"
-
-
-def kit_link_restored(device_id: str) -> str:
-    """A kit's wearable is back: the tray is not turned again for it (the kit bridges what it missed)."""
-    return f"Reconnected to {device_id}: the kit goes on."
-
-
-def kit_sample_loss(device_id: str) -> str:
-    """A kit's wearable lost samples in a turn: the tray is not turned again for it (the kit closes that turn)."""
-    return (f"{device_id} lost samples on the radio link during a turn. The kit goes on: that turn of {device_id} is "
-            "closed with the other wearables'.")
-
-
-def kit_link_lost(lost: Sequence[str]) -> str:
-    return (f"Keep the tray still and close to the receiver: the link to {', '.join(lost)} was lost. "
-            "The kit goes on when it reconnects.")
-
-
 def turn_prompt(axis: str) -> str:
     return f"Turn the device one full turn (360°) about its {ax(axis)} axis, then put it back against the block."
 

@@ -27,6 +27,7 @@ from ..workers.kit import KitOutcome, calibrate_kit_live
 from . import guidance as say
 from .codes import EndReason
 from .events import Broadcaster
+from .kit_faults import judge_held
 from .kit_snapshot import kit_snapshot
 from .snapshot_schema import KitOut, SessionOut
 
@@ -52,6 +53,7 @@ M = TypeVar("M", bound=Member)
 log = logging.getLogger(__name__)
 KIT_LAG_S = 4.0  # after the first wearable's recording is in, how long another may stay in a protocol step, s
 KIT_EVENT_S = 0.05  # a wearable's snapshot reaches the kit's event stream this late at most (its neighbours' join it)
+JUDGE_AGAIN_S = 0.1  # while a wearable's fault waits for the others' verdicts, it is judged again this often
 
 
 class KitSession(Generic[M]):
@@ -78,6 +80,8 @@ class KitSession(Generic[M]):
         self.lag_s = KIT_LAG_S
         self.broadcaster = Broadcaster()
         self._publishing: asyncio.TimerHandle | None = None
+        self._judging: asyncio.Handle | None = None
+        self._judge_soon = False
         for m in members:
             m.kit = self
             m.machine.kit_id = kit_id
@@ -167,9 +171,20 @@ class KitSession(Generic[M]):
 
     # -- what the page and the API see ---------------------------------------------------------
     def member_changed(self) -> None:
-        """A wearable published a snapshot: the kit's follows within KIT_EVENT_S, one for all that changed meanwhile."""
+        """A wearable published a snapshot: the kit's follows within KIT_EVENT_S, one for all that changed meanwhile;
+        a fault a wearable holds for the kit is judged at once (server.live.kit_faults)."""
+        loop = asyncio.get_running_loop()
         if self._publishing is None and not self.broadcaster.closed:
-            self._publishing = asyncio.get_running_loop().call_later(KIT_EVENT_S, self.publish)
+            self._publishing = loop.call_later(KIT_EVENT_S, self.publish)
+        if not self._judge_soon and any(m.machine.held_fault is not None for m in self.members):
+            if self._judging is not None:
+                self._judging.cancel()
+            self._judging, self._judge_soon = loop.call_soon(self._judge), True
+
+    def _judge(self) -> None:
+        self._judging, self._judge_soon = None, False
+        if judge_held([m.machine for m in self.members]):  # some wait for the others' verdicts: again, even if none changes
+            self._judging = asyncio.get_running_loop().call_later(JUDGE_AGAIN_S, self._judge)
 
     def publish(self) -> None:
         """Send the kit's snapshot to its event stream now."""

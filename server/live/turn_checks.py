@@ -1,11 +1,15 @@
 """How a guided session checks each turn: when its motion stops, when it has rested long enough to be checked,
-what a move in the pause after it means, and what a failed check leads to (a try again or the end).
+what a move in the pause after it means, and what a failed check leads to (a try again or the end). A wearable turned
+in a kit's tray holds its fault for the kit to judge (``HeldFault``): the tray is turned again only when every
+wearable at that turn saw one.
 
 ``TurnChecks`` is a part of ``GuidedSession`` (server.live.session), which keeps the states, the link and the
 outcome; the fields and methods declared here without a body are the session's.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -14,6 +18,7 @@ from calib.stages.stage import AXES, Stage
 
 from ..config import ProtocolTimings
 from . import guidance as say
+from . import kit_guidance as kit_say
 from .codes import TURN_STATES, EndReason, Phase, State
 from .snapshot_schema import LiveReading
 from .stream import SessionStream
@@ -22,9 +27,23 @@ from .turn_watch import EARLY_TURN_DEG, RESUME_DPS, STOP_DPS, LiveAngle
 from .turns import TurnRecord
 
 
+@dataclass(frozen=True)
+class HeldFault:
+    """A fault a kit's wearable saw in a turn or its pause, held until the kit judges whose it is (its own, or the tray's)."""
+
+    code: EndReason
+    message: str
+    resume: Phase  # what a try again leads to: the turn again (ready) or only its pause
+    at_t: float  # the wearable's device time when it saw it, s
+
+
 class TurnChecks:
     """The turn phases of a guided session: turning, placing, the check, the pause and retries."""
 
+    device_id: str
+    kit_id: str | None
+    held_fault: HeldFault | None
+    t_now: float
     state: State
     phase: Phase | None
     attempt: int
@@ -44,6 +63,10 @@ class TurnChecks:
 
     @property
     def retry_allowed(self) -> bool:
+        raise NotImplementedError
+
+    @property
+    def finished(self) -> bool:
         raise NotImplementedError
 
     @property
@@ -68,6 +91,8 @@ class TurnChecks:
         axis = AXES[self._axis_i]
         k = AXES.index(axis)
         if self.phase == Phase.CHECKING:
+            if self.held_fault is not None:
+                return False  # the kit judges the fault already seen; the motion that goes on with it adds nothing
             if moving:
                 # back at rest after a full turn, then moved again before the rest was long enough to
                 # close the turn: the turn and that motion cannot be told apart any more
@@ -118,17 +143,47 @@ class TurnChecks:
         return False
 
     def _moved_during_pause(self, axis: str) -> None:
-        retry = self.retry_allowed
         recorded = self.phase == Phase.PAUSE and axis in self.turns
-        msg = say.moved_during_pause(axis, self.timings.pause_s, retry, recorded)
-        if retry:
+        msg = say.moved_during_pause(axis, self.timings.pause_s, self.retry_allowed, recorded)
+        # a recorded turn keeps its place and only the pause is done again; otherwise the turn is asked again
+        self._fault(EndReason.MOVED_DURING_PAUSE, msg, Phase.PAUSE if recorded else Phase.READY)
+
+    def _fault(self, code: EndReason, message: str, resume: Phase) -> None:
+        """A fault in a turn or its pause: asked again (or the end, with no try left); in a kit, held for the kit."""
+        if self.kit_id is not None:
+            self.held_fault = HeldFault(code, message, resume, self.t_now)
+            self._set_phase(Phase.CHECKING, say.checking_prompt(AXES[self._axis_i]), keep_clock=True)
+            return
+        self._ask_again(code, message, resume)
+
+    def _ask_again(self, code: EndReason, message: str, resume: Phase) -> None:
+        if self.retry_allowed:
             self.attempt += 1
-            self._warn(EndReason.MOVED_DURING_PAUSE, msg)
+            self._warn(code, message)
             self._set_phase(Phase.SETTLE, say.PROMPTS["settle"])
-            # a recorded turn keeps its place and only the pause is done again; otherwise the turn is asked again
-            self._resume_phase = Phase.PAUSE if recorded else Phase.READY
+            self._resume_phase = resume
         else:
-            self.fail(EndReason.MOVED_DURING_PAUSE, msg)
+            self.fail(code, message)
+
+    def release_held(self) -> None:
+        """The kit judged the held fault the tray's (every wearable at that turn saw one): asked again, as alone."""
+        held, self.held_fault = self.held_fault, None
+        if held is not None and not self.finished:
+            self._ask_again(held.code, held.message, held.resume)
+
+    def kit_closes_turn(self, passed: list[str]) -> None:
+        """The kit judged the held fault this wearable's own (``passed``: the wearables that did not see it): the tray
+        is not turned again for it, and the kit's calibration closes that turn from the others' readings of it."""
+        held, self.held_fault = self.held_fault, None
+        if held is None or self.finished:
+            return
+        axis = AXES[self._axis_i]
+        if held.code == EndReason.MOVED_DURING_PAUSE:
+            self._warn("kit_closed_turn", kit_say.kit_moved_alone(self.device_id, axis, passed))
+        else:
+            self._warn("kit_closed_turn", kit_say.kit_closed_turn(self.device_id, held.message, passed))
+        self._early = None
+        self._set_phase(Phase.PAUSE, say.pause_prompt(axis, self._next_axis()))
 
     def _undo_early_motion(self) -> None:
         """An early motion (before a countdown ended) that was no turn at all."""
@@ -146,6 +201,8 @@ class TurnChecks:
             self._set_phase(Phase.PAUSE, say.pause_prompt(axis, self._next_axis()))
 
     def _check_turn(self, st: Stage) -> None:
+        if self.held_fault is not None:
+            return  # the kit judges the fault this wearable saw first
         axis = AXES[self._axis_i]
         angles = self.stream.turn_angles(st)
         if is_no_turn(angles, self.tol):
@@ -170,10 +227,4 @@ class TurnChecks:
         self._record_turn(axis, st, angles, measure.gravity_deg)
 
     def _turn_failed(self, code: EndReason, message: str) -> None:
-        if self.retry_allowed:
-            self.attempt += 1
-            self._warn(code, message)
-            self._set_phase(Phase.SETTLE, say.PROMPTS["settle"])
-            self._resume_phase = Phase.READY
-        else:
-            self.fail(code, message)
+        self._fault(code, message, Phase.READY)

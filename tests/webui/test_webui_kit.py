@@ -236,10 +236,11 @@ def test_a_knock_to_the_tray_is_said_of_the_tray_once_and_the_kit_goes_on(
     assert_clean(page_watch, allowed_errors=("status of 409",))  # the accept the other operator's came before
 
 
-def test_a_fault_only_some_wearables_saw_is_not_said_of_the_tray(browser: Any, kit_service: Any, page_watch: Watch) -> None:
-    """The kit page's notices (webui/static/notices.js, in Chromium), fed the kit's snapshots: a fault that asks a turn
-    again is shown once the kit itself asks it again (every wearable did: the kit's attempt went up), as its attempt; one
-    that only some wearables saw is never shown, since the tray goes on without turning again for them."""
+def test_the_kit_page_shows_a_wearables_own_fault_named_and_the_trays_with_the_kits_attempt(
+        browser: Any, kit_service: Any, page_watch: Watch) -> None:
+    """The kit page's notices (webui/static/notices.js, in Chromium), fed a kit's snapshots as the service composes
+    them (server.live.kit_faults): a fault one wearable saw alone comes named by it and the tray goes on; a fault every
+    wearable saw comes with the kit's next attempt, and is shown as that attempt until that try starts."""
     with watched_page(browser, kit_service, page_watch) as page:
         page.goto(kit_service.base + "/")
         shown = page.evaluate("""async () => {
@@ -251,20 +252,20 @@ def test_a_fault_only_some_wearables_saw_is_not_said_of_the_tray(browser: Any, k
           const kit = (state, phase, attempt, warnings) => ({ state, phase, axis: state.slice(5), attempt, max_attempts: 3,
             prompt: 'the kit prompt', warnings, live: { moving: false } });
           const said = () => { const n = box.querySelector('.notice > span'); return n ? n.textContent : ''; };
-          const fast = { code: 'too_fast', message: 'That turn about X was too fast.' };
+          const alone = { code: 'kit_closed_turn', message: 'mock-2: That turn about X was too fast. The tray goes on.' };
           const wrong = { code: 'wrong_axis', message: 'That turn was about X, not Y.' };
           const seen = [];
-          for (const s of [kit('turn_x', 'checking', 1, []), kit('turn_x', 'checking', 1, [fast]),
-                           kit('turn_x', 'pause', 1, [fast]), kit('turn_y', 'ready', 1, [fast]),
-                           kit('turn_y', 'checking', 1, [fast, wrong]), kit('turn_y', 'settle', 2, [fast, wrong]),
-                           kit('turn_y', 'ready', 2, [fast, wrong]), kit('turn_y', 'turning', 2, [fast, wrong])]) {
+          for (const s of [kit('turn_x', 'checking', 1, []), kit('turn_x', 'pause', 1, [alone]),
+                           kit('turn_y', 'ready', 1, [alone]), kit('turn_y', 'checking', 1, [alone]),
+                           kit('turn_y', 'settle', 2, [alone, wrong]), kit('turn_y', 'ready', 2, [alone, wrong]),
+                           kit('turn_y', 'turning', 2, [alone, wrong])]) {
             notices.update(s);
             seen.push(said());
           }
           notices.stop();
           return seen;
         }""")
+    own = "mock-2: That turn about X was too fast. The tray goes on."
     again = "Attempt 2 of 3: That turn was about X, not Y."
-    # one wearable's fault on X: never shown; every wearable's on Y: shown from the kit's attempt 2 until that try starts
-    assert shown == ["", "", "", "", "", again, again, ""], shown
+    assert shown == ["", own, "", "", again, again, ""], shown
     assert_clean(page_watch)

@@ -3,19 +3,16 @@
 
 import { fill } from "./dom.js";
 import { notice } from "./figures.js";
-import { TURN_FAULTS } from "./messages.js";
 
 const WARNING_SHOW_MS = 10000;
 const WARNING_ICON = { moved: "hand", hint: "info", link_lost: "link", link_restored: "link", moved_during_pause: "hand",
   no_data: "link", data_resumed: "link", service_late: "clock" };
 const INFO = new Set(["link_restored", "hint", "data_resumed", "service_late"]);
-// the faults that ask a turn (or its pause) again
-const ASKED_AGAIN = new Set([...TURN_FAULTS, "moved_during_pause"]);
 
 /**
- * The notices of one running session. ``thing``: what the clinician holds ("device", or "tray" for a kit: a fault that
- * asks a turn again is then shown once the kit itself asks it again, and never if the kit goes on, which it does when
- * only some of its wearables saw the fault); ``sound``: the page's cues (a tone and the warning read aloud), if any.
+ * The notices of one running session. ``thing``: what the clinician holds ("device", or "tray" for a kit, whose
+ * warnings the service composes: a fault is the tray's only when the kit asks the turn again, else the wearable's own,
+ * named by it); ``sound``: the page's cues (a tone and the warning read aloud), if any.
  * Returns ``attach(box)`` (the element to show them in, again whenever the page builds it anew), ``update(snap)``
  * (each running snapshot), ``show(el, sticky)`` (a message of the page's own, kept a while when sticky) and
  * ``stop()`` (the session ended or the page left).
@@ -27,7 +24,6 @@ export function sessionNotices({ thing = "device", sound = null } = {}) {
   let seen = null; // how many warnings the page has seen (on (re)load, the old ones are history)
   let shown = null; // the warning on show, and until when
   let seenAttempt = null; // the try of the current turn, as the last snapshot said
-  let held = null; // a kit's fault that asks a turn again, until the kit asks it again (or goes on)
   let timer = null;
 
   const showWarning = (s, w, retry) => {
@@ -57,15 +53,7 @@ export function sessionNotices({ thing = "device", sound = null } = {}) {
       seen = warnings.length;
       // a turn that will be asked again (the warning came with the next attempt): why, until that try starts
       const retry = s.state.startsWith("turn_") && attemptBefore !== null && s.attempt > attemptBefore;
-      held = null;
-      if (!retry && thing === "tray" && ASKED_AGAIN.has(w.code)) held = { w, state: s.state, attempt: s.attempt };
-      else showWarning(s, w, retry);
-    } else if (held) {
-      // the kit asks that turn again once all its wearables do; if some did not, it goes on to the next turn
-      if (s.state === held.state && s.attempt > held.attempt) {
-        showWarning(s, held.w, true);
-        held = null;
-      } else if (s.state !== held.state) held = null;
+      showWarning(s, w, retry);
     }
     if (shown) {
       // a warning stays a while, unless the instruction itself now says the same or the session has moved on

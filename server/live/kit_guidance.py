@@ -1,0 +1,52 @@
+"""What a kit session says to the clinician holding the tray: a wearable's words said of the tray, and what the kit
+does when one wearable lost its link or samples, or saw a fault in a turn the rest of the tray did not."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from .guidance import ax
+
+
+def of_the_tray(text: str) -> str:
+    """A wearable's words said of the tray its kit rides in: the clinician holds and turns the tray, not one device."""
+    return text.replace("the device", "the tray").replace("The device", "The tray")
+
+
+KIT_CONNECTING = "Connecting to the wearables…"
+
+
+def kit_link_restored(device_id: str) -> str:
+    """A kit's wearable is back: the tray is not turned again for it (the kit bridges what it missed)."""
+    return f"Reconnected to {device_id}: the kit goes on."
+
+
+def kit_sample_loss(device_id: str) -> str:
+    """A kit's wearable lost samples in a turn: the tray is not turned again for it (the kit closes that turn)."""
+    return (f"{device_id} lost samples on the radio link during a turn. The kit goes on: that turn of {device_id} is "
+            "closed with the other wearables'.")
+
+
+def kit_link_lost(lost: Sequence[str]) -> str:
+    return (f"Keep the tray still and close to the receiver: the link to {', '.join(lost)} was lost. "
+            "The kit goes on when it reconnects.")
+
+
+def first_sentence(text: str) -> str:
+    """What happened, without what to do about it: a warning's first sentence (its numbers' decimal points kept)."""
+    head, dot, _ = text.partition(". ")
+    return head + "." if dot else text
+
+
+def kit_closed_turn(device_id: str, fault: str, passed: Sequence[str]) -> str:
+    """A wearable saw a fault in a turn (``fault``: its own words) that the rest of the kit (``passed``) did not: the
+    tray is not turned again for it; the kit's calibration closes that turn from the others' readings of it."""
+    what = first_sentence(fault).replace("the device", device_id).replace("The device", device_id)
+    return (f"{device_id}: {what} The rest of the kit ({', '.join(passed)}) passed that turn, so the tray goes on: "
+            f"that turn of {device_id} is closed with theirs.")
+
+
+def kit_moved_alone(device_id: str, axis: str, still: Sequence[str]) -> str:
+    """A wearable moved in a pause while the rest of the kit (``still``) did not: it moved in its slot."""
+    return (f"{device_id} moved during the pause after the turn about {ax(axis)} while the rest of the kit "
+            f"({', '.join(still)}) stayed still: it may be loose in its slot. Seat it firmly; the tray goes on.")

@@ -1,0 +1,155 @@
+"""A real kit session (server.live.kit_session) over its wearables' real guided sessions, in this process.
+
+Whose fault a kit's wearable saw in a turn: the tray's when every wearable at that turn saw one (the tray is turned
+again), else that wearable's own (the kit closes its turn from the others' readings, and the tray goes on), judged as
+the sessions are fed one tray's simulated motion. And what a kit's wearables are told when the kit cannot be calibrated
+for a reason of the service's own: each session ends saying the service was overloaded (its reason code too), never the
+recording or the hand, and says what to do once."""
+
+from __future__ import annotations
+
+import asyncio
+from dataclasses import dataclass, field, replace
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+import pytest
+
+from calib.recording import Recording
+from calib.simulator import simulate
+from calib.simulator.kit import KitTray
+from calib.simulator.protocol import paper_protocol_script
+from calib.stages.detector import detect_stages
+from server.config import Settings
+from server.live import guidance as say
+from server.live.codes import EndReason, State
+from server.live.kit_session import KitSession
+from server.live.kit_snapshot import kit_warnings
+from server.live.session import GuidedSession
+
+FS = 104.0
+BATCH = 10
+WIDE_DPS = 2000.0
+
+
+@dataclass
+class _Wearable:
+    """A kit's member as the kit sees it: the real guided session of a wearable the test names."""
+
+    device: Any
+    machine: GuidedSession
+    kit: Any = field(default=None)
+
+    def cancel(self, reason: str = "Cancelled by the operator.") -> bool:
+        return False
+
+
+def _tray(n: int) -> list[Recording]:
+    """One tray's motion through the protocol with the service's rests (mock_device.kit), as each wearable reads it."""
+    script = paper_protocol_script(np.random.default_rng([7, 1, 0x5C]), still_s=5.0, final_still_s=5.0)
+    tray = KitTray(7001, n, noise=0.03, script=script, clock_error=0.0)
+    return [tray.wearable(d, FS)[0] for d in range(n)]
+
+
+def _clipped(rec: Recording, full_scale: float) -> Recording:
+    return replace(rec, gyro=np.clip(rec.gyro, -full_scale, full_scale))
+
+
+def _run_kit(recs: list[Recording], ranges: list[float]) -> list[GuidedSession]:
+    """Feed each wearable's guided session its readings batch by batch, as their links would, with the kit judging
+    between batches, until every session computes (or ended); the tray rests after the protocol."""
+    members = [_Wearable(SimpleNamespace(id=f"mock-{i + 1}"), GuidedSession(f"s{i}", f"mock-{i + 1}", Settings(db_url="sqlite://")))
+               for i in range(len(recs))]
+    machines = [m.machine for m in members]
+
+    async def feed() -> None:
+        kit = KitSession("k" * 32, members, None, 60.0, "alice")
+        for g, full_scale in zip(machines, ranges, strict=True):
+            g.connected(FS, {}, full_scale)
+        n = min(len(r) for r in recs)
+        rng = np.random.default_rng(3)
+        for j in range(0, n + int(20 * FS), BATCH):
+            for g, r in zip(machines, recs, strict=True):
+                if j < n:
+                    rows = slice(j, min(j + BATCH, n))
+                    g.feed(r.t[rows], r.gyro[rows], r.accel[rows], r.seq[rows])
+                else:  # the tray rests against the block
+                    seq = np.arange(j, j + BATCH)
+                    rest = r.gyro[n - 200:n - 100].mean(axis=0) + 0.03 * rng.standard_normal((BATCH, 3))
+                    g.feed(seq / FS, rest, np.tile(r.accel[n - 1], (BATCH, 1)), seq)
+                kit.member_changed()
+            await asyncio.sleep(0)  # the kit judges what its wearables hold
+            if all(g.state in (State.COMPUTING, State.FAILED) for g in machines):
+                break
+        if kit._publishing is not None:
+            kit._publishing.cancel()
+
+    asyncio.run(feed())
+    return machines
+
+
+def test_a_turn_one_wearable_alone_found_too_fast_is_closed_by_the_kit_and_the_tray_goes_on() -> None:
+    # mock-2 has a smaller range than its neighbours: the turns they read whole it clips. Alone, it asked each turn
+    # again while the tray went on, then judged the tray's next turns against its own stale step and failed the
+    # session ("That turn about X ... too fast ... Start a new calibration") for a tray turned as asked
+    recs = _tray(3)
+    narrow = 125.0
+    recs[1] = _clipped(recs[1], narrow)
+    machines = _run_kit(recs, [WIDE_DPS, narrow, WIDE_DPS])
+    assert [g.state for g in machines] == [State.COMPUTING] * 3
+    assert [g.attempt for g in machines] == [1, 1, 1]
+    own = machines[1].warnings
+    clipped_turns = [ax for ax in "xyz" if np.abs(recs[1].gyro[:, "xyz".index(ax)]).max() >= 0.995 * narrow]
+    assert clipped_turns and [w.code for w in own] == ["kit_closed_turn"] * len(clipped_turns)
+    assert own[0].message.startswith(f"mock-2: That turn about {clipped_turns[0].upper()} took ")
+    assert own[0].message.endswith("too fast, the sensor reached its limit (±125 °/s). The rest of the kit (mock-1, "
+                                   "mock-3) passed that turn, so the tray goes on: that turn of mock-2 is closed with theirs.")
+    assert machines[0].warnings == machines[2].warnings == []
+    said = kit_warnings([g.snapshot() for g in machines])
+    assert [w.message for w in said] == [w.message for w in own]  # named by the wearable, never said of the tray
+
+
+def test_a_turn_every_wearable_found_too_fast_is_the_trays_and_is_asked_again_of_the_tray_once() -> None:
+    recs = [_clipped(r, 80.0) for r in _tray(3)]
+    machines = _run_kit(recs, [80.0] * 3)
+    first = [w for w in machines[0].warnings if w.code == "too_fast"][0]
+    assert all(w.code != "kit_closed_turn" for g in machines for w in g.warnings)
+    for g in machines:  # each asked that turn again, together: the tray's retry
+        assert g.warnings[0].code == "too_fast" and g.warnings[0].t_device_s == pytest.approx(first.t_device_s, abs=0.7)
+    said = kit_warnings([g.snapshot() for g in machines])
+    assert said[0].code == "too_fast" and "Put the tray back against the block" in said[0].message
+    assert sum(w.code == "too_fast" and w.t_device_s == said[0].t_device_s for w in said) == 1
+
+
+def test_a_wearable_that_moves_alone_before_its_turn_is_checked_is_named_loose_and_the_tray_goes_on() -> None:
+    recs = _tray(3)
+    turn_x_end = 8.4  # the tray's first turn stops here (the simulated script's)
+    g = recs[1].gyro.copy()
+    at, width = int((turn_x_end + 0.8) * FS), int(0.3 * FS)
+    g[at:at + width, 2] += 20 * np.sin(np.linspace(0, 2 * np.pi, width))  # it rocks in its slot; the tray stays still
+    recs[1] = replace(recs[1], gyro=g)
+    machines = _run_kit(recs, [WIDE_DPS] * 3)
+    assert [g.state for g in machines] == [State.COMPUTING] * 3 and [g.attempt for g in machines] == [1, 1, 1]
+    assert [w.message for w in machines[1].warnings] == [
+        "mock-2 moved during the pause after the turn about X while the rest of the kit (mock-1, mock-3) stayed still: "
+        "it may be loose in its slot. Seat it firmly; the tray goes on."]
+
+
+def test_a_kit_whose_calibration_runs_out_of_time_says_the_service_was_overloaded() -> None:
+    names = ["mock-1", "mock-2"]
+    members = [_Wearable(SimpleNamespace(id=n), GuidedSession(f"s{i}", n, Settings(db_url="sqlite://")))
+               for i, n in enumerate(names)]
+    limit_s = 0.001  # the estimator (run in a thread: no pool) cannot finish in a millisecond, as on a starved machine
+    kit = KitSession("k" * 32, members, None, limit_s, "alice")
+    recordings = [simulate(seed)[0] for seed in (1, 2)]
+
+    async def both() -> list[Any]:
+        return await asyncio.gather(*(kit.outcome_for(m, rec, detect_stages(rec)) for m, rec in zip(members, recordings, strict=True)))
+
+    outcomes = asyncio.run(both())
+    said = say.compute_timeout(limit_s, "the kit's calibration")
+    assert [(o.result, o.end, o.refusal) for o in outcomes] == [(None, EndReason.SERVICE_OVERLOADED, said)] * 2
+    assert "the service is overloaded, not the device nor the way it was turned" in said
+    assert said.count("Start a new calibration") == 1
+    assert kit.outcome is not None and kit.outcome.refusal == said
