@@ -7,6 +7,11 @@ turn saw one: the tray is turned again (each wearable's own try, as alone). One 
 that wearable's own: the tray is not turned again for it, and the kit's calibration closes that turn from the others'
 readings of it. A wearable never asks a turn again alone, so it never falls behind the tray and is never failed for
 a turn it judged against a step the tray had left.
+
+A move while resting (the count starts again) is judged alike: that wearable moved alone in its slot, and is named,
+when every other resting wearable stayed still (no move within ``SAME_MOVE_S``); else the tray moved. So is a move
+before a turn was checked: a wearable that moved alone is named loose and its turn closed by the kit; when the tray
+moved, the fault is judged as a turn's.
 """
 
 from __future__ import annotations
@@ -14,12 +19,14 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Protocol
 
-from .codes import STEPS, Phase, State
-from .turn_checks import HeldFault
+from .codes import STEPS, EndReason, Phase, State
+from .turn_checks import HeldFault, HeldMove
 
 HOLD_S = 0.5  # device time a wearable's fault waits for the others' readings of the same moment (a knock reaches
 # each wearable's detector up to a few tenths of a second apart) before another's passing that turn makes it its own
 WAIT_S = 2.0  # ... and at most this long for the verdicts of those still checking that turn
+SAME_MOVE_S = 1.0  # two wearables' moves this close (each on its own clock, counted back from now) are one move
+RESTING = frozenset({Phase.WAITING, Phase.SETTLE, Phase.READY, Phase.CHECKING, Phase.PAUSE})  # held still, or to be
 AT_THE_TURN = frozenset({Phase.TURNING, Phase.PLACING, Phase.CHECKING, Phase.PAUSE})
 NOT_FOLLOWING = frozenset({State.CONNECTING, State.RECONNECTING})
 
@@ -31,6 +38,8 @@ class Wearable(Protocol):
     state: State
     phase: Phase | None
     held_fault: HeldFault | None
+    held_move: HeldMove | None
+    moves: list[float]
     t_now: float
 
     @property
@@ -44,19 +53,40 @@ class Wearable(Protocol):
 
     def release_held(self) -> None: ...
 
-    def kit_closes_turn(self, passed: list[str]) -> None: ...
+    def kit_closes_turn(self, passed: list[str], moved_alone: bool) -> None: ...
+
+    def say_move(self, alone_of: list[str] | None) -> None: ...
 
 
 def _step(w: Wearable) -> int:
     return STEPS.index(w.state) if w.state in STEPS else 0
 
 
+def _moved_with(w: Wearable, at_t: float, others: Sequence[Wearable]) -> list[Wearable]:
+    """The ``others`` that moved at the moment ``w`` did (its device time ``at_t``). The wearables' clocks differ, but
+    their samples arrive together: a move as long ago on each one's own clock is one move."""
+    ago = w.t_now - at_t
+    return [o for o in others if any(abs((o.t_now - t) - ago) <= SAME_MOVE_S for t in o.moves)]
+
+
 def judge_held(wearables: Sequence[Wearable]) -> bool:
-    """Judge every held fault that can be judged now; True while some stay held (judge again shortly)."""
+    """Judge every held fault and move that can be judged now; True while some stay held (judge again shortly)."""
     following = [w for w in wearables if not w.finished and w.state not in NOT_FOLLOWING]
+    for w in following:
+        move = w.held_move
+        if move is None or w.t_now - move.seen_t < HOLD_S:  # the others see the same move about as late
+            continue
+        resting = [o for o in following if o is not w and o.phase in RESTING]
+        alone = bool(resting) and not _moved_with(w, move.at_t, resting)
+        w.say_move([o.device_id for o in resting] if alone else None)
     for w in following:
         held = w.held_fault
         if held is None:
+            continue
+        waited = w.t_now - held.at_t
+        resting = [o for o in following if o is not w and o.phase in RESTING]
+        if held.code == EndReason.MOVED_DURING_PAUSE and waited >= HOLD_S and resting and not _moved_with(w, held.at_t, resting):
+            w.kit_closes_turn([o.device_id for o in resting], moved_alone=True)  # the tray stayed still
             continue
         at_turn = [o for o in following if o.state == w.state and o.phase in AT_THE_TURN]
         # past this turn, or in the pause after it with the turn recorded (one whose fault the kit closed rests there
@@ -67,6 +97,6 @@ def judge_held(wearables: Sequence[Wearable]) -> bool:
         if not passed and not undecided:  # every wearable at this turn saw a fault: the tray's
             for o in at_turn:
                 o.release_held()
-        elif passed and w.t_now - held.at_t >= (WAIT_S if undecided else HOLD_S):
-            w.kit_closes_turn([o.device_id for o in passed])
-    return any(w.held_fault is not None for w in following)
+        elif passed and waited >= (WAIT_S if undecided else HOLD_S):
+            w.kit_closes_turn([o.device_id for o in passed], moved_alone=False)
+    return any(w.held_fault is not None or w.held_move is not None for w in following)

@@ -46,7 +46,17 @@ def kit_closed_turn(device_id: str, fault: str, passed: Sequence[str]) -> str:
             f"that turn of {device_id} is closed with theirs.")
 
 
-def kit_moved_alone(device_id: str, axis: str, still: Sequence[str]) -> str:
-    """A wearable moved in a pause while the rest of the kit (``still``) did not: it moved in its slot."""
-    return (f"{device_id} moved during the pause after the turn about {ax(axis)} while the rest of the kit "
-            f"({', '.join(still)}) stayed still: it may be loose in its slot. Seat it firmly; the tray goes on.")
+def kit_moved_alone(device_id: str, axis: str | None, still: Sequence[str]) -> str:
+    """A wearable moved while the rest of the kit (``still``) rested: it moved in its slot. ``axis``: in the pause after
+    the turn about it (the tray goes on), else while its count of a rest ran (that count starts again)."""
+    when = f" during the pause after the turn about {ax(axis)}" if axis else ""
+    then = "the tray goes on" if axis else "its count starts again"
+    return (f"{device_id} moved{when} while the rest of the kit ({', '.join(still)}) stayed still: it may be loose in "
+            f"its slot. Seat it firmly; {then}.")
+
+
+def kit_tray_moved_unchecked(device_id: str, axis: str, passed: Sequence[str]) -> str:
+    """The tray moved before this wearable had checked its turn, after others (``passed``) had checked theirs."""
+    return (f"{device_id}: the tray moved before its turn about {ax(axis)} was checked. The rest of the kit "
+            f"({', '.join(passed)}) had checked that turn, so the tray goes on: that turn of {device_id} is closed with "
+            "theirs.")

@@ -176,7 +176,7 @@ class KitSession(Generic[M]):
         loop = asyncio.get_running_loop()
         if self._publishing is None and not self.broadcaster.closed:
             self._publishing = loop.call_later(KIT_EVENT_S, self.publish)
-        if not self._judge_soon and any(m.machine.held_fault is not None for m in self.members):
+        if not self._judge_soon and any(m.machine.held_fault or m.machine.held_move for m in self.members):
             if self._judging is not None:
                 self._judging.cancel()
             self._judging, self._judge_soon = loop.call_soon(self._judge), True

@@ -14,9 +14,10 @@ from .snapshot_schema import KitDeviceOut, KitOut, SessionOut, SessionWarning
 if TYPE_CHECKING:
     from ..store.records import StoredKit, StoredSession
 
+NAMED = ("kit_closed_turn", "kit_moved_alone")  # a wearable's own warnings that name it already
 # a wearable's own warnings (its link, its data, its samples, its result): named by it. Every other warning is the
 # tray's: each wearable sees the same bump, the same turn, the same late service, and the kit says it once, of the tray
-OWN_WARNINGS = frozenset({"link_lost", "link_restored", "no_data", "data_resumed", "kit_ahead", "kit_closed_turn", EndReason.SAMPLE_LOSS,
+OWN_WARNINGS = frozenset({"link_lost", "link_restored", "no_data", "data_resumed", "kit_ahead", *NAMED, EndReason.SAMPLE_LOSS,
                           EndReason.UNREADABLE_DATA, EndReason.SENSOR_FAULT, EndReason.OUT_OF_TOLERANCE})
 PHASES = list(Phase)  # in protocol order
 SAME_EVENT_S = 2.0  # the tray's warnings of one code from two wearables this close together are one event
@@ -101,7 +102,7 @@ def kit_warnings(snaps: list[SessionOut]) -> list[SessionWarning]:
         if w.code in OWN_WARNINGS:
             message = (say.kit_link_restored(device_id) if w.code == "link_restored"
                        else say.kit_sample_loss(device_id) if w.code == EndReason.SAMPLE_LOSS
-                       else w.message if w.code == "kit_closed_turn"  # names the wearable already
+                       else w.message if w.code in NAMED
                        else f"{device_id}: {w.message}")
             out.append(w.model_copy(update={"message": message}))
         elif not any(code == w.code and by != device_id and abs((at - t).total_seconds()) <= SAME_EVENT_S

@@ -118,7 +118,7 @@ class ProtocolSteps(TurnChecks):
                 self._check_turn(st)
             elif self.phase == Phase.PAUSE and self._early is not None:
                 self._early = None  # a bump that never became a turn: the pause's count starts again
-                self._warn("moved", say.MOVED_RESTART)
+                self._moved(st.start_s)
             return
         if kind == "motion_started":
             self._on_motion(float(getattr(ev, "t", self.t_now)))
@@ -139,7 +139,7 @@ class ProtocolSteps(TurnChecks):
                 self._set_state(State.TURN_X, Phase.TURNING, say.turning_prompt("x"))
                 return
             if still_s > 0.2 * self.timings.initial_still_s:
-                self._warn("moved", say.MOVED_RESTART)
+                self._moved(t_motion)
             self.live_reading.still_s = 0.0
             return
         if self.state not in TURN_STATES.values():

@@ -40,7 +40,7 @@ from .sensor_faults import SensorFaultWatch
 from .snapshot import session_snapshot
 from .snapshot_schema import CausedBy, LiveReading, SessionOut, SessionWarning
 from .stream import SessionStream, TrackerFactory
-from .turn_checks import HeldFault
+from .turn_checks import HeldFault, HeldMove
 from .turn_watch import LiveAngle
 from .turns import TurnRecord
 
@@ -124,6 +124,8 @@ class GuidedSession(ProtocolSteps, Lateness):
         self.caused_by: CausedBy | None = None
         self.kit_id: str | None = None  # the kit session this wearable is turned in, with the rest of its tray
         self.held_fault: HeldFault | None = None  # a fault in a turn the kit judges (server.live.turn_checks)
+        self.held_move: HeldMove | None = None
+        self.moves: list[float] = []
         self._last_live_emit = -1e9
         self.snapshot_count = 0
         self._emitted_state: str | None = None

@@ -37,12 +37,23 @@ class HeldFault:
     at_t: float  # the wearable's device time when it saw it, s
 
 
+@dataclass(frozen=True)
+class HeldMove:
+    """A kit's wearable moved while resting (its count starts again), held until the kit knows whether the tray moved
+    or only this wearable."""
+
+    at_t: float  # the wearable's device time when the move began, s
+    seen_t: float  # ... and when it was seen for what it is (a bump: once it ended), s
+
+
 class TurnChecks:
     """The turn phases of a guided session: turning, placing, the check, the pause and retries."""
 
     device_id: str
     kit_id: str | None
     held_fault: HeldFault | None
+    held_move: HeldMove | None
+    moves: list[float]  # the device time of each move seen while resting, s
     t_now: float
     state: State
     phase: Phase | None
@@ -143,6 +154,7 @@ class TurnChecks:
         return False
 
     def _moved_during_pause(self, axis: str) -> None:
+        self.moves.append(self.t_now)
         recorded = self.phase == Phase.PAUSE and axis in self.turns
         msg = say.moved_during_pause(axis, self.timings.pause_s, self.retry_allowed, recorded)
         # a recorded turn keeps its place and only the pause is done again; otherwise the turn is asked again
@@ -165,23 +177,47 @@ class TurnChecks:
         else:
             self.fail(code, message)
 
+    def _moved(self, at_t: float | None = None) -> None:
+        """The device moved while resting (at its device time ``at_t``, default now): the count starts again. In a kit
+        the warning waits for the kit's judgement (server.live.kit_faults): the tray moved, or only this wearable."""
+        self.moves.append(self.t_now if at_t is None else float(at_t))
+        if self.kit_id is None:
+            self._warn("moved", say.MOVED_RESTART)
+        elif self.held_move is None:
+            self.held_move = HeldMove(self.moves[-1], self.t_now)
+
+    def say_move(self, alone_of: list[str] | None) -> None:
+        """The kit judged the held move: the tray's (``alone_of`` None), or this wearable's alone, the rest of the kit
+        (``alone_of``) resting still meanwhile."""
+        self.held_move = None
+        if self.finished:
+            return
+        if alone_of is None:
+            self._warn("moved", say.MOVED_RESTART)
+        else:
+            self._warn("kit_moved_alone", kit_say.kit_moved_alone(self.device_id, None, alone_of))
+
     def release_held(self) -> None:
         """The kit judged the held fault the tray's (every wearable at that turn saw one): asked again, as alone."""
         held, self.held_fault = self.held_fault, None
         if held is not None and not self.finished:
             self._ask_again(held.code, held.message, held.resume)
 
-    def kit_closes_turn(self, passed: list[str]) -> None:
-        """The kit judged the held fault this wearable's own (``passed``: the wearables that did not see it): the tray
-        is not turned again for it, and the kit's calibration closes that turn from the others' readings of it."""
+    def kit_closes_turn(self, passed: list[str], moved_alone: bool) -> None:
+        """The kit judged the held fault this wearable's own: the tray is not turned again for it, and the kit's
+        calibration closes that turn from the others' readings of it. ``passed``: the wearables that passed that turn,
+        or with ``moved_alone`` that rested still while this one moved."""
         held, self.held_fault = self.held_fault, None
         if held is None or self.finished:
             return
         axis = AXES[self._axis_i]
-        if held.code == EndReason.MOVED_DURING_PAUSE:
-            self._warn("kit_closed_turn", kit_say.kit_moved_alone(self.device_id, axis, passed))
+        if moved_alone:
+            said = kit_say.kit_moved_alone(self.device_id, axis, passed)
+        elif held.code == EndReason.MOVED_DURING_PAUSE:
+            said = kit_say.kit_tray_moved_unchecked(self.device_id, axis, passed)
         else:
-            self._warn("kit_closed_turn", kit_say.kit_closed_turn(self.device_id, held.message, passed))
+            said = kit_say.kit_closed_turn(self.device_id, held.message, passed)
+        self._warn("kit_closed_turn", said)
         self._early = None
         self._set_phase(Phase.PAUSE, say.pause_prompt(axis, self._next_axis()))
 
@@ -189,7 +225,7 @@ class TurnChecks:
         """An early motion (before a countdown ended) that was no turn at all."""
         provisional, self._provisional = self._provisional, None
         if provisional == "initial":
-            self._warn("moved", say.MOVED_RESTART)
+            self._moved()
             self._axis_i = 0
             self._set_state(State.STILL, Phase.WAITING, say.PROMPTS["still"])
         else:
@@ -197,7 +233,7 @@ class TurnChecks:
             self._axis_i -= 1
             axis = AXES[self._axis_i]
             self.state = TURN_STATES[axis]
-            self._warn("moved", say.MOVED_RESTART)
+            self._moved()
             self._set_phase(Phase.PAUSE, say.pause_prompt(axis, self._next_axis()))
 
     def _check_turn(self, st: Stage) -> None:

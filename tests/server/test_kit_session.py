@@ -122,18 +122,44 @@ def test_a_turn_every_wearable_found_too_fast_is_the_trays_and_is_asked_again_of
     assert sum(w.code == "too_fast" and w.t_device_s == said[0].t_device_s for w in said) == 1
 
 
+TURN_X_END_S = 8.4  # the tray's first turn stops here (the simulated script's)
+
+
+def _rocked(rec: Recording, at_s: float) -> Recording:
+    """``rec`` with a wearable rocking for 0.3 s at ``at_s``, about its z (+-20 deg/s)."""
+    g = rec.gyro.copy()
+    at, width = int(at_s * FS), int(0.3 * FS)
+    g[at:at + width, 2] += 20 * np.sin(np.linspace(0, 2 * np.pi, width))
+    return replace(rec, gyro=g)
+
+
 def test_a_wearable_that_moves_alone_before_its_turn_is_checked_is_named_loose_and_the_tray_goes_on() -> None:
     recs = _tray(3)
-    turn_x_end = 8.4  # the tray's first turn stops here (the simulated script's)
-    g = recs[1].gyro.copy()
-    at, width = int((turn_x_end + 0.8) * FS), int(0.3 * FS)
-    g[at:at + width, 2] += 20 * np.sin(np.linspace(0, 2 * np.pi, width))  # it rocks in its slot; the tray stays still
-    recs[1] = replace(recs[1], gyro=g)
+    recs[1] = _rocked(recs[1], TURN_X_END_S + 0.8)  # it rocks in its slot as the turn is checked; the tray stays still
     machines = _run_kit(recs, [WIDE_DPS] * 3)
     assert [g.state for g in machines] == [State.COMPUTING] * 3 and [g.attempt for g in machines] == [1, 1, 1]
     assert [w.message for w in machines[1].warnings] == [
         "mock-2 moved during the pause after the turn about X while the rest of the kit (mock-1, mock-3) stayed still: "
         "it may be loose in its slot. Seat it firmly; the tray goes on."]
+
+
+@pytest.mark.parametrize("rocked", [[1], [0, 1, 2]], ids=["one-wearable", "the-tray"])
+def test_a_move_in_a_pause_is_said_of_the_tray_only_when_the_tray_moved(rocked: list[int]) -> None:
+    # the count of the pause starts again either way; before, "The tray moved" was said when one wearable rocked alone
+    recs = _tray(3)
+    for i in rocked:
+        recs[i] = _rocked(recs[i], TURN_X_END_S + 1.4)
+    machines = _run_kit(recs, [WIDE_DPS] * 3)
+    assert [g.state for g in machines] == [State.COMPUTING] * 3 and [g.attempt for g in machines] == [1, 1, 1]
+    said = [w.message for w in kit_warnings([g.snapshot() for g in machines])]
+    if len(rocked) == 1:
+        assert said == ["mock-2 moved while the rest of the kit (mock-1, mock-3) stayed still: it may be loose in its "
+                        "slot. Seat it firmly; its count starts again."]
+    else:  # a knock: mock-2 had checked its turn about X (its pause starts again), the others had not yet
+        assert said == [
+            f"{d}: the tray moved before its turn about X was checked. The rest of the kit (mock-2) had checked that "
+            f"turn, so the tray goes on: that turn of {d} is closed with theirs." for d in ("mock-1", "mock-3")] + [
+            "The tray moved: the count starts again. Keep it still against the block."]
 
 
 def test_a_kit_whose_calibration_runs_out_of_time_says_the_service_was_overloaded() -> None:
