@@ -16,6 +16,11 @@ exactly (its own readings' noise against sum m^2 of its turn), over what its own
 tables then add each wearable's tilt (K_xy / k_y, K_xz / k_z, K_yz / k_z) found by the kit against alone (whose turns
 about its axes leave its tilt unseen unless its wobble identified it), and how often the kit chose a full K.
 
+``--fault drop|clip``: the same kits, their first wearable (the reference unless the kit chooses another) either losing
+1.5 s of a drawn turn on its link (``drop``), or with a gyroscope range between the peaks of its two slowest turns,
+so that two of its turns clip (``clip``): the tables then also give that wearable's rows alone (``faulty``), to show
+the kit bridges it at its stated uncertainty.
+
 Loose wearables: ``--sessions`` kits where one wearable (drawn) slips by 1-3 deg during a drawn turn: the share where
 exactly that wearable is flagged; and the share of the kits above (nothing slipped) where any wearable is flagged.
 
@@ -33,6 +38,7 @@ import json
 import time
 import warnings
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import replace
 
 import numpy as np
 
@@ -50,9 +56,26 @@ def _tilt(K: np.ndarray) -> np.ndarray:
     return (K / np.diag(K)[None, :])[[0, 0, 1], [1, 2, 2]]
 
 
-def _session(args: tuple[int, int, float]) -> dict:
-    n, seed, misalignment = args
+def _with_fault(recs: list, truth, seed: int, fault: str | None) -> list:
+    """``recs`` with the first wearable's fault (``--fault``): a 1.5 s link drop in a drawn turn, or a range that clips
+    its two faster turns."""
+    if fault is None:
+        return recs
+    r, dev = recs[0], truth.devices[0]
+    if fault == "drop":
+        turn = [s for s in truth.tray.stages if s.kind == "turn"][int(np.random.default_rng([seed, 11]).integers(3))]
+        mid = (0.5 * (turn.start_s + turn.end_s) - dev.start_s) * (1 + dev.clock_error)  # on the wearable's own clock
+        first = r.select(np.abs(r.t - mid) > 0.75)
+    else:
+        full_scale = float(np.sort(np.abs(r.gyro).max(axis=0))[:2].mean())
+        first = replace(r, gyro=np.clip(r.gyro, -full_scale, full_scale), meta=replace(r.meta, gyro_full_scale_dps=full_scale))
+    return [first, *recs[1:]]
+
+
+def _session(args: tuple[int, int, float, str | None]) -> dict:
+    n, seed, misalignment, fault = args
     recs, truth = simulate_kit(seed, n, misalignment=misalignment)
+    recs = _with_fault(recs, truth, seed, fault)
     t0 = time.perf_counter()
     try:
         kit = calibrate_kit(recs, heading_prior_deg=HEADING_PRIOR_DEG)
@@ -60,9 +83,12 @@ def _session(args: tuple[int, int, float]) -> dict:
         return {"failed": str(exc)}
     elapsed = time.perf_counter() - t0
     rows = []
-    for member, dev, rec in zip(kit.members, truth.devices, recs, strict=True):
+    for i, (member, dev, rec) in enumerate(zip(kit.members, truth.devices, recs, strict=True)):
         r = member.result
-        alone = calibrate_protocol(rec, method="closure", heading_prior_deg=HEADING_PRIOR_DEG)[0]
+        try:
+            alone_v = _alone(rec)
+        except GyrocalError:  # a turn it lost or clipped: alone, it would be turned again
+            alone_v = np.full(9, np.nan)
         truth_v = np.concatenate([np.diag(dev.K_own), dev.b_own, _tilt(dev.K_own)])
         kit_v = np.concatenate([r.k, r.b, _tilt(r.matrix)]) if r is not None else np.full(9, np.nan)
         tilt_std = r.K_std[[0, 0, 1], [1, 2, 2]] / r.k[[1, 2, 2]] if r is not None and r.K_std is not None else [np.nan] * 3
@@ -70,11 +96,17 @@ def _session(args: tuple[int, int, float]) -> dict:
             "kit_err": (kit_v - truth_v).tolist(),
             "kit_std": np.concatenate([r.k_std, r.b_std, tilt_std]).tolist() if r is not None else [np.nan] * 9,
             "kit_bound": np.concatenate([r.k_bound, r.b_bound, [np.nan] * 3]).tolist() if r is not None else [np.nan] * 9,
-            "alone_err": (np.concatenate([alone.k, alone.b, _tilt(alone.matrix)]) - truth_v).tolist(),
+            "alone_err": (alone_v - truth_v).tolist(),
             "ceiling": _ceiling(rec, truth, dev).tolist(),
+            "faulty": bool(fault) and i == 0,
         })
     return {"rows": rows, "departed": kit.departed, "seconds": elapsed, "protocol_s": float(truth.tray.t[-1]),
             "axes": (kit.axes or {}).get("model")}
+
+
+def _alone(rec) -> np.ndarray:
+    alone = calibrate_protocol(rec, method="closure", heading_prior_deg=HEADING_PRIOR_DEG)[0]
+    return np.concatenate([alone.k, alone.b, _tilt(alone.matrix)])
 
 
 def _ceiling(rec, truth, dev) -> np.ndarray:
@@ -101,9 +133,10 @@ def _loose(args: tuple[int, int, float]) -> dict:
     return {"found": kit.departed == [names[device]], "departed": kit.departed, "angle": angle}
 
 
-def _table(n: int, sessions: list[dict]) -> dict:
+def _table(n: int, sessions: list[dict], faulty: bool | None = None) -> dict:
+    """The pooled figures of every wearable's rows (``faulty``: only the faulty wearables', or only the others')."""
     ok = [s for s in sessions if "rows" in s]
-    rows = [r for s in ok for r in s["rows"]]
+    rows = [r for s in ok for r in s["rows"] if faulty is None or r["faulty"] == faulty]
     kit_err = np.abs(np.array([r["kit_err"] for r in rows]))
     alone_err = np.abs(np.array([r["alone_err"] for r in rows]))
     kit_std = np.array([r["kit_std"] for r in rows])
@@ -182,6 +215,8 @@ def main() -> None:
     ap.add_argument("--hand", default=None, metavar="STYLE", help="with --guided: the prompt-following tray clinician")
     ap.add_argument("--misalignment", type=float, default=0.0, metavar="M",
                     help="each sensor's axes are not orthogonal: the off-diagonal entries of its K drawn in +-M")
+    ap.add_argument("--fault", choices=["drop", "clip"], default=None,
+                    help="the first wearable lost 1.5 s of a turn on its link, or clips two of its turns")
     ap.add_argument("--json", default=None)
     args = ap.parse_args()
     sizes = [int(v) for v in args.kits.split(",")]
@@ -194,8 +229,11 @@ def main() -> None:
     out = {"accuracy": [], "loose": []}
     with ProcessPoolExecutor(args.workers) as pool:
         for n in sizes:
-            sessions = list(pool.map(_session, [(n, s, args.misalignment) for s in range(args.sessions)], chunksize=4))
+            sessions = list(pool.map(_session, [(n, s, args.misalignment, args.fault) for s in range(args.sessions)],
+                                     chunksize=4))
             table = _table(n, sessions)
+            if args.fault:
+                table["faulty"] = _table(n, sessions, faulty=True)
             loose = list(pool.map(_loose, [(n, s, args.misalignment) for s in range(args.sessions)], chunksize=4))
             found = [s["found"] for s in loose if "found" in s]
             table_loose = {"kit": n, "sessions": len(loose), "flagged_right": float(np.mean(found)),
@@ -208,6 +246,11 @@ def main() -> None:
             for j, name in enumerate(NAMES if args.misalignment else NAMES[:6]):
                 print(f"  {name:5} {table['p95_kit'][j]:10.2e} {table['p95_alone'][j]:10.2e} {table['gain'][j]:6.2f}"
                       f" {table['p95_over_bound'][j]:14.2f} {table['p95_err_over_bound'][j]:20.2f} {table['sd_z'][j]:14.2f}")
+            if args.fault:
+                f = table["faulty"]
+                print(f"  the first wearable ({args.fault}): p95(err/bound)/1.96 "
+                      f"{np.round(f['p95_err_over_bound'][:6], 2).tolist()}, sd(err/std) {np.round(f['sd_z'][:6], 2).tolist()}, "
+                      f"p95 |err| k {np.array(f['p95_kit'][:3]).round(5).tolist()} b {np.array(f['p95_kit'][3:6]).round(4).tolist()}")
             print(f"  ceiling of the k gain (median, x/y/z): {np.round(table['ceiling_k'], 2).tolist()}; "
                   f"full K chosen in {100 * table['full_k']:.0f} % of kits")
             print(f"  nothing slipped: flagged in {100 * table['false_flags']:.1f} %;"

@@ -6,7 +6,7 @@ import { notice } from "./figures.js";
 
 const WARNING_SHOW_MS = 10000;
 const WARNING_ICON = { moved: "hand", hint: "info", link_lost: "link", link_restored: "link", moved_during_pause: "hand",
-  no_data: "link", data_resumed: "link", service_late: "clock" };
+  no_data: "link", data_resumed: "link", service_late: "clock", kit_moved_alone: "hand" };
 const INFO = new Set(["link_restored", "hint", "data_resumed", "service_late"]);
 
 /**
