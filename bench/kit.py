@@ -18,8 +18,8 @@ about its axes leave its tilt unseen unless its wobble identified it), and how o
 
 ``--fault drop|clip``: the same kits, their first wearable (the reference unless the kit chooses another) either losing
 1.5 s of a drawn turn on its link (``drop``), or with a gyroscope range between the peaks of its two slowest turns,
-so that two of its turns clip (``clip``): the tables then also give that wearable's rows alone (``faulty``), to show
-the kit bridges it at its stated uncertainty.
+so that two of its turns clip (``clip``): the tables then give the other wearables' rows, and that wearable's apart
+(``faulty``: how well the kit bridged it, against its stated uncertainty).
 
 Loose wearables: ``--sessions`` kits where one wearable (drawn) slips by 1-3 deg during a drawn turn: the share where
 exactly that wearable is flagged; and the share of the kits above (nothing slipped) where any wearable is flagged.
@@ -231,7 +231,7 @@ def main() -> None:
         for n in sizes:
             sessions = list(pool.map(_session, [(n, s, args.misalignment, args.fault) for s in range(args.sessions)],
                                      chunksize=4))
-            table = _table(n, sessions)
+            table = _table(n, sessions, faulty=False if args.fault else None)  # the faulty wearable's rows apart
             if args.fault:
                 table["faulty"] = _table(n, sessions, faulty=True)
             loose = list(pool.map(_loose, [(n, s, args.misalignment) for s in range(args.sessions)], chunksize=4))

@@ -150,7 +150,9 @@ def couple(ref: Recording, rec: Recording, clock: ClockMap, ref_noise: np.ndarra
         clock = clock.corrected(float(shift[0]), float(shift[1]))
         run_shift[1:] += shift[2:] if shift.size > 2 else 0.0
     rest = np.interp(tk, clock.to_reference(rec.t), resting(rec).astype(float)) > 0.99
-    shift_cov = np.linalg.inv(design.T @ design) * float(resid.var())
+    # pinv: a run too short to be resampled (a sample or two between clipped readings) leaves its shift's column
+    # empty; lstsq gave it no shift, and it takes nothing from the clock's own uncertainty
+    shift_cov = np.linalg.pinv(design.T @ design) * float(resid.var())
     clock = ClockMap(clock.offset_s, clock.rate, float(np.sqrt(shift_cov[0, 0])), float(clock.rate * np.sqrt(shift_cov[1, 1])))
     out = np.full_like(y, np.nan)
     out[keep] = yk

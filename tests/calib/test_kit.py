@@ -185,11 +185,13 @@ def test_the_first_wearable_losing_samples_in_a_turn_leaves_the_others_as_the_ki
     assert [row["axis"] for row in kit.members[0].result.residuals["turns"] if row.get("bridged_by_kit")] == ["x"]
 
 
-@pytest.mark.parametrize("stated", [True, False], ids=["range-stated", "range-found-from-the-readings"])
-def test_a_wearable_whose_readings_clip_in_the_turns_is_bridged_by_the_kit_not_blamed(stated: bool) -> None:
+@pytest.mark.parametrize(("stated", "seed", "n"), [(True, 7, 3), (False, 7, 3), (True, 45, 2)],
+                         ids=["range-stated", "range-found-from-the-readings", "a-sample-left-between-clipped-ones"])
+def test_a_wearable_whose_readings_clip_in_the_turns_is_bridged_by_the_kit_not_blamed(stated: bool, seed: int, n: int) -> None:
     # a wearable with a smaller range (or a higher gain) than the others clips a fast turn that they read whole;
-    # its clipped readings once made it "come apart from the kit", or the whole kit "not of one motion"
-    recs, truth = simulate_kit(7, 3)
+    # its clipped readings once made it "come apart from the kit", or the whole kit "not of one motion". Seed 45's
+    # range sits at one turn's peak: a lone reading between clipped ones once broke the clock's fit (singular matrix)
+    recs, truth = simulate_kit(seed, n)
     r = recs[0]
     peak = np.abs(r.gyro).max(axis=0)
     full_scale = float(np.sort(peak)[:2].mean())  # its two faster turns clip, the slowest does not
@@ -207,8 +209,10 @@ def test_a_wearable_whose_readings_clip_in_the_turns_is_bridged_by_the_kit_not_b
         res = member.result
         assert np.all(np.abs(res.k - d.k_own) < 4.5 * res.k_std), (member.name, (res.k - d.k_own) / res.k_std)
         assert np.all(np.abs(res.b - d.b_own) < 4.5 * res.b_std), (member.name, (res.b - d.b_own) / res.b_std)
-    bridged = [row["axis"] for row in kit.members[0].result.residuals["turns"] if row.get("bridged_by_kit")]
-    assert len(bridged) == 2 and {"x", "y", "z"} - set(bridged) == {["x", "y", "z"][int(np.argmin(peak))]}
+    bridged = {row["axis"] for row in kit.members[0].result.residuals["turns"] if row.get("bridged_by_kit")}
+    # each turn is about one axis: the turns whose readings reached the full scale (to the stage detector's 0.5 %)
+    reached = {"xyz"[a] for a in range(3) if at_full_scale[0][:, a].any()}
+    assert reached <= bridged <= {"xyz"[a] for a in range(3) if at_full_scale[1][:, a].any()} and len(reached) == 2
 
 
 def test_a_slip_about_the_axis_being_turned_is_found_by_its_burst_though_the_attitude_hides_it() -> None:
