@@ -102,15 +102,16 @@ def runs(rec: Recording) -> np.ndarray:
     return np.concatenate([[0], np.cumsum(gaps(rec.t))])
 
 
-def resample(rec: Recording, clock: ClockMap, t_ref: np.ndarray, run_shift: np.ndarray | None = None) -> np.ndarray:
+def resample(rec: Recording, clock: ClockMap, t_ref: np.ndarray, run_shift: np.ndarray | None = None,
+             clock_run: np.ndarray | None = None) -> np.ndarray:
     """``rec``'s readings at reference times ``t_ref`` (NaN outside them and across samples it lost, where no reading
     says how it turned): a cubic spline through each run of samples without a gap (one spline across a gap would bend
-    the readings beside it). ``run_shift``: a further shift (s) of each run's times (a wearable may stamp anew after
-    its link came back)."""
+    the readings beside it). ``run_shift``: a further shift (s) of each clock run's times (a wearable may stamp anew
+    after its link came back); ``clock_run``: each sample's clock run (default: a new one after each gap)."""
     t = clock.to_reference(rec.t)
     run = runs(rec)
     if run_shift is not None:
-        t = t + run_shift[run]
+        t = t + run_shift[run if clock_run is None else clock_run]
     out = np.full((t_ref.size, 3), np.nan)
     for r in range(int(run[-1]) + 1):
         seg = np.nonzero(run == r)[0]
@@ -121,17 +122,20 @@ def resample(rec: Recording, clock: ClockMap, t_ref: np.ndarray, run_shift: np.n
     return out
 
 
-def couple(ref: Recording, rec: Recording, clock: ClockMap, ref_noise: np.ndarray) -> Coupling:
+def couple(ref: Recording, rec: Recording, clock: ClockMap, ref_noise: np.ndarray,
+           clock_run: np.ndarray | None = None) -> Coupling:
     """Fit ``rec`` = A ``ref`` + c over every sample both hold, refining ``clock`` as it goes (and, after a gap in
     ``rec``, each later run's own offset).
 
     ``ref_noise``: the reference's noise std per axis (deg/s), which biases a plain least-squares fit of A towards
-    zero by noise^2 / rate^2 and is taken out (errors in variables)."""
-    run = runs(rec)
+    zero by noise^2 / rate^2 and is taken out (errors in variables). ``clock_run``: each sample's run of one clock
+    offset, when not every gap may start a new one (readings left out for clipping are gaps the wearable's stamps
+    ran through: an offset fitted to each run after one would take the scale's information, not a clock's)."""
+    run = runs(rec) if clock_run is None else np.unique(clock_run, return_inverse=True)[1]
     n_runs = int(run[-1]) + 1
     run_shift = np.zeros(n_runs)
     for pass_ in range(REFINE_PASSES + (RUN_SHIFT_FROM if n_runs > 1 else 0)):
-        y = resample(rec, clock, ref.t, run_shift)
+        y = resample(rec, clock, ref.t, run_shift, run)
         keep = np.all(np.isfinite(y), axis=1)
         if keep.sum() < 50:
             raise GyrocalError(f"{rec.meta.source or 'a recording'} shares too few samples with the reference to be coupled")

@@ -27,7 +27,7 @@ from calib.estimators.closure.fit import KPrior
 from calib.judge.acceptance import misclosure
 from calib.kit.axes import KitAxes, Refit, kit_axes
 from calib.kit.clocks import IDENTITY, ClockMap, coarse_clock, gaps
-from calib.kit.coupling import IDENTITY_MAP, Coupling, LinearMap, couple, fit_map, reading_noise, resting
+from calib.kit.coupling import IDENTITY_MAP, Coupling, LinearMap, couple, fit_map, reading_noise, resting, runs
 from calib.kit.departure import BURST_DPS, DEPARTURE_DEG, NO_DEPARTURE, departures
 from calib.kit.members import PARAMETERS, MemberParams, member_params, rest_bias
 from calib.kit.result import Coherence, KitMember, KitResult
@@ -54,6 +54,7 @@ def calibrate_kit(recordings: Sequence[Recording], names: Sequence[str] | None =
     names = _names(recordings, names)
     say = progress or (lambda fraction, stage: None)
     clipped = [_clipped(r) for r in recordings]
+    clock_runs = [runs(r)[~c] for r, c in zip(recordings, clipped, strict=True)]  # only a lost link starts a clock run
     recordings = [r.select(~c) if c.any() else r for r, c in zip(recordings, clipped, strict=True)]
     members = _most_complete_first(recordings)
     left_out: list[int] = []
@@ -61,7 +62,7 @@ def calibrate_kit(recordings: Sequence[Recording], names: Sequence[str] | None =
     seen: dict[int, tuple[ClockMap, Coherence]] = {}  # a departed wearable's clock and departure, when it was found
     while True:
         say(min(0.1 + 0.3 * len(left_out), 0.8), "aligning the clocks and fitting the coupling")
-        solved = _solve(recordings, members, protocol, heading_prior_deg)
+        solved = _solve(recordings, members, protocol, heading_prior_deg, clock_runs)
         flagged = [members[j] for j, d in enumerate(solved.departures) if d.departed]
         if not flagged:
             break
@@ -118,7 +119,8 @@ class _Solved:
         self.departures = departures(rates, self.span, rests, noise) if len(members) >= 2 else [NO_DEPARTURE]
 
 
-def _solve(recordings: Sequence[Recording], members: list[int], protocol: str, heading_prior_deg: float | None) -> _Solved:
+def _solve(recordings: Sequence[Recording], members: list[int], protocol: str, heading_prior_deg: float | None,
+           clock_runs: Sequence[np.ndarray]) -> _Solved:
     ref_i = members[0]
     ref = recordings[ref_i]
     noise = {i: reading_noise(recordings[i]) for i in members}
@@ -127,7 +129,7 @@ def _solve(recordings: Sequence[Recording], members: list[int], protocol: str, h
     readings = {ref_i: ref.gyro}
     maps: dict[int, LinearMap] = {ref_i: IDENTITY_MAP}
     for i in members[1:]:
-        coupling = couple(ref, recordings[i], coarse_clock(ref, recordings[i]), ref_noise)
+        coupling = couple(ref, recordings[i], coarse_clock(ref, recordings[i]), ref_noise, clock_runs[i])
         _check_one_motion(coupling, recordings[i], ref)
         clocks[i], readings[i], maps[i] = coupling.clock, coupling.readings, coupling.map
     keep = np.ones(len(ref), dtype=bool)
