@@ -20,6 +20,7 @@ from calib.recording import Recording
 
 REFINE_PASSES = 3
 RUN_SHIFT_FROM = 2  # passes with one clock for the whole recording before each run after a gap gets its own offset
+RUN_SHIFT_Z = 3.0  # a run's offset this many of its standard errors from none is kept; a smaller one is taken as none
 REST_SHARE = 0.3  # the share of samples with the least motion, where a residual is the readings' noise alone
 
 
@@ -133,8 +134,48 @@ def couple(ref: Recording, rec: Recording, clock: ClockMap, ref_noise: np.ndarra
     ran through: an offset fitted to each run after one would take the scale's information, not a clock's)."""
     run = runs(rec) if clock_run is None else np.unique(clock_run, return_inverse=True)[1]
     n_runs = int(run[-1]) + 1
-    run_shift = np.zeros(n_runs)
-    for pass_ in range(REFINE_PASSES + (RUN_SHIFT_FROM if n_runs > 1 else 0)):
+    shifted = np.arange(n_runs) > 0  # the runs given an offset of their own
+    fit = _refine(ref, rec, run, clock, np.zeros(n_runs), shifted, REFINE_PASSES + (RUN_SHIFT_FROM if n_runs > 1 else 0),
+                  RUN_SHIFT_FROM, ref_noise)
+    while shifted.any():
+        z = np.abs(fit.run_shift) / np.sqrt(np.maximum(np.diag(fit.cov)[1:], 1e-30))  # cov: offset, rate, each run's
+        kept = shifted & (z >= RUN_SHIFT_Z)
+        if (kept == shifted).all():
+            break
+        # an offset the data cannot tell from none is none: the wearable's clock ran through that gap, and a free
+        # offset there would only take what the run tells of the scale
+        shifted = kept
+        fit.run_shift[~shifted] = 0.0
+        fit = _refine(ref, rec, run, fit.clock, fit.run_shift, shifted, REFINE_PASSES, 0, ref_noise)
+    clock = ClockMap(fit.clock.offset_s, fit.clock.rate, float(np.sqrt(fit.cov[0, 0])),
+                     float(fit.clock.rate * np.sqrt(fit.cov[1, 1])))
+    y, keep, x, yk, tk = fit.y, fit.keep, fit.x, fit.yk, fit.tk
+    rest = np.interp(tk, clock.to_reference(rec.t), resting(rec).astype(float)) > 0.99
+    out = np.full_like(y, np.nan)
+    out[keep] = yk
+    return Coupling(clock, out, fit_map(x, yk, ref_noise, rest))
+
+
+class _Refined:
+    """One refinement of a coupling's clock: the clock, each run's further offset (s), and the last pass's samples
+    (``y`` resampled, the rows ``keep`` both hold, and those rows' reference readings, readings and times) and the
+    covariance of the clock's offset, rate and the runs' offsets."""
+
+    def __init__(self, clock: ClockMap, run_shift: np.ndarray) -> None:
+        self.clock, self.run_shift = clock, run_shift
+        empty: np.ndarray = np.empty(0)
+        self.y, self.x, self.yk, self.tk, self.cov = empty, empty, empty, empty, empty
+        self.keep: np.ndarray = np.empty(0, dtype=bool)
+
+
+def _refine(ref: Recording, rec: Recording, run: np.ndarray, clock: ClockMap, run_shift: np.ndarray, shifted: np.ndarray,
+            passes: int, shift_from: int, ref_noise: np.ndarray) -> _Refined:
+    """``passes`` refinements of ``clock`` and, from pass ``shift_from``, of the ``shifted`` runs' offsets (before it,
+    one clock for the whole recording)."""
+    run_shift = run_shift.copy()
+    out = _Refined(clock, run_shift)
+    n_runs = run_shift.size
+    for pass_ in range(passes):
         y = resample(rec, clock, ref.t, run_shift, run)
         keep = np.all(np.isfinite(y), axis=1)
         if keep.sum() < 50:
@@ -145,22 +186,22 @@ def couple(ref: Recording, rec: Recording, clock: ClockMap, ref_noise: np.ndarra
         slope = np.gradient(fitted, tk, axis=0)
         resid = yk - fitted
         columns = [slope, slope * tk[:, None]]
-        if n_runs > 1 and pass_ >= RUN_SHIFT_FROM:  # which run each reference time falls in
+        free = [r for r in range(1, n_runs) if shifted[r]] if pass_ >= shift_from else []
+        if free:  # which run each reference time falls in
             starts = clock.to_reference(rec.t[np.searchsorted(run, np.arange(n_runs))]) + run_shift
             row_run = np.searchsorted(starts, tk, side="right") - 1
-            columns += [slope * (row_run == r)[:, None] for r in range(1, n_runs)]
+            columns += [slope * (row_run == r)[:, None] for r in free]
         design = np.stack([col.ravel() for col in columns], axis=1)
         shift, *_ = np.linalg.lstsq(design, resid.ravel(), rcond=None)
         clock = clock.corrected(float(shift[0]), float(shift[1]))
-        run_shift[1:] += shift[2:] if shift.size > 2 else 0.0
-    rest = np.interp(tk, clock.to_reference(rec.t), resting(rec).astype(float)) > 0.99
-    # pinv: a run too short to be resampled (a sample or two between clipped readings) leaves its shift's column
-    # empty; lstsq gave it no shift, and it takes nothing from the clock's own uncertainty
-    shift_cov = np.linalg.pinv(design.T @ design) * float(resid.var())
-    clock = ClockMap(clock.offset_s, clock.rate, float(np.sqrt(shift_cov[0, 0])), float(clock.rate * np.sqrt(shift_cov[1, 1])))
-    out = np.full_like(y, np.nan)
-    out[keep] = yk
-    return Coupling(clock, out, fit_map(x, yk, ref_noise, rest))
+        run_shift[free] += shift[2:]
+        # pinv: a run too short to be resampled (a sample or two between clipped readings) leaves its shift's column
+        # empty; lstsq gave it no shift, and it takes nothing from the clock's own uncertainty
+        cov = np.zeros((n_runs + 1, n_runs + 1))
+        idx = [0, 1, *[r + 1 for r in free]]
+        cov[np.ix_(idx, idx)] = np.linalg.pinv(design.T @ design) * float(resid.var())
+        out.clock, out.y, out.keep, out.x, out.yk, out.tk, out.cov = clock, y, keep, x, yk, tk, cov
+    return out
 
 
 def _fit(x: np.ndarray, y: np.ndarray, x_noise: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
