@@ -232,6 +232,7 @@ class GuidedSession(ProtocolSteps, Lateness):
         if self.finished or self.state in (State.COMPUTING, State.RECONNECTING, State.CONNECTING):
             return
         self._early = None
+        self.held_fault = self.held_move = None  # the turn is redone after reconnection: the kit judges nothing of it
         self._resume = (self.state, self.phase)
         self._link_lost_mono = self.clock()
         self._warn("link_lost", say.PROMPTS["reconnecting"])
@@ -300,6 +301,7 @@ class GuidedSession(ProtocolSteps, Lateness):
         whatever step this wearable's own guidance is in (False when it has ended, or has no recording to give)."""
         if self.finished or self.state in (State.COMPUTING, State.CONNECTING, State.RECONNECTING):
             return False
+        self.held_fault = self.held_move = None
         self._warn("kit_ahead", message)
         self._set_state(State.COMPUTING, None, say.PROMPTS["computing"])
         return True
