@@ -46,6 +46,15 @@ def kit_closed_turn(device_id: str, fault: str, passed: Sequence[str]) -> str:
             f"that turn of {device_id} is closed with theirs.")
 
 
+def kit_clipped_turn(device_id: str, axis: str, full_scale: float | None, passed: Sequence[str]) -> str:
+    """A wearable's readings reached its gyroscope's limit in a turn the rest of the kit (``passed``) read whole: its
+    sensor's range, not the hand (the others' show the turn was not too fast for them)."""
+    fs = f" (±{full_scale:g} °/s)" if full_scale else ""
+    return (f"{device_id}'s gyroscope reached its limit{fs} in the turn about {ax(axis)}; the rest of the kit "
+            f"({', '.join(passed)}) read that turn whole, so the tray goes on: that turn of {device_id} is closed with "
+            "theirs.")
+
+
 def kit_moved_alone(device_id: str, axis: str | None, still: Sequence[str]) -> str:
     """A wearable moved while the rest of the kit (``still``) rested: it moved in its slot. ``axis``: in the pause after
     the turn about it (the tray goes on), else while its count of a rest ran (that count starts again)."""

@@ -215,6 +215,8 @@ class TurnChecks:
             said = kit_say.kit_moved_alone(self.device_id, axis, passed)
         elif held.code == EndReason.MOVED_DURING_PAUSE:
             said = kit_say.kit_tray_moved_unchecked(self.device_id, axis, passed)
+        elif held.code == EndReason.TOO_FAST:  # its range, not the hand: the others read that turn whole
+            said = kit_say.kit_clipped_turn(self.device_id, axis, self.full_scale, passed)
         else:
             said = kit_say.kit_closed_turn(self.device_id, held.message, passed)
         self._warn("kit_closed_turn", said)

@@ -102,12 +102,24 @@ def test_a_turn_one_wearable_alone_found_too_fast_is_closed_by_the_kit_and_the_t
     own = machines[1].warnings
     clipped_turns = [ax for ax in "xyz" if np.abs(recs[1].gyro[:, "xyz".index(ax)]).max() >= 0.995 * narrow]
     assert clipped_turns and [w.code for w in own] == ["kit_closed_turn"] * len(clipped_turns)
-    assert own[0].message.startswith(f"mock-2: That turn about {clipped_turns[0].upper()} took ")
-    assert own[0].message.endswith("too fast, the sensor reached its limit (±125 °/s). The rest of the kit (mock-1, "
-                                   "mock-3) passed that turn, so the tray goes on: that turn of mock-2 is closed with theirs.")
+    # its range, not the hand: never "too fast" (the rest of the kit read that turn whole)
+    assert [w.message for w in own] == [
+        f"mock-2's gyroscope reached its limit (±125 °/s) in the turn about {axis.upper()}; the rest of the kit (mock-1, "
+        f"mock-3) read that turn whole, so the tray goes on: that turn of mock-2 is closed with theirs." for axis in clipped_turns]
     assert machines[0].warnings == machines[2].warnings == []
     said = kit_warnings([g.snapshot() for g in machines])
     assert [w.message for w in said] == [w.message for w in own]  # named by the wearable, never said of the tray
+
+
+def test_a_turn_one_wearable_alone_found_short_is_named_with_its_own_reading_and_the_tray_goes_on() -> None:
+    recs = _tray(3)
+    recs[1] = replace(recs[1], gyro=recs[1].gyro * np.array([0.6, 1.0, 1.0]))  # its x reads a full turn short of 290 deg
+    machines = _run_kit(recs, [WIDE_DPS] * 3)
+    assert [g.state for g in machines] == [State.COMPUTING] * 3 and [g.attempt for g in machines] == [1, 1, 1]
+    (own,) = machines[1].warnings
+    assert own.code == "kit_closed_turn" and own.message.startswith("mock-2: The turn about X measured ")
+    assert own.message.endswith("°, not a full turn. The rest of the kit (mock-1, mock-3) passed that turn, so the tray "
+                                "goes on: that turn of mock-2 is closed with theirs.")
 
 
 def test_a_turn_every_wearable_found_too_fast_is_the_trays_and_is_asked_again_of_the_tray_once() -> None:
