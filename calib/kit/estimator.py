@@ -36,6 +36,7 @@ from calib.numerics.attitude import cumulative_attitude
 from calib.pipeline import calibrate_protocol, with_rate_uncertainty
 from calib.recording import Recording
 from calib.result import CalibrationResult
+from calib.stages.detector import detect_stages
 from calib.stages.stage import Stage
 
 METHOD = "kit-closure"
@@ -45,11 +46,14 @@ Progress = Callable[[float, str], None]
 
 
 def calibrate_kit(recordings: Sequence[Recording], names: Sequence[str] | None = None, *, protocol: str = "auto",
-                  heading_prior_deg: float | None = None, progress: Progress | None = None) -> KitResult:
+                  heading_prior_deg: float | None = None, progress: Progress | None = None,
+                  turns_kept: Sequence[Sequence[tuple[float, float]]] | None = None) -> KitResult:
     """Calibrate every wearable of a kit from one recording each of one motion of the tray.
 
     ``names``: one per recording (default: the recordings' device ids or sources). ``protocol``, ``heading_prior_deg``
-    as for ``calib.pipeline.calibrate_protocol``. Raises GyrocalError when the recordings are not one kit's (fewer than
+    as for ``calib.pipeline.calibrate_protocol``. ``turns_kept``: per recording, the turns its live guidance took
+    (start and end on its own stamps, s); a motion of the tray none of them took (a turn asked again: the try that
+    fell short) is then no turn of the kit's. Raises GyrocalError when the recordings are not one kit's (fewer than
     two, names repeated, too little shared motion) or the kit's mean recording holds no protocol."""
     names = _names(recordings, names)
     say = progress or (lambda fraction, stage: None)
@@ -62,7 +66,7 @@ def calibrate_kit(recordings: Sequence[Recording], names: Sequence[str] | None =
     seen: dict[int, tuple[ClockMap, Coherence]] = {}  # a departed wearable's clock and departure, when it was found
     while True:
         say(min(0.1 + 0.3 * len(left_out), 0.8), "aligning the clocks and fitting the coupling")
-        solved = _solve(recordings, members, protocol, heading_prior_deg, clock_runs)
+        solved = _solve(recordings, members, protocol, heading_prior_deg, clock_runs, turns_kept)
         flagged = [members[j] for j, d in enumerate(solved.departures) if d.departed]
         if not flagged:
             break
@@ -120,7 +124,7 @@ class _Solved:
 
 
 def _solve(recordings: Sequence[Recording], members: list[int], protocol: str, heading_prior_deg: float | None,
-           clock_runs: Sequence[np.ndarray]) -> _Solved:
+           clock_runs: Sequence[np.ndarray], turns_kept: Sequence[Sequence[tuple[float, float]]] | None = None) -> _Solved:
     ref_i = members[0]
     ref = recordings[ref_i]
     noise = {i: reading_noise(recordings[i]) for i in members}
@@ -151,7 +155,9 @@ def _solve(recordings: Sequence[Recording], members: list[int], protocol: str, h
                          None if ref.seq is None else ref.seq[rows],
                          meta=replace(ref.meta, source=f"the kit's {len(members)} wearables, in {_label(ref)}'s frame",
                                       sample_rate_rel_std=None))  # each wearable's own rate's uncertainty is its own
-    mean, _ = calibrate_protocol(mean_rec, protocol, "closure", heading_prior_deg=heading_prior_deg)
+    stages = None if turns_kept is None else _taken(detect_stages(mean_rec), [
+        clocks[i].to_reference(np.asarray(span, dtype=float)) for i in members for span in turns_kept[i]])
+    mean, _ = calibrate_protocol(mean_rec, protocol, "closure", stages=stages, heading_prior_deg=heading_prior_deg)
     if mean.quality.get("undetermined_axes"):
         raise GyrocalError("the kit was not turned about every axis: " + "; ".join(mean.warnings[:1]))
     k_ref, b_ref = np.asarray(mean.k), np.asarray(mean.b)
@@ -159,6 +165,15 @@ def _solve(recordings: Sequence[Recording], members: list[int], protocol: str, h
     rates = np.array([np.where(np.isfinite(mapped[i]), mapped[i], mean_m) * k_ref + b_ref for i in members])
     rate_noise = np.array([np.sqrt(variance[i]) * k_ref for i in members])
     return _Solved(members, clocks, maps, mean_rec, mean, rates, rate_noise, noise)
+
+
+def _taken(stages: list[Stage], spans: list[np.ndarray]) -> list[Stage]:
+    """The kit mean's ``stages`` without the turns no wearable's live guidance took: a turn is taken when one of the
+    wearables' taken turns (``spans``, reference time, s) covers half of it or of itself."""
+    def taken(st: Stage) -> bool:
+        return any(min(b, st.end_s) - max(a, st.start_s) >= 0.5 * min(b - a, st.end_s - st.start_s) for a, b in spans)
+
+    return [st for st in stages if st.kind != "turn" or taken(st)]
 
 
 def _check_one_motion(coupling: Coupling, rec: Recording, ref: Recording) -> None:

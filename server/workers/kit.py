@@ -22,15 +22,18 @@ class KitOutcome:
     refusal: str | None = None
 
 
-def calibrate_kit_live(recordings: list[Recording], names: list[str]) -> KitOutcome:
-    """Calibrate a kit session's recordings (one per wearable, in ``names``' order) together. A wearable that departed
-    from the kit gets no result: the reason says what happened and what to do."""
+def calibrate_kit_live(recordings: list[Recording], names: list[str],
+                       turns_kept: list[list[tuple[float, float]]] | None = None) -> KitOutcome:
+    """Calibrate a kit session's recordings (one per wearable, in ``names``' order) together; ``turns_kept``: each
+    wearable's turns its guidance took (start and end on its stamps, s), so that a turn the tray was asked again is no
+    turn of the kit's. A wearable that departed from the kit gets no result: the reason says what happened and what to
+    do."""
     from calib.errors import GyrocalError, Refusal
     from calib.kit.estimator import calibrate_kit
 
     csvs = {name: recording_csv(rec) for name, rec in zip(names, recordings, strict=True)}
     try:
-        kit = calibrate_kit(recordings, names, protocol="paper")
+        kit = calibrate_kit(recordings, names, protocol="paper", turns_kept=turns_kept)
     except GyrocalError as exc:
         why = f"The kit could not be calibrated together: {exc} Start a new calibration."
         code = exc.code if isinstance(exc, Refusal) else "kit_refused"

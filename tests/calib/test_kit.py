@@ -17,6 +17,7 @@ from calib.kit.coupling import couple, reading_noise
 from calib.kit.estimator import calibrate_kit
 from calib.pipeline import calibrate_protocol
 from calib.simulator.kit import Slip, simulate_kit
+from calib.simulator.protocol import ProtocolScript, Still, Turn
 
 PRIOR_DEG = 0.001  # the simulated tray is put back exactly
 
@@ -213,6 +214,25 @@ def test_a_wearable_whose_readings_clip_in_the_turns_is_bridged_by_the_kit_not_b
     # each turn is about one axis: the turns whose readings reached the full scale (to the stage detector's 0.5 %)
     reached = {"xyz"[a] for a in range(3) if at_full_scale[0][:, a].any()}
     assert reached <= bridged <= {"xyz"[a] for a in range(3) if at_full_scale[1][:, a].any()} and len(reached) == 2
+
+
+def test_a_turn_the_tray_was_asked_again_is_calibrated_from_the_try_the_guidance_took() -> None:
+    # the tray's first turn about x fell short (300 deg) and was asked again: that try is no turn of the kit's. Taken
+    # as one, it refused the kit ("the turn about x ... ends 59 deg from where it began"), every such live kit failing
+    script = ProtocolScript((Still(5.0), Turn("x", 300.0), Still(5.0), Turn("x", 360.0), Still(5.0), Turn("y", 360.0),
+                             Still(5.0), Turn("z", 360.0), Still(5.0)))
+    recs, truth = simulate_kit(4, 3, script=script)
+    with pytest.raises(GyrocalError, match="not a full turn"):
+        calibrate_kit(recs, heading_prior_deg=PRIOR_DEG)
+    taken = [st for st in truth.tray.stages if st.kind == "turn"][1:]
+    kept = [[((st.start_s - d.start_s) * (1 + d.clock_error), (st.end_s - d.start_s) * (1 + d.clock_error)) for st in taken]
+            for d in truth.devices]  # each wearable's guidance took them, on its own clock
+    kit = calibrate_kit(recs, heading_prior_deg=PRIOR_DEG, turns_kept=kept)
+    for member, d in zip(kit.members, truth.devices, strict=True):
+        res = member.result
+        assert [st.axis for st in res.stages if st.kind == "turn"] == ["x", "y", "z"]
+        assert np.all(np.abs(res.k - d.k_own) < 4.5 * res.k_std), (member.name, (res.k - d.k_own) / res.k_std)
+        assert np.all(np.abs(res.b - d.b_own) < 4.5 * res.b_std), (member.name, (res.b - d.b_own) / res.b_std)
 
 
 def test_a_slip_about_the_axis_being_turned_is_found_by_its_burst_though_the_attitude_hides_it() -> None:
