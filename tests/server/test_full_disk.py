@@ -34,9 +34,10 @@ def small_disk() -> Iterator[Path]:
 
 
 def _fill(disk: Path) -> Path:
-    """Write a file until the disk is full; the file (delete it to free the space)."""
+    """Write a file until the disk is full; the file (delete it to free the space). Unbuffered: a buffered file kept
+    what the full disk refused and raised "No space left on device" again when it was closed."""
     filler = disk / "filler"
-    with filler.open("wb") as f:
+    with filler.open("wb", buffering=0) as f:
         with contextlib.suppress(OSError):
             while True:
                 f.write(b"\0" * 65536)
