@@ -12,6 +12,7 @@ Units and conventions (see docs/method.md):
 
 from __future__ import annotations
 
+import builtins
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -109,14 +110,10 @@ class Recording:
 
     def slice(self, start: int, end: int) -> Recording:
         """Samples start..end-1 as a new Recording with the same metadata."""
-        pick = lambda a: None if a is None else a[start:end]  # noqa: E731
-        return Recording(
-            self.t[start:end], self.gyro[start:end], pick(self.accel), pick(self.seq), pick(self.temp), self.meta,
-            pick(self.host_t),
-        )
+        return self.select(np.s_[start:end])
 
-    def select(self, rows: np.ndarray) -> Recording:
-        """The samples where ``rows`` (a boolean mask or indices) picks them, as a new Recording with the same
+    def select(self, rows: np.ndarray | builtins.slice) -> Recording:
+        """The samples where ``rows`` (a boolean mask, indices or a slice) picks them, as a new Recording with the same
         metadata; the sample counter keeps its values, so the samples left out show as lost."""
         pick = lambda a: None if a is None else a[rows]  # noqa: E731
         return Recording(self.t[rows], self.gyro[rows], pick(self.accel), pick(self.seq), pick(self.temp), self.meta,

@@ -38,12 +38,15 @@ def first_sentence(text: str) -> str:
     return head + "." if dot else text
 
 
+def _goes_on(device_id: str) -> str:
+    return f"so the tray goes on: that turn of {device_id} is closed with theirs."
+
+
 def kit_closed_turn(device_id: str, fault: str, passed: Sequence[str]) -> str:
     """A wearable saw a fault in a turn (``fault``: its own words) that the rest of the kit (``passed``) did not: the
     tray is not turned again for it; the kit's calibration closes that turn from the others' readings of it."""
     what = first_sentence(fault).replace("the device", device_id).replace("The device", device_id)
-    return (f"{device_id}: {what} The rest of the kit ({', '.join(passed)}) passed that turn, so the tray goes on: "
-            f"that turn of {device_id} is closed with theirs.")
+    return f"{device_id}: {what} The rest of the kit ({', '.join(passed)}) passed that turn, {_goes_on(device_id)}"
 
 
 def kit_clipped_turn(device_id: str, axis: str, full_scale: float | None, passed: Sequence[str]) -> str:
@@ -51,8 +54,7 @@ def kit_clipped_turn(device_id: str, axis: str, full_scale: float | None, passed
     sensor's range, not the hand (the others' show the turn was not too fast for them)."""
     fs = f" (±{full_scale:g} °/s)" if full_scale else ""
     return (f"{device_id}'s gyroscope reached its limit{fs} in the turn about {ax(axis)}; the rest of the kit "
-            f"({', '.join(passed)}) read that turn whole, so the tray goes on: that turn of {device_id} is closed with "
-            "theirs.")
+            f"({', '.join(passed)}) read that turn whole, {_goes_on(device_id)}")
 
 
 def kit_moved_alone(device_id: str, axis: str | None, still: Sequence[str]) -> str:
@@ -67,5 +69,4 @@ def kit_moved_alone(device_id: str, axis: str | None, still: Sequence[str]) -> s
 def kit_tray_moved_unchecked(device_id: str, axis: str, passed: Sequence[str]) -> str:
     """The tray moved before this wearable had checked its turn, after others (``passed``) had checked theirs."""
     return (f"{device_id}: the tray moved before its turn about {ax(axis)} was checked. The rest of the kit "
-            f"({', '.join(passed)}) had checked that turn, so the tray goes on: that turn of {device_id} is closed with "
-            "theirs.")
+            f"({', '.join(passed)}) had checked that turn, {_goes_on(device_id)}")
