@@ -49,7 +49,7 @@ class Service:
         self.active: dict[str, str] = {}  # device id -> running session id
         self.writing: set[str] = set()  # devices a calibration is being written to
         self.verify_runs: dict[str, VerifyRun] = {}  # live verification turns, by id (kept after they end, for the page)
-        self.events = FleetEvents(settings.db_url, self._stored_snapshot, self._decided_elsewhere)
+        self.events = FleetEvents(settings.db_url, self.session_as_stored, self.decided_elsewhere)
         self.clock = ClockWatch()  # how far this computer's clock is from the store's
         self.gateway = (GatewayAgent(self.store, settings.gateway, seen=self._seen, held=self._held,
                                      changed=self.events.fleet_changed, clock=self.clock)
@@ -115,11 +115,12 @@ class Service:
         """What this service runs on which device now: a session's or verification's id, or a write."""
         return {**{d: WRITE_HOLDER for d in self.writing}, **self.active}
 
-    def _stored_snapshot(self, session_id: str) -> SessionOut | None:
+    def session_as_stored(self, session_id: str) -> SessionOut | None:
+        """A session as the store keeps it (None: the store has no such session)."""
         row = self.store.session(session_id)
         return None if row is None else stored_snapshot(row)
 
-    def _decided_elsewhere(self, session_id: str, stored: SessionOut) -> None:
+    def decided_elsewhere(self, session_id: str, stored: SessionOut) -> None:
         """A session running here was accepted or discarded on another gateway: its pages here show the decision."""
         live = self.sessions.get(session_id)
         if live is not None and live.machine.decision is None and stored.decision is not None:

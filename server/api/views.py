@@ -137,6 +137,10 @@ async def session_snapshot(svc: Service, sid: str) -> SessionOut:
         return kit.snapshot()
     live = svc.sessions.get(sid)
     if live is not None:
+        if live.machine.finished and live.machine.decision is None and svc.gateway is not None:
+            # decided on another gateway a moment ago: the store says so before that gateway's event arrives
+            if (stored := await asyncio.to_thread(svc.session_as_stored, sid)) is not None:
+                svc.decided_elsewhere(sid, stored)
         update: dict[str, object] = {"kind": "live", "operator": live.operator}
         if live.machine.finished:
             update |= {"stored": live.persisted, "store_error": live.persist_error}

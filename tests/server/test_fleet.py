@@ -88,9 +88,15 @@ def test_three_gateways_share_wearables_without_double_booking(fleet_db: str) ->
         unfinished = [(dev, e["state"], e.get("reason"), e.get("message")) for dev, e in zip(started, ends, strict=True)
                       if e["state"] != "done"]
         assert not unfinished, unfinished
-        accepted = at_once([lambda g=g, s=s: _post(gws[g], f"/sessions/{s}/accept") for g, s in started.values()])
+        # each accepted where it ran, but the shared wearables' on their other gateway: the gateway that ran the session
+        # says so at once, before the other's event reaches it
+        other = {"room-a": "room-b", "room-b": "room-a"}
+        deciders = {d: other[g] if d in shared_sessions else g for d, (g, _) in started.items()}
+        accepted = at_once([lambda d=d, s=s: _post(gws[deciders[d]], f"/sessions/{s}/accept") for d, (_, s) in started.items()])
         refused = [(dev, r.status_code, r.text[:400]) for dev, r in zip(started, accepted, strict=True) if r.status_code != 200]
         assert not refused, refused
+        for g, s in shared_sessions.values():
+            assert _session(gws[g], s)["decision"] == "accepted"
 
         # every calibration visible from every gateway, and the fleet says so
         for svc in gws.values():
