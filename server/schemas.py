@@ -346,6 +346,14 @@ class TurnSpan(BaseModel):
     end_s: float
 
 
+class SectionOut(BaseModel):
+    """One labelled run of a recording's samples, as imucal's section lists hold them (``calib.io.sections``)."""
+
+    label: str = Field(description="still_1, still_2, ... for the rests; x_rot, y_rot, z_rot for the turns")
+    start: int = Field(description="the first sample (a position in the recording, from 0)")
+    end: int = Field(description="the sample after the last (end exclusive)")
+
+
 class SessionPlot(BaseModel):
     """A session's calibration drawn: each trace before (raw readings) and after (K m + b), decimated (calib.plots)."""
 

@@ -364,3 +364,20 @@ def make_v1_store(store_url: str) -> None:
                 if stmt.strip():
                     conn.connection.driver_connection.execute(stmt.rstrip().rstrip(";"))
     eng.dispose()
+
+
+def kit_through_the_command_line(c: httpx.Client, members: dict[str, str], folder: Path) -> dict[str, Any]:
+    """One door: the recording and the section list each wearable's session of a kit kept (``members``: device id ->
+    session id), given to `gyrocal calibrate-kit --sections`; its JSON output (it must succeed)."""
+    args = []
+    for name, sid in members.items():
+        for what, suffix in (("recording", ".csv"), ("sections", ".sections.json")):
+            r = c.get(f"/sessions/{sid}/{what}")
+            assert r.status_code == 200, r.text
+            (folder / f"{name}{suffix}").write_bytes(r.content)
+        args += [str(folder / f"{name}.csv")]
+    lists = [a for name in members for a in ("--sections", str(folder / f"{name}.sections.json"))]
+    out = subprocess.run([*GYROCAL, "calibrate-kit", *args, *lists, "--json"], cwd=ROOT, capture_output=True, text=True,
+                         timeout=120, check=False)
+    assert out.returncode == 0, out.stderr
+    return dict(json.loads(out.stdout))

@@ -29,6 +29,10 @@ def add_kit_parsers(sub: Any) -> None:
     p.add_argument("--accel-counts-per-g", type=float, default=None, metavar="C", help="the files hold raw counts")
     p.add_argument("--protocol", choices=[v for v in PROTOCOLS if v != "multi-position"], default="auto",
                    help="the protocol the tray was turned through (default: recognised)")
+    p.add_argument("--sections", type=Path, action="append", default=None, metavar="SECTIONS",
+                   help="imucal's section list of a recording (JSON), once for each FILE in their order, as the service "
+                   "gives a kit wearable's session (GET /sessions/{id}/sections): the kit is calibrated on the turns they "
+                   "hold (a try the tray was asked again is none of them); default: every full turn found")
     p.add_argument("--heading-prior-deg", type=float, default=None, metavar="DEG",
                    help=f"how far (1 sigma, deg) the tray's heading may be off after each turn (default {HEADING_PRIOR_DEG:g})")
     p.add_argument("--json", action="store_true", help="print one JSON object: devices (each one's result and "
@@ -55,6 +59,7 @@ def cmd_calibrate_kit(args: argparse.Namespace) -> int:
     from calib.errors import CalibrationError, GyrocalError
     from calib.io.inputs import ReadOptions, file_input, read_input
     from calib.kit.estimator import calibrate_kit
+    from calib.kit.turns import labelled_turns
     from calib.pipeline import method_options
 
     method_options("closure", args.heading_prior_deg)
@@ -63,17 +68,22 @@ def cmd_calibrate_kit(args: argparse.Namespace) -> int:
                            "calibrate one wearable use gyrocal calibrate")
     options = ReadOptions(layout=args.layout, fs=args.fs, gyro_counts_per_dps=args.gyro_counts_per_dps,
                           accel_counts_per_g=args.accel_counts_per_g, protocol=args.protocol)
-    recordings = []
-    for path in args.files:
+    if args.sections is not None and len(args.sections) != len(args.files):
+        raise GyrocalError(f"{len(args.sections)} section lists for {len(args.files)} recordings: give --sections once for "
+                           "each recording, in the same order, or not at all")
+    recordings, turns_kept = [], []
+    for i, path in enumerate(args.files):
         try:
-            recordings.append(read_input(file_input(path, options)).recording)
+            read = read_input(file_input(path, options, sections_path=None if args.sections is None else args.sections[i]))
         except GyrocalError as exc:
             raise type(exc)(f"{path}: {exc}") from None
+        recordings.append(read.recording)
+        turns_kept.append(labelled_turns(read.recording, read.sections))
     names = [p.stem if sum(q.stem == p.stem for q in args.files) == 1 else str(p) for p in args.files]
     bar = None if args.no_progress or args.json else _Progress()
     try:
         kit = calibrate_kit(recordings, names, protocol=args.protocol, heading_prior_deg=args.heading_prior_deg,
-                            progress=bar)
+                            progress=bar, turns_kept=None if all(t is None for t in turns_kept) else [t or [] for t in turns_kept])
     except GyrocalError as exc:
         refusal = CalibrationError(f"the kit was not calibrated: {exc}", code="not_calibrated")
         if args.json:

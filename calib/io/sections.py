@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -114,4 +115,23 @@ def stages_from_sections(rec: Recording, sections: tuple[Section, ...]) -> list[
             angle = float(((rec.gyro[s.start:s.end, i] - offset[i]) * dt[s.start:s.end]).sum())
         end_s = float(t[s.end]) if s.end < len(t) else float(t[-1] + dt[-1])
         out.append(Stage(s.kind, s.start, s.end, float(t[s.start]), end_s, s.axis, angle))
+    return out
+
+
+def section_list(stages: Sequence[Stage]) -> list[dict[str, str | int]]:
+    """``stages`` as imucal's section list (``[{"label", "start", "end"}, ...]``, sample positions, end exclusive),
+    which ``parse_sections`` reads back: the rests ``still_1``, ``still_2``, ...; the turns ``x_rot`` (a second turn
+    about x ``x_rot_2``); motions are left out, as the estimators leave them."""
+    out: list[dict[str, str | int]] = []
+    counts: dict[str, int] = {}
+    for st in sorted(stages, key=lambda s: s.start):
+        if st.kind == "still":
+            base = "still"
+        elif st.kind == "turn" and st.axis is not None:
+            base = f"{st.axis}_rot"
+        else:
+            continue
+        counts[base] = counts.get(base, 0) + 1
+        label = f"{base}_{counts[base]}" if base == "still" or counts[base] > 1 else base
+        out.append({"label": label, "start": int(st.start), "end": int(st.end)})
     return out

@@ -2,13 +2,33 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from calib.io.section import Section
 from calib.kit.clocks import gaps
+from calib.recording import Recording
 from calib.stages.stage import Stage
+
+
+def turn_spans(rec: Recording, stages: Sequence[Stage]) -> list[tuple[float, float]]:
+    """The turns among ``stages`` as spans of ``rec``'s stamps (s, first and last sample): the turns a wearable's
+    guidance took (or its labelled sections hold), as ``calibrate_kit``'s ``turns_kept`` takes them."""
+    return [(float(rec.t[st.start]), float(rec.t[min(st.end, len(rec)) - 1])) for st in stages if st.kind == "turn"]
+
+
+def labelled_turns(rec: Recording, sections: tuple[Section, ...] | None) -> list[tuple[float, float]] | None:
+    """The turns a recording's labelled sections (given, else its own: ``rec.meta.sections``) hold, as spans of its
+    stamps; None when it has none."""
+    sections = sections if sections is not None else rec.meta.sections
+    if not sections:
+        return None
+    from calib.io.sections import stages_from_sections
+
+    return turn_spans(rec, stages_from_sections(rec, sections))
 
 
 def lost_in(stages: list[Stage], t: np.ndarray) -> list[bool]:

@@ -20,6 +20,7 @@ from collections.abc import Callable
 from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Generic, Protocol, TypeVar
 
+from calib.kit.turns import turn_spans
 from calib.recording import Recording
 
 from ..workers.compute import ComputePool, LiveOutcome, calibrate_live, off_loop
@@ -150,7 +151,7 @@ class KitSession(Generic[M]):
                 self.outcome = KitOutcome({names[0]: alone}, refusal=None)
             elif names:
                 recs = [self._arrived[n][0] for n in names]
-                kept = [_turns_taken(*self._arrived[n][:2]) for n in names]
+                kept = [turn_spans(*self._arrived[n][:2]) for n in names]
                 self.outcome = await asyncio.wait_for(off_loop(self.pool, calibrate_kit_live, recs, names, kept),
                                                       self.compute_timeout_s)
         except TimeoutError:
@@ -207,9 +208,3 @@ class KitSession(Generic[M]):
                      refusal=None if out is None else out.refusal)
         return kit_snapshot(self.id, [m.machine.snapshot("state") for m in self.members], kit, operator=self.operator,
                             started_at=self.started_at, cancelled=self.cancelled)
-
-
-def _turns_taken(rec: Recording, stages: list[Stage]) -> list[tuple[float, float]]:
-    """The turns a wearable's guidance took, as spans of its recording's stamps (s): a try of a turn asked again is
-    none of them."""
-    return [(float(rec.t[st.start]), float(rec.t[min(st.end, len(rec)) - 1])) for st in stages if st.kind == "turn"]

@@ -17,6 +17,7 @@ from datetime import datetime
 from typing import TYPE_CHECKING, Any
 
 from calib.apply.identity import SensorIdentity
+from calib.io.sections import section_list
 from calib.result import CalibrationResult
 
 from ..config import Settings
@@ -78,6 +79,7 @@ class LiveSession(Persistence):
         self.on_end = on_end
         self.recording_sha256: str | None = None
         self._csv: bytes | None = None
+        self._sections: list[dict[str, str | int]] | None = None  # the stages the estimator was given, as a section list
         self._task: asyncio.Task[None] | None = None
         self._pump: asyncio.Task[None] | None = None
         self._changed: asyncio.Future[None] | None = None  # resolved by the next snapshot (the state may have changed)
@@ -313,6 +315,7 @@ class LiveSession(Persistence):
     async def _compute(self) -> None:
         m = self.machine
         rec, stages = m.recording(), m.protocol_stages()
+        self._sections = section_list(stages)
         if self.kit is not None:  # calibrated with the rest of its kit, once every wearable's recording is in
             outcome = await self.kit.outcome_for(self, rec, stages)
         else:
@@ -355,10 +358,16 @@ class LiveSession(Persistence):
                   "departures": [] if m.judgement is None else m.judgement.departures_json(),
                   "accuracy": None if m.judgement is None else m.judgement.accuracy, "samples": m.buf.n, "sample_rate_hz": m.fs,
                   "gyro_full_scale_dps": m.full_scale, "identity": self.identity.to_json() if self.identity else None,
-                  "temperatures_c": self.temperatures_c},
+                  "temperatures_c": self.temperatures_c, "sections": self._sections},
         )
 
     @property
     def csv_bytes(self) -> bytes | None:
         return self._csv
+
+    @property
+    def sections(self) -> list[dict[str, str | int]] | None:
+        """The rests and turns the session's calibration was computed on, as imucal's section list (None: it ended
+        before it was calibrated)."""
+        return self._sections
 

@@ -235,6 +235,45 @@ def test_a_turn_the_tray_was_asked_again_is_calibrated_from_the_try_the_guidance
         assert np.all(np.abs(res.b - d.b_own) < 4.5 * res.b_std), (member.name, (res.b - d.b_own) / res.b_std)
 
 
+def test_the_turns_the_guidance_took_reach_calibrate_kit_as_each_recordings_section_list(tmp_path, capsys) -> None:
+    """One door: the recordings of a kit whose tray was asked a turn again, with the section list of the turns each
+    wearable's guidance took (as GET /sessions/{id}/sections gives them), calibrate through `gyrocal calibrate-kit
+    --sections` exactly as the service calibrates them; without the lists the try that fell short counts, and the
+    kit is refused."""
+    from calib.io.readers import write_native_csv
+    from calib.io.sections import section_list
+    from calib.kit.turns import turn_spans
+    from calib.stages.stage import Stage
+
+    script = ProtocolScript((Still(5.0), Turn("x", 300.0), Still(5.0), Turn("x", 360.0), Still(5.0), Turn("y", 360.0),
+                             Still(5.0), Turn("z", 360.0), Still(5.0)))
+    recs, truth = simulate_kit(4, 3, script=script)
+    taken = [st for st in truth.tray.stages if st.kind == "turn"][1:]
+    files, lists, kept = [], [], []
+    for n, (rec, d) in enumerate(zip(recs, truth.devices, strict=True), start=1):
+        own = [((st.start_s - d.start_s) * (1 + d.clock_error), (st.end_s - d.start_s) * (1 + d.clock_error), st.axis)
+               for st in taken]  # each wearable's guidance took them, on its own clock
+        stages = [Stage("turn", int(np.searchsorted(rec.t, a)), int(np.searchsorted(rec.t, b)), a, b, axis, 360.0)
+                  for a, b, axis in own]
+        kept.append(turn_spans(rec, stages))
+        files.append(tmp_path / f"w{n}.csv")
+        write_native_csv(rec, files[-1])
+        lists.append(tmp_path / f"w{n}.sections.json")
+        lists[-1].write_text(json.dumps(section_list(stages)))
+    service = calibrate_kit(recs, heading_prior_deg=PRIOR_DEG, turns_kept=kept)  # as the service calls it
+    prior = ["--heading-prior-deg", str(PRIOR_DEG), "--no-progress"]
+    capsys.readouterr()
+    assert main(["calibrate-kit", *map(str, files), *prior]) == 3
+    assert "not a full turn" in capsys.readouterr().err
+    with_lists = [a for p in lists for a in ("--sections", str(p))]
+    assert main(["calibrate-kit", *map(str, files), *with_lists, *prior, "--json"]) == 0
+    cli = json.loads(capsys.readouterr().out)
+    for member, d in zip(service.members, cli["devices"], strict=True):
+        assert d["result"]["k"] == member.result.to_json()["k"] and d["result"]["b"] == member.result.to_json()["b"]
+    assert main(["calibrate-kit", *map(str, files), *with_lists[:2], *prior]) == 2
+    assert "1 section lists for 3 recordings: give --sections once for each recording" in capsys.readouterr().err
+
+
 def test_a_slip_about_the_axis_being_turned_is_found_by_its_burst_though_the_attitude_hides_it() -> None:
     # the wearable turns 362.1 deg where the tray turns 360: its own k absorbs the angle, not the rate's jump
     recs, _ = simulate_kit(121, 6, slip=Slip(3, 2.1175, 0))

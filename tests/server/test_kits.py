@@ -4,15 +4,12 @@ slot, bridges the one whose link dropped, and stores every wearable that passed 
 
 from __future__ import annotations
 
-import json
-import subprocess
 import time
-from pathlib import Path
 
 import httpx
 import numpy as np
 
-from tests.server_fixtures import GYROCAL, ROOT, RunningService, at_once, follow_events
+from tests.server_fixtures import RunningService, at_once, follow_events, kit_through_the_command_line
 
 SPEED = "6"
 
@@ -87,7 +84,12 @@ def test_a_kit_is_guided_as_one_the_loose_wearable_is_named_and_the_rest_are_acc
                 assert np.all(np.abs(k - _truth(c, name)) < 5 * std + 2e-5), (k - _truth(c, name)) / std
                 own = c.get(f"/sessions/{members[name]}").json()  # each wearable's own session holds its result too
                 assert own["state"] == "done" and own["result"]["k"] == result["k"]
-            _same_through_the_command_line(c, members, devices, tmp_path)
+            # one door: the recordings and section lists the service kept give the same through the command line
+            cli = kit_through_the_command_line(c, members, tmp_path)
+            assert cli["kit"]["departed"] == ["mock-3"], cli["kit"]
+            by_name = {d["device_id"]: d["result"] for d in cli["devices"]}
+            assert all((by_name[n]["k"], by_name[n]["b"]) == (devices[n]["result"]["k"], devices[n]["result"]["b"])
+                       for n in ("mock-1", "mock-2")), by_name
         svc.stop()  # the kit outlives its service: restarted on the same store, it shows the same and is accepted there
         svc.start(60)
         with svc.client() as c:
@@ -123,26 +125,6 @@ def test_a_kit_is_guided_as_one_the_loose_wearable_is_named_and_the_rest_are_acc
             assert c.post(f"/sessions/{alone.json()['session_id']}/cancel").status_code == 200
     finally:
         svc.stop()
-
-
-def _same_through_the_command_line(c: httpx.Client, members: dict[str, str], devices: dict[str, dict], folder: Path) -> None:
-    """One door: the recordings each wearable's session kept, given to `gyrocal calibrate-kit`, give every wearable
-    the calibration the service gave it, and name the same wearable as departed."""
-    files = []
-    for name, sid in members.items():
-        r = c.get(f"/sessions/{sid}/recording")
-        assert r.status_code == 200, r.text
-        files.append(folder / f"{name}.csv")
-        files[-1].write_bytes(r.content)
-    out = subprocess.run([*GYROCAL, "calibrate-kit", *map(str, files), "--json"], cwd=ROOT, capture_output=True,
-                         text=True, timeout=120, check=False)
-    assert out.returncode == 0, out.stderr
-    cli = json.loads(out.stdout)
-    assert cli["kit"]["departed"] == ["mock-3"], cli["kit"]
-    by_name = {d["device_id"]: d for d in cli["devices"]}
-    for name in ("mock-1", "mock-2"):
-        assert by_name[name]["result"]["k"] == devices[name]["result"]["k"], name
-        assert by_name[name]["result"]["b"] == devices[name]["result"]["b"], name
 
 
 def test_a_wearable_whose_link_drops_mid_turn_is_bridged_by_the_kit(tmp_path) -> None:

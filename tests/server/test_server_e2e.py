@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import io
+import json
 import subprocess
 import time
 from collections.abc import Iterator
@@ -134,7 +135,7 @@ def test_a_second_failure_of_the_same_check_says_the_sensor_may_be_faulty(servic
     assert final["reason_code"] == "out_of_tolerance" and "the time before: the sensor may be faulty" in final["reason"]
 
 
-def test_link_drop_mid_turn_pauses_redoes_the_turn_and_ends_done(service: RunningService) -> None:
+def test_link_drop_mid_turn_pauses_redoes_the_turn_and_ends_done(service: RunningService, tmp_path: Path) -> None:
     """The link drops halfway through the y turn: the session pauses, reconnects, asks for y again,
     and the simulated clinician, following that, redoes it; the gap is reported and left out."""
     sid, events = run_to_end(service, "mock-7")
@@ -152,9 +153,18 @@ def test_link_drop_mid_turn_pauses_redoes_the_turn_and_ends_done(service: Runnin
     assert final["passed"] is True and all(c["ok"] for c in final["checks"])
     with service.client() as c:
         csv = c.get(f"/sessions/{sid}/recording")
+        sections = c.get(f"/sessions/{sid}/sections")
         truth = c.get("/devices/mock-7").json()["simulated_truth"]
         assert c.post(f"/sessions/{sid}/accept").status_code == 200
         cal = c.get("/devices/mock-7/calibration").json()
+        # one door: the recording with the stages the session took, uploaded, gives the calibration the session gave
+        assert sections.status_code == 200 and sections.headers["content-disposition"].endswith(f'{sid}.sections.json"')
+        upload = c.post("/devices/mock-7/calibrate", params={"sections": sections.text}, content=csv.content,
+                        headers={"Content-Type": "text/csv"})
+        assert upload.status_code == 200, upload.text
+        assert (upload.json()["k"], upload.json()["b"]) == (cal["k"], cal["b"])
+        assert c.post(f"/sessions/{upload.json()['session_id']}/discard").status_code == 200
+        assert c.get(f"/sessions/{upload.json()['session_id']}/sections").status_code == 404  # the file's own are the user's
     # the gap is reported: the samples lost are exactly the one hole in the recording's sample counter,
     # where the device was out of range for 1.5 s
     rec = parse_recording_text(csv.content)
@@ -166,6 +176,17 @@ def test_link_drop_mid_turn_pauses_redoes_the_turn_and_ends_done(service: Runnin
     assert final["turns"]["x"]["end_s"] < rec.t[gap] < rec.t[gap + 1] < final["turns"]["y"]["start_s"]
     np.testing.assert_allclose(cal["k"], truth["k"], atol=2e-3)
     np.testing.assert_allclose(cal["b"], truth["b"], atol=0.02)
+    # ... and so do the two files through the command line
+    turns = [(s["label"], s["start"], s["end"]) for s in sections.json() if s["label"].endswith("_rot")]
+    assert [t[0] for t in turns] == ["x_rot", "y_rot", "z_rot"]
+    assert turns[1][1] > gap + 1  # the y turn made again, after the lost link
+    (tmp_path / "rec.csv").write_bytes(csv.content)
+    (tmp_path / "rec.sections.json").write_text(sections.text)
+    out = subprocess.run([*GYROCAL, "calibrate", str(tmp_path / "rec.csv"), "--sections", str(tmp_path / "rec.sections.json"),
+                          "--json"], cwd=ROOT, capture_output=True, text=True, timeout=120, check=False)
+    assert out.returncode == 0, out.stderr
+    cli = json.loads(out.stdout)
+    assert (cli["k"], cli["b"]) == (cal["k"], cal["b"])
 
 
 def test_two_sessions_in_a_row_on_one_wearable_both_end_done(service: RunningService) -> None:

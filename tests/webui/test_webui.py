@@ -291,7 +291,7 @@ def test_wrong_axis_names_the_axis_to_turn(wizard: Wizard, page: Any, webui_serv
 
 
 def test_link_drop_shows_the_lost_connection_resumes_and_reaches_a_result(wizard: Wizard, page: Any, webui_service: Any,
-                                                                         page_watch: Watch) -> None:
+                                                                         page_watch: Watch, tmp_path: Path) -> None:
     wizard.sign_in()
     wizard.choose(device_for("link_drop"))
     sid = wizard.start()
@@ -326,6 +326,30 @@ def test_link_drop_shows_the_lost_connection_resumes_and_reaches_a_result(wizard
     assert set(seen["gaugeText"]) == {"x", "y", "z"}, seen["gaugeText"]  # a gauge in every turn, the redone one too
     assert {"reconnecting:", "turn_y:settle"} <= set(wizard.assert_screens_accessible())
     wizard.shot("after-link-drop")
+    # one door: the result offers the recording and the stages it was calibrated on (the y turn made again, not the
+    # one the lost link cut); uploaded together from the page, they show the same values, and are the same result
+    page.click("details.details summary")
+    shown = page.locator("table.params").inner_text()
+    for text, name in (("Download the raw recording", "rec.csv"), ("the stages it was calibrated on", "rec.sections.json")):
+        with page.expect_download() as got:
+            page.click(f"p.downloads a:has-text('{text}')")
+        got.value.save_as(tmp_path / name)
+    assert "they give this calibration again" in page.inner_text("p.downloads")
+    other = page.context.new_page()
+    Wizard(other, webui_service, tmp_path).sign_in()
+    other.click("#upload-link")
+    other.wait_for_selector("form.upload-form")
+    other.fill("#up-device", "replayed")
+    other.set_input_files("#up-file", str(tmp_path / "rec.csv"))
+    other.set_input_files("#up-sections", str(tmp_path / "rec.sections.json"))
+    other.click("form.upload-form button[type=submit]")
+    other.wait_for_url("**/#/session/*")
+    other.wait_for_selector(".verdict h1")
+    other.click("details.details summary")
+    assert other.locator("table.params").inner_text() == shown
+    again = session(webui_service, other.url.rsplit("/", 1)[1])
+    assert (again["result"]["k"], again["result"]["b"]) == (snap["result"]["k"], snap["result"]["b"])
+    other.close()
     assert_clean(page_watch)
 
 

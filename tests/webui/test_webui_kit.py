@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from server_fixtures import kit_through_the_command_line
 from webui_fixtures import LISTEN, Watch, Wizard, api, assert_clean, running_service, watched_page
 
 pytestmark = pytest.mark.timeout(180)
@@ -157,7 +158,7 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
 
 
 def test_a_knock_to_the_tray_is_said_of_the_tray_once_and_the_kit_goes_on(
-        browser: Any, page_watch: Watch, artifacts: Any) -> None:
+        browser: Any, page_watch: Watch, artifacts: Any, tmp_path: Any) -> None:
     """Two wearables in a tray that the clinician knocks once in a pause (`hand:bumps`): every wearable sees the knock,
     and the kit page says it once, of the tray, under the tray's prompt, as the one-wearable page does (the ring says
     the tray is moving while it moves); then the kit goes on to its result. Her hands are on the tray: with Sound and
@@ -210,6 +211,11 @@ def test_a_knock_to_the_tray_is_said_of_the_tray_once_and_the_kit_goes_on(
         with api(svc) as c:
             kit = c.get(f"/sessions/{kit_id}").json()
             members = [c.get(f"/sessions/{d['session_id']}").json() for d in kit["devices"]]
+            # one door: the tray was asked a turn (or its pause) again; the files the kit's sessions kept give the command
+            # line what the kit gave
+            cli = kit_through_the_command_line(c, {d["device_id"]: d["session_id"] for d in kit["devices"]}, tmp_path)
+            assert [(d["result"]["k"], d["result"]["b"]) for d in cli["devices"]] == \
+                [(d["result"]["k"], d["result"]["b"]) for d in kit["devices"]], (cli["devices"], kit["devices"])
             # another operator accepts the kit first: this page's Accept is told so and shows the kit as it now stands
             assert c.post(f"/kits/{kit_id}/accept").status_code == 200
         page.click("#kit-accept")

@@ -69,6 +69,18 @@ function placementText(p) {
   return each.length ? `tilted ${each.join(", ")}, taken into account (the turn on the table is not measured${prior})` : null;
 }
 
+/** The raw recording, and (once calibrated) the stages it was calibrated on: uploaded together, the same result. */
+function downloads(s) {
+  const link = (what, file, text) => h("a", { class: "download", href: `/sessions/${s.session_id}/${what}`, download: file }, text);
+  const recording = link("recording", `${s.session_id}.csv`, "Download the raw recording (CSV)");
+  if (!s.result || (s.kind || "live") !== "live") return h("p", null, recording);  // live events leave the default kind out
+  // the page's upload calibrates with the default method: only then is the same result promised
+  const again = (s.result.method || s.method) === "closure"
+    ? ". Uploaded together (Upload, with the stages as its labelled sections), they give this calibration again." : ".";
+  return h("p", { class: "downloads" }, recording, " and ",
+    link("sections", `${s.session_id}.sections.json`, "the stages it was calibrated on (JSON)"), h("span", { class: "muted" }, again));
+}
+
 export function detailsBlock(ctx, s) {
   const res = s.result || {};
   const plots = h("div", { class: "plots", "aria-live": "polite" }, h("p", { class: "muted" }, "Open to load the plots…"));
@@ -99,7 +111,7 @@ export function detailsBlock(ctx, s) {
       h("dl", { class: "facts" }, facts.map(([k, v]) => h("div", null, h("dt", null, k), h("dd", null, String(v))))),
       h("h2", null, "Before and after calibration"),
       plots,
-      h("p", null, h("a", { class: "download", href: `/sessions/${s.session_id}/recording`, download: `${s.session_id}.csv` }, "Download the raw recording (CSV)")),
+      downloads(s),
       modelCheckPanel(ctx, s.session_id)));
   let loaded = false;
   det.addEventListener("toggle", async () => {

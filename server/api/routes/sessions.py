@@ -41,7 +41,7 @@ from ...live.snapshot import stored_snapshot
 from ...live.snapshot_schema import SessionOut
 from ...live.turn_watch import LiveAngle
 from ...service import Service
-from ...store import DecisionConflict, NotAcceptable, NotFound, StoreError, sha256_hex
+from ...store import DecisionConflict, NotAcceptable, NotFound, StoreError
 from ..upload_options import Upload
 from ..upload_result import calibrate_uploaded
 from ..views import claim_device, reachable_device, remote_gateway, runs_elsewhere, session_snapshot, stored_kit
@@ -194,30 +194,6 @@ async def session_events(
         yield Event(0, "state", dumps(snap.model_dump(mode="json", exclude_unset=True))).encode()
 
     return StreamingResponse(once(), media_type="text/event-stream", headers=headers)
-
-
-@router.get(
-    "/sessions/{session_id}/recording",
-    responses={200: {"content": {"text/csv": {}}, "description": "the archived raw recording (native CSV)"}, **R404},
-    response_class=Response,
-    tags=["sessions"],
-)
-async def session_recording(svc: Svc, session_id: str, _: Reader) -> Response:
-    """The session's archived raw recording; header X-Recording-SHA256 is its checksum."""
-    check_session_id(session_id)
-    got = await asyncio.to_thread(svc.store.recording, session_id)
-    live = svc.sessions.get(session_id)
-    if got is None and live is not None and live.machine.finished and live.csv_bytes:
-        # ended a moment ago and not yet in the store: the same bytes the store is about to keep
-        got = (live.csv_bytes, sha256_hex(live.csv_bytes))
-    if got is None:
-        raise problem(404, f"no archived recording for session {session_id}")
-    data, digest = got
-    return Response(
-        data,
-        media_type="text/csv",
-        headers={"X-Recording-SHA256": digest, "Content-Disposition": f'attachment; filename="{session_id}.csv"'},
-    )
 
 
 @router.post("/sessions/{session_id}/cancel", response_model=SessionOut, responses={**R401, **R404, **R409}, tags=["sessions"])
