@@ -11,7 +11,8 @@ a turn it judged against a step the tray had left.
 A move while resting (the count starts again) is judged alike: that wearable moved alone in its slot, and is named,
 when every other resting wearable stayed still (no move within ``SAME_MOVE_S``); else the tray moved. So is a move
 before a turn was checked: a wearable that moved alone is named loose and its turn closed by the kit; when the tray
-moved, the fault is judged as a turn's.
+moved, the fault is judged as a turn's. Neither is judged alone while another wearable still ends that turn: its
+detector finds a knock in the turn's pause only when it closes the turn's stage, seconds later.
 """
 
 from __future__ import annotations
@@ -26,8 +27,10 @@ HOLD_S = 0.5  # device time a wearable's fault waits for the others' readings of
 # each wearable's detector up to a few tenths of a second apart) before another's passing that turn makes it its own
 WAIT_S = 2.0  # ... and at most this long for the verdicts of those still checking that turn
 SAME_MOVE_S = 1.0  # two wearables' moves this close (each on its own clock, counted back from now) are one move
+CHECKING_WAIT_S = 10.0  # at most this long for wearables still checking the turn before a move is judged one's own
 RESTING = frozenset({Phase.WAITING, Phase.SETTLE, Phase.READY, Phase.CHECKING, Phase.PAUSE})  # held still, or to be
 AT_THE_TURN = frozenset({Phase.TURNING, Phase.PLACING, Phase.CHECKING, Phase.PAUSE})
+ENDING_THE_TURN = frozenset({Phase.TURNING, Phase.PLACING, Phase.CHECKING})
 NOT_FOLLOWING = frozenset({State.CONNECTING, State.RECONNECTING})
 
 
@@ -69,6 +72,14 @@ def _moved_with(w: Wearable, at_t: float, others: Sequence[Wearable]) -> list[We
     return [o for o in others if any(abs((o.t_now - t) - ago) <= SAME_MOVE_S for t in o.moves)]
 
 
+def _still_checking(w: Wearable, others: Sequence[Wearable]) -> list[Wearable]:
+    """The ``others`` that have not yet judged ``w``'s turn: a move in its pause reaches the detector of one still
+    ending that turn only when the turn's stage closes (seconds later, the move then merged into it), so until then
+    its stillness says nothing of the move."""
+    return [o for o in others if o.state == w.state and o.phase in ENDING_THE_TURN and o.held_fault is None
+            and w.axis not in o.turns]
+
+
 def judge_held(wearables: Sequence[Wearable]) -> bool:
     """Judge every held fault and move that can be judged now; True while some stay held (judge again shortly)."""
     following = [w for w in wearables if not w.finished and w.state not in NOT_FOLLOWING]
@@ -76,7 +87,10 @@ def judge_held(wearables: Sequence[Wearable]) -> bool:
         move = w.held_move
         if move is None or w.t_now - move.seen_t < HOLD_S:  # the others see the same move about as late
             continue
-        resting = [o for o in following if o is not w and o.phase in RESTING]
+        others = [o for o in following if o is not w]
+        if _still_checking(w, others) and w.t_now - move.seen_t < CHECKING_WAIT_S:
+            continue
+        resting = [o for o in others if o.phase in RESTING]
         alone = bool(resting) and not _moved_with(w, move.at_t, resting)
         w.say_move([o.device_id for o in resting] if alone else None)
     for w in following:
@@ -84,8 +98,11 @@ def judge_held(wearables: Sequence[Wearable]) -> bool:
         if held is None:
             continue
         waited = w.t_now - held.at_t
-        resting = [o for o in following if o is not w and o.phase in RESTING]
-        if held.code == EndReason.MOVED_DURING_PAUSE and waited >= HOLD_S and resting and not _moved_with(w, held.at_t, resting):
+        others = [o for o in following if o is not w]
+        resting = [o for o in others if o.phase in RESTING]
+        if held.code == EndReason.MOVED_DURING_PAUSE and waited >= HOLD_S and resting and not _moved_with(w, held.at_t, resting) \
+                and not any(o.held_fault is not None for o in others if o.state == w.state) \
+                and (not _still_checking(w, others) or waited >= CHECKING_WAIT_S):
             w.kit_closes_turn([o.device_id for o in resting], moved_alone=True)  # the tray stayed still
             continue
         at_turn = [o for o in following if o.state == w.state and o.phase in AT_THE_TURN]

@@ -174,6 +174,20 @@ def test_a_move_in_a_pause_is_said_of_the_tray_only_when_the_tray_moved(rocked: 
             "The tray moved: the count starts again. Keep it still against the block."]
 
 
+def test_a_knock_one_wearable_sees_in_its_pause_and_the_others_only_as_their_turn_closes_is_the_trays() -> None:
+    # knocked as one wearable rests to check its turn about X while the others' detectors still end that turn: theirs
+    # find the knock seconds later, merged into the turn. The first was judged alone ("mock-2 moved ... while the rest
+    # of the kit stayed still") and its turn closed, while the others asked the turn again: then no wearable kept a
+    # turn about X, and the kit was refused ("no turn about x was found"), in one run of the knocked-tray page test
+    recs = [_rocked(r, TURN_X_END_S + 0.8) for r in _tray(3)]
+    machines = _run_kit(recs, [WIDE_DPS] * 3)
+    first = [g.warnings[0] for g in machines]
+    assert [w.code for w in first] == ["moved_during_pause"] * 3, [(w.code, w.message) for w in first]
+    assert not any(w.code == "kit_closed_turn" for g in machines for w in g.warnings)
+    # (the simulated tray does not turn X again as asked: each wearable then finds its next turn about Y)
+    assert [g.attempt for g in machines] == [3, 3, 3]
+
+
 def test_a_kit_whose_calibration_runs_out_of_time_says_the_service_was_overloaded() -> None:
     names = ["mock-1", "mock-2"]
     members = [_Wearable(SimpleNamespace(id=n), GuidedSession(f"s{i}", n, Settings(db_url="sqlite://")))
