@@ -26,7 +26,7 @@ from calib.recording import Recording
 from ..workers.compute import ComputePool, LiveOutcome, calibrate_live, off_loop
 from ..workers.kit import KitOutcome, calibrate_kit_live
 from . import guidance as say
-from .codes import EndReason
+from .codes import EndReason, State
 from .events import Broadcaster
 from .kit_faults import judge_held
 from .kit_snapshot import kit_snapshot
@@ -178,6 +178,10 @@ class KitSession(Generic[M]):
         loop = asyncio.get_running_loop()
         if self._publishing is None and not self.broadcaster.closed:
             self._publishing = loop.call_later(KIT_EVENT_S, self.publish)
+        if any(m.machine.state == State.RECONNECTING for m in self.members):  # the tray is kept still meanwhile
+            for m in self.members:
+                if m.machine.state != State.RECONNECTING:
+                    m.machine.wait_with_kit()
         if not self._judge_soon and any(m.machine.held_fault or m.machine.held_move for m in self.members):
             if self._judging is not None:
                 self._judging.cancel()

@@ -153,6 +153,12 @@ class ProtocolSteps(TurnChecks):
             # by how far it turns (_watch_pause)
             self._early = still_s
 
+    def wait_with_kit(self) -> None:
+        """The kit waits for a wearable whose link was lost, the tray held still as its prompt says: this one's time
+        limits count from now (a turn not started meanwhile is the kit's wait, not the clinician's miss)."""
+        if not self.finished:
+            self._phase_since_t = self.t_now
+
     def _check_time_limits(self) -> None:
         """Protocol time limits, in device time (so they scale with a simulated device's speed)."""
         if self.finished:

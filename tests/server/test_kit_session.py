@@ -188,6 +188,52 @@ def test_a_knock_one_wearable_sees_in_its_pause_and_the_others_only_as_their_tur
     assert [g.attempt for g in machines] == [3, 3, 3]
 
 
+def test_while_the_kit_waits_for_a_lost_wearable_the_others_are_not_failed_for_a_turn_not_started() -> None:
+    # the kit tells the tray to keep still until mock-2 reconnects; its others' "no turn started within 60 s" ran on
+    # meanwhile, and every one of them failed ("Start a new calibration and turn the device when asked") at the moment
+    # mock-2 was given up, in 1 of 10 kits of six with the simulated clinician who misses
+    recs = _tray(3)
+    members = [_Wearable(SimpleNamespace(id=f"mock-{i + 1}"), GuidedSession(f"s{i}", f"mock-{i + 1}", Settings(db_url="sqlite://")))
+               for i in range(3)]
+    machines = [m.machine for m in members]
+    rng = np.random.default_rng(5)
+
+    async def feed() -> None:
+        kit = KitSession("k" * 32, members, None, 60.0, "alice")
+        for g in machines:
+            g.connected(FS, {}, WIDE_DPS)
+        first_rest = int(4.0 * FS) // BATCH * BATCH  # the tray rests first: each wearable is then asked the turn about X
+        given_up = first_rest + int(70 * FS) // BATCH * BATCH
+        for j in range(0, first_rest + int(130 * FS), BATCH):
+            if j == first_rest:
+                assert [g.state for g in machines] == [State.TURN_X] * 3
+                machines[1].link_lost()
+            if j == given_up:  # given up on, as its runner does after 60 s without its link
+                assert [g.state for g in machines] == [State.TURN_X, State.RECONNECTING, State.TURN_X]
+                machines[1].fail(EndReason.LINK_LOST, "The connection to the device was lost and did not come back.")
+            for i in (0, 2) if j >= first_rest else range(3):
+                r = recs[i]
+                if j < first_rest:
+                    rows = slice(j, j + BATCH)
+                    machines[i].feed(r.t[rows], r.gyro[rows], r.accel[rows], r.seq[rows])
+                else:  # the tray kept still, then nobody turns it
+                    seq = np.arange(j, j + BATCH)
+                    rest = r.gyro[:200].mean(axis=0) + 0.03 * rng.standard_normal((BATCH, 3))
+                    machines[i].feed(r.t[first_rest - 1] + (seq - first_rest + 1) / FS, rest, np.tile(r.accel[0], (BATCH, 1)),
+                                     r.seq[first_rest - 1] + 1 + seq - first_rest)
+                kit.member_changed()
+            await asyncio.sleep(0)
+        if kit._publishing is not None:
+            kit._publishing.cancel()
+
+    asyncio.run(feed())
+    # 130 s without a turn: the first 70 were the kit's wait, then the others' own 60 s ran out
+    for g in (machines[0], machines[2]):
+        assert g.state == State.FAILED and g.reason_code == EndReason.NO_MOTION, (g.state, g.reason)
+        limit = [w for w in g.warnings if w.code == "hint"]
+        assert limit and all(w.t_device_s > 4.0 + 70.0 for w in limit), [(w.code, w.t_device_s) for w in g.warnings]
+
+
 def test_a_kit_whose_calibration_runs_out_of_time_says_the_service_was_overloaded() -> None:
     names = ["mock-1", "mock-2"]
     members = [_Wearable(SimpleNamespace(id=n), GuidedSession(f"s{i}", n, Settings(db_url="sqlite://")))
