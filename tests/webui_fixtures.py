@@ -27,7 +27,8 @@ CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = ["--no-sandbox", "--disable-background-networking", "--disable-component-update", "--disable-sync", "--no-first-run"]
 OPERATOR = "alice"
 SECRET = "correct horse battery staple"
-MOCK_SPEED = 3.0
+MOCK_SPEED = 3.0  # the prompt-following clinicians react to the page's prompts: their lag is in device time
+SCRIPTED_SPEED = 4.0  # the scripted clinicians play a fixed script, whatever the page shows
 # the simulated clinician of mock-N performs the N-th scenario in every session
 SCENARIOS = ["normal", "moved_during_still", "wrong_axis", "link_drop", *["normal"] * 9]
 PIN = "4831"
@@ -44,15 +45,16 @@ def device_for(scenario: str, nth: int = 1) -> str:
 
 
 @contextlib.contextmanager
-def running_service(scenarios: list[str], *extra: str) -> Iterator[RunningService]:
-    """`gyrocal serve` with one simulated wearable per scenario and an operator, on a fresh SQLite store."""
+def running_service(scenarios: list[str], *extra: str, speed: float = MOCK_SPEED) -> Iterator[RunningService]:
+    """`gyrocal serve` with one simulated wearable per scenario (at ``speed`` times real time) and an operator, on a
+    fresh SQLite store."""
     tmp = Path(tempfile.mkdtemp(prefix="gyrocal-webui-"))
     db = f"sqlite:///{tmp / 'store.sqlite3'}"
     add = subprocess.run([*GYROCAL, "operator", "--db", db, "add", OPERATOR, "--secret-stdin"], input=SECRET + "\n", check=False,
                          cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert add.returncode == 0, add.stderr
     svc = RunningService(
-        ["--mock", str(len(scenarios)), "--mock-speed", str(MOCK_SPEED), "--mock-scenario", ",".join(scenarios), *extra], db
+        ["--mock", str(len(scenarios)), "--mock-speed", str(speed), "--mock-scenario", ",".join(scenarios), *extra], db
     )
     svc.start()
     try:
@@ -66,7 +68,7 @@ def running_service(scenarios: list[str], *extra: str) -> Iterator[RunningServic
 def webui_service() -> Iterator[RunningService]:
     """The service the page tests run against: mock-N performs SCENARIOS[N-1], one try per turn (the scripted
     clinicians play a fixed script and never turn again, so each fault ends its session with its own screen)."""
-    with running_service(SCENARIOS, "--max-attempts", "1") as svc:
+    with running_service(SCENARIOS, "--max-attempts", "1", speed=SCRIPTED_SPEED) as svc:
         yield svc
 
 
