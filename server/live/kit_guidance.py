@@ -32,6 +32,11 @@ def kit_link_lost(lost: Sequence[str]) -> str:
             "The kit goes on when it reconnects.")
 
 
+def kit_no_data(silent: Sequence[str]) -> str:
+    return (f"Keep the tray still and close to the receiver: no data is coming from {', '.join(silent)}. "
+            "The kit goes on as soon as it comes.")
+
+
 def first_sentence(text: str) -> str:
     """What happened, without what to do about it: a warning's first sentence (its numbers' decimal points kept)."""
     head, dot, _ = text.partition(". ")

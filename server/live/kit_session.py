@@ -178,9 +178,10 @@ class KitSession(Generic[M]):
         loop = asyncio.get_running_loop()
         if self._publishing is None and not self.broadcaster.closed:
             self._publishing = loop.call_later(KIT_EVENT_S, self.publish)
-        if any(m.machine.state == State.RECONNECTING for m in self.members):  # the tray is kept still meanwhile
+        waited_for = [m for m in self.members if m.machine.state == State.RECONNECTING or m.machine.silent]
+        if waited_for:  # the tray is kept still meanwhile (server.live.kit_snapshot)
             for m in self.members:
-                if m.machine.state != State.RECONNECTING:
+                if m not in waited_for:
                     m.machine.wait_with_kit()
         if not self._judge_soon and any(m.machine.held_fault or m.machine.held_move for m in self.members):
             if self._judging is not None:

@@ -81,6 +81,8 @@ def _prompt(state: State, lead: SessionOut, snaps: list[SessionOut]) -> str | No
         return say.KIT_CONNECTING
     if state == State.RECONNECTING:
         return say.kit_link_lost([s.device_id for s in snaps if s.state == State.RECONNECTING])
+    if silent := [s.device_id for s in snaps if s.silent and s.state not in END_STATES]:
+        return say.kit_no_data(silent)
     return say.of_the_tray(lead.prompt) if lead.prompt else None
 
 

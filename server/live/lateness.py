@@ -42,6 +42,11 @@ class Lateness:
 
     def _warn(self, code: str, message: str, emit: bool = True) -> None: ...
 
+    @property
+    def silent(self) -> bool:
+        """Whether no data has come for a while though the link says it is up (``data_silent``, until it resumes)."""
+        return self._silent_since is not None and not self.finished
+
     def data_silent(self, silent_s: float) -> None:
         """No data for ``silent_s`` of the service's running time while the link says it is up. Nothing is
         judged from it: the data may only be late. What the samples show when they come back decides."""

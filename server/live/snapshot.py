@@ -56,6 +56,9 @@ class SessionView(Protocol):
     @property
     def fs(self) -> float | None: ...
 
+    @property
+    def silent(self) -> bool: ...
+
     def still_target(self) -> float | None: ...
 
     @property
@@ -112,6 +115,7 @@ def session_snapshot(s: SessionView, event: str) -> SessionOut:
         "samples": s.buf.n,
         "lost_samples": s.lost_samples,
         "service_late_s": round(s.service_late_s, 3),  # how long the service itself did not run (a starved process)
+        "silent": s.silent,
         "sample_rate_hz": s.fs,
         "started_at": s.started_at,
         "ended_at": s.ended_at,

@@ -207,6 +207,8 @@ class SessionOut(BaseModel):
     samples: int | None = Field(None, description="readings recorded so far")
     lost_samples: int | None = Field(None, description="readings the link lost")
     service_late_s: float | None = Field(None, description="how long the service itself did not run (a starved process), s")
+    silent: bool | None = Field(None, description="no data from the device for a while though its link is up (the "
+                                "warning no_data), until its data comes again")
     sample_rate_hz: float | None = None
     started_at: str | None = None
     ended_at: str | None = None

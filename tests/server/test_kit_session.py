@@ -188,10 +188,12 @@ def test_a_knock_one_wearable_sees_in_its_pause_and_the_others_only_as_their_tur
     assert [g.attempt for g in machines] == [3, 3, 3]
 
 
-def test_while_the_kit_waits_for_a_lost_wearable_the_others_are_not_failed_for_a_turn_not_started() -> None:
-    # the kit tells the tray to keep still until mock-2 reconnects; its others' "no turn started within 60 s" ran on
-    # meanwhile, and every one of them failed ("Start a new calibration and turn the device when asked") at the moment
-    # mock-2 was given up, in 1 of 10 kits of six with the simulated clinician who misses
+@pytest.mark.parametrize("lost", ["link", "data"])
+def test_while_the_kit_waits_for_a_lost_wearable_the_others_are_not_failed_for_a_turn_not_started(lost: str) -> None:
+    # the kit tells the tray to keep still until mock-2 is back (its link lost, or its data not coming on a link that
+    # is up); its others' "no turn started within 60 s" ran on meanwhile, and every one of them failed ("Start a new
+    # calibration and turn the device when asked") at the moment mock-2 was given up, in 1 to 3 kits of 10 of six with
+    # the simulated clinician who misses
     recs = _tray(3)
     members = [_Wearable(SimpleNamespace(id=f"mock-{i + 1}"), GuidedSession(f"s{i}", f"mock-{i + 1}", Settings(db_url="sqlite://")))
                for i in range(3)]
@@ -207,9 +209,13 @@ def test_while_the_kit_waits_for_a_lost_wearable_the_others_are_not_failed_for_a
         for j in range(0, first_rest + int(130 * FS), BATCH):
             if j == first_rest:
                 assert [g.state for g in machines] == [State.TURN_X] * 3
-                machines[1].link_lost()
+                machines[1].link_lost() if lost == "link" else machines[1].data_silent(2.0)
+            if j == first_rest + BATCH:
+                said = kit.snapshot().prompt
+                assert said is not None and said.startswith("Keep the tray still") and "mock-2" in said, said
             if j == given_up:  # given up on, as its runner does after 60 s without its link
-                assert [g.state for g in machines] == [State.TURN_X, State.RECONNECTING, State.TURN_X]
+                waiting = State.RECONNECTING if lost == "link" else State.TURN_X
+                assert [g.state for g in machines] == [State.TURN_X, waiting, State.TURN_X]
                 machines[1].fail(EndReason.LINK_LOST, "The connection to the device was lost and did not come back.")
             for i in (0, 2) if j >= first_rest else range(3):
                 r = recs[i]
