@@ -26,10 +26,10 @@ from calib.recording import Recording
 from ..workers.compute import ComputePool, LiveOutcome, calibrate_live, off_loop
 from ..workers.kit import KitOutcome, calibrate_kit_live
 from . import guidance as say
-from .codes import EndReason, State
+from .codes import EndReason
 from .events import Broadcaster
 from .kit_faults import judge_held
-from .kit_snapshot import kit_snapshot
+from .kit_snapshot import kit_snapshot, kit_waits_for
 from .snapshot_schema import KitOut, SessionOut
 
 if TYPE_CHECKING:
@@ -178,8 +178,8 @@ class KitSession(Generic[M]):
         loop = asyncio.get_running_loop()
         if self._publishing is None and not self.broadcaster.closed:
             self._publishing = loop.call_later(KIT_EVENT_S, self.publish)
-        waited_for = [m for m in self.members if m.machine.state == State.RECONNECTING or m.machine.silent]
-        if waited_for:  # the tray is kept still meanwhile (server.live.kit_snapshot)
+        waited_for = [m for m in self.members if kit_waits_for(m.machine)]
+        if waited_for:  # the tray is kept still meanwhile: its prompt says so
             for m in self.members:
                 if m not in waited_for:
                     m.machine.wait_with_kit()

@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 from . import kit_guidance as say
 from .codes import END_STATES, STEPS, EndReason, Phase, State
@@ -21,6 +21,23 @@ OWN_WARNINGS = frozenset({"link_lost", "link_restored", "no_data", "data_resumed
                           EndReason.UNREADABLE_DATA, EndReason.SENSOR_FAULT, EndReason.OUT_OF_TOLERANCE})
 PHASES = list(Phase)  # in protocol order
 SAME_EVENT_S = 2.0  # the tray's warnings of one code from two wearables this close together are one event
+
+
+class _Following(Protocol):
+    """A wearable as the kit follows it: a live session (server.live.session) or its snapshot."""
+
+    @property
+    def state(self) -> State: ...
+
+    @property
+    def silent(self) -> bool | None: ...
+
+
+def kit_waits_for(w: _Following) -> bool:
+    """Whether the kit keeps its tray still for wearable ``w``: its link is lost (the kit waits for it to reconnect), or
+    no data comes on a link that is up. The one rule for the kit's prompt and for its others' time limits, which do not
+    run meanwhile (server.live.kit_session)."""
+    return w.state == State.RECONNECTING or (bool(w.silent) and w.state not in END_STATES)
 
 
 def kit_snapshot(kit_id: str, snaps: list[SessionOut], kit: KitOut, *, operator: str | None, started_at: str | None,
@@ -79,10 +96,11 @@ def _prompt(state: State, lead: SessionOut, snaps: list[SessionOut]) -> str | No
         return None
     if state == State.CONNECTING:
         return say.KIT_CONNECTING
-    if state == State.RECONNECTING:
-        return say.kit_link_lost([s.device_id for s in snaps if s.state == State.RECONNECTING])
-    if silent := [s.device_id for s in snaps if s.silent and s.state not in END_STATES]:
-        return say.kit_no_data(silent)
+    waited_for = [s for s in snaps if kit_waits_for(s)]
+    if lost := [s.device_id for s in waited_for if s.state == State.RECONNECTING]:
+        return say.kit_link_lost(lost)
+    if waited_for:
+        return say.kit_no_data([s.device_id for s in waited_for])
     return say.of_the_tray(lead.prompt) if lead.prompt else None
 
 
