@@ -14,9 +14,9 @@ import numpy as np
 from scipy.signal import correlate, correlation_lags
 
 from calib.errors import GyrocalError
+from calib.kit.turns import gaps
 from calib.recording import Recording
 
-GAP_STEPS = 1.5  # an interval this many times the usual one is samples lost
 WINDOW_S = 4.0  # windows whose lags give the clock rate
 MIN_OVERLAP_S = 10.0  # recordings that share less of the motion cannot be a kit's
 
@@ -52,12 +52,6 @@ class ClockMap:
 
 
 IDENTITY = ClockMap(0.0, 1.0, 0.0, 0.0)
-
-
-def gaps(t: np.ndarray) -> np.ndarray:
-    """Which intervals of stamps ``t`` (n - 1 of them) span samples lost."""
-    step = np.diff(t)
-    return np.asarray(step > GAP_STEPS * np.median(step))
 
 
 def activity(rec: Recording) -> np.ndarray:

@@ -15,7 +15,8 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from calib.errors import GyrocalError
-from calib.kit.clocks import ClockMap, activity, gaps
+from calib.kit.clocks import ClockMap, activity
+from calib.kit.turns import gaps
 from calib.recording import Recording
 
 REFINE_PASSES = 3

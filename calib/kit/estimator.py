@@ -26,12 +26,13 @@ from calib.estimators.closure.estimator import calibrate_closure
 from calib.estimators.closure.fit import KPrior
 from calib.judge.acceptance import misclosure
 from calib.kit.axes import KitAxes, Refit, kit_axes
-from calib.kit.clocks import IDENTITY, ClockMap, coarse_clock, gaps
+from calib.kit.clocks import IDENTITY, ClockMap, coarse_clock
 from calib.kit.coupling import IDENTITY_MAP, Coupling, LinearMap, couple, fit_map, reading_noise, resting, runs
 from calib.kit.departure import BURST_DPS, DEPARTURE_DEG, NO_DEPARTURE, departures
 from calib.kit.members import PARAMETERS, MemberParams, member_params, rest_bias
 from calib.kit.result import Coherence, KitMember, KitResult
-from calib.kit.turns import lost_in, member_turn_rows
+from calib.kit.turn_rows import member_turn_rows
+from calib.kit.turns import gaps, lost_in
 from calib.numerics.attitude import cumulative_attitude
 from calib.pipeline import calibrate_protocol, with_rate_uncertainty
 from calib.recording import Recording

@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -135,3 +136,11 @@ def test_reads_need_a_token_with_auth_reads(tmp_path: Path) -> None:
         assert events[-1]["state"] == "done"
     finally:
         svc.stop()
+
+
+def test_the_service_process_starts_without_the_estimators_heavy_numerics() -> None:
+    """scipy loads in the compute workers, where the estimators run, and in the simulated wearables; the service's own
+    process (live detection, the store, the API) starts without it, so a gateway comes up and restarts quickly."""
+    code = "import sys, server.main; print(sorted({m.split('.')[0] for m in sys.modules} & {'scipy', 'matplotlib'}))"
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", out.stdout
