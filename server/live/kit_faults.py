@@ -9,7 +9,8 @@ readings of it. A wearable never asks a turn again alone, so it never falls behi
 a turn it judged against a step the tray had left.
 
 A move while resting (the count starts again) is judged alike: that wearable moved alone in its slot, and is named,
-when every other resting wearable stayed still (no move within ``SAME_MOVE_S``); else the tray moved. So is a move
+when every other resting wearable stayed still (no move within ``SAME_MOVE_S``, and their readings still while its
+moved: a knock just after a turn, which their detectors took as the turn's end); else the tray moved. So is a move
 before a turn was checked: a wearable that moved alone is named loose and its turn closed by the kit; when the tray
 moved, the fault is judged as a turn's. Neither is judged alone while another wearable still ends that turn: its
 detector finds a knock in the turn's pause only when it closes the turn's stage, seconds later.
@@ -27,11 +28,22 @@ HOLD_S = 0.5  # device time a wearable's fault waits for the others' readings of
 # each wearable's detector up to a few tenths of a second apart) before another's passing that turn makes it its own
 WAIT_S = 2.0  # ... and at most this long for the verdicts of those still checking that turn
 SAME_MOVE_S = 1.0  # two wearables' moves this close (each on its own clock, counted back from now) are one move
+MOVE_SEEN_S = 3.0  # a detector sees a move for what it is up to this long after it (a knock in a turn's pause: once
+# the rest after it is long enough to close the turn's stage)
+ARRIVAL_S = 0.25  # the wearables' samples of one moment arrive this far apart at most (their links batch them)
 CHECKING_WAIT_S = 10.0  # at most this long for wearables still checking the turn before a move is judged one's own
 RESTING = frozenset({Phase.WAITING, Phase.SETTLE, Phase.READY, Phase.CHECKING, Phase.PAUSE})  # held still, or to be
 AT_THE_TURN = frozenset({Phase.TURNING, Phase.PLACING, Phase.CHECKING, Phase.PAUSE})
 ENDING_THE_TURN = frozenset({Phase.TURNING, Phase.PLACING, Phase.CHECKING})
 NOT_FOLLOWING = frozenset({State.CONNECTING, State.RECONNECTING})
+
+
+class Readings(Protocol):
+    """What the judgement reads of a wearable's own readings (server.live.stream.SessionStream)."""
+
+    def move_span(self, at_t: float, within_s: float) -> tuple[float, float] | None: ...
+
+    def moved_between(self, t0: float, t1: float) -> bool: ...
 
 
 class Wearable(Protocol):
@@ -44,6 +56,9 @@ class Wearable(Protocol):
     held_move: HeldMove | None
     moves: list[float]
     t_now: float
+
+    @property
+    def stream(self) -> Readings: ...
 
     @property
     def turns(self) -> Mapping[str, object]: ...
@@ -66,10 +81,19 @@ def _step(w: Wearable) -> int:
 
 
 def _moved_with(w: Wearable, at_t: float, others: Sequence[Wearable]) -> list[Wearable]:
-    """The ``others`` that moved at the moment ``w`` did (its device time ``at_t``). The wearables' clocks differ, but
-    their samples arrive together: a move as long ago on each one's own clock is one move."""
+    """The ``others`` that moved at the moment ``w`` did (its device time ``at_t``): a move they saw then, or their
+    readings moving while ``w``'s did (a knock just after a turn, which their detectors took as the turn's end). The
+    wearables' clocks differ, but their samples arrive together: a moment as long ago on each one's own clock is one."""
     ago = w.t_now - at_t
-    return [o for o in others if any(abs((o.t_now - t) - ago) <= SAME_MOVE_S for t in o.moves)]
+    span = w.stream.move_span(at_t, MOVE_SEEN_S)
+
+    def moved(o: Wearable) -> bool:
+        if any(abs((o.t_now - t) - ago) <= SAME_MOVE_S for t in o.moves):
+            return True
+        shift = o.t_now - w.t_now  # from w's clock to o's
+        return span is not None and o.stream.moved_between(span[0] + shift - ARRIVAL_S, span[1] + shift + ARRIVAL_S)
+
+    return [o for o in others if moved(o)]
 
 
 def _still_checking(w: Wearable, others: Sequence[Wearable]) -> list[Wearable]:

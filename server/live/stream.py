@@ -20,8 +20,10 @@ from calib.stages.stage import AXES, Axis, Stage
 from calib.stages.turn_checks import gravity_change_deg, rest_after_full_turn, swept_angles
 
 from .buffer import SampleBuffer
-from .turn_watch import recent_rate_dps
+from .turn_watch import STOP_DPS, recent_rate_dps
 from .turns import TurnRecord
+
+MOVE_GAP_S = 0.2  # calm readings this long part one move from the motion before it (a knock from the turn it follows)
 
 TrackerFactory = Callable[[float, float | None], Any]
 
@@ -127,6 +129,30 @@ class SessionStream:
         k = max(1, int(round(window_s * self.fs))) if self.fs else 1
         n = self.buf.n
         return recent_rate_dps(self.buf.gyro[max(0, n - k):n], self.rest_reading(), k)
+
+    def _moving(self, lo: int, hi: int) -> np.ndarray:
+        """Whether each reading lo..hi-1 moved: away from the rest reading by more than a stopped device reads."""
+        g = self.buf.gyro[lo:hi] - self.rest_reading()
+        return np.asarray(np.sqrt((g * g).sum(axis=1)) > STOP_DPS)
+
+    def move_span(self, at_t: float, within_s: float) -> tuple[float, float] | None:
+        """The span (device time, s) of the move under way at ``at_t``: the run of moving readings nearest to it
+        within ``within_s``, bounded by calm readings ``MOVE_GAP_S`` long (so the turn before a knock is not part of
+        the knock); None when no reading moved that near."""
+        t = self.buf.t[:self.buf.n]
+        lo, hi = int(np.searchsorted(t, at_t - within_s)), int(np.searchsorted(t, at_t + within_s, side="right"))
+        moving = np.flatnonzero(self._moving(lo, hi)) + lo
+        if moving.size == 0:
+            return None
+        run = np.cumsum(np.concatenate([[0], np.diff(t[moving]) > MOVE_GAP_S]))  # which run each moving reading is in
+        nearest = run[np.argmin(np.abs(t[moving] - at_t))]
+        span = t[moving[run == nearest]]
+        return float(span[0]), float(span[-1])
+
+    def moved_between(self, t0: float, t1: float) -> bool:
+        """Whether any reading from device time ``t0`` to ``t1`` (s) moved."""
+        t = self.buf.t[:self.buf.n]
+        return bool(self._moving(int(np.searchsorted(t, t0)), int(np.searchsorted(t, t1, side="right"))).any())
 
     def rest_before(self, t_motion: float) -> float:
         """How long the device rested before a motion that began at t_motion (s of device time).

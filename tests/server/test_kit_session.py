@@ -188,6 +188,18 @@ def test_a_knock_one_wearable_sees_in_its_pause_and_the_others_only_as_their_tur
     assert [g.attempt for g in machines] == [3, 3, 3]
 
 
+def test_a_knock_the_others_detectors_fold_into_their_turn_is_not_said_to_be_one_wearables_own() -> None:
+    # knocked half a second after the turn about X: one wearable's detector finds the move in its pause, the others'
+    # take the knock as the end of their turn, which passes. Judged by their detectors' verdicts alone, the first was
+    # named "moved ... while the rest of the kit stayed still: it may be loose", which their readings belie
+    recs = [_rocked(r, TURN_X_END_S + 0.5) for r in _tray(3)]
+    machines = _run_kit(recs, [WIDE_DPS] * 3)
+    assert [g.state for g in machines] == [State.COMPUTING] * 3 and [g.attempt for g in machines] == [1, 1, 1]
+    said = [w.message for w in kit_warnings([g.snapshot() for g in machines])]
+    assert said == ["mock-2: the tray moved before its turn about X was checked. The rest of the kit (mock-1, mock-3) "
+                    "had checked that turn, so the tray goes on: that turn of mock-2 is closed with theirs."]
+
+
 @pytest.mark.parametrize("lost", ["link", "data"])
 def test_while_the_kit_waits_for_a_lost_wearable_the_others_are_not_failed_for_a_turn_not_started(lost: str) -> None:
     # the kit tells the tray to keep still until mock-2 is back (its link lost, or its data not coming on a link that
