@@ -12,10 +12,12 @@ $(VENV)/.installed: pyproject.toml
 	$(PIP) install -q -e '.[server,ble]'
 	touch $@
 
-# the test extras in one pass (one resolution, not two): a fresh clone's `make test` installs the run extras with them
+# the test extras in one pass (one resolution, not two): a fresh clone's `make test` installs the run extras with them.
+# --no-compile: pip would compile every module of every package to bytecode (half of the install's time); the tests
+# compile the ones they import, once, as they first import them
 $(VENV)/.installed-test: pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PIP) install -q -e '.[server,ble,test]'
+	$(PIP) install -q --no-compile -e '.[server,ble,test]'
 	touch $(VENV)/.installed $@
 
 install: $(VENV)/.installed
