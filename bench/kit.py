@@ -28,7 +28,8 @@ exactly that wearable is flagged; and the share of the kits above (nothing slipp
 --mock-kit --mock-speed 8`, with ``--misalignment`` its ``--mock-kit-misalignment``): the clinician's time per
 wearable, the device time from the start to the kit's result over N, and how many wearables passed. The tray is
 turned by its scripted clinician (5 s rests), or with ``--hand STYLE`` by a clinician who follows the kit's prompts
-(mock_device.hand's styles: careful, hurried, ...), reading them as the kit page does.
+(mock_device.hand's styles: careful, hurried, ...), reading them as the kit page does. A kit in which a wearable did
+not pass is printed on stderr with every wearable's reason; ``--service-log FILE`` keeps the service's log.
 """
 
 from __future__ import annotations
@@ -159,9 +160,12 @@ def _table(n: int, sessions: list[dict], faulty: bool | None = None) -> dict:
         }
 
 
-def _guided(n: int, sessions: int, hand: str | None = None, speed: float = 8.0, misalignment: float = 0.0) -> dict:
+def _guided(n: int, sessions: int, hand: str | None = None, speed: float = 8.0, misalignment: float = 0.0,
+            service_log: str | None = None) -> dict:
     """``sessions`` guided kit sessions of ``n`` simulated wearables through `gyrocal serve --mock-kit` (``hand``: the
-    prompt-following clinician's style; None: the scripted one; ``misalignment``: the tray's sensors' axes)."""
+    prompt-following clinician's style; None: the scripted one; ``misalignment``: the tray's sensors' axes;
+    ``service_log``: a file the service's log is appended to). A kit in which some wearable did not pass is printed
+    with each wearable's reason, on stderr."""
     import os
     import signal
     import subprocess
@@ -179,7 +183,7 @@ def _guided(n: int, sessions: int, hand: str | None = None, speed: float = 8.0, 
                              f"sqlite:///{tmp / 'store.sqlite3'}", "--mock", str(n), "--mock-kit", "--mock-speed", str(speed),
                              *(["--mock-scenario", f"hand:{hand}"] if hand else []),
                              *(["--mock-kit-misalignment", str(misalignment)] if misalignment else []), "--log-level", "warning"],
-                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
+                            env=env, stdout=open(service_log or os.devnull, "a"), stderr=subprocess.STDOUT)
     c = httpx.Client(base_url=f"http://127.0.0.1:{port}", headers={"Authorization": "Bearer bench"}, timeout=60)
     per_device, passed = [], []
     try:
@@ -197,6 +201,9 @@ def _guided(n: int, sessions: int, hand: str | None = None, speed: float = 8.0, 
                 time.sleep(0.1)
             per_device.append(computed * speed / n)
             passed.append(sum(bool(d["passed"]) for d in snap["devices"]))
+            if passed[-1] < n:
+                print(f"kit {kit_id}: " + "; ".join(f"{d['device_id']} {d['state']}: {d.get('reason') or 'passed'}"
+                                                    for d in snap["devices"]), file=sys.stderr, flush=True)
             time.sleep(1.0)
     finally:
         proc.send_signal(signal.SIGINT)
@@ -213,6 +220,7 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--guided", type=int, default=0, metavar="K")
     ap.add_argument("--hand", default=None, metavar="STYLE", help="with --guided: the prompt-following tray clinician")
+    ap.add_argument("--service-log", default=None, metavar="FILE", help="with --guided: append the service's log to FILE")
     ap.add_argument("--misalignment", type=float, default=0.0, metavar="M",
                     help="each sensor's axes are not orthogonal: the off-diagonal entries of its K drawn in +-M")
     ap.add_argument("--fault", choices=["drop", "clip"], default=None,
@@ -221,7 +229,7 @@ def main() -> None:
     args = ap.parse_args()
     sizes = [int(v) for v in args.kits.split(",")]
     if args.guided:
-        out = _guided(sizes[0], args.guided, args.hand, misalignment=args.misalignment)
+        out = _guided(sizes[0], args.guided, args.hand, misalignment=args.misalignment, service_log=args.service_log)
         print(f"guided kits of {out['kit']} ({out['hand']} clinician): clinician time {out['seconds_per_wearable_median']:.1f} s "
               f"per wearable (median of {out['sessions']}); {out['passed_median']:.0f} of {out['kit']} passed (median), all "
               f"passed in {100 * out['all_passed']:.0f} %")

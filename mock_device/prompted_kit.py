@@ -84,7 +84,12 @@ class TrayPerformance:
         """Start the act's motion at its moment (no earlier than what has been streamed), on the rest the plan is in."""
         rest = self._tray.tray.stages[-1]  # the plan always ends with the rest ahead
         at = max(act.at_s, self.now_s, rest.start_s)
-        head = self.segments[:-1] + ([Still(at - rest.start_s)] if at > rest.start_s else [])
+        # the rest before the act in whole samples of the tray's motion, rounded up: a rest of a fraction of one (the
+        # act due just as the rest began) is no segment the simulator takes, and rounding down could start the act
+        # before what a wearable has streamed
+        grid = self._tray.tray.fs
+        steps = int(np.ceil((at - rest.start_s) * grid - 1e-6))
+        head = self.segments[:-1] + ([Still(steps / grid)] if steps > 0 else [])
         self.segments = [*head, *act.segments, Still(REST_AHEAD_S)]
         self._tray = self._build()
         self._drawn.clear()

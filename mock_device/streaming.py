@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -19,6 +20,8 @@ from .scenarios import LinkFaults
 from .sources import SampleSource
 
 MIN_SLEEP_S = 0.001
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -92,6 +95,9 @@ class Streaming:
                 await asyncio.sleep(max(MIN_SLEEP_S, wait))
         except asyncio.CancelledError:
             pass
+        except Exception:  # the simulation behind the stream failed: said, never a stream that stops without a word
+            log.exception("simulated wearable: its stream of session %d failed", s.number)
+            self._end_session("its simulation failed")
 
     def _advance(self, s: WearableSession, elapsed: float, total: int | None) -> None:
         while self._session is s and (total is None or s.next_packet < total):

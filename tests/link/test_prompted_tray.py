@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from calib.simulator import Still, Turn
+from mock_device.hand import Act
 from mock_device.prompted_kit import PromptedKitSource, PromptedTray
 
 FS = 104.0
@@ -53,3 +55,24 @@ def test_every_wearable_records_the_turn_the_hand_makes_when_prompted_and_keeps_
     for d in (1, 2):
         lag = np.median(np.abs(sizes[d][moving] - sizes[0][moving]))
         assert lag < 25.0, (d, lag)  # their clocks start up to 0.5 s apart, so the same instant is not the same sample
+
+
+def test_an_act_due_a_fraction_of_a_sample_into_the_rest_starts_on_the_next_sample_of_the_motion() -> None:
+    # the hand's next act was due as its last one ended, which on the tray's motion (in whole samples) was 77 us
+    # earlier: the plan took a rest of 0.03 samples between them, which the simulator refuses, and the wearable's
+    # stream stopped there (the kit then waited 60 s for its data, and failed)
+    tray = PromptedTray(seed=7, n=2, hand="careful")
+    sources = [PromptedKitSource(tray, d) for d in range(2)]
+    for src in sources:
+        src.prepare(FS)
+    _stream(sources, 0, int(2 * FS))
+    performance = tray.performance
+    assert performance is not None
+    performance._perform(Act(2.5, (Turn("x", 360.0, duration_s=2.0), Still(0.05))))
+    rest = performance._tray.tray.stages[-1]
+    performance._perform(Act(rest.start_s + 7.7e-5, (Turn("y", 360.0, duration_s=2.0), Still(0.05))))
+    turns = [st for st in performance._tray.tray.stages if st.kind == "turn"]
+    assert len(turns) == 2 and 0 < turns[1].start_s - rest.start_s <= 1.0 / performance._tray.tray.fs + 1e-9
+    moved = _stream(sources, int(2 * FS), int(9 * FS))
+    for gyro in moved:
+        assert np.abs(gyro[:, 0]).max() > 50.0 and np.abs(gyro[:, 1]).max() > 50.0
