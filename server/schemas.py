@@ -151,6 +151,8 @@ class DeviceOut(BaseModel):
                                                      "one tray (GET /sessions/{active_kit} shows the kit)")
     unsaved_session: str | None = Field(None, description="its latest session ended in a PASS nobody has accepted or "
                                                           "discarded yet: the result waiting to be saved")
+    unsaved_kit: str | None = Field(None, description="the kit session that unsaved result was part of: save or discard it "
+                                                      "there, with its kit's other wearables (GET /sessions/{unsaved_kit})")
     current_calibration: CalibrationRecord | None = None
     calibration_due: CalibrationDue | None = Field(None, description="whether the device should be calibrated again before "
                                                    "a study: never calibrated, switched on again since its calibration, or "

@@ -358,7 +358,7 @@ class LiveSession(Persistence):
                   "departures": [] if m.judgement is None else m.judgement.departures_json(),
                   "accuracy": None if m.judgement is None else m.judgement.accuracy, "samples": m.buf.n, "sample_rate_hz": m.fs,
                   "gyro_full_scale_dps": m.full_scale, "identity": self.identity.to_json() if self.identity else None,
-                  "temperatures_c": self.temperatures_c, "sections": self._sections},
+                  "temperatures_c": self.temperatures_c, "sections": self._sections, "kit_id": m.kit_id},
         )
 
     @property

@@ -98,6 +98,10 @@ def test_a_kit_is_guided_as_one_the_loose_wearable_is_named_and_the_rest_are_acc
             assert [(d["device_id"], d["session_id"], d["state"], d["passed"], d["departed"], d["result"]) for d in again["devices"]] \
                 == [(d["device_id"], d["session_id"], d["state"], d["passed"], d["departed"], d["result"]) for d in snap["devices"]]
             assert c.get(f"/kits/{kit_id}").json() == again
+            # the device list leads each wearable that passed back to the kit, whose accept saves them all at once
+            listed = {d["id"]: d for d in c.get("/devices").json()}
+            assert [(listed[n]["unsaved_session"], listed[n]["unsaved_kit"]) for n in ("mock-1", "mock-2", "mock-3")] \
+                == [(members["mock-1"], kit_id), (members["mock-2"], kit_id), (None, None)]
             assert c.post(f"/kits/{kit_id}/cancel").status_code == 409
             # two operators press "Accept all that passed" at once: one stores the kit, the other is told it was decided
             both = at_once([lambda: c.post(f"/kits/{kit_id}/accept"), lambda: c.post(f"/kits/{kit_id}/accept")])

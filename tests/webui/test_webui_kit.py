@@ -120,13 +120,24 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
         assert loose.locator("a.kit-redo").get_attribute("href") == "#/place/mock-4"
         assert wizard.small_targets() == []
         wizard.shot("kit-result")
+        # left unsaved, each wearable that passed is marked on the device list, which leads back to the kit
+        page.click("a.brand")
+        for device in ("mock-2", "mock-3"):
+            unsaved = page.locator(f".device-card[data-device='{device}'] .unsaved")
+            assert unsaved.inner_text().startswith("Result not saved: the last calibration, with its kit, passed")
+            assert unsaved.locator("a").inner_text() == "Open the kit to save or discard"
+            assert unsaved.locator("a").get_attribute("href") == f"#/kit/{kit_id}"
+        assert page.locator(".device-card[data-device='mock-4'] .unsaved").count() == 0
+        page.click(".device-card[data-device='mock-3'] .unsaved a")
+        page.wait_for_selector("#kit-accept")
         page.click("#kit-accept")
         page.wait_for_selector("#kit-saved:has-text('Saved as the current calibration of mock-2, mock-3. Not saved: mock-4.')")
         page.wait_for_selector(".kit-device[data-device='mock-2'] .kit-state:has-text('PASS, saved')")
         assert page.locator("#kit-accept").count() == 0  # nothing left to accept
-        # the page followed the kit's event stream: it read the kit whole only on opening it and after the accept
+        # the page followed the kit's event stream: it read the kit whole only on opening it (twice: the second time
+        # from the device list) and after the accept
         reads = [u for u in page_watch.requests if u.split("?")[0].endswith(f"/sessions/{kit_id}")]
-        assert any(f"/sessions/{kit_id}/events" in u for u in page_watch.requests) and len(reads) <= 2, reads
+        assert any(f"/sessions/{kit_id}/events" in u for u in page_watch.requests) and len(reads) <= 3, reads
         with api(kit_service) as c:
             results = {d["device_id"]: d["result"] for d in c.get(f"/sessions/{kit_id}").json()["devices"]}
             for device in ("mock-2", "mock-3"):

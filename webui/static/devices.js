@@ -70,8 +70,12 @@ function deviceCard(ctx, dev, refresh) {
       : null,
     dev.unsaved_session && !dev.active_session
       ? h("p", { class: "unsaved", role: "note" }, icon("warn"),
-        h("span", null, "Result not saved: the last calibration passed but nobody accepted it. "),
-        h("a", { href: `#/session/${dev.unsaved_session}` }, "Open it to save or discard"))
+        h("span", null, dev.unsaved_kit
+          ? "Result not saved: the last calibration, with its kit, passed but nobody accepted it. "
+          : "Result not saved: the last calibration passed but nobody accepted it. "),
+        dev.unsaved_kit
+          ? h("a", { href: `#/kit/${dev.unsaved_kit}` }, "Open the kit to save or discard")
+          : h("a", { href: `#/session/${dev.unsaved_session}` }, "Open it to save or discard"))
       : null,
     h("div", { class: "dev-actions" }, actions,
       dev.available && !dev.active_session
