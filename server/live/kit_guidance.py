@@ -27,6 +27,15 @@ def kit_sample_loss(device_id: str) -> str:
             "closed with the other wearables'.")
 
 
+def kit_turn_again(axes: Sequence[str]) -> str:
+    """Every wearable's result points to the same turns of the tray: most likely they were not full ones."""
+    named = " and ".join(ax(a) for a in axes)
+    turns = "that turn" if len(axes) == 1 else "those turns"
+    return (f"The kit's calibration points every wearable to the turn about {named}: most likely {turns} "
+            f"{'was' if len(axes) == 1 else 'were'} not a full turn. Once more: turn the tray one full turn about "
+            f"{named}, stopping when it is back against the block.")
+
+
 def kit_link_lost(lost: Sequence[str]) -> str:
     return (f"Keep the tray still and close to the receiver: the link to {', '.join(lost)} was lost. "
             "The kit goes on when it reconnects.")

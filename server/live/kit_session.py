@@ -26,9 +26,11 @@ from calib.recording import Recording
 from ..workers.compute import ComputePool, LiveOutcome, calibrate_live, off_loop
 from ..workers.kit import KitOutcome, calibrate_kit_live
 from . import guidance as say
+from . import kit_guidance as kit_say
 from .codes import EndReason
 from .events import Broadcaster
 from .kit_faults import judge_held
+from .kit_redo import tray_turns_to_redo
 from .kit_snapshot import kit_snapshot, kit_waits_for
 from .snapshot_schema import KitOut, SessionOut
 
@@ -45,6 +47,9 @@ class Member(Protocol):
     device: Device
     machine: GuidedSession
     kit: KitSession | None
+
+    @property
+    def streaming(self) -> bool: ...
 
     def cancel(self, reason: str = ...) -> bool: ...
 
@@ -75,7 +80,7 @@ class KitSession(Generic[M]):
         self.outcome: KitOutcome | None = None
         self.cancelled = False
         self._arrived: dict[str, tuple[Recording, list[Stage], str]] = {}
-        self._waiting: dict[str, asyncio.Future[LiveOutcome]] = {}
+        self._waiting: dict[str, asyncio.Future[LiveOutcome | None]] = {}
         self._task: asyncio.Task[None] | None = None
         self._lagging: asyncio.TimerHandle | None = None
         self.lag_s = KIT_LAG_S
@@ -83,6 +88,7 @@ class KitSession(Generic[M]):
         self._publishing: asyncio.TimerHandle | None = None
         self._judging: asyncio.Handle | None = None
         self._judge_soon = False
+        self._asked_again: set[str] = set()  # the tray's turns the kit's calibration asked again (once each)
         for m in members:
             m.kit = self
             m.machine.kit_id = kit_id
@@ -95,10 +101,11 @@ class KitSession(Generic[M]):
     def finished(self) -> bool:
         return all(m.machine.finished for m in self.members)
 
-    async def outcome_for(self, live: Member, rec: Recording, stages: list[Stage]) -> LiveOutcome:
-        """A member's recording is in: wait for the kit's calibration and return this member's outcome."""
+    async def outcome_for(self, live: Member, rec: Recording, stages: list[Stage]) -> LiveOutcome | None:
+        """A member's recording is in: wait for the kit's calibration and return this member's outcome (None: the
+        calibration asked the tray a turn again, which this member's guidance now asks)."""
         loop = asyncio.get_running_loop()
-        future: asyncio.Future[LiveOutcome] = loop.create_future()
+        future: asyncio.Future[LiveOutcome | None] = loop.create_future()
         self._waiting[live.device.id] = future
         self._arrived[live.device.id] = (rec, stages, live.machine.method)
         self._maybe_compute()
@@ -162,6 +169,8 @@ class KitSession(Generic[M]):
             why = say.internal_error(f"calibrating the kit: {type(exc).__name__}")
             self.outcome = KitOutcome({n: LiveOutcome(None, why, None, b"", EndReason.INTERNAL_ERROR) for n in names}, refusal=why)
         assert self.outcome is not None
+        if self._turns_again(names):
+            return
         if self.keep_outcome is not None:
             try:
                 await asyncio.to_thread(self.keep_outcome, self.id, self.outcome)
@@ -170,6 +179,27 @@ class KitSession(Generic[M]):
         for name, future in self._waiting.items():
             if not future.done():
                 future.set_result(self.outcome.outcomes[name])
+
+    def _turns_again(self, names: list[str]) -> bool:
+        """Every wearable's result points to the same turns of the tray (server.live.kit_redo): the tray is asked them
+        again, once each, while every wearable still streams; the kit then waits for its wearables' recordings again."""
+        assert self.outcome is not None
+        members = [m for m in self.members if m.device.id in names]
+        if len(members) < 2 or not all(m.streaming and m.machine.max_attempts > 1 for m in members):
+            return False
+        axes = tray_turns_to_redo({n: self.outcome.outcomes[n] for n in names},
+                                  {m.device.id: m.machine.tol for m in members}, self._asked_again)
+        if not axes:
+            return False
+        self._asked_again.update(axes)
+        said = kit_say.kit_turn_again(axes)
+        for m in members:
+            m.machine.turn_again_with_kit(axes, said)
+        waiting, self._waiting, self._arrived, self.outcome, self._task = self._waiting, {}, {}, None, None
+        for future in waiting.values():
+            if not future.done():
+                future.set_result(None)
+        return True
 
     # -- what the page and the API see ---------------------------------------------------------
     def member_changed(self) -> None:

@@ -317,7 +317,10 @@ class LiveSession(Persistence):
         rec, stages = m.recording(), m.protocol_stages()
         self._sections = section_list(stages)
         if self.kit is not None:  # calibrated with the rest of its kit, once every wearable's recording is in
-            outcome = await self.kit.outcome_for(self, rec, stages)
+            kit_outcome = await self.kit.outcome_for(self, rec, stages)
+            if kit_outcome is None:  # the kit's calibration asked the tray a turn again: this guidance asks it
+                return
+            outcome = kit_outcome
         else:
             job = off_loop(self.pool, calibrate_live, rec, m.method, stages)
             try:
@@ -337,7 +340,7 @@ class LiveSession(Persistence):
             log.warning("the history of %s could not be read to compare the new calibration with", m.device_id, exc_info=True)
             history, failed_before = [], set()
         m.set_result(result, history, failed_before,  # a kit's tray is not turned again for one wearable
-                     can_redo=self.kit is None and self._pump is not None and not self._pump.done())
+                     can_redo=self.kit is None and self.streaming)
 
     async def _stop_link(self) -> None:
         if (link := self.device.link) is None:
@@ -360,6 +363,11 @@ class LiveSession(Persistence):
                   "gyro_full_scale_dps": m.full_scale, "identity": self.identity.to_json() if self.identity else None,
                   "temperatures_c": self.temperatures_c, "sections": self._sections, "kit_id": m.kit_id},
         )
+
+    @property
+    def streaming(self) -> bool:
+        """Whether its link still streams, so that a turn asked again can follow."""
+        return self._pump is not None and not self._pump.done()
 
     @property
     def csv_bytes(self) -> bytes | None:

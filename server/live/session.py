@@ -334,19 +334,6 @@ class GuidedSession(ProtocolSteps, Lateness):
             return
         self._end(State.DONE, say.done_prompt(True))
 
-    def _redo_turns(self, axes: list[str], message: str) -> None:
-        """The result is out of range on scale factors only: most likely those turns were not full ones. Ask them
-        again in this session (the others stand), once each; then compute again."""
-        self._redone.update(axes)
-        self._redo = list(axes)
-        for a in axes:
-            self.turns.pop(a, None)
-        self._axis_i = AXES.index(axes[0])
-        self.attempt += 1
-        self._warn(EndReason.OUT_OF_TOLERANCE, message, emit=False)
-        self._set_state(TURN_STATES[axes[0]], Phase.SETTLE, say.PROMPTS["settle"])
-        self._resume_phase = Phase.READY
-
     # -- snapshots --------------------------------------------------------------------------------
     def snapshot(self, event: str = "state") -> SessionOut:
         """The full state of the session, as every SSE event and GET /sessions/{id} carry it."""

@@ -68,6 +68,7 @@ class TurnChecks:
     _provisional: str | None
     _early: float | None
     _redo: list[str]
+    _redone: set[str]  # turns already asked again after a result: a second failure is the sensor's
     _turn_lost: int
     _resume_phase: Phase
     _rest_before_s: float
@@ -222,6 +223,26 @@ class TurnChecks:
         self._warn("kit_closed_turn", said)
         self._early = None
         self._set_phase(Phase.PAUSE, say.pause_prompt(axis, self._next_axis()))
+
+    def turn_again_with_kit(self, axes: list[str], message: str) -> None:
+        """Its kit's calibration asks the tray these turns again (server.live.kit_redo): asked as a result's turns are
+        alone, in the kit's words (``message``, said once of the tray)."""
+        if self.finished or self.state != State.COMPUTING:
+            return
+        self._redo_turns(axes, message, code="kit_turn_again")
+
+    def _redo_turns(self, axes: list[str], message: str, code: str = EndReason.OUT_OF_TOLERANCE) -> None:
+        """The result is out of range on scale factors only: most likely those turns were not full ones. Ask them
+        again in this session (the others stand), once each; then compute again."""
+        self._redone.update(axes)
+        self._redo = list(axes)
+        for a in axes:
+            self.turns.pop(a, None)
+        self._axis_i = AXES.index(axes[0])
+        self.attempt += 1
+        self._warn(code, message, emit=False)
+        self._set_state(TURN_STATES[axes[0]], Phase.SETTLE, say.PROMPTS["settle"])
+        self._resume_phase = Phase.READY
 
     def _undo_early_motion(self) -> None:
         """An early motion (before a countdown ended) that was no turn at all."""
