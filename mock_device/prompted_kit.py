@@ -109,7 +109,8 @@ class PromptedTray:
         """The performance a stream starting now plays (``mock_device.kit.Joins``)."""
         number, new = self._joins.now()
         if new or self.performance is None:
-            hand = PromptHand(self.style, np.random.default_rng([self.seed, number, 0x4A4D]))
+            # a hand that stops a turn where the device reads short reads the tray's first wearable
+            hand = PromptHand(self.style, np.random.default_rng([self.seed, number, 0x4A4D]), device_k=self.params[0].k)
             self.performance = TrayPerformance(self.seed * 1000 + number, self.params, hand, self.noise_dps, self.loose)
         return self.performance
 

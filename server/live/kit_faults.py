@@ -55,6 +55,7 @@ class Wearable(Protocol):
     held_fault: HeldFault | None
     held_move: HeldMove | None
     moves: list[float]
+    kit_closed: set[str]
     t_now: float
 
     @property
@@ -132,7 +133,8 @@ def judge_held(wearables: Sequence[Wearable]) -> bool:
         at_turn = [o for o in following if o.state == w.state and o.phase in AT_THE_TURN]
         # past this turn, or in the pause after it with the turn recorded (one whose fault the kit closed rests there
         # without it), in the kit's order
-        passed = [o for o in following if _step(o) > _step(w)
+        # (one whose own fault of this turn the kit closed is past it, but did not pass it)
+        passed = [o for o in following if (_step(o) > _step(w) and w.axis not in o.kit_closed)
                   or (o in at_turn and o.held_fault is None and o.phase == Phase.PAUSE and w.axis in o.turns)]
         undecided = [o for o in at_turn if o.held_fault is None and o.phase != Phase.PAUSE]
         if not passed and not undecided:  # every wearable at this turn saw a fault: the tray's

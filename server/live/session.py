@@ -126,6 +126,7 @@ class GuidedSession(ProtocolSteps, Lateness):
         self.held_fault: HeldFault | None = None  # a fault in a turn the kit judges (server.live.turn_checks)
         self.held_move: HeldMove | None = None
         self.moves: list[float] = []
+        self.kit_closed: set[str] = set()
         self._last_live_emit = -1e9
         self.snapshot_count = 0
         self._emitted_state: str | None = None

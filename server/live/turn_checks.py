@@ -54,6 +54,7 @@ class TurnChecks:
     held_fault: HeldFault | None
     held_move: HeldMove | None
     moves: list[float]  # the device time of each move seen while resting, s
+    kit_closed: set[str]  # the turns (axes) whose fault, this wearable's own, its kit closed with the others' readings
     t_now: float
     state: State
     phase: Phase | None
@@ -212,6 +213,7 @@ class TurnChecks:
         if held is None or self.finished:
             return
         axis = AXES[self._axis_i]
+        self.kit_closed.add(axis)
         if moved_alone:
             said = kit_say.kit_moved_alone(self.device_id, axis, passed)
         elif held.code == EndReason.MOVED_DURING_PAUSE:
@@ -235,6 +237,7 @@ class TurnChecks:
         """The result is out of range on scale factors only: most likely those turns were not full ones. Ask them
         again in this session (the others stand), once each; then compute again."""
         self._redone.update(axes)
+        self.kit_closed.difference_update(axes)
         self._redo = list(axes)
         for a in axes:
             self.turns.pop(a, None)

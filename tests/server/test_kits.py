@@ -183,3 +183,29 @@ def test_a_wearable_whose_link_drops_mid_turn_is_bridged_by_the_kit(tmp_path) ->
             assert sorted(e["device_id"] for e in accepts) == sorted(devices)  # one entry a wearable, not two
     finally:
         svc.stop()
+
+
+def test_a_turn_about_the_vertical_the_tray_stopped_short_is_asked_again_once_the_kits_calibration_points_to_it(tmp_path) -> None:
+    """The clinician stops the tray's first Z turn where mock-1 reads 296 deg, flat on the table: mock-1 passes it live,
+    the others read it short and the kit closes theirs with mock-1's. Every wearable's result then points to that turn:
+    the tray is asked it again, once, and every wearable passes. Before, all three failed, out of tolerance."""
+    svc = RunningService(["--mock", "3", "--mock-kit", "--mock-speed", SPEED, "--mock-seed", "1", "--mock-scenario", "hand:short"],
+                         f"sqlite:///{tmp_path / 'store.sqlite3'}").start(60)
+    try:
+        with svc.client() as c:
+            kit_id = c.post("/kits/calibrate", json={"devices": ["mock-1", "mock-2", "mock-3"]}).json()["session_id"]
+            snap = _until_ended(c, kit_id)
+            assert [(d["device_id"], d["state"], d["passed"]) for d in snap["devices"]] == \
+                [("mock-1", "done", True), ("mock-2", "done", True), ("mock-3", "done", True)], snap["reason"]
+            said = [(w["code"], w["message"]) for w in snap["warnings"]]
+            assert said[-1] == ("kit_turn_again", "The kit's calibration points every wearable to the turn about Z: most "
+                                "likely that turn was not a full turn. Once more: turn the tray one full turn about Z, "
+                                "stopping when it is back against the block.")
+            # the wearables whose turn the kit closed name only the one that passed it
+            closed = [m for code, m in said if code == "kit_closed_turn"]
+            assert sorted(m.split(":")[0] for m in closed) == ["mock-2", "mock-3"], closed
+            assert all("The rest of the kit (mock-1) passed that turn" in m for m in closed), closed
+            own = [c.get(f"/sessions/{d['session_id']}").json() for d in snap["devices"]]
+            assert [s["attempt"] for s in own] == [2, 2, 2]
+    finally:
+        svc.stop()
