@@ -26,7 +26,8 @@ exactly that wearable is flagged; and the share of the kits above (nothing slipp
 
 ``--guided K``: instead, K guided kit sessions of ``--kits``' first size through the real service (`gyrocal serve --mock N
 --mock-kit --mock-speed 8`, with ``--misalignment`` its ``--mock-kit-misalignment``): the clinician's time per
-wearable, the device time from the start to the kit's result over N, and how many wearables passed. The tray is
+wearable, the device time from the start to the kit's result over N, how many wearables passed, and how far each k
+that passed is from the simulated truth against its stated uncertainty. The tray is
 turned by its scripted clinician (5 s rests), or with ``--hand STYLE`` by a clinician who follows the kit's prompts
 (mock_device.hand's styles: careful, hurried, ...), reading them as the kit page does. A kit in which a wearable did
 not pass is printed on stderr with every wearable's reason; ``--service-log FILE`` keeps the service's log.
@@ -185,7 +186,7 @@ def _guided(n: int, sessions: int, hand: str | None = None, speed: float = 8.0, 
                              *(["--mock-kit-misalignment", str(misalignment)] if misalignment else []), "--log-level", "warning"],
                             env=env, stdout=open(service_log or os.devnull, "a"), stderr=subprocess.STDOUT)
     c = httpx.Client(base_url=f"http://127.0.0.1:{port}", headers={"Authorization": "Bearer bench"}, timeout=60)
-    per_device, passed = [], []
+    per_device, passed, z_k = [], [], []
     try:
         wait_until_up(c)
         for _ in range(sessions):
@@ -201,6 +202,10 @@ def _guided(n: int, sessions: int, hand: str | None = None, speed: float = 8.0, 
                 time.sleep(0.1)
             per_device.append(computed * speed / n)
             passed.append(sum(bool(d["passed"]) for d in snap["devices"]))
+            for d in snap["devices"]:  # a pass is honest when its k is within its stated uncertainty of the truth
+                if d["passed"]:
+                    truth = np.array(c.get(f"/devices/{d['device_id']}").json()["simulated_truth"]["k"])
+                    z_k.extend(np.abs(np.array(d["result"]["k"]) - truth) / np.array(d["result"]["uncertainty"]["k"]))
             if passed[-1] < n:
                 print(f"kit {kit_id}: " + "; ".join(f"{d['device_id']} {d['state']}: {d.get('reason') or 'passed'}"
                                                     for d in snap["devices"]), file=sys.stderr, flush=True)
@@ -210,7 +215,9 @@ def _guided(n: int, sessions: int, hand: str | None = None, speed: float = 8.0, 
         proc.wait(timeout=20)
     return {"kit": n, "sessions": sessions, "hand": hand or "scripted", "misalignment": misalignment,
             "seconds_per_wearable_median": float(np.median(per_device)), "passed_median": float(np.median(passed)),
-            "all_passed": float(np.mean([p == n for p in passed]))}
+            "all_passed": float(np.mean([p == n for p in passed])),
+            "passed_k_error_over_std_max": float(np.max(z_k)) if z_k else None,
+            "passed_k_within_3_std": float(np.mean(np.array(z_k) <= 3.0)) if z_k else None}
 
 
 def main() -> None:
@@ -232,7 +239,9 @@ def main() -> None:
         out = _guided(sizes[0], args.guided, args.hand, misalignment=args.misalignment, service_log=args.service_log)
         print(f"guided kits of {out['kit']} ({out['hand']} clinician): clinician time {out['seconds_per_wearable_median']:.1f} s "
               f"per wearable (median of {out['sessions']}); {out['passed_median']:.0f} of {out['kit']} passed (median), all "
-              f"passed in {100 * out['all_passed']:.0f} %")
+              f"passed in {100 * out['all_passed']:.0f} %; each k that passed within 3 of its std of the truth: "
+              f"{100 * (out['passed_k_within_3_std'] or 0):.1f} % (the largest |error| / std "
+              f"{out['passed_k_error_over_std_max'] or 0:.1f})")
         return
     out = {"accuracy": [], "loose": []}
     with ProcessPoolExecutor(args.workers) as pool:

@@ -281,12 +281,17 @@ def _closure_reading(c: Check) -> tuple[str, str]:
     return said, f"turn {ax(c.axis or '')} all the way round, until the device is back against the block"
 
 
+def scale_factor_turns(failed: Sequence[Check]) -> list[str]:
+    """The turns whose scale factor is out of range, in protocol order."""
+    return sorted({c.axis for c in failed if c.axis is not None and _turn_reading(c) is not None})
+
+
 def turns_to_redo(failed: Sequence[Check]) -> list[str]:
     """The turns to ask again: those whose scale factor is out of range (most likely a hand's turn that was not a full
     one; the other checks it spoils, such as the other turns' closure, are judged again with the new turn), in
     protocol order; without one, the turn that came back furthest from where it was put (a turn about the vertical
     that stopped short leaves its k in range and every turn unable to close, that one most)."""
-    short = sorted({c.axis for c in failed if c.axis is not None and _turn_reading(c) is not None})
+    short = scale_factor_turns(failed)
     if short:
         return short
     worst = _worst_closure(failed)

@@ -27,13 +27,19 @@ def kit_sample_loss(device_id: str) -> str:
             "closed with the other wearables'.")
 
 
-def kit_turn_again(axes: Sequence[str]) -> str:
-    """Every wearable's result points to the same turns of the tray: most likely they were not full ones."""
+def kit_turn_again(axes: Sequence[str], by: Sequence[str]) -> str:
+    """The kit's calibration asks the tray these turns again: ``by`` the wearables whose scale factor for them is out of
+    range (empty: every wearable's result points to them, none closing)."""
     named = " and ".join(ax(a) for a in axes)
-    turns = "that turn" if len(axes) == 1 else "those turns"
-    return (f"The kit's calibration points every wearable to the turn about {named}: most likely {turns} "
-            f"{'was' if len(axes) == 1 else 'were'} not a full turn. Once more: turn the tray one full turn about "
-            f"{named}, stopping when it is back against the block.")
+    one = len(axes) == 1
+    if by:
+        whose = f"{', '.join(by)}'s scale factor" + ("" if len(by) == 1 else "s")
+        found = (f"The kit's calibration found {whose} for {named} out of a working sensor's range: most likely the "
+                 f"tray's turn{'' if one else 's'} about {named} {'was' if one else 'were'} not a full turn.")
+    else:
+        found = (f"The kit's calibration points every wearable to the turn{'' if one else 's'} about {named}: most likely "
+                 f"{'that turn was' if one else 'those turns were'} not a full turn.")
+    return f"{found} Once more: turn the tray one full turn about {named}, stopping when it is back against the block."
 
 
 def kit_link_lost(lost: Sequence[str]) -> str:

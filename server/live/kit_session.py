@@ -187,12 +187,12 @@ class KitSession(Generic[M]):
         members = [m for m in self.members if m.device.id in names]
         if len(members) < 2 or not all(m.streaming and m.machine.max_attempts > 1 for m in members):
             return False
-        axes = tray_turns_to_redo({n: self.outcome.outcomes[n] for n in names},
-                                  {m.device.id: m.machine.tol for m in members}, self._asked_again)
+        axes, by = tray_turns_to_redo({n: self.outcome.outcomes[n] for n in names},
+                                      {m.device.id: m.machine.tol for m in members}, self._asked_again)
         if not axes:
             return False
         self._asked_again.update(axes)
-        said = kit_say.kit_turn_again(axes)
+        said = kit_say.kit_turn_again(axes, by)
         for m in members:
             m.machine.turn_again_with_kit(axes, said)
         waiting, self._waiting, self._arrived, self.outcome, self._task = self._waiting, {}, {}, None, None
