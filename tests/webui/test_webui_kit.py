@@ -257,7 +257,8 @@ def test_the_kit_page_shows_a_wearables_own_fault_named_and_the_trays_with_the_k
         browser: Any, kit_service: Any, page_watch: Watch) -> None:
     """The kit page's notices (webui/static/notices.js, in Chromium), fed a kit's snapshots as the service composes
     them (server.live.kit_faults): a fault one wearable saw alone comes named by it and the tray goes on; a fault every
-    wearable saw comes with the kit's next attempt, and is shown as that attempt until that try starts."""
+    wearable saw, or the kit's calibration asking the tray a turn again, comes with the kit's next attempt, and is
+    shown as that attempt until that try starts."""
     with watched_page(browser, kit_service, page_watch) as page:
         page.goto(kit_service.base + "/")
         shown = page.evaluate("""async () => {
@@ -271,11 +272,13 @@ def test_the_kit_page_shows_a_wearables_own_fault_named_and_the_trays_with_the_k
           const said = () => { const n = box.querySelector('.notice > span'); return n ? n.textContent : ''; };
           const alone = { code: 'kit_closed_turn', message: 'mock-2: That turn about X was too fast. The tray goes on.' };
           const wrong = { code: 'wrong_axis', message: 'That turn was about X, not Y.' };
+          const redo = { code: 'kit_turn_again', message: "The kit's calibration points every wearable to the turn about Z." };
           const seen = [];
           for (const s of [kit('turn_x', 'checking', 1, []), kit('turn_x', 'pause', 1, [alone]),
                            kit('turn_y', 'ready', 1, [alone]), kit('turn_y', 'checking', 1, [alone]),
                            kit('turn_y', 'settle', 2, [alone, wrong]), kit('turn_y', 'ready', 2, [alone, wrong]),
-                           kit('turn_y', 'turning', 2, [alone, wrong])]) {
+                           kit('turn_y', 'turning', 2, [alone, wrong]), kit('turn_z', 'pause', 2, [alone, wrong]),
+                           kit('turn_z', 'settle', 3, [alone, wrong, redo]), kit('turn_z', 'turning', 3, [alone, wrong, redo])]) {
             notices.update(s);
             seen.push(said());
           }
@@ -284,5 +287,7 @@ def test_the_kit_page_shows_a_wearables_own_fault_named_and_the_trays_with_the_k
         }""")
     own = "mock-2: That turn about X was too fast. The tray goes on."
     again = "Attempt 2 of 3: That turn was about X, not Y."
-    assert shown == ["", own, "", "", again, again, ""], shown
+    # the kit's calibration asks the tray a turn again: said of the tray, as the kit's next attempt, until it starts
+    redo = "Attempt 3 of 3: The kit's calibration points every wearable to the turn about Z."
+    assert shown == ["", own, "", "", again, again, "", "", redo, ""], shown
     assert_clean(page_watch)
