@@ -70,6 +70,7 @@ class TurnChecks:
     _early: float | None
     _redo: list[str]
     _redone: set[str]  # turns already asked again after a result: a second failure is the sensor's
+    _redone_for: set[tuple[str, str | None]]  # ... and the failed checks they were asked again for
     _turn_lost: int
     _resume_phase: Phase
     _rest_before_s: float
@@ -231,6 +232,8 @@ class TurnChecks:
         alone, in the kit's words (``message``, said once of the tray)."""
         if self.finished or self.state != State.COMPUTING:
             return
+        # a scale factor out of range again after the tray's turn was made again is the sensor's, as alone
+        self._redone_for.update(("k", a) for a in axes)
         self._redo_turns(axes, message, code="kit_turn_again")
 
     def _redo_turns(self, axes: list[str], message: str, code: str = EndReason.OUT_OF_TOLERANCE) -> None:

@@ -272,21 +272,20 @@ def test_a_kit_whose_calibration_runs_out_of_time_says_the_service_was_overloade
     assert kit.outcome is not None and kit.outcome.refusal == said
 
 
-def _short_z_then_again(n: int) -> list[Recording]:
-    """One tray's motion: the protocol with its turn about Z stopped at 320 deg, flat on the table (it ends turned on
-    the table, not tilted, so no live check can tell), then, after a rest, that turn made whole."""
+def _z_then_again(n: int, first_z_deg: float = 320.0) -> list[Recording]:
+    """One tray's motion: the protocol with its turn about Z stopped at ``first_z_deg``, flat on the table (short, it
+    ends turned on the table, not tilted, so no live check can tell), then, after a rest, that turn made whole."""
     rng = np.random.default_rng([7, 2, 0x5C])
-    segments = list(paper_protocol_script(rng, angle_deg=(360.0, 360.0, 320.0), still_s=5.0, final_still_s=8.0).segments)
+    segments = list(paper_protocol_script(rng, angle_deg=(360.0, 360.0, first_z_deg), still_s=5.0, final_still_s=8.0).segments)
     segments[5] = replace(segments[5], tilt=(0.0, 0.0), wobble_deg=0.0)
     script = ProtocolScript((*segments, replace(segments[5], angle_deg=360.0), Still(5.0)))
     tray = KitTray(7002, n, noise=0.03, script=script, clock_error=0.0)
     return [tray.wearable(d, FS)[0] for d in range(n)]
 
 
-def test_a_turn_about_the_vertical_the_tray_stopped_short_is_asked_again_of_the_tray_when_the_results_point_to_it() -> None:
-    # alone, a wearable's result that points to a turn asks it again; a kit's was final, and one short turn of the
-    # tray failed every wearable ("the calibrated turn about z ends 2.9 deg from the pose it was put back in")
-    recs = _short_z_then_again(2)
+def _calibrated_as_a_kit(recs: list[Recording]) -> list[GuidedSession]:
+    """Each wearable's guided session fed its readings, the kit calibrating them together (the real estimator, in a
+    thread) each time every wearable has its recording, as their runners hand them over, until every session ends."""
     members = [_Wearable(SimpleNamespace(id=f"mock-{i + 1}"), GuidedSession(f"s{i}", f"mock-{i + 1}", Settings(db_url="sqlite://")))
                for i in range(len(recs))]
     machines = [m.machine for m in members]
@@ -318,6 +317,14 @@ def test_a_turn_about_the_vertical_the_tray_stopped_short_is_asked_again_of_the_
             kit._publishing.cancel()
 
     asyncio.run(run())
+    return machines
+
+
+def test_a_turn_about_the_vertical_the_tray_stopped_short_is_asked_again_of_the_tray_when_the_results_point_to_it() -> None:
+    # alone, a wearable's result that points to a turn asks it again; a kit's was final, and one short turn of the
+    # tray failed every wearable ("the calibrated turn about z ends 2.9 deg from the pose it was put back in")
+    recs = _z_then_again(2)
+    machines = _calibrated_as_a_kit(recs)
     assert [(g.state, g.passed, g.attempt) for g in machines] == [(State.DONE, True, 2)] * 2, [g.reason for g in machines]
     # mock-2's scale factor for Z came out of range; mock-1's, in range, could not close the turn
     said = "The kit's calibration found mock-2's scale factor for Z out of a working sensor's range: most likely the " \
@@ -329,3 +336,14 @@ def test_a_turn_about_the_vertical_the_tray_stopped_short_is_asked_again_of_the_
     # mock-1 passed it: the kit closed mock-2's with mock-1's, as a wearable's own)
     shown = [w.message for w in kit_warnings([g.snapshot() for g in machines])]
     assert shown[-1] == said and shown.count(said) == 1, shown
+
+
+def test_a_sensor_out_of_range_fails_again_when_the_tray_turned_again_and_is_said_to_be_faulty() -> None:
+    # the tray's turns were full; mock-2's z reads 1/0.6 of what it should (its k under a working sensor's range): the kit
+    # asks the tray its Z turn again, mock-2 reads it out of range again, and only then is its sensor suspect
+    recs = _z_then_again(2, first_z_deg=360.0)
+    recs[1] = replace(recs[1], gyro=recs[1].gyro / np.array([1.0, 1.0, 0.6]))
+    machines = _calibrated_as_a_kit(recs)
+    assert [(g.state, g.passed, g.attempt) for g in machines] == [(State.DONE, True, 2), (State.FAILED, False, 2)]
+    assert machines[1].reason is not None and machines[1].reason.endswith(
+        "It failed the same way the time before: the sensor may be faulty; have the device checked."), machines[1].reason
