@@ -181,8 +181,9 @@ class KitSession(Generic[M]):
                 future.set_result(self.outcome.outcomes[name])
 
     def _turns_again(self, names: list[str]) -> bool:
-        """Every wearable's result points to the same turns of the tray (server.live.kit_redo): the tray is asked them
-        again, once each, while every wearable still streams; the kit then waits for its wearables' recordings again."""
+        """The wearables' results point to turns of the tray that were most likely not full ones (server.live.kit_redo):
+        the tray is asked them again, once each, while every wearable still streams; the kit then waits for its
+        wearables' recordings again."""
         assert self.outcome is not None
         members = [m for m in self.members if m.device.id in names]
         if len(members) < 2 or not all(m.streaming and m.machine.max_attempts > 1 for m in members):
