@@ -90,8 +90,8 @@ async def device_out(svc: Service, dev: Device | None, row: StoredDevice | None,
     info = dev.info if dev is not None else {}
     current = await asyncio.to_thread(svc.store.current_calibration, device_id)
     recent = await asyncio.to_thread(svc.store.sessions, device_id, 10 if detail else 1)  # newest first
-    unsaved_row = next((r for r in recent[:1] if r["state"] == "done" and r["passed"] and r["decision"] is None), None)
-    unsaved = None if unsaved_row is None or svc.active.get(device_id) else unsaved_row["id"]
+    unsaved = None if svc.active.get(device_id) else next(
+        (r for r in recent[:1] if r["state"] == "done" and r["passed"] and r["decision"] is None), None)
     power_up = None if row is None else row["power_up"]
     stored: dict[str, object] = dict(row) if row is not None else {}
     fields: dict[str, Any] = {
@@ -110,8 +110,8 @@ async def device_out(svc: Service, dev: Device | None, row: StoredDevice | None,
         **(dev.model_facts() if dev else model_facts(None)),
         "active_session": svc.active.get(device_id),
         "active_kit": next((k.id for k in svc.kits.values() if device_id in k.device_ids and not k.finished), None),
-        "unsaved_session": unsaved,
-        "unsaved_kit": None if unsaved is None or unsaved_row is None else (unsaved_row.get("info") or {}).get("kit_id"),
+        "unsaved_session": None if unsaved is None else unsaved["id"],
+        "unsaved_kit": None if unsaved is None else (unsaved.get("info") or {}).get("kit_id"),
         "current_calibration": current,
         **held_facts(row, current),
         "calibration_due": calibration_due(
