@@ -1,6 +1,8 @@
 """What the guided session says to the clinician: prompts, warnings and failure reasons.
 
-Every failure names what happened and how to fix it, in words a clinician understands.
+Every failure names what happened and how to fix it, in words a clinician understands. "The device" is only ever
+what the clinician's hand holds, puts down and turns; "the wearable" is the unit itself: its link, its data, its sensor,
+its calibration. A kit says every "the device" of the tray its wearables ride in (server.live.kit_guidance).
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ AXIS_NAMES = {"x": "X", "y": "Y", "z": "Z"}
 
 # reason codes of a failed session, with a one-line description for the docs and the API schema
 REASONS: dict[EndReason, str] = {
-    EndReason.CONNECT_FAILED: "the device could not be connected or did not start streaming",
+    EndReason.CONNECT_FAILED: "the wearable could not be connected or did not start streaming",
     EndReason.NOT_STILL: "the device never stayed still long enough before the first turn",
     EndReason.NO_MOTION: "the requested turn did not start within the time limit",
     EndReason.MOVED_DURING_PAUSE: "the device moved during a pause between turns",
@@ -34,7 +36,7 @@ REASONS: dict[EndReason, str] = {
     EndReason.CALIBRATION_FAILED: "the estimator could not compute a calibration from the recording",
     EndReason.DEPARTED: "the wearable came apart from the rest of its kit (it moved in its slot): no calibration from that kit",
     EndReason.TIMEOUT: "the session did not reach its end within the overall time limit",
-    EndReason.SERVICE_OVERLOADED: "the service itself fell too far behind to follow the session (not the device, not the hand)",
+    EndReason.SERVICE_OVERLOADED: "the service itself fell too far behind to follow the session (not the wearable, not the hand)",
     EndReason.SERVICE_RESTARTED: "the service was restarted while the session ran",
     EndReason.GATEWAY_LOST: "the gateway running the session stopped answering",
     EndReason.INTERNAL_ERROR: "an unexpected error stopped the session",
@@ -55,11 +57,11 @@ def again(retry: bool, axis: str | None = None) -> str:
 MOVED_RESTART = "The device moved: the count starts again. Keep it still against the block."
 
 PROMPTS = {
-    "connecting": "Connecting to the device…",
+    "connecting": "Connecting to the wearable…",
     "still": "Put the device on the table against the block and take your hands off it.",
     "settle": "Put the device back against the block and keep it still.",
     "computing": "Computing the calibration…",
-    "reconnecting": "The connection to the device was lost. Keep the device still and close to the receiver; "
+    "reconnecting": "The connection to the wearable was lost. Keep the device still and close to the receiver; "
     "the session resumes when it reconnects.",
 }
 
@@ -90,7 +92,7 @@ def pause_prompt(axis: str, next_axis: str | None) -> str:
 
 def done_prompt(passed: bool) -> str:
     if passed:
-        return "Calibration computed and within tolerances. Accept it to make it the device's calibration, or discard it."
+        return "Calibration computed and within tolerances. Accept it to make it the wearable's calibration, or discard it."
     return "The calibration is outside the tolerances."
 
 
@@ -191,13 +193,13 @@ def sample_loss(axis: str, lost: int, retry: bool) -> str:
 
 def link_lost(limit_s: float) -> str:
     return (
-        f"The connection to the device was lost and did not come back within {limit_s:g} s. "
-        "Check that the device is switched on, charged and close to the receiver, then start a new calibration."
+        f"The connection to the wearable was lost and did not come back within {limit_s:g} s. "
+        "Check that the wearable is switched on, charged and close to the receiver, then start a new calibration."
     )
 
 
 def stream_stopped() -> str:
-    return "The device stopped sending data. Check that it is switched on and charged, then start a new calibration."
+    return "The wearable stopped sending data. Check that it is switched on and charged, then start a new calibration."
 
 
 def link_restored(axis: str | None) -> str:
@@ -207,12 +209,12 @@ def link_restored(axis: str | None) -> str:
 
 
 def no_data(silent_s: float) -> str:
-    return (f"No data from the device for {silent_s:.0f} s. Keep it still and close to the receiver: "
+    return (f"No data from the wearable for {silent_s:.0f} s. Keep it still and close to the receiver: "
             "the session carries on as soon as its data arrives.")
 
 
 def data_resumed(late_s: float) -> str:
-    return f"The device's data arrived {late_s:.1f} s late, complete: nothing was lost. Carry on."
+    return f"The wearable's data arrived {late_s:.1f} s late, complete: nothing was lost. Carry on."
 
 
 # what each reason a decoder drops a packet for means, said to a clinician (server.link: malformed_reasons)
@@ -250,8 +252,8 @@ def service_late(late_s: float) -> str:
 
 
 def service_overloaded(late_s: float) -> str:
-    return (f"The calibration service fell {late_s:.0f} s behind the device and could not follow the calibration: the "
-            "computer running it is overloaded. This was not the device, nor the way it was turned. Start a new "
+    return (f"The calibration service fell {late_s:.0f} s behind the wearable and could not follow the calibration: the "
+            "computer running it is overloaded. This was not the wearable, nor the way the device was turned. Start a new "
             "calibration; if it happens again, tell the administrator.")
 
 
@@ -349,18 +351,19 @@ def out_of_tolerance(failed: Sequence[Check], failed_before: Collection[tuple[st
         why += ("Check the recording's units (raw counts need their sensitivities) and that the device rested in each "
                 "pose, then record it again.")
     if {_failure(c.name, c.axis) for c in failed} & {_failure(n, a) for n, a in failed_before}:
-        why += " It failed the same way the time before: the sensor may be faulty; have the device checked."
+        why += " It failed the same way the time before: the sensor may be faulty; have the wearable checked."
     return why
 
 
 def connect_failed(detail: str) -> str:
-    return f"Could not connect to the device ({detail}). Check that it is switched on, charged and in range, then start a new calibration."
+    return (f"Could not connect to the wearable ({detail}). Check that it is switched on, charged and in range, then start "
+            "a new calibration.")
 
 
 def compute_timeout(limit_s: float, what: str = "the calibration") -> str:
     """The estimator ran out of time: on a working service it takes a second or two, so the service is overloaded."""
-    return (f"Computing {what} took longer than {limit_s:g} s and was stopped: the service is overloaded, not the device "
-            "nor the way it was turned. Start a new calibration; if it happens again, tell the administrator.")
+    return (f"Computing {what} took longer than {limit_s:g} s and was stopped: the service is overloaded, not the wearable "
+            "nor the way the device was turned. Start a new calibration; if it happens again, tell the administrator.")
 
 
 def timeout(limit_s: float) -> str:
@@ -374,5 +377,5 @@ def internal_error(detail: str) -> str:
 def decided(decision: str) -> str:
     """The prompt once the operator accepted or discarded the result."""
     if decision == "accepted":
-        return "Calibration accepted: it is now the device's current calibration."
-    return "Result discarded: the device keeps its previous calibration."
+        return "Calibration accepted: it is now the wearable's current calibration."
+    return "Result discarded: the wearable keeps its previous calibration."

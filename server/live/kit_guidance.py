@@ -9,7 +9,9 @@ from .guidance import ax
 
 
 def of_the_tray(text: str) -> str:
-    """A wearable's words said of the tray its kit rides in: the clinician holds and turns the tray, not one device."""
+    """A wearable's words said of the tray its kit rides in: the clinician holds and turns the tray, not one device.
+    In a session's words "the device" is only ever what the hand holds, and "the wearable" the unit itself (its link,
+    its data, its sensor, its calibration: server.live.guidance), so every "the device" is the tray here."""
     return text.replace("the device", "the tray").replace("The device", "The tray")
 
 

@@ -47,8 +47,9 @@ def kit_snapshot(kit_id: str, snaps: list[SessionOut], kit: KitOut, *, operator:
     ``snaps``: the wearables' own snapshots, in the kit's order; ``cancelled``: the kit was cancelled."""
     state, lead = _state(snaps, cancelled)
     devices = [KitDeviceOut(
-        device_id=s.device_id, session_id=s.session_id, state=s.state, phase=s.phase, prompt=s.prompt,
-        reason_code=s.reason_code, reason=s.reason, result=s.result, passed=s.passed, checks=s.checks,
+        device_id=s.device_id, session_id=s.session_id, state=s.state, phase=s.phase,
+        prompt=say.of_the_tray(s.prompt) if s.prompt else None, reason_code=s.reason_code,
+        reason=say.of_the_tray(s.reason) if s.reason else None, result=s.result, passed=s.passed, checks=s.checks,
         decision=s.decision, calibration_id=s.calibration_id, samples=s.samples, lost_samples=s.lost_samples,
         departed=s.device_id in kit.departed,
     ) for s in snaps]
@@ -105,7 +106,7 @@ def _prompt(state: State, lead: SessionOut, snaps: list[SessionOut]) -> str | No
 
 
 def _reason(snaps: list[SessionOut]) -> str | None:
-    ended = [f"{s.device_id}: {s.reason}" for s in snaps if s.state in (State.FAILED, State.CANCELLED) and s.reason]
+    ended = [f"{s.device_id}: {say.of_the_tray(s.reason)}" for s in snaps if s.state in (State.FAILED, State.CANCELLED) and s.reason]
     return " ".join(ended) or None
 
 
@@ -123,7 +124,7 @@ def kit_warnings(snaps: list[SessionOut]) -> list[SessionWarning]:
             message = (say.kit_link_restored(device_id) if w.code == "link_restored"
                        else say.kit_sample_loss(device_id) if w.code == EndReason.SAMPLE_LOSS
                        else w.message if w.code in NAMED
-                       else f"{device_id}: {w.message}")
+                       else f"{device_id}: {say.of_the_tray(w.message)}")
             out.append(w.model_copy(update={"message": message}))
         elif not any(code == w.code and by != device_id and abs((at - t).total_seconds()) <= SAME_EVENT_S
                      for t, code, by in said):

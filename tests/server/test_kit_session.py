@@ -229,7 +229,7 @@ def test_while_the_kit_waits_for_a_lost_wearable_the_others_are_not_failed_for_a
             if j == given_up:  # given up on, as its runner does after 60 s without its link
                 waiting = State.RECONNECTING if lost == "link" else State.TURN_X
                 assert [g.state for g in machines] == [State.TURN_X, waiting, State.TURN_X]
-                machines[1].fail(EndReason.LINK_LOST, "The connection to the device was lost and did not come back.")
+                machines[1].fail(EndReason.LINK_LOST, "The connection to the wearable was lost and did not come back.")
             for i in (0, 2) if j >= first_rest else range(3):
                 r = recs[i]
                 if j < first_rest:
@@ -267,7 +267,7 @@ def test_a_kit_whose_calibration_runs_out_of_time_says_the_service_was_overloade
     outcomes = asyncio.run(both())
     said = say.compute_timeout(limit_s, "the kit's calibration")
     assert [(o.result, o.end, o.refusal) for o in outcomes] == [(None, EndReason.SERVICE_OVERLOADED, said)] * 2
-    assert "the service is overloaded, not the device nor the way it was turned" in said
+    assert "the service is overloaded, not the wearable nor the way the device was turned" in said
     assert said.count("Start a new calibration") == 1
     assert kit.outcome is not None and kit.outcome.refusal == said
 
@@ -346,4 +346,4 @@ def test_a_sensor_out_of_range_fails_again_when_the_tray_turned_again_and_is_sai
     machines = _calibrated_as_a_kit(recs)
     assert [(g.state, g.passed, g.attempt) for g in machines] == [(State.DONE, True, 2), (State.FAILED, False, 2)]
     assert machines[1].reason is not None and machines[1].reason.endswith(
-        "It failed the same way the time before: the sensor may be faulty; have the device checked."), machines[1].reason
+        "It failed the same way the time before: the sensor may be faulty; have the wearable checked."), machines[1].reason

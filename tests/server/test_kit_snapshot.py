@@ -6,6 +6,7 @@ from __future__ import annotations
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
+from calib.judge.acceptance import Check
 from calib.result import CalibrationResult
 from server.live import guidance as say
 from server.live.kit_snapshot import kit_snapshot, kit_warnings, stored_kit_snapshot
@@ -51,6 +52,31 @@ def test_a_kit_that_ended_shows_who_passed_who_departed_and_the_decision(tmp_pat
     assert stored_kit_snapshot(*store.kit("k" * 32)).decision == "accepted"
 
 
+def test_a_kit_wearables_reasons_say_the_tray_for_what_the_hand_did_and_the_wearable_for_itself(tmp_path: Path) -> None:
+    # on the kit page the clinician's hands held the tray: a wearable's own reason must not send her to "the device"
+    # for the rest or the turns, yet must still name the wearable for its link and its sensor
+    store = _kit(tmp_path)
+    bias = Check(name="b", axis="y", value=9.0, limit=5.0, ok=False, text="b_y 9.000 deg/s is over 5 deg/s",
+                 used=1.8, near_limit=False)
+    reasons = {
+        "mock-1": ("out_of_tolerance", say.out_of_tolerance([bias], failed_before=[("b", "y")])),
+        "mock-2": ("link_lost", say.link_lost(60.0)),
+        "mock-3": ("moved_during_pause", say.moved_during_pause("x", 3.0, retry=False, turn_recorded=True)),
+    }
+    for device_id, (code, reason) in reasons.items():
+        store.finish_session(MEMBERS[device_id], SessionEnd("failed", code, reason))
+    snap = stored_kit_snapshot(*store.kit("k" * 32))
+    rows = {d.device_id: d.reason or "" for d in snap.devices}
+    assert "Check that the tray rested against the block" in rows["mock-1"], rows["mock-1"]
+    assert rows["mock-1"].endswith("the sensor may be faulty; have the wearable checked."), rows["mock-1"]
+    assert rows["mock-2"].startswith("The connection to the wearable was lost and did not come back within 60 s. Check "
+                                     "that the wearable is switched on"), rows["mock-2"]
+    assert rows["mock-3"].startswith("The tray moved during the pause after the turn about X."), rows["mock-3"]
+    assert "keep the tray still against the block" in rows["mock-3"], rows["mock-3"]
+    assert not any("device" in r for r in rows.values()), rows
+    assert snap.reason is not None and "device" not in snap.reason and "mock-3: The tray moved" in snap.reason
+
+
 def _wearable(device_id: str, *warnings: tuple[str, str, float]) -> SessionOut:
     """A running wearable's snapshot with its warnings: (code, message, seconds after 12:00)."""
     at = datetime(2026, 5, 4, 12, 0, tzinfo=UTC)
@@ -71,7 +97,7 @@ def test_the_kit_says_the_trays_warnings_once_and_names_a_wearables_own() -> Non
     said = [(w.code, w.message) for w in kit_warnings(snaps)]
     assert said == [
         ("moved", "The tray moved: the count starts again. Keep it still against the block."),  # one bump, three wearables
-        ("no_data", "mock-2: No data from the device for 3 s. Keep it still and close to the receiver: the session "
+        ("no_data", "mock-2: No data from the wearable for 3 s. Keep it still and close to the receiver: the session "
                     "carries on as soon as its data arrives."),
         ("link_restored", "Reconnected to mock-2: the kit goes on."),  # the tray is not turned again for one wearable
         ("wrong_axis", "That turn was about X, not Y. Put the tray back against the block, wait for the prompt and turn "

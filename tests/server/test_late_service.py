@@ -86,7 +86,7 @@ def test_a_service_late_beyond_its_limit_ends_with_a_reason_of_its_own() -> None
     assert not run.s.finished
     run.s.service_was_late(15.0)
     assert run.s.state == "failed" and run.s.reason_code == "service_overloaded"
-    assert "not the device, nor the way it was turned" in run.s.reason
+    assert "not the wearable, nor the way the device was turned" in run.s.reason
 
 
 CLINICIAN_REASONS = {"not_still", "no_motion", "moved_during_pause", "wrong_axis", "too_fast", "turn_incomplete",
