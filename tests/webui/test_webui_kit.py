@@ -130,6 +130,14 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
                             r"its slot, or its readings do not follow the tray\. Seat it firmly in its slot, then "
                             r"calibrate it alone or with the kit\.", said), said
         assert loose.locator("a.kit-redo").get_attribute("href") == "#/place/mock-4"
+        # which of the tray's wearables it is: Identify beside "Redo alone" makes mock-4 blink (the simulated one's light
+        # goes on); a wearable that passed has no such button, it stays in the tray
+        loose.locator("button.identify").click()
+        loose.locator(".identify-status.ok").wait_for()
+        assert loose.locator(".identify-status").inner_text().strip() == "mock-4 blinks its light for 5 s. Look for it on the table."
+        with api(kit_service) as c:
+            assert c.get("/devices/mock-4").json()["simulated_identifying"] is True
+        assert page.locator(".kit-device button.identify").count() == 1
         assert wizard.small_targets() == []
         wizard.shot("kit-result")
         # left unsaved, each wearable that passed is marked on the device list, which leads back to the kit

@@ -5,6 +5,7 @@
 import { cues } from "./cues.js";
 import { AXES, fill, h, num } from "./dom.js";
 import { REST_PHASES, angleGauge, icon, showRest, showTurn, stillRing, trayPicture } from "./figures.js";
+import { identifyButton } from "./identify.js";
 import { problemLine } from "./messages.js";
 import { sessionNotices } from "./notices.js";
 
@@ -63,7 +64,9 @@ function departedText(departed) {
     `${one ? "its row says" : "their rows say"} what to do.`;
 }
 
-function deviceRow(d) {
+/** A wearable's row. ``ident``: its Identify button and status line, for a wearable that did not pass (the clinician
+ * takes that one out of the tray to seat it again or calibrate it alone), when its protocol can blink. */
+function deviceRow(d, ident) {
   const ended = ENDED.has(d.state);
   const good = d.state === "done" && d.passed;
   const k = d.result && Array.isArray(d.result.k) ? d.result.k : null;
@@ -73,7 +76,10 @@ function deviceRow(d) {
       icon(ended ? (good ? "pass" : "fail") : d.state === "reconnecting" ? "warn" : "busy"), h("span", null, stateText(d))),
     k ? h("span", { class: "kit-k" }, `k ${AXES.map((a, i) => `${a.toUpperCase()} ${num(k[i], 4)}`).join(" · ")}`) : null,
     ended && !good && d.reason ? h("span", { class: "kit-reason" }, d.reason) : null,
-    ended && !good ? h("a", { class: "button small kit-redo", href: `#/place/${encodeURIComponent(d.device_id)}` }, icon("redo"), "Redo alone") : null);
+    ended && !good ? h("div", { class: "kit-row-actions" },
+      h("a", { class: "button small kit-redo", href: `#/place/${encodeURIComponent(d.device_id)}` }, icon("redo"), "Redo alone"),
+      ident ? ident.button : null) : null,
+    ended && !good && ident ? ident.line : null);
 }
 
 /** One kit session, as the service has it. */
@@ -95,6 +101,10 @@ export function kitView(ctx, kitId) {
   const cue = h("div", { class: "kit-cue", hidden: true });
   const picture = h("div", { class: "kit-picture" }, tray, cue);
   let live = { key: null, ring: null, gauge: null };
+  // the Identify buttons of the wearables that did not pass, made once the kit ended (null: not asked yet), so that a
+  // status line ("mock-3 blinks its light…") stays while the page shows the kit again after an accept
+  let idents = null;
+  let last = null;
   const steps = h("ol", { class: "kit-steps" }, STEPS.map(([key, label]) => h("li", { dataset: { step: key } }, label)));
   const rows = h("ul", { class: "kit-devices", "aria-label": "Every wearable of the kit", "aria-live": "polite" });
   const axesNote = h("p", { id: "kit-axes", class: "kit-axes", hidden: true });
@@ -106,6 +116,7 @@ export function kitView(ctx, kitId) {
   ctx.focusMain();
 
   const render = (snap) => {
+    last = snap;
     root.dataset.state = snap.state;
     const running = !ENDED.has(snap.state);
     const names = snap.devices.map((d) => d.device_id);
@@ -126,7 +137,8 @@ export function kitView(ctx, kitId) {
       if (i === at) li.setAttribute("aria-current", "step");
       else li.removeAttribute("aria-current");
     }
-    fill(rows, snap.devices.map(deviceRow));
+    fill(rows, snap.devices.map((d) => deviceRow(d, idents && idents.get(d.device_id))));
+    if (!running && idents === null && snap.devices.some((d) => !(d.state === "done" && d.passed))) identifyLater(snap);
     axesNote.textContent = running ? "" : axesText(snap);
     axesNote.hidden = !axesNote.textContent;
     if (running) {
@@ -175,6 +187,19 @@ export function kitView(ctx, kitId) {
     stop = null;
     ctx.banner(null);
   };
+
+  /** Which of the kit's wearables that did not pass can blink (GET /devices), then the rows again with their buttons. */
+  async function identifyLater(snap) {
+    idents = new Map();
+    try {
+      const known = new Map((await ctx.api.get("/devices")).map((dev) => [dev.id, dev]));
+      for (const d of snap.devices) {
+        const ident = known.has(d.device_id) ? identifyButton(ctx.api, known.get(d.device_id)) : null;
+        if (ident) idents.set(d.device_id, ident);
+      }
+    } catch { /* without the list the rows keep "Redo alone", which opens the wearable's own page and its Identify */ }
+    if (alive && idents.size) render(last);
+  }
 
   async function load() {
     try {
