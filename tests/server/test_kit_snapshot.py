@@ -75,6 +75,11 @@ def test_a_kit_wearables_reasons_say_the_tray_for_what_the_hand_did_and_the_wear
     assert "keep the tray still against the block" in rows["mock-3"], rows["mock-3"]
     assert not any("device" in r for r in rows.values()), rows
     assert snap.reason is not None and "device" not in snap.reason and "mock-3: The tray moved" in snap.reason
+    # a kit its estimator refused: its words, of the tray
+    store.record_kit_outcome("k" * 32, None, [], "The kit could not be calibrated together: no turn about Z was found: "
+                             "turn the device a full 360 degrees about its Z axis. Start a new calibration.")
+    refused = stored_kit_snapshot(*store.kit("k" * 32)).kit
+    assert refused is not None and refused.refusal is not None and "turn the tray a full 360 degrees" in refused.refusal
 
 
 def _wearable(device_id: str, *warnings: tuple[str, str, float]) -> SessionOut:
