@@ -193,19 +193,25 @@ def test_a_knock_to_the_tray_is_said_of_the_tray_once_and_the_kit_goes_on(
     """Two wearables in a tray that the clinician knocks once in a pause (`hand:bumps`): every wearable sees the knock,
     and the kit page says it once, of the tray, under the tray's prompt, as the one-wearable page does (the ring says
     the tray is moving while it moves); then the kit goes on to its result. Her hands are on the tray: with Sound and
-    Read aloud turned on beside Cancel, each prompt comes with a tone and is read aloud, and so is the knock."""
+    Read aloud turned on (on a wearable's place step, before: the kit page beside Cancel shows the choice remembered),
+    each prompt comes with a tone and is read aloud, and so is the knock."""
     with running_service(["hand:bumps"] * 2, "--mock-kit") as svc, watched_page(browser, svc, page_watch) as page:
         page.add_init_script(LISTEN)
         page.add_init_script(NOTICES)
         wizard = Wizard(page, svc, artifacts / "webui" / "kit-bumped")
         wizard.sign_in()
+        # turned on before the kit starts: its first prompts come a second or two after the start
+        page.click(".device-card[data-device='mock-1'] a.button.primary")
+        for toggle in (".wizard[data-state='place'] .cue-sound", ".wizard[data-state='place'] .cue-speech"):
+            page.click(toggle)
+            assert page.get_attribute(toggle, "aria-pressed") == "true"
+        page.click("a.brand")
         for device in ("mock-1", "mock-2"):
             page.check(f".device-card[data-device='{device}'] .kit-pick input")
         page.click("#kit-start")
         page.wait_for_url(re.compile(r"#/kit/[0-9a-f]{32}$"))
         kit_id = page.url.rsplit("/", 1)[1]
         for toggle in (".kit .cue-sound", ".kit .cue-speech"):
-            page.click(toggle)
             assert page.get_attribute(toggle, "aria-pressed") == "true"
         assert page.inner_text(".kit-sub") == "Both wearables are turned together, in their tray."
         assert wizard.small_targets() == []  # Cancel, Sound and Read aloud beside the tray are large enough to touch
