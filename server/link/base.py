@@ -11,7 +11,7 @@ simulated one) and ``server.link.inprocess.InProcessLink`` (a peripheral object 
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import AsyncIterator, Iterable
+from collections.abc import AsyncIterator, Callable, Iterable
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 from typing import Any, Literal, Protocol, runtime_checkable
@@ -258,6 +258,7 @@ class WearableLink(Protocol):
     address: str | None
     stats: LinkStats
     last_data_mono: float | None  # when samples last arrived from the transport (time.monotonic), None before any
+    clock: Callable[[], float]  # the central's clock (s) arrivals are timed on: a simulated wearable's own time scale
 
     async def scan(self, timeout: float = 5.0) -> list[DiscoveredDevice]:
         """Wearables advertising the IMU service, strongest first (works before connect)."""

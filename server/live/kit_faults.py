@@ -45,6 +45,8 @@ class Readings(Protocol):
 
     def moved_between(self, t0: float, t1: float) -> bool: ...
 
+    def wall_offset(self) -> float | None: ...
+
 
 class Wearable(Protocol):
     """What the judgement uses of a kit wearable's guided session (server.live.session.GuidedSession)."""
@@ -81,20 +83,38 @@ def _step(w: Wearable) -> int:
     return STEPS.index(w.state) if w.state in STEPS else 0
 
 
+def _shift(w: Wearable, o: Wearable) -> float:
+    """From ``w``'s device clock to ``o``'s (s): the wearables' clocks differ, but their samples of one moment leave
+    together, so that moment is where each one's readings that reached the service soonest put it (a while the service
+    reads one of them late does not move it); without those, where each one's readings have come to now."""
+    off_w, off_o = w.stream.wall_offset(), o.stream.wall_offset()
+    return off_w - off_o if off_w is not None and off_o is not None else o.t_now - w.t_now
+
+
+def _span(w: Wearable, at_t: float) -> tuple[float, float]:
+    """The move ``w`` saw at its device time ``at_t``, as its readings have it (only that moment when they do not)."""
+    return w.stream.move_span(at_t, MOVE_SEEN_S) or (at_t, at_t)
+
+
 def _moved_with(w: Wearable, at_t: float, others: Sequence[Wearable]) -> list[Wearable]:
     """The ``others`` that moved at the moment ``w`` did (its device time ``at_t``): a move they saw then, or their
-    readings moving while ``w``'s did (a knock just after a turn, which their detectors took as the turn's end). The
-    wearables' clocks differ, but their samples arrive together: a moment as long ago on each one's own clock is one."""
-    ago = w.t_now - at_t
-    span = w.stream.move_span(at_t, MOVE_SEEN_S)
+    readings moving while ``w``'s did (a knock just after a turn, which their detectors took as the turn's end)."""
+    start, end = _span(w, at_t)
 
     def moved(o: Wearable) -> bool:
-        if any(abs((o.t_now - t) - ago) <= SAME_MOVE_S for t in o.moves):
+        shift = _shift(w, o)
+        if any(abs(t - (at_t + shift)) <= SAME_MOVE_S for t in o.moves):
             return True
-        shift = o.t_now - w.t_now  # from w's clock to o's
-        return span is not None and o.stream.moved_between(span[0] + shift - ARRIVAL_S, span[1] + shift + ARRIVAL_S)
+        return o.stream.moved_between(start + shift - ARRIVAL_S, end + shift + ARRIVAL_S)
 
     return [o for o in others if moved(o)]
+
+
+def _behind(w: Wearable, at_t: float, others: Sequence[Wearable]) -> list[Wearable]:
+    """The ``others`` whose readings have not yet come past the moment ``w`` moved (its device time ``at_t``): the
+    service reads them later than ``w``'s, so their stillness says nothing of that move yet."""
+    end = _span(w, at_t)[1]
+    return [o for o in others if o.t_now < end + _shift(w, o) + ARRIVAL_S]
 
 
 def _still_checking(w: Wearable, others: Sequence[Wearable]) -> list[Wearable]:
@@ -116,7 +136,10 @@ def judge_held(wearables: Sequence[Wearable]) -> bool:
         if _still_checking(w, others) and w.t_now - move.seen_t < CHECKING_WAIT_S:
             continue
         resting = [o for o in others if o.phase in RESTING]
-        alone = bool(resting) and not _moved_with(w, move.at_t, resting)
+        behind = _behind(w, move.at_t, resting)
+        if behind and w.t_now - move.seen_t < CHECKING_WAIT_S:
+            continue
+        alone = bool(resting) and not behind and not _moved_with(w, move.at_t, resting)
         w.say_move([o.device_id for o in resting] if alone else None)
     for w in following:
         held = w.held_fault
@@ -125,7 +148,11 @@ def judge_held(wearables: Sequence[Wearable]) -> bool:
         waited = w.t_now - held.at_t
         others = [o for o in following if o is not w]
         resting = [o for o in others if o.phase in RESTING]
-        if held.code == EndReason.MOVED_DURING_PAUSE and waited >= HOLD_S and resting and not _moved_with(w, held.at_t, resting) \
+        behind = _behind(w, held.at_t, resting) if held.code == EndReason.MOVED_DURING_PAUSE else []
+        if behind and waited < CHECKING_WAIT_S:
+            continue
+        if held.code == EndReason.MOVED_DURING_PAUSE and waited >= HOLD_S and resting and not behind \
+                and not _moved_with(w, held.at_t, resting) \
                 and not any(o.held_fault is not None for o in others if o.state == w.state) \
                 and (not _still_checking(w, others) or waited >= CHECKING_WAIT_S):
             w.kit_closes_turn([o.device_id for o in resting], moved_alone=True)  # the tray stayed still

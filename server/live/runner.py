@@ -245,7 +245,8 @@ class LiveSession(Persistence):
                     self._silent = False
                     m.data_resumed(int(item.lost_before))
                 m.fs_estimate, m.fs_rel_std = (float(item.fs_hz) if item.fs_hz else m.fs_estimate), item.fs_rel_std
-                m.feed(item.t_device_s, item.gyro_dps, item.accel_g, item.seq, int(item.lost_before), time.time())
+                m.feed(item.t_device_s, item.gyro_dps, item.accel_g, item.seq, int(item.lost_before), time.time(),
+                       link.clock())
             if m.finished:
                 return
 

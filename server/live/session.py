@@ -174,8 +174,11 @@ class GuidedSession(ProtocolSteps, Lateness):
         seq: np.ndarray | None = None,
         lost_before: int = 0,
         received_at: float | None = None,
+        link_clock: float | None = None,
     ) -> None:
-        """One batch of samples (device time t in s, raw gyro in deg/s, accel in g)."""
+        """One batch of samples (device time t in s, raw gyro in deg/s, accel in g), received at ``received_at`` (Unix
+        time, s; None: now) and ``link_clock`` on the link's clock (s, on a simulated wearable's time scale; None: the
+        Unix time)."""
         if self.finished or self.state in (State.RECONNECTING, State.CONNECTING) or self.stream.tracker is None:
             return
         if self.state == State.COMPUTING:
@@ -191,7 +194,9 @@ class GuidedSession(ProtocolSteps, Lateness):
         if self.still_target() is not None and (fault := self._faults.check(self.full_scale)):
             self.fail(EndReason.SENSOR_FAULT, say.sensor_fault(fault))  # a sensor no rest can satisfy: not the hands
             return
-        self.caused_by = CausedBy(t_device_s=float(t[-1]), received_at=received_at if received_at is not None else time.time())
+        received = received_at if received_at is not None else time.time()
+        self.stream.arrived(float(t[-1]), received if link_clock is None else link_clock)
+        self.caused_by = CausedBy(t_device_s=float(t[-1]), received_at=received)
         if first:
             # samples missing before the first are not part of this session's recording (e.g. the time
             # between two sessions on one link)

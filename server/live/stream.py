@@ -9,6 +9,7 @@ states: the session (server.live.session) asks it questions and decides.
 from __future__ import annotations
 
 import copy
+from collections import deque
 from collections.abc import Callable
 from dataclasses import replace
 from typing import Any, cast
@@ -24,6 +25,8 @@ from .turn_watch import STOP_DPS, recent_rate_dps
 from .turns import TurnRecord
 
 MOVE_GAP_S = 0.2  # calm readings this long part one move from the motion before it (a knock from the turn it follows)
+ARRIVAL_WINDOW_S = 5.0  # how late readings reach the session is its least over this much device time: a while the
+# service or one link falls behind passes, the least stays (a clock 1 % off drifts 0.05 s in it)
 
 TrackerFactory = Callable[[float, float | None], Any]
 
@@ -50,6 +53,7 @@ class SessionStream:
         self._last_t: float | None = None
         self._t_shift = 0.0
         self._pending: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None = None
+        self._arrivals: deque[tuple[float, float]] = deque()  # (device time, wall time it was read at minus it), s
 
     def start(self, fs: float, full_scale_dps: float | None) -> None:
         """The link streams at fs Hz: start a detector."""
@@ -94,6 +98,18 @@ class SessionStream:
         self.buf.append(t, gyro, accel, seq)
         self._pending = (t, gyro, seq)
         return t
+
+    def arrived(self, t_last: float, received_at: float) -> None:
+        """The batch whose last reading is at device time ``t_last`` reached the session at wall time ``received_at``
+        (s)."""
+        self._arrivals.append((t_last, received_at - t_last))
+        while self._arrivals[0][0] < t_last - ARRIVAL_WINDOW_S:
+            self._arrivals.popleft()
+
+    def wall_offset(self) -> float | None:
+        """Wall time minus device time of the readings that reached the session soonest lately (s), so that one moment
+        on two wearables' clocks is found though the service read one of them late; None before any reading."""
+        return min(off for _, off in self._arrivals) if self._arrivals else None
 
     def detect(self) -> list[Any]:
         """The detector's events for the batch received last."""

@@ -57,12 +57,24 @@ def _clipped(rec: Recording, full_scale: float) -> Recording:
     return replace(rec, gyro=np.clip(rec.gyro, -full_scale, full_scale))
 
 
-def _run_kit(recs: list[Recording], ranges: list[float]) -> list[GuidedSession]:
+WALL_AT_0 = 1.8e9  # the wall clock (Unix time, s) as the tray's motion starts
+
+
+def _run_kit(recs: list[Recording], ranges: list[float],
+             late: dict[int, tuple[float, float, float]] | None = None) -> list[GuidedSession]:
     """Feed each wearable's guided session its readings batch by batch, as their links would, with the kit judging
-    between batches, until every session computes (or ended); the tray rests after the protocol."""
+    between batches, until every session computes (or ended); the tray rests after the protocol. Each batch is read
+    as its last sample is taken, unless ``late`` (wearable index: (from, to, lag), s) has the service read that
+    wearable's readings of device time from..to ``lag`` late (starved for it), then the rest queued behind them."""
     members = [_Wearable(SimpleNamespace(id=f"mock-{i + 1}"), GuidedSession(f"s{i}", f"mock-{i + 1}", Settings(db_url="sqlite://")))
                for i in range(len(recs))]
     machines = [m.machine for m in members]
+    queued: list[list[tuple[Any, ...]]] = [[] for _ in recs]
+
+    def due(i: int, batch: tuple[Any, ...]) -> float:
+        t_last = float(batch[0][-1])
+        start, end, lag = (late or {}).get(i, (0.0, -1.0, 0.0))
+        return t_last + (lag if start <= t_last <= end else 0.0)
 
     async def feed() -> None:
         kit = KitSession("k" * 32, members, None, 60.0, "alice")
@@ -71,14 +83,17 @@ def _run_kit(recs: list[Recording], ranges: list[float]) -> list[GuidedSession]:
         n = min(len(r) for r in recs)
         rng = np.random.default_rng(3)
         for j in range(0, n + int(20 * FS), BATCH):
-            for g, r in zip(machines, recs, strict=True):
+            for i, (g, r) in enumerate(zip(machines, recs, strict=True)):
                 if j < n:
                     rows = slice(j, min(j + BATCH, n))
-                    g.feed(r.t[rows], r.gyro[rows], r.accel[rows], r.seq[rows])
+                    queued[i].append((r.t[rows], r.gyro[rows], r.accel[rows], r.seq[rows]))
                 else:  # the tray rests against the block
                     seq = np.arange(j, j + BATCH)
                     rest = r.gyro[n - 200:n - 100].mean(axis=0) + 0.03 * rng.standard_normal((BATCH, 3))
-                    g.feed(seq / FS, rest, np.tile(r.accel[n - 1], (BATCH, 1)), seq)
+                    queued[i].append((seq / FS, rest, np.tile(r.accel[n - 1], (BATCH, 1)), seq))
+                now = float(queued[i][-1][0][-1])  # the wall clock runs with the tray's motion
+                while queued[i] and due(i, queued[i][0]) <= now:
+                    g.feed(*queued[i].pop(0), received_at=WALL_AT_0 + now)
                 kit.member_changed()
             await asyncio.sleep(0)  # the kit judges what its wearables hold
             if all(g.state in (State.COMPUTING, State.FAILED) for g in machines):
@@ -199,6 +214,18 @@ def test_a_knock_the_others_detectors_fold_into_their_turn_is_not_said_to_be_one
     said = [w.message for w in kit_warnings([g.snapshot() for g in machines])]
     assert said == ["mock-2: the tray moved before its turn about X was checked. The rest of the kit (mock-1, mock-3) "
                     "had checked that turn, so the tray goes on: that turn of mock-2 is closed with theirs."]
+
+
+def test_a_knock_the_service_reads_late_of_one_wearable_is_the_trays_not_the_others_loose_slot() -> None:
+    # on a busy machine the service read mock-2's readings of a knock 0.8 s after mock-1's: judged by how far each
+    # wearable's readings had come, mock-1 was named "moved ... while the rest of the kit (mock-2) stayed still: it may
+    # be loose in its slot", in one run of the knocked-tray page test with three test workers on two cores
+    recs = [_rocked(r, TURN_X_END_S + 1.4) for r in _tray(2)]
+    machines = _run_kit(recs, [WIDE_DPS] * 2, late={1: (TURN_X_END_S, TURN_X_END_S + 4.0, 0.8)})
+    assert [g.state for g in machines] == [State.COMPUTING] * 2
+    said = kit_warnings([g.snapshot() for g in machines])
+    assert said and not any(w.code == "kit_moved_alone" or "loose" in w.message for w in said), [w.message for w in said]
+    assert any("the tray moved" in w.message.lower() for w in said), [w.message for w in said]
 
 
 @pytest.mark.parametrize("lost", ["link", "data"])
