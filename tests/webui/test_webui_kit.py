@@ -215,6 +215,15 @@ def test_a_knock_to_the_tray_is_said_of_the_tray_once_and_the_kit_goes_on(
             assert page.get_attribute(toggle, "aria-pressed") == "true"
         assert page.inner_text(".kit-sub") == "Both wearables are turned together, in their tray."
         assert wizard.small_targets() == []  # Cancel, Sound and Read aloud beside the tray are large enough to touch
+        # Read aloud turned off and on again while a prompt shows: that prompt is read at once, after saying so
+        shown, last_said = page.evaluate("""() => {
+          const speech = document.querySelector('.kit .cue-speech');
+          speech.click();
+          speech.click();
+          return [document.querySelector('.kit-prompt').textContent, window.heard.said.slice(-2)];
+        }""")
+        assert last_said == ["Prompts will be read aloud.", shown], (last_said, shown)
+        assert page.get_attribute(".kit .cue-speech", "aria-pressed") == "true"
         # meanwhile, on another tablet, the device list sends each wearable of the tray back to the kit's page
         other = page.context.new_page()
         Wizard(other, svc, artifacts / "webui" / "kit-bumped-list").sign_in()
@@ -260,9 +269,12 @@ def test_a_knock_to_the_tray_is_said_of_the_tray_once_and_the_kit_goes_on(
     assert all(len(s) == len(knocks) for s in seen), (seen, knocks)
     shown = {text for _, text in notices}
     assert any(w["message"] in text for w in knocks for text in shown), (notices, knocks)
-    # a knock that asks the turn (or its pause) again is shown as the kit's next attempt, as for one wearable
+    # a knock before the turn was checked asks it again, shown as the kit's next attempt, as for one wearable (the
+    # clinician knocks while the turn is checked or in the pause after: which one, a busy machine's timing decides;
+    # a knock in the pause restarts its count, said above); the page test of the kit's notices below shows a turn asked
+    # again as the next attempt whatever asked it
     again = [w["message"] for w in knocks if w["code"] == "moved_during_pause"]
-    assert again and all(any(text == f"Attempt 2 of 3: {m}" for text in shown) for m in again), (notices, again)
+    assert all(any(text == f"Attempt 2 of 3: {m}" for text in shown) for m in again), (notices, again)
     assert all("device" not in text for text in shown), notices
     said, tones = heard["said"], heard["tones"]
     for axis in "XYZ":

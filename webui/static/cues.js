@@ -14,8 +14,9 @@ const remember = (key, on) => {
   try { localStorage.setItem(key, on ? "on" : "off"); } catch { /* private mode: for this page only */ }
 };
 
-/** The page's cues: ``tone(kind)``, ``say(text)`` and ``controls()`` (the two switches). */
-export function cues() {
+/** The page's cues: ``tone(kind)``, ``say(text)`` and ``controls()`` (the two switches). ``current``: the prompt on
+ * the screen now, read at once when she turns Read aloud on (else she would hear nothing until the next one). */
+export function cues({ current = null } = {}) {
   const on = { sound: remembered(KEYS.sound), speech: remembered(KEYS.speech) };
   const canSpeak = typeof window.speechSynthesis !== "undefined" && typeof window.SpeechSynthesisUtterance !== "undefined";
   const canSound = typeof window.AudioContext !== "undefined";
@@ -60,7 +61,15 @@ export function cues() {
       b.setAttribute("aria-pressed", String(on[what]));
       show();
       if (what === "sound") tone("step"); // the click is the gesture a browser asks before it plays sound
-      if (what === "speech") { said = ""; say(on.speech ? "Prompts will be read aloud." : ""); }
+      if (what === "speech") {
+        said = "";
+        say(on.speech ? "Prompts will be read aloud." : "");
+        const now = on.speech && canSpeak && current ? current() : "";
+        if (now) {
+          said = now;
+          window.speechSynthesis.speak(new SpeechSynthesisUtterance(now)); // after the line above, not instead of it
+        }
+      }
     });
     return b;
   };

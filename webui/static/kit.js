@@ -90,7 +90,9 @@ export function kitView(ctx, kitId) {
   const headline = h("h1", { id: "kit-title", class: "kit-prompt" }, "Loading the kit…");
   const sub = h("p", { class: "lead kit-sub" });
   const noticeBox = h("div", { class: "notice-box kit-notice" });
-  const sound = cues(); // her hands are on the tray: a tone at each prompt and the prompts read aloud, when she turns them on
+  // her hands are on the tray: a tone at each prompt and the prompts read aloud, when she turns them on (the one on the
+  // screen at once)
+  const sound = cues({ current: () => headline.textContent });
   const notices = sessionNotices({ thing: "tray", sound }); // the kit's warnings (a knock, a turn asked again and why, ...)
   notices.attach(noticeBox);
   const runningActions = h("div", { class: "kit-running-actions" },
