@@ -38,10 +38,11 @@ export function cues({ current = null } = {}) {
   };
 
   let said = "";
-  const say = (text) => {
+  // ``queued``: after what is being read, not instead of it
+  const say = (text, queued = false) => {
     if (!on.speech || !canSpeak || !text || text === said) return;
     said = text;
-    window.speechSynthesis.cancel(); // the newest prompt only: an old one read late would be wrong
+    if (!queued) window.speechSynthesis.cancel(); // the newest prompt only: an old one read late would be wrong
     window.speechSynthesis.speak(new SpeechSynthesisUtterance(text));
   };
 
@@ -64,11 +65,7 @@ export function cues({ current = null } = {}) {
       if (what === "speech") {
         said = "";
         say(on.speech ? "Prompts will be read aloud." : "");
-        const now = on.speech && canSpeak && current ? current() : "";
-        if (now) {
-          said = now;
-          window.speechSynthesis.speak(new SpeechSynthesisUtterance(now)); // after the line above, not instead of it
-        }
+        if (current) say(current(), true);
       }
     });
     return b;

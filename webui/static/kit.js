@@ -64,11 +64,13 @@ function departedText(departed) {
     `${one ? "its row says" : "their rows say"} what to do.`;
 }
 
+const passedIt = (d) => d.state === "done" && d.passed;
+
 /** A wearable's row. ``ident``: its Identify button and status line, for a wearable that did not pass (the clinician
  * takes that one out of the tray to seat it again or calibrate it alone), when its protocol can blink. */
 function deviceRow(d, ident) {
   const ended = ENDED.has(d.state);
-  const good = d.state === "done" && d.passed;
+  const good = passedIt(d);
   const k = d.result && Array.isArray(d.result.k) ? d.result.k : null;
   return h("li", { class: "kit-device", dataset: { device: d.device_id, state: d.state, passed: String(Boolean(d.passed)), departed: String(Boolean(d.departed)) } },
     h("span", { class: "kit-name" }, d.device_id),
@@ -140,7 +142,7 @@ export function kitView(ctx, kitId) {
       else li.removeAttribute("aria-current");
     }
     fill(rows, snap.devices.map((d) => deviceRow(d, idents && idents.get(d.device_id))));
-    if (!running && idents === null && snap.devices.some((d) => !(d.state === "done" && d.passed))) identifyLater(snap);
+    if (!running && idents === null && !snap.devices.every(passedIt)) identifyLater(snap);
     axesNote.textContent = running ? "" : axesText(snap);
     axesNote.hidden = !axesNote.textContent;
     if (running) {
@@ -157,7 +159,7 @@ export function kitView(ctx, kitId) {
     }
     notices.stop();
     fill(noticeBox, null);
-    const passed = snap.devices.filter((d) => d.state === "done" && d.passed && !d.departed);
+    const passed = snap.devices.filter((d) => passedIt(d) && !d.departed);
     const open = passed.filter((d) => !d.decision);
     headline.textContent = snap.state === "cancelled" ? "The kit's calibration was cancelled"
       : passed.length ? `Kit calibrated: ${passed.length} of ${names.length} passed` : "No wearable of the kit passed";
@@ -195,7 +197,7 @@ export function kitView(ctx, kitId) {
     idents = new Map();
     try {
       const known = new Map((await ctx.api.get("/devices")).map((dev) => [dev.id, dev]));
-      for (const d of snap.devices) {
+      for (const d of snap.devices.filter((row) => !passedIt(row))) {
         const ident = known.has(d.device_id) ? identifyButton(ctx.api, known.get(d.device_id)) : null;
         if (ident) idents.set(d.device_id, ident);
       }
