@@ -14,7 +14,6 @@ import argparse
 import contextlib
 import json
 import os
-import socket
 import subprocess
 import tempfile
 import time
@@ -22,16 +21,11 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+from local_service import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
 END = ("done", "failed", "cancelled")
 TOKEN = "bench-full-disk-token"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def fill(disk: Path) -> Path:
@@ -104,6 +98,8 @@ def main() -> None:
         proc.terminate()
         proc.wait(30)
         subprocess.run(["umount", "-l", str(disk)], check=False)
+        with contextlib.suppress(OSError):
+            disk.rmdir()
     if args.json:
         print(json.dumps(out))
     else:

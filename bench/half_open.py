@@ -23,14 +23,9 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+from local_service import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def trickle(port: int, n: int, stop: threading.Event, counts: dict[str, int]) -> None:

@@ -171,14 +171,12 @@ def _guided(n: int, sessions: int, hand: str | None = None, speed: float = 8.0, 
     import signal
     import subprocess
     import sys
-    import tempfile
-    from pathlib import Path
 
     import httpx
-    from local_service import free_port, wait_until_up
+    from local_service import free_port, scratch_dir, wait_until_up
 
     port = free_port()
-    tmp = Path(tempfile.mkdtemp(prefix="gyrocal-kit-guided-"))
+    tmp = scratch_dir("gyrocal-kit-guided-")
     env = {**os.environ, "GYROCAL_API_TOKEN": "bench"}
     proc = subprocess.Popen([sys.executable, "-m", "calib.cli.main", "serve", "--port", str(port), "--db",
                              f"sqlite:///{tmp / 'store.sqlite3'}", "--mock", str(n), "--mock-kit", "--mock-speed", str(speed),

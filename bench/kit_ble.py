@@ -17,13 +17,12 @@ import os
 import signal
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import httpx
 import numpy as np
-from local_service import free_port, wait_until_up
+from local_service import free_port, scratch_dir, wait_until_up
 
 ROOT = Path(__file__).resolve().parents[1]
 GYROCAL = [sys.executable, "-m", "calib.cli.main"]
@@ -38,7 +37,7 @@ def main() -> None:
     args = ap.parse_args()
     device = subprocess.Popen([*GYROCAL, "mock-device", "--ble", "--kit", args.models, "--seed", str(args.seed)],
                               cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    tmp = Path(tempfile.mkdtemp(prefix="gyrocal-kit-ble-"))
+    tmp = scratch_dir("gyrocal-kit-ble-")
     port = free_port()
     try:
         line = json.loads(device.stdout.readline())

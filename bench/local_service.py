@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import atexit
+import shutil
 import socket
+import tempfile
 import time
+from pathlib import Path
 
 import httpx
 
@@ -13,6 +17,13 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
+
+
+def scratch_dir(prefix: str) -> Path:
+    """A new directory under the system's temporary one (a benchmark's store, logs), removed when the benchmark ends."""
+    where = Path(tempfile.mkdtemp(prefix=prefix))
+    atexit.register(shutil.rmtree, where, True)
+    return where
 
 
 def wait_until_up(client: httpx.Client, timeout_s: float = 30.0) -> None:

@@ -11,25 +11,18 @@ from __future__ import annotations
 
 import argparse
 import os
-import socket
 import statistics
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 from pathlib import Path
 
 import httpx
+from local_service import free_port, scratch_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 SECRET = "bench secret 0123456789"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def health_ms(base: str, seconds: float) -> list[float]:
@@ -49,7 +42,7 @@ def main() -> None:
     ap.add_argument("--guess-s", type=float, default=65.0)
     ap.add_argument("--flood-s", type=float, default=15.0)
     args = ap.parse_args()
-    tmp = Path(tempfile.mkdtemp(prefix="gyrocal-login-"))
+    tmp = scratch_dir("gyrocal-login-")
     db = f"sqlite:///{tmp / 'store.sqlite3'}"
     gyrocal = [sys.executable, "-m", "calib.cli.main"]
     subprocess.run([*gyrocal, "operator", "--db", db, "add", "nurse", "--secret-stdin"], input=SECRET + "\n", text=True,

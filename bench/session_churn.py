@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import socket
 import subprocess
 import tempfile
 import time
@@ -20,15 +19,10 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+from local_service import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
 TOKEN = "bench-session-churn-token"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def rss_mb(pid: int) -> float:

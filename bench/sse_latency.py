@@ -20,10 +20,8 @@ import argparse
 import asyncio
 import json
 import os
-import socket
 import subprocess
 import sys
-import tempfile
 import time
 import uuid
 from pathlib import Path
@@ -31,16 +29,11 @@ from typing import Any
 
 import httpx
 import numpy as np
+from local_service import free_port, scratch_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 STAGE_EVENTS = {"state", "prompt", "warning"}  # what the stage detector causes (not the rate-limited live feed)
 END = {"done", "failed", "cancelled"}
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def _stat(pid: int) -> list[str] | None:
@@ -92,7 +85,7 @@ async def follow(client: httpx.AsyncClient, sid: str, out: list[dict[str, Any]])
 async def run(args: argparse.Namespace) -> dict[str, Any]:
     token = uuid.uuid4().hex
     port = free_port()
-    tmp = tempfile.mkdtemp(prefix="gyrocal-bench-")
+    tmp = scratch_dir("gyrocal-bench-")
     cmd = [sys.executable, "-m", "calib.cli.main", "serve", "--port", str(port), "--db", f"sqlite:///{tmp}/bench.sqlite3",
            "--mock", str(args.devices), "--mock-rate", str(args.rate), "--mock-speed", str(args.speed),
            "--mock-seed", str(args.seed), "--log-level", "warning"]

@@ -19,28 +19,21 @@ import argparse
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
-import tempfile
 import time
 from collections import Counter
 from pathlib import Path
 from typing import Any
 
 import httpx
+from local_service import free_port, scratch_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 END = ("done", "failed", "cancelled")
 CLINICIAN_REASONS = {"not_still", "no_motion", "moved_during_pause", "wrong_axis", "too_fast", "turn_incomplete",
                      "turn_too_far", "turn_too_long"}
 TOKEN = "bench-starved-service-token"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 class CpuQuota:
@@ -80,7 +73,7 @@ class CpuQuota:
 
 def run(devices: int, quota: float | None, stop_s: float | None, gyrocal: str) -> list[dict[str, Any]]:
     port = free_port()
-    db = Path(tempfile.mkdtemp(prefix="gyrocal-starved-")) / "store.sqlite3"
+    db = scratch_dir("gyrocal-starved-") / "store.sqlite3"
     cgroup = CpuQuota() if quota is not None else None
     env = {**os.environ, "GYROCAL_API_TOKEN": TOKEN}
     proc = subprocess.Popen([gyrocal, "serve", "--mock", str(devices), "--port", str(port), "--db", f"sqlite:///{db}",

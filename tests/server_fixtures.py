@@ -5,7 +5,6 @@ Registered as a plugin by tests/conftest.py: the fixtures need no import; the he
 
 from __future__ import annotations
 
-import atexit
 import contextlib
 import glob
 import json
@@ -32,8 +31,12 @@ T = TypeVar("T")
 GYROCAL = [sys.executable, "-m", "calib.cli.main"]
 API_TOKEN = "test-token-" + uuid.uuid4().hex
 # the logs of the services this test process starts (read by tests after a service stopped), removed as it ends
+# (pytest_unconfigure: an xdist worker leaves without running atexit's handlers)
 SERVICE_LOGS = tempfile.mkdtemp(prefix="gyrocal-serve-logs-")
-atexit.register(shutil.rmtree, SERVICE_LOGS, True)
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    shutil.rmtree(SERVICE_LOGS, ignore_errors=True)
 
 
 def free_port() -> int:
