@@ -5,8 +5,8 @@ Each streaming session of a wearable is one performance of the tray: the wearabl
 ``JOIN_S`` of the first play the same performance, each from the moment its own stream starts (the estimator aligns
 their clocks from the motion, as it does for wearables that start recording at different moments). The clinician is
 scripted: the paper's protocol with rests long enough for the service's prompts (``KIT_REST_S``); it does not redo a
-step after a link loss. ``loose`` (0-based) slips in its slot
-during the second turn of every performance; ``drop`` (0-based) goes out of range for ``DROP_S`` in the middle of the
+step after a link loss. ``loose`` (0-based) slips in its slot during the second turn of every performance (with
+``loose_in`` "pause": in the pause after it); ``drop`` (0-based) goes out of range for ``DROP_S`` in the middle of the
 first turn.
 """
 
@@ -26,6 +26,15 @@ from .sources import Block
 
 KIT_REST_S = 5.0  # the tray's rests: the first rest and the pauses between turns, s
 SLIP_DEG = 2.0  # how far a loose wearable slips, deg
+LOOSE_IN = ("turn", "pause")  # when a loose wearable slips: during the second turn, or in the pause after it
+
+
+def loose_slip(loose: int | None, loose_in: str = "turn") -> Slip | None:
+    """How wearable ``loose`` (0-based; None: none is loose) slips in its slot: ``SLIP_DEG`` in the tray's second turn,
+    or with ``loose_in`` "pause" early in the pause after it (the tray resting still)."""
+    if loose_in not in LOOSE_IN:
+        raise ValueError(f"a loose wearable slips in a turn or a pause ({', '.join(LOOSE_IN)}); got {loose_in!r}")
+    return None if loose is None else Slip(loose, SLIP_DEG, 1, in_pause=loose_in == "pause")
 PERFORMANCES_KEPT = 4
 DROP_S = 1.5  # how long the dropping wearable is out of range, s
 JOIN_S = 3.0  # streams starting this close (wall time, s) to a performance's first join it
@@ -64,8 +73,9 @@ class Tray:
     """The tray the kit's simulated wearables ride in, and its performances (one per streaming session)."""
 
     def __init__(self, seed: int, n: int, noise_dps: float = 0.03, loose: int | None = None, drop: int | None = None,
-                 misalignment: float = 0.0) -> None:
+                 misalignment: float = 0.0, loose_in: str = "turn") -> None:
         self.seed, self.n, self.noise_dps, self.loose, self.drop = int(seed), int(n), float(noise_dps), loose, drop
+        self.slip = loose_slip(loose, loose_in)
         self.params = tray_sensors(self.seed, self.n, misalignment)  # the same sensors every performance
         self._performances: dict[int, KitTray] = {}
         self._joins = Joins()
@@ -81,9 +91,8 @@ class Tray:
                 self._performances.pop(min(self._performances))
             rng = np.random.default_rng([self.seed, number, 0x5C])
             script = paper_protocol_script(rng, still_s=KIT_REST_S, final_still_s=KIT_REST_S)
-            slip = Slip(self.loose, SLIP_DEG, 1) if self.loose is not None else None
             self._performances[number] = KitTray(self.seed * 1000 + number, self.n, noise=self.noise_dps, script=script,
-                                                 params=self.params, clock_error=0.0, slip=slip)
+                                                 params=self.params, clock_error=0.0, slip=self.slip)
         return self._performances[number]
 
 

@@ -26,7 +26,7 @@ from calib.simulator import ProtocolScript, Segment, SensorParams, Still, Turn
 from calib.simulator.kit import KitDeviceTruth, KitTray, Slip
 
 from .hand import HANDS, Act, PromptHand
-from .kit import SLIP_DEG, Joins, resting_after, tray_sensors
+from .kit import Joins, loose_slip, resting_after, tray_sensors
 from .scenarios import LinkFaults
 from .sources import Block
 
@@ -36,8 +36,8 @@ REST_AHEAD_S = 20.0  # the rest simulated after the hand's latest act, s (past i
 class TrayPerformance:
     """One performance of a prompted tray: the hand's plan so far, and each wearable's readings of it."""
 
-    def __init__(self, seed: int, params: list[SensorParams], hand: PromptHand, noise_dps: float, loose: int | None) -> None:
-        self.seed, self.params, self.hand, self.noise_dps, self.loose = seed, params, hand, float(noise_dps), loose
+    def __init__(self, seed: int, params: list[SensorParams], hand: PromptHand, noise_dps: float, slip: Slip | None) -> None:
+        self.seed, self.params, self.hand, self.noise_dps, self.slip = seed, params, hand, float(noise_dps), slip
         self.segments: list[Segment] = [Still(REST_AHEAD_S)]
         self.now_s = 0.0  # the latest moment of the tray (true time, s) any wearable has streamed
         self._lock = threading.Lock()  # the hand sees snapshots on the follower's thread and acts on the streaming one
@@ -47,7 +47,7 @@ class TrayPerformance:
 
     def _build(self) -> KitTray:
         turns = sum(isinstance(s, Turn) for s in self.segments)
-        slip = Slip(self.loose, SLIP_DEG, 1) if self.loose is not None and turns >= 2 else None
+        slip = self.slip if self.slip is not None and turns > self.slip.turn else None  # once its turn is played
         return KitTray(self.seed, len(self.params), noise=self.noise_dps, script=ProtocolScript(tuple(self.segments)),
                        params=self.params, clock_error=0.0, slip=slip)
 
@@ -99,8 +99,9 @@ class PromptedTray:
     """The tray the kit's simulated wearables ride in, turned by one prompt-following hand of style ``hand``."""
 
     def __init__(self, seed: int, n: int, hand: str, noise_dps: float = 0.03, loose: int | None = None,
-                 misalignment: float = 0.0) -> None:
+                 misalignment: float = 0.0, loose_in: str = "turn") -> None:
         self.seed, self.n, self.style, self.noise_dps, self.loose = int(seed), int(n), HANDS[hand], float(noise_dps), loose
+        self.slip = loose_slip(loose, loose_in)
         self.params = tray_sensors(self.seed, self.n, misalignment)  # the same sensors every performance
         self.performance: TrayPerformance | None = None
         self._joins = Joins()
@@ -111,7 +112,7 @@ class PromptedTray:
         if new or self.performance is None:
             # a hand that stops a turn where the device reads short reads the tray's first wearable
             hand = PromptHand(self.style, np.random.default_rng([self.seed, number, 0x4A4D]), device_k=self.params[0].k)
-            self.performance = TrayPerformance(self.seed * 1000 + number, self.params, hand, self.noise_dps, self.loose)
+            self.performance = TrayPerformance(self.seed * 1000 + number, self.params, hand, self.noise_dps, self.slip)
         return self.performance
 
     def observe(self, snap: dict[str, Any]) -> None:

@@ -45,11 +45,13 @@ def wearable(*, seed: int, scenario: str, speed: float, name: str, rate_hz: floa
 
 def kit(*, seed: int, n: int, speed: float, names: list[str], rate_hz: float | None, noise_dps: float,
         model: str = "gyrocal", loose: int | None = None, drop: int | None = None, hand: str | None = None,
-        service_url: Callable[[], str | None] | None = None, misalignment: float = 0.0) -> list[Wearable]:
+        service_url: Callable[[], str | None] | None = None, misalignment: float = 0.0,
+        loose_in: str = "turn") -> list[Wearable]:
     """``n`` simulated wearables speaking ``model``'s protocol, riding in one tray that one clinician turns through the
     protocol whenever their streams start: a scripted one (``mock_device.kit``), or with ``hand`` a ``hand:<style>``
     clinician who follows the prompts of the kit session that holds wearables of the tray on the service at
-    ``service_url()`` (``mock_device.prompted_kit``). ``loose`` (0-based) slips in its slot during the second turn;
+    ``service_url()`` (``mock_device.prompted_kit``). ``loose`` (0-based) slips in its slot during the second turn
+    (``loose_in`` "pause": in the pause after it);
     ``drop`` (scripted clinician only) loses its link for a moment in the first. ``misalignment``: the sensors' axes
     are not orthogonal (``mock_device.kit.tray_sensors``)."""
     from .kit import KitSource, Tray
@@ -58,14 +60,14 @@ def kit(*, seed: int, n: int, speed: float, names: list[str], rate_hz: float | N
     sources: list[SampleSource]
     if hand is not None:
         prompted = PromptedTray(seed, n, hand.removeprefix(HAND_PREFIX), noise_dps=noise_dps, loose=loose,
-                                misalignment=misalignment)
+                                misalignment=misalignment, loose_in=loose_in)
         follower = KitFollower(names, prompted.observe, service_url or (lambda: None)).start()
         in_tray = [PromptedKitSource(prompted, i) for i in range(n)]
         for one in in_tray:
             one.streaming = follower.wake
         sources = list(in_tray)
     else:
-        tray = Tray(seed, n, noise_dps=noise_dps, loose=loose, drop=drop, misalignment=misalignment)
+        tray = Tray(seed, n, noise_dps=noise_dps, loose=loose, drop=drop, misalignment=misalignment, loose_in=loose_in)
         sources = [KitSource(tray, i) for i in range(n)]
     return [WEARABLES[model](source, seed=seed * 1000 + i + 1, speed=speed, name=names[i], rate_hz=rate_hz)
             for i, source in enumerate(sources)]

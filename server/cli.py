@@ -70,6 +70,9 @@ def register(sub: Any) -> None:
                         "one who follows the kit's prompts")
     p.add_argument("--mock-kit-loose", type=int, default=None, metavar="I",
                    help="with --mock-kit: the I-th simulated wearable (from 1) slips in its slot during the second turn")
+    p.add_argument("--mock-kit-loose-in", choices=("turn", "pause"), default="turn",
+                   help="with --mock-kit-loose: it slips during the second turn (default), or in the pause after it, the "
+                        "tray resting still")
     p.add_argument("--mock-kit-drop", type=int, default=None, metavar="I",
                    help="with --mock-kit: the I-th simulated wearable (from 1) goes out of range for 1.5 s in the first turn")
     p.add_argument("--mock-kit-misalignment", type=float, default=0.0, metavar="M",
@@ -211,6 +214,8 @@ def build_service(args: argparse.Namespace) -> Any:
     for flag, value in (("--mock-kit-loose", args.mock_kit_loose), ("--mock-kit-drop", args.mock_kit_drop)):
         if value is not None and not (args.mock_kit and 1 <= value <= args.mock):
             raise ServiceError(f"{flag} names one of the kit's simulated wearables, from 1 to {args.mock}, with --mock-kit")
+    if args.mock_kit_loose_in != "turn" and args.mock_kit_loose is None:
+        raise ServiceError("--mock-kit-loose-in says when the wearable of --mock-kit-loose slips: give --mock-kit-loose I too")
     if args.mock_kit_misalignment and not (args.mock_kit and 0.0 < args.mock_kit_misalignment < 0.5):
         raise ServiceError("--mock-kit-misalignment is the largest cross-axis entry of each simulated sensor's K, between 0 "
                            "and 0.5 (e.g. 0.01), with --mock-kit")
@@ -290,7 +295,7 @@ def build_service(args: argparse.Namespace) -> Any:
                           first=args.mock_first, model=args.mock_model, kit=args.mock_kit,
                           loose=None if args.mock_kit_loose is None else args.mock_kit_loose - 1,
                           drop=None if args.mock_kit_drop is None else args.mock_kit_drop - 1,
-                          misalignment=args.mock_kit_misalignment)
+                          misalignment=args.mock_kit_misalignment, loose_in=args.mock_kit_loose_in)
     return Service(settings, store=store, devices=devices)
 
 

@@ -8,6 +8,12 @@ Rigidly held, every wearable's calibrated rates, turned into the reference's fra
 each integrates stays the same as the others', up to the noise's random walk. A wearable that slipped by an angle
 ends every later rest turned by that angle against the rest of the kit. ``departures`` measures, for each wearable,
 how far its attitude came apart from the others' at the rests, against what the noise allows, and when.
+
+A slip while the tray rests shows less at the rests than it turned: its rate in that rest is read as part of its bias,
+whose error then carries it back over the rest of the motion. So a wearable whose rate came apart in a burst while the
+tray rested is also measured across the burst alone (its attitude just before against just after), and how far it
+turned is the larger. (Across a burst in a turn, the attitudes of a still uncalibrated wearable and the kit's drift
+apart too fast for that: a slip in a turn is measured at the rests, which its rate does not touch.)
 """
 
 from __future__ import annotations
@@ -27,6 +33,7 @@ MODEL_FLOOR_DEG = 0.02  # what a rigid tray's coupling leaves unexplained beyond
 BURST_WINDOW_S = 0.25  # a wearable moving in its slot shows as a burst of rate against the others' over this long
 BURST_DPS = 1.0  # ... departed when its rms is over this (deg/s) and ``BURST_NOISE`` times what the noise gives
 BURST_NOISE = 25.0
+TRAY_STILL_DPS = 5.0  # the tray rests while the others' rates stay under this (deg/s)
 
 
 @dataclass(frozen=True)
@@ -40,10 +47,17 @@ class Departure:
     at_s: float | None
     departed: bool
     burst_dps: float = float("nan")  # the largest rms rate against the others' over BURST_WINDOW_S, deg/s
+    step_deg: float = float("nan")  # how far its attitude turned against the others' across that burst, when it departed
+
+    @property
+    def turned_deg(self) -> float:
+        """How far it turned against the rest of the kit (deg): at the rests, or across its burst when that is more
+        (nan with neither)."""
+        return float(np.fmax(self.angle_deg, self.step_deg))
 
     def to_dict(self) -> KitDeparture:
         return KitDeparture(angle_deg=self.angle_deg, std_deg=self.std_deg, p_value=self.p_value, at_s=self.at_s,
-                            departed=self.departed, burst_dps=self.burst_dps)
+                            departed=self.departed, burst_dps=self.burst_dps, step_deg=self.step_deg)
 
 
 NO_DEPARTURE = Departure(float("nan"), float("nan"), float("nan"), None, False)  # one wearable left: nothing to depart from
@@ -90,6 +104,21 @@ def _departure(own: np.ndarray, others: np.ndarray, t: np.ndarray, dt: float, re
     peak = int(np.argmax(power))
     burst = float(np.sqrt(power[peak]))
     burst_out = burst > max(BURST_DPS, BURST_NOISE * float(np.sqrt(np.sum(diff_var))))
-    if burst_out and at_s is None:
+    step = _step(apart, others, peak, width) if burst_out else float("nan")
+    if burst_out and (at_s is None or step > angle):
         at_s = float(t[peak])
-    return Departure(angle, std, p, at_s, bool((angle >= DEPARTURE_DEG and p < DEPARTURE_ALPHA) or burst_out), burst)
+    return Departure(angle, std, p, at_s, bool((angle >= DEPARTURE_DEG and p < DEPARTURE_ALPHA) or burst_out), burst,
+                     step)
+
+
+def _step(apart: Rotation, others: np.ndarray, peak: int, width: int) -> float:
+    """How far ``apart`` turned across the burst centred on sample ``peak`` (``width`` samples wide), deg: its mean
+    over ``width`` samples just before the burst against its mean just after; nan unless the tray (``others``' rate)
+    rested throughout, or at an end of the recording."""
+    before, after = (peak - 2 * width, peak - width), (peak + width, peak + 2 * width)
+    if before[0] < 0 or after[1] > len(apart):
+        return float("nan")
+    if np.linalg.norm(others[before[0]:after[1]], axis=1).max() > TRAY_STILL_DPS:
+        return float("nan")
+    mean = [Rotation.from_rotvec(apart[a:b].as_rotvec().mean(axis=0)) for a, b in (before, after)]
+    return float(np.degrees(np.linalg.norm((mean[0].inv() * mean[1]).as_rotvec())))

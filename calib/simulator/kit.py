@@ -28,16 +28,20 @@ MOUNT_DEG = 2.0  # largest mounting rotation of a wearable in its slot, deg (dra
 CLOCK_ERROR = 0.01  # largest clock error of a wearable, fraction (drawn uniform in -this..this)
 START_SPREAD_S = 0.5  # wearables start (and stop) recording up to this long apart, s
 SLIP_S = 0.2  # how long a slip in the slot takes, s
+PAUSE_SLIP_AFTER_S = 1.0  # a slip in a pause starts this long after the turn before it ended (the pause is 2 s)
 OVERSAMPLE = 4  # the tray's motion is generated at this many times the wearables' rate
 
 
 @dataclass(frozen=True)
 class Slip:
-    """Wearable ``device`` (0-based) turns by ``angle_deg`` in its slot during turn ``turn`` (0-based) of the script."""
+    """Wearable ``device`` (0-based) turns by ``angle_deg`` in its slot during turn ``turn`` (0-based) of the script,
+    or with ``in_pause`` in the pause after it, ``PAUSE_SLIP_AFTER_S`` after the tray came to rest (it settles in its
+    slot while the tray stays still)."""
 
     device: int
     angle_deg: float
     turn: int = 1
+    in_pause: bool = False
 
     def __post_init__(self) -> None:
         if self.device < 0 or self.turn < 0:
@@ -203,10 +207,18 @@ def _unit(rng: np.random.Generator) -> np.ndarray:
 
 
 def _slip_window(tray: Trajectory, slip: Slip) -> tuple[float, float]:
-    """When the slip happens (true time, s): in the middle of the turn it is asked for."""
+    """When the slip happens (true time, s): in the middle of the turn it is asked for, or early in the pause after it
+    (a pause that fixed time after the turn: a plan that grows after it does not move it)."""
     turns = [s for s in tray.stages if s.kind == "turn"]
     if slip.turn >= len(turns):
         raise SimulationConfigError(f"the script has {len(turns)} turns; a slip in turn {slip.turn} (0-based) cannot happen")
     turn = turns[slip.turn]
+    if slip.in_pause:
+        start = turn.end_s + PAUSE_SLIP_AFTER_S
+        after = [s for s in tray.stages if s.start_s >= turn.end_s - 1e-9 and s.kind != "still"]
+        if after and after[0].start_s < start + SLIP_S:
+            raise SimulationConfigError(f"the pause after turn {slip.turn} (0-based) lasts {after[0].start_s - turn.end_s:.2f} s: "
+                                        f"a slip {PAUSE_SLIP_AFTER_S:g} s into it needs {PAUSE_SLIP_AFTER_S + SLIP_S:g} s")
+        return start, start + SLIP_S
     middle = 0.5 * (turn.start_s + turn.end_s)
     return middle - 0.5 * SLIP_S, middle + 0.5 * SLIP_S

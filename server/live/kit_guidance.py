@@ -18,6 +18,15 @@ def of_the_tray(text: str) -> str:
 KIT_CONNECTING = "Connecting to the wearables…"
 
 
+def came_apart(turned_deg: float, showed_by_turning: bool) -> str:
+    """The reason of a wearable that came apart from its kit. ``turned_deg``: how far it turned against the others
+    (calib.kit.departure.Departure.turned_deg); said only when that is what showed it (``showed_by_turning``), as a slip
+    about the axis being turned leaves no angle its own k does not absorb, only a jump of its rate."""
+    moved = f" (it turned {turned_deg:.1f}° against the others)" if showed_by_turning else ""
+    return (f"The wearable came apart from the kit{moved}: it moved in its slot, or its readings do not follow the tray. "
+            "Seat it firmly in its slot, then calibrate it alone or with the kit.")
+
+
 def kit_link_restored(device_id: str) -> str:
     """A kit's wearable is back: the tray is not turned again for it (the kit bridges what it missed)."""
     return f"Reconnected to {device_id}: the kit goes on."

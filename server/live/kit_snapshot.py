@@ -126,7 +126,7 @@ def kit_warnings(snaps: list[SessionOut]) -> list[SessionWarning]:
                        else say.kit_sample_loss(device_id) if w.code == EndReason.SAMPLE_LOSS
                        else w.message if w.code in NAMED
                        else f"{device_id}: {say.of_the_tray(w.message)}")
-            out.append(w.model_copy(update={"message": message}))
+            out.append(w.model_copy(update={"message": message, "device_id": device_id}))
         elif not any(code == w.code and by != device_id and abs((at - t).total_seconds()) <= SAME_EVENT_S
                      for t, code, by in said):
             said.append((at, w.code, device_id))

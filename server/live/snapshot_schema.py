@@ -35,6 +35,8 @@ class SessionWarning(BaseModel):
     message: str = Field(description="what happened, in the clinician's words")
     t_device_s: float = Field(description="the device's time when it happened, s")
     at: str = Field(description="when it happened (ISO 8601, UTC)")
+    device_id: str | None = Field(None, description="in a kit's warnings, the wearable it is of (its link, its data, "
+                                                    "a turn of its own, loose in its slot); null when it is the tray's")
 
 
 class StillProgress(BaseModel):
@@ -136,6 +138,8 @@ class KitMemberConsistency(BaseModel):
     departed: bool = False
     burst_dps: float | None = Field(None, description="the largest rms of its rate against the others' over a quarter "
                                     "second, deg/s (a wearable moving in its slot)")
+    step_deg: float | None = Field(None, description="how far its attitude turned against the others' across that "
+                                   "burst, when the tray rested through it (a slip there shows less at the rests), deg")
 
 
 class KitAxesOut(BaseModel):

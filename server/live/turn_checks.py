@@ -223,7 +223,7 @@ class TurnChecks:
             said = kit_say.kit_clipped_turn(self.device_id, axis, self.full_scale, passed)
         else:
             said = kit_say.kit_closed_turn(self.device_id, held.message, passed)
-        self._warn("kit_closed_turn", said)
+        self._warn("kit_moved_alone" if moved_alone else "kit_closed_turn", said)
         self._early = None
         self._set_phase(Phase.PAUSE, say.pause_prompt(axis, self._next_axis()))
 

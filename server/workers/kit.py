@@ -7,6 +7,7 @@ from typing import Any
 
 from calib.recording import Recording
 
+from ..live import kit_guidance as say
 from ..live.codes import EndReason
 from .compute import LiveOutcome, recording_csv
 
@@ -29,6 +30,7 @@ def calibrate_kit_live(recordings: list[Recording], names: list[str],
     turn of the kit's. A wearable that departed from the kit gets no result: the reason says what happened and what to
     do."""
     from calib.errors import GyrocalError, Refusal
+    from calib.kit.departure import DEPARTURE_DEG
     from calib.kit.estimator import calibrate_kit
 
     csvs = {name: recording_csv(rec) for name, rec in zip(names, recordings, strict=True)}
@@ -42,11 +44,9 @@ def calibrate_kit_live(recordings: list[Recording], names: list[str],
     for member in kit.members:
         if member.departed:
             d = member.coherence.departure if member.coherence is not None else None
-            moved = f" (it turned {d.angle_deg:.1f}° against the others)" if d is not None and d.angle_deg == d.angle_deg else ""
-            outcomes[member.name] = LiveOutcome(
-                None, f"The wearable came apart from the kit{moved}: it moved in its slot, or its readings do not follow "
-                "the tray. Seat it firmly in its slot, then calibrate it alone or with the kit.", None, csvs[member.name],
-                EndReason.DEPARTED)
+            turned = d.turned_deg if d is not None else float("nan")
+            outcomes[member.name] = LiveOutcome(None, say.came_apart(turned, turned >= DEPARTURE_DEG), None,
+                                                csvs[member.name], EndReason.DEPARTED)
         else:
             outcomes[member.name] = LiveOutcome(member.result, None, None, csvs[member.name])
     return KitOutcome(outcomes, kit.consistency(), kit.departed)

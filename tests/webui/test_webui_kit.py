@@ -1,5 +1,6 @@
 """A whole kit from the page, in Debian's Chromium against the real service with four simulated wearables in one tray
-(`--mock-kit`, the fourth slipping in its slot, their sensors' axes up to 1 % from square), turned by a clinician who
+(`--mock-kit`, the fourth slipping in its slot while the tray rests after its turn about Y, their sensors' axes up
+to 1 % from square), turned by a clinician who
 follows the kit's prompts as the page shows them (`--mock-scenario hand:careful`): the operator ticks three of them
 (mock-1 stays out of the kit, so the clinician finds the kit by the others), calibrates them together, follows one set
 of prompts for the tray, sees each wearable's state as a row, and accepts every one that passed at once (each with
@@ -34,7 +35,8 @@ new MutationObserver(() => {
 
 @pytest.fixture(scope="module")
 def kit_service() -> Iterator[Any]:
-    with running_service(["hand:careful"] * 4, "--mock-kit", "--mock-kit-loose", "4", "--mock-kit-misalignment", "0.01") as svc:
+    with running_service(["hand:careful"] * 4, "--mock-kit", "--mock-kit-loose", "4", "--mock-kit-loose-in", "pause",
+                         "--mock-kit-misalignment", "0.01") as svc:
         yield svc
 
 
@@ -55,12 +57,18 @@ def _wait_done(page: Any, service: Any, kit_id: str) -> None:
 
 def _record_cues(page: Any) -> None:
     """Record in the page what passes too quickly to wait for: how far the stillness ring beside the tray filled while
-    the kit rested first (in %, and its label), and the largest angle the gauge showed in each turn."""
+    the kit rested first (in %, and its label), the largest angle the gauge showed in each turn, and each running row's
+    line and buttons of a wearable that moved in its slot ("moved": device -> [kit state, its line, its buttons])."""
     page.evaluate("""() => {
-      window.cues = { ring: 0, ringLabel: null, gauge: {} };
+      window.cues = { ring: 0, ringLabel: null, gauge: {}, moved: {} };
       new MutationObserver(() => {
         const kit = document.querySelector('.kit'), ring = document.querySelector('.kit-cue .ring-wrap'),
               gauge = document.querySelector('.kit-cue .gauge-wrap');
+        for (const line of document.querySelectorAll('.kit-device .kit-moved')) {
+          const row = line.closest('.kit-device');
+          window.cues.moved[row.dataset.device] = [kit.dataset.state, line.textContent,
+            [...row.querySelectorAll('button, a.button')].map((b) => b.textContent.trim())];
+        }
         if (kit && ring && kit.dataset.state === 'still') {
           window.cues.ringLabel = ring.getAttribute('aria-label');
           window.cues.ring = Math.max(window.cues.ring, Number(ring.getAttribute('aria-valuenow')));
@@ -76,6 +84,7 @@ def _record_cues(page: Any) -> None:
 def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_passed_accepted_at_once(
         browser: Any, kit_service: Any, page_watch: Watch, artifacts: Any) -> None:
     with watched_page(browser, kit_service, page_watch) as page:
+        page.add_init_script(NOTICES)
         wizard = Wizard(page, kit_service, artifacts / "webui" / "kit")
         wizard.sign_in()
         start = page.locator("#kit-start")
@@ -104,7 +113,25 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
             assert page.locator(".kit-device").count() == 3
             if axis == "x":
                 wizard.shot("kit-turn-x")
+        # mock-4 settles in its slot in the pause after the turn about Y: while the kit runs its row says so, with
+        # Identify to find it in the tray (the notice names it too, and goes after a while)
+        moving = page.locator(".kit-device[data-device='mock-4'] button.identify")
+        moving.wait_for(timeout=30_000)
+        moving.click()
+        wizard.shot("kit-moved-in-its-slot")
         _wait_done(page, kit_service, kit_id)
+        moved = page.evaluate("() => window.cues.moved")
+        assert list(moved) == ["mock-4"], moved
+        state, line, buttons = moved["mock-4"]
+        assert state in ("turn_y", "turn_z", "computing") and buttons == ["Identify"], moved
+        assert line == "It moved in its slot while the rest of the kit stayed still: seat it firmly.", moved
+        said = ("mock-4 moved during the pause after the turn about Y while the rest of the kit (mock-2, mock-3) stayed "
+                "still: it may be loose in its slot. Seat it firmly; the tray goes on.")
+        notices = page.evaluate("() => window.notices")
+        assert any(n.split("|", 1)[1] == said for n in notices), notices
+        with api(kit_service) as c:  # the warning names it for a program too
+            warned = [w for w in c.get(f"/sessions/{kit_id}").json()["warnings"] if w["code"] == "kit_moved_alone"]
+            assert [(w["device_id"], w["message"]) for w in warned] == [("mock-4", said)], warned
         # beside the tray, as for one wearable: the ring counted the first rest, the gauge followed each turn
         cues = page.evaluate("() => window.cues")
         assert cues["ring"] >= 50 and cues["ringLabel"] == "Time the tray has been still", cues

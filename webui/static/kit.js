@@ -66,22 +66,37 @@ function departedText(departed) {
 
 const passedIt = (d) => d.state === "done" && d.passed;
 
-/** A wearable's row. ``ident``: its Identify button and status line, for a wearable that did not pass (the clinician
- * takes that one out of the tray to seat it again or calibrate it alone), when its protocol can blink. */
-function deviceRow(d, ident) {
+/** The wearables the kit named as moving alone in their slots (the rest of the kit still): to be seated firmly. */
+function movedAlone(snap) {
+  return new Set((snap.warnings || []).filter((w) => w.code === "kit_moved_alone" && w.device_id).map((w) => w.device_id));
+}
+
+/** The wearables whose rows offer Identify, for the clinician to find them in the tray: while the kit runs, those that
+ * moved in their slots (to seat firmly); once it ended, those that did not pass (to take out, seat again or redo). */
+function toFind(snap) {
+  if (!ENDED.has(snap.state)) return [...movedAlone(snap)];
+  return snap.devices.filter((d) => !passedIt(d)).map((d) => d.device_id);
+}
+
+/** A wearable's row. ``ident``: its Identify button and status line, when its protocol can blink and the clinician
+ * is to find it in the tray (``toFind``); ``moved``: the kit named it moving in its slot while the kit runs. */
+function deviceRow(d, ident, moved) {
   const ended = ENDED.has(d.state);
   const good = passedIt(d);
   const k = d.result && Array.isArray(d.result.k) ? d.result.k : null;
+  const seat = !ended && moved;
   return h("li", { class: "kit-device", dataset: { device: d.device_id, state: d.state, passed: String(Boolean(d.passed)), departed: String(Boolean(d.departed)) } },
     h("span", { class: "kit-name" }, d.device_id),
     h("span", { class: `kit-state ${ended ? (good ? "pass" : "fail") : ""}` },
-      icon(ended ? (good ? "pass" : "fail") : d.state === "reconnecting" ? "warn" : "busy"), h("span", null, stateText(d))),
+      icon(ended ? (good ? "pass" : "fail") : d.state === "reconnecting" || seat ? "warn" : "busy"), h("span", null, stateText(d))),
     k ? h("span", { class: "kit-k" }, `k ${AXES.map((a, i) => `${a.toUpperCase()} ${num(k[i], 4)}`).join(" · ")}`) : null,
     ended && !good && d.reason ? h("span", { class: "kit-reason" }, d.reason) : null,
+    seat ? h("span", { class: "kit-reason kit-moved" }, "It moved in its slot while the rest of the kit stayed still: seat it firmly.") : null,
     ended && !good ? h("div", { class: "kit-row-actions" },
       h("a", { class: "button small kit-redo", href: `#/place/${encodeURIComponent(d.device_id)}` }, icon("redo"), "Redo alone"),
       ident ? ident.button : null) : null,
-    ended && !good && ident ? ident.line : null);
+    seat && ident ? h("div", { class: "kit-row-actions" }, ident.button) : null,
+    (seat || (ended && !good)) && ident ? ident.line : null);
 }
 
 /** One kit session, as the service has it. */
@@ -105,9 +120,11 @@ export function kitView(ctx, kitId) {
   const cue = h("div", { class: "kit-cue", hidden: true });
   const picture = h("div", { class: "kit-picture" }, tray, cue);
   let live = { key: null, ring: null, gauge: null };
-  // the Identify buttons of the wearables that did not pass, made once the kit ended (null: not asked yet), so that a
-  // status line ("mock-3 blinks its light…") stays while the page shows the kit again after an accept
-  let idents = null;
+  // the Identify buttons of the wearables to find in the tray (``toFind``), each made once, so that its status line
+  // ("mock-3 blinks its light…") stays while the rows are drawn again; ``devices``: GET /devices, asked once
+  const idents = new Map();
+  const asked = new Set();
+  let devices = null;
   let last = null;
   const steps = h("ol", { class: "kit-steps" }, STEPS.map(([key, label]) => h("li", { dataset: { step: key } }, label)));
   const rows = h("ul", { class: "kit-devices", "aria-label": "Every wearable of the kit", "aria-live": "polite" });
@@ -141,8 +158,10 @@ export function kitView(ctx, kitId) {
       if (i === at) li.setAttribute("aria-current", "step");
       else li.removeAttribute("aria-current");
     }
-    fill(rows, snap.devices.map((d) => deviceRow(d, idents && idents.get(d.device_id))));
-    if (!running && idents === null && !snap.devices.every(passedIt)) identifyLater(snap);
+    const moved = movedAlone(snap);
+    fill(rows, snap.devices.map((d) => deviceRow(d, idents.get(d.device_id), moved.has(d.device_id))));
+    const find = toFind(snap).filter((id) => !asked.has(id));
+    if (find.length) identifyLater(find);
     axesNote.textContent = running ? "" : axesText(snap);
     axesNote.hidden = !axesNote.textContent;
     if (running) {
@@ -192,17 +211,23 @@ export function kitView(ctx, kitId) {
     ctx.banner(null);
   };
 
-  /** Which of the kit's wearables that did not pass can blink (GET /devices), then the rows again with their buttons. */
-  async function identifyLater(snap) {
-    idents = new Map();
+  /** Which of these wearables can blink (GET /devices, asked once), then the rows again with their buttons. */
+  async function identifyLater(ids) {
+    for (const id of ids) asked.add(id);
     try {
-      const known = new Map((await ctx.api.get("/devices")).map((dev) => [dev.id, dev]));
-      for (const d of snap.devices.filter((row) => !passedIt(row))) {
-        const ident = known.has(d.device_id) ? identifyButton(ctx.api, known.get(d.device_id)) : null;
-        if (ident) idents.set(d.device_id, ident);
+      devices = devices || ctx.api.get("/devices").then((list) => new Map(list.map((dev) => [dev.id, dev])));
+      const known = await devices;
+      let made = false;
+      for (const id of ids) {
+        const ident = known.has(id) ? identifyButton(ctx.api, known.get(id)) : null;
+        if (ident) idents.set(id, ident);
+        made = made || Boolean(ident);
       }
-    } catch { /* without the list the rows keep "Redo alone", which opens the wearable's own page and its Identify */ }
-    if (alive && idents.size) render(last);
+      if (alive && made) render(last);
+    } catch {
+      // without the list a row keeps "Redo alone", which opens the wearable's own page and its Identify
+      devices = null;
+    }
   }
 
   async function load() {

@@ -1,0 +1,38 @@
+"""What a kit says of a wearable that came apart from it (server.workers.kit): how far it turned, only when that is
+what showed it, and as far as it truly turned."""
+
+from __future__ import annotations
+
+import re
+
+from calib.simulator.kit import Slip, simulate_kit
+from server.live.codes import EndReason
+from server.workers.kit import calibrate_kit_live
+
+AFTER = (": it moved in its slot, or its readings do not follow the tray. Seat it firmly in its slot, then calibrate it "
+         "alone or with the kit.")
+
+
+def _departed_reason(seed: int, n: int, slip: Slip) -> str:
+    recs, _ = simulate_kit(seed, n, slip=slip)
+    names = [f"mock-{i + 1}" for i in range(n)]
+    out = calibrate_kit_live(recs, names)
+    loose = names[slip.device]
+    assert out.departed == [loose]
+    outcome = out.outcomes[loose]
+    assert outcome.result is None and outcome.end == EndReason.DEPARTED
+    return str(outcome.refusal)
+
+
+def test_a_wearable_that_settled_in_its_slot_while_the_tray_rested_is_said_to_have_turned_as_far_as_it_did() -> None:
+    # 2 deg in the pause after the turn about Y: said "it turned 0.8° against the others" before (its attitude at the
+    # rests, which the rest's rate read as bias had pulled back)
+    said = _departed_reason(3, 4, Slip(3, 2.0, 1, in_pause=True))
+    turned = re.fullmatch(r"The wearable came apart from the kit \(it turned (\d+\.\d)° against the others\)" + re.escape(AFTER), said)
+    assert turned and abs(float(turned[1]) - 2.0) <= 0.2, said
+
+
+def test_a_slip_its_own_k_absorbs_is_not_said_as_an_angle() -> None:
+    # about the axis being turned, in that turn: only its rate's jump shows it; "it turned 0.0° against the others"
+    # said of a wearable that came apart was said before
+    assert _departed_reason(121, 6, Slip(3, 2.1175, 0)) == "The wearable came apart from the kit" + AFTER
