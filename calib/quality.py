@@ -96,7 +96,7 @@ class KitDeparture(TypedDict, total=False):
     at_s: Number  # reference clock, s; null when it did not come apart
     departed: bool
     burst_dps: Number  # the largest rms of its rate against the others' over a quarter second, deg/s
-    step_deg: Number  # how far its attitude turned against the others' across that burst, the tray resting; else null
+    step_deg: Number  # how far it turned in its slot across that burst, the tray resting; else null
 
 
 class KitAxesQuality(TypedDict, total=False):

@@ -11,9 +11,10 @@ how far its attitude came apart from the others' at the rests, against what the 
 
 A slip while the tray rests shows less at the rests than it turned: its rate in that rest is read as part of its bias,
 whose error then carries it back over the rest of the motion. So a wearable whose rate came apart in a burst while the
-tray rested is also measured across the burst alone (its attitude just before against just after), and how far it
-turned is the larger. (Across a burst in a turn, the attitudes of a still uncalibrated wearable and the kit's drift
-apart too fast for that: a slip in a turn is measured at the rests, which its rate does not touch.)
+tray rested is also measured across the burst alone (its attitude just before against just after, ``step_deg``): how
+far it turned in its slot, and when. (Across a burst in a turn, the attitudes of a still uncalibrated wearable and the
+kit's drift apart too fast for that; and at the rests, the part of a slip in a turn about the axis being turned is
+absorbed by its own k: how far such a slip turned is not known, only that it came apart.)
 """
 
 from __future__ import annotations
@@ -47,13 +48,7 @@ class Departure:
     at_s: float | None
     departed: bool
     burst_dps: float = float("nan")  # the largest rms rate against the others' over BURST_WINDOW_S, deg/s
-    step_deg: float = float("nan")  # how far its attitude turned against the others' across that burst, when it departed
-
-    @property
-    def turned_deg(self) -> float:
-        """How far it turned against the rest of the kit (deg): at the rests, or across its burst when that is more
-        (nan with neither)."""
-        return float(np.fmax(self.angle_deg, self.step_deg))
+    step_deg: float = float("nan")  # how far it turned in its slot across that burst, the tray resting (else nan), deg
 
     def to_dict(self) -> KitDeparture:
         return KitDeparture(angle_deg=self.angle_deg, std_deg=self.std_deg, p_value=self.p_value, at_s=self.at_s,
@@ -105,7 +100,7 @@ def _departure(own: np.ndarray, others: np.ndarray, t: np.ndarray, dt: float, re
     burst = float(np.sqrt(power[peak]))
     burst_out = burst > max(BURST_DPS, BURST_NOISE * float(np.sqrt(np.sum(diff_var))))
     step = _step(apart, others, peak, width) if burst_out else float("nan")
-    if burst_out and (at_s is None or step > angle):
+    if burst_out and (at_s is None or np.isfinite(step)):  # a step while the tray rested is the moment it slipped
         at_s = float(t[peak])
     return Departure(angle, std, p, at_s, bool((angle >= DEPARTURE_DEG and p < DEPARTURE_ALPHA) or burst_out), burst,
                      step)

@@ -18,11 +18,11 @@ def of_the_tray(text: str) -> str:
 KIT_CONNECTING = "Connecting to the wearables…"
 
 
-def came_apart(turned_deg: float, showed_by_turning: bool) -> str:
-    """The reason of a wearable that came apart from its kit. ``turned_deg``: how far it turned against the others
-    (calib.kit.departure.Departure.turned_deg); said only when that is what showed it (``showed_by_turning``), as a slip
-    about the axis being turned leaves no angle its own k does not absorb, only a jump of its rate."""
-    moved = f" (it turned {turned_deg:.1f}° against the others)" if showed_by_turning else ""
+def came_apart(step_deg: float | None) -> str:
+    """The reason of a wearable that came apart from its kit. ``step_deg``: how far it turned in its slot while the
+    tray rested (calib.kit.departure.Departure.step_deg), when known: of a slip in a turn, the kit knows only that it
+    came apart (its own k absorbs the part about the axis being turned)."""
+    moved = f" (it turned about {step_deg:.1f}° in its slot while the tray rested)" if step_deg is not None else ""
     return (f"The wearable came apart from the kit{moved}: it moved in its slot, or its readings do not follow the tray. "
             "Seat it firmly in its slot, then calibrate it alone or with the kit.")
 

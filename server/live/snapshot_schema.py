@@ -138,8 +138,8 @@ class KitMemberConsistency(BaseModel):
     departed: bool = False
     burst_dps: float | None = Field(None, description="the largest rms of its rate against the others' over a quarter "
                                     "second, deg/s (a wearable moving in its slot)")
-    step_deg: float | None = Field(None, description="how far its attitude turned against the others' across that "
-                                   "burst, when the tray rested through it (a slip there shows less at the rests), deg")
+    step_deg: float | None = Field(None, description="how far it turned in its slot across that burst, when the tray "
+                                   "rested through it (a slip there shows less at the rests), deg")
 
 
 class KitAxesOut(BaseModel):

@@ -44,9 +44,8 @@ def calibrate_kit_live(recordings: list[Recording], names: list[str],
     for member in kit.members:
         if member.departed:
             d = member.coherence.departure if member.coherence is not None else None
-            turned = d.turned_deg if d is not None else float("nan")
-            outcomes[member.name] = LiveOutcome(None, say.came_apart(turned, turned >= DEPARTURE_DEG), None,
-                                                csvs[member.name], EndReason.DEPARTED)
+            step = d.step_deg if d is not None and d.step_deg >= DEPARTURE_DEG else None
+            outcomes[member.name] = LiveOutcome(None, say.came_apart(step), None, csvs[member.name], EndReason.DEPARTED)
         else:
             outcomes[member.name] = LiveOutcome(member.result, None, None, csvs[member.name])
     return KitOutcome(outcomes, kit.consistency(), kit.departed)

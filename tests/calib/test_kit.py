@@ -285,7 +285,7 @@ def test_a_slip_about_the_axis_being_turned_is_found_by_its_burst_though_the_att
 
 
 @pytest.mark.parametrize("seed", [3, 8])
-def test_a_slip_while_the_tray_rests_is_said_as_far_as_it_turned_and_when(seed: int) -> None:
+def test_a_slip_while_the_tray_rests_is_measured_as_far_as_it_turned_and_when(seed: int) -> None:
     # settling in its slot in the pause after the turn about Y, 2 deg: its rate in that rest is read as part of its bias,
     # which carries the slip back over the motion, so its attitude at the rests showed under 1 deg, and the half-way
     # moment in the first turn (said as "it turned 0.7° against the others", 10 s early)
@@ -293,7 +293,7 @@ def test_a_slip_while_the_tray_rests_is_said_as_far_as_it_turned_and_when(seed: 
     kit = calibrate_kit(recs, heading_prior_deg=PRIOR_DEG)
     assert kit.departed == [recs[3].meta.device_id]
     slipped = kit.members[3].coherence.departure
-    assert slipped.angle_deg < 1.2 and abs(slipped.turned_deg - 2.0) < 0.2, (slipped.angle_deg, slipped.turned_deg)
+    assert slipped.angle_deg < 1.2 and abs(slipped.step_deg - 2.0) < 0.2, (slipped.angle_deg, slipped.step_deg)
     ref = next(i for i, m in enumerate(kit.members) if m.name == kit.reference)
     d, r = truth.devices[3], truth.devices[ref]
     slip_true_s = d.start_s + d.slip_t / (1 + d.clock_error)

@@ -153,7 +153,8 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
         assert loose.get_attribute("data-departed") == "true"
         assert loose.locator(".kit-state").inner_text().strip() == "Came apart from the kit"
         said = loose.locator(".kit-reason").inner_text()  # the service's reason, once, and nothing added to it
-        assert re.fullmatch(r"The wearable came apart from the kit \(it turned \d+\.\d° against the others\): it moved in "
+        assert re.fullmatch(r"The wearable came apart from the kit \(it turned about \d+\.\d° in its slot while the tray "
+                            r"rested\): it moved in "
                             r"its slot, or its readings do not follow the tray\. Seat it firmly in its slot, then "
                             r"calibrate it alone or with the kit\.", said), said
         assert loose.locator("a.kit-redo").get_attribute("href") == "#/place/mock-4"
