@@ -64,13 +64,17 @@ def test_happy_path_to_a_saved_calibration(wizard: Wizard, page: Any, webui_serv
         wizard.wait_state(f"turn_{axis}")
         assert f"Step {n} of 7" in wizard.text(".stepno")
         page.wait_for_selector(f".wizard[data-state='turn_{axis}'] .tile[data-state='active']:has-text('Turn {axis.upper()}')")
-        assert re.search(rf"\b{axis.upper()}\b", wizard.text(".instruction")), wizard.text(".instruction")
         wizard.shot(f"{n + 1:02d}-turn-{axis}")
         done = [t.upper() for t in "xyz"[: n - 3]]
         for d in done:
             assert page.locator(f".tile[data-state='done']:has-text('Turn {d}')").count() == 1
 
     wizard.wait_state("done")
+    # each turn's prompt names its axis (read back: on a busy machine the scripted clinician may have ended the turn,
+    # and the page said "Hold it still", by the time the test looks)
+    for axis in "xyz":
+        said = [s["instruction"] for s in wizard.shown(f"turn_{axis}:turning")]
+        assert said and all(re.search(rf"\b{axis.upper()}\b", t) for t in said), said
     # axe-core finds nothing on any screen of the session, however briefly it was shown
     audited = wizard.assert_screens_accessible()
     assert {"still:waiting", "turn_x:turning", "turn_x:placing", "turn_x:pause", "computing:"} <= set(audited), audited
