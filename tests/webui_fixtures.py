@@ -28,7 +28,7 @@ CHROMIUM_ARGS = ["--no-sandbox", "--disable-background-networking", "--disable-c
 OPERATOR = "alice"
 SECRET = "correct horse battery staple"
 MOCK_SPEED = 3.0  # the prompt-following clinicians react to the page's prompts: their lag is in device time
-SCRIPTED_SPEED = 4.0  # the scripted clinicians play a fixed script, whatever the page shows
+SCRIPTED_SPEED = 6.0  # the scripted clinicians play a fixed script, whatever the page shows
 # the simulated clinician of mock-N performs the N-th scenario in every session
 SCENARIOS = ["normal", "moved_during_still", "wrong_axis", "link_drop", *["normal"] * 9]
 PIN = "4831"
@@ -222,8 +222,9 @@ class Wizard:
 
     def record(self) -> None:
         """Start recording, in the page, what passes too quickly to wait for: the largest angle the gauge
-        showed in each turn and its target, every text the gauge showed, every headline and every state:phase
-        in order (taken at each change of the page, so none that lasts a single event is missed), whether the
+        showed in each turn (turning, or the device being put down) and its target, every text the gauge showed,
+        every headline and every state:phase in order (taken at each change of the page, so none that lasts a single
+        event is missed), whether the
         stillness ring showed the device moving, every notice, the notice beside each state:phase
         ("turn_x:ready|<notice>"), the turns shown done after each change ("xy"), whether the gauge was ever
         gone while the device was being put down (placing), and in ``shown`` what each screen said as it changed
@@ -236,9 +237,14 @@ class Wizard:
           const text = (sel) => { const el = document.querySelector(sel); return el ? el.textContent.trim() : ''; };
           const look = () => {
             const w = document.querySelector('.wizard'), g = document.querySelector('.gauge-text');
-            if (w && g && w.dataset.phase === 'turning') {
-              const axis = w.dataset.state.slice(5), n = parseInt(g.textContent, 10);
+            // the turn's angle: while turning, and while the device is put down (the gauge holds the turn's angle; on a
+            // busy machine the page may see a fast turn's last part only then)
+            if (w && g && ['turning', 'placing'].includes(w.dataset.phase)) {
+              const n = parseInt(g.textContent, 10), axis = w.dataset.state.slice(5);
               if (!Number.isNaN(n)) window.seen.gauge[axis] = Math.max(window.seen.gauge[axis] || 0, n);
+            }
+            if (w && g && w.dataset.phase === 'turning') {
+              const axis = w.dataset.state.slice(5);
               const texts = window.seen.gaugeText[axis] = window.seen.gaugeText[axis] || [];
               if (!texts.includes(g.textContent)) texts.push(g.textContent);
               window.seen.targets[axis] = document.querySelector('.gauge-wrap').dataset.target;
