@@ -47,6 +47,8 @@ def add_kit_parsers(sub: Any) -> None:
     p.add_argument("--loose", type=int, default=None, metavar="I",
                    help="wearable I (1-based) slips in its slot during the second turn, by --slip-deg")
     p.add_argument("--slip-deg", type=float, default=2.0, help="how far the loose wearable slips, deg (default 2)")
+    p.add_argument("--slip-in", choices=("turn", "pause"), default="turn",
+                   help="the loose wearable slips during the second turn (default), or in the pause after it, the tray resting")
     p.add_argument("--misalignment", type=float, default=0.0, metavar="M", help="each sensor's axes are not orthogonal: "
                    "the off-diagonal entries of its K drawn in +-M (default 0)")
     p.add_argument("-o", "--output", type=Path, required=True, help="folder to write wearable-1.csv, wearable-2.csv, ... in")
@@ -120,6 +122,8 @@ def kit_summary(kit: Any) -> str:
         if m.coherence is not None:
             d = m.coherence.departure
             extra.append(f"followed the kit to {d.angle_deg:.3f} deg (noise allows {d.std_deg:.3f})")
+            if np.isfinite(d.step_deg):  # measured only across a burst while the tray rested (calib.kit.departure)
+                extra.append(f"turned {d.step_deg:.2f} deg in its slot while the tray rested")
             extra.append(f"coupling residual {m.coherence.ratio:.2f}x the noise")
         lines.append(" " * len(head) + "; ".join(extra))
     lines.append("")
@@ -149,10 +153,12 @@ def cmd_simulate_kit(args: argparse.Namespace) -> int:
     from calib.simulator.kit import Slip, simulate_kit
 
     slip = None
+    if args.slip_in != "turn" and args.loose is None:
+        raise GyrocalError("--slip-in says when the wearable of --loose slips: give --loose I too")
     if args.loose is not None:
         if not 1 <= args.loose <= args.devices:
             raise GyrocalError(f"--loose names a wearable from 1 to {args.devices}; got {args.loose}")
-        slip = Slip(args.loose - 1, args.slip_deg)
+        slip = Slip(args.loose - 1, args.slip_deg, in_pause=args.slip_in == "pause")
     recordings, truth = simulate_kit(args.seed, args.devices, noise=args.noise, slip=slip, misalignment=args.misalignment)
     args.output.mkdir(parents=True, exist_ok=True)
     for i, rec in enumerate(recordings):

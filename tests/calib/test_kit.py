@@ -151,6 +151,18 @@ def test_the_command_line_calibrates_a_kit_of_files_and_says_who_departed(tmp_pa
     assert "at least two recordings" in capsys.readouterr().err
 
 
+def test_the_command_line_says_how_far_a_wearable_turned_in_its_slot_while_the_tray_rested(tmp_path, capsys) -> None:
+    assert main(["simulate-kit", "--seed", "3", "--devices", "4", "--loose", "4", "--slip-in", "pause", "-o", str(tmp_path)]) == 0
+    capsys.readouterr()
+    assert main(["calibrate-kit", *sorted(str(p) for p in tmp_path.glob("wearable-*.csv")), "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    turned = re.search(r"turned (\d+\.\d\d) deg in its slot while the tray rested", text)
+    assert "wearable-4: DEPARTED" in text and turned and abs(float(turned[1]) - 2.0) < 0.2, text
+    assert text.count("in its slot while the tray rested") == 1  # the others stayed seated
+    assert main(["simulate-kit", "--seed", "3", "--slip-in", "pause", "-o", str(tmp_path)]) == 2
+    assert "give --loose I too" in capsys.readouterr().err
+
+
 def test_a_wearable_that_lost_samples_mid_turn_and_stamps_anew_after_is_calibrated_from_the_kit() -> None:
     from calib.recording import Recording
 
