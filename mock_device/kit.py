@@ -18,7 +18,7 @@ from dataclasses import replace
 import numpy as np
 
 from calib.simulator import SensorParams
-from calib.simulator.kit import KitTray, Slip, misaligned
+from calib.simulator.kit import SLIP_WHEN, KitTray, Slip, misaligned
 from calib.simulator.protocol import paper_protocol_script
 
 from .scenarios import LinkFaults
@@ -26,18 +26,17 @@ from .sources import Block
 
 KIT_REST_S = 5.0  # the tray's rests: the first rest and the pauses between turns, s
 SLIP_DEG = 2.0  # how far a loose wearable slips, deg
-LOOSE_IN = ("turn", "pause")  # when a loose wearable slips: during the second turn, or in the pause after it
+PERFORMANCES_KEPT = 4
+DROP_S = 1.5  # how long the dropping wearable is out of range, s
+JOIN_S = 3.0  # streams starting this close (wall time, s) to a performance's first join it
 
 
 def loose_slip(loose: int | None, loose_in: str = "turn") -> Slip | None:
     """How wearable ``loose`` (0-based; None: none is loose) slips in its slot: ``SLIP_DEG`` in the tray's second turn,
     or with ``loose_in`` "pause" early in the pause after it (the tray resting still)."""
-    if loose_in not in LOOSE_IN:
-        raise ValueError(f"a loose wearable slips in a turn or a pause ({', '.join(LOOSE_IN)}); got {loose_in!r}")
+    if loose_in not in SLIP_WHEN:
+        raise ValueError(f"a loose wearable slips in a turn or a pause ({', '.join(SLIP_WHEN)}); got {loose_in!r}")
     return None if loose is None else Slip(loose, SLIP_DEG, 1, in_pause=loose_in == "pause")
-PERFORMANCES_KEPT = 4
-DROP_S = 1.5  # how long the dropping wearable is out of range, s
-JOIN_S = 3.0  # streams starting this close (wall time, s) to a performance's first join it
 
 
 class Joins:

@@ -70,6 +70,7 @@ def register(sub: Any) -> None:
                         "one who follows the kit's prompts")
     p.add_argument("--mock-kit-loose", type=int, default=None, metavar="I",
                    help="with --mock-kit: the I-th simulated wearable (from 1) slips in its slot during the second turn")
+    # calib.simulator.kit.SLIP_WHEN, written out: importing it would load scipy at every start of the command line
     p.add_argument("--mock-kit-loose-in", choices=("turn", "pause"), default="turn",
                    help="with --mock-kit-loose: it slips during the second turn (default), or in the pause after it, the "
                         "tray resting still")

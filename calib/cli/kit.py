@@ -47,6 +47,7 @@ def add_kit_parsers(sub: Any) -> None:
     p.add_argument("--loose", type=int, default=None, metavar="I",
                    help="wearable I (1-based) slips in its slot during the second turn, by --slip-deg")
     p.add_argument("--slip-deg", type=float, default=2.0, help="how far the loose wearable slips, deg (default 2)")
+    # calib.simulator.kit.SLIP_WHEN, written out: importing it would load scipy at every start of the command line
     p.add_argument("--slip-in", choices=("turn", "pause"), default="turn",
                    help="the loose wearable slips during the second turn (default), or in the pause after it, the tray resting")
     p.add_argument("--misalignment", type=float, default=0.0, metavar="M", help="each sensor's axes are not orthogonal: "

@@ -29,6 +29,7 @@ CLOCK_ERROR = 0.01  # largest clock error of a wearable, fraction (drawn uniform
 START_SPREAD_S = 0.5  # wearables start (and stop) recording up to this long apart, s
 SLIP_S = 0.2  # how long a slip in the slot takes, s
 PAUSE_SLIP_AFTER_S = 1.0  # a slip in a pause starts this long after the turn before it ended (the pause is 2 s)
+SLIP_WHEN = ("turn", "pause")  # when a simulated wearable slips: during its turn, or in the pause after it (in_pause)
 OVERSAMPLE = 4  # the tray's motion is generated at this many times the wearables' rate
 
 

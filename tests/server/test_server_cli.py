@@ -145,3 +145,15 @@ def test_the_service_process_starts_without_the_estimators_heavy_numerics() -> N
     code = "import sys, server.main; print(sorted({m.split('.')[0] for m in sys.modules} & {'scipy', 'matplotlib'}))"
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]", out.stdout
+
+
+def test_when_a_simulated_wearable_slips_is_offered_as_the_simulator_knows_it() -> None:
+    # the command line writes the choices out (importing the simulator would load scipy at each start): they must stay
+    # the simulator's
+    from calib.cli.main import build_parser
+    from calib.simulator.kit import SLIP_WHEN
+
+    sub = next(a for a in build_parser()._actions if a.choices and "serve" in a.choices).choices
+    offered = {next(a.choices for a in sub[cmd]._actions if a.dest == dest)
+               for cmd, dest in (("serve", "mock_kit_loose_in"), ("simulate-kit", "slip_in"))}
+    assert offered == {SLIP_WHEN}

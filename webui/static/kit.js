@@ -72,9 +72,10 @@ function movedAlone(snap) {
 }
 
 /** The wearables whose rows offer Identify, for the clinician to find them in the tray: while the kit runs, those that
- * moved in their slots (to seat firmly); once it ended, those that did not pass (to take out, seat again or redo). */
-function toFind(snap) {
-  if (!ENDED.has(snap.state)) return [...movedAlone(snap)];
+ * moved in their slots (``moved``, to seat firmly); once it ended, those that did not pass (to take out, seat again or
+ * redo). */
+function toFind(snap, moved) {
+  if (!ENDED.has(snap.state)) return [...moved];
   return snap.devices.filter((d) => !passedIt(d)).map((d) => d.device_id);
 }
 
@@ -85,6 +86,7 @@ function deviceRow(d, ident, moved) {
   const good = passedIt(d);
   const k = d.result && Array.isArray(d.result.k) ? d.result.k : null;
   const seat = !ended && moved;
+  const find = seat || (ended && !good); // to seat now, or to take out of the tray
   return h("li", { class: "kit-device", dataset: { device: d.device_id, state: d.state, passed: String(Boolean(d.passed)), departed: String(Boolean(d.departed)) } },
     h("span", { class: "kit-name" }, d.device_id),
     h("span", { class: `kit-state ${ended ? (good ? "pass" : "fail") : ""}` },
@@ -92,11 +94,10 @@ function deviceRow(d, ident, moved) {
     k ? h("span", { class: "kit-k" }, `k ${AXES.map((a, i) => `${a.toUpperCase()} ${num(k[i], 4)}`).join(" · ")}`) : null,
     ended && !good && d.reason ? h("span", { class: "kit-reason" }, d.reason) : null,
     seat ? h("span", { class: "kit-reason kit-moved" }, "It moved in its slot while the rest of the kit stayed still: seat it firmly.") : null,
-    ended && !good ? h("div", { class: "kit-row-actions" },
-      h("a", { class: "button small kit-redo", href: `#/place/${encodeURIComponent(d.device_id)}` }, icon("redo"), "Redo alone"),
+    find && (ended || ident) ? h("div", { class: "kit-row-actions" },
+      ended ? h("a", { class: "button small kit-redo", href: `#/place/${encodeURIComponent(d.device_id)}` }, icon("redo"), "Redo alone") : null,
       ident ? ident.button : null) : null,
-    seat && ident ? h("div", { class: "kit-row-actions" }, ident.button) : null,
-    (seat || (ended && !good)) && ident ? ident.line : null);
+    find && ident ? ident.line : null);
 }
 
 /** One kit session, as the service has it. */
@@ -160,7 +161,7 @@ export function kitView(ctx, kitId) {
     }
     const moved = movedAlone(snap);
     fill(rows, snap.devices.map((d) => deviceRow(d, idents.get(d.device_id), moved.has(d.device_id))));
-    const find = toFind(snap).filter((id) => !asked.has(id));
+    const find = toFind(snap, moved).filter((id) => !asked.has(id));
     if (find.length) identifyLater(find);
     axesNote.textContent = running ? "" : axesText(snap);
     axesNote.hidden = !axesNote.textContent;
