@@ -23,6 +23,7 @@ REFUSAL_CODES = {
     "not_closed": "a turn does not end where it began",
     "reorientations_disagree": "no calibration makes the re-orientations agree with the accelerometer",
     "accelerometer_not_determined": "the rests cannot calibrate the accelerometer",
+    "not_one_motion": "a kit's recordings are not of one motion of one tray (a wearable did not turn with the others)",
     "not_calibrated": "any other reason the estimator gave",
 }
 
@@ -46,6 +47,19 @@ class ProtocolError(Refusal):
     """
 
     default_code = "protocol_not_found"
+
+
+class KitRefusal(Refusal):
+    """A kit's recordings cannot be calibrated together: ``wearable`` (its name) does not follow the motion of
+    ``reference``, the wearable it was compared with (code not_one_motion), or the kit's motion holds no protocol
+    (turn_missing)."""
+
+    default_code = "not_one_motion"
+
+    def __init__(self, message: str, *, code: str | None = None, wearable: str | None = None,
+                 reference: str | None = None) -> None:
+        super().__init__(message, code=code)
+        self.wearable, self.reference = wearable, reference
 
 
 def error_code(exc: GyrocalError) -> str:

@@ -59,7 +59,7 @@ def add_kit_parsers(sub: Any) -> None:
 
 def cmd_calibrate_kit(args: argparse.Namespace) -> int:
     from calib.cli.options import error_json
-    from calib.errors import CalibrationError, GyrocalError
+    from calib.errors import CalibrationError, GyrocalError, Refusal
     from calib.io.inputs import ReadOptions, file_input, read_input
     from calib.kit.estimator import calibrate_kit
     from calib.kit.turns import labelled_turns
@@ -88,7 +88,8 @@ def cmd_calibrate_kit(args: argparse.Namespace) -> int:
         kit = calibrate_kit(recordings, names, protocol=args.protocol, heading_prior_deg=args.heading_prior_deg,
                             progress=bar, turns_kept=None if all(t is None for t in turns_kept) else [t or [] for t in turns_kept])
     except GyrocalError as exc:
-        refusal = CalibrationError(f"the kit was not calibrated: {exc}", code="not_calibrated")
+        refusal = CalibrationError(f"the kit was not calibrated: {exc}",
+                                   code=exc.code if isinstance(exc, Refusal) else "not_calibrated")
         if args.json:
             print(error_json(refusal, refusal.code, []))
         raise refusal from None

@@ -1,9 +1,10 @@
 """Every wearable of a kit on one clock: the map from a wearable's own stamps to the reference wearable's.
 
-Each wearable stamps its samples with its own clock, which starts at its own moment and runs at its own rate. Turned
-together, the wearables see one motion, so the motion itself aligns their clocks: ``coarse_clock`` matches the
-magnitude of the rotation rate (which no mounting rotation changes) by cross-correlation, first over the whole
-recording, then window by window for the rate; ``calib.kit.coupling`` then refines the map sample by sample.
+Each wearable stamps its samples with its own clock, which starts at its own moment (its power-up, minutes apart
+from the others') and runs at its own rate. Turned together, the wearables see one motion, so the motion itself
+aligns their clocks: ``coarse_clock`` matches the magnitude of the rotation rate (which no mounting rotation changes)
+by cross-correlation, first over the whole recording at every lag where the two overlap, then window by window for
+the rate; ``calib.kit.coupling`` then refines the map sample by sample.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import correlate, correlation_lags
 
-from calib.errors import GyrocalError
+from calib.errors import KitRefusal
 from calib.kit.turns import gaps
 from calib.recording import Recording
 
@@ -60,15 +61,20 @@ def activity(rec: Recording) -> np.ndarray:
     return np.linalg.norm(rec.gyro - np.median(rec.gyro, axis=0), axis=1)
 
 
-def coarse_clock(ref: Recording, rec: Recording, max_rate_error: float = 0.05) -> ClockMap:
-    """The map from ``rec``'s stamps to ``ref``'s, to a fraction of a sample. GyrocalError when the two recordings
-    do not share enough of one motion."""
+def coarse_clock(ref: Recording, rec: Recording, max_rate_error: float = 0.05,
+                 names: tuple[str, str] | None = None) -> ClockMap:
+    """The map from ``rec``'s stamps to ``ref``'s, to a fraction of a sample. KitRefusal when the two recordings
+    do not share enough of one motion (``names``: the two wearables' names, ref's first, to say which)."""
     dt = float(np.median(np.diff(ref.t)))
     grid = np.arange(ref.t[0], ref.t[-1], dt)
     s_ref = np.interp(grid, ref.t, activity(ref))
     s_rec = activity(rec)
-    lag = _best_lag(s_ref, np.interp(grid, rec.t, s_rec, left=0.0, right=0.0), dt, len(grid))
-    clock = ClockMap(0.0, 1.0).corrected(-lag, 0.0)  # rec's sample stamped t + lag happened at reference time t
+    # each on its own stamps, which may start minutes apart (each clock counts from its own power-up): every lag at
+    # which the two recordings overlap is tried
+    own = np.arange(rec.t[0], rec.t[-1], dt)
+    lag = _best_lag(s_ref, np.interp(own, rec.t, s_rec), dt, max(len(grid), len(own)))
+    # rec's sample stamped rec.t[0] + lag + (t - ref.t[0]) happened at reference time t
+    clock = ClockMap(ref.t[0] - rec.t[0] - lag, 1.0)
     search = max_rate_error * (grid[-1] - grid[0]) + 4 * dt
     for _ in range(3):
         centres, lags, weights = _window_lags(grid, s_ref, clock.to_own(grid), rec.t, s_rec, dt, search)
@@ -79,13 +85,15 @@ def coarse_clock(ref: Recording, rec: Recording, max_rate_error: float = 0.05) -
         search = max(0.25 * search, 4 * dt)
     overlap = min(ref.t[-1], clock.to_reference(rec.t[-1])) - max(ref.t[0], clock.to_reference(rec.t[0]))
     if overlap < MIN_OVERLAP_S:
-        raise GyrocalError(f"{_name(rec)} shares only {max(overlap, 0.0):.1f} s of motion with {_name(ref)}: a kit's "
-                           "recordings must be taken together, of one motion of the tray; check the files belong to one session")
+        ref_name, rec_name = names or (_name(ref), _name(rec))
+        raise KitRefusal(f"{rec_name} shares only {max(overlap, 0.0):.1f} s of motion with {ref_name}: a kit's "
+                         "recordings must be taken together, of one motion of the tray; check the files belong to one "
+                         "session", wearable=rec_name, reference=ref_name)
     return clock
 
 
 def _name(rec: Recording) -> str:
-    return rec.meta.source or rec.meta.device_id or "a recording"
+    return rec.meta.device_id or rec.meta.source or "a recording"
 
 
 def _best_lag(a: np.ndarray, b: np.ndarray, dt: float, max_lag: int) -> float:

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from calib.diagnosis.saturation import find_plateaus
-from calib.errors import GyrocalError
+from calib.errors import GyrocalError, KitRefusal
 from calib.estimators.closure.estimator import calibrate_closure
 from calib.estimators.closure.fit import KPrior
 from calib.judge.acceptance import misclosure
@@ -67,7 +67,7 @@ def calibrate_kit(recordings: Sequence[Recording], names: Sequence[str] | None =
     seen: dict[int, tuple[ClockMap, Coherence]] = {}  # a departed wearable's clock and departure, when it was found
     while True:
         say(min(0.1 + 0.3 * len(left_out), 0.8), "aligning the clocks and fitting the coupling")
-        solved = _solve(recordings, members, protocol, heading_prior_deg, clock_runs, turns_kept)
+        solved = _solve(recordings, names, members, protocol, heading_prior_deg, clock_runs, turns_kept)
         flagged = [members[j] for j, d in enumerate(solved.departures) if d.departed]
         if not flagged:
             break
@@ -124,7 +124,8 @@ class _Solved:
         self.departures = departures(rates, self.span, rests, noise) if len(members) >= 2 else [NO_DEPARTURE]
 
 
-def _solve(recordings: Sequence[Recording], members: list[int], protocol: str, heading_prior_deg: float | None,
+def _solve(recordings: Sequence[Recording], names: Sequence[str], members: list[int], protocol: str,
+           heading_prior_deg: float | None,
            clock_runs: Sequence[np.ndarray], turns_kept: Sequence[Sequence[tuple[float, float]]] | None = None) -> _Solved:
     ref_i = members[0]
     ref = recordings[ref_i]
@@ -134,8 +135,9 @@ def _solve(recordings: Sequence[Recording], members: list[int], protocol: str, h
     readings = {ref_i: ref.gyro}
     maps: dict[int, LinearMap] = {ref_i: IDENTITY_MAP}
     for i in members[1:]:
-        coupling = couple(ref, recordings[i], coarse_clock(ref, recordings[i]), ref_noise, clock_runs[i])
-        _check_one_motion(coupling, recordings[i], ref)
+        pair = (names[ref_i], names[i])
+        coupling = couple(ref, recordings[i], coarse_clock(ref, recordings[i], names=pair), ref_noise, clock_runs[i])
+        _check_one_motion(coupling, *pair)
         clocks[i], readings[i], maps[i] = coupling.clock, coupling.readings, coupling.map
     keep = np.ones(len(ref), dtype=bool)
     for values in readings.values():
@@ -154,13 +156,13 @@ def _solve(recordings: Sequence[Recording], members: list[int], protocol: str, h
     mean_m = _weighted_mean([mapped[i] for i in members], [variance[i] for i in members])
     mean_rec = Recording(ref.t[rows], mean_m, None if ref.accel is None else ref.accel[rows],
                          None if ref.seq is None else ref.seq[rows],
-                         meta=replace(ref.meta, source=f"the kit's {len(members)} wearables, in {_label(ref)}'s frame",
+                         meta=replace(ref.meta, source=f"the kit's {len(members)} wearables, in {names[ref_i]}'s frame",
                                       sample_rate_rel_std=None))  # each wearable's own rate's uncertainty is its own
     stages = None if turns_kept is None else _taken(detect_stages(mean_rec), [
         clocks[i].to_reference(np.asarray(span, dtype=float)) for i in members for span in turns_kept[i]])
     mean, _ = calibrate_protocol(mean_rec, protocol, "closure", stages=stages, heading_prior_deg=heading_prior_deg)
     if mean.quality.get("undetermined_axes"):
-        raise GyrocalError("the kit was not turned about every axis: " + "; ".join(mean.warnings[:1]))
+        raise KitRefusal("the kit was not turned about every axis: " + "; ".join(mean.warnings[:1]), code="turn_missing")
     k_ref, b_ref = np.asarray(mean.k), np.asarray(mean.b)
     # calibrated, in the reference's frame; where a wearable lost samples, the kit's mean stands in (no departure)
     rates = np.array([np.where(np.isfinite(mapped[i]), mapped[i], mean_m) * k_ref + b_ref for i in members])
@@ -177,15 +179,16 @@ def _taken(stages: list[Stage], spans: list[np.ndarray]) -> list[Stage]:
     return [st for st in stages if st.kind != "turn" or taken(st)]
 
 
-def _check_one_motion(coupling: Coupling, rec: Recording, ref: Recording) -> None:
-    """GyrocalError when ``rec`` does not follow ``ref``'s motion at all (another session's recording): a wearable
-    that slipped in its slot still follows it, to a fraction of a percent of the motion."""
+def _check_one_motion(coupling: Coupling, ref: str, wearable: str) -> None:
+    """KitRefusal when ``wearable`` does not follow ``ref``'s motion at all (another session's recording, or a wearable
+    left out of the tray): a wearable that slipped in its slot still follows it, to a fraction of a percent of the
+    motion."""
     y = coupling.readings[np.all(np.isfinite(coupling.readings), axis=1)]
     explained = 1.0 - float(np.sum(coupling.map.residual_sd**2) / np.sum(y.var(axis=0)))
     if explained < ONE_MOTION_SHARE:
-        raise GyrocalError(f"{_label(rec)} does not follow {_label(ref)}'s motion (the rigid coupling explains "
-                           f"{max(explained, 0.0):.0%} of it): the recordings are not of one kit turned together; give "
-                           "one recording per wearable of the same session")
+        raise KitRefusal(f"{wearable} does not follow {ref}'s motion (the rigid coupling explains "
+                         f"{max(explained, 0.0):.0%} of it): the recordings are not of one kit turned together; give "
+                         "one recording per wearable of the same session", wearable=wearable, reference=ref)
 
 
 def _against_others(i: int, members: list[int], y: dict[int, np.ndarray], mapped: dict[int, np.ndarray],
@@ -304,10 +307,6 @@ def _worst_closure(result: CalibrationResult | GyrocalError) -> float:
         return float("inf")
     values = [misclosure(r) for r in result.residuals.get("turns") or []]
     return max((float(v) for v in values if v is not None), default=float("inf"))
-
-
-def _label(rec: Recording) -> str:
-    return rec.meta.device_id or rec.meta.source or "the first wearable"
 
 
 def _clipped(rec: Recording) -> np.ndarray:

@@ -5,8 +5,9 @@ clock, and starts and stops recording at its own moment. The tray follows one pr
 the tray's motion at its own instants. One wearable may slip in its slot during a turn (``Slip``): from then on its
 mounting is another, which no rigid coupling explains.
 
-Clocks follow ``calib.effects.timing.ClockError``: wearable d stamps its samples j / fs on its own clock, which runs
-at (1 + e_d) times true time, so a calibration fitted on its own stamps returns k / (1 + e_d) and b / (1 + e_d)
+Clocks follow ``calib.effects.timing.ClockError``: wearable d stamps its samples o_d + j / fs on its own clock, which
+counts from its own power-up (o_d: what it read at its first sample, up to ``CLOCK_ORIGIN_S``) and runs at (1 + e_d)
+times true time, so a calibration fitted on its own stamps returns k / (1 + e_d) and b / (1 + e_d)
 (``KitDeviceTruth.k_own``, ``b_own``): the calibration that device should use.
 """
 
@@ -27,6 +28,7 @@ from calib.simulator.trajectory import build_trajectory
 MOUNT_DEG = 2.0  # largest mounting rotation of a wearable in its slot, deg (drawn uniform in 0..this)
 CLOCK_ERROR = 0.01  # largest clock error of a wearable, fraction (drawn uniform in -this..this)
 START_SPREAD_S = 0.5  # wearables start (and stop) recording up to this long apart, s
+CLOCK_ORIGIN_S = 600.0  # a wearable's clock reads up to this long (its time since power-up) at its first sample, s
 SLIP_S = 0.2  # how long a slip in the slot takes, s
 PAUSE_SLIP_AFTER_S = 1.0  # a slip in a pause starts this long after the turn before it ended (the pause is 2 s)
 SLIP_WHEN = ("turn", "pause")  # when a simulated wearable slips: during its turn, or in the pause after it (in_pause)
@@ -62,6 +64,7 @@ class KitDeviceTruth:
     slip_deg: float  # how far it slipped in its slot (0: it did not)
     slip_t: float | None  # its own stamp (s) when the slip was half done, None without a slip
     off_diagonal: np.ndarray = field(default_factory=lambda: np.zeros(3))  # (K_xy, K_xz, K_yz) of its K, true time
+    clock_origin_s: float = 0.0  # its own stamp of its first sample (its clock counts from its power-up), s
 
     @property
     def K(self) -> np.ndarray:
@@ -87,7 +90,7 @@ class KitDeviceTruth:
         return {
             "k": [float(v) for v in self.k_own], "b": [float(v) for v in self.b_own],
             "K": [[float(v) for v in row] for row in self.K_own],
-            "clock_error": self.clock_error, "start_s": self.start_s,
+            "clock_error": self.clock_error, "start_s": self.start_s, "clock_origin_s": self.clock_origin_s,
             "mount_deg": float(np.degrees(Rotation.from_matrix(self.mount).magnitude())),
             "slip_deg": self.slip_deg, "slip_t": self.slip_t,
         }
@@ -112,7 +115,7 @@ class KitTray:
     def __init__(self, seed: int, n_devices: int, *, noise: float = 0.03, script: ProtocolScript | None = None,
                  params: list[SensorParams] | None = None, mount_deg: float = MOUNT_DEG,
                  clock_error: float = CLOCK_ERROR, start_spread_s: float = START_SPREAD_S, slip: Slip | None = None,
-                 motion_fs: float = 104.0, misalignment: float = 0.0) -> None:
+                 motion_fs: float = 104.0, misalignment: float = 0.0, clock_origin_s: float = CLOCK_ORIGIN_S) -> None:
         self.seed = check_seed(seed)
         if not isinstance(n_devices, int) or n_devices < 1:
             raise SimulationConfigError(f"a kit needs a whole number of wearables >= 1; got {n_devices!r}")
@@ -122,6 +125,7 @@ class KitTray:
             raise SimulationConfigError(f"the slipping wearable {slip.device} is not one of the {n_devices} (0-based)")
         self.n_devices, self.noise, self.params, self.slip = n_devices, float(noise), params, slip
         self.mount_deg, self.clock_error, self.start_spread_s = mount_deg, clock_error, start_spread_s
+        self.clock_origin_s = as_float(clock_origin_s, "clock_origin_s", positive=False)
         self.misalignment = as_float(misalignment, "misalignment", positive=False)
         if not 0.0 <= self.misalignment < 0.5:
             raise SimulationConfigError(f"misalignment is the largest off-diagonal entry of K, 0 to 0.5; got {misalignment!r}")
@@ -144,6 +148,8 @@ class KitTray:
         n = int(np.floor((end - start) * fs * (1.0 + e)))
         tau = start + np.arange(n + 1) / (fs * (1.0 + e))  # true instants of its samples (and the end of the last)
         mount = Rotation.from_rotvec(_unit(rng) * np.radians(rng.uniform(0.0, self.mount_deg)))
+        # drawn apart, so that a kit's other draws stay as they were without it
+        origin = float(np.random.default_rng([self.seed, d, 0xC10C]).uniform(0.0, self.clock_origin_s))
         in_tray = mount.inv()  # the device's axes in tray axes
         slip_deg, slip_t = 0.0, None
         if self._slip_window is not None and self.slip is not None and self.slip.device == d:
@@ -151,7 +157,7 @@ class KitTray:
             progress = np.clip((tau - t0) / (t1 - t0), 0.0, 1.0)
             progress = progress * progress * (3.0 - 2.0 * progress)  # a smooth step
             in_tray = Rotation.from_rotvec(np.outer(progress, _unit(rng)) * np.radians(self.slip.angle_deg)) * in_tray
-            slip_deg, slip_t = float(self.slip.angle_deg), float((0.5 * (t0 + t1) - start) * (1.0 + e))
+            slip_deg, slip_t = float(self.slip.angle_deg), float(origin + (0.5 * (t0 + t1) - start) * (1.0 + e))
         pose = self._pose(tau) * in_tray
         rate = np.degrees((pose[:-1].inv() * pose[1:]).as_rotvec()) * (fs * (1.0 + e))
         accel = pose[:-1].inv().apply(GRAVITY_UP)
@@ -160,11 +166,11 @@ class KitTray:
         gyro = sensor.reading(rate) + self.noise * rng.standard_normal(rate.shape)
         accel = accel + ACCEL_NOISE_G * rng.standard_normal(accel.shape)
         seq = np.arange(n, dtype=np.int64)
-        rec = Recording(seq / fs, gyro, accel, seq,
+        rec = Recording(origin + seq / fs, gyro, accel, seq,
                         meta=RecordingMeta(sample_rate_hz=fs, device_id=f"kit-{self.seed}-{d + 1}", sensor_model="simulated",
                                            source=f"simulate_kit(seed={self.seed}) wearable {d + 1}"))
         return rec, KitDeviceTruth(sensor.k.copy(), sensor.b.copy(), e, start, mount.as_matrix(), slip_deg, slip_t,
-                                   sensor.off_diagonal.copy())
+                                   sensor.off_diagonal.copy(), origin)
 
 
 def simulate_kit(
@@ -180,19 +186,22 @@ def simulate_kit(
     start_spread_s: float = START_SPREAD_S,
     slip: Slip | None = None,
     misalignment: float = 0.0,
+    clock_origin_s: float = CLOCK_ORIGIN_S,
 ) -> tuple[list[Recording], KitTruth]:
     """Simulate ``n_devices`` wearables in one tray following ``script`` (default: the paper protocol, drawn per seed).
 
     ``params``: each wearable's sensor (default: the paper's ranges, drawn). ``noise``: white-noise std of every
     gyroscope (deg/s). ``mount_deg``, ``clock_error``, ``start_spread_s``: the largest mounting rotation (deg), clock
     error (fraction) and difference in start and stop (s) drawn; ``misalignment``: the largest off-diagonal entry of
-    each sensor's (upper-triangular) K, drawn uniform in +-this per entry (``calib.effects.AxisMisalignment``).
-    Returns one recording per wearable (its own stamps t = j / fs, its sample counter) and the truth. Same seed and
+    each sensor's (upper-triangular) K, drawn uniform in +-this per entry (``calib.effects.AxisMisalignment``);
+    ``clock_origin_s``: the longest a wearable's clock has counted since its power-up at its first sample (s).
+    Returns one recording per wearable (its own stamps t = o + j / fs, o drawn in 0..clock_origin_s, and its sample
+    counter) and the truth. Same seed and
     arguments give the same kit.
     """
     tray = KitTray(seed, n_devices, noise=noise, script=script, params=params, mount_deg=mount_deg,
                    clock_error=clock_error, start_spread_s=start_spread_s, slip=slip, motion_fs=fs,
-                   misalignment=misalignment)
+                   misalignment=misalignment, clock_origin_s=clock_origin_s)
     drawn = [tray.wearable(d, fs) for d in range(n_devices)]
     return [r for r, _ in drawn], KitTruth(tuple(t for _, t in drawn), tray.tray, float(noise), float(fs), tray.seed)
 

@@ -29,7 +29,7 @@ def calibrate_kit_live(recordings: list[Recording], names: list[str],
     wearable's turns its guidance took (start and end on its stamps, s), so that a turn the tray was asked again is no
     turn of the kit's. A wearable that departed from the kit gets no result: the reason says what happened and what to
     do."""
-    from calib.errors import GyrocalError, Refusal
+    from calib.errors import GyrocalError, KitRefusal, Refusal
     from calib.kit.departure import DEPARTURE_DEG
     from calib.kit.estimator import calibrate_kit
 
@@ -37,8 +37,11 @@ def calibrate_kit_live(recordings: list[Recording], names: list[str],
     try:
         kit = calibrate_kit(recordings, names, protocol="paper", turns_kept=turns_kept)
     except GyrocalError as exc:
-        why = f"The kit could not be calibrated together: {exc} Start a new calibration."
-        code = exc.code if isinstance(exc, Refusal) else "kit_refused"
+        if isinstance(exc, KitRefusal) and exc.wearable is not None and exc.reference is not None:
+            why = say.not_one_motion(exc.wearable, exc.reference)
+        else:
+            why = say.refused(str(exc))
+        code = exc.code if isinstance(exc, Refusal) else "not_calibrated"
         return KitOutcome({n: LiveOutcome(None, why, code, csvs[n]) for n in names}, refusal=why)
     outcomes = {}
     for member in kit.members:

@@ -75,7 +75,8 @@ def accelerometer_not_determined(tmp: Path, real: Path) -> list[str]:
 FROM_RECORDINGS = {f.__name__: f for f in (turn_missing, still_missing, no_rest, protocol_not_found, sections_incomplete,
                                            not_closed, accelerometer_not_determined)}
 # refusals another test already drives through the installed command, JSON and exit code included
-IN_OTHER_TESTS = {"sample_rate_suspect": "tests/calib/test_cli.py::test_a_wrong_sample_rate_is_named"}
+IN_OTHER_TESTS = {"sample_rate_suspect": "tests/calib/test_cli.py::test_a_wrong_sample_rate_is_named",
+                  "not_one_motion": "tests/calib/test_kit.py::test_recordings_that_are_not_one_kit_are_refused_with_what_to_do"}
 # refusals no recording of a few seconds provokes reliably: the estimator's refusal raised where it stands
 FROM_THE_ESTIMATOR = {
     "not_determined": CalibrationError("the re-orientations do not determine every entry of K"),

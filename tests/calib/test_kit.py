@@ -24,7 +24,13 @@ PRIOR_DEG = 0.001  # the simulated tray is put back exactly
 
 def _true_clock(truth, i: int) -> tuple[float, float]:
     d0, d = truth.devices[0], truth.devices[i]
-    return (1 + d0.clock_error) * (d.start_s - d0.start_s), (1 + d0.clock_error) / (1 + d.clock_error)
+    rate = (1 + d0.clock_error) / (1 + d.clock_error)
+    return d0.clock_origin_s + (1 + d0.clock_error) * (d.start_s - d0.start_s) - rate * d.clock_origin_s, rate
+
+
+def _own(d, t_s: float) -> float:
+    """True time ``t_s`` on wearable ``d``'s own clock."""
+    return d.clock_origin_s + (t_s - d.start_s) * (1 + d.clock_error)
 
 
 def test_a_simulated_kit_gives_each_wearable_its_own_clock_mounting_and_errors() -> None:
@@ -40,12 +46,21 @@ def test_a_simulated_kit_gives_each_wearable_its_own_clock_mounting_and_errors()
         simulate_kit(1, 3, slip=Slip(3, 1.0))
 
 
+def _misplaced_s(clock, truth, recs, i: int) -> float:
+    """How far ``clock`` puts wearable i's middle sample from where it was taken, on the reference's clock (s); the
+    offset itself is the map at own time 0, which may be long before the recording (each clock counts from its
+    power-up)."""
+    offset, rate = _true_clock(truth, i)
+    mid = float(np.median(recs[i].t))
+    return abs(float(clock.to_reference(mid)) - (offset + rate * mid))
+
+
 def test_the_motion_aligns_the_clocks_to_a_fraction_of_a_sample_and_a_few_ppm() -> None:
     recs, truth = simulate_kit(8, 3)
     for i in (1, 2):
         coupling = couple(recs[0], recs[i], coarse_clock(recs[0], recs[i]), reading_noise(recs[0]))
-        offset, rate = _true_clock(truth, i)
-        assert abs(coupling.clock.offset_s - offset) < 1e-3  # a tenth of a sample at 104 Hz
+        rate = _true_clock(truth, i)[1]
+        assert _misplaced_s(coupling.clock, truth, recs, i) < 1e-3  # a tenth of a sample at 104 Hz
         assert abs(coupling.clock.rate - rate) < 1e-5
         assert abs(coupling.clock.rate - rate) < 5 * coupling.clock.rate_std + 2e-6
 
@@ -123,15 +138,47 @@ def test_a_wearable_that_slips_in_its_slot_is_named_and_the_rest_of_the_kit_is_c
     assert data["devices"][device]["departed"] is True
 
 
-def test_recordings_that_are_not_one_kit_are_refused_with_what_to_do() -> None:
+def test_recordings_that_are_not_one_kit_are_refused_with_what_to_do(tmp_path, capsys) -> None:
+    """Named by the kit's names (which wearable, against which), with a code for a program: the command line's JSON
+    error and the service's words (tests/server/test_kit_departed_reason.py) come from it."""
+    from calib.errors import KitRefusal
+    from calib.io.readers import write_native_csv
+
     a, _ = simulate_kit(1, 2)
     b, _ = simulate_kit(2, 2)
-    with pytest.raises(GyrocalError, match="does not follow .* same session"):
-        calibrate_kit([a[0], b[1]])
+    with pytest.raises(KitRefusal, match="right does not follow left's motion .* same session") as refused:
+        calibrate_kit([a[0], b[1]], ["left", "right"])
+    assert (refused.value.code, refused.value.wearable, refused.value.reference) == ("not_one_motion", "right", "left")
+    first_seconds = a[1].select(a[1].t < a[1].t[0] + 7.0)  # it stopped recording after the tray's first rest
+    with pytest.raises(KitRefusal, match=r"right shares only \d\.\d s of motion with left") as refused:
+        calibrate_kit([a[0], first_seconds], ["left", "right"])
+    assert (refused.value.code, refused.value.wearable) == ("not_one_motion", "right")
     with pytest.raises(GyrocalError, match="at least two recordings"):
         calibrate_kit(a[:1])
     with pytest.raises(GyrocalError, match="different names"):
         calibrate_kit(a, ["left", "left"])
+    for name, rec in (("left", a[0]), ("right", b[1])):
+        write_native_csv(rec, tmp_path / f"{name}.csv")
+    capsys.readouterr()
+    assert main(["calibrate-kit", str(tmp_path / "left.csv"), str(tmp_path / "right.csv"), "--json"]) == 3
+    error = json.loads(capsys.readouterr().out)["error"]
+    assert error["code"] == "not_one_motion" and "right does not follow left's motion" in error["message"], error
+
+
+def test_wearables_whose_clocks_started_an_hour_apart_are_aligned_by_the_motion() -> None:
+    # each wearable's clock counts from its own power-up: the service stamps a wearable's readings from its first one
+    # since the service started, so the day's second kit holds one wearable stamped a kit's length on and one from 0.
+    # Matched only at lags within one recording's span, such kits were refused ("shares only 0.0 s of motion")
+    recs, truth = simulate_kit(6, 3, clock_origin_s=3600.0)
+    assert recs[0].t[0] != pytest.approx(recs[1].t[0], abs=60.0) or recs[1].t[0] != pytest.approx(recs[2].t[0], abs=60.0)
+    kit = calibrate_kit(recs, heading_prior_deg=PRIOR_DEG)
+    assert kit.departed == []
+    for i in (1, 2):
+        coupling = couple(recs[0], recs[i], coarse_clock(recs[0], recs[i]), reading_noise(recs[0]))
+        rate = _true_clock(truth, i)[1]
+        assert _misplaced_s(coupling.clock, truth, recs, i) < 1e-3 and abs(coupling.clock.rate - rate) < 1e-5
+    for member, d in zip(kit.members, truth.devices, strict=True):
+        assert np.all(np.abs(member.result.k - d.k_own) < 4.5 * member.result.k_std), member.name
 
 
 def test_the_command_line_calibrates_a_kit_of_files_and_says_who_departed(tmp_path, capsys) -> None:
@@ -237,7 +284,7 @@ def test_a_turn_the_tray_was_asked_again_is_calibrated_from_the_try_the_guidance
     with pytest.raises(GyrocalError, match="not a full turn"):
         calibrate_kit(recs, heading_prior_deg=PRIOR_DEG)
     taken = [st for st in truth.tray.stages if st.kind == "turn"][1:]
-    kept = [[((st.start_s - d.start_s) * (1 + d.clock_error), (st.end_s - d.start_s) * (1 + d.clock_error)) for st in taken]
+    kept = [[(_own(d, st.start_s), _own(d, st.end_s)) for st in taken]
             for d in truth.devices]  # each wearable's guidance took them, on its own clock
     kit = calibrate_kit(recs, heading_prior_deg=PRIOR_DEG, turns_kept=kept)
     for member, d in zip(kit.members, truth.devices, strict=True):
@@ -263,8 +310,7 @@ def test_the_turns_the_guidance_took_reach_calibrate_kit_as_each_recordings_sect
     taken = [st for st in truth.tray.stages if st.kind == "turn"][1:]
     files, lists, kept = [], [], []
     for n, (rec, d) in enumerate(zip(recs, truth.devices, strict=True), start=1):
-        own = [((st.start_s - d.start_s) * (1 + d.clock_error), (st.end_s - d.start_s) * (1 + d.clock_error), st.axis)
-               for st in taken]  # each wearable's guidance took them, on its own clock
+        own = [(_own(d, st.start_s), _own(d, st.end_s), st.axis) for st in taken]  # as its guidance took them
         stages = [Stage("turn", int(np.searchsorted(rec.t, a)), int(np.searchsorted(rec.t, b)), a, b, axis, 360.0)
                   for a, b, axis in own]
         kept.append(turn_spans(rec, stages))
@@ -308,8 +354,8 @@ def test_a_slip_while_the_tray_rests_is_measured_as_far_as_it_turned_and_when(se
     assert slipped.angle_deg < 1.2 and abs(slipped.step_deg - 2.0) < 0.2, (slipped.angle_deg, slipped.step_deg)
     ref = next(i for i, m in enumerate(kit.members) if m.name == kit.reference)
     d, r = truth.devices[3], truth.devices[ref]
-    slip_true_s = d.start_s + d.slip_t / (1 + d.clock_error)
-    assert abs(slipped.at_s - (slip_true_s - r.start_s) * (1 + r.clock_error)) < 0.3
+    slip_true_s = d.start_s + (d.slip_t - d.clock_origin_s) / (1 + d.clock_error)
+    assert abs(slipped.at_s - r.clock_origin_s - (slip_true_s - r.start_s) * (1 + r.clock_error)) < 0.3
     for i, m in enumerate(kit.members):  # a wearable that stayed seated has no step across a burst to speak of
         if i != 3:
             assert not m.departed and np.isnan(m.coherence.departure.step_deg)

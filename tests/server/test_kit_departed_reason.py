@@ -1,5 +1,6 @@
 """What a kit says of a wearable that came apart from it (server.workers.kit): how far it turned in its slot only when
-the kit measured that (a slip while the tray rested), and then as far as it truly turned."""
+the kit measured that (a slip while the tray rested), and then as far as it truly turned; and of a kit whose wearables
+did not turn together."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import re
 import pytest
 
 from calib.simulator.kit import Slip, simulate_kit
+from calib.simulator.protocol import ProtocolScript, Still, Turn
 from server.live.codes import EndReason
 from server.workers.kit import calibrate_kit_live
 
@@ -41,3 +43,21 @@ def test_how_far_a_slip_in_a_turn_turned_is_not_said(seed: int, n: int, slip: Sl
     # its own k absorbs the part about the axis being turned: its attitude at the rests is off how far it turned by up
     # to 1.4 deg (p95, bench/kit.py), and a slip about that axis alone was said "it turned 0.0° against the others"
     assert _departed_reason(seed, n, slip) == "The wearable came apart from the kit" + AFTER
+
+
+def test_a_wearable_that_did_not_turn_with_the_kit_is_named_in_the_clinicians_words() -> None:
+    # the command line's advice ("give one recording per wearable of the same session") reached the page, and every
+    # wearable's row, with its last sentence run into "Start a new calibration." and a session id for a name
+    recs, _ = simulate_kit(1, 3)
+    other, _ = simulate_kit(2, 3)
+    out = calibrate_kit_live([recs[0], other[1], recs[2]], ["mock-1", "mock-2", "mock-3"])
+    said = ("The kit could not be calibrated together: mock-2 did not turn with mock-1 (its readings do not follow the "
+            "tray's motion). Check that every wearable of the kit sits in the tray and stays switched on, then calibrate "
+            "the kit again, or mock-2 alone.")
+    assert out.refusal == said and {o.refusal for o in out.outcomes.values()} == {said}
+    assert {o.code for o in out.outcomes.values()} == {"not_one_motion"}
+    not_turned = simulate_kit(3, 2, script=ProtocolScript((Still(5.0), Turn("x", 360.0), Still(5.0))))[0]
+    out = calibrate_kit_live(not_turned, ["mock-1", "mock-2"])
+    assert out.refusal is not None and out.refusal.startswith("The kit could not be calibrated together: the kit was not "
+                                                             "turned about every axis")
+    assert out.refusal.endswith(". Start a new calibration.") and ".. " not in out.refusal, out.refusal

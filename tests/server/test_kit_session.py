@@ -65,14 +65,15 @@ def _run_kit(recs: list[Recording], ranges: list[float],
     """Feed each wearable's guided session its readings batch by batch, as their links would, with the kit judging
     between batches, until every session computes (or ended); the tray rests after the protocol. Each batch is read
     as its last sample is taken, unless ``late`` (wearable index: (from, to, lag), s) has the service read that
-    wearable's readings of device time from..to ``lag`` late (starved for it), then the rest queued behind them."""
+    wearable's readings of from..to since its first ``lag`` late (starved for it), then the rest queued behind them.
+    Each wearable's clock reads its own time since power-up (``calib.simulator.kit``)."""
     members = [_Wearable(SimpleNamespace(id=f"mock-{i + 1}"), GuidedSession(f"s{i}", f"mock-{i + 1}", Settings(db_url="sqlite://")))
                for i in range(len(recs))]
     machines = [m.machine for m in members]
     queued: list[list[tuple[Any, ...]]] = [[] for _ in recs]
 
     def due(i: int, batch: tuple[Any, ...]) -> float:
-        t_last = float(batch[0][-1])
+        t_last = float(batch[0][-1]) - recs[i].t[0]  # each clock counts from its own power-up: the tray's time
         start, end, lag = (late or {}).get(i, (0.0, -1.0, 0.0))
         return t_last + (lag if start <= t_last <= end else 0.0)
 
@@ -90,8 +91,8 @@ def _run_kit(recs: list[Recording], ranges: list[float],
                 else:  # the tray rests against the block
                     seq = np.arange(j, j + BATCH)
                     rest = r.gyro[n - 200:n - 100].mean(axis=0) + 0.03 * rng.standard_normal((BATCH, 3))
-                    queued[i].append((seq / FS, rest, np.tile(r.accel[n - 1], (BATCH, 1)), seq))
-                now = float(queued[i][-1][0][-1])  # the wall clock runs with the tray's motion
+                    queued[i].append((r.t[0] + seq / FS, rest, np.tile(r.accel[n - 1], (BATCH, 1)), seq))
+                now = float(queued[i][-1][0][-1]) - r.t[0]  # the wall clock runs with the tray's motion
                 while queued[i] and due(i, queued[i][0]) <= now:
                     g.feed(*queued[i].pop(0), received_at=WALL_AT_0 + now)
                 kit.member_changed()
@@ -143,8 +144,9 @@ def test_a_turn_every_wearable_found_too_fast_is_the_trays_and_is_asked_again_of
     machines = _run_kit(recs, [80.0] * 3)
     first = [w for w in machines[0].warnings if w.code == "too_fast"][0]
     assert all(w.code != "kit_closed_turn" for g in machines for w in g.warnings)
-    for g in machines:  # each asked that turn again, together: the tray's retry
-        assert g.warnings[0].code == "too_fast" and g.warnings[0].t_device_s == pytest.approx(first.t_device_s, abs=0.7)
+    for g, r in zip(machines, recs, strict=True):  # each asked that turn again, together: the tray's retry
+        since = g.warnings[0].t_device_s - r.t[0]  # each on its own clock
+        assert g.warnings[0].code == "too_fast" and since == pytest.approx(first.t_device_s - recs[0].t[0], abs=0.7)
     said = kit_warnings([g.snapshot() for g in machines])
     assert said[0].code == "too_fast" and "Put the tray back against the block" in said[0].message
     assert sum(w.code == "too_fast" and w.t_device_s == said[0].t_device_s for w in said) == 1
@@ -246,7 +248,7 @@ def test_while_the_kit_waits_for_a_lost_wearable_the_others_are_not_failed_for_a
             g.connected(FS, {}, WIDE_DPS)
         first_rest = int(4.0 * FS) // BATCH * BATCH  # the tray rests first: each wearable is then asked the turn about X
         given_up = first_rest + int(70 * FS) // BATCH * BATCH
-        for j in range(0, first_rest + int(130 * FS), BATCH):
+        for j in range(0, first_rest + int(132 * FS), BATCH):
             if j == first_rest:
                 assert [g.state for g in machines] == [State.TURN_X] * 3
                 machines[1].link_lost() if lost == "link" else machines[1].data_silent(2.0)
@@ -273,7 +275,8 @@ def test_while_the_kit_waits_for_a_lost_wearable_the_others_are_not_failed_for_a
             kit._publishing.cancel()
 
     asyncio.run(feed())
-    # 130 s without a turn: the first 70 were the kit's wait, then the others' own 60 s ran out
+    # 132 s without a turn: the first 70 (and the batch that ended the wait) were the kit's, then the others' own 60 s
+    # ran out
     for g in (machines[0], machines[2]):
         assert g.state == State.FAILED and g.reason_code == EndReason.NO_MOTION, (g.state, g.reason)
         limit = [w for w in g.warnings if w.code == "hint"]

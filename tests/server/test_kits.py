@@ -134,7 +134,7 @@ def test_a_kit_is_guided_as_one_the_loose_wearable_is_named_and_the_rest_are_acc
 
 
 def test_a_wearable_whose_link_drops_mid_turn_is_bridged_by_the_kit(tmp_path) -> None:
-    svc = RunningService(["--mock", "3", "--mock-kit", "--mock-kit-drop", "2", "--mock-speed", SPEED],
+    svc = RunningService(["--mock", "4", "--mock-kit", "--mock-kit-drop", "2", "--mock-speed", SPEED],
                          f"sqlite:///{tmp_path / 'store.sqlite3'}").start(60)
     try:
         with svc.client() as c:
@@ -183,6 +183,16 @@ def test_a_wearable_whose_link_drops_mid_turn_is_bridged_by_the_kit(tmp_path) ->
             assert "mock-1" in refused and "already" in refused and "session " not in refused, refused
             accepts = [e for e in c.get("/audit", params={"limit": 50}).json() if e["action"] == "calibration.accept"]
             assert sorted(e["device_id"] for e in accepts) == sorted(devices)  # one entry a wearable, not two
+            # the day's next kit, of a wearable whose clock ran on through this one and one that has not streamed: the
+            # service counts each wearable's time from its first reading, so their stamps are a kit's length apart,
+            # which the motion aligns. Before, that kit was refused ("mock-4 shares only 0.0 s of motion with mock-3")
+            again = c.post("/kits/calibrate", json={"devices": ["mock-3", "mock-4"]})
+            assert again.status_code == 202, again.text
+            snap = _until_ended(c, again.json()["session_id"])
+            for d in snap["devices"]:
+                assert d["state"] == "done" and d["passed"], (d["device_id"], d["reason"])
+                k, std = np.array(d["result"]["k"]), np.array(d["result"]["uncertainty"]["k"])
+                assert np.all(np.abs(k - _truth(c, d["device_id"])) < 5 * std + 2e-5), (k - _truth(c, d["device_id"])) / std
     finally:
         svc.stop()
 
