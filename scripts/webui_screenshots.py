@@ -2,7 +2,8 @@
 
 Starts `gyrocal serve` with simulated wearables on a fresh store, drives Chromium through each state with
 Playwright at a landscape (1280x800) and a portrait (820x1180) tablet and a phone (390x844, a phone's browser), and
-writes docs/img/webui/<state>-<view>.jpg.
+writes docs/img/webui/<state>-<view>.jpg. Then a second service mounts four simulated wearables in one tray (the
+fourth settles in its slot in the pause after the turn about Y) for the kit's page, kit-<state>-<view>.jpg.
 
     .venv/bin/python scripts/webui_screenshots.py [--out docs/img/webui]
 """
@@ -35,11 +36,16 @@ VIEWS = {"landscape": {"width": 1280, "height": 800}, "portrait": {"width": 820,
 # mock-N performs SCENARIOS[N-1]; the careful hand follows the page's prompts
 SCENARIOS = ["hand:careful", "hand:careful", "wrong_axis", "moved_during_still", "link_drop", "hand:careful", "hand:bumps",
              "hand:short"]
+# one tray of four prompt-following hands; each view calibrates three of them (the one left out differs per view, the
+# loose fourth is in every kit), so no view finds its wearables holding a result another view left unsaved
+KIT = ["--mock", "4", "--mock-kit", "--mock-kit-loose", "4", "--mock-kit-loose-in", "pause", "--mock-scenario",
+       ",".join(["hand:careful"] * 4)]
 
 
 @contextlib.contextmanager
-def service() -> Iterator[str]:
-    """`gyrocal serve` on a free port with the simulated wearables and an operator with a secret and a PIN."""
+def service(mocks: list[str]) -> Iterator[str]:
+    """`gyrocal serve` on a free port with the simulated wearables ``mocks`` (its --mock options) and an operator with
+    a secret and a PIN."""
     tmp = Path(tempfile.mkdtemp(prefix="gyrocal-shots-"))
     db = f"sqlite:///{tmp / 'store.sqlite3'}"
     gyrocal = [sys.executable, "-m", "calib.cli.main"]
@@ -51,9 +57,8 @@ def service() -> Iterator[str]:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     env = {**os.environ, "GYROCAL_API_TOKEN": TOKEN}
-    proc = subprocess.Popen([*gyrocal, "serve", "--port", str(port), "--db", db, "--log-level", "warning", "--mock", str(len(SCENARIOS)),
-                             "--mock-speed", "1", "--mock-scenario", ",".join(SCENARIOS),
-                             "--max-attempts", "1"], cwd=ROOT, env=env)
+    proc = subprocess.Popen([*gyrocal, "serve", "--port", str(port), "--db", db, "--log-level", "warning", "--mock-speed", "1",
+                             *mocks], cwd=ROOT, env=env)
     base = f"http://127.0.0.1:{port}"
     try:
         for _ in range(300):
@@ -87,6 +92,17 @@ class Shots:
         self.page.goto(self.base + "/")
         self.page.wait_for_selector("#operator")
 
+    def sign_in_with_pin(self, shot: bool = False) -> None:
+        """Sign in as the operator with the PIN (``shot``: the filled form taken as sign-in), to the device list."""
+        self.sign_in()
+        self.page.click("button.mode-pin")
+        self.page.fill("#operator", OPERATOR)
+        self.page.fill("#pin", PIN)
+        if shot:
+            self.take("sign-in")
+        self.page.click("form.signin button[type=submit]")
+        self.wait(".device-card")
+
     def session_of(self, device: str) -> None:
         self.page.goto(f"{self.base}/#/place/{device}")
         with contextlib.suppress(Exception):  # leaving a PASS nobody saved asks first: leave it unsaved
@@ -101,13 +117,7 @@ class Shots:
 def walk(sh: Shots, nth: int) -> None:
     """Every state, in the order a clinician meets them; ``nth`` picks this view's own wearables."""
     p = sh.page
-    sh.sign_in()
-    p.click("button.mode-pin")
-    p.fill("#operator", OPERATOR)
-    p.fill("#pin", PIN)
-    sh.take("sign-in")
-    p.click("form.signin button[type=submit]")
-    sh.wait(".device-card")
+    sh.sign_in_with_pin(shot=True)
     sh.take("devices")
     careful = ["mock-1", "mock-2"][nth] if nth < 2 else "mock-6"
     p.click(f".device-card[data-device='{careful}'] a.button.primary")
@@ -190,25 +200,64 @@ def faults(sh: Shots, nth: int) -> None:
     del nth
 
 
-STEPS: dict[str, Callable[[Shots, int], None]] = {"walk": walk, "faults": faults}
+def kit(sh: Shots, nth: int) -> None:
+    """The kit's page: three wearables chosen, the tray held still and turned, the loose one named in its row while
+    the tray goes on, the result, saved."""
+    p = sh.page
+    sh.sign_in_with_pin()
+    for device in [d for d in ("mock-1", "mock-2", "mock-3") if d != f"mock-{nth + 1}"] + ["mock-4"]:
+        p.check(f".device-card[data-device='{device}'] .kit-pick input")
+    p.locator("#kit-start").scroll_into_view_if_needed()
+    sh.take("kit-chosen")
+    p.click("#kit-start")
+    sh.wait(".kit[data-state='still'] .kit-cue .ring-wrap")
+    time.sleep(1.0)
+    sh.take("kit-hold-still")
+    sh.wait(".kit[data-state='turn_x'] .kit-cue .gauge-wrap")
+    time.sleep(1.0)
+    sh.take("kit-turning")
+    sh.wait(".kit-device[data-device='mock-4'] .kit-moved")
+    p.locator(".kit-device[data-device='mock-4']").scroll_into_view_if_needed()
+    sh.take("kit-moved-in-its-slot")
+    p.wait_for_selector(".kit[data-state='done']", timeout=120_000)
+    sh.take("kit-result", full=True)
+    if p.locator("#kit-accept").count() == 0:
+        raise SystemExit(f"the kit ended without a wearable to accept: {p.inner_text('.kit')}")
+    p.click("#kit-accept")
+    sh.wait("#kit-saved")
+    p.locator("#kit-saved").scroll_into_view_if_needed()
+    sh.take("kit-saved")
+
+
+STEPS: dict[str, Callable[[Shots, int], None]] = {"walk": walk, "faults": faults, "kit": kit}
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "img" / "webui")
+    ap.add_argument("--steps", type=lambda v: set(v.split(",")), default=set(STEPS),
+                    help=f"which walks, comma-separated, of {', '.join(STEPS)} (default: all)")
     args = ap.parse_args(argv)
+    if unknown := args.steps - set(STEPS):
+        ap.error(f"--steps: no walk named {', '.join(sorted(unknown))}; choose from {', '.join(STEPS)}")
     args.out.mkdir(parents=True, exist_ok=True)
     from playwright.sync_api import sync_playwright
 
-    with service() as base, sync_playwright() as pw:
+    wearables = ["--mock", str(len(SCENARIOS)), "--mock-scenario", ",".join(SCENARIOS), "--max-attempts", "1"]
+    with sync_playwright() as pw:
         browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=["--no-sandbox"])
-        for nth, view in enumerate(VIEWS):
-            print(view)
-            sh = Shots(browser, base, args.out, view)
-            walk(sh, nth)
-            if view == "landscape":
-                faults(sh, nth)
-            sh.ctx.close()
+        for mocks, steps in ((wearables, args.steps - {"kit"}), (KIT, args.steps & {"kit"})):
+            if not steps:
+                continue
+            with service(mocks) as base:
+                for nth, view in enumerate(VIEWS):
+                    print(view)
+                    sh = Shots(browser, base, args.out, view)
+                    for step in sorted(steps, key=list(STEPS).index):
+                        if step == "faults" and view != "landscape":
+                            continue
+                        STEPS[step](sh, nth)
+                    sh.ctx.close()
         browser.close()
     return 0
 

@@ -57,13 +57,28 @@ def _wait_done(page: Any, service: Any, kit_id: str) -> None:
 
 def _record_cues(page: Any) -> None:
     """Record in the page what passes too quickly to wait for: how far the stillness ring beside the tray filled while
-    the kit rested first (in %, and its label), the largest angle the gauge showed in each turn, and each running row's
-    line and buttons of a wearable that moved in its slot ("moved": device -> [kit state, its line, its buttons])."""
+    the kit rested first (in %, and its label), the largest angle the gauge showed in each turn, each running row's
+    line and buttons of a wearable that moved in its slot ("moved": device -> [kit state, its line, its buttons]), and
+    how often each row and the tray's picture were drawn anew against how often what they show changed ("drawn":
+    device or "tray" -> [new elements, changes])."""
     page.evaluate("""() => {
-      window.cues = { ring: 0, ringLabel: null, gauge: {}, moved: {} };
+      window.cues = { ring: 0, ringLabel: null, gauge: {}, moved: {}, drawn: {} };
+      const shown = new Map();
+      const count = (name, el, said) => {
+        const was = shown.get(name), d = window.cues.drawn[name] || (window.cues.drawn[name] = [0, 0]);
+        if (was && was.el === el && was.said === said) return;
+        if (!was || was.el !== el) d[0] += 1;
+        if (!was || was.said !== said) d[1] += 1;
+        shown.set(name, { el, said });
+      };
       new MutationObserver(() => {
         const kit = document.querySelector('.kit'), ring = document.querySelector('.kit-cue .ring-wrap'),
-              gauge = document.querySelector('.kit-cue .gauge-wrap');
+              gauge = document.querySelector('.kit-cue .gauge-wrap'), tray = document.querySelector('.tray-picture');
+        for (const row of document.querySelectorAll('.kit-device')) {
+          count(row.dataset.device, row, [row.dataset.state, row.dataset.passed, row.dataset.departed,
+            ...[...row.children].filter((c) => !c.classList.contains('identify-status')).map((c) => c.textContent)].join('|'));
+        }
+        if (tray) count('tray', tray, tray.getAttribute('aria-label'));
         for (const line of document.querySelectorAll('.kit-device .kit-moved')) {
           const row = line.closest('.kit-device');
           window.cues.moved[row.dataset.device] = [kit.dataset.state, line.textContent,
@@ -135,6 +150,11 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
         # beside the tray, as for one wearable: the ring counted the first rest, the gauge followed each turn
         cues = page.evaluate("() => window.cues")
         assert cues["ring"] >= 50 and cues["ringLabel"] == "Time the tray has been still", cues
+        # the kit's snapshots come many times a second: a row, or the tray's picture, is drawn anew only when what it
+        # shows changes (drawn anew each time, a screen reader would read every row out again, and a tap on its
+        # button could fall between two drawings)
+        assert set(cues["drawn"]) == {"mock-2", "mock-3", "mock-4", "tray"}, cues["drawn"]
+        assert all(new <= changes for new, changes in cues["drawn"].values()), cues["drawn"]
         assert all(cues["gauge"].get(a, 0) >= 200 for a in "xyz"), cues["gauge"]
         assert page.locator(".kit-cue .ring-wrap, .kit-cue .gauge-wrap").count() == 0  # an ended kit has neither
         assert page.inner_text(".kit-prompt") == "Kit calibrated: 2 of 3 passed"

@@ -79,9 +79,18 @@ function toFind(snap, moved) {
   return snap.devices.filter((d) => !passedIt(d)).map((d) => d.device_id);
 }
 
+/** What a wearable's row says, as a key: its row is drawn again only when this changes (the kit's snapshots come many
+ * times a second; a row drawn anew each time would be read out again by a screen reader, and could take a tap). */
+function rowKey(d, ident, moved, refusal) {
+  const k = d.result && Array.isArray(d.result.k) ? d.result.k : null;
+  return JSON.stringify([d.state, d.passed, d.departed, d.decision, d.reason, k, moved, Boolean(ident), refusal]);
+}
+
 /** A wearable's row. ``ident``: its Identify button and status line, when its protocol can blink and the clinician
- * is to find it in the tray (``toFind``); ``moved``: the kit named it moving in its slot while the kit runs. */
-function deviceRow(d, ident, moved) {
+ * is to find it in the tray (``toFind``); ``moved``: the kit named it moving in its slot while the kit runs;
+ * ``refusal``: why the whole kit could not be calibrated, said once above the rows (a row says only a reason of its
+ * own). */
+function deviceRow(d, ident, moved, refusal) {
   const ended = ENDED.has(d.state);
   const good = passedIt(d);
   const k = d.result && Array.isArray(d.result.k) ? d.result.k : null;
@@ -92,7 +101,7 @@ function deviceRow(d, ident, moved) {
     h("span", { class: `kit-state ${ended ? (good ? "pass" : "fail") : ""}` },
       icon(ended ? (good ? "pass" : "fail") : d.state === "reconnecting" || seat ? "warn" : "busy"), h("span", null, stateText(d))),
     k ? h("span", { class: "kit-k" }, `k ${AXES.map((a, i) => `${a.toUpperCase()} ${num(k[i], 4)}`).join(" · ")}`) : null,
-    ended && !good && d.reason ? h("span", { class: "kit-reason" }, d.reason) : null,
+    ended && !good && d.reason && d.reason !== refusal ? h("span", { class: "kit-reason" }, d.reason) : null,
     seat ? h("span", { class: "kit-reason kit-moved" }, "It moved in its slot while the rest of the kit stayed still: seat it firmly.") : null,
     find && (ended || ident) ? h("div", { class: "kit-row-actions" },
       ended ? h("a", { class: "button small kit-redo", href: `#/place/${encodeURIComponent(d.device_id)}` }, icon("redo"), "Redo alone") : null,
@@ -127,6 +136,8 @@ export function kitView(ctx, kitId) {
   const asked = new Set();
   let devices = null;
   let last = null;
+  const drawn = new Map(); // device -> { key, el }: each row as last drawn
+  let trayKey = null;
   const steps = h("ol", { class: "kit-steps" }, STEPS.map(([key, label]) => h("li", { dataset: { step: key } }, label)));
   const rows = h("ul", { class: "kit-devices", "aria-label": "Every wearable of the kit", "aria-live": "polite" });
   const axesNote = h("p", { id: "kit-axes", class: "kit-axes", hidden: true });
@@ -143,7 +154,10 @@ export function kitView(ctx, kitId) {
     const running = !ENDED.has(snap.state);
     const names = snap.devices.map((d) => d.device_id);
     const axis = axisOf(snap.state);
-    fill(tray, trayPicture(names, axis));
+    if (trayKey !== `${names.join("\n")}|${axis}`) {
+      trayKey = `${names.join("\n")}|${axis}`;
+      fill(tray, trayPicture(names, axis));
+    }
     const key = running ? cueKey(snap) : null;
     if (key !== live.key) {
       live = { key, ring: key && key.startsWith("ring") ? stillRing("the tray") : null,
@@ -156,15 +170,17 @@ export function kitView(ctx, kitId) {
     const at = STEPS.findIndex(([key]) => key === snap.state);
     for (const [i, li] of [...steps.children].entries()) {
       li.classList.toggle("done", !running || (at >= 0 && i < at));
-      if (i === at) li.setAttribute("aria-current", "step");
-      else li.removeAttribute("aria-current");
+      if (i === at) {
+        if (li.getAttribute("aria-current") !== "step") li.setAttribute("aria-current", "step");
+      } else if (li.hasAttribute("aria-current")) li.removeAttribute("aria-current");
     }
     const moved = movedAlone(snap);
-    fill(rows, snap.devices.map((d) => deviceRow(d, idents.get(d.device_id), moved.has(d.device_id))));
+    drawRows(snap, moved);
     const find = toFind(snap, moved).filter((id) => !asked.has(id));
     if (find.length) identifyLater(find);
-    axesNote.textContent = running ? "" : axesText(snap);
-    axesNote.hidden = !axesNote.textContent;
+    const axesSaid = running ? "" : axesText(snap);
+    if (axesNote.textContent !== axesSaid) axesNote.textContent = axesSaid;
+    axesNote.hidden = !axesSaid;
     if (running) {
       notices.update(snap);
       const said = snap.prompt || "…";
@@ -173,7 +189,8 @@ export function kitView(ctx, kitId) {
         sound.tone("step");
         sound.say(said);
       }
-      sub.textContent = `${names.length === 2 ? "Both" : `All ${names.length}`} wearables are turned together, in their tray.`;
+      const together = `${names.length === 2 ? "Both" : `All ${names.length}`} wearables are turned together, in their tray.`;
+      if (sub.textContent !== together) sub.textContent = together;
       if (actions.firstChild !== runningActions) fill(actions, runningActions);
       return;
     }
@@ -194,6 +211,24 @@ export function kitView(ctx, kitId) {
       open.length ? h("button", { class: "button primary", type: "button", id: "kit-accept", onclick: accept }, icon("save"),
         `Accept all that passed (${open.length})`) : null,
       h("a", { class: "button", href: "#/devices" }, icon("back"), "Device list"));
+  };
+
+  /** Every wearable's row, each drawn again only when what it says has changed, in the kit's order. */
+  const drawRows = (snap, moved) => {
+    const refusal = (snap.kit && snap.kit.refusal) || null;
+    const els = snap.devices.map((d) => {
+      const ident = idents.get(d.device_id), seat = moved.has(d.device_id);
+      const key = rowKey(d, ident, seat, refusal);
+      const was = drawn.get(d.device_id);
+      if (was && was.key === key) return was.el;
+      const el = deviceRow(d, ident, seat, refusal);
+      drawn.set(d.device_id, { key, el });
+      return el;
+    });
+    const same = els.length === rows.children.length
+      && snap.devices.every((d, i) => rows.children[i].dataset.device === d.device_id);
+    if (!same) fill(rows, els);
+    else els.forEach((el, i) => { if (rows.children[i] !== el) rows.children[i].replaceWith(el); });
   };
 
   const follow = () => {
