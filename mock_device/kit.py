@@ -7,7 +7,7 @@ their clocks from the motion, as it does for wearables that start recording at d
 scripted: the paper's protocol with rests long enough for the service's prompts (``KIT_REST_S``); it does not redo a
 step after a link loss. ``loose`` (0-based) slips in its slot during the second turn of every performance (with
 ``loose_in`` "pause": in the pause after it); ``drop`` (0-based) goes out of range for ``DROP_S`` in the middle of the
-first turn.
+first turn; ``out`` (0-based) lies on the table beside the tray, switched on: it rests through every performance.
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ from calib.simulator.protocol import paper_protocol_script
 from .scenarios import LinkFaults
 from .sources import Block
 
+FLAT = np.array([0.0, 0.0, 1.0])  # the accelerometer of a wearable lying flat, g
 KIT_REST_S = 5.0  # the tray's rests: the first rest and the pauses between turns, s
 SLIP_DEG = 2.0  # how far a loose wearable slips, deg
 PERFORMANCES_KEPT = 4
@@ -72,8 +73,9 @@ class Tray:
     """The tray the kit's simulated wearables ride in, and its performances (one per streaming session)."""
 
     def __init__(self, seed: int, n: int, noise_dps: float = 0.03, loose: int | None = None, drop: int | None = None,
-                 misalignment: float = 0.0, loose_in: str = "turn") -> None:
+                 misalignment: float = 0.0, loose_in: str = "turn", out: int | None = None) -> None:
         self.seed, self.n, self.noise_dps, self.loose, self.drop = int(seed), int(n), float(noise_dps), loose, drop
+        self.out = out
         self.slip = loose_slip(loose, loose_in)
         self.params = tray_sensors(self.seed, self.n, misalignment)  # the same sensors every performance
         self._performances: dict[int, KitTray] = {}
@@ -121,8 +123,10 @@ class KitSource:
             first = next(st for st in performance.tray.stages if st.kind == "turn")
             self.faults = LinkFaults(drop_at_s=0.5 * (first.start_s + first.end_s), drop_for_s=DROP_S)
         self._gyro, self._accel = rec.gyro, rec.accel if rec.accel is not None else np.zeros_like(rec.gyro)
+        if self.tray.out == self.index:  # on the table beside the tray: it rests while the tray turns
+            self._gyro, self._accel = self._gyro[:0], self._accel[:0]
         self._rest = self.tray.params[self.index].reading(np.zeros(3))
-        self._rest_accel = self._accel[-max(1, int(fs_hz * 0.5)):].mean(axis=0)
+        self._rest_accel = self._accel[-max(1, int(fs_hz * 0.5)):].mean(axis=0) if len(self._accel) else FLAT
         self.truth = {"k": truth.k.tolist(), "b": truth.b.tolist(), "K": truth.K.tolist(), "slip_deg": truth.slip_deg}
 
     def resumed(self, lost_at: int, at: int) -> None:

@@ -26,7 +26,7 @@ from calib.simulator import ProtocolScript, Segment, SensorParams, Still, Turn
 from calib.simulator.kit import KitDeviceTruth, KitTray, Slip
 
 from .hand import HANDS, Act, PromptHand
-from .kit import Joins, loose_slip, resting_after, tray_sensors
+from .kit import FLAT, Joins, loose_slip, resting_after, tray_sensors
 from .scenarios import LinkFaults
 from .sources import Block
 
@@ -99,8 +99,9 @@ class PromptedTray:
     """The tray the kit's simulated wearables ride in, turned by one prompt-following hand of style ``hand``."""
 
     def __init__(self, seed: int, n: int, hand: str, noise_dps: float = 0.03, loose: int | None = None,
-                 misalignment: float = 0.0, loose_in: str = "turn") -> None:
+                 misalignment: float = 0.0, loose_in: str = "turn", out: int | None = None) -> None:
         self.seed, self.n, self.style, self.noise_dps, self.loose = int(seed), int(n), HANDS[hand], float(noise_dps), loose
+        self.out = out  # lies on the table beside the tray: it rests while the tray turns
         self.slip = loose_slip(loose, loose_in)
         self.params = tray_sensors(self.seed, self.n, misalignment)  # the same sensors every performance
         self.performance: TrayPerformance | None = None
@@ -136,6 +137,7 @@ class PromptedKitSource:
         params = tray.params[self.index]
         self.truth: dict[str, object] = {"k": params.k.tolist(), "b": params.b.tolist()}
         self.streaming: Callable[[], None] | None = None  # told when a stream starts (the hand's eyes look then)
+        self._rng = np.random.default_rng([tray.seed, self.index, 0x7A13])
 
     def prepare(self, fs_hz: float) -> None:
         self.session += 1
@@ -148,6 +150,9 @@ class PromptedKitSource:
     def block(self, start: int, end: int) -> Block:
         assert self._performance is not None, "prepare() first"
         blk = self._performance.block(self.index, self._fs, start, end)
+        if self.tray.out == self.index:  # the tray's motion played (the hand's acts fall due) but not read by this one
+            rest = self.tray.params[self.index].reading(np.zeros(3))
+            return resting_after(np.zeros((0, 3)), np.zeros((0, 3)), rest, FLAT, self.tray.noise_dps, start, end, self._rng)
         if self.tray.loose == self.index:
             self.truth["slip_deg"] = self._performance.truth(self.index, self._fs).slip_deg
         return blk

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 from calib.errors import GyrocalError
 
 from .config import DEFAULT_HEADER_TIMEOUT_S, DEFAULT_MAX_CONNECTIONS
+from .mock_cli import add_mock_options, kit_scenario_problem, mock_problem
 
 if TYPE_CHECKING:
     from .config import GatewaySettings
@@ -40,45 +41,7 @@ def register(sub: Any) -> None:
     p.add_argument("--db", default=None, metavar="URL",
                    help="SQLAlchemy URL of the store: sqlite:///path or postgresql://user@host/db "
                    "(default: GYROCAL_DB, else gyrocal.sqlite3 in the user's data directory)")
-    p.add_argument("--mock", type=int, default=0, metavar="N", help="add N simulated wearables mock-1 ... mock-N")
-    p.add_argument("--mock-first", type=int, default=1, metavar="I",
-                   help="number the simulated wearables from mock-I (default 1): gateways of one fleet sharing some wearables")
-    p.add_argument(
-        "--mock-speed", type=float, default=1.0, metavar="X", help="simulated time runs X times faster than real time (default 1)"
-    )
-    p.add_argument("--mock-seed", type=int, default=0, metavar="S", help="seed of the simulated sensors and clinicians (default 0)")
-    p.add_argument(
-        "--mock-scenario",
-        default="normal",
-        metavar="NAMES",
-        help="what the simulated clinician does, comma-separated, assigned to mock-1, mock-2, ... in turn: "
-        "normal, moved_during_still, wrong_axis, too_fast, stops_short, link_drop, packet_loss, dropped (a fixed script), or "
-        "hand:careful, hand:hurried, hand:sloppy, hand:bumps, hand:gauge, hand:short (a clinician who follows the session's prompts, "
-        "reading them from the service as the page does) (default normal)",
-    )
-    p.add_argument(
-        "--mock-rate", type=float, default=None, metavar="HZ",
-        help="sample rate of the simulated wearables (default: the model's streaming rate, 104 for gyrocal)"
-    )
-    p.add_argument(
-        "--mock-model", default="gyrocal", metavar="NAME",
-        help="the protocol the simulated wearables speak: gyrocal, polar-pmd, metawear or thingy52 (default gyrocal)"
-    )
-    p.add_argument("--mock-kit", action="store_true",
-                   help="the N simulated wearables ride in one tray that one clinician turns through the protocol: a kit to "
-                        "calibrate together (POST /kits/calibrate); a scripted clinician, or with --mock-scenario hand:STYLE "
-                        "one who follows the kit's prompts")
-    p.add_argument("--mock-kit-loose", type=int, default=None, metavar="I",
-                   help="with --mock-kit: the I-th simulated wearable (from 1) slips in its slot during the second turn")
-    # calib.simulator.kit.SLIP_WHEN, written out: importing it would load scipy at every start of the command line
-    p.add_argument("--mock-kit-loose-in", choices=("turn", "pause"), default="turn",
-                   help="with --mock-kit-loose: it slips during the second turn (default), or in the pause after it, the "
-                        "tray resting still")
-    p.add_argument("--mock-kit-drop", type=int, default=None, metavar="I",
-                   help="with --mock-kit: the I-th simulated wearable (from 1) goes out of range for 1.5 s in the first turn")
-    p.add_argument("--mock-kit-misalignment", type=float, default=0.0, metavar="M",
-                   help="with --mock-kit: the simulated sensors' axes are not orthogonal, the entries above each one's "
-                        "K's diagonal drawn in +-M (e.g. 0.01: 1 %% cross-axis sensitivity)")
+    add_mock_options(p)
     p.add_argument(
         "--ble",
         action="store_true",
@@ -204,22 +167,8 @@ def build_service(args: argparse.Namespace) -> Any:
     from .devices import DeviceManager, SimulatorsUnavailable, load_simulators
     from .service import Service
 
-    if args.mock < 0 or args.mock > 1000:
-        raise ServiceError("--mock takes a number of simulated wearables between 0 and 1000")
-    if not 1 <= args.mock_first <= 100000:
-        raise ServiceError("--mock-first takes the first simulated wearable's number, from 1 to 100000")
-    if not (args.mock_speed > 0):
-        raise ServiceError("--mock-speed must be a positive number (1 = real time)")
-    if args.mock_kit and args.mock < 2:
-        raise ServiceError("--mock-kit puts the simulated wearables in one tray: give at least two with --mock N")
-    for flag, value in (("--mock-kit-loose", args.mock_kit_loose), ("--mock-kit-drop", args.mock_kit_drop)):
-        if value is not None and not (args.mock_kit and 1 <= value <= args.mock):
-            raise ServiceError(f"{flag} names one of the kit's simulated wearables, from 1 to {args.mock}, with --mock-kit")
-    if args.mock_kit_loose_in != "turn" and args.mock_kit_loose is None:
-        raise ServiceError("--mock-kit-loose-in says when the wearable of --mock-kit-loose slips: give --mock-kit-loose I too")
-    if args.mock_kit_misalignment and not (args.mock_kit and 0.0 < args.mock_kit_misalignment < 0.5):
-        raise ServiceError("--mock-kit-misalignment is the largest cross-axis entry of each simulated sensor's K, between 0 "
-                           "and 0.5 (e.g. 0.01), with --mock-kit")
+    if (problem := mock_problem(args)) is not None:
+        raise ServiceError(problem)
     if not (0.5 <= args.header_timeout_s <= 600):
         raise ServiceError("--header-timeout-s must be between 0.5 and 600 seconds")
     if not (16 <= args.max_connections <= 1_000_000):
@@ -257,7 +206,8 @@ def build_service(args: argparse.Namespace) -> Any:
     unknown = [s for s in scenarios if simulators is not None and s not in simulators.scenarios]
     if simulators is not None and unknown:
         raise ServiceError(f"unknown --mock-scenario {', '.join(unknown)}: choose from {', '.join(simulators.scenarios)}")
-    _check_kit_scenario(args, scenarios)
+    if (problem := kit_scenario_problem(args, scenarios)) is not None:
+        raise ServiceError(problem)
     settings = Settings(
         db_url=args.db or default_db_url(),
         host=args.host,
@@ -296,19 +246,9 @@ def build_service(args: argparse.Namespace) -> Any:
                           first=args.mock_first, model=args.mock_model, kit=args.mock_kit,
                           loose=None if args.mock_kit_loose is None else args.mock_kit_loose - 1,
                           drop=None if args.mock_kit_drop is None else args.mock_kit_drop - 1,
-                          misalignment=args.mock_kit_misalignment, loose_in=args.mock_kit_loose_in)
+                          misalignment=args.mock_kit_misalignment, loose_in=args.mock_kit_loose_in,
+                          out=None if args.mock_kit_out is None else args.mock_kit_out - 1)
     return Service(settings, store=store, devices=devices)
-
-
-def _check_kit_scenario(args: argparse.Namespace, scenarios: list[str]) -> None:
-    """A kit's tray is turned by one clinician: the scripted one, or one hand:STYLE who follows the kit's prompts."""
-    if not args.mock_kit:
-        return
-    if set(scenarios) - {"normal"} and not (len(set(scenarios)) == 1 and scenarios[0].startswith("hand:")):
-        raise ServiceError("--mock-kit's tray is turned by one clinician: leave out --mock-scenario for the scripted one, or "
-                           "give one hand:STYLE (such as hand:careful) for one who follows the kit's prompts")
-    if args.mock_kit_drop is not None and scenarios and scenarios[0].startswith("hand:"):
-        raise ServiceError("--mock-kit-drop plays with the scripted tray clinician: leave out --mock-scenario hand:STYLE")
 
 
 def gateway_settings(args: argparse.Namespace) -> GatewaySettings | None:

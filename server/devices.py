@@ -45,7 +45,8 @@ class Simulators(Protocol):
 
     def kit(self, *, seed: int, n: int, speed: float, names: list[str], rate_hz: float | None, noise_dps: float,
             model: str, loose: int | None, drop: int | None, hand: str | None,
-            service_url: Callable[[], str | None], misalignment: float = 0.0, loose_in: str = "turn") -> list[Any]: ...
+            service_url: Callable[[], str | None], misalignment: float = 0.0, loose_in: str = "turn",
+            out: int | None = None) -> list[Any]: ...
 
 
 class SimulatorsUnavailable(Exception):
@@ -223,14 +224,15 @@ class DeviceManager:
         drop: int | None = None,
         misalignment: float = 0.0,
         loose_in: str = "turn",
+        out: int | None = None,
     ) -> list[Device]:
         """N simulated wearables mock-``first`` … mock-(first+N-1) speaking ``model``'s protocol, each performing its
         scenario when streaming starts. ``rate_hz`` None: the model's streaming rate. A wearable's number alone sets
-        its sensor, so two gateways simulating mock-8 simulate the same wearable. ``kit``: the N ride in one tray that one
-        clinician turns (``loose``: the one, 0-based, that slips in its slot, in the second turn or with ``loose_in`` "pause" in the pause
-        after it; ``drop``: the one that loses its link
-        for a moment; ``misalignment``: their sensors' axes are not orthogonal), instead of each its scenario: a
-        scripted one, or the ``hand:<style>`` clinician of ``scenarios`` who follows the kit's prompts."""
+        its sensor, so two gateways simulating mock-8 simulate the same wearable. ``kit``: the N ride in one tray that
+        one clinician turns, instead of each its scenario: a scripted one, or the ``hand:<style>`` clinician of
+        ``scenarios`` who follows the kit's prompts. In the tray (each 0-based): ``loose`` slips in its slot, in the
+        second turn or with ``loose_in`` "pause" in the pause after it; ``drop`` loses its link for a moment; ``out``
+        lies beside the tray, turning with nothing; ``misalignment``: their sensors' axes are not orthogonal."""
         import time
 
         from .link import InProcessLink, ReconnectPolicy
@@ -245,8 +247,8 @@ class DeviceManager:
         if kit:
             tray = simulators.kit(seed=seed * 1000 + first, n=n, speed=speed, names=ids, rate_hz=rate_hz, noise_dps=noise_dps,
                                   model=model, loose=loose, drop=drop, hand=hand, service_url=lambda: self.service_url,
-                                  misalignment=misalignment, loose_in=loose_in)
-        out = []
+                                  misalignment=misalignment, loose_in=loose_in, out=out)
+        added = []
         for j, i in enumerate(range(first, first + n)):
             scenario = (f"kit:{hand}" if hand else "kit") if kit else scenarios[(i - 1) % len(scenarios)]
             dev_seed = seed * 1000 + i
@@ -268,8 +270,8 @@ class DeviceManager:
                 peripheral=wearable,
             )
             dev.read_local_battery()
-            out.append(self.add(dev))
-        return out
+            added.append(self.add(dev))
+        return added
 
     async def scan(self, timeout_s: float = 5.0) -> list[Device]:
         """Scan for wearables: BLE ones when --ble, and the simulated ones (always "found")."""

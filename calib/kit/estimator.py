@@ -27,10 +27,11 @@ from calib.estimators.closure.fit import KPrior
 from calib.judge.acceptance import misclosure
 from calib.kit.axes import KitAxes, Refit, kit_axes
 from calib.kit.clocks import IDENTITY, ClockMap, coarse_clock
-from calib.kit.coupling import IDENTITY_MAP, Coupling, LinearMap, couple, fit_map, reading_noise, resting, runs
+from calib.kit.coupling import IDENTITY_MAP, LinearMap, couple, fit_map, reading_noise, resting, runs
 from calib.kit.departure import BURST_DPS, DEPARTURE_DEG, NO_DEPARTURE, departures
 from calib.kit.members import PARAMETERS, MemberParams, member_params, rest_bias
 from calib.kit.result import Coherence, KitMember, KitResult
+from calib.kit.together import check_one_motion, odd_one_out, refusal_of_two
 from calib.kit.turn_rows import member_turn_rows
 from calib.kit.turns import gaps, lost_in
 from calib.numerics.attitude import cumulative_attitude
@@ -42,7 +43,6 @@ from calib.stages.stage import Stage
 
 METHOD = "kit-closure"
 CONSENSUS_PASSES = 2
-ONE_MOTION_SHARE = 0.99  # the least share of a wearable's motion the coupling must explain for one kit's recordings
 Progress = Callable[[float, str], None]
 
 
@@ -65,9 +65,18 @@ def calibrate_kit(recordings: Sequence[Recording], names: Sequence[str] | None =
     left_out: list[int] = []
     alone: dict[int, CalibrationResult | GyrocalError] = {}
     seen: dict[int, tuple[ClockMap, Coherence]] = {}  # a departed wearable's clock and departure, when it was found
+    not_turned: list[int] = []  # wearables that did not turn with the others at all (calib.kit.together)
     while True:
         say(min(0.1 + 0.3 * len(left_out), 0.8), "aligning the clocks and fitting the coupling")
-        solved = _solve(recordings, names, members, protocol, heading_prior_deg, clock_runs, turns_kept)
+        try:
+            solved = _solve(recordings, names, members, protocol, heading_prior_deg, clock_runs, turns_kept)
+        except KitRefusal as refused:
+            odd = odd_one_out(recordings, names, members, refused) if refused.code == "not_one_motion" else None
+            if odd is None:
+                raise (refusal_of_two(recordings, names, refused) if len(members) == 2 else refused) from None
+            not_turned.append(odd)
+            members.remove(odd)
+            continue
         flagged = [members[j] for j, d in enumerate(solved.departures) if d.departed]
         if not flagged:
             break
@@ -92,11 +101,16 @@ def calibrate_kit(recordings: Sequence[Recording], names: Sequence[str] | None =
     for i in left_out:
         alone.setdefault(i, _alone(recordings[i], protocol, heading_prior_deg))
         out[i] = _departed_member(names[i], alone[i], len(recordings), *seen[i])
+    for i in not_turned:
+        out[i] = KitMember(names[i], None, IDENTITY, float("nan"), None, turned=False,
+                           error=f"{names[i]} did not turn with the kit: its readings do not follow the others' motion")
     warnings = [f"{names[i]}'s readings reached its gyroscope's full scale in {int(c.sum())} samples: the kit bridged "
                 "them from the other wearables' readings of the same motion" for i, c in enumerate(clipped) if c.any()]
     warnings += [f"{names[i]} came apart from the kit: it moved in its slot, or its readings do not follow the tray's "
                  "motion; it was calibrated alone from its own turns; seat it firmly and calibrate it again"
                  for i in left_out]
+    warnings += [f"{names[i]} did not turn with the kit (its readings do not follow the others' motion): it was left "
+                 "out; check it was in the tray and switched on, and calibrate it again" for i in not_turned]
     say(1.0, "done")
     return KitResult(out, names[solved.ref], solved.mean, warnings, axes.to_dict())
 
@@ -137,7 +151,7 @@ def _solve(recordings: Sequence[Recording], names: Sequence[str], members: list[
     for i in members[1:]:
         pair = (names[ref_i], names[i])
         coupling = couple(ref, recordings[i], coarse_clock(ref, recordings[i], names=pair), ref_noise, clock_runs[i])
-        _check_one_motion(coupling, *pair)
+        check_one_motion(coupling, *pair)
         clocks[i], readings[i], maps[i] = coupling.clock, coupling.readings, coupling.map
     keep = np.ones(len(ref), dtype=bool)
     for values in readings.values():
@@ -177,18 +191,6 @@ def _taken(stages: list[Stage], spans: list[np.ndarray]) -> list[Stage]:
         return any(min(b, st.end_s) - max(a, st.start_s) >= 0.5 * min(b - a, st.end_s - st.start_s) for a, b in spans)
 
     return [st for st in stages if st.kind != "turn" or taken(st)]
-
-
-def _check_one_motion(coupling: Coupling, ref: str, wearable: str) -> None:
-    """KitRefusal when ``wearable`` does not follow ``ref``'s motion at all (another session's recording, or a wearable
-    left out of the tray): a wearable that slipped in its slot still follows it, to a fraction of a percent of the
-    motion."""
-    y = coupling.readings[np.all(np.isfinite(coupling.readings), axis=1)]
-    explained = 1.0 - float(np.sum(coupling.map.residual_sd**2) / np.sum(y.var(axis=0)))
-    if explained < ONE_MOTION_SHARE:
-        raise KitRefusal(f"{wearable} does not follow {ref}'s motion (the rigid coupling explains "
-                         f"{max(explained, 0.0):.0%} of it): the recordings are not of one kit turned together; give "
-                         "one recording per wearable of the same session", wearable=wearable, reference=ref)
 
 
 def _against_others(i: int, members: list[int], y: dict[int, np.ndarray], mapped: dict[int, np.ndarray],

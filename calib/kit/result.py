@@ -36,8 +36,9 @@ class Coherence:
 @dataclass(eq=False)
 class KitMember:
     """One wearable of the kit: its name, its calibration (None, with ``error``, when none could be made), its
-    clock against the reference's, its mounting angle against the reference, how it followed the kit, and whether it
-    departed (then ``result`` is its calibration alone, which the kit's motion does not vouch for)."""
+    clock against the reference's, its mounting angle against the reference, how it followed the kit, whether it
+    departed (then ``result`` is its calibration alone, which the kit's motion does not vouch for), and whether it turned
+    with the kit at all (not: left out of the tray, or switched off; no result, ``error`` says so)."""
 
     name: str
     result: CalibrationResult | None
@@ -46,6 +47,7 @@ class KitMember:
     coherence: Coherence | None
     departed: bool = False
     error: str | None = None
+    turned: bool = True
 
     def to_json(self) -> dict[str, Any]:
         return finite({
@@ -55,6 +57,7 @@ class KitMember:
             "mount_deg": self.mount_deg,
             "consistency": None if self.coherence is None else self.coherence.to_dict(),
             "departed": self.departed,
+            "turned": self.turned,
             "error": self.error,
         })
 
@@ -74,12 +77,18 @@ class KitResult:
     def departed(self) -> list[str]:
         return [m.name for m in self.members if m.departed]
 
+    @property
+    def not_turned(self) -> list[str]:
+        """The wearables that did not turn with the kit at all, left out of it."""
+        return [m.name for m in self.members if not m.turned]
+
     def consistency(self) -> dict[str, Any]:
         """The kit's consistency: per wearable the coupling's residual and departure, and who departed."""
         return finite({
             "reference": self.reference,
             "devices": {m.name: None if m.coherence is None else m.coherence.to_dict() for m in self.members},
             "departed": self.departed,
+            "not_turned": self.not_turned,
             "axes": self.axes,
         })
 

@@ -23,6 +23,7 @@ from typing import Protocol
 
 from .codes import STEPS, EndReason, Phase, State
 from .turn_checks import HeldFault, HeldMove
+from .turns import TurnRecord
 
 HOLD_S = 0.5  # device time a wearable's fault waits for the others' readings of the same moment (a knock reaches
 # each wearable's detector up to a few tenths of a second apart) before another's passing that turn makes it its own
@@ -45,6 +46,8 @@ class Readings(Protocol):
 
     def moved_between(self, t0: float, t1: float) -> bool: ...
 
+    def still_between(self, t0: float, t1: float) -> bool: ...
+
     def wall_offset(self) -> float | None: ...
 
 
@@ -64,7 +67,7 @@ class Wearable(Protocol):
     def stream(self) -> Readings: ...
 
     @property
-    def turns(self) -> Mapping[str, object]: ...
+    def turns(self) -> Mapping[str, TurnRecord]: ...
 
     @property
     def axis(self) -> str | None: ...
@@ -77,6 +80,8 @@ class Wearable(Protocol):
     def kit_closes_turn(self, passed: list[str], moved_alone: bool) -> None: ...
 
     def say_move(self, alone_of: list[str] | None) -> None: ...
+
+    def kit_not_turned(self, turned: list[str]) -> None: ...
 
 
 def _step(w: Wearable) -> int:
@@ -170,3 +175,24 @@ def judge_held(wearables: Sequence[Wearable]) -> bool:
         elif passed and waited >= (WAIT_S if undecided else HOLD_S):
             w.kit_closes_turn([o.device_id for o in passed], moved_alone=False)
     return any(w.held_fault is not None or w.held_move is not None for w in following)
+
+
+def judge_not_turned(wearables: Sequence[Wearable]) -> None:
+    """A wearable still waiting for a turn that every other wearable of the kit has made, whose readings all through
+    that turn (read past its end, on its own clock) stayed still, did not turn with the tray: it is not in the tray, or
+    not switched on. The kit says so once and closes that turn for it, so that it follows the tray's steps."""
+    following = [w for w in wearables if not w.finished and w.state not in NOT_FOLLOWING]
+    for w in following:
+        axis = w.axis
+        if w.phase != Phase.READY or axis is None or axis in w.turns or axis in w.kit_closed:
+            continue
+        others = [o for o in following if o is not w]
+        past = [o for o in others if _step(o) > _step(w) or (o.state == w.state and o.phase == Phase.PAUSE)]
+        made = [o for o in past if axis in o.turns and axis not in o.kit_closed]  # (past it, some closed by the kit)
+        if not others or len(past) < len(others) or not made:
+            continue
+        spans = [(o.turns[axis].start_s + _shift(o, w), o.turns[axis].end_s + _shift(o, w)) for o in made]
+        if w.t_now < max(end for _, end in spans) + ARRIVAL_S:  # its readings of the turn's end have not come yet
+            continue
+        if all(w.stream.still_between(start - ARRIVAL_S, end + ARRIVAL_S) for start, end in spans):
+            w.kit_not_turned([o.device_id for o in made])

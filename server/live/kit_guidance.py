@@ -35,6 +35,14 @@ def not_one_motion(wearable: str, reference: str) -> str:
             f"then calibrate the kit again, or {wearable} alone.")
 
 
+def not_turned(wearable: str, turned: Sequence[str]) -> str:
+    """The reason of a kit's wearable whose readings follow none of the others' (calib.kit.together): the kit left it
+    out and calibrated the rest."""
+    return (f"{wearable} did not turn with the rest of the kit ({', '.join(turned)}): its readings show none of the "
+            "tray's motion, so the kit left it out. Check that it sits in the tray and stays switched on, then calibrate "
+            "it alone or with the kit.")
+
+
 def refused(why: str) -> str:
     """Why a kit could not be calibrated together, in calib's words (``why``, one sentence), and what to do."""
     return f"The kit could not be calibrated together: {why.rstrip('.')}. Start a new calibration."
@@ -108,6 +116,12 @@ def kit_moved_alone(device_id: str, axis: str | None, still: Sequence[str]) -> s
     then = "the tray goes on" if axis else "its count starts again"
     return (f"{device_id} moved{when} while the rest of the kit ({', '.join(still)}) stayed still: it may be loose in "
             f"its slot. Seat it firmly; {then}.")
+
+
+def kit_not_turned(device_id: str, axis: str, turned: Sequence[str]) -> str:
+    """The rest of the kit (``turned``) turned about ``axis``, and this wearable's readings show none of it."""
+    return (f"{device_id} did not turn with the rest of the kit ({', '.join(turned)} turned about {ax(axis)}): it may not "
+            "be in the tray, or not be switched on. Put it in its slot; the tray goes on without it.")
 
 
 def kit_tray_moved_unchecked(device_id: str, axis: str, passed: Sequence[str]) -> str:

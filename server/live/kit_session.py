@@ -29,7 +29,7 @@ from . import guidance as say
 from . import kit_guidance as kit_say
 from .codes import EndReason
 from .events import Broadcaster
-from .kit_faults import judge_held
+from .kit_faults import judge_held, judge_not_turned
 from .kit_redo import tray_turns_to_redo
 from .kit_snapshot import kit_snapshot, kit_waits_for
 from .snapshot_schema import KitOut, SessionOut
@@ -209,6 +209,7 @@ class KitSession(Generic[M]):
         loop = asyncio.get_running_loop()
         if self._publishing is None and not self.broadcaster.closed:
             self._publishing = loop.call_later(KIT_EVENT_S, self.publish)
+        judge_not_turned([m.machine for m in self.members])
         waited_for = [m for m in self.members if kit_waits_for(m.machine)]
         if waited_for:  # the tray is kept still meanwhile: its prompt says so
             for m in self.members:

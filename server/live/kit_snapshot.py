@@ -14,7 +14,7 @@ from .snapshot_schema import KitDeviceOut, KitOut, SessionOut, SessionWarning
 if TYPE_CHECKING:
     from ..store.records import StoredKit, StoredSession
 
-NAMED = ("kit_closed_turn", "kit_moved_alone")  # a wearable's own warnings that name it already
+NAMED = ("kit_closed_turn", "kit_moved_alone", "kit_not_turned")  # a wearable's own warnings that name it already
 # a wearable's own warnings (its link, its data, its samples, its result): named by it. Every other warning is the
 # tray's: each wearable sees the same bump, the same turn, the same late service, and the kit says it once, of the tray
 OWN_WARNINGS = frozenset({"link_lost", "link_restored", "no_data", "data_resumed", "kit_ahead", *NAMED, EndReason.SAMPLE_LOSS,

@@ -154,11 +154,14 @@ class KitAxesOut(BaseModel):
 
 
 class KitConsistency(BaseModel):
-    """The kit's consistency: the reference wearable, each wearable's, who departed, and the kit's axes."""
+    """The kit's consistency: the reference wearable, each wearable's, who departed, who did not turn with the kit at
+    all (left out of it), and the kit's axes."""
 
     reference: str
     devices: dict[str, KitMemberConsistency | None]
     departed: list[str]
+    not_turned: list[str] = Field(default_factory=list, description="the wearables whose readings follow none of the "
+                                  "others' motion (not in the tray, or not switched on): left out of the kit")
     axes: KitAxesOut | None = None
 
 

@@ -147,9 +147,27 @@ class SessionStream:
         return recent_rate_dps(self.buf.gyro[max(0, n - k):n], self.rest_reading(), k)
 
     def _moving(self, lo: int, hi: int) -> np.ndarray:
-        """Whether each reading lo..hi-1 moved: away from the rest reading by more than a stopped device reads."""
-        g = self.buf.gyro[lo:hi] - self.rest_reading()
+        """Whether each reading lo..hi-1 moved: away from the rest reading by more than a stopped device reads. Before
+        any still closed (a wearable that has not moved yet: one left beside its kit's tray), the rest reading is the
+        median of its last 10 s of readings up to ``hi``, not 0, which its bias alone (up to 5 deg/s an axis) would read
+        as moving."""
+        if self.last_still is not None or hi < 1:
+            rest = self.rest_reading()
+        else:
+            rest = np.median(self.buf.gyro[max(0, hi - int(10.0 * (self.fs or 100.0))):hi], axis=0)
+        g = self.buf.gyro[lo:hi] - rest
         return np.asarray(np.sqrt((g * g).sum(axis=1)) > STOP_DPS)
+
+    def still_between(self, t0: float, t1: float) -> bool:
+        """Whether the readings from device time ``t0`` to ``t1`` (s) are there and stayed within a stopped device's
+        reach of their own median: no motion then, whatever the rest reading (one that never moved has closed no still
+        to read it from)."""
+        t = self.buf.t[:self.buf.n]
+        lo, hi = int(np.searchsorted(t, t0)), int(np.searchsorted(t, t1, side="right"))
+        if self.fs is None or hi - lo < 0.9 * (t1 - t0) * self.fs:
+            return False
+        g = self.buf.gyro[lo:hi]
+        return bool(np.all(np.sqrt(((g - np.median(g, axis=0)) ** 2).sum(axis=1)) <= STOP_DPS))
 
     def move_span(self, at_t: float, within_s: float) -> tuple[float, float] | None:
         """The span (device time, s) of the move under way at ``at_t``: the run of moving readings nearest to it

@@ -20,7 +20,7 @@ from ..config import ProtocolTimings
 from . import guidance as say
 from . import kit_guidance as kit_say
 from .codes import TURN_STATES, EndReason, Phase, State
-from .snapshot_schema import LiveReading
+from .snapshot_schema import LiveReading, SessionWarning
 from .stream import SessionStream
 from .turn_judge import TurnMeasure, is_no_turn, judge_turn
 from .turn_watch import EARLY_TURN_DEG, RESUME_DPS, STOP_DPS, LiveAngle
@@ -55,6 +55,7 @@ class TurnChecks:
     held_move: HeldMove | None
     moves: list[float]  # the device time of each move seen while resting, s
     kit_closed: set[str]  # the turns (axes) whose fault, this wearable's own, its kit closed with the others' readings
+    warnings: list[SessionWarning]
     t_now: float
     state: State
     phase: Phase | None
@@ -225,6 +226,18 @@ class TurnChecks:
             said = kit_say.kit_closed_turn(self.device_id, held.message, passed)
         self._warn("kit_moved_alone" if moved_alone else "kit_closed_turn", said)
         self._early = None
+        self._set_phase(Phase.PAUSE, say.pause_prompt(axis, self._next_axis()))
+
+    def kit_not_turned(self, turned: list[str]) -> None:
+        """The rest of the kit (``turned``) turned about this wearable's axis and its readings show none of it (not in
+        the tray, or not switched on): said once, and that turn is closed by the kit, so that this wearable follows the
+        tray's steps (the kit's calibration leaves it out if it never follows the others: calib.kit.together)."""
+        if self.finished or self.phase != Phase.READY:
+            return
+        axis = AXES[self._axis_i]
+        if not any(w.code == "kit_not_turned" for w in self.warnings):
+            self._warn("kit_not_turned", kit_say.kit_not_turned(self.device_id, axis, turned))
+        self.kit_closed.add(axis)
         self._set_phase(Phase.PAUSE, say.pause_prompt(axis, self._next_axis()))
 
     def turn_again_with_kit(self, axes: list[str], message: str) -> None:

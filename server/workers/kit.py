@@ -27,8 +27,8 @@ def calibrate_kit_live(recordings: list[Recording], names: list[str],
                        turns_kept: list[list[tuple[float, float]]] | None = None) -> KitOutcome:
     """Calibrate a kit session's recordings (one per wearable, in ``names``' order) together; ``turns_kept``: each
     wearable's turns its guidance took (start and end on its stamps, s), so that a turn the tray was asked again is no
-    turn of the kit's. A wearable that departed from the kit gets no result: the reason says what happened and what to
-    do."""
+    turn of the kit's. A wearable that departed from the kit, or did not turn with it at all, gets no result: the reason
+    says what happened and what to do."""
     from calib.errors import GyrocalError, KitRefusal, Refusal
     from calib.kit.departure import DEPARTURE_DEG
     from calib.kit.estimator import calibrate_kit
@@ -44,8 +44,12 @@ def calibrate_kit_live(recordings: list[Recording], names: list[str],
         code = exc.code if isinstance(exc, Refusal) else "not_calibrated"
         return KitOutcome({n: LiveOutcome(None, why, code, csvs[n]) for n in names}, refusal=why)
     outcomes = {}
+    turned = [m.name for m in kit.members if m.turned]
     for member in kit.members:
-        if member.departed:
+        if not member.turned:
+            outcomes[member.name] = LiveOutcome(None, say.not_turned(member.name, turned), "not_one_motion",
+                                                csvs[member.name], EndReason.DEPARTED)
+        elif member.departed:
             d = member.coherence.departure if member.coherence is not None else None
             step = d.step_deg if d is not None and d.step_deg >= DEPARTURE_DEG else None
             outcomes[member.name] = LiveOutcome(None, say.came_apart(step), None, csvs[member.name], EndReason.DEPARTED)

@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import json
 import re
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from calib.cli.main import main
-from calib.errors import GyrocalError
+from calib.errors import GyrocalError, KitRefusal
 from calib.judge.acceptance import misclosure
 from calib.kit.clocks import coarse_clock
 from calib.kit.coupling import couple, reading_noise
@@ -141,7 +142,6 @@ def test_a_wearable_that_slips_in_its_slot_is_named_and_the_rest_of_the_kit_is_c
 def test_recordings_that_are_not_one_kit_are_refused_with_what_to_do(tmp_path, capsys) -> None:
     """Named by the kit's names (which wearable, against which), with a code for a program: the command line's JSON
     error and the service's words (tests/server/test_kit_departed_reason.py) come from it."""
-    from calib.errors import KitRefusal
     from calib.io.readers import write_native_csv
 
     a, _ = simulate_kit(1, 2)
@@ -163,6 +163,30 @@ def test_recordings_that_are_not_one_kit_are_refused_with_what_to_do(tmp_path, c
     assert main(["calibrate-kit", str(tmp_path / "left.csv"), str(tmp_path / "right.csv"), "--json"]) == 3
     error = json.loads(capsys.readouterr().out)["error"]
     assert error["code"] == "not_one_motion" and "right does not follow left's motion" in error["message"], error
+
+
+@pytest.mark.parametrize("left", [0, 2], ids=["the-reference", "another"])
+def test_a_wearable_that_turned_with_nothing_is_left_out_and_the_rest_calibrated(left: int) -> None:
+    # left on the table beside the tray: its readings follow none of the others'. The whole kit was refused, naming
+    # another wearable when it was the reference ("kit-5-2 does not follow kit-5-1's motion")
+    recs, truth = simulate_kit(5, 4)
+    r = recs[left]
+    table = r.gyro[:150].mean(axis=0) + 0.03 * np.random.default_rng(0).standard_normal(r.gyro.shape)
+    recs[left] = replace(r, gyro=table, accel=np.tile(r.accel[0], (len(r), 1)))
+    kit = calibrate_kit(recs, heading_prior_deg=PRIOR_DEG)
+    name = recs[left].meta.device_id
+    assert kit.not_turned == [name] and kit.departed == [] and kit.reference != name
+    assert kit.consistency()["not_turned"] == [name] and kit.to_json()["devices"][left]["turned"] is False
+    assert kit.members[left].result is None and "did not turn with the kit" in kit.members[left].error
+    assert any(w.startswith(f"{name} did not turn with the kit") for w in kit.warnings)
+    for i, (member, d) in enumerate(zip(kit.members, truth.devices, strict=True)):
+        if i != left:
+            assert np.all(np.abs(member.result.k - d.k_own) < 4.5 * member.result.k_std), member.name
+    # of two, the kit cannot be calibrated: the one that was not turned at all is named, whichever was given first
+    for pair in ([recs[left], recs[1]], [recs[1], recs[left]]):
+        with pytest.raises(KitRefusal, match=f"{name} was not turned with") as refused:
+            calibrate_kit(pair)
+        assert refused.value.wearable == name
 
 
 def test_wearables_whose_clocks_started_an_hour_apart_are_aligned_by_the_motion() -> None:

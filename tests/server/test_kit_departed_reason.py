@@ -5,7 +5,9 @@ did not turn together."""
 from __future__ import annotations
 
 import re
+from dataclasses import replace
 
+import numpy as np
 import pytest
 
 from calib.simulator.kit import Slip, simulate_kit
@@ -48,9 +50,10 @@ def test_how_far_a_slip_in_a_turn_turned_is_not_said(seed: int, n: int, slip: Sl
 def test_a_wearable_that_did_not_turn_with_the_kit_is_named_in_the_clinicians_words() -> None:
     # the command line's advice ("give one recording per wearable of the same session") reached the page, and every
     # wearable's row, with its last sentence run into "Start a new calibration." and a session id for a name
-    recs, _ = simulate_kit(1, 3)
-    other, _ = simulate_kit(2, 3)
-    out = calibrate_kit_live([recs[0], other[1], recs[2]], ["mock-1", "mock-2", "mock-3"])
+    # (a kit of two: of three, the one that follows neither other is left out, and the rest calibrated)
+    recs, _ = simulate_kit(1, 2)
+    other, _ = simulate_kit(2, 2)
+    out = calibrate_kit_live([recs[0], other[1]], ["mock-1", "mock-2"])
     said = ("The kit could not be calibrated together: mock-2 did not turn with mock-1 (its readings do not follow the "
             "tray's motion). Check that every wearable of the kit sits in the tray and stays switched on, then calibrate "
             "the kit again, or mock-2 alone.")
@@ -61,3 +64,17 @@ def test_a_wearable_that_did_not_turn_with_the_kit_is_named_in_the_clinicians_wo
     assert out.refusal is not None and out.refusal.startswith("The kit could not be calibrated together: the kit was not "
                                                              "turned about every axis")
     assert out.refusal.endswith(". Start a new calibration.") and ".. " not in out.refusal, out.refusal
+
+
+def test_a_wearable_that_turned_with_nothing_is_left_out_and_the_rest_of_the_kit_calibrated() -> None:
+    recs, _ = simulate_kit(5, 3)
+    table = recs[0].gyro[:150].mean(axis=0) + 0.03 * np.random.default_rng(2).standard_normal(recs[0].gyro.shape)
+    recs[0] = replace(recs[0], gyro=table, accel=np.tile(recs[0].accel[0], (len(recs[0]), 1)))  # the reference, even
+    out = calibrate_kit_live(recs, ["mock-1", "mock-2", "mock-3"])
+    assert out.refusal is None and out.departed == [] and out.consistency["not_turned"] == ["mock-1"]
+    left = out.outcomes["mock-1"]
+    assert left.result is None and left.end == EndReason.DEPARTED and left.code == "not_one_motion"
+    assert left.refusal == ("mock-1 did not turn with the rest of the kit (mock-2, mock-3): its readings show none of "
+                            "the tray's motion, so the kit left it out. Check that it sits in the tray and stays switched "
+                            "on, then calibrate it alone or with the kit.")
+    assert all(out.outcomes[n].result is not None for n in ("mock-2", "mock-3"))

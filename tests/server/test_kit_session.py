@@ -230,6 +230,44 @@ def test_a_knock_the_service_reads_late_of_one_wearable_is_the_trays_not_the_oth
     assert any("the tray moved" in w.message.lower() for w in said), [w.message for w in said]
 
 
+def _on_the_table(rec: Recording, seed: int = 1) -> Recording:
+    """``rec``'s wearable lying beside the tray, switched on: its rest reading and noise all through."""
+    rest = rec.gyro[:200].mean(axis=0) + 0.03 * np.random.default_rng(seed).standard_normal(rec.gyro.shape)
+    return replace(rec, gyro=rest, accel=np.tile(rec.accel[0], (len(rec), 1)))
+
+
+def test_a_wearable_left_beside_the_tray_is_named_once_and_follows_the_trays_steps() -> None:
+    # it waited for a turn about X the tray had made, and 20 s on the kit said to the clinician "Waiting for the turn:
+    # pick the tray up and turn it one full turn about its X axis now" while the tray was at Y; then it was given its
+    # recording as it was once the others ended (kit_ahead)
+    recs = _tray(3)
+    recs[2] = _on_the_table(recs[2])
+    machines = _run_kit(recs, [WIDE_DPS] * 3)
+    assert [g.state for g in machines] == [State.COMPUTING] * 3 and [g.attempt for g in machines] == [1, 1, 1]
+    assert [w.code for w in machines[2].warnings] == ["kit_not_turned"]
+    said = kit_warnings([g.snapshot() for g in machines])
+    assert [(w.code, w.device_id, w.message) for w in said] == [(
+        "kit_not_turned", "mock-3", "mock-3 did not turn with the rest of the kit (mock-1, mock-2 turned about X): it may "
+        "not be in the tray, or not be switched on. Put it in its slot; the tray goes on without it.")]
+    assert machines[2].kit_closed == {"x", "y", "z"} and not any(g.kit_closed for g in machines[:2])
+
+
+def test_a_wearable_that_moves_alone_beside_one_that_never_moved_is_named_loose() -> None:
+    # the one beside the tray had closed no rest, so its readings were taken against 0: its bias (5.5 deg/s) read as
+    # moving with the one that rocked in its slot, and the kit said "The tray moved"
+    recs = _tray(3)
+    recs[1] = _on_the_table(recs[1])
+    recs[2] = _rocked(recs[2], TURN_X_END_S + 1.4)
+    machines = _run_kit(recs, [WIDE_DPS] * 3)
+    said = [(w.code, w.message) for w in kit_warnings([g.snapshot() for g in machines])]
+    assert [c for c, _ in said] == ["kit_moved_alone", "kit_not_turned"], said
+    assert said[0][1] == ("mock-3 moved during the pause after the turn about X while the rest of the kit (mock-1, "
+                          "mock-2) stayed still: it may be loose in its slot. Seat it firmly; the tray goes on.")
+    # (the one beside the tray is named once the rest of the kit is past that turn, one of them having made it)
+    assert said[1][1].startswith("mock-2 did not turn with the rest of the kit (mock-1 turned about X)"), said
+    assert [g.state for g in machines] == [State.COMPUTING] * 3
+
+
 @pytest.mark.parametrize("lost", ["link", "data"])
 def test_while_the_kit_waits_for_a_lost_wearable_the_others_are_not_failed_for_a_turn_not_started(lost: str) -> None:
     # the kit tells the tray to keep still until mock-2 is back (its link lost, or its data not coming on a link that

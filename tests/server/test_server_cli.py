@@ -99,6 +99,8 @@ def test_once_a_command_has_ended_the_sqlite_file_alone_holds_what_it_wrote(tmp_
         (["--mock", "1", "--mock-kit"], "give at least two with --mock N"),
         (["--mock", "3", "--mock-kit-loose", "2"], "--mock-kit-loose names one of the kit's simulated wearables"),
         (["--mock", "3", "--mock-kit", "--mock-kit-loose-in", "pause"], "give --mock-kit-loose I too"),
+        (["--mock", "3", "--mock-kit", "--mock-kit-out", "4"], "--mock-kit-out names one of the kit's simulated wearables"),
+        (["--mock", "3", "--mock-kit", "--mock-kit-out", "2", "--mock-kit-loose", "2"], "it cannot slip in its slot"),
         (["--mock", "3", "--mock-kit-misalignment", "0.01"], "--mock-kit-misalignment is the largest cross-axis entry"),
         (["--mock", "3", "--mock-kit", "--mock-kit-misalignment", "0.7"], "between 0 and 0.5 (e.g. 0.01), with --mock-kit"),
         (["--mock", "3", "--mock-kit", "--mock-scenario", "hand:careful,hand:bumps"], "turned by one clinician"),

@@ -1,10 +1,10 @@
-"""A whole kit from the page, in Debian's Chromium against the real service with four simulated wearables in one tray
-(`--mock-kit`, the fourth slipping in its slot while the tray rests after its turn about Y, their sensors' axes up
-to 1 % from square), turned by a clinician who
-follows the kit's prompts as the page shows them (`--mock-scenario hand:careful`): the operator ticks three of them
-(mock-1 stays out of the kit, so the clinician finds the kit by the others), calibrates them together, follows one set
-of prompts for the tray, sees each wearable's state as a row, and accepts every one that passed at once (each with
-its full K); on a phone the rows stack and nothing runs off the screen."""
+"""A whole kit from the page, in Debian's Chromium against the real service with five simulated wearables of one tray
+(`--mock-kit`, the fourth slipping in its slot while the tray rests after its turn about Y, the fifth lying on the table
+beside it, their sensors' axes up to 1 % from square), turned by a clinician who follows the kit's prompts as the page
+shows them (`--mock-scenario hand:careful`): the operator ticks four of them (mock-1 stays out of the kit, so the
+clinician finds the kit by the others), calibrates them together, follows one set of prompts for the tray, sees each
+wearable's state as a row, and accepts every one that passed at once (each with its full K); on a phone the rows stack
+and nothing runs off the screen."""
 
 from __future__ import annotations
 
@@ -35,8 +35,8 @@ new MutationObserver(() => {
 
 @pytest.fixture(scope="module")
 def kit_service() -> Iterator[Any]:
-    with running_service(["hand:careful"] * 4, "--mock-kit", "--mock-kit-loose", "4", "--mock-kit-loose-in", "pause",
-                         "--mock-kit-misalignment", "0.01") as svc:
+    with running_service(["hand:careful"] * 5, "--mock-kit", "--mock-kit-loose", "4", "--mock-kit-loose-in", "pause",
+                         "--mock-kit-out", "5", "--mock-kit-misalignment", "0.01") as svc:
         yield svc
 
 
@@ -58,7 +58,8 @@ def _wait_done(page: Any, service: Any, kit_id: str) -> None:
 def _record_cues(page: Any) -> None:
     """Record in the page what passes too quickly to wait for: how far the stillness ring beside the tray filled while
     the kit rested first (in %, and its label), the largest angle the gauge showed in each turn, each running row's
-    line and buttons of a wearable that moved in its slot ("moved": device -> [kit state, its line, its buttons]), and
+    line and buttons of a wearable the kit named ("moved": device -> [kit state when first shown, its line, its
+    buttons]), and
     how often each row and the tray's picture were drawn anew against how often what they show changed ("drawn":
     device or "tray" -> [new elements, changes])."""
     page.evaluate("""() => {
@@ -80,8 +81,8 @@ def _record_cues(page: Any) -> None:
         }
         if (tray) count('tray', tray, tray.getAttribute('aria-label'));
         for (const line of document.querySelectorAll('.kit-device .kit-moved')) {
-          const row = line.closest('.kit-device');
-          window.cues.moved[row.dataset.device] = [kit.dataset.state, line.textContent,
+          const row = line.closest('.kit-device'), was = window.cues.moved[row.dataset.device];
+          window.cues.moved[row.dataset.device] = [was ? was[0] : kit.dataset.state, line.textContent,
             [...row.querySelectorAll('button, a.button')].map((b) => b.textContent.trim())];
         }
         if (kit && ring && kit.dataset.state === 'still') {
@@ -107,8 +108,9 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
         for device in ("mock-2", "mock-3"):
             page.check(f".device-card[data-device='{device}'] .kit-pick input")
         assert start.inner_text().strip() == "Calibrate 2 together" and start.is_enabled()
-        page.check(".device-card[data-device='mock-4'] .kit-pick input")
-        assert start.inner_text().strip() == "Calibrate 3 together"
+        for device in ("mock-4", "mock-5"):
+            page.check(f".device-card[data-device='{device}'] .kit-pick input")
+        assert start.inner_text().strip() == "Calibrate 4 together"
         assert wizard.small_targets() == []
         wizard.shot("kit-chosen")
         start.click()
@@ -125,7 +127,7 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
                 assert f"{axis.upper()} axis" in headline, headline
             assert page.get_attribute(".tray-picture", "data-axis") == axis
             assert page.get_attribute(f".kit-steps li[data-step='turn_{axis}']", "aria-current") == "step"
-            assert page.locator(".kit-device").count() == 3
+            assert page.locator(".kit-device").count() == 4
             if axis == "x":
                 wizard.shot("kit-turn-x")
         # mock-4 settles in its slot in the pause after the turn about Y: while the kit runs its row says so, with
@@ -136,28 +138,37 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
         wizard.shot("kit-moved-in-its-slot")
         _wait_done(page, kit_service, kit_id)
         moved = page.evaluate("() => window.cues.moved")
-        assert list(moved) == ["mock-4"], moved
+        assert sorted(moved) == ["mock-4", "mock-5"], moved
         state, line, buttons = moved["mock-4"]
         assert state in ("turn_y", "turn_z", "computing") and buttons == ["Identify"], moved
         assert line == "It moved in its slot while the rest of the kit stayed still: seat it firmly.", moved
-        said = ("mock-4 moved during the pause after the turn about Y while the rest of the kit (mock-2, mock-3) stayed "
-                "still: it may be loose in its slot. Seat it firmly; the tray goes on.")
+        # mock-5 lies beside the tray: named once the others have made the turn about X, and followed along
+        state, line, buttons = moved["mock-5"]
+        assert state in ("turn_x", "turn_y") and buttons == ["Identify"], moved
+        assert line == "It did not turn with the rest of the kit: put it in its slot, switched on.", moved
+        said = {"kit_moved_alone": ("mock-4", "mock-4 moved during the pause after the turn about Y while the rest of the "
+                                              "kit (mock-2, mock-3, mock-5) stayed still: it may be loose in its slot. "
+                                              "Seat it firmly; the tray goes on."),
+                "kit_not_turned": ("mock-5", "mock-5 did not turn with the rest of the kit (mock-2, mock-3, mock-4 turned "
+                                             "about X): it may not be in the tray, or not be switched on. Put it in its "
+                                             "slot; the tray goes on without it.")}
         notices = page.evaluate("() => window.notices")
-        assert any(n.split("|", 1)[1] == said for n in notices), notices
-        with api(kit_service) as c:  # the warning names it for a program too
-            warned = [w for w in c.get(f"/sessions/{kit_id}").json()["warnings"] if w["code"] == "kit_moved_alone"]
-            assert [(w["device_id"], w["message"]) for w in warned] == [("mock-4", said)], warned
+        assert all(any(n.split("|", 1)[1] == words for n in notices) for _, words in said.values()), notices
+        with api(kit_service) as c:  # the warnings name them for a program too
+            warned = [w for w in c.get(f"/sessions/{kit_id}").json()["warnings"] if w["code"] in said]
+            assert {w["code"]: (w["device_id"], w["message"]) for w in warned} == said, warned
+            assert len(warned) == 2, warned  # each said once
         # beside the tray, as for one wearable: the ring counted the first rest, the gauge followed each turn
         cues = page.evaluate("() => window.cues")
         assert cues["ring"] >= 50 and cues["ringLabel"] == "Time the tray has been still", cues
         # the kit's snapshots come many times a second: a row, or the tray's picture, is drawn anew only when what it
         # shows changes (drawn anew each time, a screen reader would read every row out again, and a tap on its
         # button could fall between two drawings)
-        assert set(cues["drawn"]) == {"mock-2", "mock-3", "mock-4", "tray"}, cues["drawn"]
+        assert set(cues["drawn"]) == {"mock-2", "mock-3", "mock-4", "mock-5", "tray"}, cues["drawn"]
         assert all(new <= changes for new, changes in cues["drawn"].values()), cues["drawn"]
         assert all(cues["gauge"].get(a, 0) >= 200 for a in "xyz"), cues["gauge"]
         assert page.locator(".kit-cue .ring-wrap, .kit-cue .gauge-wrap").count() == 0  # an ended kit has neither
-        assert page.inner_text(".kit-prompt") == "Kit calibrated: 2 of 3 passed"
+        assert page.inner_text(".kit-prompt") == "Kit calibrated: 2 of 4 passed"
         assert page.inner_text(".kit-sub") == ("mock-4 came apart from the kit, so the kit gives it no calibration: its "
                                               "row says what to do.")
         for device in ("mock-2", "mock-3"):
@@ -185,7 +196,18 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
         assert loose.locator(".identify-status").inner_text().strip() == "mock-4 blinks its light for 5 s. Look for it on the table."
         with api(kit_service) as c:
             assert c.get("/devices/mock-4").json()["simulated_identifying"] is True
-        assert page.locator(".kit-device button.identify").count() == 1
+        # the one beside the tray: left out of the kit, named in its row, with Identify to find it
+        out = page.locator(".kit-device[data-device='mock-5']")
+        assert out.get_attribute("data-departed") == "false" and out.get_attribute("data-passed") == "false"
+        assert out.locator(".kit-state").inner_text().strip() == "Did not turn with the kit"
+        assert out.locator(".kit-reason").inner_text() == (
+            "mock-5 did not turn with the rest of the kit (mock-2, mock-3, mock-4): its readings show none of the tray's "
+            "motion, so the kit left it out. Check that it sits in the tray and stays switched on, then calibrate it "
+            "alone or with the kit.")
+        assert out.locator("a.kit-redo").get_attribute("href") == "#/place/mock-5"
+        assert page.locator(".kit-device button.identify").count() == 2
+        with api(kit_service) as c:
+            assert c.get(f"/sessions/{kit_id}").json()["kit"]["consistency"]["not_turned"] == ["mock-5"]
         assert wizard.small_targets() == []
         wizard.shot("kit-result")
         # left unsaved, each wearable that passed is marked on the device list, which leads back to the kit
@@ -199,7 +221,8 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
         page.click(".device-card[data-device='mock-3'] .unsaved a")
         page.wait_for_selector("#kit-accept")
         page.click("#kit-accept")
-        page.wait_for_selector("#kit-saved:has-text('Saved as the current calibration of mock-2, mock-3. Not saved: mock-4.')")
+        page.wait_for_selector("#kit-saved:has-text('Saved as the current calibration of mock-2, mock-3. Not saved: mock-4, "
+                               "mock-5.')")
         page.wait_for_selector(".kit-device[data-device='mock-2'] .kit-state:has-text('PASS, saved')")
         assert page.locator("#kit-accept").count() == 0  # nothing left to accept
         # the page followed the kit's event stream: it read the kit whole only on opening it (twice: the second time
@@ -222,6 +245,7 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
                 upper = np.triu_indices(3, 1)
                 assert np.all(np.abs(K - K_true)[upper] < 4.5 * K_std[upper]), (K - K_true, K_std)
             assert c.get("/devices/mock-4/calibration").status_code == 404
+            assert c.get("/devices/mock-5/calibration").status_code == 404
     # the same result on a phone: the rows stack, and nothing is wider than the screen
     with watched_page(browser, kit_service, page_watch, viewport=PHONE, phone=True) as phone:
         wizard = Wizard(phone, kit_service, artifacts / "webui" / "kit-phone")

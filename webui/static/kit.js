@@ -35,8 +35,9 @@ function cueKey(snap) {
   return REST_PHASES.includes(snap.phase) ? `ring:${axis}` : `gauge:${axis}`;
 }
 
-function stateText(d) {
+function stateText(d, notTurned) {
   if (d.departed) return "Came apart from the kit";
+  if (notTurned && d.state === "failed") return "Did not turn with the kit";
   switch (d.state) {
     case "connecting": return "Connecting…";
     case "still": return "Resting";
@@ -66,31 +67,39 @@ function departedText(departed) {
 
 const passedIt = (d) => d.state === "done" && d.passed;
 
-/** The wearables the kit named as moving alone in their slots (the rest of the kit still): to be seated firmly. */
+// what a running row says of a wearable the kit named, by the warning's code: to be seated firmly, or put in the tray
+const TO_SEAT = {
+  kit_moved_alone: "It moved in its slot while the rest of the kit stayed still: seat it firmly.",
+  kit_not_turned: "It did not turn with the rest of the kit: put it in its slot, switched on.",
+};
+
+/** The wearables the kit named as moving alone in their slots, or not turning with the tray at all: device -> what
+ * its row says (the newest). */
 function movedAlone(snap) {
-  return new Set((snap.warnings || []).filter((w) => w.code === "kit_moved_alone" && w.device_id).map((w) => w.device_id));
+  return new Map((snap.warnings || []).filter((w) => TO_SEAT[w.code] && w.device_id).map((w) => [w.device_id, TO_SEAT[w.code]]));
 }
 
-/** The wearables whose rows offer Identify, for the clinician to find them in the tray: while the kit runs, those that
- * moved in their slots (``moved``, to seat firmly); once it ended, those that did not pass (to take out, seat again or
- * redo). */
+/** The wearables whose rows offer Identify, for the clinician to find them in the tray: while the kit runs, those the
+ * kit named (``moved``: moved in their slots, or did not turn with the tray); once it ended, those that did not pass
+ * (to take out, seat again or redo). */
 function toFind(snap, moved) {
-  if (!ENDED.has(snap.state)) return [...moved];
+  if (!ENDED.has(snap.state)) return [...moved.keys()];
   return snap.devices.filter((d) => !passedIt(d)).map((d) => d.device_id);
 }
 
 /** What a wearable's row says, as a key: its row is drawn again only when this changes (the kit's snapshots come many
  * times a second; a row drawn anew each time would be read out again by a screen reader, and could take a tap). */
-function rowKey(d, ident, moved, refusal) {
+function rowKey(d, { ident, moved, refusal, notTurned }) {
   const k = d.result && Array.isArray(d.result.k) ? d.result.k : null;
-  return JSON.stringify([d.state, d.passed, d.departed, d.decision, d.reason, k, moved, Boolean(ident), refusal]);
+  return JSON.stringify([d.state, d.passed, d.departed, d.decision, d.reason, k, moved, Boolean(ident), refusal, notTurned]);
 }
 
 /** A wearable's row. ``ident``: its Identify button and status line, when its protocol can blink and the clinician
- * is to find it in the tray (``toFind``); ``moved``: the kit named it moving in its slot while the kit runs;
+ * is to find it in the tray (``toFind``); ``moved``: what its row says while the kit runs, when the kit named it
+ * (moved in its slot, or did not turn with the tray), else null;
  * ``refusal``: why the whole kit could not be calibrated, said once above the rows (a row says only a reason of its
- * own). */
-function deviceRow(d, ident, moved, refusal) {
+ * own); ``notTurned``: the kit left it out, its readings following none of the others'. */
+function deviceRow(d, { ident, moved, refusal, notTurned }) {
   const ended = ENDED.has(d.state);
   const good = passedIt(d);
   const k = d.result && Array.isArray(d.result.k) ? d.result.k : null;
@@ -99,10 +108,10 @@ function deviceRow(d, ident, moved, refusal) {
   return h("li", { class: "kit-device", dataset: { device: d.device_id, state: d.state, passed: String(Boolean(d.passed)), departed: String(Boolean(d.departed)) } },
     h("span", { class: "kit-name" }, d.device_id),
     h("span", { class: `kit-state ${ended ? (good ? "pass" : "fail") : ""}` },
-      icon(ended ? (good ? "pass" : "fail") : d.state === "reconnecting" || seat ? "warn" : "busy"), h("span", null, stateText(d))),
+      icon(ended ? (good ? "pass" : "fail") : d.state === "reconnecting" || seat ? "warn" : "busy"), h("span", null, stateText(d, notTurned))),
     k ? h("span", { class: "kit-k" }, `k ${AXES.map((a, i) => `${a.toUpperCase()} ${num(k[i], 4)}`).join(" · ")}`) : null,
     ended && !good && d.reason && d.reason !== refusal ? h("span", { class: "kit-reason" }, d.reason) : null,
-    seat ? h("span", { class: "kit-reason kit-moved" }, "It moved in its slot while the rest of the kit stayed still: seat it firmly.") : null,
+    seat ? h("span", { class: "kit-reason kit-moved" }, moved) : null,
     find && (ended || ident) ? h("div", { class: "kit-row-actions" },
       ended ? h("a", { class: "button small kit-redo", href: `#/place/${encodeURIComponent(d.device_id)}` }, icon("redo"), "Redo alone") : null,
       ident ? ident.button : null) : null,
@@ -216,12 +225,14 @@ export function kitView(ctx, kitId) {
   /** Every wearable's row, each drawn again only when what it says has changed, in the kit's order. */
   const drawRows = (snap, moved) => {
     const refusal = (snap.kit && snap.kit.refusal) || null;
+    const left = new Set((snap.kit && snap.kit.consistency && snap.kit.consistency.not_turned) || []);
     const els = snap.devices.map((d) => {
-      const ident = idents.get(d.device_id), seat = moved.has(d.device_id);
-      const key = rowKey(d, ident, seat, refusal);
+      const row = { ident: idents.get(d.device_id), moved: moved.get(d.device_id) || null, refusal,
+                    notTurned: left.has(d.device_id) };
+      const key = rowKey(d, row);
       const was = drawn.get(d.device_id);
       if (was && was.key === key) return was.el;
-      const el = deviceRow(d, ident, seat, refusal);
+      const el = deviceRow(d, row);
       drawn.set(d.device_id, { key, el });
       return el;
     });
