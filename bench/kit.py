@@ -16,10 +16,12 @@ exactly (its own readings' noise against sum m^2 of its turn), over what its own
 tables then add each wearable's tilt (K_xy / k_y, K_xz / k_z, K_yz / k_z) found by the kit against alone (whose turns
 about its axes leave its tilt unseen unless its wobble identified it), and how often the kit chose a full K.
 
-``--fault drop|clip``: the same kits, their first wearable (the reference unless the kit chooses another) either losing
-1.5 s of a drawn turn on its link (``drop``), or with a gyroscope range between the peaks of its two slowest turns,
-so that two of its turns clip (``clip``): the tables then give the other wearables' rows, and that wearable's apart
-(``faulty``: how well the kit bridged it, against its stated uncertainty).
+``--fault drop|clip|out``: the same kits, their first wearable (the reference unless the kit chooses another) either
+losing 1.5 s of a drawn turn on its link (``drop``), or with a gyroscope range between the peaks of its two slowest
+turns, so that two of its turns clip (``clip``), or lying on the table beside the tray (``out``: its rest reading and
+noise all through): the tables then give the other wearables' rows, and that wearable's apart (``faulty``: how well
+the kit bridged it, against its stated uncertainty; of ``out``, how often the kit left it out, or of two named it in its
+refusal). Without a fault, how often the kit left any wearable out is the false share.
 
 Loose wearables: ``--sessions`` kits where one wearable (drawn) slips by 1-3 deg during a drawn turn (every other kit:
 in the pause after the turn, the tray resting still): the share where exactly that wearable is flagged, and how far
@@ -66,6 +68,10 @@ def _with_fault(recs: list, truth, seed: int, fault: str | None) -> list:
     if fault is None:
         return recs
     r, dev = recs[0], truth.devices[0]
+    if fault == "out":  # beside the tray: its rest reading (its first rest's) and its noise all through
+        rest = r.gyro[:int(2.0 * r.fs)].mean(axis=0)
+        noise = 0.03 * np.random.default_rng([seed, 13]).standard_normal(r.gyro.shape)
+        return [replace(r, gyro=rest + noise, accel=np.tile(r.accel[0], (len(r), 1))), *recs[1:]]
     if fault == "drop":
         turn = [s for s in truth.tray.stages if s.kind == "turn"][int(np.random.default_rng([seed, 11]).integers(3))]
         mid = (0.5 * (turn.start_s + turn.end_s) - dev.start_s) * (1 + dev.clock_error)  # on the wearable's own clock
@@ -84,7 +90,7 @@ def _session(args: tuple[int, int, float, str | None]) -> dict:
     try:
         kit = calibrate_kit(recs, heading_prior_deg=HEADING_PRIOR_DEG)
     except GyrocalError as exc:
-        return {"failed": str(exc)}
+        return {"failed": str(exc), "named": getattr(exc, "wearable", None), "first": recs[0].meta.device_id}
     elapsed = time.perf_counter() - t0
     rows = []
     for i, (member, dev, rec) in enumerate(zip(kit.members, truth.devices, recs, strict=True)):
@@ -105,7 +111,7 @@ def _session(args: tuple[int, int, float, str | None]) -> dict:
             "faulty": bool(fault) and i == 0,
         })
     return {"rows": rows, "departed": kit.departed, "seconds": elapsed, "protocol_s": float(truth.tray.t[-1]),
-            "axes": (kit.axes or {}).get("model")}
+            "axes": (kit.axes or {}).get("model"), "not_turned": kit.not_turned, "first": recs[0].meta.device_id}
 
 
 def _alone(rec) -> np.ndarray:
@@ -163,6 +169,10 @@ def _table(n: int, sessions: list[dict], faulty: bool | None = None) -> dict:
             "gain": (p95_alone / p95_kit).tolist(), "sd_z": np.nanstd(z, axis=0).tolist(),
             "ceiling_k": np.nanmedian(np.array([r["ceiling"] for r in rows]), axis=0).tolist(),
             "false_flags": float(np.mean([bool(s["departed"]) for s in ok])),
+            "left_out": float(np.mean([bool(s["not_turned"]) for s in ok])),
+            # the first wearable named as the one that did not turn: left out of the kit, or named in its refusal
+            "first_named": float(np.mean([s.get("not_turned") == [s["first"]] or s.get("named") == s["first"]
+                                          for s in sessions])),
             "full_k": float(np.mean([s["axes"] == "upper-triangular" for s in ok])),
             "seconds_median": float(np.median([s["seconds"] for s in ok])),
             "protocol_s_per_wearable": float(np.median([s["protocol_s"] for s in ok]) / n),
@@ -236,8 +246,8 @@ def main() -> None:
     ap.add_argument("--service-log", default=None, metavar="FILE", help="with --guided: append the service's log to FILE")
     ap.add_argument("--misalignment", type=float, default=0.0, metavar="M",
                     help="each sensor's axes are not orthogonal: the off-diagonal entries of its K drawn in +-M")
-    ap.add_argument("--fault", choices=["drop", "clip"], default=None,
-                    help="the first wearable lost 1.5 s of a turn on its link, or clips two of its turns")
+    ap.add_argument("--fault", choices=["drop", "clip", "out"], default=None,
+                    help="the first wearable lost 1.5 s of a turn on its link, clips two of its turns, or lies beside the tray")
     ap.add_argument("--json", default=None)
     args = ap.parse_args()
     sizes = [int(v) for v in args.kits.split(",")]
@@ -274,13 +284,18 @@ def main() -> None:
             for j, name in enumerate(NAMES if args.misalignment else NAMES[:6]):
                 print(f"  {name:5} {table['p95_kit'][j]:10.2e} {table['p95_alone'][j]:10.2e} {table['gain'][j]:6.2f}"
                       f" {table['p95_over_bound'][j]:14.2f} {table['p95_err_over_bound'][j]:20.2f} {table['sd_z'][j]:14.2f}")
-            if args.fault:
+            if args.fault == "out":
+                print(f"  the first wearable beside the tray: named as not turned with the kit in "
+                      f"{100 * table['first_named']:.1f} % of kits (left out, the rest calibrated; of two, in the refusal)")
+            elif args.fault:
                 f = table["faulty"]
                 print(f"  the first wearable ({args.fault}): p95(err/bound)/1.96 "
                       f"{np.round(f['p95_err_over_bound'][:6], 2).tolist()}, sd(err/std) {np.round(f['sd_z'][:6], 2).tolist()}, "
                       f"p95 |err| k {np.array(f['p95_kit'][:3]).round(5).tolist()} b {np.array(f['p95_kit'][3:6]).round(4).tolist()}")
             print(f"  ceiling of the k gain (median, x/y/z): {np.round(table['ceiling_k'], 2).tolist()}; "
                   f"full K chosen in {100 * table['full_k']:.0f} % of kits")
+            if not args.fault:
+                print(f"  every wearable in the tray: one left out as not turned with the kit in {100 * table['left_out']:.1f} %")
             print(f"  nothing slipped: flagged in {100 * table['false_flags']:.1f} %;"
                   f" one slipped 1-3 deg: that one flagged in {100 * table_loose['flagged_right']:.1f} %"
                   f" ({table_loose['failed']} failed)")
