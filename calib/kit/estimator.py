@@ -172,9 +172,17 @@ def _solve(recordings: Sequence[Recording], names: Sequence[str], members: list[
                          None if ref.seq is None else ref.seq[rows],
                          meta=replace(ref.meta, source=f"the kit's {len(members)} wearables, in {names[ref_i]}'s frame",
                                       sample_rate_rel_std=None))  # each wearable's own rate's uncertainty is its own
-    stages = None if turns_kept is None else _taken(detect_stages(mean_rec), [
-        clocks[i].to_reference(np.asarray(span, dtype=float)) for i in members for span in turns_kept[i]])
+    spans = None if turns_kept is None else [clocks[i].to_reference(np.asarray(span, dtype=float))
+                                             for i in members for span in turns_kept[i]]
+    stages = None if spans is None else _taken(detect_stages(mean_rec), spans)
     mean, _ = calibrate_protocol(mean_rec, protocol, "closure", stages=stages, heading_prior_deg=heading_prior_deg)
+    if mean.quality.get("undetermined_axes") and len(members) >= 3:
+        # one wearable's own motion (a slip in its slot in a short pause) moves the mean enough to join two turns into
+        # one motion; the median of three or more wearables' readings does not move with one of them
+        median = replace(mean_rec, gyro=np.nanmedian(np.array([mapped[i] for i in members]), axis=0))
+        found = detect_stages(median)
+        mean, _ = calibrate_protocol(mean_rec, protocol, "closure", stages=found if spans is None else _taken(found, spans),
+                                     heading_prior_deg=heading_prior_deg)
     if mean.quality.get("undetermined_axes"):
         raise KitRefusal("the kit was not turned about every axis: " + "; ".join(mean.warnings[:1]), code="turn_missing")
     k_ref, b_ref = np.asarray(mean.k), np.asarray(mean.b)

@@ -61,9 +61,10 @@ def _record_cues(page: Any) -> None:
     line and buttons of a wearable the kit named ("moved": device -> [kit state when first shown, its line, its
     buttons]), and
     how often each row and the tray's picture were drawn anew against how often what they show changed ("drawn":
-    device or "tray" -> [new elements, changes])."""
+    device or "tray" -> [new elements, changes]), and each row's state as shown beside the kit's ("rows": "kit
+    state|row state")."""
     page.evaluate("""() => {
-      window.cues = { ring: 0, ringLabel: null, gauge: {}, moved: {}, drawn: {} };
+      window.cues = { ring: 0, ringLabel: null, gauge: {}, moved: {}, drawn: {}, rows: [] };
       const shown = new Map();
       const count = (name, el, said) => {
         const was = shown.get(name), d = window.cues.drawn[name] || (window.cues.drawn[name] = [0, 0]);
@@ -76,6 +77,8 @@ def _record_cues(page: Any) -> None:
         const kit = document.querySelector('.kit'), ring = document.querySelector('.kit-cue .ring-wrap'),
               gauge = document.querySelector('.kit-cue .gauge-wrap'), tray = document.querySelector('.tray-picture');
         for (const row of document.querySelectorAll('.kit-device')) {
+          const said = `${kit.dataset.state}|${row.querySelector('.kit-state').textContent}`;
+          if (!window.cues.rows.includes(said)) window.cues.rows.push(said);
           count(row.dataset.device, row, [row.dataset.state, row.dataset.passed, row.dataset.departed,
             ...[...row.children].filter((c) => !c.classList.contains('identify-status')).map((c) => c.textContent)].join('|'));
         }
@@ -166,6 +169,14 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
         # button could fall between two drawings)
         assert set(cues["drawn"]) == {"mock-2", "mock-3", "mock-4", "mock-5", "tray"}, cues["drawn"]
         assert all(new <= changes for new, changes in cues["drawn"].values()), cues["drawn"]
+        # a row asks a turn only while the tray is at it: one still checking the turn the tray has left says so (it said
+        # "Turn about Y" beside the tray's prompt to turn about Z)
+        steps = ["x", "y", "z"]
+        for kit_state, row_state in (r.split("|", 1) for r in cues["rows"]):
+            asked = re.fullmatch(r"Turn about ([XYZ])", row_state)
+            if asked and kit_state.startswith("turn_"):
+                assert steps.index(asked[1].lower()) >= steps.index(kit_state[5:]), (kit_state, row_state)
+        assert any(r.split("|")[1].startswith("Turning about ") for r in cues["rows"]), cues["rows"]
         assert all(cues["gauge"].get(a, 0) >= 200 for a in "xyz"), cues["gauge"]
         assert page.locator(".kit-cue .ring-wrap, .kit-cue .gauge-wrap").count() == 0  # an ended kit has neither
         assert page.inner_text(".kit-prompt") == "Kit calibrated: 2 of 4 passed"

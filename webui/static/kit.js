@@ -35,13 +35,25 @@ function cueKey(snap) {
   return REST_PHASES.includes(snap.phase) ? `ring:${axis}` : `gauge:${axis}`;
 }
 
-function stateText(d, notTurned) {
+/** Where a wearable is in its turn about ``axis``: one still checking a turn the tray has left says so, not "Turn
+ * about Y" beside the tray's prompt to turn about Z (``behind``: the tray is at a later step than this wearable). */
+function turnText(axis, phase, behind) {
+  switch (phase) {
+    case "turning": case "placing": return `Turning about ${axis}`;
+    case "checking": return `Checking its turn about ${axis}`;
+    case "pause": return `Resting after the turn about ${axis}`;
+    case "settle": return "Resting";
+    default: return behind ? `No turn about ${axis} seen yet` : `Turn about ${axis}`;
+  }
+}
+
+function stateText(d, notTurned, behind = false) {
   if (d.departed) return "Came apart from the kit";
   if (notTurned && d.state === "failed") return "Did not turn with the kit";
   switch (d.state) {
     case "connecting": return "Connecting…";
     case "still": return "Resting";
-    case "turn_x": case "turn_y": case "turn_z": return `Turn about ${axisOf(d.state).toUpperCase()}`;
+    case "turn_x": case "turn_y": case "turn_z": return turnText(axisOf(d.state).toUpperCase(), d.phase, behind);
     case "reconnecting": return "Link lost: reconnecting";
     case "computing": return "Computing";
     case "done": return d.decision === "accepted" ? "PASS, saved" : d.passed ? "PASS" : "FAIL";
@@ -89,17 +101,19 @@ function toFind(snap, moved) {
 
 /** What a wearable's row says, as a key: its row is drawn again only when this changes (the kit's snapshots come many
  * times a second; a row drawn anew each time would be read out again by a screen reader, and could take a tap). */
-function rowKey(d, { ident, moved, refusal, notTurned }) {
+function rowKey(d, { ident, moved, refusal, notTurned, behind }) {
   const k = d.result && Array.isArray(d.result.k) ? d.result.k : null;
-  return JSON.stringify([d.state, d.passed, d.departed, d.decision, d.reason, k, moved, Boolean(ident), refusal, notTurned]);
+  return JSON.stringify([d.state, stateText(d, notTurned, behind), d.passed, d.departed, d.decision, d.reason, k, moved,
+    Boolean(ident), refusal]);
 }
 
 /** A wearable's row. ``ident``: its Identify button and status line, when its protocol can blink and the clinician
  * is to find it in the tray (``toFind``); ``moved``: what its row says while the kit runs, when the kit named it
  * (moved in its slot, or did not turn with the tray), else null;
  * ``refusal``: why the whole kit could not be calibrated, said once above the rows (a row says only a reason of its
- * own); ``notTurned``: the kit left it out, its readings following none of the others'. */
-function deviceRow(d, { ident, moved, refusal, notTurned }) {
+ * own); ``notTurned``: the kit left it out, its readings following none of the others'; ``behind``: the tray is at a
+ * later step than this wearable. */
+function deviceRow(d, { ident, moved, refusal, notTurned, behind }) {
   const ended = ENDED.has(d.state);
   const good = passedIt(d);
   const k = d.result && Array.isArray(d.result.k) ? d.result.k : null;
@@ -108,7 +122,7 @@ function deviceRow(d, { ident, moved, refusal, notTurned }) {
   return h("li", { class: "kit-device", dataset: { device: d.device_id, state: d.state, passed: String(Boolean(d.passed)), departed: String(Boolean(d.departed)) } },
     h("span", { class: "kit-name" }, d.device_id),
     h("span", { class: `kit-state ${ended ? (good ? "pass" : "fail") : ""}` },
-      icon(ended ? (good ? "pass" : "fail") : d.state === "reconnecting" || seat ? "warn" : "busy"), h("span", null, stateText(d, notTurned))),
+      icon(ended ? (good ? "pass" : "fail") : d.state === "reconnecting" || seat ? "warn" : "busy"), h("span", null, stateText(d, notTurned, behind))),
     k ? h("span", { class: "kit-k" }, `k ${AXES.map((a, i) => `${a.toUpperCase()} ${num(k[i], 4)}`).join(" · ")}`) : null,
     ended && !good && d.reason && d.reason !== refusal ? h("span", { class: "kit-reason" }, d.reason) : null,
     seat ? h("span", { class: "kit-reason kit-moved" }, moved) : null,
@@ -226,9 +240,11 @@ export function kitView(ctx, kitId) {
   const drawRows = (snap, moved) => {
     const refusal = (snap.kit && snap.kit.refusal) || null;
     const left = new Set((snap.kit && snap.kit.consistency && snap.kit.consistency.not_turned) || []);
+    const at = STEPS.findIndex(([key]) => key === snap.state);
     const els = snap.devices.map((d) => {
+      const step = STEPS.findIndex(([key]) => key === d.state);
       const row = { ident: idents.get(d.device_id), moved: moved.get(d.device_id) || null, refusal,
-                    notTurned: left.has(d.device_id) };
+                    notTurned: left.has(d.device_id), behind: step >= 0 && at > step };
       const key = rowKey(d, row);
       const was = drawn.get(d.device_id);
       if (was && was.key === key) return was.el;
