@@ -64,7 +64,7 @@ def _record_cues(page: Any) -> None:
     device or "tray" -> [new elements, changes]), and each row's state as shown beside the kit's ("rows": "kit
     state|row state")."""
     page.evaluate("""() => {
-      window.cues = { ring: 0, ringLabel: null, gauge: {}, moved: {}, drawn: {}, rows: [] };
+      window.cues = { ring: 0, ringLabel: null, gauge: {}, moved: {}, drawn: {}, rows: [], wrapped: [] };
       const shown = new Map();
       const count = (name, el, said) => {
         const was = shown.get(name), d = window.cues.drawn[name] || (window.cues.drawn[name] = [0, 0]);
@@ -77,8 +77,11 @@ def _record_cues(page: Any) -> None:
         const kit = document.querySelector('.kit'), ring = document.querySelector('.kit-cue .ring-wrap'),
               gauge = document.querySelector('.kit-cue .gauge-wrap'), tray = document.querySelector('.tray-picture');
         for (const row of document.querySelectorAll('.kit-device')) {
-          const said = `${kit.dataset.state}|${row.querySelector('.kit-state').textContent}`;
+          const state = row.querySelector('.kit-state'), said = `${kit.dataset.state}|${state.textContent}`;
           if (!window.cues.rows.includes(said)) window.cues.rows.push(said);
+          const line = state.querySelector('span');  // its words, on one line beside the icon
+          if (line && line.getBoundingClientRect().height > 1.6 * parseFloat(getComputedStyle(line).lineHeight || 20)
+              && !window.cues.wrapped.includes(said)) window.cues.wrapped.push(said);
           count(row.dataset.device, row, [row.dataset.state, row.dataset.passed, row.dataset.departed,
             ...[...row.children].filter((c) => !c.classList.contains('identify-status')).map((c) => c.textContent)].join('|'));
         }
@@ -177,6 +180,7 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
             if asked and kit_state.startswith("turn_"):
                 assert steps.index(asked[1].lower()) >= steps.index(kit_state[5:]), (kit_state, row_state)
         assert any(r.split("|")[1].startswith("Turning about ") for r in cues["rows"]), cues["rows"]
+        assert cues["wrapped"] == [], cues["wrapped"]  # (a row's state ran onto two lines beside an empty k column)
         assert all(cues["gauge"].get(a, 0) >= 200 for a in "xyz"), cues["gauge"]
         assert page.locator(".kit-cue .ring-wrap, .kit-cue .gauge-wrap").count() == 0  # an ended kit has neither
         assert page.inner_text(".kit-prompt") == "Kit calibrated: 2 of 4 passed"
