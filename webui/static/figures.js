@@ -265,15 +265,16 @@ export function trayPicture(names, axis) {
       s("text", { x: x + (slot - 16) / 2, y: y + 32, class: "slot-label" }, name));
   });
   const mid = 10 + tray / 2;
-  const guide = axis === "x" ? [s("line", { x1: 2, y1: mid, x2: w - 22, y2: mid, class: `guide-line ${AXIS_CLASS.x}` }),
+  // the axis is drawn under the wearables, so that their names stay readable, and its letter over them, clear of them
+  const [guide, letter] = axis === "x" ? [s("line", { x1: 2, y1: mid, x2: w - 22, y2: mid, class: `guide-line ${AXIS_CLASS.x}` }),
     s("text", { x: w - 14, y: mid + 6, class: `axis-letter ${AXIS_CLASS.x}` }, "X")]
     : axis === "y" ? [s("line", { x1: w / 2, y1: tray + 18, x2: w / 2, y2: 20, class: `guide-line ${AXIS_CLASS.y}` }),
       s("text", { x: w / 2 + 8, y: 18, class: `axis-letter ${AXIS_CLASS.y}` }, "Y")]
-      : axis === "z" ? [s("circle", { cx: w / 2, cy: mid, r: 20, class: `guide-turn ${AXIS_CLASS.z}` }),
-        s("text", { x: w / 2 + 24, y: mid - 16, class: `axis-letter ${AXIS_CLASS.z}` }, "Z")] : [];
+      : axis === "z" ? [s("circle", { cx: w / 2, cy: mid, r: tray / 2 - 4, class: `guide-turn ${AXIS_CLASS.z}` }),
+        s("text", { x: w / 2 + 8, y: 21, class: `axis-letter ${AXIS_CLASS.z}` }, "Z")] : [null, null];
   return s("svg", { viewBox: `0 0 ${w} ${hgt}`, class: "tray-picture", role: "img", "aria-label": say, "data-axis": axis || "" },
     s("rect", { x: 14, y: 10, width: w - 28, height: tray, rx: 14, class: "tray" }),
     s("rect", { x: 14, y: tray + 14, width: w - 28, height: 26, rx: 5, class: "block" }),
     s("text", { x: w / 2, y: tray + 32, class: "block-label" }, "block"),
-    ...slots, ...guide);
+    guide, ...slots, letter);
 }
