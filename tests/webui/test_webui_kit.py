@@ -132,6 +132,9 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
             if "Turn the tray" in headline:
                 assert f"{axis.upper()} axis" in headline, headline
             assert page.get_attribute(".tray-picture", "data-axis") == axis
+            # the axis is drawn under the wearables, whose names it crossed
+            assert page.evaluate("""() => { const svg = document.querySelector('.tray-picture'), kids = [...svg.children];
+              return kids.indexOf(svg.querySelector('.guide-line, .guide-turn')) < kids.findIndex((k) => k.querySelector('.case')); }""")
             assert page.get_attribute(f".kit-steps li[data-step='turn_{axis}']", "aria-current") == "step"
             assert page.locator(".kit-device").count() == 4
             if axis == "x":
