@@ -75,16 +75,17 @@ class MetaWearAdapter(Adapter):
 
     async def start(self, *, resume: bool) -> None:
         G, A = mw.Module.GYROSCOPE, mw.Module.ACCELEROMETER
-        await self._send(
-            mw.gyro_config(self._rate, self._gyro_range), mw.accel_config(self._rate, self._acc_range),
-            mw.subscribe(G, mw.Register.GYRO_PACKED), mw.subscribe(A, mw.Register.ACC_PACKED),
-            mw.data_enable(G, True), mw.data_enable(A, True), mw.power(A, True), mw.power(G, True),
-        )
+        # the timeline knows of the gap before the commands go: the first readings may come while they are still sent
         cfg = self._config(streaming=True)
         if self._timeline is None:
             self._timeline = ArrivalTimeline(self.stats, cfg.sample_rate_hz)
         self._timeline.begin(resume)
         self._gyro = None
+        await self._send(
+            mw.gyro_config(self._rate, self._gyro_range), mw.accel_config(self._rate, self._acc_range),
+            mw.subscribe(G, mw.Register.GYRO_PACKED), mw.subscribe(A, mw.Register.ACC_PACKED),
+            mw.data_enable(G, True), mw.data_enable(A, True), mw.power(A, True), mw.power(G, True),
+        )
 
     async def stop(self) -> None:
         G, A = mw.Module.GYROSCOPE, mw.Module.ACCELEROMETER
