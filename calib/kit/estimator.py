@@ -26,12 +26,12 @@ from calib.estimators.closure.estimator import calibrate_closure
 from calib.estimators.closure.fit import KPrior
 from calib.judge.acceptance import misclosure
 from calib.kit.axes import KitAxes, Refit, kit_axes
-from calib.kit.clocks import IDENTITY, ClockMap, coarse_clock
-from calib.kit.coupling import IDENTITY_MAP, LinearMap, couple, fit_map, reading_noise, resting, runs
+from calib.kit.clocks import IDENTITY, ClockMap
+from calib.kit.coupling import IDENTITY_MAP, LinearMap, fit_map, reading_noise, resting, runs
 from calib.kit.departure import BURST_DPS, DEPARTURE_DEG, NO_DEPARTURE, departures
 from calib.kit.members import PARAMETERS, MemberParams, member_params, rest_bias
 from calib.kit.result import Coherence, KitMember, KitResult
-from calib.kit.together import check_one_motion, odd_one_out, refusal_of_two
+from calib.kit.together import follows, odd_one_out, refusal_of_two
 from calib.kit.turn_rows import member_turn_rows
 from calib.kit.turns import gaps, lost_in
 from calib.numerics.attitude import cumulative_attitude
@@ -73,7 +73,7 @@ def calibrate_kit(recordings: Sequence[Recording], names: Sequence[str] | None =
         except KitRefusal as refused:
             odd = odd_one_out(recordings, names, members, refused) if refused.code == "not_one_motion" else None
             if odd is None:
-                raise (refusal_of_two(recordings, names, refused) if len(members) == 2 else refused) from None
+                raise (refusal_of_two(recordings, names, members, refused) if len(members) == 2 else refused) from None
             not_turned.append(odd)
             members.remove(odd)
             continue
@@ -149,9 +149,7 @@ def _solve(recordings: Sequence[Recording], names: Sequence[str], members: list[
     readings = {ref_i: ref.gyro}
     maps: dict[int, LinearMap] = {ref_i: IDENTITY_MAP}
     for i in members[1:]:
-        pair = (names[ref_i], names[i])
-        coupling = couple(ref, recordings[i], coarse_clock(ref, recordings[i], names=pair), ref_noise, clock_runs[i])
-        check_one_motion(coupling, *pair)
+        coupling = follows(ref, recordings[i], (names[ref_i], names[i]), ref_noise, clock_runs[i])
         clocks[i], readings[i], maps[i] = coupling.clock, coupling.readings, coupling.map
     keep = np.ones(len(ref), dtype=bool)
     for values in readings.values():

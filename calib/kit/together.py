@@ -33,9 +33,12 @@ def check_one_motion(coupling: Coupling, ref: str, wearable: str) -> None:
                          "one recording per wearable of the same session", wearable=wearable, reference=ref)
 
 
-def follows(ref: Recording, rec: Recording, names: tuple[str, str]) -> Coupling:
-    """``rec`` coupled to ``ref`` (``names``: theirs, ref's first); KitRefusal when it does not follow ref's motion."""
-    coupling = couple(ref, rec, coarse_clock(ref, rec, names=names), reading_noise(ref))
+def follows(ref: Recording, rec: Recording, names: tuple[str, str], ref_noise: np.ndarray | None = None,
+            clock_run: np.ndarray | None = None) -> Coupling:
+    """``rec`` coupled to ``ref`` (``names``: theirs, ref's first; ``ref_noise``: ref's reading noise, when known;
+    ``clock_run``: as for ``calib.kit.coupling.couple``); KitRefusal when it does not follow ref's motion."""
+    noise = reading_noise(ref) if ref_noise is None else ref_noise
+    coupling = couple(ref, rec, coarse_clock(ref, rec, names=names), noise, clock_run)
     check_one_motion(coupling, *names)
     return coupling
 
@@ -61,12 +64,15 @@ def odd_one_out(recordings: Sequence[Recording], names: Sequence[str], members: 
     return r
 
 
-def refusal_of_two(recordings: Sequence[Recording], names: Sequence[str], refused: KitRefusal) -> KitRefusal:
-    """A kit of two that did not turn together: the one that was not turned at all named, when only one was not."""
-    still = [i for i, rec in enumerate(recordings) if not turned(rec)]
-    if len(recordings) != 2 or len(still) != 1:
+def refusal_of_two(recordings: Sequence[Recording], names: Sequence[str], pair: Sequence[int],
+                   refused: KitRefusal) -> KitRefusal:
+    """Two wearables left of a kit (``pair``) that did not turn together: the one that was not turned at all named,
+    when only one was not."""
+    still = [i for i in pair if not turned(recordings[i])]
+    if len(pair) != 2 or len(still) != 1:
         return refused
-    w, r = still[0], 1 - still[0]
+    w = still[0]
+    r = next(i for i in pair if i != w)
     return KitRefusal(f"{names[w]} was not turned with {names[r]} (its readings show no turn at all): the recordings "
                       "are not of one kit turned together; give one recording per wearable of the same session",
                       wearable=names[w], reference=names[r])

@@ -159,15 +159,12 @@ class SessionStream:
         return np.asarray(np.sqrt((g * g).sum(axis=1)) > STOP_DPS)
 
     def still_between(self, t0: float, t1: float) -> bool:
-        """Whether the readings from device time ``t0`` to ``t1`` (s) are there and stayed within a stopped device's
-        reach of their own median: no motion then, whatever the rest reading (one that never moved has closed no still
-        to read it from)."""
+        """Whether the readings from device time ``t0`` to ``t1`` (s) are there and none of them moved."""
         t = self.buf.t[:self.buf.n]
         lo, hi = int(np.searchsorted(t, t0)), int(np.searchsorted(t, t1, side="right"))
         if self.fs is None or hi - lo < 0.9 * (t1 - t0) * self.fs:
             return False
-        g = self.buf.gyro[lo:hi]
-        return bool(np.all(np.sqrt(((g - np.median(g, axis=0)) ** 2).sum(axis=1)) <= STOP_DPS))
+        return not self._moving(lo, hi).any()
 
     def move_span(self, at_t: float, within_s: float) -> tuple[float, float] | None:
         """The span (device time, s) of the move under way at ``at_t``: the run of moving readings nearest to it

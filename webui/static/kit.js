@@ -177,8 +177,9 @@ export function kitView(ctx, kitId) {
     const running = !ENDED.has(snap.state);
     const names = snap.devices.map((d) => d.device_id);
     const axis = axisOf(snap.state);
-    if (trayKey !== `${names.join("\n")}|${axis}`) {
-      trayKey = `${names.join("\n")}|${axis}`;
+    const drawnTray = `${names.join("\n")}|${axis}`;
+    if (trayKey !== drawnTray) {
+      trayKey = drawnTray;
       fill(tray, trayPicture(names, axis));
     }
     const key = running ? cueKey(snap) : null;
@@ -198,7 +199,7 @@ export function kitView(ctx, kitId) {
       } else if (li.hasAttribute("aria-current")) li.removeAttribute("aria-current");
     }
     const moved = movedAlone(snap);
-    drawRows(snap, moved);
+    drawRows(snap, moved, at);
     const find = toFind(snap, moved).filter((id) => !asked.has(id));
     if (find.length) identifyLater(find);
     const axesSaid = running ? "" : axesText(snap);
@@ -236,11 +237,11 @@ export function kitView(ctx, kitId) {
       h("a", { class: "button", href: "#/devices" }, icon("back"), "Device list"));
   };
 
-  /** Every wearable's row, each drawn again only when what it says has changed, in the kit's order. */
-  const drawRows = (snap, moved) => {
+  /** Every wearable's row, each drawn again only when what it says has changed, in the kit's order (``at``: the
+   * kit's step in STEPS). */
+  const drawRows = (snap, moved, at) => {
     const refusal = (snap.kit && snap.kit.refusal) || null;
     const left = new Set((snap.kit && snap.kit.consistency && snap.kit.consistency.not_turned) || []);
-    const at = STEPS.findIndex(([key]) => key === snap.state);
     const els = snap.devices.map((d) => {
       const step = STEPS.findIndex(([key]) => key === d.state);
       const row = { ident: idents.get(d.device_id), moved: moved.get(d.device_id) || null, refusal,
