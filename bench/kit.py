@@ -64,17 +64,14 @@ def _tilt(K: np.ndarray) -> np.ndarray:
 
 def _with_fault(recs: list, truth, seed: int, fault: str | None) -> list:
     """``recs`` with the first wearable's fault (``--fault``): a 1.5 s link drop in a drawn turn, or a range that clips
-    its two faster turns."""
-    if fault is None:
+    its two faster turns (``out``, beside the tray, is simulated so: ``simulate_kit``)."""
+    if fault in (None, "out"):
         return recs
     r, dev = recs[0], truth.devices[0]
-    if fault == "out":  # beside the tray: its rest reading (its first rest's) and its noise all through
-        rest = r.gyro[:int(2.0 * r.fs)].mean(axis=0)
-        noise = 0.03 * np.random.default_rng([seed, 13]).standard_normal(r.gyro.shape)
-        return [replace(r, gyro=rest + noise, accel=np.tile(r.accel[0], (len(r), 1))), *recs[1:]]
     if fault == "drop":
         turn = [s for s in truth.tray.stages if s.kind == "turn"][int(np.random.default_rng([seed, 11]).integers(3))]
-        mid = (0.5 * (turn.start_s + turn.end_s) - dev.start_s) * (1 + dev.clock_error)  # on the wearable's own clock
+        # on the wearable's own clock, which counts from its own power-up
+        mid = dev.clock_origin_s + (0.5 * (turn.start_s + turn.end_s) - dev.start_s) * (1 + dev.clock_error)
         first = r.select(np.abs(r.t - mid) > 0.75)
     else:
         full_scale = float(np.sort(np.abs(r.gyro).max(axis=0))[:2].mean())
@@ -84,7 +81,7 @@ def _with_fault(recs: list, truth, seed: int, fault: str | None) -> list:
 
 def _session(args: tuple[int, int, float, str | None]) -> dict:
     n, seed, misalignment, fault = args
-    recs, truth = simulate_kit(seed, n, misalignment=misalignment)
+    recs, truth = simulate_kit(seed, n, misalignment=misalignment, out=0 if fault == "out" else None)
     recs = _with_fault(recs, truth, seed, fault)
     t0 = time.perf_counter()
     try:

@@ -93,7 +93,7 @@ class Tray:
             rng = np.random.default_rng([self.seed, number, 0x5C])
             script = paper_protocol_script(rng, still_s=KIT_REST_S, final_still_s=KIT_REST_S)
             self._performances[number] = KitTray(self.seed * 1000 + number, self.n, noise=self.noise_dps, script=script,
-                                                 params=self.params, clock_error=0.0, slip=self.slip)
+                                                 params=self.params, clock_error=0.0, slip=self.slip, out=self.out)
         return self._performances[number]
 
 
@@ -123,8 +123,6 @@ class KitSource:
             first = next(st for st in performance.tray.stages if st.kind == "turn")
             self.faults = LinkFaults(drop_at_s=0.5 * (first.start_s + first.end_s), drop_for_s=DROP_S)
         self._gyro, self._accel = rec.gyro, rec.accel if rec.accel is not None else np.zeros_like(rec.gyro)
-        if self.tray.out == self.index:  # on the table beside the tray: it rests while the tray turns
-            self._gyro, self._accel = self._gyro[:0], self._accel[:0]
         self._rest = self.tray.params[self.index].reading(np.zeros(3))
         self._rest_accel = self._accel[-max(1, int(fs_hz * 0.5)):].mean(axis=0) if len(self._accel) else FLAT
         self.truth = {"k": truth.k.tolist(), "b": truth.b.tolist(), "K": truth.K.tolist(), "slip_deg": truth.slip_deg}

@@ -26,7 +26,7 @@ from calib.simulator import ProtocolScript, Segment, SensorParams, Still, Turn
 from calib.simulator.kit import KitDeviceTruth, KitTray, Slip
 
 from .hand import HANDS, Act, PromptHand
-from .kit import FLAT, Joins, loose_slip, resting_after, tray_sensors
+from .kit import Joins, loose_slip, resting_after, tray_sensors
 from .scenarios import LinkFaults
 from .sources import Block
 
@@ -36,8 +36,10 @@ REST_AHEAD_S = 20.0  # the rest simulated after the hand's latest act, s (past i
 class TrayPerformance:
     """One performance of a prompted tray: the hand's plan so far, and each wearable's readings of it."""
 
-    def __init__(self, seed: int, params: list[SensorParams], hand: PromptHand, noise_dps: float, slip: Slip | None) -> None:
+    def __init__(self, seed: int, params: list[SensorParams], hand: PromptHand, noise_dps: float, slip: Slip | None,
+                 out: int | None = None) -> None:
         self.seed, self.params, self.hand, self.noise_dps, self.slip = seed, params, hand, float(noise_dps), slip
+        self.out = out  # lies on the table beside the tray (calib.simulator.kit.KitTray)
         self.segments: list[Segment] = [Still(REST_AHEAD_S)]
         self.now_s = 0.0  # the latest moment of the tray (true time, s) any wearable has streamed
         self._lock = threading.Lock()  # the hand sees snapshots on the follower's thread and acts on the streaming one
@@ -49,7 +51,7 @@ class TrayPerformance:
         turns = sum(isinstance(s, Turn) for s in self.segments)
         slip = self.slip if self.slip is not None and turns > self.slip.turn else None  # once its turn is played
         return KitTray(self.seed, len(self.params), noise=self.noise_dps, script=ProtocolScript(tuple(self.segments)),
-                       params=self.params, clock_error=0.0, slip=slip)
+                       params=self.params, clock_error=0.0, slip=slip, out=self.out)
 
     def observe(self, snap: dict[str, Any]) -> None:
         """A snapshot of the kit, just read: the hand takes it as seen at the tray's latest streamed moment."""
@@ -113,7 +115,8 @@ class PromptedTray:
         if new or self.performance is None:
             # a hand that stops a turn where the device reads short reads the tray's first wearable
             hand = PromptHand(self.style, np.random.default_rng([self.seed, number, 0x4A4D]), device_k=self.params[0].k)
-            self.performance = TrayPerformance(self.seed * 1000 + number, self.params, hand, self.noise_dps, self.slip)
+            self.performance = TrayPerformance(self.seed * 1000 + number, self.params, hand, self.noise_dps, self.slip,
+                                               self.out)
         return self.performance
 
     def observe(self, snap: dict[str, Any]) -> None:
@@ -137,7 +140,6 @@ class PromptedKitSource:
         params = tray.params[self.index]
         self.truth: dict[str, object] = {"k": params.k.tolist(), "b": params.b.tolist()}
         self.streaming: Callable[[], None] | None = None  # told when a stream starts (the hand's eyes look then)
-        self._rng = np.random.default_rng([tray.seed, self.index, 0x7A13])
 
     def prepare(self, fs_hz: float) -> None:
         self.session += 1
@@ -150,9 +152,6 @@ class PromptedKitSource:
     def block(self, start: int, end: int) -> Block:
         assert self._performance is not None, "prepare() first"
         blk = self._performance.block(self.index, self._fs, start, end)
-        if self.tray.out == self.index:  # the tray's motion played (the hand's acts fall due) but not read by this one
-            rest = self.tray.params[self.index].reading(np.zeros(3))
-            return resting_after(np.zeros((0, 3)), np.zeros((0, 3)), rest, FLAT, self.tray.noise_dps, start, end, self._rng)
         if self.tray.loose == self.index:
             self.truth["slip_deg"] = self._performance.truth(self.index, self._fs).slip_deg
         return blk

@@ -3,7 +3,8 @@
 Each wearable sits in its slot with its own small mounting rotation, has its own sensor errors (eq. 1), noise and
 clock, and starts and stops recording at its own moment. The tray follows one protocol script; every wearable samples
 the tray's motion at its own instants. One wearable may slip in its slot during a turn (``Slip``): from then on its
-mounting is another, which no rigid coupling explains.
+mounting is another, which no rigid coupling explains. One may lie on the table beside the tray (``out``), switched
+on: it reads the table's stillness while the tray turns.
 
 Clocks follow ``calib.effects.timing.ClockError``: wearable d stamps its samples o_d + j / fs on its own clock, which
 counts from its own power-up (o_d: what it read at its first sample, up to ``CLOCK_ORIGIN_S``) and runs at (1 + e_d)
@@ -115,7 +116,8 @@ class KitTray:
     def __init__(self, seed: int, n_devices: int, *, noise: float = 0.03, script: ProtocolScript | None = None,
                  params: list[SensorParams] | None = None, mount_deg: float = MOUNT_DEG,
                  clock_error: float = CLOCK_ERROR, start_spread_s: float = START_SPREAD_S, slip: Slip | None = None,
-                 motion_fs: float = 104.0, misalignment: float = 0.0, clock_origin_s: float = CLOCK_ORIGIN_S) -> None:
+                 motion_fs: float = 104.0, misalignment: float = 0.0, clock_origin_s: float = CLOCK_ORIGIN_S,
+                 out: int | None = None) -> None:
         self.seed = check_seed(seed)
         if not isinstance(n_devices, int) or n_devices < 1:
             raise SimulationConfigError(f"a kit needs a whole number of wearables >= 1; got {n_devices!r}")
@@ -123,7 +125,11 @@ class KitTray:
             raise SimulationConfigError(f"params holds {len(params)} sensors for {n_devices} wearables")
         if slip is not None and slip.device >= n_devices:
             raise SimulationConfigError(f"the slipping wearable {slip.device} is not one of the {n_devices} (0-based)")
-        self.n_devices, self.noise, self.params, self.slip = n_devices, float(noise), params, slip
+        if out is not None and not 0 <= out < n_devices:
+            raise SimulationConfigError(f"the wearable beside the tray, {out}, is not one of the {n_devices} (0-based)")
+        if out is not None and slip is not None and slip.device == out:
+            raise SimulationConfigError(f"wearable {out} lies beside the tray: it cannot slip in a slot")
+        self.n_devices, self.noise, self.params, self.slip, self.out = n_devices, float(noise), params, slip, out
         self.mount_deg, self.clock_error, self.start_spread_s = mount_deg, clock_error, start_spread_s
         self.clock_origin_s = as_float(clock_origin_s, "clock_origin_s", positive=False)
         self.misalignment = as_float(misalignment, "misalignment", positive=False)
@@ -158,7 +164,8 @@ class KitTray:
             progress = progress * progress * (3.0 - 2.0 * progress)  # a smooth step
             in_tray = Rotation.from_rotvec(np.outer(progress, _unit(rng)) * np.radians(self.slip.angle_deg)) * in_tray
             slip_deg, slip_t = float(self.slip.angle_deg), float(origin + (0.5 * (t0 + t1) - start) * (1.0 + e))
-        pose = self._pose(tau) * in_tray
+        # beside the tray it lies as the tray did at its first sample: still, whatever the tray does
+        pose = self._pose(np.full_like(tau, tau[0]) if d == self.out else tau) * in_tray
         rate = np.degrees((pose[:-1].inv() * pose[1:]).as_rotvec()) * (fs * (1.0 + e))
         accel = pose[:-1].inv().apply(GRAVITY_UP)
         if self.params is None and self.misalignment > 0:  # drawn apart from the rest: a kit without it stays as it was
@@ -187,6 +194,7 @@ def simulate_kit(
     slip: Slip | None = None,
     misalignment: float = 0.0,
     clock_origin_s: float = CLOCK_ORIGIN_S,
+    out: int | None = None,
 ) -> tuple[list[Recording], KitTruth]:
     """Simulate ``n_devices`` wearables in one tray following ``script`` (default: the paper protocol, drawn per seed).
 
@@ -194,14 +202,15 @@ def simulate_kit(
     gyroscope (deg/s). ``mount_deg``, ``clock_error``, ``start_spread_s``: the largest mounting rotation (deg), clock
     error (fraction) and difference in start and stop (s) drawn; ``misalignment``: the largest off-diagonal entry of
     each sensor's (upper-triangular) K, drawn uniform in +-this per entry (``calib.effects.AxisMisalignment``);
-    ``clock_origin_s``: the longest a wearable's clock has counted since its power-up at its first sample (s).
+    ``clock_origin_s``: the longest a wearable's clock has counted since its power-up at its first sample (s);
+    ``out`` (0-based): that wearable lies on the table beside the tray, switched on (it turns with nothing).
     Returns one recording per wearable (its own stamps t = o + j / fs, o drawn in 0..clock_origin_s, and its sample
     counter) and the truth. Same seed and
     arguments give the same kit.
     """
     tray = KitTray(seed, n_devices, noise=noise, script=script, params=params, mount_deg=mount_deg,
                    clock_error=clock_error, start_spread_s=start_spread_s, slip=slip, motion_fs=fs,
-                   misalignment=misalignment, clock_origin_s=clock_origin_s)
+                   misalignment=misalignment, clock_origin_s=clock_origin_s, out=out)
     drawn = [tray.wearable(d, fs) for d in range(n_devices)]
     return [r for r, _ in drawn], KitTruth(tuple(t for _, t in drawn), tray.tray, float(noise), float(fs), tray.seed)
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import re
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -45,6 +44,22 @@ def test_a_simulated_kit_gives_each_wearable_its_own_clock_mounting_and_errors()
         assert np.all(np.abs(result.k - d.k_own) < 5 * result.k_std)
     with pytest.raises(GyrocalError, match="slipping wearable 3"):
         simulate_kit(1, 3, slip=Slip(3, 1.0))
+
+
+def test_a_simulated_wearable_beside_the_tray_reads_the_tables_stillness_and_the_rest_are_as_they_were() -> None:
+    recs, truth = simulate_kit(5, 3)
+    beside, beside_truth = simulate_kit(5, 3, out=1)
+    for i in (0, 2):
+        np.testing.assert_array_equal(beside[i].gyro, recs[i].gyro)
+    d = beside_truth.devices[1]
+    at_rest = np.linalg.solve(d.K, -d.b)  # eq. (1) with no true rate: g = K m + b = 0
+    np.testing.assert_allclose(beside[1].gyro.mean(axis=0), at_rest, atol=0.01)
+    np.testing.assert_allclose(beside[1].gyro.std(axis=0), 0.03, rtol=0.1)
+    assert np.ptp(beside[1].accel, axis=0).max() < 0.03 and len(beside[1]) == len(recs[1])
+    with pytest.raises(GyrocalError, match="beside the tray, 3"):
+        simulate_kit(1, 3, out=3)
+    with pytest.raises(GyrocalError, match="cannot slip"):
+        simulate_kit(1, 3, out=2, slip=Slip(2, 1.0))
 
 
 def _misplaced_s(clock, truth, recs, i: int) -> float:
@@ -184,10 +199,7 @@ def test_a_slip_in_a_short_pause_does_not_join_the_kits_turns(seed: int) -> None
 def test_a_wearable_that_turned_with_nothing_is_left_out_and_the_rest_calibrated(left: int) -> None:
     # left on the table beside the tray: its readings follow none of the others'. The whole kit was refused, naming
     # another wearable when it was the reference ("kit-5-2 does not follow kit-5-1's motion")
-    recs, truth = simulate_kit(5, 4)
-    r = recs[left]
-    table = r.gyro[:150].mean(axis=0) + 0.03 * np.random.default_rng(0).standard_normal(r.gyro.shape)
-    recs[left] = replace(r, gyro=table, accel=np.tile(r.accel[0], (len(r), 1)))
+    recs, truth = simulate_kit(5, 4, out=left)
     kit = calibrate_kit(recs, heading_prior_deg=PRIOR_DEG)
     name = recs[left].meta.device_id
     assert kit.not_turned == [name] and kit.departed == [] and kit.reference != name

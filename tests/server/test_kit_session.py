@@ -46,10 +46,11 @@ class _Wearable:
         return False
 
 
-def _tray(n: int) -> list[Recording]:
-    """One tray's motion through the protocol with the service's rests (mock_device.kit), as each wearable reads it."""
+def _tray(n: int, out: int | None = None) -> list[Recording]:
+    """One tray's motion through the protocol with the service's rests (mock_device.kit), as each wearable reads it
+    (``out``: that one lies beside the tray, switched on)."""
     script = paper_protocol_script(np.random.default_rng([7, 1, 0x5C]), still_s=5.0, final_still_s=5.0)
-    tray = KitTray(7001, n, noise=0.03, script=script, clock_error=0.0)
+    tray = KitTray(7001, n, noise=0.03, script=script, clock_error=0.0, out=out)
     return [tray.wearable(d, FS)[0] for d in range(n)]
 
 
@@ -230,18 +231,11 @@ def test_a_knock_the_service_reads_late_of_one_wearable_is_the_trays_not_the_oth
     assert any("the tray moved" in w.message.lower() for w in said), [w.message for w in said]
 
 
-def _on_the_table(rec: Recording, seed: int = 1) -> Recording:
-    """``rec``'s wearable lying beside the tray, switched on: its rest reading and noise all through."""
-    rest = rec.gyro[:200].mean(axis=0) + 0.03 * np.random.default_rng(seed).standard_normal(rec.gyro.shape)
-    return replace(rec, gyro=rest, accel=np.tile(rec.accel[0], (len(rec), 1)))
-
-
 def test_a_wearable_left_beside_the_tray_is_named_once_and_follows_the_trays_steps() -> None:
     # it waited for a turn about X the tray had made, and 20 s on the kit said to the clinician "Waiting for the turn:
     # pick the tray up and turn it one full turn about its X axis now" while the tray was at Y; then it was given its
     # recording as it was once the others ended (kit_ahead)
-    recs = _tray(3)
-    recs[2] = _on_the_table(recs[2])
+    recs = _tray(3, out=2)
     machines = _run_kit(recs, [WIDE_DPS] * 3)
     assert [g.state for g in machines] == [State.COMPUTING] * 3 and [g.attempt for g in machines] == [1, 1, 1]
     assert [w.code for w in machines[2].warnings] == ["kit_not_turned"]
@@ -255,8 +249,7 @@ def test_a_wearable_left_beside_the_tray_is_named_once_and_follows_the_trays_ste
 def test_a_wearable_that_moves_alone_beside_one_that_never_moved_is_named_loose() -> None:
     # the one beside the tray had closed no rest, so its readings were taken against 0: its bias (5.5 deg/s) read as
     # moving with the one that rocked in its slot, and the kit said "The tray moved"
-    recs = _tray(3)
-    recs[1] = _on_the_table(recs[1])
+    recs = _tray(3, out=1)
     recs[2] = _rocked(recs[2], TURN_X_END_S + 1.4)
     machines = _run_kit(recs, [WIDE_DPS] * 3)
     said = [(w.code, w.message) for w in kit_warnings([g.snapshot() for g in machines])]
