@@ -27,10 +27,13 @@ def came_apart(step_deg: float | None) -> str:
             "Seat it firmly in its slot, then calibrate it alone or with the kit.")
 
 
+NOT_TOGETHER = "The kit could not be calibrated together"  # how every refusal of a whole kit begins
+
+
 def not_one_motion(wearable: str, reference: str) -> str:
     """Why a kit could not be calibrated together when one wearable's readings do not follow another's (it was not
     in the tray, or its readings stopped), in the clinician's words (calib.errors.KitRefusal)."""
-    return (f"The kit could not be calibrated together: {wearable} did not turn with {reference} (its readings do not "
+    return (f"{NOT_TOGETHER}: {wearable} did not turn with {reference} (its readings do not "
             f"follow the tray's motion). Check that every wearable of the kit sits in the tray and stays switched on, "
             f"then calibrate the kit again, or {wearable} alone.")
 
@@ -45,7 +48,7 @@ def not_turned(wearable: str, turned: Sequence[str]) -> str:
 
 def refused(why: str) -> str:
     """Why a kit could not be calibrated together, in calib's words (``why``, one sentence), and what to do."""
-    return f"The kit could not be calibrated together: {why.rstrip('.')}. Start a new calibration."
+    return f"{NOT_TOGETHER}: {why.rstrip('.')}. Start a new calibration."
 
 
 def kit_link_restored(device_id: str) -> str:
