@@ -10,6 +10,7 @@ import numpy as np
 from calib.json_safe import finite
 from calib.kit.clocks import ClockMap
 from calib.kit.departure import Departure
+from calib.kit.members import tilt_of
 from calib.result import CalibrationResult
 
 
@@ -89,8 +90,14 @@ class KitResult:
             "devices": {m.name: None if m.coherence is None else m.coherence.to_dict() for m in self.members},
             "departed": self.departed,
             "not_turned": self.not_turned,
-            "axes": self.axes,
+            "axes": None if self.axes is None else {**self.axes, "largest_tilt": self.largest_tilt()},
         })
+
+    def largest_tilt(self) -> float | None:
+        """The largest cross-axis term of any wearable's calibration (|K_ij| / K_jj above the diagonal); None when every
+        wearable's K is diagonal."""
+        tilts = [float(np.abs(tilt_of(m.result.K)).max()) for m in self.members if m.result is not None and m.result.K is not None]
+        return max(tilts) if tilts else None
 
     def to_json(self) -> dict[str, Any]:
         """JSON-safe: ``devices`` (each wearable's result and consistency), ``kit`` (the consistency), ``warnings``."""

@@ -150,6 +150,8 @@ class KitAxesOut(BaseModel):
     dof: int = Field(0, description="its degrees of freedom, 3 (N - 1)")
     p_value: float | None = Field(None, description="the chance of tilts this different from the noise alone")
     tilt_spread: float | None = Field(None, description="the spread (sd) of the wearables' tilts")
+    largest_tilt: float | None = Field(None, description="the largest cross-axis term of any wearable's K (|K_ij| / "
+                                       "K_jj above the diagonal); none when every K is diagonal")
     reason: str = Field(description="why this model, and how the kit's common tilt was fixed")
 
 

@@ -432,6 +432,9 @@ def test_non_orthogonal_sensors_get_a_full_k_each_known_to_the_kits_mean_of_them
         # turns' wobble shows of the reference's, which every uncertainty carries
         err = found - true
         assert np.allclose(err, err.mean(axis=0), atol=2e-4)
+        # the kit says how far from square its calibrations are: the largest of their cross-axis terms
+        largest = kit.consistency()["axes"]["largest_tilt"]
+        assert largest == pytest.approx(np.abs(found).max(), rel=1e-12) and 0.003 < largest < 0.012, largest
         common_err.append(err.mean(axis=0))
         zero_mean_err.append(true.mean(axis=0))
         for member, d in zip(kit.members, truth.devices, strict=True):
@@ -472,3 +475,4 @@ def test_orthogonal_sensors_keep_a_diagonal_k_in_a_kit() -> None:
     assert kit.axes is not None and kit.axes["model"] == "diagonal" and kit.axes["p_value"] > 0.01
     assert all(m.result is not None and m.result.K is None and m.result.quality["model"] == "diagonal"
                for m in kit.members)
+    assert kit.consistency()["axes"]["largest_tilt"] is None  # no cross-axis term in any calibration

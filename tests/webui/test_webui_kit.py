@@ -196,8 +196,9 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
             assert re.search(r"k X \d\.\d{4} · Y \d\.\d{4} · Z \d\.\d{4}", row.locator(".kit-k").inner_text())
         # their sensors' axes are not square (1 % cross-axis): the page says each one's was measured and calibrated
         axes = page.inner_text("#kit-axes")
-        assert re.fullmatch(r"The wearables' axes are not quite square \(cross-axis errors of about \d\.\d %\): each "
-                            r"one's was measured against the others' and is part of its calibration\.", axes), axes
+        axes_said = re.fullmatch(r"The wearables' axes are not quite square \(cross-axis terms up to (\d\.\d) %\): each "
+                                 r"one's was measured against the others' and is part of its calibration\.", axes)
+        assert axes_said, axes
         loose = page.locator(".kit-device[data-device='mock-4']")
         assert loose.get_attribute("data-departed") == "true"
         assert loose.locator(".kit-state").inner_text().strip() == "Came apart from the kit"
@@ -249,6 +250,9 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
         assert any(f"/sessions/{kit_id}/events" in u for u in page_watch.requests) and len(reads) <= 3, reads
         with api(kit_service) as c:
             results = {d["device_id"]: d["result"] for d in c.get(f"/sessions/{kit_id}").json()["devices"]}
+            # the largest cross-axis term the page said is the largest any wearable's calibration holds
+            largest = max(float(np.max(np.abs(np.triu(np.array(r["K"]) / np.diag(r["K"]), 1)))) for r in results.values() if r)
+            assert float(axes_said.group(1)) == pytest.approx(100 * largest, abs=0.051), (axes, largest)
             for device in ("mock-2", "mock-3"):
                 saved = c.get(f"/devices/{device}/calibration").json()
                 assert saved["method"] == "kit-closure"
@@ -271,8 +275,13 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
         phone.goto(f"{kit_service.base}/#/kit/{kit_id}")
         phone.wait_for_selector(".kit[data-state='done'] .kit-device[data-device='mock-4']")
         assert phone.evaluate("document.scrollingElement.scrollWidth <= window.innerWidth")
-        columns = phone.evaluate("getComputedStyle(document.querySelector('.kit-device')).gridTemplateColumns")
-        assert len(columns.split()) == 1, columns
+        # every row in one column, a passed wearable's and one without a k alike, its name never broken
+        cramped = phone.evaluate("""() => [...document.querySelectorAll('.kit-device')].filter((row) => {
+          const name = row.querySelector('.kit-name'), line = parseFloat(getComputedStyle(name).lineHeight) || 20;
+          return getComputedStyle(row).gridTemplateColumns.split(' ').length !== 1
+            || name.getBoundingClientRect().height > 1.6 * line;
+        }).map((row) => row.dataset.device)""")
+        assert cramped == [], cramped
         assert wizard.small_targets() == []
         wizard.shot("kit-result-phone")
     assert_clean(page_watch)
@@ -340,6 +349,11 @@ def test_a_knock_to_the_tray_is_said_of_the_tray_once_and_the_kit_goes_on(
         with api(svc) as c:
             kit = c.get(f"/sessions/{kit_id}").json()
             members = [c.get(f"/sessions/{d['session_id']}").json() for d in kit["devices"]]
+            # square sensors: the page speaks of their axes only when a calibration holds a cross-axis term that shows
+            # at one decimal (it said "not quite square (cross-axis errors of about 0.0 %)" of a full K all but square)
+            axes = kit["kit"]["consistency"]["axes"]
+            shown = axes["model"] == "upper-triangular" and (axes["largest_tilt"] or 0.0) >= 0.0005
+            assert page.locator("#kit-axes").is_visible() == shown, (page.inner_text("#kit-axes"), axes)
             # one door: the tray was asked a turn (or its pause) again; the files the kit's sessions kept give the command
             # line what the kit gave
             cli = kit_through_the_command_line(c, {d["device_id"]: d["session_id"] for d in kit["devices"]}, tmp_path)

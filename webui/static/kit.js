@@ -11,6 +11,7 @@ import { sessionNotices } from "./notices.js";
 
 const ENDED = new Set(["done", "failed", "cancelled"]);
 const STEPS = [["still", "Hold still"], ["turn_x", "Turn X"], ["turn_y", "Turn Y"], ["turn_z", "Turn Z"], ["computing", "Result"]];
+const AXES_SHOWN = 0.0005;  // the smallest cross-axis term said: 0.05 %, shown as 0.1 %
 
 /** The operator's choice of wearables to calibrate together: POST /kits/calibrate, then the kit's page. */
 export async function startKit(ctx, devices, note) {
@@ -62,12 +63,14 @@ function stateText(d, notTurned, behind = false) {
   }
 }
 
-/** What the kit found of its sensors' axes, once calibrated: said only when they are not square (calib.kit.axes). */
+/** What the kit found of its sensors' axes, once calibrated: said only when a wearable's calibration holds a
+ * cross-axis term that shows at one decimal of a percent (calib.kit.axes; the kit may fit a full K whose terms are
+ * all but zero, and "not quite square, about 0.0 %" would say one thing and mean another). */
 function axesText(snap) {
   const axes = snap.kit && snap.kit.consistency && snap.kit.consistency.axes;
-  if (!axes || axes.model !== "upper-triangular") return "";
-  const spread = typeof axes.tilt_spread === "number" ? ` (cross-axis errors of about ${num(100 * axes.tilt_spread, 1)} %)` : "";
-  return `The wearables' axes are not quite square${spread}: each one's was measured against the others' and is part of its calibration.`;
+  if (!axes || axes.model !== "upper-triangular" || !(axes.largest_tilt >= AXES_SHOWN)) return "";
+  return `The wearables' axes are not quite square (cross-axis terms up to ${num(100 * axes.largest_tilt, 1)} %): `
+    + "each one's was measured against the others' and is part of its calibration.";
 }
 
 /** The wearables that came apart, named: what to do with each is in its row, in the service's words. */
