@@ -287,7 +287,10 @@ export function kitView(ctx, kitId) {
       let made = false;
       for (const id of ids) {
         const ident = known.has(id) ? identifyButton(ctx.api, known.get(id)) : null;
-        if (ident) idents.set(id, ident);
+        if (ident) {
+          ident.button.classList.add("small"); // beside "Redo alone" in the row, of its size
+          idents.set(id, ident);
+        }
         made = made || Boolean(ident);
       }
       if (alive && made) render(last);
