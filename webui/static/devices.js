@@ -149,8 +149,8 @@ export function devicesView(ctx) {
       h("div", null, h("h1", { id: "devices-title" }, "Choose a device"),
         h("p", { class: "lead" }, "Pick the wearable to calibrate, or tick “In the kit” on the wearables of one tray to turn them together.")),
       h("div", { class: "panel-actions" }, scanBtn, kitBtn,
-        h("a", { class: "button", href: "#/upload", id: "upload-link" }, icon("info"), "Calibrate a recording file"),
-        h("a", { class: "button", href: "#/fleet", id: "fleet-link" }, icon("search"), "Fleet"))),
+        h("a", { class: "button", href: "#/upload", id: "upload-link" }, icon("upload"), "Calibrate a recording file"),
+        h("a", { class: "button", href: "#/fleet", id: "fleet-link" }, icon("fleet"), "Fleet"))),
     note, list));
   ctx.focusMain();
   load();
