@@ -446,6 +446,8 @@ def test_a_phone_is_a_first_class_screen(browser: Any, hand_service: Any, page_w
         assert gauge["width"] >= 0.65 * PHONE["width"], gauge
         assert tiles["y"] >= gauge["y"] + gauge["height"] and on_first_screen(w, ".tiles"), (gauge, tiles)
         assert on_first_screen(w, ".gauge-wrap") and w.page.locator(".instruction").is_visible()
+        # the step's name beside Cancel stays whole ("Step 3 of 7 · Turn" over "X" before)
+        assert w.page.evaluate("document.querySelector('.step-name').getClientRects().length") == 1
         fits_the_screen(w)
         w.shot("phone-turn")
         w.page.wait_for_selector(".verdict h1", timeout=90_000)

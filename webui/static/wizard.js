@@ -25,8 +25,8 @@ function stepHeader(step, button, stopped = false) {
   head.update = (n) => {
     if (head.dataset.step === String(n)) return;
     head.dataset.step = String(n);
-    no.replaceChildren(stopped ? `Stopped at step ${n} of ${STEP_LABELS.length}` : `Step ${n} of ${STEP_LABELS.length}`,
-      h("span", { class: "step-name" }, ` · ${STEP_LABELS[n - 1]}`));
+    no.replaceChildren(stopped ? `Stopped at step ${n} of ${STEP_LABELS.length} ` : `Step ${n} of ${STEP_LABELS.length} `,
+      h("span", { class: "step-name" }, `· ${STEP_LABELS[n - 1]}`));
     bar.replaceChildren(...STEP_LABELS.map((label, i) => {
       const st = i + 1 < n ? "done" : i + 1 === n ? (stopped ? "stopped" : "current") : "todo";
       const mark = st === "done" ? icon("check") : st === "stopped" ? icon("cross") : String(i + 1);
