@@ -5,9 +5,10 @@ Each streaming session of a wearable is one performance of the tray: the wearabl
 ``JOIN_S`` of the first play the same performance, each from the moment its own stream starts (the estimator aligns
 their clocks from the motion, as it does for wearables that start recording at different moments). The clinician is
 scripted: the paper's protocol with rests long enough for the service's prompts (``KIT_REST_S``); it does not redo a
-step after a link loss. ``loose`` (0-based) slips in its slot during the second turn of every performance (with
-``loose_in`` "pause": in the pause after it); ``drop`` (0-based) goes out of range for ``DROP_S`` in the middle of the
-first turn; ``out`` (0-based) lies on the table beside the tray, switched on: it rests through every performance.
+step after a link loss. The tray's faults (``calib.simulator.kit.TrayFaults``): its ``loose`` wearable slips
+``SLIP_DEG`` in its slot during the second turn of every performance (with ``loose_in`` "pause": in the pause after
+it); its ``drop`` wearable goes out of range for ``DROP_S`` in the middle of the first turn; its ``out`` wearable lies
+on the table beside the tray, switched on: it rests through every performance.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from dataclasses import replace
 import numpy as np
 
 from calib.simulator import SensorParams
-from calib.simulator.kit import SLIP_WHEN, KitTray, Slip, misaligned
+from calib.simulator.kit import KitTray, Slip, TrayFaults, misaligned
 from calib.simulator.protocol import paper_protocol_script
 
 from .scenarios import LinkFaults
@@ -32,12 +33,10 @@ DROP_S = 1.5  # how long the dropping wearable is out of range, s
 JOIN_S = 3.0  # streams starting this close (wall time, s) to a performance's first join it
 
 
-def loose_slip(loose: int | None, loose_in: str = "turn") -> Slip | None:
-    """How wearable ``loose`` (0-based; None: none is loose) slips in its slot: ``SLIP_DEG`` in the tray's second turn,
-    or with ``loose_in`` "pause" early in the pause after it (the tray resting still)."""
-    if loose_in not in SLIP_WHEN:
-        raise ValueError(f"a loose wearable slips in a turn or a pause ({', '.join(SLIP_WHEN)}); got {loose_in!r}")
-    return None if loose is None else Slip(loose, SLIP_DEG, 1, in_pause=loose_in == "pause")
+def loose_slip(faults: TrayFaults) -> Slip | None:
+    """How the tray's loose wearable (None: none is) slips in its slot: ``SLIP_DEG`` in the tray's second turn, or with
+    ``loose_in`` "pause" early in the pause after it (the tray resting still)."""
+    return None if faults.loose is None else Slip(faults.loose, SLIP_DEG, 1, in_pause=faults.loose_in == "pause")
 
 
 class Joins:
@@ -72,12 +71,11 @@ def tray_sensors(seed: int, n: int, misalignment: float = 0.0) -> list[SensorPar
 class Tray:
     """The tray the kit's simulated wearables ride in, and its performances (one per streaming session)."""
 
-    def __init__(self, seed: int, n: int, noise_dps: float = 0.03, loose: int | None = None, drop: int | None = None,
-                 misalignment: float = 0.0, loose_in: str = "turn", out: int | None = None) -> None:
-        self.seed, self.n, self.noise_dps, self.loose, self.drop = int(seed), int(n), float(noise_dps), loose, drop
-        self.out = out
-        self.slip = loose_slip(loose, loose_in)
-        self.params = tray_sensors(self.seed, self.n, misalignment)  # the same sensors every performance
+    def __init__(self, seed: int, n: int, noise_dps: float = 0.03, faults: TrayFaults | None = None) -> None:
+        self.seed, self.n, self.noise_dps = int(seed), int(n), float(noise_dps)
+        self.faults = faults or TrayFaults()
+        self.slip = loose_slip(self.faults)
+        self.params = tray_sensors(self.seed, self.n, self.faults.misalignment)  # the same sensors every performance
         self._performances: dict[int, KitTray] = {}
         self._joins = Joins()
 
@@ -93,7 +91,8 @@ class Tray:
             rng = np.random.default_rng([self.seed, number, 0x5C])
             script = paper_protocol_script(rng, still_s=KIT_REST_S, final_still_s=KIT_REST_S)
             self._performances[number] = KitTray(self.seed * 1000 + number, self.n, noise=self.noise_dps, script=script,
-                                                 params=self.params, clock_error=0.0, slip=self.slip, out=self.out)
+                                                 params=self.params, clock_error=0.0, slip=self.slip,
+                                                 out=self.faults.out)
         return self._performances[number]
 
 
@@ -119,7 +118,7 @@ class KitSource:
         self.session += 1
         performance = self.tray.performance_now()
         rec, truth = performance.wearable(self.index, fs_hz)
-        if self.tray.drop == self.index:
+        if self.tray.faults.drop == self.index:
             first = next(st for st in performance.tray.stages if st.kind == "turn")
             self.faults = LinkFaults(drop_at_s=0.5 * (first.start_s + first.end_s), drop_for_s=DROP_S)
         self._gyro, self._accel = rec.gyro, rec.accel if rec.accel is not None else np.zeros_like(rec.gyro)

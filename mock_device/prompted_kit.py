@@ -23,7 +23,7 @@ import numpy as np
 
 from calib.recording import Recording
 from calib.simulator import ProtocolScript, Segment, SensorParams, Still, Turn
-from calib.simulator.kit import KitDeviceTruth, KitTray, Slip
+from calib.simulator.kit import KitDeviceTruth, KitTray, Slip, TrayFaults
 
 from .hand import HANDS, Act, PromptHand
 from .kit import Joins, loose_slip, resting_after, tray_sensors
@@ -100,12 +100,12 @@ class TrayPerformance:
 class PromptedTray:
     """The tray the kit's simulated wearables ride in, turned by one prompt-following hand of style ``hand``."""
 
-    def __init__(self, seed: int, n: int, hand: str, noise_dps: float = 0.03, loose: int | None = None,
-                 misalignment: float = 0.0, loose_in: str = "turn", out: int | None = None) -> None:
-        self.seed, self.n, self.style, self.noise_dps, self.loose = int(seed), int(n), HANDS[hand], float(noise_dps), loose
-        self.out = out  # lies on the table beside the tray: it rests while the tray turns
-        self.slip = loose_slip(loose, loose_in)
-        self.params = tray_sensors(self.seed, self.n, misalignment)  # the same sensors every performance
+    def __init__(self, seed: int, n: int, hand: str, noise_dps: float = 0.03, faults: TrayFaults | None = None) -> None:
+        """``faults``: its loose, out and misalignment (``drop`` plays with the scripted clinician only)."""
+        self.seed, self.n, self.style, self.noise_dps = int(seed), int(n), HANDS[hand], float(noise_dps)
+        self.faults = faults or TrayFaults()
+        self.slip = loose_slip(self.faults)
+        self.params = tray_sensors(self.seed, self.n, self.faults.misalignment)  # the same sensors every performance
         self.performance: TrayPerformance | None = None
         self._joins = Joins()
 
@@ -116,7 +116,7 @@ class PromptedTray:
             # a hand that stops a turn where the device reads short reads the tray's first wearable
             hand = PromptHand(self.style, np.random.default_rng([self.seed, number, 0x4A4D]), device_k=self.params[0].k)
             self.performance = TrayPerformance(self.seed * 1000 + number, self.params, hand, self.noise_dps, self.slip,
-                                               self.out)
+                                               self.faults.out)
         return self.performance
 
     def observe(self, snap: dict[str, Any]) -> None:
@@ -152,7 +152,7 @@ class PromptedKitSource:
     def block(self, start: int, end: int) -> Block:
         assert self._performance is not None, "prepare() first"
         blk = self._performance.block(self.index, self._fs, start, end)
-        if self.tray.loose == self.index:
+        if self.tray.faults.loose == self.index:
             self.truth["slip_deg"] = self._performance.truth(self.index, self._fs).slip_deg
         return blk
 

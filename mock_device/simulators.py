@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from calib.simulator.kit import TrayFaults
 from wearable_protocol.models import model as device_model
 
 from .follower import KitFollower, SessionFollower
@@ -44,32 +45,27 @@ def wearable(*, seed: int, scenario: str, speed: float, name: str, rate_hz: floa
 
 
 def kit(*, seed: int, n: int, speed: float, names: list[str], rate_hz: float | None, noise_dps: float,
-        model: str = "gyrocal", loose: int | None = None, drop: int | None = None, hand: str | None = None,
-        service_url: Callable[[], str | None] | None = None, misalignment: float = 0.0,
-        loose_in: str = "turn", out: int | None = None) -> list[Wearable]:
+        model: str = "gyrocal", faults: TrayFaults | None = None, hand: str | None = None,
+        service_url: Callable[[], str | None] | None = None) -> list[Wearable]:
     """``n`` simulated wearables speaking ``model``'s protocol, riding in one tray that one clinician turns through the
     protocol whenever their streams start: a scripted one (``mock_device.kit``), or with ``hand`` a ``hand:<style>``
     clinician who follows the prompts of the kit session that holds wearables of the tray on the service at
-    ``service_url()`` (``mock_device.prompted_kit``). ``loose`` (0-based) slips in its slot during the second turn
-    (``loose_in`` "pause": in the pause after it);
-    ``drop`` (scripted clinician only) loses its link for a moment in the first; ``out`` lies on the table beside the
-    tray (it turns with nothing). ``misalignment``: the sensors' axes are not orthogonal
-    (``mock_device.kit.tray_sensors``)."""
+    ``service_url()`` (``mock_device.prompted_kit``). ``faults`` (``calib.simulator.kit.TrayFaults``): the wearable that
+    slips in its slot, the one whose link drops (scripted clinician only), the one beside the tray, and how far the
+    sensors' axes are from orthogonal (``mock_device.kit``)."""
     from .kit import KitSource, Tray
     from .prompted_kit import PromptedKitSource, PromptedTray
 
     sources: list[SampleSource]
     if hand is not None:
-        prompted = PromptedTray(seed, n, hand.removeprefix(HAND_PREFIX), noise_dps=noise_dps, loose=loose,
-                                misalignment=misalignment, loose_in=loose_in, out=out)
+        prompted = PromptedTray(seed, n, hand.removeprefix(HAND_PREFIX), noise_dps=noise_dps, faults=faults)
         follower = KitFollower(names, prompted.observe, service_url or (lambda: None)).start()
         in_tray = [PromptedKitSource(prompted, i) for i in range(n)]
         for one in in_tray:
             one.streaming = follower.wake
         sources = list(in_tray)
     else:
-        tray = Tray(seed, n, noise_dps=noise_dps, loose=loose, drop=drop, misalignment=misalignment, loose_in=loose_in,
-                    out=out)
+        tray = Tray(seed, n, noise_dps=noise_dps, faults=faults)
         sources = [KitSource(tray, i) for i in range(n)]
     return [WEARABLES[model](source, seed=seed * 1000 + i + 1, speed=speed, name=names[i], rate_hz=rate_hz)
             for i, source in enumerate(sources)]

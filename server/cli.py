@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 from calib.errors import GyrocalError
 
 from .config import DEFAULT_HEADER_TIMEOUT_S, DEFAULT_MAX_CONNECTIONS
-from .mock_cli import add_mock_options, kit_scenario_problem, mock_problem
+from .mock_cli import add_mock_options, kit_scenario_problem, mock_problem, tray_faults
 
 if TYPE_CHECKING:
     from .config import GatewaySettings
@@ -244,10 +244,7 @@ def build_service(args: argparse.Namespace) -> Any:
     if simulators is not None:
         devices.add_mocks(simulators, args.mock, speed=args.mock_speed, seed=args.mock_seed, scenarios=scenarios, rate_hz=args.mock_rate,
                           first=args.mock_first, model=args.mock_model, kit=args.mock_kit,
-                          loose=None if args.mock_kit_loose is None else args.mock_kit_loose - 1,
-                          drop=None if args.mock_kit_drop is None else args.mock_kit_drop - 1,
-                          misalignment=args.mock_kit_misalignment, loose_in=args.mock_kit_loose_in,
-                          out=None if args.mock_kit_out is None else args.mock_kit_out - 1)
+                          faults=tray_faults(args) if args.mock_kit else None)
     return Service(settings, store=store, devices=devices)
 
 

@@ -14,7 +14,7 @@ import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
-from typing import Any, Protocol, TypedDict
+from typing import TYPE_CHECKING, Any, Protocol, TypedDict
 
 from calib.apply.identity import SensorIdentity
 from calib.extras import install_hint
@@ -22,6 +22,9 @@ from wearable_protocol.models import MODELS, LossDetection, TimeStamps
 
 from .link.base import DeviceInfo, DiscoveredDevice
 from .link.slots import AdapterSlots
+
+if TYPE_CHECKING:  # the simulator's numerics load only with simulated wearables
+    from calib.simulator.kit import TrayFaults
 
 log = logging.getLogger(__name__)
 
@@ -44,9 +47,8 @@ class Simulators(Protocol):
                  model: str, service_url: Callable[[], str | None]) -> Any: ...
 
     def kit(self, *, seed: int, n: int, speed: float, names: list[str], rate_hz: float | None, noise_dps: float,
-            model: str, loose: int | None, drop: int | None, hand: str | None,
-            service_url: Callable[[], str | None], misalignment: float = 0.0, loose_in: str = "turn",
-            out: int | None = None) -> list[Any]: ...
+            model: str, faults: TrayFaults | None, hand: str | None,
+            service_url: Callable[[], str | None]) -> list[Any]: ...
 
 
 class SimulatorsUnavailable(Exception):
@@ -220,19 +222,14 @@ class DeviceManager:
         model: str = "gyrocal",
         first: int = 1,
         kit: bool = False,
-        loose: int | None = None,
-        drop: int | None = None,
-        misalignment: float = 0.0,
-        loose_in: str = "turn",
-        out: int | None = None,
+        faults: TrayFaults | None = None,
     ) -> list[Device]:
         """N simulated wearables mock-``first`` … mock-(first+N-1) speaking ``model``'s protocol, each performing its
         scenario when streaming starts. ``rate_hz`` None: the model's streaming rate. A wearable's number alone sets
         its sensor, so two gateways simulating mock-8 simulate the same wearable. ``kit``: the N ride in one tray that
         one clinician turns, instead of each its scenario: a scripted one, or the ``hand:<style>`` clinician of
-        ``scenarios`` who follows the kit's prompts. In the tray (each 0-based): ``loose`` slips in its slot, in the
-        second turn or with ``loose_in`` "pause" in the pause after it; ``drop`` loses its link for a moment; ``out``
-        lies beside the tray, turning with nothing; ``misalignment``: their sensors' axes are not orthogonal."""
+        ``scenarios`` who follows the kit's prompts; ``faults``: what goes wrong in the tray (a wearable loose in its
+        slot, one whose link drops, one beside the tray, axes not orthogonal: ``calib.simulator.kit.TrayFaults``)."""
         import time
 
         from .link import InProcessLink, ReconnectPolicy
@@ -246,8 +243,7 @@ class DeviceManager:
         hand = next((s for s in scenarios if s.startswith("hand:")), None) if kit else None
         if kit:
             tray = simulators.kit(seed=seed * 1000 + first, n=n, speed=speed, names=ids, rate_hz=rate_hz, noise_dps=noise_dps,
-                                  model=model, loose=loose, drop=drop, hand=hand, service_url=lambda: self.service_url,
-                                  misalignment=misalignment, loose_in=loose_in, out=out)
+                                  model=model, faults=faults, hand=hand, service_url=lambda: self.service_url)
         added = []
         for j, i in enumerate(range(first, first + n)):
             scenario = (f"kit:{hand}" if hand else "kit") if kit else scenarios[(i - 1) % len(scenarios)]

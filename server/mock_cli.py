@@ -4,7 +4,10 @@ choice of them, in words (the command raises it)."""
 from __future__ import annotations
 
 import argparse
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from calib.simulator.kit import TrayFaults
 
 
 def add_mock_options(p: Any) -> None:
@@ -88,3 +91,15 @@ def kit_scenario_problem(args: argparse.Namespace, scenarios: list[str]) -> str 
     if args.mock_kit_drop is not None and scenarios and scenarios[0].startswith("hand:"):
         return "--mock-kit-drop plays with the scripted tray clinician: leave out --mock-scenario hand:STYLE"
     return None
+
+
+def tray_faults(args: argparse.Namespace) -> TrayFaults:
+    """What goes wrong in the simulated kit's tray, from --mock-kit-loose, -loose-in, -out, -drop and -misalignment
+    (numbered from 1 on the command line, from 0 in the tray); checked first by ``mock_problem``."""
+    from calib.simulator.kit import TrayFaults  # the simulator's numerics load only with simulated wearables
+
+    def index(number: int | None) -> int | None:
+        return None if number is None else number - 1
+
+    return TrayFaults(loose=index(args.mock_kit_loose), loose_in=args.mock_kit_loose_in, out=index(args.mock_kit_out),
+                      drop=index(args.mock_kit_drop), misalignment=args.mock_kit_misalignment)

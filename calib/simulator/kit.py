@@ -53,6 +53,30 @@ class Slip:
         as_float(self.angle_deg, "Slip.angle_deg", positive=False)
 
 
+@dataclass(frozen=True)
+class TrayFaults:
+    """What goes wrong in a simulated tray, each wearable 0-based (None: none): ``loose`` slips in its slot, in a turn
+    or with ``loose_in`` "pause" in the pause after it; ``out`` lies on the table beside the tray; ``drop`` goes out of
+    its link's range for a moment in a turn (its samples then lost); ``misalignment``: the largest cross-axis entry of
+    each sensor's K (0: axes orthogonal). Which turn, how far and how long are the simulator's choices."""
+
+    loose: int | None = None
+    loose_in: str = "turn"
+    out: int | None = None
+    drop: int | None = None
+    misalignment: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.loose_in not in SLIP_WHEN:
+            raise SimulationConfigError(f"a loose wearable slips in a turn or a pause ({', '.join(SLIP_WHEN)}); "
+                                        f"got {self.loose_in!r}")
+        if not 0.0 <= self.misalignment < 0.5:
+            raise SimulationConfigError(f"misalignment is the largest off-diagonal entry of K, 0 to 0.5; got {self.misalignment!r}")
+        if self.out is not None and self.out in (self.loose, self.drop):
+            raise SimulationConfigError(f"wearable {self.out} lies beside the tray: it cannot slip in a slot or drop "
+                                        "its link in a turn")
+
+
 @dataclass(frozen=True, eq=False)
 class KitDeviceTruth:
     """What really happened to one wearable of a simulated kit."""

@@ -16,7 +16,7 @@ from calib.kit.clocks import coarse_clock
 from calib.kit.coupling import couple, reading_noise
 from calib.kit.estimator import calibrate_kit
 from calib.pipeline import calibrate_protocol
-from calib.simulator.kit import Slip, simulate_kit
+from calib.simulator.kit import Slip, TrayFaults, simulate_kit
 from calib.simulator.protocol import ProtocolScript, Still, Turn
 
 PRIOR_DEG = 0.001  # the simulated tray is put back exactly
@@ -60,6 +60,14 @@ def test_a_simulated_wearable_beside_the_tray_reads_the_tables_stillness_and_the
         simulate_kit(1, 3, out=3)
     with pytest.raises(GyrocalError, match="cannot slip"):
         simulate_kit(1, 3, out=2, slip=Slip(2, 1.0))
+    # a simulated tray's faults, as the mocks take them: each is checked where it is made
+    assert TrayFaults() == TrayFaults(None, "turn", None, None, 0.0)
+    with pytest.raises(GyrocalError, match="a turn or a pause"):
+        TrayFaults(loose=1, loose_in="later")
+    with pytest.raises(GyrocalError, match="lies beside the tray"):
+        TrayFaults(loose=1, out=1)
+    with pytest.raises(GyrocalError, match="0 to 0.5"):
+        TrayFaults(misalignment=0.7)
 
 
 def _misplaced_s(clock, truth, recs, i: int) -> float:
