@@ -18,10 +18,10 @@ about its axes leave its tilt unseen unless its wobble identified it), and how o
 
 ``--fault drop|clip|out``: the same kits, their first wearable (the reference unless the kit chooses another) either
 losing 1.5 s of a drawn turn on its link (``drop``), or with a gyroscope range between the peaks of its two slowest
-turns, so that two of its turns clip (``clip``), or lying on the table beside the tray (``out``: its rest reading and
-noise all through): the tables then give the other wearables' rows, and that wearable's apart (``faulty``: how well
-the kit bridged it, against its stated uncertainty; of ``out``, how often the kit left it out, or of two named it in its
-refusal). Without a fault, how often the kit left any wearable out is the false share.
+turns, so that two of its turns clip (``clip``), or lying on the table beside the tray (``out``, as the simulated tray
+lays it: ``simulate_kit(..., out=0)``): the tables then give the other wearables' rows, and that wearable's apart
+(``faulty``: how well the kit bridged it, against its stated uncertainty; of ``out``, how often the kit left it out, or
+of two named it in its refusal). Without a fault, how often the kit left any wearable out is the false share.
 
 Loose wearables: ``--sessions`` kits where one wearable (drawn) slips by 1-3 deg during a drawn turn (every other kit:
 in the pause after the turn, the tray resting still): the share where exactly that wearable is flagged, and how far

@@ -53,6 +53,14 @@ class Slip:
         as_float(self.angle_deg, "Slip.angle_deg", positive=False)
 
 
+def checked_misalignment(value: float) -> float:
+    """``value`` as the largest off-diagonal entry of a simulated sensor's K, which must be 0 to 0.5."""
+    largest = as_float(value, "misalignment", positive=False)
+    if not 0.0 <= largest < 0.5:
+        raise SimulationConfigError(f"misalignment is the largest off-diagonal entry of K, 0 to 0.5; got {value!r}")
+    return largest
+
+
 @dataclass(frozen=True)
 class TrayFaults:
     """What goes wrong in a simulated tray, each wearable 0-based (None: none): ``loose`` slips in its slot, in a turn
@@ -70,8 +78,7 @@ class TrayFaults:
         if self.loose_in not in SLIP_WHEN:
             raise SimulationConfigError(f"a loose wearable slips in a turn or a pause ({', '.join(SLIP_WHEN)}); "
                                         f"got {self.loose_in!r}")
-        if not 0.0 <= self.misalignment < 0.5:
-            raise SimulationConfigError(f"misalignment is the largest off-diagonal entry of K, 0 to 0.5; got {self.misalignment!r}")
+        checked_misalignment(self.misalignment)
         if self.out is not None and self.out in (self.loose, self.drop):
             raise SimulationConfigError(f"wearable {self.out} lies beside the tray: it cannot slip in a slot or drop "
                                         "its link in a turn")
@@ -156,9 +163,7 @@ class KitTray:
         self.n_devices, self.noise, self.params, self.slip, self.out = n_devices, float(noise), params, slip, out
         self.mount_deg, self.clock_error, self.start_spread_s = mount_deg, clock_error, start_spread_s
         self.clock_origin_s = as_float(clock_origin_s, "clock_origin_s", positive=False)
-        self.misalignment = as_float(misalignment, "misalignment", positive=False)
-        if not 0.0 <= self.misalignment < 0.5:
-            raise SimulationConfigError(f"misalignment is the largest off-diagonal entry of K, 0 to 0.5; got {misalignment!r}")
+        self.misalignment = checked_misalignment(misalignment)
         ss_script, ss_traj, *self._ss_dev = np.random.SeedSequence(self.seed).spawn(2 + n_devices)
         if script is None:
             script = paper_protocol_script(np.random.default_rng(ss_script))
