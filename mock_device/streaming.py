@@ -7,6 +7,7 @@ import asyncio
 import contextlib
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -55,6 +56,7 @@ class Streaming:
     _central: Any
     _clock_start_us: int
     _corrupt_pending: int
+    firmware_fault: Callable[[int, bytes], list[bytes]] | None
     _loss_cache: dict[int, np.ndarray]
     _notifying: set[str]
     _session: WearableSession | None
@@ -138,7 +140,8 @@ class Streaming:
         s.resumed = False
         self.stats.packets_sent += 1
         assert self._central is not None
-        self._central.notify(wp.IMU_DATA_CHAR, data)
+        for sent in [data] if self.firmware_fault is None else self.firmware_fault(j, data):
+            self._central.notify(wp.IMU_DATA_CHAR, sent)
 
     def _stream_end(self, s: WearableSession) -> None:
         self._log("replay finished")

@@ -113,6 +113,8 @@ class Wearable(Streaming):
         self._out_of_range_until = -math.inf
         self._fail_connects = int(self.faults.fail_connects)
         self._corrupt_pending = 0
+        # a faulty firmware, for tests: what the wearable sends in place of packet j (none, several, other bytes)
+        self.firmware_fault: Callable[[int, bytes], list[bytes]] | None = None
         self._loss_cache: dict[int, np.ndarray] = {}
         self.events: list[tuple[float, str]] = []  # (device time s, what) for logs and tests
 

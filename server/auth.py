@@ -28,7 +28,7 @@ from collections.abc import AsyncIterator, Callable
 from concurrent.futures import ThreadPoolExecutor
 from datetime import UTC, datetime, timedelta
 
-from .store import Store, StoreError
+from .store import NotFound, Store
 from .throttle import SignInThrottle
 
 API_OPERATOR = "api"
@@ -152,7 +152,7 @@ class Authenticator:
         expires = datetime.now(UTC) + timedelta(seconds=self.token_ttl_s)
         try:
             self.store.add_token(name, token_hash(token), expires, client)
-        except StoreError as exc:
+        except NotFound as exc:  # disabled between the check of its secret and now; a store outage is the store's to say
             raise AuthError(str(exc)) from exc
         return token, expires
 

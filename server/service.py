@@ -176,8 +176,7 @@ class Service:
         waiting = self.unstored()
         if waiting:
             return (f"{len(waiting)} finished calibration{'s' if len(waiting) > 1 else ''} could not be written to the "
-                    f"store yet ({waiting[0].persist_error}); they are kept and written when it can take them. Free "
-                    "space on the store's disk, then start again")
+                    f"store yet: {waiting[0].persist_error}. Start again once it has taken them")
         free = self.store.free_bytes()
         if free is not None and free < MIN_FREE_BYTES:
             return (f"the disk holding the store ({self.store.display_url}) has {free / 1e6:.1f} MB free, less than a "
@@ -195,8 +194,9 @@ class Service:
         return []
 
     def unstored(self) -> list[LiveSession]:
-        """Finished sessions whose outcome the store has not taken yet (kept here, written again until it does)."""
-        return [s for s in self.sessions.values() if s.machine.finished and not s.persisted]
+        """Finished sessions whose outcome the store refused (kept here, written again until it takes them). One whose
+        first write is still under way is not among them: nothing has failed yet."""
+        return [s for s in self.sessions.values() if s.machine.finished and not s.persisted and s.persist_error is not None]
 
     def _session_ended(self, live: LiveSession) -> None:
         self.release_device(live.device.id, live.id)

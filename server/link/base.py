@@ -131,6 +131,8 @@ class SampleBatch:
     time. ``saturated`` (n,): gyro at the int16 limit on some axis. ``arrival_times``: the device sends no
     time stamps, so the times were placed from arrival times (evenly, at the rate estimated so far).
     ``fs_rel_std``: the relative standard error of ``fs_hz`` when it comes from arrival times, else None.
+    ``refused_before``: samples missing before this batch because the wearable sent their packets malformed (the link
+    received and refused them: its firmware's doing, not the radio's); ``lost_before`` counts the radio's only.
     """
 
     t_device_s: np.ndarray
@@ -142,6 +144,7 @@ class SampleBatch:
     saturated: np.ndarray
     arrival_times: bool = False
     fs_rel_std: float | None = None
+    refused_before: int = 0
 
     def __len__(self) -> int:
         return int(self.t_device_s.size)
@@ -161,6 +164,7 @@ class SampleBatch:
             np.concatenate([b.saturated for b in batches]),
             any(b.arrival_times for b in batches),
             batches[-1].fs_rel_std,
+            sum(b.refused_before for b in batches),
         )
 
 
@@ -198,7 +202,7 @@ class LinkStats:
 
     packets: int = 0  # valid data packets decoded
     samples: int = 0
-    lost_samples: int = 0  # sequence gaps x N, including link outages
+    lost_samples: int = 0  # sequence gaps x N, including link outages, less the packets the link refused
     lost_packets: int = 0
     malformed_packets: int = 0  # dropped: bad length, version, flags, N, config id, clock, sequence and time disagreeing
     malformed_reasons: dict[str, int] = field(default_factory=dict)
@@ -313,7 +317,7 @@ class RecordingBuilder:
 
     def add(self, batch: SampleBatch) -> None:
         if self._batches:
-            self.lost_samples += batch.lost_before
+            self.lost_samples += batch.lost_before + batch.refused_before
         self._batches.append(batch)
 
     def __len__(self) -> int:
@@ -343,7 +347,7 @@ def merge_queued(first: SampleBatch, queue: deque[object], most: int) -> SampleB
     merged = [first]
     while queue and len(merged) < most:
         nxt = queue[0]
-        if not isinstance(nxt, SampleBatch) or nxt.lost_before:
+        if not isinstance(nxt, SampleBatch) or nxt.lost_before or nxt.refused_before:
             break
         merged.append(nxt)
         queue.popleft()

@@ -6,8 +6,12 @@ notification. Rules (docs/protocol.md, "Client rules"):
 - Malformed packets (bad length, version, reserved flags, N or config id different from the
   configuration read) are counted and dropped, never fatal.
 - A packet whose 16-bit sequence number does not advance is a duplicate: counted and dropped.
-- Lost samples = (sequence gap - 1) x N, reported as ``lost_before`` of the next batch, never bridged.
-  Gaps longer than the 16-bit sequence range are resolved with the device clock.
+- Missing samples = (sequence gap - 1) x N, never bridged. Those the packets refused since the last good one
+  account for are the wearable's (``refused_before`` of the next batch: its firmware sent them malformed); the rest
+  were lost on the radio (``lost_before``). Gaps longer than the 16-bit sequence range are resolved with the device
+  clock.
+- A packet that comes up to REORDER_WINDOW packets after a gap waits for the next one: when that is the missing
+  packet (the link delivered the two out of order), both are delivered in order and nothing was lost.
 - The 32-bit microsecond device clock is unwrapped; the true sample rate is the least-squares slope
   of packet time against sample counter, from device time only (never from arrival time).
 - A packet whose sequence number and device time disagree (one of them corrupt: a time stamp 2,000 s
@@ -36,6 +40,8 @@ from .base import LinkStats, SampleBatch
 from .outliers import LONG_GAP_S, TOLERANCE_FRACTION, TOLERANCE_SAMPLES, Suspects
 from .rate_fit import RateFit
 
+REORDER_WINDOW = 2  # packets: a gap this short may be a packet delivered late, out of order; wait one packet for it
+
 
 def _agree(d_packets: int, dt_us: float, fs_hz: float, n: int) -> bool:
     """Whether a sequence step of ``d_packets`` and a device-time step of ``dt_us`` tell the same gap."""
@@ -60,6 +66,8 @@ class StreamDecoder:
         self._shift_us = 0  # device-clock time left out of the time line by resyncs (a clock that jumped)
         # the packets held back in a row: (packet, unwrapped device time, its gap in packets when that agreed with time)
         self._suspects: Suspects[tuple[Packet, int, int | None]] = Suspects()
+        self._waiting: Packet | None = None  # a packet after a short gap, waiting one packet for the missing one
+        self._refused_since = 0  # packets refused since the last one delivered: they explain a gap before the next
 
     @property
     def fs_hz(self) -> float:
@@ -85,13 +93,40 @@ class StreamDecoder:
         try:
             p = decode_packet(data, expected_n=cfg.samples_per_packet)
         except DecodeError as e:
-            self.stats.refused(e.reason)
+            self._refuse(e.reason)
             return None
         if p.config_id != cfg.config_id:
-            self.stats.refused("config_id")
+            self._refuse("config_id")
             return None
+        waiting, self._waiting = self._waiting, None
+        out: list[SampleBatch] = []
+        if waiting is not None and not _comes_before(p, waiting):
+            out += self._deliver(self._place(waiting))  # not the missing packet: the gap before ``waiting`` stands
+            waiting = None
+        if waiting is None:
+            out += self._deliver(self._place_or_wait(p))
+        else:  # the packet the gap was waiting for, delivered late: both in order
+            out += self._deliver(self._place(p))
+            out += self._deliver(self._place(waiting))
+        return SampleBatch.concat(out) if out else None
+
+    def _refuse(self, reason: str, count: int = 1) -> None:
+        self.stats.refused(reason, count)
+        self._refused_since = max(0, self._refused_since + count)
+
+    def _deliver(self, placed: list[tuple[Packet, int, int, int]]) -> list[SampleBatch]:
+        return [self._emit(placed)] if placed else []
+
+    def _place_or_wait(self, p: Packet) -> list[tuple[Packet, int, int, int]]:
+        """``_place``, except that a packet after a gap of at most REORDER_WINDOW packets that no refused packet
+        explains waits for the next packet (empty), which may be the one missing."""
+        if self._last_seq16 is None or p.flags & PacketFlags.SESSION_START:
+            return self._place(p)
         placed = self._place(p)
-        return self._emit(placed) if placed else None
+        if len(placed) == 1 and 0 < placed[0][3] <= REORDER_WINDOW * p.n and self._refused_since * p.n < placed[0][3]:
+            self._waiting = p  # placing a packet after an ordinary gap changes nothing: it is placed again later
+            return []
+        return placed
 
     def _place(self, p: Packet) -> list[tuple[Packet, int, int, int]]:
         """Where ``p`` goes: (packet, unwrapped packet index, unwrapped device time, samples lost before it) for it and
@@ -137,12 +172,12 @@ class StreamDecoder:
             step = (cur[0].seq - prev[0].seq) % SEQ_MODULUS
             return 0 < step < SEQ_MODULUS // 2 and _agree(step, (cur[1] - prev[1]) % CLOCK_MODULUS, fs, n)
 
-        self.stats.refused("inconsistent")
+        self._refuse("inconsistent")
         if not self._suspects.add((p, t_us, d), follows):
             return []
         held = self._suspects.items
         self._suspects.clear()
-        self.stats.refused("inconsistent", -len(held))  # confirmed: delivered, not dropped
+        self._refuse("inconsistent", -len(held))  # confirmed: delivered, not dropped
         first, first_t, first_d = held[0]
         if first_d is None:  # the device's clock or counter jumped: the time line goes on at the sample rate
             self.stats.resyncs += 1
@@ -162,8 +197,8 @@ class StreamDecoder:
         self._expect_new_session = False
         self._suspects.clear()
         parts = []
-        lost_total = 0
-        for p, packet, t_us, lost in placed:
+        lost_total = refused_total = 0
+        for p, packet, t_us, missing in placed:
             n = p.n
             self._last_seq16, self._last_packet, self._last_t_us = p.seq, packet, t_us
             counter0 = packet * n + self._counter_offset
@@ -171,7 +206,11 @@ class StreamDecoder:
             assert self._t0_us is not None
             t = (t_us - self._shift_us - self._t0_us) * 1e-6 + np.arange(n) / self.fs_hz
             parts.append((t, p.raw, np.arange(counter0, counter0 + n, dtype=np.int64)))
+            refused = min(missing, self._refused_since * n)  # the wearable's own malformed packets, not the radio's
+            self._refused_since = 0
+            lost = missing - refused
             lost_total += lost
+            refused_total += refused
             st = self.stats
             st.packets += 1
             st.samples += n
@@ -187,4 +226,9 @@ class StreamDecoder:
         g = raw[:, :3]
         saturated = ((g == 32767) | (g == -32768)).any(axis=1)
         return SampleBatch(t, raw[:, :3] / cfg.gyro_lsb_per_dps, raw[:, 3:] / cfg.accel_lsb_per_g, counter, lost_total, fs,
-                           saturated)
+                           saturated, refused_before=refused_total)
+
+
+def _comes_before(p: Packet, waiting: Packet) -> bool:
+    """Whether ``p`` is an earlier packet than ``waiting`` by sequence number (one the gap before it was missing)."""
+    return 0 < (waiting.seq - p.seq) % SEQ_MODULUS < SEQ_MODULUS // 2

@@ -52,6 +52,7 @@ class EndReason(StrEnum):
     SAMPLE_LOSS = "sample_loss"
     LINK_LOST = "link_lost"
     UNREADABLE_DATA = "unreadable_data"
+    DEVICE_CLOCK = "device_clock"
     SENSOR_FAULT = "sensor_fault"
     OUT_OF_TOLERANCE = "out_of_tolerance"
     CALIBRATION_FAILED = "calibration_failed"

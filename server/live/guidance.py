@@ -30,7 +30,10 @@ REASONS: dict[EndReason, str] = {
     EndReason.TURN_TOO_LONG: "the turn did not end within the time limit",
     EndReason.SAMPLE_LOSS: "samples were lost on the radio link during a turn",
     EndReason.LINK_LOST: "the radio link was lost and did not come back in time",
-    EndReason.UNREADABLE_DATA: "the wearable sent data this version of gyrocal cannot read (not the hand, not the radio)",
+    EndReason.UNREADABLE_DATA: "the wearable sent data this version of gyrocal cannot read, or packets malformed, so many "
+                               "or within a turn that it cannot be calibrated (not the hand, not the radio)",
+    EndReason.DEVICE_CLOCK: "the wearable's time stamps ran far ahead of real time: its clock, or its data, cannot be "
+                            "trusted (not the hand, not the radio)",
     EndReason.SENSOR_FAULT: "the sensor read values a working sensor cannot give (a stuck or saturated axis, gravity off)",
     EndReason.OUT_OF_TOLERANCE: "the computed calibration is outside the documented tolerances",
     EndReason.CALIBRATION_FAILED: "the estimator could not compute a calibration from the recording",
@@ -184,9 +187,13 @@ def turn_too_long(axis: str, limit_s: float, retry: bool) -> str:
             "Put the device down against the block after one turn.")
 
 
+def readings(n: int) -> str:
+    return f"{n} reading was" if n == 1 else f"{n} readings were"
+
+
 def sample_loss(axis: str, lost: int, retry: bool) -> str:
     return (
-        f"{lost} samples were lost on the radio link during the turn about {ax(axis)}. {again(retry, axis)} "
+        f"{readings(lost)} lost on the radio link during the turn about {ax(axis)}. {again(retry, axis)} "
         "Keep the device within a few metres of the receiver, with nothing in between."
     )
 
@@ -215,29 +222,6 @@ def no_data(silent_s: float) -> str:
 
 def data_resumed(late_s: float) -> str:
     return f"The wearable's data arrived {late_s:.1f} s late, complete: nothing was lost. Carry on."
-
-
-# what each reason a decoder drops a packet for means, said to a clinician (server.link: malformed_reasons)
-UNREADABLE_WHY = {
-    "version": "a packet format this version of gyrocal does not know",
-    "n_mismatch": "packets with another number of samples than the configuration it reported",
-    "config_id": "packets of another configuration than the one it reported",
-    "length": "packets of the wrong length",
-    "short": "packets too short to hold a sample",
-    "flags": "packets with flags this version does not know",
-    "inconsistent": "packets whose sequence numbers and time stamps disagree",
-}
-
-
-def unreadable_data(refused: dict[str, int], firmware: str | None) -> str:
-    """The wearable is on and sending, but nothing it sends can be read."""
-    n = sum(refused.values())
-    what = "; ".join(f"{UNREADABLE_WHY.get(reason, reason)} ({count})" for reason, count in
-                     sorted(refused.items(), key=lambda kv: -kv[1]))
-    fw = f" (firmware {firmware})" if firmware else ""
-    return (f"The wearable{fw} is sending data this version of gyrocal cannot read: {n} packets refused, {what}. "
-            "It is not the radio link and not the way the device was turned. Start a new calibration; if it happens "
-            "again, the wearable's firmware and this service do not match: update gyrocal or the wearable.")
 
 
 def sensor_fault(detail: str) -> str:

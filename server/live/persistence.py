@@ -53,6 +53,7 @@ class Persistence:
     persisted: bool
     persist_error: str | None
     _csv: bytes | None
+    _csv_samples: int
     _retry: asyncio.Task[None] | None
     _spooled: int  # samples of the buffer made durable in the store's spool
     _spool_chunk: int
@@ -79,11 +80,14 @@ class Persistence:
     async def _persist_once(self) -> bool:
         m = self.machine
         try:
-            if m.buf.n > 0 and self._csv is None:
+            # the recording a result was computed on is the one archived with it; a session that went on after its
+            # computation (a turn asked again, then a failure or a cancel) is archived whole
+            if m.buf.n > 0 and (self._csv is None or (m.result is None and self._csv_samples != m.buf.n)):
                 rec = m.recording()
-                self._csv = await off_loop(self.pool, recording_csv, rec)
+                self._csv, self._csv_samples = await off_loop(self.pool, recording_csv, rec), len(rec)
             if self._csv is not None and self.recording_sha256 is None:
-                self.recording_sha256 = await asyncio.to_thread(self.store.archive_recording, self.id, self._csv, m.buf.n)
+                self.recording_sha256 = await asyncio.to_thread(self.store.archive_recording, self.id, self._csv,
+                                                                self._csv_samples)
             stored = await asyncio.to_thread(self.store.finish_session, self.id, self.session_end(),
                                              self.operator if m.state == "cancelled" else None)
             if stored is not None and (stored["state"], stored["reason_code"]) != (m.state, m.reason_code):
@@ -96,7 +100,8 @@ class Persistence:
             if self.persist_error is None:  # said once; the retries are quiet until they succeed
                 log.warning("could not write session %s to the store (kept, retried every %g s): %s", self.id,
                             PERSIST_RETRY_S, exc)
-            self.persist_error = str(exc) if isinstance(exc, StoreFull) else f"{type(exc).__name__}: {exc}"
+            self.persist_error = (f"{exc}; the session is kept by the service and written when space returns"
+                                  if isinstance(exc, StoreFull) else f"{type(exc).__name__}: {exc}")
             return False
 
     async def stop_retrying(self) -> None:

@@ -127,6 +127,7 @@ class ProtocolSteps(TurnChecks):
         self._provisional = provisional
         self._rest_before_s = rest_before_s
         self._turn_lost = 0
+        self._turn_refused = 0
 
     def _on_motion(self, t_motion: float) -> None:
         still_s = self.stream.rest_before(t_motion)

@@ -24,6 +24,7 @@ from ..config import Settings
 from ..devices import Device, model_facts, sensor_identity
 from ..store import SessionEnd, Store, utcnow
 from ..workers.compute import ComputePool, calibrate_live, off_loop
+from . import firmware_guidance as firmware_says
 from . import guidance as say
 from .codes import EndReason
 from .events import Broadcaster, Event
@@ -31,6 +32,7 @@ from .history import calibration_history, failed_last_time
 from .persistence import Persistence
 from .session import GuidedSession
 from .snapshot_schema import SessionOut
+from .stream_faults import MalformedWatch, refused_by_reason
 
 if TYPE_CHECKING:
     from .kit_session import KitSession
@@ -78,7 +80,8 @@ class LiveSession(Persistence):
         machine.listener = self._on_snapshot
         self.on_end = on_end
         self.recording_sha256: str | None = None
-        self._csv: bytes | None = None
+        self._csv: bytes | None = None  # the recording a result was computed on, as native CSV
+        self._csv_samples = 0  # how many samples it holds
         self._sections: list[dict[str, str | int]] | None = None  # the stages the estimator was given, as a section list
         self._task: asyncio.Task[None] | None = None
         self._pump: asyncio.Task[None] | None = None
@@ -87,6 +90,7 @@ class LiveSession(Persistence):
         self._link_down = False  # the link said it dropped (a LinkEvent), until it says it is back
         self._silent = False  # the watchdog found no data for link_silence_s, until data comes again
         self._refused_at_sample: dict[str, int] = {}  # the link's refused packets by reason, at the last sample
+        self._malformed = MalformedWatch()  # packets refused as malformed since the stream started
         self.persisted = False
         self.persist_error: str | None = None  # why the last write to the store failed, until one succeeds
         self._retry: asyncio.Task[None] | None = None  # writing the outcome again while the store cannot take it
@@ -230,6 +234,7 @@ class LiveSession(Persistence):
             return
         self._last_sample_mono = time.monotonic()
         self._refused_at_sample = self._refused_now()  # a link kept from an earlier session brings its own counts
+        self._malformed.start(getattr(link, "stats", None))
         async for item in link.samples():
             kind = getattr(item, "kind", None)
             if kind is not None:
@@ -246,7 +251,10 @@ class LiveSession(Persistence):
                     m.data_resumed(int(item.lost_before))
                 m.fs_estimate, m.fs_rel_std = (float(item.fs_hz) if item.fs_hz else m.fs_estimate), item.fs_rel_std
                 m.feed(item.t_device_s, item.gyro_dps, item.accel_g, item.seq, int(item.lost_before), time.time(),
-                       link.clock())
+                       link.clock(), int(getattr(item, "refused_before", 0)))
+                malformed = self._malformed.verdict(getattr(link, "stats", None), dev.info.get("firmware"))
+                if not m.finished and malformed is not None:
+                    m.fail(EndReason.UNREADABLE_DATA, malformed)
             if m.finished:
                 return
 
@@ -296,7 +304,7 @@ class LiveSession(Persistence):
             if now - last > self.settings.link_silence_s:
                 refused = self._refused_since_last_sample()
                 if refused:  # packets come, none of them readable: the wearable speaks another format
-                    m.fail(EndReason.UNREADABLE_DATA, say.unreadable_data(refused, self.device.info.get("firmware")))
+                    m.fail(EndReason.UNREADABLE_DATA, firmware_says.unreadable_data(refused, self.device.info.get("firmware")))
                     continue
                 self._silent = True
                 m.data_silent(now - last)
@@ -305,8 +313,7 @@ class LiveSession(Persistence):
 
     def _refused_now(self) -> dict[str, int]:
         """The packets the link has refused so far, by reason (server.link: LinkStats.malformed_reasons)."""
-        stats = getattr(self.device.link, "stats", None)
-        return {} if stats is None else dict(stats.malformed_reasons)
+        return refused_by_reason(getattr(self.device.link, "stats", None))
 
     def _refused_since_last_sample(self) -> dict[str, int]:
         """The packets the link refused since the last sample it could read, by reason."""
@@ -329,7 +336,7 @@ class LiveSession(Persistence):
             except TimeoutError:
                 m.fail(EndReason.SERVICE_OVERLOADED, say.compute_timeout(self.settings.compute_timeout_s))
                 return
-        self._csv = outcome.csv
+        self._csv, self._csv_samples = outcome.csv, len(rec)
         if outcome.result is None:
             m.fail(outcome.end, outcome.refusal or say.internal_error("no result and no reason"))
             return
@@ -355,7 +362,7 @@ class LiveSession(Persistence):
         ended = datetime.fromisoformat(m.ended_at) if m.ended_at else utcnow()
         return SessionEnd(
             state=m.state, reason_code=m.reason_code, reason=m.reason, result=m.result, passed=m.passed, ended_at=ended,
-            info={"lost_samples": m.lost_samples, "service_late_s": round(m.service_late_s, 3),
+            info={"lost_samples": m.lost_samples, "refused_samples": m.refused_samples, "service_late_s": round(m.service_late_s, 3),
                   "warnings": [w.model_dump() for w in m.warnings],
                   "turns": {a: t.to_dict() for a, t in m.turns.items()},
                   "checks": [] if m.judgement is None else m.judgement.checks_json(),
@@ -372,7 +379,13 @@ class LiveSession(Persistence):
 
     @property
     def csv_bytes(self) -> bytes | None:
+        """The recording the session's result was computed on, as native CSV (None before a computation)."""
         return self._csv
+
+    @property
+    def csv_samples(self) -> int:
+        """How many samples ``csv_bytes`` holds: what the store's row of it says."""
+        return self._csv_samples
 
     @property
     def sections(self) -> list[dict[str, str | int]] | None:

@@ -30,6 +30,7 @@ from calib.result import CalibrationResult
 from calib.stages.stage import AXES, Stage
 
 from ..config import Settings
+from . import firmware_guidance as firmware_says
 from . import guidance as say
 from .buffer import SampleBuffer
 from .codes import END_STATES, TURN_STATES, EndReason, Phase, State
@@ -99,13 +100,15 @@ class GuidedSession(ProtocolSteps, Lateness):
         self.fs_estimate: float | None = None  # the link's estimate of the true rate from device time
         self.fs_rel_std: float | None = None  # ... its relative standard error, when it comes from arrival times
         self._clock_from_next = True  # the current phase's time limit counts from the next sample received
-        self.lost_samples = 0
+        self.lost_samples = 0  # on the radio link
+        self.refused_samples = 0  # in packets the wearable sent malformed (the link refused them)
 
         self.turns: dict[str, TurnRecord] = {}
         self._axis_i = 0
         self._phase_since_t = 0.0
         self._hinted = False
         self._turn_lost = 0
+        self._turn_refused = 0
         self._resume: tuple[State, Phase | None] | None = None
         self._resume_phase = Phase.READY  # what a settle phase leads to: the turn again, or the pause
         self._provisional: str | None = None  # a turn started before the countdown ended: "initial" | "pause"
@@ -175,15 +178,18 @@ class GuidedSession(ProtocolSteps, Lateness):
         lost_before: int = 0,
         received_at: float | None = None,
         link_clock: float | None = None,
+        refused_before: int = 0,
     ) -> None:
         """One batch of samples (device time t in s, raw gyro in deg/s, accel in g), received at ``received_at`` (Unix
         time, s; None: now) and ``link_clock`` on the link's clock (s, on a simulated wearable's time scale; None: the
-        Unix time)."""
+        Unix time). ``lost_before`` samples before it were lost on the radio, ``refused_before`` came in packets the
+        link refused as malformed."""
         if self.finished or self.state in (State.RECONNECTING, State.CONNECTING) or self.stream.tracker is None:
             return
         if self.state == State.COMPUTING:
             self._keep(t, gyro, accel, seq)
             self.lost_samples += int(lost_before)
+            self.refused_samples += int(refused_before)
             return
         first = self.buf.n == 0
         times = self.stream.receive(t, gyro, accel, seq)
@@ -196,21 +202,23 @@ class GuidedSession(ProtocolSteps, Lateness):
             return
         received = received_at if received_at is not None else time.time()
         self.stream.arrived(float(t[-1]), received if link_clock is None else link_clock)
+        if (ahead := self.stream.clock_ahead(self.service_late_s)) is not None:
+            self.fail(EndReason.DEVICE_CLOCK, firmware_says.device_clock_ahead(*ahead, self.device_info.get("firmware")))
+            return
         self.caused_by = CausedBy(t_device_s=float(t[-1]), received_at=received)
-        if first:
-            # samples missing before the first are not part of this session's recording (e.g. the time
-            # between two sessions on one link)
-            lost_before = 0
+        if first:  # samples missing before the first are not this session's (the time between two sessions on one link)
+            lost_before = refused_before = 0
         if self._clock_from_next:
             # A device's clock does not start at 0 (it keeps running between sessions) and runs on while
             # the link is down: the time limits count from the session's first sample, and after a
             # reconnection from the first sample that came back.
             self._clock_from_next = False
             self._phase_since_t = float(t[0])
-        if lost_before:
-            self.lost_samples += int(lost_before)
-            if self.phase == Phase.TURNING:
-                self._turn_lost += int(lost_before)
+        self.lost_samples += int(lost_before)
+        self.refused_samples += int(refused_before)
+        if self.phase == Phase.TURNING:
+            self._turn_lost += int(lost_before)
+            self._turn_refused += int(refused_before)
         self.t_now = float(t[-1])
         try:
             for ev in self.stream.detect():

@@ -41,6 +41,7 @@ class SessionView(Protocol):
     calibration_id: int | None
     method: str
     lost_samples: int
+    refused_samples: int
     service_late_s: float
     started_at: str
     ended_at: str | None
@@ -114,6 +115,7 @@ def session_snapshot(s: SessionView, event: str) -> SessionOut:
         "method": s.method,
         "samples": s.buf.n,
         "lost_samples": s.lost_samples,
+        "refused_samples": s.refused_samples,
         "service_late_s": round(s.service_late_s, 3),  # how long the service itself did not run (a starved process)
         "silent": s.silent,
         "sample_rate_hz": s.fs,

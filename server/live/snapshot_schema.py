@@ -214,7 +214,9 @@ class SessionOut(BaseModel):
     method: str | None = None
     operator: str | None = None
     samples: int | None = Field(None, description="readings recorded so far")
-    lost_samples: int | None = Field(None, description="readings the link lost")
+    lost_samples: int | None = Field(None, description="readings lost on the radio link")
+    refused_samples: int | None = Field(None, description="readings the wearable sent in malformed packets, which the "
+                                        "link refused (its firmware's doing, not the radio's)")
     service_late_s: float | None = Field(None, description="how long the service itself did not run (a starved process), s")
     silent: bool | None = Field(None, description="no data from the device for a while though its link is up (the "
                                 "warning no_data), until its data comes again")

@@ -28,6 +28,12 @@ MOVE_GAP_S = 0.2  # calm readings this long part one move from the motion before
 ARRIVAL_WINDOW_S = 5.0  # how late readings reach the session is its least over this much device time: a while the
 # service or one link falls behind passes, the least stays (a clock 1 % off drifts 0.05 s in it)
 
+# a wearable's time stamps may run ahead of the service's clock by this much plus CLOCK_AHEAD_RATE of the time since
+# its first reading (the first reading's own delay, and a rate placed from arrival times a few per cent off) and no
+# more: a sensor cannot measure faster than real time
+CLOCK_AHEAD_SLACK_S = 5.0
+CLOCK_AHEAD_RATE = 0.05
+
 TrackerFactory = Callable[[float, float | None], Any]
 
 
@@ -54,6 +60,8 @@ class SessionStream:
         self._t_shift = 0.0
         self._pending: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None = None
         self._arrivals: deque[tuple[float, float]] = deque()  # (device time, wall time it was read at minus it), s
+        self._first_arrival: tuple[float, float] | None = None  # (wall time, wall minus device time) of the first
+        self._ahead: tuple[float, float] = (0.0, 0.0)  # (how far device time ran ahead of wall time, over how long), s
 
     def start(self, fs: float, full_scale_dps: float | None) -> None:
         """The link streams at fs Hz: start a detector."""
@@ -105,6 +113,24 @@ class SessionStream:
         self._arrivals.append((t_last, received_at - t_last))
         while self._arrivals[0][0] < t_last - ARRIVAL_WINDOW_S:
             self._arrivals.popleft()
+        if self._first_arrival is None:
+            self._first_arrival = (received_at, received_at - t_last)
+        else:
+            self._ahead = (self._first_arrival[1] - (received_at - t_last), received_at - self._first_arrival[0])
+
+    def clock_ahead(self, excused_s: float = 0.0) -> tuple[float, float] | None:
+        """(how far, over how long) the wearable's time stamps ran ahead of the wall clock since its first reading, in s,
+        when that is more than a clock's drift and the first reading's delay allow (``excused_s``: time the service
+        itself did not run); else None."""
+        ahead, over = self._ahead
+        return (ahead, over) if ahead > CLOCK_AHEAD_SLACK_S + CLOCK_AHEAD_RATE * over + excused_s else None
+
+    def missing_samples(self, st: Stage) -> int:
+        """Samples missing within a stage by the sample counter (0 without one)."""
+        if not self.buf.has_seq or st.end - st.start < 2:
+            return 0
+        steps = np.diff(self.buf.seq[st.start : st.end])
+        return int(np.clip(steps - 1, 0, None).sum())
 
     def wall_offset(self) -> float | None:
         """Wall time minus device time of the readings that reached the session soonest lately (s), so that one moment

@@ -73,6 +73,7 @@ class TurnChecks:
     _redone: set[str]  # turns already asked again after a result: a second failure is the sensor's
     _redone_for: set[tuple[str, str | None]]  # ... and the failed checks they were asked again for
     _turn_lost: int
+    _turn_refused: int
     _resume_phase: Phase
     _rest_before_s: float
 
@@ -123,13 +124,13 @@ class TurnChecks:
             self._set_phase(Phase.CHECKING, say.checking_prompt(axis), keep_clock=True)
         return False
 
-    def _measure(self, axis: str, st: Stage, angles: np.ndarray, lost: int) -> TurnMeasure:
+    def _measure(self, axis: str, st: Stage, angles: np.ndarray, lost: int, refused: int = 0) -> TurnMeasure:
         """What the checks of a turn about ``axis`` over ``st`` read (``angles``: its raw swept angles)."""
         true_angle = None
         if self.live_angle.calibrated and self.live_angle.checks_turns:
             true_angle = float(self.live_angle.of(angles)[AXES.index(axis)])
         return TurnMeasure(angles, self.stream.saturated(st), lost, self.stream.gravity_change_deg(st), true_angle,
-                           duration_s=st.end_s - st.start_s)
+                           duration_s=st.end_s - st.start_s, refused=refused)
 
     def _record_turn(self, axis: str, st: Stage, angles: np.ndarray, gravity_deg: float | None) -> None:
         self.turns[axis] = TurnRecord(axis, st.start, st.end, st.start_s, st.end_s, angles,
@@ -296,8 +297,10 @@ class TurnChecks:
             # the turn (the stage detector merged the two): the turn cannot be used
             self._moved_during_pause(axis)
             return
-        lost = self._turn_lost or (1 if "counter_gap" in st.flags else 0)
-        measure = self._measure(axis, st, angles, lost)
+        lost, refused = self._turn_lost, self._turn_refused
+        if not lost and not refused and "counter_gap" in st.flags:  # a gap in the motion before the turn was confirmed
+            lost = max(1, self.stream.missing_samples(st))
+        measure = self._measure(axis, st, angles, lost, refused)
         problem = judge_turn(axis, measure, self.tol, self.full_scale, self.retry_allowed)
         if problem is not None:
             self._turn_failed(*problem)

@@ -14,6 +14,7 @@ from calib.judge.acceptance import Tolerances
 from calib.stages.stage import AXES
 from calib.units import FULL_TURN_DEG
 
+from . import firmware_guidance as firmware_says
 from . import guidance as say
 from .codes import EndReason
 
@@ -28,6 +29,7 @@ class TurnMeasure:
     gravity_deg: float | None  # gravity's direction change from the rest before to the rest after (None without accelerometer)
     true_angle_deg: float | None = None  # the angle about the asked axis through the device's accepted calibration, if any
     duration_s: float | None = None  # how long the motion took
+    refused: int = 0  # samples missing from the motion because the wearable sent their packets malformed
 
 
 # With an accepted calibration the angle is known in true degrees, up to the power-up change of k since (about
@@ -48,6 +50,8 @@ def judge_turn(axis: str, m: TurnMeasure, tol: Tolerances, full_scale_dps: float
     k_exp = AXES.index(axis)
     a = float(angles[k_exp])
     off_axis = float(np.hypot(*np.delete(angles, k_exp)))
+    if m.refused:  # the wearable's firmware, before the radio: a turn with both gaps is named for the one it can fix
+        return EndReason.UNREADABLE_DATA, firmware_says.refused_in_turn(axis, m.refused, retry)
     if m.lost:
         return EndReason.SAMPLE_LOSS, say.sample_loss(axis, m.lost, retry)
     if m.saturated:

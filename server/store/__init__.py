@@ -8,7 +8,7 @@ and the devices).
 """
 
 from .chain import BrokenLink, ChainReport
-from .errors import DecisionConflict, NotAcceptable, NotFound, StoreError, StoreFull
+from .errors import DecisionConflict, NotAcceptable, NotFound, StoreError, StoreFull, store_trouble
 from .fleet import Lease
 from .records import CalibrationRecord, SessionEnd, StoredDevice, StoredSession, StoredVerification, sha256_hex
 from .repository import Store
@@ -32,5 +32,6 @@ __all__ = [
     "StoredSession",
     "StoredVerification",
     "sha256_hex",
+    "store_trouble",
     "utcnow",
 ]

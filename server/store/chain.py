@@ -6,11 +6,13 @@ row before it in its chain (64 zeros for the first) and the canonical JSON holds
 (ids, ``chain_seq``, times in UTC to the microsecond, JSON values with sorted keys, a binary column as
 its SHA-256; a column added to the schema later, such as ``identity``, only when it is set). ``chain_heads``
 keeps each chain's length and last hash, so rows removed from the end show too. Appending locks the chain's
-head row: concurrent writers queue instead of forking the chain.
+head row: concurrent writers queue instead of forking the chain. A recording's row is checked against its data too:
+the CSV its SHA-256 names, holding as many samples as the row says (a recording written short hashes as well as any).
 """
 
 from __future__ import annotations
 
+import gzip
 import hashlib
 import json
 from collections.abc import Mapping
@@ -21,7 +23,7 @@ from typing import Any
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from .tables import CHAINED, Chained, ChainHead, aware
+from .tables import CHAINED, Chained, ChainHead, RecordingRow, aware
 
 GENESIS = "0" * 64
 _NOT_HASHED = {"prev_hash", "row_hash"}
@@ -131,6 +133,8 @@ def verify_chain(s: Session, chain: str, batch: int = 2000) -> tuple[int, Broken
                                      "the row does not follow the one before it (a row before it was changed or replaced)")
             if row_hash(prev, row_content(row)) != row.row_hash:
                 return n, BrokenLink(chain, row.chain_seq, rid, "the row's content does not match its hash (changed after it was written)")
+            if isinstance(row, RecordingRow) and (problem := recording_problem(row)) is not None:
+                return n, BrokenLink(chain, row.chain_seq, rid, problem)
             prev, expect_seq, n, last_seq = row.row_hash, expect_seq + 1, n + 1, row.chain_seq
         s.expunge_all()  # keep memory flat on long chains
         if len(rows) < batch:
@@ -142,6 +146,28 @@ def verify_chain(s: Session, chain: str, batch: int = 2000) -> tuple[int, Broken
     if head is None and n:
         return n, BrokenLink(chain, None, None, "the chain's head row is missing")
     return n, None
+
+
+def csv_samples(csv_bytes: bytes) -> int:
+    """The samples a native CSV holds: its lines less the header, blank lines and ``#`` comments."""
+    lines = csv_bytes.splitlines()
+    return max(0, sum(1 for line in lines if line.strip() and not line.startswith(b"#")) - 1)
+
+
+def recording_problem(row: RecordingRow) -> str | None:
+    """What is wrong with an archived recording that its hash cannot show (it was written so), or None: its data
+    must be the CSV its SHA-256 names, holding the samples its row counts."""
+    try:
+        data = gzip.decompress(row.data)
+    except (OSError, EOFError) as exc:
+        return f"the recording of session {row.session_id} cannot be decompressed ({exc})"
+    if hashlib.sha256(data).hexdigest() != row.sha256:
+        return f"the recording of session {row.session_id} does not match its SHA-256"
+    held = csv_samples(data)
+    if held != row.n_samples:
+        return (f"the recording of session {row.session_id} holds {held:,} samples where its row says {row.n_samples:,} "
+                "(it was cut short or padded when it was written)")
+    return None
 
 
 def verify_all(s: Session) -> ChainReport:

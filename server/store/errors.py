@@ -35,9 +35,16 @@ class StoreFull(StoreError):
     """The disk (or the database's space) holding the store is full: nothing more can be written until space is freed."""
 
     def __init__(self, where: str, detail: str) -> None:
-        super().__init__(f"the disk holding the store ({where}) is full ({detail}): free space there; what could not be "
-                         "written is kept by the service and written when space returns")
+        super().__init__(f"the disk holding the store ({where}) is full ({detail}): free space there")
         self.where = where
+
+
+def store_trouble(exc: BaseException) -> str:
+    """Why the store did not take a write, in an operator's words: a full disk named as such, anything else as the
+    store being unavailable (its class, for the log's reader)."""
+    if isinstance(exc, StoreFull):
+        return str(exc)
+    return f"the store is unavailable ({type(exc).__name__})"
 
 
 def is_disk_full(exc: BaseException) -> bool:

@@ -7,6 +7,7 @@ every other session) responsive while a session's result is computed.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import gc
 import io
 import logging
@@ -41,18 +42,39 @@ def confine_worker(memory_mb: int | None, service_pid: int) -> None:
     outlives the service."""
     import resource
     import threading
-    import time
 
     if memory_mb:
         limit = int(memory_mb) * 1024 * 1024
         resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
 
-    def watch() -> None:
-        while os.getppid() == service_pid:  # an orphan is adopted by another process: its parent id changes
-            time.sleep(0.5)
-        os._exit(0)
+    threading.Thread(target=watch_parent, args=(service_pid,), name="gyrocal-parent-watch", daemon=True).start()
 
-    threading.Thread(target=watch, name="gyrocal-parent-watch", daemon=True).start()
+
+def watch_parent(service_pid: int) -> None:
+    """End this process once ``service_pid``, its parent, is gone. Waits on a pidfd (no clock: a shifted or stepped
+    clock cannot end the watch); where there is none, polls the parent's id, and a sleep that fails (EINVAL was seen
+    under a shifted clock) is not the end of the watch, only of that sleep."""
+    import select
+    import time
+
+    pidfd = None
+    with contextlib.suppress(AttributeError, OSError):  # no pidfd_open (an older kernel), or the parent is gone
+        pidfd = os.pidfd_open(service_pid)
+    if pidfd is not None and os.getppid() == service_pid:  # the pidfd is of our parent, not of a reused id
+        while True:
+            with contextlib.suppress(OSError, ValueError):
+                poller = select.poll()
+                poller.register(pidfd, select.POLLIN)
+                if poller.poll():  # readable once the process has ended
+                    break
+    else:
+        while os.getppid() == service_pid:  # an orphan is adopted by another process: its parent id changes
+            try:
+                time.sleep(0.5)
+            except (OSError, ValueError):
+                with contextlib.suppress(OSError, ValueError):
+                    select.select([], [], [], 0.5)  # a second way to wait, without the sleep that failed
+    os._exit(0)
 
 
 # -- what the workers run (module level, so that they can be pickled) ------------------------------

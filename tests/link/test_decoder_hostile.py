@@ -68,3 +68,48 @@ def test_nothing_but_garbage_is_refused_and_counted(blobs: list[bytes]) -> None:
         dec.feed(b)
     accepted = dec.stats.packets
     assert dec.stats.malformed_packets + dec.stats.duplicate_packets + accepted == len(blobs)
+
+
+def _decode(stream: list[bytes]) -> tuple[StreamDecoder, list]:
+    dec = StreamDecoder(CFG)
+    dec.begin(new_session=True)
+    return dec, [b for b in (dec.feed(p) for p in stream) if b is not None]
+
+
+def test_packets_delivered_out_of_order_are_put_back_in_order_and_nothing_is_lost() -> None:
+    """50 pairs of packets swapped on the link (as a BLE stack that retransmits may deliver them): every sample is
+    kept, in order; before, the later one of each pair was dropped as stale and 150 samples counted lost."""
+    order = list(range(300))
+    for j in range(1, 300, 6)[:50]:
+        order[j], order[j + 1] = order[j + 1], order[j]
+    dec, out = _decode([_good(j, 1000) for j in order])
+    counter = np.concatenate([b.seq for b in out])
+    assert np.array_equal(counter, np.arange(300 * N)), "every sample, in order"
+    assert dec.stats.lost_samples == 0 and sum(b.lost_before for b in out) == 0
+    assert dec.stats.duplicate_packets == 0
+
+
+def test_a_real_gap_after_a_waiting_packet_is_still_counted_lost() -> None:
+    stream = [_good(j, 1000) for j in range(100) if j not in (40, 70, 71)]
+    dec, out = _decode(stream)
+    counter = np.concatenate([b.seq for b in out])
+    assert counter[-1] == 100 * N - 1 and counter.size == 97 * N
+    assert dec.stats.lost_samples == 3 * N and sum(b.lost_before for b in out) == 3 * N
+
+
+def test_samples_in_packets_the_wearable_sent_malformed_are_its_own_not_the_radios() -> None:
+    """Two packets of every three of the wrong length: refused, and the samples they held are counted as refused
+    (the firmware's), none as lost on the radio."""
+    stream = [_good(j, 1000) + (b"\0" if j % 3 else b"") for j in range(150)]
+    dec, out = _decode(stream)
+    assert dec.stats.malformed_reasons == {"length": 100}
+    assert dec.stats.lost_samples == 0 and sum(b.lost_before for b in out) == 0
+    assert sum(b.refused_before for b in out) == 98 * N  # the last two refused have no packet after them
+
+
+def test_a_forged_packet_costs_its_own_samples_as_refused() -> None:
+    stream = [_good(j, 1000) for j in range(60)]
+    stream[30] = wp.encode_packet(30, 999_999_999, RAW, 0, CFG.config_id)  # its time stamp forged
+    dec, out = _decode(stream)
+    assert dec.stats.malformed_reasons == {"inconsistent": 1}
+    assert dec.stats.lost_samples == 0 and sum(b.refused_before for b in out) == N

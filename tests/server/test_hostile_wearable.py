@@ -16,7 +16,7 @@ TOKEN = "hostile-wearable-token"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
 
 
-async def _session_with(tmp_path: Path, mid_session: Any, speed: float = 10.0) -> dict[str, Any]:
+async def _session_with(tmp_path: Path, mid_session: Any, speed: float = 10.0, body: dict[str, Any] | None = None) -> dict[str, Any]:
     """A guided session on mock-1 through the real app (in process, so the test can reach the simulated wearable);
     ``mid_session(wearable)`` runs once the first turn is asked for. The session's end as the API shows it."""
     from server.config import Settings
@@ -32,7 +32,7 @@ async def _session_with(tmp_path: Path, mid_session: Any, speed: float = 10.0) -
     async with app.router.lifespan_context(app):
         async with httpx.AsyncClient(transport=httpx.ASGITransport(app=app), base_url="http://localhost", headers=AUTH,
                                      timeout=60) as c:
-            r = await c.post("/devices/mock-1/calibrate", json={})
+            r = await c.post("/devices/mock-1/calibrate", json=body or {})
             assert r.status_code == 202, r.text
             sid = r.json()["session_id"]
             for _ in range(600):

@@ -3,10 +3,12 @@ analyses by a rate, and no worker outliving the service."""
 
 from __future__ import annotations
 
+import contextlib
 import io
 import os
 import signal
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -144,6 +146,58 @@ def test_a_worker_whose_service_is_gone_before_it_started_ends_at_once() -> None
     finally:
         kept.kill()
         kept.join(5)
+
+
+# a "service" that starts one worker as the service's pool does (spawned, confined), prints its pid and waits; in the
+# worker, every time.sleep fails as it was seen to under a shifted clock (EINVAL), and with ``no-pidfd`` the kernel
+# has no pidfd_open either
+_SERVICE_WITH_A_WORKER = """
+import errno, multiprocessing, os, signal, sys, threading, time
+
+def worker(service_pid, mode):
+    def failing_sleep(seconds):
+        raise OSError(errno.EINVAL, "Invalid argument")
+    time.sleep = failing_sleep
+    if mode == "no-pidfd":
+        del os.pidfd_open
+    from server.workers.compute import confine_worker
+    confine_worker(None, service_pid)
+    threading.Event().wait()
+
+if __name__ == "__main__":
+    p = multiprocessing.get_context("spawn").Process(target=worker, args=(os.getpid(), sys.argv[1]))
+    p.start()
+    print(p.pid, flush=True)
+    signal.pause()
+"""
+
+
+@pytest.mark.parametrize("mode", ["pidfd", "no-pidfd"])
+def test_a_worker_whose_clock_fails_its_sleep_still_ends_with_its_service(tmp_path: Path, mode: str) -> None:
+    """The parent watch's sleep raised OSError (EINVAL) under a shifted clock and the watch stopped: a kill -9 of the
+    service then left the worker orphaned. It waits on the parent's pidfd now, and a failing sleep only ends that
+    sleep."""
+    script = tmp_path / "service.py"
+    script.write_text(_SERVICE_WITH_A_WORKER)
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
+    service = subprocess.Popen([sys.executable, str(script), mode], stdout=subprocess.PIPE, text=True, env=env)
+    worker = 0
+    try:
+        assert service.stdout is not None
+        worker = int(service.stdout.readline())
+        time.sleep(2.0)  # the worker has imported gyrocal and its watch has tried to sleep, and failed
+        assert _alive(worker)
+        service.kill()
+        service.wait(10)
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and _alive(worker):
+            time.sleep(0.2)
+        assert not _alive(worker), "the worker outlived its service"
+    finally:
+        service.kill()
+        if worker:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(worker, signal.SIGKILL)
 
 
 def test_a_service_killed_as_it_starts_leaves_no_worker(tmp_path: Path) -> None:

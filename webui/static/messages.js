@@ -72,6 +72,7 @@ export const REASONS = {
   sample_loss: { title: "Data was lost on the radio link", fix: "Keep the device within a few metres of the receiver, with nothing in between.", icon: "link" },
   link_lost: { title: "The connection was lost", fix: "Check the device is switched on, charged and close to the receiver, then try again.", icon: "link" },
   unreadable_data: { title: "The device sends data this version cannot read", fix: "Not your turns, not the radio: start again. If it happens again, the device's firmware and this service do not match: tell the administrator.", icon: "fail" },
+  device_clock: { title: "The device's clock cannot be trusted", fix: "Not your turns, not the radio: switch the device off and on and start again. If it happens again, its firmware is at fault: tell the administrator.", icon: "fail" },
   sensor_fault: { title: "The device's sensor is faulty", fix: "Not your turns: switch the device off and on and start again. If it happens again, the device needs repair.", icon: "fail" },
   out_of_tolerance: { title: "The result is outside the tolerances", fix: "Press Redo and calibrate again, doing what is said above.", icon: "fail" },
   calibration_failed: { title: "The calibration could not be computed", fix: "Start again, following each step on the screen.", icon: "fail" },

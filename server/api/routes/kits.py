@@ -16,7 +16,7 @@ from ...live.kit_session import KitSession
 from ...live.runner import LiveSession
 from ...live.snapshot_schema import KitDeviceOut, SessionOut
 from ...service import Service
-from ...store import DecisionConflict, NotAcceptable, NotFound, StoreError
+from ...store import DecisionConflict, NotAcceptable, NotFound, StoreError, store_trouble
 from ...store.calibrations import Acceptance
 from ..views import claim_device, reachable_device, stored_kit
 from .sessions import new_live
@@ -131,8 +131,8 @@ async def accept_kit(svc: Svc, kit_id: str, operator: Operator) -> M.KitAcceptOu
         raise  # 409 / 404 with the store's own sentence (server.main)
     except (StoreError, SQLAlchemyError) as exc:
         log.warning("accept of kit %s failed: %s", kit_id, exc)
-        raise problem(503, f"the kit's calibrations could not be stored ({type(exc).__name__}); no wearable's calibration "
-                           "changed. Try accepting again.") from None
+        raise problem(503, f"the kit's calibrations could not be stored: {store_trouble(exc)}. No wearable's calibration "
+                           "changed; try accepting again.") from None
     for d, rec in zip(passed, records, strict=True):
         if (member := running.get(d.device_id)) is not None:
             member.machine.decide("accepted", rec.id)
@@ -147,7 +147,7 @@ async def accept_kit(svc: Svc, kit_id: str, operator: Operator) -> M.KitAcceptOu
 def _acceptance(live: LiveSession) -> Acceptance:
     return Acceptance(live.id, live.machine.result, end=live.session_end(), identity=live.identity,
                       sensor_model=live.device.info.get("sensor_model"), firmware=live.device.info.get("firmware"),
-                      recording_csv=live.csv_bytes, n_samples=live.machine.buf.n)
+                      recording_csv=live.csv_bytes, n_samples=live.csv_samples)
 
 
 def _why_not(d: KitDeviceOut) -> str:

@@ -41,7 +41,7 @@ from ...live.snapshot import stored_snapshot
 from ...live.snapshot_schema import SessionOut
 from ...live.turn_watch import LiveAngle
 from ...service import Service
-from ...store import DecisionConflict, NotAcceptable, NotFound, StoreError
+from ...store import DecisionConflict, NotAcceptable, NotFound, StoreError, store_trouble
 from ..upload_options import Upload
 from ..upload_result import calibrate_uploaded
 from ..views import claim_device, reachable_device, remote_gateway, runs_elsewhere, session_snapshot, stored_kit
@@ -239,7 +239,7 @@ async def accept(svc: Svc, session_id: str, operator: Operator, body: M.Decision
             sensor_model=(live.device.info.get("sensor_model") if live else None) or (body.sensor_model if body else None),
             firmware=(live.device.info.get("firmware") if live else None) or (body.firmware if body else None),
             recording_csv=(live.csv_bytes if live else None),
-            n_samples=(live.machine.buf.n if live else 0),
+            n_samples=(live.csv_samples if live else 0),
         )
     except (DecisionConflict, NotAcceptable, NotFound):
         raise  # 409 / 404 with the store's own sentence (server.main)
@@ -247,7 +247,8 @@ async def accept(svc: Svc, session_id: str, operator: Operator, body: M.Decision
         log.warning("accept of %s failed: %s", session_id, exc)
         raise problem(
             503,
-            f"the calibration could not be stored ({type(exc).__name__}); the previous calibration stays current. Try accepting again.",
+            f"the calibration could not be stored: {store_trouble(exc)}. The previous calibration stays current; try "
+            "accepting again.",
         ) from None
     if body is not None and body.note:
         await asyncio.to_thread(svc.store.audit, operator, "session.note", rec.device_id, session_id, {"note": body.note})
@@ -275,7 +276,7 @@ async def discard(svc: Svc, session_id: str, operator: Operator, body: M.Decisio
         raise  # 409 / 404 with the store's own sentence (server.main)
     except (StoreError, SQLAlchemyError) as exc:
         log.warning("discard of %s failed: %s", session_id, exc)
-        raise problem(503, f"the decision could not be stored ({type(exc).__name__}); try again") from None
+        raise problem(503, f"the decision could not be stored: {store_trouble(exc)}. Nothing was changed; try again.") from None
     if body is not None and body.note:
         await asyncio.to_thread(svc.store.audit, operator, "session.note", snap.device_id, session_id, {"note": body.note})
     if live is not None:
