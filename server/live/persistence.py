@@ -57,6 +57,7 @@ class Persistence:
     _retry: asyncio.Task[None] | None
     _spooled: int  # samples of the buffer made durable in the store's spool
     _spool_chunk: int
+    _spool_write: asyncio.Future[None] | None
 
     @property
     def id(self) -> str:
@@ -121,14 +122,24 @@ class Persistence:
             await asyncio.sleep(SPOOL_PERIOD_S)
             await self._spool()
 
+    async def _spool_settled(self) -> None:
+        """Wait for a spool write still under way (its task was cancelled, its thread was not)."""
+        if self._spool_write is not None:
+            with contextlib.suppress(Exception, asyncio.CancelledError):
+                await self._spool_write
+
     async def _spool(self) -> None:
         buf = self.machine.buf
         end = min(buf.n, SPOOL_MAX_SAMPLES)
         if end <= self._spooled:
             return
         columns, rows = spool_rows(buf, self._spooled, end)
+        # the write runs on in its thread when this task is cancelled (the session ended): kept, so that the end waits
+        # for it before the recording is archived and the spool cleared, and no spooled row is left behind
+        self._spool_write = asyncio.ensure_future(
+            asyncio.to_thread(self.store.spool_samples, self.id, self._spool_chunk, columns, rows, end - self._spooled))
         try:
-            await asyncio.to_thread(self.store.spool_samples, self.id, self._spool_chunk, columns, rows, end - self._spooled)
+            await asyncio.shield(self._spool_write)
         except Exception as exc:  # the store is down: these samples are spooled with the next round
             log.warning("could not spool the samples of session %s: %s", self.id, exc)
             return

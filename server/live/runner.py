@@ -98,6 +98,7 @@ class LiveSession(Persistence):
         self.temperatures_c: tuple[float, float] | None = None  # at the session's start and end
         self._spooled = 0  # samples of the buffer made durable in the store's spool
         self._spool_chunk = 0
+        self._spool_write: asyncio.Future[None] | None = None  # the spool's write under way
         self.kit: KitSession | None = None  # the kit this wearable is calibrated with (server.live.kit_session)
 
     @property
@@ -172,6 +173,7 @@ class LiveSession(Persistence):
                 with contextlib.suppress(asyncio.CancelledError, Exception):
                     await task
             await self._stop_link()
+            await self._spool_settled()
             await self._persist()
             # the stream stays open for the accept/discard event, then ends (clients see an end state)
             asyncio.get_running_loop().call_later(self.settings.sse_linger_s, self.broadcaster.close)

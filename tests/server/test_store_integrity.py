@@ -348,6 +348,29 @@ def test_store_verify_command_reports_the_first_broken_link(tmp_path: Path) -> N
     assert report["first_broken_link"]["seq"] == 1
 
 
+def test_store_verify_checks_each_recording_holds_the_samples_its_row_counts(store_url: str) -> None:
+    """A recording written short hashes as well as a whole one: verify reads each recording against its row."""
+    import json
+    import subprocess
+
+    from server_fixtures import GYROCAL, ROOT
+
+    store = Store(store_url)
+    csv = b"# sample_rate_rel_std: 0.001\nt,gx,gy,gz\n" + b"".join(f"{i / 100},0,0,0\n".encode() for i in range(40))
+    _done(store, "r" * 32)
+    store.archive_recording("r" * 32, csv, 40)
+    assert store.verify().ok
+    _done(store, "s" * 32)
+    store.archive_recording("s" * 32, csv, 140)  # its row says 140 samples; 40 are there
+    report = store.verify()
+    assert not report.ok and report.broken is not None and report.broken.chain == "recordings"
+    assert report.broken.problem == (f"the recording of session {'s' * 32} holds 40 samples where its row says 140 "
+                                     "(it was cut short or padded when it was written)")
+    bad = subprocess.run([*GYROCAL, "store", "verify", "--db", store_url, "--json"], cwd=ROOT, capture_output=True,
+                         text=True, timeout=60)
+    assert bad.returncode == 4 and json.loads(bad.stdout)["first_broken_link"]["seq"] == 2
+
+
 def test_a_service_role_keeps_keeping_kits_once_a_store_from_before_kits_is_upgraded(postgres) -> None:  # noqa: F811
     """A store set up for a service role at revision 0006 (before kits): the owner's upgrade grants the role the new
     table, so the service, restarted as that role, keeps kits."""
