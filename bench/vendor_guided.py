@@ -68,8 +68,9 @@ def run_model(model: str, devices: int, rounds: int, speed: float, seed: int) ->
         truths = {d["address"]: d["simulated_truth"] for d in line.get("devices", [line])}
         port = _free_port()
         env = {**os.environ, "DBUS_SYSTEM_BUS_ADDRESS": line["dbus_address"], "GYROCAL_API_TOKEN": TOKEN}
-        svc = subprocess.Popen([*GYROCAL, "serve", "--ble", "--port", str(port), "--db", f"sqlite:///{tmp}/store.sqlite3",
-                                "--log-level", "warning"], cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        svc = subprocess.Popen([*GYROCAL, "serve", "--ble", "--ble-time-scale", str(speed), "--port", str(port), "--db",
+                                f"sqlite:///{tmp}/store.sqlite3", "--log-level", "warning"], cwd=ROOT, env=env,
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         base = f"http://127.0.0.1:{port}"
         try:
             with httpx.Client(base_url=base, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=30) as c:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import gc
 import logging
+import math
 import re
 import signal
 import sys
@@ -52,6 +53,10 @@ def register(sub: Any) -> None:
                         "free connection slots (default hci0)")
     p.add_argument("--ble-slots", type=int, default=5, metavar="N",
                    help="connections one adapter holds at once (BlueZ adapters: 5 on CSR chips, 7 on Broadcom; default 5)")
+    p.add_argument("--ble-time-scale", type=float, default=1.0, metavar="X",
+                   help="the wearables' clocks run X times real time: 1 for real hardware (default); a simulated wearable "
+                        "replayed faster (gyrocal mock-device --speed X) needs its speed, or its time stamps are refused "
+                        "as running ahead of real time")
     p.add_argument("--auth-reads", action="store_true", help="require a token for reads too (default: only writes need one)")
     p.add_argument(
         "--allowed-host",
@@ -240,7 +245,10 @@ def build_service(args: argparse.Namespace) -> Any:
         raise ServiceError(f"--ble-adapter {args.ble_adapter!r}: name each adapter once, as BlueZ does (hci0, or hci0,hci1)")
     if not 1 <= args.ble_slots <= 20:
         raise ServiceError(f"--ble-slots {args.ble_slots}: an adapter holds between 1 and 20 connections (BlueZ adapters 5-7)")
-    devices = DeviceManager(ble=args.ble, ble_adapters=adapters, ble_slots=args.ble_slots)
+    if not (math.isfinite(args.ble_time_scale) and 0 < args.ble_time_scale <= 1000):
+        raise ServiceError(f"--ble-time-scale {args.ble_time_scale:g}: give how many times real time the wearables' "
+                           "clocks run, above 0 and at most 1000 (1 for real hardware)")
+    devices = DeviceManager(ble=args.ble, ble_adapters=adapters, ble_slots=args.ble_slots, ble_time_scale=args.ble_time_scale)
     if simulators is not None:
         devices.add_mocks(simulators, args.mock, speed=args.mock_speed, seed=args.mock_seed, scenarios=scenarios, rate_hz=args.mock_rate,
                           first=args.mock_first, model=args.mock_model, kit=args.mock_kit,

@@ -192,12 +192,22 @@ class Device:
                 await self.peripheral.aclose()
 
 
+def _scaled_monotonic(scale: float) -> float:
+    import time
+
+    return time.monotonic() * scale
+
+
 class DeviceManager:
     """Known devices, by id; scanning adds BLE ones."""
 
-    def __init__(self, ble: bool = False, ble_adapters: Sequence[str] = ("hci0",), ble_slots: int = 5) -> None:
+    def __init__(self, ble: bool = False, ble_adapters: Sequence[str] = ("hci0",), ble_slots: int = 5,
+                 ble_time_scale: float = 1.0) -> None:
         self.devices: dict[str, Device] = {}
         self.ble = ble
+        # the clock BLE links time arrivals by, on the wearables' time scale (simulated ones may run faster)
+        self.ble_clock: Callable[[], float] | None = (
+            None if ble_time_scale == 1.0 else functools.partial(_scaled_monotonic, float(ble_time_scale)))
         self.ble_adapters = tuple(ble_adapters)
         self.slots = AdapterSlots(self.ble_adapters, ble_slots)  # shared by every BLE link of the service
         # where the service answers, once it listens: simulated clinicians who follow the prompts read it there
@@ -286,7 +296,8 @@ class DeviceManager:
                             transport="ble",
                             name=disc.name,
                             address=disc.address,
-                            make_link=functools.partial(BleLink, disc.address, slots=self.slots, model=disc.model),
+                            make_link=functools.partial(BleLink, disc.address, slots=self.slots, model=disc.model,
+                                                              clock=self.ble_clock),
                             model=disc.model,
                         )
                     )
@@ -326,7 +337,7 @@ class DeviceManager:
                     transport="ble",
                     name=None,
                     address=address,
-                    make_link=functools.partial(BleLink, address, slots=self.slots),
+                    make_link=functools.partial(BleLink, address, slots=self.slots, clock=self.ble_clock),
                 )
             )
         return dev

@@ -202,7 +202,7 @@ class GuidedSession(ProtocolSteps, Lateness):
             return
         received = received_at if received_at is not None else time.time()
         self.stream.arrived(float(t[-1]), received if link_clock is None else link_clock)
-        if (ahead := self.stream.clock_ahead(self.service_late_s)) is not None:
+        if link_clock is not None and (ahead := self.stream.clock_ahead(self.service_late_s)) is not None:
             self.fail(EndReason.DEVICE_CLOCK, firmware_says.device_clock_ahead(*ahead, self.device_info.get("firmware")))
             return
         self.caused_by = CausedBy(t_device_s=float(t[-1]), received_at=received)

@@ -23,7 +23,8 @@ def _guided_over_ble(model: str, speed: float, seed: int, store: Path) -> dict[s
                               cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         line = json.loads(device.stdout.readline())
-        svc = RunningService(["--ble"], f"sqlite:///{store}", env={"DBUS_SYSTEM_BUS_ADDRESS": line["dbus_address"]}).start()
+        svc = RunningService(["--ble", "--ble-time-scale", str(speed)], f"sqlite:///{store}",
+                             env={"DBUS_SYSTEM_BUS_ADDRESS": line["dbus_address"]}).start()
         try:
             with svc.client() as c:
                 found = c.post("/devices/scan", params={"timeout": 2}).json()["devices"]

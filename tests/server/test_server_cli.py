@@ -89,6 +89,7 @@ def test_once_a_command_has_ended_the_sqlite_file_alone_holds_what_it_wrote(tmp_
         (["--ble", "--ble-adapter", "hci0,usb1"], "name each adapter once, as BlueZ does"),
         (["--ble", "--ble-adapter", "hci0,hci0"], "name each adapter once"),
         (["--ble", "--ble-slots", "0"], "an adapter holds between 1 and 20 connections"),
+        (["--ble", "--ble-time-scale", "0"], "above 0 and at most 1000 (1 for real hardware)"),
         (["--gateway", "room 3!"], "use letters, digits, '.', '_' or '-'"),
         (["--gateway", "room-3", "--lease-s", "1"], "between 5 and 3600 seconds"),
         (["--gateway-url", "http://gw:8000"], "--gateway-url needs --gateway NAME"),

@@ -185,7 +185,7 @@ def test_sample_loss_during_a_turn_fails_it() -> None:
     run = Run()
     run.feed(rec, lost_at={x_mid - x_mid % 3: 7})
     assert (run.s.state, run.s.reason_code) == ("failed", "sample_loss")
-    assert "7 samples" in run.s.reason
+    assert "7 readings were lost on the radio link" in run.s.reason
 
 
 def test_link_loss_pauses_and_the_current_turn_is_redone() -> None:
