@@ -50,6 +50,8 @@ class Streaming:
     speed: float
     faults: LinkFaults
     config_id: int
+    gyro_full_scale_dps: int
+    accel_range_g: int
     data_char: str
     stats: DeviceStats
     events: list[tuple[float, str]]
@@ -122,8 +124,8 @@ class Streaming:
     def _send(self, s: WearableSession, j: int) -> None:
         i0, i1 = j * s.n, (j + 1) * s.n
         blk = self.source.block(i0, i1)
-        cfg = self.config
-        counts, clipped = wp.quantize(blk.gyro, blk.accel, cfg.gyro_lsb_per_dps, cfg.accel_lsb_per_g)
+        counts, clipped = wp.quantize(blk.gyro, blk.accel, wp.GYRO_SENSITIVITY_LSB_PER_DPS[self.gyro_full_scale_dps],
+                                      wp.ACCEL_SENSITIVITY_LSB_PER_G[self.accel_range_g])
         flags = PacketFlags(0)
         if not s.sent_any:
             flags |= PacketFlags.SESSION_START

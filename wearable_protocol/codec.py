@@ -99,9 +99,13 @@ def quantize(gyro_dps: np.ndarray, accel_g: np.ndarray, gyro_lsb_per_dps: float,
 
     Returns the counts and a boolean (n,) mask of samples whose gyro is at a limit (clipped).
     """
-    g = np.rint(np.asarray(gyro_dps, dtype=float) * gyro_lsb_per_dps)
-    a = np.rint(np.asarray(accel_g, dtype=float) * accel_lsb_per_g)
-    counts = np.clip(np.hstack([g, a]), INT16_MIN, INT16_MAX).astype(np.int16)
+    gyro_dps = np.asarray(gyro_dps, dtype=float)
+    scaled = np.empty((gyro_dps.shape[0], 6))
+    np.multiply(gyro_dps, gyro_lsb_per_dps, out=scaled[:, :3])
+    np.multiply(np.asarray(accel_g, dtype=float), accel_lsb_per_g, out=scaled[:, 3:])
+    np.rint(scaled, out=scaled)
+    np.clip(scaled, INT16_MIN, INT16_MAX, out=scaled)
+    counts = scaled.astype(np.int16)
     clipped = np.any((counts[:, :3] >= INT16_MAX) | (counts[:, :3] <= INT16_MIN), axis=1)
     return counts, clipped
 

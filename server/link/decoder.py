@@ -68,6 +68,7 @@ class StreamDecoder:
         self._suspects: Suspects[tuple[Packet, int, int | None]] = Suspects()
         self._waiting: Packet | None = None  # a packet after a short gap, waiting one packet for the missing one
         self._refused_since = 0  # packets refused since the last one delivered: they explain a gap before the next
+        self._steps = np.empty(0)  # 0, 1, ..., n-1 for a packet of n samples
 
     @property
     def fs_hz(self) -> float:
@@ -198,35 +199,46 @@ class StreamDecoder:
         self._suspects.clear()
         parts = []
         lost_total = refused_total = 0
+        st = self.stats
+        assert self._t0_us is not None
         for p, packet, t_us, missing in placed:
             n = p.n
             self._last_seq16, self._last_packet, self._last_t_us = p.seq, packet, t_us
             counter0 = packet * n + self._counter_offset
             self._fit.add(counter0, t_us - self._shift_us)
-            assert self._t0_us is not None
-            t = (t_us - self._shift_us - self._t0_us) * 1e-6 + np.arange(n) / self.fs_hz
-            parts.append((t, p.raw, np.arange(counter0, counter0 + n, dtype=np.int64)))
+            parts.append((t_us - self._shift_us - self._t0_us, p.raw, counter0))
             refused = min(missing, self._refused_since * n)  # the wearable's own malformed packets, not the radio's
             self._refused_since = 0
             lost = missing - refused
             lost_total += lost
             refused_total += refused
-            st = self.stats
             st.packets += 1
             st.samples += n
             if lost:
                 st.lost_samples += lost
                 st.lost_packets += lost // n
-        t = np.concatenate([x[0] for x in parts])
-        raw = np.concatenate([x[1] for x in parts])
-        counter = np.concatenate([x[2] for x in parts])
         fs = self.fs_hz
-        self.stats.fs_estimate_hz = fs
+        if len(parts) == 1:  # the usual case: one packet, no arrays to join
+            t0_us, raw, counter0 = parts[0]
+            n = raw.shape[0]
+            t = t0_us * 1e-6 + self._offsets(n, fs)
+            counter = np.arange(counter0, counter0 + n, dtype=np.int64)
+        else:
+            raw = np.concatenate([x[1] for x in parts])
+            t = np.concatenate([x[0] * 1e-6 + self._offsets(x[1].shape[0], fs) for x in parts])
+            counter = np.concatenate([np.arange(x[2], x[2] + x[1].shape[0], dtype=np.int64) for x in parts])
+        st.fs_estimate_hz = fs
         self._last_sample_t_s = float(t[-1])
         g = raw[:, :3]
         saturated = ((g == 32767) | (g == -32768)).any(axis=1)
-        return SampleBatch(t, raw[:, :3] / cfg.gyro_lsb_per_dps, raw[:, 3:] / cfg.accel_lsb_per_g, counter, lost_total, fs,
+        return SampleBatch(t, g / cfg.gyro_lsb_per_dps, raw[:, 3:] / cfg.accel_lsb_per_g, counter, lost_total, fs,
                            saturated, refused_before=refused_total)
+
+    def _offsets(self, n: int, fs: float) -> np.ndarray:
+        """The times (s) of a packet's n samples after its first, at fs Hz."""
+        if self._steps.size != n:  # the same n packet after packet
+            self._steps = np.arange(n, dtype=float)
+        return self._steps / fs
 
 
 def _comes_before(p: Packet, waiting: Packet) -> bool:

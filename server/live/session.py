@@ -196,8 +196,7 @@ class GuidedSession(ProtocolSteps, Lateness):
         if times is None:
             return
         t = times
-        self._faults.add(t, gyro, accel)
-        if self.still_target() is not None and (fault := self._faults.check(self.full_scale)):
+        if self.still_target() is not None and (fault := self._faults.check(self.buf, self.full_scale)):
             self.fail(EndReason.SENSOR_FAULT, say.sensor_fault(fault))  # a sensor no rest can satisfy: not the hands
             return
         received = received_at if received_at is not None else time.time()

@@ -61,7 +61,9 @@ class SessionStream:
         self._pending: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None = None
         self._arrivals: deque[tuple[float, float]] = deque()  # (device time, wall time it was read at minus it), s
         self._first_arrival: tuple[float, float] | None = None  # (wall time, wall minus device time) of the first
-        self._ahead: tuple[float, float] = (0.0, 0.0)  # (how far device time ran ahead of wall time, over how long), s
+        self._ahead: tuple[float, float] = (0.0, 0.0)
+        self._rest_key: tuple[int, int] | None = None  # the still ``_rest`` is the mean reading of
+        self._rest: np.ndarray = np.zeros(3)  # (how far device time ran ahead of wall time, over how long), s
 
     def start(self, fs: float, full_scale_dps: float | None) -> None:
         """The link streams at fs Hz: start a detector."""
@@ -226,7 +228,12 @@ class SessionStream:
     def rest_reading(self) -> np.ndarray | float:
         """The raw reading at rest (deg/s): the mean of the last still, 0 before there is one."""
         still = self.last_still
-        return self.buf.gyro[still.start : still.end].mean(axis=0) if still is not None and still.end > still.start else 0.0
+        if still is None or still.end <= still.start:
+            return 0.0
+        key = (still.start, still.end)
+        if self._rest_key != key:  # asked at every batch, of a still that changes a few times a session
+            self._rest_key, self._rest = key, self.buf.gyro[still.start : still.end].mean(axis=0)
+        return self._rest
 
     def turn_angles(self, st: Stage) -> np.ndarray:
         """Integrated raw angle (deg) about x, y, z over the stage, bias from the last still."""

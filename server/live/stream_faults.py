@@ -25,15 +25,17 @@ class MalformedWatch:
 
     refused_at_start: dict[str, int] = field(default_factory=dict)
     packets_at_start: int = 0
+    malformed_at_start: int = 0
 
     def start(self, stats: Any) -> None:
         """The stream starts: a link kept from an earlier session brings its own counts."""
         self.refused_at_start = refused_by_reason(stats)
         self.packets_at_start = 0 if stats is None else int(stats.packets)
+        self.malformed_at_start = 0 if stats is None else int(stats.malformed_packets)
 
     def verdict(self, stats: Any, firmware: str | None) -> str | None:
         """Why the stream cannot be calibrated, in the clinician's words, when too many packets were refused; else None."""
-        if stats is None:
+        if stats is None or stats.malformed_packets - self.malformed_at_start < MALFORMED_MIN:  # asked at every batch
             return None
         before = self.refused_at_start
         refused = {r: c - before.get(r, 0) for r, c in refused_by_reason(stats).items() if c > before.get(r, 0)}

@@ -13,9 +13,11 @@ from .fleet import Lease
 from .records import CalibrationRecord, SessionEnd, StoredDevice, StoredSession, StoredVerification, sha256_hex
 from .repository import Store
 from .schema import SCHEMA_VERSION
+from .spool import BINARY_SPOOL
 from .tables import utcnow
 
 __all__ = [
+    "BINARY_SPOOL",
     "SCHEMA_VERSION",
     "BrokenLink",
     "CalibrationRecord",

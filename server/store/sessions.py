@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import csv
 import gzip
-import io
 from datetime import datetime
 from typing import Any, cast
 
@@ -15,6 +13,11 @@ from . import chain
 from .base import StoreBase
 from .errors import DecisionConflict, NotFound, StoreError
 from .records import SessionEnd, StoredSession, session_dict, sha256_hex
+from .spool import spool_csv
+
+# gzip's fastest level: a 2 MB recording in 19 ms (level 6: 120 ms, for 8 % less), twenty sessions ending at once
+# on a busy service
+ARCHIVE_GZIP_LEVEL = 1
 from .tables import RecordingRow, SessionRow, SpooledSamples, aware, utcnow
 
 
@@ -112,7 +115,8 @@ class SessionStore(StoreBase):
 
     # -- spooled samples of running sessions ----------------------------------------------------
     def spool_samples(self, session_id: str, chunk: int, columns: str, rows_csv: bytes, n_samples: int) -> None:
-        """Keep a running session's next samples (CSV rows under ``columns``) durably."""
+        """Keep a running session's next samples durably: CSV rows under the CSV header ``columns``, or float64 rows
+        under ``BINARY_SPOOL`` + their names (server.store.spool)."""
         with self._tx() as s:
             s.add(SpooledSamples(session_id=session_id, chunk=chunk, columns=columns, n_samples=int(n_samples),
                                  data=gzip.compress(rows_csv, compresslevel=1, mtime=0), created_at=utcnow()))
@@ -128,24 +132,13 @@ class SessionStore(StoreBase):
                            .order_by(SpooledSamples.chunk)).scalars().all()
         if not chunks:
             return None
-        headers = [c.columns.split(",") for c in chunks]
-        common = [col for col in headers[0] if all(col in h for h in headers)]
-        out = io.StringIO()
-        out.write(",".join(common) + "\n")
-        for c, h in zip(chunks, headers, strict=False):
-            text = gzip.decompress(c.data).decode()
-            if h == common:
-                out.write(text)
-                continue
-            idx = [h.index(col) for col in common]  # a batch with other columns (the device stopped sending one)
-            for rec in csv.reader(io.StringIO(text)):
-                out.write(",".join(rec[i] for i in idx) + "\n")
-        return out.getvalue().encode(), sum(c.n_samples for c in chunks)
+        return spool_csv([(c.columns, c.data) for c in chunks]), sum(c.n_samples for c in chunks)
 
     # -- recordings -----------------------------------------------------------------------------
     def _archive(self, s: Session, session_id: str, csv_bytes: bytes, n_samples: int) -> str:
+        data = gzip.compress(csv_bytes, compresslevel=ARCHIVE_GZIP_LEVEL, mtime=0)
         row = RecordingRow(session_id=session_id, sha256=sha256_hex(csv_bytes), encoding="csv+gzip", n_samples=int(n_samples),
-                           size_bytes=len(csv_bytes), data=gzip.compress(csv_bytes, compresslevel=6, mtime=0), created_at=utcnow())
+                           size_bytes=len(csv_bytes), data=data, created_at=utcnow())
         chain.append(s, row)
         s.execute(delete(SpooledSamples).where(SpooledSamples.session_id == session_id))
         return row.sha256

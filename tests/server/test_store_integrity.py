@@ -258,6 +258,36 @@ def test_a_crashed_sessions_spooled_samples_are_archived_at_restart(store_url: s
     assert again.spooled_recording("j" * 32) is None and again.verify().ok
 
 
+def test_a_crashed_sessions_binary_spool_is_archived_as_the_csv_its_samples_make(store_url: str) -> None:
+    """The running session spools float64 rows (server.live.persistence.spool_rows); a crash leaves them to be archived
+    as exactly the native CSV the whole recording would have been written as, beside an older CSV chunk."""
+    import io
+
+    import numpy as np
+
+    from calib.io.readers import write_native_csv
+    from calib.recording import RecordingMeta
+    from server.live.buffer import SampleBuffer
+    from server.live.persistence import spool_rows
+
+    rng = np.random.default_rng(5)
+    buf = SampleBuffer()
+    t = np.arange(300) / 104.0 + 12.345
+    buf.append(t, rng.normal(0, 3, (300, 3)), rng.normal(0, 1, (300, 3)), np.arange(300) + 70000)
+    store = Store(store_url)
+    store.create_session("k" * 32, "dev-6", "live", "turn_y", "closure", "alice", "0.1.0")
+    for chunk, (lo, hi) in enumerate([(0, 104), (104, 250), (250, 300)]):
+        store.spool_samples("k" * 32, chunk, *spool_rows(buf, lo, hi), hi - lo)
+    store.close()
+    again = Store(store_url)
+    assert again.fail_unfinished_sessions("restarted") == 1
+    data, _sha = again.recording("k" * 32)
+    whole = io.StringIO()
+    write_native_csv(buf.recording(RecordingMeta()), whole)
+    assert data.decode() == whole.getvalue()
+    assert again.session("k" * 32)["info"]["samples"] == 300 and again.verify().ok
+
+
 def test_a_v1_store_is_migrated_and_its_history_chained(store_url: str) -> None:
     make_v1_store(store_url)
     store = Store(store_url)
