@@ -243,7 +243,8 @@ class LiveSession(Persistence):
                 self._on_link_event(item)
             else:
                 self._last_sample_mono = time.monotonic()
-                self._refused_at_sample = self._refused_now()
+                if self._refused_at_sample or getattr(link, "stats", None) is None or link.stats.malformed_packets:
+                    self._refused_at_sample = self._refused_now()  # a copy only once the link has refused any
                 if self._link_down:
                     self._link_down = False
                     m.link_restored()
