@@ -5,7 +5,8 @@ notification. Rules (docs/protocol.md, "Client rules"):
 
 - Malformed packets (bad length, version, reserved flags, N or config id different from the
   configuration read) are counted and dropped, never fatal.
-- A packet whose 16-bit sequence number does not advance is a duplicate: counted and dropped.
+- A packet whose 16-bit sequence number does not advance is a duplicate: counted and dropped; it came in the place
+  of a new packet, so a gap it leaves counts with the refused ones.
 - Missing samples = (sequence gap - 1) x N, never bridged. Those the packets refused since the last good one
   account for are the wearable's (``refused_before`` of the next batch: its firmware sent them malformed); the rest
   were lost on the radio (``lost_before``). Gaps longer than the 16-bit sequence range are resolved with the device
@@ -115,6 +116,13 @@ class StreamDecoder:
         self.stats.refused(reason, count)
         self._refused_since = max(0, self._refused_since + count)
 
+    def _duplicate(self) -> None:
+        """A packet that repeats one already delivered: dropped. It came in the place of a new one, as the wearable
+        sent it (a BLE link never delivers a notification twice): a gap it leaves is the wearable's, like a refused
+        packet's, and waits for nothing."""
+        self.stats.duplicate_packets += 1
+        self._refused_since += 1
+
     def _deliver(self, placed: list[tuple[Packet, int, int, int]]) -> list[SampleBatch]:
         return [self._emit(placed)] if placed else []
 
@@ -141,7 +149,7 @@ class StreamDecoder:
         t_us = self._last_t_us + dt_us
         backwards = dt_us >= CLOCK_MODULUS // 2  # older than the last packet
         if backwards and ((d16 := (p.seq - self._last_seq16) % SEQ_MODULUS) == 0 or d16 >= SEQ_MODULUS // 2):
-            self.stats.duplicate_packets += 1  # a stale packet delivered again
+            self._duplicate()  # a stale packet delivered again
             return []
         fs = self.fs_hz
         if p.flags & PacketFlags.SESSION_START and not backwards:
@@ -156,7 +164,7 @@ class StreamDecoder:
         expected = dt_us * 1e-6 * fs / n
         d += SEQ_MODULUS * max(0, int(round((expected - d) / SEQ_MODULUS)))
         if not backwards and (d == 0 or d >= SEQ_MODULUS // 2 and expected < SEQ_MODULUS // 4):
-            self.stats.duplicate_packets += 1
+            self._duplicate()
             return []
         agrees = not backwards and _agree(d, dt_us, fs, n)
         if agrees and d * n < LONG_GAP_S * fs:
