@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -21,6 +22,10 @@ from .scenarios import LinkFaults
 from .sources import SampleSource
 
 MIN_SLEEP_S = 0.001
+# A BLE link delivers notifications at connection events, not one by one: Linux asks for a connection interval of
+# 30-50 ms (the kernel's le_conn_min_interval 0x0018 and le_conn_max_interval 0x0028, in 1.25 ms units), so a wearable
+# streaming 37.5 packets a second sends them in pairs. The simulated one sends every packet due at each event.
+CONNECTION_INTERVAL_S = 0.05
 
 log = logging.getLogger(__name__)
 
@@ -59,6 +64,7 @@ class Streaming:
     _clock_start_us: int
     _corrupt_pending: int
     firmware_fault: Callable[[int, bytes], list[bytes]] | None
+    connection_interval_s: float  # device time between the link's connection events (0: every packet on its own)
     _loss_cache: dict[int, np.ndarray]
     _notifying: set[str]
     _session: WearableSession | None
@@ -95,7 +101,10 @@ class Streaming:
                 if total is not None and s.next_packet >= total:
                     self._stream_end(s)
                     return
-                wait = (s.wall0 + self._packet_end_s(s, s.next_packet) / self.speed) - time.monotonic()
+                due_s = self._packet_end_s(s, s.next_packet)
+                if self.connection_interval_s > 0:  # the connection event the packet goes out in
+                    due_s = math.ceil(due_s / self.connection_interval_s - 1e-9) * self.connection_interval_s
+                wait = (s.wall0 + due_s / self.speed) - time.monotonic()
                 await asyncio.sleep(max(MIN_SLEEP_S, wait))
         except asyncio.CancelledError:
             pass

@@ -36,7 +36,7 @@ from .device_stats import DeviceStats
 from .power import PowerUpState
 from .scenarios import LinkFaults
 from .sources import SampleSource
-from .streaming import Streaming, WearableSession
+from .streaming import CONNECTION_INTERVAL_S, Streaming, WearableSession
 
 
 def _address(rng: np.random.Generator) -> str:
@@ -115,6 +115,8 @@ class Wearable(Streaming):
         self._corrupt_pending = 0
         # a faulty firmware, for tests: what the wearable sends in place of packet j (none, several, other bytes)
         self.firmware_fault: Callable[[int, bytes], list[bytes]] | None = None
+        # a wearable timed by its arrivals is sent packet by packet: its rate is estimated from their lower envelope
+        self.connection_interval_s = CONNECTION_INTERVAL_S if self.model.time_stamps == "device" else 0.0
         self._loss_cache: dict[int, np.ndarray] = {}
         self.events: list[tuple[float, str]] = []  # (device time s, what) for logs and tests
 
