@@ -6,7 +6,7 @@ The session and its runner judge (server.live.stream_faults, server.live.stream)
 
 from __future__ import annotations
 
-from .guidance import again, ax, readings
+from .guidance import again, ax
 
 # what each reason a decoder drops a packet for means, said to a clinician (server.link: malformed_reasons)
 UNREADABLE_WHY = {
@@ -36,8 +36,9 @@ def unreadable_data(refused: dict[str, int], firmware: str | None) -> str:
 
 
 def refused_in_turn(axis: str, refused: int, retry: bool) -> str:
-    return (f"{readings(refused)} of the turn about {ax(axis)} sent by the wearable's firmware in malformed packets, "
-            f"which gyrocal refused: the turn has a gap. {again(retry, axis)} It is not the radio link and not the way "
+    what = f"{refused} reading{'' if refused == 1 else 's'} of the turn about {ax(axis)}"
+    return (f"{what} came in malformed packets from the wearable's firmware, which gyrocal refused: the turn has a "
+            f"gap. {again(retry, axis)} It is not the radio link and not the way "
             "the device was turned; if it happens again, the wearable's firmware and this service do not match: update "
             "gyrocal or the wearable.")
 
