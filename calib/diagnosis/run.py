@@ -266,6 +266,19 @@ def _intervals(rec: Recording, tb: TimeBase) -> np.ndarray:
     return sample_intervals(rec.t)
 
 
+FULL_TURN_POSE_DEG = 15.0  # a full turn puts the device back within this of its pose (an accelerometer's word)
+
+
+def _pose_changed(rec: Recording, before: Stage, after: Stage) -> bool:
+    """Whether gravity points elsewhere in the rest after a motion than in the one before (a re-orientation, such as
+    a flip between Ferraris' static poses, not a full turn); False without an accelerometer."""
+    if rec.accel is None:
+        return False
+    g0, g1 = rec.accel[before.start:before.end].mean(axis=0), rec.accel[after.start:after.end].mean(axis=0)
+    cos = float(g0 @ g1) / max(float(np.linalg.norm(g0) * np.linalg.norm(g1)), 1e-12)
+    return bool(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) > FULL_TURN_POSE_DEG)
+
+
 def _clipped_turns(rec: Recording, stages: list[Stage], plateaus: list[Plateau]) -> list[Stage]:
     """A motion between two stills that holds clipped readings is a turn that read short: label it one."""
     if not plateaus:
@@ -277,7 +290,7 @@ def _clipped_turns(rec: Recording, stages: list[Stage], plateaus: list[Plateau])
         if out[i - 1].kind != "still" or out[i + 1].kind != "still":
             continue
         inside = [p for p in plateaus if s.start <= p.start < s.end]
-        if not inside:
+        if not inside or _pose_changed(rec, out[i - 1], out[i + 1]):
             continue
         axis = AXES[max(inside, key=lambda p: p.n).axis]
         sign = float(np.sign(np.median([p.sign for p in inside if AXES[p.axis] == axis])))

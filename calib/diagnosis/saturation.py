@@ -2,7 +2,8 @@
 
 A plateau is a run of consecutive samples at the full scale on one axis: at 99.5 % of the stated
 range, or, with no range stated, a run of identical readings at the largest magnitude the axis
-reached (above 100 deg/s) that noise could not produce. Unquantised readings never repeat, so
+reached (above 100 deg/s) that noise could not produce; where that magnitude is a ceiling (two runs share it,
+or it is a common full scale), ``MIN_RUN`` readings suffice. Unquantised readings never repeat, so
 ``MIN_RUN`` of them suffice; a sensor's integer counts do repeat when the noise spans few of them,
 so with p the share of the axis's consecutive readings that are equal (highest at rest, so a
 cautious estimate of the chance near a rate peak), the run must reach n with p^(n-1) < ``RUN_CHANCE``
@@ -15,12 +16,13 @@ other turns about the same axis pin the scale factor.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from calib.recording import Recording
 from calib.stages.config import StageConfig, clip_run_needed
+from calib.stages.stage import FLAG_SATURATED, Stage
 
 # the stage detector's clipping rule, so that the live flag and the diagnosis agree on what is clipped
 FULL_SCALE_FRACTION = StageConfig.full_scale_fraction
@@ -29,6 +31,9 @@ RUN_CHANCE = StageConfig.clip_chance  # chance that noise alone repeats a count 
 MIN_CLIP_DPS = StageConfig.clip_min_dps
 CAP_MODEL_UNCERTAINTY = 0.25
 EDGE_SAMPLES = 4
+# gyro ranges MEMS parts offer, deg/s: InvenSense MPU/ICM 250-2000, ST LSM9DS1 245/500/2000 and LSM6 125-4000,
+# Bosch BMI160 125-2000 (their datasheets' full-scale tables)
+COMMON_FULL_SCALES_DPS = (125.0, 245.0, 250.0, 500.0, 1000.0, 2000.0, 4000.0)
 
 
 @dataclass(frozen=True)
@@ -57,6 +62,7 @@ def find_plateaus(rec: Recording) -> list[Plateau]:
     g = rec.gyro
     t = rec.t - rec.t[0]
     fs_stated = rec.meta.gyro_full_scale_dps
+    ceilings = set() if fs_stated else _ceilings(g)
     out: list[Plateau] = []
     for ax in range(3):
         a = np.abs(g[:, ax])
@@ -68,7 +74,7 @@ def find_plateaus(rec: Recording) -> list[Plateau]:
             if top < MIN_CLIP_DPS:
                 continue
             mask = a >= top
-            min_run = _min_run(g[:, ax])
+            min_run = MIN_RUN if ax in ceilings else _min_run(g[:, ax])
         for s, e in _runs(mask):
             if e - s < min_run:
                 continue
@@ -76,6 +82,42 @@ def find_plateaus(rec: Recording) -> list[Plateau]:
             level = float(np.abs(g[s:e, ax]).mean())
             h, sd = _cap_height(t, g[:, ax] * sign, s, e, level)
             out.append(Plateau(ax, sign, s, e, level, h, sd, float(t[s])))
+    return out
+
+
+def flag_clipped_turns(rec: Recording, stages: list[Stage]) -> list[Stage]:
+    """``stages`` with every turn that holds a plateau flagged saturated (the estimators then leave it out and say
+    so); the stage detector flags only what its streaming rule sees, and with no range stated a short plateau at a
+    ceiling escapes it."""
+    plateaus = find_plateaus(rec)
+    if not plateaus:
+        return stages
+    out = []
+    for st in stages:
+        if st.kind == "turn" and FLAG_SATURATED not in st.flags and any(st.start <= p.start < st.end for p in plateaus):
+            st = replace(st, flags=(*st.flags, FLAG_SATURATED))
+        out.append(st)
+    return out
+
+
+def _ceilings(g: np.ndarray) -> set[int]:
+    """The axes whose largest reading is a ceiling, with no range stated: a value that two runs of MIN_RUN identical
+    readings or more reach (on one axis or several; two motions' peaks do not land on the same count by chance), or a
+    common full scale. Their plateaus need only MIN_RUN readings: a turn clipped for a tenth of a second leaves runs
+    of 10-20, shorter than the noise rule asks of quantised readings (13-15 on imucal's session)."""
+    tops: list[tuple[int, float, int]] = []  # (axis, its largest |reading|, its runs of MIN_RUN or more at it)
+    for ax in range(g.shape[1]):
+        a = np.abs(g[:, ax])
+        if not a.size or (top := float(a.max())) < MIN_CLIP_DPS:
+            continue
+        runs = sum(1 for s, e in _runs(a >= top) if e - s >= MIN_RUN)
+        tops.append((ax, top, runs))
+    out = set()
+    for ax, top, runs in tops:
+        shared = sum(r for _, level, r in tops if abs(level - top) <= 1e-9 * top) >= 2
+        common = any(abs(top - fs) <= (1.0 - FULL_SCALE_FRACTION) * fs for fs in COMMON_FULL_SCALES_DPS)
+        if runs and (shared or common):
+            out.add(ax)
     return out
 
 
