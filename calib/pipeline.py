@@ -74,10 +74,9 @@ def calibrate_protocol(
     method_options(method, heading_prior_deg)
     sections = sections if sections is not None else rec.meta.sections
     stages, found, used = protocol_stages(rec, protocol, sections, stages)
-    if not rec.meta.gyro_full_scale_dps:  # with a range stated, the stage detector's flags are the plateaus' already
-        from calib.diagnosis.saturation import flag_clipped_turns
+    from calib.diagnosis.saturation import flag_clipped_turns
 
-        stages = flag_clipped_turns(rec, stages)
+    stages = flag_clipped_turns(rec, stages)  # plateaus the stage detector's streaming rule may not see
     try:
         result = _calibrate_as(rec, used, method, stages, sections, found, heading_prior_deg)
     except GyrocalError as exc:

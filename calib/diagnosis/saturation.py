@@ -62,19 +62,21 @@ def find_plateaus(rec: Recording) -> list[Plateau]:
     g = rec.gyro
     t = rec.t - rec.t[0]
     fs_stated = rec.meta.gyro_full_scale_dps
-    ceilings = set() if fs_stated else _ceilings(g)
+    ceilings = _ceilings(g)  # a range stated may be the format's, not the sensor's (imu_tk's counts span 300 deg/s)
     out: list[Plateau] = []
     for ax in range(3):
         a = np.abs(g[:, ax])
         top = float(a.max()) if a.size else 0.0
-        if fs_stated:
+        if ax in ceilings:
+            mask, min_run = a >= top, MIN_RUN
+        elif fs_stated:
             mask = a >= FULL_SCALE_FRACTION * float(fs_stated)
             min_run = 1
         else:
             if top < MIN_CLIP_DPS:
                 continue
             mask = a >= top
-            min_run = MIN_RUN if ax in ceilings else _min_run(g[:, ax])
+            min_run = _min_run(g[:, ax])
         for s, e in _runs(mask):
             if e - s < min_run:
                 continue
@@ -83,6 +85,12 @@ def find_plateaus(rec: Recording) -> list[Plateau]:
             h, sd = _cap_height(t, g[:, ax] * sign, s, e, level)
             out.append(Plateau(ax, sign, s, e, level, h, sd, float(t[s])))
     return out
+
+
+def clipped_spans(rec: Recording, spans: list[tuple[int, int]]) -> list[bool]:
+    """For each span of samples [start, end), whether a plateau begins in it."""
+    plateaus = find_plateaus(rec)
+    return [any(lo <= p.start < hi for p in plateaus) for lo, hi in spans]
 
 
 def flag_clipped_turns(rec: Recording, stages: list[Stage]) -> list[Stage]:

@@ -50,3 +50,20 @@ def test_diagnose_names_the_saturation_and_rebuilds_the_clipped_turn(sessions: t
     assert set(named) <= own | {"saturation"}, (set(named), own)  # the flips between poses are no clipped turns
     rebuilt = found.recalibration
     assert abs(rebuilt["k"][2] - whole.k[2]) < 2.5 * rebuilt["k_std"][2], (rebuilt["k"][2], rebuilt["k_std"][2])
+
+
+def test_re_orientations_clipped_at_a_common_full_scale_are_left_out_and_named(real_data: Path) -> None:
+    """imu_tk's Xsens session (its counts span ±300 deg/s, the range its reader states) clipped at ±125 deg/s, as a
+    sensor of that range would: before, the clipped re-orientations were used, k_y moved by 1.4e-2 (8 times its
+    standard error) and nothing was said."""
+    from calib.io.imu_tk import read_imu_tk
+
+    where = real_data / "imu_tk"
+    rec = read_imu_tk(where / "xsens_gyro.mat", where / "xsens_acc.mat")
+    whole, _ = calibrate_protocol(rec)
+    clipped = dataclasses.replace(rec, gyro=np.clip(rec.gyro, -125.0, 125.0))
+    result, used = calibrate_protocol(clipped)
+    assert used == "multi-position"
+    said = [w for w in result.warnings if "re-orientations that reached the gyro's full scale" in w]
+    assert said and said[0].startswith("9 re-orientations") and "are not used: turn more slowly" in said[0], result.warnings
+    assert np.all(np.abs(np.asarray(result.k) - whole.k) < 2.5 * np.asarray(whole.k_std)), (result.k, whole.k, whole.k_std)

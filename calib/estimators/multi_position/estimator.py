@@ -136,10 +136,15 @@ def calibrate_multi_position(rec: Recording, stages: Any = None, accel: AccelCal
         raise ProtocolError("calibrating from re-orientations needs the accelerometer: record its channel with the gyroscope")
     stage_list = list(stages) if stages is not None else detect_stages(rec)
     stills, motions = motions_between_rests(stage_list)
+    from calib.diagnosis.saturation import clipped_spans  # here: the diagnosis package imports this estimator
+
+    hit = clipped_spans(rec, [(m.start, m.end) for m in motions])  # clipped: their rotation is short by what it hid
+    clipped, motions = [m for m, h in zip(motions, hit, strict=True) if h], [m for m, h in zip(motions, hit, strict=True) if not h]
     if len(motions) < MIN_MOTIONS:
         raise ProtocolError(
-            f"the recording has {len(motions)} motions between rests; calibrating from re-orientations needs at least "
-            f"{MIN_MOTIONS}: rest the device a few seconds, turn it to a new orientation, rest again, and so on")
+            f"the recording has {len(motions)} motions between rests{_clipped_words(rec, clipped, ' besides')}; "
+            f"calibrating from re-orientations needs at least {MIN_MOTIONS}: rest the device a few seconds, turn it "
+            "to a new orientation, rest again, and so on")
     joint = accel is None  # fit the accelerometer with the gyroscope, from a first fit on the rests alone
     accel = accel or calibrate_accelerometer(rec, stills)
     free_a = np.array([p in accel.identified for p in PARAMS]) if joint else np.zeros(9, dtype=bool)
@@ -149,7 +154,17 @@ def calibrate_multi_position(rec: Recording, stages: Any = None, accel: AccelCal
     _check_agreement(base, data, G_RESCUE)  # so far off that no g-sensitivity could mend it: refused before fitting one
     fit, g_test = _g_sensitivity_choice(base, data, g_sensitivity)
     _check_agreement(fit, data)
-    return _result(fit, g_test, base, data, accel, joint, stage_list, rec, _motion_times(rec, motions))
+    result = _result(fit, g_test, base, data, accel, joint, stage_list, rec, _motion_times(rec, motions))
+    if clipped:
+        result.warnings.append(_clipped_words(rec, clipped, "") + " are not used: turn more slowly")
+    return result
+
+
+def _clipped_words(rec: Recording, clipped: list[Motion], lead: str) -> str:
+    """"N re-orientations that reached the gyro's full scale (at 52.3, 63.6, ... s)", after ``lead``; "" for none."""
+    at = ", ".join(f"{rec.t[m.start] - rec.t[0]:.1f}" for m in clipped[:6]) + (", ..." if len(clipped) > 6 else "")
+    many = "s" if len(clipped) > 1 else ""
+    return f"{lead} {len(clipped)} re-orientation{many} that reached the gyro's full scale (at {at} s)".lstrip() if clipped else ""
 
 
 def noise_colour(readings: np.ndarray, spans: list[tuple[int, int]], max_lag: int = NOISE_LAGS) -> np.ndarray:
