@@ -74,7 +74,7 @@ def calibrate_protocol(
     method_options(method, heading_prior_deg)
     sections = sections if sections is not None else rec.meta.sections
     stages, found, used = protocol_stages(rec, protocol, sections, stages)
-    from calib.diagnosis.saturation import flag_clipped_turns
+    from calib.stages.plateaus import flag_clipped_turns
 
     stages = flag_clipped_turns(rec, stages)  # plateaus the stage detector's streaming rule may not see
     try:

@@ -8,9 +8,9 @@ from calib.diagnosis.data import Layout, Problem
 from calib.diagnosis.extended_fits import ModelState
 from calib.diagnosis.gauss_newton import Fit, covariance
 from calib.diagnosis.models import R0_DPS
-from calib.diagnosis.saturation import Plateau
 from calib.diagnosis.select import Step
 from calib.diagnosis.timebase import TimeBase
+from calib.stages.plateaus import Plateau
 from calib.stages.stage import AXES
 
 

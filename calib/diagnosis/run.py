@@ -19,7 +19,7 @@ from calib.diagnosis.models import Model
 from calib.diagnosis.null import Replay, make_replay, replicate_problems, with_effects
 from calib.diagnosis.reorientation import prepare as prepare_reorientations
 from calib.diagnosis.rivals import Worlds
-from calib.diagnosis.saturation import Plateau, find_plateaus, plateau_caps
+from calib.diagnosis.saturation import plateau_caps
 from calib.diagnosis.select import ALPHA, Candidate, null_fit, p_value, plan_tests, statistics
 from calib.diagnosis.stepwise import select_effects
 from calib.diagnosis.timebase import TimeBase, analyse_timebase, bridge, on_bridged_rows
@@ -29,6 +29,7 @@ from calib.errors import GyrocalError, ProtocolError, RecordingError, RecordingT
 from calib.io.section import Section
 from calib.pipeline import pointing_to, protocol_stages
 from calib.recording import Recording
+from calib.stages.plateaus import Plateau, find_plateaus
 from calib.stages.resolve import resolve_stages
 from calib.stages.stage import AXES, Stage
 

@@ -20,7 +20,6 @@ from typing import Any
 
 import numpy as np
 
-from calib.diagnosis.saturation import find_plateaus
 from calib.errors import GyrocalError, KitRefusal
 from calib.estimators.closure.estimator import calibrate_closure
 from calib.estimators.closure.fit import KPrior
@@ -39,6 +38,7 @@ from calib.pipeline import calibrate_protocol, with_rate_uncertainty
 from calib.recording import Recording
 from calib.result import CalibrationResult
 from calib.stages.detector import detect_stages
+from calib.stages.plateaus import find_plateaus
 from calib.stages.stage import Stage
 
 METHOD = "kit-closure"
@@ -319,7 +319,7 @@ def _worst_closure(result: CalibrationResult | GyrocalError) -> float:
 
 def _clipped(rec: Recording) -> np.ndarray:
     """Which of a wearable's readings are clipped at its gyroscope's full scale (the stage detector's rule,
-    ``calib.diagnosis.saturation``). The kit leaves them out as it does samples lost on the link: the other wearables
+    ``calib.stages.plateaus``). The kit leaves them out as it does samples lost on the link: the other wearables
     read the same motion, so the turn is bridged, where a wearable alone would have to be turned again."""
     out = np.zeros(len(rec), dtype=bool)
     for p in find_plateaus(rec):

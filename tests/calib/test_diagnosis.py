@@ -249,7 +249,7 @@ def _counts(rec: Recording, lsb_per_dps: float) -> Recording:
 
 
 def test_repeated_counts_at_a_rate_peak_are_not_clipping():
-    from calib.diagnosis.saturation import find_plateaus
+    from calib.stages.plateaus import find_plateaus
 
     # 65.5 counts per deg/s (a +-500 deg/s range) with 0.03 deg/s of noise: 2 counts, so the top count of a
     # slow peak repeats now and then; without a stated range that alone must not be taken for clipping
@@ -266,7 +266,7 @@ def test_repeated_counts_at_a_rate_peak_are_not_clipping():
 
 
 def test_clipped_counts_without_a_stated_range_are_found():
-    from calib.diagnosis.saturation import find_plateaus
+    from calib.stages.plateaus import find_plateaus
 
     rec = simulate(5, noise=0.03)[0]
     full_scale = 0.9 * float(np.abs(rec.gyro[:, 0]).max())

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from calib.diagnosis import diagnose
-from calib.diagnosis.saturation import find_plateaus
 from calib.io.readers import read_recording
 from calib.pipeline import calibrate_protocol
 from calib.recording import Recording
+from calib.stages.plateaus import find_plateaus
 
 
 @pytest.fixture(scope="module")

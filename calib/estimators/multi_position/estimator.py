@@ -59,6 +59,7 @@ from calib.quality import Quality
 from calib.recording import Recording, sample_intervals
 from calib.result import CalibrationResult
 from calib.stages.detector import detect_stages
+from calib.stages.plateaus import clipped_spans
 from calib.stages.recognise import MIN_MOTIONS
 from calib.stages.stage import Stage
 
@@ -136,8 +137,6 @@ def calibrate_multi_position(rec: Recording, stages: Any = None, accel: AccelCal
         raise ProtocolError("calibrating from re-orientations needs the accelerometer: record its channel with the gyroscope")
     stage_list = list(stages) if stages is not None else detect_stages(rec)
     stills, motions = motions_between_rests(stage_list)
-    from calib.diagnosis.saturation import clipped_spans  # here: the diagnosis package imports this estimator
-
     hit = clipped_spans(rec, [(m.start, m.end) for m in motions])  # clipped: their rotation is short by what it hid
     clipped, motions = [m for m, h in zip(motions, hit, strict=True) if h], [m for m, h in zip(motions, hit, strict=True) if not h]
     if len(motions) < MIN_MOTIONS:
