@@ -3,12 +3,12 @@ diagnosis fits are in calib.diagnosis.saturation).
 
 A plateau is a run of consecutive samples at the full scale on one axis: at 99.5 % of the stated
 range, or, with no range stated, a run of identical readings at the largest magnitude the axis
-reached (above 100 deg/s) that noise could not produce; where that magnitude is a ceiling (two runs share it,
-or it is a common full scale), ``MIN_RUN`` readings suffice. Unquantised readings never repeat, so
+reached (above 100 deg/s) that noise could not produce. Unquantised readings never repeat, so
 ``MIN_RUN`` of them suffice; a sensor's integer counts do repeat when the noise spans few of them,
 so with p the share of the axis's consecutive readings that are equal (highest at rest, so a
 cautious estimate of the chance near a rate peak), the run must reach n with p^(n-1) < ``RUN_CHANCE``
-(as the stage detector does, ``calib.stages.clip_run_needed``). The hidden rate above the plateau is modelled as a parabolic cap,
+(as the stage detector does, ``calib.stages.clip_run_needed``), unless that magnitude is a ceiling (two runs
+share it, or it is a common full scale): then ``MIN_RUN`` suffice. The hidden rate above the plateau is modelled as a parabolic cap,
 m = FS + h (1 - u^2), u in [-1, 1] across the plateau, whose height follows from the slopes the
 readings have where they enter and leave it: h = |slope| w / 2 for a half-width w. That height is a
 prior for the fit (25 % model uncertainty plus the slopes' noise), the closure decides the rest when

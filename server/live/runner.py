@@ -243,8 +243,7 @@ class LiveSession(Persistence):
                 self._on_link_event(item)
             else:
                 self._last_sample_mono = time.monotonic()
-                if self._refused_at_sample or getattr(link, "stats", None) is None or link.stats.malformed_packets:
-                    self._refused_at_sample = self._refused_now()  # a copy only once the link has refused any
+                self._refused_at_sample = self._refused_now()
                 if self._link_down:
                     self._link_down = False
                     m.link_restored()
@@ -254,7 +253,7 @@ class LiveSession(Persistence):
                     m.data_resumed(int(item.lost_before))
                 m.fs_estimate, m.fs_rel_std = (float(item.fs_hz) if item.fs_hz else m.fs_estimate), item.fs_rel_std
                 m.feed(item.t_device_s, item.gyro_dps, item.accel_g, item.seq, int(item.lost_before), time.time(),
-                       link.clock(), int(getattr(item, "refused_before", 0)))
+                       link.clock(), int(item.refused_before))
                 malformed = self._malformed.verdict(getattr(link, "stats", None), dev.info.get("firmware"))
                 if not m.finished and malformed is not None:
                     m.fail(EndReason.UNREADABLE_DATA, malformed)

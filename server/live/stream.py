@@ -61,9 +61,9 @@ class SessionStream:
         self._pending: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None = None
         self._arrivals: deque[tuple[float, float]] = deque()  # (device time, wall time it was read at minus it), s
         self._first_arrival: tuple[float, float] | None = None  # (wall time, wall minus device time) of the first
-        self._ahead: tuple[float, float] = (0.0, 0.0)
+        self._ahead: tuple[float, float] = (0.0, 0.0)  # (how far device time ran ahead of wall time, over how long), s
         self._rest_key: tuple[int, int] | None = None  # the still ``_rest`` is the mean reading of
-        self._rest: np.ndarray = np.zeros(3)  # (how far device time ran ahead of wall time, over how long), s
+        self._rest: np.ndarray = np.zeros(3)
 
     def start(self, fs: float, full_scale_dps: float | None) -> None:
         """The link streams at fs Hz: start a detector."""
