@@ -28,10 +28,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import solve_triangular
 from scipy.spatial.transform import Rotation
 
 from calib.diagnosis.data import Problem
+from calib.diagnosis.markov import GaussMarkovBlocks, bridge_weights
 from calib.diagnosis.models import Model
 from calib.numerics.quaternion import hamilton
 from calib.numerics.rotation import left_jacobian, left_jacobian_inv, prefix_products
@@ -137,38 +137,34 @@ class System:
 
 @dataclass
 class Variance:
-    """Extra covariance: per axis, still blocks (R, 3, NB, NB) and closures (R, J, 3, 3), true-rate units."""
+    """Extra covariance in true-rate units: a Gauss-Markov process through the still blocks and closures."""
 
-    still: np.ndarray | None = None
-    closure: np.ndarray | None = None
+    still: tuple[float, float] | None = None  # (sigma deg/s, tau s) of a Gauss-Markov bias seen by the still blocks
+    closure: np.ndarray | None = None  # (R, J, 3, 3)
     turn_bias: np.ndarray | None = None  # (R, J) variance (deg/s)^2 of a bias offset common to each turn
     turn_path: Wander | None = None  # the expected bias wander at each turn sample from the still block rates
 
 
 @dataclass
 class Wander:
-    """The expected bias wander at every turn sample given the still block rates (kriging): o = c_j C^-1 e.
+    """The expected bias wander at every turn sample given the still block rates: the process smoothed at the
+    block times, bridged between the two blocks around each sample (calib.diagnosis.markov)."""
 
-    Only the blocks within a few correlation times of a turn enter its ``c_j``: the weights of the
-    others are below exp(-WANDER_REACH)."""
+    blocks: GaussMarkovBlocks  # the process and the blocks' white noise, (R, 3) of them
+    times: np.ndarray  # (L, J) turn sample times
 
-    Cinv: np.ndarray  # (R, 3, NB, NB) inverse covariance of the still block rates
-    spans: list[tuple[int, int]]  # per turn: the blocks [lo, hi) near enough to matter
-    cs: list[np.ndarray]  # per turn: (L, hi - lo) covariance of the wander at each turn sample with each of those blocks
+    def __post_init__(self) -> None:
+        self._a, self._b, self._alpha, self._beta, _ = bridge_weights(self.times, self.blocks.t, self.blocks.tau)
 
     def offsets(self, e: np.ndarray, de: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The wander (L, R*J, 3) at the turn samples and its derivative (L, R*J, 3, Pr), from the still block
         rates e (R, NB, 3) and their derivatives de (R, NB, 3, Pr)."""
         R, Pr = e.shape[0], de.shape[-1]
-        a = np.einsum("ribc,rci->rbi", self.Cinv, e)
-        da = np.einsum("ribc,rcip->rbip", self.Cinv, de)
-        L, J, NB = self.cs[0].shape[0], len(self.cs), e.shape[1]
-        # blocks first, everything else in one row: each turn is then one matrix product
-        ab = np.ascontiguousarray(np.concatenate((a[..., None], da), axis=3).transpose(1, 0, 2, 3)).reshape(NB, -1)
-        out = np.zeros((L, J, R, 3, 1 + Pr))
-        for j, ((lo, hi), c) in enumerate(zip(self.spans, self.cs, strict=True)):
-            out[:, j] = (c @ ab[lo:hi]).reshape(L, R, 3, 1 + Pr)
-        out = out.transpose(0, 2, 1, 3, 4).reshape(L, R * J, 3, 1 + Pr)
+        L, J = self.times.shape
+        v = np.concatenate((e[..., None], de), axis=3).transpose(0, 2, 1, 3)  # (R, 3, NB, 1 + Pr)
+        xs = self.blocks.smooth(v)
+        out = self._alpha[..., None] * xs[:, :, self._a] + self._beta[..., None] * xs[:, :, self._b]  # (R, 3, L, J, 1 + Pr)
+        out = out.transpose(2, 0, 3, 1, 4).reshape(L, R * J, 3, 1 + Pr)
         return out[..., 0], out[..., 1:]
 
 
@@ -250,19 +246,14 @@ def system(
     k = psi[:, 0:3]
     sd = np.abs(k)[:, None, :] * prob.sigma[:, None, :] / np.sqrt(prob.block_n)[None, :, None]  # (R, NB, 3)
     if variance is not None and variance.still is not None:
-        # full covariance per axis: diag(sd^2) + extra
-        C = variance.still + np.einsum("rbi,bc->ribc", sd**2, np.eye(NB))
-        Lc = np.linalg.cholesky(C)  # (R, 3, NB, NB)
-        # whitened rates, Jacobian and constant: one triangular solve per recording and axis
+        # white noise plus the Gauss-Markov process, per axis: whitened in time order by the Kalman filter
+        gm = GaussMarkovBlocks(prob.block.t[0], *variance.still, np.moveaxis(sd, 2, 1))
         rhs = np.concatenate((np.moveaxis(e, 2, 1)[..., None], np.moveaxis(djs, 2, 1), np.ones((R, 3, NB, 1))), axis=3)
-        sol = np.empty_like(rhs)
-        for r_ in range(R):
-            for i in range(3):
-                sol[r_, i] = solve_triangular(Lc[r_, i], rhs[r_, i], lower=True, check_finite=False)
+        sol = gm.whiten(rhs)
         we, wj, w1 = sol[..., :1], sol[..., 1:-1], sol[..., -1]
         res_parts.append(np.moveaxis(we[..., 0], 1, 2).reshape(R, 3 * NB))
         jac_parts.append(np.moveaxis(wj, 1, 2).reshape(R, 3 * NB, P))
-        logdet += 2.0 * (np.log(np.einsum("ribb->rib", Lc)) - np.log(np.moveaxis(sd, 2, 1))).sum(axis=(1, 2))
+        logdet += (gm.logdet() - 2.0 * np.log(np.moveaxis(sd, 2, 1)).sum(axis=2)).sum(axis=1)
         # restricted likelihood: each axis' constant (the bias) integrated out, so that a variance it absorbs costs nothing
         logdet += (np.log(np.einsum("rib,rib->ri", w1, w1)) - np.log(np.sum(1.0 / sd**2, axis=1))).sum(axis=1)
     else:

@@ -20,15 +20,10 @@ from scipy.optimize import minimize_scalar
 from calib.diagnosis.data import Problem
 from calib.diagnosis.engine import System, Variance, Wander
 from calib.diagnosis.gauss_newton import Fit
+from calib.diagnosis.markov import GaussMarkovBlocks, correlate, posterior_variance
 from calib.diagnosis.models import Model
 
 TAU_GRID_S = (3.0, 10.0, 30.0, 100.0)
-WANDER_REACH = 8.0  # correlation times beyond a turn whose still blocks still inform the wander in it
-
-
-def gm_correlation(tb: np.ndarray, tau: float) -> np.ndarray:
-    """exp(-|t_a - t_b| / tau) for block times tb (NB,)."""
-    return np.exp(-np.abs(tb[:, None] - tb[None, :]) / tau)
 
 
 def _still_sd(prob: Problem, psi: np.ndarray) -> np.ndarray:
@@ -52,20 +47,21 @@ def instability_score(prob: Problem, sys_: System, psi: np.ndarray, taus=TAU_GRI
     e = e - (w * e).sum(axis=2, keepdims=True) / w.sum(axis=2, keepdims=True)
     tb = prob.block.t[0]
     best = np.full(prob.R, -np.inf)
+    we = w * e
+    sw = w.sum(axis=2)
+    blocks_first = np.moveaxis(np.stack((we, w), axis=-1), 2, 0)  # (NB, R, 3, 2)
     for tau in taus:
-        M = gm_correlation(tb, tau)
-        we = w * e
-        quad = np.einsum("rib,bc,ric->ri", we, M, we)
-        trWM = np.einsum("rib,bb->ri", w, M)
-        Mw = np.einsum("bc,ric->rib", M, w)  # M W 1
+        # M (and M squared element-wise, the correlation at tau / 2) applied by the process's own recursions
+        Mx = np.moveaxis(correlate(tb, tau, blocks_first), 0, 2)  # (R, 3, NB, 2)
+        M2w = np.moveaxis(correlate(tb, tau / 2.0, w.transpose(2, 0, 1)), 0, 2)  # (R, 3, NB)
+        Mwe, Mw = Mx[..., 0], Mx[..., 1]
+        quad = np.einsum("rib,rib->ri", we, Mwe)
+        trWM = sw  # M has a unit diagonal
         wMw = np.einsum("rib,rib->ri", w, Mw)
-        sw = w.sum(axis=2)
         trPM = trWM - wMw / sw
         # I = tr(P M P M) / 2 with P = W - W 1 1' W / (1' W 1)
-        WM = w[..., :, None] * M[None, None]  # (R, 3, NB, NB)
-        tr1 = np.einsum("ribc,ricb->ri", WM, WM)
-        v = np.einsum("ribc,ric->rib", WM, w)  # W M W 1
-        tr2 = np.einsum("rib,rib->ri", v, Mw) / sw  # 1'W M W M W 1 / 1'W1
+        tr1 = np.einsum("rib,rib->ri", w, M2w)  # tr(W M W M) = sum w_a w_b M_ab^2
+        tr2 = np.einsum("rib,rib->ri", w * Mw, Mw) / sw  # 1'W M W M W 1 / 1'W1
         tr3 = (wMw / sw) ** 2
         info = 0.5 * (tr1 - 2.0 * tr2 + tr3).sum(axis=1)
         score = 0.5 * (quad - trPM).sum(axis=1)
@@ -76,63 +72,55 @@ def instability_score(prob: Problem, sys_: System, psi: np.ndarray, taus=TAU_GRI
 def instability_noncentrality(prob: Problem, psi: np.ndarray, sigma: float, tau: float) -> float:
     """How visible a Gauss-Markov bias (sigma deg/s, tau s) is in the still blocks of the first recording:
     the expected likelihood-ratio gain of modelling it, sum(mu - ln(1 + mu)) over the eigenvalues mu of
-    its covariance in units of the white noise (the constant each axis' b absorbs projected out)."""
-    M = gm_correlation(prob.block.t[0], tau) * sigma**2
-    total = 0.0
-    for r in 1.0 / _still_sd(prob, psi)[0]:  # per axis, (NB,): whitening weights
-        u = r / np.linalg.norm(r)
-        Q = np.eye(r.size) - np.outer(u, u)
-        mu = np.linalg.eigvalsh(Q @ (r[:, None] * M * r[None, :]) @ Q)
-        mu = np.maximum(mu, 0.0)
-        total += float(np.sum(mu - np.log1p(mu)))
-    return total
+    its covariance in units of the white noise (the constant each axis' b absorbs projected out).
+
+    With w = 1 / sd^2 and C = sigma^2 M + diag(sd^2): sum mu = sigma^2 (sum w - w'M w / sum w), and
+    sum ln(1 + mu) = ln det C - ln det diag(sd^2) + ln(1'C^-1 1 / sum w) (the projection by a Schur complement)."""
+    tb = prob.block.t[0]
+    sd = _still_sd(prob, psi)[0]  # (3, NB)
+    w = 1.0 / sd**2
+    sw = w.sum(axis=1)
+    Mw = correlate(tb, tau, w.T).T
+    trace = sigma**2 * (sw - np.einsum("ib,ib->i", w, Mw) / sw)
+    blocks = GaussMarkovBlocks(tb, sigma, tau, sd)
+    ones = np.ones_like(sd)
+    reml = np.log(np.einsum("ib,ib->i", ones, blocks.solve(ones)) / sw)
+    logs = blocks.logdet() - 2.0 * np.log(sd).sum(axis=1) + reml
+    return float(np.sum(trace - logs))
 
 
 def instability_variance(prob: Problem, psi: np.ndarray, sigma: float, tau: float) -> Variance:
-    """Covariance a Gauss-Markov bias adds (true-rate units): across the still blocks (R, 3, NB, NB), and
-    during each turn the part of the bias the stills around it do not pin down (a common offset per
-    turn whose variance is the process's variance at the turn's middle given the still blocks)."""
+    """Covariance a Gauss-Markov bias adds (true-rate units): across the still blocks (its process, with the
+    white-noise std of the blocks at ``psi``), and during each turn the part of the bias the stills around it
+    do not pin down (a common offset per turn whose variance is the process's variance at the turn's middle
+    given the still blocks), with the expected wander at every turn sample given the still block rates."""
     tb = prob.block.t[0]
-    M = gm_correlation(tb, tau) * sigma**2
     lay = prob.layout
     turn_var = None
+    path = None
     if lay.J:
+        blocks = GaussMarkovBlocks(tb, sigma, tau, _still_sd(prob, psi))
         tm = np.array([0.5 * (lay.t[s.start] + lay.t[s.end - 1]) for s in lay.turns])
-        c = sigma**2 * np.exp(-np.abs(tm[:, None] - tb[None, :]) / tau)  # (J, NB)
-        sd = _still_sd(prob, psi)
-        C = M[None, None] + np.einsum("rib,bc->ribc", sd**2, np.eye(tb.size))  # (R, 3, NB, NB)
-        sol = np.linalg.solve(C, np.broadcast_to(c.T, C.shape[:2] + c.T.shape))  # (R, 3, NB, J)
-        v = sigma**2 - np.einsum("jb,ribj->rij", c, sol)  # (R, 3, J)
-        turn_var = np.maximum(v.mean(axis=1), 0.0)  # one variance per turn, averaged over the axes
-        # the expected wander at every turn sample given the still block rates (kriging weights)
-        ts = prob.turn.t[:, : lay.J]  # (L, J) sample times of the first recording's turns
-        spans, cs = [], []
-        for j, s in enumerate(lay.turns):
-            near = np.flatnonzero((tb >= lay.t[s.start] - WANDER_REACH * tau) & (tb <= lay.t[s.end - 1] + WANDER_REACH * tau))
-            lo, hi = (int(near[0]), int(near[-1]) + 1) if near.size else (0, 0)
-            spans.append((lo, hi))
-            cs.append(sigma**2 * np.exp(-np.abs(ts[:, j, None] - tb[None, lo:hi]) / tau))
-        path = Wander(np.linalg.inv(C), spans, cs)
-    else:
-        path = None
-    return Variance(still=np.broadcast_to(M, (prob.R, 3) + M.shape).copy(), turn_bias=turn_var, turn_path=path)
+        turn_var = np.maximum(posterior_variance(blocks, tm).mean(axis=1), 0.0)  # one variance per turn, axes averaged
+        path = Wander(blocks, prob.turn.t[:, : lay.J])
+    return Variance(still=(sigma, tau), turn_bias=turn_var, turn_path=path)
 
 
-def _still_deviance(e: np.ndarray, sd: np.ndarray, M: np.ndarray, sigma: float) -> float:
+def _still_deviance(e: np.ndarray, sd: np.ndarray, tb: np.ndarray, sigma: float, tau: float) -> float:
     """Restricted deviance of the still block rates of one recording, e and sd (3, NB), under white noise
-    plus sigma^2 M, with each axis' constant integrated out, relative to white noise alone."""
-    NB = e.shape[1]
-    C = sigma**2 * M[None] + np.einsum("ib,bc->ibc", sd**2, np.eye(NB))  # (3, NB, NB)
-    Lc = np.linalg.cholesky(C)
+    plus a Gauss-Markov process (sigma, tau) at the block times tb, with each axis' constant integrated out,
+    relative to white noise alone."""
+    blocks = GaussMarkovBlocks(tb, sigma, tau, sd)
     rhs = np.stack((e, np.ones_like(e)), axis=2)  # (3, NB, 2)
-    w = np.linalg.solve(Lc, rhs)  # whitened rates and whitened constant, per axis
-    we, w1 = w[..., 0], w[..., 1]
-    beta = np.einsum("ib,ib->i", we, w1) / np.einsum("ib,ib->i", w1, w1)
-    r = we - beta[:, None] * w1
+    ci = blocks.solve(rhs)
+    ee = np.einsum("ib,ib->i", e, ci[..., 0])
+    e1 = np.einsum("ib,ib->i", e, ci[..., 1])
+    one = ci[..., 1].sum(axis=1)
+    quad = ee - e1**2 / one  # each axis' constant profiled out
     # restricted likelihood: the constant is integrated out, so a variance it absorbs costs nothing
-    reml = np.log(np.einsum("ib,ib->i", w1, w1)) - np.log(np.sum(1.0 / sd**2, axis=1))
-    logdet = 2.0 * (np.log(np.einsum("ibb->ib", Lc)) - np.log(sd)).sum(axis=1)
-    return float(np.sum(r * r) + np.sum(logdet) + np.sum(reml))
+    reml = np.log(one) - np.log(np.sum(1.0 / sd**2, axis=1))
+    logdet = blocks.logdet() - 2.0 * np.log(sd).sum(axis=1)
+    return float(np.sum(quad) + np.sum(logdet) + np.sum(reml))
 
 
 TAU_MIN_S = 2.0  # shorter correlation times are white noise at the scale of the still blocks
@@ -150,7 +138,7 @@ def fit_instability(prob: Problem, base: Fit, model: Model, start: tuple[float, 
     scale = float(np.median(sd))
 
     def dev(log_s: float, tau: float) -> float:
-        return _still_deviance(e, sd, gm_correlation(tb, tau), float(np.exp(log_s)))
+        return _still_deviance(e, sd, tb, float(np.exp(log_s)), tau)
 
     best = (np.inf, scale, TAU_GRID_S[0])
     grid = TAU_GRID_S + (300.0,) if start is None or start[0] <= 0 else (float(start[1]),)
