@@ -98,8 +98,7 @@ def _pass_chunk(model, psi, inp, dt, sigma, jacobian, ref_inv=None) -> Closure:
     jac = np.matmul(jinv, np.matmul(Hb, Db)) / DEG
     # reading noise enters the rate through dw/dm ~ K: cov of the rate noise is K diag(sigma^2) K^T
     k = psi[:, 0:3]
-    Hs = Hw * np.abs(k * sigma)[None, :, None, :]
-    Hs = np.ascontiguousarray(Hs.transpose(1, 2, 0, 3)).reshape(B, 3, 3 * L)
+    Hs = Hb * np.tile(np.abs(k * sigma), (1, L))[:, None, :]  # Hb's columns run (sample, axis)
     G = np.matmul(Hs, Hs.transpose(0, 2, 1))
     noise = np.matmul(np.matmul(jinv, G), jinv.transpose(0, 2, 1)) / DEG**2
     return Closure(r / DEG, jac, noise, swept)

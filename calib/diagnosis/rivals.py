@@ -12,6 +12,7 @@ the rival's is not; otherwise the recording cannot tell them apart.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,6 +37,7 @@ class Worlds:
     caps: np.ndarray | None
     a_design: np.ndarray | None
     seed: int
+    tick: Callable[[str], None] | None = None  # told of each simulation fitted (what is being weighed), for progress
 
 
 @dataclass
@@ -118,6 +120,8 @@ def world_p(worlds: Worlds, world: ModelState, psi: np.ndarray, cur_keys: tuple[
     for _ in range(n):
         prob = replicate_problems(replay, rng, 1, worlds.caps, worlds.a_design)
         d = _replicate_difference(worlds, prob, cur_keys, key_a, key_b)
+        if worlds.tick is not None:
+            worlds.tick(f"weighing {key_a} against {key_b}")
         if not np.isfinite(d):
             continue
         used += 1

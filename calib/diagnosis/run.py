@@ -178,7 +178,14 @@ def diagnose(
     n_info = informative_count(prob, accel is not None)
     pen = float(np.log(n_info))
     state = ModelState(base, base_fit, priors, {}, ())
-    worlds = Worlds(replay, state, priors, pen, caps, a_design, seed)
+    sims = [0]
+
+    def simulated(what: str) -> None:
+        # the number of rival simulations is not known ahead: the bar approaches the next stage, never reaching it
+        sims[0] += 1
+        say(0.75 + 0.1 * (1.0 - 0.97 ** sims[0]), f"fitting extended models: {what} ({sims[0]} simulations)")
+
+    worlds = Worlds(replay, state, priors, pen, caps, a_design, seed, simulated)
     steps, ambiguities = select_effects(prob, state, cands, specs, priors, alpha, pen, worlds)
     final = steps[-1][1] if steps else state
 
@@ -189,7 +196,8 @@ def diagnose(
     if steps:
         replay_fx = with_effects(replay, final.model, final.fit.psi[0], gm_of(final), a_design)
         _, feats_after = _bootstrap(replay_fx, base, base_fit.psi, priors, union, [], max(50, n_boot // 2),
-                                    np.random.default_rng(seed + 1), caps, a_design, lambda f: None)
+                                    np.random.default_rng(seed + 1), caps, a_design,
+                                    lambda f: say(0.85 + 0.1 * f, "checking the fitted model against simulation"))
         p_after = _feature_p(feats.values[0], feats_after, feats.kinds)
         boot_feats_after = feats_after
     else:

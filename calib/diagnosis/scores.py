@@ -30,8 +30,10 @@ def score_statistic(
     keep = w > 1e-12 * w[:, -1:]
     inv_w = np.where(keep, 1.0 / np.where(keep, w, 1.0), 0.0)
     Ainv = np.einsum("rpk,rk,rqk->rpq", V, inv_w, V) / (d[:, :, None] * d[:, None, :])
-    Jt_perp = Jt - np.einsum("rmp,rpq,rnq,rnt->rmt", Jb, Ainv, Jb, Jt, optimize=True)
-    e_perp = e - np.einsum("rmp,rpq,rnq,rn->rm", Jb, Ainv, Jb, e, optimize=True)
+    JbT = Jb.transpose(0, 2, 1)
+    rhs = np.concatenate((Jt, e[..., None]), axis=2)  # (R, M, T + 1): the test columns and the residual together
+    perp = rhs - Jb @ (Ainv @ (JbT @ rhs))
+    Jt_perp, e_perp = perp[..., :-1], perp[..., -1]
     g = np.einsum("rmt,rm->rt", Jt_perp, e_perp)
     I = np.einsum("rmt,rmu->rtu", Jt_perp, Jt_perp)
     # a test direction counts only if it is informed well beyond the rounding of the base projection
