@@ -10,7 +10,6 @@ from calib.diagnosis.data import Problem
 from calib.diagnosis.engine import Priors, System, Variance, system
 from calib.diagnosis.models import Model
 
-
 # a deviance change this small is no change: no test, criterion or interval the diagnosis reports can feel it, and
 # chasing it (a Gauss-Newton step that ignores a variance model's log-determinant rises by about this much near the
 # optimum) cost four step halvings an iteration
