@@ -195,7 +195,10 @@ def _saturation(prob, layout, fit0, base, base_fit, cap_fit, plateaus: list[Plat
         where.append(f"{AXES[p.axis]} axis at {p.t0:.2f} s, {p.n} samples")
     levels = sorted({round(p.level, 3) for p in plateaus})
     n_clip = int(sum(p.n for p in plateaus))
-    turns = [f"turn about {layout.turns[j].axis} at {layout.turns[j].start_s:.1f} s" for j in base.clipped]
+    turns = [(f"re-orientation at {layout.turns[j].start_s:.1f} s" if layout.moves[j] else
+              f"turn about {layout.turns[j].axis} at {layout.turns[j].start_s:.1f} s") for j in base.clipped]
+    what = "re-orientation(s)" if layout.moves[list(base.clipped)].all() else "turn(s)"
+
     return {
         "name": "saturation",
         "parameters": {"full_scale_dps": levels[0] if len(levels) == 1 else levels, "clipped_samples": n_clip,
@@ -203,9 +206,9 @@ def _saturation(prob, layout, fit0, base, base_fit, cap_fit, plateaus: list[Plat
         "uncertainty": {"hidden_rotation_deg": hidden_sd},
         "fit": {"before": float(fit0.deviance[0]), "after": float(base_fit.deviance[0])},
         "evidence": {
-            "summary": (f"{n_clip} readings sit at the gyro's full scale (+-{levels[0]:g} deg/s) in {len(base.clipped)} turn(s): "
+            "summary": (f"{n_clip} readings sit at the gyro's full scale (+-{levels[0]:g} deg/s) in {len(base.clipped)} {what}: "
                         f"the hand turned faster than the range, and the clipped part hides about {sum(hidden):.0f} deg of "
-                        "rotation; the clipped turns are left out of the calibration"),
+                        f"rotation; the clipped {what} are left out of the calibration"),
             "where": where + turns,
             "simulate": f"saturation={levels[0]:g}",
         },

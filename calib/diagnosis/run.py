@@ -119,8 +119,8 @@ def diagnose(
     prob = build_problem(layout, rec.gyro[None], None if accel is None else accel[None], temp, caps)
     say(0.05, "nominal fit")
 
-    clipped = tuple(j for j, s in enumerate(layout.turns)
-                    if not layout.moves[j] and any(s.start <= p.start < s.end for p in plateaus))
+    # a clipped turn's closure, or a clipped re-orientation's gravity, is left free: it reads short by what was clipped
+    clipped = tuple(j for j, s in enumerate(layout.turns) if any(s.start <= p.start < s.end for p in plateaus))
     start = _unclipped_start(rec, layout, clipped, accel, temp) if clipped else None
     if start is None and moving is not None:
         start = moving.start
