@@ -28,6 +28,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse import csr_matrix
 from scipy.spatial.transform import Rotation
 
 from calib.diagnosis.data import Problem
@@ -153,17 +154,23 @@ class Wander:
     times: np.ndarray  # (L, J) turn sample times
 
     def __post_init__(self) -> None:
-        self._a, self._b, self._alpha, self._beta, _ = bridge_weights(self.times, self.blocks.t, self.blocks.tau)
+        a, b, alpha, beta, _ = bridge_weights(self.times, self.blocks.t, self.blocks.tau)
+        rows = np.arange(a.size)
+        nb = self.blocks.t.size
+        # two blocks per turn sample: the bridge as a sparse (L*J, NB) matrix
+        self._bridge = csr_matrix((np.concatenate((alpha.ravel(), beta.ravel())),
+                                   (np.concatenate((rows, rows)), np.concatenate((a.ravel(), b.ravel())))),
+                                  shape=(a.size, nb))
 
     def offsets(self, e: np.ndarray, de: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The wander (L, R*J, 3) at the turn samples and its derivative (L, R*J, 3, Pr), from the still block
         rates e (R, NB, 3) and their derivatives de (R, NB, 3, Pr)."""
-        R, Pr = e.shape[0], de.shape[-1]
+        R, NB, Pr = e.shape[0], e.shape[1], de.shape[-1]
         L, J = self.times.shape
         v = np.concatenate((e[..., None], de), axis=3).transpose(0, 2, 1, 3)  # (R, 3, NB, 1 + Pr)
         xs = self.blocks.smooth(v)
-        out = self._alpha[..., None] * xs[:, :, self._a] + self._beta[..., None] * xs[:, :, self._b]  # (R, 3, L, J, 1 + Pr)
-        out = out.transpose(2, 0, 3, 1, 4).reshape(L, R * J, 3, 1 + Pr)
+        cols = np.ascontiguousarray(xs.transpose(2, 0, 1, 3)).reshape(NB, -1)  # blocks first
+        out = (self._bridge @ cols).reshape(L, J, R, 3, 1 + Pr).transpose(0, 2, 1, 3, 4).reshape(L, R * J, 3, 1 + Pr)
         return out[..., 0], out[..., 1:]
 
 

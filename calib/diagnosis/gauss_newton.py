@@ -91,7 +91,17 @@ def gauss_newton(
             new_psi = psi + lam[:, None] * step
             new = system(prob, model, new_psi, priors, variance)
             new_dev = new.deviance()
-        settled = np.abs(new_dev - dev) <= DEVIANCE_TOL
+        worse = ~(new_dev <= dev + np.maximum(1e-9 * np.abs(dev), DEVIANCE_TOL)) & ~conv
+        if worse.any():
+            # no step along this direction helps (the step ignores how a variance model's determinant moves): stay
+            if worse.all():
+                new_psi, new, new_dev = psi, sys_, dev
+            else:
+                lam[worse] = 0.0
+                new_psi = psi + lam[:, None] * step
+                new = system(prob, model, new_psi, priors, variance)
+                new_dev = new.deviance()
+        settled = (np.abs(new_dev - dev) <= DEVIANCE_TOL) | worse
         psi, sys_, dev = new_psi, new, new_dev
         conv = conv | small | settled
         if conv.all():

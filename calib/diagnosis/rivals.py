@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib.diagnosis.engine import Priors
-from calib.diagnosis.extended_fits import ModelState, criterion, effective_params, fit_state, gm_of, try_fit
+from calib.diagnosis.extended_fits import ModelState, criterion, effective_params, fit_state, gm_of, refit_state, try_fit
 from calib.diagnosis.gauss_newton import gauss_newton
 from calib.diagnosis.null import Replay, replicate_problems, with_effects
 
@@ -74,14 +74,20 @@ class RivalTest:
                 "p_value_rival": self.p_b, "simulations_rival": self.n_b, "as_far_rival": self.hits_b}
 
 
-def _replicate_difference(worlds: Worlds, prob, cur_keys: tuple[str, ...], key_a: str, key_b: str) -> float:
-    """IC_a - IC_b of one simulated recording, fitted exactly as the recording was (base, accepted effects, rival)."""
-    base = worlds.base
-    fit = gauss_newton(prob, base.model, base.fit.psi, priors=worlds.base_priors, max_iter=10)
-    st = ModelState(base.model, fit, worlds.base_priors, {}, ())
+def _replicate_difference(worlds: Worlds, prob, cur: ModelState, key_a: str, key_b: str) -> float:
+    """IC_a - IC_b of one simulated recording, fitted as the recording was: the accepted effects, then each rival.
+
+    The accepted model is refitted from the recording's own fit, its wander re-estimated; a placement error among
+    them takes its heading prior from each recording's tilts, so that model is rebuilt effect by effect instead."""
     try:
-        for k in cur_keys:
-            st = fit_state(prob, st, k, worlds.base_priors)
+        if "placement_error" in cur.keys:
+            base = worlds.base
+            fit = gauss_newton(prob, base.model, base.fit.psi, priors=worlds.base_priors, max_iter=10)
+            st = ModelState(base.model, fit, worlds.base_priors, {}, ())
+            for k in cur.keys:
+                st = fit_state(prob, st, k, worlds.base_priors)
+        else:
+            st = refit_state(prob, cur)
     except (np.linalg.LinAlgError, ValueError, FloatingPointError):
         return np.nan
     sa = try_fit(prob, st, key_a, worlds.base_priors)
@@ -108,7 +114,7 @@ def debiased(world: ModelState, cur: ModelState, key: str) -> np.ndarray:
     return psi
 
 
-def world_p(worlds: Worlds, world: ModelState, psi: np.ndarray, cur_keys: tuple[str, ...], key_a: str, key_b: str,
+def world_p(worlds: Worlds, world: ModelState, psi: np.ndarray, cur: ModelState, key_a: str, key_b: str,
             d_obs: float, upper: bool, n: int, salt: int) -> tuple[float, int, int]:
     """How often n simulations of ``world`` (a fitted state of the recording, at parameters psi) give IC_a - IC_b at least as far as
     d_obs (above it when ``upper``): (p with the observation counted, simulations fitted, how many went as far).
@@ -119,7 +125,7 @@ def world_p(worlds: Worlds, world: ModelState, psi: np.ndarray, cur_keys: tuple[
     hits = used = 0
     for _ in range(n):
         prob = replicate_problems(replay, rng, 1, worlds.caps, worlds.a_design)
-        d = _replicate_difference(worlds, prob, cur_keys, key_a, key_b)
+        d = _replicate_difference(worlds, prob, cur, key_a, key_b)
         if worlds.tick is not None:
             worlds.tick(f"weighing {key_a} against {key_b}")
         if not np.isfinite(d):
@@ -146,7 +152,7 @@ def rival_test(worlds: Worlds, cur: ModelState, st_a: ModelState, st_b: ModelSta
     for side in (first, "b" if first == "a" else "a"):
         world, key, salt = (st_a, key_a, 1) if side == "a" else (st_b, key_b, 2)
         # in a's world a's lead is larger (d more negative): a is rejected when d_obs is unusually high
-        p_side, used[side], hits[side] = world_p(worlds, world, debiased(world, cur, key), cur.keys, key_a, key_b,
+        p_side, used[side], hits[side] = world_p(worlds, world, debiased(world, cur, key), cur, key_a, key_b,
                                                  d_obs, side == "a", n, salt)
         p[side] = p_side
         if p_side >= RIVAL_ALPHA and not both:

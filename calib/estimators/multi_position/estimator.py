@@ -15,17 +15,14 @@ constraints see both, where the closure of a full turn sees neither):
   (as the closure estimator), instead of the two gravity ones;
 - each rest's accelerometer mean: |T S (r - o)| = 1 g (``calib.estimators.accel``'s model).
 
-The g-sensitivity G (g = K (m - G a) + b, a the specific force in g) is fitted as well when the rests face
-enough ways to separate it from the bias and it explains the data significantly better (an F test at
-``G_ALPHA``; ``g_sensitivity=True``/``False`` forces it in or out). A gyro resting in 38 orientations shows it
-directly: each rest's mean reading is then G a - K^-1 b, not one constant.
+The g-sensitivity G (g = K (m - G a) + b, a the specific force in g) is fitted too when the rests face enough ways
+to separate it from the bias and it explains the data significantly better (an F test at ``G_ALPHA``;
+``g_sensitivity=True``/``False`` forces it in or out): each rest's mean reading is then G a - K^-1 b.
 
-Gravity directions come from the accelerometer, fitted together with the gyroscope (started from
-``calib.estimators.accel``'s fit on the rests alone; given an ``accel`` calibration, that one is held fixed). Each
-residual is whitened by its covariance: gyro reading noise propagated through the motion (first order,
-as the closure model does) plus the accelerometer's direction noise at both rests. Uncertainties are
-the inverse Fisher information, scaled up by the fit's chi-square when the data scatter more than the
-noise explains (the hand, physics the model leaves out).
+Gravity directions come from the accelerometer, fitted with the gyroscope (from ``calib.estimators.accel``'s fit on
+the rests alone; a given ``accel`` calibration is held fixed). Residuals are whitened by their covariance: gyro noise
+through the motion (first order) plus the accelerometer's direction noise at both rests. Uncertainties are the
+inverse Fisher information, scaled up by the chi-square when the data scatter more than the noise explains.
 """
 
 from __future__ import annotations
@@ -137,19 +134,22 @@ def calibrate_multi_position(rec: Recording, stages: Any = None, accel: AccelCal
         raise ProtocolError("calibrating from re-orientations needs the accelerometer: record its channel with the gyroscope")
     stage_list = list(stages) if stages is not None else detect_stages(rec)
     stills, motions = motions_between_rests(stage_list)
-    hit = clipped_spans(rec, [(m.start, m.end) for m in motions])  # clipped: their rotation is short by what it hid
-    clipped, motions = [m for m, h in zip(motions, hit, strict=True) if h], [m for m, h in zip(motions, hit, strict=True) if not h]
+    hit = set(np.flatnonzero(clipped_spans(rec, [(m.start, m.end) for m in motions])))  # clipped: their rotation is short
+    clipped, motions = [m for i, m in enumerate(motions) if i in hit], [m for i, m in enumerate(motions) if i not in hit]
     if len(motions) < MIN_MOTIONS:
-        raise ProtocolError(
-            f"the recording has {len(motions)} motions between rests{_clipped_words(rec, clipped, ' besides')}; "
-            f"calibrating from re-orientations needs at least {MIN_MOTIONS}: rest the device a few seconds, turn it "
-            "to a new orientation, rest again, and so on")
+        raise ProtocolError(f"the recording has {len(motions)} motions between rests{_clipped_words(rec, clipped, ' besides')}; "
+                            f"calibrating from re-orientations needs at least {MIN_MOTIONS}: rest the device a few seconds, "
+                            "turn it to a new orientation, rest again, and so on")
     joint = accel is None  # fit the accelerometer with the gyroscope, from a first fit on the rests alone
     accel = accel or calibrate_accelerometer(rec, stills)
     free_a = np.array([p in accel.identified for p in PARAMS]) if joint else np.zeros(9, dtype=bool)
     data = _data(rec, stills, motions, free_a, motion_noise)
-
     base = _fit(Params(np.eye(3), -data.mean[0], None, accel.vector.copy()), data)
+    if g_sensitivity is not False and _off(base, data, G_RESCUE):
+        # a large g-sensitivity can lead the iteration from the identity to a far minimum; not from where a fit with it ends
+        with_g = _fit(Params(np.eye(3), -data.mean[0], np.zeros((3, 3)), accel.vector.copy()), data)
+        if _off(with_g, data) is None:
+            base = _fit(Params(with_g.p.K, with_g.p.b, None, with_g.p.xa.copy()), data)
     _check_agreement(base, data, G_RESCUE)  # so far off that no g-sensitivity could mend it: refused before fitting one
     fit, g_test = _g_sensitivity_choice(base, data, g_sensitivity)
     _check_agreement(fit, data)
@@ -297,12 +297,16 @@ def _g_sensitivity_choice(base: _Fit, data: Data, asked: bool | None) -> tuple[_
     return base, test
 
 
-def _check_agreement(fit: _Fit, data: Data, slack: float = 1.0) -> None:
-    """CalibrationError when, at the best fit, the motions still carry gravity degrees off (over ``slack`` times
-    ``MAX_GRAVITY_RMS_DEG``): no gyro calibration explains them, so the recording is not what the fit takes it for (a
-    wrong sample rate, the accelerometer's axes not the gyro's, motions that are not between rests)."""
+def _off(fit: _Fit, data: Data, slack: float = 1.0) -> float | None:
+    """The gravity residuals' rms (deg) when over ``slack`` times ``MAX_GRAVITY_RMS_DEG``, else None."""
     rms = _rms(_gravity_deg(fit.p, data))
-    if rms is not None and rms > MAX_GRAVITY_RMS_DEG * slack:
+    return rms if rms is not None and rms > MAX_GRAVITY_RMS_DEG * slack else None
+
+
+def _check_agreement(fit: _Fit, data: Data, slack: float = 1.0) -> None:
+    """CalibrationError when the motions still carry gravity too far off at the best fit (``_off``): no gyro calibration
+    explains them (a wrong sample rate, the accelerometer's axes not the gyro's, motions that are not between rests)."""
+    if (rms := _off(fit, data, slack)) is not None:
         raise CalibrationError(
             f"no calibration makes the re-orientations agree with the accelerometer: at the best fit, gravity is still "
             f"{rms:.1f} deg rms off after them (a calibrated gyro leaves a few tenths at most). Check the sample rate, "
