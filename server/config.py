@@ -92,7 +92,7 @@ class Settings:
     auth_reads: bool = False  # when True, reads need a token too (SSE may pass it as ?access_token=)
     max_body_bytes: int = 32 * 1024 * 1024  # uploads above this get 413
     max_upload_samples: int = 2_000_000
-    max_diagnose_samples: int = 100_000  # a model check needs about 15 kB a sample (1.4 GB at 90 000); more get 413
+    max_diagnose_samples: int = 100_000  # a model check needs about 10-13 kB a sample (1.0 GB at 100 000); more get 413
     worker_memory_mb: int = 3072  # address space of each worker process (estimators, model checks); beyond: MemoryError
     anonymous_analyses_per_min: float = 6.0  # POST /diagnose without a token, per client address (burst 3)
     token_ttl_s: float = 12 * 3600.0

@@ -19,7 +19,7 @@ def add_diagnose_parser(sub: Any) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the summary")
     p.add_argument("--report", type=Path, default=None, metavar="DIR", help="write an HTML report with plots into DIR")
     p.add_argument("--max-samples", type=int, default=500_000, metavar="N",
-                   help="refuse recordings of more samples (counting lost ones put back): a diagnosis needs about 15 kB "
+                   help="refuse recordings of more samples (counting lost ones put back): a diagnosis needs about 13 kB "
                    "of memory a sample (default 500000)")
     p.set_defaults(func=cmd_diagnose)
 

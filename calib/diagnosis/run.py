@@ -34,7 +34,7 @@ from calib.stages.resolve import resolve_stages
 from calib.stages.stage import AXES, Stage
 
 DEFAULT_MAX_SAMPLES = 500_000
-MEMORY_PER_SAMPLE_KB = 15.0  # peak memory of a diagnosis grows by about this per sample (measured, bench/diagnosis_memory.py)
+MEMORY_PER_SAMPLE_KB = 13.0  # peak memory of a diagnosis grows by about this per sample (measured, bench/diagnosis_memory.py)
 
 EFFECT_NAMES: tuple[str, ...] = CATALOGUE  # the catalogue, in the order the documentation lists it
 DEFAULT_BOOT = 200
@@ -65,7 +65,7 @@ def diagnose(
     replace stage detection, as do ``stages``.
 
     ``max_samples``: refuse (RecordingTooLong) a recording that has, or would have once its lost samples are
-    put back, more samples than this; the work and memory grow with them (about 15 kB a sample).
+    put back, more samples than this; the work and memory grow with them (about 13 kB a sample).
 
     ``n_boot`` simulated replicates give the null distribution (deterministic by ``seed``).
     ``host_t`` (n,): the time each sample reached the host (default: the recording's ``host_t`` channel);

@@ -51,9 +51,9 @@ def test_a_recording_spanning_days_is_refused_before_any_work(service: RunningSe
 
 
 def test_a_worker_over_its_memory_gets_a_413_not_the_machines_memory(service: RunningService) -> None:
-    # 35 000 samples (the paper protocol at 1 kHz) need ~0.7 GB of model check: over this service's 700 MB workers
+    # 88 000 samples (the paper protocol at 3.5 kHz) need ~0.9 GB of model check: over this service's 700 MB workers
     with service.client() as c:
-        r = c.post("/diagnose", content=_csv(fs=1000.0), headers=CSV)
+        r = c.post("/diagnose", content=_csv(fs=3500.0), headers=CSV)
         assert r.status_code == 413, r.text
         assert "more memory than this service gives a worker (700 MB)" in r.json()["detail"]
         # the worker was replaced and the next (small) check runs
