@@ -40,7 +40,7 @@ HOOKS = ("on_sensor", "on_output")
 
 def injectable() -> list[str]:
     """The catalogued effects that act on readings (not on the motion)."""
-    return [n for n in CATALOGUE if getattr(EFFECTS[n], "on_trajectory") is Effect.on_trajectory]
+    return [n for n in CATALOGUE if EFFECTS[n].on_trajectory is Effect.on_trajectory]
 
 
 def load(name: str) -> tuple[Recording, str]:
