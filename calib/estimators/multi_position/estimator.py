@@ -137,7 +137,7 @@ def calibrate_multi_position(rec: Recording, stages: Any = None, accel: AccelCal
     hit = set(np.flatnonzero(clipped_spans(rec, [(m.start, m.end) for m in motions])))  # clipped: their rotation is short
     clipped, motions = [m for i, m in enumerate(motions) if i in hit], [m for i, m in enumerate(motions) if i not in hit]
     if len(motions) < MIN_MOTIONS:
-        raise ProtocolError(f"the recording has {len(motions)} motions between rests{_clipped_words(rec, clipped, ' besides')}; "
+        raise ProtocolError(f"the recording has {len(motions)} motion(s) between rests{_clipped_words(rec, clipped, ' besides')}; "
                             f"calibrating from re-orientations needs at least {MIN_MOTIONS}: rest the device a few seconds, "
                             "turn it to a new orientation, rest again, and so on")
     joint = accel is None  # fit the accelerometer with the gyroscope, from a first fit on the rests alone
@@ -162,8 +162,8 @@ def calibrate_multi_position(rec: Recording, stages: Any = None, accel: AccelCal
 def _clipped_words(rec: Recording, clipped: list[Motion], lead: str) -> str:
     """"N re-orientations that reached the gyro's full scale (at 52.3, 63.6, ... s)", after ``lead``; "" for none."""
     at = ", ".join(f"{rec.t[m.start] - rec.t[0]:.1f}" for m in clipped[:6]) + (", ..." if len(clipped) > 6 else "")
-    many = "s" if len(clipped) > 1 else ""
-    return f"{lead} {len(clipped)} re-orientation{many} that reached the gyro's full scale (at {at} s)".lstrip() if clipped else ""
+    n = f"{lead} {len(clipped)}" if lead else f"{len(clipped)}"
+    return f"{n} re-orientation{'s' if len(clipped) > 1 else ''} that reached the gyro's full scale (at {at} s)" if clipped else ""
 
 
 def noise_colour(readings: np.ndarray, spans: list[tuple[int, int]], max_lag: int = NOISE_LAGS) -> np.ndarray:
