@@ -1,4 +1,4 @@
-"""Real sessions shared by the numerics' tests, read and diagnosed once per test process."""
+"""Real sessions shared by the numerics' tests, read once per test process."""
 
 from __future__ import annotations
 
