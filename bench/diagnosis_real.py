@@ -114,7 +114,7 @@ def run(session: str, draws: int, null_seeds: int, n_boot: int) -> list[str]:
     tally: dict[tuple[str, str], list[int]] = defaultdict(lambda: [0, 0, 0, 0, 0])
     for name in injectable():
         for d in range(draws):
-            rng = np.random.default_rng([hash(name) % 2**31, d])
+            rng = np.random.default_rng([CATALOGUE.index(name), d])
             ctx = DrawContext(3, rec.duration_s, peak, None)
             effect, magnitude = EFFECTS[name].draw(rng, ctx)
             band = band_of(name, magnitude)
