@@ -101,24 +101,21 @@ def fit_state(prob: Problem, state: ModelState, key: str, base_priors: Priors | 
             if np.isfinite(tl.sd[0, j]):
                 psi0[0, s + 3 * j : s + 3 * j + 3] = tl.basis[0, j].T @ tl.tilt[0, j]
         pri = merge_priors(pri, placement_priors(prob, model, psi0), model.P)
-    fit = refit(prob, model, psi0, pri, variance)
-    if variance:
-        return _state(prob, model, fit, pri, variance, keys)
-    return ModelState(model, fit, pri, variance, keys)
+    return _state(prob, model, refit(prob, model, psi0, pri, variance), pri, variance, keys)
 
 
 def refit_state(prob: Problem, state: ModelState) -> ModelState:
     """``state``'s model fitted to ``prob`` (another recording of the same layout) from ``state``'s parameters, its
     variance parts re-estimated."""
     fit = refit(prob, state.model, state.fit.psi, state.priors, state.variance)
-    if state.variance:
-        return _state(prob, state.model, fit, state.priors, state.variance, state.keys)
-    return ModelState(state.model, fit, state.priors, dict(state.variance), state.keys)
+    return _state(prob, state.model, fit, state.priors, state.variance, state.keys)
 
 
 def _state(prob: Problem, model: Model, fit: Fit, pri: Priors | None, variance: dict, keys) -> ModelState:
-    """Re-estimate the variance parameters at ``fit``, then refit the model with them."""
-    before = (dict(variance), fit)
+    """Re-estimate the variance parameters at ``fit``, then refit the model with them (nothing to do without any)."""
+    if not variance:
+        return ModelState(model, fit, pri, {}, keys)
+    old_var, old_fit = dict(variance), fit
     variance = dict(variance)
     if "bias_instability" in variance:
         variance["bias_instability"] = fit_instability(prob, fit, model, variance["bias_instability"])
@@ -131,7 +128,6 @@ def _state(prob: Problem, model: Model, fit: Fit, pri: Priors | None, variance: 
 
         variance["placement_var"] = fit_placement_variance(prob, deviance)
     fit = refit(prob, model, fit.psi, pri, variance)
-    old_var, old_fit = before
     if old_var.get("bias_instability", (0.0, 1.0))[0] > 0 and float(old_fit.deviance[0]) < float(fit.deviance[0]):
         # the wander is estimated from the still blocks alone; where the turns or re-orientations fit worse with the new
         # estimate than with the one it started from (an effect took over what the wander explained at the rests), the

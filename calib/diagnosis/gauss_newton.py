@@ -83,15 +83,16 @@ def gauss_newton(
         new_psi = psi + step
         new = system(prob, model, new_psi, priors, variance)
         new_dev = new.deviance()
+        bound = dev + np.maximum(1e-9 * np.abs(dev), DEVIANCE_TOL)  # a deviance above this is worse
         for _ in range(4):  # halve steps that made things worse
-            worse = ~(new_dev <= dev + np.maximum(1e-9 * np.abs(dev), DEVIANCE_TOL)) & ~conv
+            worse = ~(new_dev <= bound) & ~conv
             if not worse.any():
                 break
             lam[worse] *= 0.5
             new_psi = psi + lam[:, None] * step
             new = system(prob, model, new_psi, priors, variance)
             new_dev = new.deviance()
-        worse = ~(new_dev <= dev + np.maximum(1e-9 * np.abs(dev), DEVIANCE_TOL)) & ~conv
+        worse = ~(new_dev <= bound) & ~conv
         if worse.any():
             # no step along this direction helps (the step ignores how a variance model's determinant moves): stay
             if worse.all():

@@ -31,22 +31,22 @@ def transitions(t: np.ndarray, tau: float) -> np.ndarray:
     return np.exp(-np.diff(t) / tau)
 
 
+def recursion(a: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """y_0 = rhs_0, y_i = a_i y_{i-1} + rhs_i along the first axis of rhs (n, ...), with a (n - 1,) the coefficient of
+    each step: one lower-bidiagonal solve for every column at once."""
+    n = rhs.shape[0]
+    if n == 1:
+        return np.array(rhs, dtype=float)
+    ab = np.zeros((2, n))
+    ab[0] = 1.0
+    ab[1, :-1] = -a
+    return solve_banded((1, 0), ab, rhs.reshape(n, -1), check_finite=False).reshape(rhs.shape)
+
+
 def correlate(t: np.ndarray, tau: float, v: np.ndarray) -> np.ndarray:
     """M v with M_ab = exp(-|t_a - t_b| / tau), v (NB, m): two first-order recursions (forward and backward sums)."""
     phi = transitions(t, tau)
-    n = t.size
-    if n == 1:
-        return v.copy()
-    flat = v.reshape(n, -1)
-    lower = np.zeros((2, n))
-    lower[0] = 1.0
-    lower[1, :-1] = -phi
-    upper = np.zeros((2, n))
-    upper[1] = 1.0
-    upper[0, 1:] = -phi
-    fwd = solve_banded((1, 0), lower, flat, check_finite=False)
-    bwd = solve_banded((0, 1), upper, flat, check_finite=False)
-    return (fwd + bwd - flat).reshape(v.shape)
+    return recursion(phi, v) + recursion(phi[::-1], v[::-1])[::-1] - v
 
 
 def _precision_bands(phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -90,14 +90,9 @@ class GaussMarkovBlocks:
             self._logdet_b[i] = 2.0 * np.log(c[1]).sum()
         self._logdet_m = float(np.log1p(-self.phi**2).sum())
 
-    def _each(self, v: np.ndarray, solve) -> np.ndarray:
-        n = self.t.size
-        cols = v.shape[len(self.lead) + 1:]
-        flat = np.ascontiguousarray(v).reshape((-1, n) + cols)
-        out = np.empty_like(flat, dtype=float)
-        for i, c in enumerate(self._factors):
-            out[i] = solve(c, flat[i])
-        return out.reshape(v.shape)
+    def _flat(self, v: np.ndarray) -> np.ndarray:
+        """v (*lead, NB, ...) with its leading axes as one: (axes and recordings, NB, ...)."""
+        return np.ascontiguousarray(v).reshape((-1, self.t.size) + v.shape[len(self.lead) + 1:])
 
     def _d(self, v: np.ndarray) -> np.ndarray:
         """diag(sd^2) as an array broadcasting against v."""
@@ -108,7 +103,9 @@ class GaussMarkovBlocks:
         """C^-1 v for v (*lead, NB) or (*lead, NB, m)."""
         d = self._d(v)
         dv = v / d
-        return dv - self._each(dv, lambda c, x: cho_solve_banded((c, False), x, check_finite=False)) / d
+        flat = self._flat(dv)
+        b_inv = np.stack([cho_solve_banded((c, False), x, check_finite=False) for c, x in zip(self._factors, flat, strict=True)])
+        return dv - b_inv.reshape(v.shape) / d
 
     def logdet(self) -> np.ndarray:
         """log det C per axis and recording: (*lead,)."""
@@ -148,22 +145,14 @@ class GaussMarkovBlocks:
             innov[..., b] = s
             gain[..., b] = p / s
             p = p * d[..., b] / s
-        # predictions xp_{b+1} = phi_{b+1} ((1 - K_b) xp_b + K_b v_b): a lower-bidiagonal system in xp
-        extra = v.ndim - len(self.lead) - 1
-        shape = (n,) + (1,) * extra
-        flat_g = gain.reshape(-1, n)
-        cols = v.shape[len(self.lead) + 1:]
-        flat_v = np.ascontiguousarray(v).reshape((-1, n) + cols)
+        # predictions xp_0 = 0, xp_{b+1} = phi_{b+1} ((1 - K_b) xp_b + K_b v_b): a first-order recursion in xp
+        shape = (n,) + (1,) * (v.ndim - len(self.lead) - 1)
+        flat_v = self._flat(v)
         pred = np.zeros_like(flat_v, dtype=float)
-        if n > 1:
-            for i in range(flat_v.shape[0]):
-                g = flat_g[i]
-                ab = np.zeros((2, n))
-                ab[0] = 1.0
-                ab[1, :-1] = -self.phi * (1.0 - g[:-1])
-                rhs = np.zeros_like(flat_v[i], dtype=float)
-                rhs[1:] = (self.phi * g[:-1]).reshape((n - 1,) + shape[1:]) * flat_v[i][:-1]
-                pred[i] = solve_banded((1, 0), ab, rhs, check_finite=False)
+        for i, g in enumerate(gain.reshape(-1, n)):
+            rhs = np.zeros_like(flat_v[i], dtype=float)
+            rhs[1:] = (self.phi * g[:-1]).reshape((n - 1,) + shape[1:]) * flat_v[i][:-1]
+            pred[i] = recursion(self.phi * (1.0 - g[:-1]), rhs)
         out = (flat_v - pred) / np.sqrt(innov.reshape(-1, n)).reshape((-1,) + shape)
         return out.reshape(v.shape)
 

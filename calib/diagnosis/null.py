@@ -16,11 +16,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.linalg import solve_banded
 from scipy.spatial.transform import Rotation
 
 from calib.diagnosis.data import Inputs, Layout, Problem, build_problem
 from calib.diagnosis.engine import closure_pass
+from calib.diagnosis.markov import recursion
 from calib.diagnosis.models import R0_DPS, Model
 from calib.units import DEG
 
@@ -65,12 +65,8 @@ def gauss_markov(rng: np.random.Generator, R: int, t: np.ndarray, sigma: np.ndar
     drive = np.sqrt(np.maximum(1.0 - phi**2, 0.0))
     eps = rng.standard_normal((R, n, 3))
     drive[0] = 1.0
-    # the recursion x_i = phi_i x_{i-1} + drive_i eps_i as one lower-bidiagonal solve, every path at once
-    ab = np.zeros((2, n))
-    ab[0] = 1.0
-    ab[1, :-1] = -phi[1:]
-    rhs = (drive[:, None, None] * eps.transpose(1, 0, 2)).reshape(n, -1)
-    x = solve_banded((1, 0), ab, rhs, check_finite=False).reshape(n, R, 3).transpose(1, 0, 2)
+    # x_i = phi_i x_{i-1} + drive_i eps_i, every path at once
+    x = recursion(phi[1:], drive[:, None, None] * eps.transpose(1, 0, 2)).transpose(1, 0, 2)
     return x * sigma
 
 

@@ -32,6 +32,7 @@ from calib.recording import Recording
 from calib.stages.plateaus import Plateau, find_plateaus
 from calib.stages.resolve import resolve_stages
 from calib.stages.stage import AXES, Stage
+from calib.stages.turn_checks import angle_between_deg
 
 DEFAULT_MAX_SAMPLES = 500_000
 MEMORY_PER_SAMPLE_KB = 13.0  # peak memory of a diagnosis grows by about this per sample (measured, bench/diagnosis_memory.py)
@@ -284,8 +285,7 @@ def _pose_changed(rec: Recording, before: Stage, after: Stage) -> bool:
     if rec.accel is None:
         return False
     g0, g1 = rec.accel[before.start:before.end].mean(axis=0), rec.accel[after.start:after.end].mean(axis=0)
-    cos = float(g0 @ g1) / max(float(np.linalg.norm(g0) * np.linalg.norm(g1)), 1e-12)
-    return bool(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) > FULL_TURN_POSE_DEG)
+    return angle_between_deg(g0, g1) > FULL_TURN_POSE_DEG
 
 
 def _clipped_turns(rec: Recording, stages: list[Stage], plateaus: list[Plateau]) -> list[Stage]:
