@@ -53,10 +53,8 @@ def load(name: str) -> tuple[Recording, str]:
     return read_imu_tk(REAL / "imu_tk" / "xsens_gyro.mat", REAL / "imu_tk" / "xsens_acc.mat"), "multi-position"
 
 
-def inject(rec: Recording, effect: Effect, rng: np.random.Generator) -> Recording:
-    """``effect`` put into the real readings, the untouched calibration's rate taken as the true one."""
-    result, _ = calibrate_protocol(rec)
-    k, b = np.nan_to_num(np.asarray(result.k, dtype=float), nan=1.0), np.asarray(result.b, dtype=float)
+def inject(rec: Recording, k: np.ndarray, b: np.ndarray, effect: Effect, rng: np.random.Generator) -> Recording:
+    """``effect`` put into the real readings, the untouched calibration's rate g = k m + b taken as the true one."""
     accel = rec.accel if rec.accel is not None else np.tile([0.0, 0.0, 1.0], (len(rec), 1))
     ctx = SensorContext(rec.t - rec.t[0], rec.gyro * k + b, accel, k, b, rec.fs, 0.0)
     m = effect.on_sensor(rec.gyro.copy(), ctx, rng)
@@ -78,6 +76,7 @@ def twin(rec: Recording, protocol: str, effect: Effect | None, seed: int, noise:
 
 
 def measured_noise(rec: Recording) -> float:
+    """The readings' white noise (deg/s) from successive differences within the rests: a wander does not enter it."""
     from calib.stages.detector import detect_stages
 
     stills = [s for s in detect_stages(rec) if s.kind == "still"]
@@ -110,8 +109,10 @@ def run(session: str, draws: int, null_seeds: int, n_boot: int) -> list[str]:
              "| effect | band | named on the real readings | named on the twin | false effects real / twin |",
              "| --- | --- | --- | --- | --- |"]
     result, _ = calibrate_protocol(rec)
+    k, b = np.nan_to_num(np.asarray(result.k, dtype=float), nan=1.0), np.asarray(result.b, dtype=float)
     peak = float(np.abs(rec.gyro).max() * np.nanmax(result.k))
     tally: dict[tuple[str, str], list[int]] = defaultdict(lambda: [0, 0, 0, 0, 0])
+    null_twins: dict[int, set[str] | None] = {}  # what each draw's twin names with no effect put in
     for name in injectable():
         for d in range(draws):
             rng = np.random.default_rng([CATALOGUE.index(name), d])
@@ -119,9 +120,11 @@ def run(session: str, draws: int, null_seeds: int, n_boot: int) -> list[str]:
             effect, magnitude = EFFECTS[name].draw(rng, ctx)
             band = band_of(name, magnitude)
             t0 = time.perf_counter()
-            real = names(inject(rec, effect, np.random.default_rng(d)), d, n_boot)
+            real = names(inject(rec, k, b, effect, np.random.default_rng(d)), d, n_boot)
             sim = names(twin(rec, protocol, effect, 1000 + d, noise), d, n_boot)
-            sim_null = names(twin(rec, protocol, None, 1000 + d, noise), d, n_boot) if d == 0 else set()
+            if d not in null_twins:
+                null_twins[d] = names(twin(rec, protocol, None, 1000 + d, noise), d, n_boot)
+            sim_null = null_twins[d]
             row = tally[(name, band)]
             row[0] += 1
             row[1] += int(real is not None and name in real)
