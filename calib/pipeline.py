@@ -93,7 +93,18 @@ def calibrate_protocol(
         result.quality["temperature_c"] = rec.mean_temperature_c
     if rec.accel is not None and "accelerometer" not in result.quality:
         result.quality["accelerometer"] = _accelerometer(rec, stages)
+    if not rec.loss_visible:
+        result.warnings.append(LOSS_UNSEEN)
     return result, used
+
+
+# a run of samples lost inside a turn shortens it as a smaller scale factor would: said, since nothing can check it
+LOSS_UNSEEN = (
+    "The recording has no sample counter and its times are an exact even grid, so samples lost between the sensor and "
+    "the file would leave no trace: a run lost inside a turn shortens it and reads its scale factor high by the share "
+    "lost (1 % lost, k 1 % high). Keep the wearable's sample counter (a 'seq' column) or its own time stamps in the "
+    "file to have lost samples found."
+)
 
 
 def check_protocol(protocol: str) -> None:

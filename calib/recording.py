@@ -50,6 +50,13 @@ def fixed_rate_instants(t: np.ndarray, tolerance: float = 0.6) -> np.ndarray | N
     return grid
 
 
+def even_time_grid(t: np.ndarray) -> bool:
+    """Whether the times are an exact even grid (no clock's jitter or quantisation): possibly numbered by whatever
+    wrote the file, not stamped by the device, so rows lost before it was written leave no gap."""
+    d = np.diff(t)
+    return bool(d.size) and float(np.max(np.abs(d - np.median(d)))) <= 1e-9 * max(float(np.median(d)), 1e-12)
+
+
 def sample_intervals(t: np.ndarray) -> np.ndarray:
     """The interval each sample is held for (s): t[i+1] - t[i], the last one the median interval. Across lost
     samples the last reading is held until the next one arrives."""
@@ -100,6 +107,12 @@ class Recording:
         if self.meta.sample_rate_hz:
             return float(self.meta.sample_rate_hz)
         return float(1.0 / np.median(np.diff(self.t)))
+
+    @property
+    def loss_visible(self) -> bool:
+        """Whether lost samples would show: there is a sample counter, or the times are not an exact even grid (a
+        device's or host's stamps leave a gap where samples are missing; a grid a file writer numbered does not)."""
+        return self.seq is not None or not even_time_grid(self.t)
 
     @property
     def mean_temperature_c(self) -> float | None:

@@ -114,7 +114,7 @@ def assemble_diagnosis(rec, raw, host_t, prob, layout, tb, plateaus, fit0, base,
     if tb.index_source is None and rec.seq is None:
         not_identifiable.append({"name": "sample_loss", "reason": "not identifiable with this recording: the timestamps "
                                  "are not the device's own and there is no sample counter; " + ADVICE["sample_loss"]})
-    elif rec.seq is None and tb.lost == 0 and _even_grid(rec.t):
+    elif tb.lost == 0 and not rec.loss_visible:
         not_identifiable.append({"name": "sample_loss", "reason": (
             "not identifiable with this recording: it has no sample counter and its times are an exact even grid, which "
             "a file writer's own numbering gives as well as a device's clock: samples lost on the way would leave no "
@@ -173,9 +173,3 @@ def _importance(e: dict) -> float:
     if b is None or a is None:
         return 0.0
     return float(b - a)
-
-
-def _even_grid(t: np.ndarray) -> bool:
-    """Whether the times are an exact even grid (no clock's jitter or quantisation): possibly numbered, not stamped."""
-    d = np.diff(t)
-    return bool(d.size) and float(np.max(np.abs(d - np.median(d)))) <= 1e-9 * max(float(np.median(d)), 1e-12)
