@@ -148,12 +148,12 @@ class Inputs:
         return Inputs(self.m[:, cols], self.t[:, cols], pick(self.a), pick(self.temp), pick(self.cap),
                       pick(self.offset), pick(self.doffset))
 
-    def turn_first(self, cols: slice) -> Inputs:
-        """The turn columns ``cols`` of time-first inputs, turn first (B, L, ...): views, so that the rate model's
-        outputs come out turn first and each turn's samples lie together in memory."""
-        pick = lambda x: None if x is None else np.swapaxes(x[:, cols], 0, 1)
-        return Inputs(np.swapaxes(self.m[:, cols], 0, 1), np.swapaxes(self.t[:, cols], 0, 1), pick(self.a), pick(self.temp),
-                      pick(self.cap), pick(self.offset), pick(self.doffset))
+    def turn_first(self, cols: np.ndarray, length: int) -> Inputs:
+        """The turn columns ``cols`` (indices) of time-first inputs through sample ``length``, turn first (B, L, ...):
+        each turn's samples together in memory, so that the rate model's outputs come out turn first."""
+        pick = lambda x: None if x is None else np.swapaxes(x[:length], 0, 1)[cols]
+        return Inputs(pick(self.m), pick(self.t), pick(self.a), pick(self.temp), pick(self.cap), pick(self.offset),
+                      pick(self.doffset))
 
 
 @dataclass(frozen=True)

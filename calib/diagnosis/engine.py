@@ -53,7 +53,7 @@ class Closure:
 
 def closure_pass(model: Model, psi_cols: np.ndarray, prob: Problem, sigma_cols: np.ndarray, jacobian: bool = True) -> Closure:
     """Closing rotations of the R*J turns at parameters psi_cols (R*J, P), with Jacobian and noise covariance."""
-    L, B = prob.dt.shape
+    B = prob.dt.shape[1]
     Pr = model.rate_params.size
     lay = prob.layout
     ref = None
@@ -61,13 +61,38 @@ def closure_pass(model: Model, psi_cols: np.ndarray, prob: Problem, sigma_cols: 
         # closing rotations against each window's reference A: Log(A^T prod Exp(w dt)), A^T first in every product
         inv = lay.ref * [-1.0, -1.0, -1.0, 1.0]
         ref = np.tile(inv, (prob.R, 1))
-    step = max(1, _CHUNK // max(1, L * 3 * max(Pr, 9)))
-    parts = []
-    for s in range(0, B, step):
-        cols = slice(s, min(B, s + step))
-        parts.append(_pass_chunk(model, psi_cols[cols], prob.turn.turn_first(cols), prob.dt[:, cols], sigma_cols[cols], jacobian,
-                                 None if ref is None else ref[cols]))
-    return Closure(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("r", "jac", "noise", "swept")))
+    out: Closure | None = None
+    for cols, length in _length_groups(prob.dt, 3 * max(Pr, 9)):
+        part = _pass_chunk(model, psi_cols[cols], prob.turn.turn_first(cols, length), prob.dt[:length, cols],
+                           sigma_cols[cols], jacobian, None if ref is None else ref[cols])
+        if out is None:
+            out = Closure(*(np.empty((B,) + getattr(part, f).shape[1:]) for f in ("r", "jac", "noise", "swept")))
+        for f in ("r", "jac", "noise", "swept"):
+            getattr(out, f)[cols] = getattr(part, f)
+    if out is None:  # no turn
+        return Closure(np.zeros((0, 3)), np.zeros((0, 3, Pr)), np.zeros((0, 3, 3)), np.zeros((0, 3)))
+    return out
+
+
+def _length_groups(dt: np.ndarray, per_sample: int) -> list[tuple[np.ndarray, int]]:
+    """The turn columns of ``dt`` (L, B) in groups of similar length (within a factor 1.5), each with the samples
+    its longest turn needs, and no larger than ``_CHUNK`` elements of ``per_sample`` each a sample: turns padded to
+    the longest (a re-orientation of 8 s beside ones of 1 s) cost most of a pass in samples that add nothing."""
+    L, B = dt.shape
+    moving = dt > 0
+    lengths = np.where(moving.any(axis=0), L - np.argmax(moving[::-1], axis=0), 1)
+    order = np.argsort(lengths, kind="stable")
+    groups: list[tuple[np.ndarray, int]] = []
+    i = 0
+    while i < B:
+        shortest = lengths[order[i]]
+        j = i + 1
+        while j < B and lengths[order[j]] <= 1.5 * shortest and (j + 1 - i) * lengths[order[j]] * per_sample <= _CHUNK:
+            j += 1
+        cols = order[i:j]
+        groups.append((cols, int(lengths[cols[-1]])))
+        i = j
+    return groups
 
 
 def _pass_chunk(model, psi, inp, dt, sigma, jacobian, ref_inv=None) -> Closure:

@@ -205,7 +205,8 @@ class Model:
         if inp.offset is not None:
             g0 = g0 + inp.offset
             if jacobian and inp.doffset is not None:
-                dg0 = dg0 + inp.doffset
+                assert dg0 is not None
+                dg0 += inp.doffset  # dg0 is this call's own array
         g = g0
         if "scale_asymmetry" in sl or "scale_nonlinearity" in sl:
             f = np.ones(lead + (3,))
@@ -226,7 +227,7 @@ class Model:
                 nterm = psi[..., sl["scale_nonlinearity"]] * a0 / R0_DPS if "scale_nonlinearity" in sl else np.zeros(np.shape(g0))
                 fn = 1.0 + nterm
                 dfac = fa * (fn + nterm)  # d g / d g0, per axis
-                dg = dg0  # made by this call (zeros, or the sum with doffset): scaled in place
+                dg = dg0  # made by this call: scaled in place
                 dg *= dfac[..., None]
                 if "scale_asymmetry" in sl:
                     s = sl["scale_asymmetry"].start
