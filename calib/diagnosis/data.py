@@ -151,8 +151,11 @@ class Inputs:
     def turn_first(self, cols: np.ndarray, length: int) -> Inputs:
         """The turn columns ``cols`` (indices) of time-first inputs through sample ``length``, turn first (B, L, ...):
         each turn's samples together in memory, so that the rate model's outputs come out turn first."""
-        pick = lambda x: None if x is None else np.swapaxes(x[:length], 0, 1)[cols]
-        return Inputs(pick(self.m), pick(self.t), pick(self.a), pick(self.temp), pick(self.cap), pick(self.offset),
+        def rows(x: np.ndarray) -> np.ndarray:
+            return np.swapaxes(x[:length], 0, 1)[cols]
+
+        pick = lambda x: None if x is None else rows(x)
+        return Inputs(rows(self.m), rows(self.t), pick(self.a), pick(self.temp), pick(self.cap), pick(self.offset),
                       pick(self.doffset))
 
 
