@@ -3,9 +3,14 @@
 The recording's own motion is replayed: the nominal fit's calibrated rates g = K m + b define the
 true motion, set to exactly 0 in the stills and corrected in each turn by a constant rate so that
 the turn closes exactly (the nominal model's assumption). Readings are regenerated as
-m = K^-1 (g - b) plus white noise of the measured level, and the accelerometer as the stills' gravity
-(the same across each turn, since the model says the device came back) plus its measured noise.
-Each replicate is fitted with the nominal model exactly as the recording was, batched.
+m = K^-1 (g - b) plus noise like the recording's own, and the accelerometer as the stills' gravity (the
+same across each turn, since the model says the device came back) plus its own noise. A real sensor's
+noise is not white (its low-pass filter, flicker, quantisation): at the measured level but white, the
+null would make the recording's own noise look like an effect. So each axis' noise is an autoregressive
+process fitted to the recording's rests (``NoiseColour``: Yule-Walker on their pooled autocovariance,
+less what is slower than ``COLOUR_SLOW_S``, which is the wander's; the order by AIC up to
+``COLOUR_ORDER_MAX``; order 0, white noise, for a white sensor). Each replicate is fitted with the
+nominal model exactly as the recording was, batched.
 
 ``Replay.with_effects`` regenerates the readings with fitted effects switched on (the estimator's
 models inverted), so that the recording can be compared with a simulation that includes them.
@@ -16,6 +21,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.linalg import solve_toeplitz
+from scipy.ndimage import uniform_filter1d
+from scipy.signal import lfilter
 from scipy.spatial.transform import Rotation
 
 from calib.diagnosis.data import Inputs, Layout, Problem, build_problem
@@ -23,6 +31,72 @@ from calib.diagnosis.engine import closure_pass
 from calib.diagnosis.markov import recursion
 from calib.diagnosis.models import R0_DPS, Model
 from calib.units import DEG
+
+COLOUR_ORDER_MAX = 8  # autoregressive order of the noise model at most (a sensor's low-pass filter needs 1-3)
+COLOUR_SLOW_S = 10.0  # slower than this is the wander's (a moving mean over this span), not the noise's
+
+
+@dataclass(frozen=True)
+class NoiseColour:
+    """An autoregressive model of each axis' reading noise: x_i = sum_k phi_k x_(i-k) + e_i, e ~ N(0, innovation^2)."""
+
+    phi: np.ndarray  # (3, p) coefficients per axis (p may be 0: white)
+    innovation: np.ndarray  # (3,) std of e, in the readings' unit
+    burn: int  # samples drawn before each path starts, so that it starts stationary
+
+    @property
+    def order(self) -> int:
+        return int(self.phi.shape[1])
+
+    def draw(self, rng: np.random.Generator, R: int, n: int) -> np.ndarray:
+        """R paths of n samples (R, n, 3); white noise (no burn-in, the same draws) at order 0."""
+        if self.order == 0:
+            return self.innovation * rng.standard_normal((R, n, 3))
+        e = self.innovation * rng.standard_normal((R, n + self.burn, 3))
+        for ax in range(3):
+            e[..., ax] = lfilter([1.0], np.concatenate(([1.0], -self.phi[ax])), e[..., ax], axis=1)
+        return e[:, self.burn :]
+
+
+def noise_colour(layout: Layout, x: np.ndarray, max_order: int = COLOUR_ORDER_MAX) -> NoiseColour | None:
+    """The autoregressive noise model of ``x`` (n, 3) at the layout's rests (one order for all axes, by AIC on their
+    pooled autocovariance); None without a rest of more than ``4 * max_order`` samples."""
+    slow = max(2, round(COLOUR_SLOW_S * layout.fs))
+    rests = [s for s in layout.stills if s.n > 4 * max_order]
+    if not rests:
+        return None
+    acov = np.zeros((max_order + 1, 3))
+    total = 0
+    for s in rests:
+        seg = x[s.start : s.end]
+        seg = seg - (seg.mean(axis=0) if s.n <= slow else uniform_filter1d(seg, slow, axis=0, mode="nearest"))
+        for k in range(max_order + 1):
+            acov[k] += np.einsum("ij,ij->j", seg[: s.n - k], seg[k:])
+        total += s.n
+    acov /= total  # the biased estimate: a positive definite sequence, so every fitted model is stationary
+    if np.any(acov[0] <= 0):
+        return None
+    best: tuple[float, np.ndarray, np.ndarray] | None = None
+    for p in range(max_order + 1):
+        phi = np.zeros((3, p))
+        for ax in range(3):
+            if p:
+                phi[ax] = solve_toeplitz(acov[:p, ax], acov[1 : p + 1, ax])
+        var = acov[0] - np.einsum("ap,pa->a", phi, acov[1 : p + 1]) if p else acov[0].copy()
+        aic = total * float(np.sum(np.log(np.maximum(var, 1e-300)))) + 2.0 * 3 * p
+        if best is None or aic < best[0]:
+            best = (aic, phi, np.sqrt(np.maximum(var, 0.0)))
+    assert best is not None
+    _, phi, innovation = best
+    return NoiseColour(phi, innovation, _burn_in(phi))
+
+
+def _burn_in(phi: np.ndarray) -> int:
+    """Samples for a path to forget its zero start: five times its slowest root's time constant (at most 20,000)."""
+    if phi.shape[1] == 0:
+        return 0
+    radius = max(float(np.max(np.abs(np.roots(np.concatenate(([1.0], -row)))))) for row in phi)
+    return int(min(20_000, np.ceil(5.0 / max(1.0 - radius, 2.5e-4)) + phi.shape[1]))
 
 
 @dataclass
@@ -40,11 +114,14 @@ class Replay:
     b: np.ndarray
     gm: tuple[np.ndarray, float] | None = None  # Gauss-Markov bias (sigma (3,), tau) to add per replicate
     extra: dict = field(default_factory=dict)
+    colour: NoiseColour | None = None  # the gyro's noise; None: white of sigma
+    accel_colour: NoiseColour | None = None  # the accelerometer's; None: white of accel_sigma
 
     def replicates(self, rng: np.random.Generator, R: int) -> tuple[np.ndarray, np.ndarray | None]:
         """R replicates: gyro (R, n, 3), accel (R, n, 3) or None."""
         n = self.m.shape[0]
-        gyro = self.m[None] + self.sigma * rng.standard_normal((R, n, 3))
+        noise = self.colour.draw(rng, R, n) if self.colour is not None else self.sigma * rng.standard_normal((R, n, 3))
+        gyro = self.m[None] + noise
         if self.gm is not None:
             sig, tau = self.gm
             gyro -= gauss_markov(rng, R, self.layout.t, sig, tau) / self.k
@@ -53,7 +130,9 @@ class Replay:
             np.clip(gyro, -clip, clip, out=gyro)
         accel = None
         if self.a is not None:
-            accel = self.a[None] + self.accel_sigma * rng.standard_normal((R, n, 3))
+            colour = self.accel_colour
+            accel = self.a[None] + (colour.draw(rng, R, n) if colour is not None else
+                                    self.accel_sigma * rng.standard_normal((R, n, 3)))
         return gyro, accel
 
 
@@ -154,7 +233,13 @@ def make_replay(
             a[s.start : s.end] = mu
     extra = {"full_scale": full_scale} if full_scale is not None else {}
     return Replay(layout, g, m, a, temp, np.asarray(sigma, float), float(accel_sigma or 0.0), k.copy(), b.copy(),
-                  extra=extra)
+                  extra=extra, colour=_coloured(noise_colour(layout, gyro)),
+                  accel_colour=None if accel is None else _coloured(noise_colour(layout, accel)))
+
+
+def _coloured(model: NoiseColour | None) -> NoiseColour | None:
+    """The model where the noise has colour; None for white noise, which the replay draws at its measured level."""
+    return model if model is not None and model.order > 0 else None
 
 
 def with_effects(replay: Replay, model: Model, psi: np.ndarray, gm: tuple[np.ndarray, float] | None = None,
