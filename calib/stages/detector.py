@@ -11,7 +11,7 @@ import numpy as np
 from calib.errors import GyrocalError, RecordingError
 from calib.recording import Recording
 from calib.stages.config import LiveState, StageConfig, StageEvent, clip_run_needed
-from calib.stages.prefix_sums import D1, D2, DT, GAP, MDT, NCOL, S1, S2, SAT, TDT, PrefixStore
+from calib.stages.prefix_sums import DT, GAP, MDT, NCOL, S1, S2, SAT, TDT, PrefixStore
 from calib.stages.segments import StageBook
 from calib.stages.stage import Stage
 
@@ -222,13 +222,9 @@ class StageTracker(StageBook):
             self._last_x = x[0].copy()
         k = t.size
         xr = x - self._x0
-        assert self._last_x is not None  # set with the first sample
-        d = np.diff(x, axis=0, prepend=self._last_x[None, :])
         values = np.empty((k, NCOL))
         values[:, S1] = xr
         values[:, S2] = xr * xr
-        values[:, D1] = d
-        values[:, D2] = d * d
         values[:, DT] = dt
         values[:, MDT] = xr * dt[:, None]
         values[:, TDT] = (t - self._t0) * dt
@@ -273,10 +269,12 @@ class StageTracker(StageBook):
             return
         nb, st = self._nb, self._store
         starts = np.arange(self._blocks, done) * nb
-        s = st.p[starts + nb - st.base] - st.p[starts + 1 - st.base]
-        m = nb - 1
-        var = np.maximum(s[:, D2] / m - (s[:, D1] / m) ** 2, 0.0)
-        sigma = np.sqrt(var.mean(axis=1) / 2.0)
+        s = st.p[starts + nb - st.base] - st.p[starts - st.base]
+        # the spread about the block's mean, as the stillness window measures it: differences would halve the
+        # variance of white noise only, and a sensor's low-pass filter leaves its noise far smoother from sample to
+        # sample than it is over a window (a floor a third of the rests' own noise: no rest was found)
+        var = np.maximum(s[:, S2] / nb - (s[:, S1] / nb) ** 2, 0.0)
+        sigma = np.sqrt(var.mean(axis=1))
         if self._floor_after.size <= done:
             self._floor_after = np.concatenate([self._floor_after, np.full(self._floor_after.size + done, np.nan)])
         cfg = self.config
@@ -294,10 +292,10 @@ class StageTracker(StageBook):
         sig = list(self._quietest)
         a = self._blocks * nb
         if n - a >= 3:
-            s = st.sums(a + 1, n)
-            m = n - a - 1
-            var = np.maximum(s[D2] / m - (s[D1] / m) ** 2, 0.0)
-            sig.append(float(np.sqrt(var.mean() / 2.0)))
+            s = st.sums(a, n)
+            m = n - a
+            var = np.maximum(s[S2] / m - (s[S1] / m) ** 2, 0.0)
+            sig.append(float(np.sqrt(var.mean())))
         if not sig:
             return self.config.min_noise_dps
         sig.sort()

@@ -7,14 +7,12 @@ import numpy as np
 # Columns of the running (prefix) sums kept per sample, relative to the first reading x0.
 S1 = slice(0, 3)  # x - x0
 S2 = slice(3, 6)  # (x - x0)^2
-D1 = slice(6, 9)  # d = x_i - x_{i-1}
-D2 = slice(9, 12)  # d^2
-DT = 12  # dt_i = t_i - t_{i-1}
-MDT = slice(13, 16)  # (x - x0) dt
-TDT = 16  # (t - t0) dt
-SAT = 17  # saturated samples
-GAP = 18  # counter jumps
-NCOL = 19
+DT = 6  # dt_i = t_i - t_{i-1}
+MDT = slice(7, 10)  # (x - x0) dt
+TDT = 10  # (t - t0) dt
+SAT = 11  # saturated samples
+GAP = 12  # counter jumps
+NCOL = 13
 
 
 class PrefixStore:

@@ -45,7 +45,7 @@ def test_the_noise_model_is_the_recordings_own() -> None:
     assert lag1 == pytest.approx(model.phi[0, 0] / (1 - model.phi[0, 1]), abs=0.03)
 
 
-@pytest.mark.parametrize("seed", [2, 3, 4, 6])
+@pytest.mark.parametrize("seed", [2, 4, 6, 7])
 def test_a_sensors_filtered_noise_is_not_named_as_an_effect(seed: int) -> None:
     """Readings with nothing but filtered noise (0.05 deg/s): nothing named. With a white null of the same level a
     wandering bias or a misalignment was named in each of these recordings."""
