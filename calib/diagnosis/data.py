@@ -148,9 +148,9 @@ class Inputs:
         return Inputs(self.m[:, cols], self.t[:, cols], pick(self.a), pick(self.temp), pick(self.cap),
                       pick(self.offset), pick(self.doffset))
 
-    def turn_first(self, cols: np.ndarray, length: int) -> Inputs:
-        """The turn columns ``cols`` (indices) of time-first inputs through sample ``length``, turn first (B, L, ...):
-        each turn's samples together in memory, so that the rate model's outputs come out turn first."""
+    def turn_first(self, cols: np.ndarray | slice, length: int) -> Inputs:
+        """The turn columns ``cols`` of time-first inputs through sample ``length``, turn first (B, L, ...): views for
+        a slice, copies for indices."""
         def rows(x: np.ndarray) -> np.ndarray:
             return np.swapaxes(x[:length], 0, 1)[cols]
 

@@ -74,10 +74,11 @@ def closure_pass(model: Model, psi_cols: np.ndarray, prob: Problem, sigma_cols: 
     return out
 
 
-def _length_groups(dt: np.ndarray, per_sample: int) -> list[tuple[np.ndarray, int]]:
-    """The turn columns of ``dt`` (L, B) in groups of similar length (within a factor 1.5), each with the samples
-    its longest turn needs, and no larger than ``_CHUNK`` elements of ``per_sample`` each a sample: turns padded to
-    the longest (a re-orientation of 8 s beside ones of 1 s) cost most of a pass in samples that add nothing."""
+def _length_groups(dt: np.ndarray, per_sample: int) -> list[tuple[np.ndarray | slice, int]]:
+    """The turn columns of ``dt`` (L, B) in groups, each with the samples its longest turn needs and no larger than
+    ``_CHUNK`` elements of ``per_sample`` each a sample. Turns padded to the longest (a re-orientation of 8 s beside
+    ones of 1 s) cost most of a pass in samples that add nothing, so turns of unlike lengths are grouped by length
+    (within a factor 1.5); turns of like lengths stay in their order, as slices (views, not copies)."""
     L, B = dt.shape
     moving = dt > 0
     lengths = np.where(moving.any(axis=0), L - np.argmax(moving[::-1], axis=0), 1)
@@ -89,10 +90,13 @@ def _length_groups(dt: np.ndarray, per_sample: int) -> list[tuple[np.ndarray, in
         j = i + 1
         while j < B and lengths[order[j]] <= 1.5 * shortest and (j + 1 - i) * lengths[order[j]] * per_sample <= _CHUNK:
             j += 1
-        cols = order[i:j]
-        groups.append((cols, int(lengths[cols[-1]])))
+        cols = np.sort(order[i:j])
+        groups.append((cols, int(lengths[order[j - 1]])))
         i = j
-    return groups
+    if sum(int(c.size) * n for c, n in groups) > 0.75 * L * B:  # little padding to save: copies would cost more
+        step = max(1, _CHUNK // max(1, L * per_sample))
+        return [(slice(s, min(B, s + step)), L) for s in range(0, B, step)]
+    return [(slice(int(c[0]), int(c[-1]) + 1) if c[-1] - c[0] + 1 == c.size else c, n) for c, n in groups]
 
 
 def _pass_chunk(model, psi, inp, dt, sigma, jacobian, ref_inv=None) -> Closure:
