@@ -55,6 +55,9 @@ def gyrocal_best(runs: int) -> tuple[float, list[float]]:
 
 
 def main() -> int:
+    from calib.blas import single_threaded_blas
+
+    single_threaded_blas()  # as the command line runs: one BLAS thread (calib.blas)
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--runs", type=int, default=30)
     p.add_argument("--imucal-python", default=None, help="a Python with imucal installed, to time it beside gyrocal")

@@ -27,6 +27,7 @@ os.environ.setdefault("MKL_NUM_THREADS", "1")
 
 import numpy as np
 
+from calib.blas import single_threaded_blas
 from calib.diagnosis import diagnose
 from calib.simulator.concealed import EFFECT_NAMES, draw_concealed
 
@@ -245,6 +246,7 @@ def write_section(path: Path, body: str) -> None:
 
 
 def main() -> int:
+    single_threaded_blas()  # as the command line runs: one BLAS thread (calib.blas)
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=20, help="seeds per effect and channel combination")
     ap.add_argument("--protocol", action="append", choices=["paper", "extended"], help="protocols (repeatable; default paper)")

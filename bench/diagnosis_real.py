@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calib.blas import single_threaded_blas
 from calib.diagnosis import diagnose
 from calib.effects import CATALOGUE, EFFECTS, DrawContext, Effect
 from calib.effects.base import SensorContext, SensorOutput
@@ -146,6 +147,7 @@ def run(session: str, draws: int, null_seeds: int, n_boot: int) -> list[str]:
 
 
 def main() -> int:
+    single_threaded_blas()  # as the command line runs: one BLAS thread (calib.blas)
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sessions", nargs="+", default=["imucal"], choices=["imucal", "imu_tk"])
     ap.add_argument("--draws", type=int, default=3, help="magnitudes drawn per effect")

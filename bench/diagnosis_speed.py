@@ -4,8 +4,9 @@
     .venv/bin/python bench/diagnosis_speed.py --large      # recordings of about 100,000 samples, every protocol shape
 
 The paper protocol recordings last 21-27 s; the extended protocol ones about 90 s; the real imucal
-session 101 s; imu_tk's session (37 re-orientations between rests) 512 s. Numpy may use every core the
-machine has (the target is at most 10 s per 30 s recording on 2 cores).
+session 101 s; imu_tk's session (37 re-orientations between rests) 512 s. One BLAS thread, as `gyrocal` runs
+(calib.blas: a second one only spins on matrices this small; timed with two, imu_tk's session took 56-60 s for
+its 20-28 s). The target is at most 10 s per 30 s recording on 2 cores.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calib.blas import single_threaded_blas
 from calib.diagnosis import diagnose
 from calib.simulator.concealed import EFFECT_NAMES, draw_concealed
 
@@ -102,6 +104,7 @@ def measure_large(n_boot: int = 200) -> list[str]:
 
 
 def main() -> int:
+    single_threaded_blas()  # as the command line runs: one BLAS thread (calib.blas)
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--recordings", type=int, default=20)
     ap.add_argument("--protocol", default="paper", choices=["paper", "extended"])
