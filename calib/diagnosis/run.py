@@ -356,9 +356,12 @@ def _bootstrap(replay: Replay, base: Model, psi_base: np.ndarray, priors: Priors
         if priors is not None:
             pri = Priors(priors.idx, np.repeat(priors.target, R, axis=0), np.repeat(priors.sd, R, axis=0))
         psi = _one_step(prob, base, np.repeat(psi_base, R, axis=0), pri)
-        st, sys_ = statistics(prob, union, base, psi, specs, priors)
-        for k, v in st.items():
-            stats[k].append(v)
+        if specs:
+            st, sys_ = statistics(prob, union, base, psi, specs, priors)
+            for k, v in st.items():
+                stats[k].append(v)
+        else:  # features only: the residuals are the base model's (every effect at zero), without the union's Jacobian
+            sys_ = system(prob, base, psi, pri)
         feats.append(compute_features(prob, sys_, psi).values)
         done += R
         tick(done / n)
