@@ -120,8 +120,7 @@ class Replay:
     def replicates(self, rng: np.random.Generator, R: int) -> tuple[np.ndarray, np.ndarray | None]:
         """R replicates: gyro (R, n, 3), accel (R, n, 3) or None."""
         n = self.m.shape[0]
-        noise = self.colour.draw(rng, R, n) if self.colour is not None else self.sigma * rng.standard_normal((R, n, 3))
-        gyro = self.m[None] + noise
+        gyro = self.m[None] + _noise(self.colour, self.sigma, rng, R, n)
         if self.gm is not None:
             sig, tau = self.gm
             gyro -= gauss_markov(rng, R, self.layout.t, sig, tau) / self.k
@@ -130,10 +129,13 @@ class Replay:
             np.clip(gyro, -clip, clip, out=gyro)
         accel = None
         if self.a is not None:
-            colour = self.accel_colour
-            accel = self.a[None] + (colour.draw(rng, R, n) if colour is not None else
-                                    self.accel_sigma * rng.standard_normal((R, n, 3)))
+            accel = self.a[None] + _noise(self.accel_colour, self.accel_sigma, rng, R, n)
         return gyro, accel
+
+
+def _noise(colour: NoiseColour | None, sigma: np.ndarray | float, rng: np.random.Generator, R: int, n: int) -> np.ndarray:
+    """R noise paths of n samples (R, n, 3): ``colour``'s, or white of ``sigma`` without one."""
+    return colour.draw(rng, R, n) if colour is not None else sigma * rng.standard_normal((R, n, 3))
 
 
 def gauss_markov(rng: np.random.Generator, R: int, t: np.ndarray, sigma: np.ndarray, tau: float) -> np.ndarray:

@@ -11,7 +11,7 @@ import numpy as np
 from calib.errors import GyrocalError, RecordingError
 from calib.recording import Recording
 from calib.stages.config import LiveState, StageConfig, StageEvent, clip_run_needed
-from calib.stages.prefix_sums import DT, GAP, MDT, NCOL, S1, S2, SAT, TDT, PrefixStore
+from calib.stages.prefix_sums import DT, GAP, MDT, NCOL, S1, S2, SAT, TDT, PrefixStore, spread
 from calib.stages.segments import StageBook
 from calib.stages.stage import Stage
 
@@ -273,8 +273,7 @@ class StageTracker(StageBook):
         # the spread about the block's mean, as the stillness window measures it: differences would halve the
         # variance of white noise only, and a sensor's low-pass filter leaves its noise far smoother from sample to
         # sample than it is over a window (a floor a third of the rests' own noise: no rest was found)
-        var = np.maximum(s[:, S2] / nb - (s[:, S1] / nb) ** 2, 0.0)
-        sigma = np.sqrt(var.mean(axis=1))
+        sigma = spread(s, nb)
         if self._floor_after.size <= done:
             self._floor_after = np.concatenate([self._floor_after, np.full(self._floor_after.size + done, np.nan)])
         cfg = self.config
@@ -292,10 +291,7 @@ class StageTracker(StageBook):
         sig = list(self._quietest)
         a = self._blocks * nb
         if n - a >= 3:
-            s = st.sums(a, n)
-            m = n - a
-            var = np.maximum(s[S2] / m - (s[S1] / m) ** 2, 0.0)
-            sig.append(float(np.sqrt(var.mean())))
+            sig.append(float(spread(st.sums(a, n), n - a)))
         if not sig:
             return self.config.min_noise_dps
         sig.sort()

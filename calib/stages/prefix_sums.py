@@ -15,6 +15,13 @@ GAP = 12  # counter jumps
 NCOL = 13
 
 
+def spread(sums: np.ndarray, count: int) -> np.ndarray:
+    """The readings' spread about their mean (deg/s, rms over the axes) from the running sums (..., NCOL) over
+    ``count`` samples."""
+    var = np.maximum(sums[..., S2] / count - (sums[..., S1] / count) ** 2, 0.0)
+    return np.sqrt(var.mean(axis=-1))
+
+
 class PrefixStore:
     """Recent samples and their running sums, addressed by global sample index."""
 
