@@ -66,19 +66,27 @@ def still_statistics(gyro: np.ndarray, bounds: np.ndarray) -> tuple[np.ndarray, 
 def _leave_out_knocks(gyro: np.ndarray, bounds: np.ndarray, mean: np.ndarray, count: np.ndarray, sigma: np.ndarray) -> None:
     """One recording's rest statistics (``mean`` (S, 3), ``count`` (S,), ``sigma`` (3,)) recomputed in place without
     its knocks."""
-    spans = [(s, int(a), int(b)) for s, (a, b) in enumerate(bounds) if b > a]
-    devs = [gyro[a:b] - mean[s] for s, a, b in spans]
-    scale = np.maximum(1.4826 * np.median(np.abs(np.concatenate(devs)), axis=0), MIN_SIGMA_DPS)
-    ss, dof = np.zeros(3), 0.0
-    for (s, a, b), d in zip(spans, devs, strict=True):
-        burst = np.any(np.abs(d) > KNOCK_SIGMA * scale, axis=1)
-        if burst.any():
-            burst = np.convolve(burst.astype(float), np.ones(2 * KNOCK_RING + 1), mode="same") > 0
-        kept = gyro[a:b][~burst]
-        if kept.shape[0] == 0:
-            kept = gyro[a:b]
-        mean[s] = kept.mean(axis=0)
-        count[s] = kept.shape[0]
-        ss += np.sum((kept - mean[s]) ** 2, axis=0)
-        dof += kept.shape[0] - 1
-    sigma[:] = np.maximum(np.sqrt(ss / max(dof, 1.0)), MIN_SIGMA_DPS)
+    rests = np.flatnonzero(bounds[:, 1] > bounds[:, 0])
+    a, b = bounds[rests, 0].astype(np.int64), bounds[rests, 1].astype(np.int64)
+    length = b - a
+    first = np.concatenate(([0], np.cumsum(length)[:-1]))  # where each rest begins among the rests' samples
+    owner = np.repeat(np.arange(rests.size), length)
+    pos = np.arange(length.sum()) - first[owner]  # index of each sample inside its rest
+    x = gyro[a[owner] + pos]
+    devs = x - mean[rests][owner]
+    scale = np.maximum(1.4826 * np.median(np.abs(devs), axis=0), MIN_SIGMA_DPS)
+    burst = np.any(np.abs(devs) > KNOCK_SIGMA * scale, axis=1)
+    # a burst's ring: every sample within KNOCK_RING of one, inside the same rest
+    ring = np.concatenate(([0], np.cumsum(burst)))
+    lo = first[owner] + np.maximum(pos - KNOCK_RING, 0)
+    hi = first[owner] + np.minimum(pos + KNOCK_RING + 1, length[owner])
+    kept = (ring[hi] - ring[lo]) == 0
+    knocked_out = np.bincount(owner, weights=kept, minlength=rests.size) == 0
+    kept |= knocked_out[owner]  # a rest that is all knock keeps its samples
+    n = np.bincount(owner, weights=kept, minlength=rests.size)
+    w = kept[:, None]
+    m = np.stack([np.bincount(owner, weights=x[:, i] * kept, minlength=rests.size) for i in range(3)], axis=1) / n[:, None]
+    mean[rests] = m
+    count[rests] = n
+    ss = ((x - m[owner]) ** 2 * w).sum(axis=0)
+    sigma[:] = np.maximum(np.sqrt(ss / max(float((n - 1).sum()), 1.0)), MIN_SIGMA_DPS)

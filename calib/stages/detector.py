@@ -254,14 +254,22 @@ class StageTracker(StageBook):
         same[1:] = x[1:] == x[:-1]
         idx = np.arange(k)[:, None]
         last_change = np.maximum.accumulate(np.where(same, -1, idx), axis=0)
-        run_len = np.where(last_change >= 0, idx - last_change + 1, self._clip_len + idx + 1)
-        equal = self._equal_pairs + np.cumsum(same, axis=0)
-        pairs = self._store.n + idx[:, 0]  # consecutive pairs up to each sample
-        needed = clip_run_needed(equal / np.maximum(pairs, 1)[:, None], cfg.clip_run, cfg.clip_chance)
+        equal_before = self._equal_pairs
+        clip_len_before = self._clip_len
         self._clip_max = run_max[-1].copy()
-        self._clip_len = run_len[-1].copy()
-        self._equal_pairs = equal[-1].copy()
-        return np.any((run_len >= needed) & (a >= cfg.clip_min_dps) & (a >= run_max), axis=1)
+        self._clip_len = np.where(last_change[-1] >= 0, k - last_change[-1], clip_len_before + k)
+        self._equal_pairs = equal_before + same.sum(axis=0)
+        # only a reading at the running maximum (and above clip_min_dps) can be a clipped one: the run lengths and
+        # the run each needs are found for those alone
+        rows, axes = np.nonzero((a >= cfg.clip_min_dps) & (a >= run_max))
+        out = np.zeros(k, dtype=bool)
+        if rows.size:
+            change = last_change[rows, axes]
+            run_len = np.where(change >= 0, rows - change + 1, clip_len_before[axes] + rows + 1)
+            equal = equal_before[axes] + np.cumsum(same, axis=0)[rows, axes]
+            pairs = np.maximum(self._store.n + rows, 1)
+            out[rows[run_len >= clip_run_needed(equal / pairs, cfg.clip_run, cfg.clip_chance)]] = True
+        return out
 
     def _update_floor(self) -> None:
         done = self._store.n // self._nb
@@ -314,7 +322,7 @@ class StageTracker(StageBook):
             lo = np.minimum(lo, max(0, n - w))
         hi = np.minimum(lo + w, n)
         length = (hi - lo)[:, None]
-        s = st.p[hi - st.base] - st.p[lo - st.base]
+        s = st.p[hi - st.base, :6] - st.p[lo - st.base, :6]  # the S1 and S2 columns only
         level = s[:, S1] / length  # window mean - x0
         var = np.maximum(s[:, S2] / length - level**2, 0.0)
         noise = np.sqrt(var.mean(axis=1))
@@ -341,8 +349,8 @@ class StageTracker(StageBook):
         def leaves(a: int, b: int) -> np.ndarray:
             # |level_i - level_j| <= tol + drift (t_i - t_j) for every earlier sample j of the run.
             # Carries the envelope on to b; past a leaving sample it is not used again.
-            lo_env = np.minimum.accumulate(np.vstack([self._env_lo, low[a:b]]), axis=0)[1:]
-            hi_env = np.maximum.accumulate(np.vstack([self._env_hi, high[a:b]]), axis=0)[1:]
+            lo_env = np.minimum(np.minimum.accumulate(low[a:b], axis=0), self._env_lo)
+            hi_env = np.maximum(np.maximum.accumulate(high[a:b], axis=0), self._env_hi)
             self._env_lo, self._env_hi = lo_env[-1], hi_env[-1]
             off = np.any((low[a:b] - tol[a:b] > lo_env) | (high[a:b] + tol[a:b] < hi_env), axis=1)
             return loud[a:b] | off

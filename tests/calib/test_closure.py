@@ -187,6 +187,60 @@ def test_batch_and_single_recording_estimators_agree():
         assert np.allclose(out["std"][r], std, rtol=1e-3)
 
 
+@pytest.mark.parametrize("extended", [False, True])
+def test_the_fast_fit_lands_where_the_damped_fit_does(extended):
+    # Gauss-Newton re-weighted at each step and least_squares re-weighted until the weights settle solve one
+    # equation (the gradient at the solution's weights is zero): their answers agree far inside the uncertainty
+    from calib.estimators.closure import estimator as closure
+
+    diag_axes = [np.array(v, dtype=float) for v in ((1, 1, 0), (0, 1, 1), (1, 0, 1))]
+    proto = script(*(Turn(a, 360.0, 3.5) for a in ("x", "y", "z", *diag_axes)))
+    effect = AxisMisalignment(np.array([0.01, -0.008, 0.006]))
+    for seed in (40, 41, 42):
+        rec, truth = simulate(seed, noise=0.1, script=proto, effects=(effect,))
+        used = []
+        real_gn = closure._gauss_newton
+
+        def spy(*args, real_gn=real_gn, used=used):
+            out = real_gn(*args)
+            used.append(out is not None)
+            return out
+
+        closure._gauss_newton = spy
+        try:
+            fast = calibrate_closure(rec, list(truth.stages), extended=extended, heading_prior_deg=EXACT)
+            closure._gauss_newton = lambda *args: None  # the damped fit alone
+            damped = calibrate_closure(rec, list(truth.stages), extended=extended, heading_prior_deg=EXACT)
+        finally:
+            closure._gauss_newton = real_gn
+        assert used and all(used)  # the fast path took every fit of this recording
+        assert np.all(np.abs(fast.k - damped.k) < 1e-2 * damped.k_std)
+        assert np.all(np.abs(fast.b - damped.b) < 1e-2 * damped.b_std)
+        assert np.allclose(fast.k_std, damped.k_std, rtol=1e-2)
+        if extended:
+            assert fast.K is not None and damped.K is not None and damped.K_std is not None
+            assert np.all(np.abs(fast.K - damped.K)[np.triu_indices(3)] < 1e-2 * damped.K_std[np.triu_indices(3)])
+
+
+def test_the_extended_models_bound_from_a_diagonal_fits_closure_terms_is_the_one_computed_afresh():
+    from calib.estimators.closure.estimator import offdiag_bounds
+    from calib.estimators.closure.fit import ClosureData, system
+    from calib.noise.rests import still_statistics
+    from calib.numerics.windows import windows
+    from calib.recording import sample_intervals
+
+    diag_axes = [np.array(v, dtype=float) for v in ((1, 1, 0), (0, 1, 1), (1, 0, 1))]
+    rec, truth = simulate(43, noise=0.05, script=script(*(Turn(a, 360.0, 3.5) for a in ("x", "y", "z", *diag_axes))))
+    turns = [s for s in truth.stages if s.kind == "turn"]
+    stills = [s for s in truth.stages if s.kind == "still"]
+    m, d = windows(rec.gyro[None], np.array([[[s.start, s.end] for s in turns]]), sample_intervals(rec.t)[None])
+    mean, count, sigma = still_statistics(rec.gyro[None], np.array([[[s.start, s.end] for s in stills]]))
+    data = ClosureData(m, d, mean, count, sigma)
+    theta = np.concatenate((truth.k, truth.b, np.zeros(3)))
+    terms = system(data, theta[None, :6], False).terms
+    assert np.allclose(offdiag_bounds(data, theta, terms), offdiag_bounds(data, theta), rtol=1e-12)
+
+
 def test_bound_is_the_closed_form_cramer_rao_bound_on_the_paper_protocol():
     for seed in (40, 41, 42):
         rec, truth = simulate(seed, noise=0.03)

@@ -19,6 +19,7 @@ or when some turns are about axes between the sensor axes.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -26,12 +27,22 @@ from scipy.optimize import least_squares
 
 from calib.distributions import chi2_sf
 from calib.errors import CalibrationError, ProtocolError
-from calib.estimators.closure.fit import OFF_DIAGONAL, ClosureData, ClosureFit, KPrior, start_values, system
+from calib.estimators.closure.fit import (
+    OFF_DIAGONAL,
+    ClosureData,
+    ClosureFit,
+    KPrior,
+    System,
+    assemble,
+    start_values,
+    system,
+)
 from calib.estimators.closure.partial import not_turned_text, partial_start, turned_axes
 from calib.estimators.closure.placement import check_heading_prior, placement_model
 from calib.estimators.closure.report import OFFDIAG_WARN, closure_result
 from calib.io.validation import check_calibration_input
 from calib.noise.rests import still_statistics
+from calib.numerics.rotation import ClosureTerms
 from calib.numerics.windows import windows
 from calib.quality import ModelChoice
 from calib.recording import Recording, sample_intervals
@@ -47,6 +58,8 @@ MAX_SWEPT_ERROR = 0.25  # ... nor is one the fit calibrates to sweep a quarter m
 EXTENDED_ALPHA = 0.01  # the extended model is chosen when its likelihood-ratio test is below this
 EXTENDED_FIT_MIN = 1e-3  # ... and when it explains the recording itself (its chi-square's p-value above this)
 OFFDIAG_FAIL = 0.05  # ... and worse than this, not identified at all
+GN_STEPS = 8  # Gauss-Newton steps before the damped fit takes over
+GN_TOL = 1e-3  # ... which has converged when no step is above this share of its parameter's standard error
 _LSQ = {"method": "lm", "xtol": 1e-10, "ftol": 1e-12, "gtol": 1e-10, "x_scale": "jac"}
 
 
@@ -122,7 +135,7 @@ def _choose_model(data: ClosureData, diagonal: ClosureFit) -> tuple[ClosureFit, 
     """The diagonal fit, or the extended one where the recording identifies its terms and needs them."""
     choice: ModelChoice = {"asked": None}
     start = np.concatenate((diagonal.theta, np.zeros(3)))
-    bound = offdiag_bounds(data, start)
+    bound = offdiag_bounds(data, start, diagonal.terms)
     choice["offdiag_bound"] = [float(v) for v in bound]
     if np.any(bound > OFFDIAG_WARN):
         choice["reason"] = (f"the non-orthogonality terms are not identified (standard errors up to {bound.max():.2g}, "
@@ -155,10 +168,10 @@ def _choose_model(data: ClosureData, diagonal: ClosureFit) -> tuple[ClosureFit, 
 
 def _solve(data: ClosureData, theta0: np.ndarray, extended: bool, not_turned: np.ndarray | None = None,
            k_prior: KPrior | None = None) -> ClosureFit:
-    """least_squares with the turn weights held fixed, re-weighted at its solution until they settle.
+    """The maximum-likelihood fit from ``theta0``: Gauss-Newton (one closure pass a step), or where its steps do not
+    settle, least_squares with the turn weights held fixed and re-weighted at its solution until they settle.
 
-    Residual-only evaluations use the cheap closure product; each Jacobian costs one full pass, and
-    the pass that sets the weights doubles as the first Jacobian and as the final one. ``not_turned`` (3,): axes no
+    ``not_turned`` (3,): axes no
     turn was about, whose scale factors only the hand's wobble informs: each gets the prior N(1, ``NOT_TURNED_K_SD``),
     a working sensor's range, so the turned axes' uncertainty includes what the others could be. ``k_prior``: what is
     known of K's entries (``KPrior``), each known one a prior too.
@@ -174,7 +187,56 @@ def _solve(data: ClosureData, theta0: np.ndarray, extended: bool, not_turned: np
     def with_prior(res: np.ndarray, th: np.ndarray) -> np.ndarray:
         return np.concatenate((res, (th[index] - centre) / spread))
 
-    theta = theta0
+    fast = _gauss_newton(data, theta0, extended, with_prior, prior_rows)
+    if fast is not None:
+        theta, current, nfev = fast
+        converged = True
+    else:
+        theta, current, nfev, converged = _least_squares(data, theta0, extended, with_prior, prior_rows)
+    jacobian = np.vstack((current.J[0], prior_rows))
+    return ClosureFit(
+        theta=theta,
+        res=with_prior(current.res[0], theta),
+        fisher=jacobian.T @ jacobian,
+        terms_r=current.terms.r,
+        swept=current.terms.swept,
+        chol=current.chol[0],
+        nfev=nfev,
+        converged=converged,
+        not_turned=held,
+        priors=int(index.size),
+        terms=current.terms,
+    )
+
+
+def _gauss_newton(data: ClosureData, theta: np.ndarray, extended: bool, with_prior: Callable[[np.ndarray, np.ndarray], np.ndarray],
+                  prior_rows: np.ndarray) -> tuple[np.ndarray, System, int] | None:
+    """Gauss-Newton from the linear start with the turn weights recomputed at each iterate: one closure pass a step, and
+    the same solution as ``_least_squares`` (both stop where the gradient at the weights of the solution is zero).
+    None when its steps do not shrink each time or do not settle within ``GN_STEPS``: the damped fit takes over."""
+    last = np.inf
+    for it in range(1, GN_STEPS + 1):
+        try:
+            current = system(data, theta[None], extended, jacobian=True)
+            jac = np.vstack((current.J[0], prior_rows))
+            A = jac.T @ jac
+            step = -np.linalg.solve(A, jac.T @ with_prior(current.res[0], theta))
+            std = np.sqrt(np.diag(np.linalg.inv(A)))
+        except np.linalg.LinAlgError:  # weights or normal equations lost their meaning on the way
+            return None
+        size = float(np.max(np.abs(step) / std))
+        if not np.isfinite(size) or size >= last:
+            return None
+        if size <= GN_TOL:
+            return theta, current, it
+        theta, last = theta + step, size
+    return None
+
+
+def _least_squares(data: ClosureData, theta: np.ndarray, extended: bool,
+                   with_prior: Callable[[np.ndarray, np.ndarray], np.ndarray],
+                   prior_rows: np.ndarray) -> tuple[np.ndarray, System, int, bool]:
+    """least_squares (damped) with the turn weights held fixed, re-weighted at its solution until they settle."""
     nfev = 0
     converged = False
     current = system(data, theta[None], extended, jacobian=True)  # weights at theta
@@ -209,19 +271,7 @@ def _solve(data: ClosureData, theta0: np.ndarray, extended: bool, not_turned: np
         change = np.max(np.abs(current.chol - chol) / np.abs(chol).max(axis=(-2, -1), keepdims=True))
         if change < 1e-2:
             break
-    jacobian = np.vstack((current.J[0], prior_rows))
-    return ClosureFit(
-        theta=theta,
-        res=with_prior(current.res[0], theta),
-        fisher=jacobian.T @ jacobian,
-        terms_r=current.terms.r,
-        swept=current.terms.swept,
-        chol=current.chol[0],
-        nfev=nfev,
-        converged=converged,
-        not_turned=held,
-        priors=int(index.size),
-    )
+    return theta, current, nfev, converged
 
 
 def _check_closed(turns: list[Stage], fit: ClosureFit, n_rev: np.ndarray) -> None:
@@ -246,9 +296,10 @@ def _check_closed(turns: list[Stage], fit: ClosureFit, n_rev: np.ndarray) -> Non
     )
 
 
-def offdiag_bounds(data: ClosureData, theta: np.ndarray) -> np.ndarray:
-    """Cramér-Rao standard errors (3,) of the non-orthogonality terms at ``theta`` (9,); inf where not identified."""
-    s = system(data, theta[None], True, jacobian=True)
+def offdiag_bounds(data: ClosureData, theta: np.ndarray, terms: ClosureTerms | None = None) -> np.ndarray:
+    """Cramér-Rao standard errors (3,) of the non-orthogonality terms at ``theta`` (9,); inf where not identified.
+    ``terms``: the turns' closure terms at theta already found (a diagonal fit's at its solution), else computed."""
+    s = system(data, theta[None], True) if terms is None else assemble(data, theta[None], True, terms)
     F = s.J[0].T @ s.J[0]
     scale = np.sqrt(np.diag(F))
     if np.any(scale <= 0):

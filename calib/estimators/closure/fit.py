@@ -169,19 +169,27 @@ def system(
     jacobian: bool = True,
 ) -> System:
     """Residuals (and Jacobian) at theta (R, P). Turn weights come from ``chol`` or are computed at theta."""
-    R, J, S = data.R, data.J, data.S
-    P = n_params(extended)
     K = calibration_matrix(theta)
-    b = theta[:, 3:6]
-    need_cov = chol is None
+    J = data.J
     terms = closure_terms(
         data.m,
         data.dt,
         np.repeat(K, J, axis=0),
-        np.repeat(b, J, axis=0),
-        sigma=np.repeat(data.sigma, J, axis=0) if need_cov else None,
-        jacobian=jacobian or need_cov,
+        np.repeat(theta[:, 3:6], J, axis=0),
+        sigma=np.repeat(data.sigma, J, axis=0) if chol is None else None,
+        jacobian=jacobian or chol is None,
     )
+    return assemble(data, theta, extended, terms, chol, jacobian)
+
+
+def assemble(data: ClosureData, theta: np.ndarray, extended: bool, terms: ClosureTerms, chol: np.ndarray | None = None,
+             jacobian: bool = True) -> System:
+    """The whitened system at theta from its turns' closure ``terms`` (those of the same K and b: a diagonal fit's serve
+    the extended model at zero non-orthogonality). Turn weights from ``chol``, else from ``terms.noise``."""
+    R, J, S = data.R, data.J, data.S
+    P = n_params(extended)
+    K = calibration_matrix(theta)
+    b = theta[:, 3:6]
     if chol is None:
         assert terms.noise is not None  # asked for with sigma
         cov = terms.noise.reshape(R, J, 3, 3)
@@ -317,6 +325,7 @@ class ClosureFit:
     converged: bool
     not_turned: np.ndarray | None = None  # (3,) axes no turn was about: their k had a prior, and is not determined
     priors: int = 0  # rows of prior knowledge among the residuals: each one observation more
+    terms: ClosureTerms | None = None  # the turns' closure terms at the solution (weights and Jacobian included)
 
 
 @dataclass(frozen=True, eq=False)
