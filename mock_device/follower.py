@@ -40,6 +40,9 @@ class SessionFollower:
         self._stop = threading.Event()
         self._woken = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"follow-{device_id}", daemon=True)
+        # one client for the thread's life: its connections are kept open between looks, and it is built once (a client
+        # loads the CA bundle as it is built, 20 ms of CPU, once a look while a stream is looked for)
+        self._http: httpx.Client | None = None
 
     def start(self) -> SessionFollower:
         # httpx logs every request at INFO: in the service's log, one line per look for a session, five a second
@@ -56,6 +59,15 @@ class SessionFollower:
         self._woken.set()
 
     def _run(self) -> None:
+        with httpx.Client(headers=self.headers) as self._http:
+            self._follow_all()
+
+    def _client(self) -> httpx.Client:
+        if self._http is None:
+            raise RuntimeError("the follower's client exists only on its own thread, once started")
+        return self._http
+
+    def _follow_all(self) -> None:
         done: set[str] = set()
         while not self._stop.is_set():
             woken = self._woken.wait(IDLE_LOOK_S)
@@ -82,14 +94,14 @@ class SessionFollower:
         return False
 
     def _active_session(self, base: str) -> str | None:
-        r = httpx.get(f"{base}/devices/{self.device_id}", headers=self.headers, timeout=5.0)
+        r = self._client().get(f"{base}/devices/{self.device_id}", timeout=5.0)
         return r.json().get("active_session") if r.status_code == 200 else None
 
     def _follow_verification(self, base: str, vid: str) -> None:
         """A verification turn (``GET /verifications/{id}``, polled as the page does): when it asks for the turn, the
         hand is told what a guided session's ready-for-x prompt tells it."""
         while not self._stop.is_set():
-            r = httpx.get(f"{base}/verifications/{vid}", headers=self.headers, timeout=5.0)
+            r = self._client().get(f"{base}/verifications/{vid}", timeout=5.0)
             if r.status_code != 200:
                 return
             state = r.json().get("state")
@@ -118,7 +130,7 @@ class SessionFollower:
     def _follow_stream(self, base: str, sid: str, deadline: float) -> bool:
         """One connection to the session's events; whether the session is over for this follower (it ended, it is a
         verification followed to its end, it is gone, or the follower stops)."""
-        with httpx.stream("GET", f"{base}/sessions/{sid}/events", headers=self.headers, timeout=httpx.Timeout(30.0)) as r:
+        with self._client().stream("GET", f"{base}/sessions/{sid}/events", timeout=httpx.Timeout(30.0)) as r:
             if r.status_code == 404:  # not a guided session: a verification turn
                 self._follow_verification(base, sid)
                 return True
@@ -148,7 +160,7 @@ class KitFollower(SessionFollower):
 
     def _active_session(self, base: str) -> str | None:
         for device_id in self.device_ids:
-            r = httpx.get(f"{base}/devices/{device_id}", headers=self.headers, timeout=5.0)
+            r = self._client().get(f"{base}/devices/{device_id}", timeout=5.0)
             kit = r.json().get("active_kit") if r.status_code == 200 else None
             if kit:
                 return str(kit)

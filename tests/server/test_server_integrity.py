@@ -53,7 +53,7 @@ def _at_once(svc: RunningService, sid: str, actions: list[str]) -> list[httpx.Re
 
     def post(action: str) -> Callable[[], httpx.Response]:
         def call() -> httpx.Response:
-            with httpx.Client(base_url=svc.base, headers={"Authorization": f"Bearer {API_TOKEN}"}, timeout=60) as c:
+            with httpx.Client(base_url=svc.base, headers={"Authorization": f"Bearer {API_TOKEN}"}, timeout=60, verify=False) as c:
                 return c.post(f"/sessions/{sid}/{action}")
 
         return call
