@@ -9,6 +9,7 @@ import numpy as np
 from calib.diagnosis.data import Problem
 from calib.diagnosis.engine import Priors, System, Variance, system
 from calib.diagnosis.models import Model
+from calib.numerics.gram import gram
 
 # a deviance change this small is no change: no test, criterion or interval the diagnosis reports can feel it, and
 # chasing it (a Gauss-Newton step that ignores a variance model's log-determinant rises by about this much near the
@@ -77,7 +78,7 @@ def gauss_newton(
     it = 0
     rank = np.zeros(R, dtype=np.int64)
     for it in range(1, max_iter + 1):  # noqa: B007 - the count is returned after the loop
-        A = np.einsum("rmp,rmq->rpq", sys_.J, sys_.J)
+        A = gram(sys_.J)
         g = np.einsum("rmp,rm->rp", sys_.J, sys_.res)
         step, rank = pinv_solve(A, -g)
         std = np.sqrt(np.maximum(np.einsum("rpp->rp", covariance(A)), 0.0))
@@ -115,7 +116,7 @@ def gauss_newton(
         conv = conv | small | settled
         if conv.all():
             break
-    A = np.einsum("rmp,rmq->rpq", sys_.J, sys_.J)
+    A = gram(sys_.J)
     _, rank = pinv_solve(A, np.zeros((R, model.P)))
     M = sys_.res.shape[1] - 3 * int(prob.layout.moves.sum())  # a re-orientation's closure rows are empty
     dof = M - rank

@@ -27,6 +27,7 @@ from calib.distributions import norm_sf
 from calib.effects import CATALOGUE
 from calib.errors import GyrocalError, ProtocolError, RecordingError, RecordingTooLong
 from calib.io.section import Section
+from calib.numerics.gram import gram
 from calib.pipeline import pointing_to, protocol_stages
 from calib.recording import Recording
 from calib.stages.plateaus import Plateau, find_plateaus
@@ -338,7 +339,7 @@ def _one_step(prob: Problem, model: Model, psi: np.ndarray, priors: Priors | Non
     from calib.diagnosis.gauss_newton import pinv_solve
 
     sys_ = system(prob, model, psi, priors)
-    A = np.einsum("rmp,rmq->rpq", sys_.J, sys_.J)
+    A = gram(sys_.J)
     g = np.einsum("rmp,rm->rp", sys_.J, sys_.res)
     step, _ = pinv_solve(A, -g)
     return psi + step

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from calib.diagnosis.engine import System
+from calib.numerics.gram import gram
 
 
 def score_statistic(
@@ -23,7 +24,7 @@ def score_statistic(
         Jt = Jt @ V
     e = sys_.res
     # project the test columns and the residual off the base columns
-    A = np.einsum("rmp,rmq->rpq", Jb, Jb)
+    A = gram(Jb)
     d = np.sqrt(np.maximum(np.einsum("rpp->rp", A), 1e-300))
     An = A / (d[:, :, None] * d[:, None, :])
     w, V = np.linalg.eigh(An)
@@ -35,7 +36,7 @@ def score_statistic(
     perp = rhs - Jb @ (Ainv @ (JbT @ rhs))
     Jt_perp, e_perp = perp[..., :-1], perp[..., -1]
     g = np.einsum("rmt,rm->rt", Jt_perp, e_perp)
-    I = np.einsum("rmt,rmu->rtu", Jt_perp, Jt_perp)
+    I = gram(Jt_perp)
     # a test direction counts only if it is informed well beyond the rounding of the base projection
     scale = np.sqrt(np.maximum(np.einsum("rmt,rmt->rt", Jt, Jt), 1e-300))
     In = I / (scale[:, :, None] * scale[:, None, :])

@@ -31,6 +31,7 @@ from calib.diagnosis.scores import profile_information, score_statistic
 from calib.diagnosis.variance import instability_noncentrality, instability_score, placement_score
 from calib.distributions import chi2_sf
 from calib.effects import catalogue_specs
+from calib.numerics.gram import gram
 
 ALPHA = 0.05  # family-wise false-positive rate on recordings the nominal model explains
 IDENTIFY_MIN = 9.0  # noncentrality a typical effect must reach for the protocol to reveal it
@@ -120,7 +121,7 @@ def plan_tests(
     union = base.with_effects(*keys)
     psi = union.zeros(base_fit.psi, base)
     sys_ = system(prob, union, psi, extend_priors(priors, base, union))
-    F = np.einsum("rmp,rmq->rpq", sys_.J, sys_.J)
+    F = gram(sys_.J)
     base_idx = np.concatenate([np.arange(union.P)[union.slices[e]] for e in ("k", "b", *base.slices) if e not in ("k", "b")]
                               + [np.arange(6)])
     base_idx = np.unique(base_idx)

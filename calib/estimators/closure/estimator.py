@@ -6,7 +6,8 @@ revolution. Each turn gives the 3-D closing rotation r_j = Log(prod_t Exp((K m_t
 must be 0; each still segment gives its mean reading, which must be -K^-1 b. Both are weighted by the
 covariance white reading noise gives them (the noise level comes from the stills), and the weighted
 sum of squares is minimised by Gauss-Newton with the analytic Jacobian (calib.numerics.rotation,
-calib.estimators.closure.fit), or by scipy.optimize.least_squares where its steps do not settle. Any number of turns, in either direction, about any axis.
+calib.estimators.closure.fit), or by scipy.optimize.least_squares where its steps do not settle. Any number of
+turns, in either direction, about any axis.
 
 Uncertainty: the inverse of J^T J (whitened Jacobian at the solution) is the Cramer-Rao bound for the
 recording; the reported standard errors are that bound scaled by the Birge ratio sqrt(chi2/dof) when

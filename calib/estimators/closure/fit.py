@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from calib.numerics.gram import gram
 from calib.numerics.rotation import ClosureTerms, closure_terms
 from calib.numerics.windows import solve_lower
 from calib.units import FULL_TURN_DEG
@@ -270,7 +271,7 @@ def gauss_newton(
             break
         sub = data.runs(active)
         sys_ = system(sub, theta[active], extended)
-        A = np.einsum("rmp,rmq->rpq", sys_.J, sys_.J)
+        A = gram(sys_.J)
         g = np.einsum("rmp,rm->rp", sys_.J, sys_.res)
         try:
             step = -np.linalg.solve(A, g[..., None])[..., 0]
