@@ -322,7 +322,7 @@ class StageTracker(StageBook):
             lo = np.minimum(lo, max(0, n - w))
         hi = np.minimum(lo + w, n)
         length = (hi - lo)[:, None]
-        s = st.p[hi - st.base, :6] - st.p[lo - st.base, :6]  # the S1 and S2 columns only
+        s = st.p[hi - st.base, : S2.stop] - st.p[lo - st.base, : S2.stop]  # the S1 and S2 columns only
         level = s[:, S1] / length  # window mean - x0
         var = np.maximum(s[:, S2] / length - level**2, 0.0)
         noise = np.sqrt(var.mean(axis=1))

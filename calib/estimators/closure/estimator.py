@@ -199,14 +199,12 @@ def _solve(data: ClosureData, theta0: np.ndarray, extended: bool, not_turned: np
         theta=theta,
         res=with_prior(current.res[0], theta),
         fisher=jacobian.T @ jacobian,
-        terms_r=current.terms.r,
-        swept=current.terms.swept,
+        terms=current.terms,
         chol=current.chol[0],
         nfev=nfev,
         converged=converged,
         not_turned=held,
         priors=int(index.size),
-        terms=current.terms,
     )
 
 
@@ -220,9 +218,9 @@ def _gauss_newton(data: ClosureData, theta: np.ndarray, extended: bool, with_pri
         try:
             current = system(data, theta[None], extended, jacobian=True)
             jac = np.vstack((current.J[0], prior_rows))
-            A = jac.T @ jac
-            step = -np.linalg.solve(A, jac.T @ with_prior(current.res[0], theta))
-            std = np.sqrt(np.diag(np.linalg.inv(A)))
+            cov = np.linalg.inv(jac.T @ jac)
+            step = -cov @ (jac.T @ with_prior(current.res[0], theta))
+            std = np.sqrt(np.diag(cov))
         except np.linalg.LinAlgError:  # weights or normal equations lost their meaning on the way
             return None
         size = float(np.max(np.abs(step) / std))

@@ -319,14 +319,22 @@ class ClosureFit:
     theta: np.ndarray
     res: np.ndarray
     fisher: np.ndarray
-    terms_r: np.ndarray  # (J, 3) closing rotation vectors at the solution, rad
-    swept: np.ndarray  # (J, 3) integrated calibrated rate per turn, deg
+    terms: ClosureTerms  # the turns' closure terms at the solution (their Jacobian and noise included)
     chol: np.ndarray  # (J, 3, 3)
     nfev: int
     converged: bool
     not_turned: np.ndarray | None = None  # (3,) axes no turn was about: their k had a prior, and is not determined
     priors: int = 0  # rows of prior knowledge among the residuals: each one observation more
-    terms: ClosureTerms | None = None  # the turns' closure terms at the solution (weights and Jacobian included)
+
+    @property
+    def terms_r(self) -> np.ndarray:
+        """(J, 3) closing rotation vectors at the solution, rad."""
+        return self.terms.r
+
+    @property
+    def swept(self) -> np.ndarray:
+        """(J, 3) integrated calibrated rate per turn, deg."""
+        return self.terms.swept
 
 
 @dataclass(frozen=True, eq=False)
