@@ -122,6 +122,7 @@ def apply_model(x: np.ndarray, raw: np.ndarray) -> np.ndarray:
 
 
 NOMINAL = np.array([1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+DISTINCT_DEG = 10.0  # rests whose gravity directions lie closer than this give one equation twice, not two
 SCALE_SPAN = 1.0  # an axis's scale needs rests with it pointing well up and well down (span of its gravity share)
 OFFSET_SPAN = 0.5  # its offset, rests with it tilted clearly different ways
 
@@ -149,21 +150,40 @@ def _jacobian(x: np.ndarray, free: np.ndarray, means: np.ndarray) -> np.ndarray:
     return jac[:, free]
 
 
+def distinct_orientations(means: np.ndarray) -> int:
+    """How many of the rests' gravity directions differ by ``DISTINCT_DEG`` or more: each group of rests closer than
+    that to the first of it counts once (a pose rested in twice gives the fit one equation, not two)."""
+    u = means / np.linalg.norm(means, axis=1, keepdims=True)
+    close = u @ u.T > np.cos(np.radians(DISTINCT_DEG))
+    counted = np.zeros(u.shape[0], dtype=bool)
+    groups = 0
+    for i in range(u.shape[0]):
+        if not counted[i]:
+            groups += 1
+            counted |= close[i]
+    return groups
+
+
 def _plans(means: np.ndarray) -> list[tuple[np.ndarray, str]]:
-    """The parameter sets to try, largest first, each with what it leaves out: what the rests' orientations allow."""
+    """The parameter sets to try, largest first, each with what it leaves out: what the rests' orientations allow.
+    A plan needs more rests than parameters and at least as many distinct orientations as parameters (fewer leave
+    a direction of the parameters no rest sees, along which a fit only wanders)."""
     u = means / np.linalg.norm(means, axis=1, keepdims=True)
     span = u.max(axis=0) - u.min(axis=0)
     scale_ok, offset_ok = span >= SCALE_SPAN, span >= OFFSET_SPAN
-    N = means.shape[0]
+    N, distinct = means.shape[0], distinct_orientations(means)
     held = [f"{ax}'s scale (the {ax} axis never pointed well up and well down)" for ax, ok in zip("xyz", scale_ok, strict=True) if not ok]
     held += [f"{ax}'s offset (the {ax} axis hardly changed its tilt)" for ax, ok in zip("xyz", offset_ok, strict=True) if not ok]
     base = np.concatenate([scale_ok, offset_ok, np.zeros(3, dtype=bool)])
     plans = []
-    if scale_ok.all() and N >= MIN_RESTS[9]:
+    if scale_ok.all() and N >= MIN_RESTS[9] and distinct >= 9:
         plans.append((np.concatenate([base[:6], np.ones(3, dtype=bool)]), held))
-    plans.append((base, [*held, "the misalignment" + ("" if N >= MIN_RESTS[9] else f" ({MIN_RESTS[9]} rests needed, {N} given)")]))
+    why = ("" if N >= MIN_RESTS[9] else f" ({MIN_RESTS[9]} rests needed, {N} given)") or (
+        "" if distinct >= 9 else f" (rests in 9 different orientations needed, {distinct} given)")
+    plans.append((base, [*held, "the misalignment" + why]))
     plans.append((np.concatenate([np.zeros(3, dtype=bool), offset_ok, np.zeros(3, dtype=bool)]), [*held, "the scale factors"]))
-    return [(free, "held at nominal: " + "; ".join(h) if h else "") for free, h in plans if free.sum() and N >= free.sum() + 1]
+    return [(free, "held at nominal: " + "; ".join(h) if h else "") for free, h in plans
+            if free.sum() and N >= free.sum() + 1 and distinct >= free.sum()]
 
 
 def fit_accelerometer(means: np.ndarray) -> AccelCalibration:

@@ -71,22 +71,24 @@ def _leave_out_knocks(gyro: np.ndarray, bounds: np.ndarray, mean: np.ndarray, co
     length = b - a
     first = np.concatenate(([0], np.cumsum(length)[:-1]))  # where each rest begins among the rests' samples
     owner = np.repeat(np.arange(rests.size), length)
-    pos = np.arange(length.sum()) - first[owner]  # index of each sample inside its rest
-    x = gyro[a[owner] + pos]
-    devs = x - mean[rests][owner]
-    scale = np.maximum(1.4826 * np.median(np.abs(devs), axis=0), MIN_SIGMA_DPS)
-    burst = np.any(np.abs(devs) > KNOCK_SIGMA * scale, axis=1)
+    start = first[owner]
+    pos = np.arange(length.sum()) - start  # index of each sample inside its rest
+    # axis-major (3, samples): every step below runs along contiguous rows
+    x = np.ascontiguousarray(gyro.T)[:, a[owner] + pos]
+    devs = np.abs(x - mean[rests].T[:, owner])
+    scale = np.maximum(1.4826 * np.median(devs, axis=1), MIN_SIGMA_DPS)
+    burst = np.any(devs > KNOCK_SIGMA * scale[:, None], axis=0)
     # a burst's ring: every sample within KNOCK_RING of one, inside the same rest
     ring = np.concatenate(([0], np.cumsum(burst)))
-    lo = first[owner] + np.maximum(pos - KNOCK_RING, 0)
-    hi = first[owner] + np.minimum(pos + KNOCK_RING + 1, length[owner])
+    lo = start + np.maximum(pos - KNOCK_RING, 0)
+    hi = start + np.minimum(pos + KNOCK_RING + 1, length[owner])
     kept = (ring[hi] - ring[lo]) == 0
-    knocked_out = np.bincount(owner, weights=kept, minlength=rests.size) == 0
-    kept |= knocked_out[owner]  # a rest that is all knock keeps its samples
-    n = np.bincount(owner, weights=kept, minlength=rests.size)
-    w = kept[:, None]
-    m = np.stack([np.bincount(owner, weights=x[:, i] * kept, minlength=rests.size) for i in range(3)], axis=1) / n[:, None]
-    mean[rests] = m
+    n = np.add.reduceat(kept, first).astype(float)
+    kept |= (n == 0)[owner]  # a rest that is all knock keeps its samples
+    n = np.where(n == 0, length, n)
+    xk = x * kept
+    m = np.add.reduceat(xk, first, axis=1) / n  # (3, rests)
+    mean[rests] = m.T
     count[rests] = n
-    ss = ((x - m[owner]) ** 2 * w).sum(axis=0)
+    ss = (((x - m[:, owner]) ** 2) * kept).sum(axis=1)
     sigma[:] = np.maximum(np.sqrt(ss / max(float((n - 1).sum()), 1.0)), MIN_SIGMA_DPS)

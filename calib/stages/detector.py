@@ -339,6 +339,7 @@ class StageTracker(StageBook):
         t = st.t[i - st.base]
         low = level - drift * (t - self._t0)[:, None]
         high = level + drift * (t - self._t0)[:, None]
+        low_out, high_out = low - tol, high + tol  # a sample leaves once these pass the run's envelope
 
         def enters(a: int, b: int) -> np.ndarray:
             if self._bias_before is None:  # no still yet: only a plausible zero-rate offset
@@ -352,8 +353,8 @@ class StageTracker(StageBook):
             lo_env = np.minimum(np.minimum.accumulate(low[a:b], axis=0), self._env_lo)
             hi_env = np.maximum(np.maximum.accumulate(high[a:b], axis=0), self._env_hi)
             self._env_lo, self._env_hi = lo_env[-1], hi_env[-1]
-            off = np.any((low[a:b] - tol[a:b] > lo_env) | (high[a:b] + tol[a:b] < hi_env), axis=1)
-            return loud[a:b] | off
+            off = (low_out[a:b] > lo_env) | (high_out[a:b] < hi_env)
+            return loud[a:b] | off[:, 0] | off[:, 1] | off[:, 2]
 
         # Walk the runs of equal state (few per second), each found by a vectorised search. A run's
         # search depends on the one before: entering compares with the still closed last.
@@ -379,7 +380,7 @@ def _first_true(cond: Callable[[int, int], np.ndarray], start: int, stop: int) -
 
     Looks ahead in doubling chunks, so finding a change costs about its distance, not stop - start.
     """
-    a, step = start, 64
+    a, step = start, 256
     while a < stop:
         b = min(stop, a + step)
         hit = np.flatnonzero(cond(a, b))
