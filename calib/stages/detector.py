@@ -252,23 +252,23 @@ class StageTracker(StageBook):
         same = np.empty((k, 3), dtype=bool)
         same[0] = x[0] == self._last_x if self._store.n > 0 else False
         same[1:] = x[1:] == x[:-1]
-        idx = np.arange(k)[:, None]
-        last_change = np.maximum.accumulate(np.where(same, -1, idx), axis=0)
-        equal_before = self._equal_pairs
-        clip_len_before = self._clip_len
-        self._clip_max = run_max[-1].copy()
-        self._clip_len = np.where(last_change[-1] >= 0, k - last_change[-1], clip_len_before + k)
-        self._equal_pairs = equal_before + same.sum(axis=0)
-        # only a reading at the running maximum (and above clip_min_dps) can be a clipped one: the run lengths and
-        # the run each needs are found for those alone
-        rows, axes = np.nonzero((a >= cfg.clip_min_dps) & (a >= run_max))
+        # only a reading at the running maximum (and above clip_min_dps) can be a clipped one: its run's length and
+        # the run it needs are found for those alone, from where each axis' readings last changed
+        candidate = (a >= cfg.clip_min_dps) & (a >= run_max)
         out = np.zeros(k, dtype=bool)
-        if rows.size:
-            change = last_change[rows, axes]
-            run_len = np.where(change >= 0, rows - change + 1, clip_len_before[axes] + rows + 1)
-            equal = equal_before[axes] + np.cumsum(same, axis=0)[rows, axes]
-            pairs = np.maximum(self._store.n + rows, 1)
-            out[rows[run_len >= clip_run_needed(equal / pairs, cfg.clip_run, cfg.clip_chance)]] = True
+        for axis in range(3):
+            changes = np.flatnonzero(~same[:, axis])  # samples that differ from the one before
+            rows = np.flatnonzero(candidate[:, axis])
+            if rows.size:
+                before = np.searchsorted(changes, rows, side="right") - 1  # the last change at or before each row
+                last = changes[np.maximum(before, 0)] if changes.size else rows
+                run_len = np.where(before >= 0, rows - last + 1, self._clip_len[axis] + rows + 1)
+                equal = self._equal_pairs[axis] + rows - before  # equal neighbours so far, the row's own included
+                pairs = np.maximum(self._store.n + rows, 1)
+                out[rows[run_len >= clip_run_needed(equal / pairs, cfg.clip_run, cfg.clip_chance)]] = True
+            self._clip_len[axis] = k - changes[-1] if changes.size else self._clip_len[axis] + k
+            self._equal_pairs[axis] += k - changes.size
+        self._clip_max = run_max[-1].copy()
         return out
 
     def _update_floor(self) -> None:
@@ -358,9 +358,17 @@ class StageTracker(StageBook):
 
         # Walk the runs of equal state (few per second), each found by a vectorised search. A run's
         # search depends on the one before: entering compares with the still closed last.
+        # Where each search can end is known from the window noise alone: a still run lasts at most to the next loud
+        # sample, and a motion cannot end before the next quiet one.
+        loud_at, quiet_at = np.flatnonzero(loud), np.flatnonzero(quiet)
         state, a, search = bool(self._state), 0, 0
         while True:
-            k = _first_true(leaves if state else enters, search, i.size)
+            if state:
+                nxt = _next_at(loud_at, search)
+                k = _first_true(leaves, search, i.size, None if nxt is None else nxt + 1)
+            else:
+                nxt = _next_at(quiet_at, search)
+                k = None if nxt is None else _first_true(enters, nxt, i.size)
             b = i.size if k is None else k
             if b > a:
                 self._set_state(i0 + a, state)
@@ -375,14 +383,21 @@ class StageTracker(StageBook):
         self._next = i1
 
 
-def _first_true(cond: Callable[[int, int], np.ndarray], start: int, stop: int) -> int | None:
+def _next_at(indices: np.ndarray, start: int) -> int | None:
+    """The first of the sorted ``indices`` at or after ``start``, else None."""
+    j = int(np.searchsorted(indices, start))
+    return int(indices[j]) if j < indices.size else None
+
+
+def _first_true(cond: Callable[[int, int], np.ndarray], start: int, stop: int, first_stop: int | None = None) -> int | None:
     """First index in [start, stop) where cond(a, b) (a bool array for a..b-1) holds, else None.
 
-    Looks ahead in doubling chunks, so finding a change costs about its distance, not stop - start.
+    Looks ahead in doubling chunks, so finding a change costs about its distance, not stop - start; the first chunk
+    ends at ``first_stop`` when given (where cond is known to hold).
     """
     a, step = start, 256
     while a < stop:
-        b = min(stop, a + step)
+        b = min(stop, a + step) if first_stop is None or a > start else min(stop, max(first_stop, a + 1))
         hit = np.flatnonzero(cond(a, b))
         if hit.size:
             return a + int(hit[0])

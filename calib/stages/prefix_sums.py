@@ -33,6 +33,8 @@ class PrefixStore:
         self.p = np.zeros((cap + 1, NCOL))  # p[r] = sums over samples before global index base + r
 
     def append(self, x: np.ndarray, t: np.ndarray, values: np.ndarray, keep_from: int) -> None:
+        """Add k samples (x (k, 3), t (k,)) with their per-sample ``values`` (k, NCOL), which are used up; rows
+        before ``keep_from`` may be dropped to make room."""
         k = t.size
         used = self.n - self.base
         if used + k > self.t.size:
@@ -52,7 +54,8 @@ class PrefixStore:
         self.x[used : used + k] = x
         self.t[used : used + k] = t
         # Running sums carry over exactly (cumsum adds in sample order), so any batching gives the same bits.
-        self.p[used : used + k + 1] = np.cumsum(np.concatenate([self.p[used : used + 1], values]), axis=0)
+        values[0] += self.p[used]  # the sum so far, added first: the same additions in the same order
+        np.cumsum(values, axis=0, out=self.p[used + 1 : used + k + 1])
         self.n += k
 
     def _local(self, i: int) -> int:

@@ -448,6 +448,11 @@ def test_saturation_flag_from_full_scale_and_from_clipping():
     unknown = detect_stages(rec.with_meta(gyro_full_scale_dps=None))
     assert [s.axis or s.kind for s in unknown if "saturated" in s.flags] == ["x"]
     assert [s.kind for s in unknown] == [s.kind for s in stages]
+    # the clipped runs carried across batches of any size (a run split between packets is one run)
+    rng = np.random.default_rng(6)
+    for sizes in (np.ones(len(rec), dtype=int), rng.integers(1, 9, size=len(rec)), rng.integers(50, 900, size=len(rec))):
+        tracker, _ = feed_in_batches(rec.with_meta(gyro_full_scale_dps=None), sizes)
+        assert_same_stages(tracker.stages, unknown)
 
 
 def test_no_saturation_flag_on_quantised_real_data(imucal_stages):
