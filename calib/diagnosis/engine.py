@@ -192,15 +192,16 @@ class Wander:
                                   shape=(a.size, nb))
 
     def offsets(self, e: np.ndarray, de: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The wander (L, R*J, 3) at the turn samples and its derivative (L, R*J, 3, Pr), from the still block
-        rates e (R, NB, 3) and their derivatives de (R, NB, 3, Pr)."""
+        """The wander x (L, R*J, 3) at the turn samples and its derivative (L, R*J, 3, Pr), from the still block
+        rates e (R, NB, 3) and their derivatives de (R, NB, 3, Pr). A rest's calibrated rate K m + b is -x (its true
+        rate is 0), so the wander is minus the rates' expected path."""
         R, NB, Pr = e.shape[0], e.shape[1], de.shape[-1]
         L, J = self.times.shape
         v = np.concatenate((e[..., None], de), axis=3).transpose(0, 2, 1, 3)  # (R, 3, NB, 1 + Pr)
         xs = self.blocks.smooth(v)
         cols = np.ascontiguousarray(xs.transpose(2, 0, 1, 3)).reshape(NB, -1)  # blocks first
         out = (self._bridge @ cols).reshape(L, J, R, 3, 1 + Pr).transpose(0, 2, 1, 3, 4).reshape(L, R * J, 3, 1 + Pr)
-        return out[..., 0], out[..., 1:]
+        return -out[..., 0], -out[..., 1:]
 
 
 def system(

@@ -17,6 +17,7 @@ from calib.diagnosis.report import write_report
 from calib.effects import (
     AxisMisalignment,
     BiasDrift,
+    BiasInstability,
     GSensitivity,
     ScaleAsymmetry,
     ScaleNonlinearity,
@@ -25,7 +26,7 @@ from calib.errors import RecordingError
 from calib.io.readers import read_recording, write_native_csv
 from calib.pipeline import calibrate
 from calib.recording import Recording
-from calib.simulator import ProtocolScript, Still, paper_protocol_script, simulate
+from calib.simulator import ProtocolScript, Still, Turn, paper_protocol_script, simulate
 from calib.simulator.concealed import EFFECT_NAMES, draw_concealed
 from calib.stages.detector import detect_stages
 
@@ -296,12 +297,12 @@ def test_how_visible_a_bias_instability_is_follows_noise_and_rest():
     assert "bias_instability" in reasons and "rest the device longer" in reasons["bias_instability"]
 
 
-@pytest.mark.parametrize("seed,temp,lead", [(28, False, "wander ahead within 4"), (68, False, "drift ahead by 1.8"),
-                                             (25, True, "drift ahead by 4.1")])
+@pytest.mark.parametrize("seed,temp,lead", [(38, False, "wander ahead within 4"), (37, False, "drift ahead by 3.9"),
+                                             (25, True, "wander ahead by 1.3")])
 def test_a_wandering_bias_is_told_from_a_drift_by_simulating_both(seed, temp, lead):
     """Still means that go up and down again: a steady drift fits them about as well as a wander, or even better
     by the criterion, yet simulations of that drift never leave it so small a lead; simulations of the wander do.
-    Within 4 the criterion's order does not decide: a drift ahead by 1.8 whose world is rejected gives way."""
+    Within 4 the criterion's order does not decide: a drift ahead by 3.9 whose world is rejected gives way."""
     case = draw_concealed(seed, "bias_instability", protocol="paper", with_accel=True, with_seq=True, with_temp=temp)
     d = diagnose(case.recording, n_boot=N_BOOT, seed=seed)
     assert d.names == ["bias_instability"], f"{lead}: named {d.names}"
@@ -310,6 +311,21 @@ def test_a_wandering_bias_is_told_from_a_drift_by_simulating_both(seed, temp, le
     assert test["p_value_rival"] < 0.05 <= test["p_value_named"]
     assert test["simulations_rival"] == 40 and test["as_far_rival"] <= 1
     assert "simulations of bias_drift" in test["summary"]
+
+
+def test_a_wander_carried_through_many_turns_leaves_no_effect_to_name_beside_it():
+    """30 turns between 8 s rests with a wandering bias and nothing else. A rest's calibrated rate is minus the wander,
+    so the wander carried into each turn is minus the rests' expected path: added with the rests' own sign it doubled
+    each turn's misclosure instead of taking it out, and a scale nonlinearity (seeds 3 and 4) was named to soak up what
+    was left. Now the turns close to their noise and the wander is named alone, its size recovered."""
+    script: list = [Still(20.0)]
+    for i in range(30):
+        script += [Turn("xyz"[i % 3], 360.0), Still(8.0)]
+    rec, truth = simulate(3, noise=0.05, fs=50.0, script=ProtocolScript(tuple(script)),
+                          effects=[BiasInstability(0.01, 20.0)])
+    d = diagnose(rec, n_boot=N_BOOT, seed=0)
+    assert d.names == ["bias_instability"], d.names
+    assert d.effects[0]["parameters"]["sigma_dps"] == pytest.approx(0.01, rel=0.3)
 
 
 def test_rival_test_verdicts():
@@ -326,7 +342,7 @@ def test_rival_test_verdicts():
 
 def test_cli_says_how_a_wander_was_told_from_a_drift(tmp_path, capsys):
     csv = tmp_path / "wander.csv"
-    write_native_csv(draw_concealed(28, "bias_instability").recording, csv)
+    write_native_csv(draw_concealed(38, "bias_instability").recording, csv)
     assert main(["diagnose", str(csv)]) == 0
     text = capsys.readouterr().out
     assert "bias_instability" in text and "told apart from bias_drift:" in text and "simulations of bias_drift" in text
