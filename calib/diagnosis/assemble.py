@@ -105,8 +105,10 @@ def assemble_diagnosis(rec, raw, host_t, prob, layout, tb, plateaus, fit0, base,
     clock = tb.clock_e is not None and abs(tb.clock_e) > CLOCK_MIN and abs(tb.clock_e) > CLOCK_Z * (tb.clock_std or 0.0)
     if clock:
         effects.append(describe_effect("clock_error", prob, layout, tb=tb))
-    for step, st in steps:
-        effects.append(describe_effect(step.name, prob, layout, step=step, state=st, tests=tests, duration=duration))
+    for step, _ in steps:
+        # each effect's size as the final model has it: an effect taken later can change an earlier one's (a drift tried
+        # on top of a wander gives the wander back its own correlation time)
+        effects.append(describe_effect(step.name, prob, layout, step=step, state=final, tests=tests, duration=duration))
     effects.sort(key=lambda e: -_importance(e))
 
     not_identifiable = [{"name": n, "reason": reason} for n, reason in not_ident.items()

@@ -19,7 +19,7 @@ def imu_tk_session(real_data: Path) -> Recording:
 
 
 # what the diagnosis names in the untouched session, as docs/real-data.md describes it: its own physics
-IMU_TK_OWN_EFFECTS = frozenset({"bias_instability", "axis_misalignment", "g_sensitivity", "scale_asymmetry", "bias_drift"})
+IMU_TK_OWN_EFFECTS = frozenset({"bias_instability", "axis_misalignment", "g_sensitivity", "scale_asymmetry"})
 
 
 @pytest.fixture(scope="session")
