@@ -10,7 +10,8 @@ import numpy as np
 
 from calib.errors import GyrocalError, RecordingError
 from calib.recording import Recording
-from calib.stages.config import LiveState, StageConfig, StageEvent, clip_run_needed
+from calib.stages.clipping import ClipTracker
+from calib.stages.config import LiveState, StageConfig, StageEvent
 from calib.stages.prefix_sums import DT, GAP, MDT, NCOL, S1, S2, SAT, TDT, PrefixStore, spread
 from calib.stages.segments import StageBook
 from calib.stages.stage import Stage
@@ -56,13 +57,10 @@ class StageTracker(StageBook):
         # Carries of the per-sample values across batches.
         self._x0: np.ndarray | None = None
         self._t0 = 0.0
-        self._last_x: np.ndarray | None = None
         self._last_t: float | None = None
         self._last_seq: int | None = None
         self._has_seq: bool | None = None
-        self._clip_max = np.zeros(3)
-        self._clip_len = np.zeros(3, dtype=np.int64)
-        self._equal_pairs = np.zeros(3, dtype=np.int64)  # consecutive readings so far that are equal, per axis
+        self._clipping = ClipTracker(cfg, full_scale_dps)
         # Noise floor.
         self._blocks = 0
         self._quietest: list[float] = []
@@ -219,7 +217,6 @@ class StageTracker(StageBook):
             )
         if self._x0 is None:
             self._x0, self._t0 = x[0].copy(), float(t[0])
-            self._last_x = x[0].copy()
         k = t.size
         xr = x - self._x0
         values = np.empty((k, NCOL))
@@ -228,7 +225,7 @@ class StageTracker(StageBook):
         values[:, DT] = dt
         values[:, MDT] = xr * dt[:, None]
         values[:, TDT] = (t - self._t0) * dt
-        values[:, SAT] = self._saturated(x)
+        values[:, SAT] = self._clipping.saturated(x)
         if seq is None:
             values[:, GAP] = 0.0
         else:
@@ -238,38 +235,7 @@ class StageTracker(StageBook):
             self._last_seq = int(seq[-1])
         keep_from = min(self._next, self._blocks * self._nb) - self._keep_back
         self._store.append(x, t, values, keep_from)
-        self._last_x = x[-1].copy()
         self._last_t = float(t[-1])
-
-    def _saturated(self, x: np.ndarray) -> np.ndarray:
-        a = np.abs(x)
-        cfg = self.config
-        if self.full_scale_dps is not None:
-            return np.any(a >= cfg.full_scale_fraction * self.full_scale_dps, axis=1)
-        # Clipping shows as runs of identical readings at the largest |value| seen so far.
-        k = x.shape[0]
-        run_max = np.maximum(np.maximum.accumulate(a, axis=0), self._clip_max)
-        same = np.empty((k, 3), dtype=bool)
-        same[0] = x[0] == self._last_x if self._store.n > 0 else False
-        same[1:] = x[1:] == x[:-1]
-        # only a reading at the running maximum (and above clip_min_dps) can be a clipped one: its run's length and
-        # the run it needs are found for those alone, from where each axis' readings last changed
-        candidate = (a >= cfg.clip_min_dps) & (a >= run_max)
-        out = np.zeros(k, dtype=bool)
-        for axis in range(3):
-            changes = np.flatnonzero(~same[:, axis])  # samples that differ from the one before
-            rows = np.flatnonzero(candidate[:, axis])
-            if rows.size:
-                before = np.searchsorted(changes, rows, side="right") - 1  # the last change at or before each row
-                last = changes[np.maximum(before, 0)] if changes.size else rows
-                run_len = np.where(before >= 0, rows - last + 1, self._clip_len[axis] + rows + 1)
-                equal = self._equal_pairs[axis] + rows - before  # equal neighbours so far, the row's own included
-                pairs = np.maximum(self._store.n + rows, 1)
-                out[rows[run_len >= clip_run_needed(equal / pairs, cfg.clip_run, cfg.clip_chance)]] = True
-            self._clip_len[axis] = k - changes[-1] if changes.size else self._clip_len[axis] + k
-            self._equal_pairs[axis] += k - changes.size
-        self._clip_max = run_max[-1].copy()
-        return out
 
     def _update_floor(self) -> None:
         done = self._store.n // self._nb
