@@ -73,9 +73,9 @@ def _leave_out_knocks(gyro: np.ndarray, bounds: np.ndarray, mean: np.ndarray, co
     owner = np.repeat(np.arange(rests.size), length)
     start = first[owner]
     pos = np.arange(length.sum()) - start  # index of each sample inside its rest
-    # axis-major (3, samples): every step below runs along contiguous rows
-    x = np.ascontiguousarray(gyro.T)[:, a[owner] + pos]
-    devs = np.abs(x - mean[rests].T[:, owner])
+    # axis-major (3, samples), each sample less its rest's mean: every step below runs along contiguous rows
+    d = np.concatenate([gyro[i:j] for i, j in zip(a, b, strict=True)]).T - np.repeat(mean[rests].T, length, axis=1)
+    devs = np.abs(d)
     scale = np.maximum(1.4826 * np.median(devs, axis=1), MIN_SIGMA_DPS)
     burst = np.any(devs > KNOCK_SIGMA * scale[:, None], axis=0)
     # a burst's ring: every sample within KNOCK_RING of one, inside the same rest
@@ -86,9 +86,8 @@ def _leave_out_knocks(gyro: np.ndarray, bounds: np.ndarray, mean: np.ndarray, co
     n = np.add.reduceat(kept, first).astype(float)
     kept |= (n == 0)[owner]  # a rest that is all knock keeps its samples
     n = np.where(n == 0, length, n)
-    xk = x * kept
-    m = np.add.reduceat(xk, first, axis=1) / n  # (3, rests)
-    mean[rests] = m.T
+    shift = np.add.reduceat(d * kept, first, axis=1) / n  # (3, rests): the kept samples' mean less the whole rest's
+    mean[rests] += shift.T
     count[rests] = n
-    ss = (((x - m[:, owner]) ** 2) * kept).sum(axis=1)
+    ss = (((d - np.repeat(shift, length, axis=1)) ** 2) * kept).sum(axis=1)
     sigma[:] = np.maximum(np.sqrt(ss / max(float((n - 1).sum()), 1.0)), MIN_SIGMA_DPS)
