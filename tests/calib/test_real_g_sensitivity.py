@@ -41,9 +41,9 @@ def test_calibrate_finds_the_added_g_sensitivity_and_keeps_k(session: Recording,
     assert np.linalg.norm(miss) < 0.2 * np.linalg.norm(G), (miss, G)
 
 
-def test_diagnose_names_the_g_sensitivity(session: Recording, imu_tk_own_effects: frozenset[str]) -> None:
+def test_diagnose_names_the_g_sensitivity(session: Recording, imu_tk_own_effects_20: frozenset[str]) -> None:
     assert session.accel is not None
-    found = diagnose(dataclasses.replace(session, gyro=session.gyro + session.accel @ _injected(1).T), n_boot=50)
+    found = diagnose(dataclasses.replace(session, gyro=session.gyro + session.accel @ _injected(1).T), n_boot=20)
     named = [e["name"] for e in found.effects]
     assert "g_sensitivity" in named, named
-    assert set(named) <= imu_tk_own_effects | {"g_sensitivity"}, (named, imu_tk_own_effects)
+    assert set(named) <= imu_tk_own_effects_20 | {"g_sensitivity"}, (named, imu_tk_own_effects_20)

@@ -70,12 +70,12 @@ def test_re_orientations_clipped_at_a_common_full_scale_are_left_out_and_named(r
 
 
 def test_diagnose_names_the_saturation_of_clipped_re_orientations(imu_tk_session: Recording,
-                                                                  imu_tk_own_effects: frozenset[str]) -> None:
+                                                                  imu_tk_own_effects_20: frozenset[str]) -> None:
     """The same clipped imu_tk session diagnosed: before, the clipped re-orientations stayed in the model and their
     short rotations were put down to a scale asymmetry and a bias drift, the wrong physics."""
-    found = diagnose(dataclasses.replace(imu_tk_session, gyro=np.clip(imu_tk_session.gyro, -125.0, 125.0)), n_boot=50)
+    found = diagnose(dataclasses.replace(imu_tk_session, gyro=np.clip(imu_tk_session.gyro, -125.0, 125.0)), n_boot=20)
     named = {e["name"]: e for e in found.effects}
     assert "saturation" in named and named["saturation"]["parameters"]["full_scale_dps"] == 125.0, list(named)
     assert named["saturation"]["parameters"]["clipped_turns"] == 9
     assert "re-orientation at" in " ".join(named["saturation"]["evidence"]["where"])
-    assert set(named) <= imu_tk_own_effects | {"saturation"}, (list(named), imu_tk_own_effects)
+    assert set(named) <= imu_tk_own_effects_20 | {"saturation"}, (list(named), imu_tk_own_effects_20)
