@@ -141,7 +141,7 @@ def fit_instability(prob: Problem, base: Fit, model: Model, start: tuple[float, 
         return _still_deviance(e, sd, tb, float(np.exp(log_s)), tau)
 
     best = (np.inf, scale, TAU_GRID_S[0])
-    grid = TAU_GRID_S + (300.0,) if start is None or start[0] <= 0 else TAU_GRID_S + (300.0, float(start[1]))
+    grid = TAU_GRID_S + (300.0,) + (() if start is None or start[0] <= 0 else (float(start[1]),))
     for tau in grid:
         r = minimize_scalar(lambda x, tau=tau: dev(x, tau), bounds=(np.log(scale * 0.05), np.log(scale * 200.0)),
                             method="bounded", options={"xatol": 0.05})

@@ -362,8 +362,10 @@ def _first_true(cond: Callable[[int, int], np.ndarray], start: int, stop: int, f
     ends at ``first_stop`` when given (where cond is known to hold).
     """
     a, step = start, 256
+    end = None if first_stop is None else max(first_stop, start + 1)  # the first chunk's end, when known
     while a < stop:
-        b = min(stop, a + step) if first_stop is None or a > start else min(stop, max(first_stop, a + 1))
+        b = min(stop, a + step if end is None else end)
+        end = None
         hit = np.flatnonzero(cond(a, b))
         if hit.size:
             return a + int(hit[0])
