@@ -77,8 +77,9 @@ class Recording:
     host_t: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        t = np.asarray(self.t, dtype=float)
-        gyro = np.asarray(self.gyro, dtype=float)
+        # contiguous: a column slice of a file's table would make every pass over the readings several times slower
+        t = np.ascontiguousarray(self.t, dtype=float)
+        gyro = np.ascontiguousarray(self.gyro, dtype=float)
         if t.ndim != 1 or gyro.shape != (t.size, 3):
             raise ValueError(f"Recording needs t of shape (n,) and gyro of shape (n, 3); got {t.shape} and {gyro.shape}")
         object.__setattr__(self, "t", t)
@@ -87,7 +88,7 @@ class Recording:
             value = getattr(self, name)
             if value is None:
                 continue
-            arr = np.asarray(value, dtype=np.int64 if name == "seq" else float)
+            arr = np.ascontiguousarray(value, dtype=np.int64 if name == "seq" else float)
             expected = (t.size, width) if width else (t.size,)
             if arr.shape != expected:
                 raise ValueError(f"Recording.{name} must have shape {expected}, got {arr.shape}")

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from calib.errors import CalibrationError
+from calib.numerics.windows import span_means
 from calib.quality import AccelerometerQuality
 from calib.recording import Recording
 from calib.stages.stage import Stage
@@ -231,8 +232,8 @@ def rest_means(rec: Recording, stills: list[Stage]) -> np.ndarray:
     """Mean accelerometer reading (g) of each still long enough to be trusted (``rest_spans``, ``MIN_REST_SAMPLES``)."""
     if rec.accel is None:
         raise AccelCalibrationError("the recording has no accelerometer channel")
-    out = [rec.accel[i:j].mean(axis=0) for i, j in rest_spans(stills, rec.fs) if j - i >= MIN_REST_SAMPLES]
-    return np.array(out).reshape(-1, 3)
+    spans = [(i, j) for i, j in rest_spans(stills, rec.fs) if j - i >= MIN_REST_SAMPLES]
+    return span_means(rec.accel, spans).reshape(-1, 3)
 
 
 def calibrate_accelerometer(rec: Recording, stills: list[Stage]) -> AccelCalibration:

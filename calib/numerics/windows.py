@@ -29,6 +29,24 @@ def windows(gyro: np.ndarray, bounds: np.ndarray, dt: float | np.ndarray) -> tup
     return m, d
 
 
+def span_means(x: np.ndarray, spans: np.ndarray | list[tuple[int, int]]) -> np.ndarray:
+    """Means of x (n, k) over the spans [start, end) (S, 2) of its rows: (S, k), NaN for an empty span. One pass when
+    the spans are in order and do not overlap (a recording's rests)."""
+    spans = np.asarray(spans, dtype=np.int64).reshape(-1, 2)
+    count = spans[:, 1] - spans[:, 0]
+    if spans.shape[0] == 0:
+        return np.zeros((0,) + x.shape[1:])
+    edges = spans.ravel()
+    if np.all(count > 0) and np.all(np.diff(edges) >= 0) and edges[0] >= 0:
+        tail = edges[-1] >= x.shape[0]  # reduceat takes no index past the end: the last span then runs to it
+        sums = np.add.reduceat(x, edges[:-1] if tail else edges, axis=0)[::2]
+    else:
+        c = np.concatenate((np.zeros((1,) + x.shape[1:]), np.cumsum(x, axis=0)))
+        sums = c[np.clip(spans[:, 1], 0, x.shape[0])] - c[np.clip(spans[:, 0], 0, x.shape[0])]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where((count > 0).reshape((-1,) + (1,) * (x.ndim - 1)), sums / count.reshape((-1,) + (1,) * (x.ndim - 1)), np.nan)
+
+
 def solve_lower(Lc: np.ndarray, x: np.ndarray) -> np.ndarray:
     """L^-1 x for batched lower-triangular L (..., 3, 3) and x (..., 3, k), by forward substitution."""
     y = np.empty_like(x)

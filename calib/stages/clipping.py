@@ -28,27 +28,44 @@ class ClipTracker:
         if self.full_scale_dps is not None:
             self._seen += k
             return np.any(a >= cfg.full_scale_fraction * self.full_scale_dps, axis=1)
-        run_max = np.maximum(np.maximum.accumulate(a, axis=0), self._max)
         same = np.empty((k, 3), dtype=bool)
         same[0] = x[0] == self._last if self._last is not None else False
         same[1:] = x[1:] == x[:-1]
-        # only a reading at the running maximum (and above clip_min_dps) can be a clipped one: its run's length and
-        # the run it needs are found for those alone, from where each axis' readings last changed
-        candidate = (a >= cfg.clip_min_dps) & (a >= run_max)
         out = np.zeros(k, dtype=bool)
         for axis in range(3):
-            changes = np.flatnonzero(~same[:, axis])  # readings that differ from the one before
-            rows = np.flatnonzero(candidate[:, axis])
-            if rows.size:
-                before = np.searchsorted(changes, rows, side="right") - 1  # the last change at or before each row
-                last = changes[np.maximum(before, 0)] if changes.size else rows
-                run_len = np.where(before >= 0, rows - last + 1, self._run[axis] + rows + 1)
-                equal = self._equal_pairs[axis] + rows - before  # equal neighbours so far, the row's own included
+            equal_at = np.flatnonzero(same[:, axis])  # readings equal to the one before
+            # only a reading at the running maximum (and above clip_min_dps) can be a clipped one, and every reading
+            # of its run of identical ones is as large: the runs are found among the large readings alone
+            big = np.flatnonzero(a[:, axis] >= cfg.clip_min_dps)
+            if big.size:
+                value = a[big, axis]
+                top = value >= np.maximum(np.maximum.accumulate(value), self._max[axis])
+                # a large reading continues a run when it is the next sample and equal to the one before
+                goes_on = same[big, axis]
+                goes_on[1:] &= np.diff(big) == 1
+                run_start = np.maximum.accumulate(np.where(goes_on, 0, np.arange(big.size)))
+                rows, first = big[top], run_start[top]
+                carried = goes_on[first]  # a run that began in an earlier batch (only the first large reading's)
+                run_len = rows - big[first] + 1 + np.where(carried, self._run[axis], 0)
+                equal = self._equal_pairs[axis] + np.searchsorted(equal_at, rows, side="right")
                 pairs = np.maximum(self._seen + rows, 1)
                 out[rows[run_len >= clip_run_needed(equal / pairs, cfg.clip_run, cfg.clip_chance)]] = True
-            self._run[axis] = k - changes[-1] if changes.size else self._run[axis] + k
-            self._equal_pairs[axis] += k - changes.size
-        self._max = run_max[-1].copy()
+                self._max[axis] = max(self._max[axis], float(value.max()))
+            self._run[axis] = _trailing_run(equal_at, k, int(self._run[axis]))
+            self._equal_pairs[axis] += equal_at.size
         self._last = x[-1].copy()
         self._seen += k
         return out
+
+
+def _trailing_run(equal_at: np.ndarray, k: int, run_before: int) -> int:
+    """The length of the run of identical readings ending at the last of k readings, from the sorted indices
+    ``equal_at`` of those equal to the reading before (the first to the previous batch's last, whose run was
+    ``run_before``)."""
+    tail = equal_at.size
+    if tail and equal_at[-1] == k - 1:
+        breaks = np.flatnonzero(equal_at != np.arange(k - tail, k))
+        tail -= int(breaks[-1]) + 1 if breaks.size else 0
+    else:
+        tail = 0
+    return run_before + k if tail == k else tail + 1

@@ -283,15 +283,18 @@ class StageTracker(StageBook):
         if i1 <= i0:
             return
         i = np.arange(i0, i1)
-        lo = np.maximum(i - h, 0)
-        if final:
-            lo = np.minimum(lo, max(0, n - w))
-        hi = np.minimum(lo + w, n)
-        length = (hi - lo)[:, None]
-        s = st.p[hi - st.base, : S2.stop] - st.p[lo - st.base, : S2.stop]  # the S1 and S2 columns only
+        # each sample's window: w samples centred on it, moved inside the recording at its ends (all of it when
+        # shorter); the windows' starts run through consecutive samples, so their sums come from two slices
+        length = min(w, n)
+        lo = np.clip(i - h, 0, n - length) if final else np.maximum(i - h, 0)
+        hi = lo + length
+        first, last = int(lo[0]) - st.base, int(lo[-1]) - st.base + 1
+        s = st.p[first + length : last + length, : S2.stop] - st.p[first:last, : S2.stop]  # the S1 and S2 columns only
+        if last - first != i.size:
+            s = s[lo - lo[0]]
         level = s[:, S1] / length  # window mean - x0
         var = np.maximum(s[:, S2] / length - level**2, 0.0)
-        noise = np.sqrt(var.mean(axis=1))
+        noise = np.sqrt((var[:, 0] + var[:, 1] + var[:, 2]) / 3.0)
         if self._blocks >= self._rank:
             floor = self._floor_after[np.maximum(hi // self._nb, self._rank)]
         else:
@@ -306,10 +309,12 @@ class StageTracker(StageBook):
         low = level - drift * (t - self._t0)[:, None]
         high = level + drift * (t - self._t0)[:, None]
         low_out, high_out = low - tol, high + tol  # a sample leaves once these pass the run's envelope
+        x0 = self._x0
+        assert x0 is not None  # set by the first batch appended
 
         def enters(a: int, b: int) -> np.ndarray:
             if self._bias_before is None:  # no still yet: only a plausible zero-rate offset
-                return quiet[a:b] & (np.abs(level[a:b] + self._x0).max(axis=1) <= cfg.max_zero_rate_dps)
+                return quiet[a:b] & (np.abs(level[a:b] + x0).max(axis=1) <= cfg.max_zero_rate_dps)
             allowed = tol[a:b] + drift * (t[a:b] - self._bias_before_t)[:, None]
             return quiet[a:b] & np.all(np.abs(level[a:b] - self._bias_before) <= allowed, axis=1)
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from calib.numerics.windows import span_means
 from calib.recording import Recording
 from calib.stages.stage import AXES, POSES, Stage
 
@@ -16,16 +17,14 @@ def find_poses(rec: Recording, stills: list[Stage]) -> dict[str, Stage]:
     if rec.accel is None:
         return {}
     found: dict[str, Stage] = {}
-    for s in stills:
-        a = rec.accel[s.start:s.end].mean(axis=0)
-        norm = float(np.linalg.norm(a))
-        if not np.isfinite(norm) or norm == 0:
+    g = span_means(rec.accel, [(s.start, s.end) for s in stills])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = g / np.linalg.norm(g, axis=1, keepdims=True)
+    axis = np.argmax(np.abs(np.nan_to_num(u)), axis=1)
+    for s, row, i in zip(stills, u.tolist(), axis.tolist(), strict=True):
+        if not np.isfinite(row[i]) or abs(row[i]) < MIN_POSE_COS:
             continue
-        u = a / norm
-        i = int(np.argmax(np.abs(u)))
-        if abs(u[i]) < MIN_POSE_COS:
-            continue
-        pose = f"{AXES[i]}_{'p' if u[i] > 0 else 'a'}"
+        pose = f"{AXES[i]}_{'p' if row[i] > 0 else 'a'}"
         if pose not in found or s.n > found[pose].n:
             found[pose] = s
     return {p: found[p] for p in POSES if p in found}

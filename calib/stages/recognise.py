@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from calib.numerics.windows import span_means
 from calib.quality import Recognition as RecognitionJson
 from calib.recording import Recording
 from calib.stages.hints import never_at_rest
@@ -65,7 +66,7 @@ def count_reorientations(rec: Recording, stages: list[Stage]) -> int:
     stills = [s for s in stages if s.kind == "still"]
     if len(stills) < 2:
         return 0
-    g = np.array([rec.accel[s.start:s.end].mean(axis=0) for s in stills])
+    g = span_means(rec.accel, [(s.start, s.end) for s in stills])
     u = g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-12)
     cos = np.clip(np.sum(u[1:] * u[:-1], axis=1), -1.0, 1.0)
     return int(np.sum(np.degrees(np.arccos(cos)) >= MIN_TILT_DEG))

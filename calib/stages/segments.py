@@ -4,6 +4,8 @@ this keeps the stages that follow from it."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from calib.stages.config import StageConfig, StageEvent
@@ -95,9 +97,10 @@ class StageBook:
             # sum_j u_j dt_j with u_j = (t_j - t_start) / (t_end - t_start), the interpolation weight.
             u_dt = (s[TDT] - (self._gap_t - self._t0) * s[DT]) / duration
             theta = s[MDT] - b0 * s[DT] - (bias_after - b0) * u_dt
-            k = int(np.argmax(np.abs(theta)))
-            main = float(theta[k])
-            off = float(np.hypot(*np.delete(theta, k)))
+            angles = theta.tolist()
+            k = max(range(3), key=lambda j: abs(angles[j]))
+            main = angles[k]
+            off = math.hypot(*(v for j, v in enumerate(angles) if j != k))
             if (cfg.min_turn_deg <= abs(main) <= cfg.max_turn_deg and off <= cfg.max_off_axis * abs(main)
                     and duration <= cfg.max_turn_s):
                 kind, axis, angle = "turn", AXES[k], main

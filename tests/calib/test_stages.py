@@ -6,12 +6,15 @@ import json
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from calib.effects import BiasDrift, SampleLoss
 from calib.errors import ProtocolError, RecordingError
 from calib.recording import Recording, RecordingMeta
 from calib.simulator import Motion, ProtocolScript, Still, Turn, simulate
-from calib.stages.config import StageConfig, StageConfigError
+from calib.stages.clipping import ClipTracker
+from calib.stages.config import StageConfig, StageConfigError, clip_run_needed
 from calib.stages.detector import StageTracker, detect_stages
 from calib.stages.protocol import find_protocol
 from calib.stages.stage import AXES, Stage
@@ -453,6 +456,41 @@ def test_saturation_flag_from_full_scale_and_from_clipping():
     for sizes in (np.ones(len(rec), dtype=int), rng.integers(1, 9, size=len(rec)), rng.integers(50, 900, size=len(rec))):
         tracker, _ = feed_in_batches(rec.with_meta(gyro_full_scale_dps=None), sizes)
         assert_same_stages(tracker.stages, unknown)
+
+
+def _clipped_sample_by_sample(x: np.ndarray, cfg: StageConfig) -> np.ndarray:
+    """The clipping rule read one reading at a time: a reading of at least clip_min_dps at the largest magnitude so far
+    whose run of identical readings is longer than chance repeats of a count allow (``clip_run_needed`` of the share of
+    consecutive readings so far that are equal)."""
+    out = np.zeros(len(x), dtype=bool)
+    for axis in range(3):
+        top, run, equal = 0.0, 0, 0
+        for i, v in enumerate(x[:, axis].tolist()):
+            same = i > 0 and v == x[i - 1, axis]
+            run, equal = (run + 1 if same else 1), equal + same
+            top = max(top, abs(v))
+            if abs(v) >= cfg.clip_min_dps and abs(v) >= top:
+                out[i] |= run >= int(clip_run_needed(equal / max(i, 1), cfg.clip_run, cfg.clip_chance))
+    return out
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_clipping_found_in_batches_as_the_rule_reads_sample_by_sample(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 300))
+    step = float(rng.choice([0.5, 1.0, 7.0]))  # the readings' quantisation
+    x = np.round(rng.normal(0, rng.choice([20.0, 150.0, 400.0]), (n, 3)) / step) * step
+    for _ in range(int(rng.integers(0, 4))):  # clipped runs at a common full scale
+        at, length, axis = int(rng.integers(0, n)), int(rng.integers(1, 30)), int(rng.integers(0, 3))
+        x[at : at + length, axis] = rng.choice([-1.0, 1.0]) * rng.choice([125.0, 250.0, 500.0])
+    if rng.random() < 0.1:
+        x[:] = x[0]  # one reading throughout
+    cfg = StageConfig(clip_run=int(rng.integers(2, 6)))
+    tracker = ClipTracker(cfg, None)
+    cuts = np.sort(rng.integers(0, n, int(rng.integers(0, 6))))
+    found = np.concatenate([tracker.saturated(part) for part in np.split(x, cuts) if len(part)])
+    np.testing.assert_array_equal(found, _clipped_sample_by_sample(x, cfg))
 
 
 def test_no_saturation_flag_on_quantised_real_data(imucal_stages):
