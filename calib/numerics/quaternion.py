@@ -60,6 +60,14 @@ def _blocks(q: np.ndarray) -> tuple[np.ndarray, int]:
     return np.ascontiguousarray(x), L
 
 
+# p*q = R(q) p = L(p) q: the 4x4 matrices of multiplying by q on the right and by p on the left, as the components
+# (x, y, z, w) they take (_PICK) and their signs
+_RIGHT_PICK = np.array([[3, 2, 1, 0], [2, 3, 0, 1], [1, 0, 3, 2], [0, 1, 2, 3]])
+_RIGHT_SIGN = np.array([[1, 1, -1, 1], [-1, 1, 1, 1], [1, -1, 1, 1], [-1, -1, -1, 1]], dtype=float)
+_LEFT_SIGN = np.array([[1, -1, 1, 1], [1, 1, -1, 1], [-1, 1, 1, 1], [-1, -1, -1, 1]], dtype=float)
+_SMALL_SCAN = 2048  # up to this many quaternions the matrix scan beats the Hamilton products' (per-call cost)
+
+
 def prefix_products(q: np.ndarray) -> np.ndarray:
     """Inclusive running products P_t = q_0 q_1 ... q_t along axis 1 of q (4, n, ...).
 
@@ -67,6 +75,8 @@ def prefix_products(q: np.ndarray) -> np.ndarray:
     then one broadcast composition: ~2 sqrt(n) vectorised steps and ~2n compositions in all.
     """
     n = q.shape[1]
+    if 4 < n and q[0].size <= _SMALL_SCAN:
+        return _prefix_products_small(q)
     if n <= 4:
         out = q.copy()
         for i in range(1, n):
@@ -82,6 +92,36 @@ def prefix_products(q: np.ndarray) -> np.ndarray:
     x = hamilton(before[:, None], x)
     nb = x.shape[2]
     return x.swapaxes(1, 2).reshape((4, nb * L) + q.shape[2:])[:, :n]
+
+
+def _prefix_products_small(q: np.ndarray) -> np.ndarray:
+    """prefix_products for a few thousand quaternions, where each vectorised step's fixed cost dominates: the blocked
+    scan with each step one stacked 4x4 matrix product (P_t = R(q_t) P_{t-1}, the matrices built in one gather), the
+    block totals run through in sequence."""
+    n, rest = q.shape[1], q.shape[2:]
+    L = int(np.ceil(np.sqrt(n)))
+    nb = -(-n // L)
+    v = np.moveaxis(q, 0, -1)  # (n, ..., 4)
+    if nb * L != n:
+        pad = np.zeros((nb * L - n,) + rest + (4,))
+        pad[..., 3] = 1.0
+        v = np.concatenate((v, pad), axis=0)
+    x = v.reshape((nb, L) + rest + (4, 1)).swapaxes(0, 1)  # (L, nb, ..., 4, 1): sample l of each block
+    right = x[..., _RIGHT_PICK, 0] * _RIGHT_SIGN  # (L, nb, ..., 4, 4)
+    inside = np.empty(x.shape)  # running products inside each block
+    inside[0] = x[0]
+    for i in range(1, L):
+        np.matmul(right[i], inside[i - 1], out=inside[i])
+    totals = inside[L - 1, ..., 0]
+    right_totals = totals[..., _RIGHT_PICK] * _RIGHT_SIGN  # (nb, ..., 4, 4)
+    before = np.empty((nb,) + rest + (4, 1))  # the product of the blocks before each
+    before[0] = IDENTITY[:, None]
+    for j in range(1, nb):
+        np.matmul(right_totals[j - 1], before[j - 1], out=before[j])
+    left_before = before[..., _RIGHT_PICK, 0] * _LEFT_SIGN  # (nb, ..., 4, 4)
+    out = np.matmul(left_before, inside)[..., 0]  # (L, nb, ..., 4)
+    out = out.swapaxes(0, 1).reshape((nb * L,) + rest + (4,))[:n]
+    return np.moveaxis(out, -1, 0)
 
 
 def total_products(q: np.ndarray) -> np.ndarray:

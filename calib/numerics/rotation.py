@@ -178,8 +178,8 @@ def _chunk_core(m, dt, K, b, sigma, force=None):
     prev[:, 0] = IDENTITY[:, None]
     prev[:, 1:] = att[:, :-1]
     Hw = _sensitivities(prev, u, wdt)  # (9, n, B): wdt * C_{t-1} J_l(u_t), row-major 3x3
-    db = Hw.sum(axis=1).T.reshape(B, 3, 3)
     H9 = Hw.transpose(2, 0, 1)  # (B, 9, n)
+    db = np.matmul(H9, np.ones((n, 1))).reshape(B, 3, 3)  # sum over t (a product: a strided sum costs several times more)
     dK = np.matmul(H9, m.transpose(1, 0, 2)).reshape(B, 3, 3, 3)  # dK[b, a, i, j] = sum_t Hw[a, i] m_j
     dF = None if force is None else np.matmul(H9, force.transpose(1, 0, 2)).reshape(B, 3, 3, 3)
     inner = None

@@ -12,9 +12,9 @@ from calib.errors import GyrocalError, RecordingError
 from calib.recording import Recording
 from calib.stages.clipping import ClipTracker
 from calib.stages.config import LiveState, StageConfig, StageEvent
-from calib.stages.prefix_sums import DT, GAP, MDT, NCOL, S1, S2, SAT, TDT, PrefixStore, spread
+from calib.stages.prefix_sums import DT, MDT, NCOL, S1, S2, TDT, PrefixStore, spread
 from calib.stages.segments import StageBook
-from calib.stages.stage import Stage
+from calib.stages.stage import FLAG_COUNTER_GAP, FLAG_SATURATED, Stage
 
 
 def _positive(value: object) -> bool:
@@ -73,7 +73,7 @@ class StageTracker(StageBook):
         self._gap_start: int | None = None  # open motion
         self._gap_row: np.ndarray | None = None
         self._gap_t = 0.0
-        self._still_row: np.ndarray | None = None
+        self._marked: dict[str, list[int]] = {FLAG_SATURATED: [], FLAG_COUNTER_GAP: []}
         self._still_t = 0.0
         self._bias_before: np.ndarray | None = None  # mean reading - x0 of the still before the open motion
         self._bias_before_t = 0.0  # time of the middle of the span it averages
@@ -107,10 +107,10 @@ class StageTracker(StageBook):
             return LiveState(0.0, False, np.zeros(3), self.noise_floor, None)
         still = bool(self._state)
         angle = np.zeros(3)
-        if self._gap_start is not None:
+        if self._gap_start is not None and self._gap_row is not None:
             # through the newest sample in, not only the decided ones: the gauge follows the hand without the
             # decision's look-ahead (rest samples after the turn add only their noise about the rest reading)
-            s = self._store.p[self._store.n - self._store.base] - self._gap_row
+            s = self._store.p[:, self._store.n - self._store.base] - self._gap_row
             if self._bias_before is None:
                 angle = s[MDT] + self._x0 * s[DT]
             else:
@@ -202,8 +202,11 @@ class StageTracker(StageBook):
         self._decide(final)
 
     def _append(self, t: np.ndarray, x: np.ndarray, seq: np.ndarray | None) -> None:
-        if not np.all(np.isfinite(t)) or not np.all(np.isfinite(x)):
-            bad = int(np.flatnonzero(~(np.isfinite(t) & np.all(np.isfinite(x), axis=1)))[0])
+        # a sum is finite when every value is (the common case, at a fraction of the search's cost)
+        not_finite = np.array([], dtype=np.int64) if np.isfinite(t.sum() + x.sum()) else np.flatnonzero(
+            ~(np.isfinite(t) & np.all(np.isfinite(x), axis=1)))
+        if not_finite.size:
+            bad = int(not_finite[0])
             raise RecordingError(
                 f"sample {self._store.n + bad} (t={t[bad]!r}) has a time or gyro value that is not a finite number; "
                 "drop or repair such samples first"
@@ -217,24 +220,22 @@ class StageTracker(StageBook):
             )
         if self._x0 is None:
             self._x0, self._t0 = x[0].copy(), float(t[0])
-        k = t.size
-        xr = x - self._x0
-        values = np.empty((k, NCOL))
-        values[:, S1] = xr
-        values[:, S2] = xr * xr
-        values[:, DT] = dt
-        values[:, MDT] = xr * dt[:, None]
-        values[:, TDT] = (t - self._t0) * dt
-        values[:, SAT] = self._clipping.saturated(x)
-        if seq is None:
-            values[:, GAP] = 0.0
-        else:
+        xr = x.T - self._x0[:, None]  # axis-major, as the store keeps its sums
+        values = np.empty((NCOL, t.size))
+        values[S1] = xr
+        np.multiply(xr, xr, out=values[S2])
+        values[DT] = dt
+        np.multiply(xr, dt, out=values[MDT])
+        values[TDT] = (t - self._t0) * dt
+        first = self._store.n  # the global index of the batch's first sample
+        self._marked[FLAG_SATURATED] += (np.flatnonzero(self._clipping.saturated(x)) + first).tolist()
+        if seq is not None:
             seq = seq.astype(np.int64)
             step = np.diff(seq, prepend=seq[0] - 1 if self._last_seq is None else self._last_seq)
-            values[:, GAP] = step != 1
+            self._marked[FLAG_COUNTER_GAP] += (np.flatnonzero(step != 1) + first).tolist()
             self._last_seq = int(seq[-1])
         keep_from = min(self._next, self._blocks * self._nb) - self._keep_back
-        self._store.append(x, t, values, keep_from)
+        self._store.append(t, values, keep_from)
         self._last_t = float(t[-1])
 
     def _update_floor(self) -> None:
@@ -243,7 +244,7 @@ class StageTracker(StageBook):
             return
         nb, st = self._nb, self._store
         starts = np.arange(self._blocks, done) * nb
-        s = st.p[starts + nb - st.base] - st.p[starts - st.base]
+        s = st.p[:, starts + nb - st.base] - st.p[:, starts - st.base]
         # the spread about the block's mean, as the stillness window measures it: differences would halve the
         # variance of white noise only, and a sensor's low-pass filter leaves its noise far smoother from sample to
         # sample than it is over a window (a floor a third of the rests' own noise: no rest was found)
@@ -289,12 +290,15 @@ class StageTracker(StageBook):
         lo = np.clip(i - h, 0, n - length) if final else np.maximum(i - h, 0)
         hi = lo + length
         first, last = int(lo[0]) - st.base, int(lo[-1]) - st.base + 1
-        s = st.p[first + length : last + length, : S2.stop] - st.p[first:last, : S2.stop]  # the S1 and S2 columns only
-        if last - first != i.size:
-            s = s[lo - lo[0]]
-        level = s[:, S1] / length  # window mean - x0
-        var = np.maximum(s[:, S2] / length - level**2, 0.0)
-        noise = np.sqrt((var[:, 0] + var[:, 1] + var[:, 2]) / 3.0)
+        s = st.p[: S2.stop, first + length : last + length] - st.p[: S2.stop, first:last]  # the S1 and S2 rows only
+        if last - first != i.size:  # windows held at the recording's ends: their first and last sums repeated
+            lead = int(np.searchsorted(lo, lo[0], side="right")) - 1
+            trail = i.size - (last - first) - lead
+            s = np.concatenate((np.broadcast_to(s[:, :1], (s.shape[0], lead)), s,
+                                np.broadcast_to(s[:, -1:], (s.shape[0], trail))), axis=1)
+        level = s[S1] / length  # (3, samples): window mean - x0
+        var = np.maximum(s[S2] / length - level**2, 0.0)
+        noise = np.sqrt((var[0] + var[1] + var[2]) / 3.0)
         if self._blocks >= self._rank:
             floor = self._floor_after[np.maximum(hi // self._nb, self._rank)]
         else:
@@ -303,29 +307,29 @@ class StageTracker(StageBook):
         cfg = self.config
         quiet = z < cfg.enter_ratio
         loud = z > cfg.exit_ratio
-        tol = np.maximum(cfg.rest_tol_dps, cfg.rest_tol_floors * floor)[:, None]
+        tol = np.maximum(cfg.rest_tol_dps, cfg.rest_tol_floors * floor)
         drift = cfg.rest_drift_dps_per_s
-        t = st.t[i - st.base]
-        low = level - drift * (t - self._t0)[:, None]
-        high = level + drift * (t - self._t0)[:, None]
+        t = st.t[i0 - st.base : i1 - st.base]
+        low = level - drift * (t - self._t0)
+        high = level + drift * (t - self._t0)
         low_out, high_out = low - tol, high + tol  # a sample leaves once these pass the run's envelope
         x0 = self._x0
         assert x0 is not None  # set by the first batch appended
 
         def enters(a: int, b: int) -> np.ndarray:
             if self._bias_before is None:  # no still yet: only a plausible zero-rate offset
-                return quiet[a:b] & (np.abs(level[a:b] + x0).max(axis=1) <= cfg.max_zero_rate_dps)
-            allowed = tol[a:b] + drift * (t[a:b] - self._bias_before_t)[:, None]
-            return quiet[a:b] & np.all(np.abs(level[a:b] - self._bias_before) <= allowed, axis=1)
+                return quiet[a:b] & (np.abs(level[:, a:b] + x0[:, None]).max(axis=0) <= cfg.max_zero_rate_dps)
+            allowed = tol[a:b] + drift * (t[a:b] - self._bias_before_t)
+            return quiet[a:b] & np.all(np.abs(level[:, a:b] - self._bias_before[:, None]) <= allowed, axis=0)
 
         def leaves(a: int, b: int) -> np.ndarray:
             # |level_i - level_j| <= tol + drift (t_i - t_j) for every earlier sample j of the run.
             # Carries the envelope on to b; past a leaving sample it is not used again.
-            lo_env = np.minimum(np.minimum.accumulate(low[a:b], axis=0), self._env_lo)
-            hi_env = np.maximum(np.maximum.accumulate(high[a:b], axis=0), self._env_hi)
-            self._env_lo, self._env_hi = lo_env[-1], hi_env[-1]
-            off = (low_out[a:b] > lo_env) | (high_out[a:b] < hi_env)
-            return loud[a:b] | off[:, 0] | off[:, 1] | off[:, 2]
+            lo_env = np.minimum(np.minimum.accumulate(low[:, a:b], axis=1), self._env_lo[:, None])
+            hi_env = np.maximum(np.maximum.accumulate(high[:, a:b], axis=1), self._env_hi[:, None])
+            self._env_lo, self._env_hi = lo_env[:, -1], hi_env[:, -1]
+            off = (low_out[:, a:b] > lo_env) | (high_out[:, a:b] < hi_env)
+            return loud[a:b] | off[0] | off[1] | off[2]
 
         # Walk the runs of equal state (few per second), each found by a vectorised search. A run's
         # search depends on the one before: entering compares with the still closed last.
@@ -348,7 +352,7 @@ class StageTracker(StageBook):
                 break
             state = not state
             if state:
-                self._env_lo, self._env_hi = low[k].copy(), high[k].copy()
+                self._env_lo, self._env_hi = low[:, k].copy(), high[:, k].copy()
             self._set_state(i0 + k, state)
             a, search = k, k + 1
         self._next = i1

@@ -56,15 +56,19 @@ def measure_tilts(rec: Recording, turns: list[Stage], stills: list[Stage], stage
     means, sizes = mean[0], count[0]
     sigma_g = float(np.sqrt(np.mean(sigma[0] ** 2)))  # pooled over the rests and the three axes
     index = {id(s): i for i, s in enumerate(stills)}
+    measured, i0, i1 = [], [], []
     for j, st in enumerate(turns):
         before, after = _neighbour_rests(st, stills)
         between = before is not None and after is not None and any(
             m.kind != "still" and m.start != st.start and before.end <= m.start and m.end <= after.start for m in stages)
         if before is None or after is None or between:
             continue
-        i0, i1 = index[id(before)], index[id(after)]
+        measured.append(j)
+        i0.append(index[id(before)])
+        i1.append(index[id(after)])
+    if measured:
         across = tilt_across(means[i0], means[i1], sizes[i0], sizes[i1], sigma_g)
-        rotation[j], up[j], sd[j] = across.rho_deg, across.up, float(across.sd_deg)
+        rotation[measured], up[measured], sd[measured] = across.rho_deg, across.up, across.sd_deg
     return TurnTilts(rotation, up, sd, True)
 
 

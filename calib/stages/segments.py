@@ -4,12 +4,13 @@ this keeps the stages that follow from it."""
 
 from __future__ import annotations
 
+import bisect
 import math
 
 import numpy as np
 
 from calib.stages.config import StageConfig, StageEvent
-from calib.stages.prefix_sums import DT, GAP, MDT, S1, SAT, TDT, PrefixStore
+from calib.stages.prefix_sums import DT, MDT, S1, TDT, PrefixStore
 from calib.stages.stage import AXES, FLAG_COUNTER_GAP, FLAG_SATURATED, Axis, Stage, StageKind
 
 
@@ -28,7 +29,7 @@ class StageBook:
     _gap_start: int | None
     _gap_row: np.ndarray | None
     _gap_t: float
-    _still_row: np.ndarray | None
+    _marked: dict[str, list[int]]  # the samples (global indices, in order) that give a stage each flag
     _still_t: float
     _bias_before: np.ndarray | None
     _bias_before_t: float
@@ -58,7 +59,7 @@ class StageBook:
 
     def _open_gap(self, g: int) -> None:
         self._gap_start = g
-        self._gap_row = self._store.row(g).copy()
+        self._gap_row = self._store.row(g)
         self._gap_t = self._store.time(g)
         self._events.append(StageEvent("motion_started", self._gap_t))
 
@@ -67,18 +68,17 @@ class StageBook:
         if self._gap_start is not None:
             self._close_gap(start, self._store.sums(start, start + self._min_still)[S1] / self._min_still)
         self._still_start = start
-        self._still_row = self._store.row(start).copy()
         self._still_t = self._store.time(start)
         self._events.append(StageEvent("still_started", self._still_t))
 
     def _close_still(self, end: int) -> None:
-        start, row = self._still_start, self._still_row
-        assert start is not None and row is not None  # only an open still is closed
+        start = self._still_start
+        assert start is not None  # only an open still is closed
         span = min(self._min_still, end - start)
         self._bias_before = self._store.sums(end - span, end)[S1] / span
         self._bias_before_t = 0.5 * (self._store.time(end - span) + self._store.time(end - 1))
         self._emit(Stage("still", start, end, self._still_t, self._end_time(end),
-                         flags=self._flags(row, end)))
+                         flags=self._flags(start, end)))
         self._still_start = None
 
     def _close_gap(self, end: int, bias_after: np.ndarray | None) -> None:
@@ -104,7 +104,7 @@ class StageBook:
             if (cfg.min_turn_deg <= abs(main) <= cfg.max_turn_deg and off <= cfg.max_off_axis * abs(main)
                     and duration <= cfg.max_turn_s):
                 kind, axis, angle = "turn", AXES[k], main
-        self._emit(Stage(kind, start, end, self._gap_t, self._end_time(end), axis, angle, self._flags(row0, end)))
+        self._emit(Stage(kind, start, end, self._gap_t, self._end_time(end), axis, angle, self._flags(start, end)))
         self._gap_start = None
 
     def _end_time(self, end: int) -> float:
@@ -112,15 +112,18 @@ class StageBook:
             return self._store.time(end)
         return self._store.time(end - 1) + 1.0 / self.fs
 
-    def _flags(self, row0: np.ndarray, end: int) -> tuple[str, ...]:
-        s = self._store.row(end) - row0
+    def _flags(self, start: int, end: int) -> tuple[str, ...]:
+        """The flags of samples [start, end): those with a marked sample among them."""
         flags = []
-        if s[SAT] > 0:
-            flags.append(FLAG_SATURATED)
-        if s[GAP] > 0:
-            flags.append(FLAG_COUNTER_GAP)
+        for flag in (FLAG_SATURATED, FLAG_COUNTER_GAP):
+            at = self._marked[flag]
+            i = bisect.bisect_left(at, start)
+            if i < len(at) and at[i] < end:
+                flags.append(flag)
         return tuple(flags)
 
     def _emit(self, stage: Stage) -> None:
+        for at in self._marked.values():  # no later stage reaches back before this one's end
+            del at[: bisect.bisect_left(at, stage.end)]
         self._stages.append(stage)
         self._events.append(StageEvent("stage_closed", stage.end_s, stage))
