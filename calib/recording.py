@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import builtins
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -57,11 +58,13 @@ def even_time_grid(t: np.ndarray) -> bool:
     return bool(d.size) and float(np.max(np.abs(d - np.median(d)))) <= 1e-9 * max(float(np.median(d)), 1e-12)
 
 
-def sample_intervals(t: np.ndarray) -> np.ndarray:
-    """The interval each sample is held for (s): t[i+1] - t[i], the last one the median interval. Across lost
-    samples the last reading is held until the next one arrives."""
+def sample_intervals(t: np.ndarray, median_step_s: float | None = None) -> np.ndarray:
+    """The interval each sample is held for (s): t[i+1] - t[i], the last one the median interval (``median_step_s``
+    when it is known). Across lost samples the last reading is held until the next one arrives."""
     d = np.diff(t)
-    return np.append(d, np.median(d)) if d.size else np.array([1.0])
+    if not d.size:
+        return np.array([1.0])
+    return np.append(d, np.median(d) if median_step_s is None else median_step_s)
 
 
 @dataclass(frozen=True, eq=False)
@@ -107,7 +110,20 @@ class Recording:
         """Sample rate (Hz): the stated one, else the median of the sample intervals."""
         if self.meta.sample_rate_hz:
             return float(self.meta.sample_rate_hz)
-        return float(1.0 / np.median(np.diff(self.t)))
+        return float(1.0 / self.median_step_s)
+
+    @cached_property
+    def median_step_s(self) -> float:
+        """The median of the sample intervals (s); NaN with fewer than two samples. Found once: the times are not
+        changed after the recording is made."""
+        return float(np.median(np.diff(self.t))) if len(self) > 1 else float("nan")
+
+    @cached_property
+    def intervals_s(self) -> np.ndarray:
+        """The interval each sample is held for (s, ``sample_intervals``), read-only."""
+        out = sample_intervals(self.t, self.median_step_s if len(self) > 1 else None)
+        out.flags.writeable = False
+        return out
 
     @property
     def loss_visible(self) -> bool:

@@ -26,7 +26,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from calib.numerics.tilt import tilt_across
-from calib.recording import Recording, sample_intervals
+from calib.recording import Recording
 from calib.stages.stage import AXES, Stage
 
 BLOCK_S = 0.5  # still block length, s
@@ -89,7 +89,7 @@ class Layout:
 def make_layout(rec: Recording, stages: list[Stage], dt: np.ndarray | None = None) -> Layout:
     """The layout of ``rec`` from its stages: every full turn, every re-orientation and every still of at least 2 samples."""
     t = rec.t - rec.t[0]
-    dt = sample_intervals(rec.t) if dt is None else dt
+    dt = rec.intervals_s if dt is None else dt
     stages = sorted(stages, key=lambda s: s.start)
     turns = tuple(s for s in stages if (s.kind == "turn" or REORIENTATION in s.flags) and s.n >= 2)
     stills = tuple(s for s in stages if s.kind == "still" and s.n >= 2)

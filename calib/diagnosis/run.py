@@ -9,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 
 from calib.diagnosis.assemble import Diagnosis, assemble_diagnosis
-from calib.diagnosis.data import Problem, build_problem, gravity_proxy, make_layout, sample_intervals, set_design_accel
+from calib.diagnosis.data import Problem, build_problem, gravity_proxy, make_layout, set_design_accel
 from calib.diagnosis.engine import Priors, system
 from calib.diagnosis.extended_fits import ModelState, gm_of, informative_count
 from calib.diagnosis.features import SIGNED, compute_features
@@ -274,7 +274,7 @@ def _intervals(rec: Recording, tb: TimeBase) -> np.ndarray:
         period = tb.period / (1.0 + tb.clock_e) if tb.clock_e is not None else tb.period
         d = np.diff(tb.index).astype(float) * period
         return np.append(d, period)
-    return sample_intervals(rec.t)
+    return rec.intervals_s
 
 
 FULL_TURN_POSE_DEG = 15.0  # a full turn puts the device back within this of its pose (an accelerometer's word)

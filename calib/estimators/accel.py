@@ -196,21 +196,24 @@ def fit_accelerometer(means: np.ndarray) -> AccelCalibration:
         raise AccelCalibrationError(
             f"the recording has {N} rests with the accelerometer; calibrating it needs at least {MIN_RESTS[3]} rests in "
             "different orientations (put the device down on each face and edge, a few seconds each)")
-    from scipy.optimize import least_squares  # here, not above: importing scipy.optimize costs 0.4 s of a service's start
+    from scipy.optimize import leastsq  # here, not above: importing scipy.optimize costs 0.4 s of a service's start
 
     tried = []
     for free, note in _plans(means):
-        sol = least_squares(_residuals, NOMINAL[free], jac=_jacobian, args=(free, means), method="lm", x_scale="jac",
-                            max_nfev=MAX_EVALUATIONS)
-        sv = np.linalg.svd(sol.jac, compute_uv=False)
-        if sol.status == 0 or sv[-1] <= 0 or sv[0] / sv[-1] > CONDITION_MAX:
+        # MINPACK's Levenberg-Marquardt (lmder) with the analytic Jacobian, each parameter scaled by its column's norm;
+        # leastsq calls it with a fraction of least_squares' wrapping, which was most of this fit's time
+        x, _, info, _, ier = leastsq(_residuals, NOMINAL[free], args=(free, means), Dfun=_jacobian, full_output=True,
+                                     ftol=1e-8, xtol=1e-8, gtol=1e-8, maxfev=MAX_EVALUATIONS)
+        jac, fun = _jacobian(x, free, means), info["fvec"]
+        sv = np.linalg.svd(jac, compute_uv=False)
+        if ier not in (1, 2, 3, 4) or sv[-1] <= 0 or sv[0] / sv[-1] > CONDITION_MAX:
             tried.append(f"{int(free.sum())} parameters are not separated by the rests' orientations")
             continue
-        s2 = float(sol.fun @ sol.fun) / max(N - int(free.sum()), 1)
-        std_free = np.sqrt(np.diag(np.linalg.inv(sol.jac.T @ sol.jac) * s2))
+        s2 = float(fun @ fun) / max(N - int(free.sum()), 1)
+        std_free = np.sqrt(np.diag(np.linalg.inv(jac.T @ jac) * s2))
         full, std = NOMINAL.copy(), np.full(9, np.nan)
-        full[free], std[free] = sol.x, std_free
-        return AccelCalibration.from_fit(full, std, free, sol.fun, "; ".join([*tried, note] if note else tried))
+        full[free], std[free] = x, std_free
+        return AccelCalibration.from_fit(full, std, free, fun, "; ".join([*tried, note] if note else tried))
     raise AccelCalibrationError(
         "the rests cannot calibrate the accelerometer: their orientations are too alike"
         + (f" ({'; '.join(tried)})" if tried else "")

@@ -28,7 +28,7 @@ import numpy as np
 from calib.errors import ProtocolError
 from calib.io.validation import check_calibration_input
 from calib.quality import Quality
-from calib.recording import Recording, sample_intervals
+from calib.recording import Recording
 from calib.result import CalibrationResult
 from calib.stages.poses import ferraris_turns, find_poses
 from calib.stages.resolve import resolve_stages
@@ -79,7 +79,7 @@ def calibrate_ferraris(rec: Recording, stages: Any = None) -> CalibrationResult:
     b_g = static.mean(axis=0)
     k_ga = (mean(rec.gyro, up) - mean(rec.gyro, down)) / 2
 
-    dt = sample_intervals(rec.t)
+    dt = rec.intervals_s
     w = np.empty((3, 3))
     expected = np.empty(3)
     for j, axis in enumerate(AXES):

@@ -203,7 +203,7 @@ def calibrate_paper(rec: Recording, stages: Any = None) -> CalibrationResult:
             "determine them; record one full turn about each of x, y and z"
         )
 
-    dt_all = sample_intervals(rec.t)
+    dt_all = rec.intervals_s
     m_hat = rec.gyro - fit.mean0
     residuals: dict[str, Any] = {}
     warnings: list[str] = []

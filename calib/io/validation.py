@@ -150,7 +150,7 @@ def check_rate(rec: Recording, where: Locator) -> None:
     stated = rec.meta.sample_rate_hz
     if stated is not None:
         check_sample_rate(stated, where.prefix())
-    step = float(np.median(np.diff(rec.t)))
+    step = rec.median_step_s
     measured = 1.0 / step
     if stated is None and not lo <= measured <= hi:
         hint = "is t in milliseconds or microseconds? It must be in seconds" if measured < lo else "is t in seconds?"

@@ -95,7 +95,7 @@ def verify_turn(rec: Recording, correction: Correction, uncertainty: dict[str, A
                                  "once all the way round about any axis, back against the block, and hold it still again")
     before, turn, _ = found
     span = slice(turn.start, turn.end)
-    dt = sample_intervals(rec.t)[span]
+    dt = rec.intervals_s[span]
     calibrated, _ = correction.apply(rec.gyro[span], None if rec.accel is None else rec.accel[span])
     axis, cal_deg = _swept(calibrated, dt)
     raw_axis, raw_deg = _swept(rec.gyro[span], dt)

@@ -26,25 +26,30 @@ def still_statistics(gyro: np.ndarray, bounds: np.ndarray) -> tuple[np.ndarray, 
     s1 = np.maximum(bounds[..., 1], s0)
     count = (s1 - s0).astype(float)
     ref = gyro[:, :1, :]  # subtracting a reference keeps the sums of squares well conditioned
-    x = (gyro - ref).reshape(R * n, 3)
+    # axis-major (3, R n + 1), a zero column at the end: every pass runs along one axis' readings
+    x = np.zeros((3, R * n + 1))
+    np.subtract(np.moveaxis(gyro, -1, 0), np.moveaxis(ref, -1, 0), out=x[:, :-1].reshape(3, R, n))
     starts = s0 + (np.arange(R) * n)[:, None]
     ends = s1 + (np.arange(R) * n)[:, None]
     edges = np.stack((starts, ends), axis=-1).reshape(-1)
+
+    def per_still(v: np.ndarray) -> np.ndarray:
+        return np.moveaxis(v.reshape(3, R, S), 0, -1)  # (R, S, 3)
+
     if np.all(np.diff(edges) >= 0):
         # one pass: sums over [start, end) of each still (the segments in between are dropped)
-        x = np.concatenate((x, np.zeros((1, 3))))
-        sum1 = np.add.reduceat(x, edges, axis=0)[0::2].reshape(R, S, 3)
-        sum2 = np.add.reduceat(x * x, edges, axis=0)[0::2].reshape(R, S, 3)
-        hi = np.maximum.reduceat(x, edges, axis=0)[0::2].reshape(R, S, 3)
-        lo = np.minimum.reduceat(x, edges, axis=0)[0::2].reshape(R, S, 3)
+        sum1 = per_still(np.add.reduceat(x, edges, axis=1)[:, 0::2])
+        sum2 = per_still(np.add.reduceat(x * x, edges, axis=1)[:, 0::2])
+        hi = per_still(np.maximum.reduceat(x, edges, axis=1)[:, 0::2])
+        lo = per_still(np.minimum.reduceat(x, edges, axis=1)[:, 0::2])
     else:  # overlapping or unordered windows: running sums
-        c1 = np.concatenate((np.zeros((1, 3)), np.cumsum(x, axis=0)))
-        c2 = np.concatenate((np.zeros((1, 3)), np.cumsum(x * x, axis=0)))
-        sum1 = c1[ends] - c1[starts]
-        sum2 = c2[ends] - c2[starts]
-        window = [[x[a:b] if b > a else np.zeros((1, 3)) for a, b in zip(sa, sb, strict=True)] for sa, sb in zip(starts, ends, strict=True)]
-        hi = np.array([[w.max(axis=0) for w in row] for row in window]).reshape(R, S, 3)
-        lo = np.array([[w.min(axis=0) for w in row] for row in window]).reshape(R, S, 3)
+        c1 = np.concatenate((np.zeros((3, 1)), np.cumsum(x, axis=1)), axis=1)
+        c2 = np.concatenate((np.zeros((3, 1)), np.cumsum(x * x, axis=1)), axis=1)
+        sum1 = per_still(c1[:, ends] - c1[:, starts])
+        sum2 = per_still(c2[:, ends] - c2[:, starts])
+        window = [x[:, a:b] if b > a else np.zeros((3, 1)) for a, b in zip(starts.ravel(), ends.ravel(), strict=True)]
+        hi = per_still(np.array([w.max(axis=1) for w in window]).T)
+        lo = per_still(np.array([w.min(axis=1) for w in window]).T)
     empty = count == 0
     sum1[empty] = 0.0
     sum2[empty] = 0.0
@@ -59,32 +64,35 @@ def still_statistics(gyro: np.ndarray, bounds: np.ndarray) -> tuple[np.ndarray, 
     knocked = np.any(farthest > KNOCK_SIGMA * sigma[:, None, :], axis=(1, 2))
     mean = mean + ref
     for r in np.flatnonzero(knocked):
-        _leave_out_knocks(gyro[r], bounds[r], mean[r], count[r], sigma[r])
+        _leave_out_knocks(x[:, r * n : (r + 1) * n], bounds[r], mean[r] - ref[r], mean[r], count[r], sigma[r])
     return mean, count, sigma
 
 
-def _leave_out_knocks(gyro: np.ndarray, bounds: np.ndarray, mean: np.ndarray, count: np.ndarray, sigma: np.ndarray) -> None:
+def _leave_out_knocks(x: np.ndarray, bounds: np.ndarray, centred: np.ndarray, mean: np.ndarray, count: np.ndarray,
+                      sigma: np.ndarray) -> None:
     """One recording's rest statistics (``mean`` (S, 3), ``count`` (S,), ``sigma`` (3,)) recomputed in place without
-    its knocks."""
+    its knocks, from its readings axis-major ``x`` (3, n) and the rests' means ``centred`` (S, 3), both less the same
+    reference."""
     rests = np.flatnonzero(bounds[:, 1] > bounds[:, 0])
     a, b = bounds[rests, 0].astype(np.int64), bounds[rests, 1].astype(np.int64)
     length = b - a
     first = np.concatenate(([0], np.cumsum(length)[:-1]))  # where each rest begins among the rests' samples
-    owner = np.repeat(np.arange(rests.size), length)
-    start = first[owner]
-    pos = np.arange(length.sum()) - start  # index of each sample inside its rest
-    # axis-major (3, samples), each sample less its rest's mean: every step below runs along contiguous rows
-    d = np.concatenate([gyro[i:j] for i, j in zip(a, b, strict=True)]).T - np.repeat(mean[rests].T, length, axis=1)
+    # (3, samples), each sample less its rest's mean: every step below runs along contiguous rows
+    d = np.concatenate([x[:, i:j] for i, j in zip(a, b, strict=True)], axis=1) - np.repeat(centred[rests].T, length, axis=1)
     devs = np.abs(d)
     scale = np.maximum(1.4826 * np.median(devs, axis=1), MIN_SIGMA_DPS)
-    burst = np.any(devs > KNOCK_SIGMA * scale[:, None], axis=0)
+    burst = np.flatnonzero(np.any(devs > KNOCK_SIGMA * scale[:, None], axis=0))
+    if not burst.size:
+        return
     # a burst's ring: every sample within KNOCK_RING of one, inside the same rest
-    ring = np.concatenate(([0], np.cumsum(burst)))
-    lo = start + np.maximum(pos - KNOCK_RING, 0)
-    hi = start + np.minimum(pos + KNOCK_RING + 1, length[owner])
-    kept = (ring[hi] - ring[lo]) == 0
+    owner = np.searchsorted(first, burst, side="right") - 1
+    ring = burst[:, None] + np.arange(-KNOCK_RING, KNOCK_RING + 1)
+    inside = (ring >= first[owner, None]) & (ring < (first + length)[owner, None])
+    kept = np.ones(d.shape[1], dtype=bool)
+    kept[ring[inside]] = False
     n = np.add.reduceat(kept, first).astype(float)
-    kept |= (n == 0)[owner]  # a rest that is all knock keeps its samples
+    if np.any(n == 0):  # a rest that is all knock keeps its samples
+        kept |= np.repeat(n == 0, length)
     n = np.where(n == 0, length, n)
     shift = np.add.reduceat(d * kept, first, axis=1) / n  # (3, rests): the kept samples' mean less the whole rest's
     mean[rests] += shift.T

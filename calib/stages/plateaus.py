@@ -54,8 +54,13 @@ class Plateau:
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    d = np.diff(np.concatenate(([0], mask.astype(np.int8), [0])))
-    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(), strict=False))
+    """The runs [start, end) of True in ``mask`` (few: found from where it holds)."""
+    at = np.flatnonzero(mask)
+    if not at.size:
+        return []
+    cut = np.flatnonzero(np.diff(at) != 1) + 1
+    starts, ends = at[np.concatenate(([0], cut))], at[np.concatenate((cut - 1, [at.size - 1]))] + 1
+    return list(zip(starts.tolist(), ends.tolist(), strict=True))
 
 
 def find_plateaus(rec: Recording) -> list[Plateau]:
@@ -63,11 +68,14 @@ def find_plateaus(rec: Recording) -> list[Plateau]:
     g = rec.gyro
     t = rec.t - rec.t[0]
     fs_stated = rec.meta.gyro_full_scale_dps
-    ceilings = _ceilings(g)  # a range stated may be the format's, not the sensor's (imu_tk's counts span 300 deg/s)
+    by_axis = np.ascontiguousarray(g.T)  # (3, n): each axis' readings in a row
+    magnitude = np.abs(by_axis)
+    tops = magnitude.max(axis=1) if g.size else np.zeros(3)
+    # a range stated may be the format's, not the sensor's (imu_tk's counts span 300 deg/s)
+    ceilings = _ceilings(magnitude, tops)
     out: list[Plateau] = []
     for ax in range(3):
-        a = np.abs(g[:, ax])
-        top = float(a.max()) if a.size else 0.0
+        a, top = magnitude[ax], float(tops[ax])
         if ax in ceilings:
             mask, min_run = a >= top, MIN_RUN
         elif fs_stated:
@@ -77,7 +85,7 @@ def find_plateaus(rec: Recording) -> list[Plateau]:
             if top < MIN_CLIP_DPS:
                 continue
             mask = a >= top
-            min_run = _min_run(g[:, ax])
+            min_run = _min_run(by_axis[ax])
         for s, e in _runs(mask):
             if e - s < min_run:
                 continue
@@ -109,21 +117,20 @@ def flag_clipped_turns(rec: Recording, stages: list[Stage]) -> list[Stage]:
     return out
 
 
-def _ceilings(g: np.ndarray) -> set[int]:
+def _ceilings(magnitude: np.ndarray, tops: np.ndarray) -> set[int]:
     """The axes whose largest reading is a ceiling, with no range stated: a value that two runs of MIN_RUN identical
     readings or more reach (on one axis or several; two motions' peaks do not land on the same count by chance), or a
     common full scale. Their plateaus need only MIN_RUN readings: a turn clipped for a tenth of a second leaves runs
     of 10-20, shorter than the noise rule asks of quantised readings (13-15 on imucal's session)."""
-    tops: list[tuple[int, float, int]] = []  # (axis, its largest |reading|, its runs of MIN_RUN or more at it)
-    for ax in range(g.shape[1]):
-        a = np.abs(g[:, ax])
-        if not a.size or (top := float(a.max())) < MIN_CLIP_DPS:
+    reached: list[tuple[int, float, int]] = []  # (axis, its largest |reading|, its runs of MIN_RUN or more at it)
+    for ax, a in enumerate(magnitude):
+        if not a.size or (top := float(tops[ax])) < MIN_CLIP_DPS:
             continue
         runs = sum(1 for s, e in _runs(a >= top) if e - s >= MIN_RUN)
-        tops.append((ax, top, runs))
+        reached.append((ax, top, runs))
     out = set()
-    for ax, top, runs in tops:
-        shared = sum(r for _, level, r in tops if abs(level - top) <= 1e-9 * top) >= 2
+    for ax, top, runs in reached:
+        shared = sum(r for _, level, r in reached if abs(level - top) <= 1e-9 * top) >= 2
         common = any(abs(top - fs) <= (1.0 - FULL_SCALE_FRACTION) * fs for fs in COMMON_FULL_SCALES_DPS)
         if runs and (shared or common):
             out.add(ax)

@@ -46,7 +46,7 @@ from calib.noise.rests import still_statistics
 from calib.numerics.rotation import ClosureTerms
 from calib.numerics.windows import windows
 from calib.quality import ModelChoice
-from calib.recording import Recording, sample_intervals
+from calib.recording import Recording
 from calib.result import CalibrationResult
 from calib.stages.placement import measure_tilts, placement_report
 from calib.stages.stage import FLAG_COUNTER_GAP, FLAG_SATURATED, Stage
@@ -82,7 +82,7 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None 
     """
     check_calibration_input(rec)
     stage_list, turns, stills, warnings = _select_stages(rec, stages)
-    dt_all = sample_intervals(rec.t)
+    dt_all = rec.intervals_s
 
     gyro = rec.gyro[None]
     m, d = windows(gyro, np.array([[[s.start, s.end] for s in turns]]), dt_all[None])

@@ -53,7 +53,7 @@ from calib.noise.motion import motion_noise, no_motion_noise
 from calib.noise.rests import still_statistics
 from calib.numerics.windows import windows
 from calib.quality import Quality
-from calib.recording import Recording, sample_intervals
+from calib.recording import Recording
 from calib.result import CalibrationResult
 from calib.stages.detector import detect_stages
 from calib.stages.plateaus import clipped_spans
@@ -188,7 +188,7 @@ def noise_colour(readings: np.ndarray, spans: list[tuple[int, int]], max_lag: in
 def _data(rec: Recording, stills: list[Stage], motions: list[Motion], free_a: np.ndarray, measure_motion_noise: bool = True
           ) -> Data:
     assert rec.accel is not None
-    dt_all = sample_intervals(rec.t)[None]
+    dt_all = rec.intervals_s[None]
     gyro, acc = rec.gyro[None], rec.accel[None]
     mean, count, sigma = still_statistics(gyro, np.array([[[s.start, s.end] for s in stills]]))
     colour = noise_colour(rec.gyro, [(s.start, s.end) for s in stills])
