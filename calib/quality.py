@@ -77,6 +77,16 @@ class TurnPlacement(TypedDict):
     rotation_deg: Numbers | None  # the tilt as a rotation from the pose before to the pose after (body axes), deg
 
 
+class HeadingReport(TypedDict):
+    """The heading spread a closure calibration carried and where it came from (``calib.estimators.closure.heading``)."""
+
+    spread_deg: Number  # 1 sigma per turn
+    source: str  # "estimated" (from the turns that show it), "stated" (asked for), "default" (no turn shows it)
+    turns: int  # the turns whose closure showed it (estimated)
+    spread_sd_deg: Number  # its standard error (estimated), else null
+    note: str
+
+
 class Placement(TypedDict):
     """What the hand did at each turn (``calib.stages.placement``)."""
 
@@ -84,7 +94,8 @@ class Placement(TypedDict):
     note: str
     turns: list[TurnPlacement]
     tilt_prior_deg: NotRequired[Number]  # the spread of the hand's tilts beyond the accelerometer's noise (closure)
-    heading_prior_deg: NotRequired[Number]  # the heading prior the calibration carried (closure)
+    heading_prior_deg: NotRequired[Number]  # the heading spread the calibration carried (closure; ``heading`` says whence)
+    heading: NotRequired[HeadingReport]
 
 
 class KitDeparture(TypedDict, total=False):

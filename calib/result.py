@@ -22,6 +22,16 @@ def _list(a: np.ndarray | None, digits: int = 9) -> list[float] | None:
 FORMAT_VERSION = 2  # the form of to_dict(): calib.result_schema.ResultDoc says what each number meant
 
 
+def _dof_lists(**dofs: np.ndarray | None) -> dict[str, list[float | None]]:
+    """The degrees of freedom given, each as a list with null for a normal (infinite) one."""
+    return {name: [None if not np.isfinite(v) else round(float(v), 3) for v in dof] for name, dof in dofs.items()
+            if dof is not None}
+
+
+def _dof(values: Any) -> np.ndarray | None:
+    return None if values is None else np.array([np.inf if v is None else float(v) for v in values])
+
+
 @dataclass
 class CalibrationResult:
     """Parameters of g = K m + b (K diagonal, or upper-triangular in the extended model).
@@ -51,6 +61,23 @@ class CalibrationResult:
     n_samples: int | None = None
     G: np.ndarray | None = None  # g-sensitivity (3, 3), (deg/s)/g; None: not part of the model
     G_std: np.ndarray | None = None
+    # degrees of freedom of each k's and b's Student-t interval, where a variance rests on a spread learned from few
+    # turns (the closure's heading); inf: normal. None: normal throughout
+    k_dof: np.ndarray | None = None
+    b_dof: np.ndarray | None = None
+
+    def interval(self, level: float = 0.95) -> tuple[np.ndarray, np.ndarray] | None:
+        """The (3, 2) intervals of k and of b holding the truth with probability ``level``: value ± the Student-t
+        quantile of each one's degrees of freedom (normal where none is given) times its standard error."""
+        if self.k_std is None or self.b_std is None:
+            return None
+        from calib.distributions import t_isf
+
+        def around(value: np.ndarray, std: np.ndarray, dof: np.ndarray | None) -> np.ndarray:
+            q = t_isf((1.0 - level) / 2.0, np.full(3, np.inf) if dof is None else dof)
+            return np.stack((value - q * std, value + q * std), axis=-1)
+
+        return around(self.k, self.k_std, self.k_dof), around(self.b, self.b_std, self.b_dof)
 
     @property
     def matrix(self) -> np.ndarray:
@@ -87,6 +114,8 @@ class CalibrationResult:
             n_samples=d.get("n_samples"),
             G=arr(d.get("G")),
             G_std=arr(d.get("G_std")),
+            k_dof=_dof(unc.get("k_dof")),
+            b_dof=_dof(unc.get("b_dof")),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -98,9 +127,8 @@ class CalibrationResult:
             "method": self.method,
             "stages": [s.to_dict() for s in self.stages],
             "quality": self.quality,
-            "uncertainty": None
-            if self.k_std is None
-            else {"k": _list(self.k_std, 12), "b": _list(self.b_std, 12)},
+            "uncertainty": None if self.k_std is None else {"k": _list(self.k_std, 12), "b": _list(self.b_std, 12),
+                                                            **_dof_lists(k_dof=self.k_dof, b_dof=self.b_dof)},
             "bound": None if self.k_bound is None else {"k": _list(self.k_bound, 12), "b": _list(self.b_bound, 12)},
             "noise_dps": _list(self.noise_dps),
             "residuals": self.residuals,

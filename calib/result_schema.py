@@ -36,10 +36,13 @@ class StageDoc(BaseModel):
 
 
 class Spread(BaseModel):
-    """Per-axis standard deviations (1 sigma) of k and b."""
+    """Per-axis standard deviations (1 sigma) of k and b, and where a Student-t is the honest shape of an interval,
+    its degrees of freedom (null: normal)."""
 
     k: Vector | None = None
     b: Vector | None = None
+    k_dof: list[float | None] | None = Field(None, description="degrees of freedom of each k's interval (null: normal)")
+    b_dof: list[float | None] | None = Field(None, description="degrees of freedom of each b's interval (null: normal)")
 
 
 class TurnResidual(_Open):

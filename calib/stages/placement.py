@@ -15,7 +15,7 @@ import numpy as np
 
 from calib.noise.rests import still_statistics
 from calib.numerics.tilt import tilt_across
-from calib.quality import Placement, TurnPlacement
+from calib.quality import HeadingReport, Placement, TurnPlacement
 from calib.recording import Recording
 from calib.stages.stage import Stage
 
@@ -72,14 +72,15 @@ def measure_tilts(rec: Recording, turns: list[Stage], stills: list[Stage], stage
     return TurnTilts(rotation, up, sd, True)
 
 
-def placement_report(turns: list[Stage], tilts: TurnTilts, priors: tuple[float, float] | None = None) -> Placement:
+def placement_report(turns: list[Stage], tilts: TurnTilts, priors: tuple[float, float] | None = None,
+                     heading: HeadingReport | None = None) -> Placement:
     """The ``quality["placement"]`` of a result: each turn's measured tilt (null where not measured), and with
-    ``priors`` (tilt prior, heading prior, deg) those the calibration carried."""
+    ``priors`` (tilt prior, heading prior, deg) those the calibration carried, ``heading`` where the latter came from."""
     if not tilts.has_accel:
         note = NO_ACCEL_NOTE if priors is None else (
             f"{NO_ACCEL_NOTE}: the calibration carries each turn's placement (tilt and heading) as a prior of "
             f"{max(priors):.2g} deg, so its uncertainty includes it")
-        return _with_priors(Placement(measured_by=None, note=note, turns=[]), priors)
+        return _with_priors(Placement(measured_by=None, note=note, turns=[]), priors, heading)
     rows: list[TurnPlacement] = []
     for j, st in enumerate(turns):
         if not tilts.measured[j]:
@@ -88,16 +89,22 @@ def placement_report(turns: list[Stage], tilts: TurnTilts, priors: tuple[float, 
         rho = tilts.rotation_deg[j]
         rows.append({"axis": st.axis, "start_s": st.start_s, "tilt_deg": float(np.linalg.norm(rho)),
                      "tilt_std_deg": float(tilts.sd_deg[j]), "rotation_deg": [float(v) for v in rho]})
-    note = HEADING_NOTE if priors is None else (
-        f"{HEADING_NOTE}: the calibration carries it as a prior of {priors[1]:.2g} deg per turn, so its uncertainty "
-        "includes it")
-    return _with_priors(Placement(measured_by="accelerometer", note=note, turns=rows), priors)
+    if heading is not None:
+        note = f"{HEADING_NOTE}: {heading['note']}"
+    elif priors is not None:
+        note = (f"{HEADING_NOTE}: the calibration carries it as a prior of {priors[1]:.2g} deg per turn, so its "
+                "uncertainty includes it")
+    else:
+        note = HEADING_NOTE
+    return _with_priors(Placement(measured_by="accelerometer", note=note, turns=rows), priors, heading)
 
 
-def _with_priors(report: Placement, priors: tuple[float, float] | None) -> Placement:
+def _with_priors(report: Placement, priors: tuple[float, float] | None, heading: HeadingReport | None = None) -> Placement:
     if priors is not None:
         report["tilt_prior_deg"] = float(priors[0])
         report["heading_prior_deg"] = float(priors[1])
+    if heading is not None:
+        report["heading"] = heading
     return report
 
 

@@ -258,11 +258,17 @@ def test_bound_is_the_closed_form_cramer_rao_bound_on_the_paper_protocol():
 
 def test_reported_std_is_the_bound_scaled_by_the_birge_ratio():
     rec, truth = simulate(50, noise=0.03)
-    res = calibrate_closure(rec, list(truth.stages))
+    res = calibrate_closure(rec, list(truth.stages), heading_prior_deg=0.1)  # a stated heading spread
     birge = max(1.0, np.sqrt(res.quality["chi2"] / res.quality["dof"]))
     assert res.quality["birge_ratio"] == pytest.approx(birge)
     assert np.allclose(res.k_std, res.k_bound * birge) and np.allclose(res.b_std, res.b_bound * birge)
     assert res.quality["dof"] == 3 * 3 + 3 * 4 - 6
+    assert res.k_dof is None and res.quality["placement"]["heading"]["source"] == "stated"
+    # learned from the turns about x and y, the spread is one parameter more
+    learned = calibrate_closure(rec, list(truth.stages))
+    heading = learned.quality["placement"]["heading"]
+    assert heading["source"] == "estimated" and heading["turns"] == 2
+    assert learned.quality["dof"] == 3 * 3 + 3 * 4 - 6 - 1 and learned.k_dof is not None
 
 
 def test_default_method_is_closure_with_detected_stages():

@@ -35,11 +35,13 @@ from calib.estimators.closure.fit import (
     KPrior,
     System,
     assemble,
+    bias_free_angles,
     start_values,
     system,
 )
+from calib.estimators.closure.heading import HeadingEvidence, heading_evidence, heading_report, restricted_spread
 from calib.estimators.closure.partial import not_turned_text, partial_start, turned_axes
-from calib.estimators.closure.placement import check_heading_prior, placement_model
+from calib.estimators.closure.placement import HeadingSpread, check_heading_prior, placement_model
 from calib.estimators.closure.report import OFFDIAG_WARN, closure_result
 from calib.io.validation import check_calibration_input
 from calib.noise.rests import still_statistics
@@ -61,6 +63,7 @@ EXTENDED_FIT_MIN = 1e-3  # ... and when it explains the recording itself (its ch
 OFFDIAG_FAIL = 0.05  # ... and worse than this, not identified at all
 GN_STEPS = 8  # Gauss-Newton steps before the damped fit takes over
 GN_TOL = 1e-3  # ... which has converged when no step is above this share of its parameter's standard error
+SPREAD_TOL = 1e-2  # ... and, learning the heading spread, when it moved by less than this share since the step before
 _LSQ = {"method": "lm", "xtol": 1e-10, "ftol": 1e-12, "gtol": 1e-10, "x_scale": "jac"}
 
 
@@ -74,7 +77,8 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None 
     False keeps K diagonal; None (default) adds them where the recording identifies them (each known to
     ``OFFDIAG_WARN``) and the likelihood-ratio test finds them (p < ``EXTENDED_ALPHA``), and says which in
     ``quality["model_choice"]``. Each turn closes onto the pose the accelerometer saw it put back in, with the
-    heading it cannot see carried as a prior of ``heading_prior_deg`` (None: ``HEADING_PRIOR_DEG``;
+    heading it cannot see carried as a prior: of ``heading_prior_deg`` when stated, else the spread the turns about
+    horizontal axes show (``calib.estimators.closure.heading``), else ``HEADING_PRIOR_DEG`` (no turn shows it;
     ``calib.estimators.closure.placement``). ``k_prior`` weighs what is known of K with what the recording shows of it
     (identified or not), in the extended model when it knows something of its terms.
     Raises RecordingError for bad input, ProtocolError when a stage is missing,
@@ -90,6 +94,8 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None 
     tilts = measure_tilts(rec, turns, stills, stage_list)
     place = placement_model(tilts, check_heading_prior(heading_prior_deg))
     data = ClosureData(m, d, mean, count, sigma, place.target[None], place.cov[None])
+    evidence = None if heading_prior_deg is not None else heading_evidence(tilts, bias_free_angles(data)[0][0])
+    evidence = evidence if evidence is not None and evidence.turns else None
 
     theta0, n_rev, rank = start_values(data, extended=False)
     theta, revolutions = theta0[0], n_rev[0]
@@ -102,7 +108,7 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None 
                 "of x, y and z, pausing about 3 s between turns", code="turn_missing", stages=stage_list)
         theta, revolutions = partial_start(data, turned)
         warnings.append(f"{not_turned_text(turned)}: turn the device a full 360 degrees about each axis to calibrate them")
-    fit = diagonal = _solve(data, theta, extended=False, not_turned=~turned)
+    fit = diagonal = _solve(data, theta, extended=False, not_turned=~turned, evidence=evidence)
     _check_closed(turns, fit, revolutions)  # before the extended terms, which could fold a turn that is not one away
     choice: ModelChoice = {"asked": extended}
     if not turned.all():
@@ -113,29 +119,32 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None 
     elif k_prior is not None:
         extended = k_prior.extended
         start = np.concatenate((fit.theta, [np.nan_to_num(k_prior.mean[i, j]) for i, j in OFF_DIAGONAL])) if extended else fit.theta
-        fit = _solve(data, start, extended=extended, k_prior=k_prior)
+        fit = _solve(data, start, extended=extended, k_prior=k_prior, evidence=evidence)
         choice["reason"] = "weighed with what was known of K" + (", its terms included" if extended else "")
     elif extended:
         start = np.concatenate((fit.theta, np.zeros(3)))
         _check_identified(data, start)
-        fit = _solve(data, start, extended=True)
+        fit = _solve(data, start, extended=True, evidence=evidence)
         choice["reason"] = "asked for"
     elif extended is None:
-        fit, extended, choice = _choose_model(data, fit)
+        fit, extended, choice = _choose_model(data, fit, evidence)
     else:
         choice["reason"] = "not asked for"
     if fit is not diagonal:
         _check_closed(turns, fit, revolutions)
     result = closure_result(rec, stage_list, turns, stills, data, fit, revolutions, bool(extended), warnings, dt_all)
     result.quality["model_choice"] = choice
-    result.quality["placement"] = placement_report(turns, tilts, (place.tilt_prior_deg, place.heading_prior_deg))
+    heading = fit.heading or HeadingSpread(place.heading_prior_deg, "stated" if heading_prior_deg is not None else "default")
+    result.quality["placement"] = placement_report(turns, tilts, (place.tilt_prior_deg, heading.spread_deg), heading_report(heading))
     return result
 
 
-def _choose_model(data: ClosureData, diagonal: ClosureFit) -> tuple[ClosureFit, bool, ModelChoice]:
+def _choose_model(data: ClosureData, diagonal: ClosureFit, evidence: HeadingEvidence | None) -> tuple[ClosureFit, bool, ModelChoice]:
     """The diagonal fit, or the extended one where the recording identifies its terms and needs them."""
     choice: ModelChoice = {"asked": None}
     start = np.concatenate((diagonal.theta, np.zeros(3)))
+    if evidence is not None and diagonal.heading is not None:
+        data = evidence.data_with(data, diagonal.heading.spread_deg)
     bound = offdiag_bounds(data, start, diagonal.terms)
     choice["offdiag_bound"] = [float(v) for v in bound]
     if np.any(bound > OFFDIAG_WARN):
@@ -143,7 +152,7 @@ def _choose_model(data: ClosureData, diagonal: ClosureFit) -> tuple[ClosureFit, 
                             f"needs {OFFDIAG_WARN:g}): turns about the sensor axes leave them free")
         return diagonal, False, choice
     try:
-        ext = _solve(data, start, extended=True)
+        ext = _solve(data, start, extended=True, evidence=evidence)
     except np.linalg.LinAlgError:  # the extended model's steps left the noise covariance of its rates: it explains nothing
         choice["reason"] = "the extended model could not be fitted (its noise covariance lost its meaning on the way)"
         return diagonal, False, choice
@@ -168,9 +177,10 @@ def _choose_model(data: ClosureData, diagonal: ClosureFit) -> tuple[ClosureFit, 
 
 
 def _solve(data: ClosureData, theta0: np.ndarray, extended: bool, not_turned: np.ndarray | None = None,
-           k_prior: KPrior | None = None) -> ClosureFit:
+           k_prior: KPrior | None = None, evidence: HeadingEvidence | None = None) -> ClosureFit:
     """The maximum-likelihood fit from ``theta0``: Gauss-Newton (one closure pass a step), or where its steps do not
-    settle, least_squares with the turn weights held fixed and re-weighted at its solution until they settle.
+    settle, least_squares with the turn weights held fixed and re-weighted at its solution until they settle. With
+    ``evidence``, the heading spread is learned at each step from the turns that show it (``restricted_spread``).
 
     ``not_turned`` (3,): axes no
     turn was about, whose scale factors only the hand's wobble informs: each gets the prior N(1, ``NOT_TURNED_K_SD``),
@@ -188,11 +198,15 @@ def _solve(data: ClosureData, theta0: np.ndarray, extended: bool, not_turned: np
     def with_prior(res: np.ndarray, th: np.ndarray) -> np.ndarray:
         return np.concatenate((res, (th[index] - centre) / spread))
 
-    fast = _gauss_newton(data, theta0, extended, with_prior, prior_rows)
+    fast = _gauss_newton(data, theta0, extended, with_prior, prior_rows, evidence)
     if fast is not None:
-        theta, current, nfev = fast
+        theta, current, nfev, heading = fast
         converged = True
     else:
+        heading = None
+        if evidence is not None:  # the spread learned at the start, held through the damped fit
+            data, heading = _learn_heading(data, system(data, theta0[None], extended, jacobian=True), theta0, with_prior,
+                                           prior_rows, evidence)
         theta, current, nfev, converged = _least_squares(data, theta0, extended, with_prior, prior_rows)
     jacobian = np.vstack((current.J[0], prior_rows))
     return ClosureFit(
@@ -205,18 +219,27 @@ def _solve(data: ClosureData, theta0: np.ndarray, extended: bool, not_turned: np
         converged=converged,
         not_turned=held,
         priors=int(index.size),
+        heading=heading,
     )
 
 
 def _gauss_newton(data: ClosureData, theta: np.ndarray, extended: bool, with_prior: Callable[[np.ndarray, np.ndarray], np.ndarray],
-                  prior_rows: np.ndarray) -> tuple[np.ndarray, System, int] | None:
+                  prior_rows: np.ndarray, evidence: HeadingEvidence | None = None,
+                  ) -> tuple[np.ndarray, System, int, HeadingSpread | None] | None:
     """Gauss-Newton from the linear start with the turn weights recomputed at each iterate: one closure pass a step, and
     the same solution as ``_least_squares`` (both stop where the gradient at the weights of the solution is zero).
-    None when its steps do not shrink each time or do not settle within ``GN_STEPS``: the damped fit takes over."""
+    With ``evidence`` the heading spread is learned again at each iterate (the weights follow it without another
+    closure pass) and has settled too at the solution. None when its steps do not shrink each time or do not settle
+    within ``GN_STEPS``: the damped fit takes over."""
     last = np.inf
+    heading: HeadingSpread | None = None
     for it in range(1, GN_STEPS + 1):
         try:
             current = system(data, theta[None], extended, jacobian=True)
+            before = heading
+            if evidence is not None:
+                data, heading = _learn_heading(data, current, theta, with_prior, prior_rows, evidence)
+                current = assemble(data, theta[None], extended, current.terms)
             jac = np.vstack((current.J[0], prior_rows))
             cov = np.linalg.inv(jac.T @ jac)
             step = -cov @ (jac.T @ with_prior(current.res[0], theta))
@@ -224,12 +247,27 @@ def _gauss_newton(data: ClosureData, theta: np.ndarray, extended: bool, with_pri
         except np.linalg.LinAlgError:  # weights or normal equations lost their meaning on the way
             return None
         size = float(np.max(np.abs(step) / std))
-        if not np.isfinite(size) or size >= last:
+        settled = heading is None or (before is not None and abs(heading.spread_deg - before.spread_deg)
+                                      <= SPREAD_TOL * before.spread_deg + 1e-5)
+        if not np.isfinite(size) or (size >= last and settled):
             return None
-        if size <= GN_TOL:
-            return theta, current, it
+        if size <= GN_TOL and settled:
+            return theta, current, it, heading
         theta, last = theta + step, size
     return None
+
+
+def _learn_heading(data: ClosureData, current: System, theta: np.ndarray,
+                   with_prior: Callable[[np.ndarray, np.ndarray], np.ndarray], prior_rows: np.ndarray,
+                   evidence: HeadingEvidence) -> tuple[ClosureData, HeadingSpread]:
+    """The heading spread the turns show at ``current`` (the system at ``theta``), and ``data`` carrying it."""
+    J = data.J
+    res = with_prior(current.res[0], theta)
+    jac = np.vstack((current.J[0], prior_rows))
+    assert current.terms.noise is not None  # the system was built with its weights
+    heading = restricted_spread(res[: 3 * J].reshape(J, 3), jac[: 3 * J].reshape(J, 3, -1), current.chol[0],
+                                current.terms.noise.reshape(J, 3, 3), res[3 * J :], jac[3 * J :], evidence)
+    return evidence.data_with(data, heading.spread_deg), heading
 
 
 def _least_squares(data: ClosureData, theta: np.ndarray, extended: bool,

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from calib.estimators.closure.placement import HeadingSpread
 from calib.numerics.gram import gram
 from calib.numerics.rotation import ClosureTerms, closure_terms
 from calib.numerics.windows import solve_lower
@@ -325,6 +326,7 @@ class ClosureFit:
     converged: bool
     not_turned: np.ndarray | None = None  # (3,) axes no turn was about: their k had a prior, and is not determined
     priors: int = 0  # rows of prior knowledge among the residuals: each one observation more
+    heading: HeadingSpread | None = None  # the heading spread learned with the fit (None: stated or default)
 
     @property
     def terms_r(self) -> np.ndarray:

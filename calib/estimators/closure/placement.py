@@ -34,6 +34,22 @@ from calib.units import DEG
 HEADING_PRIOR_DEG = 0.1
 TILT_TEST_ALPHA = 0.001  # tilts beyond the accelerometer's noise at this level are the hand's, and are modelled
 MAX_HEADING_PRIOR_DEG = 10.0  # beyond this a turn's closure says nothing of its scale factor
+MAX_DOF = 1e6  # degrees of freedom reported as this many mean a normal interval
+
+
+@dataclass(frozen=True)
+class HeadingSpread:
+    """The heading spread a fit carried: ``spread_deg`` (1 sigma per turn), ``source`` ("estimated", "stated" or
+    "default"), ``turns`` (those whose closure showed it), ``spread_sd_deg`` (its standard error, estimated only),
+    ``dof`` (P,): each parameter's degrees of freedom for a Student-t interval (``MAX_DOF``: normal), and
+    ``sd_ratio`` (P,): its standard error over all the spreads the turns allow, over that at the one estimated."""
+
+    spread_deg: float
+    source: str
+    turns: int = 0
+    spread_sd_deg: float | None = None
+    dof: np.ndarray | None = None
+    sd_ratio: np.ndarray | None = None  # (P,) each parameter's sd over the spreads allowed, over that at the spread
 
 
 @dataclass(frozen=True)

@@ -8,6 +8,7 @@ import numpy as np
 from calib.distributions import chi2_sf
 from calib.errors import CalibrationError
 from calib.estimators.closure.fit import ClosureData, ClosureFit, calibration_matrix, param_names
+from calib.estimators.closure.placement import MAX_DOF
 from calib.quality import Quality
 from calib.recording import Recording
 from calib.result import CalibrationResult
@@ -42,9 +43,13 @@ def closure_result(
     bound = np.sqrt(np.abs(np.diag(cov)))
     chi2 = float(fit.res @ fit.res)
     dof = int(data.dof(extended)[0]) + fit.priors  # each prior is one more observation
+    learned = fit.heading is not None and fit.heading.dof is not None
+    dof -= int(learned)  # the heading spread, learned from the residuals
     birge = float(np.sqrt(max(1.0, chi2 / dof))) if dof > 0 else 1.0
     p_value = float(chi2_sf(chi2, dof)) if dof > 0 else float("nan")
     std = bound * birge
+    if fit.heading is not None and fit.heading.sd_ratio is not None:  # the spread learned: each variance unbiased
+        std = std * fit.heading.sd_ratio
     K = calibration_matrix(theta[None])[0]
     # an axis not turned: its k only had its prior, and neither it nor its bias (the rest's reading times k) is determined
     theta[:3][held] = np.nan
@@ -161,7 +166,16 @@ def closure_result(
         residuals={"turns": turn_rows, "stills": still_rows, "chi2": chi2, "dof": dof},
         warnings=warnings,
         iterations=fit.nfev,
+        k_dof=_dof(fit, 0) if learned else None,
+        b_dof=_dof(fit, 3) if learned else None,
     )
+
+
+def _dof(fit: ClosureFit, first: int) -> np.ndarray:
+    """The Student-t degrees of freedom of three parameters from ``first`` (inf: normal)."""
+    assert fit.heading is not None and fit.heading.dof is not None  # the spread was learned
+    dof = fit.heading.dof[first : first + 3].astype(float)
+    return np.where(dof >= MAX_DOF, np.inf, dof)
 
 
 def correlation(cov: np.ndarray) -> np.ndarray:
