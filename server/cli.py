@@ -87,6 +87,14 @@ def register(sub: Any) -> None:
     )
     p.add_argument("--method", default="closure", help="estimator of live sessions (default closure)")
     p.add_argument(
+        "--heading-prior-deg",
+        type=float,
+        default=None,
+        metavar="DEG",
+        help="how far (1 sigma, deg) a device's heading may be off after each turn at this site, where it is known "
+        "(closure; uploads may state their own); default: learned from each recording's turns about horizontal axes",
+    )
+    p.add_argument(
         "--max-attempts",
         type=int,
         default=3,
@@ -192,6 +200,14 @@ def build_service(args: argparse.Namespace) -> Any:
             raise ServiceError(f"--mock-rate must be {offered} for a {args.mock_model} wearable")
     if args.method not in method_names():
         raise ServiceError(f"--method must be one of {', '.join(method_names())}")
+    if args.heading_prior_deg is not None:
+        from calib.errors import GyrocalError
+        from calib.pipeline import method_options
+
+        try:
+            method_options(args.method, args.heading_prior_deg)
+        except GyrocalError as exc:
+            raise ServiceError(f"--heading-prior-deg: {exc}") from None
     loopback = args.host in ("127.0.0.1", "::1", "localhost")
     if not loopback and not args.auth_reads and not args.open_reads:
         raise ServiceError(
@@ -219,6 +235,7 @@ def build_service(args: argparse.Namespace) -> Any:
         port=args.port,
         auth_reads=args.auth_reads,
         method=args.method,
+        heading_prior_deg=args.heading_prior_deg,
         max_turn_attempts=args.max_attempts,
         worker_memory_mb=args.worker_memory_mb,
         allowed_hosts=tuple(dict.fromkeys(h.lower() for h in hosts)),

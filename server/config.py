@@ -97,6 +97,9 @@ class Settings:
     anonymous_analyses_per_min: float = 6.0  # POST /diagnose without a token, per client address (burst 3)
     token_ttl_s: float = 12 * 3600.0
     method: str = "closure"  # estimator of live sessions
+    # the heading a device is put back with after each turn, 1 sigma deg, where the site knows it (closure); None:
+    # learned from each recording's turns about horizontal axes (calib.estimators.closure.heading)
+    heading_prior_deg: float | None = None
     timings: ProtocolTimings = field(default_factory=ProtocolTimings)
     tolerances: Tolerances = field(default_factory=Tolerances)
     max_turn_attempts: int = 3  # tries per turn: a failed turn check asks for the turn again until this many (1: it ends the session)

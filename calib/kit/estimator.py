@@ -23,6 +23,8 @@ import numpy as np
 from calib.errors import GyrocalError, KitRefusal
 from calib.estimators.closure.estimator import calibrate_closure
 from calib.estimators.closure.fit import KPrior
+from calib.estimators.closure.heading import heading_report
+from calib.estimators.closure.placement import HeadingSpread
 from calib.judge.acceptance import misclosure
 from calib.kit.axes import KitAxes, Refit, kit_axes
 from calib.kit.clocks import IDENTITY, ClockMap
@@ -95,9 +97,9 @@ def calibrate_kit(recordings: Sequence[Recording], names: Sequence[str] | None =
         left_out.append(blamed)
         members.remove(blamed)
     say(0.9, "each wearable's calibration")
-    axes = kit_axes(solved.mean, [(solved.maps[i], solved.clocks[i]) for i in members],
-                    _refit(solved, heading_prior_deg))
-    out = _members(recordings, names, solved, members, axes, heading_prior_deg)
+    tray = _tray_heading(solved.mean, heading_prior_deg)
+    axes = kit_axes(solved.mean, [(solved.maps[i], solved.clocks[i]) for i in members], _refit(solved, tray))
+    out = _members(recordings, names, solved, members, axes, tray)
     for i in left_out:
         alone.setdefault(i, _alone(recordings[i], protocol, heading_prior_deg))
         out[i] = _departed_member(names[i], alone[i], len(recordings), *seen[i])
@@ -115,13 +117,26 @@ def calibrate_kit(recordings: Sequence[Recording], names: Sequence[str] | None =
     return KitResult(out, names[solved.ref], solved.mean, warnings, axes.to_dict())
 
 
-def _refit(solved: _Solved, heading_prior_deg: float | None) -> Refit | None:
+def _tray_heading(mean: CalibrationResult, heading_prior_deg: float | None) -> tuple[float | None, str]:
+    """The tray's heading spread every wearable's fit carries, and where it came from: as stated, else what the
+    kit's mean recording showed (one tray, one hand: the same for every wearable in it), else (no turn showed it)
+    each fit's default."""
+    if heading_prior_deg is not None:
+        return heading_prior_deg, "stated"
+    placement = mean.quality.get("placement")
+    heading = placement.get("heading") if placement else None
+    if heading is not None and heading["source"] == "estimated" and heading["spread_deg"] is not None:
+        return float(heading["spread_deg"]), "kit"
+    return None, "default"
+
+
+def _refit(solved: _Solved, tray: tuple[float | None, str]) -> Refit | None:
     """The kit's mean recording calibrated again, on its stages, with a prior on K's off-diagonal terms; None when the
     mean was not calibrated by the closure estimator (its K was fitted otherwise)."""
     if solved.mean.method != "closure":
         return None
-    return lambda prior: calibrate_closure(solved.mean_rec, stages=solved.mean.stages, heading_prior_deg=heading_prior_deg,
-                                           k_prior=prior)
+    return lambda prior: calibrate_closure(solved.mean_rec, stages=solved.mean.stages, heading_prior_deg=tray[0],
+                                           k_prior=prior, heading_source=tray[1])
 
 
 class _Solved:
@@ -220,7 +235,7 @@ def _mapped_variance(linear: LinearMap, noise: np.ndarray) -> np.ndarray:
 
 
 def _members(recordings: Sequence[Recording], names: list[str], solved: _Solved, members: list[int],
-             axes: KitAxes, heading_prior_deg: float | None) -> list[KitMember]:
+             axes: KitAxes, tray: tuple[float | None, str]) -> list[KitMember]:
     mean = solved.mean
     out: list[KitMember] = [None] * len(recordings)  # type: ignore[list-item]
     for j, i in enumerate(members):
@@ -233,7 +248,7 @@ def _members(recordings: Sequence[Recording], names: list[str], solved: _Solved,
             stages[-1] = replace(stages[-1], end=len(rec), end_s=float(rec.t[-1]))
         at_rest = np.concatenate([np.arange(s.start, s.end) for s in stages if s.kind == "still"])
         params = rest_bias(params, rec.gyro[at_rest].mean(axis=0), at_rest.size, solved.reading_noise[i])
-        params = _own_turns_bias(rec, stages, params, heading_prior_deg)
+        params = _own_turns_bias(rec, stages, params, tray)
         result = _result(rec, params, clock, solved, names, j, stages, solved.reading_noise[i], axes)
         out[i] = KitMember(names[i], result, clock, params.mount_deg,
                            Coherence(linear.residual_sd, linear.noise_sd, solved.departures[j]))
@@ -241,7 +256,7 @@ def _members(recordings: Sequence[Recording], names: list[str], solved: _Solved,
 
 
 def _own_turns_bias(rec: Recording, stages: list[Stage], params: MemberParams,
-                    heading_prior_deg: float | None) -> MemberParams:
+                    tray: tuple[float | None, str]) -> MemberParams:
     """``params`` with b from the wearable's own rests and turns, its k known from the kit: the closure fit of its own
     recording, with the kit's k and its uncertainty as a prior. A turn's closure tells of b as well as the rests do
     where the wearable is put back where it was. Kept as they are (b from the rests) where a turn lost samples, where
@@ -252,7 +267,8 @@ def _own_turns_bias(rec: Recording, stages: list[Stage], params: MemberParams,
     std = np.full((3, 3), np.inf)
     std[np.diag_indices(3)] = params.k_std
     try:
-        own = calibrate_closure(rec, stages=stages, heading_prior_deg=heading_prior_deg, k_prior=KPrior(params.K, std))
+        own = calibrate_closure(rec, stages=stages, heading_prior_deg=tray[0], k_prior=KPrior(params.K, std),
+                                heading_source=tray[1])
     except GyrocalError:
         return params
     if own.b_std is None or own.b_bound is None or not np.all(np.isfinite(own.b)):
@@ -266,6 +282,9 @@ def _result(rec: Recording, params: MemberParams, clock: ClockMap, solved: _Solv
     closures with its own calibration, the mean's quality with the kit's block beside it."""
     mean = solved.mean
     quality: Any = copy.deepcopy(mean.quality)
+    heading = (quality.get("placement") or {}).get("heading")
+    if heading and heading["source"] == "estimated":  # the mean's spread, carried by every wearable's fit
+        quality["placement"]["heading"] = heading_report(HeadingSpread(heading["spread_deg"], "kit"))
     quality["kit"] = {"devices": len(solved.members), "reference": names[solved.ref], "clock": clock.to_dict(),
                       "mount_deg": params.mount_deg, "consistency": solved.departures[j].to_dict(),
                       "axes": axes.to_dict()}

@@ -34,6 +34,7 @@ async def calibrate_uploaded(
     boot_count: int | None = None,
     options: ReadOptions | None = None,
     accel: bytes | None = None,
+    heading_prior_deg: float | None = None,
 ) -> JSONResponse:
     from calib.estimators.registry import DEFAULT_METHOD
 
@@ -46,7 +47,8 @@ async def calibrate_uploaded(
     inp = upload_input(body, f"upload for {device_id}", options or ReadOptions(), fs, layout, accel)
     try:
         result, used, csv, n_samples = await asyncio.wait_for(
-            svc.pool.run(calibrate_upload, inp, method, svc.settings.max_upload_samples),
+            svc.pool.run(calibrate_upload, inp, method, svc.settings.max_upload_samples,
+                         svc.settings.heading_prior_deg if heading_prior_deg is None else heading_prior_deg),
             timeout=svc.settings.compute_timeout_s,
         )
     except TimeoutError:

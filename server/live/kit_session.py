@@ -67,12 +67,15 @@ class KitSession(Generic[M]):
 
     def __init__(self, kit_id: str, members: list[M], pool: ComputePool | None, compute_timeout_s: float,
                  operator: str, on_end: Callable[[KitSession[M]], None] | None = None,
-                 keep_outcome: Callable[[str, KitOutcome], None] | None = None) -> None:
-        """``keep_outcome(kit_id, outcome)``: stores how the wearables followed the tray (run in a thread)."""
+                 keep_outcome: Callable[[str, KitOutcome], None] | None = None,
+                 heading_prior_deg: float | None = None) -> None:
+        """``keep_outcome(kit_id, outcome)``: stores how the wearables followed the tray (run in a thread);
+        ``heading_prior_deg``: the site's stated heading spread of the tray (None: learned from the kit's turns)."""
         self.id = kit_id
         self.members = members
         self.pool = pool
         self.compute_timeout_s = compute_timeout_s
+        self.heading_prior_deg = heading_prior_deg
         self.operator = operator
         self.on_end = on_end
         self.keep_outcome = keep_outcome
@@ -154,13 +157,14 @@ class KitSession(Generic[M]):
         try:
             if len(names) == 1:  # the others ended without a recording: this one is calibrated alone
                 rec, stages, method = self._arrived[names[0]]
-                alone = await asyncio.wait_for(off_loop(self.pool, calibrate_live, rec, method, stages), self.compute_timeout_s)
+                alone = await asyncio.wait_for(off_loop(self.pool, calibrate_live, rec, method, stages, self.heading_prior_deg),
+                                               self.compute_timeout_s)
                 self.outcome = KitOutcome({names[0]: alone}, refusal=None)
             elif names:
                 recs = [self._arrived[n][0] for n in names]
                 kept = [turn_spans(*self._arrived[n][:2]) for n in names]
-                self.outcome = await asyncio.wait_for(off_loop(self.pool, calibrate_kit_live, recs, names, kept),
-                                                      self.compute_timeout_s)
+                self.outcome = await asyncio.wait_for(off_loop(self.pool, calibrate_kit_live, recs, names, kept,
+                                                               self.heading_prior_deg), self.compute_timeout_s)
         except TimeoutError:
             why = say.compute_timeout(self.compute_timeout_s, "the kit's calibration")
             self.outcome = KitOutcome({n: LiveOutcome(None, why, None, b"", EndReason.SERVICE_OVERLOADED) for n in names}, refusal=why)

@@ -45,7 +45,7 @@ SERVICE_LATE_S = 0.75  # the watchdog woke this much later than it asked: the se
 
 def compute_result(session: GuidedSession) -> CalibrationResult:
     """Run the estimator on a session's recording and stages, in this process (tests, tools)."""
-    outcome = calibrate_live(session.recording(), session.method, session.protocol_stages())
+    outcome = calibrate_live(session.recording(), session.method, session.protocol_stages(), session.heading_prior_deg)
     if outcome.result is None:
         from calib.errors import CalibrationError
 
@@ -332,7 +332,7 @@ class LiveSession(Persistence):
                 return
             outcome = kit_outcome
         else:
-            job = off_loop(self.pool, calibrate_live, rec, m.method, stages)
+            job = off_loop(self.pool, calibrate_live, rec, m.method, stages, m.heading_prior_deg)
             try:
                 outcome = await asyncio.wait_for(job, timeout=self.settings.compute_timeout_s)
             except TimeoutError:

@@ -73,6 +73,7 @@ class GuidedSession(ProtocolSteps, Lateness):
         self.timings = settings.timings
         self.tol = settings.tolerances
         self.method = method or settings.method
+        self.heading_prior_deg = settings.heading_prior_deg  # the site's stated heading spread, if any (closure)
         self.max_attempts = max(1, int(max_attempts or settings.max_turn_attempts))
         self.listener = listener
         self.clock = clock

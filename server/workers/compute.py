@@ -111,15 +111,15 @@ class LiveOutcome:
     end: EndReason = EndReason.CALIBRATION_FAILED
 
 
-def calibrate_live(rec: Recording, method: str, stages: list[Stage]) -> LiveOutcome:
+def calibrate_live(rec: Recording, method: str, stages: list[Stage], heading_prior_deg: float | None = None) -> LiveOutcome:
     """A live session's recording calibrated through the one entry point (``calib.pipeline.calibrate_protocol``, the
-    paper protocol, with the stages the session followed)."""
+    paper protocol, with the stages the session followed; ``heading_prior_deg``: the site's stated heading spread)."""
     from calib.errors import GyrocalError, Refusal
     from calib.pipeline import calibrate_protocol
 
     csv = recording_csv(rec)
     try:
-        result, _ = calibrate_protocol(rec, "paper", method, stages=stages)
+        result, _ = calibrate_protocol(rec, "paper", method, stages=stages, heading_prior_deg=heading_prior_deg)
     except GyrocalError as exc:
         return LiveOutcome(None, f"{exc} Start a new calibration.", exc.code if isinstance(exc, Refusal) else None, csv)
     return LiveOutcome(result, None, None, csv)
@@ -137,12 +137,14 @@ def parse_upload(inp: RecordingInput, max_samples: int) -> ReadRecording:
     return read
 
 
-def calibrate_upload(inp: RecordingInput, method: str, max_samples: int) -> tuple[CalibrationResult, str, bytes, int]:
+def calibrate_upload(inp: RecordingInput, method: str, max_samples: int, heading_prior_deg: float | None = None,
+                     ) -> tuple[CalibrationResult, str, bytes, int]:
     """Read and calibrate an uploaded recording: (result, protocol used, CSV, samples); raises calib's errors."""
     from calib.pipeline import calibrate_protocol
 
     read = parse_upload(inp, max_samples)
-    result, used = calibrate_protocol(read.recording, read.protocol, method, read.sections)
+    result, used = calibrate_protocol(read.recording, read.protocol, method, read.sections,
+                                      heading_prior_deg=heading_prior_deg)
     return result, used, recording_csv(read.recording), len(read.recording)
 
 

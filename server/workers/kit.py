@@ -24,7 +24,8 @@ class KitOutcome:
 
 
 def calibrate_kit_live(recordings: list[Recording], names: list[str],
-                       turns_kept: list[list[tuple[float, float]]] | None = None) -> KitOutcome:
+                       turns_kept: list[list[tuple[float, float]]] | None = None,
+                       heading_prior_deg: float | None = None) -> KitOutcome:
     """Calibrate a kit session's recordings (one per wearable, in ``names``' order) together; ``turns_kept``: each
     wearable's turns its guidance took (start and end on its stamps, s), so that a turn the tray was asked again is no
     turn of the kit's. A wearable that departed from the kit, or did not turn with it at all, gets no result: the reason
@@ -35,7 +36,7 @@ def calibrate_kit_live(recordings: list[Recording], names: list[str],
 
     csvs = {name: recording_csv(rec) for name, rec in zip(names, recordings, strict=True)}
     try:
-        kit = calibrate_kit(recordings, names, protocol="paper", turns_kept=turns_kept)
+        kit = calibrate_kit(recordings, names, protocol="paper", turns_kept=turns_kept, heading_prior_deg=heading_prior_deg)
     except GyrocalError as exc:
         if isinstance(exc, KitRefusal) and exc.wearable is not None and exc.reference is not None:
             why = say.not_one_motion(exc.wearable, exc.reference)

@@ -39,7 +39,7 @@ from calib.estimators.closure.fit import (
     start_values,
     system,
 )
-from calib.estimators.closure.heading import HeadingEvidence, heading_evidence, heading_report, restricted_spread
+from calib.estimators.closure.heading import HeadingEvidence, heading_evidence, heading_report, learn_heading
 from calib.estimators.closure.partial import not_turned_text, partial_start, turned_axes
 from calib.estimators.closure.placement import HeadingSpread, check_heading_prior, placement_model
 from calib.estimators.closure.report import OFFDIAG_WARN, closure_result
@@ -69,7 +69,7 @@ _LSQ = {"method": "lm", "xtol": 1e-10, "ftol": 1e-12, "gtol": 1e-10, "x_scale": 
 
 def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None = None,
                       heading_prior_deg: float | None = None,
-                      k_prior: KPrior | None = None) -> CalibrationResult:
+                      k_prior: KPrior | None = None, heading_source: str = "stated") -> CalibrationResult:
     """Calibrate one recording with the closure maximum-likelihood estimator (method "closure").
 
     stages: a list of Stage, a ProtocolStages, or None to detect them. Every full turn and every
@@ -80,7 +80,8 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None 
     heading it cannot see carried as a prior: of ``heading_prior_deg`` when stated, else the spread the turns about
     horizontal axes show (``calib.estimators.closure.heading``), else ``HEADING_PRIOR_DEG`` (no turn shows it;
     ``calib.estimators.closure.placement``). ``k_prior`` weighs what is known of K with what the recording shows of it
-    (identified or not), in the extended model when it knows something of its terms.
+    (identified or not), in the extended model when it knows something of its terms. ``heading_source``: where a
+    given heading prior came from ("stated", or "kit": learned from a kit's mean recording), as the result reports it.
     Raises RecordingError for bad input, ProtocolError when a stage is missing,
     CalibrationError when the recording does not determine the parameters (or the terms asked for).
     """
@@ -134,7 +135,7 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None 
         _check_closed(turns, fit, revolutions)
     result = closure_result(rec, stage_list, turns, stills, data, fit, revolutions, bool(extended), warnings, dt_all)
     result.quality["model_choice"] = choice
-    heading = fit.heading or HeadingSpread(place.heading_prior_deg, "stated" if heading_prior_deg is not None else "default")
+    heading = fit.heading or HeadingSpread(place.heading_prior_deg, heading_source if heading_prior_deg is not None else "default")
     result.quality["placement"] = placement_report(turns, tilts, (place.tilt_prior_deg, heading.spread_deg), heading_report(heading))
     return result
 
@@ -205,7 +206,7 @@ def _solve(data: ClosureData, theta0: np.ndarray, extended: bool, not_turned: np
     else:
         heading = None
         if evidence is not None:  # the spread learned at the start, held through the damped fit
-            data, heading = _learn_heading(data, system(data, theta0[None], extended, jacobian=True), theta0, with_prior,
+            data, heading = learn_heading(data, system(data, theta0[None], extended, jacobian=True), theta0, with_prior,
                                            prior_rows, evidence)
         theta, current, nfev, converged = _least_squares(data, theta0, extended, with_prior, prior_rows)
     jacobian = np.vstack((current.J[0], prior_rows))
@@ -238,7 +239,7 @@ def _gauss_newton(data: ClosureData, theta: np.ndarray, extended: bool, with_pri
             current = system(data, theta[None], extended, jacobian=True)
             before = heading
             if evidence is not None:
-                data, heading = _learn_heading(data, current, theta, with_prior, prior_rows, evidence)
+                data, heading = learn_heading(data, current, theta, with_prior, prior_rows, evidence)
                 current = assemble(data, theta[None], extended, current.terms)
             jac = np.vstack((current.J[0], prior_rows))
             cov = np.linalg.inv(jac.T @ jac)
@@ -255,19 +256,6 @@ def _gauss_newton(data: ClosureData, theta: np.ndarray, extended: bool, with_pri
             return theta, current, it, heading
         theta, last = theta + step, size
     return None
-
-
-def _learn_heading(data: ClosureData, current: System, theta: np.ndarray,
-                   with_prior: Callable[[np.ndarray, np.ndarray], np.ndarray], prior_rows: np.ndarray,
-                   evidence: HeadingEvidence) -> tuple[ClosureData, HeadingSpread]:
-    """The heading spread the turns show at ``current`` (the system at ``theta``), and ``data`` carrying it."""
-    J = data.J
-    res = with_prior(current.res[0], theta)
-    jac = np.vstack((current.J[0], prior_rows))
-    assert current.terms.noise is not None  # the system was built with its weights
-    heading = restricted_spread(res[: 3 * J].reshape(J, 3), jac[: 3 * J].reshape(J, 3, -1), current.chol[0],
-                                current.terms.noise.reshape(J, 3, 3), res[3 * J :], jac[3 * J :], evidence)
-    return evidence.data_with(data, heading.spread_deg), heading
 
 
 def _least_squares(data: ClosureData, theta: np.ndarray, extended: bool,

@@ -34,7 +34,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from calib.estimators.closure.fit import ClosureData
+from calib.estimators.closure.fit import ClosureData, System
 from calib.estimators.closure.placement import MAX_DOF, MAX_HEADING_PRIOR_DEG, HeadingSpread, placement_model
 from calib.quality import HeadingReport
 from calib.stages.placement import TurnTilts
@@ -137,9 +137,14 @@ def restricted_spread(turn_res: np.ndarray, turn_jac: np.ndarray, chol: np.ndarr
     signed = max(tau2, -0.9 * floor(measured))
     _, W, F, _ = full(np.array([signed]))
     cov = np.linalg.inv(F[0])
-    AU = np.einsum("jap,ja->jp", A_all[measured], np.einsum("jab,jb->ja", W[0], up_all[measured]))
-    var = np.diag(cov)
-    dv = np.einsum("pq,jq,jr,rp->p", cov, AU, AU, cov)  # d var / d tau^2 = diag(cov D cov), D = sum_j AU_j AU_j^T
+    WU = np.einsum("jab,jb->ja", W[0], up_all[measured])
+    AU = np.einsum("jap,ja->jp", A_all[measured], WU)
+    D = AU.T @ AU  # -dF/d tau^2
+    dv = np.diag(cov @ D @ cov)  # d var / d tau^2
+    # the weights carry an estimated spread: Kenward and Roger's addition to each variance, 2 var(tau^2) cov (Q - D cov D)
+    # cov with Q = sum_j (u_j^T W_j u_j) AU_j AU_j^T, what a spread off by its error adds to the parameters' scatter
+    Q = np.einsum("j,jp,jq->pq", np.einsum("ja,ja->j", up_all[measured], WU), AU, AU)
+    var = np.diag(cov) + 2.0 * min(var_tau2, 1e300) * np.diag(cov @ (Q - D @ cov @ D) @ cov) if np.isfinite(var_tau2) else np.diag(cov)
     with np.errstate(divide="ignore", invalid="ignore"):
         dof = np.where(dv > 0, 2.0 * var**2 / (dv**2 * var_tau2), MAX_DOF)
     dof = np.clip(np.nan_to_num(dof, nan=MAX_DOF, posinf=MAX_DOF), 1.0, MAX_DOF)
@@ -169,6 +174,19 @@ def _minimum(grid: np.ndarray, objective: np.ndarray) -> float:
     return float(np.exp(best)) if logs else best
 
 
+def learn_heading(data: ClosureData, current: System, theta: np.ndarray,
+                   with_prior: Callable[[np.ndarray, np.ndarray], np.ndarray], prior_rows: np.ndarray,
+                   evidence: HeadingEvidence) -> tuple[ClosureData, HeadingSpread]:
+    """The heading spread the turns show at ``current`` (the system at ``theta``), and ``data`` carrying it."""
+    J = data.J
+    res = with_prior(current.res[0], theta)
+    jac = np.vstack((current.J[0], prior_rows))
+    assert current.terms.noise is not None  # the system was built with its weights
+    heading = restricted_spread(res[: 3 * J].reshape(J, 3), jac[: 3 * J].reshape(J, 3, -1), current.chol[0],
+                                current.terms.noise.reshape(J, 3, 3), res[3 * J :], jac[3 * J :], evidence)
+    return evidence.data_with(data, heading.spread_deg), heading
+
+
 def heading_report(heading: HeadingSpread) -> HeadingReport:
     """``quality["placement"]["heading"]``: the spread carried, where it came from, and what that means."""
     spread = heading.spread_deg
@@ -179,6 +197,9 @@ def heading_report(heading: HeadingSpread) -> HeadingReport:
                 + "; the turn about the vertical carries it, where heading and scale factor cannot be told apart")
     elif heading.source == "stated":
         note = f"carried as the stated prior of {spread:.2g} deg per turn"
+    elif heading.source == "kit":
+        note = (f"learned from the kit's mean recording, the tray's heading being every wearable's: {spread:.2g} deg "
+                "per turn")
     else:
         note = (f"no turn about a horizontal axis with a measured rest beside it shows the heading: carried as the "
                 f"default prior of {spread:.2g} deg per turn; state the site's with --heading-prior-deg")

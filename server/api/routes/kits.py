@@ -67,7 +67,8 @@ async def calibrate_kit(svc: Svc, body: M.KitStart, response: Response, operator
             svc.release_device(device_id, sids[device_id])
         raise
     kit = KitSession(kit_id, members, svc.pool, svc.settings.compute_timeout_s, operator, on_end=lambda k: _forget_old(svc),
-                     keep_outcome=lambda kid, out: svc.store.record_kit_outcome(kid, out.consistency, out.departed, out.refusal))
+                     keep_outcome=lambda kid, out: svc.store.record_kit_outcome(kid, out.consistency, out.departed, out.refusal),
+                     heading_prior_deg=svc.settings.heading_prior_deg)
     svc.kits[kit_id] = kit
     for live in members:
         live.start()

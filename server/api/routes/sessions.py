@@ -100,6 +100,9 @@ async def calibrate(svc: Svc,
                                         description="the sensor's serial or chip id, for an uploaded recording")] = None,
     boot_count: Annotated[int | None, Query(ge=0, le=0xFFFFFFFF,
                                             description="the device's power-up count the recording was made in")] = None,
+    heading_prior_deg: Annotated[float | None, Query(
+        ge=0, le=10, description="for an uploaded recording: how far (1 sigma, deg) the device's heading may be off after "
+        "each turn, where the site knows it (closure); default the service's setting, else learned from the turns")] = None,
 ) -> Any:
     """Start a guided live session (JSON body or none) → 202; or calibrate an uploaded CSV (or imu_tk's two files,
     multipart) → 200."""
@@ -122,6 +125,7 @@ async def calibrate(svc: Svc,
             boot_count,
             upload,
             accel,
+            heading_prior_deg,
         )
     if ctype and ctype != "application/json" and body:
         raise problem(
