@@ -58,6 +58,7 @@ def result_summary(result: Any, source: str) -> str:
                 f"{(f'{std[i]:.2g}' if std else '-'):>12}"
                 f"{(f'{bnd[i]:.2g}' if bnd else '-'):>12}{unit}"
             )
+    lines.extend(_interval_lines(result, undetermined))
     if d.get("K") is not None:
         lines.append("Full calibration matrix K:")
         lines.extend("  " + fmt_vec(row, 6) for row in d["K"])
@@ -76,6 +77,22 @@ def result_summary(result: Any, source: str) -> str:
     for w in d.get("warnings") or []:
         lines.append(f"warning: {w}")
     return "\n".join(lines)
+
+
+def _interval_lines(result: Any, undetermined: list[str]) -> list[str]:
+    """The 95 % intervals that are a Student-t's: where a variance rests on a spread learned from few turns."""
+    intervals = result.interval(0.95)
+    if intervals is None:
+        return []
+    lines = []
+    for name, values, dofs, digits in (("k", intervals[0], result.k_dof, 6), ("b", intervals[1], result.b_dof, 4)):
+        for i, axis in enumerate("xyz"):
+            if dofs is None or not np.isfinite(dofs[i]) or dofs[i] > 30 or axis in undetermined:
+                continue
+            lo, hi = values[i]
+            lines.append(f"{name}_{axis}: 95 % interval {lo:.{digits}f} to {hi:.{digits}f} (a Student-t of {dofs[i]:.1f} "
+                         "degrees of freedom: its uncertainty rests on the hand's heading spread, learned from few turns)")
+    return lines
 
 
 def _placement_lines(placement: dict[str, Any] | None) -> list[str]:

@@ -512,3 +512,18 @@ def test_a_session_a_newer_gyrocal_ended_for_a_reason_this_one_does_not_know_is_
         device = c.get("/devices/unit-from-a-newer-room")
         assert device.status_code == 200, device.text
         assert [(r["id"], r["reason_code"]) for r in device.json()["recent_sessions"]] == [(sid, None)]
+
+
+def test_an_upload_without_a_stated_heading_spread_learns_it_from_its_turns(service: RunningService) -> None:
+    from calib.effects.placement import PlacementError
+
+    rec, _ = simulate(23, noise=0.05, effects=[PlacementError(0.5, heading_std_deg=0.5)])
+    buf = io.StringIO()
+    write_native_csv(rec, buf)
+    with service.client() as c:
+        r = c.post("/devices/upload-heading/calibrate", content=buf.getvalue(), headers={"Content-Type": "text/csv"})
+    assert r.status_code == 200, r.text
+    res = r.json()
+    heading = res["quality"]["placement"]["heading"]
+    assert heading["source"] == "estimated" and heading["turns"] == 2 and 0 < heading["spread_deg"] < 3
+    assert res["uncertainty"]["k_dof"] is not None and len(res["uncertainty"]["k_dof"]) == 3
