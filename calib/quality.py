@@ -81,7 +81,9 @@ class HeadingReport(TypedDict):
     """The heading spread a closure calibration carried and where it came from (``calib.estimators.closure.heading``)."""
 
     spread_deg: Number  # 1 sigma per turn
-    source: str  # "estimated" (from the turns that show it), "stated" (asked for), "default" (no turn shows it)
+    # "estimated" (from the turns that show it), "stated" (asked for), "default" (no turn shows it), "unsettled" (the
+    # turns did not settle on one: the default carried), "kit" (a kit's mean recording showed it)
+    source: str
     turns: int  # the turns whose closure showed it (estimated)
     spread_sd_deg: Number  # its standard error (estimated), else null
     note: str

@@ -21,6 +21,7 @@ or when some turns are about axes between the sensor axes.
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -41,7 +42,7 @@ from calib.estimators.closure.fit import (
 )
 from calib.estimators.closure.heading import HeadingEvidence, heading_evidence, heading_report, learn_heading
 from calib.estimators.closure.partial import not_turned_text, partial_start, turned_axes
-from calib.estimators.closure.placement import HeadingSpread, check_heading_prior, placement_model
+from calib.estimators.closure.placement import HEADING_PRIOR_DEG, HeadingSpread, check_heading_prior, placement_model
 from calib.estimators.closure.report import OFFDIAG_WARN, closure_result
 from calib.io.validation import check_calibration_input
 from calib.noise.rests import still_statistics
@@ -140,7 +141,8 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None 
     return result
 
 
-def _choose_model(data: ClosureData, diagonal: ClosureFit, evidence: HeadingEvidence | None) -> tuple[ClosureFit, bool, ModelChoice]:
+def _choose_model(data: ClosureData, diagonal: ClosureFit, evidence: HeadingEvidence | None,
+                  ) -> tuple[ClosureFit, bool, ModelChoice]:
     """The diagonal fit, or the extended one where the recording identifies its terms and needs them."""
     choice: ModelChoice = {"asked": None}
     start = np.concatenate((diagonal.theta, np.zeros(3)))
@@ -152,8 +154,9 @@ def _choose_model(data: ClosureData, diagonal: ClosureFit, evidence: HeadingEvid
         choice["reason"] = (f"the non-orthogonality terms are not identified (standard errors up to {bound.max():.2g}, "
                             f"needs {OFFDIAG_WARN:g}): turns about the sensor axes leave them free")
         return diagonal, False, choice
-    try:
-        ext = _solve(data, start, extended=True, evidence=evidence)
+    try:  # with the diagonal fit's heading spread held: the likelihood ratio compares the terms, not two spreads
+        ext = _solve(data, start, extended=True)
+        ext = replace(ext, heading=None if diagonal.heading is None else diagonal.heading.padded(9))
     except np.linalg.LinAlgError:  # the extended model's steps left the noise covariance of its rates: it explains nothing
         choice["reason"] = "the extended model could not be fitted (its noise covariance lost its meaning on the way)"
         return diagonal, False, choice
@@ -205,9 +208,11 @@ def _solve(data: ClosureData, theta0: np.ndarray, extended: bool, not_turned: np
         converged = True
     else:
         heading = None
-        if evidence is not None:  # the spread learned at the start, held through the damped fit
-            data, heading = learn_heading(data, system(data, theta0[None], extended, jacobian=True), theta0, with_prior,
-                                           prior_rows, evidence)
+        if evidence is not None:
+            # learning the spread did not settle: the turns pull it apart (a turn far from a full one makes the others'
+            # closures look like a sloppy hand at one iterate and not at the next); the default is carried, and said
+            data = evidence.data_with(data, HEADING_PRIOR_DEG)
+            heading = HeadingSpread(HEADING_PRIOR_DEG, "unsettled", evidence.turns)
         theta, current, nfev, converged = _least_squares(data, theta0, extended, with_prior, prior_rows)
     jacobian = np.vstack((current.J[0], prior_rows))
     return ClosureFit(

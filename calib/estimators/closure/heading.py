@@ -197,6 +197,10 @@ def heading_report(heading: HeadingSpread) -> HeadingReport:
                 + "; the turn about the vertical carries it, where heading and scale factor cannot be told apart")
     elif heading.source == "stated":
         note = f"carried as the stated prior of {spread:.2g} deg per turn"
+    elif heading.source == "unsettled":
+        note = (f"the closures of the {heading.turns} turn(s) about horizontal axes did not settle on a spread (a turn far "
+                f"from a full one pulls them apart; see the warnings): carried as the default prior of {spread:.2g} deg "
+                "per turn")
     elif heading.source == "kit":
         note = (f"learned from the kit's mean recording, the tray's heading being every wearable's: {spread:.2g} deg "
                 "per turn")

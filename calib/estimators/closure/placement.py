@@ -18,7 +18,7 @@ accelerometer, no rest beside it) carries both parts as an isotropic prior of th
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -50,6 +50,13 @@ class HeadingSpread:
     spread_sd_deg: float | None = None
     dof: np.ndarray | None = None
     sd_ratio: np.ndarray | None = None  # (P,) each parameter's sd over the spreads allowed, over that at the spread
+
+    def padded(self, P: int) -> HeadingSpread:
+        """The same spread for a fit of P parameters: those beyond this one's normal and unwidened."""
+        def pad(a: np.ndarray | None, fill: float) -> np.ndarray | None:
+            return None if a is None else np.concatenate((a, np.full(P - a.size, fill)))
+
+        return replace(self, dof=pad(self.dof, MAX_DOF), sd_ratio=pad(self.sd_ratio, 1.0))
 
 
 @dataclass(frozen=True)
