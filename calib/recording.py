@@ -121,7 +121,7 @@ class Recording:
     @cached_property
     def intervals_s(self) -> np.ndarray:
         """The interval each sample is held for (s, ``sample_intervals``), read-only."""
-        out = sample_intervals(self.t, self.median_step_s if len(self) > 1 else None)
+        out = sample_intervals(self.t, self.median_step_s)
         out.flags.writeable = False
         return out
 

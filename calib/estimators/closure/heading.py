@@ -41,7 +41,7 @@ from calib.stages.placement import TurnTilts
 from calib.units import DEG
 
 EVIDENCE_MIN_DEG = 30.0  # a turn whose axis is at least this far from the vertical shows its heading
-_GRID = np.concatenate(([0.0], np.geomspace(1e-3, MAX_HEADING_PRIOR_DEG, 64))) * DEG  # tau (rad)
+_GRID = np.geomspace(1e-3, MAX_HEADING_PRIOR_DEG, 64) * DEG  # the positive spreads tried, tau (rad)
 
 
 @dataclass(frozen=True)
@@ -112,7 +112,7 @@ def restricted_spread(turn_res: np.ndarray, turn_jac: np.ndarray, chol: np.ndarr
     # their noise says): each variance is then unbiased, and the weights carry tau^2 >= 0
     shows = evidence.shows
     reml = system(shows)
-    grid = np.concatenate((-floor(shows) * np.linspace(0.9, 0.1, 9), [0.0], _GRID[1:] ** 2))
+    grid = np.concatenate((-floor(shows) * np.linspace(0.9, 0.1, 9), [0.0], _GRID**2))
     C, W, F, h = reml(grid)
     fitted = np.linalg.solve(F, h[..., None])[..., 0]  # the parameters' step at each spread
     r = r_all[shows]
@@ -144,11 +144,14 @@ def restricted_spread(turn_res: np.ndarray, turn_jac: np.ndarray, chol: np.ndarr
     # the weights carry an estimated spread: Kenward and Roger's addition to each variance, 2 var(tau^2) cov (Q - D cov D)
     # cov with Q = sum_j (u_j^T W_j u_j) AU_j AU_j^T, what a spread off by its error adds to the parameters' scatter
     Q = np.einsum("j,jp,jq->pq", np.einsum("ja,ja->j", up_all[measured], WU), AU, AU)
-    var = np.diag(cov) + 2.0 * min(var_tau2, 1e300) * np.diag(cov @ (Q - D @ cov @ D) @ cov) if np.isfinite(var_tau2) else np.diag(cov)
+    at_signed = np.diag(cov)
+    var = at_signed + 2.0 * var_tau2 * np.diag(cov @ (Q - D @ cov @ D) @ cov) if np.isfinite(var_tau2) else at_signed
     with np.errstate(divide="ignore", invalid="ignore"):
-        dof = np.where(dv > 0, 2.0 * var**2 / (dv**2 * var_tau2), MAX_DOF)
-    dof = np.clip(np.nan_to_num(dof, nan=MAX_DOF, posinf=MAX_DOF), 1.0, MAX_DOF)
-    at_weights = np.diag(np.linalg.inv(full(np.array([tau**2]))[2][0]))
+        dof = np.where(dv > 0, 2.0 * var**2 / (dv**2 * var_tau2), np.inf)
+    dof = np.clip(np.nan_to_num(dof, nan=np.inf), 1.0, None)
+    dof[dof >= MAX_DOF] = np.inf  # as many as this: a normal interval
+    # the variance at the weights' spread: the same unless tau^2 came out below 0
+    at_weights = at_signed if tau2 >= 0 else np.diag(np.linalg.inv(full(np.array([0.0]))[2][0]))
     sd_tau = np.sqrt(var_tau2) / (2 * tau) if tau > 0 else np.sqrt(np.sqrt(var_tau2))  # delta method; at 0, sd(tau^2)
     return HeadingSpread(tau / DEG, "estimated", evidence.turns, float(min(sd_tau / DEG, 1e3)), dof,
                          np.sqrt(var / at_weights))

@@ -34,14 +34,14 @@ from calib.units import DEG
 HEADING_PRIOR_DEG = 0.1
 TILT_TEST_ALPHA = 0.001  # tilts beyond the accelerometer's noise at this level are the hand's, and are modelled
 MAX_HEADING_PRIOR_DEG = 10.0  # beyond this a turn's closure says nothing of its scale factor
-MAX_DOF = 1e6  # degrees of freedom reported as this many mean a normal interval
+MAX_DOF = 1e6  # degrees of freedom this many or more are reported as a normal interval's (inf)
 
 
 @dataclass(frozen=True)
 class HeadingSpread:
     """The heading spread a fit carried: ``spread_deg`` (1 sigma per turn), ``source`` ("estimated", "stated" or
     "default"), ``turns`` (those whose closure showed it), ``spread_sd_deg`` (its standard error, estimated only),
-    ``dof`` (P,): each parameter's degrees of freedom for a Student-t interval (``MAX_DOF``: normal), and
+    ``dof`` (P,): each parameter's degrees of freedom for a Student-t interval (inf: normal), and
     ``sd_ratio`` (P,): its standard error over all the spreads the turns allow, over that at the one estimated."""
 
     spread_deg: float
@@ -56,7 +56,7 @@ class HeadingSpread:
         def pad(a: np.ndarray | None, fill: float) -> np.ndarray | None:
             return None if a is None else np.concatenate((a, np.full(P - a.size, fill)))
 
-        return replace(self, dof=pad(self.dof, MAX_DOF), sd_ratio=pad(self.sd_ratio, 1.0))
+        return replace(self, dof=pad(self.dof, np.inf), sd_ratio=pad(self.sd_ratio, 1.0))
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,6 @@ import numpy as np
 from calib.distributions import chi2_sf
 from calib.errors import CalibrationError
 from calib.estimators.closure.fit import ClosureData, ClosureFit, calibration_matrix, param_names
-from calib.estimators.closure.placement import MAX_DOF
 from calib.quality import Quality
 from calib.recording import Recording
 from calib.result import CalibrationResult
@@ -174,8 +173,7 @@ def closure_result(
 def _dof(fit: ClosureFit, first: int) -> np.ndarray:
     """The Student-t degrees of freedom of three parameters from ``first`` (inf: normal)."""
     assert fit.heading is not None and fit.heading.dof is not None  # the spread was learned
-    dof = fit.heading.dof[first : first + 3].astype(float)
-    return np.where(dof >= MAX_DOF, np.inf, dof)
+    return fit.heading.dof[first : first + 3].astype(float)
 
 
 def correlation(cov: np.ndarray) -> np.ndarray:
