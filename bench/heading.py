@@ -1,6 +1,7 @@
 """The hand's heading spread learned from the turns that show it: accuracy and honesty of k and b with any hand.
 
-Run: .venv/bin/python bench/heading.py [--runs 500] [--workers 2] [--json out.json]
+Run: .venv/bin/python bench/heading.py [--runs 500] [--workers 2] [--noises ...] [--tilts ...] [--headings ...]
+     [--json out.json]
 
 Each setting simulates ``--runs`` paper-protocol recordings with the accelerometer (seeds 0..runs-1) whose hand puts
 the device back after each turn tilted by ``tilt`` and turned about the vertical by ``heading`` (deg, 1 sigma per
@@ -91,13 +92,15 @@ def main() -> int:
     p.add_argument("--runs", type=int, default=500)
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--noises", type=float, nargs="*", default=list(NOISES_DPS))
+    p.add_argument("--tilts", type=float, nargs="*", default=list(TILTS_DEG), help="tilt spreads (deg) to run")
+    p.add_argument("--headings", type=float, nargs="*", default=list(HEADINGS_DEG), help="heading spreads (deg) to run")
     p.add_argument("--json", default=None, help="write the figures to this file")
     args = p.parse_args()
     rows = []
     print(f"{'noise':>6} {'tilt':>5} {'head':>5} | {'k_x p95':>8} {'k_y p95':>8} {'k_z p95':>8} {'told':>8} | "
           f"{'sd k_x':>6} {'sd k_y':>6} {'sd k_z':>6} {'sd b max':>8} {'sd b min':>8} | {'cov k_z':>7} {'p<1e-3':>6}")
     with ProcessPoolExecutor(args.workers) as pool:
-        for noise, tilt, heading in itertools.product(args.noises, TILTS_DEG, HEADINGS_DEG):
+        for noise, tilt, heading in itertools.product(args.noises, args.tilts, args.headings):
             r = measure(Setting(tilt, heading, noise), args.runs, pool)
             rows.append(r)
             p95, sd, cov = r["p95"], r["sd_z"], r["coverage95"]

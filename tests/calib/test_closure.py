@@ -264,10 +264,10 @@ def test_reported_std_is_the_bound_scaled_by_the_birge_ratio():
     assert np.allclose(res.k_std, res.k_bound * birge) and np.allclose(res.b_std, res.b_bound * birge)
     assert res.quality["dof"] == 3 * 3 + 3 * 4 - 6
     assert res.k_dof is None and res.quality["placement"]["heading"]["source"] == "stated"
-    # learned from the turns about x and y, the spread is one parameter more
+    # learned from the turns (about x and y, and z against them), the spread is one parameter more
     learned = calibrate_closure(rec, list(truth.stages))
     heading = learned.quality["placement"]["heading"]
-    assert heading["source"] == "estimated" and heading["turns"] == 2
+    assert heading["source"] == "estimated" and heading["turns"] == 3
     assert learned.quality["dof"] == 3 * 3 + 3 * 4 - 6 - 1 and learned.k_dof is not None
 
 

@@ -525,5 +525,5 @@ def test_an_upload_without_a_stated_heading_spread_learns_it_from_its_turns(serv
     assert r.status_code == 200, r.text
     res = r.json()
     heading = res["quality"]["placement"]["heading"]
-    assert heading["source"] == "estimated" and heading["turns"] == 2 and 0 < heading["spread_deg"] < 3
+    assert heading["source"] == "estimated" and heading["turns"] == 3 and 0 < heading["spread_deg"] < 3
     assert res["uncertainty"]["k_dof"] is not None and len(res["uncertainty"]["k_dof"]) == 3

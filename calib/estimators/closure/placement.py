@@ -40,7 +40,8 @@ MAX_DOF = 1e6  # degrees of freedom this many or more are reported as a normal i
 @dataclass(frozen=True)
 class HeadingSpread:
     """The heading spread a fit carried: ``spread_deg`` (1 sigma per turn), ``source`` ("estimated", "stated" or
-    "default"), ``turns`` (those whose closure showed it), ``spread_sd_deg`` (its standard error, estimated only),
+    "default"), ``turns`` (those whose closure showed it), ``vertical`` (of those, the turns about the vertical),
+    ``spread_sd_deg`` (its standard error, estimated only),
     ``dof`` (P,): each parameter's degrees of freedom for a Student-t interval (inf: normal), and
     ``sd_ratio`` (P,): its standard error over all the spreads the turns allow, over that at the one estimated."""
 
@@ -50,6 +51,7 @@ class HeadingSpread:
     spread_sd_deg: float | None = None
     dof: np.ndarray | None = None
     sd_ratio: np.ndarray | None = None  # (P,) each parameter's sd over the spreads allowed, over that at the spread
+    vertical: int = 0
 
     def padded(self, P: int) -> HeadingSpread:
         """The same spread for a fit of P parameters: those beyond this one's normal and unwidened."""
