@@ -25,7 +25,7 @@ likelihood at the joint spread within ``CONSISTENT_LR`` of their best, and the j
 Otherwise the horizontal turns' spread stands, and a vertical turn far from theirs, as when it stopped short, is
 reported as the misfit it is. With two horizontal turns alone a spread under half the true one comes out in a fifth
 of recordings (its square scatters as chi^2 with 2 degrees of freedom), and the vertical turn, weighed as if the hand
-were more careful than it was, moved k_z by up to 1.5x what the true spread allows; with the third look, 1.1x.
+were more careful than it was, moved k_z by up to 1.5x what the true spread allows; with the third look, 1.14x.
 
 The minimum is found on a grid of tau^2 (a little below 0, 0, and log-spaced up to ``MAX_HEADING_PRIOR_DEG``^2)
 refined by a parabola. Below 0 it is kept as found for the parameters' variances, which are then unbiased (turns
