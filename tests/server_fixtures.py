@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import glob
+import io
 import json
 import os
 import shutil
@@ -25,6 +26,8 @@ from typing import Any, TypeVar
 
 import httpx
 import pytest
+
+from calib.io.readers import write_native_csv
 
 ROOT = Path(__file__).resolve().parents[1]
 T = TypeVar("T")
@@ -309,6 +312,13 @@ def _read_events(r: httpx.Response, sid: str, until: set[str], deadline: float, 
         key, _, value = line.partition(":")
         current[key] = value[1:] if value.startswith(" ") else value
     return False
+
+
+def native_csv(rec: Any) -> str:
+    """A Recording as the native CSV text an upload sends (exact round trip)."""
+    buf = io.StringIO()
+    write_native_csv(rec, buf)
+    return buf.getvalue()
 
 
 def bad_csv_uploads() -> dict[str, bytes]:

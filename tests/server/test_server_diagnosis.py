@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import asyncio
 import hashlib
-import io
 import json
 import os
 import time
@@ -16,10 +15,9 @@ from typing import Any
 import httpx
 import numpy as np
 import pytest
-from server_fixtures import API_TOKEN, RunningService, bad_csv_uploads, follow_events
+from server_fixtures import API_TOKEN, RunningService, bad_csv_uploads, follow_events, native_csv
 
 from calib.cli.main import main as gyrocal_main
-from calib.io.readers import write_native_csv
 from calib.simulator import simulate
 from calib.simulator.concealed import draw_concealed
 
@@ -34,12 +32,6 @@ def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RunningService
                          f"sqlite:///{db}").start()
     yield svc
     svc.stop()
-
-
-def native_csv(rec: Any) -> str:
-    buf = io.StringIO()
-    write_native_csv(rec, buf)
-    return buf.getvalue()
 
 
 def imucal_csv(rec: Any) -> str:

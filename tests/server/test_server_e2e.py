@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import subprocess
 import time
@@ -14,9 +13,9 @@ from typing import Any
 import httpx
 import numpy as np
 import pytest
-from server_fixtures import GYROCAL, ROOT, RunningService, bad_csv_uploads, follow_events, store_outage
+from server_fixtures import GYROCAL, ROOT, RunningService, bad_csv_uploads, follow_events, native_csv, store_outage
 
-from calib.io.readers import parse_recording_text, write_native_csv
+from calib.io.readers import parse_recording_text
 from calib.pipeline import calibrate
 from calib.simulator import simulate
 from calib.stages.stage import Stage
@@ -269,16 +268,15 @@ def test_writes_need_a_signed_in_operator(service: RunningService) -> None:
 
 def test_uploaded_recordings_calibrate(service: RunningService, ferraris_csv: Path) -> None:
     rec, truth = simulate(11, noise=0.03)
-    buf = io.StringIO()
-    write_native_csv(rec, buf)
+    body = native_csv(rec)
     with service.client() as c:
-        r = c.post("/devices/upload-1/calibrate", content=buf.getvalue(), headers={"Content-Type": "text/csv"})
+        r = c.post("/devices/upload-1/calibrate", content=body, headers={"Content-Type": "text/csv"})
         assert r.status_code == 200, r.text
         res = r.json()
         np.testing.assert_allclose(res["k"], truth.k, atol=2e-3)
         np.testing.assert_allclose(res["b"], truth.b, atol=0.02)
         assert res["passed"] and res["state"] == "done" and len(res["stages"]) >= 7
-        assert res["recording_sha256"] == hashlib.sha256(buf.getvalue().encode()).hexdigest()
+        assert res["recording_sha256"] == hashlib.sha256(body.encode()).hexdigest()
         assert c.get("/devices/upload-1/calibration").status_code == 404
         r = c.post(f"/sessions/{res['session_id']}/accept")
         assert r.status_code == 409 and "names no sensor" in r.json()["detail"]  # an upload names its sensor first
@@ -306,11 +304,7 @@ def test_a_recording_turned_about_some_axes_is_shown_incomplete_and_never_become
     full, _ = simulate(12, noise=0.03)
     partial, truth = simulate(13, noise=0.03, script=ProtocolScript((Still(3.0), Turn("y", 360.0), Still(3.0),
                                                                      Turn("y", 360.0), Still(3.0))))
-    bodies = []
-    for rec in (full, partial):
-        buf = io.StringIO()
-        write_native_csv(rec, buf)
-        bodies.append(buf.getvalue())
+    bodies = [native_csv(rec) for rec in (full, partial)]
     with service.client() as c:
         first = c.post("/devices/upload-part/calibrate", content=bodies[0], headers={"Content-Type": "text/csv"}).json()
         assert c.post(f"/sessions/{first['session_id']}/accept", json={"sensor_model": "LSM9DS1"}).status_code == 200
@@ -335,19 +329,18 @@ def test_an_uploaded_multi_position_recording_is_calibrated_from_its_re_orientat
 
     rng = np.random.default_rng(21)
     rec, truth = simulate(21, noise=0.05, fs=100.0, script=multi_position_script(rng, n=14, first_rest_s=20.0))
-    buf = io.StringIO()
-    write_native_csv(rec, buf)
+    body = native_csv(rec)
     with service.client() as c:
-        r = c.post("/devices/upload-mp/calibrate", content=buf.getvalue(), headers={"Content-Type": "text/csv"})
+        r = c.post("/devices/upload-mp/calibrate", content=body, headers={"Content-Type": "text/csv"})
         assert r.status_code == 200, r.text
         res = r.json()
         assert res["protocol"] == "multi-position" and res["method"] == "multi-position"
         np.testing.assert_allclose(res["k"], truth.k, atol=2e-3)
         assert res["accelerometer"]["n_rests"] == 15 and len(res["accelerometer"]["identified"]) == 9
-        r = c.post("/devices/upload-mp/calibrate", params={"protocol": "paper"}, content=buf.getvalue(),
+        r = c.post("/devices/upload-mp/calibrate", params={"protocol": "paper"}, content=body,
                    headers={"Content-Type": "text/csv"})
         assert r.status_code == 422 and "turn" in r.json()["detail"]  # asked for the paper's turns: refused, with the reason
-        r = c.post("/devices/upload-mp/calibrate", params={"protocol": "astrology"}, content=buf.getvalue(),
+        r = c.post("/devices/upload-mp/calibrate", params={"protocol": "astrology"}, content=body,
                    headers={"Content-Type": "text/csv"})
         assert r.status_code == 422
 
@@ -518,10 +511,8 @@ def test_an_upload_without_a_stated_heading_spread_learns_it_from_its_turns(serv
     from calib.effects.placement import PlacementError
 
     rec, _ = simulate(23, noise=0.05, effects=[PlacementError(0.5, heading_std_deg=0.5)])
-    buf = io.StringIO()
-    write_native_csv(rec, buf)
     with service.client() as c:
-        r = c.post("/devices/upload-heading/calibrate", content=buf.getvalue(), headers={"Content-Type": "text/csv"})
+        r = c.post("/devices/upload-heading/calibrate", content=native_csv(rec), headers={"Content-Type": "text/csv"})
     assert r.status_code == 200, r.text
     res = r.json()
     heading = res["quality"]["placement"]["heading"]

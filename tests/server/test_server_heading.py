@@ -3,14 +3,12 @@
 
 from __future__ import annotations
 
-import io
 from collections.abc import Iterator
 
 import pytest
-from server_fixtures import RunningService, follow_events
+from server_fixtures import RunningService, follow_events, native_csv
 
 from calib.effects.placement import PlacementError
-from calib.io.readers import write_native_csv
 from calib.simulator import simulate
 
 END = ("done", "failed", "cancelled")
@@ -18,9 +16,7 @@ END = ("done", "failed", "cancelled")
 
 def _csv(seed: int) -> str:
     rec, _ = simulate(seed, noise=0.05, effects=[PlacementError(0.5, heading_std_deg=0.5)])
-    buf = io.StringIO()
-    write_native_csv(rec, buf)
-    return buf.getvalue()
+    return native_csv(rec)
 
 
 def _upload(svc: RunningService, device: str, **params: object) -> dict:

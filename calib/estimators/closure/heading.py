@@ -121,17 +121,33 @@ def restricted_spread(turn_res: np.ndarray, turn_jac: np.ndarray, chol: np.ndarr
         """How far below 0 tau^2 may go with every moving turn's covariance positive."""
         return float(np.min(np.einsum("ja,jab,jb->j", up_all[moving], B_all[moving], up_all[moving])))
 
+    def reml_minimum(moving: np.ndarray) -> tuple[float, Callable[[float], float]]:
+        """The REML spread tau^2 of the ``moving`` turns, and -2 log of its likelihood ratio at another tau^2."""
+        reml = system(moving)
+        grid = np.concatenate((-floor(moving) * np.linspace(0.9, 0.1, 9), [0.0], _GRID**2))
+        base = float(fixed_res @ fixed_res) + float(turn_res[~moving].ravel() @ turn_res[~moving].ravel())
+        r = r_all[moving]
+
+        def objective(tau2: np.ndarray) -> np.ndarray:
+            C, W, F, h = reml(tau2)
+            fitted = np.linalg.solve(F, h[..., None])[..., 0]  # the parameters' step at each spread
+            quad = base + np.einsum("ja,gja->g", r, np.einsum("gjab,jb->gja", W, r)) - np.einsum("gp,gp->g", h, fitted)
+            return np.linalg.slogdet(C)[1].sum(axis=1) + np.linalg.slogdet(F)[1] + quad
+
+        tau2 = _minimum(grid, objective(grid))
+        least = float(objective(np.array([tau2]))[0])
+        return tau2, lambda other: float(objective(np.array([other]))[0]) - least
+
     # the REML over the turns that show their heading; tau^2 may come out below 0 (those turns closing better than
     # their noise says): each variance is then unbiased, and the weights carry tau^2 >= 0
     shows = evidence.shows
-    tau2, horizontal = _reml_minimum(system(shows), floor(shows), shows, r_all, turn_res, fixed_res)
+    tau2, horizontal = reml_minimum(shows)
     # the turns about the vertical join where what they add agrees with the others: then their closures against what
     # the other turns say of k_z are evidence too (a third look where two are few); a turn stopped short is not heading
     moving = shows
     vertical = tilts.measured & ~shows
     if vertical.any():
-        joined, _ = _reml_minimum(system(tilts.measured), floor(tilts.measured), tilts.measured, r_all, turn_res,
-                                  fixed_res)
+        joined, _ = reml_minimum(tilts.measured)
         if joined < _GRID[-1] ** 2 and horizontal(joined) <= CONSISTENT_LR:
             tau2, moving = joined, tilts.measured
     reml = system(moving)
@@ -170,26 +186,6 @@ def restricted_spread(turn_res: np.ndarray, turn_jac: np.ndarray, chol: np.ndarr
     sd_tau = np.sqrt(var_tau2) / (2 * tau) if tau > 0 else np.sqrt(np.sqrt(var_tau2))  # delta method; at 0, sd(tau^2)
     return HeadingSpread(tau / DEG, "estimated", int(moving.sum()), float(min(sd_tau / DEG, 1e3)), dof,
                          np.sqrt(var / at_weights), int((moving & ~shows).sum()))
-
-
-def _reml_minimum(reml: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]], below: float,
-                  moving: np.ndarray, r_all: np.ndarray, turn_res: np.ndarray, fixed_res: np.ndarray
-                  ) -> tuple[float, Callable[[float], float]]:
-    """The REML spread tau^2 of the ``moving`` turns, and -2 log of its likelihood ratio at another tau^2."""
-    grid = np.concatenate((-below * np.linspace(0.9, 0.1, 9), [0.0], _GRID**2))
-    base = float(fixed_res @ fixed_res) + float(turn_res[~moving].ravel() @ turn_res[~moving].ravel())
-    r = r_all[moving]
-
-    def objective(tau2: np.ndarray) -> np.ndarray:
-        C, W, F, h = reml(tau2)
-        fitted = np.linalg.solve(F, h[..., None])[..., 0]  # the parameters' step at each spread
-        quad = base + np.einsum("ja,gja->g", r, np.einsum("gjab,jb->gja", W, r)) - np.einsum("gp,gp->g", h, fitted)
-        return np.linalg.slogdet(C)[1].sum(axis=1) + np.linalg.slogdet(F)[1] + quad
-
-    values = objective(grid)
-    tau2 = _minimum(grid, values)
-    least = float(objective(np.array([tau2]))[0])
-    return tau2, lambda other: float(objective(np.array([other]))[0]) - least
 
 
 def _minimum(grid: np.ndarray, objective: np.ndarray) -> float:
