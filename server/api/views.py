@@ -158,6 +158,22 @@ async def session_snapshot(svc: Service, sid: str) -> SessionOut:
     return stored_snapshot(row)
 
 
+REMOTE_END_WAIT_S = 3.0  # how long a decision waits for another gateway to write the end it has announced
+
+
+async def decided_snapshot(svc: Service, sid: str) -> SessionOut:
+    """The session's snapshot for a decision (accept, discard). A session that ran on another gateway is announced
+    ended there a moment before that gateway has written its end to the store; a decision made here in that moment
+    (from its event, or a page of that gateway) waits for the end to be written rather than refuse a finished session
+    as still running."""
+    snap = await session_snapshot(svc, sid)
+    deadline = asyncio.get_running_loop().time() + REMOTE_END_WAIT_S
+    while snap.remote is not None and snap.state not in END_STATES and asyncio.get_running_loop().time() < deadline:
+        await asyncio.sleep(0.1)
+        snap = await session_snapshot(svc, sid)
+    return snap
+
+
 async def stored_kit(svc: Service, kit_id: str, not_found: str) -> SessionOut:
     """A kit of an earlier run of the service, as the store keeps it; 404 saying ``not_found`` when it has no such kit."""
     stored = await asyncio.to_thread(svc.store.kit, kit_id)

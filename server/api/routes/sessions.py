@@ -44,7 +44,7 @@ from ...service import Service
 from ...store import DecisionConflict, NotAcceptable, NotFound, StoreError, store_trouble
 from ..upload_options import Upload
 from ..upload_result import calibrate_uploaded
-from ..views import claim_device, reachable_device, remote_gateway, runs_elsewhere, session_snapshot, stored_kit
+from ..views import claim_device, decided_snapshot, reachable_device, remote_gateway, runs_elsewhere, session_snapshot, stored_kit
 
 # The section list travels in the URL: 4000 characters (about 80 sections) stay under what the HTTP server reads
 # as one request line even percent-encoded at 12 bytes a character; a longer one gets a 422, not a dropped connection.
@@ -224,7 +224,7 @@ async def accept(svc: Svc, session_id: str, operator: Operator, body: M.Decision
     if session_id in svc.kits:
         raise problem(409, f"this is a kit's session: accept its wearables together with POST /kits/{session_id}/accept")
     live = svc.sessions.get(session_id)
-    snap = await session_snapshot(svc, session_id)
+    snap = await decided_snapshot(svc, session_id)
     if snap.state != "done":
         why = snap.reason or f"it is {snap.state}"
         raise problem(409, f"only a finished session within tolerances can be accepted; this one is {snap.state}: {why}")
@@ -269,7 +269,7 @@ async def discard(svc: Svc, session_id: str, operator: Operator, body: M.Decisio
     """Discard a finished session's result; it stays in the store for audit and never becomes current."""
     check_session_id(session_id)
     live = svc.sessions.get(session_id)
-    snap = await session_snapshot(svc, session_id)
+    snap = await decided_snapshot(svc, session_id)
     if snap.state not in END_STATES:
         raise problem(409, "the session is still running: cancel it first")
     if live is not None:
