@@ -4,7 +4,8 @@ The hand reads the session's snapshots (the same events the page gets: state, ph
 the live gauge), reacts after a human delay, and says what it does next as motion segments of calib's
 simulator, from a moment of device time on. Its habits are a ``HandStyle``: careful, hurried (starts some
 turns early, some late), sloppy (over- or under-turns some first tries), short (stops its first z turn where the
-device reads 296 deg), ends_off (puts the device down 3 deg tilted after its first y turn), bumping
+device reads 296 deg), ends_off (puts the device down 3 deg tilted after its first y turn), stalls (ends_off, then
+never makes the turn asked again), bumping
 (knocks the device once in the rest after a turn) and gauge-watching (stops each turn where the page's gauge reads a
 full turn, when the gauge shows one, then puts it down against the block as the page says; a gauge that has not caught up
 with her stop she does not read, and finishes the turn by feel; otherwise it turns back to the block like the others).
@@ -48,6 +49,7 @@ class HandStyle:
     old_gauge: bool = False  # reads the raw angle as if 360 deg were its target (the gauge before targets)
     short_z_reads: float | None = None  # the first turn about z stops where the device reads this (deg): short of full
     ends_off_deg: float | None = None  # the first turn about y is put down tilted this much about x (deg)
+    stalls: bool = False  # a turn asked again she puts back against the block, then never makes
 
 
 HANDS: dict[str, HandStyle] = {
@@ -63,6 +65,8 @@ HANDS: dict[str, HandStyle] = {
         HandStyle("short", "stops the first z turn where the device reads 296 deg: it passes the live check, not k's range",
                   short_z_reads=296.0),
         HandStyle("ends_off", "puts the device down 3 deg tilted after its first y turn", ends_off_deg=3.0),
+        HandStyle("stalls", "puts the device down 3 deg tilted after its first y turn; asked again, puts it back and "
+                  "never turns", ends_off_deg=3.0, stalls=True),
     )
 }
 
@@ -153,6 +157,8 @@ class PromptHand:
             if np.linalg.norm(self.offset) > IN_PLACE_DEG:
                 # asked again before it was put back (the settle was over at once): back against the block first
                 start = self._put_back_at(t + self._delay())
+            if self.style.stalls and self.tries.get(axis, 0) >= 1:
+                return  # asked again: she waits, whatever the screen says
             wait = self._delay() + (float(self.rng.uniform(2.0, 5.0)) if self.rng.random() < self.style.late else 0.0)
             self.pending.append(_Plan(start + wait, "turn", axis))
         elif phase == "settle" and np.linalg.norm(self.offset) > IN_PLACE_DEG:

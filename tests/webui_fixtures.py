@@ -33,7 +33,8 @@ SCRIPTED_SPEED = 6.0  # the scripted clinicians play a fixed script, whatever th
 SCENARIOS = ["normal", "moved_during_still", "wrong_axis", "link_drop", *["normal"] * 9]
 PIN = "4831"
 # clinicians who follow the page's prompts (mock_device.hand), each on a wearable of its own
-HAND_SCENARIOS = ["hand:careful", "hand:careful", "hand:bumps", "hand:gauge", "hand:careful", "hand:short", "hand:ends_off"]
+HAND_SCENARIOS = ["hand:careful", "hand:careful", "hand:bumps", "hand:gauge", "hand:careful", "hand:short", "hand:ends_off",
+                  "hand:stalls"]
 TABLET = {"width": 1024, "height": 768}
 LOCAL_HOSTS = {"127.0.0.1", "localhost", "[::1]", "::1"}
 
@@ -226,15 +227,23 @@ class Wizard:
         every headline and every state:phase in order (taken at each change of the page, so none that lasts a single
         event is missed), whether the
         stillness ring showed the device moving, every notice, the notice beside each state:phase
-        ("turn_x:ready|<notice>"), the turns shown done after each change ("xy"), whether the gauge was ever
+        ("turn_x:ready|<notice>"), the turns shown done after each change ("xy"), in ``samples`` the moments (every
+        100 ms and every change: time, state:phase, notice box, headline, time-left line), whether the gauge was ever
         gone while the device was being put down (placing), and in ``shown`` what each screen said as it changed
         (state:phase, headline, the line under it, the recorded-turn line and the notices with their classes), so that
         a test on a busy machine waits only for the end and reads back what passed on the way."""
         self.page.evaluate("""() => {
           window.seen = { gauge: {}, gaugeText: {}, targets: {}, headlines: [], phases: [], ringMoving: false, notices: [],
-                          phaseNotices: [], done: [], placingWithoutGauge: false, screens: {}, shown: [] };
+                          phaseNotices: [], done: [], placingWithoutGauge: false, screens: {}, shown: [], samples: [] };
           const last = (list) => list[list.length - 1];
           const text = (sel) => { const el = document.querySelector(sel); return el ? el.textContent.trim() : ''; };
+          // the moments: every 100 ms and at every change, [ms, state:phase, notice box, headline, time-left line]
+          const sample = () => {
+            const w = document.querySelector('.wizard'), limit = document.querySelector('.time-left');
+            window.seen.samples.push([Math.round(performance.now()), w ? `${w.dataset.state}:${w.dataset.phase || ''}` : '',
+                                      text('.notice-box'), text('.instruction'), limit && !limit.hidden ? limit.textContent : '']);
+          };
+          setInterval(sample, 100);
           const look = () => {
             const w = document.querySelector('.wizard'), g = document.querySelector('.gauge-text');
             // the turn's angle: while turning, and while the device is put down (the gauge holds the turn's angle; on a
@@ -257,6 +266,7 @@ class Wizard:
           };
           new MutationObserver(() => {
             look();
+            sample();
             const w = document.querySelector('.wizard'), hl = document.querySelector('.instruction');
             if (hl && last(window.seen.headlines) !== hl.textContent) window.seen.headlines.push(hl.textContent);
             const sp = w ? `${w.dataset.state}:${w.dataset.phase || ''}` : null;

@@ -24,13 +24,15 @@ class State(StrEnum):
 
 class Phase(StrEnum):
     """Within the still and turn states: waiting for rest, settling after a reconnection or retry, asking for
-    the turn, turning, placing (the turn's motion has stopped: waiting for the device to rest in its place),
+    the turn, returning (after a turn asked again, a motion that may only be the device put back in its place),
+    turning, placing (the turn's motion has stopped: waiting for the device to rest in its place),
     checking (it rests after what looks like a full turn: the turn counts once its closing rest is complete),
     and the pause after a recorded turn."""
 
     WAITING = "waiting"
     SETTLE = "settle"
     READY = "ready"
+    RETURNING = "returning"
     TURNING = "turning"
     PLACING = "placing"
     CHECKING = "checking"

@@ -73,6 +73,10 @@ def turn_prompt(axis: str) -> str:
     return f"Turn the device one full turn (360°) about its {ax(axis)} axis, then put it back against the block."
 
 
+def returning_prompt(axis: str) -> str:
+    return f"Putting it back against the block: then turn it one full turn about its {ax(axis)} axis."
+
+
 def turning_prompt(axis: str) -> str:
     return f"Turning about {ax(axis)}: stop when the device is back in its place against the block."
 

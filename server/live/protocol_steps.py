@@ -16,6 +16,8 @@ from .time_limits import overdue
 from .turn_checks import TurnChecks
 from .turn_watch import RESUME_DPS, STOP_DPS, STOP_WINDOW_S
 
+TURN_LOOKBACK_S = 1.5  # the detector says a motion started up to this late: the turn is looked at from this far back
+
 
 class ProtocolSteps(TurnChecks):
     """What moves a guided session from one step of the protocol to the next (``GuidedSession`` holds the state)."""
@@ -58,13 +60,22 @@ class ProtocolSteps(TurnChecks):
             return self.timings.settle_s
         return None
 
+    def time_left_s(self) -> float | None:
+        """How long (device s) the session still waits for the turn or rest it asks for before it ends for want of it
+        (``server.live.time_limits``); None in a phase with no such limit."""
+        if self.finished:
+            return None
+        waiting = self.state == State.STILL or self.phase in (Phase.SETTLE, Phase.PAUSE) or (
+            self.phase == Phase.READY and self.state in TURN_STATES.values())
+        return self.timings.fail_after_s - (self.t_now - self._phase_since_t) if waiting else None
+
     def _update_live(self) -> None:
         still_s, moving, raw = self.stream.live()
         angle = self.live_angle.of(raw)
         rate = self.stream.recent_rate(STOP_WINDOW_S)  # the fast reading: the ring's count and the turn's stop
         shown_still, shown_moving = self._shown_rest(still_s, moving, rate)
         self.live_reading = LiveReading(shown_still, shown_moving, angle.tolist(), raw.tolist())
-        if self.phase in (Phase.TURNING, Phase.PLACING, Phase.CHECKING):
+        if self.phase in (Phase.RETURNING, Phase.TURNING, Phase.PLACING, Phase.CHECKING):
             if self._watch_turn(still_s, moving, raw, angle, rate):
                 return
         elif self.phase == Phase.PAUSE and self._watch_pause(moving, angle):
@@ -79,7 +90,8 @@ class ProtocolSteps(TurnChecks):
             if self.phase in (Phase.TURNING, Phase.PLACING):
                 self._last_live_emit = now
                 self._emit("angle")
-            elif target is not None:
+            elif target is not None or (self._hinted and self.phase == Phase.READY):
+                # a rest's count, or, once the turn is overdue, the time left for it
                 self._last_live_emit = now
                 self._emit("progress")
 
@@ -114,7 +126,7 @@ class ProtocolSteps(TurnChecks):
             st = self.stream.globalise(ev.stage)
             if st.kind == "still":
                 self.stream.closed_still(st)
-            elif self.phase in (Phase.TURNING, Phase.PLACING, Phase.CHECKING):
+            elif self.phase in (Phase.RETURNING, Phase.TURNING, Phase.PLACING, Phase.CHECKING):
                 self._check_turn(st)
             elif self.phase == Phase.PAUSE and self._early is not None:
                 self._early = None  # a bump that never became a turn: the pause's count starts again
@@ -128,6 +140,7 @@ class ProtocolSteps(TurnChecks):
         self._rest_before_s = rest_before_s
         self._turn_lost = 0
         self._turn_refused = 0
+        self._turn_since_t = self.t_now - TURN_LOOKBACK_S
 
     def _on_motion(self, t_motion: float) -> None:
         still_s = self.stream.rest_before(t_motion)
@@ -148,7 +161,10 @@ class ProtocolSteps(TurnChecks):
         axis = AXES[self._axis_i]
         if self.phase == Phase.READY:
             self._begin_turn(still_s, None)
-            self._set_phase(Phase.TURNING, say.turning_prompt(axis))
+            if self._off_place_deg is not None:  # asked again: the first motion may be the device put back
+                self._set_phase(Phase.RETURNING, say.returning_prompt(axis))
+            else:
+                self._set_phase(Phase.TURNING, say.turning_prompt(axis))
         elif self.phase == Phase.PAUSE:
             # a bump (the count starts again) or the next turn started before the count ended: told apart
             # by how far it turns (_watch_pause)

@@ -108,10 +108,11 @@ class GuidedSession(ProtocolSteps, Lateness):
         self._axis_i = 0
         self._phase_since_t = 0.0
         self._hinted = False
-        self._turn_lost = 0
-        self._turn_refused = 0
+        self._turn_lost = self._turn_refused = 0
         self._resume: tuple[State, Phase | None] | None = None
         self._resume_phase = Phase.READY  # what a settle phase leads to: the turn again, or the pause
+        self._off_place_deg: float | None = None  # how far a turn asked again left the device from its place
+        self._turn_since_t = 0.0  # device time from which the turn in progress is looked at
         self._provisional: str | None = None  # a turn started before the countdown ended: "initial" | "pause"
         self._rest_before_s = 0.0
         self._redo: list[str] = []  # turns asked again after the result (the one being redone first)

@@ -62,6 +62,8 @@ class SessionView(Protocol):
 
     def still_target(self) -> float | None: ...
 
+    def time_left_s(self) -> float | None: ...
+
     @property
     def live_angle(self) -> LiveAngle: ...
 
@@ -91,6 +93,7 @@ def session_snapshot(s: SessionView, event: str) -> SessionOut:
         "max_attempts": s.max_attempts,
         "prompt": s.prompt,
         "progress": progress,
+        "time_left_s": None if (left := s.time_left_s()) is None else round(max(0.0, left), 1),
         "live": {
             "moving": bool(live.moving),
             "still_s": round(float(live.still_s), 3),

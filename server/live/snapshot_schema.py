@@ -198,6 +198,8 @@ class SessionOut(BaseModel):
     max_attempts: int | None = None
     prompt: str | None = None
     progress: StillProgress | None = Field(None, description="the rest being waited for, if any")
+    time_left_s: float | None = Field(None, description="how long (device s) the session waits for the turn or the rest "
+                                      "asked for before it ends for want of it; null while nothing is waited for")
     live: LiveOut | None = None
     turns: dict[str, TurnOut] = Field(default_factory=dict, description="the turns recorded, by axis")
     warnings: list[SessionWarning] = Field(default_factory=list)

@@ -186,6 +186,17 @@ class SessionStream:
         g = self.buf.gyro[lo:hi] - rest
         return np.asarray(np.sqrt((g * g).sum(axis=1)) > STOP_DPS)
 
+    def clipped_motion(self, since_t: float) -> float | None:
+        """How long (s) the motion since device time ``since_t`` took, if its readings reached the gyro's stated range
+        (a turn too fast: known the moment it stops); None if they did not, or the range is not known."""
+        n = self.buf.n
+        t = self.buf.t[:n]
+        lo = int(np.searchsorted(t, since_t))
+        if self.full_scale is None or n - lo < 2 or float(np.abs(self.buf.gyro[lo:n]).max()) < 0.995 * self.full_scale:
+            return None
+        moving = np.flatnonzero(self._moving(lo, n))
+        return float(t[lo + moving[-1]] - t[lo + moving[0]]) if moving.size else None
+
     def still_between(self, t0: float, t1: float) -> bool:
         """Whether the readings from device time ``t0`` to ``t1`` (s) are there and none of them moved."""
         t = self.buf.t[:self.buf.n]

@@ -40,7 +40,7 @@ def overdue(state: str, phase: str | None, axis: str | None, waited_s: float, hi
             return Overdue("fail", EndReason.NO_MOTION, say.no_motion(axis, tm.fail_after_s))
         if waited_s > tm.hint_after_s and not hinted:
             return Overdue("hint", None, say.no_motion_hint(axis))
-    elif phase == Phase.TURNING:
+    elif phase in (Phase.TURNING, Phase.RETURNING):
         if waited_s > tm.max_turn_s:
             return Overdue("retry", EndReason.TURN_TOO_LONG, say.turn_too_long(axis, tm.max_turn_s, retry))
     elif phase == Phase.PAUSE:

@@ -27,6 +27,14 @@ from .turn_watch import EARLY_TURN_DEG, RESUME_DPS, STOP_DPS, LiveAngle
 from .turns import TurnRecord
 
 
+def off_place_deg(angles: np.ndarray) -> float:
+    """How far a motion that swept ``angles`` (3,) deg (raw: up to a scale factor's error) left the device from where
+    it started: each axis's angle from the nearest whole turn, the largest (a turn stopped at 296 deg leaves it 64 deg
+    off; a full turn, in its place)."""
+    rest = np.abs(np.asarray(angles, dtype=float)) % 360.0
+    return float(np.max(np.minimum(rest, 360.0 - rest)))
+
+
 @dataclass(frozen=True)
 class HeldFault:
     """A fault a kit's wearable saw in a turn or its pause, held until the kit judges whose it is (its own, or the tray's)."""
@@ -76,6 +84,8 @@ class TurnChecks:
     _turn_refused: int
     _resume_phase: Phase
     _rest_before_s: float
+    _turn_since_t: float  # device time from which the turn in progress is looked at (its start, with margin)
+    _off_place_deg: float | None  # after a turn asked again, how far it left the device from its place; None: not asked again
 
     @property
     def retry_allowed(self) -> bool:
@@ -115,9 +125,23 @@ class TurnChecks:
                 self._moved_during_pause(axis)
                 return True
             return False
+        if self.phase == Phase.RETURNING:
+            # the device put back in its place sweeps about as far as it was off; a motion well beyond that is the turn
+            if float(np.abs(raw).max()) >= (self._off_place_deg or 0.0) + EARLY_TURN_DEG:
+                self._set_phase(Phase.TURNING, say.turning_prompt(axis), keep_clock=True)
+            return False
         if self.phase == Phase.TURNING:
-            if rate < STOP_DPS and float(np.abs(raw).max()) >= EARLY_TURN_DEG and self.live_angle.near_full(float(angle[k])):
-                self._set_phase(Phase.PLACING, say.placing_prompt(axis, self.live_angle.calibrated), keep_clock=True)
+            if rate < STOP_DPS and float(np.abs(raw).max()) >= EARLY_TURN_DEG:
+                took = None if self._turn_lost or self._turn_refused else self.stream.clipped_motion(self._turn_since_t)
+                if took is not None:
+                    # too fast is known the moment the turn stops: said now, not once its closing rest is complete
+                    # (the stage then closes in the settle and is not checked again)
+                    self._provisional = None
+                    self._off_place_deg = 0.0 if self.kit_id is None else None
+                    self._turn_failed(EndReason.TOO_FAST, say.too_fast(axis, self.full_scale, self.retry_allowed, took))
+                    return True
+                if self.live_angle.near_full(float(angle[k])):
+                    self._set_phase(Phase.PLACING, say.placing_prompt(axis, self.live_angle.calibrated), keep_clock=True)
         elif rate > RESUME_DPS:
             self._set_phase(Phase.TURNING, say.turning_prompt(axis), keep_clock=True)
         elif not moving and still_s >= self.timings.rest_seen_s and abs(raw[k]) >= self.tol.turn_angle_min_deg:
@@ -256,6 +280,10 @@ class TurnChecks:
         self._redone.update(axes)
         self.kit_closed.difference_update(axes)
         self._redo = list(axes)
+        # the device rests where the last turn left it: off its place if that turn (one asked again) stopped short
+        last = max(self.turns.values(), key=lambda r: r.end_s, default=None)
+        if self.kit_id is None:
+            self._off_place_deg = 0.0 if last is None else off_place_deg(last.angle_deg)
         for a in axes:
             self.turns.pop(a, None)
         self._axis_i = AXES.index(axes[0])
@@ -289,6 +317,7 @@ class TurnChecks:
                 self._undo_early_motion()
             else:
                 # the device pushed back against the block, not a turn: no try is used, the same turn is still asked
+                self._off_place_deg = None  # back in its place: the next motion is the turn
                 self._set_phase(Phase.READY, say.turn_prompt(axis), keep_clock=True)
             return
         self._provisional = None
@@ -302,6 +331,7 @@ class TurnChecks:
             lost = max(1, self.stream.missing_samples(st))
         measure = self._measure(axis, st, angles, lost, refused)
         problem = judge_turn(axis, measure, self.tol, self.full_scale, self.retry_allowed)
+        self._off_place_deg = off_place_deg(angles) if problem is not None and self.kit_id is None else None
         if problem is not None:
             self._turn_failed(*problem)
             return

@@ -20,6 +20,7 @@ from webui_fixtures import (
     sign_in_token,
     upload_accepted,
 )
+from webui_moments import assert_retry_reasons_stay
 
 PORTRAIT_TABLET = {"width": 768, "height": 1024}
 
@@ -274,6 +275,11 @@ def test_a_turn_done_wrong_says_why_until_it_is_turned_again(page: Any, retry_se
         took = re.search(r"That turn about X took (\d\.\d) s: too fast", text)
         assert text.startswith("Attempt 2 of 2:") and took and float(took.group(1)) < 2.0, said  # 0.6 s turns
         assert "2–4 s for the whole turn" in text, text
+    # too fast is known the moment the turn stops: the reason comes then, not after a "hold it still" that says nothing
+    samples = wizard.seen()["samples"]
+    first = assert_retry_reasons_stay(samples, save=wizard.shots / "retry-reasons.json")[0]
+    before = [s[1] for s in samples if s[0] < first.shown_ms and s[1].startswith("turn_x:")]
+    assert before and before[-1] == "turn_x:turning", before[-5:]
     assert_clean(page_watch)
 
 

@@ -27,19 +27,21 @@ from webui_fixtures import (
     upload_accepted,
     watched_page,
 )
+from webui_moments import assert_retry_reasons_stay
 
 from calib.apply.correction import Correction
 from calib.io.readers import read_recording, write_native_csv
 from calib.simulator import simulate
 
-VIEWS = {"1280x800": {"width": 1280, "height": 800}, "820x1180": {"width": 820, "height": 1180}}
+VIEWS = {"1280x800": {"width": 1280, "height": 800}, "820x1180": {"width": 820, "height": 1180}, "390x844": {"width": 390, "height": 844}}
+PHONE_VIEW = "390x844"  # a phone's browser: touch only, at its pixel density
 
 
 @pytest.fixture
 def hand_wizard(browser: Any, hand_service: Any, page_watch: Watch, artifacts: Path, request: pytest.FixtureRequest) -> Iterator[Wizard]:
     """A page on the service whose wearables are handled by prompt-following clinicians; viewport by parameter."""
     view = getattr(request, "param", None) or "1280x800"
-    with watched_page(browser, hand_service, page_watch, VIEWS[view], timeout_ms=45_000) as pg:
+    with watched_page(browser, hand_service, page_watch, VIEWS[view], timeout_ms=45_000, phone=view == PHONE_VIEW) as pg:
         yield Wizard(pg, hand_service, artifacts / "webui" / request.node.name)
 
 
@@ -112,7 +114,7 @@ def run_to_result(w: Wizard, device: str, check_turns: bool = True, before_start
     return sid
 
 
-@pytest.mark.parametrize("hand_wizard", list(VIEWS), indirect=True)
+@pytest.mark.parametrize("hand_wizard", ["1280x800", "820x1180"], indirect=True)
 def test_a_careful_clinician_following_the_page_reaches_a_result_that_says_what_it_means(
     hand_wizard: Wizard, page_watch: Watch, request: pytest.FixtureRequest
 ) -> None:
@@ -221,6 +223,7 @@ def test_a_bump_in_a_pause_is_warned_and_recovered_without_restarting(hand_wizar
     assert_clean(page_watch)
 
 
+@pytest.mark.parametrize("hand_wizard", list(VIEWS), indirect=True)
 @pytest.mark.parametrize("device, asked", [("mock-6", "z"), ("mock-7", "y")])
 def test_a_turn_done_wrong_is_asked_again_saying_why_never_blaming_the_sensor(
     hand_wizard: Wizard, page_watch: Watch, device: str, asked: str
@@ -229,7 +232,11 @@ def test_a_turn_done_wrong_is_asked_again_saying_why_never_blaming_the_sensor(
     k_z is out of range. The page does not end on a FAIL blaming the sensor: it names that turn, says how to make it
     and asks it again in the same session (attempt 2), the X and Y turns kept. mock-7's puts the device down 3 deg
     tilted after the first Y turn: the page says so as soon as that turn is checked ("Turn Y ended 3.0° off where it
-    began") and asks it again, never showing Y done before. Both then pass."""
+    began") and asks it again, never showing Y done before. Both then pass.
+
+    At every moment, on a desktop, a tablet and a phone: the reason stays on screen while she does what it says, from
+    the moment it appears until the turn asked again starts; putting the device back is shown as that ("Putting it
+    back against the block"), not as the turn."""
     w = hand_wizard
     sign_in_with_pin(w)
     w.page.click(f".device-card[data-device='{device}'] a.button.primary")
@@ -240,6 +247,10 @@ def test_a_turn_done_wrong_is_asked_again_saying_why_never_blaming_the_sensor(
     assert w.text(".verdict h1") == "PASS", w.text(".wizard")
     seen = w.seen()  # what the page showed, change by change (the retry's notice may last under a second)
     assert not any("faulty" in n for n in seen["notices"]), seen["notices"]
+    assert_retry_reasons_stay(seen["samples"], save=w.shots / "retry-reasons.json")
+    put_back = [s for s in seen["samples"] if s[1] == f"turn_{asked}:returning"]
+    assert all(s[3] == "Putting it back against the block" for s in put_back), put_back[:3]
+    assert put_back or asked == "y", "the Z turn's put-back was not shown as such"  # Y's is put back while it settles
     done = seen["done"]
     if asked == "y":
         off = [n for n in seen["phaseNotices"] if n.startswith("turn_y:") and "Attempt 2 of 3" in n]
@@ -255,6 +266,34 @@ def test_a_turn_done_wrong_is_asked_again_saying_why_never_blaming_the_sensor(
         assert "xyz" in done and "xy" in done[done.index("xyz"):], done
         assert all(set("xy") <= set(d) for d in done[done.index("xy"):]), done
         assert "turn_z:settle" in w.assert_screens_accessible()  # the screen that asks the turn again, audited too
+    assert_clean(page_watch)
+
+
+@pytest.mark.parametrize("hand_wizard", [PHONE_VIEW], indirect=True)
+def test_a_turn_asked_again_and_never_made_keeps_its_reason_counts_down_and_ends_saying_so(
+    hand_wizard: Wizard, page_watch: Watch
+) -> None:
+    """mock-8's clinician puts the device down tilted after the first Y turn, puts it back when asked again, and then
+    waits. The reason stays on screen through the wait, with the hint beneath it when the turn is overdue (never in
+    its place); the time left counts down on screen; the session ends saying the next turn was not started in time,
+    not that no turn was made (X and Y were)."""
+    w = hand_wizard
+    sign_in_with_pin(w)
+    w.page.click(".device-card[data-device='mock-8'] a.button.primary")
+    w.page.click(".wizard[data-state='place'] button.primary:not([disabled])")
+    w.page.wait_for_url(re.compile(r"#/session/[0-9a-f]{32}$"))
+    w.record()
+    w.page.wait_for_selector(".wizard[data-state='failed'] .verdict h1", timeout=90_000)
+    samples = w.seen()["samples"]
+    (reason,) = assert_retry_reasons_stay(samples, save=w.shots / "retry-reasons.json")
+    assert reason.state == "turn_y" and "off where it began" in reason.text, reason
+    ready = [s for s in samples if s[1] == "turn_y:ready" and s[0] >= reason.shown_ms]
+    hinted = [s for s in ready if "Waiting for the turn" in s[2]]
+    assert hinted and all(reason.text[:40] in s[2] for s in hinted), hinted[:2]  # the hint beside the reason
+    left = [int(re.search(r"stops in (\d+) s", s[4]).group(1)) for s in ready if s[4]]
+    assert left and left[0] <= 40 and left[-1] <= 5 and left == sorted(left, reverse=True), left
+    assert w.text(".verdict h1") == "The next turn was not started in time"
+    assert "60 s" in w.text(".sentence"), w.text(".sentence")
     assert_clean(page_watch)
 
 

@@ -20,6 +20,8 @@ export function headline(snap, deviceName) {
       switch (snap.phase) {
         case "settle":
           return "Put it back and hold still";
+        case "returning":
+          return "Putting it back against the block";
         case "turning":
           return `Turning about ${ax(axis)}`;
         case "placing":
@@ -45,6 +47,9 @@ export function subline(snap) {
   if (snap.state.startsWith("turn_") && snap.phase === "ready") {
     // the turn in a sentence, as the picture beside shows it
     return TURN_SENTENCE[snap.axis] || snap.prompt || "";
+  }
+  if (snap.state.startsWith("turn_") && snap.phase === "returning") {
+    return `Once it rests in its place, turn it one full turn about ${ax(snap.axis)}.`;
   }
   if (snap.state.startsWith("turn_") && snap.phase === "turning") {
     const target = snap.live && snap.live.target_deg;
@@ -85,8 +90,20 @@ export const REASONS = {
   cancelled: { title: "Calibration cancelled", fix: "Nothing was saved: the device keeps its previous calibration.", icon: "stop" },
 };
 
-export function reasonFor(code) {
-  return REASONS[code] || { title: "The calibration stopped", fix: "Start a new calibration.", icon: "fail" };
+export function reasonFor(code, snap = null) {
+  const r = REASONS[code] || { title: "The calibration stopped", fix: "Start a new calibration.", icon: "fail" };
+  if (code === "no_motion" && snap && (Object.keys(snap.turns || {}).length || (snap.attempt || 1) > 1)) {
+    // turns were made: it is the one asked after them that was not started
+    return { ...r, title: "The next turn was not started in time", fix: "Start again: the turns are asked from the beginning, each as the screen shows it." };
+  }
+  return r;
+}
+
+/** The time left for an overdue turn, in words (null while there is no such limit near). */
+export function timeLeft(snap, showBelowS = 40) {
+  const left = snap.time_left_s;
+  if (left == null || snap.phase !== "ready" || left > showBelowS) return null;
+  return `No turn yet: the calibration stops in ${Math.max(0, Math.ceil(left))} s unless the turn starts.`;
 }
 
 /** A failed request in one line, for a form's status: the service's reason, or that it did not answer. */

@@ -27,12 +27,18 @@ export function sessionNotices({ thing = "device", sound = null } = {}) {
   let timer = null;
 
   const showWarning = (s, w, retry) => {
-    shown = { until: retry ? Infinity : Date.now() + WARNING_SHOW_MS, message: w.message, axis: s.axis,
-      state: s.state, retry, rested: false };
-    box.dataset.key = `warning-${seen}`;
-    box.dataset.warning = w.code;
     const kind = INFO.has(w.code) ? "info" : "warn";
-    fill(box, notice(kind, WARNING_ICON[w.code] || "warn", w.message, retry ? `Attempt ${s.attempt} of ${s.max_attempts}:` : null));
+    const el = notice(kind, WARNING_ICON[w.code] || "warn", w.message, retry ? `Attempt ${s.attempt} of ${s.max_attempts}:` : null);
+    if (shown && shown.retry && kind === "info" && s.state === shown.state) {
+      // a hint while a turn asked again waits: the reason stays (she has not acted on it yet), the hint beneath it
+      fill(box, shown.el, el);
+    } else {
+      shown = { until: retry ? Infinity : Date.now() + WARNING_SHOW_MS, message: w.message, axis: s.axis,
+        state: s.state, retry, rested: false, el };
+      box.dataset.key = `warning-${seen}`;
+      box.dataset.warning = w.code;
+      fill(box, el);
+    }
     if (sound) {
       sound.tone(kind === "warn" ? "warn" : "step");
       sound.say(w.message);

@@ -8,7 +8,7 @@ import { cues } from "./cues.js";
 import { REST_PHASES, angleGauge, icon, notice, placePicture, showRest, showTurn, stillRing, turnAnimation, turnTiles } from "./figures.js";
 import { sessionNotices } from "./notices.js";
 import { identifyButton } from "./identify.js";
-import { STEP_LABELS, TURN_FAULTS, headline, reasonFor, requestProblem, stepOf, subline } from "./messages.js";
+import { STEP_LABELS, TURN_FAULTS, headline, reasonFor, requestProblem, stepOf, subline, timeLeft } from "./messages.js";
 import { detailsBlock, paramTable } from "./details.js";
 import { readiness } from "./readiness.js";
 import { verifyTurn } from "./verify.js";
@@ -228,19 +228,23 @@ export function sessionView(ctx, sid) {
     const where = s.remote ? h("p", { class: "remote-note", role: "note" }, icon("info"),
       `This calibration runs on gateway ${s.remote.gateway}, where the wearable is; this page follows it live.`) : null;
     const noticeBox = h("div", { class: "notice-box" });
+    const limit = h("p", { class: "time-left", role: "timer", hidden: true });
     const stage = h("div", { class: "stage" });
     const tiles = turnTiles();
     const root = h("section", { class: "wizard live", "aria-labelledby": "instruction" },
-      head, where, h("div", { class: "prompt", "aria-live": "polite", "aria-atomic": "true" }, title, sub), noticeBox, stage, tiles);
+      head, where, h("div", { class: "prompt", "aria-live": "polite", "aria-atomic": "true" }, title, sub), noticeBox, limit, stage, tiles);
     fill(ctx.main, root);
     ctx.focusMain();
-    ui = { root, head, title, sub, stage, tiles, key: null, ring: null, gauge: null, remote: Boolean(s.remote) };
+    ui = { root, head, title, sub, limit, stage, tiles, key: null, ring: null, gauge: null, remote: Boolean(s.remote) };
     notices.attach(noticeBox);
   };
 
   const stageKey = (s) => {
     // the gauge stays while the device is put down (placing): the turn view changes only once it rests (checking)
-    if (s.state.startsWith("turn_")) return REST_PHASES.includes(s.phase) ? `rest:${s.axis}:${s.phase}` : `turn:${s.axis}`;
+    if (s.state.startsWith("turn_")) {
+      if (s.phase === "returning") return `back:${s.axis}`;
+      return REST_PHASES.includes(s.phase) ? `rest:${s.axis}:${s.phase}` : `turn:${s.axis}`;
+    }
     return s.state;
   };
 
@@ -260,6 +264,10 @@ export function sessionView(ctx, sid) {
       case "turn":
         ui.gauge = angleGauge(s.axis);
         content = [h("div", { class: "how-to" }, turnGuide(s.axis), h("p", { class: `axis-caption ax-${s.axis}` }, `Turn ${AXIS_LABEL[s.axis]}`)), ui.gauge];
+        break;
+      case "back": // asked again with the device off its place: put back before the turn
+        content = [placePicture(), h("div", { class: "side-note" }, h("p", { class: "recorded redo" }, icon("redo"),
+          `Then turn ${AXIS_LABEL[s.axis]} again`))];
         break;
       case "rest": {
         ui.ring = stillRing();
@@ -304,6 +312,9 @@ export function sessionView(ctx, sid) {
       sound.say(t);
     }
     if (ui.sub.textContent !== sub) ui.sub.textContent = sub;
+    const left = timeLeft(s);
+    ui.limit.hidden = !left;
+    if (left && ui.limit.textContent !== left) ui.limit.textContent = left;
     if (ui.ring) showRest(ui.ring, s);
     if (ui.gauge) showTurn(ui.gauge, s);
     if (s.state.startsWith("turn_")) lastAxis = s.axis;
@@ -493,7 +504,7 @@ export function sessionView(ctx, sid) {
   };
 
   const stoppedView = (s, code) => {
-    const r = reasonFor(code);
+    const r = reasonFor(code, s);
     const dev = deviceLabel(device, s.device_id);
     const cancelled = code === "cancelled";
     const step = lastStep || stoppedStep(s);

@@ -1,0 +1,86 @@
+"""The page's moments as the recorder sampled them (``Wizard.record``'s ``samples``), read against what a clinician
+must be able to rely on at every one of them."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+RETRY_MARK = "Attempt "  # a notice that asks a turn again starts "Attempt n of m:"
+
+
+@dataclass(frozen=True)
+class RetryReason:
+    """One reason for a turn asked again, as the page showed it: for the turn state ``state``, from ``shown_ms`` for
+    ``on_screen_ms`` (until it first left the screen), owed until ``owed_ms`` (the next turn started, or the session
+    moved on), and ``gap_ms``: when it was gone before then (None: never)."""
+
+    state: str
+    text: str
+    shown_ms: int
+    on_screen_ms: int
+    owed_ms: int
+    gap_ms: int | None
+
+
+def retry_reasons(samples: list[list[Any]]) -> list[RetryReason]:
+    """Each retry reason in ``samples`` and how long it stayed: it is owed from the moment it appears until the turn it
+    asks for starts (the page shows that state turning, on to the device put down, not back to the prompt) or the
+    session leaves that state (a reconnection aside)."""
+    out: list[RetryReason] = []
+    i = 0
+    while i < len(samples):
+        t0, sp, box = samples[i][0], samples[i][1], samples[i][2]
+        state = sp.split(":", 1)[0]
+        if not (state.startswith("turn_") and box.startswith(RETRY_MARK)):
+            i += 1
+            continue
+        reason = box
+        owed, gap, left = None, None, None
+        j = i + 1
+        while j < len(samples):
+            t, sp_j, box_j = samples[j][0], samples[j][1], samples[j][2]
+            state_j = sp_j.split(":", 1)[0]
+            if (sp_j == f"{state}:turning" and _turn_follows(samples, j, state)) or (
+                    state_j != state and state_j != "reconnecting"):
+                owed = t
+                break
+            if box_j.startswith(RETRY_MARK) and not box_j.startswith(reason[:40]):
+                owed = t  # a new reason takes its place: that one is owed from now
+                break
+            if reason[:40] not in box_j:
+                left = t if left is None else left
+                gap = t if gap is None else gap
+            j += 1
+        end = samples[-1][0] if owed is None else owed
+        out.append(RetryReason(state, reason, t0, (left if left is not None else end) - t0, end - t0,
+                               None if gap is None else gap - t0))
+        # on to the first moment after this reason's obligation
+        while i < len(samples) and samples[i][0] < end:
+            i += 1
+    return out
+
+
+def _turn_follows(samples: list[list[Any]], j: int, state: str) -> bool:
+    """Whether the turning shown from sample ``j`` is the turn itself: through the device put down, it goes on to the
+    turn checked, not back to the prompt (a device put back against the block, shown as turning by a page that cannot
+    tell)."""
+    for sample in samples[j:]:
+        if sample[1] not in (f"{state}:turning", f"{state}:placing"):
+            return sample[1] not in (f"{state}:ready", f"{state}:returning")
+    return True
+
+
+def assert_retry_reasons_stay(samples: list[list[Any]], at_least: int = 1, save: Path | None = None) -> list[RetryReason]:
+    """Every retry reason the page showed stayed on screen until the turn it asks for started; returns them (and
+    writes them to ``save``, a JSON file, first: how long each was on screen is a figure worth keeping)."""
+    reasons = retry_reasons(samples)
+    if save is not None:
+        save.parent.mkdir(parents=True, exist_ok=True)
+        save.write_text(json.dumps([asdict(r) for r in reasons], indent=1))
+    assert len(reasons) >= at_least, [s for s in samples if s[2]][:20]
+    gone = [(r.state, r.text[:90], r.gap_ms, r.owed_ms) for r in reasons if r.gap_ms is not None]
+    assert not gone, f"a retry's reason left the screen before its turn started (state, reason, gone at, owed until ms): {gone}"
+    return reasons
