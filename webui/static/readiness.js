@@ -6,22 +6,37 @@ import { icon } from "./figures.js";
 
 const ax = (a) => AXIS_LABEL[a] || String(a || "").toUpperCase();
 
-/** Degrees people read: 0.01° and 0.2° with their decimals, 59° without. */
-function degrees(v) {
-  if (typeof v !== "number" || !Number.isFinite(v)) return "—";
-  if (v < 0.095) return `${num(Math.max(v, 0.01), 2)}°`;
-  if (v < 9.5) return `${num(v, 1)}°`;
-  return `${num(v, 0)}°`;
+/** The decimals a figure of degrees is read with: 0.01° and 0.2° with theirs, 59° without. */
+function decimals(v) {
+  return v < 0.095 ? 2 : v < 9.5 ? 1 : 0;
 }
 
+/** Degrees people read. */
+function degrees(v) {
+  if (typeof v !== "number" || !Number.isFinite(v)) return "—";
+  const d = decimals(v);
+  return `${num(Math.max(v, 10 ** -d), d)}°`;
+}
+
+// A full turn measured this much better or worse is no change that matters: a fifth of the 0.25° a full turn must
+// close to, and about 1.4e-4 in a scale factor
+const SAME_DEG = 0.05;
+
 /** How much better a full turn measures, against what the device used until now: its calibration in force, or
- * its raw readings when it had none. */
+ * its raw readings when it had none. Both figures are rounded alike; a new calibration no better than the one in
+ * use says so. */
 export function accuracySentence(acc, dev) {
   if (!acc) return null;
-  const before = acc.before_with === "calibration"
-    ? `with the calibration it used until now${acc.before_calibration_id ? ` (#${acc.before_calibration_id})` : ""}, it was up to ${degrees(acc.before_deg)} off`
-    : `uncalibrated, it was up to ${degrees(acc.before_deg)} off`;
-  return `${dev} now measures a full turn to within ${degrees(acc.after_deg)}; ${before}.`;
+  // figures of one size (both under 10°) are read with the same decimals, the finer's; 0.02° beside 58° each its own
+  const alike = Math.max(acc.after_deg, acc.before_deg) < 9.5 ? Math.max(decimals(acc.after_deg), decimals(acc.before_deg)) : null;
+  const fmt = (v) => (typeof v === "number" && Number.isFinite(v) ? (alike === null ? degrees(v) : `${num(Math.max(v, 10 ** -alike), alike)}°`) : "—");
+  const after = fmt(acc.after_deg);
+  const before = fmt(acc.before_deg);
+  if (acc.before_with !== "calibration") return `${dev} now measures a full turn to within ${after}; uncalibrated, it was up to ${before} off.`;
+  const used = `the calibration it used until now${acc.before_calibration_id ? ` (#${acc.before_calibration_id})` : ""}`;
+  if (acc.before_deg - acc.after_deg >= SAME_DEG) return `${dev} now measures a full turn to within ${after}; with ${used}, it was up to ${before} off.`;
+  const verdict = acc.after_deg - acc.before_deg >= SAME_DEG ? "the new one is no better" : "the new one changes nothing that matters";
+  return `${dev} measures a full turn to within ${after} with this calibration and to within ${before} with ${used}: ${verdict}.`;
 }
 
 /** What a scale factor means in the sensor's own terms. g = K m: the true rate is k times the reading, so a true full
