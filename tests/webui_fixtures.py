@@ -228,7 +228,7 @@ class Wizard:
         event is missed), whether the
         stillness ring showed the device moving, every notice, the notice beside each state:phase
         ("turn_x:ready|<notice>"), the turns shown done after each change ("xy"), in ``samples`` the moments (every
-        100 ms and every change: time, state:phase, notice box, headline, time-left line), whether the gauge was ever
+        100 ms and every change: time, state:phase, notice box, headline, time-left line, ring percent), whether the gauge was ever
         gone while the device was being put down (placing), and in ``shown`` what each screen said as it changed
         (state:phase, headline, the line under it, the recorded-turn line and the notices with their classes), so that
         a test on a busy machine waits only for the end and reads back what passed on the way."""
@@ -237,11 +237,14 @@ class Wizard:
                           phaseNotices: [], done: [], placingWithoutGauge: false, screens: {}, shown: [], samples: [] };
           const last = (list) => list[list.length - 1];
           const text = (sel) => { const el = document.querySelector(sel); return el ? el.textContent.trim() : ''; };
-          // the moments: every 100 ms and at every change, [ms, state:phase, notice box, headline, time-left line]
+          // the moments: every 100 ms and at every change, [ms, state:phase, notice box, headline, time-left line, the
+          // stillness ring's percent (null: no ring)]
           const sample = () => {
             const w = document.querySelector('.wizard'), limit = document.querySelector('.time-left');
+            const ring = document.querySelector('.ring-wrap');
             window.seen.samples.push([Math.round(performance.now()), w ? `${w.dataset.state}:${w.dataset.phase || ''}` : '',
-                                      text('.notice-box'), text('.instruction'), limit && !limit.hidden ? limit.textContent : '']);
+                                      text('.notice-box'), text('.instruction'), limit && !limit.hidden ? limit.textContent : '',
+                                      ring ? Number(ring.getAttribute('aria-valuenow')) : null]);
           };
           setInterval(sample, 100);
           const look = () => {

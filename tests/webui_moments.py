@@ -84,3 +84,18 @@ def assert_retry_reasons_stay(samples: list[list[Any]], at_least: int = 1, save:
     gone = [(r.state, r.text[:90], r.gap_ms, r.owed_ms) for r in reasons if r.gap_ms is not None]
     assert not gone, f"a retry's reason left the screen before its turn started (state, reason, gone at, owed until ms): {gone}"
     return reasons
+
+
+def assert_first_rest_counts_without_a_jump(samples: list[list[Any]], speed: float, rest_s: float = 3.0) -> None:
+    """The first hold-still's ring counts from the device's first readings as time passes: the first value it moves
+    to is a small one (not the 46 % of a count that waited for the stage detector's decision, 1.4 s into the rest),
+    and no change of it is larger than the device time since the value before it appeared allows (``speed``: device s
+    per page s; ``rest_s``: the rest asked for), give or take a quarter of the rest for a busy page's lateness."""
+    still = [(s[0], s[5]) for s in samples if s[1].startswith("still:") and s[5] is not None]
+    assert len(still) >= 5, still
+    moved = [p for _, p in still if p > 0]
+    assert moved and moved[0] <= 25, f"the first rest's ring began at {moved[:1]} %: ring {still[:30]}"
+    changes = [still[0]] + [(t, p) for (_, p0), (t, p) in zip(still, still[1:], strict=False) if p != p0]
+    steps = [(t1 - t0, p1 - p0) for (t0, p0), (t1, p1) in zip(changes, changes[1:], strict=False)]
+    jumps = [(round(dt), dp) for dt, dp in steps if dp > 100.0 * (dt / 1000.0) * speed / rest_s + 25.0]
+    assert not jumps, f"the first rest's ring jumped (ms since the value before, percent): {jumps}; ring {still[:30]}"

@@ -29,6 +29,7 @@ class ProtocolSteps(TurnChecks):
     _phase_since_t: float
     _hinted: bool
     _calm_since: float | None  # device time of the first still sample, by the fast stop reading (turn_watch)
+    _left_said_t = -1e9  # device time the time left for an overdue turn was last sent
 
     @property
     def finished(self) -> bool:
@@ -45,7 +46,10 @@ class ProtocolSteps(TurnChecks):
             self._calm_since = None
             return 0.0, True
         if rate < STOP_DPS and self._calm_since is None:
-            self._calm_since = self.t_now - STOP_WINDOW_S
+            # the session's first rest counts from its first calm reading: the link's first readings arrive at once,
+            # and the device lay still from the first of them, not from the window that saw it
+            calm = self.stream.calm_since() if self.stream.last_still is None else None
+            self._calm_since = self.t_now - STOP_WINDOW_S if calm is None else min(calm, self.t_now - STOP_WINDOW_S)
         if self._calm_since is None:
             return still_s, moving
         return max(still_s, self.t_now - self._calm_since), False
@@ -90,9 +94,12 @@ class ProtocolSteps(TurnChecks):
             if self.phase in (Phase.TURNING, Phase.PLACING):
                 self._last_live_emit = now
                 self._emit("angle")
-            elif target is not None or (self._hinted and self.phase == Phase.READY):
-                # a rest's count, or, once the turn is overdue, the time left for it
+            elif target is not None:
                 self._last_live_emit = now
+                self._emit("progress")
+            elif self._hinted and self.phase == Phase.READY and self.kit_id is None and self.t_now - self._left_said_t >= 1.0:
+                # once the turn is overdue, the time left for it, once a second of device time (a kit's page has its own)
+                self._last_live_emit, self._left_said_t = now, self.t_now
                 self._emit("progress")
 
     def _still_reached(self) -> None:

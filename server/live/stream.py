@@ -172,19 +172,31 @@ class SessionStream:
         """The largest rate (deg/s, rest reading removed) over the last ``window_s`` of readings."""
         k = max(1, int(round(window_s * self.fs))) if self.fs else 1
         n = self.buf.n
-        return recent_rate_dps(self.buf.gyro[max(0, n - k):n], self.rest_reading(), k)
+        return recent_rate_dps(self.buf.gyro[max(0, n - k):n], self._rest_up_to(n), k)
+
+    def _rest_up_to(self, hi: int) -> np.ndarray | float:
+        """The reading at rest as of reading ``hi``: the last still's mean. Before any still closed (a wearable that has
+        not moved yet: the first rest of a session, or one left beside its kit's tray), the median of its last 10 s of
+        readings, not 0, which its bias alone (up to 5 deg/s an axis) would read as moving: the ring of the first rest
+        then counts from its first readings, not from the detector's decision 1.4 s later."""
+        if self.last_still is not None or hi < 1:
+            return self.rest_reading()
+        return np.median(self.buf.gyro[max(0, hi - int(10.0 * (self.fs or 100.0))):hi], axis=0)
 
     def _moving(self, lo: int, hi: int) -> np.ndarray:
-        """Whether each reading lo..hi-1 moved: away from the rest reading by more than a stopped device reads. Before
-        any still closed (a wearable that has not moved yet: one left beside its kit's tray), the rest reading is the
-        median of its last 10 s of readings up to ``hi``, not 0, which its bias alone (up to 5 deg/s an axis) would read
-        as moving."""
-        if self.last_still is not None or hi < 1:
-            rest = self.rest_reading()
-        else:
-            rest = np.median(self.buf.gyro[max(0, hi - int(10.0 * (self.fs or 100.0))):hi], axis=0)
-        g = self.buf.gyro[lo:hi] - rest
+        """Whether each reading lo..hi-1 moved: away from the rest reading (``_rest_up_to``) by more than a stopped
+        device reads."""
+        g = self.buf.gyro[lo:hi] - self._rest_up_to(hi)
         return np.asarray(np.sqrt((g * g).sum(axis=1)) > STOP_DPS)
+
+    def calm_since(self) -> float | None:
+        """Device time of the first reading of the calm that goes on to now (within the last 10 s): where the rest the
+        ring counts began. None when the newest reading moves."""
+        n = self.buf.n
+        lo = max(0, n - int(10.0 * (self.fs or 100.0)))
+        moved = np.flatnonzero(self._moving(lo, n))
+        first = lo + (int(moved[-1]) + 1 if moved.size else 0)
+        return float(self.buf.t[first]) if first < n else None
 
     def clipped_motion(self, since_t: float) -> float | None:
         """How long (s) the motion since device time ``since_t`` took, if its readings reached the gyro's stated range

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 from webui_fixtures import (
     LISTEN,
+    MOCK_SPEED,
     OPERATOR,
     PIN,
     Watch,
@@ -28,7 +29,7 @@ from webui_fixtures import (
     upload_accepted,
     watched_page,
 )
-from webui_moments import assert_retry_reasons_stay
+from webui_moments import assert_first_rest_counts_without_a_jump, assert_retry_reasons_stay
 
 from calib.apply.correction import Correction
 from calib.io.readers import read_recording, write_native_csv
@@ -131,6 +132,7 @@ def test_a_careful_clinician_following_the_page_reaches_a_result_that_says_what_
     if landscape:
         assert_heard_each_step(w)
     seen = w.seen()
+    assert_first_rest_counts_without_a_jump(seen["samples"], MOCK_SPEED)
     assert any(h.startswith("Turn X: ") for h in seen["headlines"]), seen["headlines"]
     assert_turns_end_with_hold_still(seen["headlines"])
     assert w.text(".verdict h1") == "PASS"
@@ -262,6 +264,7 @@ def _asked_again_and_passed(w: Wizard, asked: str) -> None:
     seen = w.seen()  # what the page showed, change by change (the retry's notice may last under a second)
     assert not any("faulty" in n for n in seen["notices"]), seen["notices"]
     assert_retry_reasons_stay(seen["samples"], save=w.shots / "retry-reasons.json")
+    assert_first_rest_counts_without_a_jump(seen["samples"], MOCK_SPEED)
     put_back = [s for s in seen["samples"] if s[1] == f"turn_{asked}:returning"]
     assert all(s[3] == "Putting it back against the block" for s in put_back), put_back[:3]
     assert put_back or asked == "y", "the Z turn's put-back was not shown as such"  # Y's is put back while it settles

@@ -535,12 +535,15 @@ export function sessionView(ctx, sid) {
       if (alive && err.status !== 401) ctx.problem(err, "load the calibration");
       return;
     }
-    try {
-      device = await api.get(`/devices/${encodeURIComponent(first.device_id)}`);
-    } catch {
+    const named = api.get(`/devices/${encodeURIComponent(first.device_id)}`).then((dev) => {
+      device = dev;
+    }, () => {
       device = null; // the id is enough to go on
-    }
+    });
+    if (END_STATES.has(first.state)) await named; // the result speaks of the device by its name
     if (!alive) return;
+    // a running session is followed at once (its ring and gauge move on while the device's name is fetched); the
+    // name replaces the id at the next event
     apply({ ...first, event_id: null });
     if (!END_STATES.has(first.state)) follow();
   })();
