@@ -84,6 +84,15 @@ def session_snapshot(w: Wizard, sid: str) -> dict[str, Any]:
         return c.get(f"/sessions/{sid}").json()
 
 
+def start_recorded(w: Wizard, device: str) -> None:
+    """Sign in with the PIN, start a calibration of ``device`` and record what the page shows from then on."""
+    sign_in_with_pin(w)
+    w.page.click(f".device-card[data-device='{device}'] a.button.primary")
+    w.page.click(".wizard[data-state='place'] button.primary:not([disabled])")
+    w.page.wait_for_url(re.compile(r"#/session/[0-9a-f]{32}$"))
+    w.record()
+
+
 def run_to_result(w: Wizard, device: str, check_turns: bool = True, before_start: Callable[[], None] | None = None) -> str:
     """Choose ``device``, check the overview, press Start and follow the session to its end; returns its id."""
     w.page.click(f".device-card[data-device='{device}'] a.button.primary")
@@ -202,11 +211,7 @@ def test_portrait_gives_the_gauge_and_ring_the_height(hand_wizard: Wizard, page_
 
 def test_a_bump_in_a_pause_is_warned_and_recovered_without_restarting(hand_wizard: Wizard, page_watch: Watch) -> None:
     w = hand_wizard
-    sign_in_with_pin(w)
-    w.page.click(".device-card[data-device='mock-3'] a.button.primary")
-    w.page.click(".wizard[data-state='place'] button.primary:not([disabled])")
-    w.page.wait_for_url(re.compile(r"#/session/[0-9a-f]{32}$"))
-    w.record()
+    start_recorded(w, "mock-3")
     w.page.wait_for_selector(".notice.warn")
     # the warning takes the stage's height, not the tiles' place on the screen
     tiles = box(w, ".tiles")
@@ -248,11 +253,7 @@ def test_a_turn_done_wrong_is_asked_again_saying_why_never_blaming_the_sensor(
                                  hand_service, artifacts / "webui" / f"asked-again-{asked}-{view}")
                    for asked in ASKED_AGAIN}
         for asked, w in wizards.items():
-            sign_in_with_pin(w)
-            w.page.click(f".device-card[data-device='{ASKED_AGAIN[asked]}'] a.button.primary")
-            w.page.click(".wizard[data-state='place'] button.primary:not([disabled])")
-            w.page.wait_for_url(re.compile(r"#/session/[0-9a-f]{32}$"))
-            w.record()
+            start_recorded(w, ASKED_AGAIN[asked])
         for asked, w in wizards.items():
             w.page.wait_for_selector(".verdict h1", timeout=90_000)
             _asked_again_and_passed(w, asked)
@@ -294,11 +295,7 @@ def test_a_turn_asked_again_and_never_made_keeps_its_reason_counts_down_and_ends
     its place); the time left counts down on screen; the session ends saying the next turn was not started in time,
     not that no turn was made (X and Y were)."""
     w = hand_wizard
-    sign_in_with_pin(w)
-    w.page.click(".device-card[data-device='mock-8'] a.button.primary")
-    w.page.click(".wizard[data-state='place'] button.primary:not([disabled])")
-    w.page.wait_for_url(re.compile(r"#/session/[0-9a-f]{32}$"))
-    w.record()
+    start_recorded(w, "mock-8")
     w.page.wait_for_selector(".wizard[data-state='failed'] .verdict h1", timeout=90_000)
     samples = w.seen()["samples"]
     (reason,) = assert_retry_reasons_stay(samples, save=w.shots / "retry-reasons.json")
