@@ -12,7 +12,7 @@ from ..config import Settings
 from . import guidance as say
 from .codes import TURN_STATES, Phase, State
 from .snapshot_schema import LiveReading
-from .time_limits import overdue
+from .time_limits import overdue, time_left
 from .turn_checks import TurnChecks
 from .turn_watch import RESUME_DPS, STOP_DPS, STOP_WINDOW_S
 
@@ -33,6 +33,10 @@ class ProtocolSteps(TurnChecks):
 
     @property
     def finished(self) -> bool:
+        raise NotImplementedError
+
+    @property
+    def axis(self) -> str | None:
         raise NotImplementedError
 
     def _emit(self, event: str) -> None: ...
@@ -69,9 +73,7 @@ class ProtocolSteps(TurnChecks):
         (``server.live.time_limits``); None in a phase with no such limit."""
         if self.finished:
             return None
-        waiting = self.state == State.STILL or self.phase in (Phase.SETTLE, Phase.PAUSE) or (
-            self.phase == Phase.READY and self.state in TURN_STATES.values())
-        return self.timings.fail_after_s - (self.t_now - self._phase_since_t) if waiting else None
+        return time_left(self.state, self.phase, self.axis, self.t_now - self._phase_since_t, self.timings)
 
     def _update_live(self) -> None:
         still_s, moving, raw = self.stream.live()
@@ -168,7 +170,8 @@ class ProtocolSteps(TurnChecks):
         axis = AXES[self._axis_i]
         if self.phase == Phase.READY:
             self._begin_turn(still_s, None)
-            if self._off_place_deg is not None:  # asked again: the first motion may be the device put back
+            # asked again: the first motion may be the device put back (a kit's tray is put back as its prompts say)
+            if self._off_place_deg is not None and self.kit_id is None:
                 self._set_phase(Phase.RETURNING, say.returning_prompt(axis))
             else:
                 self._set_phase(Phase.TURNING, say.turning_prompt(axis))
@@ -187,8 +190,8 @@ class ProtocolSteps(TurnChecks):
         """Protocol time limits, in device time (so they scale with a simulated device's speed)."""
         if self.finished:
             return
-        axis = AXES[self._axis_i] if self.state in TURN_STATES.values() else None
-        late = overdue(self.state, self.phase, axis, self.t_now - self._phase_since_t, self._hinted, self.timings, self.retry_allowed)
+        late = overdue(self.state, self.phase, self.axis, self.t_now - self._phase_since_t, self._hinted, self.timings,
+                       self.retry_allowed)
         if late is None:
             return
         if late.action == "hint":

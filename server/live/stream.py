@@ -24,6 +24,7 @@ from .buffer import SampleBuffer
 from .turn_watch import STOP_DPS, recent_rate_dps
 from .turns import TurnRecord
 
+RECENT_S = 10.0  # before any rest has closed, the reading at rest is the median of this much of the newest readings
 MOVE_GAP_S = 0.2  # calm readings this long part one move from the motion before it (a knock from the turn it follows)
 ARRIVAL_WINDOW_S = 5.0  # how late readings reach the session is its least over this much device time: a while the
 # service or one link falls behind passes, the least stays (a clock 1 % off drifts 0.05 s in it)
@@ -181,7 +182,11 @@ class SessionStream:
         then counts from its first readings, not from the detector's decision 1.4 s later."""
         if self.last_still is not None or hi < 1:
             return self.rest_reading()
-        return np.median(self.buf.gyro[max(0, hi - int(10.0 * (self.fs or 100.0))):hi], axis=0)
+        return np.median(self.buf.gyro[self._recent_from(hi):hi], axis=0)
+
+    def _recent_from(self, hi: int) -> int:
+        """The first of the readings up to ``hi`` in the last ``RECENT_S``."""
+        return max(0, hi - int(RECENT_S * (self.fs or 100.0)))
 
     def _moving(self, lo: int, hi: int) -> np.ndarray:
         """Whether each reading lo..hi-1 moved: away from the rest reading (``_rest_up_to``) by more than a stopped
@@ -190,10 +195,10 @@ class SessionStream:
         return np.asarray(np.sqrt((g * g).sum(axis=1)) > STOP_DPS)
 
     def calm_since(self) -> float | None:
-        """Device time of the first reading of the calm that goes on to now (within the last 10 s): where the rest the
+        """Device time of the first reading of the calm that goes on to now (within the last ``RECENT_S``): where the rest the
         ring counts began. None when the newest reading moves."""
         n = self.buf.n
-        lo = max(0, n - int(10.0 * (self.fs or 100.0)))
+        lo = self._recent_from(n)
         moved = np.flatnonzero(self._moving(lo, n))
         first = lo + (int(moved[-1]) + 1 if moved.size else 0)
         return float(self.buf.t[first]) if first < n else None

@@ -23,6 +23,14 @@ class Overdue:
     message: str
 
 
+def time_left(state: str, phase: str | None, axis: str | None, waited_s: float, timings: ProtocolTimings) -> float | None:
+    """How long (device s) is left of the ``waited_s`` in this state and phase before ``overdue`` ends the session for
+    want of the rest or the turn it asks for; None where no such end comes (a turn under way is asked again instead)."""
+    if state == State.STILL or phase == Phase.SETTLE or (axis is not None and phase in (Phase.READY, Phase.PAUSE)):
+        return timings.fail_after_s - waited_s
+    return None
+
+
 def overdue(state: str, phase: str | None, axis: str | None, waited_s: float, hinted: bool, timings: ProtocolTimings,
             retry: bool) -> Overdue | None:
     """The consequence of having waited ``waited_s`` in this state and phase, or None while within the limits."""

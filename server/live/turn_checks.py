@@ -137,7 +137,7 @@ class TurnChecks:
                     # too fast is known the moment the turn stops: said now, not once its closing rest is complete
                     # (the stage then closes in the settle and is not checked again)
                     self._provisional = None
-                    self._off_place_deg = 0.0 if self.kit_id is None else None
+                    self._off_place_deg = 0.0
                     self._turn_failed(EndReason.TOO_FAST, say.too_fast(axis, self.full_scale, self.retry_allowed, took))
                     return True
                 if self.live_angle.near_full(float(angle[k])):
@@ -282,8 +282,7 @@ class TurnChecks:
         self._redo = list(axes)
         # the device rests where the last turn left it: off its place if that turn (one asked again) stopped short
         last = max(self.turns.values(), key=lambda r: r.end_s, default=None)
-        if self.kit_id is None:
-            self._off_place_deg = 0.0 if last is None else off_place_deg(last.angle_deg)
+        self._off_place_deg = 0.0 if last is None else off_place_deg(last.angle_deg)
         for a in axes:
             self.turns.pop(a, None)
         self._axis_i = AXES.index(axes[0])
@@ -331,7 +330,7 @@ class TurnChecks:
             lost = max(1, self.stream.missing_samples(st))
         measure = self._measure(axis, st, angles, lost, refused)
         problem = judge_turn(axis, measure, self.tol, self.full_scale, self.retry_allowed)
-        self._off_place_deg = off_place_deg(angles) if problem is not None and self.kit_id is None else None
+        self._off_place_deg = off_place_deg(angles) if problem is not None else None
         if problem is not None:
             self._turn_failed(*problem)
             return

@@ -11,10 +11,9 @@ function decimals(v) {
   return v < 0.095 ? 2 : v < 9.5 ? 1 : 0;
 }
 
-/** Degrees people read. */
-function degrees(v) {
+/** Degrees people read, with ``d`` decimals (by default the figure's own). */
+function degrees(v, d = decimals(v)) {
   if (typeof v !== "number" || !Number.isFinite(v)) return "—";
-  const d = decimals(v);
   return `${num(Math.max(v, 10 ** -d), d)}°`;
 }
 
@@ -28,10 +27,9 @@ const SAME_DEG = 0.05;
 export function accuracySentence(acc, dev) {
   if (!acc) return null;
   // figures of one size (both under 10°) are read with the same decimals, the finer's; 0.02° beside 58° each its own
-  const alike = Math.max(acc.after_deg, acc.before_deg) < 9.5 ? Math.max(decimals(acc.after_deg), decimals(acc.before_deg)) : null;
-  const fmt = (v) => (typeof v === "number" && Number.isFinite(v) ? (alike === null ? degrees(v) : `${num(Math.max(v, 10 ** -alike), alike)}°`) : "—");
-  const after = fmt(acc.after_deg);
-  const before = fmt(acc.before_deg);
+  const alike = Math.max(acc.after_deg, acc.before_deg) < 9.5 ? Math.max(decimals(acc.after_deg), decimals(acc.before_deg)) : undefined;
+  const after = degrees(acc.after_deg, alike);
+  const before = degrees(acc.before_deg, alike);
   if (acc.before_with !== "calibration") return `${dev} now measures a full turn to within ${after}; uncalibrated, it was up to ${before} off.`;
   const used = `the calibration it used until now${acc.before_calibration_id ? ` (#${acc.before_calibration_id})` : ""}`;
   if (acc.before_deg - acc.after_deg >= SAME_DEG) return `${dev} now measures a full turn to within ${after}; with ${used}, it was up to ${before} off.`;
