@@ -176,6 +176,26 @@ def wizard(page: Any, webui_service: RunningService, artifacts: Path, request: p
     return Wizard(page, webui_service, artifacts / "webui" / request.node.name)
 
 
+# The device time of the session's event the page is handling or last handled (``window.lastEvent``), for the
+# recorder's samples: what the page shows is read against the device's time it was said at, not the page's own clock,
+# which a busy machine holds back and then lets run through a burst of events
+LAST_EVENT = """(() => {
+  const Native = window.EventSource;
+  window.lastEvent = null;
+  window.EventSource = class extends Native {
+    addEventListener(type, fn, options) {
+      super.addEventListener(type, (ev) => {
+        try {
+          const s = JSON.parse(ev.data);
+          if (s && s.live && typeof s.live.t_device_s === 'number') window.lastEvent = { t: s.live.t_device_s };
+        } catch { /* not a snapshot */ }
+        fn(ev);
+      }, options);
+    }
+  };
+})()"""
+
+
 class Wizard:
     """Drives the wizard page like a clinician, and saves a screenshot of each step."""
 
@@ -184,6 +204,7 @@ class Wizard:
         self.service = service
         self.shots = shots
         shots.mkdir(parents=True, exist_ok=True)
+        page.add_init_script(LAST_EVENT)
 
     def shot(self, name: str) -> Path:
         """A screenshot of the screen as it is, which must also pass axe-core's accessibility rules."""
@@ -228,7 +249,8 @@ class Wizard:
         event is missed), whether the
         stillness ring showed the device moving, every notice, the notice beside each state:phase
         ("turn_x:ready|<notice>"), the turns shown done after each change ("xy"), in ``samples`` the moments (every
-        100 ms and every change: time, state:phase, notice box, headline, time-left line, ring percent), whether the gauge was ever
+        100 ms and every change: time, state:phase, notice box, headline, time-left line, ring percent, the device time
+        of the event last handled), whether the gauge was ever
         gone while the device was being put down (placing), and in ``shown`` what each screen said as it changed
         (state:phase, headline, the line under it, the recorded-turn line and the notices with their classes), so that
         a test on a busy machine waits only for the end and reads back what passed on the way."""
@@ -244,7 +266,8 @@ class Wizard:
             const ring = document.querySelector('.ring-wrap');
             window.seen.samples.push([Math.round(performance.now()), w ? `${w.dataset.state}:${w.dataset.phase || ''}` : '',
                                       text('.notice-box'), text('.instruction'), limit && !limit.hidden ? limit.textContent : '',
-                                      ring ? Number(ring.getAttribute('aria-valuenow')) : null]);
+                                      ring ? Number(ring.getAttribute('aria-valuenow')) : null,
+                                      window.lastEvent ? window.lastEvent.t : null]);
           };
           setInterval(sample, 100);
           const look = () => {

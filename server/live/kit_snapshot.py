@@ -50,8 +50,8 @@ def kit_snapshot(kit_id: str, snaps: list[SessionOut], kit: KitOut, *, operator:
         device_id=s.device_id, session_id=s.session_id, state=s.state, phase=s.phase,
         prompt=say.of_the_tray(s.prompt) if s.prompt else None, reason_code=s.reason_code,
         reason=say.of_the_tray(s.reason) if s.reason else None, result=s.result, passed=s.passed, checks=s.checks,
-        decision=s.decision, calibration_id=s.calibration_id, samples=s.samples, lost_samples=s.lost_samples,
-        departed=s.device_id in kit.departed,
+        accuracy=s.accuracy, departures=s.departures, decision=s.decision, calibration_id=s.calibration_id,
+        samples=s.samples, lost_samples=s.lost_samples, departed=s.device_id in kit.departed,
     ) for s in snaps]
     decision = "accepted" if any(d.decision == "accepted" for d in devices) else None
     return lead.model_copy(update={

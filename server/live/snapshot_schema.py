@@ -117,6 +117,8 @@ class KitDeviceOut(BaseModel):
     result: ResultDoc | TurnVerification | None = None
     passed: bool | None = None
     checks: list[Check] = Field(default_factory=list, description=CHECKS_TEXT)
+    accuracy: TurnAccuracy | None = Field(None, description="a full turn before and after its calibration")
+    departures: list[Departure] = Field(default_factory=list, description=DEPARTURES_TEXT)
     decision: Literal["accepted", "discarded"] | None = None
     calibration_id: int | None = None
     samples: int | None = None

@@ -449,6 +449,8 @@ def test_leaving_an_unsaved_pass_on_purpose_keeps_the_previous_calibration(wizar
         leave()
         dialog = page.wait_for_selector("dialog.ask[open]")
         assert "Leave without saving?" in dialog.inner_text()
+        # while she reads the question, and after it, the address names the PASS on screen (not the link's #/devices)
+        assert page.url.endswith(f"#/session/{sid}"), page.url
         page.keyboard.press("Escape")
         page.wait_for_selector("dialog.ask", state="detached")
         assert wizard.text(".verdict h1") == "PASS" and page.url.endswith(f"#/session/{sid}")

@@ -189,11 +189,29 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
         assert page.inner_text(".kit-prompt") == "Kit calibrated: 2 of 4 passed"
         assert page.inner_text(".kit-sub") == ("mock-4 came apart from the kit, so the kit gives it no calibration: its "
                                               "row says what to do.")
+        with api(kit_service) as c:
+            judged = {d["device_id"]: d for d in c.get(f"/sessions/{kit_id}").json()["devices"]}
+        cautioned = []
         for device in ("mock-2", "mock-3"):
             row = page.locator(f".kit-device[data-device='{device}']")
             assert row.get_attribute("data-passed") == "true"
-            assert row.locator(".kit-state").inner_text().strip() == "PASS"
             assert re.search(r"k X \d\.\d{4} · Y \d\.\d{4} · Z \d\.\d{4}", row.locator(".kit-k").inner_text())
+            # each wearable's result as careful as one wearable's page: how well it now measures a turn, and a caution
+            # for every value close to its limit (a full turn read near the range's end) or unlike its earlier ones
+            assert re.fullmatch(rf"{device} now measures a full turn to within \d+\.\d+°; uncalibrated, it was up to "
+                                r"[\d.]+° off\.", row.locator(".kit-accuracy").inner_text()), row.inner_text()
+            near = [ch for ch in judged[device]["checks"] if ch["ok"] and ch["near_limit"]] + judged[device]["departures"]
+            assert row.locator(".kit-caution li").count() == len(near), (row.inner_text(), near)
+            assert row.locator(".kit-state").inner_text().strip() == ("PASS, with a caution" if near else "PASS")
+            for ch in near:
+                if ch.get("name") == "k":
+                    reads = round(360 / ch["value"])
+                    assert f"a full turn shows as {reads}° instead of 360°" in row.locator(".kit-caution").inner_text()
+            if near:
+                cautioned.append(device)
+        with_caution = ", each with a caution" if len(cautioned) == 2 else f", {cautioned[0]} with a caution" if cautioned else ""
+        assert page.inner_text(".kit-ready") == f"mock-2 and mock-3 are ready for the study{with_caution}; mock-4 and mock-5 are not"
+        assert page.get_attribute(".kit-ready", "class").split()[-1] == ("caution" if cautioned else "yes")
         # their sensors' axes are not square (1 % cross-axis): the page says each one's was measured and calibrated
         axes = page.inner_text("#kit-axes")
         axes_said = re.fullmatch(r"The wearables' axes are not quite square \(cross-axis terms up to (\d\.\d) %\): each "
@@ -229,8 +247,17 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
             assert c.get(f"/sessions/{kit_id}").json()["kit"]["consistency"]["not_turned"] == ["mock-5"]
         assert wizard.small_targets() == []
         wizard.shot("kit-result")
-        # left unsaved, each wearable that passed is marked on the device list, which leads back to the kit
+        # leaving them unsaved asks first, as one wearable's PASS does: staying keeps the kit on screen, and its address
         page.click("a.brand")
+        dialog = page.wait_for_selector("dialog.ask[open]")
+        assert "These PASSes are not saved: mock-2 and mock-3 keep their previous calibration" in dialog.inner_text()
+        assert page.url.endswith(f"#/kit/{kit_id}"), page.url
+        page.click("dialog.ask button:has-text('Stay and save')")
+        page.wait_for_selector("dialog.ask", state="detached")
+        assert page.inner_text(".kit-prompt") == "Kit calibrated: 2 of 4 passed" and page.url.endswith(f"#/kit/{kit_id}")
+        # left unsaved on purpose, each wearable that passed is marked on the device list, which leads back to the kit
+        page.click("a.brand")
+        page.click("dialog.ask button:has-text('Leave without saving')")
         for device in ("mock-2", "mock-3"):
             unsaved = page.locator(f".device-card[data-device='{device}'] .unsaved")
             assert unsaved.inner_text().startswith("Result not saved: the last calibration, with its kit, passed")
@@ -244,6 +271,9 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
                                "mock-5.')")
         page.wait_for_selector(".kit-device[data-device='mock-2'] .kit-state:has-text('PASS, saved')")
         assert page.locator("#kit-accept").count() == 0  # nothing left to accept
+        page.click("a.brand")  # all saved: leaving asks nothing
+        page.wait_for_selector(".device-card[data-device='mock-2']")
+        assert page.locator("dialog.ask").count() == 0
         # the page followed the kit's event stream: it read the kit whole only on opening it (twice: the second time
         # from the device list) and after the accept
         reads = [u for u in page_watch.requests if u.split("?")[0].endswith(f"/sessions/{kit_id}")]

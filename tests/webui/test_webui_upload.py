@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from webui_fixtures import Watch, Wizard, api, assert_clean
+from webui_fixtures import Watch, Wizard, api, assert_clean, watched_page
 
 from calib.cli.main import main as gyrocal
 
@@ -113,6 +113,39 @@ def test_a_scale_factor_near_its_limit_is_said_in_the_sensors_own_terms_either_w
     assert z == "The Z axis reads 22 % high: a full turn shows as 439° instead of 360° (from 300° to 450° is allowed).", z
     assert "over-reads" not in page.inner_text("main") and "under-reads" not in page.inner_text("main")
     wizard.shot("caution-either-way")
+    assert_clean(page_watch)
+
+
+def test_on_a_phone_a_pass_with_a_caution_keeps_accept_on_the_first_screen_and_its_details_fit(
+        browser: Any, webui_service: Any, page_watch: Watch, artifacts: Path, tmp_path: Path) -> None:
+    """At 390x844, a PASS with two values close to their limits: the caution is read first, and "Accept & save" is
+    on the first screen all the same (it was at y 927, below it), at its foot until she scrolls to where it belongs.
+    The details' turns table fits the phone: nothing in the Details box scrolls sideways (it was 446 px in 350)."""
+    from calib.io.readers import write_native_csv
+    from calib.simulator import SensorParams, simulate
+
+    rec, _ = simulate(11, noise=0.03, params=SensorParams(k=np.array([1.19, 1.0, 0.82]), b=np.array([0.5, -0.3, 0.2])))
+    path = tmp_path / "near-limits.csv"
+    write_native_csv(rec, path)
+    with watched_page(browser, webui_service, page_watch, {"width": 390, "height": 844}, phone=True) as page:
+        wizard = Wizard(page, webui_service, artifacts / "webui" / "phone-caution")
+        upload_from_page(wizard, page, "near-limits-phone", path)
+        assert wizard.text(".verdict .ready") == "Ready for the study, with a caution"
+        page.evaluate("window.scrollTo(0, 0)")
+        where = page.evaluate("""() => { const r = document.querySelector('button.accept').getBoundingClientRect();
+          const near = document.querySelector('.near-limits').getBoundingClientRect();
+          return { top: r.top, bottom: r.bottom, screen: innerHeight, caution: near.top }; }""")
+        assert where["bottom"] <= where["screen"] and where["caution"] < where["top"], where
+        wizard.shot("phone-pass-with-a-caution")
+        page.click("details.details summary")
+        page.wait_for_selector("table.turns")
+        wide = page.evaluate("""() => [...document.querySelectorAll('.details, .details table')]
+          .filter((el) => el.scrollWidth > el.clientWidth + 0.5).map((el) => [el.className, el.scrollWidth, el.clientWidth])""")
+        assert wide == [], wide
+        # still on the screen while she reads the details below
+        foot = page.evaluate("""() => { const r = document.querySelector('button.accept').getBoundingClientRect();
+          return [r.top, r.bottom, innerHeight]; }""")
+        assert 0 <= foot[0] and foot[1] <= foot[2], foot
     assert_clean(page_watch)
 
 

@@ -136,16 +136,21 @@ async function onPopState() {
   } else history.pushState({ guard: true }, "", shownHash);
 }
 
-/** A new hash: ask the view's question first, showing the view until it is answered. */
+/** A new hash: ask the view's question first, showing the view, and its own address, until it is answered. */
 async function onHashChange() {
   if (location.hash === shownHash) return; // back onto the view on screen (a question answered "stay")
   if (leaveGuard) {
     const question = leaveGuard;
-    if (!(await question())) {
-      history.back(); // to the view's own entry: the link or Forward that was followed is undone
-      return;
-    }
+    const target = location.hash;
+    // the link or Forward that was followed is undone at once: the address names what is on screen while she reads
+    // the question, and after "stay"; "leave" follows it again
+    const back = new Promise((resolve) => window.addEventListener("popstate", resolve, { once: true }));
+    history.back();
+    await back;
+    if (!(await question())) return;
     if (leaveGuard === question) leaveGuard = null;
+    location.hash = target;
+    return;
   }
   route();
 }

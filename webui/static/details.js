@@ -44,11 +44,11 @@ function turnRows(liveTurns, res) {
 function turnsTable(rows) {
   const off = (deg) => {
     const pct = ((deg - 360) / 360) * 100;
-    return Math.abs(pct) < 0.05 ? "" : ` (${pct > 0 ? "+" : "−"}${num(Math.abs(pct), 1)} %)`;
+    return Math.abs(pct) < 0.05 ? "" : ` (${pct > 0 ? "+" : "−"}${num(Math.abs(pct), 1)}\u00a0%)`;
   };
   return h("div", null, h("h2", null, "Turns"),
     h("p", { class: "muted" }, "Each turn was one full turn, 360°, back to where it began. The raw readings show how far off the sensor was before this calibration; with it, each turn comes back to its start."),
-    h("table", { class: "turns" },
+    h("div", { class: "table-wrap" }, h("table", { class: "turns" },
       h("thead", null, h("tr", null, ["Full turn", "Sensor read, raw", "With this calibration: ends from its start", "Duration", "Rest before"]
         .map((t) => h("th", { scope: "col" }, t)))),
       h("tbody", null, rows.map((r) => h("tr", null,
@@ -56,7 +56,7 @@ function turnsTable(rows) {
         h("td", null, `${num(r.raw, 0)}°`, h("span", { class: "pm" }, off(r.raw))),
         h("td", null, r.closure != null ? `${num(r.closure, 2)}°` : "—"),
         h("td", null, `${num(r.duration, 1)} s`),
-        h("td", null, r.rest != null ? `${num(r.rest, 1)} s` : "—"))))));
+        h("td", null, r.rest != null ? `${num(r.rest, 1)} s` : "—")))))));
 }
 
 /** Where the hand put the device back after each turn: the tilt the accelerometer saw (the heading it cannot see). */

@@ -8,6 +8,8 @@ import { REST_PHASES, angleGauge, icon, showRest, showTurn, stillRing, trayPictu
 import { identifyButton } from "./identify.js";
 import { problemLine } from "./messages.js";
 import { sessionNotices } from "./notices.js";
+import { ask } from "./confirm.js";
+import { accuracySentence, cautionTexts } from "./readiness.js";
 
 const ENDED = new Set(["done", "failed", "cancelled"]);
 const STEPS = [["still", "Hold still"], ["turn_x", "Turn X"], ["turn_y", "Turn Y"], ["turn_z", "Turn Z"], ["computing", "Result"]];
@@ -57,7 +59,7 @@ function stateText(d, notTurned, behind = false) {
     case "turn_x": case "turn_y": case "turn_z": return turnText(axisOf(d.state).toUpperCase(), d.phase, behind);
     case "reconnecting": return "Link lost: reconnecting";
     case "computing": return "Computing";
-    case "done": return d.decision === "accepted" ? "PASS, saved" : d.passed ? "PASS" : "FAIL";
+    case "done": return d.passed ? `PASS${d.decision === "accepted" ? ", saved" : ""}${cautionTexts(d).length ? ", with a caution" : ""}` : "FAIL";
     case "cancelled": return "Cancelled";
     default: return "Failed";
   }
@@ -81,6 +83,24 @@ function departedText(departed) {
 }
 
 const passedIt = (d) => d.state === "done" && d.passed;
+
+/** "mock-2", "mock-2 and mock-3", "mock-2, mock-3 and mock-4". */
+function andList(list) {
+  return list.length > 1 ? `${list.slice(0, -1).join(", ")} and ${list[list.length - 1]}` : list.join("");
+}
+
+/** The kit's result for the study, as one wearable's verdict says it: which wearables are ready (with a caution when
+ * a row has one) and which are not. */
+function readyLine(passed, others) {
+  if (!passed.length) return h("p", { class: "ready no kit-ready" }, icon("cross"), "Not ready for the study");
+  const careful = passed.filter((d) => cautionTexts(d).length).map((d) => d.device_id);
+  const ids = passed.map((d) => d.device_id);
+  const are = (list) => (list.length === 1 ? "is" : "are");
+  const said = `${andList(ids)} ${are(ids)} ready for the study`
+    + (careful.length ? `, ${careful.length === ids.length && ids.length > 1 ? "each" : andList(careful)} with a caution` : "")
+    + (others.length ? `; ${andList(others)} ${are(others)} not` : "");
+  return h("p", { class: `ready kit-ready ${careful.length ? "caution" : "yes"}` }, icon(careful.length ? "warn" : "check"), said);
+}
 
 // what a running row says of a wearable the kit named, by the warning's code: to be seated firmly, or put in the tray
 const TO_SEAT = {
@@ -107,7 +127,7 @@ function toFind(snap, moved) {
 function rowKey(d, { ident, moved, refusal, notTurned, behind }) {
   const k = d.result && Array.isArray(d.result.k) ? d.result.k : null;
   return JSON.stringify([d.state, stateText(d, notTurned, behind), d.passed, d.departed, d.decision, d.reason, k, moved,
-    Boolean(ident), refusal]);
+    Boolean(ident), refusal, Boolean(d.accuracy)]);
 }
 
 /** A wearable's row. ``ident``: its Identify button and status line, when its protocol can blink and the clinician
@@ -127,6 +147,8 @@ function deviceRow(d, { ident, moved, refusal, notTurned, behind }) {
     h("span", { class: `kit-state ${ended ? (good ? "pass" : "fail") : ""}` },
       icon(ended ? (good ? "pass" : "fail") : d.state === "reconnecting" || seat ? "warn" : "busy"), h("span", null, stateText(d, notTurned, behind))),
     k ? h("span", { class: "kit-k" }, `k ${AXES.map((a, i) => `${a.toUpperCase()} ${num(k[i], 4)}`).join(" · ")}`) : null,
+    good && d.accuracy ? h("span", { class: "kit-accuracy" }, accuracySentence(d.accuracy, d.device_id)) : null,
+    good && cautionTexts(d).length ? h("div", { class: "kit-caution", role: "note" }, h("ul", null, cautionTexts(d).map((t) => h("li", null, t)))) : null,
     ended && !good && d.reason && d.reason !== refusal ? h("span", { class: "kit-reason" }, d.reason) : null,
     seat ? h("span", { class: "kit-reason kit-moved" }, moved) : null,
     find && (ended || ident) ? h("div", { class: "kit-row-actions" },
@@ -164,13 +186,15 @@ export function kitView(ctx, kitId) {
   let last = null;
   const drawn = new Map(); // device -> { key, el }: each row as last drawn
   let trayKey = null;
+  let guarded = ""; // the unsaved PASSes the page asks about before it is left (their devices), as last set
   const steps = h("ol", { class: "kit-steps" }, STEPS.map(([key, label]) => h("li", { dataset: { step: key } }, label)));
   const rows = h("ul", { class: "kit-devices", "aria-label": "Every wearable of the kit", "aria-live": "polite" });
   const axesNote = h("p", { id: "kit-axes", class: "kit-axes", hidden: true });
   const saved = h("p", { id: "kit-saved", role: "status" });
   const actions = h("div", { class: "actions" });
+  const ready = h("div", { class: "kit-ready-box" });
   const root = h("section", { class: "panel kit", "aria-labelledby": "kit-title", dataset: { state: "connecting" } },
-    headline, sub, noticeBox, picture, steps, rows, axesNote, saved, actions);
+    headline, ready, sub, noticeBox, picture, steps, rows, axesNote, saved, actions);
   fill(ctx.main, root);
   ctx.focusMain();
 
@@ -225,6 +249,17 @@ export function kitView(ctx, kitId) {
     fill(noticeBox, null);
     const passed = snap.devices.filter((d) => passedIt(d) && !d.departed);
     const open = passed.filter((d) => !d.decision);
+    // leaving PASSes nobody accepted loses them from their wearables: ask first, as for one wearable's
+    const openKey = open.map((d) => d.device_id).join(" ");
+    if (openKey !== guarded) {
+      guarded = openKey;
+      ctx.guardLeave(open.length ? () => ask({
+        title: "Leave without saving?",
+        text: `${open.length === 1 ? "This PASS is" : "These PASSes are"} not saved: ${andList(open.map((d) => d.device_id))} `
+          + `${open.length === 1 ? "keeps its" : "keep their"} previous calibration until you press “Accept all that passed”.`,
+        stay: "Stay and save", leave: "Leave without saving",
+      }) : null);
+    }
     headline.textContent = snap.state === "cancelled" ? "The kit's calibration was cancelled"
       : passed.length ? `Kit calibrated: ${passed.length} of ${names.length} passed` : "No wearable of the kit passed";
     if (!endedSaid) {
@@ -234,6 +269,8 @@ export function kitView(ctx, kitId) {
     }
     sub.textContent = snap.kit && snap.kit.departed.length ? departedText(snap.kit.departed)
       : snap.kit && snap.kit.refusal ? snap.kit.refusal : "";
+    const notPassed = snap.devices.filter((d) => !passedIt(d) || d.departed).map((d) => d.device_id);
+    fill(ready, snap.state === "cancelled" ? null : readyLine(passed, notPassed));
     fill(actions,
       open.length ? h("button", { class: "button primary", type: "button", id: "kit-accept", onclick: accept }, icon("save"),
         `Accept all that passed (${open.length})`) : null,

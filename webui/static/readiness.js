@@ -65,6 +65,12 @@ function nearLimitText(c) {
   }
 }
 
+/** Why a PASS comes with a caution, a sentence each: the values close to their limits, then how it departs from the
+ * device's earlier calibrations (``s``: a session's snapshot). */
+export function cautionTexts(s) {
+  return [...nearLimits(s.checks).map(nearLimitText), ...(s.departures || []).map((d) => d.text)];
+}
+
 /** The checks that passed within 20 % of their limit. */
 export function nearLimits(checks) {
   return (checks || []).filter((c) => c.ok && c.near_limit);
