@@ -270,6 +270,25 @@ class Wizard:
                                       window.lastEvent ? window.lastEvent.t : null]);
           };
           setInterval(sample, 100);
+          // while a session runs: what she must reach or watch (Cancel, the ring or gauge, the turn tiles) that ends
+          // below the first screen, as "state:phase: selector ends at y", each once
+          window.seen.offScreen = [];
+          const offScreen = () => {
+            const w = document.querySelector('.wizard.live');
+            if (!w || !w.dataset.state || ['place', 'connecting', 'computing'].includes(w.dataset.state)) return;
+            for (const sel of ['.wiz-head button.cancel', '.ring-wrap', '.gauge-wrap', '.tiles']) {
+              const el = document.querySelector(sel);
+              if (!el || el.closest('[hidden]')) continue;
+              const r = el.getBoundingClientRect();
+              if (r.bottom + window.scrollY > window.innerHeight + 0.5) {
+                const parts = [...w.children].filter((c) => c.offsetHeight)
+                  .map((c) => `${c.className.split(' ')[0]} ${c.offsetHeight}`).join(', ');
+                const y = Math.round(r.bottom + window.scrollY);
+                const said = `${w.dataset.state}:${w.dataset.phase || ''}: ${sel} ends at ${y} (${parts})`;
+                if (!window.seen.offScreen.includes(said)) window.seen.offScreen.push(said);
+              }
+            }
+          };
           const look = () => {
             const w = document.querySelector('.wizard'), g = document.querySelector('.gauge-text');
             // the turn's angle: while turning, and while the device is put down (the gauge holds the turn's angle; on a
@@ -293,6 +312,7 @@ class Wizard:
           new MutationObserver(() => {
             look();
             sample();
+            offScreen();
             const w = document.querySelector('.wizard'), hl = document.querySelector('.instruction');
             if (hl && last(window.seen.headlines) !== hl.textContent) window.seen.headlines.push(hl.textContent);
             const sp = w ? `${w.dataset.state}:${w.dataset.phase || ''}` : null;

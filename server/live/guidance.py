@@ -174,9 +174,12 @@ def not_one_axis(axis: str, off_deg: float, retry: bool) -> str:
 def ended_off(axis: str, tilt_deg: float, retry: bool) -> str:
     """A turn that ended tilted from where it began (more than a hand's usual placement): put down off its place, or
     not a full turn about a slightly tilted axis."""
-    return (f"Turn {ax(axis)} ended {tilt_deg:.1f}° off where it began: the device was not put back flat where it "
-            f"started, or the turn was not a full one. {again(retry, axis)} Put it down flat, against the block, exactly "
-            "where it started.")
+    said = (f"Turn {ax(axis)} ended {tilt_deg:.1f}° off where it began: the device was not put back flat where it "
+            "started, or the turn was not a full one.")
+    if retry:  # what to do in one sentence: on a phone the notice and the turn's gauge share the first screen
+        return (f"{said} Put it back flat against the block, exactly where it started, wait for the prompt and turn "
+                f"again about {ax(axis)}.")
+    return f"{said} {again(retry, axis)} Put it down flat, against the block, exactly where it started."
 
 
 def not_back(axis: str, tilt_deg: float, retry: bool) -> str:

@@ -220,6 +220,7 @@ def test_portrait_gives_the_gauge_and_ring_the_height(hand_wizard: Wizard, page_
     assert_clean(page_watch)
 
 
+@pytest.mark.parametrize("hand_wizard", [PHONE_VIEW], indirect=True)
 def test_a_bump_in_a_pause_is_warned_and_recovered_without_restarting(hand_wizard: Wizard, page_watch: Watch) -> None:
     w = hand_wizard
     start_recorded(w, "mock-3")
@@ -232,6 +233,9 @@ def test_a_bump_in_a_pause_is_warned_and_recovered_without_restarting(hand_wizar
     assert w.text(".verdict h1") == "PASS", session_told(w)
     seen = w.seen()
     assert seen["ringMoving"], "the ring never showed the device moving"
+    # on a phone, Cancel, the ring or gauge and the turn tiles on the first screen at every moment, under the knock's
+    # notice too (its 13 bold lines pushed the ring and the tiles below it)
+    assert seen["offScreen"] == [], seen["offScreen"]
     assert any("moving" in n or "moved" in n for n in seen["notices"]), seen["notices"]
     # a turn counts once its closing rest is complete: a knock before that asks for the turn again and its tile was
     # never shown done; a knock after it only restarts the pause and the tile stays done, whatever the screen
@@ -268,6 +272,8 @@ def test_a_turn_done_wrong_is_asked_again_saying_why_never_blaming_the_sensor(
         for asked, w in wizards.items():
             w.page.wait_for_selector(".verdict h1", timeout=90_000)
             _asked_again_and_passed(w, asked)
+            if view == PHONE_VIEW:  # Cancel, the ring or gauge and the turn tiles on the first screen at every moment
+                assert w.seen()["offScreen"] == [], w.seen()["offScreen"]
     assert_clean(page_watch)
 
 
@@ -316,6 +322,7 @@ def test_a_turn_asked_again_and_never_made_keeps_its_reason_counts_down_and_ends
     assert hinted and all(reason.text[:40] in s[2] for s in hinted), hinted[:2]  # the hint beside the reason
     left = [int(re.search(r"stops in (\d+) s", s[4]).group(1)) for s in ready if s[4]]
     assert left and left[0] <= 40 and left[-1] <= 5 and left == sorted(left, reverse=True), left
+    assert w.seen()["offScreen"] == [], w.seen()["offScreen"]  # the reason, hint and count above: the tiles still on screen
     assert w.text(".verdict h1") == "The next turn was not started in time"
     assert "60 s" in w.text(".sentence"), w.text(".sentence")
     assert_clean(page_watch)

@@ -317,16 +317,41 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
     assert_clean(page_watch)
 
 
+# While a kit runs, at every change of its page: which of what she must reach or see lies below the first screen
+OFF_THE_FIRST_SCREEN = """(() => {
+  window.offScreen = { changes: 0, off: [] };
+  const look = () => {
+    const kit = document.querySelector('.kit');
+    if (!kit || ['connecting', 'done', 'failed', 'cancelled'].includes(kit.dataset.state)) return;
+    window.offScreen.changes += 1;
+    const cue = document.querySelector('.kit-cue');
+    for (const sel of ['#kit-cancel', '.kit .cue-sound', '.kit .cue-speech', cue && !cue.hidden ? '.kit-cue' : null]) {
+      const el = sel && document.querySelector(sel);
+      if (!el) continue;
+      const r = el.getBoundingClientRect();
+      if (r.bottom + window.scrollY > window.innerHeight + 0.5) {
+        const said = `${kit.dataset.state}: ${sel} ends at ${Math.round(r.bottom + window.scrollY)}`;
+        if (!window.offScreen.off.includes(said)) window.offScreen.off.push(said);
+      }
+    }
+  };
+  new MutationObserver(look).observe(document, { subtree: true, childList: true, attributes: true, characterData: true });
+})()"""
+
+
 def test_a_knock_to_the_tray_is_said_of_the_tray_once_and_the_kit_goes_on(
         browser: Any, page_watch: Watch, artifacts: Any, tmp_path: Any) -> None:
     """Two wearables in a tray that the clinician knocks once in a pause (`hand:bumps`): every wearable sees the knock,
     and the kit page says it once, of the tray, under the tray's prompt, as the one-wearable page does (the ring says
-    the tray is moving while it moves); then the kit goes on to its result. Her hands are on the tray: with Sound and
+    the tray is moving while it moves); then the kit goes on to its result. On a phone: what she must reach (Cancel,
+    Sound, Read aloud) and the tray's ring or gauge stay on the first screen while it runs. Her hands are on the tray: with Sound and
     Read aloud turned on (on a wearable's place step, before: the kit page beside Cancel shows the choice remembered),
     each prompt comes with a tone and is read aloud, and so is the knock."""
-    with running_service(["hand:bumps"] * 2, "--mock-kit") as svc, watched_page(browser, svc, page_watch) as page:
+    with running_service(["hand:bumps"] * 2, "--mock-kit") as svc, \
+            watched_page(browser, svc, page_watch, viewport=PHONE, phone=True) as page:
         page.add_init_script(LISTEN)
         page.add_init_script(NOTICES)
+        page.add_init_script(OFF_THE_FIRST_SCREEN)
         wizard = Wizard(page, svc, artifacts / "webui" / "kit-bumped")
         wizard.sign_in()
         # turned on before the kit starts: its first prompts come a second or two after the start
@@ -374,6 +399,10 @@ def test_a_knock_to_the_tray_is_said_of_the_tray_once_and_the_kit_goes_on(
         page.wait_for_function("() => window.notices.length > 0", timeout=60_000)
         wizard.shot("kit-knocked")
         _wait_done(page, svc, kit_id)
+        # on the phone, while the kit ran, Cancel, Sound, Read aloud and the tray's ring or gauge were on the first
+        # screen at every change, under a knock's notice too (Cancel and the sound's switches were below the rows)
+        off = page.evaluate("() => window.offScreen")
+        assert off["changes"] > 20 and off["off"] == [], off
         notices = [n.split("|", 1) for n in page.evaluate("() => window.notices")]
         heard = page.evaluate("() => window.heard")
         with api(svc) as c:

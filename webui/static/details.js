@@ -48,7 +48,8 @@ function turnsTable(rows) {
   };
   return h("div", null, h("h2", null, "Turns"),
     h("p", { class: "muted" }, "Each turn was one full turn, 360°, back to where it began. The raw readings show how far off the sensor was before this calibration; with it, each turn comes back to its start."),
-    h("div", { class: "table-wrap" }, h("table", { class: "turns" },
+    // on a narrow screen it scrolls in its own box, which the keyboard can reach too
+    h("div", { class: "table-wrap", tabindex: "0", role: "region", "aria-label": "Turns" }, h("table", { class: "turns" },
       h("thead", null, h("tr", null, ["Full turn", "Sensor read, raw", "With this calibration: ends from its start", "Duration", "Rest before"]
         .map((t) => h("th", { scope: "col" }, t)))),
       h("tbody", null, rows.map((r) => h("tr", null,

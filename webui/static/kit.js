@@ -192,9 +192,12 @@ export function kitView(ctx, kitId) {
   const axesNote = h("p", { id: "kit-axes", class: "kit-axes", hidden: true });
   const saved = h("p", { id: "kit-saved", role: "status" });
   const actions = h("div", { class: "actions" });
+  // while the kit runs, Cancel and the sound's controls come first, as on one wearable's page (below the rows, a
+  // phone had them off the screen); its result's decisions come after the rows, once they have been read
+  const head = h("div", { class: "kit-head" });
   const ready = h("div", { class: "kit-ready-box" });
   const root = h("section", { class: "panel kit", "aria-labelledby": "kit-title", dataset: { state: "connecting" } },
-    headline, ready, sub, noticeBox, picture, steps, rows, axesNote, saved, actions);
+    head, headline, ready, sub, noticeBox, picture, steps, rows, axesNote, saved, actions);
   fill(ctx.main, root);
   ctx.focusMain();
 
@@ -242,9 +245,10 @@ export function kitView(ctx, kitId) {
       }
       const together = `${names.length === 2 ? "Both" : `All ${names.length}`} wearables are turned together, in their tray.`;
       if (sub.textContent !== together) sub.textContent = together;
-      if (actions.firstChild !== runningActions) fill(actions, runningActions);
+      if (head.firstChild !== runningActions) fill(head, runningActions);
       return;
     }
+    fill(head, null);
     notices.stop();
     fill(noticeBox, null);
     const passed = snap.devices.filter((d) => passedIt(d) && !d.departed);
