@@ -256,7 +256,8 @@ class Wizard:
         a test on a busy machine waits only for the end and reads back what passed on the way."""
         self.page.evaluate("""() => {
           window.seen = { gauge: {}, gaugeText: {}, targets: {}, headlines: [], phases: [], ringMoving: false, notices: [],
-                          phaseNotices: [], done: [], placingWithoutGauge: false, screens: {}, shown: [], samples: [] };
+                          phaseNotices: [], done: [], placingWithoutGauge: false, screens: {}, shown: [], samples: [],
+                          gaugeWidth: {} };
           const last = (list) => list[list.length - 1];
           const text = (sel) => { const el = document.querySelector(sel); return el ? el.textContent.trim() : ''; };
           // the moments: every 100 ms and at every change, [ms, state:phase, notice box, headline, time-left line, the
@@ -296,6 +297,13 @@ class Wizard:
             if (w && g && ['turning', 'placing'].includes(w.dataset.phase)) {
               const n = parseInt(g.textContent, 10), axis = w.dataset.state.slice(5);
               if (!Number.isNaN(n)) window.seen.gauge[axis] = Math.max(window.seen.gauge[axis] || 0, n);
+            }
+            // the gauge's size through each turn without a notice (it changed when the turn stopped: 277 to 237 px)
+            const wrap = document.querySelector('.gauge-wrap'), box = document.querySelector('.notice-box');
+            if (w && wrap && ['ready', 'turning', 'placing'].includes(w.dataset.phase) && !(box && box.textContent.trim())) {
+              const sizes = window.seen.gaugeWidth[w.dataset.state] = window.seen.gaugeWidth[w.dataset.state] || [];
+              const px = Math.round(wrap.getBoundingClientRect().width);
+              if (!sizes.includes(px)) sizes.push(px);
             }
             if (w && g && w.dataset.phase === 'turning') {
               const axis = w.dataset.state.slice(5);
@@ -426,7 +434,7 @@ def assert_done_never_undone(done: list[str]) -> None:
 
 # what the page played and read aloud (window.heard: said, tones), recorded from the page's first script on
 LISTEN = """
-  window.heard = { said: [], tones: [] };
+  window.heard = { said: [], tones: [], played: [] };
   if (window.speechSynthesis) {
     const speak = window.speechSynthesis.speak.bind(window.speechSynthesis);
     window.speechSynthesis.speak = (u) => { window.heard.said.push(u.text); try { speak(u); } catch (e) {} };
@@ -435,7 +443,12 @@ LISTEN = """
   AudioContext.prototype.createOscillator = function () {
     const o = osc.call(this);
     const start = o.start.bind(o);
-    o.start = (...a) => { window.heard.tones.push(o.frequency.value); start(...a); };
+    // each tone's pitch, and in ``played`` its pitch with the audio clock's times it was asked for and starts at
+    o.start = (...a) => {
+      window.heard.tones.push(o.frequency.value);
+      window.heard.played.push([o.frequency.value, this.currentTime, a.length ? a[0] : this.currentTime]);
+      start(...a);
+    };
     return o;
   };
 """

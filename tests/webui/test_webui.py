@@ -174,7 +174,8 @@ def test_a_commercial_wearable_shows_its_model_settings_and_limits_and_calibrate
     wizard.sign_in()
     card = page.locator(".device-card[data-device='mock-1']")
     assert "MbientLab MetaMotion (MetaWear)" in card.locator(".dev-sub").inner_text()
-    assert card.locator(".stream-settings").inner_text() == "100 Hz · gyro ±500 deg/s"
+    # in a clinician's words, not an engineer's ("100 Hz · gyro ±500 deg/s")
+    assert card.locator(".stream-settings").inner_text() == "100 readings a second · measures turns up to 500°/s"
     limits = card.locator(".dev-limits").inner_text()
     assert "lost samples cannot be detected" in limits and "times the samples arrived" in limits
     assert card.locator(".held").count() == 0 and card.locator("button.write-back").count() == 0

@@ -153,6 +153,8 @@ def test_a_careful_clinician_following_the_page_reaches_a_result_that_says_what_
         assert_heard_each_step(w)
     seen = w.seen()
     assert_first_rest_counts_without_a_jump(seen["samples"])
+    # the gauge keeps its size from the turn's prompt to the device put down (the headline grows when the turn stops)
+    assert len(seen["gaugeWidth"]) == 3 and all(max(px) - min(px) <= 1 for px in seen["gaugeWidth"].values()), seen["gaugeWidth"]
     assert any(h.startswith("Turn X: ") for h in seen["headlines"]), seen["headlines"]
     assert_turns_end_with_hold_still(seen["headlines"])
     assert w.text(".verdict h1") == "PASS"

@@ -444,6 +444,14 @@ def test_a_knock_to_the_tray_is_said_of_the_tray_once_and_the_kit_goes_on(
         assert f"Turn the tray one full turn (360°) about its {axis} axis, then put it back against the block." in said, said
     assert any(w["message"] in said for w in knocks), (said, knocks)
     assert said[-1] == "Kit calibrated: 2 of 2 passed" and tones[-1] == 1320 and tones.count(880) >= 6, (said, tones)
+    # the knock's warning is heard: no tone over another, and no step's tone right after it (two step tones 30-50 ms
+    # after the 330 Hz warning masked it)
+    lasts = {880.0: 0.12, 1320.0: 0.25, 330.0: 0.3}
+    played = sorted((at, hz) for hz, _, at in heard["played"])
+    assert any(hz == 330.0 for _, hz in played), played
+    overlapping = [(a, b) for a, b in zip(played, played[1:], strict=False) if b[0] < a[0] + lasts[a[1]]]
+    masking = [(at, later) for at, hz in played if hz == 330.0 for later, h2 in played if h2 == 880.0 and at <= later < at + 0.8]
+    assert not overlapping and not masking, (overlapping, masking, played)
     assert_clean(page_watch, allowed_errors=("status of 409",))  # the accept the other operator's came before
 
 

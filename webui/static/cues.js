@@ -6,6 +6,13 @@ import { icon } from "./figures.js";
 
 const KEYS = { sound: "gyrocal.sound", speech: "gyrocal.speech" };
 const TONES = { step: [880, 0.12], done: [1320, 0.25], warn: [330, 0.3] }; // Hz, s
+const TONE_GAP_S = 0.06; // silence between two tones, so that each is heard as one
+const WARN_CLEAR_S = 0.5; // after a warning's tone, no step's tone for this long
+
+// one audio clock for the page, whichever view plays a tone
+let audio = null;
+let free = 0; // the audio clock's time from which a new tone does not overlap the one before
+let warnEnds = -1; // ... and until which a step's tone would follow a warning's too closely to be heard apart
 
 const remembered = (key) => {
   try { return localStorage.getItem(key) === "on"; } catch { return false; }
@@ -20,21 +27,27 @@ export function cues({ current = null } = {}) {
   const on = { sound: remembered(KEYS.sound), speech: remembered(KEYS.speech) };
   const canSpeak = typeof window.speechSynthesis !== "undefined" && typeof window.SpeechSynthesisUtterance !== "undefined";
   const canSound = typeof window.AudioContext !== "undefined";
-  let audio = null;
 
+  /** A tone, never over another: each starts once the one before has ended. A step's tone that would come within a
+   * moment of a warning's is not played (a knock's notice changes the screen too: two step tones 30-50 ms after the
+   * 330 Hz warning masked it). */
   const tone = (kind) => {
     if (!on.sound || !canSound) return;
     audio = audio || new AudioContext();
     if (audio.state === "suspended") audio.resume();
     const [hz, s] = TONES[kind] || TONES.step;
+    const at = Math.max(audio.currentTime, free);
+    if (kind === "step" && at < warnEnds) return;
     const osc = audio.createOscillator();
     const gain = audio.createGain();
     osc.frequency.value = hz;
-    gain.gain.setValueAtTime(0.2, audio.currentTime);
-    gain.gain.exponentialRampToValueAtTime(0.001, audio.currentTime + s);
+    gain.gain.setValueAtTime(0.2, at);
+    gain.gain.exponentialRampToValueAtTime(0.001, at + s);
     osc.connect(gain).connect(audio.destination);
-    osc.start();
-    osc.stop(audio.currentTime + s);
+    osc.start(at);
+    osc.stop(at + s);
+    free = at + s + TONE_GAP_S;
+    if (kind === "warn") warnEnds = free + WARN_CLEAR_S;
   };
 
   let said = "";

@@ -20,8 +20,8 @@ function batteryText(pct) {
 }
 
 export function streamText(dev) {
-  const range = dev.gyro_full_scale_dps ? ` · gyro ±${dev.gyro_full_scale_dps} deg/s` : "";
-  return `${Number(dev.sample_rate_hz).toLocaleString("en", { maximumFractionDigits: 1 })} Hz${range}`;
+  const range = dev.gyro_full_scale_dps ? ` · measures turns up to ${dev.gyro_full_scale_dps}°/s` : "";
+  return `${Number(dev.sample_rate_hz).toLocaleString("en", { maximumFractionDigits: 1 })} readings a second${range}`;
 }
 
 function deviceCard(ctx, dev, refresh) {
@@ -56,13 +56,13 @@ function deviceCard(ctx, dev, refresh) {
     h("dl", { class: "dev-facts" },
       h("div", null, h("dt", null, "Status"), h("dd", { class: `status ${st.key}` }, icon(st.icon), h("span", null, st.text))),
       h("div", null, h("dt", null, "Battery"), battery),
-      dev.sample_rate_hz ? h("div", null, h("dt", null, "Streams"),
+      dev.sample_rate_hz ? h("div", null, h("dt", null, "Readings"),
         h("dd", { class: "stream-settings" }, h("span", null, streamText(dev)))) : null,
       h("div", null, h("dt", null, "Last calibration"),
         h("dd", { class: cur ? (due ? "calibrated due" : "calibrated") : "never" }, icon(cur ? (due ? "warn" : "check") : "info"),
           h("span", null, cur ? `${fmtDateTime(cur.accepted_at)} by ${cur.operator}` : "never calibrated",
             due && cur ? h("span", { class: "due-note" }, ` · due: ${dev.calibration_due.reason}`) : null))),
-      held ? h("div", null, h("dt", null, "Stored on the wearable"),
+      held ? h("div", null, h("dt", null, "On the wearable itself"),
         h("dd", { class: `held ${held.cls}` }, icon(held.icon), h("span", null, held.text))) : null),
     dev.limitations && dev.limitations.length
       ? h("ul", { class: "dev-limits", "aria-label": "What this device cannot tell" },

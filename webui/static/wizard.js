@@ -15,6 +15,8 @@ import { verifyTurn } from "./verify.js";
 import { writeBack } from "./writeback.js";
 
 const END_STATES = new Set(["done", "failed", "cancelled"]);
+// wider than a phone (style.css), the running session's stage takes the height left under the prompt
+const FILLS_HEIGHT = window.matchMedia("(min-width: 481px)");
 
 // -- shared pieces -------------------------------------------------------------------------------
 /** "Step n of 7" and the bar of steps; stopped=true marks step n as the one where the calibration stopped. */
@@ -231,11 +233,12 @@ export function sessionView(ctx, sid) {
     const limit = h("p", { class: "time-left", role: "timer", hidden: true });
     const stage = h("div", { class: "stage" });
     const tiles = turnTiles();
+    const prompt = h("div", { class: "prompt", "aria-live": "polite", "aria-atomic": "true" }, title, sub);
     const root = h("section", { class: "wizard live", "aria-labelledby": "instruction" },
-      head, where, h("div", { class: "prompt", "aria-live": "polite", "aria-atomic": "true" }, title, sub), noticeBox, limit, stage, tiles);
+      head, where, prompt, noticeBox, limit, stage, tiles);
     fill(ctx.main, root);
     ctx.focusMain();
-    ui = { root, head, title, sub, limit, stage, tiles, key: null, ring: null, gauge: null, remote: Boolean(s.remote) };
+    ui = { root, head, prompt, title, sub, limit, stage, tiles, key: null, ring: null, gauge: null, remote: Boolean(s.remote) };
     notices.attach(noticeBox);
   };
 
@@ -291,6 +294,20 @@ export function sessionView(ctx, sid) {
     fill(ui.stage, content);
   };
 
+  /** On a screen whose stage takes the height left under the prompt, the prompt keeps the tallest height it had in
+   * this stage (``key``: a turn from its prompt through the device put down), so that the gauge does not change size
+   * when the turn stops and the headline grows (277 to 237 px on a desktop); a new stage starts afresh. */
+  let heldFor = null;
+  const holdStageSize = (key) => {
+    if (heldFor !== key) {
+      heldFor = key;
+      ui.prompt.style.minHeight = "";
+    }
+    if (!FILLS_HEIGHT.matches) return;
+    const now = ui.prompt.offsetHeight;
+    if (now > (parseFloat(ui.prompt.style.minHeight) || 0)) ui.prompt.style.minHeight = `${now}px`;
+  };
+
   const renderRunning = (s) => {
     if (!ui || ui.remote !== Boolean(s.remote)) buildRunning(s);
     ui.root.dataset.state = s.state;
@@ -312,6 +329,7 @@ export function sessionView(ctx, sid) {
       sound.say(t);
     }
     if (ui.sub.textContent !== sub) ui.sub.textContent = sub;
+    holdStageSize(key);
     const left = timeLeft(s);
     ui.limit.hidden = !left;
     if (left && ui.limit.textContent !== left) ui.limit.textContent = left;

@@ -15,9 +15,9 @@ export function heldFact(dev) {
     case "other":
       return { cls: "held-other", icon: "warn", text: cur ? `an older calibration (#${dev.held_calibration_id}), not the latest (#${cur.id})` : `calibration #${dev.held_calibration_id}, not known here` };
     case "none":
-      return { cls: "held-none", icon: "info", text: "none yet: the calibration is applied here, not on the wearable" };
+      return { cls: "held-none", icon: "info", text: "no calibration yet: gyrocal corrects its readings" };
     default:
-      return { cls: "held-unknown", icon: "info", text: "not checked yet" };
+      return { cls: "held-unknown", icon: "info", text: "known once it next connects" };
   }
 }
 
