@@ -108,3 +108,20 @@ def assert_first_rest_counts_without_a_jump(samples: list[list[Any]], rest_s: fl
         assert behind <= RING_SLACK, f"the first rest's ring stood behind the device's time: {shown[-30:]} (device s, %)"
         jump = p - p_before - 100.0 * (t - t_before) / rest_s
         assert jump <= RING_SLACK, f"the first rest's ring jumped: {shown[-30:]} (device s, %)"
+
+
+def assert_rests_after_turns_count_from_the_stop(samples: list[list[Any]], at_least: int = 3) -> None:
+    """After each turn the rest's ring appears as the device is put down and counts from its stop: the first value
+    each rest's ring shows is a small one (it appeared 39-45 % full once the turn was being checked, the device put
+    down 1.2-1.4 s of device time before)."""
+    firsts: list[tuple[str, int]] = []
+    before = None
+    for s in samples:
+        state, _, phase = s[1].partition(":")
+        resting = state.startswith("turn_") and phase in ("placing", "checking", "pause") and s[5] is not None
+        if resting and before != state:
+            firsts.append((s[1], s[5]))
+        before = state if resting else None
+    assert len(firsts) >= at_least, firsts
+    late = [f for f in firsts if f[1] > 25]
+    assert not late, f"a rest's ring first appeared well along (state:phase, %): {late} of {firsts}"

@@ -28,7 +28,11 @@ from webui_fixtures import (
     upload_accepted,
     watched_page,
 )
-from webui_moments import assert_first_rest_counts_without_a_jump, assert_retry_reasons_stay
+from webui_moments import (
+    assert_first_rest_counts_without_a_jump,
+    assert_rests_after_turns_count_from_the_stop,
+    assert_retry_reasons_stay,
+)
 
 from calib.apply.correction import Correction
 from calib.io.readers import read_recording, write_native_csv
@@ -153,6 +157,7 @@ def test_a_careful_clinician_following_the_page_reaches_a_result_that_says_what_
         assert_heard_each_step(w)
     seen = w.seen()
     assert_first_rest_counts_without_a_jump(seen["samples"])
+    assert_rests_after_turns_count_from_the_stop(seen["samples"])
     # the gauge keeps its size from the turn's prompt to the device put down (the headline grows when the turn stops)
     assert len(seen["gaugeWidth"]) == 3 and all(max(px) - min(px) <= 1 for px in seen["gaugeWidth"].values()), seen["gaugeWidth"]
     assert any(h.startswith("Turn X: ") for h in seen["headlines"]), seen["headlines"]
@@ -285,6 +290,7 @@ def _asked_again_and_passed(w: Wizard, asked: str) -> None:
     assert not any("faulty" in n for n in seen["notices"]), seen["notices"]
     assert_retry_reasons_stay(seen["samples"], save=w.shots / "retry-reasons.json")
     assert_first_rest_counts_without_a_jump(seen["samples"])
+    assert_rests_after_turns_count_from_the_stop(seen["samples"])
     put_back = [s for s in seen["samples"] if s[1] == f"turn_{asked}:returning"]
     assert all(s[3] == "Putting it back against the block" for s in put_back), put_back[:3]
     assert put_back or asked == "y", "the Z turn's put-back was not shown as such"  # Y's is put back while it settles

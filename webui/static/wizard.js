@@ -246,6 +246,8 @@ export function sessionView(ctx, sid) {
     // the gauge stays while the device is put down (placing): the turn view changes only once it rests (checking)
     if (s.state.startsWith("turn_")) {
       if (s.phase === "returning") return `back:${s.axis}`;
+      // put down (placing), the rest's ring takes the turn's picture's place beside the gauge and counts from the stop
+      if (s.phase === "placing") return `turn:${s.axis}:placing`;
       return REST_PHASES.includes(s.phase) ? `rest:${s.axis}:${s.phase}` : `turn:${s.axis}`;
     }
     return s.state;
@@ -266,7 +268,12 @@ export function sessionView(ctx, sid) {
         break;
       case "turn":
         ui.gauge = angleGauge(s.axis);
-        content = [h("div", { class: "how-to" }, turnGuide(s.axis), h("p", { class: `axis-caption ax-${s.axis}` }, `Turn ${AXIS_LABEL[s.axis]}`)), ui.gauge];
+        if (ui.key.endsWith(":placing")) {
+          ui.ring = stillRing();
+          content = [h("div", { class: "how-to" }, ui.ring), ui.gauge];
+        } else {
+          content = [h("div", { class: "how-to" }, turnGuide(s.axis), h("p", { class: `axis-caption ax-${s.axis}` }, `Turn ${AXIS_LABEL[s.axis]}`)), ui.gauge];
+        }
         break;
       case "back": // asked again with the device off its place: put back before the turn
         content = [placePicture(), h("div", { class: "side-note" }, h("p", { class: "recorded redo" }, icon("redo"),
@@ -329,7 +336,8 @@ export function sessionView(ctx, sid) {
       sound.say(t);
     }
     if (ui.sub.textContent !== sub) ui.sub.textContent = sub;
-    holdStageSize(key);
+    // a turn, from its prompt to the device put down, is one stage for the prompt's height (the gauge's size)
+    holdStageSize(s.state.startsWith("turn_") && ["ready", "turning", "placing"].includes(s.phase) ? s.state : key);
     const left = timeLeft(s);
     ui.limit.hidden = !left;
     if (left && ui.limit.textContent !== left) ui.limit.textContent = left;
