@@ -218,7 +218,8 @@ def kit(sh: Shots, nth: int) -> None:
     sh.take("kit-turning")
     sh.wait(".kit-device[data-device='mock-4'] .kit-moved")
     # (by querySelector: the kit redraws a row whose words change, and a located row may be gone by the scroll)
-    p.evaluate("() => { const row = document.querySelector(\".kit-device[data-device='mock-4']\"); if (row) row.scrollIntoView({ block: 'center' }); }")
+    p.evaluate("""() => { const row = document.querySelector(".kit-device[data-device='mock-4']");
+      if (row) row.scrollIntoView({ block: 'center' }); }""")
     sh.take("kit-moved-in-its-slot")
     p.wait_for_selector(".kit[data-state='done']", timeout=120_000)
     sh.take("kit-result", full=True)
