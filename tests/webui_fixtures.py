@@ -257,7 +257,7 @@ class Wizard:
         self.page.evaluate("""() => {
           window.seen = { gauge: {}, gaugeText: {}, targets: {}, headlines: [], phases: [], ringMoving: false, notices: [],
                           phaseNotices: [], done: [], placingWithoutGauge: false, screens: {}, shown: [], samples: [],
-                          gaugeWidth: {} };
+                          gaugeWidth: {}, again: [] };
           const last = (list) => list[list.length - 1];
           const text = (sel) => { const el = document.querySelector(sel); return el ? el.textContent.trim() : ''; };
           // the moments: every 100 ms and at every change, [ms, state:phase, notice box, headline, time-left line, the
@@ -312,6 +312,11 @@ class Wizard:
               window.seen.targets[axis] = document.querySelector('.gauge-wrap').dataset.target;
             }
             if (document.querySelector('.ring-wrap.moving')) window.seen.ringMoving = true;
+            // the turns shown asked again after they were shown done (their tile says "again")
+            for (const t of document.querySelectorAll('.tile[data-state="again"] .tile-axis')) {
+              const axis = t.textContent.slice(-1).toLowerCase();
+              if (!window.seen.again.includes(axis)) window.seen.again.push(axis);
+            }
             for (const n of document.querySelectorAll('.notice')) {
               const t = n.textContent.trim();
               if (!window.seen.notices.includes(t)) window.seen.notices.push(t);

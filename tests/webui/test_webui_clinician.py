@@ -299,14 +299,17 @@ def _asked_again_and_passed(w: Wizard, asked: str) -> None:
         off = [n for n in seen["phaseNotices"] if n.startswith("turn_y:") and "Attempt 2 of 3" in n]
         assert off and re.search(r"Turn Y ended 3\.\d° off where it began", off[0]) and "against the block" in off[0], off
         assert_done_never_undone(done)  # Y was not shown done before it was asked again
+        assert seen["again"] == [], seen["again"]
     else:
         phases = seen["phases"]
         assert phases[phases.index("computing:") + 1].startswith("turn_z:"), phases  # computed, then that turn again
         again = [n for n in seen["phaseNotices"] if n.startswith("turn_z:") and "Attempt 2 of 3" in n]
         assert again, seen["phaseNotices"]
         assert re.search(r"The turn about Z read 29\d°", again[0]) and "all the way round" in again[0], again[0]
-        # the Z tile went back to "now" only because the result asked that turn again; X and Y never did
+        # the Z tile left "done" only because the result asked that turn again, and said so ("again", not "now"); X and
+        # Y never did
         assert "xyz" in done and "xy" in done[done.index("xyz"):], done
+        assert seen["again"] == ["z"], seen["again"]
         assert all(set("xy") <= set(d) for d in done[done.index("xy"):]), done
         assert "turn_z:settle" in w.assert_screens_accessible()  # the screen that asks the turn again, audited too
 

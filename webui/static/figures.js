@@ -235,14 +235,16 @@ export function turnTiles() {
     tiles[a] = { li, glyph, state };
     list.append(li);
   }
-  list.update = (doneAxes, activeAxis) => {
+  // ``again``: the active turn was shown done before and is asked again (the result found it was not a full turn):
+  // said as that, never as a plain "now" that takes back what she saw done without a word
+  list.update = (doneAxes, activeAxis, again = false) => {
     for (const [a, t] of Object.entries(tiles)) {
-      const st = doneAxes.includes(a) ? "done" : a === activeAxis ? "active" : "todo";
+      const st = doneAxes.includes(a) ? "done" : a === activeAxis ? (again ? "again" : "active") : "todo";
       if (t.li.dataset.state === st) continue;
       t.li.dataset.state = st;
-      t.glyph.replaceChildren(icon(st === "done" ? "check" : st === "active" ? "axis" : "clock"));
-      t.state.textContent = st === "done" ? "done" : st === "active" ? "now" : "to do";
-      if (st === "active") t.li.setAttribute("aria-current", "step");
+      t.glyph.replaceChildren(icon({ done: "check", active: "axis", again: "redo" }[st] || "clock"));
+      t.state.textContent = { done: "done", active: "now", again: "again" }[st] || "to do";
+      if (st === "active" || st === "again") t.li.setAttribute("aria-current", "step");
       else t.li.removeAttribute("aria-current");
     }
   };

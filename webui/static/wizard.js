@@ -305,6 +305,7 @@ export function sessionView(ctx, sid) {
    * this stage (``key``: a turn from its prompt through the device put down), so that the gauge does not change size
    * when the turn stops and the headline grows (277 to 237 px on a desktop); a new stage starts afresh. */
   let heldFor = null;
+  const shownDone = new Set(); // the turns the tiles have shown done in this session
   const holdStageSize = (key) => {
     if (heldFor !== key) {
       heldFor = key;
@@ -344,7 +345,10 @@ export function sessionView(ctx, sid) {
     if (ui.ring) showRest(ui.ring, s);
     if (ui.gauge) showTurn(ui.gauge, s);
     if (s.state.startsWith("turn_")) lastAxis = s.axis;
-    ui.tiles.update(Object.keys(s.turns || {}), s.state.startsWith("turn_") ? s.axis : s.state === "reconnecting" ? lastAxis : null);
+    const done = Object.keys(s.turns || {});
+    for (const a of done) shownDone.add(a);
+    const active = s.state.startsWith("turn_") ? s.axis : s.state === "reconnecting" ? lastAxis : null;
+    ui.tiles.update(done, active, Boolean(active) && shownDone.has(active) && !done.includes(active));
     ui.tiles.hidden = !(s.state.startsWith("turn_") || s.state === "still" || s.state === "reconnecting");
     notices.update(s);
   };
