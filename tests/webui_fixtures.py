@@ -255,6 +255,7 @@ class Wizard:
         (state:phase, headline, the line under it, the recorded-turn line and the notices with their classes), so that
         a test on a busy machine waits only for the end and reads back what passed on the way."""
         self.page.evaluate("""() => {
+          window.lastEvent = null;  // an earlier session's, on this page: the device time of this one's comes with its events
           window.seen = { gauge: {}, gaugeText: {}, targets: {}, headlines: [], phases: [], ringMoving: false, notices: [],
                           phaseNotices: [], done: [], placingWithoutGauge: false, screens: {}, shown: [], samples: [],
                           gaugeWidth: {}, again: [] };

@@ -125,3 +125,20 @@ def assert_rests_after_turns_count_from_the_stop(samples: list[list[Any]], at_le
     assert len(firsts) >= at_least, firsts
     late = [f for f in firsts if f[1] > 25]
     assert not late, f"a rest's ring first appeared well along (state:phase, %): {late} of {firsts}"
+
+
+def assert_every_moment_held(seen: dict[str, Any], phone: bool, turns: int = 3) -> None:
+    """The page's moments as a clinician must be able to rely on them, at every sample of a whole session
+    (``Wizard.record``'s ``seen``; ``phone``: a 390x844 screen; ``turns``: rests after a turn at least): every retry
+    reason stays until its turn starts, the rings count from the device's first reading and from each turn's stop
+    without a jump, a turn shown done is taken back only by a result that asks it again and says so on its tile
+    ("again"), and on a phone Cancel, the ring or gauge and the tiles are on the first screen."""
+    samples = seen["samples"]
+    assert_retry_reasons_stay(samples, at_least=0)
+    assert_first_rest_counts_without_a_jump(samples)
+    assert_rests_after_turns_count_from_the_stop(samples, at_least=turns)
+    again = set(seen["again"])
+    for before, after in zip(seen["done"], seen["done"][1:], strict=False):
+        assert set(before) - set(after) <= again, f"a turn shown done was taken back without a word: {seen['done']}"
+    if phone:
+        assert seen["offScreen"] == [], seen["offScreen"]

@@ -28,11 +28,7 @@ from webui_fixtures import (
     upload_accepted,
     watched_page,
 )
-from webui_moments import (
-    assert_first_rest_counts_without_a_jump,
-    assert_rests_after_turns_count_from_the_stop,
-    assert_retry_reasons_stay,
-)
+from webui_moments import assert_every_moment_held, assert_retry_reasons_stay
 
 from calib.apply.correction import Correction
 from calib.io.readers import read_recording, write_native_csv
@@ -156,8 +152,7 @@ def test_a_careful_clinician_following_the_page_reaches_a_result_that_says_what_
     if landscape:
         assert_heard_each_step(w)
     seen = w.seen()
-    assert_first_rest_counts_without_a_jump(seen["samples"])
-    assert_rests_after_turns_count_from_the_stop(seen["samples"])
+    assert_every_moment_held(seen, phone=False)
     # the gauge keeps its size from the turn's prompt to the device put down (the headline grows when the turn stops)
     assert len(seen["gaugeWidth"]) == 3 and all(max(px) - min(px) <= 1 for px in seen["gaugeWidth"].values()), seen["gaugeWidth"]
     assert any(h.startswith("Turn X: ") for h in seen["headlines"]), seen["headlines"]
@@ -241,8 +236,9 @@ def test_a_bump_in_a_pause_is_warned_and_recovered_without_restarting(hand_wizar
     seen = w.seen()
     assert seen["ringMoving"], "the ring never showed the device moving"
     # on a phone, Cancel, the ring or gauge and the turn tiles on the first screen at every moment, under the knock's
-    # notice too (its 13 bold lines pushed the ring and the tiles below it)
+    # notice too (its 13 bold lines pushed the ring and the tiles below it); and every other moment held
     assert seen["offScreen"] == [], seen["offScreen"]
+    assert_every_moment_held(seen, phone=True)
     assert any("moving" in n or "moved" in n for n in seen["notices"]), seen["notices"]
     # a turn counts once its closing rest is complete: a knock before that asks for the turn again and its tile was
     # never shown done; a knock after it only restarts the pause and the tile stays done, whatever the screen
@@ -289,8 +285,7 @@ def _asked_again_and_passed(w: Wizard, asked: str) -> None:
     seen = w.seen()  # what the page showed, change by change (the retry's notice may last under a second)
     assert not any("faulty" in n for n in seen["notices"]), seen["notices"]
     assert_retry_reasons_stay(seen["samples"], save=w.shots / "retry-reasons.json")
-    assert_first_rest_counts_without_a_jump(seen["samples"])
-    assert_rests_after_turns_count_from_the_stop(seen["samples"])
+    assert_every_moment_held(seen, phone=False)  # on a phone, the first screen is held by the test itself
     put_back = [s for s in seen["samples"] if s[1] == f"turn_{asked}:returning"]
     assert all(s[3] == "Putting it back against the block" for s in put_back), put_back[:3]
     assert put_back or asked == "y", "the Z turn's put-back was not shown as such"  # Y's is put back while it settles
@@ -385,6 +380,7 @@ def test_a_clinician_who_watches_the_gauge_stops_at_360_degrees(hand_wizard: Wiz
     w.page.wait_for_selector(".device-card[data-device='mock-4'] .calibrated")
     run_to_result(w, "mock-4", check_turns=False)
     seen = w.seen()
+    assert_every_moment_held(seen, phone=False)
     assert w.text(".verdict h1") == "PASS", session_told(w)
     assert set(seen["targets"].values()) == {"360"}, seen["targets"]
     assert all(335 <= seen["gauge"][a] <= 385 for a in "xyz"), seen["gauge"]
