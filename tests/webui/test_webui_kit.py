@@ -103,10 +103,33 @@ def _record_cues(page: Any) -> None:
     }""")
 
 
+# While a kit runs, at every change of its page: which of what she must reach or see lies below the first screen
+OFF_THE_FIRST_SCREEN = """(() => {
+  window.offScreen = { changes: 0, off: [] };
+  const look = () => {
+    const kit = document.querySelector('.kit');
+    if (!kit || ['connecting', 'done', 'failed', 'cancelled'].includes(kit.dataset.state)) return;
+    window.offScreen.changes += 1;
+    const cue = document.querySelector('.kit-cue');
+    for (const sel of ['#kit-cancel', '.kit .cue-sound', '.kit .cue-speech', cue && !cue.hidden ? '.kit-cue' : null]) {
+      const el = sel && document.querySelector(sel);
+      if (!el) continue;
+      const r = el.getBoundingClientRect();
+      if (r.bottom + window.scrollY > window.innerHeight + 0.5) {
+        const said = `${kit.dataset.state}: ${sel} ends at ${Math.round(r.bottom + window.scrollY)}`;
+        if (!window.offScreen.off.includes(said)) window.offScreen.off.push(said);
+      }
+    }
+  };
+  new MutationObserver(look).observe(document, { subtree: true, childList: true, attributes: true, characterData: true });
+})()"""
+
+
 def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_passed_accepted_at_once(
         browser: Any, kit_service: Any, page_watch: Watch, artifacts: Any) -> None:
     with watched_page(browser, kit_service, page_watch) as page:
         page.add_init_script(NOTICES)
+        page.add_init_script(OFF_THE_FIRST_SCREEN)
         wizard = Wizard(page, kit_service, artifacts / "webui" / "kit")
         wizard.sign_in()
         start = page.locator("#kit-start")
@@ -146,6 +169,10 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
         moving.click()
         wizard.shot("kit-moved-in-its-slot")
         _wait_done(page, kit_service, kit_id)
+        # Cancel, the sound's switches and the tray's ring or gauge on the first screen while it ran, whatever the rows
+        # said of the loose wearable and the one beside the tray
+        off = page.evaluate("() => window.offScreen")
+        assert off["changes"] > 20 and off["off"] == [], off
         moved = page.evaluate("() => window.cues.moved")
         assert sorted(moved) == ["mock-4", "mock-5"], moved
         state, line, buttons = moved["mock-4"]
@@ -315,28 +342,6 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
         assert wizard.small_targets() == []
         wizard.shot("kit-result-phone")
     assert_clean(page_watch)
-
-
-# While a kit runs, at every change of its page: which of what she must reach or see lies below the first screen
-OFF_THE_FIRST_SCREEN = """(() => {
-  window.offScreen = { changes: 0, off: [] };
-  const look = () => {
-    const kit = document.querySelector('.kit');
-    if (!kit || ['connecting', 'done', 'failed', 'cancelled'].includes(kit.dataset.state)) return;
-    window.offScreen.changes += 1;
-    const cue = document.querySelector('.kit-cue');
-    for (const sel of ['#kit-cancel', '.kit .cue-sound', '.kit .cue-speech', cue && !cue.hidden ? '.kit-cue' : null]) {
-      const el = sel && document.querySelector(sel);
-      if (!el) continue;
-      const r = el.getBoundingClientRect();
-      if (r.bottom + window.scrollY > window.innerHeight + 0.5) {
-        const said = `${kit.dataset.state}: ${sel} ends at ${Math.round(r.bottom + window.scrollY)}`;
-        if (!window.offScreen.off.includes(said)) window.offScreen.off.push(said);
-      }
-    }
-  };
-  new MutationObserver(look).observe(document, { subtree: true, childList: true, attributes: true, characterData: true });
-})()"""
 
 
 def test_a_knock_to_the_tray_is_said_of_the_tray_once_and_the_kit_goes_on(
