@@ -531,7 +531,15 @@ def test_a_phone_is_a_first_class_screen(browser: Any, hand_service: Any, page_w
         fits_the_screen(w)
         w.shot("phone-result")
         w.page.tap("details.details summary")
-        w.page.wait_for_selector(".plot svg path.series.after")
+        assert w.page.locator(".wizard[data-decision='accepted']").count() == 0
+        try:
+            w.page.wait_for_selector(".plot svg path.series.after")
+        except Exception as exc:  # a failure names what the page shows and asked for, not only that it waited
+            shown = w.page.evaluate("() => [document.querySelector('details.details').open, document.querySelector('.plots, .plot') ? "
+                                    "document.querySelector('.plots, .plot').textContent.slice(0, 400) : null]")
+            asked = [u for u in page_watch.requests if "/plot" in u or "/diagnosis" in u]
+            raise AssertionError(f"no plot after Details was opened: (open, plot box) {shown}; requests {asked}; "
+                                 f"console {page_watch.console_errors}") from exc
         fits_the_screen(w)
         w.shot("phone-details")
         w.page.tap("button:has-text('Discard')")

@@ -137,6 +137,14 @@ def test_on_a_phone_a_pass_with_a_caution_keeps_accept_on_the_first_screen_and_i
           return { top: r.top, bottom: r.bottom, screen: innerHeight, caution: near.top }; }""")
         assert where["bottom"] <= where["screen"] and where["caution"] < where["top"], where
         wizard.shot("phone-pass-with-a-caution")
+        # what is scrolled to (a tap's target, the keyboard's focus: Discard here) comes to rest above the Accept & save
+        # kept at the screen's foot, never under it, where a tap meant for it would save the result
+        under = page.evaluate("""() => {
+          const d = [...document.querySelectorAll('.wizard button')].find((b) => b.textContent.includes('Discard'));
+          d.scrollIntoView({ block: 'end' });
+          const a = document.querySelector('button.accept').getBoundingClientRect(), r = d.getBoundingClientRect();
+          return r.bottom > a.top && r.top < a.bottom ? [r.top, r.bottom, a.top, a.bottom] : null; }""")
+        assert under is None, under
         page.click("details.details summary")
         page.wait_for_selector("table.turns")
         wide = page.evaluate("""() => [...document.querySelectorAll('.details, .details table')]
