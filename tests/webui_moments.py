@@ -8,6 +8,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from webui_fixtures import assert_done_never_undone
+
 RETRY_MARK = "Attempt "  # a notice that asks a turn again starts "Attempt n of m:"
 
 
@@ -137,8 +139,6 @@ def assert_every_moment_held(seen: dict[str, Any], phone: bool, turns: int = 3) 
     assert_retry_reasons_stay(samples, at_least=0)
     assert_first_rest_counts_without_a_jump(samples)
     assert_rests_after_turns_count_from_the_stop(samples, at_least=turns)
-    again = set(seen["again"])
-    for before, after in zip(seen["done"], seen["done"][1:], strict=False):
-        assert set(before) - set(after) <= again, f"a turn shown done was taken back without a word: {seen['done']}"
+    assert_done_never_undone(seen["done"], again=seen["again"])
     if phone:
         assert seen["offScreen"] == [], seen["offScreen"]

@@ -139,6 +139,7 @@ function rowKey(d, { ident, moved, refusal, notTurned, behind }) {
 function deviceRow(d, { ident, moved, refusal, notTurned, behind }) {
   const ended = ENDED.has(d.state);
   const good = passedIt(d);
+  const cautions = good ? cautionTexts(d) : [];
   const k = d.result && Array.isArray(d.result.k) ? d.result.k : null;
   const seat = !ended && moved;
   const find = seat || (ended && !good); // to seat now, or to take out of the tray
@@ -148,7 +149,7 @@ function deviceRow(d, { ident, moved, refusal, notTurned, behind }) {
       icon(ended ? (good ? "pass" : "fail") : d.state === "reconnecting" || seat ? "warn" : "busy"), h("span", null, stateText(d, notTurned, behind))),
     k ? h("span", { class: "kit-k" }, `k ${AXES.map((a, i) => `${a.toUpperCase()} ${num(k[i], 4)}`).join(" · ")}`) : null,
     good && d.accuracy ? h("span", { class: "kit-accuracy" }, accuracySentence(d.accuracy, d.device_id)) : null,
-    good && cautionTexts(d).length ? h("div", { class: "kit-caution", role: "note" }, h("ul", null, cautionTexts(d).map((t) => h("li", null, t)))) : null,
+    cautions.length ? h("div", { class: "kit-caution", role: "note" }, h("ul", null, cautions.map((t) => h("li", null, t)))) : null,
     ended && !good && d.reason && d.reason !== refusal ? h("span", { class: "kit-reason" }, d.reason) : null,
     seat ? h("span", { class: "kit-reason kit-moved" }, moved) : null,
     find && (ended || ident) ? h("div", { class: "kit-row-actions" },

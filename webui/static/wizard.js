@@ -303,15 +303,17 @@ export function sessionView(ctx, sid) {
 
   /** On a screen whose stage takes the height left under the prompt, the prompt keeps the tallest height it had in
    * this stage (``key``: a turn from its prompt through the device put down), so that the gauge does not change size
-   * when the turn stops and the headline grows (277 to 237 px on a desktop); a new stage starts afresh. */
+   * when the turn stops and the headline grows (277 to 237 px on a desktop); a new stage starts afresh. The prompt is
+   * measured only when its words changed (``reworded``) or the stage did: not at each of the many snapshots a second. */
   let heldFor = null;
   const shownDone = new Set(); // the turns the tiles have shown done in this session
-  const holdStageSize = (key) => {
-    if (heldFor !== key) {
+  const holdStageSize = (key, reworded) => {
+    const fresh = heldFor !== key;
+    if (fresh) {
       heldFor = key;
       ui.prompt.style.minHeight = "";
     }
-    if (!FILLS_HEIGHT.matches) return;
+    if (!(fresh || reworded) || !FILLS_HEIGHT.matches) return;
     const now = ui.prompt.offsetHeight;
     if (now > (parseFloat(ui.prompt.style.minHeight) || 0)) ui.prompt.style.minHeight = `${now}px`;
   };
@@ -331,6 +333,7 @@ export function sessionView(ctx, sid) {
     const dev = deviceLabel(device, s.device_id);
     const t = headline(s, dev);
     const sub = subline(s);
+    const reworded = ui.title.textContent !== t || ui.sub.textContent !== sub;
     if (ui.title.textContent !== t) {
       ui.title.textContent = t;
       ctx.title(t);
@@ -338,7 +341,7 @@ export function sessionView(ctx, sid) {
     }
     if (ui.sub.textContent !== sub) ui.sub.textContent = sub;
     // a turn, from its prompt to the device put down, is one stage for the prompt's height (the gauge's size)
-    holdStageSize(s.state.startsWith("turn_") && ["ready", "turning", "placing"].includes(s.phase) ? s.state : key);
+    holdStageSize(s.state.startsWith("turn_") && ["ready", "turning", "placing"].includes(s.phase) ? s.state : key, reworded);
     const left = timeLeft(s);
     ui.limit.hidden = !left;
     if (left && ui.limit.textContent !== left) ui.limit.textContent = left;
