@@ -5,7 +5,8 @@ the live gauge), reacts after a human delay, and says what it does next as motio
 simulator, from a moment of device time on. Its habits are a ``HandStyle``: careful, hurried (starts some
 turns early, some late), sloppy (over- or under-turns some first tries), short (stops its first z turn where the
 device reads 296 deg), ends_off (puts the device down 3 deg tilted after its first y turn), stalls (ends_off, then
-never makes the turn asked again), bumping
+never makes the turn asked again), fast (spins its first x turn in 0.6 s), wrong_axis (makes its first y turn about z),
+bumping
 (knocks the device once in the rest after a turn) and gauge-watching (stops each turn where the page's gauge reads a
 full turn, when the gauge shows one, then puts it down against the block as the page says; a gauge that has not caught up
 with her stop she does not read, and finishes the turn by feel; otherwise it turns back to the block like the others).
@@ -50,6 +51,8 @@ class HandStyle:
     short_z_reads: float | None = None  # the first turn about z stops where the device reads this (deg): short of full
     ends_off_deg: float | None = None  # the first turn about y is put down tilted this much about x (deg)
     stalls: bool = False  # a turn asked again she puts back against the block, then never makes
+    fast_first_x_s: float | None = None  # the first turn about x takes this long (s): too fast for the gyroscope
+    first_y_about: str | None = None  # the first turn asked about y she makes about this axis instead
 
 
 HANDS: dict[str, HandStyle] = {
@@ -67,6 +70,8 @@ HANDS: dict[str, HandStyle] = {
         HandStyle("ends_off", "puts the device down 3 deg tilted after its first y turn", ends_off_deg=3.0),
         HandStyle("stalls", "puts the device down 3 deg tilted after its first y turn; asked again, puts it back and "
                   "never turns", ends_off_deg=3.0, stalls=True),
+        HandStyle("fast", "spins the first x turn in 0.6 s: the gyroscope saturates", fast_first_x_s=0.6),
+        HandStyle("wrong_axis", "makes the first turn asked about y about z", first_y_about="z"),
     )
 }
 
@@ -208,7 +213,12 @@ class PromptHand:
     def _turn(self, axis: str, start_s: float) -> tuple[Segment, ...]:
         self.tries[axis] = self.tries.get(axis, 0) + 1
         shape = self._turn_shape(axis)
-        true_axis = tilted_axis(axis, np.asarray(shape.tilt, dtype=float))
+        first = self.tries[axis] == 1
+        if first and axis == "x" and self.style.fast_first_x_s is not None:
+            shape = replace(shape, duration_s=self.style.fast_first_x_s)
+        if first and axis == "y" and self.style.first_y_about is not None:
+            shape = replace(shape, axis=self.style.first_y_about)
+        true_axis = tilted_axis(shape.axis if isinstance(shape.axis, str) else axis, np.asarray(shape.tilt, dtype=float))
         live = (self.last or {}).get("live") or {}
         if self.style.watches_gauge and (self.style.old_gauge or live.get("target_deg")):
             # most of the turn at the hand's pace, then a look at the gauge and the rest slowly (gauge_finish)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import io
+import json
 import re
 import shutil
 import subprocess
@@ -33,9 +34,11 @@ SCRIPTED_SPEED = 6.0  # the scripted clinicians play a fixed script, whatever th
 SCENARIOS = ["normal", "moved_during_still", "wrong_axis", "link_drop", *["normal"] * 9]
 PIN = "4831"
 # clinicians who follow the page's prompts (mock_device.hand), each on a wearable of its own
-HAND_SCENARIOS = ["hand:careful", "hand:careful", "hand:bumps", "hand:gauge", "hand:careful", "hand:short", "hand:ends_off",
-                  "hand:stalls"]
+HAND_SCENARIOS = ["hand:careful", "hand:careful", "hand:gauge", "hand:careful"]
 TABLET = {"width": 1024, "height": 768}
+VIEWS = {"1280x800": {"width": 1280, "height": 800}, "820x1180": {"width": 820, "height": 1180}, "390x844": {"width": 390, "height": 844}}
+PHONE_VIEW = "390x844"  # a phone's browser: touch only, at its pixel density
+WRONG_PIN = ("401 (Unauthorized)",)  # the console's line for the wrong PIN a test types on purpose
 LOCAL_HOSTS = {"127.0.0.1", "localhost", "[::1]", "::1"}
 
 
@@ -78,10 +81,15 @@ def hand_service() -> Iterator[RunningService]:
     """A service whose simulated clinicians follow the session's prompts, read from the service as the page reads
     them (mock-N performs HAND_SCENARIOS[N-1]); the operator also has a PIN."""
     with running_service(HAND_SCENARIOS) as svc:
-        r = subprocess.run([*GYROCAL, "operator", "--db", svc.db_url, "pin", OPERATOR, "--pin-stdin"], input=PIN + "\n", check=False,
-                           cwd=ROOT, capture_output=True, text=True, timeout=60)
-        assert r.returncode == 0, r.stderr
+        give_the_operator_a_pin(svc)
         yield svc
+
+
+def give_the_operator_a_pin(svc: RunningService) -> None:
+    """The operator may also sign in with ``PIN`` (as a clinician at a shared tablet does)."""
+    r = subprocess.run([*GYROCAL, "operator", "--db", svc.db_url, "pin", OPERATOR, "--pin-stdin"], input=PIN + "\n", check=False,
+                       cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
 
 
 @pytest.fixture(scope="module")
@@ -272,13 +280,14 @@ class Wizard:
                                       window.lastEvent ? window.lastEvent.t : null]);
           };
           setInterval(sample, 100);
-          // while a session runs: what she must reach or watch (Cancel, the ring or gauge, the turn tiles) that ends
+          // while a session runs and on its result: what she must press, reach or watch (Cancel, the ring or gauge, the turn
+          // tiles, the result's main button) that ends
           // below the first screen, as "state:phase: selector ends at y", each once
           window.seen.offScreen = [];
           const offScreen = () => {
             const w = document.querySelector('.wizard.live');
             if (!w || !w.dataset.state || ['place', 'connecting', 'computing'].includes(w.dataset.state)) return;
-            for (const sel of ['.wiz-head button.cancel', '.ring-wrap', '.gauge-wrap', '.tiles']) {
+            for (const sel of ['.wiz-head button.cancel', '.ring-wrap', '.gauge-wrap', '.tiles', '.wizard .actions .button.primary']) {
               const el = document.querySelector(sel);
               if (!el || el.closest('[hidden]')) continue;
               const r = el.getBoundingClientRect();
@@ -503,3 +512,41 @@ def sign_in_token(service: RunningService) -> str:
     r = httpx.post(service.base + "/auth/login", json={"operator": OPERATOR, "secret": SECRET}, timeout=30, verify=False)
     assert r.status_code == 200, r.text
     return r.json()["token"]
+
+
+def sign_in_with_pin(w: Wizard, wrong_first: bool = False) -> None:
+    w.page.goto(w.service.base + "/")
+    w.page.wait_for_selector("#operator")
+    w.page.click("button.mode-pin")
+    assert w.page.locator("#pin").is_visible() and not w.page.locator("#secret").is_visible()
+    assert w.page.get_attribute("#pin", "inputmode") == "numeric"
+    w.page.fill("#operator", OPERATOR)
+    if wrong_first:
+        w.page.fill("#pin", "0000")
+        w.page.click("form.signin button[type=submit]")
+        w.page.wait_for_selector(".form-error:has-text('do not match')")
+    w.page.fill("#pin", PIN)
+    w.shot("sign-in-pin")
+    w.page.click("form.signin button[type=submit]")
+    w.page.wait_for_selector(".device-card")
+
+
+def start_recorded(w: Wizard, device: str) -> None:
+    """Sign in with the PIN, start a calibration of ``device`` and record what the page shows from then on."""
+    sign_in_with_pin(w)
+    w.page.click(f".device-card[data-device='{device}'] a.button.primary")
+    w.page.click(".wizard[data-state='place'] button.primary:not([disabled])")
+    w.page.wait_for_url(re.compile(r"#/session/[0-9a-f]{32}$"))
+    w.record()
+
+
+def session_told(w: Wizard) -> str:
+    """What the service kept of the session on the page (its warnings, turns, sections and losses), for a failure's
+    message: a result that is not the one expected names what the session saw."""
+    sid = w.page.url.rsplit("/", 1)[1]
+    with api(w.service) as c:
+        s = c.get(f"/sessions/{sid}").json()
+        sections = c.get(f"/sessions/{sid}/sections")
+    kept = {k: s.get(k) for k in ("state", "reason", "warnings", "turns", "lost_samples")}
+    return json.dumps({**kept, "sections": sections.json() if sections.status_code == 200 else sections.status_code,
+                       "page": w.text(".wizard")})

@@ -55,6 +55,15 @@ def test_a_short_turn_that_spoils_the_result_is_asked_again_and_passes() -> None
     assert all(o.k_error is not None and o.k_error < 2e-3 for o in outcomes), [o.k_error for o in outcomes]
 
 
+@pytest.mark.parametrize("style", ["fast", "wrong_axis"])
+def test_a_turn_too_fast_or_about_the_wrong_axis_is_asked_again_and_passes(style: str) -> None:
+    """The first X turn spun in 0.6 s (the gyroscope saturates), or the first turn asked about Y made about Z: the
+    live check asks that turn again, the hand makes it as asked, and the result passes."""
+    outcomes = [run_session(style, seed, False) for seed in range(3)]
+    assert all(o.passed and not o.first_try for o in outcomes), [(o.seed, o.state, o.reason) for o in outcomes]
+    assert all(o.k_error is not None and o.k_error < 2e-3 for o in outcomes), [o.k_error for o in outcomes]
+
+
 def test_a_gauge_watcher_whose_page_is_a_second_late_still_stops_at_a_full_turn() -> None:
     """A starved page shows the gauge up to 1 s late: a stop read off a gauge still catching up would end the turn
     tens of degrees long; she finishes it by feel instead, and sets the device back against the block."""

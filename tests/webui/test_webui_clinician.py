@@ -1,12 +1,12 @@
 """The page as a clinician meets it, with simulated clinicians who follow what the page says (mock_device.hand,
 reading the session's events from the service as the page does), in Chromium at 1280x800 and 820x1180:
 sign-in with a PIN, the overview before Start, a picture of hands, device and block for each turn, the layout
-that keeps the gauge large and the tiles on screen, a result that says what it means for the study, a bump
-recovered without restarting, a clinician who watches the gauge, and the history table and plots."""
+that keeps the gauge large and the tiles on screen, a result that says what it means for the study, a clinician who
+watches the gauge, a phone, and the history table and plots. Every clinician's whole session at the three sizes, a
+knock, a turn done wrong and a stalled retry among them, is in test_webui_moments."""
 
 from __future__ import annotations
 
-import contextlib
 import json
 import re
 from collections.abc import Callable, Iterator
@@ -17,25 +17,24 @@ import numpy as np
 import pytest
 from webui_fixtures import (
     LISTEN,
-    OPERATOR,
-    PIN,
+    PHONE_VIEW,
+    VIEWS,
+    WRONG_PIN,
     Watch,
     Wizard,
     api,
     assert_clean,
-    assert_done_never_undone,
     assert_turns_end_with_hold_still,
+    session_told,
+    sign_in_with_pin,
     upload_accepted,
     watched_page,
 )
-from webui_moments import assert_every_moment_held, assert_retry_reasons_stay
+from webui_moments import assert_every_moment_held
 
 from calib.apply.correction import Correction
 from calib.io.readers import read_recording, write_native_csv
 from calib.simulator import simulate
-
-VIEWS = {"1280x800": {"width": 1280, "height": 800}, "820x1180": {"width": 820, "height": 1180}, "390x844": {"width": 390, "height": 844}}
-PHONE_VIEW = "390x844"  # a phone's browser: touch only, at its pixel density
 
 
 @pytest.fixture
@@ -44,26 +43,6 @@ def hand_wizard(browser: Any, hand_service: Any, page_watch: Watch, artifacts: P
     view = getattr(request, "param", None) or "1280x800"
     with watched_page(browser, hand_service, page_watch, VIEWS[view], timeout_ms=45_000, phone=view == PHONE_VIEW) as pg:
         yield Wizard(pg, hand_service, artifacts / "webui" / request.node.name)
-
-
-WRONG_PIN = ("401 (Unauthorized)",)  # the console's line for the wrong PIN a test types on purpose
-
-
-def sign_in_with_pin(w: Wizard, wrong_first: bool = False) -> None:
-    w.page.goto(w.service.base + "/")
-    w.page.wait_for_selector("#operator")
-    w.page.click("button.mode-pin")
-    assert w.page.locator("#pin").is_visible() and not w.page.locator("#secret").is_visible()
-    assert w.page.get_attribute("#pin", "inputmode") == "numeric"
-    w.page.fill("#operator", OPERATOR)
-    if wrong_first:
-        w.page.fill("#pin", "0000")
-        w.page.click("form.signin button[type=submit]")
-        w.page.wait_for_selector(".form-error:has-text('do not match')")
-    w.page.fill("#pin", PIN)
-    w.shot("sign-in-pin")
-    w.page.click("form.signin button[type=submit]")
-    w.page.wait_for_selector(".device-card")
 
 
 def box(w: Wizard, selector: str) -> dict[str, float]:
@@ -81,27 +60,6 @@ def on_first_screen(w: Wizard, selector: str) -> bool:
 def session_snapshot(w: Wizard, sid: str) -> dict[str, Any]:
     with api(w.service) as c:
         return c.get(f"/sessions/{sid}").json()
-
-
-def session_told(w: Wizard) -> str:
-    """What the service kept of the session on the page (its warnings, turns, sections and losses), for a failure's
-    message: a result that is not the one expected names what the session saw."""
-    sid = w.page.url.rsplit("/", 1)[1]
-    with api(w.service) as c:
-        s = c.get(f"/sessions/{sid}").json()
-        sections = c.get(f"/sessions/{sid}/sections")
-    kept = {k: s.get(k) for k in ("state", "reason", "warnings", "turns", "lost_samples")}
-    return json.dumps({**kept, "sections": sections.json() if sections.status_code == 200 else sections.status_code,
-                       "page": w.text(".wizard")})
-
-
-def start_recorded(w: Wizard, device: str) -> None:
-    """Sign in with the PIN, start a calibration of ``device`` and record what the page shows from then on."""
-    sign_in_with_pin(w)
-    w.page.click(f".device-card[data-device='{device}'] a.button.primary")
-    w.page.click(".wizard[data-state='place'] button.primary:not([disabled])")
-    w.page.wait_for_url(re.compile(r"#/session/[0-9a-f]{32}$"))
-    w.record()
 
 
 def run_to_result(w: Wizard, device: str, check_turns: bool = True, before_start: Callable[[], None] | None = None) -> str:
@@ -206,7 +164,7 @@ def test_portrait_gives_the_gauge_and_ring_the_height(hand_wizard: Wizard, page_
     # the cards' buttons wrap beside the name; a name never breaks ("mock-/1")
     heights = w.page.eval_on_selector_all(".device-card h2", "(hs) => hs.map((e) => e.getBoundingClientRect().height)")
     assert heights and max(heights) < 40, heights
-    w.page.click(".device-card[data-device='mock-5'] a.button.primary")
+    w.page.click(".device-card[data-device='mock-4'] a.button.primary")
     w.page.click(".wizard[data-state='place'] button.primary:not([disabled])")
     w.page.wait_for_selector(".wizard[data-state='still'] .ring-wrap")
     ring = box(w, ".ring-wrap")
@@ -219,115 +177,6 @@ def test_portrait_gives_the_gauge_and_ring_the_height(hand_wizard: Wizard, page_
     assert tiles["y"] + tiles["height"] <= height and tiles["y"] + tiles["height"] >= 0.85 * height, tiles
     w.shot("portrait-turn")
     w.page.wait_for_selector(".verdict h1", timeout=90_000)
-    assert_clean(page_watch)
-
-
-@pytest.mark.parametrize("hand_wizard", [PHONE_VIEW], indirect=True)
-def test_a_bump_in_a_pause_is_warned_and_recovered_without_restarting(hand_wizard: Wizard, page_watch: Watch) -> None:
-    w = hand_wizard
-    start_recorded(w, "mock-3")
-    w.page.wait_for_selector(".notice.warn")
-    # the warning takes the stage's height, not the tiles' place on the screen
-    tiles = box(w, ".tiles")
-    assert tiles["y"] + tiles["height"] <= w.page.viewport_size["height"], tiles
-    w.shot("bumped")
-    w.page.wait_for_selector(".verdict h1", timeout=90_000)
-    assert w.text(".verdict h1") == "PASS", session_told(w)
-    seen = w.seen()
-    assert seen["ringMoving"], "the ring never showed the device moving"
-    # on a phone, Cancel, the ring or gauge and the turn tiles on the first screen at every moment, under the knock's
-    # notice too (its 13 bold lines pushed the ring and the tiles below it); and every other moment held
-    assert_every_moment_held(seen, phone=True)
-    assert any("moving" in n or "moved" in n for n in seen["notices"]), seen["notices"]
-    # a turn counts once its closing rest is complete: a knock before that asks for the turn again and its tile was
-    # never shown done; a knock after it only restarts the pause and the tile stays done, whatever the screen
-    assert_done_never_undone(seen["done"])
-    moved = [n for n in seen["notices"] if "moved during the pause" in n]
-    assert moved and all(("could be checked" in n) == ("turn again" in n) for n in moved), moved
-    assert not seen["placingWithoutGauge"], "the gauge went away before the device was still"
-    assert_clean(page_watch)
-
-
-ASKED_AGAIN = {"z": "mock-6", "y": "mock-7"}  # the hand that stops Z short, the one that puts Y down tilted
-
-
-@pytest.mark.parametrize("view", list(VIEWS))
-def test_a_turn_done_wrong_is_asked_again_saying_why_never_blaming_the_sensor(
-    browser: Any, hand_service: Any, page_watch: Watch, artifacts: Path, view: str
-) -> None:
-    """mock-6's clinician stops the first Z turn where the device reads 296 deg: the live check takes it, the result's
-    k_z is out of range. The page does not end on a FAIL blaming the sensor: it names that turn, says how to make it
-    and asks it again in the same session (attempt 2), the X and Y turns kept. mock-7's puts the device down 3 deg
-    tilted after the first Y turn: the page says so as soon as that turn is checked ("Turn Y ended 3.0° off where it
-    began") and asks it again, never showing Y done before. Both then pass (the two at once, a page each).
-
-    At every moment, on a desktop, a tablet and a phone: the reason stays on screen while she does what it says, from
-    the moment it appears until the turn asked again starts; putting the device back is shown as that ("Putting it
-    back against the block"), not as the turn."""
-    with contextlib.ExitStack() as pages:
-        wizards = {asked: Wizard(pages.enter_context(watched_page(browser, hand_service, page_watch, VIEWS[view], timeout_ms=45_000,
-                                                                   phone=view == PHONE_VIEW)),
-                                 hand_service, artifacts / "webui" / f"asked-again-{asked}-{view}")
-                   for asked in ASKED_AGAIN}
-        for asked, w in wizards.items():
-            start_recorded(w, ASKED_AGAIN[asked])
-        for asked, w in wizards.items():
-            w.page.wait_for_selector(".verdict h1", timeout=90_000)
-            _asked_again_and_passed(w, asked, phone=view == PHONE_VIEW)
-    assert_clean(page_watch)
-
-
-def _asked_again_and_passed(w: Wizard, asked: str, phone: bool) -> None:
-    assert w.text(".verdict h1") == "PASS", session_told(w)
-    seen = w.seen()  # what the page showed, change by change (the retry's notice may last under a second)
-    assert not any("faulty" in n for n in seen["notices"]), seen["notices"]
-    assert_retry_reasons_stay(seen["samples"], save=w.shots / "retry-reasons.json")
-    assert_every_moment_held(seen, phone=phone)
-    put_back = [s for s in seen["samples"] if s[1] == f"turn_{asked}:returning"]
-    assert all(s[3] == "Putting it back against the block" for s in put_back), put_back[:3]
-    assert put_back or asked == "y", "the Z turn's put-back was not shown as such"  # Y's is put back while it settles
-    done = seen["done"]
-    if asked == "y":
-        off = [n for n in seen["phaseNotices"] if n.startswith("turn_y:") and "Attempt 2 of 3" in n]
-        assert off and re.search(r"Turn Y ended 3\.\d° off where it began", off[0]) and "against the block" in off[0], off
-        assert_done_never_undone(done)  # Y was not shown done before it was asked again
-        assert seen["again"] == [], seen["again"]
-    else:
-        phases = seen["phases"]
-        assert phases[phases.index("computing:") + 1].startswith("turn_z:"), phases  # computed, then that turn again
-        again = [n for n in seen["phaseNotices"] if n.startswith("turn_z:") and "Attempt 2 of 3" in n]
-        assert again, seen["phaseNotices"]
-        assert re.search(r"The turn about Z read 29\d°", again[0]) and "all the way round" in again[0], again[0]
-        # the Z tile left "done" only because the result asked that turn again, and said so ("again", not "now"); X and
-        # Y never did
-        assert "xyz" in done and "xy" in done[done.index("xyz"):], done
-        assert seen["again"] == ["z"], seen["again"]
-        assert all(set("xy") <= set(d) for d in done[done.index("xy"):]), done
-        assert "turn_z:settle" in w.assert_screens_accessible()  # the screen that asks the turn again, audited too
-
-
-@pytest.mark.parametrize("hand_wizard", [PHONE_VIEW], indirect=True)
-def test_a_turn_asked_again_and_never_made_keeps_its_reason_counts_down_and_ends_saying_so(
-    hand_wizard: Wizard, page_watch: Watch
-) -> None:
-    """mock-8's clinician puts the device down tilted after the first Y turn, puts it back when asked again, and then
-    waits. The reason stays on screen through the wait, with the hint beneath it when the turn is overdue (never in
-    its place); the time left counts down on screen; the session ends saying the next turn was not started in time,
-    not that no turn was made (X and Y were)."""
-    w = hand_wizard
-    start_recorded(w, "mock-8")
-    w.page.wait_for_selector(".wizard[data-state='failed'] .verdict h1", timeout=90_000)
-    samples = w.seen()["samples"]
-    (reason,) = assert_retry_reasons_stay(samples, save=w.shots / "retry-reasons.json")
-    assert reason.state == "turn_y" and "off where it began" in reason.text, reason
-    ready = [s for s in samples if s[1] == "turn_y:ready" and s[0] >= reason.shown_ms]
-    hinted = [s for s in ready if "Waiting for the turn" in s[2]]
-    assert hinted and all(reason.text[:40] in s[2] for s in hinted), hinted[:2]  # the hint beside the reason
-    left = [int(re.search(r"stops in (\d+) s", s[4]).group(1)) for s in ready if s[4]]
-    assert left and left[0] <= 40 and left[-1] <= 5 and left == sorted(left, reverse=True), left
-    assert w.seen()["offScreen"] == [], w.seen()["offScreen"]  # the reason, hint and count above: the tiles still on screen
-    assert w.text(".verdict h1") == "The next turn was not started in time"
-    assert "60 s" in w.text(".sentence"), w.text(".sentence")
     assert_clean(page_watch)
 
 
@@ -365,7 +214,7 @@ def test_a_clinician_who_watches_the_gauge_stops_at_360_degrees(hand_wizard: Wiz
     second the gauge shows true degrees and the hand stops when it reads 360°."""
     w = hand_wizard
     sign_in_with_pin(w)
-    run_to_result(w, "mock-4", check_turns=False)
+    run_to_result(w, "mock-3", check_turns=False)
     assert w.text(".verdict h1") == "PASS"
     w.page.click("button.accept")
     w.page.wait_for_selector(".verdict.saved")
@@ -374,8 +223,8 @@ def test_a_clinician_who_watches_the_gauge_stops_at_360_degrees(hand_wizard: Wiz
     w.page.wait_for_selector(".verification.ok", timeout=90_000)
     assert "calibrated" in w.text(".verification-angles") and "raw" in w.text(".verification-angles")
     w.page.goto(w.service.base + "/#/devices")
-    w.page.wait_for_selector(".device-card[data-device='mock-4'] .calibrated")
-    run_to_result(w, "mock-4", check_turns=False)
+    w.page.wait_for_selector(".device-card[data-device='mock-3'] .calibrated")
+    run_to_result(w, "mock-3", check_turns=False)
     seen = w.seen()
     assert_every_moment_held(seen, phone=False)
     assert w.text(".verdict h1") == "PASS", session_told(w)
@@ -506,7 +355,7 @@ def test_a_phone_is_a_first_class_screen(browser: Any, hand_service: Any, page_w
         sign_in_with_pin(w)
         fits_the_screen(w)
         w.shot("phone-devices")
-        w.page.tap(".device-card[data-device='mock-5'] a.button.primary")
+        w.page.tap(".device-card[data-device='mock-4'] a.button.primary")
         start = ".wizard[data-state='place'] button.primary:not([disabled])"
         w.page.wait_for_selector(start)
         fits_the_screen(w)
@@ -541,7 +390,7 @@ def test_a_phone_is_a_first_class_screen(browser: Any, hand_service: Any, page_w
         w.shot("phone-details")
         w.page.tap("button:has-text('Discard')")
         w.page.wait_for_selector(".verdict.neutral")
-        w.page.goto(f"{hand_service.base}/#/history/mock-5")
+        w.page.goto(f"{hand_service.base}/#/history/mock-4")
         w.page.wait_for_selector("table.history.sessions")
         fits_the_screen(w)
         w.shot("phone-history")

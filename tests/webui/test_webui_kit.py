@@ -3,11 +3,13 @@
 beside it, their sensors' axes up to 1 % from square), turned by a clinician who follows the kit's prompts as the page
 shows them (`--mock-scenario hand:careful`): the operator ticks four of them (mock-1 stays out of the kit, so the
 clinician finds the kit by the others), calibrates them together, follows one set of prompts for the tray, sees each
-wearable's state as a row, and accepts every one that passed at once (each with its full K); on a phone the rows stack
-and nothing runs off the screen."""
+wearable's state as a row, and accepts every one that passed at once (each with its full K). An upright tablet's page
+and a phone's follow the kit from its address as it runs, what she must reach on their first screen at every change;
+on a phone the rows stack and nothing runs off the screen."""
 
 from __future__ import annotations
 
+import contextlib
 import re
 from collections.abc import Iterator
 from typing import Any
@@ -15,10 +17,10 @@ from typing import Any
 import numpy as np
 import pytest
 from server_fixtures import kit_through_the_command_line
-from webui_fixtures import LISTEN, Watch, Wizard, api, assert_clean, running_service, watched_page
+from webui_fixtures import LISTEN, PHONE_VIEW, VIEWS, Watch, Wizard, api, assert_clean, running_service, watched_page
 
 pytestmark = pytest.mark.timeout(180)
-PHONE = {"width": 390, "height": 844}
+PHONE = VIEWS[PHONE_VIEW]
 # every notice the kit page shows, as "state|text", recorded from the page's start (a notice shows for a while only)
 NOTICES = """
 window.notices = [];
@@ -125,9 +127,40 @@ OFF_THE_FIRST_SCREEN = """(() => {
 })()"""
 
 
+@contextlib.contextmanager
+def _followers(browser: Any, service: Any, watch: Watch, artifacts: Any) -> Iterator[dict[str, Any]]:
+    """Pages at an upright tablet's size and a phone's, signed in, recording what lies off their first screen: they
+    follow a kit from its address as it runs, as a second tablet in the room would."""
+    with contextlib.ExitStack() as stack:
+        pages = {}
+        for view in ("820x1180", PHONE_VIEW):
+            pg = stack.enter_context(watched_page(browser, service, watch, VIEWS[view], phone=view == PHONE_VIEW))
+            pg.add_init_script(OFF_THE_FIRST_SCREEN)
+            Wizard(pg, service, artifacts / "webui" / f"kit-follower-{view}").sign_in()
+            pages[view] = pg
+        yield pages
+
+
+def _followed_whole(pages: dict[str, Any], kit_id: str, ready: str) -> None:
+    """Each follower showed the kit to its end with Cancel, the sound's switches and the ring or gauge on its first
+    screen at every change, the same result, and asks before leaving its unsaved PASSes."""
+    for view, pg in pages.items():
+        pg.wait_for_selector(".kit[data-state='done']", timeout=60_000)
+        off = pg.evaluate("() => window.offScreen")
+        assert off["changes"] > 20 and off["off"] == [], (view, off)
+        assert pg.inner_text(".kit-ready") == ready, view
+        pg.click("a.brand")
+        dialog = pg.wait_for_selector("dialog.ask[open]")
+        assert "These PASSes are not saved" in dialog.inner_text(), (view, dialog.inner_text())
+        pg.keyboard.press("Escape")
+        pg.wait_for_selector("dialog.ask", state="detached")
+        assert pg.url.endswith(f"#/kit/{kit_id}"), (view, pg.url)
+
+
 def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_passed_accepted_at_once(
         browser: Any, kit_service: Any, page_watch: Watch, artifacts: Any) -> None:
-    with watched_page(browser, kit_service, page_watch) as page:
+    follower_watch = Watch()  # theirs apart: what the kit's own page asked of the service is counted below
+    with watched_page(browser, kit_service, page_watch) as page, _followers(browser, kit_service, follower_watch, artifacts) as followers:
         page.add_init_script(NOTICES)
         page.add_init_script(OFF_THE_FIRST_SCREEN)
         wizard = Wizard(page, kit_service, artifacts / "webui" / "kit")
@@ -146,6 +179,8 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
         page.wait_for_url(re.compile(r"#/kit/[0-9a-f]{32}$"))
         kit_id = page.url.rsplit("/", 1)[1]
         _record_cues(page)
+        for follower in followers.values():
+            follower.goto(f"{kit_service.base}/#/kit/{kit_id}")
         # one set of prompts, for the tray, with the axis drawn on the tray's picture and the step marked
         page.wait_for_selector(".kit[data-state='still']")
         for axis in ("x", "y", "z"):
@@ -239,6 +274,7 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
         with_caution = ", each with a caution" if len(cautioned) == 2 else f", {cautioned[0]} with a caution" if cautioned else ""
         assert page.inner_text(".kit-ready") == f"mock-2 and mock-3 are ready for the study{with_caution}; mock-4 and mock-5 are not"
         assert page.get_attribute(".kit-ready", "class").split()[-1] == ("caution" if cautioned else "yes")
+        _followed_whole(followers, kit_id, page.inner_text(".kit-ready"))
         # their sensors' axes are not square (1 % cross-axis): the page says each one's was measured and calibrated
         axes = page.inner_text("#kit-axes")
         axes_said = re.fullmatch(r"The wearables' axes are not quite square \(cross-axis terms up to (\d\.\d) %\): each "
@@ -342,6 +378,7 @@ def test_a_kit_is_calibrated_together_from_the_page_and_every_wearable_that_pass
         assert wizard.small_targets() == []
         wizard.shot("kit-result-phone")
     assert_clean(page_watch)
+    assert_clean(follower_watch)
 
 
 def test_a_knock_to_the_tray_is_said_of_the_tray_once_and_the_kit_goes_on(
