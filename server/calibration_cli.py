@@ -22,7 +22,7 @@ if TYPE_CHECKING:
 EXIT_NONE = 5  # no calibration had been accepted by then
 
 
-def _add_moment_arguments(p: argparse.ArgumentParser, at_help: str, db_help: str, max_age: bool = True) -> None:
+def add_moment_arguments(p: argparse.ArgumentParser, at_help: str, db_help: str, max_age: bool = True) -> None:
     """--at, --db, the recording's identity and (with ``max_age``) the limits: which moment and recording, which store,
     what is too old or too far in temperature."""
     p.add_argument("--at", default=None, metavar="TIME", help=at_help)
@@ -75,7 +75,7 @@ def _limits(args: argparse.Namespace) -> CalibrationLimits:
     return limits
 
 
-def _in_force_of(args: argparse.Namespace, store: Any = None, temperature_c: float | None = None) -> Any:
+def in_force_of(args: argparse.Namespace, store: Any = None, temperature_c: float | None = None) -> Any:
     """The calibration of ``args.device`` in force at ``args.at`` for the recording the arguments describe (None when
     none had been accepted by then); ServiceError when the only ones are another sensor's."""
     from calib.apply.identity import WrongSensor
@@ -101,7 +101,7 @@ def register(sub: Any) -> None:
         "when none had been accepted by then.",
     )
     p.add_argument("device", help="the device's id, as in `gyrocal serve`'s device list")
-    _add_moment_arguments(p, "ISO 8601 time, e.g. 2026-11-20T14:30 (UTC unless it carries an offset)",
+    add_moment_arguments(p, "ISO 8601 time, e.g. 2026-11-20T14:30 (UTC unless it carries an offset)",
                           DB_URL_HELP)
     p.set_defaults(func=cmd_calibration)
 
@@ -109,7 +109,7 @@ def register(sub: Any) -> None:
 def cmd_calibration(args: argparse.Namespace) -> int:
     from .lifecycle import none_in_force
 
-    cal = _in_force_of(args)
+    cal = in_force_of(args)
     if cal is None:
         print(f"gyrocal: {none_in_force(args.device, args.at)}")
         return EXIT_NONE
@@ -134,7 +134,7 @@ def register_apply(sub: Any) -> None:
     which = p.add_mutually_exclusive_group(required=True)
     which.add_argument("--device", default=None, metavar="ID", help="the device whose calibration in force is applied")
     which.add_argument("--calibration", type=Path, default=None, metavar="FILE", help="gyrocal's calibration JSON or imucal's")
-    _add_moment_arguments(p, "with --device: when the recording was made (ISO 8601; default now)",
+    add_moment_arguments(p, "with --device: when the recording was made (ISO 8601; default now)",
                           "with --device: " + DB_URL_HELP)
     p.add_argument("-o", "--output", type=Path, default=None, metavar="OUT",
                    help="the corrected CSV (default: FILE's name with .calibrated.csv)")
@@ -144,7 +144,7 @@ def register_apply(sub: Any) -> None:
     p.set_defaults(func=cmd_apply)
 
 
-def _read_calibration_file(path: Path) -> Any:
+def read_calibration_file(path: Path) -> Any:
     from calib.apply.correction import Correction, CorrectionFileError
 
     try:
@@ -170,7 +170,7 @@ def cmd_apply(args: argparse.Namespace) -> int:
     rec = read_recording_args(args).recording
     used: dict[str, Any]
     if args.calibration is not None:
-        correction = _read_calibration_file(args.calibration)
+        correction = read_calibration_file(args.calibration)
         recording = _recording_identity(args, rec.mean_temperature_c)
         check = check_identity(correction.identity or SensorIdentity(), recording,
                                max_temperature_change_c=_limits(args).max_temperature_change_c)
@@ -179,7 +179,7 @@ def cmd_apply(args: argparse.Namespace) -> int:
         used = {"file": str(args.calibration), "source": correction.source, "identity_check": check.to_json(),
                 "warnings": list(check.warnings)}
     else:
-        cal = _in_force_of(args, temperature_c=rec.mean_temperature_c)
+        cal = in_force_of(args, temperature_c=rec.mean_temperature_c)
         if cal is None:
             raise ServiceError(f"{none_in_force(args.device, args.at)}: calibrate it first, or give --calibration FILE")
         correction = Correction.from_json(cal.model_dump(mode="json"))
@@ -239,7 +239,7 @@ def register_export(sub: Any) -> None:
     which = p.add_mutually_exclusive_group(required=True)
     which.add_argument("--id", type=int, default=None, metavar="N", help="the calibration's id (GET /devices/{id}/calibrations)")
     which.add_argument("--device", default=None, metavar="ID", help="the device whose calibration in force is written")
-    _add_moment_arguments(p, "with --device: the moment (ISO 8601; default now)", DB_URL_HELP,
+    add_moment_arguments(p, "with --device: the moment (ISO 8601; default now)", DB_URL_HELP,
                           max_age=False)
     p.add_argument("--format", choices=["gyrocal", "imucal", "csv"], default="gyrocal")
     p.add_argument("-o", "--output", type=Path, default=None, metavar="OUT", help="the file to write (default: standard output)")
@@ -256,7 +256,7 @@ def cmd_export(args: argparse.Namespace) -> int:
         if cal is None:
             raise ServiceError(f"no calibration #{args.id} in {store.display_url}; `gyrocal calibration DEVICE` names a device's")
     else:
-        cal = _in_force_of(args, store)
+        cal = in_force_of(args, store)
         if cal is None:
             raise ServiceError(none_in_force(args.device, args.at))
     text, _, _ = export_text(cal, args.format)
@@ -295,7 +295,7 @@ def cmd_import(args: argparse.Namespace) -> int:
 
     from .store import NotAcceptable, sha256_hex
 
-    correction = _read_calibration_file(args.file)
+    correction = read_calibration_file(args.file)
     stated = _recording_identity(args)
     correction = replace(correction, identity=(correction.identity or SensorIdentity()).completed(stated))
     store = open_store(args.db)

@@ -103,9 +103,10 @@ def _parse_effect(spec: str) -> tuple[str, str]:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from calib.io.readers import write_native_csv
     from calib.simulator import extended_protocol_script, simulate
 
+    if args.protocol == "study":
+        return _simulate_study(args)
     kwargs: dict[str, Any] = {"seed": args.seed, "noise": args.noise, "fs": args.fs}
     if args.protocol == "extended":
         # the script's own draws (durations, tilts, profiles) from a stream of their own, as simulate's are
@@ -117,12 +118,34 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
         kwargs["effects"] = [parse_effect(*_parse_effect(s)) for s in args.effect]
     rec, truth = simulate(**kwargs)
+    return _write_simulated(args, rec, truth.to_dict())
+
+
+def _write_simulated(args: argparse.Namespace, rec: Any, truth: dict[str, Any]) -> int:
+    """Write a simulated recording to ``--output``; print its truth as JSON (``--truth``) or what was written."""
+    from calib.io.readers import write_native_csv
+
     write_native_csv(rec, args.output)
     if args.truth:
-        print(json.dumps(truth.to_dict()))
+        print(json.dumps(truth))
     else:
         print(f"wrote {len(rec)} samples ({rec.duration_s:.1f} s at {args.fs:g} Hz) to {args.output}", file=sys.stderr)
     return EXIT_OK
+
+
+def _simulate_study(args: argparse.Namespace) -> int:
+    """`simulate --protocol study`: a study day (calib.simulator.study_day)."""
+    from calib.effects.base import SimulationConfigError
+    from calib.simulator.study_day import simulate_study_day
+
+    if args.effect or args.full_scale is not None:
+        raise SimulationConfigError("--protocol study simulates its own sensor (warming on the skin, --event): it takes no "
+                                    "--effect or --full-scale")
+    if not args.duration > 60.0:
+        raise SimulationConfigError(f"--duration must be more than 60 s; got {args.duration:g}")
+    rec, day = simulate_study_day(args.seed, args.duration, args.fs, args.noise, temperature_channel=not args.no_temperature,
+                                  event=args.event, event_size=args.event_size)
+    return _write_simulated(args, rec, day.to_dict())
 
 
 def cmd_effects(args: argparse.Namespace) -> int:
@@ -247,9 +270,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--noise", type=float, default=0.03, help="white noise std on the readings, deg/s (default 0.03)")
     p.add_argument("--fs", type=float, default=104.0, help="sample rate, Hz (default 104)")
     p.add_argument("--full-scale", type=float, default=None, help="gyro full scale, deg/s: readings clip there")
-    p.add_argument("--protocol", choices=("paper", "extended"), default="paper",
+    p.add_argument("--protocol", choices=("paper", "extended", "study"), default="paper",
                    help="paper: one turn about each axis (default); extended: each axis turned both ways, slowly and "
-                        "fast (12 turns, about 90 s), which reveals scale asymmetry and nonlinearity")
+                        "fast (12 turns, about 90 s), which reveals scale asymmetry and nonlinearity; study: a study day "
+                        "compressed (the table, lying, sitting, standing, walking bouts) on a thigh warming on the skin, "
+                        "with a temperature column; its calibration is the truth's k and b at temp_cal_c")
+    p.add_argument("--duration", type=float, default=3600.0, help="with --protocol study: the day's length, s (default 3600)")
+    p.add_argument("--event", choices=("k", "b"), default=None,
+                   help="with --protocol study: a drop at a random time changes one axis's k (0.2-1 %%) or b (0.05-0.5 deg/s)")
+    p.add_argument("--event-size", type=float, default=None, metavar="SIZE",
+                   help="with --event: its size (relative for k, deg/s for b; a random sign)")
+    p.add_argument("--no-temperature", action="store_true", help="with --protocol study: no temperature column (it still warms)")
     p.add_argument(
         "--effect",
         action="append",

@@ -121,7 +121,8 @@ def test_serve_refuses_bad_options_with_a_message(
 
 
 def test_reads_need_a_token_with_auth_reads(tmp_path: Path) -> None:
-    svc = RunningService(["--auth-reads", "--mock", "1", "--mock-speed", "50"], f"sqlite:///{tmp_path / 's.sqlite3'}").start()
+    svc = RunningService(["--auth-reads", "--mock", "1", "--mock-speed", "50", "--mock-seed", "5"],
+                         f"sqlite:///{tmp_path / 's.sqlite3'}").start()
     try:
         with svc.client(token=None) as anon:
             assert anon.get("/health").json()["auth_reads"] is True
@@ -137,7 +138,7 @@ def test_reads_need_a_token_with_auth_reads(tmp_path: Path) -> None:
         events = follow_events(
             f"{svc.base}", sid, {"done", "failed", "cancelled"}, timeout_s=60, last_event_id=0, params={"access_token": API_TOKEN}
         )
-        assert events[-1]["state"] == "done"
+        assert events[-1]["state"] == "done", {k: events[-1].get(k) for k in ("reason_code", "reason", "warnings", "lost_samples")}
     finally:
         svc.stop()
 
