@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any
@@ -99,7 +100,7 @@ def main() -> None:
         for n, f in enumerate(futures, 1):
             rows.append(f.result())
             if n % 50 == 0:
-                print(f"{n}/{len(futures)} days", flush=True)
+                print(f"{n}/{len(futures)} days", file=sys.stderr, flush=True)
     result = summary(rows)
     if args.json:
         print(json.dumps(result, indent=2))

@@ -67,7 +67,8 @@ def cmd_history(args: argparse.Namespace) -> int:
     current = cals[-1] if cals else None
     due = calibration_due(None if current is None else current.accepted_at, args.max_age_days,
                           calibration_identity=None if current is None else current.identity,
-                          device_power_up=None if device is None else device["power_up"])
+                          device_power_up=None if device is None else device["power_up"],
+                          latest_watch=next(iter(store.watches(args.device, current.id, 1)), None) if current else None)
     if args.json:
         print(json.dumps({"device_id": args.device, "calibrations": rows, "calibration_due": due.model_dump()}, indent=2))
         return EXIT_OK

@@ -20,7 +20,7 @@ from calib.apply.identity import IdentityCheckJson, SensorIdentity, WrongSensor,
 
 from .config import CalibrationLimits
 from .store import Store
-from .store.records import CalibrationRecord, StoredPowerUp
+from .store.records import CalibrationRecord, StoredPowerUp, StoredWatch
 
 DAY_S = 86400.0
 
@@ -104,19 +104,57 @@ class CalibrationDue(BaseModel):
 
 def calibration_due(current_accepted_at: datetime | None, max_age_days: float, now: datetime | None = None, *,
                     calibration_identity: SensorIdentity | None = None,
-                    device_power_up: StoredPowerUp | None = None) -> CalibrationDue:
+                    device_power_up: StoredPowerUp | None = None, latest_watch: StoredWatch | None = None) -> CalibrationDue:
     """Due when never calibrated, when the device was switched on again since its current calibration (the power-up
-    it last reported, ``device_power_up``, is not the one in ``calibration_identity``), or when that calibration is
-    older than ``max_age_days``."""
+    it last reported, ``device_power_up``, is not the one in ``calibration_identity``), when the latest watch of that
+    calibration on a study recording (``latest_watch``) found a parameter moved, or when it is older than
+    ``max_age_days`` and no watch within that age confirmed it."""
     if current_accepted_at is None:
         return CalibrationDue(due=True, reason="never calibrated")
-    age = age_days(current_accepted_at, now or datetime.now(UTC))
+    now = now or datetime.now(UTC)
+    age = age_days(current_accepted_at, now)
     if _powered_up_since(calibration_identity, device_power_up):
         return CalibrationDue(due=True, reason=f"switched on again since its calibration ({age:.0f} days old): a power-up changes "
                               "the gyroscope's scale factors and biases")
+    if latest_watch is not None and latest_watch.verdict == "moved":
+        moved = [p for p in latest_watch.parameters if p.verdict == "moved"]
+        said = ", ".join(_moved_words(p.name, p.change, p.std) for p in moved)
+        return CalibrationDue(due=True, reason=f"a study recording watched {_ago(latest_watch.at, now)} showed {said}")
+    watched = _confirmed_days_ago(latest_watch, now)
     if age > max_age_days:
+        if watched is not None and watched <= max_age_days:
+            return CalibrationDue(due=False, reason=f"its calibration is {age:.0f} days old, and a study recording watched "
+                                  f"{_days_ago(watched)} showed it holds")
         return CalibrationDue(due=True, reason=f"its calibration is {age:.0f} days old, more than the {max_age_days:g} days allowed")
-    return CalibrationDue(due=False, reason=f"its calibration is {age:.0f} days old, within the {max_age_days:g} days allowed")
+    held = "; a study recording showed it holds" if watched is not None else ""
+    return CalibrationDue(due=False, reason=f"its calibration is {age:.0f} days old, within the {max_age_days:g} days allowed{held}")
+
+
+def _moved_words(name: str, change: float | None, std: float | None) -> str:
+    """e.g. "k_x moved by -1.06 % ± 0.03 %", "b_z moved by -0.110 ± 0.004 deg/s"."""
+    if change is None or std is None:
+        return f"{name} moved"
+    if name.startswith("k"):
+        return f"{name} moved by {100 * change:+.2f} % ± {100 * std:.2f} %"
+    return f"{name} moved by {change:+.3f} ± {std:.3f} deg/s"
+
+
+def _ago(at: str | None, now: datetime) -> str:
+    if at is None:
+        return "lately"
+    return _days_ago(age_days(datetime.fromisoformat(at), now))
+
+
+def _days_ago(days: float) -> str:
+    """"today", "1 day ago", "3 days ago"."""
+    return "today" if days < 1 else f"{days:.0f} day{'' if round(days) == 1 else 's'} ago"
+
+
+def _confirmed_days_ago(watch: StoredWatch | None, now: datetime) -> float | None:
+    """How many days ago a watch confirmed the calibration (every parameter holds); None when none did."""
+    if watch is None or watch.verdict != "holds" or watch.at is None:
+        return None
+    return age_days(datetime.fromisoformat(watch.at), now)
 
 
 def _powered_up_since(calibration_identity: SensorIdentity | None, device_power_up: StoredPowerUp | None) -> bool:

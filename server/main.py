@@ -18,7 +18,23 @@ from calib.apply.identity import WrongSensor
 
 from . import schemas as M
 from .api import page
-from .api.routes import apply, archive, audit, auth, devices, diagnosis, fleet, health, identify, kits, plots, sessions, verify, write_back
+from .api.routes import (
+    apply,
+    archive,
+    audit,
+    auth,
+    devices,
+    diagnosis,
+    fleet,
+    health,
+    identify,
+    kits,
+    plots,
+    sessions,
+    verify,
+    watch,
+    write_back,
+)
 from .config import Settings
 from .deps import RecordingProblem
 from .middleware import BodyLimit
@@ -67,7 +83,8 @@ def create_app(settings: Settings | None = None, service: Service | None = None)
     app.add_middleware(HostCheck, allowed=settings.allowed_hosts)
     app.add_middleware(SecurityHeaders)  # outermost: every answer carries the headers, refusals too
     _error_answers(app)
-    for module in (health, auth, devices, sessions, archive, kits, write_back, identify, audit, plots, diagnosis, apply, verify, fleet):
+    for module in (health, auth, devices, sessions, archive, kits, write_back, identify, audit, plots, diagnosis, apply, verify, watch,
+                   fleet):
         app.include_router(module.router)
     add_docs(app)
     page.mount_page(app, settings)  # last: the page's files at / would shadow later routes

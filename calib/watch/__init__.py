@@ -3,6 +3,7 @@ re-orientations between rests (measured through gravity) test the scale factors,
 the recording carries it."""
 
 from calib.watch.report import WatchReport
+from calib.watch.schema import WatchOut
 from calib.watch.watch import watch
 
-__all__ = ["WatchReport", "watch"]
+__all__ = ["WatchOut", "WatchReport", "watch"]

@@ -85,7 +85,7 @@ def gather(rec: Recording, correction: Correction) -> Evidence:
     if len(stills) < MIN_RESTS:
         raise ProtocolError(f"the recording has {len(stills)} rest(s) of at least {MIN_REST_S:g} s; watching a calibration "
                             f"needs at least {MIN_RESTS}: a recording where the wearable lies still now and then (on the "
-                            "table before it is put on, lying, sitting)")
+                            "table before it is put on, lying, sitting)", code="no_rest")
     spans = rest_spans(stills, rec.fs)
     rate, corrected_accel = correction.apply(rec.gyro, rec.accel)
     colour = noise_colour(rec.gyro, spans)

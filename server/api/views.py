@@ -89,9 +89,12 @@ async def device_out(svc: Service, dev: Device | None, row: StoredDevice | None,
     device_id = dev.id if dev is not None else row["id"] if row is not None else ""
     info = dev.info if dev is not None else {}
     current = await asyncio.to_thread(svc.store.current_calibration, device_id)
-    recent = await asyncio.to_thread(svc.store.sessions, device_id, 10 if detail else 1)  # newest first
+    watched = [] if current is None else await asyncio.to_thread(svc.store.watches, device_id, current.id, 1)
+    recent = await asyncio.to_thread(svc.store.sessions, device_id, 10 if detail else 3)  # newest first
+    # a calibration's result nobody decided on (a verification turn or a watch of a study recording asks no decision)
+    judged = [r for r in recent if r["kind"] not in ("verify", "watch")]
     unsaved = None if svc.active.get(device_id) else next(
-        (r for r in recent[:1] if r["state"] == "done" and r["passed"] and r["decision"] is None), None)
+        (r for r in judged[:1] if r["state"] == "done" and r["passed"] and r["decision"] is None), None)
     power_up = None if row is None else row["power_up"]
     stored: dict[str, object] = dict(row) if row is not None else {}
     fields: dict[str, Any] = {
@@ -117,7 +120,7 @@ async def device_out(svc: Service, dev: Device | None, row: StoredDevice | None,
         "calibration_due": calibration_due(
             None if current is None else current.accepted_at, svc.settings.limits.max_age_days,
             calibration_identity=None if current is None else current.identity,
-            device_power_up=power_up,
+            device_power_up=power_up, latest_watch=watched[0] if watched else None,
         ),
         "power_up": power_up,
         "last_seen": stored.get("last_seen"),

@@ -19,7 +19,7 @@ def calibration_history(store: Store, device_id: str) -> list[dict[str, Any]]:
 def failed_last_time(store: Store, device_id: str, limit: int = 20) -> FailedChecks:
     """The checks the device's last judged result failed: empty when it passed, or the device has none."""
     for row in store.sessions(device_id, limit):
-        if not row["result"] or row["kind"] == "verify" or row["state"] not in ("done", "failed"):
+        if not row["result"] or row["kind"] in ("verify", "watch") or row["state"] not in ("done", "failed"):
             continue
         if row["reason_code"] not in (None, "out_of_tolerance"):
             continue  # ended for another reason: not a judged result

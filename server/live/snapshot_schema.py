@@ -11,6 +11,7 @@ from calib.judge.acceptance import Check
 from calib.judge.departure import Departure
 from calib.judge.verification import TurnVerification
 from calib.result_schema import ResultDoc
+from calib.watch.schema import WatchOut
 
 from .codes import EndReason, Phase, State
 
@@ -114,7 +115,7 @@ class KitDeviceOut(BaseModel):
     prompt: str | None = None
     reason_code: EndReason | None = None
     reason: str | None = None
-    result: ResultDoc | TurnVerification | None = None
+    result: ResultDoc | TurnVerification | WatchOut | None = None
     passed: bool | None = None
     checks: list[Check] = Field(default_factory=list, description=CHECKS_TEXT)
     accuracy: TurnAccuracy | None = Field(None, description="a full turn before and after its calibration")
@@ -184,7 +185,7 @@ class SessionOut(BaseModel):
     model_config = ConfigDict(extra="forbid")
     session_id: str
     device_id: str
-    kind: Literal["live", "upload", "import", "verify", "kit"] = "live"
+    kind: Literal["live", "upload", "import", "verify", "watch", "kit"] = "live"
     kit_id: str | None = Field(None, description="while a wearable's live session that is part of a kit runs: that "
                                                  "kit's session (GET /sessions/{kit_id}), whose prompts, said of the tray, "
                                                  "are the ones to follow")
@@ -207,8 +208,9 @@ class SessionOut(BaseModel):
     warnings: list[SessionWarning] = Field(default_factory=list)
     reason_code: EndReason | None = Field(None, description="why the session ended, if not done")
     reason: str | None = None
-    result: ResultDoc | TurnVerification | None = Field(None, description="the estimator's result (its form numbered by "
-                                                       "format_version); a verification session's turn")
+    result: ResultDoc | TurnVerification | WatchOut | None = Field(
+        None, description="the estimator's result (its form numbered by format_version); a verification session's turn; a "
+                          "watch's report")
     passed: bool | None = None
     checks: list[Check] = Field(default_factory=list, description=CHECKS_TEXT)
     accuracy: TurnAccuracy | None = Field(None, description="a full turn before and after the calibration (closure estimator)")

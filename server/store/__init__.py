@@ -10,7 +10,7 @@ and the devices).
 from .chain import BrokenLink, ChainReport
 from .errors import DecisionConflict, NotAcceptable, NotFound, StoreError, StoreFull, store_trouble
 from .fleet import Lease
-from .records import CalibrationRecord, SessionEnd, StoredDevice, StoredSession, StoredVerification, sha256_hex
+from .records import CalibrationRecord, SessionEnd, StoredDevice, StoredSession, StoredVerification, StoredWatch, sha256_hex
 from .repository import Store
 from .schema import SCHEMA_VERSION
 from .spool import BINARY_SPOOL
@@ -33,6 +33,7 @@ __all__ = [
     "StoredDevice",
     "StoredSession",
     "StoredVerification",
+    "StoredWatch",
     "sha256_hex",
     "store_trouble",
     "utcnow",

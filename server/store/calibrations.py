@@ -5,6 +5,7 @@ from __future__ import annotations
 import uuid
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime
+from typing import Any
 
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
@@ -17,7 +18,7 @@ from calib.result import CalibrationResult
 from . import chain
 from .base import ALL_CHAINS
 from .errors import NotAcceptable, NotFound
-from .records import CalibrationRecord, SessionEnd, StoredVerification, calibration_record, iso_utc
+from .records import CalibrationRecord, SessionEnd, StoredVerification, StoredWatch, calibration_record, iso_utc
 from .sessions import SessionStore
 from .tables import CalibrationRow, RecordingRow, SessionRow, aware, utcnow
 
@@ -182,6 +183,37 @@ class CalibrationStore(SessionStore):
             rows = [_verification(r) for r in s.execute(q).scalars()]
         return [v for v in rows if calibration_id is None or v.calibration_id == calibration_id]
 
+    def add_watch(self, calibration_id: int, operator: str, software_version: str, report: dict[str, Any], *,
+                  recording_name: str | None, recording_csv: bytes | None = None, n_samples: int = 0) -> StoredWatch:
+        """Keep a watch of an accepted calibration on a study recording: a session of kind ``watch`` (done; passed
+        unless a parameter moved) holding its report, the recording archived, and an audit entry."""
+        with self._tx(*ALL_CHAINS) as s:
+            cal = s.get(CalibrationRow, calibration_id)
+            if cal is None:
+                raise NotFound(f"no calibration #{calibration_id}")
+            now = utcnow()
+            sid = uuid.uuid4().hex
+            row = SessionRow(id=sid, device_id=cal.device_id, kind="watch", state="done", method="watch", operator=operator,
+                             started_at=now, ended_at=now, result=report, passed=report["verdict"] != "moved",
+                             software_version=software_version,
+                             info={"calibration_id": calibration_id, "recording": recording_name})
+            s.add(row)
+            s.flush()
+            if recording_csv is not None:
+                self._archive(s, sid, recording_csv, n_samples)
+            self._audit(s, operator, "calibration.watch", cal.device_id, sid,
+                        {"calibration_id": calibration_id, "verdict": report["verdict"],
+                         "moved": [p["name"] for p in report["parameters"] if p["verdict"] == "moved"]})
+            return _watch(row)
+
+    def watches(self, device_id: str, calibration_id: int | None = None, limit: int | None = None) -> list[StoredWatch]:
+        """A device's watches, newest first (of one of its calibrations, with ``calibration_id``)."""
+        with self._read() as s:
+            q = select(SessionRow).where(SessionRow.kind == "watch", SessionRow.device_id == device_id)
+            rows = [_watch(r) for r in s.execute(q.order_by(SessionRow.started_at.desc())).scalars()]
+        rows = [w for w in rows if calibration_id is None or w.calibration_id == calibration_id]
+        return rows if limit is None else rows[:limit]
+
     def current_calibration(self, device_id: str, at: datetime | None = None) -> CalibrationRecord | None:
         """The device's latest accepted calibration; with ``at``, the latest one accepted at or before that time."""
         with self._read() as s:
@@ -224,3 +256,10 @@ def _verification(row: SessionRow) -> StoredVerification:
     return StoredVerification.model_validate({**(row.result or {}), "session_id": row.id, "calibration_id": info.get("calibration_id"),
                                               "device_id": row.device_id, "at": iso_utc(row.started_at), "operator": row.operator,
                                               "source": info.get("source")})
+
+
+def _watch(row: SessionRow) -> StoredWatch:
+    info = row.info or {}
+    return StoredWatch.model_validate({**(row.result or {}), "session_id": row.id, "calibration_id": info.get("calibration_id"),
+                                       "device_id": row.device_id, "at": iso_utc(row.started_at), "operator": row.operator,
+                                       "recording": info.get("recording")})

@@ -16,6 +16,7 @@ from calib.judge.verification import TurnVerification
 from calib.quality import Quality
 from calib.result import CalibrationResult
 from calib.result_schema import CalibrationParameters
+from calib.watch.schema import WatchOut
 
 from .tables import CalibrationRow, Device, SessionRow, aware, utcnow
 
@@ -154,6 +155,17 @@ class StoredVerification(TurnVerification):
     at: str | None = Field(description="when it was measured (ISO 8601, UTC)")
     operator: str | None
     source: Literal["live", "upload"] | None = Field(description="live: turned on the device; upload: a recording")
+
+
+class StoredWatch(WatchOut):
+    """A watch of a calibration on a study recording, kept with it (a session of kind ``watch``)."""
+
+    session_id: str
+    calibration_id: int | None
+    device_id: str
+    at: str | None = Field(description="when it was made (ISO 8601, UTC)")
+    operator: str | None
+    recording: str | None = Field(None, description="the recording's name, as uploaded")
 
 
 class AuditEntry(TypedDict):

@@ -226,3 +226,13 @@ def verify_upload(inp: RecordingInput, max_samples: int, calibration: dict[str, 
     """An uploaded recording of a verification turn measured with a calibration: (verification, CSV, samples)."""
     rec = parse_upload(inp, max_samples).recording
     return verify_recording(rec, calibration), recording_csv(rec), len(rec)
+
+
+def watch_upload(inp: RecordingInput, max_samples: int, calibration: dict[str, Any]) -> tuple[dict[str, Any], bytes, int]:
+    """An uploaded study recording watched against a calibration: (report as JSON, CSV, samples)."""
+    from calib.apply.correction import Correction
+    from calib.watch import watch
+
+    rec = parse_upload(inp, max_samples).recording
+    report = watch(rec, Correction.from_json(calibration))
+    return report.to_json(), recording_csv(rec), len(rec)

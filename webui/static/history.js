@@ -5,6 +5,7 @@ import { AXES, AXIS_LABEL, fill, fmtDate, fmtDateTime, fmtTime, h, num, parseTim
 import { icon } from "./figures.js";
 import { problemLine, reasonFor } from "./messages.js";
 import { historyChart, orientationPlots } from "./plots.js";
+import { watchForm, watchTable, watchedLine } from "./watch.js";
 
 const MARKERS = { x: "circle", y: "square", z: "triangle" };
 
@@ -67,7 +68,7 @@ function verifiedLine(v) {
     `verified: ${num(v.calibrated_deg, 1)}° ± ${sig(v.uncertainty_deg, 1)}° (raw ${num(v.raw_deg, 1)}°)`);
 }
 
-function calibrationTable(cals, verifications = []) {
+function calibrationTable(cals, verifications = [], watches = []) {
   const values = (vals, unc, digits, uDigits) => vals.map((v, j) => h("span", { class: "val" }, num(v, digits),
     unc ? h("span", { class: "pm" }, ` ±${sig(unc[j], uDigits)}`) : null));
   return h("table", { class: "history calibrations" },
@@ -78,7 +79,8 @@ function calibrationTable(cals, verifications = []) {
       h("td", { class: "source" }, h("strong", null, c.operator),
         h("span", { class: "how" }, `${SOURCE[c.source] || c.source} · ${c.method}`),
         c.sensor_model ? h("span", { class: "how" }, `${c.sensor_model}${c.firmware ? `, firmware ${c.firmware}` : ""}`) : null,
-        identityLine(c), verifiedLine(verifications.find((v) => v.calibration_id === c.id))),
+        identityLine(c), verifiedLine(verifications.find((v) => v.calibration_id === c.id)),
+        watchedLine(watches.find((w) => w.calibration_id === c.id))),
       h("td", { class: "num" }, values(c.k, c.uncertainty && c.uncertainty.k, 4, 1)),
       h("td", { class: "num" }, values(c.b, c.uncertainty && c.uncertainty.b, 3, 1)),
       h("td", null, h("div", { class: "files" },
@@ -92,13 +94,15 @@ function sessionTable(sessions) {
     h("caption", null, "All calibration attempts, newest first"),
     h("thead", null, h("tr", null, ["Started", "Outcome", "Operator", "Kind"].map((c) => h("th", { scope: "col" }, c)))),
     h("tbody", null, sessions.map((sess) => {
-      const o = sess.kind === "verify" ? { cls: sess.passed ? "pass" : "fail", icon: sess.passed ? "pass" : "warn", text: sess.passed ? "verified" : "verification off" } : outcome(sess);
+      const o = sess.kind === "verify" ? { cls: sess.passed ? "pass" : "fail", icon: sess.passed ? "pass" : "warn", text: sess.passed ? "verified" : "verification off" }
+        : sess.kind === "watch" ? { cls: sess.passed ? "pass" : "fail", icon: sess.passed ? "pass" : "warn", text: sess.passed ? "no move found" : "moved" }
+          : outcome(sess);
       return h("tr", null,
         h("td", { class: "nowrap" }, ["live", "upload"].includes(sess.kind)
           ? h("a", { href: `#/session/${sess.session_id}` }, fmtDateTime(sess.started_at)) : fmtDateTime(sess.started_at)),
         h("td", null, h("span", { class: `outcome ${o.cls}` }, icon(o.icon), h("span", null, o.text))),
         h("td", null, sess.operator || "—"),
-        h("td", null, { upload: "uploaded recording", import: "imported file", verify: "verification turn" }[sess.kind] || "guided"));
+        h("td", null, { upload: "uploaded recording", import: "imported file", verify: "verification turn", watch: "study recording watched" }[sess.kind] || "guided"));
     })));
 }
 
@@ -243,11 +247,12 @@ export function historyView(ctx, deviceId) {
     let cals;
     let sessions;
     let verifications;
+    let watches;
     try {
       const enc = encodeURIComponent(deviceId);
-      [dev, cals, sessions, verifications] = await Promise.all([
+      [dev, cals, sessions, verifications, watches] = await Promise.all([
         ctx.api.get(`/devices/${enc}`), ctx.api.get(`/devices/${enc}/calibrations`), ctx.api.get(`/devices/${enc}/sessions`, { limit: 100 }),
-        ctx.api.get(`/devices/${enc}/verifications`),
+        ctx.api.get(`/devices/${enc}/verifications`), ctx.api.get(`/devices/${enc}/watches`),
       ]);
     } catch (err) {
       if (alive && err.status !== 401) ctx.problem(err, `load the history of ${deviceId}`);
@@ -261,7 +266,9 @@ export function historyView(ctx, deviceId) {
     fill(body,
       h("p", { class: `current-line ${cur ? "calibrated" : "never"}` }, icon(cur ? "check" : "info"),
         h("span", null, cur ? `Current calibration: accepted by ${cur.operator} on ${fmtDateTime(cur.accepted_at)}.` : `${name} has no accepted calibration yet.`)),
-      cals.length ? [parameterCharts(cals), calibrationTable(cals, verifications), inForceForm(ctx, deviceId, cals), applyForm(ctx, deviceId)] : null,
+      cals.length ? [parameterCharts(cals), calibrationTable(cals, verifications, watches), inForceForm(ctx, deviceId, cals), applyForm(ctx, deviceId),
+        watchForm(ctx, deviceId, cur)] : null,
+      watches.length ? watchTable(watches) : null,
       importForm(ctx, deviceId),
       sessions.length ? sessionTable(sessions) : h("p", { class: "muted" }, "No calibration attempts yet."),
       dev.available && !dev.active_session ? h("div", { class: "actions" }, h("a", { class: "button primary big", href: `#/place/${encodeURIComponent(deviceId)}` }, icon("play"), `Calibrate ${name}`)) : null);

@@ -20,16 +20,17 @@ from ...gateway import WRITE_HOLDER
 from ...lifecycle import calibration_due
 from ...live.events import Event
 from ...service import Service
-from ...store import CalibrationRecord, Lease, StoredDevice
+from ...store import CalibrationRecord, Lease, StoredDevice, StoredWatch
 
 router = APIRouter()
 
 
-def _status(current: CalibrationRecord | None, row: StoredDevice | None, max_age_days: float) -> M.CalibrationStatus:
+def _status(current: CalibrationRecord | None, row: StoredDevice | None, max_age_days: float,
+            watched: list[StoredWatch]) -> M.CalibrationStatus:
     if current is None:
         return M.CalibrationStatus(status="never", reason="never calibrated")
     due = calibration_due(current.accepted_at, max_age_days, calibration_identity=current.identity,
-                          device_power_up=None if row is None else row["power_up"])
+                          device_power_up=None if row is None else row["power_up"], latest_watch=watched[0] if watched else None)
     return M.CalibrationStatus(status="due" if due.due else "current", reason=due.reason, calibration_id=current.id)
 
 
@@ -64,7 +65,7 @@ def fleet_view(svc: Service) -> M.FleetOut:
     sessions = store.known_sessions(sorted({lease.holder for lease in leases.values()} | set(svc.active.values())))
     devices = []
     for device_id in sorted(set(rows) | set(seen)):
-        row = rows.get(device_id)
+        row, cal = rows.get(device_id), current.get(device_id)
         lease = leases.get(device_id)
         sightings = seen.get(device_id, [])
         where = lease.gateway if lease else (sightings[0].gateway if sightings else svc.gateway_name)
@@ -81,7 +82,7 @@ def fleet_view(svc: Service) -> M.FleetOut:
             session=holder,
             activity=_activity(holder, sessions),
             lease_expires_at=lease.expires_at.isoformat() if lease else None,
-            calibration=_status(current.get(device_id), row, svc.settings.limits.max_age_days),
+            calibration=_status(cal, row, svc.settings.limits.max_age_days, [] if cal is None else store.watches(device_id, cal.id, 1)),
             wizard_url=f"{base or ''}/#/place/{device_id}",
         ))
     return M.FleetOut(this_gateway=svc.gateway_name,
