@@ -6,7 +6,10 @@ Per setting, N days of --hours each, their calibration the truth's k and b at th
 - k: a drop changes one axis's k by --k-step (0.5 %) at a random time: found on that axis, among the days whose
   re-orientations exercised it at least 4 times (and among all);
 - b: a drop changes one axis's b by --b-step (0.1 deg/s): found;
-- no-temp: no event, no temperature column: false alarms, and how often the warm-up is named as the wearer's warmth.
+- no-temp: no event, no temperature column: false alarms, and how often the warm-up is named as the wearer's warmth;
+- apply: two days of one sensor: the temperature model the first day's watch measured (calib.apply.temperature)
+  applied to the second day, against its calibration alone: the attitude drift each walking bout accumulates (the
+  norm of the integrated rate error over the bout, deg), median over the bouts.
 Also the watch's time per hour of recording at 100 Hz (the simulation's time apart). Days run in --jobs processes.
 
 Usage: .venv/bin/python bench/watch_days.py [--days 500] [--hours 1] [--jobs 2] [--json]
@@ -27,10 +30,35 @@ from calib.apply.correction import Correction
 from calib.simulator.study_day import StudyEvent, simulate_study_day
 from calib.watch import watch
 
-SETTINGS = ("quiet", "k", "b", "no-temp")
+SETTINGS = ("quiet", "k", "b", "no-temp", "apply")
+
+
+def two_days(seed: int, hours: float) -> dict[str, Any]:
+    """A sensor's first day watched, its temperature model applied to its second: each walking bout's drift."""
+    from calib.apply.temperature import model_from_watches
+    from calib.simulator.simulate import SensorParams
+
+    rng = np.random.default_rng([seed, 8])
+    same = {"params": SensorParams.paper_random(rng), "bias_tc": rng.choice([-1.0, 1.0], 3) * rng.uniform(0.01, 0.05, 3),
+            "scale_tc": rng.choice([-1.0, 1.0], 3) * rng.uniform(1e-4, 3e-4, 3)}
+    first, day1 = simulate_study_day(seed, 3600.0 * hours, **same)
+    second, day2 = simulate_study_day(seed + 500_000, 3600.0 * hours, temp_cal_c=day1.temp_cal_c, **same)
+    cor = Correction(K=np.diag(day1.params.k), b=day1.params.b.copy())
+    model = model_from_watches([watch(first, cor, temp_cal_c=day1.temp_cal_c).to_json()], day1.temp_cal_c)
+    alone, _ = cor.apply(second.gyro, second.accel)
+    assert model is not None and day2.rate is not None
+    modelled = model.rates(cor, second.gyro, second.accel, second.temp)
+    dt = second.intervals_s[:, None]
+    bouts = []
+    for start, end in day2.walks:
+        inside = (second.t >= start) & (second.t < end)
+        bouts.append([float(np.linalg.norm(((r[inside] - day2.rate[inside]) * dt[inside]).sum(axis=0))) for r in (alone, modelled)])
+    return {"setting": "apply", "seed": seed, "bouts": bouts}
 
 
 def one_day(setting: str, seed: int, hours: float, k_step: float, b_step: float) -> dict[str, Any]:
+    if setting == "apply":
+        return two_days(seed, hours)
     rng = np.random.default_rng([seed, 7])
     duration = 3600.0 * hours
     event = None
@@ -63,6 +91,12 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
     for setting in SETTINGS:
         rs = [r for r in rows if r["setting"] == setting]
         if not rs:
+            continue
+        if setting == "apply":
+            bouts = np.array([b for r in rs for b in r["bouts"]])
+            by[setting] = {"sensors": len(rs), "bouts": len(bouts), "drift_deg_median_calibration_alone": float(np.median(bouts[:, 0])),
+                           "drift_deg_median_with_temperature_model": float(np.median(bouts[:, 1])),
+                           "ratio_of_medians": float(np.median(bouts[:, 1]) / np.median(bouts[:, 0]))}
             continue
         s: dict[str, Any] = {"days": len(rs), "false_moved": float(np.mean([bool(r["others_moved"]) for r in rs])),
                              "seconds_per_hour_median": float(np.median([r["seconds_per_hour"] for r in rs]))}

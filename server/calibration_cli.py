@@ -165,10 +165,11 @@ def cmd_apply(args: argparse.Namespace) -> int:
     from calib.cli.options import read_recording_args
     from calib.io.readers import write_native_csv
 
-    from .lifecycle import none_in_force
+    from .lifecycle import none_in_force, temperature_model
 
     rec = read_recording_args(args).recording
     used: dict[str, Any]
+    model = None
     if args.calibration is not None:
         correction = read_calibration_file(args.calibration)
         recording = _recording_identity(args, rec.mean_temperature_c)
@@ -179,14 +180,24 @@ def cmd_apply(args: argparse.Namespace) -> int:
         used = {"file": str(args.calibration), "source": correction.source, "identity_check": check.to_json(),
                 "warnings": list(check.warnings)}
     else:
-        cal = in_force_of(args, temperature_c=rec.mean_temperature_c)
+        store = open_store(args.db)
+        cal = in_force_of(args, store, temperature_c=rec.mean_temperature_c)
         if cal is None:
             raise ServiceError(f"{none_in_force(args.device, args.at)}: calibrate it first, or give --calibration FILE")
         correction = Correction.from_json(cal.model_dump(mode="json"))
         used = {"calibration_id": cal.id, "device_id": cal.device_id, "accepted_at": cal.accepted_at.isoformat(),
                 "operator": cal.operator, "in_force": cal.in_force.model_dump(mode="json"), "warnings": cal.in_force.warnings}
+        model = temperature_model(store, cal)
     out = args.output or args.file.with_name(args.file.stem + ".calibrated.csv")
     fixed = corrected(rec, correction)
+    if model is not None:
+        from calib.apply.temperature import corrected_at_temperature
+
+        how = None
+        if rec.temp is not None or args.temperature is not None:
+            fixed = corrected_at_temperature(rec, correction, model, args.temperature)
+            how = "per sample" if rec.temp is not None else f"at {args.temperature:g} °C"
+        used["temperature_model"] = {**model.to_json(), "applied": how}
     write_native_csv(fixed, out)
     if args.orientation:
         used["orientation"] = _write_orientation(rec, fixed, out)
@@ -197,6 +208,10 @@ def cmd_apply(args: argparse.Namespace) -> int:
         print(f"gyrocal: warning: {w}")
     print(f"{out} written ({'gyroscope and accelerometer' if correction.A is not None and rec.accel is not None else 'gyroscope'} "
           f"corrected); the calibration used is in {side}")
+    if model is not None:
+        applied = used["temperature_model"]["applied"]
+        print(f"gyrocal: the device's k and b against temperature ({model.watches} watched recording(s)) "
+              + (f"applied {applied}" if applied else "not applied: the recording has no temp column; give --temperature"))
     return EXIT_OK
 
 

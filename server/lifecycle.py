@@ -12,7 +12,7 @@ from __future__ import annotations
 import asyncio
 from dataclasses import replace
 from datetime import UTC, datetime
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 from pydantic import BaseModel, Field
 
@@ -21,6 +21,9 @@ from calib.apply.identity import IdentityCheckJson, SensorIdentity, WrongSensor,
 from .config import CalibrationLimits
 from .store import Store
 from .store.records import CalibrationRecord, StoredPowerUp, StoredWatch
+
+if TYPE_CHECKING:
+    from calib.apply.temperature import TemperatureModel
 
 DAY_S = 86400.0
 
@@ -168,3 +171,13 @@ def _powered_up_since(calibration_identity: SensorIdentity | None, device_power_
 async def in_force_async(store: Store, device_id: str, at: datetime | None, limits: CalibrationLimits,
                          recording: SensorIdentity | None = None) -> CalibrationInForce | None:
     return await asyncio.to_thread(in_force, store, device_id, at, limits, recording)
+
+
+def temperature_model(store: Store, cal: CalibrationRecord) -> TemperatureModel | None:
+    """The device's scale factors and biases against temperature about ``cal``'s temperature, from every watch of its
+    calibrations that had a temperature column (calib.apply.temperature); None without one, or when ``cal`` does not
+    say its temperature."""
+    from calib.apply.temperature import model_from_watches
+
+    temp = cal.identity.temperature_c if cal.identity is not None else None
+    return model_from_watches((w.model_dump(mode="json") for w in store.watches(cal.device_id)), temp)

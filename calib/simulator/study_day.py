@@ -94,6 +94,8 @@ class StudyDay:
     event: StudyEvent | None
     postures: tuple[tuple[str, float], ...] = field(default_factory=tuple)
     noise_dps: float = 0.05
+    walks: tuple[tuple[float, float], ...] = ()  # each walking bout's start and end (s)
+    rate: np.ndarray | None = field(default=None, repr=False, compare=False)  # the true rates (deg/s), per sample
 
     def temperature(self, t: np.ndarray) -> np.ndarray:
         """The sensor's temperature (degC) at times ``t`` (s from the recording's start)."""
@@ -106,7 +108,8 @@ class StudyDay:
                 "bias_tc_dps_per_c": self.bias_tc.tolist(), "scale_tc_per_c": self.scale_tc.tolist(),
                 "wander_dps": self.wander_dps, "noise_dps": self.noise_dps,
                 "event": None if self.event is None else self.event.to_dict(),
-                "postures": [{"posture": p, "at_s": round(t, 2)} for p, t in self.postures]}
+                "postures": [{"posture": p, "at_s": round(t, 2)} for p, t in self.postures],
+                "walks": [[round(a, 2), round(b, 2)] for a, b in self.walks]}
 
 
 def _attitude(up_body: np.ndarray, heading_deg: float, rng: np.random.Generator) -> Rotation:
@@ -137,9 +140,10 @@ def _walk(rng: np.random.Generator) -> list[Motion]:
     return segs
 
 
-def study_day_script(rng: np.random.Generator, duration_s: float) -> tuple[ProtocolScript, tuple[tuple[str, float], ...], float]:
+def study_day_script(rng: np.random.Generator, duration_s: float
+                     ) -> tuple[ProtocolScript, tuple[tuple[str, float], ...], float, tuple[tuple[float, float], ...]]:
     """The day's motion: the table, then postures and walking bouts until ``duration_s``. Returns the script, the
-    postures visited (label, start s) and when the device was strapped on (s)."""
+    postures visited (label, start s), when the device was strapped on (s) and the walking bouts (start, end s)."""
     table_s = float(rng.uniform(*TABLE_S))
     segs: list[Segment] = [Still(table_s)]
     att = Rotation.identity()  # flat on the table, z up
@@ -148,6 +152,7 @@ def study_day_script(rng: np.random.Generator, duration_s: float) -> tuple[Proto
     posture = "standing"
     heading = float(rng.uniform(0.0, 360.0))
     visited: list[tuple[str, float]] = []
+    walks: list[tuple[float, float]] = []
     while t < duration_s:
         nxt = _attitude(POSTURES[posture], heading, rng)
         move = _move(att, nxt, rng)
@@ -164,13 +169,14 @@ def study_day_script(rng: np.random.Generator, duration_s: float) -> tuple[Proto
             walk = _walk(rng)
             segs += walk
             visited.append(("walking", t))
-            t += sum(seg.duration_s for seg in walk)
+            walks.append((t, t + sum(seg.duration_s for seg in walk)))
+            t = walks[-1][1]
             for seg in walk:  # where the strides left it: near where it began, turned about the vertical
                 att = att * Rotation.from_rotvec(np.radians(np.asarray(seg.rotvec_deg)))
             choice = "standing"
         posture = choice
         heading += float(rng.normal(0.0, 30.0))
-    return ProtocolScript(tuple(segs)), tuple(visited), on_at
+    return ProtocolScript(tuple(segs)), tuple(visited), on_at, tuple(walks)
 
 
 def _wander(n: int, fs: float, size_dps: float, rng: np.random.Generator, tau_s: float = 60.0) -> np.ndarray:
@@ -197,24 +203,27 @@ def simulate_study_day(
     scale_tc: np.ndarray | None = None,
     wander_dps: float = 0.005,
     accel_noise_g: float = ACCEL_NOISE_G,
+    temp_cal_c: float | None = None,
 ) -> tuple[Recording, StudyDay]:
     """Simulate one study day (see the module docstring). ``event``: None, "k", "b" (a drop at a random time in the
     day's second half, on a random axis, of ``event_size`` or a size drawn from 0.2-1 % for k and 0.05-0.5 deg/s for
     b, either sign) or a StudyEvent. ``temperature_channel``: whether the recording carries the temperature (the
-    sensor warms either way). Same seed and arguments give the same day."""
+    sensor warms either way). ``params``, ``bias_tc``, ``scale_tc``, ``temp_cal_c``: the sensor's, to simulate
+    another day of the same one. Same seed and arguments give the same day."""
     seed = check_seed(seed)
     rng = np.random.default_rng([seed, 65])
     params = params or SensorParams.paper_random(rng)
-    script, visited, on_at = study_day_script(rng, duration_s)
+    script, visited, on_at, walks = study_day_script(rng, duration_s)
     traj = build_trajectory(script, fs, rng)
     temp0 = float(rng.uniform(20.0, 26.0))
     day = StudyDay(
-        params=params, temp_cal_c=temp0 + float(rng.uniform(-1.0, 1.0)), temp0_c=temp0,
+        params=params, temp_cal_c=temp0 + float(rng.uniform(-1.0, 1.0)) if temp_cal_c is None else float(temp_cal_c), temp0_c=temp0,
         rise_c=float(rng.uniform(8.0, 12.0)) if rise_c is None else float(rise_c), tau_s=float(rng.uniform(300.0, 900.0)),
         on_at_s=on_at,
         bias_tc=rng.choice([-1.0, 1.0], 3) * rng.uniform(0.01, 0.05, 3) if bias_tc is None else np.asarray(bias_tc, float),
         scale_tc=rng.choice([-1.0, 1.0], 3) * rng.uniform(1e-4, 3e-4, 3) if scale_tc is None else np.asarray(scale_tc, float),
-        wander_dps=wander_dps, event=_event(event, event_size, traj.t[-1], rng), postures=visited, noise_dps=noise)
+        wander_dps=wander_dps, event=_event(event, event_size, traj.t[-1], rng), postures=visited, noise_dps=noise,
+        walks=walks, rate=traj.rate)
     t = traj.t
     temp = day.temperature(t)
     dT = (temp - day.temp_cal_c)[:, None]

@@ -6,7 +6,7 @@ of the rests' own beyond their means' noise."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -17,6 +17,10 @@ from calib.watch.verdict import ParameterVerdict, Since, judge
 
 MIN_TEMPERATURE_SPREAD_C = 1.0  # the rests' temperatures must spread this much for the bias to be fitted against them
 WARMTH_TAUS_S = np.geomspace(60.0, 3600.0, 30)  # a warm-up's time constants tried, without a temperature channel
+# without a temperature channel: a bias off the calibration's from the start by no more than this may be the sensor's
+# temperature (a clinic against a ward, UNATTRIBUTED_C apart, at this class's largest 0.05 (deg/s)/degC)
+UNATTRIBUTED_C = 2.0
+UNATTRIBUTED_DPS = 0.05 * UNATTRIBUTED_C
 
 
 @dataclass(frozen=True)
@@ -110,6 +114,16 @@ def _with_a_step(design: np.ndarray, y: np.ndarray, var: np.ndarray, groups: np.
     return step, extra, LinearFit(f.x, f.cov * correlation_inflation(yw - A @ f.x), f.chi2, f.dof)
 
 
+def _unattributed(p: ParameterVerdict) -> ParameterVerdict:
+    """Without a temperature column, a bias unlike the calibration's from the recording's start by no more than a
+    temperature difference could make it cannot be told from one: "cannot tell", saying so."""
+    if p.verdict != "moved" or p.since is not None or p.change is None or abs(p.change) > UNATTRIBUTED_DPS:
+        return p
+    return replace(p, verdict="cannot tell", would_tell=f"it differs by {p.change:+.3f} deg/s from the start, as a sensor "
+                   f"{UNATTRIBUTED_C:g} °C warmer or colder than at its calibration may: a recording with its temperature "
+                   "column would tell")
+
+
 def bias_findings(ev: Evidence, temp_ref_c: float | None, tau_s: float | None = None) -> BiasFindings:
     """The bias verdicts of ``ev``'s rests (``temp_ref_c``: the calibration's temperature, when known; ``tau_s``:
     without a temperature channel, the warm-up's time constant, ``warm_up``)."""
@@ -127,8 +141,9 @@ def bias_findings(ev: Evidence, temp_ref_c: float | None, tau_s: float | None = 
         if step is not None:
             since = Since(float(ev.rec.t[ev.pieces[step.at - 1].start] - ev.rec.t[0]),  # a piece may hold the step
                           float(ev.rec.t[ev.pieces[step.at].end - 1] - ev.rec.t[0]))
-        verdicts.append(judge(name, float(f.x[0]), float(f.std[0]), step, since, len(ev.rests),
-                              "a rest at the calibration's conditions: lay the wearable still for 10 s before it is put on"))
+        verdict = judge(name, float(f.x[0]), float(f.std[0]), step, since, len(ev.rests),
+                        "a rest at the calibration's conditions: lay the wearable still for 10 s before it is put on")
+        verdicts.append(verdict if ev.has_temperature else _unattributed(verdict))
         wander.append(np.sqrt(extra))
         if warmth is not None:
             coeff.append(float(f.x[1]))

@@ -49,7 +49,7 @@ class WatchReport:
         if rec.duration_s > 0 and ev.left_out_s / rec.duration_s > 0.5:
             warnings.append(f"{100 * ev.left_out_s / rec.duration_s:.0f} % of the recording is motion too long to measure "
                             "(walking, restlessness): only its rests and the short re-orientations between them are used")
-        if not ev.has_temperature and any(p.verdict == "moved" and p.since is None for p in bias.verdicts):
+        if not ev.has_temperature and any(p.since is None and p.verdict in ("moved", "cannot tell") for p in bias.verdicts):
             warnings.append("the recording has no temperature column: a bias unlike the calibration's from its start may be "
                             "the sensor's temperature, not the sensor (0.01-0.05 (deg/s)/°C for this class of gyroscope); "
                             "record the temperature to tell them apart")

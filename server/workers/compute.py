@@ -196,22 +196,29 @@ class ComputePool:
             self._pool = None
 
 
-def apply_upload(inp: RecordingInput, max_samples: int, calibration: dict[str, Any],
-                 orientation: bool = False) -> tuple[bytes, bool, float | None, dict[str, Any] | None]:
+def apply_upload(inp: RecordingInput, max_samples: int, calibration: dict[str, Any], orientation: bool = False,
+                 temperature_model: dict[str, Any] | None = None, temperature_c: float | None = None
+                 ) -> tuple[bytes, bool, float | None, dict[str, Any] | None, str | None]:
     """An uploaded CSV corrected by a calibration (its JSON form): (native CSV, whether the accelerometer was corrected
-    too, the recording's mean temperature in degC when it has a temp column, and with ``orientation`` the summary of
-    its orientation before and after); raises calib's errors."""
+    too, the recording's mean temperature in degC when it has a temp column, with ``orientation`` the summary of
+    its orientation before and after, and how the device's ``temperature_model`` was applied: "per sample" from the
+    temp column, "at T degC" (``temperature_c``), or None); raises calib's errors."""
     from calib.apply.correction import Correction, corrected
 
     rec = parse_upload(inp, max_samples).recording
     correction = Correction.from_json(calibration)
-    fixed = corrected(rec, correction)
+    fixed, how = corrected(rec, correction), None
+    if temperature_model is not None and (rec.temp is not None or temperature_c is not None):
+        from calib.apply.temperature import TemperatureModel, corrected_at_temperature
+
+        fixed = corrected_at_temperature(rec, correction, TemperatureModel.from_json(temperature_model), temperature_c)
+        how = "per sample" if rec.temp is not None else f"at {temperature_c:g} °C"
     summary = None
     if orientation:
         from calib.apply.orientation import orientation as estimate
 
         summary = estimate(rec, fixed).summary()
-    return recording_csv(fixed), correction.A is not None and rec.accel is not None, rec.mean_temperature_c, summary
+    return recording_csv(fixed), correction.A is not None and rec.accel is not None, rec.mean_temperature_c, summary, how
 
 
 def verify_recording(rec: Recording, calibration: dict[str, Any]) -> TurnVerification:

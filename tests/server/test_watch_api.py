@@ -13,6 +13,7 @@ import numpy as np
 from server_fixtures import GYROCAL, ROOT, RunningService, native_csv
 
 from calib.apply.correction import Correction
+from calib.io.readers import read_recording
 from calib.simulator.study_day import StudyEvent, simulate_study_day
 from calib.watch import watch
 from server.lifecycle import calibration_due
@@ -41,6 +42,16 @@ def test_a_study_recording_is_watched_kept_and_a_moved_calibration_is_due_now(tm
             assert w["temperature_c"][1] - w["temperature_c"][0] > 5 and w["bias"]["temperature_coeff_dps_per_c"] is not None
             due = c.get("/devices/ward-1").json()["calibration_due"]
             assert due["due"] is False and "a study recording showed it holds" in due["reason"], due
+            # what the watch measured of the bias against temperature corrects the device's recordings, sample by sample
+            fixed = c.post("/devices/ward-1/apply", content=native_csv(quiet), headers=CSV)
+            assert fixed.status_code == 200, fixed.text
+            model = json.loads(fixed.headers["x-gyrocal-temperature-model"])
+            assert model["applied"] == "per sample" and model["watches"] == 1, model
+            (tmp_path / "fixed.csv").write_text(fixed.text)
+            alone = quiet.gyro * day.params.k + day.params.b
+            assert day.rate is not None
+            error = [np.mean(np.abs(g - day.rate)) for g in (read_recording(tmp_path / "fixed.csv").gyro, alone)]
+            assert error[0] < 0.5 * error[1], error
             # the day it was dropped: b_z moved, when, and the device is due now, saying why
             moved = c.post(f"/calibrations/{cid}/watch", content=native_csv(dropped), headers=CSV, params={"name": "day-2.csv"})
             assert moved.status_code == 201, moved.text
@@ -81,6 +92,13 @@ def test_a_study_recording_is_watched_kept_and_a_moved_calibration_is_due_now(tm
                                  timeout=120)
         assert history.returncode == 0, history.stderr
         assert json.loads(history.stdout)["calibration_due"]["due"] is True
+        (tmp_path / "day-3.csv").write_text(native_csv(quiet))
+        applied = subprocess.run([*GYROCAL, "apply", str(tmp_path / "day-3.csv"), "--device", "ward-1", "--db", db], cwd=ROOT,
+                                 capture_output=True, text=True, timeout=120)
+        assert applied.returncode == 0 and "against temperature (2 watched recording(s)) applied per sample" in applied.stdout, (
+            applied.stdout + applied.stderr)
+        side = json.loads((tmp_path / "day-3.calibrated.calibration.json").read_text())
+        assert side["temperature_model"]["applied"] == "per sample" and side["temperature_model"]["watches"] == 2
     finally:
         svc.stop()
 

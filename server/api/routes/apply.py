@@ -21,7 +21,7 @@ from calib.json_safe import finite
 from ... import schemas as M
 from ...deps import R404, R409, Operator, Reader, Svc, check_device_id, check_upload, problem, read_csv_body, recording_problem
 from ...export import export_text
-from ...lifecycle import CalibrationInForce, in_force_async, judged, none_in_force
+from ...lifecycle import CalibrationInForce, in_force_async, judged, none_in_force, temperature_model
 from ...service import Service
 from ...store import sha256_hex
 from ...workers.compute import TooManySamples, apply_upload
@@ -38,7 +38,9 @@ router = APIRouter()
     responses={
         200: {"content": {"text/csv": {}}, "description": "the recording corrected (native CSV); X-Gyrocal-Calibration-Id "
               "names the calibration used, X-Gyrocal-Calibration its parameters (JSON), X-Gyrocal-Warnings its warnings (JSON list), "
-              "X-Gyrocal-Identity-Check the sensor, power-up and temperature compared (JSON)"},
+              "X-Gyrocal-Identity-Check the sensor, power-up and temperature compared (JSON), X-Gyrocal-Temperature-Model the "
+              "device's k and b against temperature its watches measured and how it was applied (per sample, at one "
+              "temperature, or not: applied null) or null when its watches measured none (JSON)"},
         400: {"model": M.Problem, "description": "the recording cannot be read"},
         413: {"model": M.Problem, "description": "the recording is too large"},
         415: {"model": M.Problem, "description": "not a CSV body"},
@@ -56,7 +58,8 @@ async def apply_calibration(
     """Correct an uploaded recording with the device's calibration in force for it (as GET /devices/{id}/calibration
     chooses it: same power-up first, never another sensor's) on the gyroscope, and on the accelerometer too when that
     calibration has its model. Nothing is stored."""
-    cal, (csv, accel_too, _) = await _corrected(svc, device_id, request, upload, recording, at, fs, layout, orientation=False)
+    cal, (csv, accel_too, _, temperature) = await _corrected(svc, device_id, request, upload, recording, at, fs, layout,
+                                                             orientation=False)
     params = cal.model_dump(mode="json")
     used = {k: params[k] for k in ("k", "b", "K", "G")}
     return Response(csv, media_type="text/csv", headers={
@@ -65,6 +68,7 @@ async def apply_calibration(
         "X-Gyrocal-Corrected": "gyroscope,accelerometer" if accel_too else "gyroscope",
         "X-Gyrocal-Warnings": json.dumps(cal.in_force.warnings),
         "X-Gyrocal-Identity-Check": json.dumps(cal.in_force.identity_check, separators=(",", ":")),
+        "X-Gyrocal-Temperature-Model": json.dumps(temperature, separators=(",", ":")),
         "Content-Disposition": f'attachment; filename="{device_id}-calibrated.csv"',
     })
 
@@ -79,10 +83,12 @@ async def _corrected(svc: Service, device_id: str, request: Request, upload: Rea
     cal = await in_force_async(svc.store, device_id, at, svc.settings.limits, recording)
     if cal is None:
         raise problem(404, f"{none_in_force(device_id, None if at is None else at.isoformat())}: calibrate it before applying one")
+    model = await asyncio.to_thread(temperature_model, svc.store, cal)
     try:
-        csv, accel_too, temperature_c, summary = await asyncio.wait_for(
+        csv, accel_too, temperature_c, summary, how = await asyncio.wait_for(
             svc.pool.run(apply_upload, upload_input(body, f"recording for {device_id}", upload, fs, layout),
-                         svc.settings.max_upload_samples, cal.model_dump(mode="json"), orientation),
+                         svc.settings.max_upload_samples, cal.model_dump(mode="json"), orientation,
+                         None if model is None else model.to_json(), recording.temperature_c),
             timeout=svc.settings.compute_timeout_s,
         )
     except TimeoutError:
@@ -94,7 +100,8 @@ async def _corrected(svc: Service, device_id: str, request: Request, upload: Rea
     if recording.temperature_c is None and temperature_c is not None:  # the recording's temp column: judged against it
         cal = judged(cal, cal.in_force.at, svc.settings.limits, replace(recording, device_id=device_id, temperature_c=temperature_c),
                      cal.in_force.chosen_by)
-    return cal, (csv, accel_too, summary)
+    temperature = None if model is None else {**model.to_json(), "applied": how}
+    return cal, (csv, accel_too, summary, temperature)
 
 
 @router.post(
@@ -120,7 +127,7 @@ async def orientation_of(
     """The orientation an uploaded recording implies before and after the device's calibration in force for it
     (Madgwick's filter of the ahrs package; gyroscope integration without an accelerometer): the paper's Figs. 2 and 10
     for the user's own data. Nothing is stored."""
-    cal, (_, _, summary) = await _corrected(svc, device_id, request, upload, recording, at, fs, layout, orientation=True)
+    cal, (_, _, summary, _) = await _corrected(svc, device_id, request, upload, recording, at, fs, layout, orientation=True)
     return M.OrientationOut.model_validate(finite({"calibration_id": cal.id, "warnings": cal.in_force.warnings,
                                                    "identity_check": cal.in_force.identity_check, **summary}))
 
