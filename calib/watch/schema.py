@@ -78,3 +78,18 @@ class WatchOut(BaseModel):
     bias: BiasOut
     scale: ScaleOut
     warnings: list[str]
+
+
+class TemperatureModelOut(BaseModel):
+    """A device's scale factors and biases against its temperature, from its watches (calib.apply.temperature), about
+    its current calibration's temperature: K(T) = diag(1 + s (T - T_ref)) K, b(T) = b + c (T - T_ref)."""
+
+    model_config = ConfigDict(frozen=True)
+    calibration_id: int
+    temp_ref_c: float = Field(description="the current calibration's temperature, degC")
+    bias_tc_dps_per_c: list[float] = Field(description="c, (deg/s)/degC per axis")
+    bias_tc_std: list[float]
+    scale_tc_per_c: list[float] = Field(description="s, per degC per axis (0 where no watch could tell)")
+    scale_tc_std: list[float] | None
+    watches: int = Field(description="the watches with a temperature column it pools")
+    watched_c: list[float] = Field(description="the coldest and warmest temperature those watches saw, degC")

@@ -42,6 +42,14 @@ def test_a_study_recording_is_watched_kept_and_a_moved_calibration_is_due_now(tm
             assert w["temperature_c"][1] - w["temperature_c"][0] > 5 and w["bias"]["temperature_coeff_dps_per_c"] is not None
             due = c.get("/devices/ward-1").json()["calibration_due"]
             assert due["due"] is False and "a study recording showed it holds" in due["reason"], due
+            # the report is typed in the OpenAPI document
+            spec = c.get("/openapi.json").json()
+            answer = spec["paths"]["/calibrations/{calibration_id}/watch"]["post"]["responses"]["201"]["content"]["application/json"]
+            assert answer["schema"]["$ref"].endswith("/StoredWatch")
+            assert "ParameterOut" in spec["components"]["schemas"] and "TemperatureModelOut" in spec["components"]["schemas"]
+            model = c.get("/devices/ward-1/temperature-model").json()
+            assert model["watches"] == 1 and model["temp_ref_c"] == day.temp_cal_c
+            assert np.all(np.abs(np.array(model["bias_tc_dps_per_c"]) - day.bias_tc) <= 0.2 * np.abs(day.bias_tc)), model
             # what the watch measured of the bias against temperature corrects the device's recordings, sample by sample
             fixed = c.post("/devices/ward-1/apply", content=native_csv(quiet), headers=CSV)
             assert fixed.status_code == 200, fixed.text

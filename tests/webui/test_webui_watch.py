@@ -63,6 +63,11 @@ def test_a_study_recording_watched_from_the_history_page_says_what_moved_and_the
         assert rows.count() == 2 and rows.nth(0).get_attribute("data-verdict") == "moved"
         assert "b Z moved by" in rows.nth(0).inner_text() and "every one holds" in rows.nth(1).inner_text()
         assert "moved on a study recording: b Z" in page.inner_text("table.calibrations tr.current")
+        # k and b against temperature: the lines the two watched days measured, about the calibration's temperature
+        charts = page.locator(".plots.temperature figure.plot.temperature")
+        assert charts.count() == 2 and page.locator(".plots.temperature path.model").count() == 6
+        assert "what 2 watched recordings measured, about calibration #1" in page.inner_text(".plots.temperature")
+        page.locator(".plots.temperature").screenshot(path=str(w.shots / "watch-temperature.png"))
         w.shot("watch-history")
         # the device list: due now, and why
         page.goto(f"{watch_service.base}/#/devices")

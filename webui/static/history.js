@@ -4,7 +4,7 @@
 import { AXES, AXIS_LABEL, fill, fmtDate, fmtDateTime, fmtTime, h, num, parseTime, sig } from "./dom.js";
 import { icon } from "./figures.js";
 import { problemLine, reasonFor } from "./messages.js";
-import { historyChart, orientationPlots } from "./plots.js";
+import { historyChart, orientationPlots, temperatureChart } from "./plots.js";
 import { watchForm, watchTable, watchedLine } from "./watch.js";
 
 const MARKERS = { x: "circle", y: "square", z: "triangle" };
@@ -28,6 +28,25 @@ function parameterCharts(cals) {
   return h("div", { class: "plots" },
     historyChart({ title: "Scale factors k", caption: "how much each axis over- or under-reads (1 is perfect), calibration after calibration", yLabel: "k", when, series: series("k") }),
     historyChart({ title: "Biases b", caption: "the rate each axis reads at rest, in true °/s", yLabel: "°/s", when, series: series("b") }));
+}
+
+/** k and b against the sensor's temperature: each calibration made at a known one, and the line the device's watches
+ * measured about the current calibration (null when there is neither a model nor two such calibrations). */
+function temperatureCharts(cals, model) {
+  const known = cals.filter((c) => c.identity && typeof c.identity.temperature_c === "number");
+  if (!model && known.length < 2) return null;
+  const cur = cals[0];
+  const series = (key, at) => AXES.map((a, i) => ({
+    points: known.map((c) => [c.identity.temperature_c, c[key][i]]),
+    line: model ? model.watched_c.map((T) => [T, at(cur[key][i], i, T - model.temp_ref_c)]) : null,
+    label: `${AXIS_LABEL[a]} axis`, cls: `ax-${a}`, marker: MARKERS[a],
+  }));
+  const said = model ? `; the lines: what ${model.watches} watched recording${model.watches === 1 ? "" : "s"} measured, about calibration #${model.calibration_id} at ${num(model.temp_ref_c, 1)} °C` : "";
+  return h("div", { class: "plots temperature" },
+    temperatureChart({ title: "Scale factors k against temperature", caption: `each calibration at the temperature it was made${said}`, yLabel: "k",
+      series: series("k", (v, i, dT) => v * (1 + model.scale_tc_per_c[i] * dT)) }),
+    temperatureChart({ title: "Biases b against temperature", caption: `in true °/s${said}`, yLabel: "°/s",
+      series: series("b", (v, i, dT) => v + model.bias_tc_dps_per_c[i] * dT) }));
 }
 
 /** A date over its time, so a narrow column breaks between them rather than anywhere. */
@@ -248,12 +267,14 @@ export function historyView(ctx, deviceId) {
     let sessions;
     let verifications;
     let watches;
+    let model = null;
     try {
       const enc = encodeURIComponent(deviceId);
       [dev, cals, sessions, verifications, watches] = await Promise.all([
         ctx.api.get(`/devices/${enc}`), ctx.api.get(`/devices/${enc}/calibrations`), ctx.api.get(`/devices/${enc}/sessions`, { limit: 100 }),
         ctx.api.get(`/devices/${enc}/verifications`), ctx.api.get(`/devices/${enc}/watches`),
       ]);
+      if (cals.length && watches.length) model = await ctx.api.get(`/devices/${enc}/temperature-model`);
     } catch (err) {
       if (alive && err.status !== 401) ctx.problem(err, `load the history of ${deviceId}`);
       return;
@@ -266,7 +287,7 @@ export function historyView(ctx, deviceId) {
     fill(body,
       h("p", { class: `current-line ${cur ? "calibrated" : "never"}` }, icon(cur ? "check" : "info"),
         h("span", null, cur ? `Current calibration: accepted by ${cur.operator} on ${fmtDateTime(cur.accepted_at)}.` : `${name} has no accepted calibration yet.`)),
-      cals.length ? [parameterCharts(cals), calibrationTable(cals, verifications, watches), inForceForm(ctx, deviceId, cals), applyForm(ctx, deviceId),
+      cals.length ? [parameterCharts(cals), temperatureCharts(cals, model), calibrationTable(cals, verifications, watches), inForceForm(ctx, deviceId, cals), applyForm(ctx, deviceId),
         watchForm(ctx, deviceId, cur)] : null,
       watches.length ? watchTable(watches) : null,
       importForm(ctx, deviceId),

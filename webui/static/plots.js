@@ -164,6 +164,37 @@ export function historyChart(opts) {
     svg, legend(series.map((se) => ({ ...se, points: true }))));
 }
 
+/**
+ * A parameter against the sensor's temperature: each calibration made at a known temperature as a point, and the
+ * device's model (the line its watches measured) over the temperatures they saw.
+ * opts: {title, caption, yLabel, series: [{label, cls, marker, points: [[T, v]], line: [[T, v], [T, v]] | null}]}
+ */
+export function temperatureChart(opts) {
+  const xs = opts.series.flatMap((se) => [...se.points, ...(se.line || [])].map(([x]) => x));
+  const ys = opts.series.flatMap((se) => [...se.points, ...(se.line || [])].map(([, y]) => y));
+  let [x0, x1] = extent([xs]);
+  let [y0, y1] = extent([ys]);
+  if (x1 - x0 < 1) [x0, x1] = [x0 - 1, x1 + 1];
+  if (y1 === y0) [y0, y1] = [y0 - 0.001, y1 + 0.001];
+  const xTicks = niceTicks(x0, x1, 6);
+  const yTicks = niceTicks(y0, y1, 5);
+  [x0, x1] = [Math.min(x0, xTicks[0]), Math.max(x1, xTicks[xTicks.length - 1])];
+  [y0, y1] = [Math.min(y0, yTicks[0]), Math.max(y1, yTicks[yTicks.length - 1])];
+  const sx = (v) => M.l + ((v - x0) / (x1 - x0)) * (W - M.l - M.r);
+  const sy = (v) => H - M.b - ((v - y0) / (y1 - y0)) * (H - M.t - M.b);
+  const svg = s("svg", { viewBox: `0 0 ${W} ${H}`, class: "chart", role: "img", "aria-label": opts.caption || opts.title });
+  svg.append(frame(xTicks, yTicks, sx, sy, (v) => tickText(v, xTicks), "sensor temperature, °C", opts.yLabel));
+  for (const se of opts.series) {
+    const g = s("g", { class: `series ${se.cls}` });
+    if (se.line) g.append(s("path", { d: se.line.map(([x, y], i) => `${i ? "L" : "M"}${sx(x).toFixed(1)} ${sy(y).toFixed(1)}`).join(""), class: "model" }));
+    for (const [x, y] of se.points) g.append(marker(se.marker, sx(x), sy(y), 5));
+    svg.append(g);
+  }
+  return h("figure", { class: "plot temperature" },
+    h("figcaption", null, h("strong", null, opts.title), opts.caption ? ` — ${opts.caption}` : ""),
+    svg, legend(opts.series.map((se) => ({ ...se, points: se.points.length > 0 }))));
+}
+
 /** The two figures of a calibration: rate magnitude and orientation, before and after. */
 export function calibrationPlots(tr) {
   const bands = (tr.turns || []).map((t) => ({ from: t.start_s, to: t.end_s, label: `turn ${String(t.axis).toUpperCase()}` }));

@@ -10,9 +10,11 @@ from typing import Annotated
 from fastapi import APIRouter, Path, Query, Request
 
 from calib import __version__
+from calib.watch.schema import TemperatureModelOut
 
 from ... import schemas as M
 from ...deps import CSV_TYPES, R404, Operator, Reader, Svc, check_device_id, check_upload, problem, recording_problem
+from ...lifecycle import temperature_model
 from ...store import StoredWatch
 from ...workers.compute import TooManySamples, watch_upload
 from ..upload_options import Upload, upload_input
@@ -77,3 +79,21 @@ async def device_watches(svc: Svc, device_id: str, _: Reader) -> list[StoredWatc
     """The watches of all of a device's calibrations, newest first."""
     check_device_id(device_id)
     return await asyncio.to_thread(svc.store.watches, device_id)
+
+
+@router.get("/devices/{device_id}/temperature-model", response_model=TemperatureModelOut | None, responses=R404,
+            tags=["calibrations"])
+async def device_temperature_model(svc: Svc, device_id: str, _: Reader) -> TemperatureModelOut | None:
+    """The device's k and b against its temperature, as its watches measured them about its current calibration's
+    temperature (what POST /devices/{id}/apply corrects with); null when no watch had a temperature column or the
+    calibration does not say its temperature."""
+    check_device_id(device_id)
+    cal = await asyncio.to_thread(svc.store.current_calibration, device_id)
+    if cal is None:
+        raise problem(404, f"{device_id!r} has no accepted calibration; see GET /devices")
+    model = await asyncio.to_thread(temperature_model, svc.store, cal)
+    if model is None:
+        return None
+    watches = await asyncio.to_thread(svc.store.watches, device_id)
+    seen = [t for w in watches if w.temperature_c for t in w.temperature_c]
+    return TemperatureModelOut.model_validate({**model.to_json(), "calibration_id": cal.id, "watched_c": [min(seen), max(seen)]})
