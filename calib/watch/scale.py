@@ -7,7 +7,7 @@ moment when there is one."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -109,22 +109,33 @@ def scale_findings(ev: Evidence, temp_ref_c: float | None, warm_up_tau_s: float 
         mid = np.array([(rec.t[r.start] + rec.t[r.end - 1]) / 2 for r in reos])
         warmth = warmth_in_time(mid, warm_up_start(ev), warm_up_tau_s)
 
-    def whitened(floor: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    groups = np.repeat(np.arange(B), 2)
+
+    def whitened(floor: float, steps: dict[int, int] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The whitened rows with ``floor`` added: each k's column, its warmth's, and a step column for each axis in
+        ``steps`` (axis: the first re-orientation after it)."""
         L = np.linalg.cholesky(cov + floor * np.eye(2))
         Aw = np.linalg.solve(L, A).reshape(2 * B, 3)
         yw = -np.linalg.solve(L, rho[..., None])[..., 0].reshape(2 * B)
         design = Aw if warmth is None else np.column_stack([Aw, Aw * np.repeat(warmth, 2)[:, None]])
+        for axis, at in (steps or {}).items():
+            design = np.column_stack([design, Aw[:, axis] * (groups >= at)])
         return Aw, design, yw
 
     Aw, design, yw = whitened(_floor(whitened, DIRECTION_FLOOR_RAD**2))
+    found = {i: st for i in range(3) if (st := best_step(design, yw, Aw[:, i], groups)) is not None}
+    if found:  # the steps in the model, so that their misfit is not taken for the constraints' scatter
+        at = {i: st.at for i, st in found.items()}
+        Aw, design, yw = whitened(_floor(lambda fl: whitened(fl, at), DIRECTION_FLOOR_RAD**2), at)
     f = fit(design, yw)
-    groups = np.repeat(np.arange(B), 2)
     exercised = [int(np.sum(np.linalg.norm(A[:, :, i], axis=1) >= EXERCISED_DEG * DEG)) for i in range(3)]
     verdicts = []
+    first_step = design.shape[1] - len(found)
     for i, name in enumerate(("k_x", "k_y", "k_z")):
-        step = best_step(design, yw, Aw[:, i], groups)
-        since = None
+        step, since = found.get(i), None
         if step is not None:
+            col = first_step + list(found).index(i)
+            step = replace(step, size=float(f.x[col]), std=float(f.std[col]))
             since = Since(float(rec.t[reos[step.at - 1].end - 1] - rec.t[0]), float(rec.t[reos[step.at].start] - rec.t[0]))
         tell = (f"too few re-orientations ({exercised[i]} of at least {MIN_EXERCISED}) {WOULD_TELL[i]}" if exercised[i] < MIN_EXERCISED else
             f"the {exercised[i]} re-orientations about {name[-1]} disagree beyond their noise: more of them, each between "
