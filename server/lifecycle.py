@@ -14,6 +14,7 @@ from dataclasses import replace
 from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Literal
 
+import numpy as np
 from pydantic import BaseModel, Field
 
 from calib.apply.identity import IdentityCheckJson, SensorIdentity, WrongSensor, check_identity, same_power_up
@@ -175,9 +176,15 @@ async def in_force_async(store: Store, device_id: str, at: datetime | None, limi
 
 def temperature_model(store: Store, cal: CalibrationRecord) -> TemperatureModel | None:
     """The device's scale factors and biases against temperature about ``cal``'s temperature, from every watch of its
-    calibrations that had a temperature column (calib.apply.temperature); None without one, or when ``cal`` does not
-    say its temperature."""
-    from calib.apply.temperature import model_from_watches
+    calibrations that had a temperature column and from its calibrations of ``cal``'s power-up made at different
+    temperatures (calib.apply.temperature); None without either, or when ``cal`` does not say its temperature."""
+    from calib.apply.temperature import CalibrationAt, model_from_watches
 
     temp = cal.identity.temperature_c if cal.identity is not None else None
-    return model_from_watches((w.model_dump(mode="json") for w in store.watches(cal.device_id)), temp)
+    boot = cal.identity.boot_count if cal.identity is not None else None
+    same = [c for c in store.calibrations(cal.device_id) if boot is not None and c.identity is not None
+            and c.identity.boot_count == boot and c.identity.temperature_c is not None and c.uncertainty is not None]
+    at = [CalibrationAt(float(c.identity.temperature_c), np.asarray(c.k), np.asarray(c.uncertainty.k), np.asarray(c.b),
+                        np.asarray(c.uncertainty.b)) for c in same if c.identity is not None and c.uncertainty is not None
+          and c.identity.temperature_c is not None]
+    return model_from_watches((w.model_dump(mode="json") for w in store.watches(cal.device_id)), temp, at)

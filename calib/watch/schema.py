@@ -92,4 +92,7 @@ class TemperatureModelOut(BaseModel):
     scale_tc_per_c: list[float] = Field(description="s, per degC per axis (0 where no watch could tell)")
     scale_tc_std: list[float] | None
     watches: int = Field(description="the watches with a temperature column it pools")
-    watched_c: list[float] = Field(description="the coldest and warmest temperature those watches saw, degC")
+    calibrations: int = Field(0, description="the calibrations of the current one's power-up, at different temperatures, "
+                                             "it pools (0: none told)")
+    watched_c: list[float] = Field(description="the coldest and warmest temperature its watches saw and its calibrations "
+                                                "were made at, degC")

@@ -13,7 +13,7 @@ import pytest
 from test_cli import assert_user_error, gyrocal
 
 from calib.apply.correction import Correction
-from calib.apply.temperature import corrected_at_temperature, model_from_watches
+from calib.apply.temperature import CalibrationAt, corrected_at_temperature, model_from_watches
 from calib.errors import ProtocolError
 from calib.recording import Recording
 from calib.simulator import Motion, ProtocolScript, SensorParams, Still, simulate
@@ -179,3 +179,23 @@ def test_the_temperature_a_watch_measured_halves_another_days_drift_on_the_same_
         drift.append([np.linalg.norm(((r[inside] - day2.rate[inside]) / 100.0).sum(axis=0)) for r in (alone, fixed.gyro)])
     alone_deg, modelled_deg = np.median(np.array(drift), axis=0)
     assert modelled_deg <= 0.5 * alone_deg, (alone_deg, modelled_deg)
+
+
+def test_calibrations_of_one_power_up_at_two_temperatures_give_the_slopes_and_pool_with_a_watch() -> None:
+    """Two calibrations of one power-up 10 degC apart put k and b on a line; pooled with a watch's coefficients by
+    their precision; calibrations too close in temperature tell nothing."""
+    c, s = np.array([0.03, -0.02, 0.01]), np.array([2e-4, -1e-4, 0.0])
+    k0, b0 = np.array([1.1, 0.9, 1.0]), np.array([1.0, -2.0, 0.5])
+    std = {"k_std": np.full(3, 1e-5), "b_std": np.full(3, 1e-3)}
+    cals = [CalibrationAt(T, k0 * (1 + s * (T - 22.0)), b=b0 + c * (T - 22.0), **std) for T in (22.0, 32.0)]
+    model = model_from_watches([], 22.0, cals)
+    assert model is not None and model.calibrations == 2 and model.watches == 0
+    assert np.allclose(model.bias_tc, c, atol=1e-9) and np.allclose(model.scale_tc, s, atol=1e-7), (model.bias_tc, model.scale_tc)
+    near = [CalibrationAt(T, k0, b=b0, **std) for T in (22.0, 23.0)]
+    assert model_from_watches([], 22.0, near) is None
+    watched = {"bias": {"temperature_coeff_dps_per_c": [0.05, 0.0, 0.0], "temperature_coeff_std": [1e-4, 1e-4, 1e-4]},
+               "scale": {}}
+    both = model_from_watches([watched], 22.0, cals)
+    assert both is not None and both.watches == 1 and both.calibrations == 2
+    assert both.bias_tc_std[0] < min(model.bias_tc_std[0], 1e-4)  # more precise than either alone
+    assert 0.03 < both.bias_tc[0] < 0.05  # between the two, nearer the more precise

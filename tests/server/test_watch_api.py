@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import subprocess
+from dataclasses import replace
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
@@ -14,6 +15,7 @@ from server_fixtures import GYROCAL, ROOT, RunningService, native_csv
 
 from calib.apply.correction import Correction
 from calib.io.readers import read_recording
+from calib.simulator import SensorParams, simulate
 from calib.simulator.study_day import StudyEvent, simulate_study_day
 from calib.watch import watch
 from server.lifecycle import calibration_due
@@ -132,3 +134,35 @@ def test_a_calibration_a_study_recording_confirmed_is_not_due_by_age_alone() -> 
                                                           if p["name"] == "k_x" else p for p in report["parameters"]]}
     young = calibration_due(now - timedelta(days=2), 30, now, latest_watch=_stored(moved, 1, now))
     assert young.due and young.reason == "a study recording watched 1 day ago showed k_x moved by +1.20 % ± 0.03 %", young
+
+
+def test_calibrations_of_one_power_up_at_two_temperatures_give_the_device_its_model(tmp_path: Path) -> None:
+    """Two calibrations of power-up #4 made 10 degC apart (and one of another power-up, far off, which must not be
+    put on their line): the device's model is their slope, and apply corrects at the temperature it is given."""
+    params = SensorParams(np.array([1.05, 0.95, 1.02]), np.array([1.0, -2.0, 0.5]))
+    c, s = np.array([0.03, -0.02, 0.01]), np.array([2e-4, -1e-4, 1e-4])
+
+    def at(T: float) -> SensorParams:
+        return SensorParams(params.k * (1 + s * (T - 22.0)), params.b + c * (T - 22.0))
+
+    svc = RunningService([], f"sqlite:///{tmp_path / 'store.sqlite3'}").start()
+    try:
+        with svc.client() as cl:
+            for seed, T, boot in ((31, 32.0, 4), (32, 25.0, 3), (33, 22.0, 4)):  # the last accepted is the current one
+                rec, _ = simulate(seed, noise=0.03, params=at(T) if boot == 4 else SensorParams(params.k * 1.01, params.b + 0.4))
+                rec = replace(rec, temp=np.full(len(rec), T))  # its temperature column: the calibration's temperature
+                r = cl.post("/devices/thigh-2/calibrate", content=native_csv(rec), headers=CSV,
+                            params={"sensor_model": "ICM-20948", "firmware": "1.2.0", "boot_count": boot})
+                assert r.status_code == 200 and r.json()["passed"], r.text
+                ok = cl.post(f"/sessions/{r.json()['session_id']}/accept")
+                assert ok.status_code == 200, ok.text
+            model = cl.get("/devices/thigh-2/temperature-model").json()
+            assert model["calibrations"] == 2 and model["watches"] == 0 and model["temp_ref_c"] == 22.0, model
+            assert np.allclose(model["bias_tc_dps_per_c"], c, atol=3e-3), model
+            assert model["watched_c"] == [22.0, 32.0]
+            rec, _ = simulate(34, noise=0.03, params=at(30.0))
+            fixed = cl.post("/devices/thigh-2/apply", content=native_csv(rec), headers=CSV, params={"temperature_c": 30.0})
+            assert fixed.status_code == 200, fixed.text
+            assert json.loads(fixed.headers["x-gyrocal-temperature-model"])["applied"] == "at 30 °C"
+    finally:
+        svc.stop()

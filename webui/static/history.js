@@ -41,7 +41,9 @@ function temperatureCharts(cals, model) {
     line: model ? model.watched_c.map((T) => [T, at(cur[key][i], i, T - model.temp_ref_c)]) : null,
     label: `${AXIS_LABEL[a]} axis`, cls: `ax-${a}`, marker: MARKERS[a],
   }));
-  const said = model ? `; the lines: what ${model.watches} watched recording${model.watches === 1 ? "" : "s"} measured, about calibration #${model.calibration_id} at ${num(model.temp_ref_c, 1)} °C` : "";
+  const from = model ? [model.watches ? `${model.watches} watched recording${model.watches === 1 ? "" : "s"}` : null,
+    model.calibrations ? `${model.calibrations} calibrations of its power-up` : null].filter(Boolean).join(" and ") : "";
+  const said = model ? `; the lines: what ${from} measured, about calibration #${model.calibration_id} at ${num(model.temp_ref_c, 1)} °C` : "";
   return h("div", { class: "plots temperature" },
     temperatureChart({ title: "Scale factors k against temperature", caption: `each calibration at the temperature it was made${said}`, yLabel: "k",
       series: series("k", (v, i, dT) => v * (1 + model.scale_tc_per_c[i] * dT)) }),

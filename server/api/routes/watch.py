@@ -95,5 +95,8 @@ async def device_temperature_model(svc: Svc, device_id: str, _: Reader) -> Tempe
     if model is None:
         return None
     watches = await asyncio.to_thread(svc.store.watches, device_id)
-    seen = [t for w in watches if w.temperature_c for t in w.temperature_c]
+    cals = await asyncio.to_thread(svc.store.calibrations, device_id)
+    seen = [t for w in watches if w.temperature_c for t in w.temperature_c] + [
+        c.identity.temperature_c for c in cals if c.identity is not None and c.identity.temperature_c is not None]
+    seen = seen or [model.temp_ref_c]
     return TemperatureModelOut.model_validate({**model.to_json(), "calibration_id": cal.id, "watched_c": [min(seen), max(seen)]})
