@@ -152,24 +152,32 @@ class CalibrationStore(SessionStore):
             self._audit(s, operator, "calibration.import", device_id, sid, {"calibration_id": cal.id, **info})
             return calibration_record(cal)
 
+    def _kept_with(self, s: Session, calibration_id: int, kind: str, operator: str, software_version: str,
+                   result: dict[str, Any], passed: bool, info: dict[str, Any], recording_csv: bytes | None,
+                   n_samples: int) -> tuple[SessionRow, CalibrationRow]:
+        """A session of ``kind`` (done, ``passed``) kept with calibration ``calibration_id``: its ``result``, and its
+        recording archived when there is one. NotFound when there is no such calibration."""
+        cal = s.get(CalibrationRow, calibration_id)
+        if cal is None:
+            raise NotFound(f"no calibration #{calibration_id}")
+        now = utcnow()
+        row = SessionRow(id=uuid.uuid4().hex, device_id=cal.device_id, kind=kind, state="done", method=kind, operator=operator,
+                         started_at=now, ended_at=now, result=result, passed=passed, software_version=software_version,
+                         info={"calibration_id": calibration_id, **info})
+        s.add(row)
+        s.flush()
+        if recording_csv is not None:
+            self._archive(s, row.id, recording_csv, n_samples)
+        return row, cal
+
     def add_verification(self, calibration_id: int, operator: str, software_version: str, verification: TurnVerification, *,
                          source: str, recording_csv: bytes | None = None, n_samples: int = 0) -> StoredVerification:
         """Keep a verification turn of an accepted calibration: a session of kind ``verify`` (done; passed when the turn
         confirmed the calibration) holding it, its recording archived, and an audit entry. Returns it as listed."""
         with self._tx(*ALL_CHAINS) as s:
-            cal = s.get(CalibrationRow, calibration_id)
-            if cal is None:
-                raise NotFound(f"no calibration #{calibration_id}")
-            now = utcnow()
-            sid = uuid.uuid4().hex
-            row = SessionRow(id=sid, device_id=cal.device_id, kind="verify", state="done", method="verify", operator=operator,
-                             started_at=now, ended_at=now, result=verification.to_json(), passed=verification.confirmed,
-                             software_version=software_version, info={"calibration_id": calibration_id, "source": source})
-            s.add(row)
-            s.flush()
-            if recording_csv is not None:
-                self._archive(s, sid, recording_csv, n_samples)
-            self._audit(s, operator, "calibration.verify", cal.device_id, sid,
+            row, cal = self._kept_with(s, calibration_id, "verify", operator, software_version, verification.to_json(),
+                                       verification.confirmed, {"source": source}, recording_csv, n_samples)
+            self._audit(s, operator, "calibration.verify", cal.device_id, row.id,
                         {"calibration_id": calibration_id, "calibrated_deg": verification.calibrated_deg,
                          "confirmed": verification.confirmed})
             return _verification(row)
@@ -188,20 +196,9 @@ class CalibrationStore(SessionStore):
         """Keep a watch of an accepted calibration on a study recording: a session of kind ``watch`` (done; passed
         unless a parameter moved) holding its report, the recording archived, and an audit entry."""
         with self._tx(*ALL_CHAINS) as s:
-            cal = s.get(CalibrationRow, calibration_id)
-            if cal is None:
-                raise NotFound(f"no calibration #{calibration_id}")
-            now = utcnow()
-            sid = uuid.uuid4().hex
-            row = SessionRow(id=sid, device_id=cal.device_id, kind="watch", state="done", method="watch", operator=operator,
-                             started_at=now, ended_at=now, result=report, passed=report["verdict"] != "moved",
-                             software_version=software_version,
-                             info={"calibration_id": calibration_id, "recording": recording_name})
-            s.add(row)
-            s.flush()
-            if recording_csv is not None:
-                self._archive(s, sid, recording_csv, n_samples)
-            self._audit(s, operator, "calibration.watch", cal.device_id, sid,
+            row, cal = self._kept_with(s, calibration_id, "watch", operator, software_version, report, report["verdict"] != "moved",
+                                       {"recording": recording_name}, recording_csv, n_samples)
+            self._audit(s, operator, "calibration.watch", cal.device_id, row.id,
                         {"calibration_id": calibration_id, "verdict": report["verdict"],
                          "moved": [p["name"] for p in report["parameters"] if p["verdict"] == "moved"]})
             return _watch(row)
