@@ -192,10 +192,17 @@ class Device:
                 await self.peripheral.aclose()
 
 
-def _scaled_monotonic(scale: float) -> float:
-    import time
+@dataclass(frozen=True)
+class ScaledClock:
+    """The monotonic clock on a simulated wearable's time scale: ``scale`` times real time (a link's ``clock``; the
+    session reads ``scale`` to put real-time allowances on it)."""
 
-    return time.monotonic() * scale
+    scale: float
+
+    def __call__(self) -> float:
+        import time
+
+        return time.monotonic() * self.scale
 
 
 class DeviceManager:
@@ -207,7 +214,7 @@ class DeviceManager:
         self.ble = ble
         # the clock BLE links time arrivals by, on the wearables' time scale (simulated ones may run faster)
         self.ble_clock: Callable[[], float] | None = (
-            None if ble_time_scale == 1.0 else functools.partial(_scaled_monotonic, float(ble_time_scale)))
+            None if ble_time_scale == 1.0 else ScaledClock(float(ble_time_scale)))
         self.ble_adapters = tuple(ble_adapters)
         self.slots = AdapterSlots(self.ble_adapters, ble_slots)  # shared by every BLE link of the service
         # where the service answers, once it listens: simulated clinicians who follow the prompts read it there
@@ -240,12 +247,10 @@ class DeviceManager:
         one clinician turns, instead of each its scenario: a scripted one, or the ``hand:<style>`` clinician of
         ``scenarios`` who follows the kit's prompts; ``faults``: what goes wrong in the tray (a wearable loose in its
         slot, one whose link drops, one beside the tray, axes not orthogonal: ``calib.simulator.kit.TrayFaults``)."""
-        import time
 
         from .link import InProcessLink, ReconnectPolicy
 
-        def device_clock() -> float:  # arrival times on the simulated wearables' time scale
-            return time.monotonic() * speed
+        device_clock = ScaledClock(float(speed))  # arrival times on the simulated wearables' time scale
 
         scenarios = scenarios or ["normal"]
         ids = [f"mock-{i}" for i in range(first, first + n)]

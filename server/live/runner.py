@@ -196,6 +196,7 @@ class LiveSession(Persistence):
         m = self.machine
         dev = self.device
         link = dev.get_link()
+        m.stream.time_scale = float(getattr(link.clock, "scale", 1.0))  # a simulated wearable's clock may run faster
         try:
             if not getattr(link, "connected", False):
                 await link.connect()

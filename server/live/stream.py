@@ -63,6 +63,9 @@ class SessionStream:
         self._arrivals: deque[tuple[float, float]] = deque()  # (device time, wall time it was read at minus it), s
         self._first_arrival: tuple[float, float] | None = None  # (wall time, wall minus device time) of the first
         self._ahead: tuple[float, float] = (0.0, 0.0)  # (how far device time ran ahead of wall time, over how long), s
+        # link-clock seconds per real second: a simulated wearable's clock runs ``speed`` times real time, and so do the
+        # first reading's delay and the service's own lateness when they are read on it
+        self.time_scale = 1.0
         self._rest_key: tuple[int, int] | None = None  # the still ``_rest`` is the mean reading of
         self._rest: np.ndarray = np.zeros(3)
 
@@ -124,9 +127,10 @@ class SessionStream:
     def clock_ahead(self, excused_s: float = 0.0) -> tuple[float, float] | None:
         """(how far, over how long) the wearable's time stamps ran ahead of the wall clock since its first reading, in s,
         when that is more than a clock's drift and the first reading's delay allow (``excused_s``: time the service
-        itself did not run); else None."""
+        itself did not run, real seconds; both allowances are read on the link's clock, ``time_scale``); else None."""
         ahead, over = self._ahead
-        return (ahead, over) if ahead > CLOCK_AHEAD_SLACK_S + CLOCK_AHEAD_RATE * over + excused_s else None
+        allowed = (CLOCK_AHEAD_SLACK_S + excused_s) * self.time_scale + CLOCK_AHEAD_RATE * over
+        return (ahead, over) if ahead > allowed else None
 
     def missing_samples(self, st: Stage) -> int:
         """Samples missing within a stage by the sample counter (0 without one)."""

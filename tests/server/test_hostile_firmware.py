@@ -104,3 +104,28 @@ def test_packets_delivered_out_of_order_are_taken_back(tmp_path: Path) -> None:
     end = _with_fault(tmp_path, _swap_pairs(6, 50))
     assert end["state"] == "done" and end["passed"], (end["reason_code"], end["reason"])
     assert end["lost_samples"] == 0 and end["refused_samples"] == 0
+
+
+def test_a_first_reading_read_late_on_a_simulated_wearables_fast_clock_is_not_a_clock_running_ahead() -> None:
+    """A simulated wearable 50 times real time whose first batch the service read 0.12 s late (a busy machine): on the
+    wearable's clock that is 6 s, which the allowances, given in real seconds, must be read on too (it failed sessions
+    of the service tests at mock speeds 40-50 as "the wearable's time stamps ran 6 s ahead"); a clock that really runs
+    ahead is still named."""
+    from server.live.stream import SessionStream
+
+    def arrivals(scale: float, lead_s: float) -> tuple[float, float] | None:
+        """Batches every 0.5 s of device time from 1 s on, the first read 0.12 real seconds late (the ones behind it
+        read at once after it), the rest at once; the wearable's clock running ``lead_s`` ahead per minute."""
+        stream = SessionStream()
+        stream.time_scale = scale
+        late = 1.0 + 0.12 * scale
+        for t in np.arange(1.0, 60.0, 0.5):
+            stream.arrived(t, max(late, t + 0.01 * scale) - lead_s * t / 60.0)
+            if stream.clock_ahead() is not None:
+                return stream.clock_ahead()
+        return None
+
+    assert arrivals(50.0, 0.0) is None
+    assert arrivals(1.0, 0.0) is None
+    assert arrivals(50.0, 0.0) is None and arrivals(1.0, 9.0) is not None  # 9 s ahead in a minute at real speed
+    assert arrivals(50.0, 300.0) is not None  # ... and 300 s (6 real seconds) ahead in a minute of a fast simulated clock

@@ -109,6 +109,12 @@ def test_a_study_recording_is_watched_kept_and_a_moved_calibration_is_due_now(tm
             applied.stdout + applied.stderr)
         side = json.loads((tmp_path / "day-3.calibrated.calibration.json").read_text())
         assert side["temperature_model"]["applied"] == "per sample" and side["temperature_model"]["watches"] == 2
+        # and the command line watches a recording against the device's calibration in force, from the store
+        watched = subprocess.run([*GYROCAL, "watch", str(tmp_path / "day-3.csv"), "--device", "ward-1", "--db", db, "--json"],
+                                 cwd=ROOT, capture_output=True, text=True, timeout=120)
+        assert watched.returncode == 0, watched.stdout[-2000:] + watched.stderr
+        said = json.loads(watched.stdout)
+        assert said["verdict"] == "holds" and said["calibration"]["calibration_id"] == cid, said["calibration"]
     finally:
         svc.stop()
 
