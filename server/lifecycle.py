@@ -175,16 +175,23 @@ async def in_force_async(store: Store, device_id: str, at: datetime | None, limi
 
 
 def temperature_model(store: Store, cal: CalibrationRecord) -> TemperatureModel | None:
-    """The device's scale factors and biases against temperature about ``cal``'s temperature, from every watch of its
-    calibrations that had a temperature column and from its calibrations of ``cal``'s power-up made at different
-    temperatures (calib.apply.temperature); None without either, or when ``cal`` does not say its temperature."""
+    """The device's scale factors and biases against temperature about ``cal``'s temperature (``model_of``, from what
+    the store keeps of the device); None when nothing tells, or ``cal`` does not say its temperature."""
+    return model_of(cal, store.watches(cal.device_id), store.calibrations(cal.device_id))
+
+
+def model_of(cal: CalibrationRecord, watches: list[StoredWatch], calibrations: list[CalibrationRecord]) -> TemperatureModel | None:
+    """k and b against temperature about ``cal``'s temperature, from every watch that had a temperature column and from
+    the ``calibrations`` of ``cal``'s power-up made at different temperatures (calib.apply.temperature)."""
     from calib.apply.temperature import CalibrationAt, model_from_watches
 
-    temp = cal.identity.temperature_c if cal.identity is not None else None
-    boot = cal.identity.boot_count if cal.identity is not None else None
-    same = [c for c in store.calibrations(cal.device_id) if boot is not None and c.identity is not None
-            and c.identity.boot_count == boot and c.identity.temperature_c is not None and c.uncertainty is not None]
-    at = [CalibrationAt(float(c.identity.temperature_c), np.asarray(c.k), np.asarray(c.uncertainty.k), np.asarray(c.b),
-                        np.asarray(c.uncertainty.b)) for c in same if c.identity is not None and c.uncertainty is not None
-          and c.identity.temperature_c is not None]
-    return model_from_watches((w.model_dump(mode="json") for w in store.watches(cal.device_id)), temp, at)
+    ident = cal.identity
+    same_power_up = [
+        CalibrationAt(float(c.identity.temperature_c), np.asarray(c.k), np.asarray(c.uncertainty.k), np.asarray(c.b),
+                      np.asarray(c.uncertainty.b))
+        for c in calibrations
+        if ident is not None and ident.boot_count is not None and c.identity is not None and c.uncertainty is not None
+        and c.identity.boot_count == ident.boot_count and c.identity.temperature_c is not None
+    ]
+    return model_from_watches((w.model_dump(mode="json") for w in watches), None if ident is None else ident.temperature_c,
+                              same_power_up)

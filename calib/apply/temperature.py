@@ -49,10 +49,13 @@ class TemperatureModel:
     def rates(self, correction: Correction, gyro: np.ndarray, accel: np.ndarray | None, temp_c: np.ndarray | float) -> np.ndarray:
         """Calibrated rates (deg/s) of readings ``gyro`` at the sensor temperatures ``temp_c`` (per sample, or one
         for all; NaN samples get the calibration alone)."""
-        base, _ = correction.apply(gyro, accel)
+        return self.at_temperature(correction.apply(gyro, accel)[0], correction.b, temp_c)
+
+    def at_temperature(self, rates: np.ndarray, b: np.ndarray, temp_c: np.ndarray | float) -> np.ndarray:
+        """``rates`` a calibration (its bias ``b``) made of readings, taken to the sensor temperatures ``temp_c``."""
         dT = np.nan_to_num(np.asarray(temp_c, dtype=float) - self.temp_ref_c, nan=0.0)
-        dT = np.broadcast_to(dT, (len(base),))[:, None]
-        return (base - correction.b) * (1.0 + self.scale_tc * dT) + correction.b + self.bias_tc * dT
+        dT = np.broadcast_to(dT, (len(rates),))[:, None]
+        return (rates - b) * (1.0 + self.scale_tc * dT) + b + self.bias_tc * dT
 
 
 def _pooled(values: list[np.ndarray], stds: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -143,5 +146,5 @@ def corrected_at_temperature(rec: Recording, correction: Correction, model: Temp
     temp = rec.temp if rec.temp is not None else temperature_c
     if temp is None:
         raise ValueError("a temperature model needs the recording's temperature: a temp column, or one for all of it")
-    _, accel = correction.apply(rec.gyro, rec.accel)
-    return replace(rec, gyro=model.rates(correction, rec.gyro, rec.accel, temp), accel=rec.accel if accel is None else accel)
+    rates, accel = correction.apply(rec.gyro, rec.accel)
+    return replace(rec, gyro=model.at_temperature(rates, correction.b, temp), accel=rec.accel if accel is None else accel)

@@ -207,9 +207,10 @@ class CalibrationStore(SessionStore):
         """A device's watches, newest first (of one of its calibrations, with ``calibration_id``)."""
         with self._read() as s:
             q = select(SessionRow).where(SessionRow.kind == "watch", SessionRow.device_id == device_id)
-            rows = [_watch(r) for r in s.execute(q.order_by(SessionRow.started_at.desc())).scalars()]
-        rows = [w for w in rows if calibration_id is None or w.calibration_id == calibration_id]
-        return rows if limit is None else rows[:limit]
+            rows = [r for r in s.execute(q.order_by(SessionRow.started_at.desc())).scalars()
+                    if calibration_id is None or (r.info or {}).get("calibration_id") == calibration_id]
+            # only the ones asked for are read into reports (the device list asks for the latest of each device's)
+            return [_watch(r) for r in (rows if limit is None else rows[:limit])]
 
     def current_calibration(self, device_id: str, at: datetime | None = None) -> CalibrationRecord | None:
         """The device's latest accepted calibration; with ``at``, the latest one accepted at or before that time."""

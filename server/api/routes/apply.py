@@ -19,14 +19,15 @@ from calib.io.inputs import ReadOptions
 from calib.json_safe import finite
 
 from ... import schemas as M
-from ...deps import R404, R409, Operator, Reader, Svc, check_device_id, check_upload, problem, read_csv_body, recording_problem
+from ...deps import R404, R409, Operator, Reader, Svc, check_device_id, check_upload, problem, read_csv_body
 from ...export import export_text
 from ...lifecycle import CalibrationInForce, in_force_async, judged, none_in_force, temperature_model
 from ...service import Service
 from ...store import sha256_hex
-from ...workers.compute import TooManySamples, apply_upload
+from ...workers.compute import apply_upload
 from ..identity_query import RecordingIdentity
 from ..upload_options import Upload, upload_input
+from ..upload_work import upload_work
 from ..views import calibration_or_404
 
 router = APIRouter()
@@ -84,19 +85,11 @@ async def _corrected(svc: Service, device_id: str, request: Request, upload: Rea
     if cal is None:
         raise problem(404, f"{none_in_force(device_id, None if at is None else at.isoformat())}: calibrate it before applying one")
     model = await asyncio.to_thread(temperature_model, svc.store, cal)
-    try:
-        csv, accel_too, temperature_c, summary, how = await asyncio.wait_for(
-            svc.pool.run(apply_upload, upload_input(body, f"recording for {device_id}", upload, fs, layout),
-                         svc.settings.max_upload_samples, cal.model_dump(mode="json"), orientation,
-                         None if model is None else model.to_json(), recording.temperature_c),
-            timeout=svc.settings.compute_timeout_s,
-        )
-    except TimeoutError:
-        raise problem(503, f"correcting this recording took longer than {svc.settings.compute_timeout_s:g} s; try again later") from None
-    except TooManySamples as exc:
-        raise problem(413, str(exc)) from None
-    except Exception as exc:  # calib's errors and whatever else the parser trips on
-        raise recording_problem(exc, "corrected", upload=True) from None
+    csv, accel_too, temperature_c, summary, how = await upload_work(
+        svc, apply_upload, upload_input(body, f"recording for {device_id}", upload, fs, layout), svc.settings.max_upload_samples,
+        cal.model_dump(mode="json"), orientation, None if model is None else model.to_json(), recording.temperature_c,
+        doing="corrected",
+        too_slow=f"correcting this recording took longer than {svc.settings.compute_timeout_s:g} s; try again later")
     if recording.temperature_c is None and temperature_c is not None:  # the recording's temp column: judged against it
         cal = judged(cal, cal.in_force.at, svc.settings.limits, replace(recording, device_id=device_id, temperature_c=temperature_c),
                      cal.in_force.chosen_by)

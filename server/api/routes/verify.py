@@ -14,11 +14,12 @@ from calib import __version__
 from calib.judge.verification import NoVerificationTurn
 
 from ... import schemas as M
-from ...deps import CSV_TYPES, R404, R409, Operator, Reader, Svc, check_device_id, check_upload, problem, recording_problem
+from ...deps import CSV_TYPES, R404, R409, Operator, Reader, Svc, check_device_id, check_upload, problem
 from ...live.verify_run import VerificationRunOut, VerifyRun
 from ...store import StoredVerification
-from ...workers.compute import TooManySamples, verify_upload
+from ...workers.compute import verify_upload
 from ..upload_options import Upload, upload_input
+from ..upload_work import upload_work
 from ..views import calibration_or_404, claim_device, reachable_device
 
 router = APIRouter()
@@ -52,19 +53,10 @@ async def verify(
     body = await request.body()
     if ctype in CSV_TYPES:
         check_upload(body, layout)
-        try:
-            found, csv, n = await asyncio.wait_for(
-                svc.pool.run(verify_upload, upload_input(body, f"verification of #{calibration_id}", upload, fs, layout),
-                             svc.settings.max_upload_samples, cal.model_dump(mode="json")),
-                timeout=svc.settings.compute_timeout_s)
-        except NoVerificationTurn as exc:
-            raise problem(400, str(exc)) from None
-        except TooManySamples as exc:
-            raise problem(413, str(exc)) from None
-        except TimeoutError:
-            raise problem(503, "measuring the turn took too long; try again later") from None
-        except Exception as exc:
-            raise recording_problem(exc, "verified", upload=True) from None
+        found, csv, n = await upload_work(
+            svc, verify_upload, upload_input(body, f"verification of #{calibration_id}", upload, fs, layout),
+            svc.settings.max_upload_samples, cal.model_dump(mode="json"), doing="verified",
+            too_slow="measuring the turn took too long; try again later", refused=(NoVerificationTurn,))
         return await asyncio.to_thread(svc.store.add_verification, calibration_id, operator, __version__, found, source="upload",
                                        recording_csv=csv, n_samples=n)
     if ctype and ctype != "application/json" and body:

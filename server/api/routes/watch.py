@@ -13,11 +13,12 @@ from calib import __version__
 from calib.watch.schema import TemperatureModelOut
 
 from ... import schemas as M
-from ...deps import CSV_TYPES, R404, Operator, Reader, Svc, check_device_id, check_upload, problem, recording_problem
-from ...lifecycle import temperature_model
+from ...deps import CSV_TYPES, R404, Operator, Reader, Svc, check_device_id, check_upload, problem
+from ...lifecycle import model_of
 from ...store import StoredWatch
-from ...workers.compute import TooManySamples, watch_upload
+from ...workers.compute import watch_upload
 from ..upload_options import Upload, upload_input
+from ..upload_work import upload_work
 from ..views import calibration_or_404
 
 router = APIRouter()
@@ -52,17 +53,9 @@ async def watch_calibration(
         raise problem(415, f"send the study recording as text/csv; got {ctype or 'no content type'}")
     body = await request.body()
     check_upload(body, layout)
-    try:
-        report, csv, n = await asyncio.wait_for(
-            svc.pool.run(watch_upload, upload_input(body, f"watch of #{calibration_id}", upload, fs, layout),
-                         svc.settings.max_upload_samples, cal.model_dump(mode="json")),
-            timeout=svc.settings.compute_timeout_s)
-    except TooManySamples as exc:
-        raise problem(413, str(exc)) from None
-    except TimeoutError:
-        raise problem(503, "watching the recording took too long; try again later") from None
-    except Exception as exc:
-        raise recording_problem(exc, "watched", upload=True) from None
+    report, csv, n = await upload_work(
+        svc, watch_upload, upload_input(body, f"watch of #{calibration_id}", upload, fs, layout), svc.settings.max_upload_samples,
+        cal.model_dump(mode="json"), doing="watched", too_slow="watching the recording took too long; try again later")
     return await asyncio.to_thread(svc.store.add_watch, calibration_id, operator, __version__, report, recording_name=name,
                                    recording_csv=csv, n_samples=n)
 
@@ -91,11 +84,11 @@ async def device_temperature_model(svc: Svc, device_id: str, _: Reader) -> Tempe
     cal = await asyncio.to_thread(svc.store.current_calibration, device_id)
     if cal is None:
         raise problem(404, f"{device_id!r} has no accepted calibration; see GET /devices")
-    model = await asyncio.to_thread(temperature_model, svc.store, cal)
-    if model is None:
-        return None
     watches = await asyncio.to_thread(svc.store.watches, device_id)
     cals = await asyncio.to_thread(svc.store.calibrations, device_id)
+    model = model_of(cal, watches, cals)
+    if model is None:
+        return None
     seen = [t for w in watches if w.temperature_c for t in w.temperature_c] + [
         c.identity.temperature_c for c in cals if c.identity is not None and c.identity.temperature_c is not None]
     seen = seen or [model.temp_ref_c]
