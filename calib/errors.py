@@ -25,6 +25,8 @@ REFUSAL_CODES = {
     "accelerometer_not_determined": "the rests cannot calibrate the accelerometer",
     "not_one_motion": "a kit's recordings are not of one motion of one tray (a wearable did not turn with the others)",
     "not_calibrated": "any other reason the estimator gave",
+    "not_a_rest": "a noise analysis was asked of a recording that moves",
+    "rest_too_short": "the rest is too short for an Allan analysis",
 }
 
 

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from calib.apply.identity import DEFAULT_MAX_TEMPERATURE_CHANGE_C, SensorIdentity
+from calib.errors import GyrocalError
 
 from .cli import EXIT_OK, ServiceError, open_store, require_active_operator
 from .config import DB_URL_HELP, DEFAULT_MAX_AGE_DAYS
@@ -256,7 +257,9 @@ def register_export(sub: Any) -> None:
     which.add_argument("--device", default=None, metavar="ID", help="the device whose calibration in force is written")
     add_moment_arguments(p, "with --device: the moment (ISO 8601; default now)", DB_URL_HELP,
                           max_age=False)
-    p.add_argument("--format", choices=["gyrocal", "imucal", "csv"], default="gyrocal")
+    p.add_argument("--format", choices=["gyrocal", "imucal", "openvins", "csv"], default="gyrocal",
+                   help="openvins: OpenVINS's kalibr_imu_chain.yaml with the intrinsics (needs the accelerometer's calibration; "
+                   "add the noise entries from `gyrocal noise REST --kalibr`)")
     p.add_argument("-o", "--output", type=Path, default=None, metavar="OUT", help="the file to write (default: standard output)")
     p.set_defaults(func=cmd_export)
 
@@ -274,7 +277,10 @@ def cmd_export(args: argparse.Namespace) -> int:
         cal = in_force_of(args, store)
         if cal is None:
             raise ServiceError(none_in_force(args.device, args.at))
-    text, _, _ = export_text(cal, args.format)
+    try:
+        text, _, _ = export_text(cal, args.format)
+    except GyrocalError as exc:
+        raise ServiceError(f"calibration #{cal.id} cannot be written for {args.format}: {exc}") from None
     if args.output is None:
         print(text)
         return EXIT_OK

@@ -1,4 +1,5 @@
-"""An accepted calibration written for other tools: gyrocal's JSON, imucal's calibration file, or CSV."""
+"""An accepted calibration written for other tools: gyrocal's JSON, imucal's calibration file, OpenVINS's IMU
+intrinsics (calib.exports.openvins), or CSV."""
 
 from __future__ import annotations
 
@@ -12,8 +13,14 @@ from .store.records import CalibrationRecord
 
 
 def export_text(cal: CalibrationRecord, fmt: str) -> tuple[str, str, str]:
-    """(text, media type, file extension) of ``cal`` in format ``fmt``: gyrocal, imucal or csv."""
+    """(text, media type, file extension) of ``cal`` in format ``fmt``: gyrocal, imucal, openvins or csv. GyrocalError
+    when the calibration cannot be written so (OpenVINS needs the accelerometer's calibration)."""
     record = cal.model_dump(mode="json")
+    if fmt == "openvins":
+        from calib.exports.openvins import openvins_imu_chain
+
+        comment = f"calibration #{cal.id} of {cal.device_id}, accepted by {cal.operator} at {cal.accepted_at.isoformat()} ({cal.method})"
+        return openvins_imu_chain(Correction.from_json(record), comment=comment), "application/yaml", ".kalibr_imu_chain.yaml"
     if fmt == "imucal":
         corr = Correction.from_json(record)
         comment = (f"gyrocal calibration #{cal.id} of {cal.device_id}, accepted by {cal.operator} at {cal.accepted_at.isoformat()} "

@@ -22,6 +22,7 @@ import numpy as np
 from calib import __version__
 from calib.blas import single_threaded_blas
 from calib.cli.lazy_help import lazy_help
+from calib.cli.options import writable as _writable
 from calib.cli.summary import fmt_vec, result_summary
 from calib.errors import GyrocalError
 from calib.extras import missing_module, register_unavailable
@@ -31,20 +32,6 @@ EXIT_USAGE = 2  # bad arguments or bad input file
 EXIT_PROTOCOL = 3  # the recording was read and is refused: the protocol is not in it, or it does not determine the calibration
 EXIT_INTERNAL = 70
 OUR_PACKAGES = ("calib", "server", "mock_device", "wearable_protocol", "webui")
-
-
-def _writable(path: Path, what: str) -> Path:
-    """``path`` if a file can be written there, else OutputError saying why (checked before any work is done)."""
-    from calib.errors import OutputError
-
-    folder = path.expanduser().resolve().parent
-    if not folder.is_dir():
-        raise OutputError(f"cannot write the {what} to {path}: the folder {folder} does not exist; create it or choose another path")
-    if not os.access(folder, os.W_OK):
-        raise OutputError(f"cannot write the {what} to {path}: the folder {folder} is not writable")
-    if path.is_dir():
-        raise OutputError(f"cannot write the {what} to {path}: that is a folder; give a file name such as {path / 'plot.png'}")
-    return path
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
@@ -250,6 +237,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     from calib.cli.diagnose import add_diagnose_parser
     from calib.cli.kit import add_kit_parsers
+    from calib.cli.noise import add_noise_parser
     from calib.cli.options import add_recording_arguments
     from calib.estimators.closure.placement import HEADING_PRIOR_DEG
     from calib.estimators.registry import DEFAULT_METHOD, method_names
@@ -325,6 +313,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.set_defaults(func=cmd_bench_methods)
 
     add_diagnose_parser(sub)
+    add_noise_parser(sub)
     add_kit_parsers(sub)
 
     p = sub.add_parser("demo", help="simulate a recording, calibrate it and compare with the truth")

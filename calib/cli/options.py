@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -71,3 +72,17 @@ def read_recording_args(args: argparse.Namespace) -> ReadRecording:
 def error_json(exc: Exception, code: str, stages: list[Any]) -> str:
     """The one JSON object a failed command prints with ``--json``."""
     return json.dumps({"error": {"code": code, "message": str(exc), "stages": [s.to_dict() for s in stages]}})
+
+
+def writable(path: Path, what: str) -> Path:
+    """``path`` if a file can be written there, else OutputError saying why (checked before any work is done)."""
+    from calib.errors import OutputError
+
+    folder = path.expanduser().resolve().parent
+    if not folder.is_dir():
+        raise OutputError(f"cannot write the {what} to {path}: the folder {folder} does not exist; create it or choose another path")
+    if not os.access(folder, os.W_OK):
+        raise OutputError(f"cannot write the {what} to {path}: the folder {folder} is not writable")
+    if path.is_dir():
+        raise OutputError(f"cannot write the {what} to {path}: that is a folder; give a file name such as {path / 'plot.png'}")
+    return path

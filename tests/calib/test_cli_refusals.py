@@ -76,7 +76,9 @@ FROM_RECORDINGS = {f.__name__: f for f in (turn_missing, still_missing, no_rest,
                                            not_closed, accelerometer_not_determined)}
 # refusals another test already drives through the installed command, JSON and exit code included
 IN_OTHER_TESTS = {"sample_rate_suspect": "tests/calib/test_cli.py::test_a_wrong_sample_rate_is_named",
-                  "not_one_motion": "tests/calib/test_kit.py::test_recordings_that_are_not_one_kit_are_refused_with_what_to_do"}
+                  "not_one_motion": "tests/calib/test_kit.py::test_recordings_that_are_not_one_kit_are_refused_with_what_to_do",
+                  "not_a_rest": "tests/calib/test_noise.py::test_a_recording_that_moves_is_refused_with_when",
+                  "rest_too_short": "tests/calib/test_noise.py::test_a_short_rest_is_refused_with_how_long_it_must_be"}
 # refusals no recording of a few seconds provokes reliably: the estimator's refusal raised where it stands
 FROM_THE_ESTIMATOR = {
     "not_determined": CalibrationError("the re-orientations do not determine every entry of K"),

@@ -189,6 +189,14 @@ def test_export_for_imucal_is_loaded_by_the_real_imucal_and_gives_back_our_numbe
         assert c.get(f"/calibrations/{cal['id']}").json()["k"] == cal["k"]
         assert c.get("/calibrations/999999").status_code == 404
         assert c.get(f"/calibrations/{cal['id']}", params={"format": "xls"}).status_code == 422
+        ov = c.get(f"/calibrations/{cal['id']}", params={"format": "openvins"})
+        assert ov.status_code == 200 and ov.text.startswith("%YAML:1.0") and ".kalibr_imu_chain.yaml" in ov.headers["content-disposition"]
+    from robotics_readers import openvins_correct, read_openvins
+
+    ovc = read_openvins(ov.text)
+    m, r_acc = np.random.default_rng(3).normal(0, 50, (20, 3)), np.tile([0.0, 0.0, 1.0], (20, 1))
+    w, _ = openvins_correct(ovc, np.radians(m), r_acc * 9.80665)
+    assert np.allclose(np.degrees(w), Correction.from_json(cal).apply(m, r_acc)[0], atol=1e-6)
     info = load_calibration_info(path)
     # imucal's convention: K_g = diag(1/k), b_g = -b/k, no rotation, no g-sensitivity (none was fitted)
     assert np.allclose(np.diag(info.K_g), 1.0 / np.asarray(cal["k"]), rtol=1e-12)

@@ -15,6 +15,7 @@ from fastapi import APIRouter, Path, Query, Request, Response
 from calib import __version__
 from calib.apply.correction import Correction, CorrectionFileError
 from calib.apply.identity import SensorIdentity
+from calib.errors import GyrocalError
 from calib.io.inputs import ReadOptions
 from calib.json_safe import finite
 
@@ -125,7 +126,7 @@ async def orientation_of(
                                                    "identity_check": cal.in_force.identity_check, **summary}))
 
 
-EXPORT_FORMATS = ("gyrocal", "imucal", "csv")
+EXPORT_FORMATS = ("gyrocal", "imucal", "openvins", "csv")
 
 
 @router.get(
@@ -133,18 +134,24 @@ EXPORT_FORMATS = ("gyrocal", "imucal", "csv")
     response_class=Response,
     responses={200: {"model": M.CalibrationRecord, "content": {"application/json": {}, "text/csv": {}},
                      "description": "gyrocal: the stored calibration (JSON); imucal: a Ferraris calibration file imucal's "
-                     "load_calibration_info loads; csv: one row per parameter"}, **R404},
+                     "load_calibration_info loads; openvins: OpenVINS's kalibr_imu_chain.yaml with the intrinsics (Tw, "
+                     "R_IMUtoGYRO, Ta, R_IMUtoACC, Tg); csv: one row per parameter"},
+               422: {"model": M.Problem, "description": "an unknown format, or a calibration that format cannot hold"}, **R404},
     tags=["calibrations"],
 )
 async def export_calibration(
     svc: Svc, calibration_id: Annotated[int, Path(ge=1, le=2**31 - 1)], _: Reader,
-    format: Annotated[str, Query(max_length=16, description="gyrocal (default), imucal or csv")] = "gyrocal",
+    format: Annotated[str, Query(max_length=16, description="gyrocal (default), imucal, openvins or csv")] = "gyrocal",
 ) -> Response:
-    """One accepted calibration, for other tools: gyrocal's JSON, imucal's calibration file, or CSV."""
+    """One accepted calibration, for other tools: gyrocal's JSON, imucal's calibration file, OpenVINS's IMU intrinsics,
+    or CSV."""
     if format not in EXPORT_FORMATS:
         raise problem(422, f"unknown format {format!r}: choose {', '.join(EXPORT_FORMATS)}")
     cal = await calibration_or_404(svc, calibration_id)
-    body, media, ext = export_text(cal, format)
+    try:
+        body, media, ext = export_text(cal, format)
+    except GyrocalError as exc:
+        raise problem(422, f"calibration #{cal.id} cannot be written for {format}: {exc}") from None
     return Response(body, media_type=media, headers={
         "Content-Disposition": f'attachment; filename="{cal.device_id}-calibration-{cal.id}{ext}"'})
 
