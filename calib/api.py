@@ -32,14 +32,19 @@ PathLike = str | os.PathLike[str]
 
 
 def read(path: PathLike, *, layout: str = "auto", fs: float | None = None, accel: PathLike | None = None,
-         gyro_counts_per_dps: float | None = None, accel_counts_per_g: float | None = None) -> Recording:
+         gyro_counts_per_dps: float | None = None, accel_counts_per_g: float | None = None,
+         sections: PathLike | None = None) -> Recording:
     """A recording from disk, in any layout the command line reads (``native``, ``imucal``, ``imu_tk`` with ``accel``
-    the accelerometer's file, ``auto`` from the header); raw counts with the sensitivities given. RecordingError says
-    what is wrong with a file and how to fix it."""
+    the accelerometer's file, ``auto`` from the header); raw counts with the sensitivities given; ``sections`` an
+    imucal section list (JSON) whose labelled sections replace stage detection. RecordingError says what is wrong
+    with a file and how to fix it."""
+    from dataclasses import replace
+
     from calib.io.inputs import ReadOptions, file_input, read_input
 
     options = ReadOptions(layout=layout, fs=fs, gyro_counts_per_dps=gyro_counts_per_dps, accel_counts_per_g=accel_counts_per_g)
-    return read_input(file_input(path, options, accel)).recording
+    read = read_input(file_input(path, options, accel, sections))
+    return read.recording if read.sections is None else replace(read.recording, meta=replace(read.recording.meta, sections=read.sections))
 
 
 def calibrate(rec: Recording, *, protocol: str = "auto", method: str | None = None,
