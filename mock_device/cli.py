@@ -4,7 +4,7 @@
 
 starts a private dbus-daemon, serves the wearable on it as ``org.bluez`` and prints one JSON line:
 {"dbus_address": ..., "address": ..., "name": ..., "model": ..., "simulated_truth": {"k": [...], "b": [...]}}.
-``--model`` picks the protocol it speaks: gyrocal (default), polar-pmd, metawear or thingy52. ``--kit MODEL,MODEL,...``
+``--model`` picks the protocol it speaks: gyrocal (default), polar-pmd, metawear, thingy52 or movella-dot. ``--kit MODEL,MODEL,...``
 serves one wearable of each model named, riding in one tray that one clinician turns (a kit to calibrate together).
 It runs until SIGTERM or SIGINT, then stops its daemon. Run a bleak program with
 DBUS_SYSTEM_BUS_ADDRESS set to ``dbus_address`` and it sees the wearable.

@@ -34,7 +34,7 @@ def add_mock_options(p: Any) -> None:
     )
     p.add_argument(
         "--mock-model", default="gyrocal", metavar="NAME",
-        help="the protocol the simulated wearables speak: gyrocal, polar-pmd, metawear or thingy52 (default gyrocal)"
+        help="the protocol the simulated wearables speak: gyrocal, polar-pmd, metawear, thingy52 or movella-dot (default gyrocal)"
     )
     p.add_argument("--mock-kit", action="store_true",
                    help="the N simulated wearables ride in one tray that one clinician turns through the protocol: a kit to "

@@ -129,8 +129,8 @@ class DeviceOut(BaseModel):
     firmware: str | None = None
     serial: str | None = None
     battery_pct: int | None = Field(None, description="battery level, %, when the service has read it (null: not read yet)")
-    model: str | None = Field(None, description="the protocol gyrocal speaks with it: gyrocal, polar-pmd, metawear or thingy52 "
-                                                "(null: not known yet)")
+    model: str | None = Field(None, description="the protocol gyrocal speaks with it: gyrocal, polar-pmd, metawear, thingy52 or "
+                                                "movella-dot (null: not known yet)")
     model_label: str | None = None
     sample_rate_hz: float | None = Field(None, description="the rate it streams at, Hz (read once connected, else the model's)")
     gyro_full_scale_dps: int | None = Field(None, description="its gyro range, deg/s (read once connected, else the model's)")

@@ -100,6 +100,13 @@ def metawear_service() -> Iterator[RunningService]:
 
 
 @pytest.fixture(scope="module")
+def dot_service() -> Iterator[RunningService]:
+    """A service whose one simulated wearable is a Movella DOT."""
+    with running_service(["normal"], "--mock-model", "movella-dot") as svc:
+        yield svc
+
+
+@pytest.fixture(scope="module")
 def retry_service() -> Iterator[RunningService]:
     """A service that asks for a turn again after a fault (two tries per turn); mock-1 is bumped in a pause, mock-2
     turns too fast."""

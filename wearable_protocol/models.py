@@ -14,7 +14,7 @@ from typing import Any, Literal
 
 from .sensor import ACCEL_SENSITIVITY_LSB_PER_G, GYRO_SENSITIVITY_LSB_PER_DPS, SUPPORTED_RATES_HZ
 from .uuids import IMU_SERVICE
-from .vendors import metawear, polar_pmd, thingy52
+from .vendors import metawear, movella_dot, polar_pmd, thingy52
 
 # Simulated brisk hand turns peak at 150-330 deg/s (docs/protocol.md): the smallest full scale at or above
 # this leaves a third of headroom. Finer ranges clip a fast turn; coarser ones only cost resolution.
@@ -49,7 +49,7 @@ IDENTIFY_DEFAULT_S = 5  # how long a wearable blinks when asked which one it is
 class DeviceModel:
     """One wearable protocol as gyrocal uses it."""
 
-    key: str  # "gyrocal", "polar-pmd", "metawear", "thingy52": the CLI's --model and the API's "model"
+    key: str  # "gyrocal", "polar-pmd", "metawear", "thingy52", "movella-dot": the CLI's --model and the API's "model"
     label: str
     service: str  # the primary service that carries the IMU data
     advertised: tuple[str, ...]  # service UUIDs in its advertisement
@@ -64,6 +64,8 @@ class DeviceModel:
     write_back: bool  # can hold a calibration written to it
     whole_rates_hz: tuple[int, int] | None = None  # offers every whole rate in this range (rates_hz: typical ones)
     identify: str | None = None  # what the device does when asked which one it is ("blinks its LED"); None: no command
+    other_names: tuple[str, ...] = ()  # further local-name prefixes it advertises under (an earlier firmware's)
+    identify_s: int | None = None  # how long it blinks whatever it is asked (its own pattern); None: as long as asked
 
     def offers_rate(self, rate_hz: float) -> bool:
         """Whether the device offers this output data rate."""
@@ -139,7 +141,17 @@ THINGY52 = DeviceModel(
     (thingy52.MOTION_FREQ_MIN_HZ, thingy52.MOTION_FREQ_MAX_HZ), identify="breathes its LED green",
 )
 
-MODELS: dict[str, DeviceModel] = {m.key: m for m in (GYROCAL, POLAR_PMD, METAWEAR, THINGY52)}
+# Movella DOT (XD0506P): real-time streaming at 1-60 Hz, one sample per notification stamped by the sensor's clock
+# in microseconds, no counter; the gyroscope at +-2000 deg/s and the accelerometer at +-16 g, not settable over BLE.
+# It advertises its name ("Movella DOT"; "Xsens DOT" before firmware 2.x), not its services.
+MOVELLA_DOT = DeviceModel(
+    "movella-dot", "Movella DOT (Xsens DOT)", movella_dot.MEASUREMENT_SERVICE, (), movella_dot.NAME,
+    tuple(float(r) for r in movella_dot.STREAMING_RATES_HZ), 60.0, (movella_dot.GYRO_FULL_SCALE_DPS,),
+    (movella_dot.ACCEL_RANGE_G,), None, "device", "time_stamps", False, identify="blinks its LED red",
+    other_names=(movella_dot.OLD_NAME,), identify_s=movella_dot.IDENTIFY_S,
+)
+
+MODELS: dict[str, DeviceModel] = {m.key: m for m in (GYROCAL, POLAR_PMD, METAWEAR, THINGY52, MOVELLA_DOT)}
 
 
 def model(key: str) -> DeviceModel:
@@ -157,6 +169,6 @@ def identify(name: str | None, service_uuids: list[str] | tuple[str, ...]) -> De
         if uuids & set(m.advertised):
             return m
     for m in MODELS.values():
-        if name and m.name_prefix and name.startswith(m.name_prefix):
+        if name and any(name.startswith(p) for p in (m.name_prefix, *m.other_names) if p):
             return m
     return None

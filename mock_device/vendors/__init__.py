@@ -5,9 +5,11 @@ from __future__ import annotations
 
 from ..wearable import Wearable
 from .metawear import MetaWearWearable
+from .movella_dot import MovellaDotWearable
 from .polar import PolarWearable
 from .thingy52 import Thingy52Wearable
 
-WEARABLES: dict[str, type[Wearable]] = {w.model.key: w for w in (Wearable, PolarWearable, MetaWearWearable, Thingy52Wearable)}
+WEARABLES: dict[str, type[Wearable]] = {
+    w.model.key: w for w in (Wearable, PolarWearable, MetaWearWearable, Thingy52Wearable, MovellaDotWearable)}
 
-__all__ = ["WEARABLES", "MetaWearWearable", "PolarWearable", "Thingy52Wearable"]
+__all__ = ["WEARABLES", "MetaWearWearable", "MovellaDotWearable", "PolarWearable", "Thingy52Wearable"]

@@ -12,7 +12,6 @@ from collections import deque
 from collections.abc import AsyncIterator, Callable
 from datetime import UTC, datetime
 
-import wearable_protocol as wp
 from wearable_protocol import DeviceConfig, HeldCalibration
 from wearable_protocol.models import DeviceModel
 
@@ -200,21 +199,12 @@ class LinkCore(ABC):
         return self.protocol.last_t_s if self.protocol is not None else None
 
     async def read_info(self) -> DeviceInfo:
-        """Read config, Device Information (optional) and battery level (optional)."""
+        """Read config, what the device says about itself (Device Information, battery: optional) and its power-up."""
         adapter = self._require()
         config = await adapter.read_config()
-
-        async def text(uuid: str) -> str | None:
-            raw = await self._optional(uuid)
-            return raw.decode("utf-8", "replace").rstrip("\x00") if raw is not None else None
-
-        battery = await self._optional(wp.BATTERY_LEVEL_CHAR)
-        return DeviceInfo(
-            self.address or "", self.name, config,
-            await text(wp.MANUFACTURER_NAME_CHAR), await text(wp.MODEL_NUMBER_CHAR),
-            await text(wp.SERIAL_NUMBER_CHAR), await text(wp.FIRMWARE_REVISION_CHAR),
-            battery[0] if battery else None, adapter.model.key, await self.read_power_up(),
-        )
+        d = await adapter.details()
+        return DeviceInfo(self.address or "", self.name, config, d.get("manufacturer"), d.get("model"), d.get("serial"),
+                          d.get("firmware"), d.get("battery_pct"), adapter.model.key, await self.read_power_up())
 
     async def read_power_up(self) -> PowerUpReading | None:
         """The wearable's power-up and temperature now; None when its protocol reports none or the read failed."""
@@ -224,15 +214,6 @@ class LinkCore(ABC):
             log.info("power-up not readable: %s", e)
             return None
         return None if found is None else PowerUpReading.from_power_up(found, datetime.now(UTC))
-
-    async def _optional(self, uuid: str) -> bytes | None:
-        if not self._t_has(uuid):
-            return None
-        try:
-            return await self._t_read(uuid)
-        except Exception as e:  # locked or hidden by the host stack: the field is simply unknown
-            log.info("optional characteristic %s not readable: %s", uuid, e)
-            return None
 
     async def configure(self, *, sample_rate_hz: float | None = None, gyro_full_scale_dps: int | None = None,
                         accel_range_g: int | None = None) -> DeviceConfig:

@@ -36,7 +36,7 @@ async def test_a_scan_names_the_model_of_every_wearable(simulated_bluez):
     assert [d.model for d in polar] == ["polar-pmd"] and polar[0].name.startswith("Polar Sense ")
 
 
-@pytest.mark.parametrize("model", ["polar-pmd", "metawear", "thingy52"])
+@pytest.mark.parametrize("model", ["polar-pmd", "metawear", "thingy52", "movella-dot"])
 async def test_each_vendor_calibrates_through_bleak(simulated_bluez, model):
     seed = 31
     # arrival-timed models: a wall-clock delivery delay is `speed` times longer on the device's time scale, so they
@@ -64,8 +64,8 @@ async def test_each_vendor_calibrates_through_bleak(simulated_bluez, model):
 
 async def test_identify_blinks_each_wearable_whose_protocol_can_and_names_the_one_that_cannot(simulated_bluez):
     """IDENTIFY through the real bleak client, one wearable of each model on one adapter: gyrocal's opcode (while
-    streaming), the MetaWear LED module's blink pattern and the Thingy:52's LED characteristic (put back afterwards);
-    Polar's PMD has no such command."""
+    streaming), the MetaWear LED module's blink pattern, the Thingy:52's LED characteristic (put back afterwards) and the
+    Movella DOT's device control (its own 10 s pattern, a twentieth of it here); Polar's PMD has no such command."""
     wearables = {m: WEARABLES[m](ScriptedSource(seed=5 + i), seed=5 + i, speed=SPEED) for i, m in enumerate(MODELS)}
     simulated_bluez(list(wearables.values()))
     links = {m: BleLink(w.address, reconnect=FAST) for m, w in wearables.items()}
@@ -77,7 +77,7 @@ async def test_identify_blinks_each_wearable_whose_protocol_can_and_names_the_on
             await links["polar-pmd"].identify(2)
         await links["gyrocal"].start()  # a streaming wearable blinks too, and streams on
         blinking = [m for m in MODELS if MODELS[m].identify is not None]
-        assert blinking == ["gyrocal", "metawear", "thingy52"] and not any(w.identifying for w in wearables.values())
+        assert blinking == ["gyrocal", "metawear", "thingy52", "movella-dot"] and not any(w.identifying for w in wearables.values())
         for m in blinking:
             await links[m].identify(1)
         deadline = time.monotonic() + 2.0

@@ -21,7 +21,7 @@ from wearable_protocol.models import MODELS
 from wearable_protocol.vendors import polar_pmd as pmd
 
 FAST = ReconnectPolicy(initial_delay_s=0.02, max_delay_s=0.2, timeout_s=10.0)
-VENDORS = ("polar-pmd", "metawear", "thingy52")
+VENDORS = ("polar-pmd", "metawear", "thingy52", "movella-dot")
 
 
 def _device(model: str, seed: int = 1, scenario: str = "normal", speed: float = 20.0, **kw):  # type: ignore[no-untyped-def]
@@ -130,6 +130,20 @@ async def test_readings_that_come_while_the_stream_is_started_again_carry_the_ga
     assert events[1].gap_samples == after.lost_before > 0
 
 
+async def test_dot_samples_lost_on_the_radio_are_found_from_the_time_stamps():
+    w = _device("movella-dot", seed=8, scenario="packet_loss", speed=20.0)
+    link = _link(w)
+    batches, _ = await _session(link, until_s=25.0)
+    last = batches[-1].seq[-1]
+    lost = [j for j in w.stats.lost_radio_seqs if j < last]
+    assert len(lost) >= 2
+    assert link.stats.lost_samples == len(lost)
+    t = np.concatenate([b.t_device_s for b in batches])
+    seq = np.concatenate([b.seq for b in batches])
+    np.testing.assert_allclose(np.diff(t) * w.true_rate_hz, np.diff(seq), atol=0.02)
+    assert sorted(set(range(int(seq[0]), int(last) + 1)) - set(seq.tolist())) == lost
+
+
 async def test_polar_frames_lost_on_the_radio_are_found_from_the_time_stamps():
     w = _device("polar-pmd", seed=8, scenario="packet_loss", speed=20.0)
     link = _link(w)
@@ -172,6 +186,9 @@ async def test_a_device_of_another_model_is_refused_with_a_plain_message():
     ("metawear", {"gyro_full_scale_dps": 300}, "no gyro range 300"),
     ("thingy52", {"gyro_full_scale_dps": 500}, "fixed at 2000 deg/s"),
     ("thingy52", {"sample_rate_hz": 250.0}, "from 1 to 200"),
+    ("movella-dot", {"sample_rate_hz": 120.0}, "streams at one of 1, 4, 10, 12, 15, 20, 30, 60 Hz"),
+    ("movella-dot", {"gyro_full_scale_dps": 1000}, "fixed at 2000 deg/s"),
+    ("movella-dot", {"accel_range_g": 8}, "fixed at 16 g"),
 ])
 async def test_settings_a_device_does_not_offer_are_refused(model, kwargs, message):
     link = _link(_device(model, seed=7))

@@ -56,7 +56,8 @@ def test_every_model_is_scanned_calibrated_and_stored_through_bleak(tmp_path) ->
     # two-core machine, less than the service takes to check a turn there, and the next turn came while it checked.
     # The wearables timed by arrival run in real time, so the test takes their time whatever gyrocal's speed: 20x
     # saved nothing and gave a starved service twice the packets a second of 10x to read
-    runs = {"gyrocal": (10.0, 8), "polar-pmd": (5.0, 40), "metawear": (1.0, 41), "thingy52": (1.0, 42)}  # (speed, seed)
+    runs = {"gyrocal": (10.0, 8), "polar-pmd": (5.0, 40), "metawear": (1.0, 41), "thingy52": (1.0, 42),
+            "movella-dot": (5.0, 43)}  # (speed, seed)
     with ThreadPoolExecutor(len(runs)) as pool:
         futures = {m: pool.submit(_guided_over_ble, m, speed, seed, tmp_path / f"{m}.sqlite3")
                    for m, (speed, seed) in runs.items()}

@@ -189,6 +189,29 @@ def test_a_commercial_wearable_shows_its_model_settings_and_limits_and_calibrate
     assert_clean(page_watch)
 
 
+def test_a_movella_dot_card_says_what_it_is_and_can_do_blinks_and_calibrates(page: Any, dot_service: Any, artifacts: Path,
+                                                                             page_watch: Watch) -> None:
+    wizard = Wizard(page, dot_service, artifacts / "webui" / "test_a_movella_dot")
+    wizard.sign_in()
+    card = page.locator(".device-card[data-device='mock-1']")
+    assert "Movella DOT (Xsens DOT)" in card.locator(".dev-sub").inner_text()
+    assert card.locator(".stream-settings").inner_text() == "60 readings a second · measures turns up to 2000°/s"
+    limits = card.locator(".dev-limits").inner_text()
+    assert "found from gaps in its time stamps" in limits and "cannot hold a calibration" in limits
+    assert "times the samples arrived" not in limits  # the DOT stamps its samples with its own clock
+    card.locator("button.identify").click()
+    status = card.locator(".identify-status")
+    status.locator("text=blinks its LED red for 10 s").wait_for(timeout=15_000)
+    wizard.shot("dot-card")
+    assert wizard.small_targets() == []
+    wizard.choose("mock-1")
+    wizard.start()
+    wizard.wait_state("done", "failed", timeout_ms=90_000)
+    assert wizard.text(".verdict h1") == "PASS", wizard.text(".sentence")
+    wizard.shot("dot-pass")
+    assert_clean(page_watch)
+
+
 def test_after_a_calibration_the_gauge_reads_true_degrees_to_360(page: Any, webui_service: Any, artifacts: Path,
                                                                  page_watch: Watch) -> None:
     """A device with an accepted calibration: the gauge shows its turns in true degrees against a 360° target

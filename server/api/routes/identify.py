@@ -37,6 +37,7 @@ async def identify_device(svc: Svc, device_id: str, operator: Operator, body: M.
         if model is None or model.identify is None:
             raise problem(409, f"{model.label if model else 'this wearable'} {CANNOT_IDENTIFY}")
         await link.identify(seconds)
+        seconds = model.identify_s or seconds  # a device with a pattern of its own blinks for as long as it does
     except CommandError as exc:
         raise problem(502, f"{dev.name or device_id} did not blink: {exc}") from None
     except LinkError as exc:

@@ -6,10 +6,12 @@ from __future__ import annotations
 from .base import Adapter, GattIO, StreamSink
 from .gyrocal import GyrocalAdapter
 from .metawear import MetaWearAdapter
+from .movella_dot import MovellaDotAdapter
 from .polar import PolarAdapter
 from .thingy52 import Thingy52Adapter
 
-ADAPTERS: dict[str, type[Adapter]] = {a.model.key: a for a in (GyrocalAdapter, PolarAdapter, MetaWearAdapter, Thingy52Adapter)}
+ADAPTERS: dict[str, type[Adapter]] = {
+    a.model.key: a for a in (GyrocalAdapter, PolarAdapter, MetaWearAdapter, Thingy52Adapter, MovellaDotAdapter)}
 
 
 def recognise(io: GattIO) -> type[Adapter] | None:

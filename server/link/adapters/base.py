@@ -9,15 +9,19 @@ configure, start and stop, and how the data notifications decode into :class:`Sa
 from __future__ import annotations
 
 import asyncio
+import logging
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Hashable
 from typing import Any, ClassVar, Protocol
 
+import wearable_protocol as wp
 from wearable_protocol import DeviceConfig, DeviceState, HeldCalibration, PowerUp
 from wearable_protocol.models import CANNOT_HOLD, CANNOT_IDENTIFY, DeviceModel
 
 from ..base import CommandError, LinkError, LinkStats, SampleBatch, WriteBackError
+
+log = logging.getLogger(__name__)
 
 
 class GattIO(Protocol):
@@ -90,6 +94,28 @@ class Adapter(ABC):
     @abstractmethod
     async def stop(self) -> None:
         """Stop streaming and unsubscribe from the data."""
+
+    async def details(self) -> dict[str, Any]:
+        """What the device says about itself: manufacturer, model, serial, firmware (the Device Information service)
+        and battery_pct (the Battery service). Both are optional (some host stacks hide or lock them): a field absent
+        or unreadable is left out. A protocol with characteristics of its own for these reads those instead."""
+        out: dict[str, Any] = {}
+        for key, uuid in (("manufacturer", wp.MANUFACTURER_NAME_CHAR), ("model", wp.MODEL_NUMBER_CHAR),
+                          ("serial", wp.SERIAL_NUMBER_CHAR), ("firmware", wp.FIRMWARE_REVISION_CHAR),
+                          ("battery_pct", wp.BATTERY_LEVEL_CHAR)):
+            raw = await self._optional(uuid)
+            if raw:
+                out[key] = raw[0] if key == "battery_pct" else raw.decode("utf-8", "replace").rstrip("\x00")
+        return out
+
+    async def _optional(self, uuid: str) -> bytes | None:
+        if not self.io.has(uuid):
+            return None
+        try:
+            return await self.io.read(uuid)
+        except Exception as e:  # locked or hidden by the host stack: the field is simply unknown
+            log.info("optional characteristic %s not readable: %s", uuid, e)
+            return None
 
     async def power_up(self) -> PowerUp | None:
         """The device's boot count, uptime and temperature; None when its protocol reports none (no vendor's does)."""
