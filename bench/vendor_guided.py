@@ -35,7 +35,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 GYROCAL = [sys.executable, "-m", "calib.cli.main"]
 TOKEN = "bench-" + uuid.uuid4().hex
-MODELS = ("gyrocal", "polar-pmd", "metawear", "thingy52")
+MODELS = ("gyrocal", "polar-pmd", "metawear", "thingy52", "movella-dot")
 ARRIVAL_TIMED = {"metawear", "thingy52"}
 
 

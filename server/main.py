@@ -29,6 +29,7 @@ from .api.routes import (
     health,
     identify,
     kits,
+    noise,
     plots,
     sessions,
     verify,
@@ -84,7 +85,7 @@ def create_app(settings: Settings | None = None, service: Service | None = None)
     app.add_middleware(SecurityHeaders)  # outermost: every answer carries the headers, refusals too
     _error_answers(app)
     for module in (health, auth, devices, sessions, archive, kits, write_back, identify, audit, plots, diagnosis, apply, verify, watch,
-                   fleet):
+                   noise, fleet):
         app.include_router(module.router)
     add_docs(app)
     page.mount_page(app, settings)  # last: the page's files at / would shadow later routes

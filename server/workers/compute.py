@@ -235,6 +235,15 @@ def verify_upload(inp: RecordingInput, max_samples: int, calibration: dict[str, 
     return verify_recording(rec, calibration), recording_csv(rec), len(rec)
 
 
+def noise_upload(inp: RecordingInput, max_samples: int, topic: str) -> dict[str, Any]:
+    """An uploaded rest's noise (``calib.noise``) as JSON, with Kalibr's imu.yaml when it has the accelerometer."""
+    from calib.exports.kalibr import kalibr_imu_yaml
+    from calib.noise.analysis import noise
+
+    report = noise(parse_upload(inp, max_samples).recording)
+    return {**report.to_json(), "kalibr_yaml": None if report.accel is None else kalibr_imu_yaml(report, topic)}
+
+
 def watch_upload(inp: RecordingInput, max_samples: int, calibration: dict[str, Any]) -> tuple[dict[str, Any], bytes, int]:
     """An uploaded study recording watched against a calibration: (report as JSON, CSV, samples)."""
     from calib.apply.correction import Correction

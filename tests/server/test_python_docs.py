@@ -9,7 +9,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-from conftest import REAL_DATA
 from server_fixtures import ROOT, RunningService
 
 from calib.io.readers import write_native_csv
@@ -23,7 +22,7 @@ def blocks(text: str) -> list[str]:
     return re.findall(r"```python\n(.*?)```", text, flags=re.S)
 
 
-def test_the_python_docs_run_as_written(tmp_path: Path) -> None:
+def test_the_python_docs_run_as_written(tmp_path: Path, real_data: Path) -> None:
     svc = RunningService([], f"sqlite:///{tmp_path / 'store.sqlite3'}").start()
     try:
         with svc.client() as c:
@@ -38,7 +37,7 @@ def test_the_python_docs_run_as_written(tmp_path: Path) -> None:
         code = blocks(DOC.read_text(encoding="utf-8"))
         assert len(code) >= 10
         script = tmp_path / "python_docs.py"
-        body = "\n".join(f"# --- block {i + 1}\n{b}" for i, b in enumerate(code)).replace("../shared/data/real", str(REAL_DATA))
+        body = "\n".join(f"# --- block {i + 1}\n{b}" for i, b in enumerate(code)).replace("../shared/data/real", str(real_data))
         script.write_text(f"SERVICE = {svc.base!r}\n{body}", encoding="utf-8")
         run = subprocess.run([sys.executable, str(script)], cwd=ROOT, capture_output=True, text=True, timeout=240)
         assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]

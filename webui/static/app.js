@@ -10,6 +10,7 @@ import { fleetView } from "./fleet.js";
 import { historyView } from "./history.js";
 import { kitView } from "./kit.js";
 import { pinView, signInView } from "./signin.js";
+import { noiseView } from "./noise.js";
 import { uploadView } from "./upload.js";
 import { placeView, sessionView } from "./wizard.js";
 
@@ -29,6 +30,7 @@ const ROUTES = [
   [/^#\/kit\/([0-9a-f]{32})$/, (m) => kitView(ctx, m[1])],
   [/^#\/history\/([^/]+)$/, (m) => historyView(ctx, decodeURIComponent(m[1]))],
   [/^#\/upload$/, () => uploadView(ctx)],
+  [/^#\/noise$/, () => noiseView(ctx)],
   [/^#\/fleet$/, () => fleetView(ctx)],
   [/^#\/pin$/, () => pinView(ctx)],
 ];

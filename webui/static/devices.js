@@ -150,6 +150,7 @@ export function devicesView(ctx) {
         h("p", { class: "lead" }, "Pick the wearable to calibrate, or tick “In the kit” on the wearables of one tray to turn them together.")),
       h("div", { class: "panel-actions" }, scanBtn, kitBtn,
         h("a", { class: "button", href: "#/upload", id: "upload-link" }, icon("upload"), "Calibrate a recording file"),
+        h("a", { class: "button", href: "#/noise", id: "noise-link" }, icon("upload"), "Noise from a rest"),
         h("a", { class: "button", href: "#/fleet", id: "fleet-link" }, icon("fleet"), "Fleet"))),
     note, list));
   ctx.focusMain();

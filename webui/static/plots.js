@@ -38,12 +38,12 @@ function tickText(v, ticks) {
   return v.toFixed(d);
 }
 
-function frame(xTicks, yTicks, sx, sy, xFmt, xLabel, yLabel, top = M.t) {
+function frame(xTicks, yTicks, sx, sy, xFmt, xLabel, yLabel, top = M.t, yFmt = tickText) {
   const g = s("g", { class: "axes" });
   for (const v of yTicks) {
     const y = sy(v);
     g.append(s("line", { x1: M.l, x2: W - M.r, y1: y, y2: y, class: "grid" }),
-      s("text", { x: M.l - 8, y: y + 4, class: "tick y" }, tickText(v, yTicks)));
+      s("text", { x: M.l - 8, y: y + 4, class: "tick y" }, yFmt(v, yTicks)));
   }
   for (const v of xTicks) {
     const x = sx(v);
@@ -62,7 +62,7 @@ function frame(xTicks, yTicks, sx, sy, xFmt, xLabel, yLabel, top = M.t) {
 }
 
 function legend(series) {
-  return h("ul", { class: "legend" }, series.map((se) => h("li", null,
+  return h("ul", { class: "legend" }, series.filter((se) => se.label).map((se) => h("li", null,
     s("svg", { viewBox: "0 0 36 12", class: "legend-key", "aria-hidden": "true" },
       se.points ? s("g", { class: `series ${se.cls}` }, marker(se.marker, 18, 6, 4)) : s("line", { x1: 2, x2: 34, y1: 6, y2: 6, class: `series ${se.cls}` })),
     se.label)));
@@ -76,17 +76,18 @@ function marker(kind, x, y, r) {
 
 /**
  * A line chart of series sharing an x axis.
- * opts: {title, caption, xLabel, yLabel, series: [{x, y, label, cls}], bands: [{from, to, label}], yZero}
+ * opts: {title, caption, xLabel, yLabel, series: [{x, y, label, cls}], bands: [{from, to, label}], yZero, xFmt, yFmt,
+ * yTicks (the y ticks to draw, in place of round ones)}
  */
 export function lineChart(opts) {
   const series = opts.series;
   let [x0, x1] = extent(series.map((se) => se.x));
   let [y0, y1] = extent(series.map((se) => se.y));
   if (opts.yZero) y0 = Math.min(0, y0);
-  const yTicks = niceTicks(y0, y1, 5);
+  const yTicks = opts.yTicks || niceTicks(y0, y1, 5);
   y0 = Math.min(y0, yTicks[0]);
   y1 = Math.max(y1, yTicks[yTicks.length - 1]);
-  const xTicks = niceTicks(x0, x1, 8).filter((v) => v >= x0 - 1e-9 && v <= x1 + 1e-9);
+  const xTicks = (opts.xTicks || niceTicks(x0, x1, 8)).filter((v) => v >= x0 - 1e-9 && v <= x1 + 1e-9);
   if (x1 === x0) x1 = x0 + 1;
   if (y1 === y0) y1 = y0 + 1;
   // the bands' labels get a strip of their own above the plot, so no curve runs through them
@@ -98,7 +99,8 @@ export function lineChart(opts) {
     svg.append(s("rect", { x: sx(b.from), y: M.t, width: Math.max(1, sx(b.to) - sx(b.from)), height: H - M.t - M.b, class: "band" }),
       s("text", { x: (sx(b.from) + sx(b.to)) / 2, y: M.t + 13, class: "band-label" }, b.label));
   }
-  svg.append(frame(xTicks, yTicks, sx, sy, opts.xFmt || ((v, t) => tickText(v, t)), opts.xLabel, opts.yLabel, top));
+  svg.append(frame(xTicks, yTicks, sx, sy, opts.xFmt || ((v, t) => tickText(v, t)), opts.xLabel, opts.yLabel, top,
+    opts.yFmt || tickText));
   for (const se of series) {
     let d = "";
     let pen = false;
@@ -130,7 +132,7 @@ export function historyChart(opts) {
   const n = when.length;
   const ys = series.flatMap((se) => se.y.map((v, i) => [v - (se.err?.[i] || 0), v + (se.err?.[i] || 0)]).flat());
   let [y0, y1] = extent([ys]);
-  const yTicks = niceTicks(y0, y1, 5);
+  const yTicks = opts.yTicks || niceTicks(y0, y1, 5);
   y0 = Math.min(y0, yTicks[0]);
   y1 = Math.max(y1, yTicks[yTicks.length - 1]);
   if (y1 === y0) y1 = y0 + 1;
@@ -177,7 +179,7 @@ export function temperatureChart(opts) {
   if (x1 - x0 < 1) [x0, x1] = [x0 - 1, x1 + 1];
   if (y1 === y0) [y0, y1] = [y0 - 0.001, y1 + 0.001];
   const xTicks = niceTicks(x0, x1, 6);
-  const yTicks = niceTicks(y0, y1, 5);
+  const yTicks = opts.yTicks || niceTicks(y0, y1, 5);
   [x0, x1] = [Math.min(x0, xTicks[0]), Math.max(x1, xTicks[xTicks.length - 1])];
   [y0, y1] = [Math.min(y0, yTicks[0]), Math.max(y1, yTicks[yTicks.length - 1])];
   const sx = (v) => M.l + ((v - x0) / (x1 - x0)) * (W - M.l - M.r);
