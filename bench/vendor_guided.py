@@ -10,7 +10,7 @@ Reported per model: sessions that passed, |dk| and |db| against the simulated tr
 percentile, max), and the errors over the estimator's own standard errors (z = dk / k_std): z of about 1
 means the estimator is at its bound for that device's rate and noise, whatever the protocol.
 
-Run: .venv/bin/python bench/vendor_guided.py [--devices 8] [--rounds 2] [--speed 20] [--json]
+Run: .venv/bin/python bench/vendor_guided.py [--devices 5] [--rounds 2] [--speed 20] [--json]
 """
 
 from __future__ import annotations
@@ -125,7 +125,8 @@ def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--devices", type=int, default=8, help="simulated wearables per model (default 8)")
+    ap.add_argument("--devices", type=int, default=5,
+                    help="simulated wearables per model (default 5: the connection slots of the one simulated adapter)")
     ap.add_argument("--rounds", type=int, default=2, help="guided sessions per wearable (default 2)")
     ap.add_argument("--speed", type=float, default=20.0, help="time scale of the device-timed models (default 20)")
     ap.add_argument("--models", default=",".join(MODELS))

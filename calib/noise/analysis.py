@@ -54,6 +54,7 @@ class NoiseReport:
     duration_s: float
     gyro: tuple[AxisNoise, ...]
     accel: tuple[AxisNoise, ...] | None
+    lost_samples: int = 0  # samples missing from the time stamps (or the counter); the curve reads the rest as evenly spaced
     units: dict[str, dict[str, str]] = field(default_factory=lambda: {
         "gyro": {"noise_density": "(deg/s)/sqrt(Hz)", "bias_instability": "deg/s", "random_walk": "(deg/s)/sqrt(s)"},
         "accel": {"noise_density": "g/sqrt(Hz)", "bias_instability": "g", "random_walk": "g/sqrt(s)"}})
@@ -61,7 +62,7 @@ class NoiseReport:
     def to_json(self) -> dict[str, Any]:
         """The report as JSON (``gyrocal noise --json``, the service's noise upload)."""
         return {"source": self.source, "sample_rate_hz": self.sample_rate_hz, "duration_s": self.duration_s,
-                "units": self.units, "gyro": [a.to_json() for a in self.gyro],
+                "lost_samples": self.lost_samples, "units": self.units, "gyro": [a.to_json() for a in self.gyro],
                 "accel": None if self.accel is None else [a.to_json() for a in self.accel]}
 
     def text(self) -> str:
@@ -78,15 +79,18 @@ class NoiseReport:
                 lines.append(f"  {a.axis}  " + "  ".join((
                     _fmt(a.density, 1e6, "ug/sqrt(Hz)"), _fmt(a.bias_instability, 1e6, "ug"),
                     _fmt(a.random_walk, 1e6, "ug/sqrt(s)"))))
-        lines.append("± is the 95 % interval; '<' an upper bound where the curve does not show the term; "
+        lines.append("[low, high] is the 95 % interval; '<' an upper bound where the curve does not show the term; "
                      "τ where each was read")
+        if self.lost_samples:
+            lines.append(f"{self.lost_samples} samples are missing from the recording: the curve takes the others as evenly "
+                         "spaced, which bends it at averaging times near the gaps")
         return "\n".join(lines)
 
 
 def _fmt(r: Reading, scale: float, unit: str) -> str:
     if r.value is None or r.lo95 is None:
-        return f"< {r.hi95 * scale:8.3g} {unit:<13} (τ {r.tau_s:g} s)".ljust(34)
-    return f"{r.value * scale:8.3g} [{r.lo95 * scale:.3g}, {r.hi95 * scale:.3g}] {unit} (τ {r.tau_s:g} s)".ljust(34)
+        return f"< {r.hi95 * scale:8.3g} {unit:<13} (τ {r.tau_s:.3g} s)".ljust(34)
+    return f"{r.value * scale:8.3g} [{r.lo95 * scale:.3g}, {r.hi95 * scale:.3g}] {unit} (τ {r.tau_s:.3g} s)".ljust(34)
 
 
 def check_rest(rec: Recording) -> None:
@@ -141,4 +145,14 @@ def noise(rec: Recording, progress: Callable[[int], None] | None = None) -> Nois
 
     gyro = axes(rec.gyro)
     accel = None if rec.accel is None else axes(rec.accel)
-    return NoiseReport(rec.meta.source, float(fs), float(rec.duration_s), gyro, accel)
+    return NoiseReport(rec.meta.source, float(fs), float(rec.duration_s), gyro, accel, lost_samples(rec))
+
+
+def lost_samples(rec: Recording) -> int:
+    """Samples missing from a recording: counter jumps, else time-stamp gaps of more than 1.5 periods."""
+    if rec.seq is not None:
+        return int(np.sum(np.maximum(np.diff(rec.seq) - 1, 0)))
+    if not rec.loss_visible:
+        return 0
+    steps = np.diff(rec.t) / rec.median_step_s
+    return int(np.sum(np.maximum(np.round(steps[steps > 1.5]) - 1, 0)))

@@ -62,6 +62,7 @@ class NoiseOut(BaseModel):
     source: str | None
     sample_rate_hz: float
     duration_s: float
+    lost_samples: int = Field(0, description="samples missing (counter or time-stamp gaps): the curve reads the rest as evenly spaced")
     units: dict[str, dict[str, str]] = Field(description="each parameter's unit, per sensor")
     gyro: list[AxisNoiseOut]
     accel: list[AxisNoiseOut] | None = Field(description="null: the recording has no accelerometer columns")

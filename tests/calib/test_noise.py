@@ -80,6 +80,16 @@ def test_a_recording_that_moves_is_refused_with_when() -> None:
     assert exc.value.code == "not_a_rest"
 
 
+def test_samples_missing_from_the_time_stamps_are_counted_and_said() -> None:
+    rec = simulate_rest(2, 600.0, FS, RestNoise(density=0.01))
+    keep = np.ones(len(rec), bool)
+    keep[[1000, 1001, 1002, 30_000]] = False  # three samples lost in a row, and one more
+    report = noise(rec.select(keep))
+    assert report.lost_samples == 4 and report.to_json()["lost_samples"] == 4
+    assert "4 samples are missing from the recording" in report.text()
+    assert noise(rec).lost_samples == 0
+
+
 def test_a_short_rest_is_refused_with_how_long_it_must_be() -> None:
     with pytest.raises(Refusal, match="too short for an Allan analysis: it needs at least") as exc:
         noise(simulate_rest(1, 2.0, FS, RestNoise(density=0.01)))

@@ -78,6 +78,8 @@ function result(out) {
     h("p", { class: "outcome pass" }, icon("check"), h("span", null,
       `${out.source || "The rest"}: ${num(out.duration_s, 0)} s at ${Number(out.sample_rate_hz.toPrecision(6))} Hz. `
       + "Each figure with its 95 % interval; “<” where the curve does not show the term (its 95 % upper bound).")),
+    out.lost_samples ? h("p", { class: "form-error" }, icon("warn"), h("span", null, `${out.lost_samples} samples are missing `
+      + "from the recording: the curve takes the others as evenly spaced, which bends it near the gaps.")) : null,
     table("gyro", out.gyro), allanChart(out.gyro, "gyro"),
     out.accel ? [table("accel", out.accel), allanChart(out.accel, "accel")] : h("p", { class: "muted" }, "No accelerometer columns: the gyroscope only."),
     out.kalibr_yaml ? h("p", null, h("a", { class: "button", id: "kalibr-download", download: "imu.yaml",
