@@ -168,6 +168,18 @@ def test_moved_during_the_pause_ends_with_its_reason_and_fix(wizard: Wizard, pag
     assert_clean(page_watch)
 
 
+def _card_then_pass(wizard: Wizard, name: str, page_watch: Watch) -> None:
+    """The card photographed (its targets large enough), then a guided calibration of mock-1 to PASS."""
+    wizard.shot(f"{name}-card")
+    assert wizard.small_targets() == []
+    wizard.choose("mock-1")
+    wizard.start()
+    wizard.wait_state("done", "failed", timeout_ms=90_000)
+    assert wizard.text(".verdict h1") == "PASS", wizard.text(".sentence")
+    wizard.shot(f"{name}-pass")
+    assert_clean(page_watch)
+
+
 def test_a_commercial_wearable_shows_its_model_settings_and_limits_and_calibrates(page: Any, metawear_service: Any,
                                                                                   artifacts: Path, page_watch: Watch) -> None:
     wizard = Wizard(page, metawear_service, artifacts / "webui" / "test_a_commercial_wearable")
@@ -179,14 +191,7 @@ def test_a_commercial_wearable_shows_its_model_settings_and_limits_and_calibrate
     limits = card.locator(".dev-limits").inner_text()
     assert "lost samples cannot be detected" in limits and "times the samples arrived" in limits
     assert card.locator(".held").count() == 0 and card.locator("button.write-back").count() == 0
-    wizard.shot("metawear-card")
-    assert wizard.small_targets() == []
-    wizard.choose("mock-1")
-    wizard.start()
-    wizard.wait_state("done", "failed", timeout_ms=90_000)
-    assert wizard.text(".verdict h1") == "PASS", wizard.text(".sentence")
-    wizard.shot("metawear-pass")
-    assert_clean(page_watch)
+    _card_then_pass(wizard, "metawear", page_watch)
 
 
 def test_a_movella_dot_card_says_what_it_is_and_can_do_blinks_and_calibrates(page: Any, dot_service: Any, artifacts: Path,
@@ -202,14 +207,7 @@ def test_a_movella_dot_card_says_what_it_is_and_can_do_blinks_and_calibrates(pag
     card.locator("button.identify").click()
     status = card.locator(".identify-status")
     status.locator("text=blinks its LED red for 10 s").wait_for(timeout=15_000)
-    wizard.shot("dot-card")
-    assert wizard.small_targets() == []
-    wizard.choose("mock-1")
-    wizard.start()
-    wizard.wait_state("done", "failed", timeout_ms=90_000)
-    assert wizard.text(".verdict h1") == "PASS", wizard.text(".sentence")
-    wizard.shot("dot-pass")
-    assert_clean(page_watch)
+    _card_then_pass(wizard, "dot", page_watch)
 
 
 def test_after_a_calibration_the_gauge_reads_true_degrees_to_360(page: Any, webui_service: Any, artifacts: Path,

@@ -168,6 +168,21 @@ class Adapter(ABC):
                 fut.set_exception(LinkError("the link dropped while waiting for the wearable's answer"))
 
 
+def fixed_range_rate(model: DeviceModel, name: str, streams: str, sample_rate_hz: float | None, gyro_full_scale_dps: int | None,
+                     accel_range_g: int | None) -> int | None:
+    """The rate asked of a device whose ranges are fixed (the model's only ones): the whole rate when it offers it, None
+    when none was asked; CommandError naming what it offers otherwise. ``streams``: how its rate is said ("streams")."""
+    if gyro_full_scale_dps not in (None, model.gyro_range_dps):
+        raise CommandError(f"the {name}'s gyro range is fixed at {model.gyro_range_dps} deg/s")
+    if accel_range_g not in (None, model.accel_range_g):
+        raise CommandError(f"the {name}'s accelerometer range is fixed at {model.accel_range_g} g")
+    if sample_rate_hz is None:
+        return None
+    if not model.offers_rate(float(sample_rate_hz)):
+        raise CommandError(f"the {name} {streams} at {model.rates_text()}; {sample_rate_hz:g} Hz is not one")
+    return int(sample_rate_hz)
+
+
 def vendor_config(rate_hz: float, gyro_dps: int, accel_g: int, samples_per_packet: int,
                  gyro_lsb_per_dps: float, accel_lsb_per_g: float, streaming: bool = False) -> DeviceConfig:
     """The configuration of a vendor device in gyrocal's terms (config id 0: vendors number none)."""

@@ -23,9 +23,9 @@ from wearable_protocol import DecodeError, DeviceConfig
 from wearable_protocol.models import MOVELLA_DOT
 from wearable_protocol.vendors import movella_dot as dot
 
-from ..base import CommandError, ConnectError, LinkStats, SampleBatch
+from ..base import ConnectError, LinkStats, SampleBatch
 from ..rate_fit import RateFit
-from .base import Adapter, vendor_config
+from .base import Adapter, fixed_range_rate, vendor_config
 
 log = logging.getLogger(__name__)
 
@@ -135,14 +135,8 @@ class MovellaDotAdapter(Adapter):
 
     async def configure(self, *, sample_rate_hz: float | None, gyro_full_scale_dps: int | None,
                         accel_range_g: int | None) -> DeviceConfig:
-        if sample_rate_hz is not None:
-            if not self.model.offers_rate(float(sample_rate_hz)):
-                raise CommandError(f"the Movella DOT streams at {self.model.rates_text()}; {sample_rate_hz:g} Hz is not one")
-            self._rate = int(sample_rate_hz)
-        if gyro_full_scale_dps not in (None, dot.GYRO_FULL_SCALE_DPS):
-            raise CommandError(f"the Movella DOT's gyro range is fixed at {dot.GYRO_FULL_SCALE_DPS} deg/s")
-        if accel_range_g not in (None, dot.ACCEL_RANGE_G):
-            raise CommandError(f"the Movella DOT's accelerometer range is fixed at {dot.ACCEL_RANGE_G} g")
+        rate = fixed_range_rate(self.model, "Movella DOT", "streams", sample_rate_hz, gyro_full_scale_dps, accel_range_g)
+        self._rate = self._rate if rate is None else rate
         self._decoder = None
         return self._config()
 

@@ -20,7 +20,7 @@ from wearable_protocol.vendors import thingy52 as th
 
 from ..base import CommandError, ConnectError
 from .arrival import ArrivalTimeline
-from .base import Adapter, vendor_config
+from .base import Adapter, fixed_range_rate, vendor_config
 
 GYRO_LIMIT_DPS = 32767 / (1 << th.GYRO_FRACTION_BITS)
 
@@ -55,14 +55,8 @@ class Thingy52Adapter(Adapter):
 
     async def configure(self, *, sample_rate_hz: float | None, gyro_full_scale_dps: int | None,
                         accel_range_g: int | None) -> DeviceConfig:
-        if sample_rate_hz is not None:
-            if not self.model.offers_rate(float(sample_rate_hz)):
-                raise CommandError(f"the Thingy:52 processes motion at {self.model.rates_text()}; {sample_rate_hz:g} Hz is not one")
-            self._rate = int(sample_rate_hz)
-        if gyro_full_scale_dps not in (None, th.GYRO_FULL_SCALE_DPS):
-            raise CommandError(f"the Thingy:52's gyro range is fixed at {th.GYRO_FULL_SCALE_DPS} deg/s")
-        if accel_range_g not in (None, self.model.accel_range_g):
-            raise CommandError(f"the Thingy:52's accelerometer range is fixed at {self.model.accel_range_g} g")
+        rate = fixed_range_rate(self.model, "Thingy:52", "processes motion", sample_rate_hz, gyro_full_scale_dps, accel_range_g)
+        self._rate = self._rate if rate is None else rate
         self._timeline = None
         return self._config()
 
