@@ -213,6 +213,9 @@ def test_export_for_imucal_is_loaded_by_the_real_imucal_and_gives_back_our_numbe
                         capture_output=True, text=True, timeout=60)
     assert r2.returncode == 0, r2.stderr
     assert json.loads(out.read_text()) == json.loads(path.read_text())
+    ov_cli = subprocess.run([*GYROCAL, "export", "--id", str(cal["id"]), "--format", "openvins", "--db", svc.db_url], cwd=ROOT,
+                            capture_output=True, text=True, timeout=60)
+    assert ov_cli.returncode == 0 and ov_cli.stdout.strip() == ov.text.strip(), ov_cli.stderr
     r3 = subprocess.run([*GYROCAL, "export", "--id", "999999", "--db", svc.db_url], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert r3.returncode != 0 and "no calibration #999999" in r3.stderr
 
