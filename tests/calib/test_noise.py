@@ -29,6 +29,23 @@ def test_the_simulated_noises_have_the_closed_form_allan_variance() -> None:
     assert np.all(np.abs(mean - truth.avar(tau)) < 3 * sem + 0.02 * truth.avar(tau)), (mean / truth.avar(tau)).round(3)
 
 
+def test_the_exact_degrees_of_freedom_are_sp1065s_for_white_noise_greenhalls_for_a_walk_and_mix_between_bounds() -> None:
+    import allantools
+
+    from calib.noise.allan import white_walk_edf
+
+    n = 360_000
+    for m in (4, 64, 1024, 8192):
+        assert white_walk_edf(m, n, 1.0, 0.0) == pytest.approx(allantools.edf_simple(n + 1, m, 0), rel=5e-3)
+        walk = white_walk_edf(m, n, 0.0, 1.0)
+        assert walk == pytest.approx(allantools.edf_greenhall(-2, 2, m, n + 1, overlapping=True), rel=0.06)
+        mixed = white_walk_edf(m, n, 0.5, 0.5)
+        white = white_walk_edf(m, n, 1.0, 0.0)
+        cauchy_schwarz = 1 / (0.5 / np.sqrt(white) + 0.5 / np.sqrt(walk)) ** 2  # the cross term at its largest
+        independent = 1 / (0.25 / white + 0.25 / walk)  # the cross term left out
+        assert cauchy_schwarz < mixed < independent
+
+
 def test_white_noise_reads_its_density_within_its_interval_and_shows_no_floor_or_walk() -> None:
     truth = RestNoise(density=0.01)
     report = noise(simulate_rest(7, 1800.0, FS, truth, RestNoise(density=1e-4)))
