@@ -123,7 +123,7 @@ def _axis(x: np.ndarray, fs: float, m: np.ndarray, axis: str) -> AxisNoise:
         fit = fit_terms(curve)
         curve = with_bands(tau, adev, m, x.size, fit.type_shares(tau))
     fit = fit_terms(curve)
-    return AxisNoise(axis, curve, fit, read_slope(curve, fit, WHITE, "noise_density"), read_floor(curve),
+    return AxisNoise(axis, curve, fit, read_slope(curve, fit, WHITE, "noise_density"), read_floor(curve, fit),
                      read_slope(curve, fit, RANDOM_WALK, "random_walk"))
 
 

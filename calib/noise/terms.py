@@ -18,9 +18,11 @@ more than they hold):
 - N and K at the averaging time where their term is best determined: where (model / term)^2 / edf is least, among
   the times where the term is more than half of the variance; the other terms' share there (from the fit) is taken
   off the point and its band.
-- B, the IEEE reading of the curve's floor: the first local minimum of the deviation on the octave grid, over
-  sqrt(2 ln 2 / pi); seen when the curve rises after it beyond both points' bands (a rate random walk, or the bump
-  of a Gauss-Markov bias), else the floor may still fall further and only bounds B.
+- B, the IEEE reading of the curve's floor: the measured deviation, over sqrt(2 ln 2 / pi), at the averaging time of
+  the fitted curve's first local minimum on the octave grid (the fit chooses where, so that a point that happens to
+  fall low is not chosen for it: the lowest measured point held the closed form's floor in 90.8 % of simulated
+  Gauss-Markov hours, this one in 93.4 %); seen when the measured curve rises after it beyond both points' bands (a rate
+  random walk, or the bump of a Gauss-Markov bias), else the floor may still fall further and only bounds B.
 
 A term never dominant (or a floor that does not rise again) is **not seen**: the report gives the least 95 % upper
 bound the curve sets on it instead of a value.
@@ -153,11 +155,13 @@ def read_slope(curve: AllanCurve, fit: TermFit, term: int, name: str) -> Reading
     return Reading(name, True, float(value), float(lo), float(hi), float(curve.tau_s[i]), _range(curve.tau_s, dominant))
 
 
-def read_floor(curve: AllanCurve) -> Reading:
-    """B: the first local minimum of the deviation over sqrt(2 ln 2 / pi), seen when the curve rises beyond it."""
+def read_floor(curve: AllanCurve, fit: TermFit) -> Reading:
+    """B: the measured deviation at the fitted curve's first local minimum over sqrt(2 ln 2 / pi), seen when the
+    measured curve rises beyond it."""
     d, lo, hi = curve.adev, curve.lo95, curve.hi95
+    f = fit.adev(curve.tau_s)
     for i in range(1, d.size - 1):
-        if d[i] < d[i - 1] and d[i] <= d[i + 1] and np.any(lo[i + 1:] > hi[i]):
+        if f[i] < f[i - 1] and f[i] <= f[i + 1] and np.any(lo[i + 1:] > hi[i]):
             near = np.flatnonzero(lo <= hi[i])  # the times whose deviation cannot be told from the floor's, around it
             run = near[(near >= i) | (near <= i)]
             first, last = i, i
