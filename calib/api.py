@@ -75,15 +75,9 @@ def noise_report(rec: Recording) -> NoiseReport:
 
 def load_calibration(path: PathLike) -> Correction:
     """A calibration file: gyrocal's JSON (a stored calibration, an export, a result's JSON) or imucal's."""
-    from calib.apply.correction import Correction
+    from calib.apply.correction import read_correction
 
-    p = Path(path)
-    try:
-        return Correction.from_json(json.loads(p.read_text(encoding="utf-8")))
-    except FileNotFoundError:
-        raise GyrocalError(f"{p} does not exist; give the path of a calibration JSON file") from None
-    except json.JSONDecodeError as exc:
-        raise GyrocalError(f"{p} is not JSON ({exc.msg} at line {exc.lineno})") from None
+    return read_correction(path)
 
 
 def fetch_calibration(service: str, device_id: str, *, token: str | None = None, at: str | None = None,
@@ -131,14 +125,12 @@ def watch_report(rec: Recording, calibration: Correction, *, temp_cal_c: float |
 
 def simulate(seed: int, *, noise: float = 0.03, fs: float = 104.0, protocol: str = "paper") -> tuple[Recording, Truth]:
     """A simulated recording of the paper's protocol (or ``extended``) with its truth (``gyrocal simulate``)."""
-    import numpy as np
-
-    from calib.simulator import extended_protocol_script
+    from calib.simulator import extended_script_for_seed
     from calib.simulator import simulate as run
 
     if protocol not in ("paper", "extended"):
         raise GyrocalError(f"unknown protocol {protocol!r}: choose paper or extended")
-    script = extended_protocol_script(np.random.default_rng([seed, 1])) if protocol == "extended" else None
+    script = extended_script_for_seed(seed) if protocol == "extended" else None
     return run(seed, noise=noise, fs=fs, script=script)
 
 

@@ -145,23 +145,8 @@ def register_apply(sub: Any) -> None:
     p.set_defaults(func=cmd_apply)
 
 
-def read_calibration_file(path: Path) -> Any:
-    from calib.apply.correction import Correction, CorrectionFileError
-
-    try:
-        return Correction.from_json(json.loads(path.read_text(encoding="utf-8")))
-    except FileNotFoundError:
-        raise ServiceError(f"{path} does not exist; give the path of a calibration JSON file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ServiceError(f"{path} cannot be read ({exc}); give gyrocal's or imucal's calibration JSON") from None
-    except json.JSONDecodeError as exc:
-        raise ServiceError(f"{path} is not JSON ({exc.msg} at line {exc.lineno}); give gyrocal's or imucal's calibration file") from None
-    except CorrectionFileError as exc:
-        raise ServiceError(f"{path}: {exc}") from None
-
-
 def cmd_apply(args: argparse.Namespace) -> int:
-    from calib.apply.correction import Correction, corrected
+    from calib.apply.correction import Correction, corrected, read_correction
     from calib.apply.identity import check_identity
     from calib.cli.options import read_recording_args
     from calib.io.readers import write_native_csv
@@ -172,7 +157,7 @@ def cmd_apply(args: argparse.Namespace) -> int:
     used: dict[str, Any]
     model = None
     if args.calibration is not None:
-        correction = read_calibration_file(args.calibration)
+        correction = read_correction(args.calibration)
         recording = _recording_identity(args, rec.mean_temperature_c)
         check = check_identity(correction.identity or SensorIdentity(), recording,
                                max_temperature_change_c=_limits(args).max_temperature_change_c)
@@ -313,10 +298,11 @@ def cmd_import(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     from calib import __version__
+    from calib.apply.correction import read_correction
 
     from .store import NotAcceptable, sha256_hex
 
-    correction = read_calibration_file(args.file)
+    correction = read_correction(args.file)
     stated = _recording_identity(args)
     correction = replace(correction, identity=(correction.identity or SensorIdentity()).completed(stated))
     store = open_store(args.db)

@@ -8,7 +8,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from .calibration_cli import add_moment_arguments, in_force_of, read_calibration_file
+from .calibration_cli import add_moment_arguments, in_force_of
 from .cli import EXIT_OK, ServiceError
 from .config import DB_URL_HELP
 
@@ -41,7 +41,7 @@ def register_watch(sub: Any) -> None:
 
 
 def cmd_watch(args: argparse.Namespace) -> int:
-    from calib.apply.correction import Correction
+    from calib.apply.correction import Correction, read_correction
     from calib.cli.options import read_recording_args
     from calib.watch import watch
 
@@ -50,7 +50,7 @@ def cmd_watch(args: argparse.Namespace) -> int:
     rec = read_recording_args(args).recording
     used: dict[str, Any]
     if args.calibration is not None:
-        correction = read_calibration_file(args.calibration)
+        correction = read_correction(args.calibration)
         used = {"file": str(args.calibration)}
     else:
         cal = in_force_of(args, temperature_c=rec.mean_temperature_c)

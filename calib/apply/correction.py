@@ -16,7 +16,10 @@ R_a = I, b_a = o, all in the units gyrocal's readings have (deg/s and g).
 
 from __future__ import annotations
 
+import json
+import os
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -142,6 +145,22 @@ class Correction:
             "K_g": Kinv.tolist(), "R_g": np.eye(3).tolist(), "K_ga": (np.zeros((3, 3)) if self.G is None else self.G).tolist(),
             "b_g": [float(v) for v in -Kinv @ self.b],
         }
+
+
+def read_correction(path: str | os.PathLike[str]) -> Correction:
+    """A calibration file on disk (gyrocal's JSON or imucal's); CorrectionFileError saying what is wrong and what to give."""
+    p = Path(path)
+    try:
+        return Correction.from_json(json.loads(p.read_text(encoding="utf-8")))
+    except FileNotFoundError:
+        raise CorrectionFileError(f"{p} does not exist; give the path of a calibration JSON file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CorrectionFileError(f"{p} cannot be read ({exc}); give gyrocal's or imucal's calibration JSON") from None
+    except json.JSONDecodeError as exc:
+        raise CorrectionFileError(f"{p} is not JSON ({exc.msg} at line {exc.lineno}); give gyrocal's or imucal's calibration "
+                                  "file") from None
+    except CorrectionFileError as exc:
+        raise CorrectionFileError(f"{p}: {exc}") from None
 
 
 def _vector(v: Any, name: str) -> np.ndarray:

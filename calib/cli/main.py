@@ -90,14 +90,13 @@ def _parse_effect(spec: str) -> tuple[str, str]:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from calib.simulator import extended_protocol_script, simulate
+    from calib.simulator import extended_script_for_seed, simulate
 
     if args.protocol == "study":
         return _simulate_study(args)
     kwargs: dict[str, Any] = {"seed": args.seed, "noise": args.noise, "fs": args.fs}
     if args.protocol == "extended":
-        # the script's own draws (durations, tilts, profiles) from a stream of their own, as simulate's are
-        kwargs["script"] = extended_protocol_script(np.random.default_rng([args.seed, 1]))
+        kwargs["script"] = extended_script_for_seed(args.seed)
     if args.full_scale is not None:
         kwargs["full_scale_dps"] = args.full_scale
     if args.effect:

@@ -11,13 +11,9 @@ takes one); a random walk the rest did not show is written as its 95 % upper bou
 
 from __future__ import annotations
 
-import math
-
 from calib.errors import GyrocalError
 from calib.noise.analysis import AxisNoise, NoiseReport
-from calib.units import STANDARD_GRAVITY
-
-RAD_PER_DEG = math.pi / 180.0
+from calib.units import DEG, STANDARD_GRAVITY
 
 
 def _largest(axes: tuple[AxisNoise, ...], which: str, scale: float) -> tuple[float, str]:
@@ -37,8 +33,8 @@ def kalibr_imu_yaml(report: NoiseReport, topic: str = "/imu0", rate_hz: float | 
     rate = report.sample_rate_hz if rate_hz is None else rate_hz
     an, an_note = _largest(report.accel, "density", STANDARD_GRAVITY)
     ak, ak_note = _largest(report.accel, "random_walk", STANDARD_GRAVITY)
-    gn, gn_note = _largest(report.gyro, "density", RAD_PER_DEG)
-    gk, gk_note = _largest(report.gyro, "random_walk", RAD_PER_DEG)
+    gn, gn_note = _largest(report.gyro, "density", DEG)
+    gk, gk_note = _largest(report.gyro, "random_walk", DEG)
     return (f"# Kalibr IMU configuration from gyrocal's Allan analysis of {report.source or 'a rest'} "
             f"({report.duration_s:.0f} s at {report.sample_rate_hz:g} Hz); the largest of the three axes\n"
             "#Accelerometers\n"

@@ -26,8 +26,7 @@ import numpy as np
 from calib.apply.correction import Correction
 from calib.errors import GyrocalError
 from calib.noise.analysis import NoiseReport
-from calib.units import DEG as RAD_PER_DEG
-from calib.units import STANDARD_GRAVITY
+from calib.units import DEG, STANDARD_GRAVITY
 
 
 def ql(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -56,7 +55,7 @@ def openvins_imu_chain(correction: Correction, noise: NoiseReport | None = None,
     R_gyro_to_imu, Dw = ql(correction.K)
     R_acc_to_imu, Da = ql(A)
     G = np.zeros((3, 3)) if correction.G is None else correction.G
-    b_g = -np.linalg.solve(correction.K, correction.b) * RAD_PER_DEG
+    b_g = -np.linalg.solve(correction.K, correction.b) * DEG
     b_a = o * STANDARD_GRAVITY
     lines = ["%YAML:1.0\n", f"# OpenVINS IMU intrinsics from gyrocal{': ' + comment if comment else ''}\n",
              "# w = R_GYROtoIMU Dw (w_m - b_g - Tg a), a = R_ACCtoIMU Da (a_m - b_a); Dw = Tw^-1, Da = Ta^-1\n",
@@ -80,5 +79,5 @@ def openvins_imu_chain(correction: Correction, noise: NoiseReport | None = None,
         lines.append(f"  update_rate: {rate:g}\n")
     lines.append('  model: "kalibr"\n')
     lines += [_matrix("Tw", np.linalg.inv(Dw)), _matrix("R_IMUtoGYRO", R_gyro_to_imu.T), _matrix("Ta", np.linalg.inv(Da)),
-              _matrix("R_IMUtoACC", R_acc_to_imu.T), _matrix("Tg", G * RAD_PER_DEG / STANDARD_GRAVITY)]
+              _matrix("R_IMUtoACC", R_acc_to_imu.T), _matrix("Tg", G * DEG / STANDARD_GRAVITY)]
     return "".join(lines)

@@ -145,14 +145,6 @@ def noise(rec: Recording, progress: Callable[[int], None] | None = None) -> Nois
 
     gyro = axes(rec.gyro)
     accel = None if rec.accel is None else axes(rec.accel)
-    return NoiseReport(rec.meta.source, float(fs), float(rec.duration_s), gyro, accel, lost_samples(rec))
+    from calib.diagnosis.timebase import analyse_timebase  # the one count of lost samples (counter, or device stamps)
 
-
-def lost_samples(rec: Recording) -> int:
-    """Samples missing from a recording: counter jumps, else time-stamp gaps of more than 1.5 periods."""
-    if rec.seq is not None:
-        return int(np.sum(np.maximum(np.diff(rec.seq) - 1, 0)))
-    if not rec.loss_visible:
-        return 0
-    steps = np.diff(rec.t) / rec.median_step_s
-    return int(np.sum(np.maximum(np.round(steps[steps > 1.5]) - 1, 0)))
+    return NoiseReport(rec.meta.source, float(fs), float(rec.duration_s), gyro, accel, analyse_timebase(rec).lost)

@@ -11,6 +11,7 @@ from calib.simulator.protocol import (
     Still,
     Turn,
     extended_protocol_script,
+    extended_script_for_seed,
     paper_protocol_script,
     script_duration_s,
 )

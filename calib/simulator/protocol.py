@@ -253,3 +253,9 @@ def script_duration_s(script: ProtocolScript) -> float:
             raise SimulationConfigError("the script leaves a turn duration open; fix it (duration_s) to know the total")
         total += d
     return total
+
+
+def extended_script_for_seed(seed: int) -> ProtocolScript:
+    """The extended protocol's script of a simulation's ``seed``, its draws from a stream of their own (as
+    ``simulate``'s are): the same recording from the command line and the Python API."""
+    return extended_protocol_script(np.random.default_rng([seed, 1]))

@@ -119,18 +119,20 @@ class MovellaDotAdapter(Adapter):
         return cfg
 
     async def details(self) -> dict[str, Any]:
-        """Firmware, serial number and battery from the DOT's own characteristics (a field it does not give, or
-        gives unreadable, is left out: unknown, as an absent standard service's)."""
+        """Firmware, serial number and battery from the DOT's own characteristics (read as the standard services'
+        are: a field it does not give, or gives unreadable, is left out)."""
         out: dict[str, Any] = {}
+        raw = await self._optional(dot.DEVICE_INFO_CHAR)
         try:
-            if self.io.has(dot.DEVICE_INFO_CHAR):
-                info = dot.DeviceInfo.decode(await self.io.read(dot.DEVICE_INFO_CHAR))
-                out.update(firmware=info.firmware, serial=str(info.serial), model=info.product_code, manufacturer="Movella")
-            battery = await self.io.read(dot.BATTERY_CHAR) if self.io.has(dot.BATTERY_CHAR) else b""
-            if battery:
-                out["battery_pct"] = int(battery[0])
-        except Exception as e:  # noqa: BLE001 - a locked or malformed read: the fields stay unknown
-            log.info("the DOT's device info or battery not readable: %s", e)
+            info = dot.DeviceInfo.decode(raw) if raw else None
+        except DecodeError as e:
+            log.info("the DOT's device info is malformed: %s", e)
+            info = None
+        if info is not None:
+            out.update(firmware=info.firmware, serial=str(info.serial), model=info.product_code, manufacturer="Movella")
+        battery = await self._optional(dot.BATTERY_CHAR)
+        if battery:
+            out["battery_pct"] = int(battery[0])
         return out
 
     async def configure(self, *, sample_rate_hz: float | None, gyro_full_scale_dps: int | None,
