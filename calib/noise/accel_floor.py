@@ -46,7 +46,7 @@ NO_FLOOR = AccelFloor(np.zeros(3), 0.0, None, None)
 
 def accel_floor(accel: np.ndarray, spans: list[tuple[int, int]], colour: np.ndarray, fs: float) -> AccelFloor:
     """The floor of ``accel`` (n, 3) g measured on the longest of the rests ``spans`` ([i, j) samples) over the
-    median rest's length; ``colour`` (3,) the white noise's colour (``calib.estimators.multi_position.estimator.noise_colour``).
+    median rest's length; ``colour`` (3,) the white noise's colour (``calib.noise.rests.noise_colour``).
     Not measured (zero) when no rest holds ``MIN_SPANS`` spans."""
     lengths = np.array([j - i for i, j in spans])
     if lengths.size == 0:

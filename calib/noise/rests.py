@@ -12,6 +12,10 @@ import numpy as np
 MIN_SIGMA_DPS = 1e-6  # floor for noise-free data, so that the weights stay finite
 KNOCK_SIGMA = 5.0  # a rest's sample this many robust standard deviations from its mean is a knock, not noise
 KNOCK_RING = 5  # samples on either side of a knock's that still ring
+NOISE_LAGS = 3  # lags of the rests' noise autocorrelation counted in the noise of means and integrals
+# a channel linearly interpolated onto m times its own rate correlates readings up to 2m - 1 apart: this covers m <= 4
+# (Polar's 52 Hz accelerometer onto its 208 Hz gyroscope)
+INTERPOLATED_LAGS = 7
 
 
 def still_statistics(gyro: np.ndarray, bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -99,3 +103,42 @@ def _leave_out_knocks(x: np.ndarray, bounds: np.ndarray, centred: np.ndarray, me
     count[rests] = n
     ss = (((d - np.repeat(shift, length, axis=1)) ** 2) * kept).sum(axis=1)
     sigma[:] = np.maximum(np.sqrt(ss / max(float((n - 1).sum()), 1.0)), MIN_SIGMA_DPS)
+
+
+def noise_colour(readings: np.ndarray, spans: list[tuple[int, int]], max_lag: int = NOISE_LAGS) -> np.ndarray:
+    """Per axis, 1 + 2 sum of the rests' noise autocorrelation over lags 1..max_lag: how much more a mean or an
+    integral over many samples scatters than white noise of the same per-sample spread would (1 for white noise;
+    a sensor's internal low-pass filter, or readings interpolated from a slower channel, make it larger).
+    ``readings`` (n, 3): a gyroscope's or an accelerometer's; ``spans``: the rests' samples [i, j). A knock's burst
+    (beyond ``KNOCK_SIGMA`` robust standard deviations, with its ring) is left out, as from the rests' means."""
+    n = len(readings)
+    inside = np.zeros(n, dtype=bool)
+    for i, j in spans:
+        inside[i:j] = True
+    dev = _rest_deviations(readings, spans, inside)
+    spread = np.sqrt(np.mean(dev[inside] ** 2, axis=0)) if inside.any() else np.zeros(3)
+    if np.any(np.abs(dev) > KNOCK_SIGMA * np.maximum(spread, MIN_SIGMA_DPS)):  # as in ``still_statistics``
+        scale = np.maximum(1.4826 * np.median(np.abs(dev[inside]), axis=0), MIN_SIGMA_DPS)
+        burst = inside & np.any(np.abs(dev) > KNOCK_SIGMA * scale, axis=1)
+        if burst.any():
+            ring = np.convolve(burst.astype(float), np.ones(2 * KNOCK_RING + 1), mode="same") > 0
+            inside &= ~ring
+            dev = _rest_deviations(readings, spans, inside)
+    var = np.sum(dev**2, axis=0) / max(int(inside.sum()), 1)
+    factor = np.ones(3)
+    gaps = np.cumsum(~inside)  # equal for two samples exactly when no sample between them is outside a rest
+    for k in range(1, max_lag + 1):
+        pair = inside[:-k] & inside[k:] & (gaps[:-k] == gaps[k:])  # both samples of the pair in the same rest
+        if pair.any():
+            factor += 2.0 * np.sum(dev[:-k][pair] * dev[k:][pair], axis=0) / pair.sum() / np.maximum(var, 1e-300)
+    return np.clip(factor, 0.25, 16.0)
+
+
+def _rest_deviations(readings: np.ndarray, spans: list[tuple[int, int]], kept: np.ndarray) -> np.ndarray:
+    """Each ``kept`` sample of a rest less the mean of its rest's kept samples; zero elsewhere."""
+    dev = np.zeros(readings.shape, dtype=float)
+    for i, j in spans:
+        keep = kept[i:j]
+        if keep.any():
+            dev[i:j][keep] = readings[i:j][keep] - readings[i:j][keep].mean(axis=0)
+    return dev

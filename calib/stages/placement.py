@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib.noise.rests import still_statistics
+from calib.noise.rests import INTERPOLATED_LAGS, noise_colour, still_statistics
 from calib.numerics.tilt import tilt_across
 from calib.quality import HeadingReport, Placement, TurnPlacement
 from calib.recording import Recording
@@ -52,9 +52,14 @@ def measure_tilts(rec: Recording, turns: list[Stage], stills: list[Stage], stage
     rotation, up, sd = np.full((J, 3), np.nan), np.full((J, 3), np.nan), np.full(J, np.nan)
     if rec.accel is None or not stills:
         return TurnTilts(rotation, up, sd, rec.accel is not None)
-    mean, count, sigma = still_statistics(np.asarray(rec.accel, dtype=float)[None], np.array([[[s.start, s.end] for s in stills]]))
+    accel = np.asarray(rec.accel, dtype=float)
+    mean, count, sigma = still_statistics(accel[None], np.array([[[s.start, s.end] for s in stills]]))
     means, sizes = mean[0], count[0]
-    sigma_g = float(np.sqrt(np.mean(sigma[0] ** 2)))  # pooled over the rests and the three axes
+    # pooled over the rests and the three axes; a rest's mean scatters as its readings' spread times their colour
+    # (an accelerometer interpolated onto the gyroscope's faster rate, or filtered near it, does not give as many
+    # independent readings as it has samples)
+    colour = float(np.mean(noise_colour(accel, [(s.start, s.end) for s in stills], max_lag=INTERPOLATED_LAGS)))
+    sigma_g = float(np.sqrt(np.mean(sigma[0] ** 2) * colour))
     index = {id(s): i for i, s in enumerate(stills)}
     measured, i0, i1 = [], [], []
     for j, st in enumerate(turns):

@@ -12,7 +12,7 @@ import numpy as np
 from calib.apply.correction import Correction
 from calib.errors import ProtocolError
 from calib.estimators.accel import AccelCalibration, AccelCalibrationError, apply_model, calibrate_accelerometer, rest_spans
-from calib.estimators.multi_position.estimator import noise_colour
+from calib.noise.rests import noise_colour
 from calib.recording import Recording
 from calib.stages.detector import detect_stages
 

@@ -11,7 +11,7 @@ from calib.apply.correction import Correction
 from calib.effects.axes import GSensitivity
 from calib.errors import CalibrationError, ProtocolError
 from calib.estimators.accel import AccelCalibration, AccelCalibrationError
-from calib.estimators.multi_position.estimator import calibrate_multi_position, noise_colour
+from calib.estimators.multi_position.estimator import calibrate_multi_position
 from calib.pipeline import calibrate_protocol
 from calib.recording import Recording
 from calib.result import CalibrationResult
@@ -43,15 +43,6 @@ def _filtered_noise(rng: np.random.Generator, n: int, sd: float) -> np.ndarray:
     autocorrelation 2/3 and 1/3 at lags 1 and 2, so means and integrals scatter 3x the variance white noise would."""
     e = rng.normal(0.0, sd, (n + 2, 3))
     return (e[2:] + e[1:-1] + e[:-2]) / np.sqrt(3.0)
-
-
-def test_noise_colour_is_one_for_white_noise_and_counts_a_low_pass_filters_correlation():
-    rng = np.random.default_rng(7)
-    spans = [(0, 4000), (4500, 9000), (9100, 12000)]
-    white = rng.normal(0.0, 0.1, (12000, 3))
-    np.testing.assert_allclose(noise_colour(white, spans), 1.0, atol=0.08)
-    filtered = _filtered_noise(rng, 12000, 0.1) + np.array([5.0, -3.0, 0.0]) * (np.arange(12000) >= 4500)[:, None]
-    np.testing.assert_allclose(noise_colour(filtered, spans), 3.0, atol=0.25)  # the step between rests is not noise
 
 
 def test_low_pass_filtered_gyro_noise_is_counted_in_the_fits_noise():

@@ -50,7 +50,7 @@ from calib.estimators.multi_position.model import (
 from calib.io.validation import check_calibration_input
 from calib.noise.accel_floor import accel_floor
 from calib.noise.motion import motion_noise, no_motion_noise
-from calib.noise.rests import still_statistics
+from calib.noise.rests import noise_colour, still_statistics
 from calib.numerics.windows import windows
 from calib.quality import Quality
 from calib.recording import Recording
@@ -67,7 +67,6 @@ G_RESCUE = 3.0
 MAX_ITERATIONS = 50  # steps tried, the damped ones counted
 G_ALPHA = 1e-3  # false-positive rate of the g-sensitivity's F test on a sensor that has none
 G_SPREAD_MIN = 0.25  # the rests' gravity directions must spread at least this much (rms, per principal axis)
-NOISE_LAGS = 3  # lags of the rests' noise autocorrelation counted in the noise of means and integrals
 
 
 @dataclass(frozen=True)
@@ -164,25 +163,6 @@ def _clipped_words(rec: Recording, clipped: list[Motion], lead: str) -> str:
     at = ", ".join(f"{rec.t[m.start] - rec.t[0]:.1f}" for m in clipped[:6]) + (", ..." if len(clipped) > 6 else "")
     n = f"{lead} {len(clipped)}" if lead else f"{len(clipped)}"
     return f"{n} re-orientation{'s' if len(clipped) > 1 else ''} that reached the gyro's full scale (at {at} s)" if clipped else ""
-
-
-def noise_colour(readings: np.ndarray, spans: list[tuple[int, int]], max_lag: int = NOISE_LAGS) -> np.ndarray:
-    """Per axis, 1 + 2 sum of the rests' noise autocorrelation over lags 1..max_lag: how much more a mean or an
-    integral over many samples scatters than white noise of the same per-sample spread would (1 for white noise;
-    a sensor's internal low-pass filter makes it larger). ``readings``: a gyroscope's or an accelerometer's."""
-    inside = np.zeros(len(readings), dtype=bool)
-    dev = np.zeros_like(readings)
-    for i, j in spans:
-        inside[i:j] = True
-        dev[i:j] = readings[i:j] - readings[i:j].mean(axis=0)
-    var = np.sum(dev**2, axis=0) / max(int(inside.sum()), 1)
-    factor = np.ones(3)
-    gaps = np.cumsum(~inside)  # equal for two samples exactly when no sample between them is outside a rest
-    for k in range(1, max_lag + 1):
-        pair = inside[:-k] & inside[k:] & (gaps[:-k] == gaps[k:])  # both samples of the pair in the same rest
-        if pair.any():
-            factor += 2.0 * np.sum(dev[:-k][pair] * dev[k:][pair], axis=0) / pair.sum() / np.maximum(var, 1e-300)
-    return np.clip(factor, 0.25, 16.0)
 
 
 def _data(rec: Recording, stills: list[Stage], motions: list[Motion], free_a: np.ndarray, measure_motion_noise: bool = True
