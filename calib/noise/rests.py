@@ -142,3 +142,10 @@ def _rest_deviations(readings: np.ndarray, spans: list[tuple[int, int]], kept: n
         if keep.any():
             dev[i:j][keep] = readings[i:j][keep] - readings[i:j][keep].mean(axis=0)
     return dev
+
+
+def rest_colour(readings: np.ndarray, spans: list[tuple[int, int]], max_lag: int = NOISE_LAGS) -> float:
+    """``noise_colour`` pooled over the three axes (one sensor, one filter) and at least 1: what a low-pass filter or
+    an interpolation adds is counted, while a white sensor's estimate scattering below 1 (a few per cent over a
+    session's rests) is not taken for readings better than independent."""
+    return max(float(np.mean(noise_colour(readings, spans, max_lag))), 1.0)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib.noise.rests import INTERPOLATED_LAGS, noise_colour, still_statistics
+from calib.noise.rests import INTERPOLATED_LAGS, rest_colour, still_statistics
 from calib.numerics.tilt import tilt_across
 from calib.quality import HeadingReport, Placement, TurnPlacement
 from calib.recording import Recording
@@ -58,7 +58,7 @@ def measure_tilts(rec: Recording, turns: list[Stage], stills: list[Stage], stage
     # pooled over the rests and the three axes; a rest's mean scatters as its readings' spread times their colour
     # (an accelerometer interpolated onto the gyroscope's faster rate, or filtered near it, does not give as many
     # independent readings as it has samples)
-    colour = float(np.mean(noise_colour(accel, [(s.start, s.end) for s in stills], max_lag=INTERPOLATED_LAGS)))
+    colour = rest_colour(accel, [(s.start, s.end) for s in stills], max_lag=INTERPOLATED_LAGS)
     sigma_g = float(np.sqrt(np.mean(sigma[0] ** 2) * colour))
     index = {id(s): i for i, s in enumerate(stills)}
     measured, i0, i1 = [], [], []

@@ -83,3 +83,21 @@ def test_k_from_an_interpolated_accelerometer_is_as_uncertain_as_it_says() -> No
         z.append(((res.k - truth.k) / res.k_std)[:2])
     rms = float(np.sqrt(np.mean(np.square(z))))
     assert 0.75 < rms < 1.2, rms
+
+
+def test_a_filtered_gyroscopes_closures_fit_as_its_noise_says() -> None:
+    # a gyroscope whose own filter smooths its readings (a 3-sample moving average: rests' means and turns' angles
+    # scatter 3x the variance the per-sample spread says): counted, the closure fit's chi-square matches its degrees
+    # of freedom (2.9x them otherwise, read as physics the model left out) and the errors their standard errors
+    chi2, z = [], []
+    for seed in range(40):
+        rec, truth = simulate(seed, noise=0.0)
+        e = np.random.default_rng(100 + seed).normal(0.0, 0.1, (len(rec) + 2, 3))
+        filtered = Recording(rec.t, rec.gyro + (e[2:] + e[1:-1] + e[:-2]) / np.sqrt(3.0), rec.accel, rec.seq, meta=rec.meta)
+        res = calibrate(filtered, method="closure")
+        chi2.append(res.residuals["chi2"] / res.residuals["dof"])
+        z.append(np.concatenate(((res.k - truth.k) / res.k_std, (res.b - truth.b) / res.b_std)))
+        assert res.noise_dps is not None and np.allclose(res.noise_dps, 0.1, rtol=0.1)  # the readings' own spread
+    assert 0.8 < float(np.mean(chi2)) < 1.25, np.mean(chi2)
+    rms = np.sqrt(np.mean(np.square(z), axis=0))
+    assert np.all((rms > 0.7) & (rms < 1.3)), rms

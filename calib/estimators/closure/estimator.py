@@ -4,7 +4,8 @@ Physics: after a full hand turn the device is back in the pose it started from, 
 the calibrated incremental rotations over the turn is the identity, with a swept angle of 360 deg per
 revolution. Each turn gives the 3-D closing rotation r_j = Log(prod_t Exp((K m_t + b) dt_t)), which
 must be 0; each still segment gives its mean reading, which must be -K^-1 b. Both are weighted by the
-covariance white reading noise gives them (the noise level comes from the stills), and the weighted
+covariance the reading noise gives them (its level and its colour, the correlation of neighbouring readings a
+sensor's own filter leaves, come from the stills), and the weighted
 sum of squares is minimised by Gauss-Newton with the analytic Jacobian (calib.numerics.rotation,
 calib.estimators.closure.fit), or by scipy.optimize.least_squares where its steps do not settle. Any number of
 turns, in either direction, about any axis.
@@ -45,7 +46,7 @@ from calib.estimators.closure.partial import not_turned_text, partial_start, tur
 from calib.estimators.closure.placement import HEADING_PRIOR_DEG, HeadingSpread, check_heading_prior, placement_model
 from calib.estimators.closure.report import OFFDIAG_WARN, closure_result
 from calib.io.validation import check_calibration_input
-from calib.noise.rests import still_statistics
+from calib.noise.rests import rest_colour, still_statistics
 from calib.numerics.rotation import ClosureTerms
 from calib.numerics.windows import windows
 from calib.quality import ModelChoice
@@ -92,7 +93,9 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None 
 
     gyro = rec.gyro[None]
     m, d = windows(gyro, np.array([[[s.start, s.end] for s in turns]]), dt_all[None])
-    mean, count, sigma = still_statistics(gyro, np.array([[[s.start, s.end] for s in stills]]))
+    mean, count, spread = still_statistics(gyro, np.array([[[s.start, s.end] for s in stills]]))
+    # a mean over a rest and an angle over a turn scatter as the readings' spread times their colour
+    sigma = spread * np.sqrt(rest_colour(rec.gyro, [(s.start, s.end) for s in stills]))
     tilts = measure_tilts(rec, turns, stills, stage_list)
     place = placement_model(tilts, check_heading_prior(heading_prior_deg))
     data = ClosureData(m, d, mean, count, sigma, place.target[None], place.cov[None])
@@ -134,7 +137,8 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None 
         choice["reason"] = "not asked for"
     if fit is not diagonal:
         _check_closed(turns, fit, revolutions)
-    result = closure_result(rec, stage_list, turns, stills, data, fit, revolutions, bool(extended), warnings, dt_all)
+    result = replace(closure_result(rec, stage_list, turns, stills, data, fit, revolutions, bool(extended), warnings, dt_all),
+                     noise_dps=spread[0].copy())  # the readings' own spread, as the other methods report it
     result.quality["model_choice"] = choice
     heading = fit.heading or HeadingSpread(place.heading_prior_deg, heading_source if heading_prior_deg is not None else "default")
     result.quality["placement"] = placement_report(turns, tilts, (place.tilt_prior_deg, heading.spread_deg), heading_report(heading))
