@@ -44,12 +44,13 @@ class Setting:
 
 
 def _one(args: tuple[Setting, int]) -> np.ndarray:
-    """(error, std, covered, p-value, k_z error told the true spread) of one run, (5, 6); NaN where refused."""
+    """(error, std, covered, p-value, k_z error told the true spread, [heading spread found (deg), k_z's degrees of
+    freedom]) of one run, (6, 6); NaN where refused."""
     setting, seed = args
     effects = [PlacementError(setting.tilt_deg, heading_std_deg=setting.heading_deg)] if (
         setting.tilt_deg or setting.heading_deg) else []
     rec, truth = simulate(seed, noise=setting.noise_dps, effects=effects)
-    out = np.full((5, 6), np.nan)
+    out = np.full((6, 6), np.nan)
     try:
         res, _ = calibrate_protocol(rec)
         told, _ = calibrate_protocol(rec, heading_prior_deg=setting.heading_deg)
@@ -67,6 +68,9 @@ def _one(args: tuple[Setting, int]) -> np.ndarray:
     out[2] = (lo <= truth_v) & (truth_v <= hi)
     out[3] = res.quality.get("p_value", np.nan)
     out[4] = np.concatenate((told.k - truth.k, told.b - truth.b))
+    heading = res.quality.get("placement", {}).get("heading") or {}
+    out[5, 0] = heading.get("spread_deg", np.nan)
+    out[5, 1] = np.inf if res.k_dof is None else res.k_dof[2]
     return out
 
 
@@ -74,6 +78,7 @@ def measure(setting: Setting, runs: int, pool: ProcessPoolExecutor) -> dict:
     out = np.array(list(pool.map(_one, [(setting, s) for s in range(runs)], chunksize=8)))
     ok = np.all(np.isfinite(out[:, :3].reshape(runs, -1)), axis=1)
     err, std, covered, p_value, told = out[ok, 0], out[ok, 1], out[ok, 2], out[ok, 3, 0], out[ok, 4]
+    found, dof = out[ok, 5, 0], out[ok, 5, 1]
     p95 = np.percentile(np.abs(err), 95, axis=0)
     p95_told = np.percentile(np.abs(told), 95, axis=0)
     return {
@@ -84,7 +89,17 @@ def measure(setting: Setting, runs: int, pool: ProcessPoolExecutor) -> dict:
         "coverage95": dict(zip(NAMES, covered.mean(axis=0).tolist(), strict=True)),
         "p_below_1e-3": float(np.mean(p_value < 1e-3)),
         "k_z_p95_told": float(p95_told[2]),
+        # k_z split by whether the REML found a heading spread: share, coverage, rms of error/std, median dof
+        "k_z_by_spread": {name: _group(pick, covered[:, 2], err[:, 2] / std[:, 2], dof) for name, pick in
+                          (("found_0", found == 0), ("found_above_0", found > 0))},
     }
+
+
+def _group(pick: np.ndarray, covered: np.ndarray, z: np.ndarray, dof: np.ndarray) -> dict:
+    if not pick.any():
+        return {"share": 0.0}
+    return {"share": float(pick.mean()), "coverage95": float(covered[pick].mean()),
+            "z_rms": float(np.sqrt(np.mean(z[pick] ** 2))), "dof_median": float(np.median(dof[pick]))}
 
 
 def main() -> int:
@@ -95,6 +110,8 @@ def main() -> int:
     p.add_argument("--tilts", type=float, nargs="*", default=list(TILTS_DEG), help="tilt spreads (deg) to run")
     p.add_argument("--headings", type=float, nargs="*", default=list(HEADINGS_DEG), help="heading spreads (deg) to run")
     p.add_argument("--json", default=None, help="write the figures to this file")
+    p.add_argument("--by-spread", action="store_true",
+                   help="also print k_z's coverage split by whether a heading spread was found (share, coverage, z rms, dof)")
     args = p.parse_args()
     rows = []
     print(f"{'noise':>6} {'tilt':>5} {'head':>5} | {'k_x p95':>8} {'k_y p95':>8} {'k_z p95':>8} {'told':>8} | "
@@ -108,6 +125,10 @@ def main() -> int:
             print(f"{noise:6.2f} {tilt:5.1f} {heading:5.1f} | {p95['k_x']:8.1e} {p95['k_y']:8.1e} {p95['k_z']:8.1e} "
                   f"{r['k_z_p95_told']:8.1e} | {sd['k_x']:6.2f} {sd['k_y']:6.2f} {sd['k_z']:6.2f} {max(sd_b):8.2f} "
                   f"{min(sd_b):8.2f} | {cov['k_z']:7.3f} {r['p_below_1e-3']:6.3f}", flush=True)
+            if args.by_spread:
+                for name, g in r["k_z_by_spread"].items():
+                    print(f"{'':>20} spread {name}: " + (f"{g['share']:.0%} of runs, k_z covered {g['coverage95']:.3f}, "
+                          f"z rms {g['z_rms']:.2f}, median dof {g['dof_median']:.1f}" if g["share"] else "none"), flush=True)
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(rows, fh, indent=1)
