@@ -38,12 +38,12 @@ lint: $(VENV)/.installed-test
 	$(PY) scripts/check_structure.py
 	$(PY) scripts/effects_tables.py --check
 
-## test: install everything the tests need, then run them all (TEST_WORKERS parallel workers), with the lint checks
-## beside them (a single core for under 20 s, while the first tests are numerics); either failing fails the target.
-## Three workers on two cores: most tests wait on services, browsers and simulated hands at real speed (a worker uses
-## about half a core), so a third takes the suite from 12 to 10 minutes there; a fourth gains nothing (the cores are
-## then full). The tests that follow a hand at real speed or time a wearable by its packets' arrival hold under it.
-TEST_WORKERS ?= 3
+## test: install everything the tests need, then run them all (TEST_WORKERS parallel workers, one a core: the tests that
+## follow a hand at real speed, or time a wearable by when its packets arrive, must not be starved by their
+## neighbours; a third worker on two cores takes the suite from 12 to 10 minutes but starves them: measured again,
+## the page's every-moment hands saw too few moments of the first rest in one run of three), with the lint checks beside
+## them (a single core for under 20 s, while the first tests are numerics); either failing fails the target
+TEST_WORKERS ?= 2
 # the tests start some 400 Python processes (services, their compute workers, commands): each reads gyrocal's compiled
 # modules from __pycache__ instead of compiling them again, even where the environment asks Python to write no bytecode
 test: export PYTHONDONTWRITEBYTECODE =
