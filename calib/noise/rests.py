@@ -7,6 +7,8 @@ not widen the noise of every rest and every turn."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 MIN_SIGMA_DPS = 1e-6  # floor for noise-free data, so that the weights stay finite
@@ -110,42 +112,99 @@ def noise_colour(readings: np.ndarray, spans: list[tuple[int, int]], max_lag: in
     integral over many samples scatters than white noise of the same per-sample spread would (1 for white noise;
     a sensor's internal low-pass filter, or readings interpolated from a slower channel, make it larger).
     ``readings`` (n, 3): a gyroscope's or an accelerometer's; ``spans``: the rests' samples [i, j). A knock's burst
-    (beyond ``KNOCK_SIGMA`` robust standard deviations, with its ring) is left out, as from the rests' means."""
-    n = len(readings)
-    inside = np.zeros(n, dtype=bool)
-    for i, j in spans:
-        inside[i:j] = True
-    dev = _rest_deviations(readings, spans, inside)
-    spread = np.sqrt(np.mean(dev[inside] ** 2, axis=0)) if inside.any() else np.zeros(3)
-    if np.any(np.abs(dev) > KNOCK_SIGMA * np.maximum(spread, MIN_SIGMA_DPS)):  # as in ``still_statistics``
-        scale = np.maximum(1.4826 * np.median(np.abs(dev[inside]), axis=0), MIN_SIGMA_DPS)
-        burst = inside & np.any(np.abs(dev) > KNOCK_SIGMA * scale, axis=1)
+    (beyond ``KNOCK_SIGMA`` standard deviations of the readings without it, with its ring) is left out, as from the
+    rests' means."""
+    return np.clip(1.0 + _lag_terms([readings], spans, max_lag)[0].sum(axis=1), 0.25, 16.0)
+
+
+@dataclass(frozen=True)
+class RestReadings:
+    """One sensor's readings over the rests, a knock's burst left out: each rest's mean (S, 3) and how many readings
+    it holds (S,), their pooled per-sample spread (3,) and its colour (``sensor_rests``)."""
+
+    means: np.ndarray
+    counts: np.ndarray
+    spread: np.ndarray
+    colour: float
+
+
+def sensor_rests(readings: np.ndarray, spans: list[tuple[int, int]], max_lag: int = NOISE_LAGS) -> RestReadings:
+    """One sensor's ``RestReadings`` over the rests ``spans``; its colour ``noise_colour`` pooled over the three axes
+    (one sensor, one filter) and at least 1: what a low-pass filter or an interpolation adds is counted, while a white
+    sensor's estimate scattering below 1 (a few per cent over a session's rests) is not taken for readings better
+    than independent."""
+    terms, means, counts, spread = _lag_terms([readings], spans, max_lag)
+    return RestReadings(means.T, counts, spread, max(float(np.mean(np.clip(1.0 + terms.sum(axis=1), 0.25, 16.0))), 1.0))
+
+
+def rest_readings(gyro: np.ndarray, accel: np.ndarray | None, spans: list[tuple[int, int]]
+                  ) -> tuple[RestReadings, RestReadings | None]:
+    """The gyroscope's (colour over ``NOISE_LAGS``) and the accelerometer's (over ``INTERPOLATED_LAGS``: it may be a
+    slower channel interpolated) rest readings, in one pass over the rests ``spans`` (each [i, j) non-empty); None
+    for no accelerometer."""
+    channels = [gyro] if accel is None else [gyro, accel]
+    terms, means, counts, spread = _lag_terms(channels, spans, NOISE_LAGS if accel is None else INTERPOLATED_LAGS,
+                                              rows_beyond=3)
+    colour = np.clip(1.0 + terms.sum(axis=1), 0.25, 16.0)  # the gyro's rows hold NOISE_LAGS terms, the rest 0
+    out = [RestReadings(means[3 * c : 3 * c + 3].T, counts, spread[3 * c : 3 * c + 3],
+                        max(float(np.mean(colour[3 * c : 3 * c + 3])), 1.0)) for c in range(len(channels))]
+    return out[0], (out[1] if accel is not None else None)
+
+
+def _lag_terms(channels: list[np.ndarray], spans: list[tuple[int, int]], max_lag: int, rows_beyond: int = 0
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """2 rho_k of each axis of ``channels`` (each (n, 3)) over the rests ``spans``, lags 1..max_lag: (3 per channel,
+    max_lag), with each rest's mean (rows, S), its kept readings' count (S,) and each row's pooled spread (rows,); a
+    knock in any channel leaves out those samples of all. Beyond ``NOISE_LAGS`` only the rows from ``rows_beyond`` on
+    are computed (the others 0)."""
+    rows = 3 * len(channels)
+    spans = [(int(i), int(j)) for i, j in spans if j > i]
+    if not spans:
+        return np.zeros((rows, max_lag)), np.zeros((rows, 0)), np.zeros(0), np.full(rows, MIN_SIGMA_DPS)
+    lengths = np.array([j - i for i, j in spans])
+    at = np.concatenate([np.arange(i, j) for i, j in spans])
+    # the rests' readings one after another, axis-major (rows, m): each pass runs along one row
+    x = np.empty((rows, at.size))
+    for c, readings in enumerate(channels):
+        np.take(np.asarray(readings, dtype=float).T, at, axis=1, out=x[3 * c : 3 * c + 3])
+    kept = np.ones(at.size)
+    dev, means, counts = _less_rest_means(x, lengths, kept)
+    sq = dev * dev
+    beyond = sq > KNOCK_SIGMA**2 * np.maximum(sq.mean(axis=1), MIN_SIGMA_DPS**2)[:, None]
+    if beyond.any():
+        # the spread of the readings within it (one pass of clipping), the burst what lies beyond that
+        within = (~beyond.any(axis=0)).astype(float)
+        scale2 = np.maximum((sq @ within) / max(within.sum(), 1.0), MIN_SIGMA_DPS**2)
+        burst = np.any(sq > KNOCK_SIGMA**2 * scale2[:, None], axis=0)
         if burst.any():
+            # left out with its ring (wider than max_lag, so no pair spans it); their deviations count as 0
             ring = np.convolve(burst.astype(float), np.ones(2 * KNOCK_RING + 1), mode="same") > 0
-            inside &= ~ring
-            dev = _rest_deviations(readings, spans, inside)
-    var = np.sum(dev**2, axis=0) / max(int(inside.sum()), 1)
-    factor = np.ones(3)
-    gaps = np.cumsum(~inside)  # equal for two samples exactly when no sample between them is outside a rest
+            kept = np.where(ring & (np.add.reduceat(~ring, np.concatenate(([0], np.cumsum(lengths)[:-1])))
+                                    > 0).repeat(lengths), 0.0, 1.0)  # a rest that is all knock keeps its readings
+            dev, means, counts = _less_rest_means(x, lengths, kept)
+            sq = dev * dev
+    dof = max(float(kept.sum()) - float(np.count_nonzero(counts)), 1.0)
+    spread = np.maximum(np.sqrt(sq.sum(axis=1) / dof), MIN_SIGMA_DPS)
+    var = spread**2
+    ends = np.cumsum(lengths)[:-1]  # where each rest after the first begins
+    terms = np.zeros((rows, max_lag))
     for k in range(1, max_lag + 1):
-        pair = inside[:-k] & inside[k:] & (gaps[:-k] == gaps[k:])  # both samples of the pair in the same rest
-        if pair.any():
-            factor += 2.0 * np.sum(dev[:-k][pair] * dev[k:][pair], axis=0) / pair.sum() / np.maximum(var, 1e-300)
-    return np.clip(factor, 0.25, 16.0)
+        # pairs k samples apart, both kept, in the same rest: all but the few across the start of a rest
+        across = (ends[:, None] - np.arange(1, k + 1)).ravel()
+        across = across[across >= 0]
+        r = slice(0, rows) if k <= NOISE_LAGS else slice(rows_beyond, rows)
+        d = dev[r]
+        lagged = np.einsum("ai,ai->a", d[:, :-k], d[:, k:]) - np.einsum("ai,ai->a", d[:, across], d[:, across + k])
+        count = float(kept[:-k] @ kept[k:] - kept[across] @ kept[across + k])
+        if count > 0:
+            terms[r, k - 1] = 2.0 * lagged / count / (var[r] * dof / kept.sum())
+    return terms, means, counts, spread
 
 
-def _rest_deviations(readings: np.ndarray, spans: list[tuple[int, int]], kept: np.ndarray) -> np.ndarray:
-    """Each ``kept`` sample of a rest less the mean of its rest's kept samples; zero elsewhere."""
-    dev = np.zeros(readings.shape, dtype=float)
-    for i, j in spans:
-        keep = kept[i:j]
-        if keep.any():
-            dev[i:j][keep] = readings[i:j][keep] - readings[i:j][keep].mean(axis=0)
-    return dev
-
-
-def rest_colour(readings: np.ndarray, spans: list[tuple[int, int]], max_lag: int = NOISE_LAGS) -> float:
-    """``noise_colour`` pooled over the three axes (one sensor, one filter) and at least 1: what a low-pass filter or
-    an interpolation adds is counted, while a white sensor's estimate scattering below 1 (a few per cent over a
-    session's rests) is not taken for readings better than independent."""
-    return max(float(np.mean(noise_colour(readings, spans, max_lag))), 1.0)
+def _less_rest_means(x: np.ndarray, lengths: np.ndarray, kept: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each ``kept`` (1.0) reading of ``x`` (rows, m), the rests' readings one after another (``lengths`` each), less
+    the mean of its rest's kept readings (0 for the others); those means (rows, S) and counts (S,)."""
+    starts = np.concatenate(([0], np.cumsum(lengths)[:-1]))
+    count = np.add.reduceat(kept, starts)
+    means = np.add.reduceat(x * kept, starts, axis=1) / np.maximum(count, 1.0)
+    return (x - np.repeat(means, lengths, axis=1)) * kept, means, count

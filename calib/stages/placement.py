@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib.noise.rests import INTERPOLATED_LAGS, rest_colour, still_statistics
+from calib.noise.rests import INTERPOLATED_LAGS, RestReadings, sensor_rests
 from calib.numerics.tilt import tilt_across
 from calib.quality import HeadingReport, Placement, TurnPlacement
 from calib.recording import Recording
@@ -45,21 +45,23 @@ def _neighbour_rests(turn: Stage, stills: list[Stage]) -> tuple[Stage | None, St
     return before, after
 
 
-def measure_tilts(rec: Recording, turns: list[Stage], stills: list[Stage], stages: list[Stage]) -> TurnTilts:
+def measure_tilts(rec: Recording, turns: list[Stage], stills: list[Stage], stages: list[Stage],
+                  accel_rests: RestReadings | None = None) -> TurnTilts:
     """Each turn's placement tilt, from the rests right before and after it (none without an accelerometer, or for a
-    turn with another motion of ``stages`` between it and a rest: a re-orientation, a turn left out)."""
+    turn with another motion of ``stages`` between it and a rest: a re-orientation, a turn left out).
+    ``accel_rests``: the accelerometer's readings over ``stills`` (``calib.noise.rests.rest_readings``), when already
+    measured."""
     J = len(turns)
     rotation, up, sd = np.full((J, 3), np.nan), np.full((J, 3), np.nan), np.full(J, np.nan)
     if rec.accel is None or not stills:
         return TurnTilts(rotation, up, sd, rec.accel is not None)
-    accel = np.asarray(rec.accel, dtype=float)
-    mean, count, sigma = still_statistics(accel[None], np.array([[[s.start, s.end] for s in stills]]))
-    means, sizes = mean[0], count[0]
+    rests = accel_rests if accel_rests is not None else sensor_rests(
+        np.asarray(rec.accel, dtype=float), [(s.start, s.end) for s in stills], max_lag=INTERPOLATED_LAGS)
+    means, sizes = rests.means, rests.counts
     # pooled over the rests and the three axes; a rest's mean scatters as its readings' spread times their colour
     # (an accelerometer interpolated onto the gyroscope's faster rate, or filtered near it, does not give as many
     # independent readings as it has samples)
-    colour = rest_colour(accel, [(s.start, s.end) for s in stills], max_lag=INTERPOLATED_LAGS)
-    sigma_g = float(np.sqrt(np.mean(sigma[0] ** 2) * colour))
+    sigma_g = float(np.sqrt(np.mean(rests.spread**2) * rests.colour))
     index = {id(s): i for i, s in enumerate(stills)}
     measured, i0, i1 = [], [], []
     for j, st in enumerate(turns):

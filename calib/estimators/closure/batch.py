@@ -12,7 +12,7 @@ import numpy as np
 
 from calib.errors import RecordingError
 from calib.estimators.closure.fit import ClosureData, gauss_newton, start_values
-from calib.noise.rests import rest_colour, still_statistics
+from calib.noise.rests import sensor_rests, still_statistics
 from calib.numerics.windows import windows
 
 # Runs are fitted in groups of about this many turn samples, to bound memory.
@@ -59,7 +59,7 @@ def _fit_group(gyro, dt, turns, stills, extended) -> dict[str, np.ndarray]:
     m, d = windows(gyro, turns, dt)
     mean, count, spread = still_statistics(gyro, stills)
     # as calibrate_closure: each recording's readings' colour counted in its noise
-    colour = np.array([rest_colour(g, [(int(a), int(b)) for a, b in st if b > a]) for g, st in zip(gyro, stills, strict=True)])
+    colour = np.array([sensor_rests(g, [(int(a), int(b)) for a, b in st if b > a]).colour for g, st in zip(gyro, stills, strict=True)])
     data = ClosureData(m, d, mean, count, spread * np.sqrt(colour)[:, None])
     theta0, _, _ = start_values(data, extended)
     fit = gauss_newton(data, theta0, extended)

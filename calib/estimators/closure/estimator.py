@@ -46,7 +46,7 @@ from calib.estimators.closure.partial import not_turned_text, partial_start, tur
 from calib.estimators.closure.placement import HEADING_PRIOR_DEG, HeadingSpread, check_heading_prior, placement_model
 from calib.estimators.closure.report import OFFDIAG_WARN, closure_result
 from calib.io.validation import check_calibration_input
-from calib.noise.rests import rest_colour, still_statistics
+from calib.noise.rests import rest_readings, still_statistics
 from calib.numerics.rotation import ClosureTerms
 from calib.numerics.windows import windows
 from calib.quality import ModelChoice
@@ -95,8 +95,9 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None 
     m, d = windows(gyro, np.array([[[s.start, s.end] for s in turns]]), dt_all[None])
     mean, count, spread = still_statistics(gyro, np.array([[[s.start, s.end] for s in stills]]))
     # a mean over a rest and an angle over a turn scatter as the readings' spread times their colour
-    sigma = spread * np.sqrt(rest_colour(rec.gyro, [(s.start, s.end) for s in stills]))
-    tilts = measure_tilts(rec, turns, stills, stage_list)
+    gyro_rests, accel_rests = rest_readings(rec.gyro, rec.accel, [(s.start, s.end) for s in stills])
+    sigma = spread * np.sqrt(gyro_rests.colour)
+    tilts = measure_tilts(rec, turns, stills, stage_list, accel_rests)
     place = placement_model(tilts, check_heading_prior(heading_prior_deg))
     data = ClosureData(m, d, mean, count, sigma, place.target[None], place.cov[None])
     evidence = None if heading_prior_deg is not None else heading_evidence(tilts, bias_free_angles(data)[0][0])
