@@ -1,9 +1,11 @@
-"""The rests' statistics: each rest's mean and length, and the reading noise pooled over the rests.
+"""The rests' statistics: each rest's mean and length, the reading noise pooled over the rests, and its colour.
 
 A rest that begins as the device is put down can hold the knock of it (``calib.effects.impacts``): a short burst
 far above the noise. Samples beyond ``KNOCK_SIGMA`` robust standard deviations (from the median absolute deviation)
 of their rest's mean, and ``KNOCK_RING`` samples on either side, are left out of that rest, so that one knock does
-not widen the noise of every rest and every turn."""
+not widen the noise of every rest and every turn. The colour (how much more a mean over many readings scatters than
+their spread says, ``noise_colour``) leaves out a burst the same way, its scale the spread of the readings within
+``KNOCK_SIGMA`` of theirs (one pass of clipping, a fraction of a median's cost: it runs in every calibration)."""
 
 from __future__ import annotations
 
