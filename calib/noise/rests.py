@@ -135,8 +135,7 @@ def sensor_rests(readings: np.ndarray, spans: list[tuple[int, int]], max_lag: in
     (one sensor, one filter) and at least 1: what a low-pass filter or an interpolation adds is counted, while a white
     sensor's estimate scattering below 1 (a few per cent over a session's rests) is not taken for readings better
     than independent."""
-    terms, means, counts, spread = _lag_terms([readings], spans, max_lag)
-    return RestReadings(means.T, counts, spread, max(float(np.mean(np.clip(1.0 + terms.sum(axis=1), 0.25, 16.0))), 1.0))
+    return _sensor(*_lag_terms([readings], spans, max_lag), 0)
 
 
 def rest_readings(gyro: np.ndarray, accel: np.ndarray | None, spans: list[tuple[int, int]]
@@ -144,13 +143,18 @@ def rest_readings(gyro: np.ndarray, accel: np.ndarray | None, spans: list[tuple[
     """The gyroscope's (colour over ``NOISE_LAGS``) and the accelerometer's (over ``INTERPOLATED_LAGS``: it may be a
     slower channel interpolated) rest readings, in one pass over the rests ``spans`` (each [i, j) non-empty); None
     for no accelerometer."""
-    channels = [gyro] if accel is None else [gyro, accel]
-    terms, means, counts, spread = _lag_terms(channels, spans, NOISE_LAGS if accel is None else INTERPOLATED_LAGS,
-                                              rows_beyond=3)
-    colour = np.clip(1.0 + terms.sum(axis=1), 0.25, 16.0)  # the gyro's rows hold NOISE_LAGS terms, the rest 0
-    out = [RestReadings(means[3 * c : 3 * c + 3].T, counts, spread[3 * c : 3 * c + 3],
-                        max(float(np.mean(colour[3 * c : 3 * c + 3])), 1.0)) for c in range(len(channels))]
-    return out[0], (out[1] if accel is not None else None)
+    if accel is None:
+        return sensor_rests(gyro, spans), None
+    # the gyro's rows hold NOISE_LAGS terms, the others 0
+    measured = _lag_terms([gyro, accel], spans, INTERPOLATED_LAGS, rows_beyond=3)
+    return _sensor(*measured, 0), _sensor(*measured, 1)
+
+
+def _sensor(terms: np.ndarray, means: np.ndarray, counts: np.ndarray, spread: np.ndarray, c: int) -> RestReadings:
+    """Channel ``c``'s ``RestReadings`` from ``_lag_terms``'s rows; its colour pooled over its axes, at least 1."""
+    rows = slice(3 * c, 3 * c + 3)
+    colour = np.clip(1.0 + terms[rows].sum(axis=1), 0.25, 16.0)
+    return RestReadings(means[rows].T, counts, spread[rows], max(float(np.mean(colour)), 1.0))
 
 
 def _lag_terms(channels: list[np.ndarray], spans: list[tuple[int, int]], max_lag: int, rows_beyond: int = 0
@@ -181,13 +185,13 @@ def _lag_terms(channels: list[np.ndarray], spans: list[tuple[int, int]], max_lag
         if burst.any():
             # left out with its ring (wider than max_lag, so no pair spans it); their deviations count as 0
             ring = np.convolve(burst.astype(float), np.ones(2 * KNOCK_RING + 1), mode="same") > 0
-            kept = np.where(ring & (np.add.reduceat(~ring, np.concatenate(([0], np.cumsum(lengths)[:-1])))
-                                    > 0).repeat(lengths), 0.0, 1.0)  # a rest that is all knock keeps its readings
+            all_knock = np.add.reduceat(ring, np.concatenate(([0], np.cumsum(lengths)[:-1]))) == lengths
+            kept = (~ring | np.repeat(all_knock, lengths)).astype(float)  # a rest that is all knock keeps its readings
             dev, means, counts = _less_rest_means(x, lengths, kept)
             sq = dev * dev
-    dof = max(float(kept.sum()) - float(np.count_nonzero(counts)), 1.0)
-    spread = np.maximum(np.sqrt(sq.sum(axis=1) / dof), MIN_SIGMA_DPS)
-    var = spread**2
+    ss = sq.sum(axis=1)
+    spread = np.maximum(np.sqrt(ss / max(float(kept.sum()) - float(np.count_nonzero(counts)), 1.0)), MIN_SIGMA_DPS)
+    var = np.maximum(ss / kept.sum(), 1e-300)  # each row's variance, the autocorrelation's scale
     ends = np.cumsum(lengths)[:-1]  # where each rest after the first begins
     terms = np.zeros((rows, max_lag))
     for k in range(1, max_lag + 1):
@@ -199,7 +203,7 @@ def _lag_terms(channels: list[np.ndarray], spans: list[tuple[int, int]], max_lag
         lagged = np.einsum("ai,ai->a", d[:, :-k], d[:, k:]) - np.einsum("ai,ai->a", d[:, across], d[:, across + k])
         count = float(kept[:-k] @ kept[k:] - kept[across] @ kept[across + k])
         if count > 0:
-            terms[r, k - 1] = 2.0 * lagged / count / (var[r] * dof / kept.sum())
+            terms[r, k - 1] = 2.0 * lagged / count / var[r]
     return terms, means, counts, spread
 
 

@@ -138,8 +138,8 @@ def calibrate_closure(rec: Recording, stages: Any = None, extended: bool | None 
         choice["reason"] = "not asked for"
     if fit is not diagonal:
         _check_closed(turns, fit, revolutions)
-    result = replace(closure_result(rec, stage_list, turns, stills, data, fit, revolutions, bool(extended), warnings, dt_all),
-                     noise_dps=spread[0].copy())  # the readings' own spread, as the other methods report it
+    # noise_dps: the readings' own spread, as the other methods report it, not their colour's scale
+    result = closure_result(rec, stage_list, turns, stills, data, fit, revolutions, bool(extended), warnings, dt_all, spread[0])
     result.quality["model_choice"] = choice
     heading = fit.heading or HeadingSpread(place.heading_prior_deg, heading_source if heading_prior_deg is not None else "default")
     result.quality["placement"] = placement_report(turns, tilts, (place.tilt_prior_deg, heading.spread_deg), heading_report(heading))

@@ -31,6 +31,7 @@ def closure_result(
     extended: bool,
     warnings: list[str],
     dt_all: np.ndarray,
+    noise_dps: np.ndarray,
 ) -> CalibrationResult:
     theta = fit.theta.copy()
     names = param_names(extended)
@@ -161,7 +162,7 @@ def closure_result(
         b_bound=bound[3:6],
         K=K if extended else None,
         K_std=K_std,
-        noise_dps=data.sigma[0].copy(),
+        noise_dps=noise_dps.copy(),
         residuals={"turns": turn_rows, "stills": still_rows, "chi2": chi2, "dof": dof},
         warnings=warnings,
         iterations=fit.nfev,
