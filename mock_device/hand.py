@@ -34,6 +34,9 @@ GAUGE_OVERSHOOT_DEG = (0.0, 5.0)  # how far past the gauge's 360 deg the hand's 
 IN_PLACE_DEG = 0.5  # a device put down this close to its place needs no putting back before the next turn
 BLOCK_CATCH_DEG = 15.0  # a device put down this close to its place is pushed flush against the block
 BUMP_DEG = np.array([4.0, -3.0, 12.0])  # a knock of the device and back (mock_device.scenarios' bump)
+# when the knock comes after the hand stops the turn: while the turn is checked (the service sees the rest after
+# 0.5 s, server.config.Timings.rest_seen_s) or in the pause once it is recorded (2 s from the stop, Timings.pause_s)
+KNOCK_AFTER_STOP_S = (0.8, 1.9)
 
 
 @dataclass(frozen=True)
@@ -139,7 +142,16 @@ class PromptHand:
             if segs:
                 out.append(Act(start, segs))
                 self.busy_until_s = start + sum(float(getattr(sg, "duration_s", 0.0) or 0.0) for sg in segs)
+                self._plan_knock(p)
         return out
+
+    def _plan_knock(self, done: _Plan) -> None:
+        """The knock comes in the rest after the turn about ``bump_in``, timed from the hand's own stop (device time),
+        not from when the screen said so: a page or an event late by a second would carry it past the pause."""
+        ends_turn = done.what in ("turn", "gauge_finish") and not any(q.what == "gauge_finish" for q in self.pending)
+        if ends_turn and done.axis == self.bump_in and not self.bumped:
+            self.bumped = True
+            self.pending.append(_Plan(self.busy_until_s + float(self.rng.uniform(*KNOCK_AFTER_STOP_S)), "bump"))
 
     def _gauge_behind(self) -> bool:
         """The last snapshot does not yet show the device still for GAUGE_STEADY_S: the gauge may still be
@@ -168,13 +180,7 @@ class PromptHand:
             self.pending.append(_Plan(start + wait, "turn", axis))
         elif phase == "settle" and np.linalg.norm(self.offset) > IN_PLACE_DEG:
             self._put_back_at(t + self._delay())
-        elif phase in ("checking", "pause"):
-            # the knock comes in the rest after the turn: while it is checked, or in the pause once it is recorded
-            if self.bump_in == axis and not self.bumped:
-                self.bumped = True
-                self.pending.append(_Plan(t + float(self.rng.uniform(0.0, 1.2)), "bump"))
-            if phase == "checking":
-                return
+        elif phase == "pause":
             nxt = {"x": "y", "y": "z"}.get(axis)
             if nxt is not None and self.rng.random() < self.style.early:
                 self.pending.append(_Plan(t + float(self.rng.uniform(0.9, 1.5)), "turn", nxt))

@@ -92,15 +92,35 @@ FIRST_CALM_S = 0.5  # device time the service may take to see the first calm rea
 RING_SLACK = 10.0  # percent: a ring drawn from a snapshot a moment older than the event the page last handled
 
 
-def assert_first_rest_counts_without_a_jump(samples: list[list[Any]], rest_s: float = 3.0) -> None:
+def first_rest_began(samples: list[list[Any]]) -> float | None:
+    """The device time of the first event a page handled while it showed the first hold-still (None: it showed none)."""
+    still = _first_rest(samples)
+    return still[0][0] if still else None
+
+
+def _first_rest(samples: list[list[Any]]) -> list[tuple[float, int]]:
+    """(device time of the event last handled, ring percent) at each sample showing a hold-still and an event."""
+    return [(s[6], s[5]) for s in samples if s[1].startswith("still:") and s[5] is not None and s[6] is not None]
+
+
+def assert_first_rest_counts_without_a_jump(samples: list[list[Any]], rest_s: float = 3.0,
+                                            began: float | None = None) -> None:
     """The first hold-still's ring counts from the device's first readings as its time passes: read against the device
-    time of the event the page last handled (each sample's last value), it is never behind the time since the page
-    first showed the rest by more than the first calm readings take (it stood at 0 for 1.1-1.4 s of device time,
-    waiting for the stage detector, then jumped to 46 %), and never moves further than the device time since the
-    sample before it allows (``rest_s``: the rest asked for), until it first drops (a moving device restarts it)."""
-    still = [(s[6], s[5]) for s in samples if s[1].startswith("still:") and s[5] is not None and s[6] is not None]
-    assert len(still) >= 5, still
-    t0 = still[0][0]
+    time of the event the page last handled (each sample's last value), it is never behind the time since the rest
+    began by more than the first calm readings take (it stood at 0 for 1.1-1.4 s of device time, waiting for the stage
+    detector, then jumped to 46 %), and never moves further than the device time since the sample before it allows
+    (``rest_s``: the rest asked for), until it first drops (a moving device restarts it).
+
+    ``began``: for a page that followed the session from its address, the rest's beginning as the page that started
+    it saw it (``first_rest_began``): a follower may join mid-rest or after it (a second tablet opened late), and is
+    held from then on to the rest's own time, not to the moment it joined (a ring that started again from 0 there
+    would stand behind). Without it the page watched from the start and must have shown the rest at five moments."""
+    still = _first_rest(samples)
+    if began is None:
+        assert len(still) >= 5, still
+    if not still:
+        return
+    t0 = still[0][0] if began is None else min(began, still[0][0])
     shown = []
     for (t_before, p_before), (t, p) in zip([still[0]] + still, still, strict=False):
         if p < p_before:
@@ -129,15 +149,16 @@ def assert_rests_after_turns_count_from_the_stop(samples: list[list[Any]], at_le
     assert not late, f"a rest's ring first appeared well along (state:phase, %): {late} of {firsts}"
 
 
-def assert_every_moment_held(seen: dict[str, Any], phone: bool, turns: int = 3) -> None:
+def assert_every_moment_held(seen: dict[str, Any], phone: bool, turns: int = 3, rest_began: float | None = None) -> None:
     """The page's moments as a clinician must be able to rely on them, at every sample of a whole session
     (``Wizard.record``'s ``seen``; ``phone``: a 390x844 screen; ``turns``: rests after a turn at least): every retry
     reason stays until its turn starts, the rings count from the device's first reading and from each turn's stop
     without a jump, a turn shown done is taken back only by a result that asks it again and says so on its tile
-    ("again"), and on a phone Cancel, the ring or gauge and the tiles are on the first screen."""
+    ("again"), and on a phone Cancel, the ring or gauge and the tiles are on the first screen. ``rest_began``: for a
+    page that followed the session, when its first rest began (``assert_first_rest_counts_without_a_jump``)."""
     samples = seen["samples"]
     assert_retry_reasons_stay(samples, at_least=0)
-    assert_first_rest_counts_without_a_jump(samples)
+    assert_first_rest_counts_without_a_jump(samples, began=rest_began)
     assert_rests_after_turns_count_from_the_stop(samples, at_least=turns)
     assert_done_never_undone(seen["done"], again=seen["again"])
     if phone:

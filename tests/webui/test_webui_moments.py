@@ -31,7 +31,7 @@ from webui_fixtures import (
     start_recorded,
     watched_page,
 )
-from webui_moments import RetryReason, assert_every_moment_held, assert_retry_reasons_stay
+from webui_moments import RetryReason, assert_every_moment_held, assert_retry_reasons_stay, first_rest_began
 
 # the clinicians of mock_device.hand, mock-N performing HANDS[N-1]
 HANDS = ("careful", "bumps", "short", "ends_off", "stalls", "fast", "wrong_axis")
@@ -159,11 +159,19 @@ def test_every_moment_of_each_clinicians_session_holds_at_every_size(
             wizards[v].page.goto(f"{svc.base}/#/session/{sid}")
         for w in wizards.values():
             w.page.wait_for_selector(".verdict h1", timeout=120_000)
+        began = None  # the first rest's beginning, as the page that started the session saw it
         for v, w in wizards.items():
             verdict = w.text(".verdict h1")
             assert verdict == (STALLED if hand == "stalls" else "PASS"), f"{v}: {session_told(w)}"
             seen = w.seen()
-            assert_every_moment_held(seen, phone=v == PHONE_VIEW, turns=2 if hand == "stalls" else 3)  # X and Y only
+            role = "started the session" if v == first else "followed it"
+            try:
+                assert_every_moment_held(seen, phone=v == PHONE_VIEW, turns=2 if hand == "stalls" else 3,  # X and Y only
+                                         rest_began=began)
+            except AssertionError as e:
+                raise AssertionError(f"the {v} page, which {role}: {e}") from e
+            if v == first:
+                began = first_rest_began(seen["samples"])
             reasons = assert_retry_reasons_stay(seen["samples"], at_least=0 if hand in ("careful", "bumps") else 1,
                                                 save=w.shots / "retry-reasons.json")
             assert not any("faulty" in n for n in seen["notices"]), seen["notices"]  # a hand's fault is never the sensor's
