@@ -25,6 +25,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from calib.noise.rests import INTERPOLATED_LAGS, recordings_colours
 from calib.numerics.tilt import tilt_across
 from calib.recording import Recording
 from calib.stages.stage import AXES, Stage
@@ -329,6 +330,10 @@ def _add_tilt(prob: Problem, accel: np.ndarray) -> None:
     prob.accel_sigma = np.maximum(sig_a, 1e-6)
     if J == 0:
         return
+    # a pose's mean scatters as the readings' spread times their colour (an accelerometer filtered, or interpolated
+    # from a slower channel, as Polar's): the tilts say how well they are known, the fit weighs them by it
+    mean_sigma = prob.accel_sigma * np.sqrt(recordings_colours(accel, [(st.start, st.end) for st in lay.stills],
+                                                               INTERPOLATED_LAGS))
     still_mean = np.zeros((R, lay.S, 3))
     still_n = np.zeros(lay.S)
     for s, st in enumerate(lay.stills):
@@ -349,7 +354,7 @@ def _add_tilt(prob: Problem, accel: np.ndarray) -> None:
         a0, a1 = still_mean[:, i0], still_mean[:, i1]
         if ref is not None:
             a0 = ref[j].inv().apply(a0)  # the pose before, carried into the pose after by the reference rotation
-        across = tilt_across(a0, a1, still_n[i0], still_n[i1], prob.accel_sigma)
+        across = tilt_across(a0, a1, still_n[i0], still_n[i1], mean_sigma)
         rho, u = across.rho_deg, across.up
         e1 = np.cross(u, np.eye(3)[np.argmin(np.abs(u), axis=1)])
         e1 /= np.linalg.norm(e1, axis=1, keepdims=True)

@@ -138,6 +138,14 @@ def sensor_rests(readings: np.ndarray, spans: list[tuple[int, int]], max_lag: in
     return _sensor(*_lag_terms([readings], spans, max_lag), 0)
 
 
+def recordings_colours(readings: np.ndarray, spans: list[tuple[int, int]], max_lag: int = NOISE_LAGS) -> np.ndarray:
+    """``sensor_rests``' colour of each of R recordings of one sensor, (R, n, 3), over the same rests, in one pass:
+    (R,). A knock in one recording leaves those samples out of all (they are replays of one session)."""
+    terms = _lag_terms(list(np.asarray(readings, dtype=float)), spans, max_lag)[0]
+    colour = np.clip(1.0 + terms.sum(axis=1), 0.25, 16.0).reshape(-1, 3)
+    return np.maximum(colour.mean(axis=1), 1.0)
+
+
 def rest_readings(gyro: np.ndarray, accel: np.ndarray | None, spans: list[tuple[int, int]]
                   ) -> tuple[RestReadings, RestReadings | None]:
     """The gyroscope's (colour over ``NOISE_LAGS``) and the accelerometer's (over ``INTERPOLATED_LAGS``: it may be a

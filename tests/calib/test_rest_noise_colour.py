@@ -1,7 +1,8 @@
 """How much more the rests' means scatter than their readings' spread says (calib.noise.rests.noise_colour): 1 for
 white noise, 3 for a 3-sample low-pass filter, 4 / (11/16) for a channel linearly interpolated onto four times its
 own rate (Polar's 52 Hz accelerometer onto its 208 Hz gyroscope), and a knock in a rest does not count as colour.
-The placement tilts measured from such an accelerometer say how well they are known, and so does the calibration."""
+The placement tilts measured from such an accelerometer say how well they are known, and so do the calibration and
+the diagnosis."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from calib.diagnosis.data import build_problem, make_layout
 from calib.noise.rests import INTERPOLATED_LAGS, noise_colour
 from calib.pipeline import calibrate
 from calib.recording import Recording
@@ -70,6 +72,23 @@ def test_a_tilt_from_an_interpolated_accelerometer_is_known_as_well_as_its_own_r
     full = measure_tilts(rec, turns, stills, list(truth.stages)).sd_deg
     slow = measure_tilts(_interpolated_accel(rec), turns, stills, list(truth.stages)).sd_deg
     np.testing.assert_allclose(slow / full, 2.0, rtol=0.12)
+
+
+def test_the_diagnosis_knows_a_tilt_from_an_interpolated_accelerometer_as_the_calibration_does() -> None:
+    # the diagnosis weighs each turn's tilt by its sd: taken as white, Polar's interpolated readings weighed their
+    # tilts 2.4 times too heavily against the closures (its replays simulate the colour, so only the fit suffered)
+    rec, truth = simulate(5, noise=0.03, fs=208.0)
+    stages = list(truth.stages)
+
+    def tilt_sd(r: Recording) -> np.ndarray:
+        assert r.accel is not None
+        return build_problem(make_layout(r, stages), r.gyro[None], r.accel[None]).tilts().sd[0]
+
+    np.testing.assert_allclose(tilt_sd(_interpolated_accel(rec)) / tilt_sd(rec), 2.0, rtol=0.12)
+    # replays read in one pass: each recording's colour its own
+    mixed = np.stack([rec.accel, _interpolated_accel(rec).accel])
+    sd = build_problem(make_layout(rec, stages), np.stack([rec.gyro] * 2), mixed).tilts().sd
+    np.testing.assert_allclose(sd[1] / sd[0], 2.0, rtol=0.12)
 
 
 def test_k_from_an_interpolated_accelerometer_is_as_uncertain_as_it_says() -> None:
