@@ -40,8 +40,9 @@ lint: $(VENV)/.installed-test
 
 ## test: install everything the tests need, then run them all (TEST_WORKERS parallel workers, one a core: the tests that
 ## follow a hand at real speed, or time a wearable by when its packets arrive, must not be starved by their
-## neighbours; a third worker on two cores takes the suite from 12 to 10 minutes but starves them: measured again,
-## the page's every-moment hands saw too few moments of the first rest in one run of three), with the lint checks beside
+## neighbours; a third worker on two cores takes the suite from 13 to 10 minutes but starves them: measured again,
+## the page's every-moment hands saw too few moments of the first rest in one run of three, and with that mended a
+## kit's loose wearable went unnamed in one run of three), with the lint checks beside
 ## them (a single core for under 20 s, while the first tests are numerics); either failing fails the target
 TEST_WORKERS ?= 2
 # the tests start some 400 Python processes (services, their compute workers, commands): each reads gyrocal's compiled
