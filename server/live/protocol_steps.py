@@ -30,6 +30,7 @@ class ProtocolSteps(TurnChecks):
     _hinted: bool
     _calm_since: float | None  # device time of the first still sample, by the fast stop reading (turn_watch)
     _left_said_t = -1e9  # device time the time left for an overdue turn was last sent
+    _moving_said = False  # whether the live reading last sent said the device was moving
 
     @property
     def finished(self) -> bool:
@@ -92,12 +93,16 @@ class ProtocolSteps(TurnChecks):
             self._still_reached()
             return
         now = self.clock()
-        if now - self._last_live_emit >= 1.0 / self.settings.sse_rate_hz:
+        # the device starting or ceasing to move in a counted rest is sent at once, as a state change is: a service
+        # catching up in a burst would otherwise read a whole knock between two of its few snapshots a second, and the
+        # ring would never show it
+        flipped = target is not None and shown_moving != self._moving_said
+        if flipped or now - self._last_live_emit >= 1.0 / self.settings.sse_rate_hz:
             if self.phase in (Phase.TURNING, Phase.PLACING):
-                self._last_live_emit = now
+                self._last_live_emit, self._moving_said = now, shown_moving
                 self._emit("angle")
             elif target is not None:
-                self._last_live_emit = now
+                self._last_live_emit, self._moving_said = now, shown_moving
                 self._emit("progress")
             elif self._hinted and self.phase == Phase.READY and self.kit_id is None and self.t_now - self._left_said_t >= 1.0:
                 # once the turn is overdue, the time left for it, once a second of device time (a kit's page has its own)

@@ -388,6 +388,26 @@ def test_moving_in_the_pause_says_what_happens_next(rest_s: float, recorded: boo
         assert run.s.turns["x"].start_s > rec.t[int((3.5 + 3.0 + rest_s + 0.8) * FS)]  # the turn made again
 
 
+@pytest.mark.parametrize("rest_s", [1.0, 1.8])
+def test_a_knock_in_a_rest_is_said_as_it_starts_and_ends_whatever_the_snapshot_rate(rest_s: float) -> None:
+    """A service catching up in a burst (its clock standing still while it reads a second of samples) sends the live
+    reading a few times a second at most; the device starting or ceasing to move in a counted rest is sent at once,
+    as a state change is, so the ring shows the knock (and the still after it) however late the service is."""
+    bump = (Motion((4, -3, 12), 0.4), Motion((-4, 3, -12), 0.4))
+    sc = script(Still(3.5), turn("x"), Still(rest_s), *bump, Still(3.0), turn("x"), Still(3.0))
+    rec, _ = sim(sc)
+    run = Run(max_attempts=None, clock=lambda: 0.0)  # no time passes: every snapshot the rate allows is spent at once
+    run.feed(rec, 0, int((3.5 + 3.0 + rest_s + 0.8 + 2.5) * FS))
+    knock = 3.5 + 3.0 + rest_s
+    resting = [(round(snap["live"]["t_device_s"] - rec.t[0] - knock, 2), snap["live"]["moving"]) for _, snap in run.events
+               if snap["state"] == "turn_x" and snap["phase"] in ("pause", "settle", "checking")
+               and snap["live"]["t_device_s"] - rec.t[0] > knock - 0.2]
+    moving = [t for t, m in resting if m]
+    assert moving and 0.0 <= moving[0] <= 0.3, resting  # said as the knock starts
+    still_again = [t for t, m in resting if not m and t > moving[0]]
+    assert still_again and still_again[0] <= 0.8 + 0.6, resting  # ... and as the device rests again
+
+
 def test_a_long_reconnection_does_not_count_against_the_time_limits() -> None:
     """The device clock runs on while the link is down: after a reconnection that took longer than the
     60 s limit, the settle phase counts from the first sample that came back."""
