@@ -116,7 +116,7 @@ def noise_colour(readings: np.ndarray, spans: list[tuple[int, int]], max_lag: in
     ``readings`` (n, 3): a gyroscope's or an accelerometer's; ``spans``: the rests' samples [i, j). A knock's burst
     (beyond ``KNOCK_SIGMA`` standard deviations of the readings without it, with its ring) is left out, as from the
     rests' means."""
-    return np.clip(1.0 + _lag_terms([readings], spans, max_lag)[0].sum(axis=1), 0.25, 16.0)
+    return _axis_colours(_lag_terms([readings], spans, max_lag)[0])
 
 
 @dataclass(frozen=True)
@@ -141,9 +141,7 @@ def sensor_rests(readings: np.ndarray, spans: list[tuple[int, int]], max_lag: in
 def recordings_colours(readings: np.ndarray, spans: list[tuple[int, int]], max_lag: int = NOISE_LAGS) -> np.ndarray:
     """``sensor_rests``' colour of each of R recordings of one sensor, (R, n, 3), over the same rests, in one pass:
     (R,). A knock in one recording leaves those samples out of all (they are replays of one session)."""
-    terms = _lag_terms(list(np.asarray(readings, dtype=float)), spans, max_lag)[0]
-    colour = np.clip(1.0 + terms.sum(axis=1), 0.25, 16.0).reshape(-1, 3)
-    return np.maximum(colour.mean(axis=1), 1.0)
+    return _pooled(_axis_colours(_lag_terms(list(np.asarray(readings, dtype=float)), spans, max_lag)[0]))
 
 
 def rest_readings(gyro: np.ndarray, accel: np.ndarray | None, spans: list[tuple[int, int]]
@@ -161,8 +159,17 @@ def rest_readings(gyro: np.ndarray, accel: np.ndarray | None, spans: list[tuple[
 def _sensor(terms: np.ndarray, means: np.ndarray, counts: np.ndarray, spread: np.ndarray, c: int) -> RestReadings:
     """Channel ``c``'s ``RestReadings`` from ``_lag_terms``'s rows; its colour pooled over its axes, at least 1."""
     rows = slice(3 * c, 3 * c + 3)
-    colour = np.clip(1.0 + terms[rows].sum(axis=1), 0.25, 16.0)
-    return RestReadings(means[rows].T, counts, spread[rows], max(float(np.mean(colour)), 1.0))
+    return RestReadings(means[rows].T, counts, spread[rows], float(_pooled(_axis_colours(terms[rows]))[0]))
+
+
+def _axis_colours(terms: np.ndarray) -> np.ndarray:
+    """Each row's colour, 1 + its ``_lag_terms``, within bounds a few rests' scatter cannot pass."""
+    return np.clip(1.0 + terms.sum(axis=1), 0.25, 16.0)
+
+
+def _pooled(colours: np.ndarray) -> np.ndarray:
+    """Each channel's colour (rows of three axes) pooled over its axes, at least 1 (``sensor_rests``)."""
+    return np.maximum(colours.reshape(-1, 3).mean(axis=1), 1.0)
 
 
 def _lag_terms(channels: list[np.ndarray], spans: list[tuple[int, int]], max_lag: int, rows_beyond: int = 0
