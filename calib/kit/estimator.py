@@ -26,7 +26,7 @@ from calib.estimators.closure.fit import KPrior
 from calib.estimators.closure.heading import heading_report
 from calib.estimators.closure.placement import HeadingSpread
 from calib.judge.acceptance import misclosure
-from calib.kit.axes import KitAxes, Refit, kit_axes
+from calib.kit.axes import KitAxes, kit_axes
 from calib.kit.clocks import IDENTITY, ClockMap
 from calib.kit.coupling import IDENTITY_MAP, LinearMap, fit_map, reading_noise, resting, runs
 from calib.kit.departure import BURST_DPS, DEPARTURE_DEG, NO_DEPARTURE, departures
@@ -97,8 +97,10 @@ def calibrate_kit(recordings: Sequence[Recording], names: Sequence[str] | None =
         left_out.append(blamed)
         members.remove(blamed)
     say(0.9, "each wearable's calibration")
-    tray = _tray_heading(solved.mean, heading_prior_deg)
-    axes = kit_axes(solved.mean, [(solved.maps[i], solved.clocks[i]) for i in members], _refit(solved, tray))
+    refit = _MeanRefit(solved, heading_prior_deg) if solved.mean.method == "closure" else None
+    axes = kit_axes(solved.mean, [(solved.maps[i], solved.clocks[i]) for i in members], refit)
+    # the spread from the fit the axes rest on (see _MeanRefit)
+    tray = refit.tray if refit is not None and refit.tray is not None else _tray_heading(solved.mean, heading_prior_deg)
     out = _members(recordings, names, solved, members, axes, tray)
     for i in left_out:
         alone.setdefault(i, _alone(recordings[i], protocol, heading_prior_deg))
@@ -130,13 +132,30 @@ def _tray_heading(mean: CalibrationResult, heading_prior_deg: float | None) -> t
     return None, "default"
 
 
-def _refit(solved: _Solved, tray: tuple[float | None, str]) -> Refit | None:
-    """The kit's mean recording calibrated again, on its stages, with a prior on K's off-diagonal terms; None when the
-    mean was not calibrated by the closure estimator (its K was fitted otherwise)."""
-    if solved.mean.method != "closure":
-        return None
-    return lambda prior: calibrate_closure(solved.mean_rec, stages=solved.mean.stages, heading_prior_deg=tray[0],
-                                           k_prior=prior, heading_source=tray[1])
+class _MeanRefit:
+    """The kit's mean recording calibrated again, on its stages, with a prior on K's off-diagonal terms (a
+    ``calib.kit.axes.Refit`` for a mean the closure estimator calibrated). The tray's heading spread is learned in it
+    (unless stated), with the tilt, then carried as the tray's, as every wearable carries it: the mean's first fit,
+    its K diagonal, reads the wearables' tilt in the turns' closures as heading. ``result`` and ``tray``: the last
+    refit and the spread it carried (``_tray_heading``'s form), None until asked."""
+
+    def __init__(self, solved: _Solved, heading_prior_deg: float | None) -> None:
+        self.solved, self.heading_prior_deg = solved, heading_prior_deg
+        self.result: CalibrationResult | None = None
+        self.tray: tuple[float | None, str] | None = None
+
+    def __call__(self, prior: KPrior) -> CalibrationResult:
+        rec, stages = self.solved.mean_rec, self.solved.mean.stages
+        learned = None
+        if self.heading_prior_deg is None:
+            learned = calibrate_closure(rec, stages=stages, k_prior=prior)
+        self.tray = _tray_heading(learned or self.solved.mean, self.heading_prior_deg)
+        if learned is not None and self.tray[0] is None:  # no turn showed it: the default, as that fit carried
+            self.result = learned
+        else:
+            self.result = calibrate_closure(rec, stages=stages, heading_prior_deg=self.tray[0], k_prior=prior,
+                                            heading_source=self.tray[1])
+        return self.result
 
 
 class _Solved:
@@ -241,15 +260,11 @@ def _members(recordings: Sequence[Recording], names: list[str], solved: _Solved,
     for j, i in enumerate(members):
         rec, linear, clock = recordings[i], solved.maps[i], solved.clocks[i]
         params = member_params(axes.ref, linear, clock, axes.full)
-        stages = [_own_stage(s, solved.span, rec, clock) for s in mean.stages]
-        if stages and stages[0].kind == "still":  # the first and last rests reach the wearable's own first and last samples
-            stages[0] = replace(stages[0], start=0, start_s=float(rec.t[0]))
-        if stages and stages[-1].kind == "still":
-            stages[-1] = replace(stages[-1], end=len(rec), end_s=float(rec.t[-1]))
+        stages = _reaching_own_rests([_own_stage(s, solved.span, rec, clock) for s in mean.stages], rec)
         at_rest = np.concatenate([np.arange(s.start, s.end) for s in stages if s.kind == "still"])
         params = rest_bias(params, rec.gyro[at_rest].mean(axis=0), at_rest.size, solved.reading_noise[i])
         params = _own_turns_bias(rec, stages, params, tray)
-        result = _result(rec, params, clock, solved, names, j, stages, solved.reading_noise[i], axes)
+        result = _result(rec, params, clock, solved, names, j, stages, solved.reading_noise[i], axes, tray)
         out[i] = KitMember(names[i], result, clock, params.mount_deg,
                            Coherence(linear.residual_sd, linear.noise_sd, solved.departures[j]))
     return out
@@ -277,14 +292,14 @@ def _own_turns_bias(rec: Recording, stages: list[Stage], params: MemberParams,
 
 
 def _result(rec: Recording, params: MemberParams, clock: ClockMap, solved: _Solved, names: list[str], j: int,
-            stages: list[Stage], noise: np.ndarray, axes: KitAxes) -> CalibrationResult:
+            stages: list[Stage], noise: np.ndarray, axes: KitAxes, tray: tuple[float | None, str]) -> CalibrationResult:
     """One wearable's calibration as an ordinary result: the mean's stages on its own samples, its own turns'
-    closures with its own calibration, the mean's quality with the kit's block beside it."""
+    closures with its own calibration, the mean's quality with the kit's block beside it and the tray's heading
+    spread (``tray``, from ``_tray_heading``)."""
     mean = solved.mean
     quality: Any = copy.deepcopy(mean.quality)
-    heading = (quality.get("placement") or {}).get("heading")
-    if heading and heading["source"] == "estimated":  # the mean's spread, carried by every wearable's fit
-        quality["placement"]["heading"] = heading_report(HeadingSpread(heading["spread_deg"], "kit"))
+    if tray[1] == "kit" and tray[0] is not None and quality.get("placement"):  # carried by every wearable's fit
+        quality["placement"]["heading"] = heading_report(HeadingSpread(tray[0], "kit"))
     quality["kit"] = {"devices": len(solved.members), "reference": names[solved.ref], "clock": clock.to_dict(),
                       "mount_deg": params.mount_deg, "consistency": solved.departures[j].to_dict(),
                       "axes": axes.to_dict()}
@@ -304,6 +319,27 @@ def _result(rec: Recording, params: MemberParams, clock: ClockMap, solved: _Solv
     )
     # its k is on its own stamps: a rate estimated from when its packets arrived carries its error into every k
     return with_rate_uncertainty(result, rec.meta.sample_rate_rel_std)
+
+
+def _reaching_own_rests(stages: list[Stage], rec: Recording) -> list[Stage]:
+    """The kit's first and last rests on a wearable's own samples, reaching on as far as it rested before and after
+    the kit's span (its stream may start earlier or end later than the reference's), not over a motion there: a
+    tray picked up again, or turned once more, before this wearable's stream stopped would put a turn in its rest
+    reading, its b off by the turn's mean rate."""
+    if not stages:
+        return stages
+    own = [s for s in detect_stages(rec) if s.kind == "still"]
+    out = list(stages)
+    first, last = out[0], out[-1]
+    if first.kind == "still":
+        start = min((s.start for s in own if s.start <= first.start < s.end), default=first.start)
+        if start < first.start:
+            out[0] = replace(first, start=start, start_s=float(rec.t[start]))
+    if last.kind == "still":
+        end = max((s.end for s in own if s.start <= last.end - 1 < s.end), default=last.end)
+        if end > last.end:
+            out[-1] = replace(last, end=end, end_s=float(rec.t[end - 1]))
+    return out
 
 
 def _own_stage(stage: Stage, span: np.ndarray, rec: Recording, clock: ClockMap) -> Stage:

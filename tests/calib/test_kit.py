@@ -353,6 +353,27 @@ def test_a_turn_the_tray_was_asked_again_is_calibrated_from_the_try_the_guidance
         assert np.all(np.abs(res.b - d.b_own) < 4.5 * res.b_std), (member.name, (res.b - d.b_own) / res.b_std)
 
 
+def test_a_wearable_whose_stream_ran_on_after_the_kit_over_another_turn_keeps_that_turn_out_of_its_rest() -> None:
+    """The service stops each wearable's stream on its own: under load one ran on for seconds after the reference's
+    ended, while the tray was turned again. The kit's last rest reached that wearable's last sample, the turn in it:
+    its b came out off by the turn's mean rate and its calibrated turns 11-39 deg from closing. Its rest stops where it
+    stopped resting."""
+    script = ProtocolScript((Still(5.0), Turn("x", 360.0), Still(5.0), Turn("y", 360.0), Still(5.0), Turn("z", 360.0),
+                             Still(4.0), Turn("z", 360.0), Still(3.0)))
+    recs, truth = simulate_kit(2, 3, script=script)
+    last_turn = [st for st in truth.tray.stages if st.kind == "turn"][-1]
+    cut = [r.select(r.t < _own(d, last_turn.start_s - 2.0)) for r, d in zip(recs, truth.devices, strict=True)]
+    cut[1] = recs[1]  # streamed on over the tray's next turn and the rest after it
+    kit = calibrate_kit(cut, heading_prior_deg=PRIOR_DEG)
+    for member, d in zip(kit.members, truth.devices, strict=True):
+        res = member.result
+        assert [st.axis for st in res.stages if st.kind == "turn"] == ["x", "y", "z"]
+        assert np.all(np.abs(res.b - d.b_own) < 4.5 * res.b_std), (member.name, (res.b - d.b_own) / res.b_std)
+        assert max(misclosure(t) for t in res.residuals["turns"]) < 0.1, (member.name, res.residuals["turns"])
+    rest = kit.members[1].result.stages[-1]
+    assert rest.kind == "still" and rest.end_s < _own(truth.devices[1], last_turn.start_s) + 0.1
+
+
 def test_the_turns_the_guidance_took_reach_calibrate_kit_as_each_recordings_section_list(tmp_path, capsys) -> None:
     """One door: the recordings of a kit whose tray was asked a turn again, with the section list of the turns each
     wearable's guidance took (as GET /sessions/{id}/sections gives them), calibrate through `gyrocal calibrate-kit
@@ -475,6 +496,23 @@ def test_a_pair_of_non_orthogonal_sensors_closes_its_turns_as_an_orthogonal_pair
             ends += [misclosure(t) for m in kit.members for t in m.result.residuals["turns"]]
         worst[misalignment] = max(ends)
     assert worst[0.01] < 2.0 * worst[0.0], worst
+
+
+@pytest.mark.parametrize("n", [3, 4])
+def test_a_kit_of_non_orthogonal_sensors_learns_the_trays_heading_with_their_tilt(n: int) -> None:
+    """With no heading spread stated the kit learns it. The mean's first fit, its K diagonal, read the sensors' tilt in
+    the turns' closures as heading (0.40 deg on this tray of three, 0.43 of four, put back exactly); carried into the
+    fit with the kit's K, it let k_z take the vertical turn's closure and every wearable's turn about z ended 0.35-0.45
+    deg from closing (the service fails one at 0.25). Learned again with the tilt, it is the tray's own."""
+    recs, truth = simulate_kit(10, n, misalignment=0.01)
+    kit = calibrate_kit(recs)
+    assert kit.axes is not None and kit.axes["model"] == "upper-triangular"
+    for member, d in zip(kit.members, truth.devices, strict=True):
+        r = member.result
+        heading = r.quality["placement"]["heading"]
+        assert heading["source"] == "kit" and heading["spread_deg"] < 0.05, heading
+        assert max(misclosure(t) for t in r.residuals["turns"]) < 0.05, r.residuals["turns"]
+        assert np.all(np.abs(r.k - np.diag(d.K_own)) < 4.5 * r.k_std), (r.k - np.diag(d.K_own)) / r.k_std
 
 
 def test_orthogonal_sensors_keep_a_diagonal_k_in_a_kit() -> None:
