@@ -94,6 +94,7 @@ class _Plan:
     axis: str | None = None
     angle_deg: float = 0.0  # a gauge-watcher's turn: the part already made
     true_axis: np.ndarray | None = None  # ... and the true axis it was made about
+    prompt: tuple[Any, ...] | None = None  # the prompt a turn answers: (state, axis, attempt)
 
 
 @dataclass
@@ -112,6 +113,9 @@ class PromptHand:
     device_k: np.ndarray | None = None  # the simulated device's scale factors (a short turn stops where it reads short)
     _key: tuple[Any, ...] | None = None
     _params: list[Turn] = field(default_factory=list)
+    # the prompts she has answered with a turn (state, axis, attempt): a notice beside a prompt she has turned for (the
+    # service is late, another wearable's fault) does not ask her to turn again
+    answered: set[tuple[Any, ...]] = field(default_factory=set)
 
     def __post_init__(self) -> None:
         if self.style.bump and self.rng.random() < self.style.bump:
@@ -127,7 +131,9 @@ class PromptHand:
         self._key = key
         # a new prompt: re-decide, but what her hands are already set on (a knock, the end of a turn, putting the
         # device back against the block) she still does
-        self.pending = [p for p in self.pending if p.what in ("bump", "gauge_finish", "put_back")]
+        prompt = _prompt(snap)
+        self.pending = [p for p in self.pending
+                        if p.what in ("bump", "gauge_finish", "put_back") or (p.prompt is not None and p.prompt == prompt)]
         self._decide(snap, float((snap.get("live") or {}).get("t_device_s") or 0.0))
 
     def due(self, until_s: float) -> list[Act]:
@@ -170,6 +176,9 @@ class PromptHand:
         if not (isinstance(state, str) and state.startswith("turn_")) or axis is None:
             return
         if phase == "ready":
+            prompt = _prompt(snap)
+            if prompt in self.answered:
+                return
             start = t
             if np.linalg.norm(self.offset) > IN_PLACE_DEG:
                 # asked again before it was put back (the settle was over at once): back against the block first
@@ -177,7 +186,8 @@ class PromptHand:
             if self.style.stalls and self.tries.get(axis, 0) >= 1:
                 return  # asked again: she waits, whatever the screen says
             wait = self._delay() + (float(self.rng.uniform(2.0, 5.0)) if self.rng.random() < self.style.late else 0.0)
-            self.pending.append(_Plan(start + wait, "turn", axis))
+            self.answered.add(prompt)
+            self.pending.append(_Plan(start + wait, "turn", axis, prompt=prompt))
         elif phase == "settle" and np.linalg.norm(self.offset) > IN_PLACE_DEG:
             self._put_back_at(t + self._delay())
         elif phase == "pause":
@@ -266,3 +276,8 @@ class PromptHand:
             segs.append(Motion(-self.offset, 0.5))
             self.offset = np.zeros(3)
         return (*segs, Still(0.05))
+
+
+def _prompt(snap: dict[str, Any]) -> tuple[Any, ...]:
+    """Which prompt a snapshot shows: (state, axis, attempt)."""
+    return snap.get("state"), snap.get("axis"), snap.get("attempt")

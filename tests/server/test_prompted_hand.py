@@ -85,3 +85,20 @@ def test_a_device_left_off_its_place_is_put_back_before_the_turn_asked_again() -
     np.testing.assert_allclose(acts[0].segments[0].rotvec_deg, [0.0, 0.0, -20.0])
     assert acts[1].at_s >= acts[0].at_s + 2.6  # the turn starts after the put-back and its rest
     assert np.linalg.norm(hand.offset) == 0.0
+
+
+def test_a_notice_beside_a_prompt_she_has_turned_for_does_not_make_her_turn_again() -> None:
+    """A starved service still shows "turn about Z" after she turned, and adds that it is late: she does not turn
+    again (she did, under load, and the kit measured two turns as one of 779 deg, or a third after the kit's turn was
+    checked). A notice before she has turned leaves her one turn; the same axis asked again is a new prompt."""
+    hand = PromptHand(HANDS["careful"], np.random.default_rng(5))
+    ready = {"state": "turn_z", "phase": "ready", "axis": "z", "attempt": 1}
+    late = [{"code": "service_late"}]
+    hand.observe({**ready, "live": {"t_device_s": 10.0}})
+    hand.observe({**ready, "warnings": late, "live": {"t_device_s": 10.1}})  # before she has turned
+    turns = hand.due(20.0)
+    assert [type(a.segments[0]).__name__ for a in turns] == ["Turn"]
+    hand.observe({**ready, "warnings": late * 2, "live": {"t_device_s": 20.0}})  # after: the service has not seen it
+    assert hand.due(60.0) == []
+    hand.observe({**ready, "attempt": 2, "warnings": late * 3, "live": {"t_device_s": 60.0}})
+    assert [type(a.segments[0]).__name__ for a in hand.due(90.0)] == ["Turn"]
