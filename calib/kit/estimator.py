@@ -30,6 +30,7 @@ from calib.kit.axes import KitAxes, kit_axes
 from calib.kit.clocks import IDENTITY, ClockMap
 from calib.kit.coupling import IDENTITY_MAP, LinearMap, fit_map, reading_noise, resting, runs
 from calib.kit.departure import BURST_DPS, DEPARTURE_DEG, NO_DEPARTURE, departures
+from calib.kit.heading import MeanRefit, Tray, tray_heading
 from calib.kit.members import PARAMETERS, MemberParams, member_params, rest_bias
 from calib.kit.result import Coherence, KitMember, KitResult
 from calib.kit.together import follows, odd_one_out, refusal_of_two
@@ -97,10 +98,10 @@ def calibrate_kit(recordings: Sequence[Recording], names: Sequence[str] | None =
         left_out.append(blamed)
         members.remove(blamed)
     say(0.9, "each wearable's calibration")
-    refit = _MeanRefit(solved, heading_prior_deg) if solved.mean.method == "closure" else None
+    refit = MeanRefit(solved.mean_rec, solved.mean, heading_prior_deg) if solved.mean.method == "closure" else None
     axes = kit_axes(solved.mean, [(solved.maps[i], solved.clocks[i]) for i in members], refit)
-    # the spread from the fit the axes rest on (see _MeanRefit)
-    tray = refit.tray if refit is not None and refit.tray is not None else _tray_heading(solved.mean, heading_prior_deg)
+    # the spread from the fit the axes rest on (calib.kit.heading)
+    tray = refit.tray if refit is not None and refit.tray is not None else tray_heading(solved.mean, heading_prior_deg)
     out = _members(recordings, names, solved, members, axes, tray)
     for i in left_out:
         alone.setdefault(i, _alone(recordings[i], protocol, heading_prior_deg))
@@ -117,45 +118,6 @@ def calibrate_kit(recordings: Sequence[Recording], names: Sequence[str] | None =
                  "out; check it was in the tray and switched on, and calibrate it again" for i in not_turned]
     say(1.0, "done")
     return KitResult(out, names[solved.ref], solved.mean, warnings, axes.to_dict())
-
-
-def _tray_heading(mean: CalibrationResult, heading_prior_deg: float | None) -> tuple[float | None, str]:
-    """The tray's heading spread every wearable's fit carries, and where it came from: as stated, else what the
-    kit's mean recording showed (one tray, one hand: the same for every wearable in it), else (no turn showed it)
-    each fit's default."""
-    if heading_prior_deg is not None:
-        return heading_prior_deg, "stated"
-    placement = mean.quality.get("placement")
-    heading = placement.get("heading") if placement else None
-    if heading is not None and heading["source"] == "estimated" and heading["spread_deg"] is not None:
-        return float(heading["spread_deg"]), "kit"
-    return None, "default"
-
-
-class _MeanRefit:
-    """The kit's mean recording calibrated again, on its stages, with a prior on K's off-diagonal terms (a
-    ``calib.kit.axes.Refit`` for a mean the closure estimator calibrated). The tray's heading spread is learned in it
-    (unless stated), with the tilt, then carried as the tray's, as every wearable carries it: the mean's first fit,
-    its K diagonal, reads the wearables' tilt in the turns' closures as heading. ``result`` and ``tray``: the last
-    refit and the spread it carried (``_tray_heading``'s form), None until asked."""
-
-    def __init__(self, solved: _Solved, heading_prior_deg: float | None) -> None:
-        self.solved, self.heading_prior_deg = solved, heading_prior_deg
-        self.result: CalibrationResult | None = None
-        self.tray: tuple[float | None, str] | None = None
-
-    def __call__(self, prior: KPrior) -> CalibrationResult:
-        rec, stages = self.solved.mean_rec, self.solved.mean.stages
-        learned = None
-        if self.heading_prior_deg is None:
-            learned = calibrate_closure(rec, stages=stages, k_prior=prior)
-        self.tray = _tray_heading(learned or self.solved.mean, self.heading_prior_deg)
-        if learned is not None and self.tray[0] is None:  # no turn showed it: the default, as that fit carried
-            self.result = learned
-        else:
-            self.result = calibrate_closure(rec, stages=stages, heading_prior_deg=self.tray[0], k_prior=prior,
-                                            heading_source=self.tray[1])
-        return self.result
 
 
 class _Solved:
@@ -254,7 +216,7 @@ def _mapped_variance(linear: LinearMap, noise: np.ndarray) -> np.ndarray:
 
 
 def _members(recordings: Sequence[Recording], names: list[str], solved: _Solved, members: list[int],
-             axes: KitAxes, tray: tuple[float | None, str]) -> list[KitMember]:
+             axes: KitAxes, tray: Tray) -> list[KitMember]:
     mean = solved.mean
     out: list[KitMember] = [None] * len(recordings)  # type: ignore[list-item]
     for j, i in enumerate(members):
@@ -271,7 +233,7 @@ def _members(recordings: Sequence[Recording], names: list[str], solved: _Solved,
 
 
 def _own_turns_bias(rec: Recording, stages: list[Stage], params: MemberParams,
-                    tray: tuple[float | None, str]) -> MemberParams:
+                    tray: Tray) -> MemberParams:
     """``params`` with b from the wearable's own rests and turns, its k known from the kit: the closure fit of its own
     recording, with the kit's k and its uncertainty as a prior. A turn's closure tells of b as well as the rests do
     where the wearable is put back where it was. Kept as they are (b from the rests) where a turn lost samples, where
@@ -292,10 +254,10 @@ def _own_turns_bias(rec: Recording, stages: list[Stage], params: MemberParams,
 
 
 def _result(rec: Recording, params: MemberParams, clock: ClockMap, solved: _Solved, names: list[str], j: int,
-            stages: list[Stage], noise: np.ndarray, axes: KitAxes, tray: tuple[float | None, str]) -> CalibrationResult:
+            stages: list[Stage], noise: np.ndarray, axes: KitAxes, tray: Tray) -> CalibrationResult:
     """One wearable's calibration as an ordinary result: the mean's stages on its own samples, its own turns'
     closures with its own calibration, the mean's quality with the kit's block beside it and the tray's heading
-    spread (``tray``, from ``_tray_heading``)."""
+    spread (``tray``)."""
     mean = solved.mean
     quality: Any = copy.deepcopy(mean.quality)
     if tray[1] == "kit" and tray[0] is not None and quality.get("placement"):  # carried by every wearable's fit
