@@ -31,7 +31,13 @@ from webui_fixtures import (
     start_recorded,
     watched_page,
 )
-from webui_moments import RetryReason, assert_every_moment_held, assert_retry_reasons_stay, first_rest_began
+from webui_moments import (
+    RetryReason,
+    assert_every_moment_held,
+    assert_first_rest_counts_without_a_jump,
+    assert_retry_reasons_stay,
+    first_rest_began,
+)
 
 # the clinicians of mock_device.hand, mock-N performing HANDS[N-1]
 HANDS = ("careful", "bumps", "short", "ends_off", "stalls", "fast", "wrong_axis")
@@ -181,3 +187,24 @@ def test_every_moment_of_each_clinicians_session_holds_at_every_size(
             if verdict == "PASS":
                 _leaving_asks_first(w)
     assert_clean(page_watch)
+
+
+def _rest_seen(page_ms: list[int], device_s: list[float], ring: list[int]) -> list[list[Any]]:
+    """A page's samples (``Wizard.record``'s form) of a first rest shown at these moments, between two others."""
+    moments = [[m, "still:", "", "Hold still", "", p, t] for m, t, p in zip(page_ms, device_s, ring, strict=True)]
+    return [[page_ms[0] - 100, "connecting:", "", "", "", None, None], *moments,
+            [page_ms[-1] + 100, "turn_x:ready", "", "", "", None, device_s[-1]]]
+
+
+def test_the_first_rest_is_excused_too_few_moments_only_where_the_page_could_not_sample_it() -> None:
+    """The page that starts a session must show its first rest at five moments; under a full run's load one page showed
+    it at four, its sampler (every 100 ms) standing still 1.85 s in it. That page, and one handed the whole rest in a
+    burst, are excused; a page that ran all along while it showed the rest is not."""
+    device, ring = [0.16, 2.01, 2.99, 2.99], [6, 67, 100, 100]
+    assert_first_rest_counts_without_a_jump(_rest_seen([1000, 2850, 2950, 3050], device, ring))  # stood still
+    assert_first_rest_counts_without_a_jump(_rest_seen([1000, 1100, 1200, 1300], device, ring))  # a burst
+    # the page ran all along, showing the rest for 3 s, its ring at four moments only
+    ran = _rest_seen([1000, 1900, 2800, 3700], device, ring)
+    ran[1:-1] = sorted(ran[1:-1] + [[m, "still:", "", "Hold still", "", None, None] for m in range(1050, 3700, 100)])
+    with pytest.raises(AssertionError, match="too few moments"):
+        assert_first_rest_counts_without_a_jump(ran)
