@@ -34,22 +34,20 @@ def tray_heading(mean: CalibrationResult, heading_prior_deg: float | None) -> Tr
 class MeanRefit:
     """The kit's mean recording ``rec`` calibrated again on ``mean``'s stages with a prior on K's off-diagonal terms
     (a ``calib.kit.axes.Refit``, for a mean the closure estimator calibrated). The tray's spread is learned in it
-    (unless stated), with the tilt, then carried as the tray's, as every wearable carries it. ``result`` and ``tray``:
-    the last refit and the spread it carried, None until asked."""
+    (unless stated), with the tilt, then carried as the tray's, as every wearable carries it. ``tray``: the spread the
+    last refit carried, None until asked."""
 
     def __init__(self, rec: Recording, mean: CalibrationResult, heading_prior_deg: float | None) -> None:
         self.rec, self.mean, self.heading_prior_deg = rec, mean, heading_prior_deg
-        self.result: CalibrationResult | None = None
         self.tray: Tray | None = None
 
     def __call__(self, prior: KPrior) -> CalibrationResult:
-        learned = None
-        if self.heading_prior_deg is None:
-            learned = calibrate_closure(self.rec, stages=self.mean.stages, k_prior=prior)
-        self.tray = tray_heading(learned or self.mean, self.heading_prior_deg)
-        if learned is not None and self.tray[0] is None:  # no turn showed it: the default, as that fit carried
-            self.result = learned
+        if self.heading_prior_deg is not None:
+            self.tray = tray_heading(self.mean, self.heading_prior_deg)
         else:
-            self.result = calibrate_closure(self.rec, stages=self.mean.stages, heading_prior_deg=self.tray[0],
-                                            k_prior=prior, heading_source=self.tray[1])
-        return self.result
+            learned = calibrate_closure(self.rec, stages=self.mean.stages, k_prior=prior)
+            self.tray = tray_heading(learned, None)
+            if self.tray[0] is None:  # no turn showed it: the default, as that fit carried
+                return learned
+        return calibrate_closure(self.rec, stages=self.mean.stages, heading_prior_deg=self.tray[0], k_prior=prior,
+                                 heading_source=self.tray[1])
