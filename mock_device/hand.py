@@ -113,8 +113,9 @@ class PromptHand:
     device_k: np.ndarray | None = None  # the simulated device's scale factors (a short turn stops where it reads short)
     _key: tuple[Any, ...] | None = None
     _params: list[Turn] = field(default_factory=list)
-    # the prompts she has answered with a turn (state, axis, attempt): a notice beside a prompt she has turned for (the
-    # service is late, another wearable's fault) does not ask her to turn again
+    # the prompts she has answered with a turn (state, axis, attempt), and ("early", axis) for a turn she started before
+    # its prompt: a notice beside a prompt she has turned for (the service is late, another wearable's fault) does not
+    # ask her to turn again
     answered: set[tuple[Any, ...]] = field(default_factory=set)
 
     def __post_init__(self) -> None:
@@ -143,6 +144,8 @@ class PromptHand:
             if p.what == "gauge_finish" and self._gauge_behind() and until_s < p.at_s + GAUGE_WAIT_S:
                 continue  # the gauge has not settled, though the hand has stopped: she waits for it to catch up
             self.pending.remove(p)
+            if p.what == "turn" and p.prompt is None and p.axis is not None:
+                self.answered.add(("early", p.axis))  # a turn started before its prompt is made once, notices or not
             start = max(p.at_s, self.busy_until_s)
             segs = self._segments(p, start)
             if segs:
@@ -171,7 +174,7 @@ class PromptHand:
 
     def _decide(self, snap: dict[str, Any], t: float) -> None:
         state, phase, axis = snap.get("state"), snap.get("phase"), snap.get("axis")
-        if state == "still" and self.rng.random() < self.style.early:
+        if state == "still" and ("early", "x") not in self.answered and self.rng.random() < self.style.early:
             self.pending.append(_Plan(t + float(self.rng.uniform(1.7, 2.6)), "turn", "x"))
         if not (isinstance(state, str) and state.startswith("turn_")) or axis is None:
             return
@@ -192,7 +195,7 @@ class PromptHand:
             self._put_back_at(t + self._delay())
         elif phase == "pause":
             nxt = {"x": "y", "y": "z"}.get(axis)
-            if nxt is not None and self.rng.random() < self.style.early:
+            if nxt is not None and ("early", nxt) not in self.answered and self.rng.random() < self.style.early:
                 self.pending.append(_Plan(t + float(self.rng.uniform(0.9, 1.5)), "turn", nxt))
 
     def _put_back_at(self, t: float) -> float:

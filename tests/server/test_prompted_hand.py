@@ -4,6 +4,7 @@ benchmark's driver: the service's state machine, its stage detector and the clos
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -102,3 +103,17 @@ def test_a_notice_beside_a_prompt_she_has_turned_for_does_not_make_her_turn_agai
     assert hand.due(60.0) == []
     hand.observe({**ready, "attempt": 2, "warnings": late * 3, "live": {"t_device_s": 60.0}})
     assert [type(a.segments[0]).__name__ for a in hand.due(90.0)] == ["Turn"]
+
+
+def test_a_turn_she_started_before_its_prompt_is_not_started_again_for_a_notice() -> None:
+    """A hurried hand starts the next turn in the pause before it is asked; a starved service, still in that pause,
+    adds that it is late: she does not start the turn a second time (each new notice was a new roll of her habit)."""
+    hand = PromptHand(replace(HANDS["hurried"], early=1.0, late=0.0), np.random.default_rng(3))
+    pause = {"state": "turn_x", "phase": "pause", "axis": "x", "attempt": 1}
+    late = [{"code": "service_late"}]
+    hand.observe({**pause, "live": {"t_device_s": 30.0}})
+    started = hand.due(35.0)
+    assert [(type(a.segments[0]).__name__, a.segments[0].axis) for a in started] == [("Turn", "y")]
+    for n in range(1, 4):  # the service has not seen her turn yet and says so, again and again
+        hand.observe({**pause, "warnings": late * n, "live": {"t_device_s": 35.0 + n}})
+    assert hand.due(80.0) == []
