@@ -12,7 +12,8 @@ Student-t where the heading spread is learned from few turns) holds the truth, w
 error (about 1 point for a 95 % interval over 500 runs: a row of 500 lands outside 93-97 % by chance alone in about 3 %
 of settings); the share of fits whose chi-square
 p-value is below 0.001. Beside them, k_z's 95th percentile when the calibration is told the true heading spread
-(``--heading-prior-deg``, 0 where there is none): the bound that knows it.
+(``--heading-prior-deg``, 0 where there is none): the bound that knows it, and how often its interval holds the
+truth.
 
 On code that has no ``CalibrationResult.interval`` the interval is value ± 1.96 std (the figures before the change).
 """
@@ -47,7 +48,7 @@ class Setting:
 
 def _one(args: tuple[Setting, int]) -> np.ndarray:
     """(error, std, covered, p-value, k_z error told the true spread, [heading spread found (deg), k_z's degrees of
-    freedom]) of one run, (6, 6); NaN where refused."""
+    freedom, k_z's interval told the true spread holds the truth]) of one run, (6, 6); NaN where refused."""
     setting, seed = args
     effects = [PlacementError(setting.tilt_deg, heading_std_deg=setting.heading_deg)] if (
         setting.tilt_deg or setting.heading_deg) else []
@@ -73,6 +74,10 @@ def _one(args: tuple[Setting, int]) -> np.ndarray:
     heading = res.quality.get("placement", {}).get("heading") or {}
     out[5, 0] = heading.get("spread_deg", np.nan)
     out[5, 1] = np.inf if res.k_dof is None else res.k_dof[2]
+    told_interval = told.interval(0.95)
+    if told_interval is not None:
+        lo_z, hi_z = told_interval[0][2]
+        out[5, 2] = float(lo_z <= truth.k[2] <= hi_z)
     return out
 
 
@@ -80,7 +85,7 @@ def measure(setting: Setting, runs: int, pool: ProcessPoolExecutor, first_seed: 
     out = np.array(list(pool.map(_one, [(setting, s) for s in range(first_seed, first_seed + runs)], chunksize=8)))
     ok = np.all(np.isfinite(out[:, :3].reshape(runs, -1)), axis=1)
     err, std, covered, p_value, told = out[ok, 0], out[ok, 1], out[ok, 2], out[ok, 3, 0], out[ok, 4]
-    found, dof = out[ok, 5, 0], out[ok, 5, 1]
+    found, dof, told_covered = out[ok, 5, 0], out[ok, 5, 1], out[ok, 5, 2]
     p95 = np.percentile(np.abs(err), 95, axis=0)
     p95_told = np.percentile(np.abs(told), 95, axis=0)
     return {
@@ -94,6 +99,7 @@ def measure(setting: Setting, runs: int, pool: ProcessPoolExecutor, first_seed: 
                                   strict=True)),
         "p_below_1e-3": float(np.mean(p_value < 1e-3)),
         "k_z_p95_told": float(p95_told[2]),
+        "k_z_coverage95_told": float(np.nanmean(told_covered)),
         # k_z split by whether the REML found a heading spread: share, coverage, rms of error/std, median dof
         "k_z_by_spread": {name: _group(pick, covered[:, 2], err[:, 2] / std[:, 2], dof) for name, pick in
                           (("found_0", found == 0), ("found_above_0", found > 0))},
@@ -121,7 +127,7 @@ def main() -> int:
     args = p.parse_args()
     rows = []
     print(f"{'noise':>6} {'tilt':>5} {'head':>5} | {'k_x p95':>8} {'k_y p95':>8} {'k_z p95':>8} {'told':>8} | "
-          f"{'sd k_x':>6} {'sd k_y':>6} {'sd k_z':>6} {'sd b max':>8} {'sd b min':>8} | {'cov k_z (se)':>13} {'p<1e-3':>6}")
+          f"{'sd k_x':>6} {'sd k_y':>6} {'sd k_z':>6} {'sd b max':>8} {'sd b min':>8} | {'cov k_z (se)':>13} {'cov told':>8} {'p<1e-3':>6}")
     with ProcessPoolExecutor(args.workers) as pool:
         for noise, tilt, heading in itertools.product(args.noises, args.tilts, args.headings):
             r = measure(Setting(tilt, heading, noise), args.runs, pool, args.first_seed)
@@ -130,7 +136,8 @@ def main() -> int:
             sd_b = [sd[n] for n in ("b_x", "b_y", "b_z")]
             print(f"{noise:6.2f} {tilt:5.1f} {heading:5.1f} | {p95['k_x']:8.1e} {p95['k_y']:8.1e} {p95['k_z']:8.1e} "
                   f"{r['k_z_p95_told']:8.1e} | {sd['k_x']:6.2f} {sd['k_y']:6.2f} {sd['k_z']:6.2f} {max(sd_b):8.2f} "
-                  f"{min(sd_b):8.2f} | {cov['k_z']:6.3f} ({r['coverage95_se']['k_z']:.3f}) {r['p_below_1e-3']:6.3f}", flush=True)
+                  f"{min(sd_b):8.2f} | {cov['k_z']:6.3f} ({r['coverage95_se']['k_z']:.3f}) {r['k_z_coverage95_told']:8.3f} "
+                  f"{r['p_below_1e-3']:6.3f}", flush=True)
             if args.by_spread:
                 for name, g in r["k_z_by_spread"].items():
                     print(f"{'':>20} spread {name}: " + (f"{g['share']:.0%} of runs, k_z covered {g['coverage95']:.3f}, "
