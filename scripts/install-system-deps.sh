@@ -7,8 +7,8 @@ command -v dbus-daemon >/dev/null 2>&1 || need+=(dbus)
 compgen -G "/usr/lib/postgresql/*/bin/initdb" >/dev/null || need+=(postgresql)
 # the firmware library (wearable_protocol/c) is built and tested with the system C compiler
 command -v cc >/dev/null 2>&1 || need+=(gcc libc6-dev)
-# the wizard page tests drive Debian's Chromium through Playwright (never a downloaded browser)
-[ -x /usr/bin/chromium ] || need+=(chromium)
+# the wizard page tests drive Debian's Chromium headless shell through Playwright (never a downloaded browser)
+[ -x /usr/lib/chromium/chromium-headless-shell ] || need+=(chromium-headless-shell)
 # a fleet test runs one gateway with its clock set back (libfaketime), as a gateway off NTP would be
 compgen -G "/usr/lib/*/faketime/libfaketime.so.1" >/dev/null || need+=(faketime)
 if [ ${#need[@]} -eq 0 ]; then

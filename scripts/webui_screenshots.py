@@ -28,7 +28,7 @@ from typing import Any
 import httpx
 
 ROOT = Path(__file__).resolve().parents[1]
-CHROMIUM = "/usr/bin/chromium"
+CHROMIUM = "/usr/lib/chromium/chromium-headless-shell"  # as the page tests: scripts/install-system-deps.sh
 OPERATOR, SECRET, PIN = "alice", "correct horse battery staple", "4831"
 TOKEN = "screenshots-token"
 VIEWS = {"landscape": {"width": 1280, "height": 800}, "portrait": {"width": 820, "height": 1180},
