@@ -174,7 +174,7 @@ class PromptHand:
 
     def _decide(self, snap: dict[str, Any], t: float) -> None:
         state, phase, axis = snap.get("state"), snap.get("phase"), snap.get("axis")
-        if state == "still" and ("early", "x") not in self.answered and self.rng.random() < self.style.early:
+        if state == "still" and self._starts_early("x"):
             self.pending.append(_Plan(t + float(self.rng.uniform(1.7, 2.6)), "turn", "x"))
         if not (isinstance(state, str) and state.startswith("turn_")) or axis is None:
             return
@@ -195,8 +195,13 @@ class PromptHand:
             self._put_back_at(t + self._delay())
         elif phase == "pause":
             nxt = {"x": "y", "y": "z"}.get(axis)
-            if nxt is not None and ("early", nxt) not in self.answered and self.rng.random() < self.style.early:
+            if nxt is not None and self._starts_early(nxt):
                 self.pending.append(_Plan(t + float(self.rng.uniform(0.9, 1.5)), "turn", nxt))
+
+    def _starts_early(self, axis: str) -> bool:
+        """Her habit decides whether she starts the turn about ``axis`` before it is asked; one she has already started
+        early is not started again."""
+        return ("early", axis) not in self.answered and self.rng.random() < self.style.early
 
     def _put_back_at(self, t: float) -> float:
         """Plans putting the device back against the block at ``t`` unless that is already planned; returns when
