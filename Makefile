@@ -38,13 +38,12 @@ lint: $(VENV)/.installed-test
 	$(PY) scripts/check_structure.py
 	$(PY) scripts/effects_tables.py --check
 
-## test: install everything the tests need, then run them all (TEST_WORKERS parallel workers, one a core: the tests that
-## follow a hand at real speed, or time a wearable by when its packets arrive, must not be starved by their
-## neighbours; a third worker on two cores takes the suite from 13 to 10 minutes but starves them: measured again,
-## the page's every-moment hands saw too few moments of the first rest in one run of three, and with that mended a
-## kit's loose wearable went unnamed in one run of three), with the lint checks beside
-## them (a single core for under 20 s, while the first tests are numerics); either failing fails the target
-TEST_WORKERS ?= 2
+## test: install everything the tests need, then run them all (TEST_WORKERS parallel workers: three on two cores, as
+## the tests wait on simulated hands at real speed, browsers and timeouts a third of their time: 540-622 s in three
+## full runs against 724-783 s with two; the tests that follow a hand at real speed or time a wearable by when its
+## packets arrive, once starved by a third worker, now pass with two busy loops beside them), with the lint checks
+## beside them (a single core for under 20 s, while the first tests are numerics); either failing fails the target
+TEST_WORKERS ?= 3
 # the tests start some 400 Python processes (services, their compute workers, commands): each reads gyrocal's compiled
 # modules from __pycache__ instead of compiling them again, even where the environment asks Python to write no bytecode
 test: export PYTHONDONTWRITEBYTECODE =
