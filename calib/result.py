@@ -32,6 +32,16 @@ def _dof(values: Any) -> np.ndarray | None:
     return None if values is None else np.array([np.inf if v is None else float(v) for v in values])
 
 
+def _scale_lists(**scales: np.ndarray | None) -> dict[str, list[float | None]]:
+    """The interval scales given, each as a list with null where the standard error is the scale."""
+    return {name: [None if not np.isfinite(v) else float(f"{v:.12g}") for v in scale] for name, scale in scales.items()
+            if scale is not None}
+
+
+def _scale(values: Any) -> np.ndarray | None:
+    return None if values is None else np.array([np.nan if v is None else float(v) for v in values])
+
+
 @dataclass
 class CalibrationResult:
     """Parameters of g = K m + b (K diagonal, or upper-triangular in the extended model).
@@ -65,19 +75,26 @@ class CalibrationResult:
     # turns (the closure's heading); inf: normal. None: normal throughout
     k_dof: np.ndarray | None = None
     b_dof: np.ndarray | None = None
+    # the scale of each k's and b's Student-t interval where it is not its standard error: where that interval's width
+    # is drawn from the heading spreads few turns allow (calib.estimators.closure.fiducial); NaN or None: the std
+    k_interval_scale: np.ndarray | None = None
+    b_interval_scale: np.ndarray | None = None
 
     def interval(self, level: float = 0.95) -> tuple[np.ndarray, np.ndarray] | None:
         """The (3, 2) intervals of k and of b holding the truth with probability ``level``: value ± the Student-t
-        quantile of each one's degrees of freedom (normal where none is given) times its standard error."""
+        quantile of each one's degrees of freedom (normal where none is given) times its interval's scale (its
+        standard error where none is given)."""
         if self.k_std is None or self.b_std is None:
             return None
         from calib.distributions import t_isf
 
-        def around(value: np.ndarray, std: np.ndarray, dof: np.ndarray | None) -> np.ndarray:
+        def around(value: np.ndarray, std: np.ndarray, dof: np.ndarray | None, scale: np.ndarray | None) -> np.ndarray:
             q = t_isf((1.0 - level) / 2.0, np.full(3, np.inf) if dof is None else dof)
-            return np.stack((value - q * std, value + q * std), axis=-1)
+            s = std if scale is None else np.where(np.isfinite(scale), scale, std)
+            return np.stack((value - q * s, value + q * s), axis=-1)
 
-        return around(self.k, self.k_std, self.k_dof), around(self.b, self.b_std, self.b_dof)
+        return (around(self.k, self.k_std, self.k_dof, self.k_interval_scale),
+                around(self.b, self.b_std, self.b_dof, self.b_interval_scale))
 
     @property
     def matrix(self) -> np.ndarray:
@@ -116,6 +133,8 @@ class CalibrationResult:
             G_std=arr(d.get("G_std")),
             k_dof=_dof(unc.get("k_dof")),
             b_dof=_dof(unc.get("b_dof")),
+            k_interval_scale=_scale(unc.get("k_interval_scale")),
+            b_interval_scale=_scale(unc.get("b_interval_scale")),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -128,7 +147,9 @@ class CalibrationResult:
             "stages": [s.to_dict() for s in self.stages],
             "quality": self.quality,
             "uncertainty": None if self.k_std is None else {"k": _list(self.k_std, 12), "b": _list(self.b_std, 12),
-                                                            **_dof_lists(k_dof=self.k_dof, b_dof=self.b_dof)},
+                                                            **_dof_lists(k_dof=self.k_dof, b_dof=self.b_dof),
+                                                            **_scale_lists(k_interval_scale=self.k_interval_scale,
+                                                                           b_interval_scale=self.b_interval_scale)},
             "bound": None if self.k_bound is None else {"k": _list(self.k_bound, 12), "b": _list(self.b_bound, 12)},
             "noise_dps": _list(self.noise_dps),
             "residuals": self.residuals,

@@ -43,6 +43,11 @@ class Spread(BaseModel):
     b: Vector | None = None
     k_dof: list[float | None] | None = Field(None, description="degrees of freedom of each k's interval (null: normal)")
     b_dof: list[float | None] | None = Field(None, description="degrees of freedom of each b's interval (null: normal)")
+    k_interval_scale: list[float | None] | None = Field(
+        None, description="what each k's Student-t quantile is multiplied by for its interval, where that is not its "
+        "standard error (null: the standard error): its width drawn from the heading spreads few turns allow")
+    b_interval_scale: list[float | None] | None = Field(
+        None, description="the same for each b (null: the standard error)")
 
 
 class TurnResidual(_Open):

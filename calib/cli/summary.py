@@ -80,18 +80,23 @@ def result_summary(result: Any, source: str) -> str:
 
 
 def _interval_lines(result: Any, undetermined: list[str]) -> list[str]:
-    """The 95 % intervals that are a Student-t's: where a variance rests on a spread learned from few turns."""
+    """The 95 % intervals that are not value ± 1.96 std: where a variance rests on a spread learned from few turns."""
     intervals = result.interval(0.95)
     if intervals is None:
         return []
     lines = []
-    for name, values, dofs, digits in (("k", intervals[0], result.k_dof, 6), ("b", intervals[1], result.b_dof, 4)):
+    for name, values, std, dofs, digits in (("k", intervals[0], result.k_std, result.k_dof, 6),
+                                            ("b", intervals[1], result.b_std, result.b_dof, 4)):
         for i, axis in enumerate("xyz"):
-            if dofs is None or not np.isfinite(dofs[i]) or dofs[i] > 30 or axis in undetermined:
-                continue
             lo, hi = values[i]
-            lines.append(f"{name}_{axis}: 95 % interval {lo:.{digits}f} to {hi:.{digits}f} (a Student-t of {dofs[i]:.1f} "
-                         "degrees of freedom: its uncertainty rests on the hand's heading spread, learned from few turns)")
+            normal = 1.96 * std[i] if std is not None else np.nan
+            few = dofs is not None and np.isfinite(dofs[i]) and dofs[i] <= 30
+            if axis in undetermined or not (few or abs((hi - lo) / 2 / normal - 1) > 0.1):
+                continue
+            shape = f"a Student-t of {dofs[i]:.1f} degrees of freedom" if few else "about normal"
+            lines.append(f"{name}_{axis}: 95 % interval {lo:.{digits}f} to {hi:.{digits}f} ({shape}, "
+                         f"{(hi - lo) / 2 / normal:.2f}x the ± 1.96 std: its uncertainty rests on the hand's heading "
+                         "spread, learned from few turns)")
     return lines
 
 

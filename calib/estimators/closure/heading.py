@@ -34,7 +34,10 @@ closing better than their noise says are as likely as turns closing worse), and 
 Its information, I = tr(P G P G) / 2 with P the REML projection and G_j = u_j u_j^T, gives var(tau^2), and with it
 each parameter's Satterthwaite degrees of freedom, 2 v^2 / ((dv/d tau^2)^2 var(tau^2)), v its variance with every
 turn of a measured vertical carrying the spread: a k_z that leans on a spread learned from three turns is known with
-few degrees of freedom, and its interval is a Student-t's.
+few degrees of freedom, and its interval is a Student-t's. Its width is drawn from the spreads the turns that show
+their heading allow (``calib.estimators.closure.fiducial``): the t's quantile times a scale that may differ from the
+standard error, narrower where those turns closed better than their noise says, wider where they leave a large
+spread possible.
 """
 
 from __future__ import annotations
@@ -44,6 +47,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from calib.distributions import t_isf
+from calib.estimators.closure.fiducial import fiducial_halfwidths
 from calib.estimators.closure.fit import ClosureData, System
 from calib.estimators.closure.placement import MAX_DOF, MAX_HEADING_PRIOR_DEG, HeadingSpread, placement_model
 from calib.quality import HeadingReport
@@ -181,11 +186,16 @@ def restricted_spread(turn_res: np.ndarray, turn_jac: np.ndarray, chol: np.ndarr
         dof = np.where(dv > 0, 2.0 * var**2 / (dv**2 * var_tau2), np.inf)
     dof = np.clip(np.nan_to_num(dof, nan=np.inf), 1.0, None)
     dof[dof >= MAX_DOF] = np.inf  # as many as this: a normal interval
+    # each 95 % interval's width from the spreads the turns allow (calib.estimators.closure.fiducial), that Student-t's
+    # shape kept: the scale its quantile is multiplied by
+    C_all = np.einsum("jab,jcb->jac", chol, chol)
+    half = fiducial_halfwidths(r_all, A_all, C_all, B_all, up_all, measured, shows, fixed_res, fixed_jac, DEG**2)
+    scale = half / t_isf(0.025, dof)
     # the variance at the weights' spread: the same unless tau^2 came out below 0
     at_weights = at_signed if tau2 >= 0 else np.diag(np.linalg.inv(full(np.array([0.0]))[2][0]))
     sd_tau = np.sqrt(var_tau2) / (2 * tau) if tau > 0 else np.sqrt(np.sqrt(var_tau2))  # delta method; at 0, sd(tau^2)
     return HeadingSpread(tau / DEG, "estimated", int(moving.sum()), float(min(sd_tau / DEG, 1e3)), dof,
-                         np.sqrt(var / at_weights), int((moving & ~shows).sum()))
+                         np.sqrt(var / at_weights), int((moving & ~shows).sum()), scale)
 
 
 def _minimum(grid: np.ndarray, objective: np.ndarray) -> float:

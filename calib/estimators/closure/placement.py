@@ -43,7 +43,9 @@ class HeadingSpread:
     "default"), ``turns`` (those whose closure showed it), ``vertical`` (of those, the turns about the vertical),
     ``spread_sd_deg`` (its standard error, estimated only),
     ``dof`` (P,): each parameter's degrees of freedom for a Student-t interval (inf: normal), and
-    ``sd_ratio`` (P,): its standard error over all the spreads the turns allow, over that at the one estimated."""
+    ``sd_ratio`` (P,): its standard error over all the spreads the turns allow, over that at the one estimated, and
+    ``interval_scale`` (P,): the scale of its Student-t interval, from the spreads the turns allow, at the weights'
+    (NaN: its standard error)."""
 
     spread_deg: float
     source: str
@@ -52,13 +54,15 @@ class HeadingSpread:
     dof: np.ndarray | None = None
     sd_ratio: np.ndarray | None = None  # (P,) each parameter's sd over the spreads allowed, over that at the spread
     vertical: int = 0
+    interval_scale: np.ndarray | None = None
 
     def padded(self, P: int) -> HeadingSpread:
         """The same spread for a fit of P parameters: those beyond this one's normal and unwidened."""
         def pad(a: np.ndarray | None, fill: float) -> np.ndarray | None:
             return None if a is None else np.concatenate((a, np.full(P - a.size, fill)))
 
-        return replace(self, dof=pad(self.dof, np.inf), sd_ratio=pad(self.sd_ratio, 1.0))
+        return replace(self, dof=pad(self.dof, np.inf), sd_ratio=pad(self.sd_ratio, 1.0),
+                       interval_scale=pad(self.interval_scale, np.nan))
 
 
 @dataclass(frozen=True)

@@ -168,6 +168,8 @@ def closure_result(
         iterations=fit.nfev,
         k_dof=_dof(fit, 0) if learned else None,
         b_dof=_dof(fit, 3) if learned else None,
+        k_interval_scale=_scale(fit, 0) if learned else None,
+        b_interval_scale=_scale(fit, 3) if learned else None,
     )
 
 
@@ -175,6 +177,15 @@ def _dof(fit: ClosureFit, first: int) -> np.ndarray:
     """The Student-t degrees of freedom of three parameters from ``first`` (inf: normal)."""
     assert fit.heading is not None and fit.heading.dof is not None  # the spread was learned
     return fit.heading.dof[first : first + 3].astype(float)
+
+
+def _scale(fit: ClosureFit, first: int) -> np.ndarray | None:
+    """The scale of three parameters' Student-t intervals from ``first`` (NaN: the standard error). Not widened by
+    the Birge ratio as the standard errors are: the spreads it is drawn from already account for the turns'
+    misclosures, which the ratio would count a second time (with it, k_z's interval held 98.2 % with no heading)."""
+    assert fit.heading is not None  # the spread was learned
+    scale = fit.heading.interval_scale
+    return None if scale is None else scale[first : first + 3]
 
 
 def correlation(cov: np.ndarray) -> np.ndarray:
