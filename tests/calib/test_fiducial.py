@@ -30,8 +30,7 @@ def _halfwidth(h: tuple[float, float], noise: float, weights_spread: float) -> f
     C[:, 2, 2] += weights_spread**2
     r = np.zeros((J, 3))
     r[0, 2], r[1, 2] = h
-    return float(fiducial_halfwidths(r, A, C, B, UP, np.ones(J, dtype=bool), SHOWS, np.zeros(0), np.zeros((0, 1)),
-                                     DEG**2)[0])
+    return float(fiducial_halfwidths(r, A, C, B, UP, np.ones(J, dtype=bool), SHOWS, np.zeros(0), np.zeros((0, 1)))[0])
 
 
 @pytest.mark.parametrize("h_deg", [(0.5, -0.3), (0.2, 0.1), (2.0, 1.5)])

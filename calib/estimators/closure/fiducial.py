@@ -20,7 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.distributions import chi2_isf
+from calib.distributions import chi2_isf, norm_sf
+from calib.units import DEG
 
 DRAWS = 400  # chi^2_d quantiles averaged over
 # the positive spreads tried, deg^2: far beyond any hand's, as the few turns' smallest quantiles draw spreads many times
@@ -30,13 +31,13 @@ _POSITIVE = np.geomspace(1e-3, 90.0, 72) ** 2
 
 def fiducial_halfwidths(r: np.ndarray, A: np.ndarray, C: np.ndarray, B: np.ndarray, up: np.ndarray,
                         measured: np.ndarray, shows: np.ndarray, fixed_res: np.ndarray, fixed_jac: np.ndarray,
-                        deg2: float, level: float = 0.95) -> np.ndarray:
+                        level: float = 0.95) -> np.ndarray:
     """Each parameter's interval half-width (P,) at ``level``.
 
     ``r`` (J, 3) and ``A`` (J, 3, P): the turns' residuals (rad) and Jacobian; ``C`` (J, 3, 3): their covariances the
     fit weighed them by; ``B`` (J, 3, 3): their covariance without the heading; ``up`` (J, 3): each turn's vertical;
     ``measured`` (J,): the turns whose vertical is known (they carry the spread); ``shows`` (J,): those showing their
-    heading; ``fixed_res`` (M,), ``fixed_jac`` (M, P): the other rows, whitened; ``deg2``: one deg^2 in rad^2.
+    heading; ``fixed_res`` (M,), ``fixed_jac`` (M, P): the other rows, whitened.
     """
     J, _, P = A.shape
     M = fixed_res.size
@@ -60,7 +61,7 @@ def fiducial_halfwidths(r: np.ndarray, A: np.ndarray, C: np.ndarray, B: np.ndarr
     v = pick @ np.concatenate((r.ravel(), fixed_res))
     S0, S1 = T @ Sigma0 @ T.T, T @ Sigma1 @ T.T
     floor = float(np.min(np.einsum("ja,jab,jb->j", up[measured], B[measured], up[measured])))
-    tau2 = np.concatenate((-floor * np.linspace(0.9, 0.02, 24), [0.0], _POSITIVE * deg2))
+    tau2 = np.concatenate((-floor * np.linspace(0.9, 0.02, 24), [0.0], _POSITIVE * DEG**2))
     S = S0[None] + tau2[:, None, None] * S1[None]
     var = a[None] + tau2[:, None] * b[None]  # (G, P)
     valid = np.all(np.linalg.eigvalsh(S) > 0, axis=1) & np.all(var > 0, axis=1)
@@ -76,11 +77,9 @@ def fiducial_halfwidths(r: np.ndarray, A: np.ndarray, C: np.ndarray, B: np.ndarr
 
 def _holding(sd: np.ndarray, level: float) -> np.ndarray:
     """The w (P,) with mean over draws of P(|N(0, sd^2)| <= w) = ``level``, for each column of ``sd`` (D, P)."""
-    from scipy.special import erf
-
     lo, hi = np.zeros(sd.shape[1]), 10.0 * sd.max(axis=0)
     for _ in range(60):
         w = 0.5 * (lo + hi)
-        held = np.mean(erf(w[None] / (np.sqrt(2.0) * sd)), axis=0)
+        held = np.mean(1.0 - 2.0 * norm_sf(w[None] / sd), axis=0)
         lo, hi = np.where(held < level, w, lo), np.where(held < level, hi, w)
     return 0.5 * (lo + hi)

@@ -189,7 +189,7 @@ def restricted_spread(turn_res: np.ndarray, turn_jac: np.ndarray, chol: np.ndarr
     # each 95 % interval's width from the spreads the turns allow (calib.estimators.closure.fiducial), that Student-t's
     # shape kept: the scale its quantile is multiplied by
     C_all = np.einsum("jab,jcb->jac", chol, chol)
-    half = fiducial_halfwidths(r_all, A_all, C_all, B_all, up_all, measured, shows, fixed_res, fixed_jac, DEG**2)
+    half = fiducial_halfwidths(r_all, A_all, C_all, B_all, up_all, measured, shows, fixed_res, fixed_jac)
     scale = half / t_isf(0.025, dof)
     # the variance at the weights' spread: the same unless tau^2 came out below 0
     at_weights = at_signed if tau2 >= 0 else np.diag(np.linalg.inv(full(np.array([0.0]))[2][0]))
