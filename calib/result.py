@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, cast
 
@@ -22,24 +23,16 @@ def _list(a: np.ndarray | None, digits: int = 9) -> list[float] | None:
 FORMAT_VERSION = 2  # the form of to_dict(): calib.result_schema.ResultDoc says what each number meant
 
 
-def _dof_lists(**dofs: np.ndarray | None) -> dict[str, list[float | None]]:
-    """The degrees of freedom given, each as a list with null for a normal (infinite) one."""
-    return {name: [None if not np.isfinite(v) else round(float(v), 3) for v in dof] for name, dof in dofs.items()
-            if dof is not None}
+def _nullable_lists(convert: Callable[[float], float], **arrays: np.ndarray | None) -> dict[str, list[float | None]]:
+    """The arrays given, each as a list of ``convert``-ed values with null where a value is not finite (a normal
+    interval's infinite degrees of freedom, or a scale that is the standard error)."""
+    return {name: [None if not np.isfinite(v) else convert(float(v)) for v in a] for name, a in arrays.items()
+            if a is not None}
 
 
-def _dof(values: Any) -> np.ndarray | None:
-    return None if values is None else np.array([np.inf if v is None else float(v) for v in values])
-
-
-def _scale_lists(**scales: np.ndarray | None) -> dict[str, list[float | None]]:
-    """The interval scales given, each as a list with null where the standard error is the scale."""
-    return {name: [None if not np.isfinite(v) else float(f"{v:.12g}") for v in scale] for name, scale in scales.items()
-            if scale is not None}
-
-
-def _scale(values: Any) -> np.ndarray | None:
-    return None if values is None else np.array([np.nan if v is None else float(v) for v in values])
+def _from_nullable(values: Any, missing: float) -> np.ndarray | None:
+    """A list of ``_nullable_lists`` back as an array, ``missing`` where it holds null."""
+    return None if values is None else np.array([missing if v is None else float(v) for v in values])
 
 
 @dataclass
@@ -131,10 +124,10 @@ class CalibrationResult:
             n_samples=d.get("n_samples"),
             G=arr(d.get("G")),
             G_std=arr(d.get("G_std")),
-            k_dof=_dof(unc.get("k_dof")),
-            b_dof=_dof(unc.get("b_dof")),
-            k_interval_scale=_scale(unc.get("k_interval_scale")),
-            b_interval_scale=_scale(unc.get("b_interval_scale")),
+            k_dof=_from_nullable(unc.get("k_dof"), np.inf),
+            b_dof=_from_nullable(unc.get("b_dof"), np.inf),
+            k_interval_scale=_from_nullable(unc.get("k_interval_scale"), np.nan),
+            b_interval_scale=_from_nullable(unc.get("b_interval_scale"), np.nan),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -147,9 +140,11 @@ class CalibrationResult:
             "stages": [s.to_dict() for s in self.stages],
             "quality": self.quality,
             "uncertainty": None if self.k_std is None else {"k": _list(self.k_std, 12), "b": _list(self.b_std, 12),
-                                                            **_dof_lists(k_dof=self.k_dof, b_dof=self.b_dof),
-                                                            **_scale_lists(k_interval_scale=self.k_interval_scale,
-                                                                           b_interval_scale=self.b_interval_scale)},
+                                                            **_nullable_lists(lambda v: round(v, 3), k_dof=self.k_dof,
+                                                                              b_dof=self.b_dof),
+                                                            **_nullable_lists(lambda v: float(f"{v:.12g}"),
+                                                                              k_interval_scale=self.k_interval_scale,
+                                                                              b_interval_scale=self.b_interval_scale)},
             "bound": None if self.k_bound is None else {"k": _list(self.k_bound, 12), "b": _list(self.b_bound, 12)},
             "noise_dps": _list(self.noise_dps),
             "residuals": self.residuals,

@@ -13,8 +13,8 @@ from calib.estimators.closure.estimator import calibrate_closure
 from calib.estimators.closure.fiducial import fiducial_halfwidths
 from calib.result import CalibrationResult
 from calib.simulator import simulate
+from calib.units import DEG
 
-DEG = np.pi / 180.0
 J = 3
 UP = np.tile([0.0, 0.0, 1.0], (J, 1))
 A = np.zeros((J, 3, 1))
