@@ -33,13 +33,16 @@ def _halfwidth(h: tuple[float, float], noise: float, weights_spread: float) -> f
     return float(fiducial_halfwidths(r, A, C, B, UP, np.ones(J, dtype=bool), SHOWS, np.zeros(0), np.zeros((0, 1)))[0])
 
 
-@pytest.mark.parametrize("h_deg", [(0.5, -0.3), (0.2, 0.1), (2.0, 1.5)])
-def test_with_no_noise_it_is_students_prediction_interval_from_the_two_headings_seen(h_deg) -> None:
-    # the next heading against two seen, all N(0, tau^2): h_2 / sqrt((h_0^2 + h_1^2) / 2) is Student's t with 2
-    # degrees of freedom, whatever tau
+@pytest.mark.parametrize(("h_deg", "noise_deg"), [
+    ((0.5, -0.3), 1e-6), ((0.2, 0.1), 1e-6), ((2.0, 1.5), 1e-6),
+    ((0.1, -0.2), 0.05), ((0.05, 0.04), 0.05), ((0.02, -0.01), 0.05), ((0.002, 0.001), 0.05)])
+def test_with_every_turns_noise_alike_it_is_students_prediction_interval_from_the_two_seen(h_deg, noise_deg) -> None:
+    # the third closure against two seen, all N(0, noise^2 + tau^2): h_2 / sqrt((h_0^2 + h_1^2) / 2) is Student's t
+    # with 2 degrees of freedom, whatever tau and the noise, down to closures far better than the noise says (the
+    # spreads drawn then go below 0, to where the turns' covariance stops being one)
     h = (h_deg[0] * DEG, h_deg[1] * DEG)
     exact = float(t_isf(0.025, 2)) * np.sqrt((h[0] ** 2 + h[1] ** 2) / 2)
-    assert _halfwidth(h, 1e-6 * DEG, 0.3 * DEG) == pytest.approx(exact, rel=0.01)
+    assert _halfwidth(h, noise_deg * DEG, 0.3 * DEG) == pytest.approx(exact, rel=0.01)
 
 
 @pytest.mark.parametrize("ratio", [0.0, 1.0, 10.0])

@@ -6,19 +6,22 @@ b comes from every turn with a measured vertical, the one about the vertical inc
 heading leave, once the parameters are fitted, vertical residuals v whose covariance is S0 + tau^2 S1, so that at
 the true spread q(tau^2) = v^T (S0 + tau^2 S1)^-1 v scatters as chi^2 with d (their number) degrees of freedom. For
 each chi^2_d quantile U the spread solving q = U is a draw of what the recording says of tau^2 (Weerahandi's
-generalized pivot; below 0 down to the least the turns' noise allows, as the REML's own estimate goes, where they
-closed better than their noise says), and the interval's half-width w holds ``level`` of the errors averaged over
-those draws: mean over U of P(|N(0, a + b tau^2(U))| <= w) = level.
+generalized pivot; below 0 where they closed better than their noise says, down to where S0 + tau^2 S1 stops being a
+covariance, and a draw that takes a parameter's variance below 0 leaves that parameter no error), and the interval's
+half-width w holds ``level`` of the errors averaged over those draws: mean over U of P(|N(0, max(a + b tau^2(U), 0))|
+<= w) = level. Cut short at the least the REML's own estimate may take (-0.9 times the least vertical noise variance
+of a turn), the pivot held 96.8-97.5 % where the hand puts the device back exactly (2,000 recordings a setting).
 
-With no noise it is Student's prediction interval for a third heading from two seen. On the heading benchmark
-(bench/heading.py, 40 settings of 500 recordings) k_z's interval holds 92.8-97.0 % of the truths where the hand turns
-the device as it puts it back and 96.2-97.4 % where it puts it back exactly, against 93.8-96.2 % and 97.4-97.6 % with
-Satterthwaite's Student-t on the standard error (docs/benchmarks.md).
+Where every turn's noise is alike it is Student's prediction interval for a third closure from two seen, whatever the
+spread and the noise; it errs wide where k_z's own noise is the larger, narrow where it is the smaller. On the heading
+benchmark (bench/heading.py, 40 settings of 2,000 recordings) k_z's interval holds 94.2-95.8 % of the truths where the
+hand turns the device as it puts it back and 96.0-96.6 % where it puts it back exactly (docs/benchmarks.md).
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.linalg import eigh
 
 from calib.distributions import chi2_isf, norm_sf
 from calib.units import DEG
@@ -27,6 +30,8 @@ DRAWS = 400  # chi^2_d quantiles averaged over
 # the positive spreads tried, deg^2: far beyond any hand's, as the few turns' smallest quantiles draw spreads many times
 # the one they show
 _POSITIVE = np.geomspace(1e-3, 90.0, 72) ** 2
+# the spreads below 0 tried, as fractions of the way to the least there can be: dense where q rises steeply
+_TOWARDS_LEAST = np.geomspace(1e-4, 0.98, 40)
 
 
 def fiducial_halfwidths(r: np.ndarray, A: np.ndarray, C: np.ndarray, B: np.ndarray, up: np.ndarray,
@@ -60,19 +65,32 @@ def fiducial_halfwidths(r: np.ndarray, A: np.ndarray, C: np.ndarray, B: np.ndarr
     T = pick @ (np.eye(3 * J + M) - X @ gain)  # the shown verticals' residuals from the rows' errors
     v = pick @ np.concatenate((r.ravel(), fixed_res))
     S0, S1 = T @ Sigma0 @ T.T, T @ Sigma1 @ T.T
-    floor = float(np.min(np.einsum("ja,jab,jb->j", up[measured], B[measured], up[measured])))
-    tau2 = np.concatenate((-floor * np.linspace(0.9, 0.02, 24), [0.0], _POSITIVE * DEG**2))
+    tau2 = np.concatenate((_least(S0, S1, B[measured], up[measured]) * (1.0 - _TOWARDS_LEAST), [0.0],
+                           _POSITIVE * DEG**2))
     S = S0[None] + tau2[:, None, None] * S1[None]
-    var = a[None] + tau2[:, None] * b[None]  # (G, P)
-    valid = np.all(np.linalg.eigvalsh(S) > 0, axis=1) & np.all(var > 0, axis=1)
-    tau2, S, var = tau2[valid], S[valid], var[valid]
+    valid = np.all(np.linalg.eigvalsh(S) > 0, axis=1)
+    tau2, S = tau2[valid], S[valid]
     q = np.einsum("a,gab,b->g", v, np.linalg.inv(S), v)
     log_q = np.minimum.accumulate(np.log(np.maximum(q, 1e-300)))  # decreasing in tau^2
     d = pick.shape[0]
     draws = chi2_isf(1.0 - (np.arange(DRAWS) + 0.5) / DRAWS, d)
     spread = np.interp(np.log(draws), log_q[::-1], tau2[::-1], left=tau2[-1], right=tau2[0])  # q(spread) = draw
+    # a spread below 0 that takes a parameter's variance below 0 leaves it none: that draw's error is 0
     sd = np.sqrt(np.maximum(a[None] + spread[:, None] * b[None], 1e-300))  # (DRAWS, P)
     return _holding(sd, level)
+
+
+def _least(S0: np.ndarray, S1: np.ndarray, B: np.ndarray, up: np.ndarray) -> float:
+    """The least tau^2 (< 0) where the shown verticals' covariance S0 + tau^2 S1 is still one: -1 / the largest
+    eigenvalue of S1 against S0; where no spread moves them (or S0 is singular), minus the least vertical noise
+    variance of a turn."""
+    try:
+        largest = float(eigh(S1, S0, eigvals_only=True)[-1]) if S0.size else 0.0
+    except np.linalg.LinAlgError:
+        largest = 0.0
+    if largest > 0:
+        return -1.0 / largest
+    return -float(np.min(np.einsum("ja,jab,jb->j", up, B, up)))
 
 
 def _holding(sd: np.ndarray, level: float) -> np.ndarray:
