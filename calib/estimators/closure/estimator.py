@@ -247,9 +247,9 @@ def _gauss_newton(data: ClosureData, theta: np.ndarray, extended: bool, with_pri
     for it in range(1, GN_STEPS + 1):
         try:
             current = system(data, theta[None], extended, jacobian=True)
-            before = heading
+            before, learned_from = heading, (data, current)
             if evidence is not None:
-                data, heading = learn_heading(data, current, theta, with_prior, prior_rows, evidence)
+                data, heading = learn_heading(data, current, theta, with_prior, prior_rows, evidence, uncertainty=False)
                 current = assemble(data, theta[None], extended, current.terms)
             jac = np.vstack((current.J[0], prior_rows))
             cov = np.linalg.inv(jac.T @ jac)
@@ -263,6 +263,8 @@ def _gauss_newton(data: ClosureData, theta: np.ndarray, extended: bool, with_pri
         if not np.isfinite(size) or (size >= last and settled):
             return None
         if size <= GN_TOL and settled:
+            if evidence is not None:  # the spread's and the parameters' uncertainty, at the solution only
+                _, heading = learn_heading(*learned_from, theta, with_prior, prior_rows, evidence)
             return theta, current, it, heading
         theta, last = theta + step, size
     return None

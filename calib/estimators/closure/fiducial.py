@@ -94,10 +94,18 @@ def _least(S0: np.ndarray, S1: np.ndarray, B: np.ndarray, up: np.ndarray) -> flo
 
 
 def _holding(sd: np.ndarray, level: float) -> np.ndarray:
-    """The w (P,) with mean over draws of P(|N(0, sd^2)| <= w) = ``level``, for each column of ``sd`` (D, P)."""
-    lo, hi = np.zeros(sd.shape[1]), 10.0 * sd.max(axis=0)
-    for _ in range(60):
-        w = 0.5 * (lo + hi)
-        held = np.mean(1.0 - 2.0 * norm_sf(w[None] / sd), axis=0)
-        lo, hi = np.where(held < level, w, lo), np.where(held < level, hi, w)
-    return 0.5 * (lo + hi)
+    """The w (P,) with mean over draws of P(|N(0, sd^2)| <= w) = ``level``, for each column of ``sd`` (D, P).
+
+    That share is concave and increasing in w, so Newton's steps from w = 0 climb to it from below without passing it.
+    """
+    w = np.zeros(sd.shape[1])
+    for _ in range(100):
+        z = w[None] / sd
+        held = np.mean(1.0 - 2.0 * norm_sf(z), axis=0)
+        with np.errstate(over="ignore"):  # a draw with no error: its density is 0 at every w > 0
+            slope = np.mean(np.sqrt(2.0 / np.pi) * np.exp(-0.5 * z**2) / sd, axis=0)
+        step = (level - held) / np.maximum(slope, 1e-300)
+        w = w + np.maximum(step, 0.0)
+        if np.all(step <= 1e-12 * w):
+            break
+    return w

@@ -89,8 +89,10 @@ def heading_evidence(tilts: TurnTilts, swept: np.ndarray) -> HeadingEvidence:
 
 
 def restricted_spread(turn_res: np.ndarray, turn_jac: np.ndarray, chol: np.ndarray, noise: np.ndarray,
-                      fixed_res: np.ndarray, fixed_jac: np.ndarray, evidence: HeadingEvidence) -> HeadingSpread:
-    """The REML heading spread at a fit's linearisation, and each parameter's degrees of freedom.
+                      fixed_res: np.ndarray, fixed_jac: np.ndarray, evidence: HeadingEvidence,
+                      uncertainty: bool = True) -> HeadingSpread:
+    """The REML heading spread at a fit's linearisation, and (with ``uncertainty``) its standard error and each
+    parameter's degrees of freedom, standard error ratio and interval scale.
 
     ``turn_res`` (J, 3) and ``turn_jac`` (J, 3, P): the turns' whitened residuals and Jacobian, whitened by the lower
     Cholesky factors ``chol`` (J, 3, 3) of their covariances; ``noise`` (J, 3, 3) rad^2: the reading noise's part of
@@ -155,8 +157,10 @@ def restricted_spread(turn_res: np.ndarray, turn_jac: np.ndarray, chol: np.ndarr
         joined, _ = reml_minimum(tilts.measured)
         if joined < _GRID[-1] ** 2 and horizontal(joined) <= CONSISTENT_LR:
             tau2, moving = joined, tilts.measured
-    reml = system(moving)
     tau = float(np.sqrt(max(tau2, 0.0)))
+    if not uncertainty:
+        return HeadingSpread(tau / DEG, "estimated", int(moving.sum()), vertical=int((moving & ~shows).sum()))
+    reml = system(moving)
     # the information about tau^2 at the estimate: I = tr(P G P G) / 2, P the REML projection, G_j = u_j u_j^T
     _, W, F, _ = reml(np.array([tau2]))
     cov = np.linalg.inv(F[0])
@@ -220,14 +224,16 @@ def _minimum(grid: np.ndarray, objective: np.ndarray) -> float:
 
 def learn_heading(data: ClosureData, current: System, theta: np.ndarray,
                    with_prior: Callable[[np.ndarray, np.ndarray], np.ndarray], prior_rows: np.ndarray,
-                   evidence: HeadingEvidence) -> tuple[ClosureData, HeadingSpread]:
-    """The heading spread the turns show at ``current`` (the system at ``theta``), and ``data`` carrying it."""
+                   evidence: HeadingEvidence, uncertainty: bool = True) -> tuple[ClosureData, HeadingSpread]:
+    """The heading spread the turns show at ``current`` (the system at ``theta``), and ``data`` carrying it; the
+    spread's and the parameters' uncertainty with ``uncertainty`` (``restricted_spread``)."""
     J = data.J
     res = with_prior(current.res[0], theta)
     jac = np.vstack((current.J[0], prior_rows))
     assert current.terms.noise is not None  # the system was built with its weights
     heading = restricted_spread(res[: 3 * J].reshape(J, 3), jac[: 3 * J].reshape(J, 3, -1), current.chol[0],
-                                current.terms.noise.reshape(J, 3, 3), res[3 * J :], jac[3 * J :], evidence)
+                                current.terms.noise.reshape(J, 3, 3), res[3 * J :], jac[3 * J :], evidence,
+                                uncertainty)
     return evidence.data_with(data, heading.spread_deg), heading
 
 
