@@ -240,8 +240,8 @@ def _gauss_newton(data: ClosureData, theta: np.ndarray, extended: bool, with_pri
     """Gauss-Newton from the linear start with the turn weights recomputed at each iterate: one closure pass a step, and
     the same solution as ``_least_squares`` (both stop where the gradient at the weights of the solution is zero).
     With ``evidence`` the heading spread is learned again at each iterate (the weights follow it without another
-    closure pass) and has settled too at the solution, where its and the parameters' uncertainty is found. None when its steps do not shrink each time or do not settle
-    within ``GN_STEPS``: the damped fit takes over."""
+    closure pass) and has settled too at the solution, where its and the parameters' uncertainty is found. None when
+    its steps do not shrink each time or do not settle within ``GN_STEPS``: the damped fit takes over."""
     last = np.inf
     heading: HeadingSpread | None = None
     for it in range(1, GN_STEPS + 1):
