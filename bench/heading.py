@@ -1,7 +1,7 @@
 """The hand's heading spread learned from the turns that show it: accuracy and honesty of k and b with any hand.
 
 Run: .venv/bin/python bench/heading.py [--runs 500] [--first-seed 0] [--workers 2] [--noises ...] [--tilts ...]
-     [--headings ...] [--json out.json]
+     [--headings ...] [--protocol paper|extended] [--json out.json]
 
 Each setting simulates ``--runs`` paper-protocol recordings with the accelerometer (seeds ``--first-seed`` on) whose
 hand puts the device back after each turn tilted by ``tilt`` and turned about the vertical by ``heading`` (deg, 1 sigma
@@ -31,6 +31,7 @@ import numpy as np
 from calib.effects.placement import PlacementError
 from calib.pipeline import calibrate_protocol
 from calib.simulator import simulate
+from calib.simulator.protocol import extended_script_for_seed
 
 NAMES = ("k_x", "k_y", "k_z", "b_x", "b_y", "b_z")
 TILTS_DEG = (0.0, 0.3, 1.0, 2.0)
@@ -43,6 +44,7 @@ class Setting:
     tilt_deg: float
     heading_deg: float
     noise_dps: float
+    protocol: str = "paper"
 
 
 def _one(args: tuple[Setting, int]) -> np.ndarray:
@@ -51,7 +53,8 @@ def _one(args: tuple[Setting, int]) -> np.ndarray:
     setting, seed = args
     effects = [PlacementError(setting.tilt_deg, heading_std_deg=setting.heading_deg)] if (
         setting.tilt_deg or setting.heading_deg) else []
-    rec, truth = simulate(seed, noise=setting.noise_dps, effects=effects)
+    script = extended_script_for_seed(seed) if setting.protocol == "extended" else None
+    rec, truth = simulate(seed, noise=setting.noise_dps, effects=effects, script=script)
     out = np.full((6, 6), np.nan)
     try:
         res, _ = calibrate_protocol(rec)
@@ -89,7 +92,8 @@ def measure(setting: Setting, runs: int, pool: ProcessPoolExecutor, first_seed: 
     p95_told = np.percentile(np.abs(told), 95, axis=0)
     share = covered.mean(axis=0)
     return {
-        "tilt_deg": setting.tilt_deg, "heading_deg": setting.heading_deg, "noise_dps": setting.noise_dps,
+        "protocol": setting.protocol, "tilt_deg": setting.tilt_deg, "heading_deg": setting.heading_deg,
+        "noise_dps": setting.noise_dps,
         "runs": runs, "first_seed": first_seed, "refused": int((~ok).sum()),
         "p95": dict(zip(NAMES, p95.tolist(), strict=True)),
         "sd_z": dict(zip(NAMES, np.std(err / std, axis=0).tolist(), strict=True)),
@@ -120,6 +124,8 @@ def main() -> int:
     p.add_argument("--noises", type=float, nargs="*", default=list(NOISES_DPS))
     p.add_argument("--tilts", type=float, nargs="*", default=list(TILTS_DEG), help="tilt spreads (deg) to run")
     p.add_argument("--headings", type=float, nargs="*", default=list(HEADINGS_DEG), help="heading spreads (deg) to run")
+    p.add_argument("--protocol", choices=("paper", "extended"), default="paper",
+                   help="the protocol simulated (extended: four turns about each axis, both ways, slow and fast)")
     p.add_argument("--json", default=None, help="write the figures to this file")
     p.add_argument("--by-spread", action="store_true",
                    help="also print k_z's coverage split by whether a heading spread was found (share, coverage, z rms, dof)")
@@ -129,7 +135,7 @@ def main() -> int:
           f"{'sd k_x':>6} {'sd k_y':>6} {'sd k_z':>6} {'sd b max':>8} {'sd b min':>8} | {'cov k_z (se)':>13} {'cov told':>8} {'p<1e-3':>6}")
     with ProcessPoolExecutor(args.workers) as pool:
         for noise, tilt, heading in itertools.product(args.noises, args.tilts, args.headings):
-            r = measure(Setting(tilt, heading, noise), args.runs, pool, args.first_seed)
+            r = measure(Setting(tilt, heading, noise, args.protocol), args.runs, pool, args.first_seed)
             rows.append(r)
             p95, sd, cov = r["p95"], r["sd_z"], r["coverage95"]
             sd_b = [sd[n] for n in ("b_x", "b_y", "b_z")]
