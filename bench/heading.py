@@ -30,8 +30,7 @@ import numpy as np
 
 from calib.effects.placement import PlacementError
 from calib.pipeline import calibrate_protocol
-from calib.simulator import simulate
-from calib.simulator.protocol import extended_script_for_seed
+from calib.simulator import extended_script_for_seed, simulate
 
 NAMES = ("k_x", "k_y", "k_z", "b_x", "b_y", "b_z")
 TILTS_DEG = (0.0, 0.3, 1.0, 2.0)
